@@ -1,0 +1,54 @@
+//! The pin grid file format, version 1: the on-disk layout, a streaming atomic writer, a
+//! zero-copy reader over `&[u8]`, and validation.
+//!
+//! What it is for: anything that produces or consumes `.pin` files. A pin file holds a 5D grid
+//! (3D cells x hemisphere directions) of precomputed transmittance "pins": a 32-bit ratio mask
+//! and a minimum interval transmittance per pin, plus optional sparse index, majorant grid,
+//! embedded density and provenance. The byte-level specification is `docs/format.md`.
+//!
+//! What it is not for: baking (see `pinbake`), sampling or GPU upload (see `pinrt`). It has no
+//! knowledge of volumes, renderers or wgpu, and depends only on small, well-kept crates.
+//!
+//! ```
+//! use pin_format::{OwnedPinGrid, PinEntry, PinFile, Directions, grid_desc};
+//! let dirs = Directions::Octahedral { n: 2 };
+//! let grid = OwnedPinGrid {
+//!     desc: grid_desc([1, 1, 1], dirs, 1, 1),
+//!     tile: None,
+//!     cell_index: None,
+//!     pins: vec![PinEntry { mask: 0x8000_0001, t_min: 0.5 }; 4],
+//!     majorant: None,
+//!     density: None,
+//!     metadata: None,
+//! };
+//! let bytes = grid.to_bytes().unwrap();
+//! let file = PinFile::parse(&bytes).unwrap();   // O(1): no bulk data touched
+//! file.verify().unwrap();                        // O(n): every checksum and value
+//! assert_eq!(file.entry([0, 0, 0], 3, 0).t_min, 0.5);
+//! ```
+
+#[cfg(target_endian = "big")]
+compile_error!("pin files are little-endian and read in place; big-endian hosts are not supported");
+
+mod checksum;
+mod directions;
+mod error;
+pub mod layout;
+mod metadata;
+mod owned;
+mod reader;
+mod shape;
+mod writer;
+
+pub use checksum::checksum;
+pub use directions::{Directions, MAX_DIRECTIONS, atan2_turns, octahedral_uv};
+pub use error::{FormatError, Result};
+pub use layout::{
+    DensityHeader, EMPTY_CELL, FileHeader, GridDesc, MajorantHeader, PinEntry, SectionEntry,
+    SectionKind, TileDesc,
+};
+pub use metadata::{MAX_METADATA_BYTES, Metadata};
+pub use owned::{OwnedPinGrid, grid_desc};
+pub use reader::{DensityView, MajorantView, PinFile};
+pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};
+pub use writer::{AtomicPinFile, PinFileWriter};

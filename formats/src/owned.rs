@@ -1,0 +1,188 @@
+//! An owned, in-memory pin grid: what producers fill in and what tests compare.
+//!
+//! Large producers (the baker) stream through [`crate::PinFileWriter`] directly instead; this
+//! type is for small grids, tools that rewrite files, and round-trip tests.
+
+use std::io::{Cursor, Seek, Write};
+use std::path::Path;
+
+use crate::error::{FormatError, Result};
+use crate::layout::*;
+use crate::metadata::Metadata;
+use crate::reader::PinFile;
+use crate::shape::GridShape;
+use crate::writer::{AtomicPinFile, PinFileWriter};
+
+/// A whole pin grid in memory, sections optional as in the file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OwnedPinGrid {
+    pub desc: GridDesc,
+    pub tile: Option<TileDesc>,
+    /// One u32 per covered cell, or `None` for dense storage.
+    pub cell_index: Option<Vec<u32>>,
+    pub pins: Vec<PinEntry>,
+    pub majorant: Option<(MajorantHeader, Vec<f32>)>,
+    pub density: Option<(DensityHeader, Vec<half::f16>)>,
+    pub metadata: Option<Metadata>,
+}
+
+impl OwnedPinGrid {
+    /// Checks the same invariants a reader checks, so that a written file always parses.
+    pub fn validate(&self) -> Result<GridShape> {
+        let shape = GridShape::new(&self.desc, self.tile.as_ref())?;
+        let pins = shape.pin_count(self.desc.stored_cells)?;
+        if self.pins.len() as u64 != pins {
+            return Err(FormatError::InvalidInput(format!(
+                "{} pins given, grid needs {pins}",
+                self.pins.len()
+            )));
+        }
+        match &self.cell_index {
+            None if self.desc.stored_cells != shape.covered_cells => {
+                return Err(FormatError::InvalidInput(
+                    "dense grid must store every covered cell".into(),
+                ));
+            }
+            Some(ix) if ix.len() as u64 != shape.covered_cells => {
+                return Err(FormatError::InvalidInput(format!(
+                    "cell index has {} entries, grid covers {} cells",
+                    ix.len(),
+                    shape.covered_cells
+                )));
+            }
+            _ => {}
+        }
+        if let Some((h, v)) = &self.majorant {
+            let n: u64 = h.dims.iter().map(|&d| u64::from(d)).product();
+            if n == 0 || v.len() as u64 != n {
+                return Err(FormatError::InvalidInput("majorant size mismatch".into()));
+            }
+        }
+        if let Some((h, v)) = &self.density {
+            let n: u64 = h.dims.iter().map(|&d| u64::from(d)).product();
+            if n == 0 || v.len() as u64 != n || h.encoding != DENSITY_F16 {
+                return Err(FormatError::InvalidInput("density size mismatch".into()));
+            }
+        }
+        Ok(shape)
+    }
+
+    /// Streams the grid into `w` in the canonical section order.
+    pub fn write_into<W: Write + Seek>(&self, w: &mut PinFileWriter<W>) -> Result<()> {
+        self.validate()?;
+        w.add_section(
+            SectionKind::GridDesc as u32,
+            SECTION_REQUIRED,
+            bytemuck::bytes_of(&self.desc),
+        )?;
+        if let Some(t) = &self.tile {
+            w.add_section(
+                SectionKind::Tile as u32,
+                SECTION_REQUIRED,
+                bytemuck::bytes_of(t),
+            )?;
+        }
+        if let Some(ix) = &self.cell_index {
+            w.add_section(
+                SectionKind::CellIndex as u32,
+                SECTION_REQUIRED,
+                bytemuck::cast_slice(ix),
+            )?;
+        }
+        if !self.pins.is_empty() {
+            w.add_section(
+                SectionKind::Pins as u32,
+                SECTION_REQUIRED,
+                bytemuck::cast_slice(&self.pins),
+            )?;
+        }
+        if let Some((h, v)) = &self.majorant {
+            w.begin_section(SectionKind::Majorant as u32, 0)?;
+            w.write(bytemuck::bytes_of(h))?;
+            w.write(bytemuck::cast_slice(v))?;
+            w.end_section()?;
+        }
+        if let Some((h, v)) = &self.density {
+            w.begin_section(SectionKind::Density as u32, 0)?;
+            w.write(bytemuck::bytes_of(h))?;
+            w.write(bytemuck::cast_slice(v))?;
+            w.end_section()?;
+        }
+        if let Some(m) = &self.metadata {
+            w.add_section(SectionKind::Metadata as u32, 0, &m.encode()?)?;
+        }
+        Ok(())
+    }
+
+    pub fn to_bytes(&self) -> Result<Vec<u8>> {
+        let mut w = PinFileWriter::new(Cursor::new(Vec::new()))?;
+        self.write_into(&mut w)?;
+        Ok(w.finish()?.into_inner())
+    }
+
+    /// Writes atomically: a temp file beside `path`, fsync, rename.
+    pub fn write_atomic(&self, path: impl AsRef<Path>) -> Result<()> {
+        let mut f = AtomicPinFile::create(path)?;
+        self.write_into(f.writer())?;
+        f.commit()
+    }
+
+    /// Copies a parsed file into owned form (unknown sections are dropped).
+    pub fn from_file(file: &PinFile<'_>) -> Result<Self> {
+        Ok(Self {
+            desc: *file.desc(),
+            tile: file.tile().copied(),
+            cell_index: file.cell_index().map(<[u32]>::to_vec),
+            pins: file.pins().to_vec(),
+            majorant: file.majorant().map(|m| {
+                (
+                    MajorantHeader {
+                        dims: m.dims,
+                        reserved: 0,
+                    },
+                    m.values.to_vec(),
+                )
+            }),
+            density: file.density().map(|d| {
+                (
+                    DensityHeader {
+                        dims: d.dims,
+                        encoding: DENSITY_F16,
+                    },
+                    d.values.to_vec(),
+                )
+            }),
+            metadata: file.metadata().transpose()?,
+        })
+    }
+}
+
+/// A grid description with the given shape and everything else at neutral defaults
+/// (unit box at the origin, identity transform).
+pub fn grid_desc(
+    dims: [u32; 3],
+    directions: crate::Directions,
+    pins_per_entry: u32,
+    stored_cells: u64,
+) -> GridDesc {
+    let (direction_kind, direction_res) = directions.to_desc();
+    GridDesc {
+        dims,
+        direction_kind,
+        direction_res,
+        pins_per_entry,
+        bits_per_pin: BITS_PER_PIN,
+        stored_cells,
+        box_min: [0.0; 3],
+        box_max: [1.0; 3],
+        local_to_world: [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+        step_size: 0.01,
+        density_scale: 1.0,
+        seed: 0,
+        flags: 0,
+        reserved0: 0,
+        source_box_min: [0.0; 3],
+        source_box_max: [1.0; 3],
+        reserved: [0; 4],
+    }
+}

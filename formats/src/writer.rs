@@ -1,0 +1,215 @@
+//! Streaming writer: sections go out one after another, the table and header last.
+//!
+//! The header is written as zeros first and patched at the end, so nothing is held in memory
+//! but the small section table. [`AtomicPinFile`] adds the temp-file + fsync + rename dance so
+//! that a killed writer never leaves a partial file under the target name.
+
+use std::fs::File;
+use std::io::{BufWriter, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use bytemuck::Zeroable;
+
+use crate::checksum::{StreamingChecksum, checksum};
+use crate::error::{FormatError, Result};
+use crate::layout::{
+    FileHeader, MAGIC, MAX_SECTIONS, SECTION_ALIGN, SectionEntry, VERSION_MAJOR, VERSION_MINOR,
+};
+
+struct OpenSection {
+    kind: u32,
+    flags: u32,
+    offset: u64,
+    hasher: StreamingChecksum,
+}
+
+/// Writes a pin file to any seekable byte sink.
+pub struct PinFileWriter<W: Write + Seek> {
+    out: W,
+    pos: u64,
+    sections: Vec<SectionEntry>,
+    open: Option<OpenSection>,
+}
+
+const ZEROS: [u8; SECTION_ALIGN as usize] = [0; SECTION_ALIGN as usize];
+
+impl<W: Write + Seek> PinFileWriter<W> {
+    /// Starts a file at the sink's current position, which must be its start.
+    pub fn new(mut out: W) -> Result<Self> {
+        out.write_all(bytemuck::bytes_of(&FileHeader::zeroed()))?;
+        Ok(Self {
+            out,
+            pos: size_of::<FileHeader>() as u64,
+            sections: Vec::new(),
+            open: None,
+        })
+    }
+
+    fn pad_to_alignment(&mut self) -> Result<()> {
+        let rem = self.pos % SECTION_ALIGN;
+        if rem != 0 {
+            let pad = (SECTION_ALIGN - rem) as usize;
+            self.out.write_all(&ZEROS[..pad])?;
+            self.pos += pad as u64;
+        }
+        Ok(())
+    }
+
+    /// Opens a section of raw kind `kind`; follow with [`write`](Self::write) calls and
+    /// [`end_section`](Self::end_section).
+    pub fn begin_section(&mut self, kind: u32, flags: u32) -> Result<()> {
+        if self.open.is_some() {
+            return Err(FormatError::InvalidInput(
+                "begin_section while another section is open".into(),
+            ));
+        }
+        if self.sections.len() >= MAX_SECTIONS as usize {
+            return Err(FormatError::InvalidInput("too many sections".into()));
+        }
+        self.pad_to_alignment()?;
+        self.open = Some(OpenSection {
+            kind,
+            flags,
+            offset: self.pos,
+            hasher: StreamingChecksum::new(),
+        });
+        Ok(())
+    }
+
+    /// Appends bytes to the open section.
+    pub fn write(&mut self, bytes: &[u8]) -> Result<()> {
+        let open = self
+            .open
+            .as_mut()
+            .ok_or_else(|| FormatError::InvalidInput("write with no open section".into()))?;
+        open.hasher.update(bytes);
+        self.out.write_all(bytes)?;
+        self.pos += bytes.len() as u64;
+        Ok(())
+    }
+
+    pub fn end_section(&mut self) -> Result<()> {
+        let open = self
+            .open
+            .take()
+            .ok_or_else(|| FormatError::InvalidInput("end_section with no open section".into()))?;
+        self.sections.push(SectionEntry {
+            kind: open.kind,
+            flags: open.flags,
+            offset: open.offset,
+            length: self.pos - open.offset,
+            checksum: open.hasher.digest(),
+        });
+        Ok(())
+    }
+
+    /// A whole section in one call.
+    pub fn add_section(&mut self, kind: u32, flags: u32, bytes: &[u8]) -> Result<()> {
+        self.begin_section(kind, flags)?;
+        self.write(bytes)?;
+        self.end_section()
+    }
+
+    /// Writes the section table and the header; returns the sink.
+    pub fn finish(mut self) -> Result<W> {
+        if self.open.is_some() {
+            return Err(FormatError::InvalidInput(
+                "finish while a section is open".into(),
+            ));
+        }
+        self.pad_to_alignment()?;
+        let table_offset = self.pos;
+        let table: &[u8] = bytemuck::cast_slice(&self.sections);
+        self.out.write_all(table)?;
+        self.pos += table.len() as u64;
+        let mut header = FileHeader {
+            magic: MAGIC,
+            version_major: VERSION_MAJOR,
+            version_minor: VERSION_MINOR,
+            header_size: size_of::<FileHeader>() as u32,
+            section_count: self.sections.len() as u32,
+            section_entry_size: size_of::<SectionEntry>() as u32,
+            table_offset,
+            file_size: self.pos,
+            flags: 0,
+            table_checksum: checksum(table),
+            header_checksum: 0,
+        };
+        header.header_checksum = header_checksum(&header);
+        self.out.seek(SeekFrom::Start(0))?;
+        self.out.write_all(bytemuck::bytes_of(&header))?;
+        self.out.seek(SeekFrom::Start(self.pos))?;
+        self.out.flush()?;
+        Ok(self.out)
+    }
+}
+
+/// Checksum over the header bytes that precede the checksum field itself.
+pub(crate) fn header_checksum(h: &FileHeader) -> u64 {
+    checksum(&bytemuck::bytes_of(h)[..56])
+}
+
+/// A pin file being written to a temporary file beside its final path.
+///
+/// [`commit`](Self::commit) fsyncs, renames over the target and fsyncs the directory. Dropping
+/// without committing deletes the temporary file; the target is never touched until then.
+pub struct AtomicPinFile {
+    writer: PinFileWriter<BufWriter<File>>,
+    temp: tempfile::TempPath,
+    target: PathBuf,
+}
+
+impl AtomicPinFile {
+    pub fn create(target: impl AsRef<Path>) -> Result<Self> {
+        let target = target.as_ref().to_path_buf();
+        let dir = match target.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "pin".into());
+        let temp = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .suffix(".partial")
+            .tempfile_in(&dir)?;
+        let (file, temp) = temp.into_parts();
+        let writer = PinFileWriter::new(BufWriter::with_capacity(1 << 20, file))?;
+        Ok(Self {
+            writer,
+            temp,
+            target,
+        })
+    }
+
+    pub fn writer(&mut self) -> &mut PinFileWriter<BufWriter<File>> {
+        &mut self.writer
+    }
+
+    /// Path of the temporary file (for tests that simulate a crash).
+    pub fn temp_path(&self) -> &Path {
+        &self.temp
+    }
+
+    pub fn commit(self) -> Result<()> {
+        let buf = self.writer.finish()?;
+        let file = buf.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        drop(file);
+        self.temp.persist(&self.target).map_err(|e| e.error)?;
+        if let Some(dir) = self.target.parent() {
+            let dir = if dir.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                dir
+            };
+            // Make the rename itself durable; some filesystems do not support this, which
+            // only weakens durability, not atomicity.
+            if let Ok(d) = File::open(dir) {
+                let _ = d.sync_all();
+            }
+        }
+        Ok(())
+    }
+}
