@@ -1,1 +1,19 @@
-//! placeholder
+//! `pinbake`: reads a density volume and bakes it into a pin grid file.
+//!
+//! What it is for: asset pipelines. [`source`] turns OpenVDB grids, headerless raw grids and
+//! procedural fields into one [`source::DensitySource`] interface; [`bake`] ray-marches every
+//! pin of the 5D grid in one pass and produces a canonical [`pin_format::OwnedPinGrid`];
+//! [`merge`] joins the z-slab tiles of a farm bake into the same bytes a single bake writes.
+//! The `pinbake` binary (feature `cli`) wraps all of it.
+//!
+//! What it is not for: reading pin files at render time (that is `pinrt`, which never needs
+//! this crate) or defining the file layout (that is `pin-format`).
+
+pub mod bake;
+pub mod merge;
+pub mod pin;
+pub mod rng;
+pub mod source;
+
+pub use bake::{BakeError, BakeOptions, BakeStats, Tile, bake};
+pub use merge::{MergeError, merge_tiles};

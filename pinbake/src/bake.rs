@@ -1,0 +1,694 @@
+//! The baker: every pin of the 5D grid (or of one z-slab tile of it), in parallel, into an
+//! in-memory [`OwnedPinGrid`] in canonical form.
+//!
+//! Determinism: each pin's line and mask bits come from a counter RNG keyed on
+//! (seed, global cell index, direction * pins_per_entry + pin), and results land in fixed
+//! slots, so the bytes do not depend on thread count, scheduling or tiling.
+
+use std::time::Instant;
+
+use glam::DVec3;
+use half::f16;
+use pin_format::layout::{DENSITY_F16, GRID_FLAG_CROPPED, GRID_FLAG_JITTERED_PINS};
+use pin_format::{
+    DensityHeader, Directions, EMPTY_CELL, GridShape, MajorantHeader, Metadata, OwnedPinGrid,
+    PinEntry, TileDesc, grid_desc,
+};
+use rayon::prelude::*;
+
+use crate::pin::{Placement, interval_optical_depths, make_entry};
+use crate::rng::CounterRng;
+use crate::source::{Aabb, DensitySource};
+
+/// One slab of a tiled bake: tile `index` of `count`, split along z.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tile {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Tile {
+    /// Cell layers `[begin, end)` of this tile for a grid `z` layers deep.
+    pub fn layers(&self, z: u32) -> (u32, u32) {
+        let f = |i: u32| (u64::from(i) * u64::from(z) / u64::from(self.count)) as u32;
+        (f(self.index), f(self.index + 1))
+    }
+}
+
+/// Everything that decides the bytes of a bake besides the source.
+#[derive(Clone, Debug)]
+pub struct BakeOptions {
+    pub cells: [u32; 3],
+    pub directions: Directions,
+    pub pins_per_entry: u32,
+    /// Ray-marching step relative to the longest edge of the (cropped) box.
+    pub step: f64,
+    pub seed: u64,
+    /// Shrink the box to the region of non-zero density.
+    pub crop: bool,
+    /// Random point and direction inside each cell per pin (else the cell centres).
+    pub jitter_pins: bool,
+    pub tile: Option<Tile>,
+    /// Bricks of the majorant grid per axis; `None` leaves the section out.
+    pub majorant: Option<[u32; 3]>,
+    /// Voxels of the embedded f16 density per axis; `None` leaves the section out.
+    pub embed_density: Option<[u32; 3]>,
+    /// Worker threads; `None` means rayon's default.
+    pub threads: Option<usize>,
+    /// Recorded in the metadata; the source's density scale is already applied to values.
+    pub density_scale: f64,
+    pub metadata: Metadata,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        Self {
+            cells: [32; 3],
+            directions: Directions::THESIS_DEFAULT,
+            pins_per_entry: 1,
+            step: 0.01,
+            seed: 0,
+            crop: true,
+            jitter_pins: true,
+            tile: None,
+            majorant: Some([16; 3]),
+            embed_density: None,
+            threads: None,
+            density_scale: 1.0,
+            metadata: Metadata::default(),
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum BakeError {
+    #[error("invalid bake options: {0}")]
+    Options(String),
+    #[error("source has an invalid bounding box {0:?}")]
+    Bounds(Aabb),
+    #[error(
+        "density {value} at {at:?} does not fit the embedded f16 field; lower --density-scale or drop --embed-density"
+    )]
+    DensityRange { value: f32, at: [f64; 3] },
+    #[error("bake needs about {need} bytes, more than --max-memory {limit}")]
+    Memory { need: u64, limit: u64 },
+    #[error(transparent)]
+    Format(#[from] pin_format::FormatError),
+    #[error("thread pool: {0}")]
+    Threads(String),
+}
+
+/// Numbers describing a finished bake.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct BakeStats {
+    pub pins: u64,
+    pub empty_cells: u64,
+    pub covered_cells: u64,
+    pub t_min_min: f32,
+    pub t_min_max: f32,
+    pub t_min_mean: f64,
+    pub seconds: f64,
+    pub pins_per_s: f64,
+}
+
+/// The box a bake covers: the source bounds, cropped to its non-empty region if asked.
+pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), BakeError> {
+    let bounds = source.bounds();
+    if !bounds.is_valid() {
+        return Err(BakeError::Bounds(bounds));
+    }
+    if !crop {
+        return Ok((bounds, false));
+    }
+    match source.occupied_bounds() {
+        Some(o) => {
+            let min = o.min.max(bounds.min);
+            let max = o.max.min(bounds.max);
+            let b = Aabb::new(min, max);
+            // A field with nothing in it keeps the source box: an all-empty grid is valid.
+            if b.is_valid() {
+                Ok((b, b != bounds))
+            } else {
+                Ok((bounds, false))
+            }
+        }
+        None => Ok((bounds, false)),
+    }
+}
+
+/// Bytes the output of a bake with these options may need at most (dense pins, index,
+/// optional sections), for `--max-memory`.
+pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
+    let cells: u64 = opts.cells.iter().map(|&c| u64::from(c)).product();
+    let block = u64::from(opts.directions.count()) * u64::from(opts.pins_per_entry) * 8;
+    let vol = |d: Option<[u32; 3]>, b: u64| {
+        d.map_or(0, |d| d.iter().map(|&x| u64::from(x)).product::<u64>() * b)
+    };
+    // Dense pins plus the compacted copy, the index, and the optional sections.
+    cells.saturating_mul(block).saturating_mul(2)
+        + cells * 4
+        + vol(opts.majorant, 4)
+        + vol(opts.embed_density, 2)
+}
+
+/// Deterministic per-pin geometry in unit-cube coordinates.
+#[derive(Clone, Copy, Debug)]
+pub struct PinLayout {
+    pub dims: [u32; 3],
+    pub directions: Directions,
+    pub pins_per_entry: u32,
+    pub jitter: bool,
+    pub seed: u64,
+}
+
+impl PinLayout {
+    /// The RNG stream of pin `(cell, dir, k)`; draws: 3 position, 2 direction, 32 mask bits.
+    pub fn rng(&self, cell_linear: u64, dir: u32, k: u32) -> CounterRng {
+        let slot = u64::from(dir) * u64::from(self.pins_per_entry) + u64::from(k);
+        CounterRng::new(self.seed, cell_linear, slot)
+    }
+
+    /// The pin's point and unit direction (z >= 0) in unit-cube coordinates.
+    pub fn line(&self, cell: [u32; 3], dir: u32, rng: &mut CounterRng) -> (DVec3, DVec3) {
+        let j = |rng: &mut CounterRng| if self.jitter { rng.next_f64() } else { 0.5 };
+        let (jx, jy, jz) = (j(rng), j(rng), j(rng));
+        let p = DVec3::new(
+            (f64::from(cell[0]) + jx) / f64::from(self.dims[0]),
+            (f64::from(cell[1]) + jy) / f64::from(self.dims[1]),
+            (f64::from(cell[2]) + jz) / f64::from(self.dims[2]),
+        );
+        let (a, b) = (j(rng), j(rng));
+        let w = DVec3::from(self.directions.direction_in_cell(dir, a, b));
+        (p, w)
+    }
+
+    pub fn cell_linear(&self, cell: [u32; 3]) -> u64 {
+        u64::from(cell[0])
+            + u64::from(self.dims[0])
+                * (u64::from(cell[1]) + u64::from(self.dims[1]) * u64::from(cell[2]))
+    }
+}
+
+/// Bakes `source` with `opts`. `progress` is called with the number of pins just finished.
+pub fn bake(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    if !(opts.step > 0.0 && opts.step.is_finite()) {
+        return Err(BakeError::Options(format!(
+            "step {} must be positive",
+            opts.step
+        )));
+    }
+    let pool = {
+        let mut b = rayon::ThreadPoolBuilder::new();
+        if let Some(t) = opts.threads {
+            b = b.num_threads(t.max(1));
+        }
+        b.build().map_err(|e| BakeError::Threads(e.to_string()))?
+    };
+    pool.install(|| bake_in_pool(source, opts, progress))
+}
+
+fn bake_in_pool(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    let started = Instant::now();
+    let (bbox, cropped) = bake_box(source, opts.crop)?;
+    let source_box = source.bounds();
+    let mut desc = grid_desc(opts.cells, opts.directions, opts.pins_per_entry, 0);
+    desc.box_min = bbox.min.to_array();
+    desc.box_max = bbox.max.to_array();
+    desc.source_box_min = source_box.min.to_array();
+    desc.source_box_max = source_box.max.to_array();
+    desc.step_size = opts.step;
+    desc.density_scale = opts.density_scale;
+    desc.seed = opts.seed;
+    desc.flags = if cropped { GRID_FLAG_CROPPED } else { 0 }
+        | if opts.jitter_pins {
+            GRID_FLAG_JITTERED_PINS
+        } else {
+            0
+        };
+    let tile = match opts.tile {
+        None => None,
+        Some(t) => {
+            if t.count == 0 || t.index >= t.count {
+                return Err(BakeError::Options(format!(
+                    "tile {}/{} out of range",
+                    t.index, t.count
+                )));
+            }
+            let (z_begin, z_end) = t.layers(opts.cells[2]);
+            if z_begin >= z_end {
+                return Err(BakeError::Options(format!(
+                    "tile {}/{} has no cell layers: the grid is only {} cells deep",
+                    t.index, t.count, opts.cells[2]
+                )));
+            }
+            Some(TileDesc {
+                tile_index: t.index,
+                tile_count: t.count,
+                z_begin,
+                z_end,
+            })
+        }
+    };
+    let shape = GridShape::new(&desc, tile.as_ref()).map_err(BakeError::Format)?;
+    let extent = bbox.extent();
+    let placement = Placement {
+        box_min: bbox.min,
+        extent,
+        step: opts.step * extent.max_element(),
+    };
+    let layout = PinLayout {
+        dims: opts.cells,
+        directions: opts.directions,
+        pins_per_entry: opts.pins_per_entry,
+        jitter: opts.jitter_pins,
+        seed: opts.seed,
+    };
+
+    let block_len = shape.block_len as usize;
+    let covered = shape.covered_cells as usize;
+    let (nx, ny) = (opts.cells[0] as usize, opts.cells[1] as usize);
+    let mut dense = vec![PinEntry::EMPTY; covered * block_len];
+    dense
+        .par_chunks_mut(block_len)
+        .enumerate()
+        .for_each(|(local, block)| {
+            let cell = [
+                (local % nx) as u32,
+                ((local / nx) % ny) as u32,
+                (local / (nx * ny)) as u32 + shape.z_begin,
+            ];
+            let linear = layout.cell_linear(cell);
+            for dir in 0..opts.directions.count() {
+                for k in 0..opts.pins_per_entry {
+                    let mut rng = layout.rng(linear, dir, k);
+                    let (p, w) = layout.line(cell, dir, &mut rng);
+                    let taus = interval_optical_depths(source, &placement, p, w);
+                    block[(dir * opts.pins_per_entry + k) as usize] = make_entry(&taus, &mut rng);
+                }
+            }
+            progress(block_len as u64);
+        });
+
+    // Compact: empty cells keep only their index entry.
+    let mut index = Vec::with_capacity(covered);
+    let mut pins = Vec::new();
+    let mut stored = 0u32;
+    for block in dense.chunks(block_len) {
+        if block.iter().all(PinEntry::is_empty) {
+            index.push(EMPTY_CELL);
+        } else {
+            index.push(stored);
+            stored += 1;
+            pins.extend_from_slice(block);
+        }
+    }
+    drop(dense);
+    desc.stored_cells = u64::from(stored);
+
+    let majorant = opts
+        .majorant
+        .map(|dims| bake_majorant(source, &bbox, dims))
+        .transpose()?;
+    let density = opts
+        .embed_density
+        .map(|dims| bake_density(source, &bbox, dims))
+        .transpose()?;
+
+    let mut stats = BakeStats {
+        pins: pins.len() as u64,
+        empty_cells: covered as u64 - u64::from(stored),
+        covered_cells: covered as u64,
+        ..Default::default()
+    };
+    let total_pins = (covered * block_len) as f64;
+    let (mut lo, mut hi, mut sum) = (f32::INFINITY, f32::NEG_INFINITY, 0.0f64);
+    for p in &pins {
+        lo = lo.min(p.t_min);
+        hi = hi.max(p.t_min);
+        sum += f64::from(p.t_min);
+    }
+    // Pins of empty cells are not stored but count as t_min = 1.
+    let empty_pins = total_pins - pins.len() as f64;
+    if empty_pins > 0.0 || pins.is_empty() {
+        lo = lo.min(1.0);
+        hi = hi.max(1.0);
+        sum += empty_pins;
+    }
+    stats.t_min_min = lo;
+    stats.t_min_max = hi;
+    stats.t_min_mean = if total_pins > 0.0 {
+        sum / total_pins
+    } else {
+        1.0
+    };
+    stats.seconds = started.elapsed().as_secs_f64();
+    stats.pins_per_s = total_pins / stats.seconds.max(1e-9);
+
+    let grid = OwnedPinGrid {
+        desc,
+        tile,
+        cell_index: Some(index),
+        pins,
+        majorant,
+        density,
+        metadata: Some(opts.metadata.clone()),
+    };
+    grid.validate()?;
+    Ok((grid, stats))
+}
+
+fn cell_box(bbox: &Aabb, dims: [u32; 3], c: [u32; 3]) -> Aabb {
+    let e = bbox.extent();
+    let f = |a: usize, i: u32| bbox.min[a] + e[a] * f64::from(i) / f64::from(dims[a]);
+    Aabb::new(
+        DVec3::new(f(0, c[0]), f(1, c[1]), f(2, c[2])),
+        DVec3::new(f(0, c[0] + 1), f(1, c[1] + 1), f(2, c[2] + 1)),
+    )
+}
+
+fn check_dims(what: &str, dims: [u32; 3]) -> Result<usize, BakeError> {
+    if dims.contains(&0) || dims.iter().any(|&d| d > 4096) {
+        return Err(BakeError::Options(format!(
+            "{what} dims {dims:?} must be 1..=4096 per axis"
+        )));
+    }
+    Ok(dims.iter().map(|&d| d as usize).product())
+}
+
+fn bake_majorant(
+    source: &dyn DensitySource,
+    bbox: &Aabb,
+    dims: [u32; 3],
+) -> Result<(MajorantHeader, Vec<f32>), BakeError> {
+    let n = check_dims("majorant", dims)?;
+    let values = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let c = unflatten(i, dims);
+            source.max_extinction_in(cell_box(bbox, dims, c))
+        })
+        .collect();
+    Ok((MajorantHeader { dims, reserved: 0 }, values))
+}
+
+fn bake_density(
+    source: &dyn DensitySource,
+    bbox: &Aabb,
+    dims: [u32; 3],
+) -> Result<(DensityHeader, Vec<f16>), BakeError> {
+    let n = check_dims("density", dims)?;
+    let e = bbox.extent();
+    let values: Vec<Result<f16, BakeError>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let c = unflatten(i, dims);
+            let p = DVec3::new(
+                bbox.min.x + e.x * (f64::from(c[0]) + 0.5) / f64::from(dims[0]),
+                bbox.min.y + e.y * (f64::from(c[1]) + 0.5) / f64::from(dims[1]),
+                bbox.min.z + e.z * (f64::from(c[2]) + 0.5) / f64::from(dims[2]),
+            );
+            let v = source.extinction(p);
+            let h = f16::from_f32(v);
+            if h.is_finite() {
+                Ok(h)
+            } else {
+                Err(BakeError::DensityRange {
+                    value: v,
+                    at: p.to_array(),
+                })
+            }
+        })
+        .collect();
+    let values = values.into_iter().collect::<Result<Vec<_>, _>>()?;
+    Ok((
+        DensityHeader {
+            dims,
+            encoding: DENSITY_F16,
+        },
+        values,
+    ))
+}
+
+fn unflatten(i: usize, dims: [u32; 3]) -> [u32; 3] {
+    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
+    [
+        (i % nx) as u32,
+        ((i / nx) % ny) as u32,
+        (i / (nx * ny)) as u32,
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pin::unit_cube_chord;
+    use crate::source::procedural::HomogeneousBox;
+    use pin_format::PinFile;
+
+    fn homogeneous(sigma: f32) -> HomogeneousBox {
+        HomogeneousBox::new(
+            Aabb::new(DVec3::new(-1.0, 0.0, 2.0), DVec3::new(1.0, 0.5, 3.0)),
+            sigma,
+        )
+        .unwrap()
+    }
+
+    fn small_opts() -> BakeOptions {
+        BakeOptions {
+            cells: [4, 3, 5],
+            directions: Directions::Octahedral { n: 3 },
+            pins_per_entry: 2,
+            majorant: Some([2, 2, 2]),
+            embed_density: Some([3, 3, 3]),
+            ..BakeOptions::default()
+        }
+    }
+
+    #[test]
+    fn homogeneous_box_matches_closed_form() {
+        // Every interval of a chord through a homogeneous box has tau = sigma * world length,
+        // and the midpoint rule is exact for a constant integrand.
+        let src = homogeneous(3.0);
+        let opts = BakeOptions {
+            majorant: None,
+            ..small_opts()
+        };
+        let (grid, _) = bake(&src, &opts, &|_| {}).unwrap();
+        let layout = PinLayout {
+            dims: opts.cells,
+            directions: opts.directions,
+            pins_per_entry: opts.pins_per_entry,
+            jitter: true,
+            seed: opts.seed,
+        };
+        let extent = DVec3::new(2.0, 0.5, 1.0);
+        let bytes = grid.to_bytes().unwrap();
+        let file = PinFile::parse(&bytes).unwrap();
+        let mut checked = 0;
+        for z in 0..5 {
+            for y in 0..3 {
+                for x in 0..4 {
+                    let cell = [x, y, z];
+                    for dir in 0..9 {
+                        for k in 0..2 {
+                            let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                            let (p, w) = layout.line(cell, dir, &mut rng);
+                            let (s0, s1) = unit_cube_chord(p, w).unwrap();
+                            let len = (s1 - s0) / 32.0 * (w * extent).length();
+                            let want = (-3.0 * len).exp() as f32;
+                            let e = file.entry(cell, dir, k);
+                            assert!(
+                                (e.t_min - want).abs() <= 2e-6 * want.max(1e-30),
+                                "{cell:?} {dir} {k}: {} vs {want}",
+                                e.t_min
+                            );
+                            // Equal intervals: every ratio is 1, so every bit is set.
+                            if want < 1.0 {
+                                assert_eq!(e.mask, u32::MAX);
+                            }
+                            checked += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert_eq!(checked, 4 * 3 * 5 * 9 * 2);
+    }
+
+    #[test]
+    fn same_bytes_for_any_thread_count() {
+        let src = homogeneous(0.7);
+        let mut outs = Vec::new();
+        for threads in [1, 2, 3] {
+            let opts = BakeOptions {
+                threads: Some(threads),
+                seed: 99,
+                ..small_opts()
+            };
+            outs.push(bake(&src, &opts, &|_| {}).unwrap().0.to_bytes().unwrap());
+        }
+        assert_eq!(outs[0], outs[1]);
+        assert_eq!(outs[0], outs[2]);
+    }
+
+    #[test]
+    fn tiles_merge_into_the_monolithic_bytes() {
+        let src = homogeneous(0.7);
+        let whole = bake(&src, &small_opts(), &|_| {}).unwrap().0;
+        for count in [1, 2, 3, 5] {
+            let tiles: Vec<Vec<u8>> = (0..count)
+                .rev()
+                .map(|index| {
+                    let opts = BakeOptions {
+                        tile: Some(Tile { index, count }),
+                        ..small_opts()
+                    };
+                    bake(&src, &opts, &|_| {}).unwrap().0.to_bytes().unwrap()
+                })
+                .collect();
+            let parsed: Vec<(String, PinFile<'_>)> = tiles
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (format!("t{i}"), PinFile::parse(b).unwrap()))
+                .collect();
+            let merged = crate::merge_tiles(&parsed).unwrap();
+            assert_eq!(merged.to_bytes().unwrap(), whole.to_bytes().unwrap());
+        }
+        // More tiles than layers is refused.
+        let opts = BakeOptions {
+            tile: Some(Tile { index: 0, count: 7 }),
+            ..small_opts()
+        };
+        assert!(matches!(
+            bake(&src, &opts, &|_| {}),
+            Err(BakeError::Options(_))
+        ));
+    }
+
+    #[test]
+    fn merge_rejects_gaps_and_mismatches() {
+        let src = homogeneous(0.7);
+        let tile = |index, count, seed| {
+            let opts = BakeOptions {
+                tile: Some(Tile { index, count }),
+                seed,
+                ..small_opts()
+            };
+            bake(&src, &opts, &|_| {}).unwrap().0.to_bytes().unwrap()
+        };
+        let (a, b, c) = (tile(0, 3, 1), tile(2, 3, 1), tile(1, 3, 2));
+        let pa = PinFile::parse(&a).unwrap();
+        let pb = PinFile::parse(&b).unwrap();
+        let pc = PinFile::parse(&c).unwrap();
+        let gap = [("a".to_string(), pa.clone()), ("b".to_string(), pb.clone())];
+        assert!(matches!(
+            crate::merge_tiles(&gap),
+            Err(crate::MergeError::Coverage(_))
+        ));
+        let mixed = [
+            ("a".to_string(), pa),
+            ("c".to_string(), pc),
+            ("b".to_string(), pb),
+        ];
+        assert!(matches!(
+            crate::merge_tiles(&mixed),
+            Err(crate::MergeError::Mismatch { .. })
+        ));
+    }
+
+    #[test]
+    fn empty_and_extreme_densities() {
+        // Zero density: every cell empty, no pins stored, file still valid.
+        let zero = homogeneous(0.0);
+        let (g, stats) = bake(&zero, &small_opts(), &|_| {}).unwrap();
+        assert_eq!(g.pins.len(), 0);
+        assert_eq!(stats.empty_cells, stats.covered_cells);
+        let bytes = g.to_bytes().unwrap();
+        PinFile::parse(&bytes).unwrap().verify().unwrap();
+        // Tiny density: t_min rounds to 1 in f32, so pins are empty, never NaN.
+        let (g, _) = bake(&homogeneous(1e-30), &small_opts(), &|_| {}).unwrap();
+        assert!(g.pins.iter().all(|p| p.t_min.is_finite()));
+        // Huge density: t underflows to 0; masks are all ones, t_min exactly 0.
+        let opts = BakeOptions {
+            embed_density: None,
+            ..small_opts()
+        };
+        let (g, _) = bake(&homogeneous(1e6), &opts, &|_| {}).unwrap();
+        assert!(g.pins.iter().all(|p| p.t_min == 0.0 && p.mask == u32::MAX));
+        let bytes = g.to_bytes().unwrap();
+        PinFile::parse(&bytes).unwrap().verify().unwrap();
+        // ...but 1e6 does not fit the f16 density field: a clear error.
+        assert!(matches!(
+            bake(&homogeneous(1e6), &small_opts(), &|_| {}),
+            Err(BakeError::DensityRange { .. })
+        ));
+    }
+
+    /// A field whose interval optical depths differ, so mask bits are genuinely random.
+    struct Ramp;
+    impl DensitySource for Ramp {
+        fn bounds(&self) -> Aabb {
+            Aabb::new(DVec3::ZERO, DVec3::ONE)
+        }
+        fn extinction(&self, p: DVec3) -> f32 {
+            if (0.0..=1.0).contains(&p.x)
+                && (0.0..=1.0).contains(&p.y)
+                && (0.0..=1.0).contains(&p.z)
+            {
+                (4.0 * p.x * p.x) as f32
+            } else {
+                0.0
+            }
+        }
+        fn max_extinction_in(&self, _: Aabb) -> f32 {
+            4.0
+        }
+        fn describe(&self) -> String {
+            "ramp".into()
+        }
+    }
+
+    #[test]
+    fn mask_bit_frequencies_match_ratios() {
+        // One pin, many seeds: bit i is set with probability (1 - t_i) / (1 - t_min).
+        let placement = Placement {
+            box_min: DVec3::ZERO,
+            extent: DVec3::ONE,
+            step: 0.001,
+        };
+        let p = DVec3::new(0.5, 0.5, 0.5);
+        let w = DVec3::new(0.9, 0.1, 0.3).normalize();
+        let taus = interval_optical_depths(&Ramp, &placement, p, w);
+        let tau_max = taus.iter().copied().fold(0.0, f64::max);
+        let n = 20_000u32;
+        let mut counts = [0u32; 32];
+        for seed in 0..n {
+            let mut rng = CounterRng::new(u64::from(seed), 0, 0);
+            let e = make_entry(&taus, &mut rng);
+            for (i, c) in counts.iter_mut().enumerate() {
+                *c += (e.mask >> (31 - i)) & 1;
+            }
+        }
+        let mut worst = 0.0f64;
+        for i in 0..32 {
+            let q = (-taus[i]).exp_m1() / (-tau_max).exp_m1();
+            let freq = f64::from(counts[i]) / f64::from(n);
+            let sd = (q * (1.0 - q) / f64::from(n)).sqrt();
+            if sd > 0.0 {
+                worst = worst.max(((freq - q) / sd).abs());
+            } else {
+                assert_eq!(freq, q, "bit {i}");
+            }
+        }
+        // 32 z-scores; |z| < 4.5 for all has family-wise false-alarm rate ~2e-4.
+        assert!(worst < 4.5, "worst z {worst}");
+    }
+}

@@ -1,0 +1,439 @@
+//! `pinbake bake`.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use pin_format::{Directions, Metadata};
+use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
+use pinbake::{BakeOptions, Tile};
+
+#[derive(Args, Debug)]
+#[command(after_help = "\
+INPUT is one of:
+  FILE.vdb                 an OpenVDB fog volume (float or half grid)
+  FILE.raw                 a headerless grid; dims/type from --dims/--type or the file name
+                           convention NAME_XxYxZ_TYPE.raw (e.g. hydrogen_atom_128x128x128_uint8.raw)
+  procedural:SPEC          an analytic field: box, sphere, cosine:seed=7,freq=16, fractal:octaves=4
+
+Examples:
+  pinbake bake smoke.vdb -o smoke.pin
+  pinbake bake hydrogen_atom_128x128x128_uint8.raw --density-scale 0.1 -o h.pin --json
+  pinbake bake procedural:cosine:seed=3 --cells 37 --dirs octahedral:8 -o noise.pin
+  pinbake bake smoke.vdb --tile 0/4 -o part0.pin    (then `pinbake merge part*.pin -o all.pin`)")]
+pub struct BakeArgs {
+    /// Input volume (see below).
+    pub input: String,
+    /// Output pin file; written atomically (a temp file renamed into place).
+    #[arg(short, long)]
+    pub output: PathBuf,
+
+    /// VDB: grid to bake (`density#1` picks the second grid named density).
+    #[arg(long, help_heading = "OpenVDB input")]
+    pub grid: Option<String>,
+    /// VDB: bake a level set as a fog volume (interior = density 1).
+    #[arg(long, help_heading = "OpenVDB input")]
+    pub levelset_to_fog: bool,
+
+    /// Raw: voxel counts X,Y,Z (x fastest in the file).
+    #[arg(long, value_parser = parse_u32x3, help_heading = "Raw input")]
+    pub dims: Option<[u32; 3]>,
+    /// Raw: voxel type: u8, u16, f16, f32, f64.
+    #[arg(long = "type", help_heading = "Raw input")]
+    pub voxel_type: Option<String>,
+    /// Raw: byte order of multi-byte types: little or big.
+    #[arg(long, default_value = "little", help_heading = "Raw input")]
+    pub endian: String,
+    /// Raw: world size of a voxel, one value or X,Y,Z.
+    #[arg(long, value_parser = parse_f64x3, help_heading = "Raw input")]
+    pub spacing: Option<[f64; 3]>,
+    /// Raw: world position of the grid box's minimum corner X,Y,Z.
+    #[arg(long, value_parser = parse_f64x3, help_heading = "Raw input")]
+    pub origin: Option<[f64; 3]>,
+    /// Raw: treat negative values as 0 instead of failing.
+    #[arg(long, help_heading = "Raw input")]
+    pub clamp_negative: bool,
+    /// Raw: treat NaN and infinities as 0 instead of failing.
+    #[arg(long, help_heading = "Raw input")]
+    pub nan_as_zero: bool,
+
+    /// Multiply every density by this (extinction = density x scale).
+    #[arg(long, default_value_t = 1.0)]
+    pub density_scale: f64,
+
+    /// Spatial cells: N or X,Y,Z.
+    #[arg(long, default_value = "32", value_parser = parse_u32x3, help_heading = "Grid")]
+    pub cells: [u32; 3],
+    /// Direction cells: polar:PHIxTHETA (thesis default 16x4) or octahedral:N.
+    #[arg(long, default_value = "polar:16x4", value_parser = parse_dirs, help_heading = "Grid")]
+    pub dirs: Directions,
+    /// Pins stored per (cell, direction) entry.
+    #[arg(long, default_value_t = 1, help_heading = "Grid")]
+    pub pins_per_entry: u32,
+    /// Ray-marching step relative to the longest box edge.
+    #[arg(long, default_value_t = 0.01, help_heading = "Grid")]
+    pub step: f64,
+    /// Seed of the pins' random lines and mask bits.
+    #[arg(long, default_value_t = 0, help_heading = "Grid")]
+    pub seed: u64,
+    /// Keep the source's full box instead of cropping to the non-empty region.
+    #[arg(long, help_heading = "Grid")]
+    pub no_crop: bool,
+    /// Pins through cell centres instead of random points and directions in each cell.
+    #[arg(long, help_heading = "Grid")]
+    pub center_pins: bool,
+    /// Majorant bricks per axis (N or X,Y,Z); 0 leaves the majorant grid out.
+    #[arg(long, default_value = "16", value_parser = parse_u32x3_or_zero, help_heading = "Grid")]
+    pub majorant: [u32; 3],
+    /// Embed the density as an f16 grid of N or X,Y,Z voxels (for ray-marched primary rays).
+    #[arg(long, value_parser = parse_u32x3, help_heading = "Grid")]
+    pub embed_density: Option<[u32; 3]>,
+
+    /// Bake only tile I of N (a slab of z layers); join tiles with `pinbake merge`.
+    #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
+    pub tile: Option<Tile>,
+    /// Worker threads (default: all cores).
+    #[arg(long, help_heading = "Execution")]
+    pub threads: Option<usize>,
+    /// Refuse to start a bake whose output would need more than this many bytes (K/M/G suffixes).
+    #[arg(long, value_parser = parse_bytes, help_heading = "Execution")]
+    pub max_memory: Option<u64>,
+    /// Print one JSON summary object on stdout.
+    #[arg(long, help_heading = "Execution")]
+    pub json: bool,
+    /// No progress bar even on a terminal.
+    #[arg(long, short, help_heading = "Execution")]
+    pub quiet: bool,
+}
+
+pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
+    let v: Vec<u32> = s
+        .split([',', 'x'])
+        .map(|p| p.trim().parse::<u32>().map_err(|e| format!("'{p}': {e}")))
+        .collect::<Result<_, _>>()?;
+    let out = match v.as_slice() {
+        [n] => [*n; 3],
+        [x, y, z] => [*x, *y, *z],
+        _ => return Err("expected N or X,Y,Z".into()),
+    };
+    if out.contains(&0) {
+        return Err("every count must be at least 1".into());
+    }
+    Ok(out)
+}
+
+fn parse_u32x3_or_zero(s: &str) -> Result<[u32; 3], String> {
+    if s.trim() == "0" {
+        Ok([0; 3])
+    } else {
+        parse_u32x3(s)
+    }
+}
+
+fn majorant_dims(d: [u32; 3]) -> Option<[u32; 3]> {
+    (d != [0; 3]).then_some(d)
+}
+
+fn parse_f64x3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("'{p}': {e}")))
+        .collect::<Result<_, _>>()?;
+    let out = match v.as_slice() {
+        [n] => [*n; 3],
+        [x, y, z] => [*x, *y, *z],
+        _ => return Err("expected V or X,Y,Z".into()),
+    };
+    if out.iter().any(|x| !x.is_finite()) {
+        return Err("values must be finite".into());
+    }
+    Ok(out)
+}
+
+pub fn parse_dirs(s: &str) -> Result<Directions, String> {
+    let (kind, res) = s
+        .split_once(':')
+        .ok_or("expected polar:PHIxTHETA or octahedral:N")?;
+    let d = match kind {
+        "polar" => {
+            let (a, b) = res
+                .split_once('x')
+                .ok_or("polar needs PHIxTHETA, e.g. 16x4")?;
+            Directions::Polar {
+                n_phi: a.parse().map_err(|e| format!("'{a}': {e}"))?,
+                n_theta: b.parse().map_err(|e| format!("'{b}': {e}"))?,
+            }
+        }
+        "octahedral" | "oct" => Directions::Octahedral {
+            n: res.parse().map_err(|e| format!("'{res}': {e}"))?,
+        },
+        other => return Err(format!("unknown parametrisation '{other}'")),
+    };
+    let (k, r) = d.to_desc();
+    Directions::from_desc(k, r).map_err(|e| e.to_string())
+}
+
+fn parse_tile(s: &str) -> Result<Tile, String> {
+    let (i, n) = s.split_once('/').ok_or("expected I/N, e.g. 0/4")?;
+    let index: u32 = i.trim().parse().map_err(|e| format!("'{i}': {e}"))?;
+    let count: u32 = n.trim().parse().map_err(|e| format!("'{n}': {e}"))?;
+    if count == 0 || index >= count {
+        return Err(format!("tile index must be in 0..{count}"));
+    }
+    Ok(Tile { index, count })
+}
+
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let s = s.trim();
+    let (num, mult) = match s.chars().last() {
+        Some('K' | 'k') => (&s[..s.len() - 1], 1u64 << 10),
+        Some('M' | 'm') => (&s[..s.len() - 1], 1 << 20),
+        Some('G' | 'g') => (&s[..s.len() - 1], 1 << 30),
+        _ => (s, 1),
+    };
+    let n: f64 = num.parse().map_err(|e| format!("'{s}': {e}"))?;
+    if !(n.is_finite() && n >= 0.0) {
+        return Err(format!("'{s}' is not a size"));
+    }
+    Ok((n * mult as f64) as u64)
+}
+
+/// What the input string names.
+pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
+    let input = args.input.as_str();
+    if let Some(rest) = input.strip_prefix("procedural:") {
+        let mut spec: ProceduralSpec = rest
+            .parse()
+            .map_err(|e: source::SourceError| anyhow::anyhow!("{e}"))?;
+        spec.density *= args.density_scale;
+        return Ok(SourceSpec::Procedural(spec));
+    }
+    let path = PathBuf::from(input);
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase());
+    if ext.as_deref() == Some("vdb") {
+        #[cfg(feature = "vdb")]
+        {
+            let worker_exe = std::env::current_exe().context("locating the pinbake binary")?;
+            return Ok(SourceSpec::Vdb(
+                path,
+                source::VdbOptions {
+                    grid: args.grid.clone(),
+                    levelset_to_fog: args.levelset_to_fog,
+                    density_scale: args.density_scale,
+                    worker_exe,
+                    ..source::VdbOptions::default()
+                },
+            ));
+        }
+        #[cfg(not(feature = "vdb"))]
+        return Ok(SourceSpec::Vdb(path));
+    }
+    let voxel_type =
+        match args.voxel_type.as_deref() {
+            None => None,
+            Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
+                anyhow::anyhow!("--type '{t}' is not one of u8, u16, f16, f32, f64")
+            })?),
+        };
+    let endian = match args.endian.to_ascii_lowercase().as_str() {
+        "little" | "le" => source::Endian::Little,
+        "big" | "be" => source::Endian::Big,
+        other => bail!("--endian '{other}' is not little or big"),
+    };
+    Ok(SourceSpec::Raw(
+        path,
+        RawOptions {
+            dims: args.dims,
+            voxel_type,
+            endian,
+            spacing: args.spacing.unwrap_or([1.0; 3]),
+            origin: args.origin.unwrap_or([0.0; 3]),
+            clamp_negative: args.clamp_negative,
+            nan_as_zero: args.nan_as_zero,
+            density_scale: args.density_scale,
+        },
+    ))
+}
+
+/// Hex xxh3-128 of a file, streamed so a large volume is not read twice into memory.
+fn hash_file(path: &Path) -> Result<String> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path).with_context(|| format!("{}", path.display()))?;
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f
+            .read(&mut buf)
+            .with_context(|| format!("{}", path.display()))?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(format!("{:032x}", h.digest128()))
+}
+
+pub fn options_from_args(
+    args: &BakeArgs,
+    source: &dyn DensitySource,
+    spec: &SourceSpec,
+) -> Result<BakeOptions> {
+    let (name, hash) = match spec {
+        SourceSpec::Procedural(p) => (format!("procedural:{p}"), String::new()),
+        #[cfg(feature = "vdb")]
+        SourceSpec::Vdb(path, _) => (file_name(path), hash_file(path)?),
+        #[cfg(not(feature = "vdb"))]
+        SourceSpec::Vdb(path) => (file_name(path), hash_file(path)?),
+        SourceSpec::Raw(path, _) => (file_name(path), hash_file(path)?),
+    };
+    // Reproducible-builds convention: a timestamp only when the pipeline pins one.
+    let bake_unix_time = std::env::var("SOURCE_DATE_EPOCH")
+        .ok()
+        .and_then(|s| s.parse().ok());
+    let (kind, res) = args.dirs.to_desc();
+    let metadata = Metadata {
+        tool: "pinbake".into(),
+        tool_version: env!("CARGO_PKG_VERSION").into(),
+        source_name: name,
+        source_hash: hash,
+        source_description: source.describe(),
+        seed: args.seed,
+        step_size: args.step,
+        density_scale: args.density_scale,
+        bake_unix_time,
+        extra: vec![
+            ("cells".into(), format!("{:?}", args.cells)),
+            ("crop".into(), (!args.no_crop).to_string()),
+            ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
+        ],
+    };
+    Ok(BakeOptions {
+        cells: args.cells,
+        directions: args.dirs,
+        pins_per_entry: args.pins_per_entry,
+        step: args.step,
+        seed: args.seed,
+        crop: !args.no_crop,
+        jitter_pins: !args.center_pins,
+        tile: args.tile,
+        majorant: majorant_dims(args.majorant),
+        embed_density: args.embed_density,
+        threads: args.threads,
+        density_scale: args.density_scale,
+        metadata,
+    })
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+pub fn run(args: BakeArgs) -> Result<ExitCode> {
+    if !(args.density_scale.is_finite() && args.density_scale >= 0.0) {
+        bail!(
+            "--density-scale {} must be finite and >= 0",
+            args.density_scale
+        );
+    }
+    if args.pins_per_entry == 0 || args.pins_per_entry > pin_format::MAX_PINS_PER_ENTRY {
+        bail!(
+            "--pins-per-entry must be in 1..={}",
+            pin_format::MAX_PINS_PER_ENTRY
+        );
+    }
+    if !(args.step > 0.0 && args.step <= 1.0) {
+        bail!("--step {} must be in (0, 1]", args.step);
+    }
+    let spec = source_spec(&args)?;
+    if let Some(limit) = args.max_memory {
+        let probe = BakeOptions {
+            cells: args.cells,
+            directions: args.dirs,
+            pins_per_entry: args.pins_per_entry,
+            majorant: majorant_dims(args.majorant),
+            embed_density: args.embed_density,
+            ..BakeOptions::default()
+        };
+        let input = match &spec {
+            SourceSpec::Procedural(_) => 0,
+            // f32 voxels in memory: up to 4x the file for 8-bit input.
+            SourceSpec::Raw(p, _) => std::fs::metadata(p).map(|m| m.len() * 4).unwrap_or(0),
+            #[cfg(feature = "vdb")]
+            SourceSpec::Vdb(p, _) => std::fs::metadata(p).map(|m| m.len() * 8).unwrap_or(0),
+            #[cfg(not(feature = "vdb"))]
+            SourceSpec::Vdb(p) => std::fs::metadata(p).map(|m| m.len() * 8).unwrap_or(0),
+        };
+        let need = pinbake::bake::estimate_output_bytes(&probe) + input;
+        if need > limit {
+            bail!(
+                "{}: bake needs about {need} bytes, more than --max-memory {limit}",
+                args.input
+            );
+        }
+    }
+    let source = source::open_source(&spec)?;
+    let opts = options_from_args(&args, source.as_ref(), &spec)?;
+
+    let shape_cells: u64 = match opts.tile {
+        None => opts.cells.iter().map(|&c| u64::from(c)).product(),
+        Some(t) => {
+            let (a, b) = t.layers(opts.cells[2]);
+            u64::from(opts.cells[0]) * u64::from(opts.cells[1]) * u64::from(b.saturating_sub(a))
+        }
+    };
+    let total = shape_cells * u64::from(opts.directions.count()) * u64::from(opts.pins_per_entry);
+    let bar = if !args.quiet && std::io::stderr().is_terminal() {
+        let bar = ProgressBar::new(total);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{spinner} baking [{bar:40}] {pos}/{len} pins  {per_sec}  eta {eta}",
+            )
+            .expect("static template")
+            .progress_chars("=> "),
+        );
+        bar.enable_steady_tick(Duration::from_millis(200));
+        bar
+    } else {
+        ProgressBar::hidden()
+    };
+    let started = Instant::now();
+    let progress = |n: u64| bar.inc(n);
+    let (grid, stats) =
+        pinbake::bake(source.as_ref(), &opts, &progress).with_context(|| args.input.clone())?;
+    bar.finish_and_clear();
+    grid.write_atomic(&args.output)
+        .with_context(|| format!("{}", args.output.display()))?;
+    let file_bytes = std::fs::metadata(&args.output)
+        .with_context(|| format!("{}", args.output.display()))?
+        .len();
+    let seconds = started.elapsed().as_secs_f64();
+    if args.json {
+        let mut v = super::inspect::summary_json(&grid, file_bytes, Some(&stats));
+        v["seconds"] = serde_json::json!(seconds);
+        v["bake_seconds"] = serde_json::json!(stats.seconds);
+        v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
+        v["output"] = serde_json::json!(args.output.display().to_string());
+        println!("{v}");
+    } else {
+        eprintln!(
+            "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
+            args.input,
+            args.output.display(),
+            stats.covered_cells,
+            stats.empty_cells,
+            stats.pins,
+            file_bytes,
+            seconds,
+            stats.pins_per_s / 1e6
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,110 @@
+//! `pinbake bench`: the thesis' largest configuration (37^3 cells x 16x4 directions) baked
+//! from a 512^3 volume, for 1 and 2 threads.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Result;
+use clap::Args;
+use glam::DVec3;
+use pin_format::Directions;
+use pinbake::BakeOptions;
+use pinbake::source::procedural::ProceduralKind;
+use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
+use rayon::prelude::*;
+use serde_json::json;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Spatial cells per axis.
+    #[arg(long, default_value_t = 37)]
+    pub cells: u32,
+    /// Voxels per axis of the voxelised noise volume.
+    #[arg(long, default_value_t = 512)]
+    pub voxels: u32,
+    /// Thread counts to run, comma separated.
+    #[arg(long, default_value = "1,2", value_delimiter = ',')]
+    pub threads: Vec<usize>,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: BenchArgs) -> Result<ExitCode> {
+    let mut spec = ProceduralSpec::new(ProceduralKind::Fractal);
+    spec.noise.seed = 7;
+    let noise = spec.build_noise()?;
+    let n = args.voxels;
+    let t0 = Instant::now();
+    let h = 1.0 / f64::from(n);
+    let data: Vec<f32> = (0..u64::from(n).pow(3))
+        .into_par_iter()
+        .map(|i| {
+            let (x, y, z) = (
+                i % u64::from(n),
+                (i / u64::from(n)) % u64::from(n),
+                i / u64::from(n).pow(2),
+            );
+            noise.extinction(DVec3::new(
+                (x as f64 + 0.5) * h,
+                (y as f64 + 0.5) * h,
+                (z as f64 + 0.5) * h,
+            ))
+        })
+        .collect();
+    let grid = DenseGrid::new([n; 3], data, DVec3::splat(h), DVec3::ZERO, "bench noise")?;
+    let voxelise_s = t0.elapsed().as_secs_f64();
+
+    let sources: [(&str, &dyn DensitySource); 2] = [
+        ("fractal cosine noise, analytic", &noise),
+        ("fractal cosine noise, 512^3 f32 grid", &grid),
+    ];
+    let mut rows = Vec::new();
+    for (name, source) in sources {
+        for &threads in &args.threads {
+            let opts = BakeOptions {
+                cells: [args.cells; 3],
+                directions: Directions::THESIS_DEFAULT,
+                threads: Some(threads),
+                majorant: None,
+                ..BakeOptions::default()
+            };
+            let t = Instant::now();
+            let (g, stats) = pinbake::bake(source, &opts, &|_| {})?;
+            let wall = t.elapsed().as_secs_f64();
+            let pins = u64::from(args.cells).pow(3) * 64;
+            rows.push(json!({
+                "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
+                "threads": threads,
+                "pins": pins,
+                "stored_pins": g.pins.len(),
+                "wall_s": wall,
+                "pins_per_s": pins as f64 / wall,
+                "t_min_mean": stats.t_min_mean,
+            }));
+        }
+    }
+    if args.json {
+        println!("{}", json!({"voxelise_s": voxelise_s, "results": rows}));
+    } else {
+        println!(
+            "pinbake bench: {c}^3 cells x 16x4 directions = {} pins, step 0.01 (voxelising {n}^3 took {voxelise_s:.1} s)",
+            u64::from(args.cells).pow(3) * 64,
+            c = args.cells
+        );
+        println!(
+            "{:<22} {:>8} {:>10} {:>14}",
+            "source", "threads", "wall s", "pins/s"
+        );
+        for r in &rows {
+            println!(
+                "{:<22} {:>8} {:>10.2} {:>14.0}",
+                r["source"].as_str().unwrap_or(""),
+                r["threads"],
+                r["wall_s"].as_f64().unwrap_or(0.0),
+                r["pins_per_s"].as_f64().unwrap_or(0.0)
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

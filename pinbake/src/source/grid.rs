@@ -1,0 +1,433 @@
+//! A dense scalar grid placed in world space by the shared convention of DESIGN.md section 2.
+//!
+//! This is what raw volumes become, and what tests build by hand. A grid of dims `N`, spacing
+//! `s` and origin `o` occupies `[o, o + N*s]`; voxel centres sit at `o + (i + 0.5) * s`; values
+//! are trilinear between centres, the edge voxel's value holds in the outer half voxel
+//! (clamp-to-edge inside the box) and everything outside the box is zero. The baker and the
+//! renderer use this one definition so that a pin file lines up with its source exactly.
+//!
+//! It is not a sparse structure (see the VDB source for that) and does no filtering beyond
+//! trilinear interpolation. Values are validated on construction (finite, `>= 0`), so the hot
+//! path does no checks beyond the box test.
+
+use glam::DVec3;
+
+use super::{Aabb, DensitySource, SourceError};
+
+/// Dense f32 grid, x fastest, then y, then z (`data[x + nx * (y + ny * z)]`).
+#[derive(Clone, Debug)]
+pub struct DenseGrid {
+    dims: [u32; 3],
+    data: Vec<f32>,
+    origin: DVec3,
+    spacing: DVec3,
+    /// `1 / spacing`: `extinction` is called ~1e8 times per bake, so it multiplies.
+    inv_spacing: DVec3,
+    /// `origin / spacing + 0.5`, folded so that the continuous index is one fused expression.
+    index_offset: DVec3,
+    /// `dims - 1` as f64, the clamp limit of the continuous index.
+    max_index: DVec3,
+    bounds: Aabb,
+    stride_y: usize,
+    stride_z: usize,
+    max_value: f32,
+    occupied: Aabb,
+    label: String,
+}
+
+impl DenseGrid {
+    /// Builds a grid from validated parts. `data.len()` must equal the product of `dims`, every
+    /// value must be finite and `>= 0`, `spacing` positive and finite, `origin` finite.
+    pub fn new(
+        dims: [u32; 3],
+        data: Vec<f32>,
+        spacing: DVec3,
+        origin: DVec3,
+        label: impl Into<String>,
+    ) -> Result<Self, SourceError> {
+        let count = voxel_count(dims)
+            .ok_or_else(|| SourceError::InvalidOption(format!("grid dims {dims:?} overflow")))?;
+        if dims.contains(&0) {
+            return Err(SourceError::InvalidOption(format!(
+                "grid dims {dims:?} contain a zero"
+            )));
+        }
+        if data.len() != count {
+            return Err(SourceError::InvalidOption(format!(
+                "grid dims {dims:?} need {count} values, got {}",
+                data.len()
+            )));
+        }
+        if !(spacing.is_finite() && spacing.cmpgt(DVec3::ZERO).all()) {
+            return Err(SourceError::InvalidOption(format!(
+                "grid spacing must be positive and finite, got {spacing}"
+            )));
+        }
+        if !origin.is_finite() {
+            return Err(SourceError::InvalidOption(format!(
+                "grid origin must be finite, got {origin}"
+            )));
+        }
+        if let Some(i) = data.iter().position(|v| !(v.is_finite() && *v >= 0.0)) {
+            let [x, y, z] = unflatten(i, dims);
+            return Err(SourceError::InvalidOption(format!(
+                "grid value {} at voxel ({x},{y},{z}) is not a finite non-negative number",
+                data[i]
+            )));
+        }
+        let n = DVec3::new(dims[0] as f64, dims[1] as f64, dims[2] as f64);
+        let max = origin + n * spacing;
+        let bounds = Aabb::new(origin, max);
+        if !bounds.is_valid() {
+            return Err(SourceError::InvalidOption(format!(
+                "grid box {origin}..{max} is not finite"
+            )));
+        }
+        let inv_spacing = spacing.recip();
+        let stride_y = dims[0] as usize;
+        let stride_z = stride_y * dims[1] as usize;
+        let max_value = data.iter().copied().fold(0.0f32, f32::max);
+        let mut g = Self {
+            dims,
+            data,
+            origin,
+            spacing,
+            inv_spacing,
+            index_offset: origin * inv_spacing + 0.5,
+            max_index: n - 1.0,
+            bounds,
+            stride_y,
+            stride_z,
+            max_value,
+            occupied: bounds,
+            label: label.into(),
+        };
+        g.occupied = g.compute_occupied();
+        Ok(g)
+    }
+
+    pub fn dims(&self) -> [u32; 3] {
+        self.dims
+    }
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+    pub fn spacing(&self) -> DVec3 {
+        self.spacing
+    }
+    pub fn origin(&self) -> DVec3 {
+        self.origin
+    }
+    /// The largest voxel value.
+    pub fn max_value(&self) -> f32 {
+        self.max_value
+    }
+
+    /// The voxel value at integer coordinates (no interpolation); `None` outside the grid.
+    pub fn voxel(&self, x: u32, y: u32, z: u32) -> Option<f32> {
+        if x < self.dims[0] && y < self.dims[1] && z < self.dims[2] {
+            Some(self.data[x as usize + y as usize * self.stride_y + z as usize * self.stride_z])
+        } else {
+            None
+        }
+    }
+
+    /// Tight box of non-zero voxels, grown by one voxel on each side (the reach of trilinear
+    /// support), clamped to the grid box. A grid of zeros gives a zero-volume box at `min`.
+    fn compute_occupied(&self) -> Aabb {
+        let [nx, ny, nz] = self.dims.map(|d| d as usize);
+        let mut lo = [usize::MAX; 3];
+        let mut hi = [0usize; 3];
+        for z in 0..nz {
+            for y in 0..ny {
+                let row = &self.data[y * self.stride_y + z * self.stride_z..][..nx];
+                let (Some(first), Some(last)) = (
+                    row.iter().position(|v| *v != 0.0),
+                    row.iter().rposition(|v| *v != 0.0),
+                ) else {
+                    continue;
+                };
+                lo = [lo[0].min(first), lo[1].min(y), lo[2].min(z)];
+                hi = [hi[0].max(last), hi[1].max(y), hi[2].max(z)];
+            }
+        }
+        if lo[0] == usize::MAX {
+            return Aabb::new(self.bounds.min, self.bounds.min);
+        }
+        let lo = DVec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64) - 1.0;
+        let hi = DVec3::new(hi[0] as f64, hi[1] as f64, hi[2] as f64) + 2.0;
+        Aabb::new(
+            (self.origin + lo * self.spacing).max(self.bounds.min),
+            (self.origin + hi * self.spacing).min(self.bounds.max),
+        )
+    }
+
+    #[inline(always)]
+    fn inside(&self, p: DVec3) -> bool {
+        // Written as `>=`/`<=` so that NaN coordinates fall outside.
+        p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()
+    }
+
+    /// Trilinear sample of a point already known to be inside the box.
+    #[inline(always)]
+    fn sample_inside(&self, p: DVec3) -> f32 {
+        // Continuous index relative to voxel centres, clamped so the outer half voxel repeats
+        // the edge value. `u as usize` truncates; after the clamp u >= 0 so that is floor.
+        let u = (p * self.inv_spacing - self.index_offset)
+            .max(DVec3::ZERO)
+            .min(self.max_index);
+        let ix = u.x as usize;
+        let iy = u.y as usize;
+        let iz = u.z as usize;
+        let fx = (u.x - ix as f64) as f32;
+        let fy = (u.y - iy as f64) as f32;
+        let fz = (u.z - iz as f64) as f32;
+        // At the upper edge the neighbour is the voxel itself (offset 0) and the weight is 0.
+        let dx = usize::from(ix + 1 < self.dims[0] as usize);
+        let dy = if iy + 1 < self.dims[1] as usize {
+            self.stride_y
+        } else {
+            0
+        };
+        let dz = if iz + 1 < self.dims[2] as usize {
+            self.stride_z
+        } else {
+            0
+        };
+        let base = ix + iy * self.stride_y + iz * self.stride_z;
+        let d = &self.data;
+        // Indices are in range by construction (clamped u, dims product == len); the bounds
+        // checks stay because they are cheap next to the loads and keep this code safe.
+        let c000 = d[base];
+        let c100 = d[base + dx];
+        let c010 = d[base + dy];
+        let c110 = d[base + dx + dy];
+        let c001 = d[base + dz];
+        let c101 = d[base + dx + dz];
+        let c011 = d[base + dy + dz];
+        let c111 = d[base + dx + dy + dz];
+        let c00 = c000 + (c100 - c000) * fx;
+        let c10 = c010 + (c110 - c010) * fx;
+        let c01 = c001 + (c101 - c001) * fx;
+        let c11 = c011 + (c111 - c011) * fx;
+        let c0 = c00 + (c10 - c00) * fy;
+        let c1 = c01 + (c11 - c01) * fy;
+        // Lerp of non-negative values in this form can round to -0.0 or a tiny negative; the
+        // contract says never negative.
+        (c0 + (c1 - c0) * fz).max(0.0)
+    }
+}
+
+impl DensitySource for DenseGrid {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    #[inline]
+    fn extinction(&self, p: DVec3) -> f32 {
+        if self.inside(p) {
+            self.sample_inside(p)
+        } else {
+            0.0
+        }
+    }
+
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.occupied)
+    }
+
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
+        // NaN regions fail these comparisons and report zero.
+        if !(lo.cmple(hi).all()) {
+            return 0.0;
+        }
+        // A voxel influences continuous indices within one voxel of its centre; take every
+        // voxel whose influence touches [lo, hi], rounded outwards.
+        let ulo = (lo * self.inv_spacing - self.index_offset).floor();
+        let uhi = (hi * self.inv_spacing - self.index_offset).ceil();
+        let clamp = |v: f64, n: u32| v.clamp(0.0, (n - 1) as f64) as usize;
+        let (x0, x1) = (clamp(ulo.x, self.dims[0]), clamp(uhi.x, self.dims[0]));
+        let (y0, y1) = (clamp(ulo.y, self.dims[1]), clamp(uhi.y, self.dims[1]));
+        let (z0, z1) = (clamp(ulo.z, self.dims[2]), clamp(uhi.z, self.dims[2]));
+        let whole = x0 == 0
+            && y0 == 0
+            && z0 == 0
+            && x1 + 1 == self.dims[0] as usize
+            && y1 + 1 == self.dims[1] as usize
+            && z1 + 1 == self.dims[2] as usize;
+        if whole {
+            return self.max_value;
+        }
+        let mut m = 0.0f32;
+        for z in z0..=z1 {
+            for y in y0..=y1 {
+                let row = &self.data[y * self.stride_y + z * self.stride_z..];
+                m = row[x0..=x1].iter().copied().fold(m, f32::max);
+            }
+        }
+        m
+    }
+
+    fn describe(&self) -> String {
+        let [x, y, z] = self.dims;
+        format!("{} {x}x{y}x{z}", self.label)
+    }
+
+    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
+        for (i, o) in out.iter_mut().take(n).enumerate() {
+            let p = origin + step * i as f64;
+            *o = if self.inside(p) {
+                self.sample_inside(p)
+            } else {
+                0.0
+            };
+        }
+    }
+}
+
+/// Product of the dims as a `usize`, `None` on overflow.
+pub(crate) fn voxel_count(dims: [u32; 3]) -> Option<usize> {
+    (dims[0] as usize)
+        .checked_mul(dims[1] as usize)?
+        .checked_mul(dims[2] as usize)
+}
+
+/// Linear index to (x, y, z) for x-fastest layout.
+pub(crate) fn unflatten(i: usize, dims: [u32; 3]) -> [usize; 3] {
+    let nx = (dims[0] as usize).max(1);
+    let ny = (dims[1] as usize).max(1);
+    [i % nx, (i / nx) % ny, i / (nx * ny)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(dims: [u32; 3]) -> DenseGrid {
+        let mut data = Vec::new();
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    data.push((x + 10 * y + 100 * z) as f32);
+                }
+            }
+        }
+        DenseGrid::new(dims, data, DVec3::ONE, DVec3::ZERO, "test").unwrap()
+    }
+
+    #[test]
+    fn voxel_centres_hit_exact_values() {
+        let g = ramp([4, 3, 2]);
+        for z in 0..2 {
+            for y in 0..3 {
+                for x in 0..4 {
+                    let p = DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5);
+                    assert_eq!(g.extinction(p), (x + 10 * y + 100 * z) as f32);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn trilinear_between_centres_and_clamped_in_outer_half_voxel() {
+        let g = ramp([4, 3, 2]);
+        // Halfway between x=1 and x=2 centres.
+        assert!((g.extinction(DVec3::new(2.0, 0.5, 0.5)) - 1.5).abs() < 1e-6);
+        // Outer half voxel repeats the edge value.
+        assert_eq!(g.extinction(DVec3::new(0.1, 0.5, 0.5)), 0.0 + 0.0);
+        assert_eq!(g.extinction(DVec3::new(3.9, 0.5, 0.5)), 3.0);
+        assert_eq!(g.extinction(DVec3::new(4.0, 3.0, 2.0)), 3.0 + 20.0 + 100.0);
+        // Outside the box: zero, NaN too.
+        assert_eq!(g.extinction(DVec3::new(4.0001, 0.5, 0.5)), 0.0);
+        assert_eq!(g.extinction(DVec3::new(-1e-9, 0.5, 0.5)), 0.0);
+        assert_eq!(g.extinction(DVec3::new(f64::NAN, 0.5, 0.5)), 0.0);
+    }
+
+    #[test]
+    fn spacing_and_origin_place_the_box() {
+        let data = vec![1.0; 8];
+        let g = DenseGrid::new(
+            [2, 2, 2],
+            data,
+            DVec3::new(0.5, 1.0, 2.0),
+            DVec3::new(-1.0, 0.0, 1.0),
+            "t",
+        )
+        .unwrap();
+        assert_eq!(g.bounds().min, DVec3::new(-1.0, 0.0, 1.0));
+        assert_eq!(g.bounds().max, DVec3::new(0.0, 2.0, 5.0));
+        assert_eq!(g.extinction(DVec3::new(-0.5, 1.0, 3.0)), 1.0);
+    }
+
+    #[test]
+    fn one_voxel_and_anisotropic_grids() {
+        let g = DenseGrid::new([1, 1, 1], vec![2.5], DVec3::ONE, DVec3::ZERO, "t").unwrap();
+        assert_eq!(g.extinction(DVec3::splat(0.0)), 2.5);
+        assert_eq!(g.extinction(DVec3::splat(1.0)), 2.5);
+        assert_eq!(g.extinction(DVec3::splat(0.3)), 2.5);
+        let g = ramp([1000, 1, 2]);
+        assert_eq!(g.extinction(DVec3::new(999.5, 0.5, 1.5)), 1099.0);
+    }
+
+    #[test]
+    fn rejects_bad_values() {
+        assert!(DenseGrid::new([1, 1, 1], vec![-1.0], DVec3::ONE, DVec3::ZERO, "t").is_err());
+        assert!(DenseGrid::new([1, 1, 1], vec![f32::NAN], DVec3::ONE, DVec3::ZERO, "t").is_err());
+        assert!(DenseGrid::new([1, 1, 2], vec![0.0], DVec3::ONE, DVec3::ZERO, "t").is_err());
+        assert!(DenseGrid::new([0, 1, 1], vec![], DVec3::ONE, DVec3::ZERO, "t").is_err());
+        assert!(DenseGrid::new([1, 1, 1], vec![1.0], DVec3::ZERO, DVec3::ZERO, "t").is_err());
+    }
+
+    #[test]
+    fn occupied_and_max_in_region() {
+        let mut data = vec![0.0; 10 * 10 * 10];
+        data[5 + 10 * (4 + 10 * 3)] = 7.0;
+        let g = DenseGrid::new([10, 10, 10], data, DVec3::ONE, DVec3::ZERO, "t").unwrap();
+        let o = g.occupied_bounds().unwrap();
+        assert_eq!(o.min, DVec3::new(4.0, 3.0, 2.0));
+        assert_eq!(o.max, DVec3::new(7.0, 6.0, 5.0));
+        // Everything non-zero lies inside the occupied box.
+        for i in 0..2000 {
+            let p = DVec3::new(
+                (i % 13) as f64 * 0.77,
+                (i % 7) as f64 * 1.41,
+                (i % 11) as f64 * 0.9,
+            );
+            if g.extinction(p) > 0.0 {
+                assert!(p.cmpge(o.min).all() && p.cmple(o.max).all(), "{p}");
+            }
+        }
+        // Regions that touch the voxel's support see it; ones that do not, do not.
+        let r = |a: f64, b: f64| Aabb::new(DVec3::new(a, 4.5, 3.5), DVec3::new(b, 4.5, 3.5));
+        assert_eq!(g.max_extinction_in(r(6.4, 6.45)), 7.0);
+        assert_eq!(g.max_extinction_in(r(0.0, 4.0)), 0.0);
+        assert!(g.extinction(DVec3::new(6.4, 4.5, 3.5)) > 0.0);
+        assert_eq!(g.max_extinction_in(g.bounds()), 7.0);
+        // Conservative: sampled max inside a region never exceeds the bound.
+        for k in 0..50 {
+            let a = k as f64 * 0.19;
+            let reg = Aabb::new(DVec3::splat(a), DVec3::splat(a + 0.6));
+            let bound = g.max_extinction_in(reg);
+            for j in 0..=6 {
+                let p = DVec3::splat(a + 0.1 * j as f64);
+                assert!(g.extinction(p) <= bound);
+            }
+        }
+        let empty = DenseGrid::new([2, 2, 2], vec![0.0; 8], DVec3::ONE, DVec3::ZERO, "t").unwrap();
+        assert!(!empty.occupied_bounds().unwrap().is_valid());
+    }
+
+    #[test]
+    fn batched_matches_single() {
+        let g = ramp([5, 6, 7]);
+        let mut out = vec![0.0; 40];
+        let o = DVec3::new(-0.3, 0.2, 0.1);
+        let s = DVec3::new(0.17, 0.19, 0.23);
+        g.extinction_along(o, s, 40, &mut out);
+        for (i, v) in out.iter().enumerate() {
+            assert_eq!(*v, g.extinction(o + s * i as f64));
+        }
+    }
+}

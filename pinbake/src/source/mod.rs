@@ -1,0 +1,262 @@
+//! Density sources: everything the baker can read extinction from.
+//!
+//! Every source answers one question, "what is the extinction coefficient at this world-space
+//! point", and knows a world-space box outside of which it is zero. The density scale has already
+//! been applied by the time a value leaves a source.
+//!
+//! What lives here:
+//! * [`grid`]: a dense f32 grid with the shared world placement (DESIGN.md section 2);
+//! * [`raw`]: the headerless raw reader that produces such a grid;
+//! * [`procedural`]: analytic fields (box, sphere, cosine noise) with closed-form optical depth;
+//! * `vdb` (feature `vdb`): OpenVDB float/half grids, read in an isolated child process.
+//!
+//! What does not: ray marching, majorant grids and pin baking (the baker consumes
+//! [`DensitySource`]); file formats for pins (crate `pin-format`).
+//!
+//! [`open_source`] turns a [`SourceSpec`] into a boxed source; every failure is a
+//! [`SourceError`] whose message is one line and names the file where there is one.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use glam::DVec3;
+
+pub mod grid;
+pub mod procedural;
+pub mod raw;
+#[cfg(feature = "vdb")]
+pub mod vdb;
+
+pub use grid::DenseGrid;
+pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
+pub use raw::{Endian, RawOptions, RawType};
+#[cfg(feature = "vdb")]
+pub use vdb::{VdbOptions, VdbSource};
+
+/// An axis-aligned world-space box, `min <= max` componentwise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    pub min: DVec3,
+    pub max: DVec3,
+}
+
+impl Aabb {
+    pub fn new(min: DVec3, max: DVec3) -> Self {
+        Self { min, max }
+    }
+    pub fn extent(&self) -> DVec3 {
+        self.max - self.min
+    }
+    /// True when the box has positive, finite volume.
+    pub fn is_valid(&self) -> bool {
+        self.min.is_finite() && self.max.is_finite() && self.min.cmplt(self.max).all()
+    }
+}
+
+/// A scalar extinction field in world space.
+///
+/// Implementations must be cheap to call from many threads at once and must never return NaN,
+/// infinity or a negative value (sources reject or sanitise such input when they are built).
+pub trait DensitySource: Send + Sync {
+    /// World-space box that contains every point with non-zero extinction.
+    fn bounds(&self) -> Aabb;
+
+    /// Extinction at a world-space point (zero outside `bounds`).
+    fn extinction(&self, p: DVec3) -> f32;
+
+    /// Tight box around the non-zero extinction, if the source can tell cheaply (used for
+    /// cropping). `None` means "use `bounds`".
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        None
+    }
+
+    /// Maximum extinction inside `region` (a conservative upper bound is fine). Used for
+    /// majorant grids and empty-space detection.
+    fn max_extinction_in(&self, region: Aabb) -> f32;
+
+    /// A short human-readable description for provenance ("raw u8 128x128x128", ...).
+    fn describe(&self) -> String;
+
+    /// Batched sampling along a line: `out[i] = extinction(origin + i * step)` for
+    /// `i < min(n, out.len())`.
+    ///
+    /// A ray marcher should prefer this over a loop of [`extinction`](Self::extinction): sources
+    /// override it to hoist per-call work (box tests, virtual dispatch, index transforms) out of
+    /// the loop. The results are the same values `extinction` gives (up to the rounding of
+    /// `origin + i * step`, which overrides must compute the same way: in f64, as written).
+    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
+        for (i, o) in out.iter_mut().take(n).enumerate() {
+            *o = self.extinction(origin + step * i as f64);
+        }
+    }
+}
+
+/// Everything that can go wrong while opening a source. Every message is a single line and
+/// names the file where there is one, so a CLI can print it as is.
+#[derive(Debug, thiserror::Error)]
+pub enum SourceError {
+    /// The file could not be opened or read at all.
+    #[error("{}: {}", .path.display(), one_line(&.source.to_string()))]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// A raw volume is malformed or does not match its options.
+    #[error("{}: {}", .path.display(), one_line(.message))]
+    Raw { path: PathBuf, message: String },
+    /// An OpenVDB file was rejected (by our checks, or because the isolated reader failed).
+    #[error("{}: {}", .path.display(), one_line(.message))]
+    Vdb { path: PathBuf, message: String },
+    /// A procedural source description could not be parsed or is out of range.
+    #[error("procedural source '{}': {}", one_line(.spec), one_line(.message))]
+    Procedural { spec: String, message: String },
+    /// An option is out of range (density scale, spacing, ...), independent of any file.
+    #[error("invalid option: {}", one_line(.0))]
+    InvalidOption(String),
+    /// The source was built in without the cargo feature it needs.
+    #[error("{}: {}", .path.display(), one_line(.message))]
+    Unsupported { path: PathBuf, message: String },
+}
+
+impl SourceError {
+    pub(crate) fn raw(path: &Path, message: impl Into<String>) -> Self {
+        Self::Raw {
+            path: path.to_path_buf(),
+            message: message.into(),
+        }
+    }
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        Self::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
+/// Replaces line breaks and other control characters so that an error stays on one line even
+/// when it quotes hostile input (grid names come straight from files).
+pub(crate) fn one_line(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '\n' | '\r' | '\t' => out.push(' '),
+            '\u{1e}' => out.push('#'),
+            c if c.is_control() => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
+            c => out.push(c),
+        }
+    }
+    out
+}
+
+/// A validated density multiplier: finite and `>= 0`.
+///
+/// Sources apply it while they are built, so the hot path never multiplies. The product of a
+/// finite value and a finite scale can still overflow f32 (`1e30 * 1e9`); [`DensityScale::apply`]
+/// reports that instead of letting an infinity through.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DensityScale(f64);
+
+impl DensityScale {
+    pub const ONE: DensityScale = DensityScale(1.0);
+
+    /// Accepts any finite, non-negative scale (0 gives an all-zero field, which is legal).
+    pub fn new(scale: f64) -> Result<Self, SourceError> {
+        if scale.is_finite() && scale >= 0.0 {
+            Ok(Self(scale))
+        } else {
+            Err(SourceError::InvalidOption(format!(
+                "density scale must be finite and >= 0, got {scale}"
+            )))
+        }
+    }
+
+    pub fn get(self) -> f64 {
+        self.0
+    }
+
+    /// `value * scale` as f32, or `None` when the product is not a finite f32. `value` must be
+    /// finite; the product is formed in f64 so that only the final narrowing can overflow.
+    #[inline]
+    pub fn apply(self, value: f64) -> Option<f32> {
+        let v = (value * self.0) as f32;
+        v.is_finite().then_some(v)
+    }
+}
+
+impl Default for DensityScale {
+    fn default() -> Self {
+        Self::ONE
+    }
+}
+
+impl fmt::Display for DensityScale {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}", self.0)
+    }
+}
+
+/// What to open: the input half of a bake command line.
+#[derive(Clone, Debug)]
+pub enum SourceSpec {
+    Raw(PathBuf, RawOptions),
+    #[cfg(feature = "vdb")]
+    Vdb(PathBuf, VdbOptions),
+    /// A VDB requested from a build without the `vdb` feature; opening it is an error.
+    #[cfg(not(feature = "vdb"))]
+    Vdb(PathBuf),
+    Procedural(ProceduralSpec),
+}
+
+/// Opens any source. The result is ready to sample: validated, density-scaled, bounds computed.
+pub fn open_source(spec: &SourceSpec) -> Result<Box<dyn DensitySource>, SourceError> {
+    match spec {
+        SourceSpec::Raw(path, options) => Ok(Box::new(raw::read_raw(path, options)?)),
+        #[cfg(feature = "vdb")]
+        SourceSpec::Vdb(path, options) => Ok(Box::new(VdbSource::open(path, options)?)),
+        #[cfg(not(feature = "vdb"))]
+        SourceSpec::Vdb(path) => Err(SourceError::Unsupported {
+            path: path.clone(),
+            message: "this build has no OpenVDB support (cargo feature `vdb`)".into(),
+        }),
+        SourceSpec::Procedural(p) => p.build(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_line_escapes_controls() {
+        assert_eq!(one_line("a\nb\u{1e}1\u{7}"), "a b#1\\u{7}");
+    }
+
+    #[test]
+    fn density_scale_validation() {
+        assert!(DensityScale::new(0.0).is_ok());
+        assert!(DensityScale::new(1e30).is_ok());
+        assert!(DensityScale::new(-1.0).is_err());
+        assert!(DensityScale::new(f64::NAN).is_err());
+        assert!(DensityScale::new(f64::INFINITY).is_err());
+        let s = DensityScale::new(1e30).unwrap();
+        assert_eq!(s.apply(1e-30), Some(1.0));
+        assert_eq!(s.apply(1e9), None);
+        assert_eq!(DensityScale::new(0.0).unwrap().apply(1e38), Some(0.0));
+    }
+
+    #[test]
+    fn open_procedural_from_string() {
+        let spec: ProceduralSpec = "cosine:seed=7,freq=16".parse().unwrap();
+        let s = open_source(&SourceSpec::Procedural(spec)).unwrap();
+        assert!(s.bounds().is_valid());
+        let mut out = [0.0f32; 4];
+        s.extinction_along(DVec3::splat(0.1), DVec3::splat(0.1), 4, &mut out);
+        for (i, v) in out.iter().enumerate() {
+            assert_eq!(
+                *v,
+                s.extinction(DVec3::splat(0.1) + DVec3::splat(0.1) * i as f64)
+            );
+        }
+    }
+}
