@@ -1,0 +1,296 @@
+//! End-to-end tests of the `pinbake` binary on every file in ../shared/data.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_pinbake");
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(name)
+}
+
+fn pinbake(args: &[&str]) -> Output {
+    Command::new(BIN)
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("run pinbake")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Small, fast bake settings for tests.
+const FAST: &[&str] = &["--cells", "6", "--dirs", "octahedral:2", "--step", "0.05"];
+
+fn bake_ok(input: &str, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["bake", input, "-o", out.to_str().unwrap(), "--json"];
+    args.extend_from_slice(FAST);
+    args.extend_from_slice(extra);
+    let o = pinbake(&args);
+    assert!(o.status.success(), "bake {input} failed: {}", stderr(&o));
+    serde_json::from_slice(&o.stdout).expect("bake --json prints one JSON object")
+}
+
+fn assert_clean_failure(o: &Output, needle: &str, out: &Path) {
+    assert_eq!(o.status.code(), Some(1), "stderr: {}", stderr(o));
+    let err = stderr(o);
+    assert_eq!(
+        err.trim_end().lines().count(),
+        1,
+        "one-line error, got: {err}"
+    );
+    assert!(err.contains(needle), "error should mention {needle}: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!out.exists(), "no output file on failure");
+}
+
+#[test]
+fn every_valid_volume_bakes_and_verifies() {
+    let dir = tempfile::tempdir().unwrap();
+    let cases: &[(&str, &[&str])] = &[
+        ("openvdb_smoke1.vdb", &[]),
+        ("gaffer_sphere_density.vdb", &[]),
+        ("oiio_sphere_density.vdb", &[]),
+        ("arnold_grids_3x_density.vdb", &["--grid", "density#1"]),
+        ("openvdb_sphere_levelset.vdb", &["--levelset-to-fog"]),
+        (
+            "hydrogen_atom_128x128x128_uint8.raw",
+            &["--density-scale", "0.05"],
+        ),
+        ("water_esp_31x34x33_float32.raw", &["--clamp-negative"]),
+    ];
+    for (i, (name, extra)) in cases.iter().enumerate() {
+        let out = dir.path().join(format!("{i}.pin"));
+        let path = data(name);
+        let v = bake_ok(path.to_str().unwrap(), &out, extra);
+        for key in [
+            "dims",
+            "directions",
+            "pins_per_entry",
+            "pins",
+            "empty_cells",
+            "file_bytes",
+            "t_min",
+            "seconds",
+            "pins_per_s",
+        ] {
+            assert!(!v[key].is_null(), "{name}: --json lacks {key}: {v}");
+        }
+        assert_eq!(v["dims"], serde_json::json!([6, 6, 6]));
+        assert_eq!(
+            v["directions"],
+            serde_json::json!({"kind": "octahedral", "n": 2})
+        );
+        assert!(
+            v["t_min"]["min"].as_f64().unwrap() < 1.0,
+            "{name} saw no medium"
+        );
+        assert_eq!(
+            v["file_bytes"].as_u64().unwrap(),
+            std::fs::metadata(&out).unwrap().len()
+        );
+        let o = pinbake(&["verify", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{name}: {}", stderr(&o));
+        let o = pinbake(&["inspect", out.to_str().unwrap(), "--json"]);
+        assert!(o.status.success());
+        let iv: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(iv["pins"], v["pins"]);
+        assert_eq!(iv["empty_cells"], v["empty_cells"]);
+    }
+}
+
+#[test]
+fn damaged_and_refused_inputs_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.pin");
+    let damaged = std::fs::read_dir(data("oiio_damaged")).unwrap();
+    let mut n = 0;
+    for entry in damaged {
+        let path = entry.unwrap().path();
+        if path.extension().and_then(|e| e.to_str()) != Some("vdb") {
+            continue;
+        }
+        let started = Instant::now();
+        let mut args = vec!["bake", path.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        args.extend_from_slice(FAST);
+        let o = pinbake(&args);
+        let name = path.file_name().unwrap().to_str().unwrap();
+        assert_clean_failure(&o, name, &out);
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "{name} took too long"
+        );
+        n += 1;
+    }
+    assert_eq!(n, 7, "all seven damaged files were tried");
+
+    // A level set without the conversion flag says how to convert.
+    let ls = data("openvdb_sphere_levelset.vdb");
+    let o = pinbake(&["bake", ls.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_clean_failure(&o, "--levelset-to-fog", &out);
+
+    // Repeated grid names without an index, and a grid that does not exist.
+    let arnold = data("arnold_grids_3x_density.vdb");
+    let o = pinbake(&[
+        "bake",
+        arnold.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--grid",
+        "nope",
+    ]);
+    assert_clean_failure(&o, "nope", &out);
+
+    // Raw: wrong size, NaN-free signed data without --clamp-negative.
+    let h = data("hydrogen_atom_128x128x128_uint8.raw");
+    let o = pinbake(&[
+        "bake",
+        h.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--dims",
+        "128,128,127",
+        "--type",
+        "u8",
+    ]);
+    assert_clean_failure(&o, "hydrogen_atom", &out);
+    let w = data("water_esp_31x34x33_float32.raw");
+    let o = pinbake(&["bake", w.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_clean_failure(&o, "negative", &out);
+
+    // A pin file that is not one.
+    let o = pinbake(&["verify", h.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("hydrogen_atom"));
+}
+
+#[test]
+fn usage_errors_exit_2() {
+    let o = pinbake(&["bake"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = pinbake(&["bake", "x.raw", "-o", "y.pin", "--dirs", "spiral:3"]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = pinbake(&["bake", "x.raw", "-o", "y.pin", "--tile", "3/2"]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
+#[test]
+fn threads_and_tiles_give_identical_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = data("gaffer_sphere_density.vdb");
+    let input = input.to_str().unwrap();
+    let one = dir.path().join("one.pin");
+    let two = dir.path().join("two.pin");
+    bake_ok(input, &one, &["--threads", "1", "--seed", "5"]);
+    bake_ok(input, &two, &["--threads", "2", "--seed", "5"]);
+    let a = std::fs::read(&one).unwrap();
+    assert_eq!(a, std::fs::read(&two).unwrap());
+
+    // Tiles as parallel local processes, the way a farm runs them, then merge.
+    let n = 3;
+    let children: Vec<_> = (0..n)
+        .map(|i| {
+            let out = dir.path().join(format!("tile{i}.pin"));
+            let tile = format!("{i}/{n}");
+            let mut args = vec![
+                "bake".to_string(),
+                input.to_string(),
+                "-o".into(),
+                out.to_str().unwrap().into(),
+                "--seed".into(),
+                "5".into(),
+                "--tile".into(),
+                tile,
+            ];
+            args.extend(FAST.iter().map(|s| s.to_string()));
+            Command::new(BIN)
+                .args(&args)
+                .stdout(Stdio::null())
+                .spawn()
+                .unwrap()
+        })
+        .collect();
+    for mut c in children {
+        assert!(c.wait().unwrap().success());
+    }
+    let merged = dir.path().join("merged.pin");
+    let mut args = vec!["merge".to_string()];
+    for i in (0..n).rev() {
+        args.push(
+            dir.path()
+                .join(format!("tile{i}.pin"))
+                .to_str()
+                .unwrap()
+                .into(),
+        );
+    }
+    args.extend(["-o".into(), merged.to_str().unwrap().into()]);
+    let o = Command::new(BIN).args(&args).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::read(&merged).unwrap(),
+        a,
+        "merged tiles == monolithic bake"
+    );
+}
+
+#[test]
+fn typed_fixtures_read_exactly() {
+    use glam::DVec3;
+    use pinbake::source::{DensitySource, Endian, RawOptions, RawType, SourceSpec, open_source};
+    let cases = [
+        ("testdata.UINT8.raw", RawType::U8, Endian::Little),
+        (
+            "testdata.UINT16.LittleEndian.raw",
+            RawType::U16,
+            Endian::Little,
+        ),
+        ("testdata.UINT16.BigEndian.raw", RawType::U16, Endian::Big),
+        (
+            "testdata.FLOAT16.LittleEndian.raw",
+            RawType::F16,
+            Endian::Little,
+        ),
+        (
+            "testdata.FLOAT32.LittleEndian.raw",
+            RawType::F32,
+            Endian::Little,
+        ),
+        ("testdata.FLOAT32.BigEndian.raw", RawType::F32, Endian::Big),
+        (
+            "testdata.FLOAT64.LittleEndian.raw",
+            RawType::F64,
+            Endian::Little,
+        ),
+    ];
+    for (name, ty, endian) in cases {
+        let spec = SourceSpec::Raw(
+            data(&format!("inviwo_testdata/{name}")),
+            RawOptions {
+                dims: Some([13, 7, 3]),
+                voxel_type: Some(ty),
+                endian,
+                ..RawOptions::default()
+            },
+        );
+        let src: Box<dyn DensitySource> = open_source(&spec).unwrap();
+        for z in 0..3 {
+            for y in 0..7 {
+                for x in 0..13 {
+                    // Voxel centres sit at (i + 0.5) * spacing with the default origin 0.
+                    let p = DVec3::new(x as f64 + 0.5, y as f64 + 0.5, z as f64 + 0.5);
+                    assert_eq!(
+                        src.extinction(p),
+                        (x + y + z) as f32,
+                        "{name} ({x},{y},{z})"
+                    );
+                }
+            }
+        }
+    }
+}
