@@ -294,3 +294,42 @@ fn typed_fixtures_read_exactly() {
         }
     }
 }
+
+#[test]
+fn killed_bake_never_leaves_a_file_under_the_target_name() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let target = dir.path().join("smoke.pin");
+    std::fs::write(&target, b"previous good file").unwrap();
+    let input = data("openvdb_smoke1.vdb");
+    // Kill at a spread of moments: while the worker reads, while baking, while writing.
+    for (i, delay_ms) in [5u64, 40, 120, 300, 700].into_iter().enumerate() {
+        let mut child = Command::new(BIN)
+            .args([
+                "bake",
+                input.to_str().unwrap(),
+                "-o",
+                target.to_str().unwrap(),
+                "--cells",
+                "24",
+                "--seed",
+                &i.to_string(),
+            ])
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(Duration::from_millis(delay_ms));
+        let _ = child.kill(); // SIGKILL
+        let status = child.wait().unwrap();
+        let content = std::fs::read(&target).unwrap();
+        if status.signal() == Some(9) {
+            assert_eq!(content, b"previous good file", "killed after {delay_ms} ms");
+        } else {
+            // The bake won the race: the target is a complete, valid file.
+            assert!(status.success());
+            let f = pin_format::PinFile::parse(&content).unwrap();
+            f.verify().unwrap();
+            std::fs::write(&target, b"previous good file").unwrap();
+        }
+    }
+}
