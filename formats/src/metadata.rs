@@ -1,7 +1,8 @@
 //! The small provenance section, encoded with bincode 2 (standard config, varint integers).
 //!
 //! Only human-interesting facts live here; nothing a sampler needs. Decoding is bounded: a
-//! lying length inside the encoding cannot make the reader allocate more than the section.
+//! lying length inside the encoding cannot make the reader allocate more than
+//! [`MAX_METADATA_BYTES`] (bincode's decode limit).
 
 use bincode::{Decode, Encode};
 
@@ -49,6 +50,11 @@ impl Metadata {
                 bytes.len()
             )));
         }
+        // bincode's decode limit also counts the in-memory size of container elements not yet
+        // read (48 bytes per `extra` pair), so a small encoding can still exceed it on decode:
+        // refuse to write what would not read back.
+        Self::decode(&bytes)
+            .map_err(|e| FormatError::InvalidInput(format!("metadata would not read back: {e}")))?;
         Ok(bytes)
     }
 

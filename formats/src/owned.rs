@@ -52,14 +52,20 @@ impl OwnedPinGrid {
             }
             _ => {}
         }
+        // Checked: absurd dims must be an error, not an overflow panic.
+        let volume = |dims: [u32; 3]| {
+            dims.iter()
+                .try_fold(1u64, |acc, &d| acc.checked_mul(u64::from(d)))
+                .unwrap_or(0)
+        };
         if let Some((h, v)) = &self.majorant {
-            let n: u64 = h.dims.iter().map(|&d| u64::from(d)).product();
+            let n = volume(h.dims);
             if n == 0 || v.len() as u64 != n {
                 return Err(FormatError::InvalidInput("majorant size mismatch".into()));
             }
         }
         if let Some((h, v)) = &self.density {
-            let n: u64 = h.dims.iter().map(|&d| u64::from(d)).product();
+            let n = volume(h.dims);
             if n == 0 || v.len() as u64 != n || h.encoding != DENSITY_F16 {
                 return Err(FormatError::InvalidInput("density size mismatch".into()));
             }

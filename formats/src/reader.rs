@@ -149,14 +149,15 @@ impl<'a> PinFile<'a> {
             return Err(FormatError::TableChecksum);
         }
 
+        // The only allocation of parse: at most the table's own size (checked to fit above).
         let mut sections = Vec::with_capacity(header.section_count as usize);
         for chunk in table.chunks_exact(entry_size as usize) {
             sections.push(read_pod::<SectionEntry>(chunk));
         }
         // Bounds, alignment and overlap (with each other, the header and the table).
-        let mut spans: Vec<(u64, u64, usize)> = vec![
-            (0, u64::from(header.header_size), usize::MAX),
-            (header.table_offset, table_end, usize::MAX),
+        let fixed = [
+            (0, u64::from(header.header_size)),
+            (header.table_offset, table_end),
         ];
         let mut known: [Option<usize>; 8] = [None; 8];
         for (i, s) in sections.iter().enumerate() {
@@ -168,7 +169,13 @@ impl<'a> PinFile<'a> {
                 .checked_add(s.length)
                 .filter(|&e| e <= len)
                 .ok_or_else(|| section_err(i, s.kind, "extends past the end of the file"))?;
-            spans.push((s.offset, end, i));
+            if s.length > 0 && fixed.iter().any(|&(a, b)| a < b && s.offset < b && a < end) {
+                return Err(section_err(
+                    i,
+                    s.kind,
+                    "overlaps the header or the section table",
+                ));
+            }
             match SectionKind::from_u32(s.kind) {
                 Some(k) => {
                     let slot = &mut known[k as usize];
@@ -183,19 +190,29 @@ impl<'a> PinFile<'a> {
                 None => {}
             }
         }
-        spans.sort_unstable();
-        let mut reach: Option<(u64, usize)> = None;
-        for &(start, end, i) in spans.iter().filter(|s| s.1 > s.0) {
-            if let Some((reach_end, j)) = reach
-                && start < reach_end
-            {
-                let i = if i == usize::MAX { j } else { i };
-                let kind = sections.get(i).map(|s| s.kind).unwrap_or(0);
-                return Err(section_err(i, kind, "overlaps another section"));
+        // Sections against each other, sorted by offset through a stack array of section
+        // numbers, so that parse allocates nothing but the table vector.
+        let mut order_buf = [0u16; MAX_SECTIONS as usize];
+        let order = &mut order_buf[..sections.len()];
+        for (i, o) in order.iter_mut().enumerate() {
+            *o = i as u16;
+        }
+        order.sort_unstable_by_key(|&i| sections[usize::from(i)].offset);
+        let mut reach = 0u64;
+        for &i in order.iter() {
+            let s = &sections[usize::from(i)];
+            if s.length == 0 {
+                continue;
             }
-            if reach.is_none_or(|(e, _)| end > e) {
-                reach = Some((end, i));
+            if s.offset < reach {
+                return Err(section_err(
+                    usize::from(i),
+                    s.kind,
+                    "overlaps another section",
+                ));
             }
+            // Bounds were checked above; sorted and disjoint so far, so ends increase.
+            reach = s.offset + s.length;
         }
         let body = |k: SectionKind| -> Option<(usize, &'a [u8])> {
             known[k as usize].map(|i| {

@@ -170,10 +170,14 @@ impl AtomicPinFile {
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_else(|| "pin".into());
-        let temp = tempfile::Builder::new()
-            .prefix(&format!(".{name}."))
-            .suffix(".partial")
-            .tempfile_in(&dir)?;
+        let prefix = format!(".{name}.");
+        let mut builder = tempfile::Builder::new();
+        builder.prefix(&prefix).suffix(".partial");
+        // tempfile creates 0600 files; a pin file is an asset others read, so ask for what
+        // `File::create` would give (0666, narrowed by the umask on creation).
+        #[cfg(unix)]
+        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        let temp = builder.tempfile_in(&dir)?;
         let (file, temp) = temp.into_parts();
         let writer = PinFileWriter::new(BufWriter::with_capacity(1 << 20, file))?;
         Ok(Self {

@@ -1,0 +1,274 @@
+//! `pinrender bench`: queries per second of pins vs ray marching the source density at
+//! relative steps 0.015 and 0.005, on the same random rays, CPU single thread and wgpu.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow};
+use clap::Args;
+use glam::DVec3;
+use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
+use pinrt::march::{self, MarchBox};
+use pinrt::{PinGrid, RayQuery, Rng};
+use serde_json::{Value, json};
+
+use crate::volume::{self, VolumeArgs};
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Pin file to benchmark (default: bake each volume, cached in the temp directory).
+    #[arg(long)]
+    pub pins: Option<PathBuf>,
+    #[command(flatten)]
+    pub volume: VolumeArgs,
+    /// Random rays per measurement (ray marching uses a quarter of them).
+    #[arg(long, default_value_t = 200_000)]
+    pub rays: usize,
+    /// Spatial cells per axis when baking (x 16x4 polar directions, as in the thesis).
+    #[arg(long, default_value_t = 37)]
+    pub cells: u32,
+    /// Skip the wgpu measurements.
+    #[arg(long)]
+    pub no_gpu: bool,
+    /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s}, ...]}.
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn data_dir() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"))
+}
+
+/// The 256^3 voxelised cosine noise of the benchmark (no file needed).
+fn noise_volume() -> Result<Arc<dyn DensitySource>> {
+    let spec: ProceduralSpec = "cosine:seed=11,freq=8,density=4"
+        .parse()
+        .map_err(|e| anyhow!("{e}"))?;
+    let noise = spec.build_noise()?;
+    let n = 256usize;
+    let h = 1.0 / n as f64;
+    let mut data = vec![0.0f32; n * n * n];
+    for (i, row) in data.chunks_mut(n).enumerate() {
+        let start = DVec3::new(
+            0.5 * h,
+            ((i % n) as f64 + 0.5) * h,
+            ((i / n) as f64 + 0.5) * h,
+        );
+        noise.extinction_along(start, DVec3::new(h, 0.0, 0.0), n, row);
+    }
+    Ok(Arc::new(DenseGrid::new(
+        [n as u32; 3],
+        data,
+        DVec3::splat(h),
+        DVec3::ZERO,
+        "cosine noise 256^3",
+    )?))
+}
+
+/// Bakes (or reuses a cached bake of) the pins for a benchmark volume.
+fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<PinGrid> {
+    let dir = std::env::temp_dir().join("pinrender-bench");
+    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+    let path = dir.join(format!("{name}-{cells}-v{}.pin", env!("CARGO_PKG_VERSION")));
+    if let Ok(g) = PinGrid::open(&path)
+        && g.verify().is_ok()
+    {
+        return Ok(g);
+    }
+    eprintln!(
+        "pinrender bench: baking {name} ({cells}^3 x 16x4 pins) once into {}",
+        path.display()
+    );
+    let opts = pinbake::BakeOptions {
+        cells: [cells; 3],
+        ..pinbake::BakeOptions::default()
+    };
+    let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
+    grid.write_atomic(&path)?;
+    PinGrid::open(&path).map_err(|e| anyhow!("{e}"))
+}
+
+/// Rays from uniform points of the box in uniform directions, to the box exit.
+fn random_rays(source: &dyn DensitySource, n: usize) -> Vec<RayQuery> {
+    let b = source.bounds();
+    let mut rng = Rng::for_query(12345, 0);
+    (0..n)
+        .map(|_| {
+            let u = DVec3::new(
+                f64::from(rng.next_f32()),
+                f64::from(rng.next_f32()),
+                f64::from(rng.next_f32()),
+            );
+            let o = b.min + u * b.extent();
+            let z = 2.0 * rng.next_f32() - 1.0;
+            let phi = std::f32::consts::TAU * rng.next_f32();
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            RayQuery::new(
+                o.as_vec3().to_array(),
+                [r * phi.cos(), r * phi.sin(), z],
+                f32::INFINITY,
+            )
+        })
+        .collect()
+}
+
+fn row(volume: &str, method: &str, query: &str, backend: &str, qps: f64) -> Value {
+    json!({"volume": volume, "method": method, "query": query, "backend": backend, "queries_per_s": qps})
+}
+
+fn bench_volume(
+    name: &str,
+    source: &dyn DensitySource,
+    grid: &PinGrid,
+    args: &BenchArgs,
+    gpu: Option<&pinrt::gpu::GpuContext>,
+    rows: &mut Vec<Value>,
+) -> Result<()> {
+    let rays = random_rays(source, args.rays);
+    let sampler = grid.sampler()?;
+    // Pins, batched, one thread. A warm-up pass first so page faults of the mmap are not timed.
+    let mut t_out = vec![0.0f32; rays.len()];
+    let mut d_out = vec![None; rays.len()];
+    sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
+    let t = Instant::now();
+    sampler.transmittance_batch(&rays, 2, 0, &mut t_out);
+    rows.push(row(
+        name,
+        "pins",
+        "transmittance",
+        "cpu",
+        rays.len() as f64 / t.elapsed().as_secs_f64(),
+    ));
+    let t = Instant::now();
+    sampler.sample_distance_batch(&rays, 3, 0, &mut d_out);
+    rows.push(row(
+        name,
+        "pins",
+        "distance",
+        "cpu",
+        rays.len() as f64 / t.elapsed().as_secs_f64(),
+    ));
+
+    let b = source.bounds();
+    let mbox = MarchBox {
+        min: b.min,
+        max: b.max,
+    };
+    let n_rm = (rays.len() / 4).max(1);
+    let density = |p: DVec3| source.extinction(p);
+    for step in [0.015, 0.005] {
+        let t = Instant::now();
+        let mut acc = 0.0;
+        for r in &rays[..n_rm] {
+            let o = DVec3::from(r.origin.map(f64::from));
+            let d = DVec3::from(r.dir.map(f64::from));
+            acc += march::transmittance(density, &mbox, o, d, f64::INFINITY, step);
+        }
+        std::hint::black_box(acc);
+        let method = format!("rm@{step}");
+        rows.push(row(
+            name,
+            &method,
+            "transmittance",
+            "cpu",
+            n_rm as f64 / t.elapsed().as_secs_f64(),
+        ));
+        let t = Instant::now();
+        let mut hits = 0usize;
+        for (i, r) in rays[..n_rm].iter().enumerate() {
+            let mut rng = Rng::for_query(4, i as u32);
+            let o = DVec3::from(r.origin.map(f64::from));
+            let d = DVec3::from(r.dir.map(f64::from));
+            hits += march::sample_distance(density, &mbox, o, d, f64::INFINITY, step, &mut rng)
+                .is_some() as usize;
+        }
+        std::hint::black_box(hits);
+        rows.push(row(
+            name,
+            &method,
+            "distance",
+            "cpu",
+            n_rm as f64 / t.elapsed().as_secs_f64(),
+        ));
+    }
+
+    if let Some(ctx) = gpu {
+        let g = pinrt::gpu::GpuPinGrid::upload(ctx, grid)?;
+        g.run_queries(&rays[..rays.len().min(4096)], 0, 0)?; // warm-up: pipeline, buffers
+        let t = Instant::now();
+        let res = g.run_queries(&rays, 5, 0)?;
+        let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+        std::hint::black_box(res);
+        // One dispatch answers both queries; report it under both names.
+        rows.push(row(name, "pins", "transmittance", "gpu", qps));
+        rows.push(row(name, "pins", "distance", "gpu", qps));
+    }
+    Ok(())
+}
+
+pub fn run(args: BenchArgs) -> Result<()> {
+    let mut volumes: Vec<(String, Arc<dyn DensitySource>)> = Vec::new();
+    if let Some(v) = &args.volume.volume {
+        volumes.push((v.clone(), volume::open_volume(v, &args.volume)?));
+    } else {
+        let smoke = data_dir().join("openvdb_smoke1.vdb");
+        if smoke.exists() {
+            let v = smoke.to_string_lossy().into_owned();
+            volumes.push(("smoke".into(), volume::open_volume(&v, &args.volume)?));
+        } else {
+            eprintln!(
+                "pinrender bench: {} not found, skipping the smoke",
+                smoke.display()
+            );
+        }
+        volumes.push(("cosine256".into(), noise_volume()?));
+    }
+    let gpu = if args.no_gpu {
+        None
+    } else {
+        Some(pinrt::gpu::GpuContext::new()?)
+    };
+    let mut rows = Vec::new();
+    for (name, source) in &volumes {
+        let grid = match &args.pins {
+            Some(p) => PinGrid::open(p).map_err(|e| anyhow!("{e}"))?,
+            None => cached_pins(name, source.as_ref(), args.cells)?,
+        };
+        bench_volume(name, source.as_ref(), &grid, &args, gpu.as_ref(), &mut rows)?;
+    }
+    if args.json {
+        println!("{}", json!({"results": rows}));
+        return Ok(());
+    }
+    if let Some(ctx) = &gpu {
+        println!("gpu: {}", ctx.describe());
+    }
+    println!(
+        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10}",
+        "volume", "method", "query", "on", "queries/s", "pins/x"
+    );
+    for r in &rows {
+        let base = rows
+            .iter()
+            .find(|b| {
+                b["volume"] == r["volume"]
+                    && b["query"] == r["query"]
+                    && b["backend"] == "cpu"
+                    && b["method"] == "pins"
+            })
+            .and_then(|b| b["queries_per_s"].as_f64())
+            .unwrap_or(f64::NAN);
+        let q = r["queries_per_s"].as_f64().unwrap_or(f64::NAN);
+        println!(
+            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1}",
+            r["volume"].as_str().unwrap_or(""),
+            r["method"].as_str().unwrap_or(""),
+            r["query"].as_str().unwrap_or(""),
+            r["backend"].as_str().unwrap_or(""),
+            q,
+            base / q
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,184 @@
+//! Loading volumes through pinbake's sources and adapting them to the renderer, plus the
+//! pin-grid estimator adapter.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, Result, anyhow};
+use clap::Args;
+use glam::{DVec3, Vec3};
+use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
+use pinrt::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator};
+use pinrt::{PinGrid, Ray, Rng, Sampler};
+
+/// How to read the volume (the same flags as `pinbake bake`).
+#[derive(Args, Debug, Clone)]
+pub struct VolumeArgs {
+    /// Volume: FILE.vdb, FILE.raw or procedural:SPEC (see `pinbake bake --help`).
+    #[arg(long)]
+    pub volume: Option<String>,
+    /// VDB grid name (`density#1` for the second grid named density).
+    #[arg(long)]
+    pub grid: Option<String>,
+    /// Raw: voxel counts X,Y,Z.
+    #[arg(long, value_parser = parse_u32x3)]
+    pub dims: Option<[u32; 3]>,
+    /// Raw: u8, u16, f16, f32 or f64.
+    #[arg(long = "type")]
+    pub voxel_type: Option<String>,
+    /// Raw: world size of a voxel (V or X,Y,Z); the grid occupies [origin, origin + dims * spacing].
+    #[arg(long, value_parser = parse_f64x3)]
+    pub spacing: Option<[f64; 3]>,
+    /// Raw: world position of the grid box's minimum corner.
+    #[arg(long, value_parser = parse_f64x3)]
+    pub origin: Option<[f64; 3]>,
+    /// Multiply every density by this.
+    #[arg(long, default_value_t = 1.0)]
+    pub density_scale: f64,
+}
+
+pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse().map_err(|e| format!("'{p}': {e}")))
+        .collect::<Result<_, String>>()?;
+    match v.as_slice() {
+        [n] => Ok([*n; 3]),
+        [x, y, z] => Ok([*x, *y, *z]),
+        _ => Err("expected N or X,Y,Z".into()),
+    }
+}
+
+pub fn parse_f64x3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse().map_err(|e| format!("'{p}': {e}")))
+        .collect::<Result<_, String>>()?;
+    let out = match v.as_slice() {
+        [n] => [*n; 3],
+        [x, y, z] => [*x, *y, *z],
+        _ => return Err("expected V or X,Y,Z".into()),
+    };
+    if out.iter().all(|x| x.is_finite()) {
+        Ok(out)
+    } else {
+        Err("values must be finite".into())
+    }
+}
+
+/// Opens a volume given as a path or `procedural:SPEC`.
+pub fn open_volume(input: &str, a: &VolumeArgs) -> Result<Arc<dyn DensitySource>> {
+    let spec = if let Some(rest) = input.strip_prefix("procedural:") {
+        let mut p: ProceduralSpec = rest.parse().map_err(|e| anyhow!("{e}"))?;
+        p.density *= a.density_scale;
+        SourceSpec::Procedural(p)
+    } else {
+        let path = PathBuf::from(input);
+        if path.extension().and_then(|e| e.to_str()) == Some("vdb") {
+            SourceSpec::Vdb(
+                path,
+                source::VdbOptions {
+                    grid: a.grid.clone(),
+                    density_scale: a.density_scale,
+                    worker_exe: std::env::current_exe().context("locating pinrender")?,
+                    ..source::VdbOptions::default()
+                },
+            )
+        } else {
+            let voxel_type = match a.voxel_type.as_deref() {
+                None => None,
+                Some(t) => Some(
+                    source::RawType::parse(t)
+                        .ok_or_else(|| anyhow!("--type '{t}' is not u8, u16, f16, f32 or f64"))?,
+                ),
+            };
+            SourceSpec::Raw(
+                path,
+                RawOptions {
+                    dims: a.dims,
+                    voxel_type,
+                    spacing: a.spacing.unwrap_or([1.0; 3]),
+                    origin: a.origin.unwrap_or([0.0; 3]),
+                    density_scale: a.density_scale,
+                    ..RawOptions::default()
+                },
+            )
+        }
+    };
+    Ok(Arc::from(source::open_source(&spec)?))
+}
+
+/// A pinbake source seen as the renderer's density field.
+pub struct SourceField(pub Arc<dyn DensitySource>);
+
+impl DensityField for SourceField {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let b = self.0.bounds();
+        (b.min.to_array(), b.max.to_array())
+    }
+    fn extinction(&self, p: Vec3) -> f32 {
+        self.0.extinction(p.as_dvec3())
+    }
+    fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        Some(
+            self.0
+                .max_extinction_in(source::Aabb::new(DVec3::from(lo), DVec3::from(hi))),
+        )
+    }
+}
+
+/// Majorant grid of `bricks^3` over the field's box, from the source's conservative bounds.
+pub fn majorants(field: &SourceField, bricks: u32) -> Result<Arc<MajorantGrid>> {
+    Ok(Arc::new(
+        MajorantGrid::from_field(field, [bricks; 3]).map_err(|e| anyhow!("{e}"))?,
+    ))
+}
+
+/// A pin grid as a renderer estimator. The grid is leaked: a binary renders with it until exit.
+pub struct PinsEstimator {
+    sampler: Sampler<'static>,
+}
+
+impl PinsEstimator {
+    pub fn new(grid: PinGrid) -> Result<Self> {
+        let grid: &'static PinGrid = Box::leak(Box::new(grid));
+        Ok(Self {
+            sampler: grid.sampler()?,
+        })
+    }
+}
+
+impl TransportEstimator for PinsEstimator {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
+        self.sampler
+            .sample_distance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
+        self.sampler
+            .transmittance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
+    }
+    fn name(&self) -> String {
+        "pins".into()
+    }
+}
+
+/// Loads `--pins FILE`, or bakes the volume in memory with default-ish settings.
+pub fn pins_for(
+    pins: Option<&Path>,
+    source: &dyn DensitySource,
+    cells: u32,
+    seed: u64,
+) -> Result<PinGrid> {
+    if let Some(p) = pins {
+        return PinGrid::open(p).map_err(|e| anyhow!("{e}"));
+    }
+    let opts = pinbake::BakeOptions {
+        cells: [cells; 3],
+        seed,
+        ..pinbake::BakeOptions::default()
+    };
+    let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
+    PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
+}

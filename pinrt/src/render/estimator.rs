@@ -1,0 +1,345 @@
+//! Free-flight distance sampling and transmittance estimation behind one trait.
+
+use super::RenderError;
+use super::field::DensityField;
+use super::majorant::{MajorantGrid, check_box, clip_box};
+use super::rng::Pcg32;
+use glam::{DVec3, Vec3};
+use std::sync::Arc;
+
+/// A distance sampler and transmittance estimator for one medium (one instance).
+///
+/// Rays are `o + t d`; `t` is measured in units of `|d|` (world distance for unit `d`, which
+/// the renderer always passes), and both queries consider `t` in `[0, t_max]` (`t_max` may be
+/// `+inf`: to the medium's exit). Invalid rays (non-finite `o` or `d`, zero `d`, NaN or
+/// non-positive `t_max`) give transmittance 1 and no collision: the medium is skipped, never
+/// a panic or a NaN.
+///
+/// Object safe: the renderer holds `Arc<dyn TransportEstimator>`. An estimator with its own
+/// generator (the pin sampler) can seed it per query with `rng.next_u64()`.
+pub trait TransportEstimator: Send + Sync {
+    /// A collision distance `t < t_max` distributed (for exact estimators) with density
+    /// `sigma_t(t) exp(-tau(0, t))`, or `None` (probability `exp(-tau(0, t_max))`).
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32>;
+    /// An estimate of `exp(-tau(0, t_max))` (unbiased for the trackers; ray marching is
+    /// deterministic and biased by its quadrature).
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32;
+    /// A short label for reports, e.g. `delta-tracking(16x16x16)`.
+    fn name(&self) -> String;
+}
+
+/// A validated ray in f64 with unit direction; `scale = |d|` converts back to the caller's t.
+#[derive(Clone, Copy)]
+pub(crate) struct Prepared {
+    pub o: DVec3,
+    pub d: DVec3,
+    pub scale: f64,
+    pub t_max: f64,
+}
+
+#[inline]
+pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<Prepared> {
+    if !(o.is_finite() && d.is_finite() && t_max > 0.0) {
+        return None;
+    }
+    let d = d.as_dvec3();
+    let scale = d.length();
+    if !(scale > 0.0 && scale.is_finite()) {
+        return None;
+    }
+    Some(Prepared {
+        o: o.as_dvec3(),
+        d: d / scale,
+        scale,
+        t_max: t_max as f64 * scale,
+    })
+}
+
+impl Prepared {
+    /// World distance back to the caller's parameter, strictly inside `[0, t_max]`.
+    #[inline]
+    fn to_t(self, t_world: f64, t_max: f32) -> f32 {
+        ((t_world / self.scale) as f32).clamp(0.0, t_max)
+    }
+    #[inline]
+    fn at(&self, t: f64) -> Vec3 {
+        (self.o + self.d * t).as_vec3()
+    }
+}
+
+/// Extinction as the estimators use it: NaN and negative values are 0, `+inf` is kept
+/// (opaque).
+#[inline]
+pub(crate) fn clean(sigma: f32) -> f64 {
+    if sigma > 0.0 { sigma as f64 } else { 0.0 }
+}
+
+/// Safety valve for trackers: after this many tentative collisions in one query the tracker
+/// stops (delta: no collision; ratio: the current weight). Only reachable with majorants
+/// absurdly larger than the extinction (e.g. a supplied grid of 1e30 over thin smoke).
+pub const MAX_TRACKING_STEPS: u32 = 1 << 22;
+
+/// Safety valve for ray marching: the step is widened so a query takes at most this many.
+pub const MAX_MARCH_STEPS: f64 = (1u64 << 24) as f64;
+
+// ---------------------------------------------------------------------------------------
+// Ray marching
+// ---------------------------------------------------------------------------------------
+
+/// Ray marching with a fixed step relative to the box's longest edge; midpoint rule.
+///
+/// Steps start at the segment start (the box entry or the ray origin) and the last one is
+/// shortened to end exactly at the segment end. Transmittance is `exp(-sum sigma(mid) h)`,
+/// deterministic. Distance sampling draws a target optical depth `-ln(1 - u)` and inverts
+/// the piecewise-linear accumulated depth (constant extinction inside a step), so a
+/// homogeneous medium is sampled exactly.
+pub struct RayMarching<F: ?Sized = dyn DensityField> {
+    field: Arc<F>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    rel_step: f64,
+    step: f64,
+}
+
+impl<F: DensityField + ?Sized> RayMarching<F> {
+    /// `rel_step` in `(0, 1]` times the longest edge of `field.bounds()` is the step.
+    pub fn new(field: Arc<F>, rel_step: f64) -> Result<Self, RenderError> {
+        let (lo, hi) = field.bounds();
+        check_box(&lo, &hi).map_err(|why| RenderError::Invalid {
+            what: "field bounds",
+            why,
+        })?;
+        if !(rel_step > 0.0 && rel_step <= 1.0) {
+            return Err(RenderError::Invalid {
+                what: "ray marching step",
+                why: format!("relative step {rel_step} must be in (0, 1]"),
+            });
+        }
+        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
+        Ok(RayMarching {
+            field,
+            lo,
+            hi,
+            rel_step,
+            step: rel_step * longest,
+        })
+    }
+
+    /// Walks the steps; `visit(t_start, h, sigma)` returns true to stop.
+    #[inline]
+    fn march(&self, r: &Prepared, mut visit: impl FnMut(f64, f64, f64) -> bool) {
+        let Some((t0, t1)) = clip_box(r.o, r.d, &self.lo, &self.hi, 0.0, r.t_max) else {
+            return;
+        };
+        let len = t1 - t0;
+        let h = self.step.max(len / MAX_MARCH_STEPS);
+        let n = (len / h).ceil().max(1.0) as u64;
+        for i in 0..n {
+            let a = t0 + i as f64 * h;
+            let b = if i + 1 == n { t1 } else { (a + h).min(t1) };
+            if b <= a {
+                continue;
+            }
+            let sigma = clean(self.field.extinction(r.at(0.5 * (a + b))));
+            if visit(a, b - a, sigma) {
+                return;
+            }
+        }
+    }
+}
+
+impl<F: DensityField + ?Sized> TransportEstimator for RayMarching<F> {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        let r = prepare(o, d, t_max)?;
+        let target = rng.next_exp();
+        let mut tau = 0.0;
+        let mut hit = None;
+        self.march(&r, |a, h, sigma| {
+            let dt = sigma * h;
+            if tau + dt >= target && sigma > 0.0 {
+                // Linear interpolation of the depth inside the step.
+                hit = Some((a + (target - tau) / sigma).min(a + h));
+                return true;
+            }
+            tau += dt;
+            false
+        });
+        hit.map(|t| r.to_t(t, t_max))
+    }
+
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, _rng: &mut Pcg32) -> f32 {
+        let Some(r) = prepare(o, d, t_max) else {
+            return 1.0;
+        };
+        let mut tau = 0.0;
+        self.march(&r, |_, h, sigma| {
+            tau += sigma * h;
+            tau == f64::INFINITY
+        });
+        (-tau).exp() as f32
+    }
+
+    fn name(&self) -> String {
+        format!("ray-marching(step={})", self.rel_step)
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Trackers over a majorant grid
+// ---------------------------------------------------------------------------------------
+
+/// Shared state of the trackers: a field and a majorant grid over (at least) its support.
+struct Tracker<F: ?Sized> {
+    majorants: Arc<MajorantGrid>,
+    field: Arc<F>,
+}
+
+impl<F: DensityField + ?Sized> Tracker<F> {
+    /// Delta tracking: exponential steps at each brick segment's majorant (a piecewise
+    /// constant majorant: the leftover majorant optical depth carries into the next brick);
+    /// a tentative collision is accepted with probability `sigma / majorant` (clamped to 1
+    /// where a supplied majorant is too small). Bricks of majorant 0 are skipped.
+    #[inline]
+    fn delta(&self, r: &Prepared, rng: &mut Pcg32) -> Option<f64> {
+        let mut steps = 0u32;
+        // Majorant optical depth left to the next tentative collision, carried across brick
+        // boundaries (equivalent to resampling there, by memorylessness, but one logarithm
+        // per tentative collision instead of one per brick).
+        let mut tau = rng.next_exp();
+        for seg in self.majorants.segments(r.o, r.d, 0.0, r.t_max) {
+            if !(seg.majorant > 0.0) {
+                continue;
+            }
+            let maj = seg.majorant as f64;
+            let inv = 1.0 / maj;
+            let mut t = seg.t0;
+            loop {
+                let t_next = t + tau * inv;
+                if t_next >= seg.t1 {
+                    tau = (tau - (seg.t1 - t) * maj).max(0.0);
+                    break;
+                }
+                t = t_next;
+                tau = rng.next_exp();
+                let sigma = clean(self.field.extinction(r.at(t)));
+                if rng.next_f64() * maj < sigma {
+                    return Some(t);
+                }
+                steps += 1;
+                if steps >= MAX_TRACKING_STEPS {
+                    return None;
+                }
+            }
+        }
+        None
+    }
+
+    /// Ratio tracking: the product of `1 - sigma / majorant` over the tentative collisions,
+    /// unbiased for any positive majorant (weights can turn negative where a supplied
+    /// majorant is too small; they are not clamped, which would bias). Russian roulette
+    /// below |T| = 0.1 (survival probability |T| / 0.1, weight divided by it) keeps dense
+    /// media cheap without bias.
+    #[inline]
+    fn ratio(&self, r: &Prepared, rng: &mut Pcg32) -> f32 {
+        const RR: f64 = 0.1;
+        let mut tr = 1.0f64;
+        let mut steps = 0u32;
+        let mut tau = rng.next_exp(); // as in `delta`
+        for seg in self.majorants.segments(r.o, r.d, 0.0, r.t_max) {
+            if !(seg.majorant > 0.0) {
+                continue;
+            }
+            let maj = seg.majorant as f64;
+            let inv = 1.0 / maj;
+            let mut t = seg.t0;
+            loop {
+                let t_next = t + tau * inv;
+                if t_next >= seg.t1 {
+                    tau = (tau - (seg.t1 - t) * maj).max(0.0);
+                    break;
+                }
+                t = t_next;
+                tau = rng.next_exp();
+                let sigma = clean(self.field.extinction(r.at(t)));
+                tr *= 1.0 - sigma * inv;
+                if tr == 0.0 || tr.is_nan() {
+                    // sigma = +inf gives -inf or NaN: an opaque medium.
+                    return 0.0;
+                }
+                if tr.abs() < RR {
+                    let p = tr.abs() / RR;
+                    if rng.next_f64() >= p {
+                        return 0.0;
+                    }
+                    tr /= p;
+                }
+                steps += 1;
+                if steps >= MAX_TRACKING_STEPS {
+                    return tr as f32;
+                }
+            }
+        }
+        tr as f32
+    }
+
+    fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
+        Tracker { majorants, field }
+    }
+
+    fn dims_label(&self) -> String {
+        let d = self.majorants.dims();
+        format!("{}x{}x{}", d[0], d[1], d[2])
+    }
+}
+
+/// Delta tracking for both queries (transmittance is the 0/1 indicator of passing).
+pub struct DeltaTracking<F: ?Sized = dyn DensityField>(Tracker<F>);
+
+/// Ratio tracking for transmittance, delta tracking for distances.
+pub struct RatioTracking<F: ?Sized = dyn DensityField>(Tracker<F>);
+
+impl<F: DensityField + ?Sized> DeltaTracking<F> {
+    /// The majorant grid's box bounds the tracking; it should cover the field's support.
+    pub fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
+        DeltaTracking(Tracker::new(field, majorants))
+    }
+}
+
+impl<F: DensityField + ?Sized> RatioTracking<F> {
+    /// The majorant grid's box bounds the tracking; it should cover the field's support.
+    pub fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
+        RatioTracking(Tracker::new(field, majorants))
+    }
+}
+
+impl<F: DensityField + ?Sized> TransportEstimator for DeltaTracking<F> {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        let r = prepare(o, d, t_max)?;
+        self.0.delta(&r, rng).map(|t| r.to_t(t, t_max))
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        match prepare(o, d, t_max) {
+            Some(r) if self.0.delta(&r, rng).is_some() => 0.0,
+            _ => 1.0,
+        }
+    }
+    fn name(&self) -> String {
+        format!("delta-tracking({})", self.0.dims_label())
+    }
+}
+
+impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        let r = prepare(o, d, t_max)?;
+        self.0.delta(&r, rng).map(|t| r.to_t(t, t_max))
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        match prepare(o, d, t_max) {
+            Some(r) => self.0.ratio(&r, rng),
+            None => 1.0,
+        }
+    }
+    fn name(&self) -> String {
+        format!("ratio-tracking({})", self.0.dims_label())
+    }
+}

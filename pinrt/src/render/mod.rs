@@ -1,0 +1,109 @@
+//! # Reference volumetric path tracer (feature `render`)
+//!
+//! A small, CPU-parallel, deterministic path tracer for grey participating media, used to
+//! *see* what an estimator does and to *measure* it: error (RMSE, relative MSE) against run
+//! time, per estimator, on the same scene (DESIGN sections 2, 6). Every transport query
+//! goes through the object-safe [`TransportEstimator`] trait, so ray marching, delta and
+//! ratio tracking (here) and the pin estimators (plugged in from outside) are compared
+//! under exactly the same path tracer.
+//!
+//! **Not for**: production rendering. There are no surfaces, no refractive boundaries, no
+//! emission inside the medium, no spectral media (grey extinction and albedo; lights may be
+//! RGB), no importance sampling of the environment and no adaptive sampling. It is not
+//! tuned for speed beyond what makes equal-time comparisons meaningful.
+//!
+//! ## Conventions
+//!
+//! * World space is right-handed with `+y` up; distances are world units; extinction is per
+//!   world unit.
+//! * [`Camera`]: pinhole at `origin` looking at `target`, vertical field of view in degrees,
+//!   `width x height` pixels, pixel `(0, 0)` top left, one uniformly jittered ray per sample
+//!   inside the pixel (box filter).
+//! * [`Sun`]: a delta directional light; `dir` points **from the scene towards the sun**;
+//!   its `radiance` is the unoccluded irradiance perpendicular to `dir`. It is never seen
+//!   directly (a delta light has no solid angle), only through next-event estimation.
+//! * Environment: a constant radiance over the whole sphere (`env_radiance`); camera rays
+//!   that leave the media see it attenuated by the media's transmittance.
+//! * Medium: no refractive boundary (the box is not a surface), scattering = `albedo x
+//!   extinction`, Henyey-Greenstein phase with parameter `g` (`cos theta` between the
+//!   propagation directions before and after scattering: `g > 0` is forward), see
+//!   [`phase`].
+//! * Instances: [`Scene::media`] holds any number of possibly overlapping media whose
+//!   extinctions add: distance sampling takes the nearest collision over the instances,
+//!   transmittance is the product of the instances' estimates.
+//! * `max_bounces` counts scattering events: 0 renders only the transmitted environment,
+//!   1 single scattering.
+//!
+//! ## Estimator
+//!
+//! Per sample: the camera ray scores `env * T` (a transmittance estimate, not the 0/1
+//! escape), then distance sampling finds the first collision. At each collision the
+//! throughput is multiplied by the albedo (weighting, not absorption roulette), the sun
+//! contributes `phase * T(shadow ray to the media exit) * radiance`, a direction `w` is
+//! sampled from the phase function, the environment contributes `T(w) * env` (phase pdf and
+//! value cancel) and the path continues along `w` with distance sampling; an escape of that
+//! continuation scores nothing because `E[T(w)] = P(escape)` was already scored. All this is
+//! unbiased for unbiased transmittance estimates and exact distance sampling; see
+//! `tracer.rs`.
+//!
+//! ## Plugging in pins / PinMS
+//!
+//! Each [`Medium`] has two estimators: `primary` for camera rays and for the shadow rays of
+//! the first scattering vertex (everything single scattering uses) and `secondary` for all
+//! later segments and shadow rays. So PinMS is `Medium::new(tracker, pins)` and pins
+//! everywhere `Medium::single(pins)`. A pin estimator implements [`TransportEstimator`]
+//! (rays are f32, `t` in units of `|d|`, the renderer passes unit directions and
+//! `t_max = inf`) and may seed its own generator per query from [`Pcg32::next_u64`].
+//!
+//! ## Determinism
+//!
+//! Sample `s` of pixel `p` draws from `Pcg32::for_sample(seed, p, s)` only; pixel sums are
+//! accumulated in f64 in sample order. The image does not depend on the thread count, and a
+//! time-budget render that reached `n` spp equals an `n` spp render.
+//!
+//! ## Failure behaviour
+//!
+//! Invalid scenes and settings (zero-size image, NaN camera, `g` outside `(-1, 1)`, albedo
+//! outside `[0, 1]`, negative or non-finite radiance, zero spp) are [`RenderError`]s. At the
+//! query level nothing panics: invalid rays are "no medium" (transmittance 1, no
+//! collision), NaN and negative extinction count as 0 and `+inf` as opaque, non-finite path
+//! samples are dropped.
+
+mod estimator;
+mod field;
+mod image;
+mod majorant;
+pub mod phase;
+mod rng;
+mod tracer;
+
+#[cfg(test)]
+mod tests;
+
+pub use estimator::{
+    DeltaTracking, MAX_MARCH_STEPS, MAX_TRACKING_STEPS, RatioTracking, RayMarching,
+    TransportEstimator,
+};
+pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
+pub use image::{Image, RELATIVE_MSE_EPS, relative_mse, rmse, tone_map};
+pub use majorant::{Dda, MajorantGrid, Segment};
+pub use rng::{Pcg32, splitmix64};
+pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
+
+/// Errors of the render module.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error("invalid {what}: {why}")]
+    Invalid { what: &'static str, why: String },
+    #[error("I/O error on {path}: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+    #[error("EXR: {0}")]
+    Exr(String),
+    #[error("PNG: {0}")]
+    Png(String),
+    #[error("thread pool: {0}")]
+    ThreadPool(String),
+}

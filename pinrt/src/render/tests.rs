@@ -1,0 +1,630 @@
+//! Statistical tests of the estimators and end-to-end tests of the tracer.
+
+use super::*;
+use glam::Vec3;
+use std::sync::Arc;
+
+fn unit_box(sigma: f32) -> Arc<HomogeneousBox> {
+    Arc::new(HomogeneousBox {
+        min: [0.0; 3],
+        max: [1.0; 3],
+        sigma_t: sigma,
+    })
+}
+
+/// Mean and standard error of `n` draws.
+fn mean_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
+    let (mut s, mut s2) = (0.0, 0.0);
+    for _ in 0..n {
+        let x = f();
+        s += x;
+        s2 += x * x;
+    }
+    let m = s / n as f64;
+    let var = (s2 / n as f64 - m * m).max(0.0) * n as f64 / (n as f64 - 1.0);
+    (m, (var / n as f64).sqrt())
+}
+
+/// `|mean - expect| <= 5 standard errors` (or 1e-6 when the estimator is deterministic).
+fn assert_z(label: &str, (m, se): (f64, f64), expect: f64) {
+    let tol = 5.0 * se + 1e-6;
+    assert!(
+        (m - expect).abs() <= tol,
+        "{label}: mean {m} vs {expect} (se {se})"
+    );
+}
+
+fn estimators(field: Arc<dyn DensityField>, dims: [u32; 3]) -> Vec<Box<dyn TransportEstimator>> {
+    let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
+    vec![
+        Box::new(DeltaTracking::new(field.clone(), maj.clone())),
+        Box::new(RatioTracking::new(field, maj)),
+    ]
+}
+
+#[test]
+fn trackers_transmittance_homogeneous() {
+    let sigma = 2.0f32;
+    for dims in [[1, 1, 1], [16, 16, 16], [3, 1, 7]] {
+        for est in estimators(unit_box(sigma), dims) {
+            let mut rng = Pcg32::new(1, 2);
+            // Through the box along x (chord 1), with a t_max cut inside (0.5), diagonal from
+            // inside, and along a face.
+            let cases: [(Vec3, Vec3, f32, f64); 4] = [
+                (Vec3::new(-1.0, 0.5, 0.5), Vec3::X, f32::INFINITY, 1.0),
+                (Vec3::new(-1.0, 0.3, 0.6), Vec3::X, 1.5, 0.5),
+                (
+                    Vec3::splat(0.5),
+                    Vec3::ONE.normalize(),
+                    f32::INFINITY,
+                    0.5 * 3f64.sqrt(),
+                ),
+                (Vec3::new(0.0, 0.0, -2.0), Vec3::Z, f32::INFINITY, 1.0),
+            ];
+            for (o, d, t_max, len) in cases {
+                let r = mean_se(20_000, || est.transmittance(o, d, t_max, &mut rng) as f64);
+                assert_z(&est.name(), r, (-(sigma as f64) * len).exp());
+            }
+        }
+    }
+}
+
+#[test]
+fn trackers_transmittance_heterogeneous() {
+    // sigma = 1 + 3 x^2 on the unit box: optical depth 2 along x, 2 |d| / d.x diagonally.
+    let field: Arc<dyn DensityField> = Arc::new(FnField {
+        min: [0.0; 3],
+        max: [1.0; 3],
+        f: |p: Vec3| 1.0 + 3.0 * p.x * p.x,
+    });
+    let d = Vec3::new(1.0, 0.3, 0.2);
+    let len = d.length() as f64;
+    let d = d.normalize();
+    for dims in [[1, 1, 1], [4, 4, 4], [8, 2, 1]] {
+        for est in estimators(field.clone(), dims) {
+            let mut rng = Pcg32::new(3, 4);
+            let r = mean_se(20_000, || {
+                est.transmittance(Vec3::new(-0.5, 0.5, 0.5), Vec3::X, f32::INFINITY, &mut rng)
+                    as f64
+            });
+            assert_z(&est.name(), r, (-2.0f64).exp());
+            let o = Vec3::new(0.0, 0.2, 0.3);
+            let r = mean_se(20_000, || {
+                est.transmittance(o, d, f32::INFINITY, &mut rng) as f64
+            });
+            assert_z(&est.name(), r, (-2.0 * len).exp());
+        }
+    }
+    // Ray marching: midpoint rule error <= h^2 / 24 * max|sigma''| * length = h^2 / 4.
+    for rel in [0.2, 0.05, 0.01] {
+        let rm = RayMarching::new(field.clone(), rel).unwrap();
+        let mut rng = Pcg32::new(0, 0);
+        let t = rm.transmittance(Vec3::new(-0.5, 0.5, 0.5), Vec3::X, f32::INFINITY, &mut rng);
+        let exact = (-2.0f64).exp();
+        let bound = exact * (rel * rel / 4.0) * 1.01 + 1e-6;
+        assert!(
+            (t as f64 - exact).abs() <= bound,
+            "step {rel}: {t} vs {exact}"
+        );
+    }
+}
+
+#[test]
+fn zero_and_loose_majorants() {
+    // Empty left half: its brick has majorant 0 and is skipped; a right-half brick with a
+    // majorant 5x too large stays unbiased.
+    let field: Arc<dyn DensityField> = Arc::new(FnField {
+        min: [0.0; 3],
+        max: [1.0; 3],
+        f: |p: Vec3| if p.x > 0.5 { 2.0 } else { 0.0 },
+    });
+    let maj =
+        Arc::new(MajorantGrid::from_parts([0.0; 3], [1.0; 3], [2, 1, 1], vec![0.0, 10.0]).unwrap());
+    let ests: [Box<dyn TransportEstimator>; 2] = [
+        Box::new(DeltaTracking::new(field.clone(), maj.clone())),
+        Box::new(RatioTracking::new(field.clone(), maj)),
+    ];
+    for est in &ests {
+        let mut rng = Pcg32::new(5, 6);
+        let r = mean_se(20_000, || {
+            est.transmittance(Vec3::new(-1.0, 0.5, 0.5), Vec3::X, f32::INFINITY, &mut rng) as f64
+        });
+        assert_z(&est.name(), r, (-1.0f64).exp());
+        for _ in 0..1000 {
+            if let Some(t) =
+                est.sample_distance(Vec3::new(-1.0, 0.5, 0.5), Vec3::X, f32::INFINITY, &mut rng)
+            {
+                assert!(
+                    (1.5..=2.0).contains(&t),
+                    "collision at {t} in the empty half"
+                );
+            }
+        }
+    }
+    // A majorant below the extinction: ratio tracking keeps its (signed) weights unbiased.
+    let maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 1.0).unwrap());
+    let rt = RatioTracking::new(unit_box(2.0), maj);
+    let mut rng = Pcg32::new(7, 8);
+    let r = mean_se(100_000, || {
+        rt.transmittance(Vec3::new(-1.0, 0.5, 0.5), Vec3::X, f32::INFINITY, &mut rng) as f64
+    });
+    assert_z("ratio, low majorant", r, (-2.0f64).exp());
+}
+
+/// Chi-square of sampled distances through the homogeneous unit box (entry at t = 1, exit
+/// at t = 2) on 20 equal-width bins plus the no-collision outcome.
+#[test]
+fn distance_samples_are_exponential() {
+    let sigma = 2.0f64;
+    let field = unit_box(sigma as f32);
+    let maj1 = Arc::new(MajorantGrid::from_field(&*field, [1, 1, 1]).unwrap());
+    let maj16 = Arc::new(MajorantGrid::from_field(&*field, [16, 16, 16]).unwrap());
+    let ests: Vec<Box<dyn TransportEstimator>> = vec![
+        Box::new(DeltaTracking::new(field.clone(), maj1)),
+        Box::new(DeltaTracking::new(field.clone(), maj16.clone())),
+        Box::new(RatioTracking::new(field.clone(), maj16)),
+        Box::new(RayMarching::new(field.clone(), 0.03).unwrap()),
+    ];
+    let bins = 20;
+    let n = 100_000;
+    let mut p = vec![0.0; bins + 1];
+    for (k, pk) in p.iter_mut().enumerate().take(bins) {
+        let (a, b) = (k as f64 / bins as f64, (k + 1) as f64 / bins as f64);
+        *pk = (-sigma * a).exp() - (-sigma * b).exp();
+    }
+    p[bins] = (-sigma).exp();
+    // Direction (1, 0.1, 0): the chord through the box is 1.005 long; scale the bins.
+    let d = Vec3::new(1.0, 0.1, 0.0).normalize();
+    let o = Vec3::new(0.0, 0.4, 0.5) - d; // enters the box at t = 1 on the x = 0 face
+    let chord = 1.0 / d.x as f64;
+    // Adjust expectations for the longer chord.
+    for (k, pk) in p.iter_mut().enumerate().take(bins) {
+        let (a, b) = (
+            k as f64 / bins as f64 * chord,
+            (k + 1) as f64 / bins as f64 * chord,
+        );
+        *pk = (-sigma * a).exp() - (-sigma * b).exp();
+    }
+    p[bins] = (-sigma * chord).exp();
+    for est in &ests {
+        let mut rng = Pcg32::new(11, 12);
+        let mut counts = vec![0usize; bins + 1];
+        for _ in 0..n {
+            match est.sample_distance(o, d, f32::INFINITY, &mut rng) {
+                None => counts[bins] += 1,
+                Some(t) => {
+                    let x = (t as f64 - 1.0) / chord;
+                    assert!((-1e-5..=1.0 + 1e-5).contains(&x), "{}: t = {t}", est.name());
+                    counts[((x * bins as f64) as usize).min(bins - 1)] += 1;
+                }
+            }
+        }
+        let chi2: f64 = counts
+            .iter()
+            .zip(&p)
+            .map(|(&c, &pk)| (c as f64 - n as f64 * pk).powi(2) / (n as f64 * pk))
+            .sum();
+        // 20 degrees of freedom: the 0.9999 quantile is about 52.4.
+        assert!(
+            chi2 < 52.4,
+            "{}: chi2 {chi2}, counts {counts:?}",
+            est.name()
+        );
+    }
+}
+
+#[test]
+fn invalid_rays_are_no_medium() {
+    let field = unit_box(3.0);
+    let maj = Arc::new(MajorantGrid::from_field(&*field, [2, 2, 2]).unwrap());
+    let ests: Vec<Box<dyn TransportEstimator>> = vec![
+        Box::new(DeltaTracking::new(field.clone(), maj.clone())),
+        Box::new(RatioTracking::new(field.clone(), maj)),
+        Box::new(RayMarching::new(field.clone(), 0.1).unwrap()),
+    ];
+    let o = Vec3::new(-1.0, 0.5, 0.5);
+    let mut rng = Pcg32::new(1, 1);
+    for est in &ests {
+        for (o, d, t_max) in [
+            (o, Vec3::new(f32::NAN, 0.0, 0.0), f32::INFINITY),
+            (o, Vec3::ZERO, f32::INFINITY),
+            (o, Vec3::X, f32::NAN),
+            (o, Vec3::X, 0.0),
+            (o, Vec3::X, -1.0),
+            (Vec3::splat(f32::INFINITY), Vec3::X, 1.0),
+            (o, Vec3::splat(f32::MAX), 1.0),
+        ] {
+            assert_eq!(
+                est.transmittance(o, d, t_max, &mut rng),
+                1.0,
+                "{}",
+                est.name()
+            );
+            assert_eq!(est.sample_distance(o, d, t_max, &mut rng), None);
+        }
+        // Non-unit direction: t in units of |d|. Ray marching is exact here.
+        if est.name().starts_with("ray") {
+            let t = est.transmittance(o, Vec3::X * 4.0, 0.5, &mut rng);
+            assert!((t - (-3.0f32).exp()).abs() < 1e-6);
+            let d = est.sample_distance(o, Vec3::X * 4.0, f32::INFINITY, &mut rng);
+            assert!(d.is_none_or(|t| (0.25..=0.5).contains(&t)));
+        }
+    }
+    // Ray marching with an absurd step count is capped, and bad steps are errors.
+    assert!(RayMarching::new(field.clone(), 0.0).is_err());
+    assert!(RayMarching::new(field.clone(), f64::NAN).is_err());
+    let rm = RayMarching::new(field, 1e-12).unwrap();
+    assert!((rm.transmittance(o, Vec3::X, f32::INFINITY, &mut rng) - (-3.0f32).exp()).abs() < 1e-5);
+}
+
+// ---------------------------------------------------------------------------------------
+// Tracer
+// ---------------------------------------------------------------------------------------
+
+fn camera(w: u32, h: u32, vfov: f32) -> Camera {
+    Camera {
+        origin: [0.0, 0.0, 5.0],
+        target: [0.0, 0.0, 0.0],
+        vfov_deg: vfov,
+        width: w,
+        height: h,
+    }
+}
+
+fn cube(sigma: f32) -> Arc<HomogeneousBox> {
+    Arc::new(HomogeneousBox {
+        min: [-1.0; 3],
+        max: [1.0; 3],
+        sigma_t: sigma,
+    })
+}
+
+fn tracked(
+    field: Arc<dyn DensityField>,
+    dims: [u32; 3],
+) -> (Arc<dyn TransportEstimator>, Arc<dyn TransportEstimator>) {
+    let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
+    (
+        Arc::new(DeltaTracking::new(field.clone(), maj.clone())),
+        Arc::new(RatioTracking::new(field, maj)),
+    )
+}
+
+#[test]
+fn albedo_zero_gives_env_times_transmittance() {
+    let sigma = 1.5f32;
+    let field = cube(sigma);
+    let rm: Arc<dyn TransportEstimator> = Arc::new(RayMarching::new(field.clone(), 0.01).unwrap());
+    let (delta, _) = tracked(field, [4, 4, 4]);
+    let env = [0.5f32, 1.0, 2.0];
+    let scene = Scene {
+        camera: camera(8, 6, 1e-3),
+        sun: Some(Sun {
+            dir: [0.3, 1.0, 0.2],
+            radiance: [10.0; 3],
+        }),
+        env_radiance: env,
+        albedo: 0.0,
+        g: 0.5,
+        media: vec![Medium::new(rm, delta)],
+    };
+    // Narrow field of view: every camera ray crosses the cube along z, chord 2.
+    let out = render(
+        &scene,
+        &RenderSettings {
+            max_bounces: 8,
+            seed: 3,
+            budget: Budget::Spp(2),
+            threads: Some(1),
+        },
+    )
+    .unwrap();
+    let t = (-2.0 * sigma).exp();
+    for p in &out.image.rgb {
+        for c in 0..3 {
+            assert!((p[c] - env[c] * t).abs() <= 1e-5 * env[c], "{p:?}");
+        }
+    }
+    // Arbitrary rays: the chord from a slab test.
+    let mut rng = Pcg32::new(4, 4);
+    for _ in 0..200 {
+        let o = Vec3::new(0.0, 0.0, 4.0) + (Vec3::new(rng.next_f32(), rng.next_f32(), 0.0) - 0.5);
+        let target = (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5) * 2.0;
+        let d = (target - o).normalize();
+        let mut t0 = f32::NEG_INFINITY;
+        let mut t1 = f32::INFINITY;
+        for a in 0..3 {
+            let (n, f) = ((-1.0 - o[a]) / d[a], (1.0 - o[a]) / d[a]);
+            t0 = t0.max(n.min(f));
+            t1 = t1.min(n.max(f));
+        }
+        let l = scene.radiance(o, d, 8, &mut rng);
+        let expect = (-(sigma * (t1 - t0.max(0.0)).max(0.0))).exp();
+        assert!((l[1] - expect).abs() < 1e-5, "{l:?} vs {expect}");
+    }
+}
+
+/// Single scattering in a wide slab `y in [0, H]` seen straight down, sun at zenith angle
+/// alpha: `L = albedo sigma p(-cos alpha) R (1 - exp(-sigma H k)) / (sigma k)`,
+/// `k = 1 + 1 / cos alpha` (the camera path to depth s and the sun path s / cos alpha).
+#[test]
+fn single_scattering_matches_closed_form() {
+    let (sigma, h, albedo, g) = (1.0f32, 1.0f64, 0.8f32, 0.3f32);
+    let alpha = 40f64.to_radians();
+    let sun_dir = [alpha.sin() as f32, alpha.cos() as f32, 0.0];
+    let slab = |s: f32| -> Arc<dyn DensityField> {
+        Arc::new(HomogeneousBox {
+            min: [-20.0, 0.0, -20.0],
+            max: [20.0, h, 20.0],
+            sigma_t: s,
+        })
+    };
+    let k = 1.0 + 1.0 / alpha.cos();
+    let sd = sigma as f64;
+    let phase = phase::hg_phase(g, -(alpha.cos() as f32)) as f64;
+    let expect = albedo as f64 * sd * phase * (1.0 - (-sd * h * k).exp()) / (sd * k);
+    // One slab with delta/ratio; the same slab as two overlapping half-density instances;
+    // ray marching.
+    let (d1, r1) = tracked(slab(sigma), [4, 2, 4]);
+    let (d2, r2) = tracked(slab(sigma / 2.0), [1, 1, 1]);
+    let rm: Arc<dyn TransportEstimator> = Arc::new(RayMarching::new(slab(sigma), 0.001).unwrap());
+    let cases: Vec<(&str, Vec<Medium>)> = vec![
+        ("delta+ratio", vec![Medium::new(d1.clone(), r1.clone())]),
+        ("ratio primary", vec![Medium::single(r1)]),
+        (
+            "two instances",
+            vec![Medium::single(d2), Medium::single(r2)],
+        ),
+        ("ray marching", vec![Medium::single(rm)]),
+    ];
+    for (label, media) in cases {
+        let scene = Scene {
+            camera: camera(1, 1, 30.0),
+            sun: Some(Sun {
+                dir: sun_dir,
+                radiance: [1.0; 3],
+            }),
+            env_radiance: [0.0; 3],
+            albedo,
+            g,
+            media,
+        };
+        let mut rng = Pcg32::new(21, 22);
+        let r = mean_se(100_000, || {
+            scene.radiance(Vec3::new(0.0, 3.0, 0.0), Vec3::NEG_Y, 1, &mut rng)[0] as f64
+        });
+        assert_z(label, r, expect);
+    }
+}
+
+/// White furnace: albedo 1, constant environment 1, no sun: every path ends by escaping, so
+/// the expected radiance is exactly 1 whatever the medium, phase or estimator mix.
+#[test]
+fn white_furnace() {
+    let field: Arc<dyn DensityField> = Arc::new(FnField {
+        min: [-1.0; 3],
+        max: [1.0; 3],
+        f: |p: Vec3| 2.0 + 1.5 * (3.0 * p.x).sin() * p.y,
+    });
+    let (delta, ratio) = tracked(field, [4, 4, 4]);
+    let (d2, r2) = tracked(cube(0.7), [1, 1, 1]);
+    for (g, media) in [
+        (0.6f32, vec![Medium::new(ratio.clone(), delta.clone())]),
+        (
+            -0.3,
+            vec![
+                Medium::new(delta.clone(), ratio.clone()),
+                Medium::new(r2, d2),
+            ],
+        ),
+    ] {
+        let scene = Scene {
+            camera: camera(1, 1, 30.0),
+            sun: None,
+            env_radiance: [1.0; 3],
+            albedo: 1.0,
+            g,
+            media,
+        };
+        let mut rng = Pcg32::new(31, 32);
+        let r = mean_se(20_000, || {
+            let o = Vec3::new(0.0, 0.0, 4.0);
+            let d = (Vec3::new(rng.next_f32(), rng.next_f32(), 0.0) - 0.5 - o).normalize();
+            scene.radiance(o, d, 100_000, &mut rng)[2] as f64
+        });
+        assert_z("furnace", r, 1.0);
+    }
+}
+
+fn small_scene() -> Scene {
+    let field = cube(2.0);
+    let (delta, ratio) = tracked(field, [2, 2, 2]);
+    Scene {
+        camera: camera(24, 16, 35.0),
+        sun: Some(Sun {
+            dir: [1.0, 1.0, 0.5],
+            radiance: [3.0, 2.0, 1.0],
+        }),
+        env_radiance: [0.2, 0.3, 0.4],
+        albedo: 0.9,
+        g: 0.4,
+        media: vec![Medium::new(delta, ratio)],
+    }
+}
+
+#[test]
+fn image_independent_of_threads_and_budget() {
+    let scene = small_scene();
+    let settings = |threads, budget| RenderSettings {
+        max_bounces: 4,
+        seed: 99,
+        budget,
+        threads,
+    };
+    let a = render(&scene, &settings(Some(1), Budget::Spp(3))).unwrap();
+    let b = render(&scene, &settings(Some(2), Budget::Spp(3))).unwrap();
+    assert_eq!(a.spp, 3);
+    assert_eq!(a.image, b.image);
+    assert!(
+        a.image
+            .rgb
+            .iter()
+            .all(|p| p.iter().all(|c| c.is_finite() && *c >= 0.0))
+    );
+    // Some pixels see the lit medium, corners see only the environment.
+    assert!(a.image.rgb.iter().any(|p| p[0] > 0.25));
+    assert_eq!(a.image.get(0, 0), Some([0.2, 0.3, 0.4]));
+
+    // Time budget: stops, and equals an spp render with the spp it reached.
+    let start = std::time::Instant::now();
+    let t = render(&scene, &settings(Some(2), Budget::Seconds(0.2))).unwrap();
+    assert!(start.elapsed().as_secs_f64() < 10.0);
+    assert!(t.spp >= 1);
+    let s = render(&scene, &settings(None, Budget::Spp(t.spp))).unwrap();
+    assert_eq!(t.image, s.image);
+    let z = render(&scene, &settings(Some(1), Budget::Seconds(0.0))).unwrap();
+    assert_eq!(z.spp, 1);
+}
+
+#[test]
+fn bad_scenes_are_errors() {
+    let base = small_scene();
+    let ok = RenderSettings {
+        max_bounces: 2,
+        seed: 1,
+        budget: Budget::Spp(1),
+        threads: Some(1),
+    };
+    let mut bad: Vec<Scene> = Vec::new();
+    let mut s = base.clone();
+    s.camera.width = 0;
+    bad.push(s);
+    let mut s = base.clone();
+    s.camera.origin[1] = f32::NAN;
+    bad.push(s);
+    let mut s = base.clone();
+    s.camera.target = s.camera.origin;
+    bad.push(s);
+    let mut s = base.clone();
+    s.camera.vfov_deg = 180.0;
+    bad.push(s);
+    let mut s = base.clone();
+    s.g = 1.0;
+    bad.push(s);
+    let mut s = base.clone();
+    s.albedo = f32::NAN;
+    bad.push(s);
+    let mut s = base.clone();
+    s.env_radiance = [-1.0, 0.0, 0.0];
+    bad.push(s);
+    let mut s = base.clone();
+    s.sun = Some(Sun {
+        dir: [0.0; 3],
+        radiance: [1.0; 3],
+    });
+    bad.push(s);
+    for s in &bad {
+        assert!(render(s, &ok).is_err());
+    }
+    for budget in [
+        Budget::Spp(0),
+        Budget::Seconds(f64::NAN),
+        Budget::Seconds(-1.0),
+    ] {
+        assert!(
+            render(
+                &base,
+                &RenderSettings {
+                    budget,
+                    ..ok.clone()
+                }
+            )
+            .is_err()
+        );
+    }
+    assert!(
+        render(
+            &base,
+            &RenderSettings {
+                threads: Some(0),
+                ..ok.clone()
+            }
+        )
+        .is_err()
+    );
+    // Straight down: the camera frame falls back to +z as up.
+    let mut s = base.clone();
+    s.camera.origin = [0.0, 5.0, 0.0];
+    assert!(render(&s, &ok).is_ok());
+    // Invalid rays give 0, no medium gives the environment.
+    let mut rng = Pcg32::new(0, 0);
+    assert_eq!(
+        base.radiance(Vec3::ZERO, Vec3::splat(f32::NAN), 4, &mut rng),
+        [0.0; 3]
+    );
+    let mut empty = base.clone();
+    empty.media.clear();
+    assert_eq!(
+        empty.radiance(Vec3::ZERO, Vec3::X, 4, &mut rng),
+        [0.2, 0.3, 0.4]
+    );
+}
+
+/// Timings for the report (release): `cargo test --release -p pinrt --features render
+/// render::tests::timings -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn timings() {
+    use std::time::Instant;
+    let field = unit_box(1.0);
+    for dims in [[1, 1, 1], [16, 16, 16]] {
+        let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
+        let dt = DeltaTracking::new(field.clone(), maj.clone());
+        let rt = RatioTracking::new(field.clone(), maj);
+        let mut rng = Pcg32::new(1, 1);
+        let n = 2_000_000;
+        let rays: Vec<(Vec3, Vec3)> = (0..1024)
+            .map(|_| {
+                let o = Vec3::new(rng.next_f32(), rng.next_f32(), -1.0);
+                let d = (Vec3::new(rng.next_f32(), rng.next_f32(), 1.0) - o
+                    + Vec3::new(0.0, 0.0, 1.0))
+                .normalize();
+                (o, d)
+            })
+            .collect();
+        for (label, est) in [("delta", &dt as &dyn TransportEstimator), ("ratio", &rt)] {
+            let start = Instant::now();
+            let mut acc = 0.0f32;
+            for i in 0..n {
+                let (o, d) = rays[i & 1023];
+                acc += est.transmittance(o, d, f32::INFINITY, &mut rng);
+            }
+            let ns = start.elapsed().as_secs_f64() * 1e9 / n as f64;
+            println!(
+                "{label} transmittance, sigma 1 unit box, majorant {dims:?}: {ns:.1} ns/query (mean T {:.4})",
+                acc / n as f32
+            );
+        }
+    }
+    let field = cube(1.0);
+    let (delta, ratio) = tracked(field, [1, 1, 1]);
+    let mut scene = small_scene();
+    scene.camera.width = 128;
+    scene.camera.height = 128;
+    scene.media = vec![Medium::new(delta, ratio)];
+    scene.albedo = 0.95;
+    let out = render(
+        &scene,
+        &RenderSettings {
+            max_bounces: 8,
+            seed: 1,
+            budget: Budget::Spp(16),
+            threads: Some(1),
+        },
+    )
+    .unwrap();
+    println!(
+        "128x128 16 spp max_bounces 8, 1 thread: {:.3} s",
+        out.seconds
+    );
+}

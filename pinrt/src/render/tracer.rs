@@ -1,0 +1,476 @@
+//! The volumetric path tracer: camera, lights, media instances, the render loop.
+
+use super::RenderError;
+use super::estimator::TransportEstimator;
+use super::image::Image;
+use super::phase::{hg_phase, sample_hg};
+use super::rng::Pcg32;
+use glam::Vec3;
+use rayon::prelude::*;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// Pinhole camera at `origin` looking at `target`, world up `+y` (`+z` when looking straight
+/// up or down), vertical field of view in degrees. Pixel `(0, 0)` is the top-left one.
+#[derive(Clone, Debug)]
+pub struct Camera {
+    pub origin: [f32; 3],
+    pub target: [f32; 3],
+    pub vfov_deg: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// A delta directional light. `dir` points from the scene towards the sun (any length > 0).
+/// `radiance` is what a point sees with nothing in between, i.e. the irradiance on a plane
+/// perpendicular to `dir`: the single-scattered contribution is `phase * T * radiance`.
+#[derive(Clone, Debug)]
+pub struct Sun {
+    pub dir: [f32; 3],
+    pub radiance: [f32; 3],
+}
+
+/// One medium instance: the estimators the tracer uses for it. `primary` serves camera rays
+/// and the shadow rays of the first scattering vertex (everything single scattering needs),
+/// `secondary` everything after the first scattering event. PinMS is
+/// `Medium::new(tracker, pins)`, pins everywhere `Medium::single(pins)`.
+#[derive(Clone)]
+pub struct Medium {
+    pub primary: Arc<dyn TransportEstimator>,
+    pub secondary: Arc<dyn TransportEstimator>,
+}
+
+impl Medium {
+    pub fn new(
+        primary: Arc<dyn TransportEstimator>,
+        secondary: Arc<dyn TransportEstimator>,
+    ) -> Self {
+        Medium { primary, secondary }
+    }
+    /// The same estimator for every query.
+    pub fn single(estimator: Arc<dyn TransportEstimator>) -> Self {
+        Medium {
+            primary: estimator.clone(),
+            secondary: estimator,
+        }
+    }
+}
+
+/// A scene: media combined additively, a sun, a constant environment, one grey material.
+#[derive(Clone)]
+pub struct Scene {
+    pub camera: Camera,
+    pub sun: Option<Sun>,
+    /// Constant radiance arriving from every direction of the sphere.
+    pub env_radiance: [f32; 3],
+    /// Single-scattering albedo in `[0, 1]` (scattering = albedo x extinction), shared by all
+    /// instances: with one material the instance a collision came from does not matter.
+    pub albedo: f32,
+    /// Henyey-Greenstein asymmetry in `(-1, 1)`.
+    pub g: f32,
+    pub media: Vec<Medium>,
+}
+
+/// When to stop.
+#[derive(Clone, Copy, Debug)]
+pub enum Budget {
+    /// Exactly this many samples per pixel (>= 1).
+    Spp(u32),
+    /// Passes of 1 spp over the image until this much wall time is spent (checked after each
+    /// pass; at least one pass runs, so the time can be overrun by one pass).
+    Seconds(f64),
+}
+
+#[derive(Clone, Debug)]
+pub struct RenderSettings {
+    /// Maximum number of scattering events of a path (0: transmitted environment only,
+    /// 1: single scattering).
+    pub max_bounces: u32,
+    pub seed: u64,
+    pub budget: Budget,
+    /// Worker threads (a private rayon pool); `None` uses rayon's global pool.
+    pub threads: Option<usize>,
+}
+
+/// A finished render.
+#[derive(Clone, Debug)]
+pub struct RenderOutput {
+    pub image: Image,
+    /// Samples per pixel reached.
+    pub spp: u32,
+    /// Wall time of the sampling, seconds.
+    pub seconds: f64,
+}
+
+fn invalid(what: &'static str, why: String) -> RenderError {
+    RenderError::Invalid { what, why }
+}
+
+fn finite3(v: &[f32; 3]) -> bool {
+    v.iter().all(|c| c.is_finite())
+}
+
+fn radiance_ok(v: &[f32; 3]) -> bool {
+    v.iter().all(|c| c.is_finite() && *c >= 0.0)
+}
+
+/// The camera's validated frame.
+#[derive(Clone, Copy)]
+pub(crate) struct Frame {
+    o: Vec3,
+    f: Vec3,
+    r: Vec3,
+    u: Vec3,
+    tan_half: f32,
+    aspect: f32,
+    w: f32,
+    h: f32,
+}
+
+impl Camera {
+    pub(crate) fn frame(&self) -> Result<Frame, RenderError> {
+        let n = (self.width as u64) * (self.height as u64);
+        if n == 0 || n > (1 << 31) {
+            return Err(invalid(
+                "camera",
+                format!(
+                    "image {}x{}: need 1 ..= 2^31 pixels",
+                    self.width, self.height
+                ),
+            ));
+        }
+        if !(self.vfov_deg > 0.0 && self.vfov_deg < 180.0) {
+            return Err(invalid(
+                "camera",
+                format!("vfov {} not in (0, 180)", self.vfov_deg),
+            ));
+        }
+        if !finite3(&self.origin) || !finite3(&self.target) {
+            return Err(invalid("camera", "non-finite origin or target".into()));
+        }
+        let o = Vec3::from_array(self.origin);
+        let f = (Vec3::from_array(self.target) - o).normalize_or_zero();
+        if f == Vec3::ZERO {
+            return Err(invalid("camera", "origin and target coincide".into()));
+        }
+        // Right-handed, y up: right = forward x up. Looking along +-y, use z as up instead.
+        let mut r = f.cross(Vec3::Y);
+        if r.length_squared() < 1e-12 {
+            r = f.cross(Vec3::Z);
+        }
+        let r = r.normalize();
+        let u = r.cross(f);
+        Ok(Frame {
+            o,
+            f,
+            r,
+            u,
+            tan_half: (self.vfov_deg.to_radians() * 0.5).tan(),
+            aspect: self.width as f32 / self.height as f32,
+            w: self.width as f32,
+            h: self.height as f32,
+        })
+    }
+}
+
+impl Frame {
+    /// Ray through image position `(px, py)` in pixels from the top-left corner.
+    #[inline]
+    pub(crate) fn ray(&self, px: f32, py: f32) -> (Vec3, Vec3) {
+        let sx = (2.0 * px / self.w - 1.0) * self.tan_half * self.aspect;
+        let sy = (1.0 - 2.0 * py / self.h) * self.tan_half;
+        (self.o, (self.f + self.r * sx + self.u * sy).normalize())
+    }
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Which {
+    Primary,
+    Secondary,
+}
+
+/// The scene in the form the inner loop wants it (sun direction normalised, flags).
+pub(crate) struct Ctx<'a> {
+    pub(crate) media: &'a [Medium],
+    pub(crate) sun: Option<(Vec3, Vec3)>,
+    pub(crate) env: Option<Vec3>,
+    pub(crate) albedo: f32,
+    pub(crate) g: f32,
+    pub(crate) max_bounces: u32,
+}
+
+impl Scene {
+    /// Every check `render` makes on the scene (not on the settings).
+    pub fn validate(&self) -> Result<(), RenderError> {
+        self.camera.frame()?;
+        if let Some(sun) = &self.sun {
+            let d = Vec3::from_array(sun.dir);
+            if !d.is_finite() || d.length_squared() == 0.0 || !d.normalize().is_finite() {
+                return Err(invalid("sun", format!("direction {:?}", sun.dir)));
+            }
+            if !radiance_ok(&sun.radiance) {
+                return Err(invalid("sun", format!("radiance {:?}", sun.radiance)));
+            }
+        }
+        if !radiance_ok(&self.env_radiance) {
+            return Err(invalid(
+                "environment",
+                format!("radiance {:?}", self.env_radiance),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.albedo) {
+            return Err(invalid("albedo", format!("{} not in [0, 1]", self.albedo)));
+        }
+        if !(self.g > -1.0 && self.g < 1.0) {
+            return Err(invalid("phase", format!("g = {} not in (-1, 1)", self.g)));
+        }
+        Ok(())
+    }
+
+    pub(crate) fn ctx(&self, max_bounces: u32) -> Ctx<'_> {
+        let sun = self.sun.as_ref().and_then(|s| {
+            let d = Vec3::from_array(s.dir).normalize_or_zero();
+            let r = Vec3::from_array(s.radiance);
+            (d != Vec3::ZERO && radiance_ok(&s.radiance) && r != Vec3::ZERO).then_some((d, r))
+        });
+        let env = Vec3::from_array(self.env_radiance);
+        let env = (radiance_ok(&self.env_radiance) && env != Vec3::ZERO).then_some(env);
+        Ctx {
+            media: &self.media,
+            sun,
+            env,
+            albedo: if self.albedo.is_nan() {
+                0.0
+            } else {
+                self.albedo.clamp(0.0, 1.0)
+            },
+            g: self.g,
+            max_bounces,
+        }
+    }
+
+    /// Radiance arriving at `o` from direction `-d` (one path sample). For tests and for
+    /// callers with their own sample loop. Invalid rays give 0; out-of-range scene values
+    /// are clamped (use [`Scene::validate`] to reject them instead).
+    pub fn radiance(&self, o: Vec3, d: Vec3, max_bounces: u32, rng: &mut Pcg32) -> [f32; 3] {
+        let c = self.ctx(max_bounces).trace(o, d, rng);
+        if c.is_finite() {
+            c.to_array()
+        } else {
+            [0.0; 3]
+        }
+    }
+}
+
+impl Ctx<'_> {
+    fn est(m: &Medium, which: Which) -> &dyn TransportEstimator {
+        match which {
+            Which::Primary => &*m.primary,
+            Which::Secondary => &*m.secondary,
+        }
+    }
+
+    /// Product of the instances' transmittances (additive extinction).
+    #[inline]
+    pub(crate) fn transmittance(&self, which: Which, o: Vec3, d: Vec3, rng: &mut Pcg32) -> f32 {
+        let mut t = 1.0f32;
+        for m in self.media {
+            t *= Self::est(m, which).transmittance(o, d, f32::INFINITY, rng);
+            if t == 0.0 {
+                break;
+            }
+        }
+        t
+    }
+
+    /// Nearest collision over the instances. Each later instance only searches up to the
+    /// nearest collision so far: whether and where it collides before that point has the
+    /// same distribution as in an untruncated search, which is all the minimum needs.
+    #[inline]
+    pub(crate) fn distance(&self, which: Which, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Option<f32> {
+        let mut best = f32::INFINITY;
+        for m in self.media {
+            if let Some(t) = Self::est(m, which).sample_distance(o, d, best, rng)
+                && t < best
+            {
+                best = t;
+            }
+        }
+        (best < f32::INFINITY).then_some(best)
+    }
+
+    /// One path. Escapes are scored by transmittance estimates rather than by the 0/1
+    /// outcome of distance sampling: at the camera, `env * T(camera ray)`; at each vertex,
+    /// `env * T(w)` along the phase-sampled direction `w` that the path then continues in
+    /// (phase pdf and phase value cancel). The continuation scores nothing when it escapes,
+    /// since `E[T] = P(escape)` already paid for that. The sun is a delta light: it is seen
+    /// only through next-event estimation, `phase * T * radiance`. Scattering weights the
+    /// throughput by the albedo (no roulette); `max_bounces` vertices at most.
+    fn trace(&self, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Vec3 {
+        let mut l = Vec3::ZERO;
+        let d = d.normalize_or_zero();
+        if !o.is_finite() || d == Vec3::ZERO {
+            return l;
+        }
+        if let Some(env) = self.env {
+            l += env * self.transmittance(Which::Primary, o, d, rng);
+        }
+        if self.albedo <= 0.0 || self.max_bounces == 0 {
+            return l;
+        }
+        let Some(t) = self.distance(Which::Primary, o, d, rng) else {
+            return l;
+        };
+        let mut x = o + d * t;
+        let mut dir = d;
+        let mut beta = self.albedo;
+        let mut depth = 1u32;
+        loop {
+            let shadow = if depth == 1 {
+                Which::Primary
+            } else {
+                Which::Secondary
+            };
+            if let Some((sun_dir, sun_rad)) = self.sun {
+                let ph = hg_phase(self.g, dir.dot(sun_dir));
+                if ph > 0.0 {
+                    let tr = self.transmittance(shadow, x, sun_dir, rng);
+                    l += sun_rad * (beta * ph * tr);
+                }
+            }
+            let w = sample_hg(dir, self.g, rng.next_f32(), rng.next_f32());
+            if let Some(env) = self.env {
+                l += env * (beta * self.transmittance(shadow, x, w, rng));
+            }
+            if depth >= self.max_bounces {
+                break;
+            }
+            let Some(t) = self.distance(Which::Secondary, x, w, rng) else {
+                break;
+            };
+            x += w * t;
+            dir = w;
+            beta *= self.albedo;
+            depth += 1;
+        }
+        l
+    }
+}
+
+/// Render `scene`. Sample `s` of pixel `(x, y)` uses `Pcg32::for_sample(seed, y * width + x,
+/// s)` (two draws for the jitter inside the pixel, then the path), and per-pixel sums run
+/// in sample order, so the image is the same for any thread count and a time-budget render
+/// that reached `n` spp equals an `Spp(n)` render. Non-finite samples (possible only with
+/// a misbehaving plug-in estimator) are dropped.
+pub fn render(scene: &Scene, settings: &RenderSettings) -> Result<RenderOutput, RenderError> {
+    scene.validate()?;
+    let ctx = scene.ctx(settings.max_bounces);
+    accumulate(scene, settings, Instant::now(), |o, d, rng| {
+        ctx.trace(o, d, rng)
+    })
+}
+
+/// Checks the settings and runs the sample loop of [`render`] with `trace(o, d, rng)` as
+/// the per-sample radiance (after the two pixel-jitter draws). `start` is when the
+/// render's clock started (earlier than now when a pre-pass, e.g. cache training, counts
+/// towards the time budget). Shared by the other entry points of the module so that they
+/// keep `render`'s determinism and budget semantics.
+pub(crate) fn accumulate<T>(
+    scene: &Scene,
+    settings: &RenderSettings,
+    start: Instant,
+    trace: T,
+) -> Result<RenderOutput, RenderError>
+where
+    T: Fn(Vec3, Vec3, &mut Pcg32) -> Vec3 + Sync,
+{
+    let frame = scene.camera.frame()?;
+    check_settings(settings)?;
+    let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
+    let seed = settings.seed;
+    let sample = |x: usize, y: usize, s: u32| -> Vec3 {
+        let mut rng = Pcg32::for_sample(seed, (y * w + x) as u64, s as u64);
+        let (jx, jy) = (rng.next_f32(), rng.next_f32());
+        let (o, d) = frame.ray(x as f32 + jx, y as f32 + jy);
+        let c = trace(o, d, &mut rng);
+        if c.is_finite() { c } else { Vec3::ZERO }
+    };
+    let add = |acc: &mut [f64; 3], c: Vec3| {
+        acc[0] += c.x as f64;
+        acc[1] += c.y as f64;
+        acc[2] += c.z as f64;
+    };
+    let mut sums = vec![[0f64; 3]; w * h];
+    let run = |sums: &mut Vec<[f64; 3]>| -> u32 {
+        match settings.budget {
+            Budget::Spp(spp) => {
+                sums.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                    for (x, acc) in row.iter_mut().enumerate() {
+                        for s in 0..spp {
+                            add(acc, sample(x, y, s));
+                        }
+                    }
+                });
+                spp
+            }
+            Budget::Seconds(secs) => {
+                let budget = Duration::from_secs_f64(secs.min(1e9));
+                let mut pass = 0u32;
+                loop {
+                    sums.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+                        for (x, acc) in row.iter_mut().enumerate() {
+                            add(acc, sample(x, y, pass));
+                        }
+                    });
+                    pass += 1;
+                    if start.elapsed() >= budget || pass == u32::MAX {
+                        break pass;
+                    }
+                }
+            }
+        }
+    };
+    let spp = in_pool(settings, || run(&mut sums))?;
+    let seconds = start.elapsed().as_secs_f64();
+    let inv = 1.0 / spp as f64;
+    let rgb = sums.iter().map(|s| s.map(|c| (c * inv) as f32)).collect();
+    Ok(RenderOutput {
+        image: Image {
+            width: scene.camera.width,
+            height: scene.camera.height,
+            rgb,
+        },
+        spp,
+        seconds,
+    })
+}
+
+/// The budget and thread checks of [`render`].
+pub(crate) fn check_settings(settings: &RenderSettings) -> Result<(), RenderError> {
+    match settings.budget {
+        Budget::Spp(0) => return Err(invalid("budget", "0 samples per pixel".into())),
+        Budget::Seconds(s) if !(s >= 0.0 && s.is_finite()) => {
+            return Err(invalid("budget", format!("{s} seconds")));
+        }
+        _ => {}
+    }
+    if settings.threads == Some(0) {
+        return Err(invalid("threads", "0 threads".into()));
+    }
+    Ok(())
+}
+
+/// Runs `f` in a private pool of `settings.threads` workers, or in rayon's global pool.
+pub(crate) fn in_pool<R: Send>(
+    settings: &RenderSettings,
+    f: impl FnOnce() -> R + Send,
+) -> Result<R, RenderError> {
+    match settings.threads {
+        Some(n) => Ok(rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .map_err(|e| RenderError::ThreadPool(e.to_string()))?
+            .install(f)),
+        None => Ok(f()),
+    }
+}

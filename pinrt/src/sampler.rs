@@ -1,0 +1,548 @@
+//! Distance sampling and transmittance estimation: single queries and prefetching batches.
+//!
+//! A query runs in three steps, which the batch API interleaves over 32 rays at a time so that
+//! all memory fetches of a batch are in flight together (DESIGN section 9):
+//!
+//! 1. **prepare** (pure arithmetic): world -> unit cube, validity, chord, segment, then the
+//!    draws for the pin number and jitter, the spatial and direction cells.
+//! 2. **address**: the sparse cell index (if any), then the entry's index in the pin array.
+//! 3. **finish**: the two partial-interval draws, the popcount, `t_min^n`, and for distance
+//!    sampling the sample mask `H` and the position draw.
+//!
+//! ## Random draws per query (the contract the WGSL shader follows)
+//!
+//! Rays that are invalid, miss the box or have an empty segment draw nothing. Otherwise, in
+//! this order:
+//!
+//! 1. one `u32` for the pin number `k = ((x >> 8) * pins_per_entry) >> 24`;
+//! 2. if spatial jitter is on: three floats (x, y, z);
+//! 3. if directional jitter is on: two floats;
+//! 4. two floats `xi_a`, `xi_b` for the partial first and last interval (always both);
+//! 5. distance only: the sample-mask words (0 to 32, see [`crate::mask`]);
+//! 6. distance only, and only if a collision interval was found: one float for the position
+//!    inside the covered part of that interval.
+//!
+//! [`Sampler::query`] computes both estimates from one lookup: its transmittance equals
+//! [`Sampler::transmittance`] and its distance [`Sampler::sample_distance`] for the same
+//! starting generator.
+
+use bytemuck::{Pod, Zeroable};
+use pin_format::PinEntry;
+
+use crate::chord::{Segment, UnitTransform, segment, unit_cube_chord};
+use crate::error::Result;
+use crate::loader::PinGrid;
+use crate::lookup::{DirJitter, GridView, direction_cell, spatial_cell};
+use crate::mask::{
+    exact_sample_mask, interval_bit, interval_range, is_finite_bits, pow_int, sanitize_t_min,
+};
+use crate::rng::Rng;
+
+/// A world-space ray. `dir` need not be normalised: distances are in units of the ray
+/// parameter (`point = origin + t * dir`), which is world distance when `|dir| = 1`.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Ray {
+    pub origin: [f32; 3],
+    pub dir: [f32; 3],
+}
+
+impl Ray {
+    pub fn new(origin: [f32; 3], dir: [f32; 3]) -> Self {
+        Self { origin, dir }
+    }
+}
+
+/// A ray with its segment end, laid out for GPU storage buffers (32 bytes) and batches.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Default, Pod, Zeroable)]
+pub struct RayQuery {
+    pub origin: [f32; 3],
+    /// End of the segment in ray-parameter units; `+inf` for the whole chord.
+    pub t_max: f32,
+    pub dir: [f32; 3],
+    pub pad: u32,
+}
+
+impl RayQuery {
+    pub fn new(origin: [f32; 3], dir: [f32; 3], t_max: f32) -> Self {
+        Self {
+            origin,
+            t_max,
+            dir,
+            pad: 0,
+        }
+    }
+
+    pub fn ray(&self) -> Ray {
+        Ray::new(self.origin, self.dir)
+    }
+}
+
+/// The same type under the name the GPU module uses.
+pub type GpuRay = RayQuery;
+
+/// Query status codes in [`QueryResult::status`].
+pub mod status {
+    /// The segment was resolved against an entry (possibly an empty cell).
+    pub const OK: u32 = 0;
+    /// No chord through the box, or an empty segment: transmittance 1, no collision.
+    pub const MISS: u32 = 1;
+    /// Non-finite origin or direction, zero direction, or NaN `t_max`: transmittance 1,
+    /// no collision.
+    pub const INVALID: u32 = 2;
+}
+
+/// [`QueryResult::entry`] when no stored entry was read (miss, invalid or empty cell).
+pub const NO_ENTRY: u32 = u32::MAX;
+/// [`QueryResult::interval`] when there is no collision.
+pub const NO_INTERVAL: u32 = 32;
+
+/// Everything one query produces, including the debug integers the CPU/GPU agreement tests
+/// compare (32 bytes, GPU storage layout).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct QueryResult {
+    /// Sampled collision distance (ray parameter), `+inf` if none.
+    pub distance: f32,
+    pub transmittance: f32,
+    /// 1 if a collision was sampled.
+    pub hit: u32,
+    /// Index of the entry in the pin array, or [`NO_ENTRY`].
+    pub entry: u32,
+    /// Participating set ratio bits (the transmittance exponent).
+    pub popcount: u32,
+    /// Collision interval (0 = nearest the chord start), or [`NO_INTERVAL`].
+    pub interval: u32,
+    /// One of [`status`].
+    pub status: u32,
+    /// The generator state after the query: equal iff both sides drew the same numbers.
+    pub rng_state: u32,
+}
+
+/// The same type under the name the GPU module uses.
+pub type GpuResult = QueryResult;
+
+impl QueryResult {
+    fn empty(status: u32, rng: Rng) -> Self {
+        Self {
+            distance: f32::INFINITY,
+            transmittance: 1.0,
+            hit: 0,
+            entry: NO_ENTRY,
+            popcount: 0,
+            interval: NO_INTERVAL,
+            status,
+            rng_state: rng.state,
+        }
+    }
+
+    /// The distance as an option.
+    pub fn collision(&self) -> Option<f32> {
+        (self.hit != 0).then_some(self.distance)
+    }
+}
+
+/// Runtime lookup options (thesis fig. 4.4). Strengths are in cells; 0 (default) turns the
+/// jitter off and draws no random numbers for it.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct SamplerOptions {
+    /// The lookup point moves by `(xi - 0.5) * strength` cells per axis.
+    pub spatial_jitter: f32,
+    /// The direction's continuous cell coordinates move by `(xi - 0.5) * strength` cells.
+    pub directional_jitter: f32,
+}
+
+impl SamplerOptions {
+    pub(crate) fn spatial_on(&self) -> bool {
+        self.spatial_jitter > 0.0 && self.spatial_jitter.is_finite()
+    }
+    pub(crate) fn directional_on(&self) -> bool {
+        self.directional_jitter > 0.0 && self.directional_jitter.is_finite()
+    }
+}
+
+/// Rays per batch step: enough misses in flight to cover DRAM latency, few enough to stay in L1.
+pub const BATCH: usize = 32;
+
+const NO_CELL: u64 = u64::MAX;
+
+#[derive(Clone, Copy, Debug)]
+struct Prepared {
+    status: u32,
+    rng: Rng,
+    seg: Segment,
+    reversed: bool,
+    /// Covered-slab cell index, or `NO_CELL` (outside this tile).
+    local: u64,
+    /// `direction * pins_per_entry + k`.
+    within: u64,
+}
+
+const EMPTY_SEGMENT: Segment = Segment {
+    t_enter: 0.0,
+    interval_len: 0.0,
+    t0: 0.0,
+    t1: 0.0,
+    s0: 0.0,
+    s1: 0.0,
+    a: 0,
+    b: 0,
+};
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Mode {
+    Transmittance,
+    Distance,
+    Both,
+}
+
+#[inline(always)]
+fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetch is a hint; it never faults, whatever the address.
+    #[allow(unused_unsafe)]
+    unsafe {
+        core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(p as *const i8);
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
+/// Samples distances and transmittance through one pin grid placed in the world.
+///
+/// Cheap to create and `Copy`-free but `Sync`: share one sampler between threads and give each
+/// thread its own [`Rng`] (or use the batch methods, which seed per query).
+#[derive(Clone, Debug)]
+pub struct Sampler<'g> {
+    view: GridView<'g>,
+    xf: UnitTransform,
+    opts: SamplerOptions,
+}
+
+impl<'g> Sampler<'g> {
+    /// A sampler placing the grid by the file's `local_to_world`.
+    pub fn new(grid: &'g PinGrid) -> Result<Self> {
+        Ok(Self {
+            view: GridView::new(grid),
+            xf: UnitTransform::new(grid.desc(), None)?,
+            opts: SamplerOptions::default(),
+        })
+    }
+
+    /// A sampler placing the grid by `local_to_world` (row-major 3x4) instead of the file's.
+    pub fn with_local_to_world(grid: &'g PinGrid, local_to_world: &[f64; 12]) -> Result<Self> {
+        Ok(Self {
+            view: GridView::new(grid),
+            xf: UnitTransform::new(grid.desc(), Some(local_to_world))?,
+            opts: SamplerOptions::default(),
+        })
+    }
+
+    /// Sets the lookup options.
+    pub fn with_options(mut self, opts: SamplerOptions) -> Self {
+        self.opts = opts;
+        self
+    }
+
+    pub fn options(&self) -> &SamplerOptions {
+        &self.opts
+    }
+
+    /// The world -> unit cube map this sampler uses.
+    pub fn transform(&self) -> &UnitTransform {
+        &self.xf
+    }
+
+    pub fn view(&self) -> &GridView<'g> {
+        &self.view
+    }
+
+    #[inline(always)]
+    fn prepare(&self, origin: [f32; 3], dir: [f32; 3], t_max: f32, mut rng: Rng) -> Prepared {
+        let bad = Prepared {
+            status: crate::sampler::status::INVALID,
+            rng,
+            seg: EMPTY_SEGMENT,
+            reversed: false,
+            local: NO_CELL,
+            within: 0,
+        };
+        let o = self.xf.point(origin);
+        let d = self.xf.vector(dir);
+        let finite = o.iter().chain(d.iter()).all(|&x| is_finite_bits(x));
+        let nan_tmax = (t_max.to_bits() & 0x7fff_ffff) > 0x7f80_0000;
+        if !finite || nan_tmax || (d[0] == 0.0 && d[1] == 0.0 && d[2] == 0.0) {
+            return bad;
+        }
+        let Some(seg) = unit_cube_chord(o, d).and_then(|c| segment(c, t_max)) else {
+            return Prepared {
+                status: status::MISS,
+                ..bad
+            };
+        };
+        let v = &self.view;
+        let k = rng.below_256(v.pins_per_entry);
+        let sj = if self.opts.spatial_on() {
+            let xi = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+            Some((self.opts.spatial_jitter, xi))
+        } else {
+            None
+        };
+        let dj = if self.opts.directional_on() {
+            Some(DirJitter {
+                strength: self.opts.directional_jitter,
+                xi: [rng.next_f32(), rng.next_f32()],
+            })
+        } else {
+            None
+        };
+        let reversed = d[2] < 0.0;
+        let dl = if reversed { [-d[0], -d[1], -d[2]] } else { d };
+        let t0 = seg.t0;
+        let p = [o[0] + d[0] * t0, o[1] + d[1] * t0, o[2] + d[2] * t0];
+        let cell = spatial_cell(p, v, sj);
+        let dcell = direction_cell(&v.directions, dl, dj);
+        Prepared {
+            status: status::OK,
+            rng,
+            seg,
+            reversed,
+            local: v.local_cell(cell).unwrap_or(NO_CELL),
+            within: u64::from(dcell) * u64::from(v.pins_per_entry) + u64::from(k),
+        }
+    }
+
+    /// Entry index for a prepared query (reads the sparse index).
+    #[inline(always)]
+    fn address(&self, p: &Prepared) -> Option<u64> {
+        if p.status != status::OK || p.local == NO_CELL {
+            return None;
+        }
+        let block = self.view.block_of(p.local)?;
+        Some(block * self.view.block_len + p.within)
+    }
+
+    #[inline(always)]
+    fn finish(&self, p: &Prepared, entry_index: Option<u64>, mode: Mode) -> QueryResult {
+        if p.status != status::OK {
+            return QueryResult::empty(p.status, p.rng);
+        }
+        let (entry, entry_id) = match entry_index.and_then(|i| self.view.pins.get(i as usize)) {
+            Some(e) => (*e, entry_index.unwrap_or(0) as u32),
+            None => (PinEntry::EMPTY, NO_ENTRY),
+        };
+        resolve(entry, entry_id, p.reversed, &p.seg, p.rng, mode)
+    }
+
+    #[inline(always)]
+    fn single(&self, ray: &Ray, t_max: f32, rng: &mut Rng, mode: Mode) -> QueryResult {
+        let p = self.prepare(ray.origin, ray.dir, t_max, *rng);
+        let e = self.address(&p);
+        let r = self.finish(&p, e, mode);
+        rng.state = r.rng_state;
+        r
+    }
+
+    /// Transmittance estimate over `[0, t_max]` of the ray (`t_max = inf`: to the box exit).
+    /// Unbiased for the pin model's interval transmittances (see `docs/sampling.md`).
+    pub fn transmittance(&self, ray: &Ray, t_max: f32, rng: &mut Rng) -> f32 {
+        self.single(ray, t_max, rng, Mode::Transmittance)
+            .transmittance
+    }
+
+    /// A sampled free-flight distance in `[0, t_max]`, or `None` if the ray passes.
+    pub fn sample_distance(&self, ray: &Ray, t_max: f32, rng: &mut Rng) -> Option<f32> {
+        self.single(ray, t_max, rng, Mode::Distance).collision()
+    }
+
+    /// Both estimates and the debug integers from one lookup.
+    pub fn query(&self, ray: &Ray, t_max: f32, rng: &mut Rng) -> QueryResult {
+        self.single(ray, t_max, rng, Mode::Both)
+    }
+
+    #[inline(always)]
+    fn batch(
+        &self,
+        rays: &[RayQuery],
+        seed: u32,
+        first_index: u32,
+        mode: Mode,
+        mut emit: impl FnMut(usize, QueryResult),
+    ) {
+        let mut prep = [Prepared {
+            status: status::MISS,
+            rng: Rng::new(0),
+            seg: EMPTY_SEGMENT,
+            reversed: false,
+            local: NO_CELL,
+            within: 0,
+        }; BATCH];
+        let mut addr = [None::<u64>; BATCH];
+        let pins = self.view.pins.as_ptr();
+        for (c, chunk) in rays.chunks(BATCH).enumerate() {
+            let base = c * BATCH;
+            for (i, r) in chunk.iter().enumerate() {
+                let q = first_index.wrapping_add((base + i) as u32);
+                prep[i] = self.prepare(r.origin, r.dir, r.t_max, Rng::for_query(seed, q));
+            }
+            if let Some(ix) = self.view.index {
+                for p in &prep[..chunk.len()] {
+                    if p.local != NO_CELL {
+                        prefetch(ix.as_ptr().wrapping_add(p.local as usize));
+                    }
+                }
+            }
+            for (i, p) in prep[..chunk.len()].iter().enumerate() {
+                addr[i] = self.address(p);
+                if let Some(a) = addr[i] {
+                    prefetch(pins.wrapping_add(a as usize));
+                }
+            }
+            for (i, p) in prep[..chunk.len()].iter().enumerate() {
+                emit(base + i, self.finish(p, addr[i], mode));
+            }
+        }
+    }
+
+    /// Transmittance of many rays; query `i` uses `Rng::for_query(seed, first_index + i)`
+    /// (the GPU's seeding). `out.len()` must equal `rays.len()`.
+    pub fn transmittance_batch(
+        &self,
+        rays: &[RayQuery],
+        seed: u32,
+        first_index: u32,
+        out: &mut [f32],
+    ) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        self.batch(rays, seed, first_index, Mode::Transmittance, |i, r| {
+            out[i] = r.transmittance
+        });
+    }
+
+    /// Sampled distances of many rays (`None`: no collision), seeded like
+    /// [`Self::transmittance_batch`].
+    pub fn sample_distance_batch(
+        &self,
+        rays: &[RayQuery],
+        seed: u32,
+        first_index: u32,
+        out: &mut [Option<f32>],
+    ) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        self.batch(rays, seed, first_index, Mode::Distance, |i, r| {
+            out[i] = r.collision()
+        });
+    }
+
+    /// Full results of many rays, seeded like the GPU's `run_queries` (the reference the GPU
+    /// is compared against).
+    pub fn query_batch(
+        &self,
+        rays: &[RayQuery],
+        seed: u32,
+        first_index: u32,
+        out: &mut [QueryResult],
+    ) {
+        assert_eq!(rays.len(), out.len(), "one output per ray");
+        self.batch(rays, seed, first_index, Mode::Both, |i, r| out[i] = r);
+    }
+}
+
+/// Resolves a segment against one entry: partial-interval participation, transmittance and
+/// (depending on `mode`) the distance. Public for the statistical tests.
+#[inline(always)]
+fn resolve(
+    entry: PinEntry,
+    entry_id: u32,
+    reversed: bool,
+    seg: &Segment,
+    mut rng: Rng,
+    mode: Mode,
+) -> QueryResult {
+    let xa = rng.next_f32();
+    let xb = rng.next_f32();
+    let t_min = sanitize_t_min(entry.t_min);
+    let mask = if reversed {
+        entry.mask.reverse_bits()
+    } else {
+        entry.mask
+    };
+    let part = participating(seg, xa, xb);
+    let popcount = (mask & part).count_ones();
+    let mut r = QueryResult {
+        distance: f32::INFINITY,
+        transmittance: 1.0,
+        hit: 0,
+        entry: entry_id,
+        popcount,
+        interval: NO_INTERVAL,
+        status: status::OK,
+        rng_state: 0,
+    };
+    if mode != Mode::Distance {
+        r.transmittance = pow_int(t_min, popcount);
+    }
+    if mode != Mode::Transmittance {
+        let h = exact_sample_mask(t_min, &mut rng);
+        let m = mask & part & h;
+        if m != 0 {
+            let j = m.leading_zeros();
+            r.interval = j;
+            r.hit = 1;
+            r.distance = position_in_interval(seg, j, rng.next_f32());
+        }
+    }
+    r.rng_state = rng.state;
+    r
+}
+
+/// The participating intervals: `a..=b`, minus a partial first/last interval whose draw
+/// exceeds its covered fraction (`xi < f` participates). One interval: fraction `s1 - s0`.
+#[inline(always)]
+pub fn participating(seg: &Segment, xa: f32, xb: f32) -> u32 {
+    let (a, b) = (seg.a, seg.b);
+    let mut part = interval_range(a, b);
+    if a == b {
+        if !(xa < seg.s1 - seg.s0) {
+            part = 0;
+        }
+    } else {
+        if !(xa < (a + 1) as f32 - seg.s0) {
+            part &= !interval_bit(a);
+        }
+        if !(xb < seg.s1 - b as f32) {
+            part &= !interval_bit(b);
+        }
+    }
+    part
+}
+
+/// A uniform position inside the covered part of interval `j`, clamped into `[t0, t1]`.
+#[inline(always)]
+pub fn position_in_interval(seg: &Segment, j: u32, xi: f32) -> f32 {
+    let lo = if j == seg.a { seg.s0 } else { j as f32 };
+    let hi = if j == seg.b { seg.s1 } else { (j + 1) as f32 };
+    let s = lo + xi * (hi - lo);
+    let t = seg.t_enter + s * seg.interval_len;
+    let t = if t > seg.t0 { t } else { seg.t0 };
+    if t < seg.t1 { t } else { seg.t1 }
+}
+
+/// Test hook: resolve a segment against an explicit entry.
+#[doc(hidden)]
+pub fn resolve_entry(
+    entry: PinEntry,
+    reversed: bool,
+    seg: &Segment,
+    rng: &mut Rng,
+    want_distance: bool,
+) -> QueryResult {
+    let mode = if want_distance {
+        Mode::Both
+    } else {
+        Mode::Transmittance
+    };
+    let r = resolve(entry, 0, reversed, seg, *rng, mode);
+    rng.state = r.rng_state;
+    r
+}

@@ -1,0 +1,778 @@
+//! Cross-module tests: the stiff cases of DESIGN section 5, statistics of the estimators,
+//! batch/single and multi-thread agreement.
+
+use pin_format::{Directions, PinEntry};
+
+use crate::chord::{Chord, Segment, segment};
+use crate::mask::{interval_bit, thesis_sample_mask};
+use crate::rng::Rng;
+use crate::sampler::{QueryResult, participating, resolve_entry};
+use crate::testing::{random_grid, single_entry_grid};
+use crate::{NO_ENTRY, PinGrid, Ray, RayQuery, Sampler, SamplerOptions, status};
+
+fn grid_of(entry: PinEntry) -> PinGrid {
+    PinGrid::from_bytes(single_entry_grid(entry).to_bytes().unwrap()).unwrap()
+}
+
+fn full_chord() -> Segment {
+    segment(
+        Chord {
+            t_enter: 0.0,
+            t_exit: 1.0,
+        },
+        f32::INFINITY,
+    )
+    .unwrap()
+}
+
+/// The segment `[u0, u1]` of a chord `[0, 1]`, in interval units `32 u`.
+fn seg_frac(u0: f32, u1: f32) -> Segment {
+    let mut s = segment(
+        Chord {
+            t_enter: -u0,
+            t_exit: 1.0 - u0,
+        },
+        u1 - u0,
+    )
+    .unwrap();
+    if u0 == 0.0 {
+        s.s0 = 0.0;
+    }
+    s
+}
+
+fn check_finite(r: &QueryResult) {
+    assert!(
+        r.transmittance.is_finite() && (0.0..=1.0).contains(&r.transmittance),
+        "{r:?}"
+    );
+    assert!(
+        r.distance.is_finite() || (r.hit == 0 && r.distance == f32::INFINITY),
+        "{r:?}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Stiff cases (DESIGN section 5)
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn t_min_one_is_transmittance_one_never_nan() {
+    // Mask 0 and even a (corrupt) full mask with t_min = 1 give T = 1, no collision.
+    for mask in [0u32, u32::MAX] {
+        let g = grid_of(PinEntry { mask, t_min: 1.0 });
+        let s = g.sampler().unwrap();
+        let mut rng = Rng::new(1);
+        for _ in 0..1000 {
+            let r = s.query(&Ray::new([0.5, 0.5, -1.0], [0.1, 0.2, 1.0]), 5.0, &mut rng);
+            assert_eq!(r.status, status::OK);
+            assert_eq!(r.transmittance, 1.0);
+            assert_eq!(r.hit, 0);
+        }
+    }
+}
+
+#[test]
+fn pow_zero_zero_is_one() {
+    // t_min = 0 with popcount 0 (mask 0): T = 1; with bits: T = 0 exactly, a collision always.
+    let g = grid_of(PinEntry {
+        mask: 0,
+        t_min: 0.0,
+    });
+    let s = g.sampler().unwrap();
+    let mut rng = Rng::new(2);
+    let ray = Ray::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0]);
+    let r = s.query(&ray, f32::INFINITY, &mut rng);
+    assert_eq!((r.transmittance, r.popcount, r.hit), (1.0, 0, 0));
+    let g = grid_of(PinEntry {
+        mask: 0x0000_8000,
+        t_min: 0.0,
+    });
+    let s = g.sampler().unwrap();
+    let r = s.query(&ray, f32::INFINITY, &mut rng);
+    assert_eq!(
+        (r.transmittance, r.popcount, r.hit, r.interval),
+        (0.0, 1, 1, 16)
+    );
+    // Interval 16 of the chord z in [0, 1] from t = 1: t in [1.5, 1.53125].
+    assert!((1.5..=1.53125).contains(&r.distance), "{}", r.distance);
+    // Subnormal t_min: finite, tiny or zero.
+    let g = grid_of(PinEntry {
+        mask: u32::MAX,
+        t_min: 1e-40,
+    });
+    let r = g.sampler().unwrap().query(&ray, f32::INFINITY, &mut rng);
+    assert_eq!(r.transmittance, 0.0);
+    assert_eq!(r.hit, 1);
+}
+
+#[test]
+fn damaged_t_min_reads_sanitised() {
+    for (t, want) in [
+        (f32::NAN, 1.0),
+        (-1.0, 0.0),
+        (7.0, 1.0),
+        (f32::INFINITY, 1.0),
+    ] {
+        let g = grid_of(PinEntry {
+            mask: u32::MAX,
+            t_min: t,
+        });
+        let r =
+            g.sampler()
+                .unwrap()
+                .query(&Ray::new([0.5; 3], [0.0, 0.0, 1.0]), 1.0, &mut Rng::new(0));
+        assert_eq!(r.transmittance, want, "{t}");
+        check_finite(&r);
+    }
+}
+
+#[test]
+fn dz_zero_plane_plus_and_minus_zero_agree() {
+    let g = PinGrid::from_bytes(
+        random_grid(Directions::THESIS_DEFAULT, [3, 3, 3], 2, false, 3)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let go = PinGrid::from_bytes(
+        random_grid(Directions::Octahedral { n: 6 }, [3, 3, 3], 2, true, 4)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    for grid in [&g, &go] {
+        let s = grid.sampler().unwrap();
+        let mut r0 = Rng::new(0);
+        for i in 0..2000 {
+            let a = i as f32 * 0.01;
+            let (x, y) = (a.cos(), a.sin());
+            let o = [0.5 - x, 0.5 - y, 0.3];
+            let mut ra = Rng::new(r0.next_u32());
+            let mut rb = ra;
+            let p = s.query(&Ray::new(o, [x, y, 0.0]), 10.0, &mut ra);
+            let m = s.query(&Ray::new(o, [x, y, -0.0]), 10.0, &mut rb);
+            assert_eq!(p, m);
+            assert_eq!(p.status, status::OK);
+            check_finite(&p);
+        }
+    }
+}
+
+#[test]
+fn reversal_for_negative_z() {
+    // Only the first interval along +z (bottom, z in [0, 1/32]) is set.
+    let g = grid_of(PinEntry {
+        mask: 0x8000_0000,
+        t_min: 0.5,
+    });
+    let s = g.sampler().unwrap();
+    let mut rng = Rng::new(5);
+    // Downwards from above, top half only (z from 1 to 0.5): never reaches the bit.
+    let down = Ray::new([0.5, 0.5, 2.0], [0.0, 0.0, -1.0]);
+    let r = s.query(&down, 1.5, &mut rng);
+    assert_eq!((r.popcount, r.transmittance, r.hit), (0, 1.0, 0));
+    // Down through everything: the bit is the last interval (31) of this chord.
+    let r = s.query(&down, f32::INFINITY, &mut rng);
+    assert_eq!((r.popcount, r.transmittance), (1, 0.5));
+    if r.hit == 1 {
+        assert_eq!(r.interval, 31);
+        assert!((2.96875..=3.0).contains(&r.distance));
+    }
+    // Upwards, bottom half: the bit is the first interval.
+    let up = Ray::new([0.5, 0.5, -1.0], [0.0, 0.0, 1.0]);
+    let r = s.query(&up, 1.5, &mut rng);
+    assert_eq!((r.popcount, r.transmittance), (1, 0.5));
+}
+
+fn homogeneous_sampler_check(s: &Sampler<'_>, ray: Ray, t_max: f32, want_t: f32) {
+    let mut rng = Rng::new(9);
+    let r = s.query(&ray, t_max, &mut rng);
+    assert_eq!(r.status, status::OK, "{ray:?}");
+    assert!(
+        (r.transmittance - want_t).abs() <= want_t * 1e-5,
+        "{ray:?}: {} vs {want_t}",
+        r.transmittance
+    );
+    check_finite(&r);
+}
+
+#[test]
+fn axis_parallel_grazing_inside_faces_edges_corners() {
+    // Homogeneous: every interval set, t_min = 0.9; full chords are deterministic: 0.9^32.
+    let g = grid_of(PinEntry {
+        mask: u32::MAX,
+        t_min: 0.9,
+    });
+    let s = g.sampler().unwrap();
+    let full = 0.9f32.powi(32);
+    let inf = f32::INFINITY;
+    for (o, d) in [
+        ([-1.0, 0.5, 0.5], [1.0, 0.0, 0.0]),
+        ([2.0, 0.5, 0.5], [-1.0, 0.0, 0.0]),
+        ([0.5, -1.0, 0.5], [0.0, 1.0, 0.0]),
+        ([0.5, 2.0, 0.5], [0.0, -1.0, 0.0]),
+        ([0.5, 0.5, -1.0], [0.0, 0.0, 1.0]),
+        ([0.5, 0.5, 2.0], [0.0, 0.0, -1.0]),
+        // Grazing along a face and along an edge.
+        ([-1.0, 0.0, 0.5], [1.0, 0.0, 0.0]),
+        ([-1.0, 1.0, 1.0], [1.0, 0.0, 0.0]),
+        ([0.0, 0.0, -3.0], [0.0, 0.0, 1.0]),
+        // Starting on a face, an edge and a corner, going in.
+        ([0.0, 0.5, 0.5], [1.0, 0.0, 0.0]),
+        ([0.0, 0.0, 0.5], [1.0, 0.0, 0.0]),
+        ([0.0, 0.0, 0.0], [1.0, 1.0, 1.0]),
+        ([1.0, 1.0, 1.0], [-1.0, -1.0, -1.0]),
+    ] {
+        homogeneous_sampler_check(&s, Ray::new(o, d), inf, full);
+    }
+    // Starting inside: the segment starts at interval 16 exactly.
+    homogeneous_sampler_check(
+        &s,
+        Ray::new([0.5, 0.5, 0.5], [0.0, 0.0, 1.0]),
+        inf,
+        0.9f32.powi(16),
+    );
+    homogeneous_sampler_check(
+        &s,
+        Ray::new([0.5, 0.5, 0.5], [0.0, 0.0, -1.0]),
+        inf,
+        0.9f32.powi(16),
+    );
+    // Misses: touching a corner, on a face going out, passing beside the box.
+    let mut rng = Rng::new(1);
+    for (o, d) in [
+        ([-1.0, 1.0, 0.5], [1.0, 1.0, 0.0]),
+        ([0.5, 1.0, 0.5], [0.0, 1.0, 0.0]),
+        ([1.0, 1.0, 1.0], [1.0, 1.0, 1.0]),
+        ([-1.0, 1.5, 0.5], [1.0, 0.0, 0.0]),
+        ([0.5, 0.5, 2.0], [0.0, 0.0, 1.0]),
+    ] {
+        let before = rng;
+        let r = s.query(&Ray::new(o, d), inf, &mut rng);
+        assert_eq!(r.status, status::MISS, "{o:?} {d:?}");
+        assert_eq!((r.transmittance, r.hit, r.entry), (1.0, 0, NO_ENTRY));
+        assert_eq!(rng, before, "misses draw nothing");
+    }
+}
+
+#[test]
+fn zero_length_and_infinite_segments() {
+    let g = grid_of(PinEntry {
+        mask: u32::MAX,
+        t_min: 0.9,
+    });
+    let s = g.sampler().unwrap();
+    let mut rng = Rng::new(3);
+    for o in [[0.5, 0.5, 0.5], [0.5, 0.5, -1.0]] {
+        let ray = Ray::new(o, [0.0, 0.0, 1.0]);
+        for t_max in [0.0, -0.0, -1.0, f32::NEG_INFINITY] {
+            let r = s.query(&ray, t_max, &mut rng);
+            assert_eq!((r.status, r.transmittance, r.hit), (status::MISS, 1.0, 0));
+        }
+        let a = s.query(&ray, f32::INFINITY, &mut Rng::new(4));
+        let b = s.query(&ray, 1e30, &mut Rng::new(4));
+        assert_eq!(a, b);
+        assert_eq!(a.status, status::OK);
+    }
+    // A very short segment: a partial first interval, participating rarely.
+    let ray = Ray::new([0.5, 0.5, 0.5], [0.0, 0.0, 1.0]);
+    let mut sum = 0.0f64;
+    let n = 100_000;
+    for _ in 0..n {
+        let r = s.query(&ray, 1e-4, &mut rng);
+        check_finite(&r);
+        sum += f64::from(r.transmittance);
+        if r.hit == 1 {
+            assert!((0.0..=1e-4).contains(&r.distance));
+        }
+    }
+    // E[T] = 1 - f (1 - 0.9), f = 1e-4 * 32.
+    let want = 1.0 - 32e-4 * 0.1;
+    assert!((sum / n as f64 - want).abs() < 1e-4, "{}", sum / n as f64);
+}
+
+#[test]
+fn invalid_inputs_give_one_and_no_collision() {
+    let g = grid_of(PinEntry {
+        mask: u32::MAX,
+        t_min: 0.5,
+    });
+    let s = g.sampler().unwrap();
+    let nan = f32::NAN;
+    let inf = f32::INFINITY;
+    let mut rng = Rng::new(8);
+    for (o, d, t) in [
+        ([0.5; 3], [0.0, 0.0, 0.0], inf),
+        ([0.5; 3], [-0.0, 0.0, -0.0], inf),
+        ([0.5; 3], [nan, 0.0, 1.0], inf),
+        ([nan, 0.5, 0.5], [0.0, 0.0, 1.0], inf),
+        ([inf, 0.5, 0.5], [-1.0, 0.0, 0.0], inf),
+        ([0.5; 3], [inf, 0.0, 0.0], inf),
+        ([0.5; 3], [0.0, 0.0, 1.0], nan),
+    ] {
+        let before = rng;
+        let r = s.query(&Ray::new(o, d), t, &mut rng);
+        assert_eq!(r.status, status::INVALID, "{o:?} {d:?} {t}");
+        assert_eq!((r.transmittance, r.hit), (1.0, 0));
+        assert_eq!(rng, before);
+        assert_eq!(s.transmittance(&Ray::new(o, d), t, &mut rng), 1.0);
+        assert_eq!(s.sample_distance(&Ray::new(o, d), t, &mut rng), None);
+    }
+}
+
+#[test]
+fn huge_and_tiny_coordinates_stay_finite() {
+    let g = grid_of(PinEntry {
+        mask: u32::MAX,
+        t_min: 0.9,
+    });
+    let s = g.sampler().unwrap();
+    let mut rng = Rng::new(11);
+    // Far away but hitting: answers stay finite and in range.
+    for far in [1e6f32, 1e20, 1e30, 3e38] {
+        for d in [[1.0, 0.0, 0.0], [1.0, 1e-7, -1e-7]] {
+            let r = s.query(&Ray::new([-far, 0.5, 0.5], d), f32::INFINITY, &mut rng);
+            check_finite(&r);
+        }
+    }
+    // 1e6 away still hits exactly.
+    let r = s.query(
+        &Ray::new([-1e6, 0.5, 0.5], [1.0, 0.0, 0.0]),
+        f32::INFINITY,
+        &mut rng,
+    );
+    assert_eq!(r.status, status::OK);
+    assert!((r.transmittance - 0.9f32.powi(32)).abs() < 1e-6);
+    // Huge and tiny direction magnitudes: t scales, transmittance does not.
+    for scale in [1e-30f32, 1e-3, 1e3, 1e30] {
+        let r = s.query(
+            &Ray::new([-1.0, 0.5, 0.5], [scale, 0.0, 0.0]),
+            f32::INFINITY,
+            &mut rng,
+        );
+        assert_eq!(r.status, status::OK, "{scale}");
+        assert!((r.transmittance - 0.9f32.powi(32)).abs() < 1e-6);
+        if r.hit == 1 {
+            assert!(r.distance >= 1.0 / scale * 0.999 && r.distance <= 2.0 / scale * 1.001);
+        }
+    }
+    // A huge world transform: grid placed at 1e7 with scale 1e-3.
+    let l2w = [
+        1e-3, 0.0, 0.0, 1e7, 0.0, 1e-3, 0.0, 0.0, 0.0, 0.0, 1e-3, 0.0,
+    ];
+    let s2 = Sampler::with_local_to_world(&g, &l2w).unwrap();
+    let r = s2.query(
+        &Ray::new([1e7 - 1.0, 5e-4, 5e-4], [1.0, 0.0, 0.0]),
+        f32::INFINITY,
+        &mut rng,
+    );
+    check_finite(&r);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Statistics
+// ---------------------------------------------------------------------------------------------
+
+/// Random interval transmittances for a pin with the given `t_min` (one interval attains it).
+fn random_ts(rng: &mut Rng, t_min: f64) -> [f64; 32] {
+    let mut t = [0.0; 32];
+    for x in t.iter_mut() {
+        // Mostly thin intervals, so that the product stays estimable for t_min near 0.
+        *x = 1.0 - (1.0 - t_min) * f64::from(rng.next_f32()).powi(4);
+    }
+    t[(rng.next_u32() % 32) as usize] = t_min;
+    t
+}
+
+/// A fresh ratio mask: bit of interval j set with probability (1 - t_j) / (1 - t_min).
+fn fresh_mask(rng: &mut Rng, t: &[f64; 32], t_min: f64) -> u32 {
+    let mut m = 0;
+    for (j, &tj) in t.iter().enumerate() {
+        let p = if t_min < 1.0 {
+            (1.0 - tj) / (1.0 - t_min)
+        } else {
+            0.0
+        };
+        if f64::from(rng.next_f32()) < p {
+            m |= interval_bit(j as u32);
+        }
+    }
+    m
+}
+
+/// Covered fraction of interval j by the segment.
+fn coverage(seg: &Segment, j: u32) -> f64 {
+    let lo = f64::from(seg.s0).max(f64::from(j));
+    let hi = f64::from(seg.s1).min(f64::from(j) + 1.0);
+    (hi - lo).clamp(0.0, 1.0)
+}
+
+/// E[T] = prod over intervals of (1 - f_j (1 - t_j)) (f = 1 for full ones).
+fn expected_t(seg: &Segment, t: &[f64; 32]) -> f64 {
+    (0..32)
+        .map(|j| 1.0 - coverage(seg, j) * (1.0 - t[j as usize]))
+        .product()
+}
+
+/// Exact discrete distribution of the collision interval: 32 bins + "none".
+fn expected_hist(seg: &Segment, t: &[f64; 32]) -> [f64; 33] {
+    let mut p = [0.0; 33];
+    let mut survive = 1.0;
+    for j in 0..32 {
+        let c = coverage(seg, j as u32) * (1.0 - t[j]);
+        p[j] = survive * c;
+        survive *= 1.0 - c;
+    }
+    p[32] = survive;
+    p
+}
+
+fn chi_square(observed: &[u64; 33], p: &[f64; 33], n: u64) -> (f64, usize) {
+    let mut chi = 0.0;
+    let mut df = 0usize;
+    for (o, &pi) in observed.iter().zip(p) {
+        let e = pi * n as f64;
+        if e < 1e-9 {
+            assert_eq!(*o, 0, "observed an impossible interval");
+            continue;
+        }
+        chi += (*o as f64 - e).powi(2) / e;
+        df += 1;
+    }
+    (chi, df.saturating_sub(1))
+}
+
+/// For any fixed ratio mask, P(no collision | I) equals E[T | I] exactly: the identity behind
+/// "distance sampling and transmittance estimation describe the same medium".
+#[test]
+fn no_collision_probability_equals_expected_transmittance_exactly() {
+    let mut rng = Rng::new(21);
+    for _ in 0..2000 {
+        let mask = rng.next_u32();
+        let t_min = f64::from(rng.next_f32());
+        let q = 1.0 - t_min;
+        let u0 = rng.next_f32() * 0.5;
+        let u1 = u0 + rng.next_f32() * (1.0 - u0);
+        if !(u1 > u0) {
+            continue;
+        }
+        let seg = seg_frac(u0, u1);
+        let (mut p_none, mut e_t) = (1.0f64, 1.0f64);
+        for j in 0..32u32 {
+            if mask & interval_bit(j) == 0 {
+                continue;
+            }
+            let f = coverage(&seg, j);
+            // Participates w.p. f; then H set w.p. q -> collision; T factor t_min.
+            p_none *= 1.0 - f * q;
+            e_t *= f * t_min + (1.0 - f);
+        }
+        assert!((p_none - e_t).abs() < 1e-12, "{p_none} {e_t}");
+    }
+}
+
+/// Mean of t_min^popcount over fresh masks matches prod t_i (full chord and partial segments).
+#[test]
+fn transmittance_is_unbiased() {
+    let mut rng = Rng::new(31);
+    let n = 200_000u32;
+    for (case, &t_min) in [1e-4f64, 0.05, 0.5, 0.95, 0.9999].iter().enumerate() {
+        for seg in [full_chord(), seg_frac(0.1234, 0.8765), seg_frac(0.3, 0.31)] {
+            let t = random_ts(&mut rng, t_min);
+            let want = expected_t(&seg, &t);
+            let mut r = Rng::for_query(case as u32, 77);
+            let (mut sum, mut sum2) = (0.0f64, 0.0f64);
+            for _ in 0..n {
+                let mask = fresh_mask(&mut r, &t, t_min);
+                let e = PinEntry {
+                    mask,
+                    t_min: t_min as f32,
+                };
+                let v = f64::from(resolve_entry(e, false, &seg, &mut r, false).transmittance);
+                sum += v;
+                sum2 += v * v;
+            }
+            let mean = sum / f64::from(n);
+            let var = (sum2 / f64::from(n) - mean * mean).max(0.0);
+            let se = (var / f64::from(n)).sqrt().max(1e-7 * want.max(1e-30));
+            let z = (mean - want) / se;
+            assert!(
+                z.abs() < 4.5,
+                "t_min {t_min} seg {seg:?}: mean {mean} want {want} z {z}"
+            );
+        }
+    }
+}
+
+/// Chi-square of the collision interval against the exact discrete distribution: the exact
+/// mask passes everywhere; the thesis' 5-round mask fails at fine q.
+#[test]
+fn distance_distribution_chi_square() {
+    let n = 200_000u64;
+    let mut rng = Rng::new(41);
+    for &t_min in &[0.001f64, 0.3, 0.9, 0.999] {
+        for seg in [full_chord(), seg_frac(0.2, 0.7)] {
+            let t = random_ts(&mut rng, t_min);
+            let p = expected_hist(&seg, &t);
+            let mut exact = [0u64; 33];
+            let mut thesis = [0u64; 33];
+            let mut r = Rng::for_query(7, (t_min * 1e4) as u32);
+            for _ in 0..n {
+                let mask = fresh_mask(&mut r, &t, t_min);
+                let e = PinEntry {
+                    mask,
+                    t_min: t_min as f32,
+                };
+                let q = resolve_entry(e, false, &seg, &mut r, true);
+                exact[q.interval as usize] += 1;
+                if q.hit == 1 {
+                    let d = q.distance;
+                    let j = q.interval as f32;
+                    let lo = seg.t_enter + j * seg.interval_len;
+                    assert!(d >= lo.max(seg.t0) - 1e-6 && d <= lo + seg.interval_len + 1e-6);
+                }
+                // Same participation, thesis mask.
+                let part = participating(&seg, r.next_f32(), r.next_f32());
+                let h = thesis_sample_mask((1.0 - t_min) as f32, 5, &mut r);
+                let m = mask & part & h;
+                thesis[m.leading_zeros() as usize] += 1;
+            }
+            let (chi, df) = chi_square(&exact, &p, n);
+            let limit = df as f64 + 6.0 * (2.0 * df as f64).sqrt() + 10.0;
+            assert!(chi < limit, "exact mask t_min {t_min}: chi2 {chi} df {df}");
+            let (chi_t, _) = chi_square(&thesis, &p, n);
+            if t_min == 0.999 {
+                assert!(
+                    chi_t > 100.0 * limit,
+                    "thesis k=5 should fail at t_min {t_min}: chi2 {chi_t}"
+                );
+            }
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Agreement: single vs batch vs query, threads
+// ---------------------------------------------------------------------------------------------
+
+fn random_rays(n: usize, seed: u32) -> Vec<RayQuery> {
+    let mut r = Rng::new(seed);
+    (0..n)
+        .map(|i| {
+            let o = [
+                r.next_f32() * 3.0 - 1.0,
+                r.next_f32() * 3.0 - 1.0,
+                r.next_f32() * 3.0 - 1.0,
+            ];
+            let d = [
+                r.next_f32() * 2.0 - 1.0,
+                r.next_f32() * 2.0 - 1.0,
+                r.next_f32() * 2.0 - 1.0,
+            ];
+            let t_max = match i % 4 {
+                0 => f32::INFINITY,
+                1 => r.next_f32() * 2.0,
+                _ => r.next_f32() * 0.5,
+            };
+            RayQuery::new(o, d, t_max)
+        })
+        .collect()
+}
+
+#[test]
+fn batch_equals_single_and_query_parts() {
+    for (dirs, sparse) in [
+        (Directions::THESIS_DEFAULT, true),
+        (Directions::Octahedral { n: 5 }, false),
+    ] {
+        let g = PinGrid::from_bytes(
+            random_grid(dirs, [5, 4, 3], 3, sparse, 17)
+                .to_bytes()
+                .unwrap(),
+        )
+        .unwrap();
+        for opts in [
+            SamplerOptions::default(),
+            SamplerOptions {
+                spatial_jitter: 1.0,
+                directional_jitter: 0.5,
+            },
+        ] {
+            let s = g.sampler().unwrap().with_options(opts);
+            let rays = random_rays(3000, 5);
+            let mut full = vec![QueryResult::empty_for_tests(); rays.len()];
+            let mut ts = vec![0.0; rays.len()];
+            let mut ds = vec![None; rays.len()];
+            s.query_batch(&rays, 99, 1000, &mut full);
+            s.transmittance_batch(&rays, 99, 1000, &mut ts);
+            s.sample_distance_batch(&rays, 99, 1000, &mut ds);
+            let mut ok = 0;
+            for (i, q) in rays.iter().enumerate() {
+                let rng = Rng::for_query(99, 1000 + i as u32);
+                let single = s.query(&q.ray(), q.t_max, &mut rng.clone());
+                assert_eq!(single, full[i]);
+                assert_eq!(
+                    s.transmittance(&q.ray(), q.t_max, &mut rng.clone()),
+                    full[i].transmittance
+                );
+                assert_eq!(ts[i], full[i].transmittance);
+                assert_eq!(
+                    s.sample_distance(&q.ray(), q.t_max, &mut rng.clone()),
+                    full[i].collision()
+                );
+                assert_eq!(ds[i], full[i].collision());
+                check_finite(&full[i]);
+                if full[i].status == status::OK && full[i].entry != NO_ENTRY {
+                    ok += 1;
+                    let e = g.pins()[full[i].entry as usize];
+                    assert!(
+                        full[i].popcount <= e.mask.count_ones(),
+                        "popcount bounded by the mask"
+                    );
+                }
+            }
+            assert!(ok > 100, "{ok} resolved queries");
+        }
+    }
+}
+
+#[test]
+fn lookup_matches_pin_file_entry() {
+    // Without jitter, the entry read is PinFile::entry(cell of the segment start, index_of, k).
+    let owned = random_grid(Directions::THESIS_DEFAULT, [4, 3, 5], 2, true, 23);
+    let bytes = owned.to_bytes().unwrap();
+    let file = pin_format::PinFile::parse(&bytes).unwrap();
+    let g = PinGrid::from_bytes(bytes.clone()).unwrap();
+    let s = g.sampler().unwrap();
+    let rays = random_rays(5000, 6);
+    for (i, q) in rays.iter().enumerate() {
+        let mut rng = Rng::for_query(3, i as u32);
+        let r = s.query(&q.ray(), q.t_max, &mut rng);
+        if r.status != status::OK {
+            continue;
+        }
+        let chord = crate::chord::unit_cube_chord(q.origin, q.dir).unwrap();
+        let seg = segment(chord, q.t_max).unwrap();
+        let p: Vec<f32> = (0..3).map(|a| q.origin[a] + q.dir[a] * seg.t0).collect();
+        let cell = [
+            crate::chord::bin(p[0] * 4.0, 4),
+            crate::chord::bin(p[1] * 3.0, 3),
+            crate::chord::bin(p[2] * 5.0, 5),
+        ];
+        let d = if q.dir[2] < 0.0 {
+            q.dir.map(|x| -x)
+        } else {
+            q.dir
+        };
+        let dir = Directions::THESIS_DEFAULT.index_of(d);
+        let k = Rng::for_query(3, i as u32).below_256(2);
+        let want = file.entry(cell, dir, k);
+        let got = if r.entry == NO_ENTRY {
+            PinEntry::EMPTY
+        } else {
+            g.pins()[r.entry as usize]
+        };
+        assert_eq!(got, want, "ray {i}");
+    }
+}
+
+#[test]
+fn threads_agree_with_one_thread_on_a_mapped_grid() {
+    use rayon::prelude::*;
+    let owned = random_grid(Directions::Octahedral { n: 8 }, [9, 7, 8], 2, true, 29);
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("mt.pin");
+    owned.write_atomic(&path).unwrap();
+    let g = PinGrid::open(&path).unwrap();
+    assert!(g.is_mapped());
+    let s = g.sampler().unwrap();
+    let rays = random_rays(50_000, 8);
+    let mut one = vec![QueryResult::empty_for_tests(); rays.len()];
+    s.query_batch(&rays, 5, 0, &mut one);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(4)
+        .build()
+        .unwrap();
+    let many: Vec<QueryResult> = pool.install(|| {
+        rays.par_chunks(777)
+            .enumerate()
+            .flat_map_iter(|(c, chunk)| {
+                let mut out = vec![QueryResult::empty_for_tests(); chunk.len()];
+                s.query_batch(chunk, 5, (c * 777) as u32, &mut out);
+                out
+            })
+            .collect()
+    });
+    assert_eq!(one, many);
+    // Per-thread generators with single queries give the same as sequential too.
+    let singles: Vec<QueryResult> = pool.install(|| {
+        rays.par_iter()
+            .enumerate()
+            .map(|(i, q)| s.query(&q.ray(), q.t_max, &mut Rng::for_query(5, i as u32)))
+            .collect()
+    });
+    assert_eq!(one, singles);
+}
+
+impl QueryResult {
+    pub(crate) fn empty_for_tests() -> Self {
+        bytemuck::Zeroable::zeroed()
+    }
+}
+
+fn parse_wgsl_hex_f32(lit: &str) -> f32 {
+    // [-]0x1.HHHHHHp<exp>f
+    let (neg, rest) = match lit.strip_prefix('-') {
+        Some(r) => (true, r),
+        None => (false, lit),
+    };
+    let rest = rest
+        .strip_prefix("0x1.")
+        .unwrap()
+        .strip_suffix('f')
+        .unwrap();
+    let (mant, exp) = rest.split_once('p').unwrap();
+    let m = u32::from_str_radix(mant, 16).unwrap();
+    let e: i32 = exp.parse().unwrap();
+    assert_eq!(m & 1, 0, "24-bit hex mantissa");
+    let bits = (u32::from(neg) << 31) | (((e + 127) as u32) << 23) | (m >> 1);
+    f32::from_bits(bits)
+}
+
+#[test]
+fn wgsl_constants_match_cpu() {
+    let want = [
+        ("C0", 0.999_866f32),
+        ("C1", -0.330_299_5),
+        ("C2", 0.180_141),
+        ("C3", -0.085_133),
+        ("C4", 0.020_835_1),
+        ("HALF_PI", std::f32::consts::FRAC_PI_2),
+        ("PI", std::f32::consts::PI),
+        ("INV_TAU", 1.0 / std::f32::consts::TAU),
+        ("MAXF", f32::MAX),
+        ("TWO_M24", 1.0 / 16_777_216.0),
+        ("TWO_32", 4_294_967_296.0),
+    ];
+    for (name, v) in want {
+        let prefix = format!("const {name}: f32 = ");
+        let line = crate::PIN_WGSL
+            .lines()
+            .find(|l| l.starts_with(&prefix))
+            .unwrap_or_else(|| panic!("{name} missing from pin.wgsl"));
+        let lit = line[prefix.len()..].trim_end_matches(';');
+        assert_eq!(parse_wgsl_hex_f32(lit).to_bits(), v.to_bits(), "{name}");
+    }
+    let rng = [
+        ("PCG_MUL", crate::rng::PCG_MUL),
+        ("PCG_INC", crate::rng::PCG_INC),
+        ("PCG_OUT_MUL", crate::rng::PCG_OUT_MUL),
+    ];
+    for (name, v) in rng {
+        assert!(
+            crate::PIN_WGSL.contains(&format!("const {name}: u32 = {v}u;")),
+            "{name}"
+        );
+    }
+}
