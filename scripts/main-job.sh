@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job on bundled data: install what is missing, build, bake the OpenVDB smoke into
-# a pin grid, verify it and print what is inside. Outputs land in ./out/.
+# a pin grid, verify and inspect it, and render it with pins (PinMS) and with a tracker.
+# Outputs land in ./out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export DEBIAN_FRONTEND=noninteractive
@@ -11,13 +12,18 @@ if ! dpkg -s mesa-vulkan-drivers libvulkan1 >/dev/null 2>&1; then
 fi
 DATA=../shared/data
 mkdir -p out
-cargo build --release -p pinbake
+cargo build --release -p pinbake -p pinrt --features pinrt/cli
 BIN=target/release/pinbake
 $BIN bake "$DATA/openvdb_smoke1.vdb" -o out/smoke.pin --cells 37 --dirs polar:16x4 \
-  --embed-density 64 --json > out/smoke.bake.json
+  --density-scale 4 --embed-density 64 --json > out/smoke.bake.json
 $BIN verify out/smoke.pin
 $BIN inspect out/smoke.pin
 $BIN bake "$DATA/hydrogen_atom_128x128x128_uint8.raw" --density-scale 0.05 -o out/hydrogen.pin \
   --dirs octahedral:8 --json > out/hydrogen.bake.json
 $BIN inspect out/hydrogen.pin --json > out/hydrogen.inspect.json
-echo "main job done: out/smoke.pin, out/hydrogen.pin (bake summaries in out/*.json)"
+R=target/release/pinrender
+for est in pinms ratio; do
+  $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
+    --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
+done
+echo "main job done: out/smoke.pin, out/hydrogen.pin, out/smoke_{pinms,ratio}.{exr,png}"

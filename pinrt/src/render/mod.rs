@@ -55,6 +55,15 @@
 //! (rays are f32, `t` in units of `|d|`, the renderer passes unit directions and
 //! `t_max = inf`) and may seed its own generator per query from [`Pcg32::next_u64`].
 //!
+//! ## The companion papers
+//!
+//! * [`closed_form`]: [`ClosedFormTracker`] over any [`AnalyticOpticalDepth`] field (the
+//!   cosine-noise paper): exact transmittance, distance sampling by root finding.
+//! * [`whole_volume`]: analytic single scattering of a homogeneous box under the sun and
+//!   whole-volume distance sampling, [`render_single_scattering`].
+//! * [`cache`]: a hash-grid path-space radiance cache, enabled by
+//!   [`RenderSettings::cache`] (`None` renders exactly as without it).
+//!
 //! ## Determinism
 //!
 //! Sample `s` of pixel `p` draws from `Pcg32::for_sample(seed, p, s)` only; pixel sums are
@@ -69,6 +78,8 @@
 //! collision), NaN and negative extinction count as 0 and `+inf` as opaque, non-finite path
 //! samples are dropped.
 
+pub mod cache;
+pub mod closed_form;
 mod estimator;
 mod field;
 mod image;
@@ -76,10 +87,13 @@ mod majorant;
 pub mod phase;
 mod rng;
 mod tracer;
+pub mod whole_volume;
 
 #[cfg(test)]
 mod tests;
 
+pub use cache::{CacheSettings, RadianceCache};
+pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
     DeltaTracking, MAX_MARCH_STEPS, MAX_TRACKING_STEPS, RatioTracking, RayMarching,
     TransportEstimator,
@@ -89,6 +103,7 @@ pub use image::{Image, RELATIVE_MSE_EPS, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use rng::{Pcg32, splitmix64};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
+pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 
 /// Errors of the render module.
 #[derive(Debug, thiserror::Error)]

@@ -316,6 +316,7 @@ fn albedo_zero_gives_env_times_transmittance() {
             seed: 3,
             budget: Budget::Spp(2),
             threads: Some(1),
+            cache: None,
         },
     )
     .unwrap();
@@ -460,6 +461,7 @@ fn image_independent_of_threads_and_budget() {
         seed: 99,
         budget,
         threads,
+        cache: None,
     };
     let a = render(&scene, &settings(Some(1), Budget::Spp(3))).unwrap();
     let b = render(&scene, &settings(Some(2), Budget::Spp(3))).unwrap();
@@ -494,6 +496,7 @@ fn bad_scenes_are_errors() {
         seed: 1,
         budget: Budget::Spp(1),
         threads: Some(1),
+        cache: None,
     };
     let mut bad: Vec<Scene> = Vec::new();
     let mut s = base.clone();
@@ -547,6 +550,7 @@ fn bad_scenes_are_errors() {
             &base,
             &RenderSettings {
                 threads: Some(0),
+                cache: None,
                 ..ok.clone()
             }
         )
@@ -620,6 +624,7 @@ fn timings() {
             seed: 1,
             budget: Budget::Spp(16),
             threads: Some(1),
+            cache: None,
         },
     )
     .unwrap();

@@ -90,6 +90,9 @@ pub struct RenderSettings {
     pub budget: Budget,
     /// Worker threads (a private rayon pool); `None` uses rayon's global pool.
     pub threads: Option<usize>,
+    /// Path-space radiance cache for multiple scattering (see [`super::cache`]); `None`
+    /// renders exactly as without it.
+    pub cache: Option<super::cache::CacheSettings>,
 }
 
 /// A finished render.
@@ -364,6 +367,9 @@ impl Ctx<'_> {
 /// a misbehaving plug-in estimator) are dropped.
 pub fn render(scene: &Scene, settings: &RenderSettings) -> Result<RenderOutput, RenderError> {
     scene.validate()?;
+    if let Some(cache) = &settings.cache {
+        return super::cache::render_cached(scene, settings, cache);
+    }
     let ctx = scene.ctx(settings.max_bounces);
     accumulate(scene, settings, Instant::now(), |o, d, rng| {
         ctx.trace(o, d, rng)

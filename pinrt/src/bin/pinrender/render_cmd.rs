@@ -164,6 +164,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             None => Budget::Spp(a.spp),
         },
         threads: a.threads,
+        cache: None,
     };
     let out = render(&scene, &settings).map_err(|e| anyhow!("{e}"))?;
     out.image
