@@ -136,5 +136,7 @@ pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");
 
 // Re-exported so users need not depend on the format crate for the basic types.
 pub use pin_format::{Directions, GridDesc, PinEntry};
+#[cfg(all(feature = "gpu", feature = "render"))]
+pub mod gpu_render;
 #[cfg(feature = "render")]
 pub mod render;
