@@ -7,8 +7,8 @@ cd "$(dirname "$0")/.."
 export DEBIAN_FRONTEND=noninteractive
 SUDO=""
 if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi
-if ! dpkg -s mesa-vulkan-drivers libvulkan1 >/dev/null 2>&1; then
-  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null
+if ! dpkg -s mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core >/dev/null 2>&1; then
+  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev >/dev/null
 fi
 DATA=../shared/data
 mkdir -p out
@@ -26,4 +26,6 @@ for est in pinms ratio; do
   $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
 done
-echo "main job done: out/smoke.pin, out/hydrogen.pin, out/smoke_{pinms,ratio}.{exr,png}"
+# The error-against-run-time report on small budgets (the full one: `pinrender eval`, ~7 min).
+$R eval --quick --out out/eval
+echo "main job done: out/smoke.pin, out/hydrogen.pin, out/smoke_{pinms,ratio}.{exr,png}, out/eval/report.md"

@@ -1,9 +1,11 @@
 //! `pinrender`: the reference renderer and benchmarks on real volumes and pin files.
 //!
 //! Subcommands: `bench` (pins vs ray marching queries per second, CPU and wgpu), `render`
-//! (one image with a chosen estimator). Exit codes: 0 success, 1 bad input, 2 usage error.
+//! (one image with a chosen estimator), `eval` (error against run time of every estimator on
+//! the evaluation scenes). Exit codes: 0 success, 1 bad input, 2 usage error.
 
 mod bench;
+mod eval;
 mod render_cmd;
 mod volume;
 
@@ -28,6 +30,8 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Render one image of a volume with a chosen estimator.
     Render(Box<render_cmd::RenderArgs>),
+    /// Error against run time of every estimator on the evaluation scenes (CSV, plots, report).
+    Eval(Box<eval::EvalArgs>),
 }
 
 fn main() -> ExitCode {
@@ -40,6 +44,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bench(a) => bench::run(a),
         Command::Render(a) => render_cmd::run(*a),
+        Command::Eval(a) => eval::run(*a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -146,6 +146,17 @@ impl PinsEstimator {
             sampler: grid.sampler()?,
         })
     }
+
+    /// An estimator over an already placed sampler (instances, lookup options).
+    pub fn from_sampler(sampler: Sampler<'static>) -> Self {
+        Self { sampler }
+    }
+}
+
+/// Leaks a pin grid so samplers over it live until the process exits (a binary renders with
+/// its grids until then).
+pub fn leak_grid(grid: PinGrid) -> &'static PinGrid {
+    Box::leak(Box::new(grid))
 }
 
 impl TransportEstimator for PinsEstimator {

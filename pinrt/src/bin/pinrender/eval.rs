@@ -1,0 +1,518 @@
+//! `pinrender eval`: error against run time of every estimator on the evaluation scenes.
+//!
+//! For each scene: a high-sample reference (cached on disk under `<out>/cache/`, keyed by the
+//! scene parameters and [`REFERENCE_VERSION`]), the pins baked once (timed separately: an
+//! offline asset step), then for each estimator a progressive render: passes of 1 spp with
+//! distinct seeds are averaged, and whenever the accumulated wall time crosses one of the
+//! budgets the running mean is compared with the reference (RMSE, relative MSE). This is
+//! exactly what `Budget::Seconds(b)` does for each budget `b` (passes until the time is
+//! spent, at least one), measured in one run per estimator instead of one per budget.
+//! The radiance cache's training pass counts towards the time.
+//!
+//! Outputs (in `--out`): `results.csv`, `bake.csv`, `error_vs_time_<scene>.png`,
+//! `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at the largest budget),
+//! `<scene>/reference.exr` and `report.md`; with `--docs DIR` also `DIR/evaluation.md` (the
+//! part above `<!-- companion papers -->`) and small PNG copies under `DIR/eval/`.
+
+mod plot;
+mod report;
+mod scenes;
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::{Context, Result, anyhow, bail};
+use clap::Args;
+use pinrt::render::cache::{render_with_cache, train_cache};
+use pinrt::render::whole_volume::{SingleScatterSampling, render_single_scattering};
+use pinrt::render::{
+    Budget, Image, Medium, RatioTracking, RenderOutput, RenderSettings, Scene, TransportEstimator,
+    relative_mse, render, rmse, splitmix64,
+};
+use pinrt::{PinGrid, Sampler, SamplerOptions};
+
+use crate::volume::{PinsEstimator, leak_grid};
+use scenes::{EvalScene, RefKind, Sizes};
+
+/// Bump when anything that changes reference images changes (renderer, scenes).
+pub const REFERENCE_VERSION: &str = "eval-ref-v1";
+
+#[derive(Args, Debug)]
+#[command(after_help = "\
+Scenes: smoke (OpenVDB smoke), hydrogen (raw u8 128^3), cosine (high-frequency cosine noise,
+closed-form reference), box (homogeneous box, closed-form reference), box-ss (its single
+scattering, whole-volume reference), instances (64 overlapping noise blobs).
+
+Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), pins (pins for
+every ray), pinms (ratio tracking for primary rays and single scattering, pins after), pinms+cache
+(pinms with the hash-grid radiance cache), cosine-closed-form / box-closed-form (exact
+transmittance), whole-volume (box-ss only).
+
+Example: pinrender eval --out out/eval --docs docs")]
+pub struct EvalArgs {
+    /// Output directory.
+    #[arg(long, default_value = "out/eval")]
+    pub out: PathBuf,
+    /// Tiny images, budgets and references: an end-to-end smoke test in seconds.
+    #[arg(long)]
+    pub quick: bool,
+    /// Time budgets in seconds, comma separated (default 0.25,0.5,1,2,4; --quick 0.01,0.03).
+    #[arg(long, value_delimiter = ',')]
+    pub budgets: Option<Vec<f64>>,
+    /// Only these scenes (comma separated).
+    #[arg(long, value_delimiter = ',')]
+    pub scenes: Option<Vec<String>>,
+    /// Only these estimators (comma separated; rm@0.015 is needed for the time-to-error column).
+    #[arg(long, value_delimiter = ',')]
+    pub estimators: Option<Vec<String>>,
+    /// Image edge in pixels for the volume scenes (box scenes use 1.5x).
+    #[arg(long)]
+    pub size: Option<u32>,
+    /// Reference samples per pixel, base value (scaled per scene by its cost).
+    #[arg(long)]
+    pub ref_spp: Option<u32>,
+    /// Recompute references even when cached.
+    #[arg(long)]
+    pub no_reference_cache: bool,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
+    #[arg(long)]
+    pub docs: Option<PathBuf>,
+}
+
+/// One measurement: an estimator at one budget.
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub scene: String,
+    pub estimator: String,
+    pub backend: &'static str,
+    pub budget_s: f64,
+    pub spp: u32,
+    pub seconds: f64,
+    pub rmse: f64,
+    pub rel_mse: f64,
+}
+
+/// What one scene produced.
+pub struct SceneResult {
+    pub name: String,
+    pub about: String,
+    pub reference: String,
+    pub reference_spp: u32,
+    pub reference_seconds: Option<f64>,
+    pub bake: Option<BakeInfo>,
+    pub rows: Vec<Row>,
+    /// (estimator, final image) in estimator order.
+    pub images: Vec<(String, Image)>,
+    pub reference_image: Image,
+}
+
+#[derive(Clone, Debug)]
+pub struct BakeInfo {
+    pub cells: u32,
+    pub directions: u32,
+    pub pins: u64,
+    pub bytes: usize,
+    pub seconds: f64,
+}
+
+pub fn run(a: EvalArgs) -> Result<()> {
+    let started = Instant::now();
+    let sizes = {
+        let mut s = if a.quick {
+            Sizes::quick()
+        } else {
+            Sizes::default_run()
+        };
+        if let Some(n) = a.size {
+            if !(4..=4096).contains(&n) {
+                bail!("--size {n} must be in 4..=4096");
+            }
+            s.image = n;
+        }
+        if let Some(r) = a.ref_spp {
+            if r == 0 {
+                bail!("--ref-spp must be >= 1");
+            }
+            s.ref_spp = r;
+        }
+        s
+    };
+    let mut budgets = a.budgets.clone().unwrap_or_else(|| {
+        if a.quick {
+            vec![0.01, 0.03]
+        } else {
+            vec![0.25, 0.5, 1.0, 2.0, 4.0]
+        }
+    });
+    if budgets.is_empty()
+        || budgets
+            .iter()
+            .any(|b| !(b.is_finite() && *b > 0.0 && *b <= 1e5))
+    {
+        bail!("--budgets must be positive finite seconds (at most 1e5), got {budgets:?}");
+    }
+    budgets.sort_by(f64::total_cmp);
+    budgets.dedup();
+    if a.threads == Some(0) {
+        bail!("--threads must be >= 1");
+    }
+    let scene_names: Vec<String> = match &a.scenes {
+        Some(v) => v.iter().map(|s| s.trim().to_string()).collect(),
+        None => scenes::SCENES.iter().map(|s| s.to_string()).collect(),
+    };
+    for s in &scene_names {
+        if !scenes::SCENES.contains(&s.as_str()) {
+            bail!("unknown scene '{s}' (known: {})", scenes::SCENES.join(", "));
+        }
+    }
+    std::fs::create_dir_all(a.out.join("cache"))
+        .with_context(|| format!("creating {}", a.out.display()))?;
+
+    let mut results = Vec::new();
+    for name in &scene_names {
+        eprintln!("== scene {name}");
+        let r = eval_scene(name, &a, &sizes, &budgets).with_context(|| format!("scene {name}"))?;
+        results.push(r);
+        // Write what we have after every scene, so an interrupted run leaves usable output.
+        report::write_csv(&a.out.join("results.csv"), &results)?;
+    }
+    report::write_bake_csv(&a.out.join("bake.csv"), &results)?;
+    for r in &results {
+        plot::error_vs_time(&a.out.join(format!("error_vs_time_{}.png", r.name)), r)?;
+        plot::montage(&a.out.join(format!("images_{}.png", r.name)), r)?;
+    }
+    let total = started.elapsed().as_secs_f64();
+    let meta = report::RunMeta::new(&a, &budgets, &sizes, total);
+    let md = report::markdown(&results, &meta, "")?;
+    std::fs::write(a.out.join("report.md"), md)
+        .with_context(|| format!("writing {}", a.out.join("report.md").display()))?;
+    if let Some(docs) = &a.docs {
+        report::write_docs(docs, &a.out, &results, &meta)?;
+    }
+    eprintln!(
+        "eval done in {total:.1} s -> {}",
+        a.out.join("report.md").display()
+    );
+    Ok(())
+}
+
+fn settings(es: &EvalScene, seed: u64, budget: Budget, threads: Option<usize>) -> RenderSettings {
+    RenderSettings {
+        max_bounces: es.max_bounces,
+        seed,
+        budget,
+        threads,
+        cache: None,
+    }
+}
+
+fn scene_with(es: &EvalScene, media: Vec<Medium>) -> Scene {
+    Scene {
+        media,
+        ..es.scene.clone()
+    }
+}
+
+fn fnv1a(s: &str) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for b in s.bytes() {
+        h ^= b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+fn file_name(estimator: &str) -> String {
+    estimator
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '.' || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// The reference image: from the cache when present, else rendered and cached.
+fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, Option<f64>)> {
+    let cam = &es.scene.camera;
+    let key = format!(
+        "{REFERENCE_VERSION}|{}|{:?}|{}x{}|fov={}|bounces={}|spp={}|seed={}|ref={:?}|albedo={}|g={}|sun={:?}|env={:?}",
+        es.key,
+        cam.origin,
+        cam.width,
+        cam.height,
+        cam.vfov_deg,
+        es.max_bounces,
+        es.ref_spp,
+        a.seed,
+        es.reference,
+        es.scene.albedo,
+        es.scene.g,
+        es.scene.sun.as_ref().map(|s| (s.dir, s.radiance)),
+        es.scene.env_radiance,
+    );
+    let path = a
+        .out
+        .join("cache")
+        .join(format!("{}-{:016x}.exr", es.name, fnv1a(&key)));
+    let key_path = path.with_extension("key");
+    if !a.no_reference_cache
+        && let (Ok(img), Ok(k)) = (Image::read_exr(&path), std::fs::read_to_string(&key_path))
+        && k == key
+        && img.width == cam.width
+        && img.height == cam.height
+    {
+        eprintln!("  reference: cached {}", path.display());
+        return Ok((img, None));
+    }
+    let seed = splitmix64(a.seed ^ 0x5EF0_5EF0_5EF0_5EF0);
+    let st = settings(es, seed, Budget::Spp(es.ref_spp), a.threads);
+    let t = Instant::now();
+    let out = match es.reference {
+        RefKind::Tracker => {
+            let media = es
+                .instances
+                .iter()
+                .map(|i| {
+                    Medium::single(Arc::new(RatioTracking::new(
+                        i.field.clone(),
+                        i.majorants.clone(),
+                    )) as Arc<dyn TransportEstimator>)
+                })
+                .collect();
+            render(&scene_with(es, media), &st)
+        }
+        RefKind::ClosedForm => {
+            let name = if es.name == "cosine" {
+                "cosine-closed-form"
+            } else {
+                "box-closed-form"
+            };
+            render(&scene_with(es, scenes::media(es, name)?), &st)
+        }
+        RefKind::WholeVolume => {
+            let wv = es
+                .whole_volume
+                .as_ref()
+                .ok_or_else(|| anyhow!("whole-volume reference without a box"))?;
+            render_single_scattering(
+                &scene_with(es, Vec::new()),
+                wv,
+                SingleScatterSampling::WholeVolume,
+                &st,
+            )
+        }
+    }
+    .map_err(|e| anyhow!("reference render: {e}"))?;
+    let secs = t.elapsed().as_secs_f64();
+    eprintln!(
+        "  reference: {} spp in {secs:.1} s ({})",
+        es.ref_spp,
+        es.reference.label()
+    );
+    out.image
+        .write_exr(&path)
+        .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    std::fs::write(&key_path, &key).with_context(|| format!("writing {}", key_path.display()))?;
+    Ok((out.image, Some(secs)))
+}
+
+/// Bakes the scene's pins and installs a pin estimator per instance.
+fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
+    let opts = pinbake::BakeOptions {
+        cells: [es.bake_cells; 3],
+        seed: a.seed,
+        threads: a.threads,
+        ..pinbake::BakeOptions::default()
+    };
+    let t = Instant::now();
+    let (grid, stats) = pinbake::bake(es.bake_source.as_ref(), &opts, &|_| {})?;
+    let bytes = grid.to_bytes()?;
+    let seconds = t.elapsed().as_secs_f64();
+    let size = bytes.len();
+    let grid: &'static PinGrid = leak_grid(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
+    // The thesis' evaluation jitters the lookup by a full cell, spatially and directionally.
+    let lookup = SamplerOptions {
+        spatial_jitter: 1.0,
+        directional_jitter: 1.0,
+    };
+    let l2w = grid.desc().local_to_world;
+    for inst in &mut es.instances {
+        let m = scenes::translated(&l2w, inst.offset);
+        let sampler = Sampler::with_local_to_world(grid, &m)
+            .map_err(|e| anyhow!("{e}"))?
+            .with_options(lookup);
+        inst.pins = Some(Arc::new(PinsEstimator::from_sampler(sampler)));
+    }
+    eprintln!(
+        "  pins: {}^3 cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",
+        es.bake_cells,
+        opts.directions.count(),
+        stats.pins,
+        size as f64 / 1e6
+    );
+    Ok(BakeInfo {
+        cells: es.bake_cells,
+        directions: opts.directions.count(),
+        pins: stats.pins,
+        bytes: size,
+        seconds,
+    })
+}
+
+fn eval_scene(name: &str, a: &EvalArgs, sizes: &Sizes, budgets: &[f64]) -> Result<SceneResult> {
+    let mut es = scenes::build(name, sizes)?;
+    let wanted = |e: &str| {
+        a.estimators
+            .as_ref()
+            .is_none_or(|v| v.iter().any(|x| x == e))
+    };
+    let ests: Vec<String> = es
+        .estimators
+        .iter()
+        .filter(|e| wanted(e))
+        .cloned()
+        .collect();
+    let needs_pins = ests
+        .iter()
+        .any(|e| e.starts_with("pins") || e.starts_with("pinms"));
+    let bake = if needs_pins {
+        Some(bake_pins(&mut es, a)?)
+    } else {
+        None
+    };
+    let (reference_image, reference_seconds) = reference(&es, a)?;
+    let dir = a.out.join(es.name);
+    std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    reference_image
+        .write_exr(dir.join("reference.exr"))
+        .map_err(|e| anyhow!("{e}"))?;
+    let mut rows = Vec::new();
+    let mut images = Vec::new();
+    for est in &ests {
+        let (pts, img) = measure(&es, est, a, budgets, &reference_image)
+            .with_context(|| format!("estimator {est}"))?;
+        let last = pts.last().cloned();
+        if let Some(r) = &last {
+            eprintln!(
+                "  {est:<20} {:>5} spp in {:>6.2} s  rmse {:.5}  relmse {:.5}",
+                r.spp, r.seconds, r.rmse, r.rel_mse
+            );
+        }
+        img.write_exr(dir.join(format!("{}.exr", file_name(est))))
+            .map_err(|e| anyhow!("{e}"))?;
+        rows.extend(pts);
+        images.push((est.clone(), img));
+    }
+    Ok(SceneResult {
+        name: es.name.to_string(),
+        about: es.about.clone(),
+        reference: es.reference.label().to_string(),
+        reference_spp: es.ref_spp,
+        reference_seconds,
+        bake,
+        rows,
+        images,
+        reference_image,
+    })
+}
+
+/// Seed of pass `i` of a progressive measurement (the same for every estimator: common
+/// random numbers; the reference uses an unrelated seed).
+fn pass_seed(seed: u64, i: u32) -> u64 {
+    splitmix64(splitmix64(seed) ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+}
+
+/// Progressive render of one estimator: 1-spp passes averaged until the largest budget is
+/// spent; a row at every budget crossed.
+fn measure(
+    es: &EvalScene,
+    est: &str,
+    a: &EvalArgs,
+    budgets: &[f64],
+    reference: &Image,
+) -> Result<(Vec<Row>, Image)> {
+    let media = match est {
+        "whole-volume" => Vec::new(),
+        _ => scenes::media(es, est)?,
+    };
+    let scene = scene_with(es, media);
+    let n = (scene.camera.width as usize) * (scene.camera.height as usize);
+    let mut sum = vec![[0f64; 3]; n];
+    let mut spp = 0u32;
+    let mut elapsed = 0.0f64;
+    // Set-up that counts towards the time: the radiance cache's training pass.
+    let cache = if est == "pinms+cache" {
+        let t = Instant::now();
+        let st = settings(es, pass_seed(a.seed, u32::MAX), Budget::Spp(1), a.threads);
+        let c = train_cache(&scene, &st, &es.cache).map_err(|e| anyhow!("cache training: {e}"))?;
+        elapsed += t.elapsed().as_secs_f64();
+        Some(c)
+    } else {
+        None
+    };
+    let pass = |seed: u64| -> Result<RenderOutput> {
+        let st = settings(es, seed, Budget::Spp(1), a.threads);
+        let out = match (est, &cache) {
+            ("whole-volume", _) => {
+                let wv = es
+                    .whole_volume
+                    .as_ref()
+                    .ok_or_else(|| anyhow!("whole-volume needs the homogeneous box"))?;
+                render_single_scattering(&scene, wv, SingleScatterSampling::WholeVolume, &st)
+            }
+            (_, Some(c)) => render_with_cache(&scene, &st, &es.cache, c, Instant::now()),
+            _ => render(&scene, &st),
+        };
+        out.map_err(|e| anyhow!("{e}"))
+    };
+    let mean = |sum: &[[f64; 3]], spp: u32| -> Image {
+        let inv = 1.0 / spp.max(1) as f64;
+        Image {
+            width: scene.camera.width,
+            height: scene.camera.height,
+            rgb: sum.iter().map(|s| s.map(|c| (c * inv) as f32)).collect(),
+        }
+    };
+    let mut rows = Vec::new();
+    let mut next = 0usize;
+    while next < budgets.len() {
+        let t = Instant::now();
+        let out = pass(pass_seed(a.seed, spp))?;
+        for (acc, p) in sum.iter_mut().zip(&out.image.rgb) {
+            for c in 0..3 {
+                acc[c] += p[c] as f64 * out.spp as f64;
+            }
+        }
+        spp = spp.saturating_add(out.spp);
+        elapsed += t.elapsed().as_secs_f64();
+        if elapsed >= budgets[next] || spp == u32::MAX {
+            let img = mean(&sum, spp);
+            let e = rmse(&img, reference).map_err(|e| anyhow!("{e}"))?;
+            let r = relative_mse(&img, reference).map_err(|e| anyhow!("{e}"))?;
+            while next < budgets.len() && (elapsed >= budgets[next] || spp == u32::MAX) {
+                rows.push(Row {
+                    scene: es.name.to_string(),
+                    estimator: est.to_string(),
+                    backend: "cpu",
+                    budget_s: budgets[next],
+                    spp,
+                    seconds: elapsed,
+                    rmse: e,
+                    rel_mse: r,
+                });
+                next += 1;
+            }
+        }
+    }
+    Ok((rows, mean(&sum, spp)))
+}

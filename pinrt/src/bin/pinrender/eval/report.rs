@@ -1,0 +1,350 @@
+//! CSV files, the markdown report and the docs/evaluation.md update.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+
+use super::scenes::Sizes;
+use super::{EvalArgs, SceneResult};
+
+/// The estimator whose error at its largest budget is the target of the time-to-error column.
+pub const BASELINE: &str = "rm@0.015";
+
+/// Markers of docs/evaluation.md: everything from the first one found on is kept as is.
+pub const DOC_MARKERS: [&str; 2] = [
+    "<!-- companion papers -->",
+    "<!-- The lead's report table goes above this line. -->",
+];
+const DISCUSSION_BEGIN: &str = "<!-- discussion -->";
+const DISCUSSION_END: &str = "<!-- /discussion -->";
+
+/// How the run was made, for the report header.
+pub struct RunMeta {
+    pub command: String,
+    pub budgets: Vec<f64>,
+    pub quick: bool,
+    pub threads: String,
+    pub cpu: String,
+    pub total_seconds: f64,
+    pub sizes: Sizes,
+}
+
+impl RunMeta {
+    pub fn new(a: &EvalArgs, budgets: &[f64], sizes: &Sizes, total_seconds: f64) -> Self {
+        let args: Vec<String> = std::env::args().skip(1).collect();
+        let cpu = std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|s| {
+                s.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown CPU".into());
+        let cores = std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1);
+        RunMeta {
+            command: format!("pinrender {}", args.join(" ")),
+            budgets: budgets.to_vec(),
+            quick: a.quick,
+            threads: match a.threads {
+                Some(t) => format!("{t} threads"),
+                None => format!("{cores} threads (all cores)"),
+            },
+            cpu,
+            total_seconds,
+            sizes: *sizes,
+        }
+    }
+}
+
+pub fn write_csv(path: &Path, results: &[SceneResult]) -> Result<()> {
+    let mut s = String::from("scene,estimator,backend,budget_s,spp,seconds,rmse,rel_mse\n");
+    for r in results {
+        for row in &r.rows {
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{:.4},{:.6e},{:.6e}",
+                row.scene,
+                row.estimator,
+                row.backend,
+                row.budget_s,
+                row.spp,
+                row.seconds,
+                row.rmse,
+                row.rel_mse
+            );
+        }
+    }
+    std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}
+
+pub fn write_bake_csv(path: &Path, results: &[SceneResult]) -> Result<()> {
+    let mut s = String::from("scene,cells,directions,pins,bytes,seconds\n");
+    for r in results {
+        if let Some(b) = &r.bake {
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{:.4}",
+                r.name, b.cells, b.directions, b.pins, b.bytes, b.seconds
+            );
+        }
+    }
+    std::fs::write(path, s).with_context(|| format!("writing {}", path.display()))
+}
+
+/// One point of an error curve: (seconds, rmse, spp).
+pub type Point = (f64, f64, u32);
+
+/// The error curve of one estimator: (seconds, rmse, spp) by increasing time, one point per
+/// distinct spp.
+pub fn curve(r: &SceneResult, est: &str) -> Vec<Point> {
+    let mut v: Vec<Point> = Vec::new();
+    for row in r.rows.iter().filter(|x| x.estimator == est) {
+        if v.last().is_none_or(|l| l.2 != row.spp) {
+            v.push((row.seconds, row.rmse, row.spp));
+        }
+    }
+    v
+}
+
+/// When the curve first reaches `target` RMSE, interpolated log-log between measurements.
+pub enum Reach {
+    /// Reached at this time (interpolated).
+    At(f64),
+    /// Already below the target at the first measurement (this time).
+    Before(f64),
+    Never,
+}
+
+pub fn time_to(curve: &[Point], target: f64) -> Reach {
+    if !(target > 0.0) || curve.is_empty() {
+        return Reach::Never;
+    }
+    if curve[0].1 <= target {
+        return Reach::Before(curve[0].0);
+    }
+    for w in curve.windows(2) {
+        let ((t0, e0, _), (t1, e1, _)) = (w[0], w[1]);
+        if e1 <= target && e0 > target {
+            if !(t0 > 0.0 && t1 > 0.0 && e1 > 0.0) {
+                return Reach::At(t1);
+            }
+            let (lt0, lt1) = (t0.ln(), t1.ln());
+            let (le0, le1) = (e0.ln(), e1.ln());
+            let f = (target.ln() - le0) / (le1 - le0);
+            return Reach::At((lt0 + f * (lt1 - lt0)).exp());
+        }
+    }
+    Reach::Never
+}
+
+fn fmt_s(x: f64) -> String {
+    if x >= 10.0 {
+        format!("{x:.1} s")
+    } else {
+        format!("{x:.2} s")
+    }
+}
+
+/// The markdown table of one scene.
+pub fn scene_table(r: &SceneResult) -> String {
+    let mut s = String::new();
+    let ests: Vec<&str> = {
+        let mut v: Vec<&str> = Vec::new();
+        for row in &r.rows {
+            if !v.contains(&row.estimator.as_str()) {
+                v.push(&row.estimator);
+            }
+        }
+        v
+    };
+    let base = curve(r, BASELINE);
+    let target = base.last().map(|p| (p.1, p.0));
+    let _ = writeln!(
+        s,
+        "| estimator | spp | time | RMSE | rel. MSE | time to {BASELINE}'s final RMSE | speedup vs {BASELINE} |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
+    for est in ests {
+        let c = curve(r, est);
+        let Some(&(secs, err, spp)) = c.last() else {
+            continue;
+        };
+        let rel = r
+            .rows
+            .iter()
+            .rfind(|x| x.estimator == est)
+            .map(|x| x.rel_mse)
+            .unwrap_or(f64::NAN);
+        let (reach, speed) = match target {
+            None => ("n/a (no baseline)".to_string(), "n/a".to_string()),
+            Some((e_target, t_base)) => match time_to(&c, e_target) {
+                Reach::At(t) => (fmt_s(t), format!("{:.2}x", t_base / t)),
+                Reach::Before(t) => (format!("<= {}", fmt_s(t)), format!(">= {:.2}x", t_base / t)),
+                Reach::Never => ("not reached".to_string(), "-".to_string()),
+            },
+        };
+        let name = if est == BASELINE {
+            format!("**{est}**")
+        } else {
+            est.to_string()
+        };
+        let _ = writeln!(
+            s,
+            "| {name} | {spp} | {} | {err:.4} | {rel:.4} | {reach} | {speed} |",
+            fmt_s(secs)
+        );
+    }
+    s
+}
+
+/// The report body (shared by report.md and docs/evaluation.md); `link_prefix` goes in front
+/// of image file names.
+pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> String {
+    let mut s = String::new();
+    let budgets: Vec<String> = meta.budgets.iter().map(|b| format!("{b}")).collect();
+    let _ = writeln!(s, "Command: `{}`", meta.command);
+    let _ = writeln!(s);
+    let _ = writeln!(
+        s,
+        "Machine: {}, {}; total run time {:.0} s{}. Budgets: {} s of wall time per estimator \
+         (CPU path tracer, `pinrt::render`). **GPU: not measured** (no GPU path tracer wired \
+         into the evaluation yet).",
+        meta.cpu,
+        meta.threads,
+        meta.total_seconds,
+        if meta.quick { " (`--quick`)" } else { "" },
+        budgets.join(", ")
+    );
+    let _ = writeln!(s);
+    let _ = writeln!(
+        s,
+        "How to read the tables: *spp*, *time*, *RMSE* and *rel. MSE* are at the largest budget \
+         (equal time; the time is the measured wall time, which overruns the budget by at most \
+         one 1-spp pass). *Time to {BASELINE}'s final RMSE* is when the estimator's error curve \
+         first reaches the RMSE that ray marching at step 0.015 reaches at the largest budget, \
+         interpolated log-log between measurements (`<= t`: already there at the first \
+         measurement; *not reached*: never within the budgets, usually bias). *Speedup* is \
+         {BASELINE}'s time divided by that time. Errors are against a high-sample reference \
+         rendered once and cached (`out/eval/cache/`); relative MSE is \
+         `mean((x - ref)^2 / (ref^2 + 0.01))`. Pin bakes are an offline asset step: their time \
+         is listed per scene and is *not* included in the render times. {} bounces (1 for \
+         box-ss), albedo 0.95, isotropic phase, pins looked up with a one-cell spatial and \
+         directional jitter (as in the thesis' evaluation).",
+        meta.sizes.max_bounces
+    );
+    let _ = writeln!(s);
+    for r in results {
+        let _ = writeln!(s, "### {}", r.name);
+        let _ = writeln!(s);
+        let _ = writeln!(s, "{}.", r.about);
+        let _ = writeln!(s);
+        let _ = writeln!(
+            s,
+            "Reference: {}, {} spp{}.",
+            r.reference,
+            r.reference_spp,
+            match r.reference_seconds {
+                Some(t) => format!(" ({t:.1} s)"),
+                None => " (from the cache)".into(),
+            }
+        );
+        if let Some(b) = &r.bake {
+            let _ = writeln!(
+                s,
+                "Pin bake (offline, not in the times below): {}^3 cells x {} directions, {} pins, \
+                 {:.2} MB, {:.2} s.",
+                b.cells,
+                b.directions,
+                b.pins,
+                b.bytes as f64 / 1e6,
+                b.seconds
+            );
+        }
+        let _ = writeln!(s);
+        s.push_str(&scene_table(r));
+        let _ = writeln!(s);
+        let _ = writeln!(
+            s,
+            "![error vs time, {n}]({p}error_vs_time_{n}.png)",
+            n = r.name,
+            p = link_prefix
+        );
+        let _ = writeln!(s);
+        let _ = writeln!(
+            s,
+            "![equal-time images, {n}: reference then each estimator at the largest budget]({p}images_{n}.png)",
+            n = r.name,
+            p = link_prefix
+        );
+        let _ = writeln!(s);
+    }
+    s
+}
+
+/// report.md in the output directory.
+pub fn markdown(results: &[SceneResult], meta: &RunMeta, discussion: &str) -> Result<String> {
+    let mut s = String::from("# pinrender eval: error against run time\n\n");
+    s.push_str(&body(results, meta, ""));
+    if !discussion.is_empty() {
+        s.push_str(discussion);
+    }
+    s.push_str("Raw numbers: `results.csv` (every budget), `bake.csv`; images: `<scene>/*.exr`.\n");
+    Ok(s)
+}
+
+/// Rewrites the part of `docs/evaluation.md` above the marker line (kept with everything
+/// below it), preserving a hand-written discussion block, and copies the PNGs to
+/// `docs/eval/`.
+pub fn write_docs(docs: &Path, out: &Path, results: &[SceneResult], meta: &RunMeta) -> Result<()> {
+    let eval_dir = docs.join("eval");
+    std::fs::create_dir_all(&eval_dir)
+        .with_context(|| format!("creating {}", eval_dir.display()))?;
+    for r in results {
+        for f in [
+            format!("error_vs_time_{}.png", r.name),
+            format!("images_{}.png", r.name),
+        ] {
+            std::fs::copy(out.join(&f), eval_dir.join(&f))
+                .with_context(|| format!("copying {f} to {}", eval_dir.display()))?;
+        }
+    }
+    let path = docs.join("evaluation.md");
+    let old = std::fs::read_to_string(&path).unwrap_or_default();
+    let tail = DOC_MARKERS
+        .iter()
+        .filter_map(|m| old.find(m))
+        .min()
+        .map(|i| old[i..].to_string())
+        .unwrap_or_else(|| {
+            // No marker: keep whatever the file had below a fresh marker.
+            format!("{}\n\n{}", DOC_MARKERS[0], old)
+        });
+    let head = old
+        .find(DOC_MARKERS[0])
+        .or_else(|| old.find(DOC_MARKERS[1]))
+        .map(|i| &old[..i])
+        .unwrap_or("");
+    let discussion = match (head.find(DISCUSSION_BEGIN), head.find(DISCUSSION_END)) {
+        (Some(a), Some(b)) if a < b => head[a..b + DISCUSSION_END.len()].to_string(),
+        _ => format!(
+            "{DISCUSSION_BEGIN}\n\n_Discussion: to be written from the numbers above._\n\n{DISCUSSION_END}"
+        ),
+    };
+    let mut s = String::from("# Evaluation\n\n## Error against run time (`pinrender eval`)\n\n");
+    s.push_str(&body(results, meta, "eval/"));
+    s.push_str("### What the numbers show\n\n");
+    s.push_str(&discussion);
+    s.push_str(
+        "\n\nRaw numbers: `out/eval/results.csv` and `out/eval/bake.csv` of the run above (not \
+         committed; rerun the command, references are cached).\n\n",
+    );
+    s.push_str(&tail);
+    if !s.ends_with('\n') {
+        s.push('\n');
+    }
+    std::fs::write(&path, s).with_context(|| format!("writing {}", path.display()))
+}

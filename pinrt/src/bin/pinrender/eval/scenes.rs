@@ -1,0 +1,645 @@
+//! The evaluation scenes: volumes, cameras, lights, per-instance estimators, references.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use anyhow::{Context, Result, anyhow, bail};
+use glam::{DVec3, Vec3};
+use pinbake::source::procedural::CosineParams;
+use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, ProceduralSpec};
+use pinrt::render::cache::CacheSettings;
+use pinrt::render::whole_volume::WholeVolumeBox;
+use pinrt::render::{
+    AnalyticOpticalDepth, Camera, ClosedFormTracker, DeltaTracking, DensityField, HomogeneousBox,
+    MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun, TransportEstimator, splitmix64,
+};
+
+use crate::volume::{SourceField, VolumeArgs};
+
+/// Sizes that differ between the default run and `--quick`.
+#[derive(Clone, Copy, Debug)]
+pub struct Sizes {
+    /// Image edge for the volume scenes (the cheap box scenes use 1.5x).
+    pub image: u32,
+    /// Pin grid cells per axis (scaled per scene).
+    pub pin_cells: u32,
+    /// Reference samples per pixel (scaled per scene by its cost).
+    pub ref_spp: u32,
+    pub max_bounces: u32,
+    /// Training samples per pixel of the radiance cache.
+    pub cache_training_spp: u32,
+}
+
+impl Sizes {
+    pub fn default_run() -> Self {
+        Sizes {
+            image: 112,
+            pin_cells: 24,
+            ref_spp: 256,
+            max_bounces: 8,
+            cache_training_spp: 2,
+        }
+    }
+    pub fn quick() -> Self {
+        Sizes {
+            image: 12,
+            pin_cells: 4,
+            ref_spp: 4,
+            max_bounces: 3,
+            cache_training_spp: 1,
+        }
+    }
+}
+
+/// How the reference image of a scene is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RefKind {
+    /// Ratio tracking transmittance + delta tracking distances over the majorant grid.
+    Tracker,
+    /// The closed-form tracker: exact transmittance, exact distance sampling.
+    ClosedForm,
+    /// Whole-volume sampling of the homogeneous box's single scattering (zero variance in
+    /// the sun term; with no environment the only noise left is pixel anti-aliasing).
+    WholeVolume,
+}
+
+impl RefKind {
+    pub fn label(self) -> &'static str {
+        match self {
+            RefKind::Tracker => "ratio tracking (transmittance) + delta tracking (distances)",
+            RefKind::ClosedForm => {
+                "closed-form tracker (exact transmittance, exact distance sampling)"
+            }
+            RefKind::WholeVolume => {
+                "whole-volume sampling of analytic single scattering (exact sun term)"
+            }
+        }
+    }
+}
+
+/// One medium instance of a scene.
+pub struct Instance {
+    pub field: Arc<dyn DensityField>,
+    pub majorants: Arc<MajorantGrid>,
+    pub analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
+    /// World offset of the instance (its pin sampler's translation).
+    pub offset: [f64; 3],
+    /// Filled after the bake.
+    pub pins: Option<Arc<dyn TransportEstimator>>,
+}
+
+/// An evaluation scene.
+pub struct EvalScene {
+    pub name: &'static str,
+    /// One line for the report: what the scene is, resolution, density.
+    pub about: String,
+    /// Everything the reference depends on (for the on-disk cache key).
+    pub key: String,
+    /// Camera, lights, material; `media` is empty (filled per estimator).
+    pub scene: Scene,
+    pub max_bounces: u32,
+    pub instances: Vec<Instance>,
+    /// The field the pins are baked from (the base volume for instanced scenes).
+    pub bake_source: Arc<dyn DensitySource>,
+    pub bake_cells: u32,
+    pub whole_volume: Option<WholeVolumeBox>,
+    pub reference: RefKind,
+    pub ref_spp: u32,
+    pub estimators: Vec<String>,
+    pub cache: CacheSettings,
+}
+
+pub const SCENES: [&str; 6] = ["smoke", "hydrogen", "cosine", "box", "box-ss", "instances"];
+
+fn data_path(name: &str) -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(name)
+}
+
+const SMOKE_DENSITY_SCALE: f64 = 2.0;
+const HYDROGEN_DENSITY_SCALE: f64 = 0.6;
+const COSINE_SPEC: &str = "cosine:seed=7,freq=16,waves=8,density=4";
+const BOX_MAX: [f64; 3] = [1.0, 0.7, 0.85];
+const BOX_SIGMA: f64 = 4.0;
+const BLOB_DENSITY: f64 = 6.0;
+const BLOB_VOXELS: u32 = 32;
+const INSTANCES_PER_AXIS: usize = 4;
+
+/// The standard estimator list, plus scene extras.
+fn estimators(extra: &[&str], cache: bool) -> Vec<String> {
+    let mut v: Vec<String> = [
+        "rm@0.05", "rm@0.015", "rm@0.005", "delta", "ratio", "pins", "pinms",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    if cache {
+        v.push("pinms+cache".into());
+    }
+    v.extend(extra.iter().map(|s| s.to_string()));
+    v
+}
+
+/// Builds a scene by name.
+pub fn build(name: &str, sizes: &Sizes) -> Result<EvalScene> {
+    match name {
+        "smoke" => smoke(sizes),
+        "hydrogen" => hydrogen(sizes),
+        "cosine" => cosine(sizes),
+        "box" => homogeneous_box(sizes, false),
+        "box-ss" => homogeneous_box(sizes, true),
+        "instances" => instances(sizes),
+        other => bail!("unknown scene '{other}' (known: {})", SCENES.join(", ")),
+    }
+}
+
+fn volume_args(density_scale: f64) -> VolumeArgs {
+    VolumeArgs {
+        volume: None,
+        grid: None,
+        dims: None,
+        voxel_type: None,
+        spacing: None,
+        origin: None,
+        density_scale,
+    }
+}
+
+/// A camera looking at the box centre from the front-right-above, framing the box.
+fn frame_camera(lo: DVec3, hi: DVec3, size: u32, dir: DVec3, vfov: f64, fill: f64) -> Camera {
+    let centre = (lo + hi) * 0.5;
+    let radius = 0.5 * (hi - lo).length();
+    let dist = radius / (0.5 * vfov.to_radians()).tan() * fill;
+    let origin = centre + dir.normalize() * dist;
+    let f = |v: DVec3| v.as_vec3().to_array();
+    Camera {
+        origin: f(origin),
+        target: f(centre),
+        vfov_deg: vfov as f32,
+        width: size,
+        height: size,
+    }
+}
+
+fn lights(scene_size: f64) -> (Option<Sun>, [f32; 3]) {
+    let _ = scene_size;
+    (
+        Some(Sun {
+            dir: [-0.5, 0.8, 0.35],
+            radiance: [3.0, 2.85, 2.6],
+        }),
+        [0.25, 0.3, 0.4],
+    )
+}
+
+fn base_scene(camera: Camera, sun: Option<Sun>, env: [f32; 3]) -> Scene {
+    Scene {
+        camera,
+        sun,
+        env_radiance: env,
+        albedo: 0.95,
+        g: 0.0,
+        media: Vec::new(),
+    }
+}
+
+fn cache_for(lo: DVec3, hi: DVec3, sizes: &Sizes) -> CacheSettings {
+    let extent = (hi - lo).max_element();
+    CacheSettings {
+        cell_size: (0.04 * extent) as f32,
+        training_spp: sizes.cache_training_spp,
+        ..CacheSettings::default()
+    }
+}
+
+fn single_instance(
+    field: Arc<dyn DensityField>,
+    bricks: u32,
+    analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
+) -> Result<Instance> {
+    let majorants =
+        Arc::new(MajorantGrid::from_field(&*field, [bricks; 3]).map_err(|e| anyhow!("{e}"))?);
+    Ok(Instance {
+        field,
+        majorants,
+        analytic,
+        offset: [0.0; 3],
+        pins: None,
+    })
+}
+
+fn bounds_of(src: &dyn DensitySource) -> (DVec3, DVec3) {
+    let b = src.bounds();
+    (b.min, b.max)
+}
+
+fn cells(sizes: &Sizes, factor: f64) -> u32 {
+    ((sizes.pin_cells as f64 * factor).round() as u32).max(2)
+}
+
+fn smoke(sizes: &Sizes) -> Result<EvalScene> {
+    let path = data_path("openvdb_smoke1.vdb");
+    let src = crate::volume::open_volume(
+        path.to_str().context("data path is not UTF-8")?,
+        &volume_args(SMOKE_DENSITY_SCALE),
+    )?;
+    let (lo, hi) = bounds_of(&*src);
+    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let inst = single_instance(field, 16, None)?;
+    let size = sizes.image;
+    let camera = frame_camera(lo, hi, size, DVec3::new(0.4, 0.15, 1.0), 40.0, 0.95);
+    let (sun, env) = lights((hi - lo).length());
+    let bake_cells = cells(sizes, 1.0);
+    Ok(EvalScene {
+        name: "smoke",
+        about: format!(
+            "OpenVDB sample `openvdb_smoke1.vdb` (half-float density, voxel 0.476, box {:.1} x {:.1} x {:.1}), density scale {SMOKE_DENSITY_SCALE}, {size}x{size} px, {} bounces, pins {bake_cells}^3 cells x 64 polar directions",
+            (hi - lo).x,
+            (hi - lo).y,
+            (hi - lo).z,
+            sizes.max_bounces
+        ),
+        key: format!("smoke|scale={SMOKE_DENSITY_SCALE}|maj=16"),
+        scene: base_scene(camera, sun, env),
+        max_bounces: sizes.max_bounces,
+        instances: vec![inst],
+        bake_source: src,
+        bake_cells,
+        whole_volume: None,
+        reference: RefKind::Tracker,
+        ref_spp: sizes.ref_spp * 3,
+        estimators: estimators(&[], true),
+        cache: cache_for(lo, hi, sizes),
+    })
+}
+
+fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
+    let path = data_path("hydrogen_atom_128x128x128_uint8.raw");
+    let spec = source::SourceSpec::Raw(
+        path,
+        source::RawOptions {
+            dims: Some([128; 3]),
+            voxel_type: Some(source::RawType::U8),
+            spacing: [1.0 / 128.0; 3],
+            origin: [0.0; 3],
+            density_scale: HYDROGEN_DENSITY_SCALE,
+            ..source::RawOptions::default()
+        },
+    );
+    let src: Arc<dyn DensitySource> = Arc::from(source::open_source(&spec)?);
+    let (lo, hi) = bounds_of(&*src);
+    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let inst = single_instance(field, 16, None)?;
+    let size = sizes.image;
+    let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.35, 1.0), 40.0, 0.8);
+    let (sun, env) = lights(1.0);
+    let bake_cells = cells(sizes, 0.75);
+    Ok(EvalScene {
+        name: "hydrogen",
+        about: format!(
+            "hydrogen atom, raw u8 128^3 in the unit cube, density scale {HYDROGEN_DENSITY_SCALE} (extinction up to {:.0}), {size}x{size} px, {} bounces, pins {bake_cells}^3 cells x 64 polar directions",
+            250.0 * HYDROGEN_DENSITY_SCALE,
+            sizes.max_bounces
+        ),
+        key: format!("hydrogen|scale={HYDROGEN_DENSITY_SCALE}|maj=16"),
+        scene: base_scene(camera, sun, env),
+        max_bounces: sizes.max_bounces,
+        instances: vec![inst],
+        bake_source: src,
+        bake_cells,
+        whole_volume: None,
+        reference: RefKind::Tracker,
+        ref_spp: sizes.ref_spp * 8,
+        estimators: estimators(&[], true),
+        cache: cache_for(lo, hi, sizes),
+    })
+}
+
+/// pinbake's cosine noise as the closed-form tracker's analytic field.
+struct CosineAnalytic(Arc<CosineNoise>);
+
+impl AnalyticOpticalDepth for CosineAnalytic {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let b = DensitySource::bounds(&*self.0);
+        (b.min.to_array(), b.max.to_array())
+    }
+    fn optical_depth(&self, o: DVec3, d: DVec3, t: f64) -> f64 {
+        self.0.optical_depth(o, d, t)
+    }
+    fn extinction(&self, p: DVec3) -> Option<f64> {
+        Some(self.0.field(p))
+    }
+}
+
+fn cosine(sizes: &Sizes) -> Result<EvalScene> {
+    let spec: ProceduralSpec = COSINE_SPEC.parse().map_err(|e| anyhow!("{e}"))?;
+    let noise = Arc::new(spec.build_noise()?);
+    let src: Arc<dyn DensitySource> = noise.clone();
+    let (lo, hi) = bounds_of(&*src);
+    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
+    let inst = single_instance(field, 16, Some(analytic))?;
+    let size = sizes.image;
+    let camera = frame_camera(lo, hi, size, DVec3::new(0.6, 0.45, 1.0), 40.0, 0.8);
+    let (sun, env) = lights(1.0);
+    let bake_cells = cells(sizes, 1.0);
+    Ok(EvalScene {
+        name: "cosine",
+        about: format!(
+            "unit cube of cosine noise `{COSINE_SPEC}` (16 cycles across the box: the thesis' hard case for ray marching), {size}x{size} px, {} bounces, pins {bake_cells}^3 cells x 64 polar directions",
+            sizes.max_bounces
+        ),
+        key: format!("cosine|{COSINE_SPEC}"),
+        scene: base_scene(camera, sun, env),
+        max_bounces: sizes.max_bounces,
+        instances: vec![inst],
+        bake_source: src,
+        bake_cells,
+        whole_volume: None,
+        reference: RefKind::ClosedForm,
+        ref_spp: sizes.ref_spp * 2,
+        estimators: estimators(&["cosine-closed-form"], true),
+        cache: cache_for(lo, hi, sizes),
+    })
+}
+
+/// The homogeneous box's closed-form optical depth (chord length times extinction).
+struct BoxAnalytic(source::HomogeneousBox);
+
+impl AnalyticOpticalDepth for BoxAnalytic {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        let b = DensitySource::bounds(&self.0);
+        (b.min.to_array(), b.max.to_array())
+    }
+    fn optical_depth(&self, o: DVec3, d: DVec3, t: f64) -> f64 {
+        self.0.optical_depth(o, d, t)
+    }
+    fn extinction(&self, _p: DVec3) -> Option<f64> {
+        Some(self.0.density() as f64)
+    }
+}
+
+fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
+    let (lo, hi) = (DVec3::ZERO, DVec3::from_array(BOX_MAX));
+    let pb = source::HomogeneousBox::new(Aabb::new(lo, hi), BOX_SIGMA as f32)?;
+    let src: Arc<dyn DensitySource> = Arc::new(pb.clone());
+    let field: Arc<dyn DensityField> = Arc::new(HomogeneousBox {
+        min: lo.to_array(),
+        max: hi.to_array(),
+        sigma_t: BOX_SIGMA as f32,
+    });
+    let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(BoxAnalytic(pb));
+    let inst = single_instance(field, 1, Some(analytic))?;
+    // The box scenes are cheap: a larger image.
+    let size = sizes.image + sizes.image / 2;
+    let camera = frame_camera(lo, hi, size, DVec3::new(0.55, 0.5, 1.0), 40.0, 0.8);
+    let (sun, env) = lights(1.0);
+    let bake_cells = cells(sizes, 0.34);
+    let (name, env, bounces, reference, ests, about) = if single {
+        (
+            "box-ss",
+            [0.0; 3],
+            1,
+            RefKind::WholeVolume,
+            [
+                "rm@0.05",
+                "rm@0.015",
+                "rm@0.005",
+                "delta",
+                "ratio",
+                "pins",
+                "box-closed-form",
+                "whole-volume",
+            ]
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
+            "single scattering only (1 bounce, sun only, no environment): the exact reference of the whole-volume paper; PinMS and the cache do not apply (no multiple scattering)",
+        )
+    } else {
+        (
+            "box",
+            env,
+            sizes.max_bounces,
+            RefKind::ClosedForm,
+            estimators(&["box-closed-form"], true),
+            "multiple scattering, sun and sky",
+        )
+    };
+    Ok(EvalScene {
+        name,
+        about: format!(
+            "homogeneous box {:?} with extinction {BOX_SIGMA}, {about}; {size}x{size} px, {bounces} bounce(s), pins {bake_cells}^3 cells x 64 polar directions",
+            BOX_MAX
+        ),
+        key: format!("{name}|box={BOX_MAX:?}|sigma={BOX_SIGMA}|env={env:?}"),
+        scene: base_scene(camera, sun, env),
+        max_bounces: bounces,
+        instances: vec![inst],
+        bake_source: src,
+        bake_cells,
+        whole_volume: Some(WholeVolumeBox::new(
+            lo.to_array(),
+            hi.to_array(),
+            BOX_SIGMA,
+        )?),
+        reference,
+        ref_spp: sizes.ref_spp * if single { 1 } else { 8 },
+        estimators: ests,
+        cache: cache_for(lo, hi, sizes),
+    })
+}
+
+/// A field moved by `offset` (what an instance transform does to a tracker's field).
+pub struct Offset {
+    inner: Arc<dyn DensityField>,
+    off: [f64; 3],
+    off32: Vec3,
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+impl Offset {
+    pub fn new(inner: Arc<dyn DensityField>, off: [f64; 3]) -> Self {
+        let (lo, hi) = inner.bounds();
+        Offset {
+            off,
+            off32: DVec3::from_array(off).as_vec3(),
+            lo: [0, 1, 2].map(|a| lo[a] + off[a]),
+            hi: [0, 1, 2].map(|a| hi[a] + off[a]),
+            inner,
+        }
+    }
+}
+
+impl DensityField for Offset {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        (self.lo, self.hi)
+    }
+    #[inline]
+    fn extinction(&self, p: Vec3) -> f32 {
+        self.inner.extinction(p - self.off32)
+    }
+    fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        self.inner.max_extinction(
+            [0, 1, 2].map(|a| lo[a] - self.off[a]),
+            [0, 1, 2].map(|a| hi[a] - self.off[a]),
+        )
+    }
+}
+
+/// The instance blob: a ball with a smooth `(1 - r^2)^2` falloff modulated by low-frequency
+/// cosine noise, voxelised to `BLOB_VOXELS^3` in the unit cube.
+fn blob() -> Result<DenseGrid> {
+    let noise = CosineNoise::new(
+        Aabb::new(DVec3::ZERO, DVec3::ONE),
+        &CosineParams {
+            seed: 3,
+            freq: 3.0,
+            waves: 12,
+            density: 1.0,
+            ..CosineParams::default()
+        },
+        "blob noise",
+    )?;
+    let n = BLOB_VOXELS as usize;
+    let h = 1.0 / n as f64;
+    let mut data = vec![0.0f32; n * n * n];
+    for (i, v) in data.iter_mut().enumerate() {
+        let p = DVec3::new(
+            (i % n) as f64 + 0.5,
+            ((i / n) % n) as f64 + 0.5,
+            (i / (n * n)) as f64 + 0.5,
+        ) * h;
+        let r2 = ((p - DVec3::splat(0.5)) * 2.0).length_squared();
+        let w = if r2 < 1.0 {
+            (1.0 - r2) * (1.0 - r2)
+        } else {
+            0.0
+        };
+        *v = (BLOB_DENSITY * w * noise.field(p)) as f32;
+    }
+    Ok(DenseGrid::new(
+        [BLOB_VOXELS; 3],
+        data,
+        DVec3::splat(h),
+        DVec3::ZERO,
+        "noise blob",
+    )?)
+}
+
+fn instances(sizes: &Sizes) -> Result<EvalScene> {
+    let base: Arc<dyn DensitySource> = Arc::new(blob()?);
+    let base_field: Arc<dyn DensityField> = Arc::new(SourceField(base.clone()));
+    let k = INSTANCES_PER_AXIS;
+    let spacing = 0.55;
+    let mut seed = 0x1257_u64;
+    let mut rnd = || {
+        seed = splitmix64(seed);
+        (seed >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut insts = Vec::with_capacity(k * k * k);
+    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
+    for z in 0..k {
+        for y in 0..k {
+            for x in 0..k {
+                let off = DVec3::new(x as f64, y as f64, z as f64) * spacing
+                    + DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5) * 0.25;
+                let field: Arc<dyn DensityField> =
+                    Arc::new(Offset::new(base_field.clone(), off.to_array()));
+                lo = lo.min(off);
+                hi = hi.max(off + DVec3::ONE);
+                let majorants = Arc::new(
+                    MajorantGrid::from_field(&*field, [4; 3]).map_err(|e| anyhow!("{e}"))?,
+                );
+                insts.push(Instance {
+                    field,
+                    majorants,
+                    analytic: None,
+                    offset: off.to_array(),
+                    pins: None,
+                });
+            }
+        }
+    }
+    // 64 media per query make every path expensive: a smaller image.
+    let size = (sizes.image * 5 / 7).max(4);
+    let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.6, 1.0), 40.0, 0.8);
+    let (sun, env) = lights((hi - lo).length());
+    let bake_cells = cells(sizes, 0.34);
+    let n = insts.len();
+    Ok(EvalScene {
+        name: "instances",
+        about: format!(
+            "{n} overlapping instances (4x4x4 jittered lattice, spacing {spacing}) of one noise blob ({BLOB_VOXELS}^3 voxels, unit box, peak extinction ~{:.0}), each its own medium with its own majorant grid / pin sampler placed by a translation; {size}x{size} px, {} bounces, one pin grid of {bake_cells}^3 cells x 64 polar directions shared by all instances",
+            2.0 * BLOB_DENSITY,
+            sizes.max_bounces
+        ),
+        key: format!("instances|n={n}|blob={BLOB_VOXELS},{BLOB_DENSITY}|maj=4"),
+        scene: base_scene(camera, sun, env),
+        max_bounces: sizes.max_bounces,
+        instances: insts,
+        bake_source: base,
+        bake_cells,
+        whole_volume: None,
+        reference: RefKind::Tracker,
+        ref_spp: (sizes.ref_spp * 3 / 2).max(1),
+        estimators: estimators(&[], true),
+        cache: cache_for(lo, hi, sizes),
+    })
+}
+
+/// One instance's estimator by name.
+pub fn estimator(inst: &Instance, name: &str) -> Result<Arc<dyn TransportEstimator>> {
+    Ok(match name {
+        "delta" => Arc::new(DeltaTracking::new(
+            inst.field.clone(),
+            inst.majorants.clone(),
+        )),
+        "ratio" => Arc::new(RatioTracking::new(
+            inst.field.clone(),
+            inst.majorants.clone(),
+        )),
+        "pins" => inst
+            .pins
+            .clone()
+            .ok_or_else(|| anyhow!("pins are not baked for this scene"))?,
+        "cosine-closed-form" | "box-closed-form" => {
+            let a = inst
+                .analytic
+                .clone()
+                .ok_or_else(|| anyhow!("{name}: this scene has no closed form"))?;
+            Arc::new(ClosedFormTracker::new(a).map_err(|e| anyhow!("{e}"))?)
+        }
+        s if s.starts_with("rm@") => {
+            let step: f64 = s[3..].parse().map_err(|e| anyhow!("estimator {s}: {e}"))?;
+            Arc::new(RayMarching::new(inst.field.clone(), step).map_err(|e| anyhow!("{e}"))?)
+        }
+        other => bail!("unknown estimator '{other}'"),
+    })
+}
+
+/// The media of a scene rendered with estimator `name` (PinMS: ratio tracking primary, pins
+/// secondary).
+pub fn media(es: &EvalScene, name: &str) -> Result<Vec<Medium>> {
+    es.instances
+        .iter()
+        .map(|inst| {
+            Ok(match name {
+                "pinms" | "pinms+cache" => {
+                    Medium::new(estimator(inst, "ratio")?, estimator(inst, "pins")?)
+                }
+                other => Medium::single(estimator(inst, other)?),
+            })
+        })
+        .collect()
+}
+
+/// The 3x4 row-major world placement of an instance: the grid's own placement moved by
+/// `offset`.
+pub fn translated(local_to_world: &[f64; 12], offset: [f64; 3]) -> [f64; 12] {
+    let mut m = *local_to_world;
+    m[3] += offset[0];
+    m[7] += offset[1];
+    m[11] += offset[2];
+    m
+}
