@@ -1,5 +1,7 @@
 //! `pinrender eval --quick` end to end: every scene and estimator gets a CSV row per budget
-//! with finite errors, and the plots, montages and report are written.
+//! with finite errors, and the plots, montages and report are written. The GPU path tracer
+//! (`pins`, backend `gpu`) must give rows too: CI has lavapipe, and a missing adapter should be
+//! noticed (as in the GPU unit tests), not skipped.
 
 use std::collections::BTreeSet;
 use std::process::Command;
@@ -112,21 +114,42 @@ fn eval_quick_end_to_end() {
         Some("scene,estimator,backend,budget_s,spp,seconds,rmse,rel_mse")
     );
     let mut seen = BTreeSet::new();
+    let mut gpu_scenes = BTreeSet::new();
     let mut budgets = BTreeSet::new();
     for line in lines {
         let f: Vec<&str> = line.split(',').collect();
         assert_eq!(f.len(), 8, "{line}");
-        assert_eq!(f[2], "cpu");
+        match f[2] {
+            "cpu" => {}
+            "gpu" => {
+                assert_eq!(f[1], "pins", "only pins runs on the GPU: {line}");
+                gpu_scenes.insert(f[0].to_string());
+            }
+            other => panic!("unknown backend {other}: {line}"),
+        }
         let spp: u32 = f[4].parse().unwrap();
         assert!(spp >= 1, "{line}");
         for v in [f[3], f[5], f[6], f[7]] {
             let x: f64 = v.parse().unwrap();
             assert!(x.is_finite() && x >= 0.0, "{line}");
         }
-        seen.insert((f[0].to_string(), f[1].to_string()));
+        if f[2] == "cpu" {
+            seen.insert((f[0].to_string(), f[1].to_string()));
+        }
         budgets.insert(f[3].to_string());
     }
     assert_eq!(budgets.len(), 2, "two --quick budgets");
+    // One pin grid as the only medium: the GPU path tracer applies; not to box-ss/instances.
+    assert!(
+        !gpu_scenes.is_empty(),
+        "no gpu rows (is a wgpu adapter, e.g. lavapipe, installed?)"
+    );
+    for s in &gpu_scenes {
+        assert!(
+            ["smoke", "hydrogen", "cosine", "box"].contains(&s.as_str()),
+            "unexpected gpu rows for {s}"
+        );
+    }
     for (scene, ests) in EXPECTED {
         for e in ests {
             assert!(
@@ -148,6 +171,22 @@ fn eval_quick_end_to_end() {
     assert!(md.ends_with(tail), "the companion-papers part must be kept");
     assert!(!md.contains("# old head"));
     assert!(md.contains("| **rm@0.015** |"));
+    assert!(md.contains("| pins (gpu) |"), "gpu row in the table");
+    assert!(!md.contains("GPU: not measured** (no GPU"));
+    assert!(md.contains("WGSL"));
+
+    // --no-gpu: no gpu rows, and the report says so.
+    let out2 = dir.path().join("eval-nogpu");
+    let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
+        .args(["eval", "--quick", "--no-gpu", "--scenes", "box", "--out"])
+        .arg(&out2)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let csv = std::fs::read_to_string(out2.join("results.csv")).unwrap();
+    assert!(!csv.contains(",gpu,"), "{csv}");
+    let md = std::fs::read_to_string(out2.join("report.md")).unwrap();
+    assert!(md.contains("GPU: not measured** (`--no-gpu`)"), "{md}");
 
     // A second run reuses the cached references and still succeeds.
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))

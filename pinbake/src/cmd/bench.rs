@@ -25,6 +25,9 @@ pub struct BenchArgs {
     /// Thread counts to run, comma separated.
     #[arg(long, default_value = "1,2", value_delimiter = ',')]
     pub threads: Vec<usize>,
+    /// Only the voxelised grid (skip the slower analytic-noise rows).
+    #[arg(long)]
+    pub grid_only: bool,
     /// Print one JSON object instead of a table.
     #[arg(long)]
     pub json: bool,
@@ -54,6 +57,9 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
     ];
     let mut rows = Vec::new();
     for (name, source) in sources {
+        if args.grid_only && !name.contains("grid") {
+            continue;
+        }
         for &threads in &args.threads {
             let opts = BakeOptions {
                 cells: [args.cells; 3],

@@ -9,6 +9,13 @@
 //! spent, at least one), measured in one run per estimator instead of one per budget.
 //! The radiance cache's training pass counts towards the time.
 //!
+//! `pins (gpu)` (CSV: estimator `pins`, backend `gpu`) is the WGSL path tracer
+//! ([`pinrt::gpu_render::GpuRenderer`]) on the scenes with one pin grid as the only medium,
+//! with the CPU `pins` estimator's grid, placement and lookup jitter, measured the same way
+//! (`--gpu-batch` spp per render call, distinct seeds, averaged); the one-time renderer setup
+//! (upload, pipeline compile) is reported but not counted. `--no-gpu` skips it; without an
+//! adapter the run warns and the report says "GPU: no adapter".
+//!
 //! Outputs (in `--out`): `results.csv`, `bake.csv`, `error_vs_time_<scene>.png`,
 //! `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at the largest budget),
 //! `<scene>/reference.exr` and `report.md`; with `--docs DIR` also `DIR/evaluation.md` (the
@@ -24,6 +31,8 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
+use pinrt::gpu::GpuContext;
+use pinrt::gpu_render::{GpuRenderer, GpuScene};
 use pinrt::render::cache::{render_with_cache, train_cache};
 use pinrt::render::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrt::render::{
@@ -45,9 +54,10 @@ closed-form reference), box (homogeneous box, closed-form reference), box-ss (it
 scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
 Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), pins (pins for
-every ray), pinms (ratio tracking for primary rays and single scattering, pins after), pinms+cache
-(pinms with the hash-grid radiance cache), cosine-closed-form / box-closed-form (exact
-transmittance), whole-volume (box-ss only).
+every ray; also on the GPU as 'pins (gpu)' where the scene has one pin grid, unless --no-gpu),
+pinms (ratio tracking for primary rays and single scattering, pins after), pinms+cache (pinms with
+the hash-grid radiance cache), cosine-closed-form / box-closed-form (exact transmittance),
+whole-volume (box-ss only).
 
 Example: pinrender eval --out out/eval --docs docs")]
 pub struct EvalArgs {
@@ -83,6 +93,66 @@ pub struct EvalArgs {
     /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
     #[arg(long)]
     pub docs: Option<PathBuf>,
+    /// Do not measure the GPU path tracer (`pins (gpu)`).
+    #[arg(long)]
+    pub no_gpu: bool,
+    /// Samples per pixel per GPU render call (each call is one measured pass).
+    #[arg(long, default_value_t = 1)]
+    pub gpu_batch: u32,
+}
+
+/// The GPU for the `pins (gpu)` rows.
+pub enum Gpu {
+    /// `--no-gpu`.
+    Off,
+    /// No adapter (or the device failed to open): the message.
+    NoAdapter(String),
+    Ready {
+        ctx: Box<GpuContext>,
+        /// Adapter name, backend, device type, driver.
+        describe: String,
+        /// A CPU adapter (lavapipe / llvmpipe): Vulkan on CPU threads.
+        software: bool,
+        /// Context creation (adapter, device, pin shader), once per run, not in the times.
+        seconds: f64,
+    },
+}
+
+impl Gpu {
+    fn open(no_gpu: bool) -> Self {
+        if no_gpu {
+            return Gpu::Off;
+        }
+        let t = Instant::now();
+        match GpuContext::new() {
+            Ok(ctx) => {
+                let seconds = t.elapsed().as_secs_f64();
+                let describe = ctx.describe();
+                let software = ctx.adapter_info.device_type == wgpu::DeviceType::Cpu
+                    || ctx.adapter_info.name.contains("llvmpipe");
+                eprintln!("GPU: {describe} (context in {seconds:.2} s)");
+                if software {
+                    eprintln!(
+                        "GPU: note: a software adapter (Vulkan on the CPU): the 'pins (gpu)' \
+                         timings measure the WGSL code path on CPU threads, not a GPU"
+                    );
+                }
+                Gpu::Ready {
+                    ctx: Box::new(ctx),
+                    describe,
+                    software,
+                    seconds,
+                }
+            }
+            Err(e) => {
+                eprintln!(
+                    "warning: GPU: no adapter, the 'pins (gpu)' rows are skipped ({e}); \
+                     pass --no-gpu to silence this"
+                );
+                Gpu::NoAdapter(e.to_string())
+            }
+        }
+    }
 }
 
 /// One measurement: an estimator at one budget.
@@ -98,6 +168,22 @@ pub struct Row {
     pub rel_mse: f64,
 }
 
+impl Row {
+    /// The name in tables and plots: the estimator, with ` (gpu)` on the GPU backend.
+    pub fn label(&self) -> String {
+        label(&self.estimator, self.backend)
+    }
+}
+
+/// `pins` + `gpu` -> `pins (gpu)`; the CPU keeps the bare estimator name.
+pub fn label(estimator: &str, backend: &str) -> String {
+    if backend == "cpu" {
+        estimator.to_string()
+    } else {
+        format!("{estimator} ({backend})")
+    }
+}
+
 /// What one scene produced.
 pub struct SceneResult {
     pub name: String,
@@ -106,8 +192,10 @@ pub struct SceneResult {
     pub reference_spp: u32,
     pub reference_seconds: Option<f64>,
     pub bake: Option<BakeInfo>,
+    /// The GPU line of the scene (setup time, or why there is no GPU row).
+    pub gpu_note: Option<String>,
     pub rows: Vec<Row>,
-    /// (estimator, final image) in estimator order.
+    /// (label, final image) in estimator order.
     pub images: Vec<(String, Image)>,
     pub reference_image: Image,
 }
@@ -162,6 +250,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if a.threads == Some(0) {
         bail!("--threads must be >= 1");
     }
+    if a.gpu_batch == 0 {
+        bail!("--gpu-batch must be >= 1");
+    }
     let scene_names: Vec<String> = match &a.scenes {
         Some(v) => v.iter().map(|s| s.trim().to_string()).collect(),
         None => scenes::SCENES.iter().map(|s| s.to_string()).collect(),
@@ -174,10 +265,12 @@ pub fn run(a: EvalArgs) -> Result<()> {
     std::fs::create_dir_all(a.out.join("cache"))
         .with_context(|| format!("creating {}", a.out.display()))?;
 
+    let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();
     for name in &scene_names {
         eprintln!("== scene {name}");
-        let r = eval_scene(name, &a, &sizes, &budgets).with_context(|| format!("scene {name}"))?;
+        let r = eval_scene(name, &a, &sizes, &budgets, &gpu)
+            .with_context(|| format!("scene {name}"))?;
         results.push(r);
         // Write what we have after every scene, so an interrupted run leaves usable output.
         report::write_csv(&a.out.join("results.csv"), &results)?;
@@ -188,7 +281,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         plot::montage(&a.out.join(format!("images_{}.png", r.name)), r)?;
     }
     let total = started.elapsed().as_secs_f64();
-    let meta = report::RunMeta::new(&a, &budgets, &sizes, total);
+    let meta = report::RunMeta::new(&a, &budgets, &sizes, total, &gpu);
     let md = report::markdown(&results, &meta, "")?;
     std::fs::write(a.out.join("report.md"), md)
         .with_context(|| format!("writing {}", a.out.join("report.md").display()))?;
@@ -326,6 +419,13 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, Option<f64>)> {
     Ok((out.image, Some(secs)))
 }
 
+/// The pins' lookup options, CPU and GPU: the thesis' evaluation jitters the lookup by a full
+/// cell, spatially and directionally.
+const LOOKUP: SamplerOptions = SamplerOptions {
+    spatial_jitter: 1.0,
+    directional_jitter: 1.0,
+};
+
 /// Bakes the scene's pins and installs a pin estimator per instance.
 fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     let opts = pinbake::BakeOptions {
@@ -340,11 +440,8 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     let seconds = t.elapsed().as_secs_f64();
     let size = bytes.len();
     let grid: &'static PinGrid = leak_grid(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
-    // The thesis' evaluation jitters the lookup by a full cell, spatially and directionally.
-    let lookup = SamplerOptions {
-        spatial_jitter: 1.0,
-        directional_jitter: 1.0,
-    };
+    es.pin_grid = Some(grid);
+    let lookup = LOOKUP;
     let l2w = grid.desc().local_to_world;
     for inst in &mut es.instances {
         let m = scenes::translated(&l2w, inst.offset);
@@ -369,7 +466,13 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     })
 }
 
-fn eval_scene(name: &str, a: &EvalArgs, sizes: &Sizes, budgets: &[f64]) -> Result<SceneResult> {
+fn eval_scene(
+    name: &str,
+    a: &EvalArgs,
+    sizes: &Sizes,
+    budgets: &[f64],
+    gpu: &Gpu,
+) -> Result<SceneResult> {
     let mut es = scenes::build(name, sizes)?;
     let wanted = |e: &str| {
         a.estimators
@@ -398,20 +501,48 @@ fn eval_scene(name: &str, a: &EvalArgs, sizes: &Sizes, budgets: &[f64]) -> Resul
         .map_err(|e| anyhow!("{e}"))?;
     let mut rows = Vec::new();
     let mut images = Vec::new();
+    let mut gpu_note = None;
+    let mut keep = |pts: Vec<Row>, img: Image, rows: &mut Vec<Row>| -> Result<()> {
+        let Some(r) = pts.last() else {
+            return Ok(());
+        };
+        let label = r.label();
+        eprintln!(
+            "  {label:<20} {:>5} spp in {:>6.2} s  rmse {:.5}  relmse {:.5}",
+            r.spp, r.seconds, r.rmse, r.rel_mse
+        );
+        img.write_exr(dir.join(format!("{}.exr", file_name(&label))))
+            .map_err(|e| anyhow!("{e}"))?;
+        rows.extend(pts);
+        images.push((label, img));
+        Ok(())
+    };
     for est in &ests {
         let (pts, img) = measure(&es, est, a, budgets, &reference_image)
             .with_context(|| format!("estimator {est}"))?;
-        let last = pts.last().cloned();
-        if let Some(r) = &last {
-            eprintln!(
-                "  {est:<20} {:>5} spp in {:>6.2} s  rmse {:.5}  relmse {:.5}",
-                r.spp, r.seconds, r.rmse, r.rel_mse
-            );
+        keep(pts, img, &mut rows)?;
+        if est != "pins" {
+            continue;
         }
-        img.write_exr(dir.join(format!("{}.exr", file_name(est))))
-            .map_err(|e| anyhow!("{e}"))?;
-        rows.extend(pts);
-        images.push((est.clone(), img));
+        // The GPU path tracer right after the CPU pins, with the same grid and jitter.
+        gpu_note = Some(match (gpu, es.gpu_skip) {
+            (Gpu::Off, _) => "GPU: not measured (`--no-gpu`).".to_string(),
+            (Gpu::NoAdapter(_), _) => "**GPU: no adapter** (no `pins (gpu)` row).".to_string(),
+            (Gpu::Ready { .. }, Some(why)) => format!("GPU: not measured on this scene ({why})."),
+            (Gpu::Ready { ctx, .. }, None) => {
+                let (pts, img, setup) = measure_gpu(&es, ctx, a, budgets, &reference_image)
+                    .context("estimator pins (gpu)")?;
+                keep(pts, img, &mut rows)?;
+                format!(
+                    "GPU renderer setup (pin upload, pipeline compile; once, not in the times \
+                     below): {setup:.2} s; {} spp per render call.",
+                    a.gpu_batch
+                )
+            }
+        });
+        if let Some(n) = &gpu_note {
+            eprintln!("  {n}");
+        }
     }
     Ok(SceneResult {
         name: es.name.to_string(),
@@ -420,6 +551,7 @@ fn eval_scene(name: &str, a: &EvalArgs, sizes: &Sizes, budgets: &[f64]) -> Resul
         reference_spp: es.ref_spp,
         reference_seconds,
         bake,
+        gpu_note,
         rows,
         images,
         reference_image,
@@ -446,9 +578,6 @@ fn measure(
         _ => scenes::media(es, est)?,
     };
     let scene = scene_with(es, media);
-    let n = (scene.camera.width as usize) * (scene.camera.height as usize);
-    let mut sum = vec![[0f64; 3]; n];
-    let mut spp = 0u32;
     let mut elapsed = 0.0f64;
     // Set-up that counts towards the time: the radiance cache's training pass.
     let cache = if est == "pinms+cache" {
@@ -475,11 +604,64 @@ fn measure(
         };
         out.map_err(|e| anyhow!("{e}"))
     };
+    progressive(es, ("cpu", est), a, budgets, reference, elapsed, |seed| {
+        pass(seed).map(|o| (o.image, o.spp))
+    })
+}
+
+/// The GPU path tracer with the scene's one pin grid (the CPU `pins` estimator's placement
+/// and lookup jitter), measured like [`measure`]; also returns the renderer's setup time
+/// (upload and pipeline compile), which is not counted.
+fn measure_gpu(
+    es: &EvalScene,
+    ctx: &GpuContext,
+    a: &EvalArgs,
+    budgets: &[f64],
+    reference: &Image,
+) -> Result<(Vec<Row>, Image, f64)> {
+    let grid = es
+        .pin_grid
+        .ok_or_else(|| anyhow!("pins are not baked for this scene"))?;
+    let [inst] = es.instances.as_slice() else {
+        bail!("the GPU path tracer takes one pin grid, the scene has several media");
+    };
+    let m = scenes::translated(&grid.desc().local_to_world, inst.offset);
+    let t = Instant::now();
+    let renderer =
+        GpuRenderer::with_options(ctx, grid, Some(&m), LOOKUP).map_err(|e| anyhow!("{e}"))?;
+    let setup = t.elapsed().as_secs_f64();
+    let gs = GpuScene::from_scene(&es.scene, es.max_bounces);
+    let batch = a.gpu_batch;
+    let (rows, img) = progressive(es, ("gpu", "pins"), a, budgets, reference, 0.0, |seed| {
+        renderer
+            .render(&gs, batch, seed)
+            .map(|img| (img, batch))
+            .map_err(|e| anyhow!("{e}"))
+    })?;
+    Ok((rows, img, setup))
+}
+
+/// The measurement loop: `pass(seed)` (an image of `spp` samples) with distinct seeds,
+/// averaged, a row at every budget that the running wall time (`elapsed` already spent
+/// included) crosses.
+fn progressive(
+    es: &EvalScene,
+    (backend, est): (&'static str, &str),
+    a: &EvalArgs,
+    budgets: &[f64],
+    reference: &Image,
+    mut elapsed: f64,
+    mut pass: impl FnMut(u64) -> Result<(Image, u32)>,
+) -> Result<(Vec<Row>, Image)> {
+    let (width, height) = (es.scene.camera.width, es.scene.camera.height);
+    let n = (width as usize) * (height as usize);
+    let mut sum = vec![[0f64; 3]; n];
+    let mut spp = 0u32;
     let mean = |sum: &[[f64; 3]], spp: u32| -> Image {
         let inv = 1.0 / spp.max(1) as f64;
         Image {
-            width: scene.camera.width,
-            height: scene.camera.height,
+            width,
+            height,
             rgb: sum.iter().map(|s| s.map(|c| (c * inv) as f32)).collect(),
         }
     };
@@ -487,13 +669,16 @@ fn measure(
     let mut next = 0usize;
     while next < budgets.len() {
         let t = Instant::now();
-        let out = pass(pass_seed(a.seed, spp))?;
-        for (acc, p) in sum.iter_mut().zip(&out.image.rgb) {
+        let (image, out_spp) = pass(pass_seed(a.seed, spp))?;
+        if image.rgb.len() != n {
+            bail!("a pass returned {} pixels, expected {n}", image.rgb.len());
+        }
+        for (acc, p) in sum.iter_mut().zip(&image.rgb) {
             for c in 0..3 {
-                acc[c] += p[c] as f64 * out.spp as f64;
+                acc[c] += p[c] as f64 * out_spp as f64;
             }
         }
-        spp = spp.saturating_add(out.spp);
+        spp = spp.saturating_add(out_spp);
         elapsed += t.elapsed().as_secs_f64();
         if elapsed >= budgets[next] || spp == u32::MAX {
             let img = mean(&sum, spp);
@@ -503,7 +688,7 @@ fn measure(
                 rows.push(Row {
                     scene: es.name.to_string(),
                     estimator: est.to_string(),
-                    backend: "cpu",
+                    backend,
                     budget_s: budgets[next],
                     spp,
                     seconds: elapsed,

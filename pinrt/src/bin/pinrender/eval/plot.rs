@@ -56,7 +56,7 @@ pub fn error_vs_time(path: &Path, r: &SceneResult) -> Result<()> {
     root.fill(&WHITE).map_err(err)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
-            format!("{}: RMSE vs wall time (CPU)", r.name),
+            format!("{}: RMSE vs wall time (CPU; \"(gpu)\": WGSL)", r.name),
             ("sans-serif", 18),
         )
         .margin(10)

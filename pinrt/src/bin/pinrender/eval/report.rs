@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{Context, Result};
 
 use super::scenes::Sizes;
-use super::{EvalArgs, SceneResult};
+use super::{EvalArgs, Gpu, SceneResult};
 
 /// The estimator whose error at its largest budget is the target of the time-to-error column.
 pub const BASELINE: &str = "rm@0.015";
@@ -28,10 +28,18 @@ pub struct RunMeta {
     pub cpu: String,
     pub total_seconds: f64,
     pub sizes: Sizes,
+    /// The report's GPU sentence.
+    pub gpu: String,
 }
 
 impl RunMeta {
-    pub fn new(a: &EvalArgs, budgets: &[f64], sizes: &Sizes, total_seconds: f64) -> Self {
+    pub fn new(
+        a: &EvalArgs,
+        budgets: &[f64],
+        sizes: &Sizes,
+        total_seconds: f64,
+        gpu: &Gpu,
+    ) -> Self {
         let args: Vec<String> = std::env::args().skip(1).collect();
         let cpu = std::fs::read_to_string("/proc/cpuinfo")
             .ok()
@@ -56,6 +64,40 @@ impl RunMeta {
             cpu,
             total_seconds,
             sizes: *sizes,
+            gpu: gpu_sentence(gpu, a.gpu_batch),
+        }
+    }
+}
+
+/// What the report says about the GPU.
+fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
+    match gpu {
+        Gpu::Off => "**GPU: not measured** (`--no-gpu`).".into(),
+        Gpu::NoAdapter(e) => {
+            format!("**GPU: no adapter** (the `pins (gpu)` rows are missing: {e}).")
+        }
+        Gpu::Ready {
+            describe,
+            software,
+            seconds,
+            ..
+        } => {
+            let mut s = format!(
+                "GPU: `pins (gpu)` is the WGSL path tracer (`pinrt::gpu_render::GpuRenderer`, \
+                 backend `gpu` in the CSV) on `{describe}`, with the CPU `pins` estimator's pin \
+                 grid and lookup jitter, measured the same way ({batch} spp per render call, \
+                 each call a pass with its own seed, averaged; the per-scene renderer setup \
+                 and the {seconds:.2} s device creation are not in the times) on the scenes \
+                 whose only medium is one pin grid (smoke, hydrogen, cosine, box)."
+            );
+            if *software {
+                s.push_str(
+                    " **This adapter is lavapipe/llvmpipe, Vulkan on the CPU**: the GPU rows \
+                     measure the WGSL code path on the same CPU threads, not a GPU; they show \
+                     that the GPU estimator converges to the same reference, not GPU speed.",
+                );
+            }
+            s
         }
     }
 }
@@ -100,9 +142,9 @@ pub type Point = (f64, f64, u32);
 
 /// The error curve of one estimator: (seconds, rmse, spp) by increasing time, one point per
 /// distinct spp.
-pub fn curve(r: &SceneResult, est: &str) -> Vec<Point> {
+pub fn curve(r: &SceneResult, label: &str) -> Vec<Point> {
     let mut v: Vec<Point> = Vec::new();
-    for row in r.rows.iter().filter(|x| x.estimator == est) {
+    for row in r.rows.iter().filter(|x| x.label() == label) {
         if v.last().is_none_or(|l| l.2 != row.spp) {
             v.push((row.seconds, row.rmse, row.spp));
         }
@@ -152,11 +194,12 @@ fn fmt_s(x: f64) -> String {
 /// The markdown table of one scene.
 pub fn scene_table(r: &SceneResult) -> String {
     let mut s = String::new();
-    let ests: Vec<&str> = {
-        let mut v: Vec<&str> = Vec::new();
+    let ests: Vec<String> = {
+        let mut v: Vec<String> = Vec::new();
         for row in &r.rows {
-            if !v.contains(&row.estimator.as_str()) {
-                v.push(&row.estimator);
+            let l = row.label();
+            if !v.contains(&l) {
+                v.push(l);
             }
         }
         v
@@ -168,7 +211,8 @@ pub fn scene_table(r: &SceneResult) -> String {
         "| estimator | spp | time | RMSE | rel. MSE | time to {BASELINE}'s final RMSE | speedup vs {BASELINE} |"
     );
     let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
-    for est in ests {
+    for est in &ests {
+        let est = est.as_str();
         let c = curve(r, est);
         let Some(&(secs, err, spp)) = c.last() else {
             continue;
@@ -176,7 +220,7 @@ pub fn scene_table(r: &SceneResult) -> String {
         let rel = r
             .rows
             .iter()
-            .rfind(|x| x.estimator == est)
+            .rfind(|x| x.label() == est)
             .map(|x| x.rel_mse)
             .unwrap_or(f64::NAN);
         let (reach, speed) = match target {
@@ -211,13 +255,13 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
     let _ = writeln!(
         s,
         "Machine: {}, {}; total run time {:.0} s{}. Budgets: {} s of wall time per estimator \
-         (CPU path tracer, `pinrt::render`). **GPU: not measured** (no GPU path tracer wired \
-         into the evaluation yet).",
+         (CPU path tracer, `pinrt::render`, unless marked `(gpu)`). {}",
         meta.cpu,
         meta.threads,
         meta.total_seconds,
         if meta.quick { " (`--quick`)" } else { "" },
-        budgets.join(", ")
+        budgets.join(", "),
+        meta.gpu
     );
     let _ = writeln!(s);
     let _ = writeln!(
@@ -263,6 +307,9 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
                 b.bytes as f64 / 1e6,
                 b.seconds
             );
+        }
+        if let Some(g) = &r.gpu_note {
+            let _ = writeln!(s, "{g}");
         }
         let _ = writeln!(s);
         s.push_str(&scene_table(r));

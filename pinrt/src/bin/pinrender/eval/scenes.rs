@@ -14,6 +14,8 @@ use pinrt::render::{
     MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun, TransportEstimator, splitmix64,
 };
 
+use pinrt::PinGrid;
+
 use crate::volume::{SourceField, VolumeArgs};
 
 /// Sizes that differ between the default run and `--quick`.
@@ -107,6 +109,11 @@ pub struct EvalScene {
     pub ref_spp: u32,
     pub estimators: Vec<String>,
     pub cache: CacheSettings,
+    /// Why the GPU path tracer (`pins (gpu)`) is not measured on this scene; `None`: it is
+    /// (one pin grid as the only medium, the plain path tracer).
+    pub gpu_skip: Option<&'static str>,
+    /// The baked pin grid (after the bake), shared by the CPU `pins` and the GPU.
+    pub pin_grid: Option<&'static PinGrid>,
 }
 
 pub const SCENES: [&str; 6] = ["smoke", "hydrogen", "cosine", "box", "box-ss", "instances"];
@@ -269,6 +276,8 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 3,
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
+        gpu_skip: None,
+        pin_grid: None,
     })
 }
 
@@ -311,6 +320,8 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 8,
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
+        gpu_skip: None,
+        pin_grid: None,
     })
 }
 
@@ -359,6 +370,8 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 2,
         estimators: estimators(&["cosine-closed-form"], true),
         cache: cache_for(lo, hi, sizes),
+        gpu_skip: None,
+        pin_grid: None,
     })
 }
 
@@ -446,6 +459,11 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * if single { 1 } else { 8 },
         estimators: ests,
         cache: cache_for(lo, hi, sizes),
+        gpu_skip: single.then_some(
+            "single-scattering scene scored against the whole-volume reference: the GPU path \
+             tracer is compared on the multiple-scattering scenes only",
+        ),
+        pin_grid: None,
     })
 }
 
@@ -585,6 +603,10 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: (sizes.ref_spp * 3 / 2).max(1),
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
+        gpu_skip: Some(
+            "64 media instances: the GPU path tracer renders one pin grid as the only medium",
+        ),
+        pin_grid: None,
     })
 }
 
