@@ -1302,6 +1302,16 @@ impl VdbSource {
         let a = (lo - 1).as_dvec3() * st.scale + st.translation;
         let b = (hi + 1).as_dvec3() * st.scale + st.translation;
         let bounds = Aabb::new(a.min(b), a.max(b));
+        // A transform with an absurd translation or scale (found by fuzzing: a translation
+        // of -1.7e277) maps the grid to a box that f64 cannot resolve: its extent rounds to
+        // zero or overflows. Nothing downstream can place pins in such a box.
+        if !bounds.is_valid() || !bounds.extent().is_finite() {
+            return Err(format!(
+                "grid '{grid}' has an unusable index-to-world transform (scale {:?}, translation {:?}): its world box is empty or not finite",
+                st.scale.to_array(),
+                st.translation.to_array()
+            ));
+        }
         let name = path
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
