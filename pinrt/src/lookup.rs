@@ -12,7 +12,7 @@
 //!
 //! Cells are `floor` of the coordinates clamped to `[0, n - 1]` (NaN to 0), as in the format.
 
-use pin_format::{Directions, EMPTY_CELL, PinEntry, atan2_turns, octahedral_uv};
+use pin_format::{Directions, EMPTY_CELL, GridShape, PinEntry, atan2_turns, octahedral_uv};
 
 use crate::chord::bin;
 use crate::loader::PinGrid;
@@ -22,49 +22,28 @@ use crate::loader::PinGrid;
 pub struct GridView<'g> {
     pub pins: &'g [PinEntry],
     pub index: Option<&'g [u32]>,
-    pub dims: [u32; 3],
+    /// Sizes, slab and direction cells, validated by the format crate.
+    pub shape: GridShape,
     pub dims_f: [f32; 3],
-    pub z_begin: u32,
-    pub z_end: u32,
-    pub pins_per_entry: u32,
-    pub block_len: u64,
     pub stored_cells: u64,
-    pub directions: Directions,
 }
 
 impl<'g> GridView<'g> {
     pub fn new(grid: &'g PinGrid) -> Self {
-        let s = grid.shape();
+        let shape = *grid.shape();
         Self {
             pins: grid.pins(),
             index: grid.cell_index(),
-            dims: s.dims,
-            dims_f: s.dims.map(|d| d as f32),
-            z_begin: s.z_begin,
-            z_end: s.z_end,
-            pins_per_entry: s.pins_per_entry,
-            block_len: s.block_len,
+            shape,
+            dims_f: shape.dims.map(|d| d as f32),
             stored_cells: grid.desc().stored_cells,
-            directions: s.directions,
         }
     }
 
     /// Linear index of a cell within the covered slab, or `None` outside it (other tiles).
     #[inline(always)]
     pub fn local_cell(&self, cell: [u32; 3]) -> Option<u64> {
-        if cell[0] >= self.dims[0]
-            || cell[1] >= self.dims[1]
-            || cell[2] < self.z_begin
-            || cell[2] >= self.z_end
-        {
-            return None;
-        }
-        let (x, y, z) = (
-            u64::from(cell[0]),
-            u64::from(cell[1]),
-            u64::from(cell[2] - self.z_begin),
-        );
-        Some(x + u64::from(self.dims[0]) * (y + u64::from(self.dims[1]) * z))
+        self.shape.local_cell(cell)
     }
 
     /// Block number of a covered cell; `None` for an empty cell or a corrupt index entry.
@@ -87,11 +66,11 @@ impl<'g> GridView<'g> {
     #[inline(always)]
     pub fn entry_index(&self, cell: [u32; 3], direction: u32, pin: u32) -> Option<u64> {
         let block = self.block_of(self.local_cell(cell)?)?;
-        let within = u64::from(direction) * u64::from(self.pins_per_entry) + u64::from(pin);
-        if within >= self.block_len {
+        let within = u64::from(direction) * u64::from(self.shape.pins_per_entry) + u64::from(pin);
+        if within >= self.shape.block_len {
             return None;
         }
-        Some(block * self.block_len + within)
+        Some(block * self.shape.block_len + within)
     }
 }
 
@@ -152,9 +131,9 @@ pub fn spatial_cell(p: [f32; 3], view: &GridView<'_>, jitter: Option<(f32, [f32;
         }
     }
     [
-        bin(c[0], view.dims[0]),
-        bin(c[1], view.dims[1]),
-        bin(c[2], view.dims[2]),
+        bin(c[0], view.shape.dims[0]),
+        bin(c[1], view.shape.dims[1]),
+        bin(c[2], view.shape.dims[2]),
     ]
 }
 

@@ -281,7 +281,7 @@ impl<'g> Sampler<'g> {
             };
         };
         let v = &self.view;
-        let k = rng.below_256(v.pins_per_entry);
+        let k = rng.below_256(v.shape.pins_per_entry);
         let sj = if self.opts.spatial_on() {
             let xi = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
             Some((self.opts.spatial_jitter, xi))
@@ -301,14 +301,14 @@ impl<'g> Sampler<'g> {
         let t0 = seg.t0;
         let p = [o[0] + d[0] * t0, o[1] + d[1] * t0, o[2] + d[2] * t0];
         let cell = spatial_cell(p, v, sj);
-        let dcell = direction_cell(&v.directions, dl, dj);
+        let dcell = direction_cell(&v.shape.directions, dl, dj);
         Prepared {
             status: status::OK,
             rng,
             seg,
             reversed,
             local: v.local_cell(cell).unwrap_or(NO_CELL),
-            within: u64::from(dcell) * u64::from(v.pins_per_entry) + u64::from(k),
+            within: u64::from(dcell) * u64::from(v.shape.pins_per_entry) + u64::from(k),
         }
     }
 
@@ -319,7 +319,7 @@ impl<'g> Sampler<'g> {
             return None;
         }
         let block = self.view.block_of(p.local)?;
-        Some(block * self.view.block_len + p.within)
+        Some(block * self.view.shape.block_len + p.within)
     }
 
     #[inline(always)]
