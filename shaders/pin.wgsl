@@ -12,7 +12,8 @@
 // * the same random draws in the same order (see the sampler module docs).
 //
 // Bindings: 0 parameters (uniform), 1 pins (the file's pin section as stored: mask, t_min
-// bits), 2 cell index (or a dummy), 3 rays, 4 results.
+// bits), 2 cell index (or a dummy), 3 rays, 4 results. `query` reads the grid through the
+// private copy `G` (see below), so another entry point can point it at other grids.
 
 struct Params {
     // World -> unit cube rows (A_i0, A_i1, A_i2, b_i).
@@ -54,6 +55,13 @@ struct QueryResult {
 @group(0) @binding(2) var<storage, read> cell_index: array<u32>;
 @group(0) @binding(3) var<storage, read> rays: array<Ray>;
 @group(0) @binding(4) var<storage, read_write> results: array<QueryResult>;
+
+// The grid that `query` reads: its parameters and where its entries and cell index start in
+// `pins` and `cell_index`. `main` copies `P` with bases 0; the path tracer (render.wgsl) sets
+// one instance's grid per query, so several grids and placements share the two buffers.
+var<private> G: Params;
+var<private> G_PIN_BASE: u32;
+var<private> G_INDEX_BASE: u32;
 
 const STATUS_OK: u32 = 0u;
 const STATUS_MISS: u32 = 1u;
@@ -364,9 +372,9 @@ fn atan2_turns(y: f32, x: f32) -> f32 {
 
 // Direction cell of d (z >= 0), optionally jittered by (xi - 0.5) * strength in cell units.
 fn direction_cell(d: vec3<f32>, jitter: bool, strength: f32, xi0: f32, xi1: f32) -> u32 {
-    if (P.dirs.x == 0u) {
-        let n_phi = P.dirs.y;
-        let n_theta = P.dirs.z;
+    if (G.dirs.x == 0u) {
+        let n_phi = G.dirs.y;
+        let n_theta = G.dirs.z;
         let len2 = d.x * d.x + d.y * d.y + d.z * d.z;
         let z = d.z / sqrt(len2);
         var ct = (1.0 - z) * f32(n_theta);
@@ -383,7 +391,7 @@ fn direction_cell(d: vec3<f32>, jitter: bool, strength: f32, xi0: f32, xi1: f32)
         }
         return bin(ct, n_theta) * n_phi + bin(cp, n_phi);
     }
-    let n = P.dirs.y;
+    let n = G.dirs.y;
     let sum = abs(d.x) + abs(d.y) + d.z;
     let px = d.x / sum;
     let py = d.y / sum;
@@ -404,17 +412,17 @@ fn direction_cell(d: vec3<f32>, jitter: bool, strength: f32, xi0: f32, xi1: f32)
 
 fn xf_point(p: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(
-        P.row0.x * p.x + P.row0.y * p.y + P.row0.z * p.z + P.row0.w,
-        P.row1.x * p.x + P.row1.y * p.y + P.row1.z * p.z + P.row1.w,
-        P.row2.x * p.x + P.row2.y * p.y + P.row2.z * p.z + P.row2.w,
+        G.row0.x * p.x + G.row0.y * p.y + G.row0.z * p.z + G.row0.w,
+        G.row1.x * p.x + G.row1.y * p.y + G.row1.z * p.z + G.row1.w,
+        G.row2.x * p.x + G.row2.y * p.y + G.row2.z * p.z + G.row2.w,
     );
 }
 
 fn xf_vector(v: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(
-        P.row0.x * v.x + P.row0.y * v.y + P.row0.z * v.z,
-        P.row1.x * v.x + P.row1.y * v.y + P.row1.z * v.z,
-        P.row2.x * v.x + P.row2.y * v.y + P.row2.z * v.z,
+        G.row0.x * v.x + G.row0.y * v.y + G.row0.z * v.z,
+        G.row1.x * v.x + G.row1.y * v.y + G.row1.z * v.z,
+        G.row2.x * v.x + G.row2.y * v.y + G.row2.z * v.z,
     );
 }
 
@@ -441,16 +449,16 @@ fn query(ray: Ray) -> QueryResult {
     }
 
     // Draws 1-3: pin number, spatial jitter, directional jitter.
-    let ppe = P.grid.y;
+    let ppe = G.grid.y;
     let k = ((rng_next() >> 8u) * ppe) >> 24u;
-    let sj = P.jitter.x > 0.0 && is_finite_bits(P.jitter.x);
+    let sj = G.jitter.x > 0.0 && is_finite_bits(G.jitter.x);
     var sxi = vec3<f32>(0.0, 0.0, 0.0);
     if (sj) {
         sxi.x = rng_f32();
         sxi.y = rng_f32();
         sxi.z = rng_f32();
     }
-    let dj = P.jitter.y > 0.0 && is_finite_bits(P.jitter.y);
+    let dj = G.jitter.y > 0.0 && is_finite_bits(G.jitter.y);
     var dxi0 = 0.0;
     var dxi1 = 0.0;
     if (dj) {
@@ -465,33 +473,33 @@ fn query(ray: Ray) -> QueryResult {
     }
     let t0 = seg.t0;
     let p = vec3<f32>(o.x + d.x * t0, o.y + d.y * t0, o.z + d.z * t0);
-    var c = vec3<f32>(p.x * f32(P.dims.x), p.y * f32(P.dims.y), p.z * f32(P.dims.z));
+    var c = vec3<f32>(p.x * f32(G.dims.x), p.y * f32(G.dims.y), p.z * f32(G.dims.z));
     if (sj) {
-        c.x = c.x + (sxi.x - 0.5) * P.jitter.x;
-        c.y = c.y + (sxi.y - 0.5) * P.jitter.x;
-        c.z = c.z + (sxi.z - 0.5) * P.jitter.x;
+        c.x = c.x + (sxi.x - 0.5) * G.jitter.x;
+        c.y = c.y + (sxi.y - 0.5) * G.jitter.x;
+        c.z = c.z + (sxi.z - 0.5) * G.jitter.x;
     }
-    let cx = bin(c.x, P.dims.x);
-    let cy = bin(c.y, P.dims.y);
-    let cz = bin(c.z, P.dims.z);
-    let dcell = direction_cell(dl, dj, P.jitter.y, dxi0, dxi1);
+    let cx = bin(c.x, G.dims.x);
+    let cy = bin(c.y, G.dims.y);
+    let cz = bin(c.z, G.dims.z);
+    let dcell = direction_cell(dl, dj, G.jitter.y, dxi0, dxi1);
 
     // Address: covered slab, sparse index, block.
     var entry_id = NO_ENTRY;
     var mask = 0u;
     var t_min = 1.0;
-    if (cz >= P.dims.w && cz < P.grid.x) {
-        let local = cx + P.dims.x * (cy + P.dims.y * (cz - P.dims.w));
+    if (cz >= G.dims.w && cz < G.grid.x) {
+        let local = cx + G.dims.x * (cy + G.dims.y * (cz - G.dims.w));
         var block = local;
         var present = true;
-        if (P.dirs.w != 0u) {
-            block = cell_index[local];
-            present = block != EMPTY_CELL && block < P.grid.w;
+        if (G.dirs.w != 0u) {
+            block = cell_index[G_INDEX_BASE + local];
+            present = block != EMPTY_CELL && block < G.grid.w;
         }
         let within = dcell * ppe + k;
-        if (present && within < P.grid.z) {
-            entry_id = block * P.grid.z + within;
-            let e = pins[entry_id];
+        if (present && within < G.grid.z) {
+            entry_id = block * G.grid.z + within;
+            let e = pins[G_PIN_BASE + entry_id];
             mask = e.x;
             t_min = bitcast<f32>(e.y);
         }
@@ -557,5 +565,8 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     rng_state = pcg_hash(pcg_hash(P.run.x) ^ (P.run.y + i));
+    G = P;
+    G_PIN_BASE = 0u;
+    G_INDEX_BASE = 0u;
     results[i] = query(rays[i]);
 }

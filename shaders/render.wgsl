@@ -1,16 +1,19 @@
-// The reference volumetric path tracer on the GPU, "pins for everything" (pinrt::gpu_render).
+// The reference volumetric path tracer on the GPU (pinrt::gpu_render).
 //
-// Appended to shaders/pin.wgsl (the Rust side concatenates the two sources): every
-// transmittance and distance query is pin.wgsl's `query`, through the grid bound at group 0
-// (binding 0 the grid parameters `P`, 1 the pins, 2 the cell index; bindings 3 and 4 of
-// pin.wgsl belong to its own entry point and are not used here). This file adds group 1 and
-// the entry point `render_main`; all its names start with `rt_` / `Rt` so nothing collides.
+// Appended to shaders/pin.wgsl (the Rust side concatenates the two sources). Pin queries are
+// pin.wgsl's `query`, unchanged, pointed at one instance's grid through its private `G`,
+// `G_PIN_BASE` and `G_INDEX_BASE`: every distinct pin grid of the scene is concatenated into
+// the `pins` and `cell_index` buffers of group 0, and `rt_grids` holds each instance's grid
+// parameters with its own placement composed in. Bindings 0, 3 and 4 of group 0 belong to
+// pin.wgsl's own entry point and are not used here. This file adds group 1 and the entry
+// point `render_main`; all its names start with `rt_` / `Rt` so nothing collides.
 //
-// The estimator is the one of pinrt::render (tracer.rs, `Ctx::trace`), for one medium whose
-// primary and secondary estimators are both the pin grid:
+// The estimator is the one of pinrt::render (tracer.rs, `Ctx::trace`), with the media of the
+// scene combined additively (distance sampling: nearest collision over the instances, each
+// searching only up to the nearest so far; transmittance: the product):
 //
 // * camera ray through a uniformly jittered point of the pixel (pinhole, box filter);
-// * the camera ray scores env * T (a pin transmittance estimate);
+// * the camera ray scores env * T;
 // * albedo 0 or max_bounces 0: done. Otherwise distance sampling along the camera ray; at each
 //   collision the throughput is weighted by the albedo, the sun adds
 //   phase * T(shadow ray) * radiance, one direction w is sampled from Henyey-Greenstein, the
@@ -19,11 +22,17 @@
 //   scattering events.
 // * a non-finite sample is dropped (counts as 0), as on the CPU.
 //
+// Per query the estimator is `RP.est.x` (primary: camera rays and the shadow rays of the
+// first scattering vertex) or `RP.est.y` (secondary: everything after): 0 ray marching,
+// 1 delta tracking, 2 ratio tracking (delta tracking for distances), 3 pins. PinMS is
+// (2, 3), "pins for everything" (3, 3). The trackers and the marcher are ports of
+// render/estimator.rs and render/majorant.rs in f32 (the CPU works in f64).
+//
 // Random numbers: a per-sample path generator (`rt_next`, xoshiro128** seeded by hashing
-// (seed, pixel, pass)) drives the pixel jitter and the phase sampling; each pin query is
-// seeded from two path draws, `rng_state = pcg_hash(pcg_hash(a) ^ b)`, exactly as the CPU
-// adapter seeds `Rng::for_query(a, b)`. The streams differ from the CPU renderer's (PCG64
-// there), so CPU and GPU agree in distribution, not bit for bit.
+// (seed, pixel, pass)) drives the pixel jitter, the phase sampling and the trackers; each pin
+// query is seeded from two path draws, `rng_state = pcg_hash(pcg_hash(a) ^ b)`, exactly as
+// the CPU adapter seeds `Rng::for_query(a, b)`. The streams differ from the CPU renderer's
+// (PCG there), so CPU and GPU agree in distribution, not bit for bit.
 
 struct RtParams {
     // Camera origin, tan(vfov / 2).
@@ -40,12 +49,15 @@ struct RtParams {
     sun_rad: vec4<f32>,
     // Environment radiance, 1.0 if non-zero else 0.0.
     env: vec4<f32>,
-    // albedo (clamped to [0, 1]), HG g (clamped to +-0.99999), unused, unused.
+    // albedo (clamped to [0, 1]), HG g (clamped to +-0.99999), ray-marching relative step,
+    // unused.
     material: vec4<f32>,
-    // width, height, max_bounces, unused.
+    // width, height, max_bounces, number of media.
     size: vec4<u32>,
     // seed low word, seed high word, unused, unused.
     seed: vec4<u32>,
+    // primary estimator, secondary estimator, unused, unused.
+    est: vec4<u32>,
 }
 
 struct RtPass {
@@ -55,13 +67,68 @@ struct RtPass {
     pad2: u32,
 }
 
+// One medium instance (gpu_render/media.rs, `MediumRecord`).
+struct RtMedium {
+    // x: first pin entry of its grid in `pins`, y: first word of its cell index in
+    // `cell_index`, z: flags (1 pins, 2 density, 4 majorants), w: density kind (1 voxels,
+    // 2 cosine waves).
+    ids: vec4<u32>,
+    // x: first value of the density in `rt_data`, y: number of cosine waves, z: first
+    // majorant in `rt_data`, w: unused.
+    offs: vec4<u32>,
+    // Voxel counts (x, y, z), unused.
+    vdims: vec4<u32>,
+    // Majorant brick counts (x, y, z), unused.
+    mdims: vec4<u32>,
+    // World = density-local + translation; w: longest edge of the clip box.
+    translation: vec4<f32>,
+    // World clip box of the density (extinction 0 outside); clip_lo.w: cosine density.
+    clip_lo: vec4<f32>,
+    clip_hi: vec4<f32>,
+    // Voxels: density-local position of the grid box's minimum corner, and 1 / spacing.
+    vox_origin: vec4<f32>,
+    vox_inv: vec4<f32>,
+    // World box of the majorant grid.
+    maj_lo: vec4<f32>,
+    maj_hi: vec4<f32>,
+    // World box of the placed pin grid (conservative), to skip missed instances cheaply.
+    pin_lo: vec4<f32>,
+    pin_hi: vec4<f32>,
+}
+
 @group(1) @binding(0) var<uniform> RP: RtParams;
 @group(1) @binding(1) var<uniform> RPASS: RtPass;
 // Two vec4 per pixel: the running sum (rgb, w unused) and its Kahan compensation.
 @group(1) @binding(2) var<storage, read_write> rt_accum: array<vec4<f32>>;
+// Per medium: the pin grid parameters with the instance's placement (pin.wgsl's `Params`).
+@group(1) @binding(3) var<storage, read> rt_grids: array<Params>;
+@group(1) @binding(4) var<storage, read> rt_media: array<RtMedium>;
+// Voxel values, cosine waves (8 floats each: w.xyz, amplitude, phase, 3 unused) and
+// majorants, at the offsets of `RtMedium.offs`.
+@group(1) @binding(5) var<storage, read> rt_data: array<f32>;
 
 const RT_TAU: f32 = 0x1.921fb6p2f;
 const RT_INV_4PI: f32 = 0x1.45f306p-4f;
+const RT_TWO_M32: f32 = 0x1.000000p-32f;
+const RT_TWO_M33: f32 = 0x1.000000p-33f;
+
+const RT_EST_MARCH: u32 = 0u;
+const RT_EST_DELTA: u32 = 1u;
+const RT_EST_RATIO: u32 = 2u;
+const RT_EST_PINS: u32 = 3u;
+
+const RT_HAS_PINS: u32 = 1u;
+const RT_HAS_DENSITY: u32 = 2u;
+const RT_HAS_MAJORANTS: u32 = 4u;
+const RT_KIND_VOXELS: u32 = 1u;
+const RT_KIND_COSINE: u32 = 2u;
+
+// Safety valves of render/estimator.rs: tentative collisions per tracker query, steps per
+// marched segment.
+const RT_MAX_TRACKING_STEPS: u32 = 4194304u;
+const RT_MAX_MARCH_STEPS: f32 = 16777216.0;
+// Russian roulette threshold of ratio tracking.
+const RT_RR: f32 = 0.1;
 
 // Path generator: xoshiro128** (Blackman and Vigna), 128 bits of state per sample.
 var<private> rt_s: vec4<u32>;
@@ -100,21 +167,354 @@ fn rt_f32() -> f32 {
     return f32(rt_next() >> 8u) * TWO_M24;
 }
 
+// A unit-rate exponential sample: -ln(u) with u in (0, 1] from 32 random bits (the half-step
+// offset keeps u > 0; the largest sample is about 22.9, a tail cut below 2^-32).
+fn rt_exp() -> f32 {
+    let u = f32(rt_next()) * RT_TWO_M32 + RT_TWO_M33;
+    return max(-log(u), 0.0);
+}
+
 fn rt_finite3(v: vec3<f32>) -> bool {
     return is_finite_bits(v.x) && is_finite_bits(v.y) && is_finite_bits(v.z);
 }
 
-// One pin query along o + t d, t in [0, inf), seeded from the path generator.
-fn rt_query(o: vec3<f32>, d: vec3<f32>) -> QueryResult {
+fn rt_inf() -> f32 {
+    return bitcast<f32>(inf_bits);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Boxes and densities
+// ---------------------------------------------------------------------------------------------
+
+// Slab clip of o + t d, t in [t0, t1], against the closed box [lo, hi] (majorant.rs,
+// `clip_box`): axes with d = 0 constrain nothing if o is within the slab and reject otherwise.
+// Returns (tn, tf); empty when !(tn < tf).
+fn rt_clip(o: vec3<f32>, d: vec3<f32>, lo: vec3<f32>, hi: vec3<f32>, t0: f32, t1: f32) -> vec2<f32> {
+    var tn = t0;
+    var tf = t1;
+    for (var a = 0u; a < 3u; a = a + 1u) {
+        let oa = o[a];
+        let da = d[a];
+        if (da == 0.0) {
+            if (oa < lo[a] || oa > hi[a]) {
+                return vec2<f32>(1.0, 0.0);
+            }
+        } else {
+            let inv = 1.0 / da;
+            var n = (lo[a] - oa) * inv;
+            var f = (hi[a] - oa) * inv;
+            if (n > f) {
+                let s = n;
+                n = f;
+                f = s;
+            }
+            if (n > tn) {
+                tn = n;
+            }
+            if (f < tf) {
+                tf = f;
+            }
+        }
+    }
+    return vec2<f32>(tn, tf);
+}
+
+// Extinction as the estimators use it: NaN and negatives are 0, +inf stays (opaque).
+fn rt_clean(s: f32) -> f32 {
+    if (s > 0.0) {
+        return s;
+    }
+    return 0.0;
+}
+
+fn rt_voxel(base: u32, dims: vec3<u32>, x: u32, y: u32, z: u32) -> f32 {
+    return rt_data[base + x + dims.x * (y + dims.y * z)];
+}
+
+// Extinction of medium m at world point p (0 outside its clip box).
+fn rt_extinction(m: u32, p: vec3<f32>) -> f32 {
+    let lo = rt_media[m].clip_lo.xyz;
+    let hi = rt_media[m].clip_hi.xyz;
+    if (!(all(p >= lo) && all(p <= hi))) {
+        return 0.0;
+    }
+    let q = p - rt_media[m].translation.xyz;
+    let base = rt_media[m].offs.x;
+    if (rt_media[m].ids.w == RT_KIND_COSINE) {
+        let n = rt_media[m].offs.y;
+        var s = 1.0;
+        for (var k = 0u; k < n; k = k + 1u) {
+            let at = base + 8u * k;
+            let w = vec3<f32>(rt_data[at], rt_data[at + 1u], rt_data[at + 2u]);
+            // Range reduction in turns keeps cos accurate where w . q is hundreds of radians.
+            let turns = (dot(w, q) + rt_data[at + 4u]) * INV_TAU;
+            s = s + rt_data[at + 3u] * cos(RT_TAU * fract(turns));
+        }
+        return max(rt_media[m].clip_lo.w * s, 0.0);
+    }
+    // Voxels, the shared convention: trilinear between voxel centres, the edge voxel's value
+    // in the outer half voxel.
+    let dims = rt_media[m].vdims.xyz;
+    let nmax = vec3<f32>(dims) - vec3<f32>(1.0);
+    let u = clamp((q - rt_media[m].vox_origin.xyz) * rt_media[m].vox_inv.xyz - vec3<f32>(0.5), vec3<f32>(0.0), nmax);
+    let fl = floor(u);
+    let i0 = vec3<u32>(fl);
+    let i1 = min(i0 + vec3<u32>(1u), dims - vec3<u32>(1u));
+    let f = u - fl;
+    let c00 = mix(rt_voxel(base, dims, i0.x, i0.y, i0.z), rt_voxel(base, dims, i1.x, i0.y, i0.z), f.x);
+    let c10 = mix(rt_voxel(base, dims, i0.x, i1.y, i0.z), rt_voxel(base, dims, i1.x, i1.y, i0.z), f.x);
+    let c01 = mix(rt_voxel(base, dims, i0.x, i0.y, i1.z), rt_voxel(base, dims, i1.x, i0.y, i1.z), f.x);
+    let c11 = mix(rt_voxel(base, dims, i0.x, i1.y, i1.z), rt_voxel(base, dims, i1.x, i1.y, i1.z), f.x);
+    let c0 = mix(c00, c10, f.y);
+    let c1 = mix(c01, c11, f.y);
+    return mix(c0, c1, f.z);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Ray marching (estimator.rs, `RayMarching`): midpoint rule, steps from the segment start,
+// the last one shortened. Returns (collision distance or +inf, transmittance); a distance is
+// sampled only when `want_distance` is true (target optical depth -ln(u), linear inside a
+// step). Like every estimator here it draws random numbers only for a ray that reaches its
+// box (the CPU draws some before clipping); the draws are independent either way.
+// ---------------------------------------------------------------------------------------------
+
+fn rt_march(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, want_distance: bool) -> vec2<f32> {
+    let none = vec2<f32>(rt_inf(), 1.0);
+    let ch = rt_clip(o, d, rt_media[m].clip_lo.xyz, rt_media[m].clip_hi.xyz, 0.0, t_max);
+    if (!(ch.x < ch.y)) {
+        return none;
+    }
+    var goal = 0.0;
+    if (want_distance) {
+        goal = rt_exp();
+    }
+    let t0 = ch.x;
+    let t1 = ch.y;
+    let len = t1 - t0;
+    let h = max(RP.material.z * rt_media[m].translation.w, len / RT_MAX_MARCH_STEPS);
+    let n = u32(max(ceil(len / h), 1.0));
+    var tau = 0.0;
+    for (var i = 0u; i < n; i = i + 1u) {
+        let a = t0 + f32(i) * h;
+        var b = min(a + h, t1);
+        if (i + 1u == n) {
+            b = t1;
+        }
+        if (!(b > a)) {
+            continue;
+        }
+        let sigma = rt_clean(rt_extinction(m, o + d * (0.5 * (a + b))));
+        let dt = sigma * (b - a);
+        if (want_distance && tau + dt >= goal && sigma > 0.0) {
+            return vec2<f32>(min(a + (goal - tau) / sigma, b), 0.0);
+        }
+        tau = tau + dt;
+        if (!want_distance && !is_finite_bits(tau)) {
+            break;
+        }
+    }
+    if (want_distance) {
+        return none;
+    }
+    return vec2<f32>(rt_inf(), exp(-tau));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Trackers over the majorant grid (estimator.rs `Tracker`, majorant.rs `Dda`).
+// `ratio` false: delta tracking, returns (collision distance or +inf, 1);
+// `ratio` true: ratio tracking, returns (+inf, transmittance weight).
+// ---------------------------------------------------------------------------------------------
+
+fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2<f32> {
+    let none = vec2<f32>(rt_inf(), 1.0);
+    let lo = rt_media[m].maj_lo.xyz;
+    let hi = rt_media[m].maj_hi.xyz;
+    let ch = rt_clip(o, d, lo, hi, 0.0, t_max);
+    if (!(ch.x < ch.y)) {
+        return none;
+    }
+    // Majorant optical depth left to the next tentative collision, carried across bricks.
+    var tau = rt_exp();
+    let dims = rt_media[m].mdims.xyz;
+    let mbase = rt_media[m].offs.z;
+    let t_end = ch.y;
+    var t_seg = ch.x;
+    let p = o + d * ch.x;
+    let scale = vec3<f32>(dims) / (hi - lo);
+    var brick = vec3<i32>(0);
+    var step = vec3<i32>(0);
+    var limit = vec3<i32>(0);
+    var next_t = vec3<f32>(rt_inf());
+    var delta_t = vec3<f32>(rt_inf());
+    for (var a = 0u; a < 3u; a = a + 1u) {
+        let n = i32(dims[a]);
+        let g = (p[a] - lo[a]) * scale[a];
+        let b = clamp(i32(floor(g)), 0, n - 1);
+        brick[a] = b;
+        let dg = d[a] * scale[a];
+        if (dg > 0.0) {
+            next_t[a] = ch.x + max(f32(b + 1) - g, 0.0) / dg;
+            delta_t[a] = 1.0 / dg;
+            step[a] = 1;
+            limit[a] = n;
+        } else if (dg < 0.0) {
+            next_t[a] = ch.x + min(f32(b) - g, 0.0) / dg;
+            delta_t[a] = -1.0 / dg;
+            step[a] = -1;
+            limit[a] = -1;
+        }
+    }
+    var tr = 1.0;
+    var steps = 0u;
+    // A ray crosses at most dims.x + dims.y + dims.z bricks; the bound only guards rounding.
+    let max_segments = dims.x + dims.y + dims.z + 3u;
+    for (var s = 0u; s < max_segments; s = s + 1u) {
+        var a = 2u;
+        if (next_t.x < next_t.y) {
+            if (next_t.x < next_t.z) {
+                a = 0u;
+            }
+        } else if (next_t.y < next_t.z) {
+            a = 1u;
+        }
+        let seg_t1 = min(next_t[a], t_end);
+        let b = brick;
+        let maj = rt_data[mbase + u32(b.x) + dims.x * (u32(b.y) + dims.y * u32(b.z))];
+        if (maj > 0.0) {
+            let inv = 1.0 / maj;
+            var t = t_seg;
+            loop {
+                let t_next = t + tau * inv;
+                if (t_next >= seg_t1) {
+                    tau = max(tau - (seg_t1 - t) * maj, 0.0);
+                    break;
+                }
+                t = t_next;
+                tau = rt_exp();
+                let sigma = rt_clean(rt_extinction(m, o + d * t));
+                if (ratio) {
+                    tr = tr * (1.0 - sigma * inv);
+                    if (tr == 0.0 || !(tr == tr)) {
+                        return vec2<f32>(rt_inf(), 0.0);
+                    }
+                    if (abs(tr) < RT_RR) {
+                        let q = abs(tr) / RT_RR;
+                        if (rt_f32() >= q) {
+                            return vec2<f32>(rt_inf(), 0.0);
+                        }
+                        tr = tr / q;
+                    }
+                } else if (rt_f32() * maj < sigma) {
+                    return vec2<f32>(t, 1.0);
+                }
+                steps = steps + 1u;
+                if (steps >= RT_MAX_TRACKING_STEPS) {
+                    return vec2<f32>(rt_inf(), tr);
+                }
+            }
+        }
+        if (next_t[a] >= t_end) {
+            break;
+        }
+        brick[a] = brick[a] + step[a];
+        if (brick[a] == limit[a]) {
+            break;
+        }
+        next_t[a] = next_t[a] + delta_t[a];
+        t_seg = seg_t1;
+    }
+    return vec2<f32>(rt_inf(), tr);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Pins
+// ---------------------------------------------------------------------------------------------
+
+// One pin query of medium m along o + t d, t in [0, t_max), seeded from the path generator.
+// Instances whose (conservative) world box the segment misses are skipped without a query.
+fn rt_pins(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<f32> {
+    let ch = rt_clip(o, d, rt_media[m].pin_lo.xyz, rt_media[m].pin_hi.xyz, 0.0, t_max);
+    if (!(ch.x < ch.y)) {
+        return vec2<f32>(rt_inf(), 1.0);
+    }
     let a = rt_next();
     let b = rt_next();
     rng_state = pcg_hash(pcg_hash(a) ^ b);
-    return query(Ray(o, bitcast<f32>(inf_bits), d, 0u));
+    G = rt_grids[m];
+    G_PIN_BASE = rt_media[m].ids.x;
+    G_INDEX_BASE = rt_media[m].ids.y;
+    let r = query(Ray(o, t_max, d, 0u));
+    if (r.hit != 0u) {
+        return vec2<f32>(r.distance, r.transmittance);
+    }
+    return vec2<f32>(rt_inf(), r.transmittance);
 }
 
-fn rt_transmittance(o: vec3<f32>, d: vec3<f32>) -> f32 {
-    return rt_query(o, d).transmittance;
+// ---------------------------------------------------------------------------------------------
+// The scene's media combined (tracer.rs, `Ctx::transmittance` / `Ctx::distance`)
+// ---------------------------------------------------------------------------------------------
+
+fn rt_medium_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
+    let inf = rt_inf();
+    switch kind {
+        case RT_EST_MARCH: {
+            return rt_march(m, o, d, inf, false).y;
+        }
+        case RT_EST_DELTA: {
+            if (rt_track(m, o, d, inf, false).x < inf) {
+                return 0.0;
+            }
+            return 1.0;
+        }
+        case RT_EST_RATIO: {
+            return rt_track(m, o, d, inf, true).y;
+        }
+        default: {
+            return rt_pins(m, o, d, inf).y;
+        }
+    }
 }
+
+fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
+    switch kind {
+        case RT_EST_MARCH: {
+            return rt_march(m, o, d, t_max, true).x;
+        }
+        case RT_EST_DELTA, RT_EST_RATIO: {
+            return rt_track(m, o, d, t_max, false).x;
+        }
+        default: {
+            return rt_pins(m, o, d, t_max).x;
+        }
+    }
+}
+
+fn rt_transmittance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
+    var t = 1.0;
+    for (var m = 0u; m < RP.size.w; m = m + 1u) {
+        t = t * rt_medium_transmittance(kind, m, o, d);
+        if (t == 0.0) {
+            break;
+        }
+    }
+    return t;
+}
+
+// Nearest collision over the media, +inf if none.
+fn rt_distance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
+    var best = rt_inf();
+    for (var m = 0u; m < RP.size.w; m = m + 1u) {
+        let t = rt_medium_distance(kind, m, o, d, best);
+        if (t < best) {
+            best = t;
+        }
+    }
+    return best;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Phase function
+// ---------------------------------------------------------------------------------------------
 
 // Henyey-Greenstein value (per steradian), the cancellation-free forms of render::phase.
 fn rt_hg_phase(g: f32, cos_theta: f32) -> f32 {
@@ -168,7 +568,10 @@ fn rt_sample_hg(d: vec3<f32>, g: f32, u1: f32, u2: f32) -> vec3<f32> {
     return n;
 }
 
-// One path sample of the radiance arriving at o from -d (tracer.rs, Ctx::trace).
+// ---------------------------------------------------------------------------------------------
+// The path (tracer.rs, `Ctx::trace`)
+// ---------------------------------------------------------------------------------------------
+
 fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     var l = vec3<f32>(0.0, 0.0, 0.0);
     let len2 = dot(d_in, d_in);
@@ -184,25 +587,31 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     let albedo = RP.material.x;
     let g = RP.material.y;
     let max_bounces = RP.size.z;
+    let primary = RP.est.x;
+    let secondary = RP.est.y;
     if (has_env) {
-        l = l + env * rt_transmittance(o, d);
+        l = l + env * rt_transmittance(primary, o, d);
     }
     if (albedo <= 0.0 || max_bounces == 0u) {
         return l;
     }
-    let first = rt_query(o, d);
-    if (first.hit == 0u) {
+    let first = rt_distance(primary, o, d);
+    if (!(first < rt_inf())) {
         return l;
     }
-    var x = o + d * first.distance;
+    var x = o + d * first;
     var dir = d;
     var beta = albedo;
     var depth = 1u;
     loop {
+        var shadow = secondary;
+        if (depth == 1u) {
+            shadow = primary;
+        }
         if (has_sun) {
             let ph = rt_hg_phase(g, dot(dir, sun_dir));
             if (ph > 0.0) {
-                let tr = rt_transmittance(x, sun_dir);
+                let tr = rt_transmittance(shadow, x, sun_dir);
                 l = l + sun_rad * (beta * ph * tr);
             }
         }
@@ -210,16 +619,16 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
         let u2 = rt_f32();
         let w = rt_sample_hg(dir, g, u1, u2);
         if (has_env) {
-            l = l + env * (beta * rt_transmittance(x, w));
+            l = l + env * (beta * rt_transmittance(shadow, x, w));
         }
         if (depth >= max_bounces) {
             break;
         }
-        let next = rt_query(x, w);
-        if (next.hit == 0u) {
+        let t = rt_distance(secondary, x, w);
+        if (!(t < rt_inf())) {
             break;
         }
-        x = x + w * next.distance;
+        x = x + w * t;
         dir = w;
         beta = beta * albedo;
         depth = depth + 1u;

@@ -139,6 +139,16 @@ impl VoxelGrid {
         })
     }
 
+    /// Dims, origin, spacing and values (`x` fastest), as given to [`VoxelGrid::new`].
+    pub fn parts(&self) -> ([u32; 3], [f64; 3], [f64; 3], &[f32]) {
+        (
+            self.dims.map(|d| d as u32),
+            self.origin,
+            self.spacing,
+            &self.values,
+        )
+    }
+
     #[inline]
     fn at(&self, x: usize, y: usize, z: usize) -> f32 {
         self.values[x + self.dims[0] * (y + self.dims[1] * z)]

@@ -32,7 +32,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use pinrt::gpu::GpuContext;
-use pinrt::gpu_render::{GpuRenderer, GpuScene};
+use pinrt::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
 use pinrt::render::cache::{render_with_cache, train_cache};
 use pinrt::render::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrt::render::{
@@ -634,7 +634,7 @@ fn measure_gpu(
     let batch = a.gpu_batch;
     let (rows, img) = progressive(es, ("gpu", "pins"), a, budgets, reference, 0.0, |seed| {
         renderer
-            .render(&gs, batch, seed)
+            .render(&gs, GpuEstimator::Pins, batch, seed)
             .map(|img| (img, batch))
             .map_err(|e| anyhow!("{e}"))
     })?;

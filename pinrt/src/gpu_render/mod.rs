@@ -1,0 +1,703 @@
+//! The reference path tracer on the GPU (features `gpu` + `render`).
+//!
+//! [`GpuRenderer`] runs the estimator of [`crate::render`] (`tracer.rs`) in WGSL
+//! (`shaders/render.wgsl` appended to `shaders/pin.wgsl`) over a scene's media
+//! ([`GpuMedia`]: pin grids, density fields, placed instances), with the transport estimator
+//! chosen per render ([`GpuEstimator`]): ray marching, delta tracking, ratio tracking (over
+//! each instance's majorant grid, DDA traversal), pins for everything, or PinMS (ratio
+//! tracking for camera rays and single scattering, pins after the first scattering event).
+//!
+//! * pinhole camera, one uniformly jittered ray per sample inside the pixel (box filter);
+//! * the camera ray scores `env * T`, then distance sampling;
+//! * at each collision: throughput times albedo, sun next-event estimation
+//!   `phase * T(shadow ray) * radiance`, one Henyey-Greenstein direction `w`, `env * T(w)`,
+//!   and the path continues along `w`; an escape of the continuation scores nothing;
+//!   `max_bounces` scattering events at most; non-finite samples are dropped;
+//! * media add: nearest collision over the instances, product of their transmittances.
+//!
+//! One compute invocation per pixel per pass (workgroups of 8 x 8), one pass per sample; the
+//! passes accumulate into a storage buffer with Kahan summation and the image is read back
+//! once at the end. The GPU random streams differ from the CPU renderer's, and the GPU
+//! trackers and marcher work in f32 where the CPU uses f64, so the two agree statistically
+//! (same expected image), not bit for bit; `docs/gpu.md` ("GPU path tracer") states the
+//! contract and the tests that check it. A GPU render is deterministic: the same media,
+//! scene, estimator, spp and seed give the same image bits.
+//!
+//! Not supported here (use the CPU renderer): the radiance cache, the closed-form and
+//! whole-volume estimators, time budgets (the caller loops over passes).
+
+mod media;
+
+pub use media::{
+    CosineWave, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity,
+};
+
+use std::sync::mpsc;
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+use wgpu::util::DeviceExt;
+
+use crate::error::Error;
+use crate::gpu::GpuContext;
+use crate::loader::PinGrid;
+use crate::render::phase::G_LIMIT;
+use crate::render::{Camera, Image, RenderError, Scene, Sun};
+use crate::sampler::SamplerOptions;
+
+/// The WGSL of the GPU path tracer: the pin sampler followed by `shaders/render.wgsl`
+/// (entry point `render_main`).
+pub const RENDER_WGSL: &str = concat!(
+    include_str!("../../../shaders/pin.wgsl"),
+    include_str!("../../../shaders/render.wgsl")
+);
+
+/// Workgroup size of `render_main` (x, y), in pixels.
+pub const WORKGROUP: [u32; 2] = [8, 8];
+
+/// Largest `max_bounces` the GPU accepts. The loop is bounded by it, and a GPU invocation
+/// that runs for minutes (an opaque medium with albedo 1) would trip a driver watchdog on
+/// hardware; deeper paths are an error, not a silent truncation.
+pub const MAX_GPU_BOUNCES: u32 = 1024;
+
+/// Passes recorded per command buffer (bounds the per-pass uniform buffer).
+const PASSES_PER_SUBMIT: u32 = 256;
+
+/// Errors of a GPU render: an invalid scene or settings (the same checks and messages as
+/// the CPU renderer), or a GPU failure.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuRenderError {
+    #[error(transparent)]
+    Invalid(#[from] RenderError),
+    #[error(transparent)]
+    Gpu(#[from] Error),
+}
+
+/// What a GPU render needs besides the media: the CPU [`Scene`] without its media plus
+/// `max_bounces`.
+#[derive(Clone, Debug)]
+pub struct GpuScene {
+    pub camera: Camera,
+    pub sun: Option<Sun>,
+    /// Constant radiance arriving from every direction of the sphere.
+    pub env_radiance: [f32; 3],
+    /// Single-scattering albedo in `[0, 1]`.
+    pub albedo: f32,
+    /// Henyey-Greenstein asymmetry in `(-1, 1)`.
+    pub g: f32,
+    /// Maximum number of scattering events (0: transmitted environment only), at most
+    /// [`MAX_GPU_BOUNCES`].
+    pub max_bounces: u32,
+}
+
+impl GpuScene {
+    /// The GPU view of a CPU scene (its media are ignored).
+    pub fn from_scene(scene: &Scene, max_bounces: u32) -> Self {
+        GpuScene {
+            camera: scene.camera.clone(),
+            sun: scene.sun.clone(),
+            env_radiance: scene.env_radiance,
+            albedo: scene.albedo,
+            g: scene.g,
+            max_bounces,
+        }
+    }
+
+    /// The CPU scene with `media` (for comparisons).
+    pub fn to_scene(&self, media: Vec<crate::render::Medium>) -> Scene {
+        Scene {
+            camera: self.camera.clone(),
+            sun: self.sun.clone(),
+            env_radiance: self.env_radiance,
+            albedo: self.albedo,
+            g: self.g,
+            media,
+        }
+    }
+
+    /// Every check [`GpuRenderer::render`] makes on the scene: [`Scene::validate`] plus the
+    /// bounce limit.
+    pub fn validate(&self) -> Result<(), RenderError> {
+        self.to_scene(Vec::new()).validate()?;
+        if self.max_bounces > MAX_GPU_BOUNCES {
+            return Err(RenderError::Invalid {
+                what: "max_bounces",
+                why: format!(
+                    "{} exceeds the GPU limit {MAX_GPU_BOUNCES}",
+                    self.max_bounces
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// The uniform block (the scene in the form `render_main` reads it), after `validate`.
+    fn params(&self, seed: u64, estimator: GpuEstimator, media: u32) -> RtParams {
+        // The camera frame exactly as tracer.rs builds it.
+        let c = &self.camera;
+        let o = Vec3::from_array(c.origin);
+        let f = (Vec3::from_array(c.target) - o).normalize_or_zero();
+        let mut r = f.cross(Vec3::Y);
+        if r.length_squared() < 1e-12 {
+            r = f.cross(Vec3::Z);
+        }
+        let r = r.normalize();
+        let u = r.cross(f);
+        let tan_half = (c.vfov_deg.to_radians() * 0.5).tan();
+        let aspect = c.width as f32 / c.height as f32;
+        // Lights as the CPU's `Scene::ctx` keeps them: a zero sun or environment is absent.
+        let sun = self.sun.as_ref().and_then(|s| {
+            let d = Vec3::from_array(s.dir).normalize_or_zero();
+            let rad = Vec3::from_array(s.radiance);
+            (d != Vec3::ZERO && rad != Vec3::ZERO).then_some((d, rad))
+        });
+        let (sun_dir, sun_rad) = match sun {
+            Some((d, rad)) => ([d.x, d.y, d.z, 1.0], [rad.x, rad.y, rad.z, 0.0]),
+            None => ([0.0; 4], [0.0; 4]),
+        };
+        let e = self.env_radiance;
+        let has_env = if Vec3::from_array(e) != Vec3::ZERO {
+            1.0
+        } else {
+            0.0
+        };
+        let g_limit = G_LIMIT as f32;
+        RtParams {
+            cam_o: [o.x, o.y, o.z, tan_half],
+            cam_f: [f.x, f.y, f.z, aspect],
+            cam_r: [r.x, r.y, r.z, c.width as f32],
+            cam_u: [u.x, u.y, u.z, c.height as f32],
+            sun_dir,
+            sun_rad,
+            env: [e[0], e[1], e[2], has_env],
+            material: [
+                self.albedo.clamp(0.0, 1.0),
+                self.g.clamp(-g_limit, g_limit),
+                estimator.rel_step() as f32,
+                0.0,
+            ],
+            size: [c.width, c.height, self.max_bounces, media],
+            seed: [seed as u32, (seed >> 32) as u32, 0, 0],
+            est: {
+                let (p, s) = estimator.kinds();
+                [p, s, 0, 0]
+            },
+        }
+    }
+}
+
+/// `RtParams` of `render.wgsl` (160 bytes).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct RtParams {
+    cam_o: [f32; 4],
+    cam_f: [f32; 4],
+    cam_r: [f32; 4],
+    cam_u: [f32; 4],
+    sun_dir: [f32; 4],
+    sun_rad: [f32; 4],
+    env: [f32; 4],
+    material: [f32; 4],
+    size: [u32; 4],
+    seed: [u32; 4],
+    est: [u32; 4],
+}
+
+/// The transport estimator of a GPU render (the CPU's `rm@STEP`, `delta`, `ratio`, `pins`,
+/// `pinms`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GpuEstimator {
+    /// Ray marching, midpoint rule, step `rel_step` (in `(0, 1]`) times the longest edge of
+    /// each density's box. Needs a density on every medium.
+    RayMarching { rel_step: f64 },
+    /// Delta tracking for both queries. Needs a density and majorants on every medium.
+    DeltaTracking,
+    /// Ratio tracking for transmittance, delta tracking for distances. Needs a density and
+    /// majorants on every medium.
+    RatioTracking,
+    /// The pin grid for every query. Needs pins on every medium.
+    Pins,
+    /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
+    /// first scattering event. Needs pins, a density and majorants on every medium.
+    PinMs,
+}
+
+/// Estimator codes of `render.wgsl`.
+const EST_MARCH: u32 = 0;
+const EST_DELTA: u32 = 1;
+const EST_RATIO: u32 = 2;
+const EST_PINS: u32 = 3;
+
+impl GpuEstimator {
+    /// Parses the names the CLI and the evaluation use: `rm@STEP`, `delta`, `ratio`, `pins`,
+    /// `pinms`.
+    pub fn parse(name: &str) -> Option<Self> {
+        Some(match name {
+            "delta" => Self::DeltaTracking,
+            "ratio" => Self::RatioTracking,
+            "pins" => Self::Pins,
+            "pinms" => Self::PinMs,
+            s => {
+                let rel_step: f64 = s.strip_prefix("rm@")?.parse().ok()?;
+                Self::RayMarching { rel_step }
+            }
+        })
+    }
+
+    /// The name [`GpuEstimator::parse`] reads.
+    pub fn name(self) -> String {
+        match self {
+            Self::RayMarching { rel_step } => format!("rm@{rel_step}"),
+            Self::DeltaTracking => "delta".into(),
+            Self::RatioTracking => "ratio".into(),
+            Self::Pins => "pins".into(),
+            Self::PinMs => "pinms".into(),
+        }
+    }
+
+    /// (primary, secondary) codes.
+    fn kinds(self) -> (u32, u32) {
+        match self {
+            Self::RayMarching { .. } => (EST_MARCH, EST_MARCH),
+            Self::DeltaTracking => (EST_DELTA, EST_DELTA),
+            Self::RatioTracking => (EST_RATIO, EST_RATIO),
+            Self::Pins => (EST_PINS, EST_PINS),
+            Self::PinMs => (EST_RATIO, EST_PINS),
+        }
+    }
+
+    fn rel_step(self) -> f64 {
+        match self {
+            Self::RayMarching { rel_step } => rel_step,
+            _ => 0.0,
+        }
+    }
+
+    /// What every medium must have for this estimator.
+    fn needs(self) -> media::Caps {
+        let (p, s) = self.kinds();
+        let any = |code: u32| p == code || s == code;
+        media::Caps {
+            pins: any(EST_PINS),
+            density: any(EST_MARCH) || any(EST_DELTA) || any(EST_RATIO),
+            majorants: any(EST_DELTA) || any(EST_RATIO),
+        }
+    }
+
+    fn validate(self) -> Result<(), RenderError> {
+        if let Self::RayMarching { rel_step } = self
+            && !(rel_step > 0.0 && rel_step <= 1.0)
+        {
+            return Err(RenderError::Invalid {
+                what: "ray marching step",
+                why: format!("relative step {rel_step} must be in (0, 1]"),
+            });
+        }
+        Ok(())
+    }
+}
+
+fn gpu_err(what: &str, e: impl std::fmt::Display) -> Error {
+    Error::Gpu(format!("{what}: {e}"))
+}
+
+/// A scene's media on the GPU with the compiled path-tracing pipeline.
+pub struct GpuRenderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    limits: wgpu::Limits,
+    pipeline: wgpu::ComputePipeline,
+    grid_group: wgpu::BindGroup,
+    render_layout: wgpu::BindGroupLayout,
+    grids: wgpu::Buffer,
+    records: wgpu::Buffer,
+    data: wgpu::Buffer,
+    caps: Vec<media::Caps>,
+    pin_bytes: u64,
+}
+
+impl std::fmt::Debug for GpuRenderer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("GpuRenderer")
+            .field("media", &self.caps.len())
+            .field("pin_bytes", &self.pin_bytes)
+            .finish()
+    }
+}
+
+fn uniform_entry(binding: u32, dynamic: bool, size: u64) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Uniform,
+            has_dynamic_offset: dynamic,
+            min_binding_size: wgpu::BufferSize::new(size),
+        },
+        count: None,
+    }
+}
+
+fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+impl GpuRenderer {
+    /// Uploads `grid` (placed by the file's `local_to_world`, no lookup jitter) as the only
+    /// medium, for [`GpuEstimator::Pins`], and compiles the path tracer.
+    pub fn new(ctx: &GpuContext, grid: &PinGrid) -> crate::Result<Self> {
+        Self::with_options(ctx, grid, None, SamplerOptions::default())
+    }
+
+    /// One pin grid as the only medium, with an optional `local_to_world` override and lookup
+    /// options (as [`crate::gpu::GpuPinGrid::upload_with`]).
+    pub fn with_options(
+        ctx: &GpuContext,
+        grid: &PinGrid,
+        local_to_world: Option<&[f64; 12]>,
+        options: SamplerOptions,
+    ) -> crate::Result<Self> {
+        Self::with_media(ctx, &GpuMedia::pins_only(grid, local_to_world, options))
+    }
+
+    /// Uploads a scene's media (pin grids, densities, majorants, instances) and compiles the
+    /// path tracer. Errors: an index out of range, a placement that is not invertible, a
+    /// buffer larger than the device binds, a GPU failure.
+    pub fn with_media(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
+        pollster::block_on(Self::create(ctx, media))
+    }
+
+    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
+        let limit = ctx
+            .limits
+            .max_storage_buffer_binding_size
+            .min(ctx.limits.max_buffer_size);
+        let packed = media::pack(media, limit)?;
+
+        let dev = &ctx.device;
+        let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
+        // wgpu refuses zero-sized bindings: an absent section binds a small dummy.
+        let dummy = [0u8; 256];
+        let storage = |label: &str, contents: &[u8]| {
+            dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: if contents.is_empty() {
+                    &dummy
+                } else {
+                    contents
+                },
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let pins = storage("render pins", &packed.pins);
+        let index = storage("render cell index", &packed.index);
+        let grids = storage(
+            "render grid parameters",
+            bytemuck::cast_slice(&packed.grid_params),
+        );
+        let records = storage("render media", bytemuck::cast_slice(&packed.records));
+        let data = storage("render density data", bytemuck::cast_slice(&packed.data));
+        // pin.wgsl's own uniform (binding 0) is not read by the path tracer.
+        let grid_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("render grid params (unused)"),
+            contents: &[0u8; size_of::<media::GridParams>()],
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let grid_layout = dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render grid"),
+            entries: &[
+                uniform_entry(0, false, size_of::<media::GridParams>() as u64),
+                storage_entry(1, true),
+                storage_entry(2, true),
+            ],
+        });
+        let render_layout = dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("render scene"),
+            entries: &[
+                uniform_entry(0, false, size_of::<RtParams>() as u64),
+                uniform_entry(1, true, 16),
+                storage_entry(2, false),
+                storage_entry(3, true),
+                storage_entry(4, true),
+                storage_entry(5, true),
+            ],
+        });
+        let grid_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("render grid"),
+            layout: &grid_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: grid_uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: pins.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: index.as_entire_binding(),
+                },
+            ],
+        });
+        let layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("render"),
+            bind_group_layouts: &[Some(&grid_layout), Some(&render_layout)],
+            immediate_size: 0,
+        });
+        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("pin.wgsl + render.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(RENDER_WGSL.into()),
+        });
+        let pipeline = dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("render"),
+            layout: Some(&layout),
+            module: &module,
+            entry_point: Some("render_main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        if let Some(e) = scope.pop().await {
+            return Err(gpu_err("compiling shaders/render.wgsl", e));
+        }
+        Ok(Self {
+            device: ctx.device.clone(),
+            queue: ctx.queue.clone(),
+            limits: ctx.limits.clone(),
+            pipeline,
+            grid_group,
+            render_layout,
+            grids,
+            records,
+            data,
+            caps: packed.caps,
+            pin_bytes: packed.pins.len() as u64,
+        })
+    }
+
+    /// Number of media instances.
+    pub fn media_count(&self) -> usize {
+        self.caps.len()
+    }
+
+    /// Checks that every medium has what `estimator` queries.
+    fn check_estimator(&self, estimator: GpuEstimator) -> Result<(), RenderError> {
+        estimator.validate()?;
+        let need = estimator.needs();
+        for (i, c) in self.caps.iter().enumerate() {
+            let missing = [
+                (need.pins && !c.pins, "a pin grid"),
+                (need.density && !c.density, "a density"),
+                (need.majorants && !c.majorants, "a majorant grid"),
+            ];
+            if let Some((_, what)) = missing.iter().find(|(m, _)| *m) {
+                return Err(RenderError::Invalid {
+                    what: "estimator",
+                    why: format!(
+                        "{} needs {what} on every medium; medium {i} has none",
+                        estimator.name()
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Renders `spp` samples per pixel (one pass each) with `estimator` and seed `seed`. The
+    /// same inputs give the same image bits. Errors: an invalid scene (the CPU renderer's
+    /// checks: zero-size image, NaN camera, `g` outside `(-1, 1)`, albedo outside `[0, 1]`,
+    /// bad radiance), an estimator that needs what some medium lacks (pins, a density,
+    /// majorants) or a ray-marching step outside `(0, 1]`, `spp == 0`, `max_bounces > MAX_GPU_BOUNCES`, an image too large for one dispatch or
+    /// one storage buffer, or a GPU failure.
+    pub fn render(
+        &self,
+        scene: &GpuScene,
+        estimator: GpuEstimator,
+        spp: u32,
+        seed: u64,
+    ) -> Result<Image, GpuRenderError> {
+        scene.validate()?;
+        self.check_estimator(estimator)?;
+        if spp == 0 {
+            return Err(RenderError::Invalid {
+                what: "budget",
+                why: "0 samples per pixel".into(),
+            }
+            .into());
+        }
+        let (w, h) = (scene.camera.width, scene.camera.height);
+        let gx = w.div_ceil(WORKGROUP[0]);
+        let gy = h.div_ceil(WORKGROUP[1]);
+        let max_groups = self.limits.max_compute_workgroups_per_dimension;
+        if gx > max_groups || gy > max_groups {
+            return Err(Error::Gpu(format!(
+                "image {w}x{h} needs {gx}x{gy} workgroups, more than this device dispatches \
+                 ({max_groups} per dimension)"
+            ))
+            .into());
+        }
+        let pixels = u64::from(w) * u64::from(h);
+        let accum_size = pixels * 32;
+        let limit = self
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.limits.max_buffer_size);
+        if accum_size > limit {
+            return Err(Error::Gpu(format!(
+                "image {w}x{h} needs a {accum_size}-byte accumulation buffer, more than this \
+                 device binds ({limit} bytes)"
+            ))
+            .into());
+        }
+        let media = u32::try_from(self.caps.len())
+            .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
+        let params = scene.params(seed, estimator, media);
+        Ok(pollster::block_on(
+            self.run(&params, gx, gy, spp, accum_size, w, h),
+        )?)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    async fn run(
+        &self,
+        params: &RtParams,
+        gx: u32,
+        gy: u32,
+        spp: u32,
+        accum_size: u64,
+        width: u32,
+        height: u32,
+    ) -> crate::Result<Image> {
+        let dev = &self.device;
+        let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
+        let scene_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("render scene params"),
+            contents: bytemuck::bytes_of(params),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        // Zero-initialised by wgpu.
+        let accum = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("render accumulation"),
+            size: accum_size,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let stride = u64::from(self.limits.min_uniform_buffer_offset_alignment).max(16);
+        let mut first = 0u32;
+        while first < spp {
+            let count = (spp - first).min(PASSES_PER_SUBMIT);
+            let mut pass_data = vec![0u8; (stride * u64::from(count)) as usize];
+            for k in 0..count {
+                let at = (stride * u64::from(k)) as usize;
+                pass_data[at..at + 4].copy_from_slice(&(first + k).to_le_bytes());
+            }
+            let pass_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("render pass indices"),
+                contents: &pass_data,
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+            let group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("render scene"),
+                layout: &self.render_layout,
+                entries: &[
+                    wgpu::BindGroupEntry {
+                        binding: 0,
+                        resource: scene_uniform.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 1,
+                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                            buffer: &pass_uniform,
+                            offset: 0,
+                            size: wgpu::BufferSize::new(16),
+                        }),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 2,
+                        resource: accum.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 3,
+                        resource: self.grids.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 4,
+                        resource: self.records.as_entire_binding(),
+                    },
+                    wgpu::BindGroupEntry {
+                        binding: 5,
+                        resource: self.data.as_entire_binding(),
+                    },
+                ],
+            });
+            let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("render passes"),
+            });
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("render passes"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &self.grid_group, &[]);
+                for k in 0..count {
+                    pass.set_bind_group(1, &group, &[(stride * u64::from(k)) as u32]);
+                    pass.dispatch_workgroups(gx, gy, 1);
+                }
+            }
+            self.queue.submit([enc.finish()]);
+            first += count;
+        }
+        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("render readback"),
+            size: accum_size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("render readback"),
+        });
+        enc.copy_buffer_to_buffer(&accum, 0, &staging, 0, accum_size);
+        self.queue.submit([enc.finish()]);
+        let (tx, rx) = mpsc::channel();
+        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        dev.poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| gpu_err("poll", e))?;
+        if let Some(e) = scope.pop().await {
+            return Err(gpu_err("render dispatch", e));
+        }
+        rx.recv()
+            .map_err(|e| gpu_err("readback", e))?
+            .map_err(|e| gpu_err("readback", e))?;
+        let view = staging
+            .slice(..)
+            .get_mapped_range()
+            .map_err(|e| gpu_err("readback", e))?;
+        let sums = bytemuck::pod_collect_to_vec::<u8, [f32; 8]>(&view);
+        drop(view);
+        staging.unmap();
+        let inv = 1.0 / f64::from(spp);
+        let rgb = sums
+            .iter()
+            .map(|s| {
+                // Kahan: the compensation holds what the running sum over-counted.
+                std::array::from_fn(|c| ((f64::from(s[c]) - f64::from(s[4 + c])) * inv) as f32)
+            })
+            .collect();
+        Ok(Image { width, height, rgb })
+    }
+}
+
+#[cfg(test)]
+mod tests;

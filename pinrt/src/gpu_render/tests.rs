@@ -1,0 +1,460 @@
+//! CPU/GPU agreement of the path tracer, determinism, input checks, timing.
+use super::*;
+use crate::render::{Budget, Medium, Pcg32, RenderSettings, TransportEstimator, render};
+use crate::{Ray, Rng, Sampler};
+use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
+use std::sync::Arc;
+use std::time::Instant;
+
+fn context() -> GpuContext {
+    GpuContext::new().unwrap_or_else(|e| {
+        panic!(
+            "GPU render tests need a working wgpu adapter: {e}\n\
+             (this test fails rather than skips so that a missing driver is noticed)"
+        )
+    })
+}
+
+/// The pin estimator for the CPU renderer: each query is seeded from two draws of the
+/// path generator, `Rng::for_query(a, b)`, as the GPU seeds its queries.
+struct PinsEstimator {
+    sampler: Sampler<'static>,
+}
+
+impl TransportEstimator for PinsEstimator {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        let (a, b) = (rng.next_u32(), rng.next_u32());
+        let ray = Ray::new(o.to_array(), d.to_array());
+        self.sampler
+            .sample_distance(&ray, t_max, &mut Rng::for_query(a, b))
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        let (a, b) = (rng.next_u32(), rng.next_u32());
+        let ray = Ray::new(o.to_array(), d.to_array());
+        self.sampler
+            .transmittance(&ray, t_max, &mut Rng::for_query(a, b))
+    }
+    fn name(&self) -> String {
+        "pins".into()
+    }
+}
+
+/// A blob-shaped pin grid over the world box `[-1, 1]^3`: denser pins towards the centre
+/// (more ratio bits, smaller `t_min`), random bits.
+fn blob_grid(cells: u32, directions: Directions, ppe: u32, strength: f32) -> OwnedPinGrid {
+    let mut rng = Rng::for_query(0xB10B, cells);
+    let block = directions.count() * ppe;
+    let mut pins = Vec::new();
+    for z in 0..cells {
+        for y in 0..cells {
+            for x in 0..cells {
+                let c = [x, y, z].map(|i| (i as f32 + 0.5) / cells as f32 * 2.0 - 1.0);
+                let r2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+                let rho = 0.05 + 0.95 * (1.0 - r2).max(0.0);
+                for _ in 0..block {
+                    let t_min = (-strength * rho * (0.5 + rng.next_f32())).exp();
+                    let p = 0.3 + 0.6 * rho;
+                    let mut mask = 0u32;
+                    for b in 0..32 {
+                        if rng.next_f32() < p {
+                            mask |= 1 << b;
+                        }
+                    }
+                    if t_min >= 1.0 {
+                        mask = 0;
+                    }
+                    pins.push(PinEntry { mask, t_min });
+                }
+            }
+        }
+    }
+    let mut desc = grid_desc([cells; 3], directions, ppe, u64::from(cells.pow(3)));
+    desc.box_min = [-1.0; 3];
+    desc.box_max = [1.0; 3];
+    desc.source_box_min = [-1.0; 3];
+    desc.source_box_max = [1.0; 3];
+    OwnedPinGrid {
+        desc,
+        tile: None,
+        cell_index: None,
+        pins,
+        majorant: None,
+        density: None,
+        metadata: None,
+    }
+}
+
+fn load(owned: &OwnedPinGrid) -> &'static PinGrid {
+    // Leaked: the CPU estimator needs a 'static sampler; a test grid is small.
+    Box::leak(Box::new(
+        PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap(),
+    ))
+}
+
+fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
+    GpuScene {
+        camera: Camera {
+            origin: [0.4, 0.6, 3.5],
+            target: [0.0, 0.0, 0.0],
+            vfov_deg: 40.0,
+            width: size,
+            height: size,
+        },
+        // Behind the medium as seen from the camera: forward scattering lights it.
+        sun: Some(Sun {
+            dir: [0.3, 0.5, -1.0],
+            radiance: [3.0, 2.5, 2.0],
+        }),
+        env_radiance: [0.2, 0.3, 0.5],
+        albedo,
+        g,
+        max_bounces,
+    }
+}
+
+fn cpu_render(
+    grid: &'static PinGrid,
+    scene: &GpuScene,
+    spp: u32,
+    seed: u64,
+    threads: Option<usize>,
+) -> (Image, f64) {
+    let est: Arc<dyn TransportEstimator> = Arc::new(PinsEstimator {
+        sampler: grid.sampler().unwrap(),
+    });
+    let settings = RenderSettings {
+        max_bounces: scene.max_bounces,
+        seed,
+        budget: Budget::Spp(spp),
+        threads,
+        cache: None,
+    };
+    let out = render(&scene.to_scene(vec![Medium::single(est)]), &settings).unwrap();
+    (out.image, out.seconds)
+}
+
+/// Per-pixel grey value (mean of the channels).
+fn grey(p: [f32; 3]) -> f64 {
+    (f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2])) / 3.0
+}
+
+/// Mean and variance of the mean of each pixel over independent replicate images, and
+/// the same for the image mean.
+struct Stats {
+    mean: Vec<f64>,
+    var_mean: Vec<f64>,
+    image_mean: f64,
+    image_var_mean: f64,
+}
+
+fn stats(images: &[Image]) -> Stats {
+    let r = images.len() as f64;
+    let n = images[0].rgb.len();
+    let mut mean = vec![0.0; n];
+    let mut var_mean = vec![0.0; n];
+    for i in 0..n {
+        let v: Vec<f64> = images.iter().map(|im| grey(im.rgb[i])).collect();
+        let m = v.iter().sum::<f64>() / r;
+        let var = v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (r - 1.0);
+        mean[i] = m;
+        var_mean[i] = var / r;
+    }
+    let means: Vec<f64> = images
+        .iter()
+        .map(|im| im.rgb.iter().map(|&p| grey(p)).sum::<f64>() / n as f64)
+        .collect();
+    let im = means.iter().sum::<f64>() / r;
+    let iv = means.iter().map(|x| (x - im) * (x - im)).sum::<f64>() / (r - 1.0) / r;
+    Stats {
+        mean,
+        var_mean,
+        image_mean: im,
+        image_var_mean: iv,
+    }
+}
+
+/// `replicates` independent renders of `spp` samples on each side; per-pixel z-scores of
+/// the difference of the means (variance of each mean estimated from its replicates) and
+/// the z-score of the image means: at most `max_exceed` pixels beyond `|z| = z_pixel`.
+/// Returns the GPU and CPU statistics.
+fn compare(
+    name: &str,
+    renderer: &GpuRenderer,
+    grid: &'static PinGrid,
+    scene: &GpuScene,
+    replicates: u64,
+    spp: u32,
+    bounds: (f64, usize),
+) -> (Stats, Stats) {
+    compare_with(
+        name,
+        |k| {
+            renderer
+                .render(scene, GpuEstimator::Pins, spp, 1000 + k)
+                .unwrap()
+        },
+        |k| cpu_render(grid, scene, spp, 5000 + k, None).0,
+        replicates,
+        spp,
+        bounds,
+    )
+}
+
+/// [`compare`] for any pair of renderers: `gpu(k)` and `cpu(k)` render replicate `k` (with
+/// distinct seeds).
+fn compare_with(
+    name: &str,
+    gpu: impl Fn(u64) -> Image,
+    cpu: impl Fn(u64) -> Image,
+    replicates: u64,
+    spp: u32,
+    (z_pixel, max_exceed): (f64, usize),
+) -> (Stats, Stats) {
+    let gpu: Vec<Image> = (0..replicates).map(gpu).collect();
+    let cpu: Vec<Image> = (0..replicates).map(cpu).collect();
+    let (g, c) = (stats(&gpu), stats(&cpu));
+    let mut exceed = 0;
+    let mut max_z = 0.0f64;
+    let mut constant_pixels = 0;
+    for i in 0..g.mean.len() {
+        let diff = g.mean[i] - c.mean[i];
+        let var = g.var_mean[i] + c.var_mean[i];
+        if var == 0.0 {
+            // Rays that miss the medium: both sides give the same constant.
+            constant_pixels += 1;
+            assert!(
+                diff.abs() <= 1e-6 * c.mean[i].abs().max(1e-3),
+                "[{name}] pixel {i}: constant values differ: gpu {} cpu {}",
+                g.mean[i],
+                c.mean[i]
+            );
+            continue;
+        }
+        let z = diff / var.sqrt();
+        max_z = max_z.max(z.abs());
+        if z.abs() > z_pixel {
+            exceed += 1;
+        }
+    }
+    let pixel_ratio = g.var_mean.iter().sum::<f64>() / c.var_mean.iter().sum::<f64>();
+    let n2 = (g.mean.len() * g.mean.len()) as f64;
+    let correlation = g.image_var_mean / (g.var_mean.iter().sum::<f64>() / n2);
+    let z_image = (g.image_mean - c.image_mean) / (g.image_var_mean + c.image_var_mean).sqrt();
+    eprintln!(
+        "[{name}] {} x {spp} spp per side: image mean gpu {:.6} +- {:.6}, cpu {:.6} +- \
+         {:.6}, z = {z_image:.2}; pixels: {} ({constant_pixels} constant), |z| > \
+         {z_pixel}: {exceed}, max |z| {max_z:.2}; variance ratio gpu/cpu: pixels \
+         {pixel_ratio:.3}, image mean {:.2}; gpu image-mean variance / independent-pixel \
+         prediction {correlation:.2}",
+        replicates,
+        g.image_mean,
+        g.image_var_mean.sqrt(),
+        c.image_mean,
+        c.image_var_mean.sqrt(),
+        g.mean.len(),
+        g.image_var_mean / c.image_var_mean,
+    );
+    assert!(
+        z_image.abs() < 4.0,
+        "[{name}] image means differ: z = {z_image}"
+    );
+    // Same estimator, same per-sample variance.
+    assert!(
+        (0.8..1.25).contains(&pixel_ratio),
+        "[{name}] per-pixel variance ratio gpu/cpu {pixel_ratio}"
+    );
+    // Independent pixels: the image mean's variance is the sum of the pixels' (a
+    // correlated GPU random stream would inflate it).
+    assert!(
+        correlation < 2.0,
+        "[{name}] gpu pixels look correlated: image-mean variance {correlation} x the \
+         independent prediction"
+    );
+    assert!(
+        exceed <= max_exceed,
+        "[{name}] {exceed} pixels beyond |z| {z_pixel} (allowed {max_exceed})"
+    );
+    (g, c)
+}
+
+#[test]
+fn albedo_zero_matches_cpu_transmittance() {
+    let ctx = context();
+    let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
+    let grid = load(&owned);
+    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let sc = scene(32, 0.0, 0.0, 4);
+    // 32 replicates x 2 spp = 64 spp per side.
+    let (g, _) = compare("albedo 0", &renderer, grid, &sc, 32, 2, (4.5, 3));
+    // env * E[T]: never above env, and the medium is visible.
+    let env = grey(sc.env_radiance);
+    let lo = g.mean.iter().cloned().fold(f64::INFINITY, f64::min);
+    let hi = g.mean.iter().cloned().fold(0.0, f64::max);
+    assert!(hi <= env * (1.0 + 1e-6), "{hi} > env {env}");
+    assert!(lo < 0.5 * env, "medium not visible: darkest pixel {lo}");
+    // Per channel the image is env * T: the channels are proportional.
+    let img = renderer.render(&sc, GpuEstimator::Pins, 8, 3).unwrap();
+    for p in &img.rgb {
+        let t = p[0] / sc.env_radiance[0];
+        assert!((0.0..=1.0 + 1e-6).contains(&t));
+        assert!((p[2] - t * sc.env_radiance[2]).abs() <= 1e-5, "{p:?}");
+    }
+}
+
+#[test]
+fn scattering_matches_cpu() {
+    let ctx = context();
+    let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
+    let grid = load(&owned);
+    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    // Sun + environment, forward scattering, 4 bounces.
+    let sc = scene(32, 0.9, 0.6, 4);
+    let (g, _) = compare(
+        "albedo 0.9, g 0.6, 4 bounces",
+        &renderer,
+        grid,
+        &sc,
+        32,
+        2,
+        (4.5, 10),
+    );
+    // The transmitted environment alone (albedo 0) is darker.
+    let g0 = stats(&[
+        renderer
+            .render(&scene(32, 0.0, 0.6, 4), GpuEstimator::Pins, 16, 7)
+            .unwrap(),
+        renderer
+            .render(&scene(32, 0.0, 0.6, 4), GpuEstimator::Pins, 16, 8)
+            .unwrap(),
+    ]);
+    assert!(g.image_mean > g0.image_mean, "scattering must add light");
+    // Sun only, backward scattering, single scattering: checks the phase convention.
+    let mut sun_only = scene(32, 0.8, -0.5, 1);
+    sun_only.env_radiance = [0.0; 3];
+    sun_only.sun = Some(Sun {
+        dir: [-0.5, 0.2, 1.0],
+        radiance: [4.0, 3.0, 2.0],
+    });
+    compare(
+        "sun only, g -0.5, 1 bounce",
+        &renderer,
+        grid,
+        &sun_only,
+        32,
+        2,
+        (4.5, 10),
+    );
+}
+
+#[test]
+fn deterministic_and_checked() {
+    let ctx = context();
+    let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
+    let grid = load(&owned);
+    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let sc = scene(32, 0.9, 0.3, 4);
+    let a = renderer.render(&sc, GpuEstimator::Pins, 5, 42).unwrap();
+    let b = renderer.render(&sc, GpuEstimator::Pins, 5, 42).unwrap();
+    let bits =
+        |im: &Image| -> Vec<u32> { im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect() };
+    assert_eq!(bits(&a), bits(&b), "same seed, different bits");
+    let c = renderer.render(&sc, GpuEstimator::Pins, 5, 43).unwrap();
+    assert_ne!(bits(&a), bits(&c), "the seed must matter");
+    // Odd sizes (partial workgroups) and more passes than one submission holds.
+    let mut odd = scene(13, 0.9, 0.3, 2);
+    odd.camera.height = 7;
+    let spp = PASSES_PER_SUBMIT + 44;
+    let x = renderer
+        .render(&odd, GpuEstimator::Pins, spp, u64::MAX)
+        .unwrap();
+    let y = renderer
+        .render(&odd, GpuEstimator::Pins, spp, u64::MAX)
+        .unwrap();
+    assert_eq!((x.width, x.height, x.rgb.len()), (13, 7, 91));
+    assert_eq!(bits(&x), bits(&y));
+    assert!(x.rgb.iter().flatten().all(|c| c.is_finite() && *c >= 0.0));
+
+    // Bad input is an error, never a panic.
+    let bad = |f: &dyn Fn(&mut GpuScene)| {
+        let mut s = scene(8, 0.5, 0.0, 2);
+        f(&mut s);
+        let r = renderer.render(&s, GpuEstimator::Pins, 1, 0);
+        assert!(matches!(r, Err(GpuRenderError::Invalid(_))), "{r:?}");
+    };
+    bad(&|s| s.camera.width = 0);
+    bad(&|s| s.camera.height = 0);
+    bad(&|s| s.camera.origin[0] = f32::NAN);
+    bad(&|s| s.camera.target = s.camera.origin);
+    bad(&|s| s.camera.vfov_deg = 180.0);
+    bad(&|s| s.g = 1.0);
+    bad(&|s| s.g = f32::NAN);
+    bad(&|s| s.albedo = 1.5);
+    bad(&|s| s.env_radiance[1] = -1.0);
+    bad(&|s| {
+        s.sun = Some(Sun {
+            dir: [0.0; 3],
+            radiance: [1.0; 3],
+        })
+    });
+    bad(&|s| s.max_bounces = MAX_GPU_BOUNCES + 1);
+    assert!(matches!(
+        renderer.render(&scene(8, 0.5, 0.0, 2), GpuEstimator::Pins, 0, 0),
+        Err(GpuRenderError::Invalid(_))
+    ));
+    // No lights: black, not NaN.
+    let mut dark = scene(8, 0.5, 0.0, 2);
+    dark.sun = None;
+    dark.env_radiance = [0.0; 3];
+    let img = renderer.render(&dark, GpuEstimator::Pins, 2, 0).unwrap();
+    assert!(img.rgb.iter().flatten().all(|&c| c == 0.0));
+}
+
+/// Timing for docs/gpu.md: `cargo test -p pinrt --features render
+/// gpu_render::tests::measure -- --ignored --nocapture`.
+#[test]
+#[ignore = "timing run for docs/gpu.md"]
+fn measure() {
+    let ctx = context();
+    let owned = blob_grid(16, Directions::Octahedral { n: 8 }, 1, 0.25);
+    let grid = load(&owned);
+    eprintln!(
+        "adapter: {}; grid 16^3 x octahedral 8x8 x 1 pin = {} bytes",
+        ctx.describe(),
+        grid.pins_bytes().len()
+    );
+    let t = Instant::now();
+    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    eprintln!(
+        "GpuRenderer::new (upload + shader compile): {:.3} s",
+        t.elapsed().as_secs_f64()
+    );
+    for (label, sc) in [
+        ("albedo 0 (env * T)", scene(128, 0.0, 0.6, 4)),
+        (
+            "albedo 0.9, g 0.6, 4 bounces, sun + env",
+            scene(128, 0.9, 0.6, 4),
+        ),
+    ] {
+        renderer.render(&sc, GpuEstimator::Pins, 1, 0).unwrap(); // warm-up
+        let best = |f: &dyn Fn() -> Image| {
+            (0..5)
+                .map(|_| {
+                    let t = Instant::now();
+                    let im = f();
+                    (t.elapsed().as_secs_f64(), im)
+                })
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .unwrap()
+        };
+        let (tg, gi) = best(&|| renderer.render(&sc, GpuEstimator::Pins, 16, 1).unwrap());
+        let (t1, c1) = best(&|| cpu_render(grid, &sc, 16, 1, Some(1)).0);
+        let (t2, _) = best(&|| cpu_render(grid, &sc, 16, 1, Some(2)).0);
+        let mean = |im: &Image| im.rgb.iter().map(|&p| grey(p)).sum::<f64>() / im.rgb.len() as f64;
+        eprintln!(
+            "[{label}] 128x128 x 16 spp (best of 5): gpu {tg:.3} s, cpu 1 thread {t1:.3} s, \
+             cpu 2 threads {t2:.3} s; image mean gpu {:.7} cpu {:.7}",
+            mean(&gi),
+            mean(&c1)
+        );
+    }
+}
