@@ -1,6 +1,8 @@
 //! CPU/GPU agreement of the path tracer, determinism, input checks, timing.
 use super::*;
-use crate::render::{Budget, Medium, Pcg32, RenderSettings, TransportEstimator, render};
+use crate::render::{
+    Budget, MajorantGrid, Medium, Pcg32, RenderSettings, TransportEstimator, VoxelGrid, render,
+};
 use crate::{Ray, Rng, Sampler};
 use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
 use std::sync::Arc;
@@ -457,4 +459,359 @@ fn measure() {
             mean(&c1)
         );
     }
+}
+
+// ---------------------------------------------------------------------------------------
+// Several media, densities, the trackers, ray marching and PinMS
+// ---------------------------------------------------------------------------------------
+
+/// Instance translations of the multi-medium tests: overlapping copies of one blob.
+const OFFSETS: [[f64; 3]; 3] = [[0.0, 0.0, 0.0], [0.7, 0.25, -0.3], [-0.55, 0.6, 0.45]];
+
+/// A `n^3` voxel blob over `[-1, 1]^3` (peak extinction `sigma`), the project's convention.
+fn blob_voxels(n: u32, sigma: f32) -> Vec<f32> {
+    let mut v = Vec::with_capacity((n * n * n) as usize);
+    for z in 0..n {
+        for y in 0..n {
+            for x in 0..n {
+                let c = [x, y, z].map(|i| (i as f32 + 0.5) / n as f32 * 2.0 - 1.0);
+                let r2 = c[0] * c[0] + c[1] * c[1] + c[2] * c[2];
+                let ripple = 1.0 + 0.5 * (7.0 * c[0]).sin() * (5.0 * c[1]).cos();
+                v.push(sigma * (1.0 - r2).max(0.0).powi(2) * ripple);
+            }
+        }
+    }
+    v
+}
+
+/// Both sides of a multi-medium scene: the CPU media per estimator name and the GPU media.
+struct MultiScene {
+    grid: &'static PinGrid,
+    fields: Vec<Arc<VoxelGrid>>,
+    majorants: Vec<Arc<MajorantGrid>>,
+    samplers: Vec<Arc<dyn TransportEstimator>>,
+    base: VoxelGrid,
+}
+
+impl MultiScene {
+    fn new() -> Self {
+        let n = 12;
+        let values = blob_voxels(n, 6.0);
+        let spacing = [2.0 / n as f64; 3];
+        let base = VoxelGrid::new([n; 3], [-1.0; 3], spacing, values.clone()).unwrap();
+        let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
+        let grid = load(&owned);
+        let mut fields = Vec::new();
+        let mut majorants = Vec::new();
+        let mut samplers: Vec<Arc<dyn TransportEstimator>> = Vec::new();
+        for off in OFFSETS {
+            let origin = [0, 1, 2].map(|a| -1.0 + off[a]);
+            let f = Arc::new(VoxelGrid::new([n; 3], origin, spacing, values.clone()).unwrap());
+            majorants.push(Arc::new(MajorantGrid::from_field(&*f, [4, 4, 4]).unwrap()));
+            fields.push(f);
+            let m = translated_identity(off);
+            samplers.push(Arc::new(PinsEstimator {
+                sampler: Sampler::with_local_to_world(grid, &m).unwrap(),
+            }));
+        }
+        MultiScene {
+            grid,
+            fields,
+            majorants,
+            samplers,
+            base,
+        }
+    }
+
+    fn cpu_media(&self, est: GpuEstimator) -> Vec<Medium> {
+        (0..OFFSETS.len())
+            .map(|k| {
+                let f = self.fields[k].clone();
+                let maj = self.majorants[k].clone();
+                let ratio: Arc<dyn TransportEstimator> =
+                    Arc::new(crate::render::RatioTracking::new(f.clone(), maj.clone()));
+                match est {
+                    GpuEstimator::RayMarching { rel_step } => Medium::single(Arc::new(
+                        crate::render::RayMarching::new(f, rel_step).unwrap(),
+                    )),
+                    GpuEstimator::DeltaTracking => {
+                        Medium::single(Arc::new(crate::render::DeltaTracking::new(f, maj)))
+                    }
+                    GpuEstimator::RatioTracking => Medium::single(ratio),
+                    GpuEstimator::Pins => Medium::single(self.samplers[k].clone()),
+                    GpuEstimator::PinMs => Medium::new(ratio, self.samplers[k].clone()),
+                }
+            })
+            .collect()
+    }
+
+    fn gpu_media(&self) -> GpuMedia<'static> {
+        GpuMedia {
+            grids: vec![self.grid],
+            densities: vec![GpuDensity::from_voxel_grid(&self.base)],
+            media: (0..OFFSETS.len())
+                .map(|k| GpuMedium {
+                    pins: Some(GpuPins {
+                        grid: 0,
+                        local_to_world: Some(translated_identity(OFFSETS[k])),
+                        options: SamplerOptions::default(),
+                    }),
+                    density: Some(GpuPlacedDensity {
+                        density: 0,
+                        translation: OFFSETS[k],
+                        majorants: Some(self.majorants[k].clone()),
+                    }),
+                })
+                .collect(),
+        }
+    }
+}
+
+fn translated_identity(off: [f64; 3]) -> [f64; 12] {
+    [
+        1.0, 0.0, 0.0, off[0], 0.0, 1.0, 0.0, off[1], 0.0, 0.0, 1.0, off[2],
+    ]
+}
+
+fn cpu_render_media(media: Vec<Medium>, scene: &GpuScene, spp: u32, seed: u64) -> Image {
+    let settings = RenderSettings {
+        max_bounces: scene.max_bounces,
+        seed,
+        budget: Budget::Spp(spp),
+        threads: None,
+        cache: None,
+    };
+    render(&scene.to_scene(media), &settings).unwrap().image
+}
+
+#[test]
+fn every_estimator_matches_cpu_with_instances() {
+    let ctx = context();
+    let ms = MultiScene::new();
+    let renderer = GpuRenderer::with_media(&ctx, &ms.gpu_media()).unwrap();
+    assert_eq!(renderer.media_count(), 3);
+    let mut sc = scene(24, 0.9, 0.3, 3);
+    sc.camera.origin = [0.5, 0.8, 4.5];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    for est in [
+        GpuEstimator::RayMarching { rel_step: 0.05 },
+        GpuEstimator::DeltaTracking,
+        GpuEstimator::RatioTracking,
+        GpuEstimator::Pins,
+        GpuEstimator::PinMs,
+    ] {
+        let name = format!("3 instances, {}", est.name());
+        compare_with(
+            &name,
+            |k| renderer.render(&sc, est, 2, 100 + k).unwrap(),
+            |k| cpu_render_media(ms.cpu_media(est), &sc, 2, 900 + k),
+            24,
+            2,
+            (4.5, 4),
+        );
+    }
+    // Transmitted environment only: ray marching is deterministic along each ray, so the
+    // two sides differ only by the pixel jitter and f32 (GPU) against f64 (CPU) arithmetic.
+    let mut t_only = sc.clone();
+    t_only.albedo = 0.0;
+    let (g, _) = compare_with(
+        "3 instances, rm@0.02, albedo 0",
+        |k| {
+            renderer
+                .render(
+                    &t_only,
+                    GpuEstimator::RayMarching { rel_step: 0.02 },
+                    2,
+                    7 + k,
+                )
+                .unwrap()
+        },
+        |k| {
+            cpu_render_media(
+                ms.cpu_media(GpuEstimator::RayMarching { rel_step: 0.02 }),
+                &t_only,
+                2,
+                70 + k,
+            )
+        },
+        16,
+        2,
+        (4.5, 3),
+    );
+    let env = grey(t_only.env_radiance);
+    let dark = g.mean.iter().cloned().fold(f64::INFINITY, f64::min);
+    assert!(
+        dark < 0.3 * env,
+        "the media must be visible: darkest {dark}"
+    );
+}
+
+/// The closed-form cosine noise on the GPU against the same formula on the CPU (f64).
+#[test]
+fn cosine_density_matches_cpu() {
+    let ctx = context();
+    let waves = vec![
+        CosineWave {
+            w: [40.0, 3.0, -7.0],
+            amplitude: 0.5,
+            phase: 0.3,
+        },
+        CosineWave {
+            w: [-5.0, 31.0, 12.0],
+            amplitude: 0.3,
+            phase: 2.0,
+        },
+        CosineWave {
+            w: [0.0, 0.0, 0.0],
+            amplitude: 0.2,
+            phase: 1.0,
+        },
+    ];
+    let (lo, hi) = ([-1.0, -0.8, -1.0], [1.0, 0.8, 1.0]);
+    let density = 3.0f32;
+    let gpu_density = GpuDensity::cosine(lo, hi, density, waves.clone()).unwrap();
+    let cpu_waves = waves.clone();
+    let field = Arc::new(crate::render::FnField {
+        min: lo,
+        max: hi,
+        f: move |p: Vec3| {
+            let p = p.as_dvec3();
+            let mut s = 1.0f64;
+            for w in &cpu_waves {
+                let wv = glam::DVec3::from_array(w.w.map(f64::from));
+                s += f64::from(w.amplitude) * (wv.dot(p) + f64::from(w.phase)).cos();
+            }
+            (f64::from(density) * s).max(0.0) as f32
+        },
+    });
+    // Exact majorant: density * (1 + sum |amplitude|).
+    let maj = Arc::new(MajorantGrid::uniform(lo, hi, density * 2.0 * 1.0001).unwrap());
+    let media = GpuMedia {
+        grids: Vec::new(),
+        densities: vec![gpu_density],
+        media: vec![GpuMedium {
+            pins: None,
+            density: Some(GpuPlacedDensity {
+                density: 0,
+                translation: [0.0; 3],
+                majorants: Some(maj.clone()),
+            }),
+        }],
+    };
+    let renderer = GpuRenderer::with_media(&ctx, &media).unwrap();
+    let mut sc = scene(24, 0.85, 0.5, 3);
+    sc.camera.origin = [0.9, 0.7, 3.6];
+    for (est, cpu) in [
+        (
+            GpuEstimator::RayMarching { rel_step: 0.01 },
+            Medium::single(Arc::new(
+                crate::render::RayMarching::new(field.clone(), 0.01).unwrap(),
+            )),
+        ),
+        (
+            GpuEstimator::RatioTracking,
+            Medium::single(Arc::new(crate::render::RatioTracking::new(
+                field.clone(),
+                maj.clone(),
+            ))),
+        ),
+    ] {
+        let name = format!("cosine, {}", est.name());
+        compare_with(
+            &name,
+            |k| renderer.render(&sc, est, 2, 300 + k).unwrap(),
+            |k| cpu_render_media(vec![cpu.clone()], &sc, 2, 3000 + k),
+            24,
+            2,
+            (4.5, 4),
+        );
+    }
+    // Pins are not part of these media: asking for them is an error, not a silent render.
+    let r = renderer.render(&sc, GpuEstimator::PinMs, 1, 0);
+    assert!(matches!(r, Err(GpuRenderError::Invalid(_))), "{r:?}");
+}
+
+#[test]
+fn media_and_estimators_are_checked() {
+    let ctx = context();
+    let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
+    let grid = load(&owned);
+    let sc = scene(8, 0.5, 0.0, 2);
+    // Pins only: every density estimator is refused with the medium named.
+    let pins_only = GpuRenderer::new(&ctx, grid).unwrap();
+    for est in [
+        GpuEstimator::RayMarching { rel_step: 0.1 },
+        GpuEstimator::DeltaTracking,
+        GpuEstimator::RatioTracking,
+        GpuEstimator::PinMs,
+    ] {
+        match pins_only.render(&sc, est, 1, 0) {
+            Err(GpuRenderError::Invalid(e)) => assert!(e.to_string().contains("medium 0"), "{e}"),
+            other => panic!("{est:?}: {other:?}"),
+        }
+    }
+    // A density without majorants: ray marching yes, trackers no.
+    let base = VoxelGrid::new([2, 2, 2], [-1.0; 3], [1.0; 3], vec![1.0; 8]).unwrap();
+    let media = GpuMedia {
+        grids: Vec::new(),
+        densities: vec![GpuDensity::from_voxel_grid(&base)],
+        media: vec![GpuMedium {
+            pins: None,
+            density: Some(GpuPlacedDensity {
+                density: 0,
+                translation: [0.0; 3],
+                majorants: None,
+            }),
+        }],
+    };
+    let r = GpuRenderer::with_media(&ctx, &media).unwrap();
+    assert!(
+        r.render(&sc, GpuEstimator::RayMarching { rel_step: 0.1 }, 1, 0)
+            .is_ok()
+    );
+    assert!(r.render(&sc, GpuEstimator::DeltaTracking, 1, 0).is_err());
+    for bad in [0.0, -0.1, 1.5, f64::NAN] {
+        let e = r.render(&sc, GpuEstimator::RayMarching { rel_step: bad }, 1, 0);
+        assert!(matches!(e, Err(GpuRenderError::Invalid(_))), "{bad}: {e:?}");
+    }
+    // No media at all: the environment, unattenuated.
+    let empty = GpuRenderer::with_media(&ctx, &GpuMedia::default()).unwrap();
+    let img = empty.render(&sc, GpuEstimator::Pins, 2, 0).unwrap();
+    let env = sc.env_radiance;
+    assert!(
+        img.rgb
+            .iter()
+            .all(|p| (0..3).all(|c| (p[c] - env[c]).abs() < 1e-6))
+    );
+    // Dangling indices and non-finite placements are errors at upload.
+    let mut bad = media.clone();
+    bad.media[0].density.as_mut().unwrap().density = 1;
+    assert!(GpuRenderer::with_media(&ctx, &bad).is_err());
+    let mut bad = media.clone();
+    bad.media[0].density.as_mut().unwrap().translation[2] = f64::NAN;
+    assert!(GpuRenderer::with_media(&ctx, &bad).is_err());
+    let mut bad = GpuMedia::pins_only(grid, None, SamplerOptions::default());
+    bad.media[0].pins.as_mut().unwrap().grid = 3;
+    assert!(GpuRenderer::with_media(&ctx, &bad).is_err());
+    let mut singular = GpuMedia::pins_only(grid, Some(&[0.0; 12]), SamplerOptions::default());
+    assert!(GpuRenderer::with_media(&ctx, &singular).is_err());
+    singular.media[0].pins.as_mut().unwrap().local_to_world = None;
+    assert!(GpuRenderer::with_media(&ctx, &singular).is_ok());
+    // Densities are validated on construction.
+    assert!(GpuDensity::voxels([2, 1, 1], [0.0; 3], [1.0; 3], vec![1.0]).is_err());
+    assert!(GpuDensity::voxels([1, 1, 1], [0.0; 3], [0.0; 3], vec![1.0]).is_err());
+    assert!(GpuDensity::cosine([0.0; 3], [1.0; 3], f32::NAN, Vec::new()).is_err());
+    assert!(GpuDensity::cosine([0.0; 3], [0.0; 3], 1.0, Vec::new()).is_err());
+    // NaN, negative and infinite voxels are cleaned as the CPU estimators clean them.
+    let d = GpuDensity::voxels(
+        [4, 1, 1],
+        [0.0; 3],
+        [1.0; 3],
+        vec![f32::NAN, -1.0, f32::INFINITY, 2.0],
+    )
+    .unwrap();
+    let GpuDensityKind::Voxels { values, .. } = &d.kind else {
+        unreachable!()
+    };
+    assert_eq!(values, &[0.0, 0.0, f32::MAX, 2.0]);
 }
