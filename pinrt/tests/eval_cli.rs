@@ -89,6 +89,9 @@ const EXPECTED: [(&str, &[&str]); 6] = [
     ),
 ];
 
+/// What the GPU path tracer runs besides `rm@STEP`.
+const GPU_ESTIMATORS: [&str; 4] = ["delta", "ratio", "pins", "pinms"];
+
 #[test]
 fn eval_quick_end_to_end() {
     let dir = tempfile::tempdir().unwrap();
@@ -114,7 +117,7 @@ fn eval_quick_end_to_end() {
         Some("scene,estimator,backend,budget_s,spp,seconds,rmse,rel_mse")
     );
     let mut seen = BTreeSet::new();
-    let mut gpu_scenes = BTreeSet::new();
+    let mut gpu_seen = BTreeSet::new();
     let mut budgets = BTreeSet::new();
     for line in lines {
         let f: Vec<&str> = line.split(',').collect();
@@ -122,8 +125,11 @@ fn eval_quick_end_to_end() {
         match f[2] {
             "cpu" => {}
             "gpu" => {
-                assert_eq!(f[1], "pins", "only pins runs on the GPU: {line}");
-                gpu_scenes.insert(f[0].to_string());
+                assert!(
+                    GPU_ESTIMATORS.contains(&f[1]) || f[1].starts_with("rm@"),
+                    "an estimator the GPU does not have: {line}"
+                );
+                gpu_seen.insert((f[0].to_string(), f[1].to_string()));
             }
             other => panic!("unknown backend {other}: {line}"),
         }
@@ -139,16 +145,21 @@ fn eval_quick_end_to_end() {
         budgets.insert(f[3].to_string());
     }
     assert_eq!(budgets.len(), 2, "two --quick budgets");
-    // One pin grid as the only medium: the GPU path tracer applies; not to box-ss/instances.
+    // Every scene, every estimator the GPU path tracer has (instances included).
     assert!(
-        !gpu_scenes.is_empty(),
+        !gpu_seen.is_empty(),
         "no gpu rows (is a wgpu adapter, e.g. lavapipe, installed?)"
     );
-    for s in &gpu_scenes {
-        assert!(
-            ["smoke", "hydrogen", "cosine", "box"].contains(&s.as_str()),
-            "unexpected gpu rows for {s}"
-        );
+    for (scene, ests) in EXPECTED {
+        for e in ests
+            .iter()
+            .filter(|e| GPU_ESTIMATORS.contains(e) || e.starts_with("rm@"))
+        {
+            assert!(
+                gpu_seen.contains(&(scene.to_string(), e.to_string())),
+                "no gpu rows for {scene} / {e}"
+            );
+        }
     }
     for (scene, ests) in EXPECTED {
         for e in ests {
@@ -172,6 +183,11 @@ fn eval_quick_end_to_end() {
     assert!(!md.contains("# old head"));
     assert!(md.contains("| **rm@0.015** |"));
     assert!(md.contains("| pins (gpu) |"), "gpu row in the table");
+    assert!(md.contains("| pinms (gpu) |"), "gpu PinMS row in the table");
+    assert!(
+        md.contains("| ratio (gpu) |"),
+        "gpu tracker row in the table"
+    );
     assert!(!md.contains("GPU: not measured** (no GPU"));
     assert!(md.contains("WGSL"));
 
@@ -219,4 +235,112 @@ fn eval_rejects_bad_input() {
             out.status
         );
     }
+}
+
+fn data(name: &str) -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/data")
+        .join(name)
+}
+
+/// Mean grey value of an EXR written by `pinrender render`.
+fn exr_mean(path: &std::path::Path) -> f64 {
+    let img = pinrt::render::Image::read_exr(path).unwrap();
+    img.rgb
+        .iter()
+        .map(|p| p.iter().map(|&c| f64::from(c)).sum::<f64>() / 3.0)
+        .sum::<f64>()
+        / img.rgb.len() as f64
+}
+
+/// `pinrender render --backend gpu` renders the same scene as the CPU backend: the image
+/// means agree (the per-pixel statistics are tested in `pinrt::gpu_render`), for a tracker
+/// with scattering and for near-deterministic ray marching without.
+#[test]
+fn render_backends_agree() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = data("hydrogen_atom_128x128x128_uint8.raw");
+    let render = |backend: &str, est: &str, albedo: &str, spp: &str, seed: &str| -> f64 {
+        let out = dir.path().join(format!("{backend}-{est}-{albedo}.exr"));
+        let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
+            .args(["render", "--volume"])
+            .arg(&raw)
+            .args([
+                "--spacing",
+                "0.0078125",
+                "--density-scale",
+                "0.6",
+                "--width",
+                "32",
+                "--height",
+                "32",
+                "--max-bounces",
+                "4",
+                "--estimator",
+                est,
+                "--albedo",
+                albedo,
+                "--spp",
+                spp,
+                "--seed",
+                seed,
+                "--backend",
+                backend,
+                "--out",
+            ])
+            .arg(&out)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{backend} {est}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert!(out.with_extension("png").is_file());
+        exr_mean(&out)
+    };
+    for (est, albedo, spp, tol) in [("ratio", "0.9", "128", 0.03), ("rm@0.02", "0", "16", 0.005)] {
+        let cpu = render("cpu", est, albedo, spp, "1");
+        let gpu = render("gpu", est, albedo, spp, "2");
+        assert!(cpu > 0.01, "{est}: empty image");
+        let rel = (gpu - cpu).abs() / cpu;
+        assert!(rel < tol, "{est}: cpu {cpu} gpu {gpu} (rel {rel})");
+    }
+
+    // The procedural sphere has no GPU form: a one-line error, exit 1, no image.
+    let out = dir.path().join("sphere.exr");
+    let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
+        .args([
+            "render",
+            "--volume",
+            "procedural:sphere",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--backend",
+            "gpu",
+            "--out",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("no form"), "{err}");
+    assert!(!out.exists());
+    // An unknown backend is a usage error.
+    let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
+        .args([
+            "render",
+            "--volume",
+            "procedural:box",
+            "--backend",
+            "tpu",
+            "--out",
+        ])
+        .arg(dir.path().join("x.exr"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
 }

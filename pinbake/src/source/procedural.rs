@@ -322,6 +322,12 @@ impl CosineNoise {
         self.density
     }
 
+    /// The waves `(w, amplitude, phase)` of `density * max(0, 1 + sum amplitude cos(w . p +
+    /// phase))`, for renderers that evaluate the field themselves (the GPU path tracer).
+    pub fn waves(&self) -> impl Iterator<Item = (DVec3, f64, f64)> + '_ {
+        self.waves.iter().map(|w| (w.w, w.amp, w.phase))
+    }
+
     /// The analytic field in f64, ignoring the box (callers that want the box use
     /// [`DensitySource::extinction`]).
     #[inline]

@@ -9,12 +9,14 @@
 //! spent, at least one), measured in one run per estimator instead of one per budget.
 //! The radiance cache's training pass counts towards the time.
 //!
-//! `pins (gpu)` (CSV: estimator `pins`, backend `gpu`) is the WGSL path tracer
-//! ([`pinrt::gpu_render::GpuRenderer`]) on the scenes with one pin grid as the only medium,
-//! with the CPU `pins` estimator's grid, placement and lookup jitter, measured the same way
-//! (`--gpu-batch` spp per render call, distinct seeds, averaged); the one-time renderer setup
-//! (upload, pipeline compile) is reported but not counted. `--no-gpu` skips it; without an
-//! adapter the run warns and the report says "GPU: no adapter".
+//! Rows marked `(gpu)` (CSV: backend `gpu`) are the WGSL path tracer
+//! ([`pinrt::gpu_render::GpuRenderer`]) with every estimator it has (`rm@STEP`, `delta`,
+//! `ratio`, `pins`, `pinms`) over the scene's media as the CPU sees them: the same pin grid,
+//! placements and lookup jitter, a GPU copy of the density ([`scenes::gpu_media`]) and the
+//! CPU's majorant grids; measured the same way (`--gpu-batch` spp per render call, distinct
+//! seeds, averaged); the one-time renderer setup (upload, pipeline compile) is reported but
+//! not counted. `--no-gpu` skips them; without an adapter the run warns and the report says
+//! "GPU: no adapter".
 //!
 //! Outputs (in `--out`): `results.csv`, `bake.csv`, `error_vs_time_<scene>.png`,
 //! `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at the largest budget),
@@ -54,10 +56,10 @@ closed-form reference), box (homogeneous box, closed-form reference), box-ss (it
 scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
 Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), pins (pins for
-every ray; also on the GPU as 'pins (gpu)' where the scene has one pin grid, unless --no-gpu),
-pinms (ratio tracking for primary rays and single scattering, pins after), pinms+cache (pinms with
-the hash-grid radiance cache), cosine-closed-form / box-closed-form (exact transmittance),
-whole-volume (box-ss only).
+every ray), pinms (ratio tracking for primary rays and single scattering, pins after),
+pinms+cache (pinms with the hash-grid radiance cache), cosine-closed-form / box-closed-form
+(exact transmittance), whole-volume (box-ss only). rm@STEP, delta, ratio, pins and pinms also run
+on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
 Example: pinrender eval --out out/eval --docs docs")]
 pub struct EvalArgs {
@@ -93,7 +95,7 @@ pub struct EvalArgs {
     /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
     #[arg(long)]
     pub docs: Option<PathBuf>,
-    /// Do not measure the GPU path tracer (`pins (gpu)`).
+    /// Do not measure the GPU path tracer (the `(gpu)` rows).
     #[arg(long)]
     pub no_gpu: bool,
     /// Samples per pixel per GPU render call (each call is one measured pass).
@@ -101,7 +103,7 @@ pub struct EvalArgs {
     pub gpu_batch: u32,
 }
 
-/// The GPU for the `pins (gpu)` rows.
+/// The GPU for the `(gpu)` rows.
 pub enum Gpu {
     /// `--no-gpu`.
     Off,
@@ -133,7 +135,7 @@ impl Gpu {
                 eprintln!("GPU: {describe} (context in {seconds:.2} s)");
                 if software {
                     eprintln!(
-                        "GPU: note: a software adapter (Vulkan on the CPU): the 'pins (gpu)' \
+                        "GPU: note: a software adapter (Vulkan on the CPU): the '(gpu)' \
                          timings measure the WGSL code path on CPU threads, not a GPU"
                     );
                 }
@@ -146,7 +148,7 @@ impl Gpu {
             }
             Err(e) => {
                 eprintln!(
-                    "warning: GPU: no adapter, the 'pins (gpu)' rows are skipped ({e}); \
+                    "warning: GPU: no adapter, the '(gpu)' rows are skipped ({e}); \
                      pass --no-gpu to silence this"
                 );
                 Gpu::NoAdapter(e.to_string())
@@ -501,7 +503,7 @@ fn eval_scene(
         .map_err(|e| anyhow!("{e}"))?;
     let mut rows = Vec::new();
     let mut images = Vec::new();
-    let mut gpu_note = None;
+
     let mut keep = |pts: Vec<Row>, img: Image, rows: &mut Vec<Row>| -> Result<()> {
         let Some(r) = pts.last() else {
             return Ok(());
@@ -521,28 +523,46 @@ fn eval_scene(
         let (pts, img) = measure(&es, est, a, budgets, &reference_image)
             .with_context(|| format!("estimator {est}"))?;
         keep(pts, img, &mut rows)?;
-        if est != "pins" {
-            continue;
+    }
+    // The GPU path tracer after the CPU rows: every estimator it has, with the same media.
+    let gpu_ests: Vec<GpuEstimator> = ests.iter().filter_map(|e| GpuEstimator::parse(e)).collect();
+    let gpu_note = Some(match gpu {
+        Gpu::Off => "GPU: not measured (`--no-gpu`).".to_string(),
+        Gpu::NoAdapter(_) => "**GPU: no adapter** (no GPU rows).".to_string(),
+        Gpu::Ready { .. } if gpu_ests.is_empty() => {
+            "GPU: none of the selected estimators runs on the GPU.".to_string()
         }
-        // The GPU path tracer right after the CPU pins, with the same grid and jitter.
-        gpu_note = Some(match (gpu, es.gpu_skip) {
-            (Gpu::Off, _) => "GPU: not measured (`--no-gpu`).".to_string(),
-            (Gpu::NoAdapter(_), _) => "**GPU: no adapter** (no `pins (gpu)` row).".to_string(),
-            (Gpu::Ready { .. }, Some(why)) => format!("GPU: not measured on this scene ({why})."),
-            (Gpu::Ready { ctx, .. }, None) => {
-                let (pts, img, setup) = measure_gpu(&es, ctx, a, budgets, &reference_image)
-                    .context("estimator pins (gpu)")?;
-                keep(pts, img, &mut rows)?;
-                format!(
-                    "GPU renderer setup (pin upload, pipeline compile; once, not in the times \
-                     below): {setup:.2} s; {} spp per render call.",
-                    a.gpu_batch
+        Gpu::Ready { ctx, .. } => {
+            let t = Instant::now();
+            let media = scenes::gpu_media(&es, LOOKUP)?;
+            let renderer = GpuRenderer::with_media(ctx, &media)
+                .map_err(|e| anyhow!("GPU renderer for {}: {e}", es.name))?;
+            // Drivers compile the pipeline on its first dispatch (lavapipe JITs it): one
+            // warm-up pass belongs to the setup, not to the first estimator's times.
+            renderer
+                .render(
+                    &GpuScene::from_scene(&es.scene, es.max_bounces),
+                    gpu_ests[0],
+                    1,
+                    0,
                 )
+                .map_err(|e| anyhow!("GPU warm-up for {}: {e}", es.name))?;
+            let setup = t.elapsed().as_secs_f64();
+            for est in gpu_ests {
+                let (pts, img) = measure_gpu(&es, &renderer, est, a, budgets, &reference_image)
+                    .with_context(|| format!("estimator {} (gpu)", est.name()))?;
+                keep(pts, img, &mut rows)?;
             }
-        });
-        if let Some(n) = &gpu_note {
-            eprintln!("  {n}");
+            format!(
+                "GPU renderer setup (density, majorant and pin upload, pipeline compile, one \
+                 warm-up pass; once, not in the times below): {setup:.2} s; {} spp per render \
+                 call.",
+                a.gpu_batch
+            )
         }
+    });
+    if let Some(n) = &gpu_note {
+        eprintln!("  {n}");
     }
     Ok(SceneResult {
         name: es.name.to_string(),
@@ -609,36 +629,32 @@ fn measure(
     })
 }
 
-/// The GPU path tracer with the scene's one pin grid (the CPU `pins` estimator's placement
-/// and lookup jitter), measured like [`measure`]; also returns the renderer's setup time
-/// (upload and pipeline compile), which is not counted.
+/// One estimator on the GPU path tracer, measured like [`measure`]: `--gpu-batch` spp per
+/// render call, each call a pass with its own seed.
 fn measure_gpu(
     es: &EvalScene,
-    ctx: &GpuContext,
+    renderer: &GpuRenderer,
+    est: GpuEstimator,
     a: &EvalArgs,
     budgets: &[f64],
     reference: &Image,
-) -> Result<(Vec<Row>, Image, f64)> {
-    let grid = es
-        .pin_grid
-        .ok_or_else(|| anyhow!("pins are not baked for this scene"))?;
-    let [inst] = es.instances.as_slice() else {
-        bail!("the GPU path tracer takes one pin grid, the scene has several media");
-    };
-    let m = scenes::translated(&grid.desc().local_to_world, inst.offset);
-    let t = Instant::now();
-    let renderer =
-        GpuRenderer::with_options(ctx, grid, Some(&m), LOOKUP).map_err(|e| anyhow!("{e}"))?;
-    let setup = t.elapsed().as_secs_f64();
+) -> Result<(Vec<Row>, Image)> {
     let gs = GpuScene::from_scene(&es.scene, es.max_bounces);
     let batch = a.gpu_batch;
-    let (rows, img) = progressive(es, ("gpu", "pins"), a, budgets, reference, 0.0, |seed| {
-        renderer
-            .render(&gs, GpuEstimator::Pins, batch, seed)
-            .map(|img| (img, batch))
-            .map_err(|e| anyhow!("{e}"))
-    })?;
-    Ok((rows, img, setup))
+    progressive(
+        es,
+        ("gpu", &est.name()),
+        a,
+        budgets,
+        reference,
+        0.0,
+        |seed| {
+            renderer
+                .render(&gs, est, batch, seed)
+                .map(|img| (img, batch))
+                .map_err(|e| anyhow!("{e}"))
+        },
+    )
 }
 
 /// The measurement loop: `pass(seed)` (an image of `spp` samples) with distinct seeds,

@@ -5,9 +5,16 @@ use std::sync::Arc;
 
 use anyhow::{Result, anyhow, bail};
 use clap::Args;
+use std::time::Instant;
+
+use pinrt::SamplerOptions;
+use pinrt::gpu::GpuContext;
+use pinrt::gpu_render::{
+    GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
+};
 use pinrt::render::{
-    Budget, Camera, DeltaTracking, Medium, RatioTracking, RayMarching, RenderSettings, Scene, Sun,
-    TransportEstimator, render,
+    Budget, Camera, DeltaTracking, Image, Medium, RatioTracking, RayMarching, RenderSettings,
+    Scene, Sun, TransportEstimator, render,
 };
 
 use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs, parse_f64x3};
@@ -28,7 +35,13 @@ Estimators:
   delta       delta tracking (distances) + delta tracking (transmittance) over a majorant grid
   ratio       delta tracking (distances) + ratio tracking (transmittance) over a majorant grid
   pins        pins for every ray (uses --pins FILE, or bakes the volume in memory)
-  pinms       pins for multiple scattering only; ratio tracking for primary rays and single scattering")]
+  pinms       pins for multiple scattering only; ratio tracking for primary rays and single scattering
+
+--backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
+one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
+of its active box, cosine noise as its waves, a box as one voxel; the procedural sphere has no GPU
+form). Its random streams differ from the CPU's, so the two images agree in expectation, not bit
+for bit.")]
 pub struct RenderArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
@@ -87,6 +100,9 @@ pub struct RenderArgs {
     /// Output image (linear float RGB EXR); a tone-mapped PNG is written beside it.
     #[arg(long)]
     pub out: PathBuf,
+    /// cpu (rayon path tracer) or gpu (the WGSL path tracer through wgpu).
+    #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
+    pub backend: String,
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
@@ -95,7 +111,8 @@ pub fn run(a: RenderArgs) -> Result<()> {
         .volume
         .clone()
         .ok_or_else(|| anyhow!("--volume is required"))?;
-    let source = volume::open_volume(&input, &a.volume)?;
+    let opened = volume::open_volume_typed(&input, &a.volume)?;
+    let source = opened.source();
     let field = Arc::new(SourceField(source.clone()));
     let (lo, hi) = {
         let b = source.bounds();
@@ -126,10 +143,6 @@ pub fn run(a: RenderArgs) -> Result<()> {
             other => bail!("unknown estimator '{other}' (rm@STEP, delta, ratio, pins, pinms)"),
         })
     };
-    let medium = match a.estimator.as_str() {
-        "pinms" => Medium::new(estimator("ratio")?, estimator("pins")?),
-        name => Medium::single(estimator(name)?),
-    };
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
     let target = a.camera_target.unwrap_or(centre.to_array());
@@ -154,7 +167,19 @@ pub fn run(a: RenderArgs) -> Result<()> {
         env_radiance: [a.env_radiance as f32; 3],
         albedo: a.albedo as f32,
         g: a.g as f32,
+        media: Vec::new(),
+    };
+    if a.backend == "gpu" {
+        let image = render_gpu(&a, &opened, &field, &scene)?;
+        return write(&a, &input, &image.0, image.1, image.2);
+    }
+    let medium = match a.estimator.as_str() {
+        "pinms" => Medium::new(estimator("ratio")?, estimator("pins")?),
+        name => Medium::single(estimator(name)?),
+    };
+    let scene = Scene {
         media: vec![medium],
+        ..scene
     };
     let settings = RenderSettings {
         max_bounces: a.max_bounces,
@@ -167,23 +192,117 @@ pub fn run(a: RenderArgs) -> Result<()> {
         cache: None,
     };
     let out = render(&scene, &settings).map_err(|e| anyhow!("{e}"))?;
-    out.image
+    write(&a, &input, &out.image, out.spp, out.seconds)
+}
+
+fn write(a: &RenderArgs, input: &str, image: &Image, spp: u32, seconds: f64) -> Result<()> {
+    image
         .write_exr(&a.out)
         .map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
     let png = a.out.with_extension("png");
-    out.image
+    image
         .write_png(&png, a.exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
     eprintln!(
-        "rendered {} with {}: {}x{} at {} spp in {:.2} s -> {} (+ {})",
+        "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {} (+ {})",
         input,
         a.estimator,
+        a.backend,
         a.width,
         a.height,
-        out.spp,
-        out.seconds,
+        spp,
+        seconds,
         a.out.display(),
         png.display()
     );
     Ok(())
+}
+
+/// The same render on the GPU path tracer: returns the image, its spp and the seconds spent
+/// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
+fn render_gpu(
+    a: &RenderArgs,
+    opened: &volume::Opened,
+    field: &Arc<SourceField>,
+    scene: &Scene,
+) -> Result<(Image, u32, f64)> {
+    let est = GpuEstimator::parse(&a.estimator).ok_or_else(|| {
+        anyhow!(
+            "unknown estimator '{}' (rm@STEP, delta, ratio, pins, pinms)",
+            a.estimator
+        )
+    })?;
+    let needs_pins = matches!(est, GpuEstimator::Pins | GpuEstimator::PinMs);
+    let needs_majorants = matches!(
+        est,
+        GpuEstimator::DeltaTracking | GpuEstimator::RatioTracking | GpuEstimator::PinMs
+    );
+    let grid = if needs_pins {
+        Some(volume::leak_grid(volume::pins_for(
+            a.pins.as_deref(),
+            opened.source().as_ref(),
+            a.pin_cells,
+            a.seed,
+        )?))
+    } else {
+        None
+    };
+    let majorants = if needs_majorants {
+        Some(volume::majorants(field, a.majorant_bricks)?)
+    } else {
+        None
+    };
+    let media = GpuMedia {
+        grids: grid.into_iter().collect(),
+        densities: vec![opened.gpu_density()?],
+        media: vec![GpuMedium {
+            pins: grid.map(|_| GpuPins {
+                grid: 0,
+                local_to_world: None,
+                options: SamplerOptions::default(),
+            }),
+            density: Some(GpuPlacedDensity {
+                density: 0,
+                translation: [0.0; 3],
+                majorants,
+            }),
+        }],
+    };
+    let ctx = GpuContext::new().map_err(|e| anyhow!("{e}"))?;
+    let renderer = GpuRenderer::with_media(&ctx, &media).map_err(|e| anyhow!("{e}"))?;
+    let gs = GpuScene::from_scene(scene, a.max_bounces);
+    let start = Instant::now();
+    match a.seconds {
+        None => {
+            let image = renderer
+                .render(&gs, est, a.spp, a.seed)
+                .map_err(|e| anyhow!("{e}"))?;
+            Ok((image, a.spp, start.elapsed().as_secs_f64()))
+        }
+        Some(limit) => {
+            // Passes of 1 spp with distinct seeds until the time is spent (at least one).
+            let mut sum: Vec<[f64; 3]> = Vec::new();
+            let mut spp = 0u32;
+            while spp == 0 || (start.elapsed().as_secs_f64() < limit && spp < u32::MAX) {
+                let seed = pinrt::render::splitmix64(a.seed ^ u64::from(spp));
+                let img = renderer
+                    .render(&gs, est, 1, seed)
+                    .map_err(|e| anyhow!("{e}"))?;
+                sum.resize(img.rgb.len(), [0.0; 3]);
+                for (acc, p) in sum.iter_mut().zip(&img.rgb) {
+                    for c in 0..3 {
+                        acc[c] += f64::from(p[c]);
+                    }
+                }
+                spp += 1;
+            }
+            let inv = 1.0 / f64::from(spp);
+            let image = Image {
+                width: a.width,
+                height: a.height,
+                rgb: sum.iter().map(|s| s.map(|c| (c * inv) as f32)).collect(),
+            };
+            Ok((image, spp, start.elapsed().as_secs_f64()))
+        }
+    }
 }

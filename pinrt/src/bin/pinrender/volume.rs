@@ -7,7 +7,9 @@ use std::sync::Arc;
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::{DVec3, Vec3};
+use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
+use pinrt::gpu_render::{CosineWave, GpuDensity};
 use pinrt::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator};
 use pinrt::{PinGrid, Ray, Rng, Sampler};
 
@@ -68,6 +70,109 @@ pub fn parse_f64x3(s: &str) -> Result<[f64; 3], String> {
 
 /// Opens a volume given as a path or `procedural:SPEC`.
 pub fn open_volume(input: &str, a: &VolumeArgs) -> Result<Arc<dyn DensitySource>> {
+    Ok(open_volume_typed(input, a)?.source())
+}
+
+/// A volume with its concrete type kept: what the GPU renderer needs to build its own copy.
+#[derive(Clone)]
+pub enum Opened {
+    Vdb(Arc<source::VdbSource>),
+    Dense(Arc<source::DenseGrid>),
+    Noise(Arc<source::CosineNoise>),
+    Box(source::HomogeneousBox),
+    /// Sources with no GPU form (the procedural sphere).
+    Other(Arc<dyn DensitySource>),
+}
+
+impl Opened {
+    pub fn source(&self) -> Arc<dyn DensitySource> {
+        match self {
+            Opened::Vdb(v) => v.clone(),
+            Opened::Dense(g) => g.clone(),
+            Opened::Noise(n) => n.clone(),
+            Opened::Box(b) => Arc::new(b.clone()),
+            Opened::Other(s) => s.clone(),
+        }
+    }
+
+    /// The GPU renderer's copy of the density, in the source's own frame, clipped to the
+    /// source's bounds (what the CPU estimators march and track):
+    ///
+    /// * a raw grid as is (same convention);
+    /// * a VDB as the dense grid of its active index box plus a border of one zero voxel on
+    ///   every side, so that trilinear interpolation between voxel centres (integer index
+    ///   coordinates) reproduces the sparse sampler exactly (refused above 2^28 voxels);
+    /// * cosine noise as its waves, a homogeneous box as one voxel.
+    pub fn gpu_density(&self) -> Result<GpuDensity> {
+        let src = self.source();
+        let b = src.bounds();
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        let d = match self {
+            Opened::Vdb(v) => {
+                let (ilo, ihi) = v.index_bounds();
+                let first = ilo - glam::IVec3::ONE;
+                let dims = (ihi - ilo + glam::IVec3::splat(3)).to_array().map(|d| d as u32);
+                let count = dims.iter().map(|&d| d as u64).product::<u64>();
+                if count > 1 << 28 {
+                    anyhow::bail!(
+                        "the VDB's active box needs {count} dense voxels on the GPU (limit 2^28)"
+                    );
+                }
+                let w0 = v.index_to_world(first.as_dvec3());
+                let spacing = (v.index_to_world(first.as_dvec3() + DVec3::ONE) - w0).to_array();
+                if !spacing.iter().all(|s| *s > 0.0) {
+                    anyhow::bail!(
+                        "the GPU density needs a VDB transform with a positive scale on every axis (got {spacing:?})"
+                    );
+                }
+                let mut values = Vec::with_capacity(count as usize);
+                for z in 0..dims[2] as i32 {
+                    for y in 0..dims[1] as i32 {
+                        for x in 0..dims[0] as i32 {
+                            values.push(v.voxel(first + glam::IVec3::new(x, y, z)));
+                        }
+                    }
+                }
+                // Voxel centres at integer index coordinates: the grid box starts half a voxel
+                // before the first centre.
+                let origin = (w0 - DVec3::from_array(spacing) * 0.5).to_array();
+                GpuDensity::voxels(dims, origin, spacing, values)
+            }
+            Opened::Dense(g) => GpuDensity::voxels(
+                g.dims(),
+                g.origin().to_array(),
+                g.spacing().to_array(),
+                g.data().to_vec(),
+            ),
+            Opened::Noise(n) => GpuDensity::cosine(
+                lo,
+                hi,
+                n.density() as f32,
+                n.waves()
+                    .map(|(w, amplitude, phase)| CosineWave {
+                        w: w.as_vec3().to_array(),
+                        amplitude: amplitude as f32,
+                        phase: phase as f32,
+                    })
+                    .collect(),
+            ),
+            Opened::Box(bx) => GpuDensity::homogeneous(&pinrt::render::HomogeneousBox {
+                min: lo,
+                max: hi,
+                sigma_t: bx.density(),
+            }),
+            Opened::Other(s) => anyhow::bail!(
+                "the GPU renderer has no form of '{}' (use a raw or VDB volume, cosine noise or a box)",
+                s.describe()
+            ),
+        }
+        .map_err(|e| anyhow!("{e}"))?;
+        d.with_bounds(lo, hi).map_err(|e| anyhow!("{e}"))
+    }
+}
+
+/// [`open_volume`] with the concrete source type kept.
+pub fn open_volume_typed(input: &str, a: &VolumeArgs) -> Result<Opened> {
     let spec = if let Some(rest) = input.strip_prefix("procedural:") {
         let mut p: ProceduralSpec = rest.parse().map_err(|e| anyhow!("{e}"))?;
         p.density *= a.density_scale;
@@ -105,7 +210,26 @@ pub fn open_volume(input: &str, a: &VolumeArgs) -> Result<Arc<dyn DensitySource>
             )
         }
     };
-    Ok(Arc::from(source::open_source(&spec)?))
+    Ok(match spec {
+        SourceSpec::Vdb(path, opts) => {
+            Opened::Vdb(Arc::new(source::VdbSource::open(&path, &opts)?))
+        }
+        SourceSpec::Raw(path, opts) => {
+            Opened::Dense(Arc::new(source::raw::read_raw(&path, &opts)?))
+        }
+        SourceSpec::Procedural(p) => match p.kind {
+            ProceduralKind::Cosine | ProceduralKind::Fractal => {
+                // `build` first: it reports a bad spec with the spec in the message.
+                p.build()?;
+                Opened::Noise(Arc::new(p.build_noise()?))
+            }
+            ProceduralKind::Box => Opened::Box(source::HomogeneousBox::new(
+                p.world_box(),
+                p.density as f32,
+            )?),
+            ProceduralKind::Sphere => Opened::Other(Arc::from(p.build()?)),
+        },
+    })
 }
 
 /// A pinbake source seen as the renderer's density field.

@@ -52,7 +52,7 @@ pub fn error_vs_time(path: &Path, r: &SceneResult) -> Result<()> {
     }
     let (x0, x1) = (x0 / 1.3, x1 * 1.3);
     let (y0, y1) = (y0 / 1.3, y1 * 1.3);
-    let root = BitMapBackend::new(path, (640, 420)).into_drawing_area();
+    let root = BitMapBackend::new(path, (720, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(err)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
@@ -72,21 +72,49 @@ pub fn error_vs_time(path: &Path, r: &SceneResult) -> Result<()> {
         .y_label_formatter(&|y| format!("{y:.1e}"))
         .draw()
         .map_err(err)?;
-    for (i, (name, c)) in curves.iter().enumerate() {
+    // One colour per estimator; its GPU curve is dashed with hollow markers.
+    let mut bases: Vec<&str> = Vec::new();
+    for (name, c) in &curves {
+        let (base, gpu) = match name.strip_suffix(" (gpu)") {
+            Some(b) => (b, true),
+            None => (name.as_str(), false),
+        };
+        let i = bases.iter().position(|b| *b == base).unwrap_or_else(|| {
+            bases.push(base);
+            bases.len() - 1
+        });
         let color = COLORS[i % COLORS.len()];
-        let style = if name.starts_with("pin") {
+        let style = if base.starts_with("pin") {
             color.stroke_width(2)
         } else {
             color.stroke_width(1)
         };
-        chart
-            .draw_series(LineSeries::new(c.iter().map(|p| (p.0, p.1)), style))
-            .map_err(err)?
-            .label(name.as_str())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
-        chart
-            .draw_series(c.iter().map(|p| Circle::new((p.0, p.1), 3, color.filled())))
-            .map_err(err)?;
+        let points = c.iter().map(|p| (p.0, p.1));
+        let series = if gpu {
+            chart
+                .draw_series(DashedLineSeries::new(points, 6, 4, style))
+                .map_err(err)?
+        } else {
+            chart
+                .draw_series(LineSeries::new(points, style))
+                .map_err(err)?
+        };
+        series.label(name.as_str()).legend(move |(x, y)| {
+            if gpu {
+                PathElement::new(vec![(x, y), (x + 6, y)], color)
+            } else {
+                PathElement::new(vec![(x, y), (x + 16, y)], color)
+            }
+        });
+        if gpu {
+            chart
+                .draw_series(c.iter().map(|p| Circle::new((p.0, p.1), 3, color)))
+                .map_err(err)?;
+        } else {
+            chart
+                .draw_series(c.iter().map(|p| Circle::new((p.0, p.1), 3, color.filled())))
+                .map_err(err)?;
+        }
     }
     chart
         .configure_series_labels()

@@ -74,7 +74,7 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
     match gpu {
         Gpu::Off => "**GPU: not measured** (`--no-gpu`).".into(),
         Gpu::NoAdapter(e) => {
-            format!("**GPU: no adapter** (the `pins (gpu)` rows are missing: {e}).")
+            format!("**GPU: no adapter** (the `(gpu)` rows are missing: {e}).")
         }
         Gpu::Ready {
             describe,
@@ -83,12 +83,14 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
             ..
         } => {
             let mut s = format!(
-                "GPU: `pins (gpu)` is the WGSL path tracer (`pinrt::gpu_render::GpuRenderer`, \
-                 backend `gpu` in the CSV) on `{describe}`, with the CPU `pins` estimator's pin \
-                 grid and lookup jitter, measured the same way ({batch} spp per render call, \
-                 each call a pass with its own seed, averaged; the per-scene renderer setup \
-                 and the {seconds:.2} s device creation are not in the times) on the scenes \
-                 whose only medium is one pin grid (smoke, hydrogen, cosine, box)."
+                "GPU: rows marked `(gpu)` are the WGSL path tracer \
+                 (`pinrt::gpu_render::GpuRenderer`, backend `gpu` in the CSV) on `{describe}` \
+                 with every estimator it has (`rm@STEP`, `delta`, `ratio`, `pins`, `pinms`) \
+                 over the same media as the CPU rows (the same pin grid and lookup jitter, a GPU \
+                 copy of the density, the CPU's majorant grids, every instance), measured the \
+                 same way ({batch} spp per render call, each call a pass with its own seed, \
+                 averaged; the per-scene renderer setup and the {seconds:.2} s device creation \
+                 are not in the times)."
             );
             if *software {
                 s.push_str(

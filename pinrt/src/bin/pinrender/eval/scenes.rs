@@ -14,9 +14,10 @@ use pinrt::render::{
     MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun, TransportEstimator, splitmix64,
 };
 
-use pinrt::PinGrid;
+use pinrt::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
+use pinrt::{PinGrid, SamplerOptions};
 
-use crate::volume::{SourceField, VolumeArgs};
+use crate::volume::{Opened, SourceField, VolumeArgs};
 
 /// Sizes that differ between the default run and `--quick`.
 #[derive(Clone, Copy, Debug)]
@@ -109,9 +110,9 @@ pub struct EvalScene {
     pub ref_spp: u32,
     pub estimators: Vec<String>,
     pub cache: CacheSettings,
-    /// Why the GPU path tracer (`pins (gpu)`) is not measured on this scene; `None`: it is
-    /// (one pin grid as the only medium, the plain path tracer).
-    pub gpu_skip: Option<&'static str>,
+    /// The GPU renderer's copy of the bake source's density (every instance places it by
+    /// its offset, as the CPU fields are placed).
+    pub gpu_density: GpuDensity,
     /// The baked pin grid (after the bake), shared by the CPU `pins` and the GPU.
     pub pin_grid: Option<&'static PinGrid>,
 }
@@ -245,10 +246,12 @@ fn cells(sizes: &Sizes, factor: f64) -> u32 {
 
 fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     let path = data_path("openvdb_smoke1.vdb");
-    let src = crate::volume::open_volume(
+    let opened = crate::volume::open_volume_typed(
         path.to_str().context("data path is not UTF-8")?,
         &volume_args(SMOKE_DENSITY_SCALE),
     )?;
+    let src = opened.source();
+    let gpu_density = opened.gpu_density()?;
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
     let inst = single_instance(field, 16, None)?;
@@ -276,7 +279,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 3,
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_skip: None,
+        gpu_density,
         pin_grid: None,
     })
 }
@@ -294,7 +297,12 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
             ..source::RawOptions::default()
         },
     );
-    let src: Arc<dyn DensitySource> = Arc::from(source::open_source(&spec)?);
+    let source::SourceSpec::Raw(path, options) = &spec else {
+        unreachable!()
+    };
+    let opened = Opened::Dense(Arc::new(source::raw::read_raw(path, options)?));
+    let src = opened.source();
+    let gpu_density = opened.gpu_density()?;
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
     let inst = single_instance(field, 16, None)?;
@@ -320,7 +328,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 8,
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_skip: None,
+        gpu_density,
         pin_grid: None,
     })
 }
@@ -345,6 +353,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     let spec: ProceduralSpec = COSINE_SPEC.parse().map_err(|e| anyhow!("{e}"))?;
     let noise = Arc::new(spec.build_noise()?);
     let src: Arc<dyn DensitySource> = noise.clone();
+    let gpu_density = Opened::Noise(noise.clone()).gpu_density()?;
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
@@ -370,7 +379,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 2,
         estimators: estimators(&["cosine-closed-form"], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_skip: None,
+        gpu_density,
         pin_grid: None,
     })
 }
@@ -395,6 +404,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
     let (lo, hi) = (DVec3::ZERO, DVec3::from_array(BOX_MAX));
     let pb = source::HomogeneousBox::new(Aabb::new(lo, hi), BOX_SIGMA as f32)?;
     let src: Arc<dyn DensitySource> = Arc::new(pb.clone());
+    let gpu_density = Opened::Box(pb.clone()).gpu_density()?;
     let field: Arc<dyn DensityField> = Arc::new(HomogeneousBox {
         min: lo.to_array(),
         max: hi.to_array(),
@@ -459,10 +469,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * if single { 1 } else { 8 },
         estimators: ests,
         cache: cache_for(lo, hi, sizes),
-        gpu_skip: single.then_some(
-            "single-scattering scene scored against the whole-volume reference: the GPU path \
-             tracer is compared on the multiple-scattering scenes only",
-        ),
+        gpu_density,
         pin_grid: None,
     })
 }
@@ -546,7 +553,9 @@ fn blob() -> Result<DenseGrid> {
 }
 
 fn instances(sizes: &Sizes) -> Result<EvalScene> {
-    let base: Arc<dyn DensitySource> = Arc::new(blob()?);
+    let blob = Opened::Dense(Arc::new(blob()?));
+    let gpu_density = blob.gpu_density()?;
+    let base = blob.source();
     let base_field: Arc<dyn DensityField> = Arc::new(SourceField(base.clone()));
     let k = INSTANCES_PER_AXIS;
     let spacing = 0.55;
@@ -603,9 +612,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: (sizes.ref_spp * 3 / 2).max(1),
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_skip: Some(
-            "64 media instances: the GPU path tracer renders one pin grid as the only medium",
-        ),
+        gpu_density,
         pin_grid: None,
     })
 }
@@ -664,4 +671,32 @@ pub fn translated(local_to_world: &[f64; 12], offset: [f64; 3]) -> [f64; 12] {
     m[7] += offset[1];
     m[11] += offset[2];
     m
+}
+
+/// The scene's media for the GPU renderer: the baked pin grid (if any) and the density, both
+/// placed per instance exactly as the CPU estimators place them, with the CPU's majorant
+/// grids; `lookup` is the pins' lookup jitter.
+pub fn gpu_media(es: &EvalScene, lookup: SamplerOptions) -> Result<GpuMedia<'static>> {
+    let grids: Vec<&'static PinGrid> = es.pin_grid.into_iter().collect();
+    let media = es
+        .instances
+        .iter()
+        .map(|inst| GpuMedium {
+            pins: es.pin_grid.map(|g| GpuPins {
+                grid: 0,
+                local_to_world: Some(translated(&g.desc().local_to_world, inst.offset)),
+                options: lookup,
+            }),
+            density: Some(GpuPlacedDensity {
+                density: 0,
+                translation: inst.offset,
+                majorants: Some(inst.majorants.clone()),
+            }),
+        })
+        .collect();
+    Ok(GpuMedia {
+        grids,
+        densities: vec![es.gpu_density.clone()],
+        media,
+    })
 }
