@@ -152,6 +152,52 @@ impl GpuDensity {
         })
     }
 
+    /// The extinction the shader computes at the density-local point `p` (in f64; the shader
+    /// works in f32): 0 outside [`GpuDensity::bounds`]. For tests and tools that check a GPU
+    /// copy against its source.
+    pub fn extinction(&self, p: [f64; 3]) -> f64 {
+        let (lo, hi) = self.bounds;
+        if !(0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a]) {
+            return 0.0;
+        }
+        match &self.kind {
+            GpuDensityKind::Cosine { density, waves } => {
+                let s = waves.iter().fold(1.0, |s, w| {
+                    let dot = (0..3).map(|a| f64::from(w.w[a]) * p[a]).sum::<f64>();
+                    s + f64::from(w.amplitude) * (dot + f64::from(w.phase)).cos()
+                });
+                (f64::from(*density) * s).max(0.0)
+            }
+            GpuDensityKind::Voxels {
+                dims,
+                origin,
+                spacing,
+                values,
+            } => {
+                let mut i0 = [0usize; 3];
+                let mut i1 = [0usize; 3];
+                let mut f = [0.0f64; 3];
+                for a in 0..3 {
+                    let n = f64::from(dims[a]);
+                    let u = ((p[a] - origin[a]) / spacing[a] - 0.5).clamp(0.0, n - 1.0);
+                    let fl = u.floor();
+                    i0[a] = fl as usize;
+                    i1[a] = (i0[a] + 1).min(dims[a] as usize - 1);
+                    f[a] = u - fl;
+                }
+                let at = |x: usize, y: usize, z: usize| {
+                    f64::from(values[x + dims[0] as usize * (y + dims[1] as usize * z)])
+                };
+                let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+                let c00 = lerp(at(i0[0], i0[1], i0[2]), at(i1[0], i0[1], i0[2]), f[0]);
+                let c10 = lerp(at(i0[0], i1[1], i0[2]), at(i1[0], i1[1], i0[2]), f[0]);
+                let c01 = lerp(at(i0[0], i0[1], i1[2]), at(i1[0], i0[1], i1[2]), f[0]);
+                let c11 = lerp(at(i0[0], i1[1], i1[2]), at(i1[0], i1[1], i1[2]), f[0]);
+                lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2])
+            }
+        }
+    }
+
     /// The same field clipped to a smaller box (e.g. a VDB's support box inside the voxel
     /// grid that holds it with a border of zeros).
     pub fn with_bounds(mut self, lo: [f64; 3], hi: [f64; 3]) -> Result<Self, RenderError> {

@@ -1,0 +1,91 @@
+//! The GPU renderer's copies of the densities (`pinrender`'s `volume::Opened::gpu_density`)
+//! against their pinbake sources: a raw grid, a sparse VDB (densified with a zero border),
+//! cosine noise and a homogeneous box.
+
+// The binary's module, compiled into this test (binaries export nothing to link against).
+#[allow(dead_code)]
+#[path = "../src/bin/pinrender/volume.rs"]
+mod volume;
+
+use std::path::Path;
+use std::sync::Arc;
+
+use glam::DVec3;
+use pinbake::source::{VdbOptions, VdbSource};
+use volume::{Opened, VolumeArgs, open_volume_typed};
+
+fn data(name: &str) -> String {
+    format!("{}/../../shared/data/{name}", env!("CARGO_MANIFEST_DIR"))
+}
+
+fn args(density_scale: f64, spacing: Option<[f64; 3]>) -> VolumeArgs {
+    VolumeArgs {
+        volume: None,
+        grid: None,
+        dims: None,
+        voxel_type: None,
+        spacing,
+        origin: None,
+        density_scale,
+    }
+}
+
+/// The GPU copy of each kind of source gives the source's extinction at random points
+/// of (and around) its box: the dense copy of a sparse VDB included.
+#[test]
+fn gpu_density_reproduces_the_source() {
+    let cases = [
+        (
+            data("hydrogen_atom_128x128x128_uint8.raw"),
+            args(0.6, Some([1.0 / 128.0; 3])),
+        ),
+        (
+            "procedural:cosine:seed=7,freq=16,waves=8,density=4".to_string(),
+            args(1.0, None),
+        ),
+        ("procedural:box:density=3".to_string(), args(1.0, None)),
+    ];
+    let mut opened_cases = Vec::new();
+    // The VDB reader runs in a worker process: pinrender's own `__vdb-worker`.
+    let smoke = data("openvdb_smoke1.vdb");
+    let opts = VdbOptions {
+        density_scale: 2.0,
+        ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"))
+    };
+    opened_cases.push((
+        smoke.clone(),
+        Opened::Vdb(Arc::new(VdbSource::open(Path::new(&smoke), &opts).unwrap())),
+    ));
+    for (input, a) in cases {
+        opened_cases.push((input.clone(), open_volume_typed(&input, &a).unwrap()));
+    }
+    for (input, opened) in opened_cases {
+        let src = opened.source();
+        let gpu = opened.gpu_density().unwrap();
+        let b = src.bounds();
+        assert_eq!(gpu.bounds, (b.min.to_array(), b.max.to_array()), "{input}");
+        let scale = src.max_extinction_in(b).max(1e-6) as f64;
+        let mut rng = pinrt::render::Pcg32::new(3, 4);
+        let mut worst = 0.0f64;
+        let mut nonzero = 0;
+        for _ in 0..20_000 {
+            // 10% beyond the box on each side: outside must be 0 on both.
+            let p = [0, 1, 2].map(|k| {
+                let e = b.max[k] - b.min[k];
+                b.min[k] - 0.1 * e + 1.2 * e * rng.next_f64()
+            });
+            let want = f64::from(src.extinction(DVec3::from_array(p)));
+            let got = gpu.extinction(p);
+            worst = worst.max((got - want).abs() / scale);
+            if want > 0.0 {
+                nonzero += 1;
+            }
+        }
+        assert!(nonzero > 1000, "{input}: only {nonzero} non-zero samples");
+        assert!(worst < 1e-5, "{input}: worst relative difference {worst}");
+    }
+    // No GPU form: a clear error.
+    let sphere = open_volume_typed("procedural:sphere", &args(1.0, None)).unwrap();
+    let e = sphere.gpu_density().unwrap_err().to_string();
+    assert!(e.contains("no form"), "{e}");
+}
