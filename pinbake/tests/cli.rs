@@ -333,3 +333,22 @@ fn killed_bake_never_leaves_a_file_under_the_target_name() {
         }
     }
 }
+
+/// A process started as a VDB reader never starts another one: a `worker_exe` that does not
+/// understand `__vdb-worker` (a test harness runs its tests instead, which open the VDB
+/// again) would otherwise spawn itself without end.
+#[test]
+fn a_worker_never_spawns_a_worker() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("smoke.pin");
+    let o = Command::new(BIN)
+        .args(["bake"])
+        .arg(data("openvdb_smoke1.vdb"))
+        .arg("-o")
+        .arg(&out)
+        .env(pinbake::source::vdb::WORKER_ENV, "1")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert_clean_failure(&o, "refusing to start a VDB reader", &out);
+}

@@ -1539,10 +1539,24 @@ impl DensitySource for VdbSource {
     }
 }
 
+/// Set in the worker's environment. A process that has it and is asked to start a worker is
+/// itself a "worker" that did not understand `__vdb-worker` (e.g. a test harness given as
+/// `worker_exe`, which would run its tests, open the VDB again and spawn itself without end);
+/// it refuses instead of recursing.
+pub const WORKER_ENV: &str = "PINBAKE_VDB_WORKER";
+
 /// Spawns the worker with limits, parses its stream and turns every failure mode into text.
 fn run_worker(path: &Path, opt: &VdbOptions, file_size: u64, limit: u64) -> Result<Stream, String> {
+    if std::env::var_os(WORKER_ENV).is_some() {
+        return Err(format!(
+            "refusing to start a VDB reader from inside a VDB reader process: '{}' does not \
+             handle `{WORKER_SUBCOMMAND}` (set VdbOptions::worker_exe to pinbake or pinrender)",
+            opt.worker_exe.display()
+        ));
+    }
     let mut cmd = Command::new(&opt.worker_exe);
-    cmd.arg(WORKER_SUBCOMMAND)
+    cmd.env(WORKER_ENV, "1")
+        .arg(WORKER_SUBCOMMAND)
         .arg(path)
         .arg(opt.grid.as_deref().unwrap_or(""))
         .arg(if opt.levelset_to_fog {

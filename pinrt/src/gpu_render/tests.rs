@@ -459,6 +459,42 @@ fn measure() {
             mean(&c1)
         );
     }
+    // Every estimator on the three-instance blob scene of
+    // `every_estimator_matches_cpu_with_instances`.
+    let ms = MultiScene::new();
+    let renderer = GpuRenderer::with_media(&ctx, &ms.gpu_media()).unwrap();
+    let mut sc = scene(128, 0.9, 0.3, 4);
+    sc.camera.origin = [0.5, 0.8, 4.5];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    for est in [
+        GpuEstimator::RayMarching { rel_step: 0.015 },
+        GpuEstimator::DeltaTracking,
+        GpuEstimator::RatioTracking,
+        GpuEstimator::Pins,
+        GpuEstimator::PinMs,
+    ] {
+        renderer.render(&sc, est, 1, 0).unwrap(); // warm-up
+        let time = |f: &dyn Fn()| {
+            (0..3)
+                .map(|_| {
+                    let t = Instant::now();
+                    f();
+                    t.elapsed().as_secs_f64()
+                })
+                .fold(f64::INFINITY, f64::min)
+        };
+        let tg = time(&|| {
+            renderer.render(&sc, est, 8, 1).unwrap();
+        });
+        let tc = time(&|| {
+            cpu_render_media(ms.cpu_media(est), &sc, 8, 1);
+        });
+        eprintln!(
+            "[3 instances, {}] 128x128 x 8 spp (best of 3): gpu {tg:.3} s, cpu (all threads) \
+             {tc:.3} s",
+            est.name()
+        );
+    }
 }
 
 // ---------------------------------------------------------------------------------------
