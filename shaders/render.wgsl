@@ -22,8 +22,8 @@
 //   scattering events.
 // * a non-finite sample is dropped (counts as 0), as on the CPU.
 //
-// Per query the estimator is `RP.est.x` (primary: camera rays and the shadow rays of the
-// first scattering vertex) or `RP.est.y` (secondary: everything after): 0 ray marching,
+// Per query the estimator is `RT_PRIMARY` (camera rays and the shadow rays of the first
+// scattering vertex) or `RT_SECONDARY` (everything after): 0 ray marching,
 // 1 delta tracking, 2 ratio tracking (delta tracking for distances), 3 pins. PinMS is
 // (2, 3), "pins for everything" (3, 3). The trackers and the marcher are ports of
 // render/estimator.rs and render/majorant.rs in f32 (the CPU works in f64).
@@ -56,9 +56,15 @@ struct RtParams {
     size: vec4<u32>,
     // seed low word, seed high word, unused, unused.
     seed: vec4<u32>,
-    // primary estimator, secondary estimator, unused, unused.
-    est: vec4<u32>,
 }
+
+// The estimators, fixed per pipeline (pipeline-overridable constants): the compiler drops the
+// code of the estimators a pipeline does not use, which keeps a pins-only path tracer as
+// small as before the trackers existed.
+override RT_PRIMARY: u32 = 3u;
+override RT_SECONDARY: u32 = 3u;
+// The scene has exactly one medium (a specialisation, not a different result).
+override RT_ONE_MEDIUM: bool = false;
 
 struct RtPass {
     index: u32,
@@ -106,6 +112,9 @@ struct RtMedium {
 // Voxel values, cosine waves (8 floats each: w.xyz, amplitude, phase, 3 unused) and
 // majorants, at the offsets of `RtMedium.offs`.
 @group(1) @binding(5) var<storage, read> rt_data: array<f32>;
+// Medium 0's grid parameters again, as a uniform: with one medium (`RT_ONE_MEDIUM`) the
+// query reads its grid from here, which compilers keep in scalar registers.
+@group(1) @binding(6) var<uniform> rt_grid0: Params;
 
 const RT_TAU: f32 = 0x1.921fb6p2f;
 const RT_INV_4PI: f32 = 0x1.45f306p-4f;
@@ -430,6 +439,9 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2
 // Pins
 // ---------------------------------------------------------------------------------------------
 
+// The medium whose grid `G` holds (copied only when the queried medium changes).
+var<private> rt_grid_medium: u32 = 0xffffffffu;
+
 // One pin query of medium m along o + t d, t in [0, t_max), seeded from the path generator.
 // Instances whose (conservative) world box the segment misses are skipped without a query.
 fn rt_pins(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<f32> {
@@ -440,9 +452,16 @@ fn rt_pins(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<f32> {
     let a = rt_next();
     let b = rt_next();
     rng_state = pcg_hash(pcg_hash(a) ^ b);
-    G = rt_grids[m];
-    G_PIN_BASE = rt_media[m].ids.x;
-    G_INDEX_BASE = rt_media[m].ids.y;
+    if (RT_ONE_MEDIUM) {
+        G = rt_grid0;
+        G_PIN_BASE = rt_media[0].ids.x;
+        G_INDEX_BASE = rt_media[0].ids.y;
+    } else if (rt_grid_medium != m) {
+        G = rt_grids[m];
+        G_PIN_BASE = rt_media[m].ids.x;
+        G_INDEX_BASE = rt_media[m].ids.y;
+        rt_grid_medium = m;
+    }
     let r = query(Ray(o, t_max, d, 0u));
     if (r.hit != 0u) {
         return vec2<f32>(r.distance, r.transmittance);
@@ -587,8 +606,8 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     let albedo = RP.material.x;
     let g = RP.material.y;
     let max_bounces = RP.size.z;
-    let primary = RP.est.x;
-    let secondary = RP.est.y;
+    let primary = RT_PRIMARY;
+    let secondary = RT_SECONDARY;
     if (has_env) {
         l = l + env * rt_transmittance(primary, o, d);
     }

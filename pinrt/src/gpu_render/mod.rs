@@ -32,7 +32,8 @@ pub use media::{
     CosineWave, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity,
 };
 
-use std::sync::mpsc;
+use std::collections::HashMap;
+use std::sync::{Mutex, mpsc};
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -178,10 +179,6 @@ impl GpuScene {
             ],
             size: [c.width, c.height, self.max_bounces, media],
             seed: [seed as u32, (seed >> 32) as u32, 0, 0],
-            est: {
-                let (p, s) = estimator.kinds();
-                [p, s, 0, 0]
-            },
         }
     }
 }
@@ -200,7 +197,6 @@ struct RtParams {
     material: [f32; 4],
     size: [u32; 4],
     seed: [u32; 4],
-    est: [u32; 4],
 }
 
 /// The transport estimator of a GPU render (the CPU's `rm@STEP`, `delta`, `ratio`, `pins`,
@@ -306,12 +302,17 @@ pub struct GpuRenderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
     limits: wgpu::Limits,
-    pipeline: wgpu::ComputePipeline,
+    module: wgpu::ShaderModule,
+    layout: wgpu::PipelineLayout,
+    /// One pipeline per (primary, secondary) estimator pair, compiled on first use.
+    pipelines: Mutex<HashMap<(u32, u32), wgpu::ComputePipeline>>,
     grid_group: wgpu::BindGroup,
     render_layout: wgpu::BindGroupLayout,
     grids: wgpu::Buffer,
     records: wgpu::Buffer,
     data: wgpu::Buffer,
+    /// Medium 0's grid parameters as a uniform (`rt_grid0`).
+    grid0: wgpu::Buffer,
     caps: Vec<media::Caps>,
     pin_bytes: u64,
 }
@@ -406,6 +407,17 @@ impl GpuRenderer {
         );
         let records = storage("render media", bytemuck::cast_slice(&packed.records));
         let data = storage("render density data", bytemuck::cast_slice(&packed.data));
+        let grid0 = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("render grid 0"),
+            contents: bytemuck::bytes_of(
+                &packed
+                    .grid_params
+                    .first()
+                    .copied()
+                    .unwrap_or_else(media::GridParams::zeroed),
+            ),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
         // pin.wgsl's own uniform (binding 0) is not read by the path tracer.
         let grid_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("render grid params (unused)"),
@@ -429,6 +441,7 @@ impl GpuRenderer {
                 storage_entry(3, true),
                 storage_entry(4, true),
                 storage_entry(5, true),
+                uniform_entry(6, false, size_of::<media::GridParams>() as u64),
             ],
         });
         let grid_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -458,14 +471,6 @@ impl GpuRenderer {
             label: Some("pin.wgsl + render.wgsl"),
             source: wgpu::ShaderSource::Wgsl(RENDER_WGSL.into()),
         });
-        let pipeline = dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("render"),
-            layout: Some(&layout),
-            module: &module,
-            entry_point: Some("render_main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
         if let Some(e) = scope.pop().await {
             return Err(gpu_err("compiling shaders/render.wgsl", e));
         }
@@ -473,15 +478,60 @@ impl GpuRenderer {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
             limits: ctx.limits.clone(),
-            pipeline,
+            module,
+            layout,
+            pipelines: Mutex::new(HashMap::new()),
             grid_group,
             render_layout,
             grids,
             records,
             data,
+            grid0,
             caps: packed.caps,
             pin_bytes: packed.pins.len() as u64,
         })
+    }
+
+    /// The pipeline of an estimator pair, compiled (with its pipeline-overridable constants)
+    /// the first time it is asked for.
+    async fn pipeline(
+        &self,
+        (primary, secondary): (u32, u32),
+    ) -> crate::Result<wgpu::ComputePipeline> {
+        let cache = || {
+            self.pipelines
+                .lock()
+                .map_err(|_| Error::Gpu("pipeline cache poisoned".into()))
+        };
+        if let Some(p) = cache()?.get(&(primary, secondary)) {
+            return Ok(p.clone());
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let one_medium = if self.caps.len() == 1 { 1.0 } else { 0.0 };
+        let constants = [
+            ("RT_PRIMARY", f64::from(primary)),
+            ("RT_SECONDARY", f64::from(secondary)),
+            ("RT_ONE_MEDIUM", one_medium),
+        ];
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("render"),
+                layout: Some(&self.layout),
+                module: &self.module,
+                entry_point: Some("render_main"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &constants,
+                    ..Default::default()
+                },
+                cache: None,
+            });
+        if let Some(e) = scope.pop().await {
+            return Err(gpu_err("compiling shaders/render.wgsl", e));
+        }
+        // Two threads may both have compiled it; either copy will do.
+        cache()?.insert((primary, secondary), pipeline.clone());
+        Ok(pipeline)
     }
 
     /// Number of media instances.
@@ -561,14 +611,17 @@ impl GpuRenderer {
         let media = u32::try_from(self.caps.len())
             .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
         let params = scene.params(seed, estimator, media);
-        Ok(pollster::block_on(
-            self.run(&params, gx, gy, spp, accum_size, w, h),
-        )?)
+        Ok(pollster::block_on(async {
+            let pipeline = self.pipeline(estimator.kinds()).await?;
+            self.run(&pipeline, &params, gx, gy, spp, accum_size, w, h)
+                .await
+        })?)
     }
 
     #[allow(clippy::too_many_arguments)]
     async fn run(
         &self,
+        pipeline: &wgpu::ComputePipeline,
         params: &RtParams,
         gx: u32,
         gy: u32,
@@ -637,6 +690,10 @@ impl GpuRenderer {
                         binding: 5,
                         resource: self.data.as_entire_binding(),
                     },
+                    wgpu::BindGroupEntry {
+                        binding: 6,
+                        resource: self.grid0.as_entire_binding(),
+                    },
                 ],
             });
             let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -647,7 +704,7 @@ impl GpuRenderer {
                     label: Some("render passes"),
                     timestamp_writes: None,
                 });
-                pass.set_pipeline(&self.pipeline);
+                pass.set_pipeline(pipeline);
                 pass.set_bind_group(0, &self.grid_group, &[]);
                 for k in 0..count {
                     pass.set_bind_group(1, &group, &[(stride * u64::from(k)) as u32]);
