@@ -84,6 +84,56 @@ impl UnitTransform {
         Ok(Self { rows })
     }
 
+    /// The world-space axis-aligned box of the unit cube under the inverse of this map (the
+    /// grid box as placed in the world; for a rotated placement the box around it), computed
+    /// in f64 from the stored f32 rows. `None` if the rows are not invertible in f64 (not
+    /// reachable through [`UnitTransform::new`]).
+    pub fn world_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        let a = self.rows.map(|r| r.map(f64::from));
+        let m = [
+            [a[0][0], a[0][1], a[0][2]],
+            [a[1][0], a[1][1], a[1][2]],
+            [a[2][0], a[2][1], a[2][2]],
+        ];
+        let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+        if !(det.is_finite() && det != 0.0) {
+            return None;
+        }
+        let inv_det = 1.0 / det;
+        let inv = [
+            [
+                (m[1][1] * m[2][2] - m[1][2] * m[2][1]) * inv_det,
+                (m[0][2] * m[2][1] - m[0][1] * m[2][2]) * inv_det,
+                (m[0][1] * m[1][2] - m[0][2] * m[1][1]) * inv_det,
+            ],
+            [
+                (m[1][2] * m[2][0] - m[1][0] * m[2][2]) * inv_det,
+                (m[0][0] * m[2][2] - m[0][2] * m[2][0]) * inv_det,
+                (m[0][2] * m[1][0] - m[0][0] * m[1][2]) * inv_det,
+            ],
+            [
+                (m[1][0] * m[2][1] - m[1][1] * m[2][0]) * inv_det,
+                (m[0][1] * m[2][0] - m[0][0] * m[2][1]) * inv_det,
+                (m[0][0] * m[1][1] - m[0][1] * m[1][0]) * inv_det,
+            ],
+        ];
+        let b = [a[0][3], a[1][3], a[2][3]];
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for corner in 0..8u32 {
+            // world = inv (u - b) for the unit-cube corner u.
+            let u = [0, 1, 2].map(|k| f64::from((corner >> k) & 1) - b[k]);
+            for i in 0..3 {
+                let w = inv[i][0] * u[0] + inv[i][1] * u[1] + inv[i][2] * u[2];
+                lo[i] = lo[i].min(w);
+                hi[i] = hi[i].max(w);
+            }
+        }
+        (lo.iter().chain(&hi).all(|x| x.is_finite())).then_some((lo, hi))
+    }
+
     /// `A p + b`, evaluated as `((A0 px + A1 py) + A2 pz) + b` per row.
     #[inline(always)]
     pub fn point(&self, p: [f32; 3]) -> [f32; 3] {
@@ -340,5 +390,51 @@ mod tests {
         assert_eq!(x.vector([2.0, 0.0, 0.0]), [0.5, 0.0, 0.0]);
         let singular = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
         assert!(UnitTransform::new(&desc, Some(&singular)).is_err());
+    }
+
+    #[test]
+    fn world_bounds_of_the_placed_box() {
+        let close = |a: [f64; 3], b: [f64; 3]| (0..3).all(|i| (a[i] - b[i]).abs() <= 1e-5);
+        let mut desc = grid_desc([1, 1, 1], Directions::Octahedral { n: 1 }, 1, 1);
+        desc.box_min = [-1.0, 0.0, 2.0];
+        desc.box_max = [1.0, 4.0, 3.0];
+        let x = UnitTransform::new(&desc, None).unwrap();
+        let (lo, hi) = x.world_bounds().unwrap();
+        assert!(
+            close(lo, [-1.0, 0.0, 2.0]) && close(hi, [1.0, 4.0, 3.0]),
+            "{lo:?} {hi:?}"
+        );
+        // world = 2 * local + (10, 0, 0): x in [8, 12], y in [0, 8], z in [4, 6].
+        let l2w = [2.0, 0.0, 0.0, 10.0, 0.0, 2.0, 0.0, 0.0, 0.0, 0.0, 2.0, 0.0];
+        let (lo, hi) = UnitTransform::new(&desc, Some(&l2w))
+            .unwrap()
+            .world_bounds()
+            .unwrap();
+        assert!(
+            close(lo, [8.0, 0.0, 4.0]) && close(hi, [12.0, 8.0, 6.0]),
+            "{lo:?} {hi:?}"
+        );
+        // A rotation by 90 degrees about z (x -> y, y -> -x): the box around the image.
+        let rot = [0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let (lo, hi) = UnitTransform::new(&desc, Some(&rot))
+            .unwrap()
+            .world_bounds()
+            .unwrap();
+        assert!(
+            close(lo, [-4.0, -1.0, 2.0]) && close(hi, [0.0, 1.0, 3.0]),
+            "{lo:?} {hi:?}"
+        );
+        // A 90-degree rotation maps the box onto the box: every world corner lands on a
+        // unit-cube corner.
+        let x = UnitTransform::new(&desc, Some(&rot)).unwrap();
+        for c in 0..8u32 {
+            let w = [0, 1, 2].map(|k| lo[k] + (hi[k] - lo[k]) * f64::from((c >> k) & 1));
+            let u = x.point(w.map(|v| v as f32));
+            assert!(
+                u.iter()
+                    .all(|&v| v.abs() <= 1e-5 || (v - 1.0).abs() <= 1e-5),
+                "{w:?} -> {u:?}"
+            );
+        }
     }
 }

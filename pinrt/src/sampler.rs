@@ -253,6 +253,13 @@ impl<'g> Sampler<'g> {
         &self.xf
     }
 
+    /// The world-space box of the grid as this sampler places it (axis-aligned around it for
+    /// a rotated placement): outside it every query is a miss (transmittance 1, no
+    /// collision, no random draws). See [`UnitTransform::world_bounds`].
+    pub fn world_bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        self.xf.world_bounds()
+    }
+
     pub fn view(&self) -> &GridView<'g> {
         &self.view
     }

@@ -776,3 +776,82 @@ fn wgsl_constants_match_cpu() {
         );
     }
 }
+
+/// `Sampler::world_bounds` contains every query the sampler resolves: a ray whose segment
+/// misses the box (slab test in f64 with a 1e-5 margin) is a miss with no draws, for
+/// translated, scaled and rotated placements.
+#[test]
+fn world_bounds_contain_every_hit() {
+    let mut desc_grid = random_grid(
+        Directions::Polar {
+            n_phi: 4,
+            n_theta: 2,
+        },
+        [3, 2, 4],
+        2,
+        false,
+        9,
+    );
+    desc_grid.desc.box_min = [-1.0, 0.5, 2.0];
+    desc_grid.desc.box_max = [1.5, 1.0, 4.0];
+    let g = PinGrid::from_bytes(desc_grid.to_bytes().unwrap()).unwrap();
+    let (c, s) = (0.6f64.cos(), 0.6f64.sin());
+    let placements: [Option<[f64; 12]>; 3] = [
+        None,
+        Some([2.0, 0.0, 0.0, 3.0, 0.0, 0.5, 0.0, -1.0, 0.0, 0.0, 1.0, 7.0]),
+        Some([c, -s, 0.0, 0.5, s, c, 0.0, 0.0, 0.0, 0.0, 1.0, -2.0]),
+    ];
+    let mut rng = Rng::new(77);
+    for m in placements {
+        let sampler = match &m {
+            None => Sampler::new(&g).unwrap(),
+            Some(m) => Sampler::with_local_to_world(&g, m).unwrap(),
+        };
+        let (lo, hi) = sampler.world_bounds().unwrap();
+        let centre: [f64; 3] = [0, 1, 2].map(|a| 0.5 * (lo[a] + hi[a]));
+        let (mut hits, mut misses) = (0, 0);
+        for _ in 0..20_000 {
+            let o = [0, 1, 2].map(|a| (centre[a] + (rng.next_f32() as f64 - 0.5) * 12.0) as f32);
+            // Half of the rays aimed at a point in or near the box, half random.
+            let aim =
+                [0, 1, 2].map(|a| lo[a] + (hi[a] - lo[a]) * (rng.next_f32() as f64 * 1.2 - 0.1));
+            let d = if rng.next_f32() < 0.5 {
+                [0, 1, 2].map(|a| (aim[a] - o[a] as f64) as f32)
+            } else {
+                [0, 1, 2].map(|_| rng.next_f32() - 0.5)
+            };
+            let t_max = if rng.next_f32() < 0.5 {
+                f32::INFINITY
+            } else {
+                5.0 * rng.next_f32()
+            };
+            // Exact-ish slab test in f64 against the box grown by 1e-5.
+            let (mut tn, mut tf) = (0.0f64, t_max as f64);
+            for a in 0..3 {
+                let (o, d) = (o[a] as f64, d[a] as f64);
+                let (l, h) = (lo[a] - 1e-5, hi[a] + 1e-5);
+                if d == 0.0 {
+                    if o < l || o > h {
+                        tf = -1.0;
+                    }
+                    continue;
+                }
+                let (t0, t1) = ((l - o) / d, (h - o) / d);
+                tn = tn.max(t0.min(t1));
+                tf = tf.min(t0.max(t1));
+            }
+            let before = rng;
+            let mut r = rng;
+            let q = sampler.query(&Ray::new(o, d), t_max, &mut r);
+            if tn <= tf {
+                hits += (q.status == status::OK) as u32;
+                rng = r;
+                continue;
+            }
+            misses += 1;
+            assert_eq!(q.status, status::MISS, "{o:?} {d:?} {t_max} {m:?}");
+            assert_eq!(r.state, before.state, "a miss draws nothing");
+        }
+        assert!(hits > 1000 && misses > 1000, "{hits} / {misses}");
+    }
+}

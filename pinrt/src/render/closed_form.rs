@@ -155,6 +155,11 @@ impl<A: AnalyticOpticalDepth + ?Sized> TransportEstimator for ClosedFormTracker<
     fn name(&self) -> String {
         "cosine-closed-form".into()
     }
+
+    /// The field's box: both queries are clipped to it.
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some((self.lo, self.hi))
+    }
 }
 
 #[cfg(test)]

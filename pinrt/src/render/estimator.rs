@@ -26,6 +26,18 @@ pub trait TransportEstimator: Send + Sync {
     fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32;
     /// A short label for reports, e.g. `delta-tracking(16x16x16)`.
     fn name(&self) -> String;
+    /// A closed world box `(min, max)` outside which this medium has no extinction, or
+    /// `None` (the default: unbounded, or unknown).
+    ///
+    /// The renderer skips the estimator for every query whose segment `[0, t_max]` cannot
+    /// meet the box (see `render/bounds.rs`; the box is padded outward first), so an
+    /// estimator that returns `Some` must give transmittance 1 and no collision, in
+    /// distribution, for such queries. It need not draw the same random numbers: skipping
+    /// changes the stream of later queries, not their distribution. With many media (e.g.
+    /// instances) this is what keeps a query from paying for every medium it misses.
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        None
+    }
 }
 
 /// A validated ray in f64 with unit direction; `scale = |d|` converts back to the caller's t.
@@ -182,6 +194,11 @@ impl<F: DensityField + ?Sized> TransportEstimator for RayMarching<F> {
     fn name(&self) -> String {
         format!("ray-marching(step={})", self.rel_step)
     }
+
+    /// The field's box: marching is clipped to it.
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some((self.lo, self.hi))
+    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -326,6 +343,10 @@ impl<F: DensityField + ?Sized> TransportEstimator for DeltaTracking<F> {
     fn name(&self) -> String {
         format!("delta-tracking({})", self.0.dims_label())
     }
+    /// The majorant grid's box: tracking is clipped to it.
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some(self.0.majorants.bounds())
+    }
 }
 
 impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
@@ -341,5 +362,9 @@ impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
     }
     fn name(&self) -> String {
         format!("ratio-tracking({})", self.0.dims_label())
+    }
+    /// The majorant grid's box: tracking is clipped to it.
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some(self.0.majorants.bounds())
     }
 }

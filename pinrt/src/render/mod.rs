@@ -30,7 +30,14 @@
 //!   [`phase`].
 //! * Instances: [`Scene::media`] holds any number of possibly overlapping media whose
 //!   extinctions add: distance sampling takes the nearest collision over the instances,
-//!   transmittance is the product of the instances' estimates.
+//!   transmittance is the product of the instances' estimates. A medium whose estimator
+//!   declares a world box ([`TransportEstimator::bounds`]; all built-in estimators do) is
+//!   asked only by queries whose segment meets that box (a vectorised slab test over all
+//!   boxes per query, boxes padded outward); distance sampling asks the media met in the
+//!   order of their box entries and stops at the first box that starts beyond the nearest
+//!   collision so far. A skipped medium contributes transmittance 1 and no collision, so
+//!   this changes no expectation, only which random numbers later media draw. On the
+//!   64-instance evaluation scene a query meets 7 to 9 of the 64 boxes.
 //! * `max_bounces` counts scattering events: 0 renders only the transmitted environment,
 //!   1 single scattering.
 //!
@@ -53,7 +60,10 @@
 //! later segments and shadow rays. So PinMS is `Medium::new(tracker, pins)` and pins
 //! everywhere `Medium::single(pins)`. A pin estimator implements [`TransportEstimator`]
 //! (rays are f32, `t` in units of `|d|`, the renderer passes unit directions and
-//! `t_max = inf`) and may seed its own generator per query from [`Pcg32::next_u64`].
+//! `t_max = inf` or the nearest collision so far), may seed its own generator per query
+//! from [`Pcg32::next_u64`], and should return its sampler's
+//! [`Sampler::world_bounds`](crate::Sampler::world_bounds) from `bounds()` so that rays
+//! missing the placed grid never reach it.
 //!
 //! ## The companion papers
 //!
@@ -67,8 +77,9 @@
 //! ## Determinism
 //!
 //! Sample `s` of pixel `p` draws from `Pcg32::for_sample(seed, p, s)` only; pixel sums are
-//! accumulated in f64 in sample order. The image does not depend on the thread count, and a
-//! time-budget render that reached `n` spp equals an `n` spp render.
+//! accumulated in f64 in sample order. Which media a query asks, and in which order, is a
+//! function of the ray and the draws so far. The image does not depend on the thread count,
+//! and a time-budget render that reached `n` spp equals an `n` spp render.
 //!
 //! ## Failure behaviour
 //!
@@ -78,6 +89,7 @@
 //! collision), NaN and negative extinction count as 0 and `+inf` as opaque, non-finite path
 //! samples are dropped.
 
+mod bounds;
 pub mod cache;
 pub mod closed_form;
 mod estimator;

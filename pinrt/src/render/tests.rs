@@ -1,7 +1,7 @@
 //! Statistical tests of the estimators and end-to-end tests of the tracer.
 
 use super::*;
-use glam::Vec3;
+use glam::{DVec3, Vec3};
 use std::sync::Arc;
 
 fn unit_box(sigma: f32) -> Arc<HomogeneousBox> {
@@ -610,6 +610,33 @@ fn timings() {
             );
         }
     }
+    // The box test of 64 media (render/bounds.rs) per query.
+    let mut rng = Pcg32::new(3, 3);
+    let boxes = super::bounds::MediaBoxes::new((0..64).map(|_| {
+        let c = [0, 1, 2].map(|_| rng.next_f64() * 3.0);
+        Some((c, c.map(|x| x + 1.0)))
+    }));
+    let rays: Vec<super::bounds::RaySlabs> = (0..1024)
+        .map(|_| {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 4.0;
+            let d = (Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5).normalize();
+            super::bounds::RaySlabs::new(o, d).unwrap()
+        })
+        .collect();
+    let mut out = [0.0f32; super::bounds::CHUNK];
+    let n = 2_000_000;
+    let start = Instant::now();
+    let mut met = 0usize;
+    for i in 0..n {
+        boxes.entries(0, &rays[i & 1023], f32::INFINITY, &mut out);
+        met += out.iter().filter(|e| **e < f32::INFINITY).count();
+    }
+    println!(
+        "box test of 64 media: {:.1} ns/query ({:.1} met on average)",
+        start.elapsed().as_secs_f64() * 1e9 / n as f64,
+        met as f64 / n as f64
+    );
+
     let field = cube(1.0);
     let (delta, ratio) = tracked(field, [1, 1, 1]);
     let mut scene = small_scene();
@@ -632,4 +659,362 @@ fn timings() {
         "128x128 16 spp max_bounces 8, 1 thread: {:.3} s",
         out.seconds
     );
+}
+
+// ---------------------------------------------------------------------------------------
+// Skipping media the ray misses (render/bounds.rs, TransportEstimator::bounds)
+// ---------------------------------------------------------------------------------------
+
+/// Delegates to an estimator, counting calls; optionally hides its box (the tracer then
+/// asks it for every query, as before boxes existed).
+struct Probe {
+    inner: Arc<dyn TransportEstimator>,
+    hide_bounds: bool,
+    calls: std::sync::atomic::AtomicUsize,
+}
+
+impl Probe {
+    fn new(inner: Arc<dyn TransportEstimator>, hide_bounds: bool) -> Arc<Self> {
+        Arc::new(Probe {
+            inner,
+            hide_bounds,
+            calls: Default::default(),
+        })
+    }
+    fn calls(&self) -> usize {
+        self.calls.load(std::sync::atomic::Ordering::Relaxed)
+    }
+}
+
+impl TransportEstimator for Probe {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        self.calls
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.inner.sample_distance(o, d, t_max, rng)
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        self.calls
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.inner.transmittance(o, d, t_max, rng)
+    }
+    fn name(&self) -> String {
+        self.inner.name()
+    }
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        if self.hide_bounds {
+            None
+        } else {
+            self.inner.bounds()
+        }
+    }
+}
+
+fn slab_box(min: [f64; 3], max: [f64; 3], sigma: f32) -> Arc<dyn DensityField> {
+    Arc::new(HomogeneousBox {
+        min,
+        max,
+        sigma_t: sigma,
+    })
+}
+
+/// Every estimator's box is where its queries are clipped: rays that miss it get
+/// transmittance 1 and no collision (the contract that lets the tracer skip them).
+#[test]
+fn estimator_bounds_contain_everything_they_see() {
+    let field: Arc<dyn DensityField> = Arc::new(FnField {
+        min: [1.0, -2.0, 0.5],
+        max: [2.0, 0.0, 3.0],
+        f: |p: Vec3| 3.0 + p.x.sin(),
+    });
+    let maj = Arc::new(MajorantGrid::from_field(&*field, [3, 2, 5]).unwrap());
+    let ests: Vec<Arc<dyn TransportEstimator>> = vec![
+        Arc::new(RayMarching::new(field.clone(), 0.05).unwrap()),
+        Arc::new(DeltaTracking::new(field.clone(), maj.clone())),
+        Arc::new(RatioTracking::new(field.clone(), maj)),
+        Arc::new(
+            ClosedFormTracker::new(Arc::new(closed_form::tests::CosNoise::new(4, 3.0, 2.0, 5)))
+                .unwrap(),
+        ),
+    ];
+    let mut rng = Pcg32::new(8, 9);
+    for est in &ests {
+        let (lo, hi) = est.bounds().expect("every built-in estimator has a box");
+        assert!((0..3).all(|a| lo[a] < hi[a]), "{}", est.name());
+        let boxes = super::bounds::MediaBoxes::new([Some((lo, hi))]);
+        let (mut missed, mut met) = (0, 0);
+        for _ in 0..8000 {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 12.0 - 6.0;
+            // Half of the rays aimed at a point in or near the box (many graze it), half
+            // random.
+            let u = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 1.2 - 0.1;
+            let aim = DVec3::from(lo) + (DVec3::from(hi) - DVec3::from(lo)) * u;
+            let d = if rng.next_f32() < 0.5 {
+                aim.as_vec3() - o
+            } else {
+                Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5
+            }
+            .normalize_or_zero();
+            let t_max = if rng.next_f32() < 0.5 {
+                f32::INFINITY
+            } else {
+                4.0 * rng.next_f32()
+            };
+            let ray = super::bounds::RaySlabs::new(o, d).unwrap();
+            if boxes.entry(0, &ray, t_max).is_some() {
+                met += 1;
+                continue;
+            }
+            missed += 1;
+            assert_eq!(
+                est.transmittance(o, d, t_max, &mut rng),
+                1.0,
+                "{}",
+                est.name()
+            );
+            assert_eq!(
+                est.sample_distance(o, d, t_max, &mut rng),
+                None,
+                "{}",
+                est.name()
+            );
+        }
+        assert!(missed > 1000 && met > 1000, "{missed} / {met}");
+    }
+}
+
+/// Nearest-collision sampling over media asked in box-entry order with early exit
+/// (`Ctx::distance`) follows the exact law of the summed extinction, and the media it
+/// skips are really not asked.
+#[test]
+fn culled_distance_sampling_is_exact() {
+    // Along +x from x = -1 at y = z = 0.5: A [0,1] sigma 1, B [0.5,1.5] sigma 2,
+    // E (no box, tracked in [2,3]) sigma 1, C [10,11] sigma 0.5; D is beside the ray.
+    let (da, ra) = tracked(slab_box([0.0; 3], [1.0; 3], 1.0), [2, 1, 1]);
+    let (db, _) = tracked(slab_box([0.5, 0.0, 0.0], [1.5, 1.0, 1.0], 2.0), [1, 1, 1]);
+    let (de, re) = tracked(slab_box([2.0, 0.0, 0.0], [3.0, 1.0, 1.0], 1.0), [1, 1, 1]);
+    let (dc, rc) = tracked(slab_box([10.0, 0.0, 0.0], [11.0, 1.0, 1.0], 0.5), [1, 1, 1]);
+    let (dd, _) = tracked(slab_box([0.0, 5.0, 0.0], [1.0, 6.0, 1.0], 3.0), [1, 1, 1]);
+    let pe = Probe::new(de, true);
+    let pc = Probe::new(dc, false);
+    let pd = Probe::new(dd, false);
+    // The far box C sits between A and B in the list: asking in list order and stopping at
+    // the first box beyond the nearest collision would miss B's collisions inside A.
+    let media = vec![
+        Medium::new(ra, da),
+        Medium::new(rc, pc.clone()),
+        Medium::single(db),
+        Medium::new(re, pe.clone()),
+        Medium::single(pd.clone()),
+    ];
+    let scene = Scene {
+        camera: camera(1, 1, 30.0),
+        sun: None,
+        env_radiance: [1.0; 3],
+        albedo: 1.0,
+        g: 0.0,
+        media,
+    };
+    let ctx = scene.ctx(1);
+    // Optical depth from the origin (x = -1) to parameter t.
+    let tau = |t: f64| {
+        let x = t - 1.0;
+        let over = |a: f64, b: f64| (x.min(b) - a).max(0.0);
+        over(0.0, 1.0) + 2.0 * over(0.5, 1.5) + over(2.0, 3.0) + 0.5 * over(10.0, 11.0)
+    };
+    let (o, d) = (Vec3::new(-1.0, 0.5, 0.5), Vec3::X);
+    let n = 200_000usize;
+    let cuts = [0.5, 1.5, 1.75, 2.0, 2.5, 3.5, 4.0, 11.5, 12.0];
+    let mut below = [0usize; 9];
+    let (mut none, mut reached_c) = (0usize, 0usize);
+    let mut rng = Pcg32::new(41, 42);
+    for _ in 0..n {
+        let t = ctx.distance(super::tracer::Which::Secondary, o, d, &mut rng);
+        match t {
+            None => none += 1,
+            Some(t) => {
+                assert!(t.is_finite() && t >= 0.0);
+                for (c, k) in cuts.iter().zip(below.iter_mut()) {
+                    *k += (t as f64 <= *c) as usize;
+                }
+            }
+        }
+        if t.is_none_or(|t| t >= 10.999) {
+            reached_c += 1;
+        }
+    }
+    let z = |k: usize, p: f64| (k as f64 / n as f64 - p) / (p * (1.0 - p) / n as f64).sqrt();
+    assert_eq!(below[0], 0, "no collision before the first box");
+    for (c, k) in cuts.iter().zip(below).skip(1) {
+        let p = 1.0 - (-tau(*c)).exp();
+        assert!(
+            z(k, p).abs() < 5.0,
+            "P(t <= {c}): {} vs {p}",
+            k as f64 / n as f64
+        );
+    }
+    let p_none = (-tau(12.0)).exp();
+    assert!(
+        z(none, p_none).abs() < 5.0,
+        "P(none) {} vs {p_none}",
+        none as f64 / n as f64
+    );
+    // D is never met; C (entered at t = 11) is asked exactly when nothing collided before
+    // it; E has no box (entry 0, first in the order) and is asked every time.
+    assert_eq!(pd.calls(), 0);
+    assert_eq!(pc.calls(), reached_c);
+    assert!(reached_c > 0 && reached_c < n / 20, "{reached_c}");
+    assert_eq!(pe.calls(), n);
+
+    // Transmittance: the product over the media met (ratio tracking for A, E and C, delta
+    // tracking for B); D is still never asked.
+    let r = mean_se(n, || {
+        ctx.transmittance(super::tracer::Which::Primary, o, d, &mut rng) as f64
+    });
+    assert_z("culled transmittance", r, (-tau(12.0)).exp());
+    assert_eq!(pd.calls(), 0);
+}
+
+/// A scene of many overlapping media plus far-away ones renders the same expectation with
+/// and without the boxes (the boxes hidden: every medium asked for every query), for the
+/// trackers, ray marching and a PinMS-like primary/secondary split; and skipping does ask
+/// fewer media.
+#[test]
+fn culling_keeps_radiance_unbiased() {
+    let blob = |c: Vec3, sigma: f32| -> Arc<dyn DensityField> {
+        let lo = (c - 0.5).as_dvec3().to_array();
+        let hi = (c + 0.5).as_dvec3().to_array();
+        Arc::new(FnField {
+            min: lo,
+            max: hi,
+            f: move |p: Vec3| {
+                let r2 = ((p - c) * 2.0).length_squared();
+                if r2 < 1.0 { sigma * (1.0 - r2) } else { 0.0 }
+            },
+        })
+    };
+    let mut centres = Vec::new();
+    for i in 0..3 {
+        for j in 0..3 {
+            centres.push(Vec3::new(
+                i as f32 * 0.6 - 0.6,
+                j as f32 * 0.6 - 0.6,
+                0.3 * (i + j) as f32 - 0.6,
+            ));
+        }
+    }
+    // Two media far off to the side and one behind the camera.
+    centres.push(Vec3::new(30.0, 0.0, 0.0));
+    centres.push(Vec3::new(0.0, -40.0, 3.0));
+    centres.push(Vec3::new(0.0, 0.0, 20.0));
+    let build = |hide: bool, kind: &str| -> (Scene, Vec<Arc<Probe>>) {
+        let mut probes = Vec::new();
+        let media = centres
+            .iter()
+            .enumerate()
+            .map(|(k, &c)| {
+                let field = blob(c, 4.0 + k as f32 * 0.5);
+                let (delta, ratio) = tracked(field.clone(), [2, 2, 2]);
+                let (p, s): (Arc<dyn TransportEstimator>, Arc<dyn TransportEstimator>) = match kind
+                {
+                    "trackers" => (ratio, delta),
+                    "marching" => {
+                        let rm: Arc<dyn TransportEstimator> =
+                            Arc::new(RayMarching::new(field, 0.05).unwrap());
+                        (rm.clone(), rm)
+                    }
+                    _ => unreachable!(),
+                };
+                let (p, s) = (Probe::new(p, hide), Probe::new(s, hide));
+                probes.push(p.clone());
+                probes.push(s.clone());
+                Medium::new(p, s)
+            })
+            .collect();
+        let scene = Scene {
+            camera: camera(1, 1, 30.0),
+            sun: Some(Sun {
+                dir: [0.3, 1.0, 0.4],
+                radiance: [2.0; 3],
+            }),
+            env_radiance: [0.3; 3],
+            albedo: 0.9,
+            g: 0.3,
+            media,
+        };
+        (scene, probes)
+    };
+    let calls = |p: &[Arc<Probe>]| p.iter().map(|p| p.calls()).sum::<usize>();
+    let rays = [
+        (Vec3::new(0.1, 0.2, 5.0), Vec3::new(-0.02, -0.03, -1.0)),
+        (Vec3::new(-3.0, 0.9, 0.2), Vec3::new(1.0, -0.1, 0.05)),
+        (Vec3::new(0.0, 3.0, 0.0), Vec3::new(0.05, -1.0, 0.02)),
+    ];
+    let n = 20_000;
+    for kind in ["trackers", "marching"] {
+        let (culled, pc) = build(false, kind);
+        let (full, pf) = build(true, kind);
+        for (k, (o, d)) in rays.iter().enumerate() {
+            let d = d.normalize();
+            let mut rng = Pcg32::new(100 + k as u64, 1);
+            let a = mean_se(n, || culled.radiance(*o, d, 6, &mut rng)[0] as f64);
+            let mut rng = Pcg32::new(200 + k as u64, 1);
+            let b = mean_se(n, || full.radiance(*o, d, 6, &mut rng)[0] as f64);
+            let se = (a.1 * a.1 + b.1 * b.1).sqrt();
+            assert!(a.0 > 0.01, "{kind} ray {k}: {a:?}");
+            assert!(
+                (a.0 - b.0).abs() <= 5.0 * se + 1e-6,
+                "{kind} ray {k}: culled {a:?} vs every medium {b:?}"
+            );
+        }
+        // Skipping asks fewer media; the far ones (the last three: probes 18..24) only for
+        // the rare secondary rays aimed at them, whereas without boxes every query asks
+        // every medium.
+        assert!(
+            calls(&pc) * 4 < calls(&pf) * 3,
+            "{kind}: {} calls with boxes, {} without",
+            calls(&pc),
+            calls(&pf)
+        );
+        for (c, f) in pc[18..].iter().zip(&pf[18..]) {
+            assert!(
+                c.calls() * 50 < f.calls(),
+                "{kind}: a far medium was asked {} times with boxes, {} without",
+                c.calls(),
+                f.calls()
+            );
+        }
+    }
+}
+
+/// With many media (box tests, entry sorting) the image still does not depend on the
+/// thread count.
+#[test]
+fn many_media_image_independent_of_threads() {
+    let mut media = Vec::new();
+    for k in 0..70 {
+        // More media than one chunk of box tests.
+        let c = Vec3::new(
+            (k % 5) as f32 * 0.4 - 0.8,
+            ((k / 5) % 4) as f32 * 0.4 - 0.6,
+            (k / 20) as f32 * 0.4 - 0.6,
+        );
+        let (lo, hi) = ((c - 0.3).as_dvec3(), (c + 0.3).as_dvec3());
+        let (delta, ratio) = tracked(slab_box(lo.to_array(), hi.to_array(), 0.8), [1, 1, 1]);
+        media.push(Medium::new(ratio, delta));
+    }
+    let scene = Scene {
+        media,
+        ..small_scene()
+    };
+    let settings = |threads| RenderSettings {
+        max_bounces: 4,
+        seed: 5,
+        budget: Budget::Spp(2),
+        threads,
+        cache: None,
+    };
+    let a = render(&scene, &settings(Some(1))).unwrap();
+    let b = render(&scene, &settings(Some(2))).unwrap();
+    assert_eq!(a.image, b.image);
+    assert!(a.image.rgb.iter().any(|p| p[0] > 0.25));
 }

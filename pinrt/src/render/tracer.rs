@@ -1,6 +1,7 @@
 //! The volumetric path tracer: camera, lights, media instances, the render loop.
 
 use super::RenderError;
+use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs};
 use super::estimator::TransportEstimator;
 use super::image::Image;
 use super::phase::{hg_phase, sample_hg};
@@ -188,13 +189,17 @@ impl Frame {
 
 #[derive(Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Which {
-    Primary,
-    Secondary,
+    Primary = 0,
+    Secondary = 1,
 }
 
-/// The scene in the form the inner loop wants it (sun direction normalised, flags).
+/// The scene in the form the inner loop wants it (sun direction normalised, flags, the
+/// media's boxes per estimator role).
 pub(crate) struct Ctx<'a> {
     pub(crate) media: &'a [Medium],
+    /// `boxes[Which as usize]`: the world boxes of the media's primary / secondary
+    /// estimators (see [`super::bounds`]).
+    boxes: [MediaBoxes; 2],
     pub(crate) sun: Option<(Vec3, Vec3)>,
     pub(crate) env: Option<Vec3>,
     pub(crate) albedo: f32,
@@ -238,8 +243,11 @@ impl Scene {
         });
         let env = Vec3::from_array(self.env_radiance);
         let env = (radiance_ok(&self.env_radiance) && env != Vec3::ZERO).then_some(env);
+        let boxes =
+            |which: Which| MediaBoxes::new(self.media.iter().map(|m| Ctx::est(m, which).bounds()));
         Ctx {
             media: &self.media,
+            boxes: [boxes(Which::Primary), boxes(Which::Secondary)],
             sun,
             env,
             albedo: if self.albedo.is_nan() {
@@ -273,14 +281,35 @@ impl Ctx<'_> {
         }
     }
 
-    /// Product of the instances' transmittances (additive extinction).
+    /// Product of the instances' transmittances (additive extinction). Media whose box the
+    /// ray misses are skipped (their transmittance is 1).
     #[inline]
     pub(crate) fn transmittance(&self, which: Which, o: Vec3, d: Vec3, rng: &mut Pcg32) -> f32 {
+        let media = self.media;
+        let boxes = &self.boxes[which as usize];
+        debug_assert_eq!(boxes.len(), media.len());
         let mut t = 1.0f32;
-        for m in self.media {
-            t *= Self::est(m, which).transmittance(o, d, f32::INFINITY, rng);
-            if t == 0.0 {
-                break;
+        let Some(ray) = RaySlabs::new(o, d) else {
+            // Not a ray the box test reasons about: every medium decides for itself.
+            for m in media {
+                t *= Self::est(m, which).transmittance(o, d, f32::INFINITY, rng);
+                if t == 0.0 {
+                    break;
+                }
+            }
+            return t;
+        };
+        let mut entry = [MISS; CHUNK];
+        for start in (0..media.len()).step_by(CHUNK) {
+            let n = boxes.entries(start, &ray, f32::INFINITY, &mut entry);
+            for (m, e) in media[start..start + n].iter().zip(&entry[..n]) {
+                if *e == MISS {
+                    continue;
+                }
+                t *= Self::est(m, which).transmittance(o, d, f32::INFINITY, rng);
+                if t == 0.0 {
+                    return t;
+                }
             }
         }
         t
@@ -288,15 +317,53 @@ impl Ctx<'_> {
 
     /// Nearest collision over the instances. Each later instance only searches up to the
     /// nearest collision so far: whether and where it collides before that point has the
-    /// same distribution as in an untruncated search, which is all the minimum needs.
+    /// same distribution as in an untruncated search, which is all the minimum needs, and
+    /// it holds in any order. So the media whose box the ray meets are asked in the order of
+    /// their box entries (per chunk of [`CHUNK`] media), and the search stops at the first
+    /// box that starts beyond the nearest collision so far.
     #[inline]
     pub(crate) fn distance(&self, which: Which, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Option<f32> {
+        let media = self.media;
+        let boxes = &self.boxes[which as usize];
+        debug_assert_eq!(boxes.len(), media.len());
         let mut best = f32::INFINITY;
-        for m in self.media {
-            if let Some(t) = Self::est(m, which).sample_distance(o, d, best, rng)
-                && t < best
+        let mut sample = |m: &Medium, best: &mut f32| {
+            if let Some(t) = Self::est(m, which).sample_distance(o, d, *best, rng)
+                && t < *best
             {
-                best = t;
+                *best = t;
+            }
+        };
+        let Some(ray) = RaySlabs::new(o, d) else {
+            for m in media {
+                sample(m, &mut best);
+            }
+            return (best < f32::INFINITY).then_some(best);
+        };
+        let mut entry = [MISS; CHUNK];
+        let mut order = [0u8; CHUNK];
+        for start in (0..media.len()).step_by(CHUNK) {
+            let n = boxes.entries(start, &ray, best, &mut entry);
+            // Indices of the boxes met, by entry (insertion sort: a handful of them).
+            let mut k = 0usize;
+            for i in 0..n {
+                let e = entry[i];
+                if e == MISS {
+                    continue;
+                }
+                let mut j = k;
+                while j > 0 && entry[order[j - 1] as usize] > e {
+                    order[j] = order[j - 1];
+                    j -= 1;
+                }
+                order[j] = i as u8;
+                k += 1;
+            }
+            for &i in &order[..k] {
+                if entry[i as usize] > best {
+                    break;
+                }
+                sample(&media[start + i as usize], &mut best);
             }
         }
         (best < f32::INFINITY).then_some(best)

@@ -261,19 +261,22 @@ pub fn majorants(field: &SourceField, bricks: u32) -> Result<Arc<MajorantGrid>> 
 /// A pin grid as a renderer estimator. The grid is leaked: a binary renders with it until exit.
 pub struct PinsEstimator {
     sampler: Sampler<'static>,
+    /// The placed grid's world box (the renderer skips the estimator for rays that miss it).
+    bounds: Option<([f64; 3], [f64; 3])>,
 }
 
 impl PinsEstimator {
     pub fn new(grid: PinGrid) -> Result<Self> {
         let grid: &'static PinGrid = Box::leak(Box::new(grid));
-        Ok(Self {
-            sampler: grid.sampler()?,
-        })
+        Ok(Self::from_sampler(grid.sampler()?))
     }
 
     /// An estimator over an already placed sampler (instances, lookup options).
     pub fn from_sampler(sampler: Sampler<'static>) -> Self {
-        Self { sampler }
+        Self {
+            bounds: sampler.world_bounds(),
+            sampler,
+        }
     }
 }
 
@@ -296,6 +299,9 @@ impl TransportEstimator for PinsEstimator {
     }
     fn name(&self) -> String {
         "pins".into()
+    }
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        self.bounds
     }
 }
 
