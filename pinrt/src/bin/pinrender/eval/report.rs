@@ -206,11 +206,24 @@ pub fn scene_table(r: &SceneResult) -> String {
         }
         v
     };
-    let base = curve(r, BASELINE);
-    let target = base.last().map(|p| (p.1, p.0));
+    // Each backend against its own ray marching at step 0.015 (the GPU rows against the GPU's,
+    // the comparison the thesis makes on its GPU); the CPU's when a backend lacks one.
+    let cpu_target = curve(r, BASELINE).last().map(|p| (p.1, p.0));
+    let target_of = |label: &str| -> Option<(f64, f64)> {
+        match label.rfind(" (") {
+            Some(i) if label.ends_with(')') => {
+                let backend_base = format!("{BASELINE}{}", &label[i..]);
+                curve(r, &backend_base)
+                    .last()
+                    .map(|p| (p.1, p.0))
+                    .or(cpu_target)
+            }
+            _ => cpu_target,
+        }
+    };
     let _ = writeln!(
         s,
-        "| estimator | spp | time | RMSE | rel. MSE | time to {BASELINE}'s final RMSE | speedup vs {BASELINE} |"
+        "| estimator | spp | time | RMSE | rel. MSE | time to {BASELINE}'s final RMSE (same backend) | speedup vs {BASELINE} (same backend) |"
     );
     let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|");
     for est in &ests {
@@ -225,7 +238,7 @@ pub fn scene_table(r: &SceneResult) -> String {
             .rfind(|x| x.label() == est)
             .map(|x| x.rel_mse)
             .unwrap_or(f64::NAN);
-        let (reach, speed) = match target {
+        let (reach, speed) = match target_of(est) {
             None => ("n/a (no baseline)".to_string(), "n/a".to_string()),
             Some((e_target, t_base)) => match time_to(&c, e_target) {
                 Reach::At(t) => (fmt_s(t), format!("{:.2}x", t_base / t)),
@@ -233,7 +246,11 @@ pub fn scene_table(r: &SceneResult) -> String {
                 Reach::Never => ("not reached".to_string(), "-".to_string()),
             },
         };
-        let name = if est == BASELINE {
+        let name = if est == BASELINE
+            || est
+                .strip_prefix(BASELINE)
+                .is_some_and(|t| t.starts_with(" ("))
+        {
             format!("**{est}**")
         } else {
             est.to_string()
@@ -271,10 +288,11 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
         "How to read the tables: *spp*, *time*, *RMSE* and *rel. MSE* are at the largest budget \
          (equal time; the time is the measured wall time, which overruns the budget by at most \
          one 1-spp pass). *Time to {BASELINE}'s final RMSE* is when the estimator's error curve \
-         first reaches the RMSE that ray marching at step 0.015 reaches at the largest budget, \
-         interpolated log-log between measurements (`<= t`: already there at the first \
-         measurement; *not reached*: never within the budgets, usually bias). *Speedup* is \
-         {BASELINE}'s time divided by that time. Errors are against a high-sample reference \
+         first reaches the RMSE that ray marching at step 0.015 reaches at the largest budget \
+         on the same backend (CPU rows against `{BASELINE}`, `(gpu)` rows against \
+         `{BASELINE} (gpu)`), interpolated log-log between measurements (`<= t`: already there \
+         at the first measurement; *not reached*: never within the budgets, usually bias). \
+         *Speedup* is that baseline's time divided by that time. Errors are against a high-sample reference \
          rendered once and cached (`out/eval/cache/`); relative MSE is \
          `mean((x - ref)^2 / (ref^2 + 0.01))`. Pin bakes are an offline asset step: their time \
          is listed per scene and is *not* included in the render times. {} bounces (1 for \
