@@ -26,6 +26,6 @@ for est in pinms ratio; do
   $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
 done
-# The error-against-run-time report on small budgets (the full one: `pinrender eval`, ~7 min).
+# The error-against-run-time report on small budgets (the full one: `pinrender eval`, ~10 min on 2 cores with the GPU rows).
 $R eval --quick --out out/eval
 echo "main job done: out/smoke.pin, out/hydrogen.pin, out/smoke_{pinms,ratio}.{exr,png}, out/eval/report.md"
