@@ -400,7 +400,11 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2
                 }
                 t = t_next;
                 tau = rt_exp();
-                let sigma = rt_clean(rt_extinction(m, o + d * t));
+                // t lies in the clipped segment, so the point is inside the box; rounding can
+                // put a point on the entry face a hair outside, where the density reads 0,
+                // and a huge majorant (t + tau / majorant == t) would then never move on.
+                let pt = clamp(o + d * t, lo, hi);
+                let sigma = rt_clean(rt_extinction(m, pt));
                 if (ratio) {
                     tr = tr * (1.0 - sigma * inv);
                     if (tr == 0.0 || !(tr == tr)) {

@@ -851,3 +851,93 @@ fn media_and_estimators_are_checked() {
     };
     assert_eq!(values, &[0.0, 0.0, f32::MAX, 2.0]);
 }
+
+/// DESIGN section 5 on the GPU path tracer: an empty medium (extinction 0, majorant 0), an
+/// opaque one (extinction 1e30, majorant 1e30) and NaN / infinite voxels give finite images
+/// with the expected transmittance for every estimator.
+#[test]
+fn stiff_media_stay_finite() {
+    let ctx = context();
+    let mut sc = scene(16, 0.0, 0.0, 3);
+    sc.camera.origin = [0.0, 0.0, 4.0];
+    sc.camera.target = [0.0, 0.0, 0.0];
+    sc.camera.vfov_deg = 20.0; // every pixel's ray crosses the box [-1, 1]^3
+    let env = sc.env_radiance;
+    let estimators = [
+        GpuEstimator::RayMarching { rel_step: 0.05 },
+        GpuEstimator::DeltaTracking,
+        GpuEstimator::RatioTracking,
+    ];
+    for (label, value, expect_t) in [
+        ("empty", 0.0f32, 1.0f32),
+        ("opaque 1e30", 1e30, 0.0),
+        ("infinite", f32::INFINITY, 0.0),
+        ("NaN", f32::NAN, 1.0),
+    ] {
+        let grid = VoxelGrid::new([2, 2, 2], [-1.0; 3], [1.0; 3], vec![value; 8]).unwrap();
+        let maj = Arc::new(MajorantGrid::from_field(&grid, [2, 2, 2]).unwrap());
+        let media = GpuMedia {
+            grids: Vec::new(),
+            densities: vec![GpuDensity::from_voxel_grid(&grid)],
+            media: vec![GpuMedium {
+                pins: None,
+                density: Some(GpuPlacedDensity {
+                    density: 0,
+                    translation: [0.0; 3],
+                    majorants: Some(maj),
+                }),
+            }],
+        };
+        let r = GpuRenderer::with_media(&ctx, &media).unwrap();
+        let grid = Arc::new(grid);
+        let maj = media.media[0]
+            .density
+            .as_ref()
+            .unwrap()
+            .majorants
+            .clone()
+            .unwrap();
+        for est in estimators {
+            // Transmitted environment: exactly env * T, on both backends.
+            let cpu_est: Arc<dyn TransportEstimator> = match est {
+                GpuEstimator::RayMarching { rel_step } => {
+                    Arc::new(crate::render::RayMarching::new(grid.clone(), rel_step).unwrap())
+                }
+                GpuEstimator::DeltaTracking => {
+                    Arc::new(crate::render::DeltaTracking::new(grid.clone(), maj.clone()))
+                }
+                _ => Arc::new(crate::render::RatioTracking::new(grid.clone(), maj.clone())),
+            };
+            let cpu = cpu_render_media(vec![Medium::single(cpu_est)], &sc, 4, 1);
+            let img = r.render(&sc, est, 4, 1).unwrap();
+            for p in &cpu.rgb {
+                for c in 0..3 {
+                    assert!(
+                        (p[c] - env[c] * expect_t).abs() <= 1e-6,
+                        "[{label}, {}, cpu] pixel {p:?}, expected T = {expect_t}",
+                        est.name()
+                    );
+                }
+            }
+            for p in &img.rgb {
+                for c in 0..3 {
+                    assert!(
+                        (p[c] - env[c] * expect_t).abs() <= 1e-6,
+                        "[{label}, {}] pixel {p:?}, expected T = {expect_t}",
+                        est.name()
+                    );
+                }
+            }
+            // With scattering: finite and non-negative (an opaque box still scatters sun
+            // light back from its surface).
+            let mut lit = sc.clone();
+            lit.albedo = 0.9;
+            let img = r.render(&lit, est, 4, 2).unwrap();
+            assert!(
+                img.rgb.iter().flatten().all(|c| c.is_finite() && *c >= 0.0),
+                "[{label}, {}] non-finite or negative pixel",
+                est.name()
+            );
+        }
+    }
+}

@@ -102,7 +102,10 @@ pub struct VoxelGrid {
 
 impl VoxelGrid {
     /// Validates dims (all >= 1, product = `values.len()`), finite origin and positive finite
-    /// spacing. Values are used as given (the estimators clamp NaN and negatives to 0).
+    /// spacing. Values are cleaned once here, as the estimators read extinction: NaN and
+    /// negatives become 0 and `+inf` (opaque) becomes `f32::MAX`, so that trilinear
+    /// interpolation never forms `inf - inf` (a NaN that would read as empty space). The GPU
+    /// copy (`pinrt::gpu_render::GpuDensity`) cleans the same way.
     pub fn new(
         dims: [u32; 3],
         origin: [f64; 3],
@@ -130,6 +133,10 @@ impl VoxelGrid {
             return Err(invalid(format!("origin {origin:?} / spacing {spacing:?}")));
         }
         let max = [0, 1, 2].map(|a| origin[a] + d[a] as f64 * spacing[a]);
+        let values = values
+            .into_iter()
+            .map(|v| if v > 0.0 { v.min(f32::MAX) } else { 0.0 })
+            .collect();
         Ok(VoxelGrid {
             dims: d,
             origin,
@@ -139,7 +146,7 @@ impl VoxelGrid {
         })
     }
 
-    /// Dims, origin, spacing and values (`x` fastest), as given to [`VoxelGrid::new`].
+    /// Dims, origin, spacing and the cleaned values (`x` fastest).
     pub fn parts(&self) -> ([u32; 3], [f64; 3], [f64; 3], &[f32]) {
         (
             self.dims.map(|d| d as u32),
@@ -254,5 +261,16 @@ mod tests {
         assert_eq!(g.max_extinction([5.0; 3], [6.0; 3]), Some(0.0));
         assert!(VoxelGrid::new([0, 1, 1], [0.0; 3], [1.0; 3], vec![]).is_err());
         assert!(VoxelGrid::new([1, 1, 1], [0.0; 3], [0.0; 3], vec![1.0]).is_err());
+        // Cleaned on construction: an infinite voxel stays opaque under interpolation.
+        let g = VoxelGrid::new(
+            [4, 1, 1],
+            [0.0; 3],
+            [1.0; 3],
+            vec![f32::NAN, -2.0, f32::INFINITY, f32::INFINITY],
+        )
+        .unwrap();
+        assert_eq!(g.parts().3, &[0.0, 0.0, f32::MAX, f32::MAX]);
+        assert_eq!(g.extinction(Vec3::new(3.0, 0.5, 0.5)), f32::MAX);
+        assert_eq!(g.extinction(Vec3::new(0.2, 0.5, 0.5)), 0.0);
     }
 }
