@@ -126,16 +126,100 @@ impl GpuContext {
     }
 }
 
-/// The uniform block of `pin.wgsl` (128 bytes).
+/// The uniform block of `pin.wgsl` (128 bytes): a grid's placement, shape and lookup
+/// options; `run` is filled per dispatch by `main` (the path tracer leaves it 0).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-struct Params {
+pub(crate) struct Params {
     rows: [[f32; 4]; 3],
     jitter: [f32; 4],
     dims: [u32; 4],
     grid: [u32; 4],
     dirs: [u32; 4],
     run: [u32; 4],
+}
+
+impl Params {
+    /// `grid` placed by `xf` with lookup `options`, as `pin.wgsl` reads it.
+    pub(crate) fn for_grid(
+        grid: &PinGrid,
+        xf: &UnitTransform,
+        options: SamplerOptions,
+    ) -> Result<Self> {
+        let s = grid.shape();
+        let block_len = u32::try_from(s.block_len)
+            .map_err(|_| Error::Gpu("block length exceeds u32".into()))?;
+        let stored = u32::try_from(grid.desc().stored_cells)
+            .map_err(|_| Error::Gpu("stored cells exceed u32".into()))?;
+        let (kind, res) = s.directions.to_desc();
+        let on = |x: f32| if x > 0.0 && x.is_finite() { x } else { 0.0 };
+        Ok(Params {
+            rows: xf.rows,
+            jitter: [
+                on(options.spatial_jitter),
+                on(options.directional_jitter),
+                0.0,
+                0.0,
+            ],
+            dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
+            grid: [s.z_end, s.pins_per_entry, block_len, stored],
+            dirs: [
+                kind,
+                res[0],
+                res[1],
+                u32::from(grid.cell_index_bytes().is_some()),
+            ],
+            run: [0; 4],
+        })
+    }
+}
+
+/// Waits for the submitted work, reports a validation error caught by `scope` (named `what`),
+/// then maps the whole `staging` buffer and copies it out as `T`s.
+pub(crate) async fn read_back<T: Pod>(
+    dev: &wgpu::Device,
+    staging: &wgpu::Buffer,
+    scope: wgpu::ErrorScopeGuard,
+    what: &str,
+) -> Result<Vec<T>> {
+    let (tx, rx) = mpsc::channel();
+    staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        let _ = tx.send(r);
+    });
+    dev.poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| gpu_err("poll", e))?;
+    if let Some(e) = scope.pop().await {
+        return Err(gpu_err(what, e));
+    }
+    rx.recv()
+        .map_err(|e| gpu_err("readback", e))?
+        .map_err(|e| gpu_err("readback", e))?;
+    let view = staging
+        .slice(..)
+        .get_mapped_range()
+        .map_err(|e| gpu_err("readback", e))?;
+    let out = bytemuck::pod_collect_to_vec::<u8, T>(&view);
+    drop(view);
+    staging.unmap();
+    Ok(out)
+}
+
+/// The largest storage buffer `limits` let one binding hold, in bytes.
+pub(crate) fn binding_limit(limits: &wgpu::Limits) -> u64 {
+    limits
+        .max_storage_buffer_binding_size
+        .min(limits.max_buffer_size)
+}
+
+/// An error naming `what` when `len` bytes exceed one storage binding of `limit` bytes.
+pub(crate) fn check_binding(limit: u64, what: &str, len: usize) -> Result<()> {
+    if len as u64 > limit {
+        return Err(Error::Gpu(format!(
+            "{what} is {len} bytes, more than this device binds in one storage buffer \
+             ({limit} bytes); use a coarser grid or a device with larger limits"
+        )));
+    }
+    Ok(())
 }
 
 /// A pin grid resident on the GPU, with its placement and lookup options.
@@ -172,31 +256,13 @@ impl GpuPinGrid {
         options: SamplerOptions,
     ) -> Result<Self> {
         let xf = UnitTransform::new(grid.desc(), local_to_world)?;
-        let max_binding = ctx.limits.max_storage_buffer_binding_size;
-        let max_buffer = ctx.limits.max_buffer_size;
-        let check = |what: &str, len: usize| -> Result<()> {
-            let len = len as u64;
-            if len > max_binding.min(max_buffer) {
-                return Err(Error::Gpu(format!(
-                    "{what} is {len} bytes, more than this device binds in one storage buffer \
-                     ({} bytes); use a coarser grid or a device with larger limits",
-                    max_binding.min(max_buffer)
-                )));
-            }
-            Ok(())
-        };
+        let limit = binding_limit(&ctx.limits);
         let pins_bytes = grid.pins_bytes();
-        check("the pin section", pins_bytes.len())?;
+        check_binding(limit, "the pin section", pins_bytes.len())?;
         let index_bytes = grid.cell_index_bytes();
         if let Some(b) = index_bytes {
-            check("the cell index", b.len())?;
+            check_binding(limit, "the cell index", b.len())?;
         }
-        let s = grid.shape();
-        let stored = grid.desc().stored_cells;
-        let block_len = u32::try_from(s.block_len)
-            .map_err(|_| Error::Gpu("block length exceeds u32".into()))?;
-        let stored_u32 =
-            u32::try_from(stored).map_err(|_| Error::Gpu("stored cells exceed u32".into()))?;
         let dummy = [0u8; 8];
         let storage = |label: &str, contents: &[u8]| {
             ctx.device
@@ -212,21 +278,7 @@ impl GpuPinGrid {
         };
         let pins = storage("pins", pins_bytes);
         let index = storage("cell index", index_bytes.unwrap_or(&[]));
-        let (kind, res) = s.directions.to_desc();
-        let on = |x: f32| if x > 0.0 && x.is_finite() { x } else { 0.0 };
-        let params = Params {
-            rows: xf.rows,
-            jitter: [
-                on(options.spatial_jitter),
-                on(options.directional_jitter),
-                0.0,
-                0.0,
-            ],
-            dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
-            grid: [s.z_end, s.pins_per_entry, block_len, stored_u32],
-            dirs: [kind, res[0], res[1], u32::from(index_bytes.is_some())],
-            run: [0; 4],
-        };
+        let params = Params::for_grid(grid, &xf, options)?;
         Ok(Self {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
@@ -248,11 +300,7 @@ impl GpuPinGrid {
         first_index: u32,
     ) -> Result<Vec<GpuResult>> {
         let mut out = Vec::with_capacity(rays.len());
-        let per_binding = self
-            .limits
-            .max_storage_buffer_binding_size
-            .min(self.limits.max_buffer_size)
-            / 32;
+        let per_binding = binding_limit(&self.limits) / 32;
         let chunk = (per_binding as usize).clamp(WORKGROUP_SIZE as usize, 1 << 22);
         for (c, part) in rays.chunks(chunk).enumerate() {
             let first = first_index.wrapping_add((c * chunk) as u32);
@@ -335,26 +383,7 @@ impl GpuPinGrid {
         }
         enc.copy_buffer_to_buffer(&results, 0, &staging, 0, size);
         self.queue.submit([enc.finish()]);
-        let (tx, rx) = mpsc::channel();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        dev.poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| gpu_err("poll", e))?;
-        if let Some(e) = scope.pop().await {
-            return Err(gpu_err("dispatch", e));
-        }
-        rx.recv()
-            .map_err(|e| gpu_err("readback", e))?
-            .map_err(|e| gpu_err("readback", e))?;
-        let view = staging
-            .slice(..)
-            .get_mapped_range()
-            .map_err(|e| gpu_err("readback", e))?;
-        let out = bytemuck::pod_collect_to_vec::<u8, GpuResult>(&view);
-        drop(view);
-        staging.unmap();
-        Ok(out)
+        read_back(dev, &staging, scope, "dispatch").await
     }
 }
 

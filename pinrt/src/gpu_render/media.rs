@@ -15,8 +15,10 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::chord::UnitTransform;
 use crate::error::Error;
+pub(super) use crate::gpu::Params as GridParams;
+use crate::gpu::check_binding;
 use crate::loader::PinGrid;
-use crate::render::{HomogeneousBox, MajorantGrid, RenderError, VoxelGrid};
+use crate::render::{DensityField, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid};
 use crate::sampler::SamplerOptions;
 
 /// One cosine wave of [`GpuDensityKind::Cosine`]: `amplitude * cos(w . p + phase)`.
@@ -33,13 +35,8 @@ pub enum GpuDensityKind {
     /// A dense voxel grid in the convention of [`VoxelGrid`] (DESIGN section 2): dims `N`,
     /// spacing `s`, origin `o` occupy `[o, o + N s]`, voxel centres at `o + (i + 0.5) s`,
     /// trilinear between centres, the edge voxel's value in the outer half voxel; values `x`
-    /// fastest. Evaluated in f32.
-    Voxels {
-        dims: [u32; 3],
-        origin: [f64; 3],
-        spacing: [f64; 3],
-        values: Vec<f32>,
-    },
+    /// fastest, cleaned by [`VoxelGrid::new`]. Evaluated in f32 on the GPU.
+    Voxels(VoxelGrid),
     /// `density * max(0, 1 + sum_k amplitude_k cos(w_k . p + phase_k))`, pinbake's cosine
     /// noise (evaluated in f32 with the phase reduced to turns before the cosine).
     Cosine {
@@ -84,40 +81,18 @@ impl GpuDensity {
         spacing: [f64; 3],
         values: Vec<f32>,
     ) -> Result<Self, RenderError> {
-        let n = dims.iter().map(|&d| d as u64).product::<u64>();
-        if n == 0 || n != values.len() as u64 {
-            return Err(invalid(format!(
-                "dims {dims:?} need {n} values (>= 1), got {}",
-                values.len()
-            )));
-        }
-        if !origin.iter().all(|v| v.is_finite())
-            || !spacing.iter().all(|v| v.is_finite() && *v > 0.0)
-        {
-            return Err(invalid(format!("origin {origin:?} / spacing {spacing:?}")));
-        }
-        let hi = [0, 1, 2].map(|a| origin[a] + dims[a] as f64 * spacing[a]);
-        check_box(&origin, &hi)?;
-        let values = values
-            .into_iter()
-            .map(|v| if v > 0.0 { v.min(f32::MAX) } else { 0.0 })
-            .collect();
-        Ok(GpuDensity {
-            bounds: (origin, hi),
-            kind: GpuDensityKind::Voxels {
-                dims,
-                origin,
-                spacing,
-                values,
-            },
-        })
+        Self::from_voxel_grid(VoxelGrid::new(dims, origin, spacing, values)?)
     }
 
-    /// The GPU copy of a CPU [`VoxelGrid`] (same convention, same box).
-    pub fn from_voxel_grid(grid: &VoxelGrid) -> Self {
-        let (dims, origin, spacing, values) = grid.parts();
-        Self::voxels(dims, origin, spacing, values.to_vec())
-            .expect("a VoxelGrid is validated on construction")
+    /// The GPU copy of a CPU [`VoxelGrid`] (same convention, same box). Errors only for a box
+    /// that overflows (`origin + dims * spacing` not finite).
+    pub fn from_voxel_grid(grid: VoxelGrid) -> Result<Self, RenderError> {
+        let (lo, hi) = grid.bounds();
+        check_box(&lo, &hi)?;
+        Ok(GpuDensity {
+            bounds: (lo, hi),
+            kind: GpuDensityKind::Voxels(grid),
+        })
     }
 
     /// A homogeneous box: one voxel over the box, which the convention makes constant inside.
@@ -168,33 +143,7 @@ impl GpuDensity {
                 });
                 (f64::from(*density) * s).max(0.0)
             }
-            GpuDensityKind::Voxels {
-                dims,
-                origin,
-                spacing,
-                values,
-            } => {
-                let mut i0 = [0usize; 3];
-                let mut i1 = [0usize; 3];
-                let mut f = [0.0f64; 3];
-                for a in 0..3 {
-                    let n = f64::from(dims[a]);
-                    let u = ((p[a] - origin[a]) / spacing[a] - 0.5).clamp(0.0, n - 1.0);
-                    let fl = u.floor();
-                    i0[a] = fl as usize;
-                    i1[a] = (i0[a] + 1).min(dims[a] as usize - 1);
-                    f[a] = u - fl;
-                }
-                let at = |x: usize, y: usize, z: usize| {
-                    f64::from(values[x + dims[0] as usize * (y + dims[1] as usize * z)])
-                };
-                let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
-                let c00 = lerp(at(i0[0], i0[1], i0[2]), at(i1[0], i0[1], i0[2]), f[0]);
-                let c10 = lerp(at(i0[0], i1[1], i0[2]), at(i1[0], i1[1], i0[2]), f[0]);
-                let c01 = lerp(at(i0[0], i0[1], i1[2]), at(i1[0], i0[1], i1[2]), f[0]);
-                let c11 = lerp(at(i0[0], i1[1], i1[2]), at(i1[0], i1[1], i1[2]), f[0]);
-                lerp(lerp(c00, c10, f[1]), lerp(c01, c11, f[1]), f[2])
-            }
+            GpuDensityKind::Voxels(grid) => grid.trilinear(p),
         }
     }
 
@@ -275,19 +224,6 @@ pub(super) struct Caps {
     pub majorants: bool,
 }
 
-/// `Params` of `pin.wgsl` (128 bytes): a grid's placement and shape; `run` is unused by the
-/// path tracer.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub(super) struct GridParams {
-    pub rows: [[f32; 4]; 3],
-    pub jitter: [f32; 4],
-    pub dims: [u32; 4],
-    pub grid: [u32; 4],
-    pub dirs: [u32; 4],
-    pub run: [u32; 4],
-}
-
 /// `RtMedium` of `render.wgsl` (208 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
@@ -323,39 +259,6 @@ pub(super) struct Packed<'g> {
     pub pins: Cow<'g, [u8]>,
     pub index: Cow<'g, [u8]>,
     pub caps: Vec<Caps>,
-}
-
-/// The grid's shape and lookup options with placement `xf`, as `pin.wgsl` reads them.
-pub(super) fn grid_params(
-    grid: &PinGrid,
-    xf: &UnitTransform,
-    options: SamplerOptions,
-) -> crate::Result<GridParams> {
-    let s = grid.shape();
-    let block_len =
-        u32::try_from(s.block_len).map_err(|_| Error::Gpu("block length exceeds u32".into()))?;
-    let stored = u32::try_from(grid.desc().stored_cells)
-        .map_err(|_| Error::Gpu("stored cells exceed u32".into()))?;
-    let (kind, res) = s.directions.to_desc();
-    let on = |x: f32| if x > 0.0 && x.is_finite() { x } else { 0.0 };
-    Ok(GridParams {
-        rows: xf.rows,
-        jitter: [
-            on(options.spatial_jitter),
-            on(options.directional_jitter),
-            0.0,
-            0.0,
-        ],
-        dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
-        grid: [s.z_end, s.pins_per_entry, block_len, stored],
-        dirs: [
-            kind,
-            res[0],
-            res[1],
-            u32::from(grid.cell_index_bytes().is_some()),
-        ],
-        run: [0; 4],
-    })
 }
 
 /// Conservative world AABB of a grid's box under `local_to_world` (row-major 3x4), widened by
@@ -406,15 +309,7 @@ fn gpu(why: String) -> Error {
 
 /// Packs `media` into the shader's records; `limit` is the largest storage binding in bytes.
 pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> crate::Result<Packed<'g>> {
-    let check = |what: &str, len: usize| -> crate::Result<()> {
-        if len as u64 > limit {
-            return Err(gpu(format!(
-                "{what} is {len} bytes, more than this device binds in one storage buffer \
-                 ({limit} bytes); use a coarser grid or a device with larger limits"
-            )));
-        }
-        Ok(())
-    };
+    let check = |what: &str, len: usize| check_binding(limit, what, len);
     // Pin grids: concatenated (borrowed straight from the mapping when there is one).
     let mut pin_base = Vec::with_capacity(media.grids.len());
     let mut index_base = Vec::with_capacity(media.grids.len());
@@ -451,7 +346,7 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> crate::Result<Packed
     for d in &media.densities {
         density_off.push(data.len());
         match &d.kind {
-            GpuDensityKind::Voxels { values, .. } => data.extend_from_slice(values),
+            GpuDensityKind::Voxels(grid) => data.extend_from_slice(grid.parts().3),
             GpuDensityKind::Cosine { waves, .. } => {
                 for w in waves {
                     data.extend_from_slice(&[
@@ -487,7 +382,7 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> crate::Result<Packed
             })?;
             let placement = p.local_to_world.unwrap_or(grid.desc().local_to_world);
             let xf = UnitTransform::new(grid.desc(), Some(&placement))?;
-            gp = grid_params(grid, &xf, p.options)?;
+            gp = GridParams::for_grid(grid, &xf, p.options)?;
             (r.pin_lo, r.pin_hi) = placed_box(grid, &placement);
             r.ids[0] = to_u32("pin", pin_base[p.grid])?;
             r.ids[1] = to_u32("cell index", index_base[p.grid])?;
@@ -514,15 +409,11 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> crate::Result<Packed
             r.offs[0] = to_u32("density", density_off[pd.density])?;
             r.ids[2] |= FLAG_DENSITY;
             match &d.kind {
-                GpuDensityKind::Voxels {
-                    dims,
-                    origin,
-                    spacing,
-                    ..
-                } => {
+                GpuDensityKind::Voxels(grid) => {
+                    let (dims, origin, spacing, _) = grid.parts();
                     r.ids[3] = KIND_VOXELS;
                     r.vdims = [dims[0], dims[1], dims[2], 0];
-                    r.vox_origin = f4(*origin, 0.0);
+                    r.vox_origin = f4(origin, 0.0);
                     r.vox_inv = f4(spacing.map(|s| 1.0 / s), 0.0);
                     r.clip_lo = f4(wlo, 0.0);
                 }

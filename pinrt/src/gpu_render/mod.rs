@@ -33,7 +33,7 @@ pub use media::{
 };
 
 use std::collections::HashMap;
-use std::sync::{Mutex, mpsc};
+use std::sync::Mutex;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -269,6 +269,16 @@ impl GpuEstimator {
         }
     }
 
+    /// Whether this estimator queries pin grids (every medium then needs one).
+    pub fn uses_pins(self) -> bool {
+        self.needs().pins
+    }
+
+    /// Whether this estimator tracks over majorant grids (every medium then needs one).
+    pub fn uses_majorants(self) -> bool {
+        self.needs().majorants
+    }
+
     /// What every medium must have for this estimator.
     fn needs(self) -> media::Caps {
         let (p, s) = self.kinds();
@@ -378,11 +388,7 @@ impl GpuRenderer {
     }
 
     async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
-        let limit = ctx
-            .limits
-            .max_storage_buffer_binding_size
-            .min(ctx.limits.max_buffer_size);
-        let packed = media::pack(media, limit)?;
+        let packed = media::pack(media, crate::gpu::binding_limit(&ctx.limits))?;
 
         let dev = &ctx.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -597,10 +603,7 @@ impl GpuRenderer {
         }
         let pixels = u64::from(w) * u64::from(h);
         let accum_size = pixels * 32;
-        let limit = self
-            .limits
-            .max_storage_buffer_binding_size
-            .min(self.limits.max_buffer_size);
+        let limit = crate::gpu::binding_limit(&self.limits);
         if accum_size > limit {
             return Err(Error::Gpu(format!(
                 "image {w}x{h} needs a {accum_size}-byte accumulation buffer, more than this \
@@ -725,25 +728,8 @@ impl GpuRenderer {
         });
         enc.copy_buffer_to_buffer(&accum, 0, &staging, 0, accum_size);
         self.queue.submit([enc.finish()]);
-        let (tx, rx) = mpsc::channel();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        dev.poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| gpu_err("poll", e))?;
-        if let Some(e) = scope.pop().await {
-            return Err(gpu_err("render dispatch", e));
-        }
-        rx.recv()
-            .map_err(|e| gpu_err("readback", e))?
-            .map_err(|e| gpu_err("readback", e))?;
-        let view = staging
-            .slice(..)
-            .get_mapped_range()
-            .map_err(|e| gpu_err("readback", e))?;
-        let sums = bytemuck::pod_collect_to_vec::<u8, [f32; 8]>(&view);
-        drop(view);
-        staging.unmap();
+        let sums: Vec<[f32; 8]> =
+            crate::gpu::read_back(dev, &staging, scope, "render dispatch").await?;
         let inv = 1.0 / f64::from(spp);
         let rgb = sums
             .iter()

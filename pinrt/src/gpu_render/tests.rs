@@ -584,7 +584,7 @@ impl MultiScene {
     fn gpu_media(&self) -> GpuMedia<'static> {
         GpuMedia {
             grids: vec![self.grid],
-            densities: vec![GpuDensity::from_voxel_grid(&self.base)],
+            densities: vec![GpuDensity::from_voxel_grid(self.base.clone()).unwrap()],
             media: (0..OFFSETS.len())
                 .map(|k| GpuMedium {
                     pins: Some(GpuPins {
@@ -790,7 +790,7 @@ fn media_and_estimators_are_checked() {
     let base = VoxelGrid::new([2, 2, 2], [-1.0; 3], [1.0; 3], vec![1.0; 8]).unwrap();
     let media = GpuMedia {
         grids: Vec::new(),
-        densities: vec![GpuDensity::from_voxel_grid(&base)],
+        densities: vec![GpuDensity::from_voxel_grid(base).unwrap()],
         media: vec![GpuMedium {
             pins: None,
             density: Some(GpuPlacedDensity {
@@ -846,10 +846,10 @@ fn media_and_estimators_are_checked() {
         vec![f32::NAN, -1.0, f32::INFINITY, 2.0],
     )
     .unwrap();
-    let GpuDensityKind::Voxels { values, .. } = &d.kind else {
+    let GpuDensityKind::Voxels(grid) = &d.kind else {
         unreachable!()
     };
-    assert_eq!(values, &[0.0, 0.0, f32::MAX, 2.0]);
+    assert_eq!(grid.parts().3, &[0.0, 0.0, f32::MAX, 2.0]);
 }
 
 /// DESIGN section 5 on the GPU path tracer: an empty medium (extinction 0, majorant 0), an
@@ -878,7 +878,7 @@ fn stiff_media_stay_finite() {
         let maj = Arc::new(MajorantGrid::from_field(&grid, [2, 2, 2]).unwrap());
         let media = GpuMedia {
             grids: Vec::new(),
-            densities: vec![GpuDensity::from_voxel_grid(&grid)],
+            densities: vec![GpuDensity::from_voxel_grid(grid.clone()).unwrap()],
             media: vec![GpuMedium {
                 pins: None,
                 density: Some(GpuPlacedDensity {

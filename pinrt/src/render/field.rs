@@ -160,18 +160,10 @@ impl VoxelGrid {
     fn at(&self, x: usize, y: usize, z: usize) -> f32 {
         self.values[x + self.dims[0] * (y + self.dims[1] * z)]
     }
-}
 
-impl DensityField for VoxelGrid {
-    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        (self.origin, self.max)
-    }
-
-    fn extinction(&self, p: Vec3) -> f32 {
-        if !inside(p, &self.origin, &self.max) {
-            return 0.0;
-        }
-        let q = [p.x as f64, p.y as f64, p.z as f64];
+    /// The trilinear value at `q` (in f64), clamped to the grid: the edge voxel's value in
+    /// and beyond the outer half voxel. Callers test the box.
+    pub(crate) fn trilinear(&self, q: [f64; 3]) -> f64 {
         let mut i0 = [0usize; 3];
         let mut i1 = [0usize; 3];
         let mut f = [0f64; 3];
@@ -209,7 +201,20 @@ impl DensityField for VoxelGrid {
         );
         let c0 = c00 + (c10 - c00) * f[1];
         let c1 = c01 + (c11 - c01) * f[1];
-        (c0 + (c1 - c0) * f[2]) as f32
+        c0 + (c1 - c0) * f[2]
+    }
+}
+
+impl DensityField for VoxelGrid {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        (self.origin, self.max)
+    }
+
+    fn extinction(&self, p: Vec3) -> f32 {
+        if !inside(p, &self.origin, &self.max) {
+            return 0.0;
+        }
+        self.trilinear([p.x as f64, p.y as f64, p.z as f64]) as f32
     }
 
     /// The trilinear value at any point is a convex combination of the (up to 8) voxels

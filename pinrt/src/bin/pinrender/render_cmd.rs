@@ -232,12 +232,7 @@ fn render_gpu(
             a.estimator
         )
     })?;
-    let needs_pins = matches!(est, GpuEstimator::Pins | GpuEstimator::PinMs);
-    let needs_majorants = matches!(
-        est,
-        GpuEstimator::DeltaTracking | GpuEstimator::RatioTracking | GpuEstimator::PinMs
-    );
-    let grid = if needs_pins {
+    let grid = if est.uses_pins() {
         Some(volume::leak_grid(volume::pins_for(
             a.pins.as_deref(),
             opened.source().as_ref(),
@@ -247,7 +242,7 @@ fn render_gpu(
     } else {
         None
     };
-    let majorants = if needs_majorants {
+    let majorants = if est.uses_majorants() {
         Some(volume::majorants(field, a.majorant_bricks)?)
     } else {
         None
