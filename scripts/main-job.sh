@@ -10,10 +10,11 @@ if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi
 if ! dpkg -s mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core >/dev/null 2>&1; then
   $SUDO apt-get update -qq && $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev >/dev/null
 fi
-DATA=../shared/data
+source scripts/env.sh
+DATA=data
 mkdir -p out
-cargo build --release -p pinbake -p pinrt --features pinrt/cli
-BIN=target/release/pinbake
+cargo build "${PROFILE_FLAGS[@]}" --bins
+BIN="$BIN_DIR/pinbake"
 $BIN bake "$DATA/openvdb_smoke1.vdb" -o out/smoke.pin --cells 37 --dirs polar:16x4 \
   --density-scale 4 --embed-density 64 --json > out/smoke.bake.json
 $BIN verify out/smoke.pin
@@ -21,7 +22,7 @@ $BIN inspect out/smoke.pin
 $BIN bake "$DATA/hydrogen_atom_128x128x128_uint8.raw" --density-scale 0.05 -o out/hydrogen.pin \
   --dirs octahedral:8 --json > out/hydrogen.bake.json
 $BIN inspect out/hydrogen.pin --json > out/hydrogen.inspect.json
-R=target/release/pinrender
+R="$BIN_DIR/pinrender"
 for est in pinms ratio; do
   $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr

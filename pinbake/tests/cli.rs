@@ -1,4 +1,4 @@
-//! End-to-end tests of the `pinbake` binary on every file in ../shared/data.
+//! End-to-end tests of the `pinbake` binary on every file in data/.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
@@ -8,7 +8,7 @@ const BIN: &str = env!("CARGO_BIN_EXE_pinbake");
 
 fn data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../data")
         .join(name)
 }
 

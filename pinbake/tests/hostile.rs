@@ -1,5 +1,5 @@
 //! Hostile input through the `pinbake` binary (DESIGN section 5, issue "hostile input"):
-//! every damaged VDB of `../shared/data/oiio_damaged` through `bake`, and generated corrupt
+//! every damaged VDB of `data//oiio_damaged` through `bake`, and generated corrupt
 //! pin files (truncated, flipped, lying header) through `verify` and `inspect`. Each must
 //! give a one-line error and exit code 1 within generous bounds on peak RSS (wait4's
 //! ru_maxrss, which includes the isolated VDB worker) and wall time. Prints the table that
@@ -21,7 +21,7 @@ const MAX_SECONDS: f64 = 10.0;
 
 fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../data")
         .join(name)
 }
 
@@ -182,7 +182,7 @@ fn hostile_inputs_fail_in_one_line_with_bounded_memory_and_time() {
     ];
     let mut rows = Vec::new();
     let mut damaged: Vec<PathBuf> = std::fs::read_dir(data("oiio_damaged"))
-        .expect("../shared/data/oiio_damaged")
+        .expect("data//oiio_damaged")
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "vdb"))
         .collect();

@@ -1,4 +1,4 @@
-//! Volume sources against the real files in shared/data: raw fixtures, OpenVDB files (valid,
+//! Volume sources against the real files in data/: raw fixtures, OpenVDB files (valid,
 //! level set, damaged) through the isolated worker process.
 
 use std::path::{Path, PathBuf};
@@ -9,7 +9,7 @@ use pinbake::source::raw::{Endian, RawOptions, RawType, read_raw};
 use pinbake::source::vdb::{VdbOptions, VdbSource};
 use pinbake::source::{DensitySource, SourceSpec, open_source};
 
-const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data");
+const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data");
 
 fn data(name: &str) -> PathBuf {
     Path::new(DATA).join(name)

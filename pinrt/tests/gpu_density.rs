@@ -15,7 +15,7 @@ use pinbake::source::{VdbOptions, VdbSource};
 use volume::{Opened, VolumeArgs, open_volume_typed};
 
 fn data(name: &str) -> String {
-    format!("{}/../../shared/data/{name}", env!("CARGO_MANIFEST_DIR"))
+    format!("{}/../data/{name}", env!("CARGO_MANIFEST_DIR"))
 }
 
 fn args(density_scale: f64, spacing: Option<[f64; 3]>) -> VolumeArgs {

@@ -1669,7 +1669,7 @@ mod tests {
     use super::*;
 
     fn data(name: &str) -> PathBuf {
-        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(name)
+        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../data")).join(name)
     }
 
     /// Runs the worker logic in-process (valid files only: the isolation is tested in

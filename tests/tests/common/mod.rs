@@ -3,10 +3,10 @@
 
 use std::path::PathBuf;
 
-/// `../shared/data` relative to the project root.
+/// `data/` relative to the project root.
 pub fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/data")
+        .join("../data")
         .join(name)
 }
 

@@ -34,10 +34,10 @@ pub struct BenchArgs {
     /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s}, ...]}.
     #[arg(long)]
     pub json: bool,
-}
-
-fn data_dir() -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data"))
+    /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
+    /// found from the executable or the working directory).
+    #[arg(long, value_name = "DIR")]
+    pub data: Option<PathBuf>,
 }
 
 /// The 256^3 voxelised cosine noise of the benchmark (no file needed).
@@ -208,11 +208,14 @@ fn bench_volume(
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
+    if let Some(d) = &args.data {
+        crate::data::set_dir(d.clone());
+    }
     let mut volumes: Vec<(String, Arc<dyn DensitySource>)> = Vec::new();
     if let Some(v) = &args.volume.volume {
         volumes.push((v.clone(), volume::open_volume(v, &args.volume)?));
     } else {
-        let smoke = data_dir().join("openvdb_smoke1.vdb");
+        let smoke = crate::data::path("openvdb_smoke1.vdb")?;
         if smoke.exists() {
             let v = smoke.to_string_lossy().into_owned();
             volumes.push(("smoke".into(), volume::open_volume(&v, &args.volume)?));

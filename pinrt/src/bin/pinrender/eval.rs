@@ -101,6 +101,10 @@ pub struct EvalArgs {
     /// Samples per pixel per GPU render call (each call is one measured pass).
     #[arg(long, default_value_t = 1)]
     pub gpu_batch: u32,
+    /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
+    /// found from the executable or the working directory).
+    #[arg(long, value_name = "DIR")]
+    pub data: Option<PathBuf>,
 }
 
 /// The GPU for the `(gpu)` rows.
@@ -213,6 +217,9 @@ pub struct BakeInfo {
 
 pub fn run(a: EvalArgs) -> Result<()> {
     let started = Instant::now();
+    if let Some(d) = &a.data {
+        crate::data::set_dir(d.clone());
+    }
     let sizes = {
         let mut s = if a.quick {
             Sizes::quick()

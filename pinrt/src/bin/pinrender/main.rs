@@ -5,6 +5,7 @@
 //! the evaluation scenes). Exit codes: 0 success, 1 bad input, 2 usage error.
 
 mod bench;
+mod data;
 mod eval;
 mod render_cmd;
 mod volume;

@@ -119,10 +119,6 @@ pub struct EvalScene {
 
 pub const SCENES: [&str; 6] = ["smoke", "hydrogen", "cosine", "box", "box-ss", "instances"];
 
-fn data_path(name: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../shared/data")).join(name)
-}
-
 const SMOKE_DENSITY_SCALE: f64 = 2.0;
 const HYDROGEN_DENSITY_SCALE: f64 = 0.6;
 const COSINE_SPEC: &str = "cosine:seed=7,freq=16,waves=8,density=4";
@@ -245,7 +241,7 @@ fn cells(sizes: &Sizes, factor: f64) -> u32 {
 }
 
 fn smoke(sizes: &Sizes) -> Result<EvalScene> {
-    let path = data_path("openvdb_smoke1.vdb");
+    let path = crate::data::path("openvdb_smoke1.vdb")?;
     let opened = crate::volume::open_volume_typed(
         path.to_str().context("data path is not UTF-8")?,
         &volume_args(SMOKE_DENSITY_SCALE),
@@ -285,7 +281,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
 }
 
 fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
-    let path = data_path("hydrogen_atom_128x128x128_uint8.raw");
+    let path = crate::data::path("hydrogen_atom_128x128x128_uint8.raw")?;
     let spec = source::SourceSpec::Raw(
         path,
         source::RawOptions {
