@@ -1,6 +1,5 @@
 //! The evaluation scenes: volumes, cameras, lights, per-instance estimators, references.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Context, Result, anyhow, bail};
