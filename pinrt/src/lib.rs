@@ -148,10 +148,10 @@ pub use sampler::{
 pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");
 
 // Re-exported so users need not depend on the format crate for the basic types.
-pub use pin_format::{Directions, GridDesc, PinEntry};
 /// The vector library of the public API (`march::MarchBox`, the renderer's scenes), so users
 /// name the same version of its types without a direct dependency.
 pub use glam;
+pub use pin_format::{Directions, GridDesc, PinEntry};
 #[cfg(all(feature = "gpu", feature = "render"))]
 pub mod gpu_render;
 #[cfg(feature = "render")]
