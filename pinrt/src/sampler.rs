@@ -1,7 +1,7 @@
 //! Distance sampling and transmittance estimation: single queries and prefetching batches.
 //!
 //! A query runs in three steps, which the batch API interleaves over 32 rays at a time so that
-//! all memory fetches of a batch are in flight together (DESIGN section 9):
+//! all memory fetches of a batch are in flight together (docs/background.md section 4):
 //!
 //! 1. **prepare** (pure arithmetic): world -> unit cube, validity, chord, segment, then the
 //!    draws for the pin number and jitter, the spatial and direction cells.

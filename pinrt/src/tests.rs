@@ -1,4 +1,4 @@
-//! Cross-module tests: the stiff cases of DESIGN section 5, statistics of the estimators,
+//! Cross-module tests: the stiff cases of docs/background.md section 3, statistics of the estimators,
 //! batch/single and multi-thread agreement.
 
 use pin_format::{Directions, PinEntry};
@@ -53,7 +53,7 @@ fn check_finite(r: &QueryResult) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Stiff cases (DESIGN section 5)
+// Stiff cases (docs/background.md section 3)
 // ---------------------------------------------------------------------------------------------
 
 #[test]
