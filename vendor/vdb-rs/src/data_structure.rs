@@ -330,6 +330,18 @@ impl<ValueTy> Node for Node5<ValueTy> {
 #[derive(Debug)]
 pub struct Tree<ValueTy> {
     pub root_nodes: Vec<Node5<ValueTy>>,
+    /// Tiles stored directly in the root node, each covering 4096^3 voxels.
+    pub root_tiles: Vec<RootTile<ValueTy>>,
+    /// The grid's background value (the value of every voxel the tree does not store).
+    pub background: ValueTy,
+}
+
+/// A constant-value tile of the root node: the 4096^3 voxels from `origin` on.
+#[derive(Clone, Copy, Debug)]
+pub struct RootTile<ValueTy> {
+    pub origin: IVec3,
+    pub value: ValueTy,
+    pub active: bool,
 }
 
 #[derive(Clone, Copy, Debug, Eq, PartialEq)]

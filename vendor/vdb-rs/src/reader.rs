@@ -1,7 +1,7 @@
 use crate::coordinates::Index;
 use crate::data_structure::{
     ArchiveHeader, Compression, Grid, GridDescriptor, Metadata, MetadataValue, Node, Node3, Node4,
-    Node5, NodeHeader, NodeMetaData, Tree,
+    Node5, NodeHeader, NodeMetaData, RootTile, Tree,
 };
 use crate::transform::Map;
 
@@ -48,6 +48,8 @@ pub enum ParseError {
     UnsupportedBloscFormat,
     #[error("Invalid grid name: {0}.")]
     InvalidGridName(String),
+    #[error("Unsupported transform map {0}")]
+    UnsupportedMap(String),
     #[error("IoError")]
     IoError(#[from] std::io::Error),
 }
@@ -175,7 +177,8 @@ impl<R: Read + Seek> VdbReader<R> {
         let name = Self::read_name(reader)?;
 
         Ok(match name.as_str() {
-            "UniformScaleMap" => Map::UniformScaleMap {
+            // `ScaleMap` (non-uniform scale) is stored exactly like `UniformScaleMap`.
+            "UniformScaleMap" | "ScaleMap" => Map::UniformScaleMap {
                 scale_values: read_d_vec3(reader)?,
                 voxel_size: read_d_vec3(reader)?,
                 scale_values_inverse: read_d_vec3(reader)?,
@@ -190,7 +193,20 @@ impl<R: Read + Seek> VdbReader<R> {
                 inv_scale_sqr: read_d_vec3(reader)?,
                 inv_twice_scale: read_d_vec3(reader)?,
             },
-            v => panic!("Not supported {}", v),
+            "TranslationMap" => Map::TranslationMap {
+                translation: read_d_vec3(reader)?,
+            },
+            // Both store one 4x4 matrix of doubles, row-major for row vectors
+            // (`world = index * M`), which is the column-major layout of the same map for
+            // column vectors.
+            "AffineMap" | "UnitaryMap" => {
+                let mut m = [0f64; 16];
+                reader.read_f64_into::<LittleEndian>(&mut m)?;
+                Map::AffineMap {
+                    matrix: glam::DMat4::from_cols_array(&m),
+                }
+            }
+            v => return Err(ParseError::UnsupportedMap(v.to_owned())),
         })
     }
 
@@ -352,11 +368,30 @@ impl<R: Read + Seek> VdbReader<R> {
         };
 
         // jb-todo: we may need to extend this to vector types
-        let data = if gd.meta_data.is_half_float()
-            && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>()
-        {
+        let is_f32 = std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>();
+        let is_f64 = std::any::TypeId::of::<T>() == std::any::TypeId::of::<f64>();
+        let data = if gd.meta_data.is_half_float() && (is_f32 || is_f64) {
+            if count == 0 {
+                // OpenVDB's HalfWriter writes nothing at all for an empty buffer (not even
+                // the 8-byte size that a ZIP or Blosc chunk starts with), so there is nothing
+                // to read: reading a size here would take it from the next node's bytes.
+                return Ok(Self::expand_inactive(
+                    Vec::new(),
+                    gd,
+                    num_values,
+                    value_mask,
+                    &selection_mask,
+                    inactive_val0,
+                    inactive_val1,
+                ));
+            }
             let data = Self::read_compressed_data::<f16>(reader, archive, gd, count)?;
-            bytemuck::cast_vec(data.into_iter().map(f16::to_f32).collect::<Vec<f32>>())
+            if is_f32 {
+                bytemuck::cast_vec(data.into_iter().map(f16::to_f32).collect::<Vec<f32>>())
+            } else {
+                // Double grids saved as half store half values too.
+                bytemuck::cast_vec(data.into_iter().map(f16::to_f64).collect::<Vec<f64>>())
+            }
         } else if !gd.meta_data.is_half_float()
             && std::any::TypeId::of::<T>() == std::any::TypeId::of::<f16>()
         {
@@ -366,7 +401,28 @@ impl<R: Read + Seek> VdbReader<R> {
             Self::read_compressed_data(reader, archive, gd, count)?
         };
 
-        Ok(
+        Ok(Self::expand_inactive(
+            data,
+            gd,
+            num_values,
+            value_mask,
+            &selection_mask,
+            inactive_val0,
+            inactive_val1,
+        ))
+    }
+
+    /// Puts the inactive values back between the active ones of a mask-compressed buffer.
+    fn expand_inactive<T: Pod>(
+        data: Vec<T>,
+        gd: &GridDescriptor,
+        num_values: usize,
+        value_mask: &BitSlice<u64, Lsb0>,
+        selection_mask: &BitSlice<u64, Lsb0>,
+        inactive_val0: T,
+        inactive_val1: T,
+    ) -> Vec<T> {
+        {
             if gd.compression.contains(Compression::ACTIVE_MASK) && data.len() != num_values {
                 trace!(
                     "Expanding active mask data {} to {}",
@@ -390,8 +446,8 @@ impl<R: Read + Seek> VdbReader<R> {
                 expanded
             } else {
                 data
-            },
-        )
+            }
+        }
     }
 
     fn read_metadata(reader: &mut R) -> Result<Metadata, ParseError> {
@@ -456,16 +512,26 @@ impl<R: Read + Seek> VdbReader<R> {
         let buffer_count = reader.read_u32::<LittleEndian>()?;
         assert_eq!(buffer_count, 1, "Multi-buffer trees are not supported");
 
-        let _root_node_background_value = reader.read_u32::<LittleEndian>()?;
+        // The background and root tiles are stored at the grid's full value size (8 bytes
+        // for double grids, 4 for float grids even when they are saved as half).
+        let mut background = ValueTy::zeroed();
+        reader.read_exact(bytes_of_mut(&mut background))?;
         let number_of_tiles = reader.read_u32::<LittleEndian>()?;
         let number_of_root_nodes = reader.read_u32::<LittleEndian>()?;
 
         let mut root_nodes = vec![];
+        let mut root_tiles = vec![];
 
         for _tile_idx in 0..number_of_tiles {
-            let _vec = read_i_vec3(reader)?;
-            let _value = reader.read_u32::<LittleEndian>()?;
-            let _active = reader.read_u8()?;
+            let origin = read_i_vec3(reader)?;
+            let mut value = ValueTy::zeroed();
+            reader.read_exact(bytes_of_mut(&mut value))?;
+            let active = reader.read_u8()? != 0;
+            root_tiles.push(RootTile {
+                origin,
+                value,
+                active,
+            });
         }
 
         for _root_idx in 0..number_of_root_nodes {
@@ -523,7 +589,11 @@ impl<R: Read + Seek> VdbReader<R> {
             root_nodes.push(root);
         }
 
-        Ok(Tree { root_nodes })
+        Ok(Tree {
+            root_nodes,
+            root_tiles,
+            background,
+        })
     }
 
     fn read_tree_data<ValueTy: Pod>(

@@ -15,4 +15,11 @@ pub enum Map {
         inv_scale_sqr: glam::DVec3,
         inv_twice_scale: glam::DVec3,
     },
+    TranslationMap {
+        translation: glam::DVec3,
+    },
+    /// `AffineMap` or `UnitaryMap`: `world = matrix.transform_point3(index)`.
+    AffineMap {
+        matrix: glam::DMat4,
+    },
 }
