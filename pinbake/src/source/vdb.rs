@@ -1688,10 +1688,8 @@ impl DensitySource for VdbSource {
 
     fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
         // Axis-aligned grids keep baking in world space, as they always have.
-        if self.diag.is_some() {
-            return None;
-        }
-        Some((Box::new(IndexSpace(self)), self.xf))
+        let (frame, local_to_world) = GridFrame::new(self)?;
+        Some((Box::new(frame), local_to_world))
     }
 
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
@@ -1706,48 +1704,111 @@ impl DensitySource for VdbSource {
     }
 }
 
-/// A rotated or sheared grid seen in its own index space (voxel centres at integers), which
-/// is where the baker works on it; [`VdbSource::index_to_world_matrix`] places the result.
-struct IndexSpace<'a>(&'a VdbSource);
+/// A rotated or sheared grid in its own frame, which is where the baker works on it: the
+/// index axes, turned into world units. With `index_to_world = Q R + t` (QR decomposition of
+/// the linear part: `Q` orthonormal, `R` upper triangular), local = `R index`, and the rigid
+/// `[Q | t]` places the result. Index space itself would not do: pins store optical depth,
+/// and a non-uniform scale or shear makes a unit of index length a direction-dependent world
+/// length; a rigid placement keeps lengths, so local extinction is world extinction.
+///
+/// For a rotation times a per-axis scale, `R` is that scale and the pin box is exactly the
+/// grid's index box scaled; for a shear it is the box around the sheared index box.
+struct GridFrame<'a> {
+    grid: &'a VdbSource,
+    /// Local to index (`R^-1`).
+    to_index: DMat3,
+    /// The local box: `R` applied to the index box.
+    bounds: Aabb,
+}
 
-impl IndexSpace<'_> {
-    fn index_box(&self) -> Aabb {
-        Aabb::new(
-            (self.0.index_min - 1).as_dvec3(),
-            (self.0.index_max + 1).as_dvec3(),
-        )
+impl<'a> GridFrame<'a> {
+    /// The frame and its `local_to_world` (row-major 3x4), or `None` when the map is
+    /// axis-aligned or degenerate.
+    fn new(grid: &'a VdbSource) -> Option<(Self, [f64; 12])> {
+        if grid.diag.is_some() {
+            return None;
+        }
+        // Gram-Schmidt on the columns of the linear part (the image of each index axis).
+        let m = grid.lin;
+        let q0 = m.x_axis.normalize();
+        let q1 = (m.y_axis - q0 * q0.dot(m.y_axis)).normalize();
+        let q2 = (m.z_axis - q0 * q0.dot(m.z_axis) - q1 * q1.dot(m.z_axis)).normalize();
+        let q = DMat3::from_cols(q0, q1, q2);
+        let r = q.transpose() * m;
+        let to_index = r.inverse();
+        if !(q.is_finite() && to_index.is_finite()) {
+            return None;
+        }
+        let (lo, hi) = (
+            (grid.index_min - 1).as_dvec3(),
+            (grid.index_max + 1).as_dvec3(),
+        );
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let i = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let l = r * i;
+            a = a.min(l);
+            b = b.max(l);
+        }
+        let t = grid.translation;
+        let xf = [
+            q.x_axis.x, q.y_axis.x, q.z_axis.x, t.x, q.x_axis.y, q.y_axis.y, q.z_axis.y, t.y,
+            q.x_axis.z, q.y_axis.z, q.z_axis.z, t.z,
+        ];
+        Some((
+            Self {
+                grid,
+                to_index,
+                bounds: Aabb::new(a, b),
+            },
+            xf,
+        ))
+    }
+
+    fn index_inside(&self, u: DVec3) -> bool {
+        let g = self.grid;
+        u.cmpge((g.index_min - 1).as_dvec3()).all() && u.cmple((g.index_max + 1).as_dvec3()).all()
     }
 }
 
-impl DensitySource for IndexSpace<'_> {
+impl DensitySource for GridFrame<'_> {
     fn bounds(&self) -> Aabb {
-        self.index_box()
+        self.bounds
     }
 
-    fn extinction(&self, u: DVec3) -> f32 {
-        let b = self.index_box();
-        if !(u.cmpge(b.min).all() && u.cmple(b.max).all()) {
+    fn extinction(&self, p: DVec3) -> f32 {
+        if !(p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()) {
             return 0.0;
         }
-        self.0.sample_index(u)
+        let u = self.to_index * p;
+        if !self.index_inside(u) {
+            return 0.0;
+        }
+        self.grid.sample_index(u)
     }
 
     fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.index_box())
+        Some(self.bounds)
     }
 
     fn max_extinction_in(&self, region: Aabb) -> f32 {
-        let b = self.index_box();
-        let lo = region.min.max(b.min);
-        let hi = region.max.min(b.max);
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
         if !lo.cmple(hi).all() {
             return 0.0;
         }
-        self.0.max_in_index_box(lo, hi)
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let u = self.to_index * p;
+            a = a.min(u);
+            b = b.max(u);
+        }
+        self.grid.max_in_index_box(a, b)
     }
 
     fn describe(&self) -> String {
-        format!("{}, baked in index space", self.0.label)
+        format!("{}, baked in the grid's own frame", self.grid.label)
     }
 }
 
