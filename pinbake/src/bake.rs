@@ -211,7 +211,8 @@ pub fn bake(
     match source.bake_frame() {
         None => pool.install(|| bake_in_pool(source, opts, progress)),
         Some((local, local_to_world)) => {
-            let (mut grid, stats) = pool.install(|| bake_in_pool(local.as_ref(), opts, progress))?;
+            let (mut grid, stats) =
+                pool.install(|| bake_in_pool(local.as_ref(), opts, progress))?;
             grid.desc.local_to_world = local_to_world;
             Ok((grid, stats))
         }

@@ -94,8 +94,14 @@ fn rotated_grid_renders_where_openvdb_places_it() {
         vdb.lin.z_axis.length(),
     );
     let close = |a: [f64; 3], b: DVec3| (DVec3::from_array(a) - b).abs().max_element() < 1e-12;
-    assert!(close(owned.desc.box_min, DVec3::new(-3.0, -1.0, 0.0) * scale));
-    assert!(close(owned.desc.box_max, DVec3::new(7.0, 5.0, 11.0) * scale));
+    assert!(close(
+        owned.desc.box_min,
+        DVec3::new(-3.0, -1.0, 0.0) * scale
+    ));
+    assert!(close(
+        owned.desc.box_max,
+        DVec3::new(7.0, 5.0, 11.0) * scale
+    ));
     let grid = PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
     let sampler = grid.sampler().unwrap();
 
@@ -141,7 +147,9 @@ fn rotated_grid_renders_where_openvdb_places_it() {
     // Control: placing the same pins without the rotation attenuates that ray, so the check
     // above can fail.
     let m = owned.desc.local_to_world;
-    let unrotated = [1.0, 0.0, 0.0, m[3], 0.0, 1.0, 0.0, m[7], 0.0, 0.0, 1.0, m[11]];
+    let unrotated = [
+        1.0, 0.0, 0.0, m[3], 0.0, 1.0, 0.0, m[7], 0.0, 0.0, 1.0, m[11],
+    ];
     let wrong = Sampler::with_local_to_world(&grid, &unrotated).unwrap();
     let t_wrong = pin_transmittance(&wrong, &beside, 512);
     eprintln!("unrotated placement at {naive}: pins {t_wrong:.4} (the real placement gives 1)");

@@ -15,9 +15,14 @@
 //!
 //! # Placement and sampling
 //!
-//! Voxel centres sit at integer index coordinates; world = index * scale + translation
-//! (`UniformScaleMap`, `UniformScaleTranslateMap`, `ScaleTranslateMap`; any other map is an
-//! error). Sampling is trilinear between voxel centres; inactive voxels of fog volumes are 0.
+//! Voxel centres sit at integer index coordinates; world = M index + t for every linear map
+//! OpenVDB writes (`UniformScaleMap`, `ScaleMap`, `UniformScaleTranslateMap`,
+//! `ScaleTranslateMap`, `TranslationMap`, `AffineMap`, `UnitaryMap`; the frustum map is an
+//! "unsupported encoding"). Axis-aligned maps keep the per-axis arithmetic and bake in world
+//! space; a rotated or sheared grid bakes in its own frame and the pin file records the
+//! placement (see [`DensitySource::bake_frame`] and `GridFrame`). Sampling is trilinear
+//! between voxel centres. Fog volumes: inactive voxels and tiles are 0 whatever value they
+//! hold (an inactive value is not density), active values below 0 are clamped to 0.
 //!
 //! # Grid selection
 //!
@@ -30,8 +35,8 @@
 //! Refused unless `levelset_to_fog`, which maps the interior (negative distance) to density 1.
 //! vdb-rs loses the background value and the sign of inactive values, so the worker rebuilds
 //! the inside/outside classification with OpenVDB's signed flood fill over leaves and internal
-//! nodes. Root-level tiles are dropped by vdb-rs, so the interior of a level set wider than one
-//! 4096^3 root node can be incomplete.
+//! nodes; root tiles (kept by our vdb-rs patch) are inside when negative. See docs/vdb.md for
+//! every vdb-rs problem this module works around and the patches in vendor/vdb-rs.
 //!
 //! Not for: vector, integer or point grids; multi-grid compositing; writing VDB files.
 
@@ -861,9 +866,7 @@ fn emit_grid<T: Val>(
 /// The map as a row-major 3x4 matrix: `world = M[..3] * index + M[3]` row by row.
 fn affine_rows(map: &vdb_rs::Map, shown: &str) -> Result<[f64; 12], String> {
     let diag = |s: glam024::DVec3, t: glam024::DVec3| {
-        [
-            s.x, 0.0, 0.0, t.x, 0.0, s.y, 0.0, t.y, 0.0, 0.0, s.z, t.z,
-        ]
+        [s.x, 0.0, 0.0, t.x, 0.0, s.y, 0.0, t.y, 0.0, 0.0, s.z, t.z]
     };
     Ok(match map {
         vdb_rs::Map::UniformScaleMap { scale_values, .. } => {
@@ -874,9 +877,7 @@ fn affine_rows(map: &vdb_rs::Map, shown: &str) -> Result<[f64; 12], String> {
             translation,
             ..
         } => diag(*scale_values, *translation),
-        vdb_rs::Map::TranslationMap { translation } => {
-            diag(glam024::DVec3::ONE, *translation)
-        }
+        vdb_rs::Map::TranslationMap { translation } => diag(glam024::DVec3::ONE, *translation),
         vdb_rs::Map::AffineMap { matrix } => {
             // Column-major with column vectors; the last row must be (0, 0, 0, 1).
             let row = |r: usize| matrix.row(r);
@@ -887,9 +888,7 @@ fn affine_rows(map: &vdb_rs::Map, shown: &str) -> Result<[f64; 12], String> {
                 ));
             }
             let (a, b, c) = (row(0), row(1), row(2));
-            [
-                a.x, a.y, a.z, a.w, b.x, b.y, b.z, b.w, c.x, c.y, c.z, c.w,
-            ]
+            [a.x, a.y, a.z, a.w, b.x, b.y, b.z, b.w, c.x, c.y, c.z, c.w]
         }
     })
 }
@@ -1407,7 +1406,11 @@ impl VdbSource {
         let (ilo, ihi) = ((lo - 1).as_dvec3(), (hi + 1).as_dvec3());
         let mut bounds = Aabb::new(DVec3::INFINITY, DVec3::NEG_INFINITY);
         for c in 0..8 {
-            let i = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), ihi, ilo);
+            let i = DVec3::select(
+                glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0),
+                ihi,
+                ilo,
+            );
             let w = to_world(i);
             bounds = Aabb::new(bounds.min.min(w), bounds.max.max(w));
         }
@@ -1496,12 +1499,8 @@ impl VdbSource {
     /// Largest value that trilinear sampling can return in the index-space box `[a, b]`.
     fn max_in_index_box(&self, a: DVec3, b: DVec3) -> f32 {
         // Voxels within one voxel of the region influence it.
-        let ilo = (a.floor() - 1.0)
-            .max(self.index_min.as_dvec3())
-            .as_ivec3();
-        let ihi = (b.ceil() + 1.0)
-            .min(self.index_max.as_dvec3())
-            .as_ivec3();
+        let ilo = (a.floor() - 1.0).max(self.index_min.as_dvec3()).as_ivec3();
+        let ihi = (b.ceil() + 1.0).min(self.index_max.as_dvec3()).as_ivec3();
         if !ilo.cmple(ihi).all() {
             return 0.0;
         }
@@ -1922,10 +1921,19 @@ fn run_worker(path: &Path, opt: &VdbOptions, file_size: u64, limit: u64) -> Resu
         return parsed;
     }
     if stderr_text.contains("memory allocation of") {
-        return Err(format!(
-            "VDB reader needs more than {} MiB of memory (its limit; the file may be corrupt)",
-            limit / MIB
-        ));
+        // The default limit is 64 MiB + 64 x the file size; every stored node carries its
+        // masks uncompressed, so a valid file stays below it (docs/vdb.md).
+        return Err(if opt.memory_limit.is_some() {
+            format!(
+                "VDB reader needs more than {} MiB of memory (the limit it was given)",
+                limit / MIB
+            )
+        } else {
+            format!(
+                "VDB reader needs more than {} MiB of memory, more than a valid file of {file_size} bytes needs (docs/vdb.md): the file is probably corrupt",
+                limit / MIB
+            )
+        });
     }
     #[cfg(unix)]
     {
