@@ -246,9 +246,9 @@ fn the_value_check_detects_a_wrong_reader() {
         "the corpus must hold non-zero inactive values"
     );
     let shifted = mismatches(g, false, |c| src.voxel(c + IVec3::X));
-    assert!(shifted > 100, "{shifted}");
-    // Values that went through f32 -> f16 -> f32 twice are unchanged, so a half grid's
-    // values perturbed by one ulp of f32 must show.
+    assert!(shifted > 0, "{shifted}");
+    // The comparison is exact: values one f32 ulp off (a different half conversion, say)
+    // must show.
     let perturbed = mismatches(g, false, |c| {
         let v = src.voxel(c);
         if v > 0.0 {
@@ -257,5 +257,5 @@ fn the_value_check_detects_a_wrong_reader() {
             v
         }
     });
-    assert!(perturbed > 100, "{perturbed}");
+    assert!(perturbed > 0, "{perturbed}");
 }
