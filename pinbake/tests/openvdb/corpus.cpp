@@ -369,6 +369,16 @@ int main(int argc, char** argv) {
                    files, "half/blosc+mask");
     }
 
+    // 5. A frustum transform: a valid file this reader does not support.
+    {
+        auto g = box_grid("density", Coord(0, 0, 0), Coord(7, 7, 7), 1.0f);
+        g->setTransform(math::Transform::createFrustumTransform(
+            BBoxd(Vec3d(0, 0, 0), Vec3d(7, 7, 7)), /*taper=*/0.5, /*depth=*/2.0, /*voxelDim=*/0.25));
+        GridPtrVec grids{g};
+        write_file(dir, "frustum.vdb", grids, io::COMPRESS_BLOSC | io::COMPRESS_ACTIVE_MASK, files,
+                   "float/blosc+mask");
+    }
+
     // Read everything back with OpenVDB and dump what it sees.
     std::ofstream js(dir + "/manifest.json");
     js << "{\"openvdb\":" << json_str(getLibraryVersionString()) << ",\"files\":[";
