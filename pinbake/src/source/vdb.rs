@@ -1584,7 +1584,9 @@ impl VdbSource {
                 Block::Const(v) => v,
             };
         }
-        if let Some(v) = pack(i >> 7, self.big_base).and_then(|k| self.big.get(&k)) {
+        if !self.big.is_empty()
+            && let Some(v) = pack(i >> 7, self.big_base).and_then(|k| self.big.get(&k))
+        {
             return *v;
         }
         if self.huge.is_empty() {
