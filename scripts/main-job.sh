@@ -4,12 +4,7 @@
 # Outputs land in ./out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export DEBIAN_FRONTEND=noninteractive
-SUDO=""
-if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi
-if ! dpkg -s mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core >/dev/null 2>&1; then
-  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev >/dev/null
-fi
+source scripts/deps.sh
 source scripts/env.sh
 DATA=data
 mkdir -p out

@@ -208,7 +208,15 @@ pub fn bake(
         }
         b.build().map_err(|e| BakeError::Threads(e.to_string()))?
     };
-    pool.install(|| bake_in_pool(source, opts, progress))
+    match source.bake_frame() {
+        None => pool.install(|| bake_in_pool(source, opts, progress)),
+        Some((local, local_to_world)) => {
+            let (mut grid, stats) =
+                pool.install(|| bake_in_pool(local.as_ref(), opts, progress))?;
+            grid.desc.local_to_world = local_to_world;
+            Ok((grid, stats))
+        }
+    }
 }
 
 fn bake_in_pool(
