@@ -89,7 +89,11 @@ pub(crate) fn urm_with_tail(
     // exactly exp(-tau), so any control works; a good one makes x = tau_c - tau small and
     // the series converge fast.
     let tau_c = comb(len, m, uniform(), sigma);
-    if !tau_c.is_finite() {
+    let base = (-tau_c).exp();
+    // An opaque control (infinite, or beyond exp's underflow near tau_c = 745) gives 0
+    // rather than 0 * (a series that may overflow) = NaN. Biased only where the combs
+    // disagree by hundreds of optical depths, where no comb estimator is meaningful.
+    if !(base > 0.0) {
         return 0.0;
     }
     // The order, drawn before (and independently of) the combs that estimate the powers:
@@ -133,7 +137,8 @@ pub(crate) fn urm_with_tail(
         };
         sum += e_k / binom * weight;
     }
-    (-tau_c).exp() * sum
+    let t = base * sum;
+    if t.is_finite() { t } else { 0.0 }
 }
 
 /// Jackknife transmittance of a segment of length `len` from two independent combs of `m`

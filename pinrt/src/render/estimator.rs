@@ -502,3 +502,58 @@ impl<F: DensityField + ?Sized> TransportEstimator for JackknifeMarching<F> {
         Some(self.0.tracker.majorants.bounds())
     }
 }
+
+/// The two comb estimators by name, for the command lines: `urm`, `urm@LOOKUPS`,
+/// `jackknife`, `jackknife@LOOKUPS` (lookups per longest edge of the majorant box, per comb).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CombKind {
+    Urm,
+    Jackknife,
+}
+
+impl CombKind {
+    /// `None` if `name` is not a comb estimator's name; an error message if it is one with a
+    /// bad lookup count.
+    pub fn parse(name: &str) -> Option<Result<(CombKind, u32), String>> {
+        let (base, arg) = match name.split_once('@') {
+            Some((b, a)) => (b, Some(a)),
+            None => (name, None),
+        };
+        let kind = match base {
+            "urm" => CombKind::Urm,
+            "jackknife" => CombKind::Jackknife,
+            _ => return None,
+        };
+        let lookups = match arg {
+            None => Ok(kind.default_lookups()),
+            Some(a) => match a.parse::<u32>() {
+                Ok(n) if (1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&n) => Ok(n),
+                _ => Err(format!(
+                    "estimator {name}: lookups must be an integer in 1..={}",
+                    super::comb::MAX_COMB_LOOKUPS
+                )),
+            },
+        };
+        Some(lookups.map(|n| (kind, n)))
+    }
+
+    pub fn default_lookups(self) -> u32 {
+        match self {
+            CombKind::Urm => URM_DEFAULT_LOOKUPS,
+            CombKind::Jackknife => JACKKNIFE_DEFAULT_LOOKUPS,
+        }
+    }
+
+    /// The estimator over `field` with combs and delta tracking over `majorants`.
+    pub fn build<F: DensityField + ?Sized + 'static>(
+        self,
+        field: Arc<F>,
+        majorants: Arc<MajorantGrid>,
+        lookups: u32,
+    ) -> Result<Arc<dyn TransportEstimator>, RenderError> {
+        Ok(match self {
+            CombKind::Urm => Arc::new(UnbiasedRayMarching::new(field, majorants, lookups)?),
+            CombKind::Jackknife => Arc::new(JackknifeMarching::new(field, majorants, lookups)?),
+        })
+    }
+}

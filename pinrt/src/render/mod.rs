@@ -108,7 +108,7 @@ mod tests;
 pub use cache::{CacheSettings, RadianceCache};
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
-    DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
+    CombKind, DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
     MAX_TRACKING_STEPS, RatioTracking, RayMarching, TransportEstimator, URM_DEFAULT_LOOKUPS,
     UnbiasedRayMarching,
 };

@@ -55,8 +55,9 @@ Scenes: smoke (OpenVDB smoke), hydrogen (raw u8 128^3), cosine (high-frequency c
 closed-form reference), box (homogeneous box, closed-form reference), box-ss (its single
 scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
-Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), pins (pins for
-every ray), pinms (ratio tracking for primary rays and single scattering, pins after),
+Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), urm[@N]
+(unbiased ray marching), jackknife[@N] (jackknife transmittance; both: combs of N lookups per
+longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio tracking for primary rays and single scattering, pins after),
 pinms+cache (pinms with the hash-grid radiance cache), cosine-closed-form / box-closed-form
 (exact transmittance), whole-volume (box-ss only). rm@STEP, delta, ratio, pins and pinms also run
 on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
