@@ -34,6 +34,21 @@ pub const URM_MAX_ORDER: usize = 24;
 /// [`super::MAX_MARCH_STEPS`] does for ray marching).
 pub const MAX_COMB_LOOKUPS: u64 = 1 << 20;
 
+/// The part `[t0, t1]` of `o + t d`, `t` in `[0, t_max]` (`d` unit, all finite), inside the
+/// closed box `[lo, hi]`; `None` if it misses or the overlap is empty.
+pub fn clip(
+    o: glam::DVec3,
+    d: glam::DVec3,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    t_max: f64,
+) -> Option<(f64, f64)> {
+    if !(o.is_finite() && d.is_finite() && d != glam::DVec3::ZERO) {
+        return None;
+    }
+    super::majorant::clip_box(o, d, &lo, &hi, 0.0, t_max)
+}
+
 /// Lookups of a comb over a segment of length `len` at spacing `spacing`: at least 1, at
 /// most [`MAX_COMB_LOOKUPS`].
 #[inline]

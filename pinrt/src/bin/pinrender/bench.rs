@@ -1,5 +1,8 @@
 //! `pinrender bench`: queries per second of pins vs ray marching the source density at
-//! relative steps 0.015 and 0.005, on the same random rays, CPU single thread and wgpu.
+//! relative steps 0.015 and 0.005, unbiased ray marching (`urm`) and jackknife transmittance
+//! (`jackknife`), on the same random rays, CPU single thread and wgpu. Transmittance rows also
+//! carry their mean absolute error against a converged per-ray reference (ray marching at
+//! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -10,6 +13,7 @@ use clap::Args;
 use glam::DVec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrt::march::{self, MarchBox};
+use pinrt::render::{CombKind, Pcg32, comb};
 use pinrt::{PinGrid, RayQuery, Rng};
 use serde_json::{Value, json};
 
@@ -31,7 +35,8 @@ pub struct BenchArgs {
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
-    /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s}, ...]}.
+    /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
+    /// mean_abs_error?, error_rays?}, ...]} (the error fields on transmittance rows).
     #[arg(long)]
     pub json: bool,
     /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
@@ -39,6 +44,12 @@ pub struct BenchArgs {
     #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,
 }
+
+/// Relative step of the per-ray reference (1/4000 of the longest edge: 1/16 of a voxel of
+/// the 256^3 noise; the midpoint rule's error is then far below any estimator's here).
+pub const REFERENCE_STEP: f64 = 0.00025;
+/// Rays (the first ones of each volume) over which the mean absolute errors are taken.
+pub const ERROR_RAYS: usize = 2000;
 
 /// The 256^3 voxelised cosine noise of the benchmark (no file needed).
 fn noise_volume() -> Result<Arc<dyn DensitySource>> {
@@ -117,6 +128,59 @@ fn row(volume: &str, method: &str, query: &str, backend: &str, qps: f64) -> Valu
     json!({"volume": volume, "method": method, "query": query, "backend": backend, "queries_per_s": qps})
 }
 
+/// A transmittance row with its mean absolute error against `reference` (per ray, the first
+/// `min(estimates, reference)` rays).
+fn row_err(
+    volume: &str,
+    method: &str,
+    backend: &str,
+    qps: f64,
+    estimates: &[f64],
+    reference: &[f64],
+) -> Value {
+    let n = estimates.len().min(reference.len());
+    let mae = estimates[..n]
+        .iter()
+        .zip(&reference[..n])
+        .map(|(e, r)| (e - r).abs())
+        .sum::<f64>()
+        / n.max(1) as f64;
+    let mut r = row(volume, method, "transmittance", backend, qps);
+    r["mean_abs_error"] = json!(mae);
+    r["error_rays"] = json!(n);
+    r
+}
+
+/// `urm` or `jackknife` transmittance of the ray `o + t d` (to its exit from `[lo, hi]`) over
+/// a pinbake density, with the library's combs (`pinrt::render::comb`) at `spacing`.
+#[allow(clippy::too_many_arguments)]
+fn comb_transmittance(
+    kind: CombKind,
+    density: &impl Fn(DVec3) -> f32,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    o: DVec3,
+    d: DVec3,
+    spacing: f64,
+    rng: &mut Pcg32,
+) -> f64 {
+    let d = d.normalize_or_zero();
+    let Some((t0, t1)) = comb::clip(o, d, lo, hi, f64::INFINITY) else {
+        return 1.0;
+    };
+    let len = t1 - t0;
+    let m = comb::comb_lookups(len, spacing);
+    let mut sigma = |s: f64| {
+        let v = f64::from(density(o + d * (t0 + s)));
+        if v > 0.0 { v } else { 0.0 }
+    };
+    let mut uniform = || rng.next_f64();
+    match kind {
+        CombKind::Urm => comb::urm_transmittance(len, m, &mut sigma, &mut uniform),
+        CombKind::Jackknife => comb::jackknife_transmittance(len, m, &mut sigma, &mut uniform),
+    }
+}
+
 fn bench_volume(
     name: &str,
     source: &dyn DensitySource,
@@ -127,19 +191,35 @@ fn bench_volume(
 ) -> Result<()> {
     let rays = random_rays(source, args.rays);
     let sampler = grid.sampler()?;
+    let b = source.bounds();
+    let mbox = MarchBox {
+        min: b.min,
+        max: b.max,
+    };
+    let density = |p: DVec3| source.extinction(p);
+    let ray_od = |r: &RayQuery| {
+        (
+            DVec3::from(r.origin.map(f64::from)),
+            DVec3::from(r.dir.map(f64::from)),
+        )
+    };
+    let n_err = rays.len().min(ERROR_RAYS);
+    let reference: Vec<f64> = rays[..n_err]
+        .iter()
+        .map(|r| {
+            let (o, d) = ray_od(r);
+            march::transmittance(density, &mbox, o, d, f64::INFINITY, REFERENCE_STEP)
+        })
+        .collect();
     // Pins, batched, one thread. A warm-up pass first so page faults of the mmap are not timed.
     let mut t_out = vec![0.0f32; rays.len()];
     let mut d_out = vec![None; rays.len()];
     sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
     let t = Instant::now();
     sampler.transmittance_batch(&rays, 2, 0, &mut t_out);
-    rows.push(row(
-        name,
-        "pins",
-        "transmittance",
-        "cpu",
-        rays.len() as f64 / t.elapsed().as_secs_f64(),
-    ));
+    let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+    let est: Vec<f64> = t_out.iter().map(|&t| f64::from(t)).collect();
+    rows.push(row_err(name, "pins", "cpu", qps, &est, &reference));
     let t = Instant::now();
     sampler.sample_distance_batch(&rays, 3, 0, &mut d_out);
     rows.push(row(
@@ -150,30 +230,24 @@ fn bench_volume(
         rays.len() as f64 / t.elapsed().as_secs_f64(),
     ));
 
-    let b = source.bounds();
-    let mbox = MarchBox {
-        min: b.min,
-        max: b.max,
-    };
     let n_rm = (rays.len() / 4).max(1);
-    let density = |p: DVec3| source.extinction(p);
     for step in [0.015, 0.005] {
         let t = Instant::now();
-        let mut acc = 0.0;
+        let mut est = Vec::with_capacity(n_rm);
         for r in &rays[..n_rm] {
-            let o = DVec3::from(r.origin.map(f64::from));
-            let d = DVec3::from(r.dir.map(f64::from));
-            acc += march::transmittance(density, &mbox, o, d, f64::INFINITY, step);
+            let (o, d) = ray_od(r);
+            est.push(march::transmittance(
+                density,
+                &mbox,
+                o,
+                d,
+                f64::INFINITY,
+                step,
+            ));
         }
-        std::hint::black_box(acc);
+        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
         let method = format!("rm@{step}");
-        rows.push(row(
-            name,
-            &method,
-            "transmittance",
-            "cpu",
-            n_rm as f64 / t.elapsed().as_secs_f64(),
-        ));
+        rows.push(row_err(name, &method, "cpu", qps, &est, &reference));
         let t = Instant::now();
         let mut hits = 0usize;
         for (i, r) in rays[..n_rm].iter().enumerate() {
@@ -193,15 +267,37 @@ fn bench_volume(
         ));
     }
 
+    // The comb estimators at their default lookups, on the same rays as ray marching.
+    let (lo, hi) = (b.min.to_array(), b.max.to_array());
+    let edge = (b.max - b.min).max_element();
+    for kind in [CombKind::Urm, CombKind::Jackknife] {
+        let spacing = edge / f64::from(kind.default_lookups());
+        let mut rng = Pcg32::new(6, kind as u64);
+        let t = Instant::now();
+        let mut est = Vec::with_capacity(n_rm);
+        for r in &rays[..n_rm] {
+            let (o, d) = ray_od(r);
+            est.push(comb_transmittance(
+                kind, &density, lo, hi, o, d, spacing, &mut rng,
+            ));
+        }
+        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        let method = match kind {
+            CombKind::Urm => "urm",
+            CombKind::Jackknife => "jackknife",
+        };
+        rows.push(row_err(name, method, "cpu", qps, &est, &reference));
+    }
+
     if let Some(ctx) = gpu {
         let g = pinrt::gpu::GpuPinGrid::upload(ctx, grid)?;
         g.run_queries(&rays[..rays.len().min(4096)], 0, 0)?; // warm-up: pipeline, buffers
         let t = Instant::now();
         let res = g.run_queries(&rays, 5, 0)?;
         let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
-        std::hint::black_box(res);
+        let est: Vec<f64> = res.iter().map(|q| f64::from(q.transmittance)).collect();
         // One dispatch answers both queries; report it under both names.
-        rows.push(row(name, "pins", "transmittance", "gpu", qps));
+        rows.push(row_err(name, "pins", "gpu", qps, &est, &reference));
         rows.push(row(name, "pins", "distance", "gpu", qps));
     }
     Ok(())
@@ -248,8 +344,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("gpu: {}", ctx.describe());
     }
     println!(
-        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10}",
-        "volume", "method", "query", "on", "queries/s", "pins/x"
+        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10} {:>10}",
+        "volume", "method", "query", "on", "queries/s", "pins/x", "mean|err|"
     );
     for r in &rows {
         let base = rows
@@ -263,14 +359,18 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .and_then(|b| b["queries_per_s"].as_f64())
             .unwrap_or(f64::NAN);
         let q = r["queries_per_s"].as_f64().unwrap_or(f64::NAN);
+        let err = r["mean_abs_error"]
+            .as_f64()
+            .map_or(String::new(), |e| format!("{e:.2e}"));
         println!(
-            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1}",
+            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
             r["query"].as_str().unwrap_or(""),
             r["backend"].as_str().unwrap_or(""),
             q,
-            base / q
+            base / q,
+            err
         );
     }
     Ok(())
