@@ -145,6 +145,7 @@ const RT_RR: f32 = 0.1;
 const RT_URM_ABR: u32 = 2u;
 const RT_URM_MAX_ORDER: u32 = 24u;
 const RT_MAX_COMB_LOOKUPS: f32 = 1048576.0;
+const RT_COMB_PER_DEPTH: f32 = 2.0;
 
 // Path generator: xoshiro128** (Blackman and Vigna), 128 bits of state per sample.
 var<private> rt_s: vec4<u32>;
@@ -338,10 +339,12 @@ fn rt_march(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, want_distance: bool)
 // ---------------------------------------------------------------------------------------------
 // Trackers over the majorant grid (estimator.rs `Tracker`, majorant.rs `Dda`).
 // `ratio` false: delta tracking, returns (collision distance or +inf, 1);
-// `ratio` true: ratio tracking, returns (+inf, transmittance weight).
+// `ratio` true: ratio tracking, returns (+inf, transmittance weight);
+// `depth_only` true: no tracking and no random draws, returns (+inf, majorant optical depth of
+// the segment inside the majorant box) for the comb estimators' lookup count.
 // ---------------------------------------------------------------------------------------------
 
-fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2<f32> {
+fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_only: bool) -> vec2<f32> {
     let none = vec2<f32>(rt_inf(), 1.0);
     let lo = rt_media[m].maj_lo.xyz;
     let hi = rt_media[m].maj_hi.xyz;
@@ -350,7 +353,11 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2
         return none;
     }
     // Majorant optical depth left to the next tentative collision, carried across bricks.
-    var tau = rt_exp();
+    var tau = 0.0;
+    if (!depth_only) {
+        tau = rt_exp();
+    }
+    var depth = 0.0;
     let dims = rt_media[m].mdims.xyz;
     let mbase = rt_media[m].offs.z;
     let t_end = ch.y;
@@ -396,7 +403,9 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2
         let seg_t1 = min(next_t[a], t_end);
         let b = brick;
         let maj = rt_data[mbase + u32(b.x) + dims.x * (u32(b.y) + dims.y * u32(b.z))];
-        if (maj > 0.0) {
+        if (depth_only) {
+            depth = depth + maj * max(seg_t1 - t_seg, 0.0);
+        } else if (maj > 0.0) {
             let inv = 1.0 / maj;
             var t = t_seg;
             loop {
@@ -442,6 +451,9 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool) -> vec2
         }
         next_t[a] = next_t[a] + delta_t[a];
         t_seg = seg_t1;
+    }
+    if (depth_only) {
+        return vec2<f32>(rt_inf(), depth);
     }
     return vec2<f32>(rt_inf(), tr);
 }
@@ -508,7 +520,8 @@ fn rt_comb_transmittance(m: u32, o: vec3<f32>, d: vec3<f32>, jackknife: bool) ->
     let e = hi - lo;
     let spacing = RP.material.z * max(e.x, max(e.y, e.z));
     let len = ch.y - ch.x;
-    let n = u32(clamp(ceil(len / spacing), 1.0, RT_MAX_COMB_LOOKUPS));
+    let maj_depth = rt_track(m, o, d, rt_inf(), false, true).y;
+    let n = u32(clamp(max(ceil(len / spacing), ceil(maj_depth * RT_COMB_PER_DEPTH)), 1.0, RT_MAX_COMB_LOOKUPS));
     if (jackknife) {
         let t1 = rt_comb(m, o, d, ch.x, len, n);
         let t2 = rt_comb(m, o, d, ch.x, len, n);
@@ -582,13 +595,13 @@ fn rt_medium_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32
             return rt_march(m, o, d, inf, false).y;
         }
         case RT_EST_DELTA: {
-            if (rt_track(m, o, d, inf, false).x < inf) {
+            if (rt_track(m, o, d, inf, false, false).x < inf) {
                 return 0.0;
             }
             return 1.0;
         }
         case RT_EST_RATIO: {
-            return rt_track(m, o, d, inf, true).y;
+            return rt_track(m, o, d, inf, true, false).y;
         }
         case RT_EST_URM: {
             return rt_comb_transmittance(m, o, d, false);
@@ -608,7 +621,7 @@ fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32)
             return rt_march(m, o, d, t_max, true).x;
         }
         case RT_EST_DELTA, RT_EST_RATIO, RT_EST_URM, RT_EST_JACKKNIFE: {
-            return rt_track(m, o, d, t_max, false).x;
+            return rt_track(m, o, d, t_max, false, false).x;
         }
         default: {
             return rt_pins(m, o, d, t_max).x;

@@ -15,6 +15,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -28,6 +30,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -41,6 +45,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -55,6 +61,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -69,6 +77,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "box-closed-form",
             "whole-volume",
@@ -82,6 +92,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -90,7 +102,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
 ];
 
 /// What the GPU path tracer runs besides `rm@STEP`.
-const GPU_ESTIMATORS: [&str; 4] = ["delta", "ratio", "pins", "pinms"];
+const GPU_ESTIMATORS: [&str; 6] = ["delta", "ratio", "urm", "jackknife", "pins", "pinms"];
 
 #[test]
 fn eval_quick_end_to_end() {

@@ -260,6 +260,11 @@ impl GpuEstimator {
             Self::RayMarching { rel_step } => format!("rm@{rel_step}"),
             Self::DeltaTracking => "delta".into(),
             Self::RatioTracking => "ratio".into(),
+            // The default count is the bare name, as the evaluation's CPU rows spell it.
+            Self::Urm { lookups } if lookups == crate::render::URM_DEFAULT_LOOKUPS => "urm".into(),
+            Self::Jackknife { lookups } if lookups == crate::render::JACKKNIFE_DEFAULT_LOOKUPS => {
+                "jackknife".into()
+            }
             Self::Urm { lookups } => format!("urm@{lookups}"),
             Self::Jackknife { lookups } => format!("jackknife@{lookups}"),
             Self::Pins => "pins".into(),

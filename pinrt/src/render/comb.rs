@@ -34,23 +34,18 @@ pub const URM_MAX_ORDER: usize = 24;
 /// [`super::MAX_MARCH_STEPS`] does for ray marching).
 pub const MAX_COMB_LOOKUPS: u64 = 1 << 20;
 
-/// The part `[t0, t1]` of `o + t d`, `t` in `[0, t_max]` (`d` unit, all finite), inside the
-/// closed box `[lo, hi]`; `None` if it misses or the overlap is empty.
-pub fn clip(
-    o: glam::DVec3,
-    d: glam::DVec3,
-    lo: [f64; 3],
-    hi: [f64; 3],
-    t_max: f64,
-) -> Option<(f64, f64)> {
-    if !(o.is_finite() && d.is_finite() && d != glam::DVec3::ZERO) {
-        return None;
-    }
-    super::majorant::clip_box(o, d, &lo, &hi, 0.0, t_max)
-}
+/// Comb lookups per unit of majorant optical depth along the segment, at least: a tooth
+/// never spans more than half a majorant optical depth, so the combs of a dense medium stay
+/// fine enough for `urm`'s series (`x = tau_c - tau` of order 1 or less) and for the
+/// jackknife's normal approximation, whatever the lookups per edge.
+pub const COMB_LOOKUPS_PER_MAJORANT_DEPTH: f64 = 2.0;
 
-/// Lookups of a comb over a segment of length `len` at spacing `spacing`: at least 1, at
-/// most [`MAX_COMB_LOOKUPS`].
+/// The majorant-depth rule adds at most this many lookups per comb: a huge or loose
+/// majorant (an opaque voxel stores `f32::MAX`) must not cost millions of lookups.
+pub const MAX_DEPTH_LOOKUPS: f64 = 1024.0;
+
+/// Lookups of a comb over a segment of length `len` at spacing `spacing` (at least 1, at
+/// most [`MAX_COMB_LOOKUPS`]).
 #[inline]
 pub fn comb_lookups(len: f64, spacing: f64) -> usize {
     let m = (len / spacing).ceil();
@@ -59,6 +54,20 @@ pub fn comb_lookups(len: f64, spacing: f64) -> usize {
     } else {
         m.min(MAX_COMB_LOOKUPS as f64) as usize
     }
+}
+
+/// Lookups of the path tracer's combs: [`comb_lookups`], raised to
+/// [`COMB_LOOKUPS_PER_MAJORANT_DEPTH`] per unit of the segment's majorant optical depth
+/// `maj_depth` (that part capped at [`MAX_DEPTH_LOOKUPS`]).
+#[inline]
+pub fn lookups_for(len: f64, spacing: f64, maj_depth: f64) -> usize {
+    let by_depth = (maj_depth * COMB_LOOKUPS_PER_MAJORANT_DEPTH).ceil();
+    let by_depth = if by_depth >= 1.0 {
+        by_depth.min(MAX_DEPTH_LOOKUPS) as usize
+    } else {
+        1
+    };
+    comb_lookups(len, spacing).max(by_depth)
 }
 
 /// One comb: `h * sum_{j < m} sigma((j + u) h)` with `h = len / m`.
@@ -382,6 +391,47 @@ mod tests {
             )
             .is_err()
         );
+    }
+
+    #[test]
+    fn names_parse() {
+        use crate::render::CombKind;
+        assert_eq!(CombKind::parse("urm"), Some(Ok((CombKind::Urm, 16))));
+        assert_eq!(
+            CombKind::parse("jackknife"),
+            Some(Ok((CombKind::Jackknife, 32)))
+        );
+        assert_eq!(CombKind::parse("urm@8"), Some(Ok((CombKind::Urm, 8))));
+        assert_eq!(
+            CombKind::parse("jackknife@3"),
+            Some(Ok((CombKind::Jackknife, 3)))
+        );
+        for bad in [
+            "urm@0",
+            "urm@",
+            "urm@x",
+            "jackknife@-1",
+            "urm@1.5",
+            "urm@2000000",
+        ] {
+            assert!(matches!(CombKind::parse(bad), Some(Err(_))), "{bad}");
+        }
+        for other in ["ratio", "rm@0.1", "urmx", "jack", ""] {
+            assert_eq!(CombKind::parse(other), None, "{other}");
+        }
+        #[cfg(feature = "gpu")]
+        {
+            use crate::gpu_render::GpuEstimator;
+            for name in ["urm@8", "jackknife@4", "urm", "jackknife"] {
+                assert_eq!(GpuEstimator::parse(name).unwrap().name(), name);
+            }
+            assert_eq!(GpuEstimator::parse("urm@16").unwrap().name(), "urm");
+            assert_eq!(
+                GpuEstimator::parse("urm"),
+                Some(GpuEstimator::Urm { lookups: 16 })
+            );
+            assert_eq!(GpuEstimator::parse("urm@0"), None);
+        }
     }
 
     /// Relative bias of the jackknife (or, without the correction, of `exp(-mean)` over the

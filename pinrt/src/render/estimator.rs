@@ -421,7 +421,13 @@ impl<F: DensityField + ?Sized> Combed<F> {
             return 1.0;
         };
         let len = t1 - t0;
-        let m = super::comb::comb_lookups(len, self.spacing);
+        let maj_depth: f64 = self
+            .tracker
+            .majorants
+            .segments(r.o, r.d, 0.0, r.t_max)
+            .map(|seg| seg.majorant as f64 * (seg.t1 - seg.t0).max(0.0))
+            .sum();
+        let m = super::comb::lookups_for(len, self.spacing, maj_depth);
         let field = &self.tracker.field;
         let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s)));
         let mut uniform = || rng.next_f64();

@@ -11,13 +11,14 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::DVec3;
+use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrt::march::{self, MarchBox};
-use pinrt::render::{CombKind, Pcg32, comb};
+use pinrt::render::{CombKind, Pcg32};
 use pinrt::{PinGrid, RayQuery, Rng};
 use serde_json::{Value, json};
 
-use crate::volume::{self, VolumeArgs};
+use crate::volume::{self, SourceField, VolumeArgs};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -32,6 +33,10 @@ pub struct BenchArgs {
     /// Spatial cells per axis when baking (x 16x4 polar directions, as in the thesis).
     #[arg(long, default_value_t = 37)]
     pub cells: u32,
+    /// Majorant bricks per axis for the `urm` and `jackknife` rows (distance sampling is not
+    /// measured for them; the grid sets their lookups per majorant optical depth).
+    #[arg(long, default_value_t = 16)]
+    pub majorant_bricks: u32,
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
@@ -151,44 +156,15 @@ fn row_err(
     r
 }
 
-/// `urm` or `jackknife` transmittance of the ray `o + t d` (to its exit from `[lo, hi]`) over
-/// a pinbake density, with the library's combs (`pinrt::render::comb`) at `spacing`.
-#[allow(clippy::too_many_arguments)]
-fn comb_transmittance(
-    kind: CombKind,
-    density: &impl Fn(DVec3) -> f32,
-    lo: [f64; 3],
-    hi: [f64; 3],
-    o: DVec3,
-    d: DVec3,
-    spacing: f64,
-    rng: &mut Pcg32,
-) -> f64 {
-    let d = d.normalize_or_zero();
-    let Some((t0, t1)) = comb::clip(o, d, lo, hi, f64::INFINITY) else {
-        return 1.0;
-    };
-    let len = t1 - t0;
-    let m = comb::comb_lookups(len, spacing);
-    let mut sigma = |s: f64| {
-        let v = f64::from(density(o + d * (t0 + s)));
-        if v > 0.0 { v } else { 0.0 }
-    };
-    let mut uniform = || rng.next_f64();
-    match kind {
-        CombKind::Urm => comb::urm_transmittance(len, m, &mut sigma, &mut uniform),
-        CombKind::Jackknife => comb::jackknife_transmittance(len, m, &mut sigma, &mut uniform),
-    }
-}
-
 fn bench_volume(
     name: &str,
-    source: &dyn DensitySource,
+    source_arc: &Arc<dyn DensitySource>,
     grid: &PinGrid,
     args: &BenchArgs,
     gpu: Option<&pinrt::gpu::GpuContext>,
     rows: &mut Vec<Value>,
 ) -> Result<()> {
+    let source: &dyn DensitySource = source_arc.as_ref();
     let rays = random_rays(source, args.rays);
     let sampler = grid.sampler()?;
     let b = source.bounds();
@@ -267,20 +243,24 @@ fn bench_volume(
         ));
     }
 
-    // The comb estimators at their default lookups, on the same rays as ray marching.
-    let (lo, hi) = (b.min.to_array(), b.max.to_array());
-    let edge = (b.max - b.min).max_element();
+    // The comb estimators at their default lookups, on the same rays as ray marching, as
+    // the path tracer builds them: combs and their majorant-depth rule over a majorant grid
+    // of the source (built once, not timed).
+    let field = Arc::new(SourceField(source_arc.clone()));
+    let majorants = volume::majorants(&field, args.majorant_bricks)?;
     for kind in [CombKind::Urm, CombKind::Jackknife] {
-        let spacing = edge / f64::from(kind.default_lookups());
+        let est = kind
+            .build(field.clone(), majorants.clone(), kind.default_lookups())
+            .map_err(|e| anyhow!("{e}"))?;
         let mut rng = Pcg32::new(6, kind as u64);
         let t = Instant::now();
-        let mut est = Vec::with_capacity(n_rm);
-        for r in &rays[..n_rm] {
-            let (o, d) = ray_od(r);
-            est.push(comb_transmittance(
-                kind, &density, lo, hi, o, d, spacing, &mut rng,
-            ));
-        }
+        let est: Vec<f64> = rays[..n_rm]
+            .iter()
+            .map(|r| {
+                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+                f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng))
+            })
+            .collect();
         let qps = n_rm as f64 / t.elapsed().as_secs_f64();
         let method = match kind {
             CombKind::Urm => "urm",
@@ -334,7 +314,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Some(p) => PinGrid::open(p).map_err(|e| anyhow!("{e}"))?,
             None => cached_pins(name, source.as_ref(), args.cells)?,
         };
-        bench_volume(name, source.as_ref(), &grid, &args, gpu.as_ref(), &mut rows)?;
+        bench_volume(name, source, &grid, &args, gpu.as_ref(), &mut rows)?;
     }
     if args.json {
         println!("{}", json!({"results": rows}));
