@@ -260,7 +260,7 @@ mod tests {
     /// `1 / lookups`.
     fn urm_z(
         field: &dyn DensityField,
-        exact_tau: &dyn Fn(DVec3, DVec3, f64) -> f64,
+        exact_tau: &TauFn<'_>,
         lookups: u32,
         n: usize,
         tail: bool,
@@ -434,11 +434,14 @@ mod tests {
         }
     }
 
+    /// Exact optical depth of a segment (start, unit direction, length).
+    type TauFn<'a> = dyn Fn(DVec3, DVec3, f64) -> f64 + 'a;
+
     /// Relative bias of the jackknife (or, without the correction, of `exp(-mean)` over the
     /// same lookups), averaged over 16 rays, with its standard error.
     fn jackknife_rel_bias(
         field: &dyn DensityField,
-        tau: &dyn Fn(DVec3, DVec3, f64) -> f64,
+        tau: &TauFn<'_>,
         lookups: u32,
         correct: bool,
     ) -> (f64, f64) {
@@ -484,7 +487,7 @@ mod tests {
         let (boxf, box_tau) = homogeneous();
         let cos = CosNoise::new(8, 16.0, 4.0, 3);
         let cos_tau = |p0: DVec3, d: DVec3, len: f64| cos.optical_depth(p0, d, len);
-        let fields: [(&str, &dyn DensityField, &dyn Fn(DVec3, DVec3, f64) -> f64); 2] =
+        let fields: [(&str, &dyn DensityField, &TauFn<'_>); 2] =
             [("box", &boxf, &box_tau), ("cosine", &cos, &cos_tau)];
         for (name, field, tau) in fields {
             let mut at = Vec::new();

@@ -33,10 +33,6 @@ pub struct BenchArgs {
     /// Spatial cells per axis when baking (x 16x4 polar directions, as in the thesis).
     #[arg(long, default_value_t = 37)]
     pub cells: u32,
-    /// Majorant bricks per axis for the `urm` and `jackknife` rows (distance sampling is not
-    /// measured for them; the grid sets their lookups per majorant optical depth).
-    #[arg(long, default_value_t = 16)]
-    pub majorant_bricks: u32,
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
@@ -53,6 +49,9 @@ pub struct BenchArgs {
 /// Relative step of the per-ray reference (1/4000 of the longest edge: 1/16 of a voxel of
 /// the 256^3 noise; the midpoint rule's error is then far below any estimator's here).
 pub const REFERENCE_STEP: f64 = 0.00025;
+/// Majorant bricks per axis for the `urm` and `jackknife` rows, as `pinrender render`'s
+/// default (the grid sets their lookups per majorant optical depth).
+pub const MAJORANT_BRICKS: u32 = 16;
 /// Rays (the first ones of each volume) over which the mean absolute errors are taken.
 pub const ERROR_RAYS: usize = 2000;
 
@@ -247,7 +246,7 @@ fn bench_volume(
     // the path tracer builds them: combs and their majorant-depth rule over a majorant grid
     // of the source (built once, not timed).
     let field = Arc::new(SourceField(source_arc.clone()));
-    let majorants = volume::majorants(&field, args.majorant_bricks)?;
+    let majorants = volume::majorants(&field, MAJORANT_BRICKS)?;
     for kind in [CombKind::Urm, CombKind::Jackknife] {
         let est = kind
             .build(field.clone(), majorants.clone(), kind.default_lookups())
