@@ -375,7 +375,8 @@ impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
 // ---------------------------------------------------------------------------------------
 
 /// Default comb lookups per longest edge of the majorant box for `urm` (each query takes
-/// about 3.33 combs: the control, two always-taken orders and the roulette's 1/3 + 1/12 + ...).
+/// about 3.42 combs: the control, two always-taken orders and the roulette's 1/3 + 1/12 + ...).
+/// Dense media get more: see [`super::comb::lookups_for`].
 pub const URM_DEFAULT_LOOKUPS: u32 = 16;
 /// Default comb lookups per longest edge for `jackknife` (two combs per query).
 pub const JACKKNIFE_DEFAULT_LOOKUPS: u32 = 32;
