@@ -17,6 +17,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -30,6 +32,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -43,6 +47,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -57,6 +63,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -71,6 +79,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "box-closed-form",
             "whole-volume",
@@ -84,6 +94,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -102,7 +114,7 @@ const TINY: [&str; 6] = [
 ];
 
 /// What the GPU path tracer runs besides `rm@STEP`.
-const GPU_ESTIMATORS: [&str; 4] = ["delta", "ratio", "pins", "pinms"];
+const GPU_ESTIMATORS: [&str; 6] = ["delta", "ratio", "urm", "jackknife", "pins", "pinms"];
 
 #[test]
 fn eval_quick_end_to_end() {

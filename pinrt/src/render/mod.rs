@@ -92,6 +92,7 @@
 mod bounds;
 pub mod cache;
 pub mod closed_form;
+pub mod comb;
 mod estimator;
 mod field;
 mod image;
@@ -107,8 +108,9 @@ mod tests;
 pub use cache::{CacheSettings, RadianceCache};
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
-    DeltaTracking, MAX_MARCH_STEPS, MAX_TRACKING_STEPS, RatioTracking, RayMarching,
-    TransportEstimator,
+    CombKind, DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
+    MAX_TRACKING_STEPS, RatioTracking, RayMarching, TransportEstimator, URM_DEFAULT_LOOKUPS,
+    UnbiasedRayMarching,
 };
 pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, relative_mse, rmse, tone_map};

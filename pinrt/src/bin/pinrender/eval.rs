@@ -11,7 +11,7 @@
 //!
 //! Rows marked `(gpu)` (CSV: backend `gpu`) are the WGSL path tracer
 //! ([`pinrt::gpu_render::GpuRenderer`]) with every estimator it has (`rm@STEP`, `delta`,
-//! `ratio`, `pins`, `pinms`) over the scene's media as the CPU sees them: the same pin grid,
+//! `ratio`, `urm`, `jackknife`, `pins`, `pinms`) over the scene's media as the CPU sees them: the same pin grid,
 //! placements and lookup jitter, a GPU copy of the density ([`scenes::gpu_media`]) and the
 //! CPU's majorant grids; measured the same way (`--gpu-batch` spp per render call, distinct
 //! seeds, averaged); the one-time renderer setup (upload, pipeline compile) is reported but
@@ -62,11 +62,13 @@ Scenes: smoke (OpenVDB smoke), hydrogen (raw u8 128^3), cosine (high-frequency c
 closed-form reference), box (homogeneous box, closed-form reference), box-ss (its single
 scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
-Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), pins (pins for
-every ray), pinms (ratio tracking for primary rays and single scattering, pins after),
-pinms+cache (pinms with the hash-grid radiance cache), cosine-closed-form / box-closed-form
-(exact transmittance), whole-volume (box-ss only). rm@STEP, delta, ratio, pins and pinms also run
-on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
+Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), urm[@N]
+(unbiased ray marching), jackknife[@N] (jackknife transmittance; both: combs of N lookups per
+longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
+tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
+hash-grid radiance cache), cosine-closed-form / box-closed-form (exact transmittance),
+whole-volume (box-ss only). rm@STEP, delta, ratio, urm, jackknife, pins and pinms also run on
+the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
 Example: pinrender eval --out out/eval --docs docs")]
 pub struct EvalArgs {

@@ -95,7 +95,8 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
             let mut s = format!(
                 "GPU: rows marked `(gpu)` are the WGSL path tracer \
                  (`pinrt::gpu_render::GpuRenderer`, backend `gpu` in the CSV) on `{describe}` \
-                 with every estimator it has (`rm@STEP`, `delta`, `ratio`, `pins`, `pinms`) \
+                 with every estimator it has (`rm@STEP`, `delta`, `ratio`, `urm`, `jackknife`, \
+                 `pins`, `pinms`) \
                  over the same media as the CPU rows (the same pin grid and lookup jitter, a GPU \
                  copy of the density, the CPU's majorant grids, every instance), measured the \
                  same way ({batch} spp per render call, each call a pass with its own seed, \
