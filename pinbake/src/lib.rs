@@ -10,6 +10,8 @@
 //! this crate) or defining the file layout (that is `pin-format`).
 
 pub mod bake;
+pub mod files;
+pub mod limits;
 pub mod merge;
 pub mod pin;
 pub mod rng;

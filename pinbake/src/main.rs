@@ -5,15 +5,17 @@
 
 mod cmd;
 
+use std::ffi::OsString;
 use std::process::ExitCode;
 
 use clap::Parser;
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
+    // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
+    let args: Vec<OsString> = std::env::args_os().collect();
     // Hidden subcommand: the isolated OpenVDB reader (see `pinbake::source::vdb`). It runs
     // before any CLI setup so that the worker does nothing but read the file.
-    if args.get(1).map(String::as_str) == Some("__vdb-worker") {
+    if args.get(1).is_some_and(|a| a == "__vdb-worker") {
         #[cfg(feature = "vdb")]
         return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
         #[cfg(not(feature = "vdb"))]
@@ -26,9 +28,12 @@ fn main() -> ExitCode {
     match cmd::run(cli) {
         Ok(code) => code,
         Err(e) => {
-            let msg = format!("{e:#}").replace(['\n', '\r'], " ");
-            eprintln!("pinbake: error: {msg}");
-            ExitCode::from(1)
+            eprintln!("pinbake: error: {}", pinbake::files::error_line(e.as_ref()));
+            if e.downcast_ref::<cmd::UsageError>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
         }
     }
 }

@@ -36,9 +36,10 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
+    // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
     // The isolated OpenVDB reader re-executes this binary (see `pinbake::source::vdb`).
-    if args.get(1).map(String::as_str) == Some("__vdb-worker") {
+    if args.get(1).is_some_and(|a| a == "__vdb-worker") {
         return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
     }
     let cli = Cli::parse_from(args);
@@ -50,9 +51,23 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let msg = format!("{e:#}").replace(['\n', '\r'], " ");
-            eprintln!("pinrender: error: {msg}");
-            ExitCode::from(1)
+            eprintln!(
+                "pinrender: error: {}",
+                pinbake::files::error_line(e.as_ref())
+            );
+            if e.downcast_ref::<pinbake::files::UsageError>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
         }
     }
 }
+
+/// Returns a [`pinbake::files::UsageError`] (exit code 2) from the enclosing function.
+macro_rules! usage {
+    ($($t:tt)*) => {
+        return Err(anyhow::Error::new(pinbake::files::UsageError(format!($($t)*))))
+    };
+}
+pub(crate) use usage;
