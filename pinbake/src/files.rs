@@ -300,10 +300,33 @@ pub fn write_pin_atomic(
     grid: &pin_format::OwnedPinGrid,
     target: &Path,
 ) -> Result<(), pin_format::FormatError> {
-    let mut f = pin_format::AtomicPinFile::create(target)?;
-    let _cleanup = signals::register(f.temp_path());
-    grid.write_into(f.writer())?;
-    f.commit()
+    PendingPin::create(target)?.write(grid)
+}
+
+/// A pin file whose temp file is created (and registered for removal on signals) before
+/// the work that produces the grid: a long bake holds its `.NAME.*.partial` from the start,
+/// so an interrupted bake is cleaned up the same way as an interrupted write.
+pub struct PendingPin {
+    file: pin_format::AtomicPinFile,
+    _signals: signals::Registration,
+}
+
+impl PendingPin {
+    pub fn create(target: &Path) -> Result<Self, pin_format::FormatError> {
+        let file = pin_format::AtomicPinFile::create(target)?;
+        let _signals = signals::register(file.temp_path());
+        Ok(Self { file, _signals })
+    }
+
+    /// The temporary file's path.
+    pub fn temp_path(&self) -> &Path {
+        self.file.temp_path()
+    }
+
+    pub fn write(mut self, grid: &pin_format::OwnedPinGrid) -> Result<(), pin_format::FormatError> {
+        grid.write_into(self.file.writer())?;
+        self.file.commit()
+    }
 }
 
 /// Unlinking the registered temporary file when the process is interrupted.

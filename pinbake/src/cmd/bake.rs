@@ -400,6 +400,10 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     };
     let need = pinbake::bake::estimate_output_bytes(&probe).saturating_add(input_bytes);
     budget.check(&format!("baking {}", args.input.display()), need)?;
+    // The temp file beside the target exists from here on, registered for removal on
+    // SIGINT/SIGTERM; a stale one of an earlier killed bake is swept away by its creation.
+    let pending = pinbake::files::PendingPin::create(&args.output)
+        .with_context(|| format!("{}", args.output.display()))?;
     let source = source::open_source(&spec)?;
     let opts = options_from_args(&args, source.as_ref(), &spec)?;
 
@@ -430,10 +434,16 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     let (grid, stats) = pinbake::bake(source.as_ref(), &opts, &progress)
         .with_context(|| args.input.display().to_string())?;
     bar.finish_and_clear();
-    // Checked again just before the write: the path may have been replaced during the bake.
+    // Checked again just before the rename: the path may have been replaced during the bake.
     let target = super::check_output(&args.output, input_path.as_slice())?;
-    pinbake::files::write_pin_atomic(&grid, &target)
-        .with_context(|| format!("{}", args.output.display()))?;
+    if target != args.output {
+        // A symlink to a regular file: the file it points to is replaced, the link stays.
+        drop(pending);
+        pinbake::files::write_pin_atomic(&grid, &target)
+    } else {
+        pending.write(&grid)
+    }
+    .with_context(|| format!("{}", args.output.display()))?;
     let file_bytes = std::fs::metadata(&target)
         .with_context(|| format!("{}", args.output.display()))?
         .len();
