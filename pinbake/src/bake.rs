@@ -279,7 +279,11 @@ fn bake_in_pool(
     let block_len = shape.block_len as usize;
     let covered = shape.covered_cells as usize;
     let (nx, ny) = (opts.cells[0] as usize, opts.cells[1] as usize);
-    let mut dense = try_filled("the pins", covered.saturating_mul(block_len), PinEntry::EMPTY)?;
+    let mut dense = try_filled(
+        "the pins",
+        covered.saturating_mul(block_len),
+        PinEntry::EMPTY,
+    )?;
     dense
         .par_chunks_mut(block_len)
         .enumerate()
@@ -309,7 +313,11 @@ fn bake_in_pool(
         .par_chunks(block_len)
         .filter(|b| !b.iter().all(PinEntry::is_empty))
         .count();
-    let mut pins = try_filled("the stored pins", stored_blocks * block_len, PinEntry::EMPTY)?;
+    let mut pins = try_filled(
+        "the stored pins",
+        stored_blocks * block_len,
+        PinEntry::EMPTY,
+    )?;
     pins.clear();
     let mut stored = 0u32;
     for block in dense.chunks(block_len) {

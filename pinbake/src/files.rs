@@ -44,11 +44,7 @@ pub enum FileError {
     #[error("{}: {err}", .path.display())]
     Io { path: PathBuf, err: std::io::Error },
     #[error("{what} needs {} bytes, more than the memory budget of {} bytes (--max-memory)", .need, .limit)]
-    Memory {
-        what: String,
-        need: u64,
-        limit: u64,
-    },
+    Memory { what: String, need: u64, limit: u64 },
 }
 
 /// A value out of its documented range, or flags that contradict each other: the binaries

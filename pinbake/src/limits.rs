@@ -76,10 +76,7 @@ pub fn parse_step(s: &str) -> Result<f64, String> {
 pub fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
     let v = parse_f64x3(s)?;
     if v.iter().any(|x| !(1e-9..=1e9).contains(x)) {
-        return Err(format!(
-            "{} must be in [1e-9, 1e9]",
-            v.map(num).join(",")
-        ));
+        return Err(format!("{} must be in [1e-9, 1e9]", v.map(num).join(",")));
     }
     Ok(v)
 }
@@ -105,7 +102,9 @@ pub fn parse_threads(s: &str) -> Result<usize, String> {
     let n: usize = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
     let max = max_threads();
     if !(1..=max).contains(&n) {
-        return Err(format!("{n} is not in 1..={max} (64 per core, at most 4096)"));
+        return Err(format!(
+            "{n} is not in 1..={max} (64 per core, at most 4096)"
+        ));
     }
     Ok(n)
 }

@@ -8,7 +8,6 @@ mod cmd;
 use std::ffi::OsString;
 use std::process::ExitCode;
 
-
 fn main() -> ExitCode {
     // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
     let args: Vec<OsString> = std::env::args_os().collect();
@@ -63,7 +62,9 @@ fn parse_cli<C: clap::Parser>(tool: &str, args: Vec<std::ffi::OsString>) -> Resu
                 .lines()
                 .map(str::trim)
                 .filter(|l| {
-                    !(l.is_empty() || l.starts_with("Usage:") || l.starts_with("For more information"))
+                    !(l.is_empty()
+                        || l.starts_with("Usage:")
+                        || l.starts_with("For more information"))
                 })
                 .collect();
             let line = line.join(" ");

@@ -281,9 +281,17 @@ fn expect(name: &str, r: &Run, code: i32, needle: &str) {
         "{name}: {:?}",
         lines[0]
     );
-    assert!(lines[0].contains(needle), "{name}: {:?} lacks {needle:?}", lines[0]);
+    assert!(
+        lines[0].contains(needle),
+        "{name}: {:?} lacks {needle:?}",
+        lines[0]
+    );
     assert!(!r.stderr.contains("panicked"), "{name}: {}", r.stderr);
-    assert!(r.rss_kib < MAX_RSS_KIB, "{name}: peak RSS {} KiB", r.rss_kib);
+    assert!(
+        r.rss_kib < MAX_RSS_KIB,
+        "{name}: peak RSS {} KiB",
+        r.rss_kib
+    );
     assert!(r.seconds < MAX_SECONDS, "{name}: {} s", r.seconds);
 }
 
@@ -356,10 +364,20 @@ fn outputs_only_to_regular_files_or_new_paths() {
     for (out, needle) in cases {
         let mut args = vec!["bake", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
         args.extend(FAST);
-        expect(&format!("bake -o {}", out.display()), &run(&args), 1, needle);
+        expect(
+            &format!("bake -o {}", out.display()),
+            &run(&args),
+            1,
+            needle,
+        );
     }
     // Nothing was damaged: the FIFO, the links and the input are as they were.
-    assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+    assert!(
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo()
+    );
     for (l, to) in [
         (&to_fifo, fifo.as_path()),
         (&to_null, Path::new("/dev/null")),
@@ -410,7 +428,10 @@ fn special_files_as_input_are_refused_without_reading() {
     let out = d.join("out.pin");
     let special: [(&Path, &str); 4] = [
         (Path::new("/dev/zero"), "/dev/zero: not a regular file"),
-        (Path::new("/dev/urandom"), "/dev/urandom: not a regular file"),
+        (
+            Path::new("/dev/urandom"),
+            "/dev/urandom: not a regular file",
+        ),
         (&fifo, "pipe.pin: not a regular file"),
         (d, "is a directory"),
     ];
@@ -425,7 +446,10 @@ fn special_files_as_input_are_refused_without_reading() {
     for (input, extra) in [
         (&fifo_raw, &[][..]),
         (&fifo_vdb, &[][..]),
-        (&PathBuf::from("/dev/zero"), &["--dims", "2", "--type", "u8"][..]),
+        (
+            &PathBuf::from("/dev/zero"),
+            &["--dims", "2", "--type", "u8"][..],
+        ),
     ] {
         let mut args = vec!["bake", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
         args.extend(FAST);
@@ -455,7 +479,10 @@ fn non_utf8_arguments_never_panic() {
         vec!["merge".into(), bad.into(), "-o".into(), out.clone().into()],
         1,
     ));
-    cases.push((vec!["bake".into(), bad.into(), "-o".into(), out.clone().into()], 1));
+    cases.push((
+        vec!["bake".into(), bad.into(), "-o".into(), out.clone().into()],
+        1,
+    ));
     let mut a = os(&["bake", "procedural:box", "--grid"]);
     a.extend([bad.into(), "-o".into(), out.clone().into()]);
     cases.push((a, 2));
@@ -501,7 +528,14 @@ fn sizes_beyond_memory_fail_before_allocating() {
     }
     let r = run(&["bench", "--grid-only", "--voxels", "5000"]);
     expect("bench --voxels 5000", &r, 2, "1..=4096");
-    let r = run(&["bench", "--grid-only", "--voxels", "4096", "--max-memory", "2G"]);
+    let r = run(&[
+        "bench",
+        "--grid-only",
+        "--voxels",
+        "4096",
+        "--max-memory",
+        "2G",
+    ]);
     expect("bench --voxels 4096", &r, 1, "memory budget");
     assert_eq!(partials(dir.path()), Vec::<String>::new());
 }
@@ -554,8 +588,16 @@ fn out_of_range_values_are_usage_errors() {
         ("procedural:box", &["--step", "0"], "--step"),
         ("procedural:box", &["--step", "1e-12"], "[1e-5, 1]"),
         ("procedural:box", &["--step", "nan"], "--step"),
-        ("procedural:box", &["--pins-per-entry", "0"], "--pins-per-entry"),
-        ("procedural:box", &["--density-scale", "nan"], "--density-scale"),
+        (
+            "procedural:box",
+            &["--pins-per-entry", "0"],
+            "--pins-per-entry",
+        ),
+        (
+            "procedural:box",
+            &["--density-scale", "nan"],
+            "--density-scale",
+        ),
         ("procedural:box", &["--density-scale=-1"], "--density-scale"),
         ("procedural:box", &["--threads", "10000"], "--threads"),
         ("procedural:box", &["--threads", "0"], "--threads"),
@@ -565,10 +607,22 @@ fn out_of_range_values_are_usage_errors() {
         ("procedural:box", &["--type", "u8"], "--type does not apply"),
         (raw, &["--spacing", "1e153"], "1e153"),
         (raw, &["--origin", "1e300,0,0"], "1e300"),
-        (raw, &["--grid", "density"], "--grid does not apply to a raw input"),
-        (raw, &["--levelset-to-fog"], "--levelset-to-fog does not apply"),
+        (
+            raw,
+            &["--grid", "density"],
+            "--grid does not apply to a raw input",
+        ),
+        (
+            raw,
+            &["--levelset-to-fog"],
+            "--levelset-to-fog does not apply",
+        ),
         (raw, &["--endian", "middle"], "--endian"),
-        (vdb, &["--dims", "4"], "--dims does not apply to an OpenVDB input"),
+        (
+            vdb,
+            &["--dims", "4"],
+            "--dims does not apply to an OpenVDB input",
+        ),
         (vdb, &["--type", "f32"], "--type does not apply"),
     ];
     for (input, extra, needle) in cases {
@@ -593,7 +647,14 @@ fn out_of_range_values_are_usage_errors() {
 /// `.partial` in the directory than `before`).
 fn slow_bake(out: &Path, before: usize) -> std::process::Child {
     let child = Command::new(BIN)
-        .args(["bake", "procedural:cosine", "--cells", "48", "--threads", "1"])
+        .args([
+            "bake",
+            "procedural:cosine",
+            "--cells",
+            "48",
+            "--threads",
+            "1",
+        ])
         .args(["--quiet", "-o"])
         .arg(out)
         .stdin(Stdio::null())
@@ -603,7 +664,10 @@ fn slow_bake(out: &Path, before: usize) -> std::process::Child {
         .unwrap();
     let t = Instant::now();
     while partials(out.parent().unwrap()).len() <= before {
-        assert!(t.elapsed() < Duration::from_secs(20), "no temp file appeared");
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "no temp file appeared"
+        );
         std::thread::sleep(Duration::from_millis(10));
     }
     child
@@ -653,7 +717,12 @@ fn messages_are_one_line_and_compact() {
     let r = run(&["inspect", missing.to_str().unwrap()]);
     expect("missing", &r, 1, "missing.pin: No such file or directory");
     assert_eq!(r.stderr.matches("No such file").count(), 1, "{}", r.stderr);
-    let r = run(&["bake", missing.with_extension("raw").to_str().unwrap(), "-o", "x.pin"]);
+    let r = run(&[
+        "bake",
+        missing.with_extension("raw").to_str().unwrap(),
+        "-o",
+        "x.pin",
+    ]);
     expect("missing raw", &r, 1, "missing.raw");
     assert_eq!(r.stderr.matches("os error 2").count(), 1, "{}", r.stderr);
     let r = run(&["verify", d.to_str().unwrap()]);

@@ -212,7 +212,12 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
     let (kind, ignored): (&str, Vec<&str>) = if procedural.is_some() {
         (
             "a procedural input",
-            raw_flags.iter().chain(&vdb_flags).filter(|f| f.1).map(|f| f.0).collect(),
+            raw_flags
+                .iter()
+                .chain(&vdb_flags)
+                .filter(|f| f.1)
+                .map(|f| f.0)
+                .collect(),
         )
     } else if is_vdb {
         (
@@ -226,10 +231,7 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
         )
     };
     if let Some(flag) = ignored.first() {
-        super::usage!(
-            "{flag} does not apply to {kind} ({})",
-            args.input.display()
-        );
+        super::usage!("{flag} does not apply to {kind} ({})", args.input.display());
     }
     if let Some(rest) = procedural {
         let mut spec: ProceduralSpec = rest
@@ -259,15 +261,14 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
         #[cfg(not(feature = "vdb"))]
         return Ok(SourceSpec::Vdb(path));
     }
-    let voxel_type =
-        match args.voxel_type.as_deref() {
-            None => None,
-            Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
-                anyhow::Error::new(super::UsageError(format!(
-                    "--type '{t}' is not one of u8, u16, f16, f32, f64"
-                )))
-            })?),
-        };
+    let voxel_type = match args.voxel_type.as_deref() {
+        None => None,
+        Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
+            anyhow::Error::new(super::UsageError(format!(
+                "--type '{t}' is not one of u8, u16, f16, f32, f64"
+            )))
+        })?),
+    };
     let endian = match args
         .endian
         .as_deref()
@@ -394,7 +395,11 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
         // the worker's copy up to 8x its compressed file.
         Some(p) => {
             let len = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-            let factor = if matches!(spec, SourceSpec::Raw(..)) { 4 } else { 8 };
+            let factor = if matches!(spec, SourceSpec::Raw(..)) {
+                4
+            } else {
+                8
+            };
             len.saturating_mul(factor)
         }
     };

@@ -8,8 +8,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
-use pinbake::files::MemoryBudget;
 use clap::{Parser, Subcommand};
+use pinbake::files::MemoryBudget;
 
 pub use bake::BakeArgs;
 pub use bench::BenchArgs;

@@ -88,9 +88,9 @@ fn cache_dir() -> Result<PathBuf> {
         Some(p) if p.is_absolute() => p,
         _ => match std::env::var_os("HOME").map(PathBuf::from) {
             Some(h) if h.is_absolute() => h.join(".cache"),
-            _ => anyhow::bail!(
-                "no cache directory: set HOME or XDG_CACHE_HOME, or pass --pins FILE"
-            ),
+            _ => {
+                anyhow::bail!("no cache directory: set HOME or XDG_CACHE_HOME, or pass --pins FILE")
+            }
         },
     };
     let dir = base.join("pinbake");
@@ -104,7 +104,13 @@ fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<Pin
     let dir = cache_dir()?;
     let safe_name: String = name
         .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect();
     let path = dir.join(format!(
         "bench-{safe_name}-{cells}-v{}.pin",

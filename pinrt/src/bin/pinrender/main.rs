@@ -90,7 +90,9 @@ fn parse_cli<C: clap::Parser>(tool: &str, args: Vec<std::ffi::OsString>) -> Resu
                 .lines()
                 .map(str::trim)
                 .filter(|l| {
-                    !(l.is_empty() || l.starts_with("Usage:") || l.starts_with("For more information"))
+                    !(l.is_empty()
+                        || l.starts_with("Usage:")
+                        || l.starts_with("For more information"))
                 })
                 .collect();
             let line = line.join(" ");

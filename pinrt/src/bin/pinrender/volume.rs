@@ -179,12 +179,21 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
     let grid_flag = [("--grid", a.grid.is_some())];
     let (kind, wrong): (&str, Vec<&str>) = if procedural.is_some() {
         let all = raw_flags.iter().chain(&grid_flag);
-        ("a procedural volume", all.filter(|f| f.1).map(|f| f.0).collect())
+        (
+            "a procedural volume",
+            all.filter(|f| f.1).map(|f| f.0).collect(),
+        )
     } else if is_vdb {
         let raw = raw_flags.iter();
-        ("an OpenVDB volume", raw.filter(|f| f.1).map(|f| f.0).collect())
+        (
+            "an OpenVDB volume",
+            raw.filter(|f| f.1).map(|f| f.0).collect(),
+        )
     } else {
-        ("a raw volume", grid_flag.iter().filter(|f| f.1).map(|f| f.0).collect())
+        (
+            "a raw volume",
+            grid_flag.iter().filter(|f| f.1).map(|f| f.0).collect(),
+        )
     };
     if let Some(flag) = wrong.first() {
         crate::usage!("{flag} does not apply to {kind} ({})", path.display());
