@@ -433,6 +433,21 @@ fn out_of_range_values_are_usage_errors_before_rendering() {
         d,
     );
     expect("eval --out FIFO", &r, 1, "not a directory");
+    // A symlink to a device planted in the output folder is refused, not written through.
+    std::fs::create_dir(&ev).unwrap();
+    std::os::unix::fs::symlink("/dev/null", ev.join("report.md")).unwrap();
+    let r = run(&["eval", "--quick", "--no-gpu", "--out", e], d);
+    expect(
+        "eval --out with a planted link",
+        &r,
+        1,
+        "report.md: not a regular file",
+    );
+    assert!(
+        std::fs::symlink_metadata(ev.join("report.md"))
+            .unwrap()
+            .is_symlink()
+    );
 }
 
 #[test]

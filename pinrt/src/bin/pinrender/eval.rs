@@ -279,6 +279,10 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     std::fs::create_dir_all(a.out.join("cache"))
         .with_context(|| format!("creating {}", a.out.display()))?;
+    refuse_special_entries(&a.out, 2)?;
+    if let Some(docs) = &a.docs {
+        refuse_special_entries(docs, 2)?;
+    }
 
     let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();
@@ -307,6 +311,33 @@ pub fn run(a: EvalArgs) -> Result<()> {
         "eval done in {total:.1} s -> {}",
         a.out.join("report.md").display()
     );
+    Ok(())
+}
+
+/// The report is written with plain `std::fs::write` under `dir`; a symlink or special file
+/// planted there (`report.md -> /dev/sda`) would be written through. Refuses any entry of
+/// `dir` (and of its subdirectories, `depth` levels) that is neither a regular file nor a
+/// directory, symlinks included.
+fn refuse_special_entries(dir: &std::path::Path, depth: u32) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for e in entries {
+        let e = e.with_context(|| dir.display().to_string())?;
+        let t = e
+            .file_type()
+            .with_context(|| e.path().display().to_string())?;
+        if t.is_dir() {
+            if depth > 1 {
+                refuse_special_entries(&e.path(), depth - 1)?;
+            }
+        } else if !t.is_file() {
+            bail!(
+                "{}: not a regular file (eval writes only regular files under its output folders)",
+                e.path().display()
+            );
+        }
+    }
     Ok(())
 }
 

@@ -17,7 +17,8 @@ use pinrt::render::{
     Scene, Sun, TransportEstimator, render,
 };
 
-use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs, parse_f64x3};
+use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
+use pinbake::limits::parse_f64x3;
 
 #[derive(Args, Debug)]
 #[command(after_help = "\
@@ -178,6 +179,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
+    if let Ok(m) = std::fs::metadata(&input) {
+        // f32 voxels: up to 4x a raw file of bytes; a VDB's leaves up to 8x its file.
+        budget.check(
+            &format!("reading {}", input.display()),
+            m.len().saturating_mul(8),
+        )?;
+    }
     let uses_majorants = !a.estimator.starts_with("rm@") && a.estimator != "pins";
     if uses_majorants {
         // f32 values plus the brick bounds the grid keeps, per brick.

@@ -53,8 +53,6 @@ pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
     }
 }
 
-pub use pinbake::limits::parse_f64x3;
-
 /// Opens a volume given as a path or `procedural:SPEC`.
 pub fn open_volume(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Arc<dyn DensitySource>> {
     Ok(open_volume_typed(input, a)?.source())
@@ -196,7 +194,11 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
         )
     };
     if let Some(flag) = wrong.first() {
-        crate::usage!("{flag} does not apply to {kind} ({})", path.display());
+        // A usage error (exit 2); spelled out because tests include this file as a module.
+        return Err(anyhow::Error::new(pinbake::files::UsageError(format!(
+            "{flag} does not apply to {kind} ({})",
+            path.display()
+        ))));
     }
     if procedural.is_none() {
         pinbake::files::check_input(&path)?;
