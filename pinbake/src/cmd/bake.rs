@@ -12,7 +12,7 @@ use pin_format::{Directions, Metadata};
 use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
 use pinbake::{BakeOptions, Tile};
 
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Clone)]
 #[command(after_help = "\
 INPUT is one of:
   FILE.vdb                 an OpenVDB fog volume (float or half grid)
@@ -24,7 +24,8 @@ Examples:
   pinbake bake smoke.vdb -o smoke.pin
   pinbake bake hydrogen_atom_128x128x128_uint8.raw --density-scale 0.1 -o h.pin --json
   pinbake bake procedural:cosine:seed=3 --cells 37 --dirs octahedral:8 -o noise.pin
-  pinbake bake smoke.vdb --tile 0/4 -o part0.pin    (then `pinbake merge part*.pin -o all.pin`)")]
+  pinbake bake smoke.vdb --tile 0/4 -o part0.pin    (then `pinbake merge part*.pin -o all.pin`)
+  pinbake bake 'smoke.####.vdb' --frames 1-240 -o 'smoke.####.pin'   (one file per frame)")]
 pub struct BakeArgs {
     /// Input volume (see below).
     pub input: PathBuf,
@@ -106,7 +107,12 @@ pub struct BakeArgs {
     /// suffixes; default: half of the physical memory).
     #[arg(long, value_parser = pinbake::files::parse_bytes, help_heading = "Execution")]
     pub max_memory: Option<u64>,
-    /// Print one JSON summary object on stdout.
+    /// Bake an animated sequence: INPUT and --output each hold one frame field (`####` or
+    /// `%04d`); FRAMES is A-B, A-BxSTEP, single frames, or a comma list of those. A frame that
+    /// fails is reported and the rest go on; the exit code is 1 if any failed.
+    #[arg(long, value_name = "FRAMES", help_heading = "Execution")]
+    pub frames: Option<String>,
+    /// Print one JSON summary object on stdout (with --frames: {"frames": [...], ...}).
     #[arg(long, help_heading = "Execution")]
     pub json: bool,
     /// No progress bar even on a terminal.
@@ -371,9 +377,22 @@ fn file_name(p: &Path) -> String {
 }
 
 pub fn run(args: BakeArgs) -> Result<ExitCode> {
+    if args.frames.is_some() {
+        return super::frames::run_sequence(args);
+    }
+    let summary = bake_one(&args)?;
+    if args.json {
+        println!("{summary}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
+/// human summary goes to stderr here).
+pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     // Ranges of single flags are checked by their parsers (exit 2); this is what needs the
     // input or several flags.
-    let spec = source_spec(&args)?;
+    let spec = source_spec(args)?;
     let input_path: Option<&Path> = match &spec {
         SourceSpec::Procedural(_) => None,
         _ => Some(args.input.as_path()),
@@ -410,7 +429,7 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     let pending = pinbake::files::PendingPin::create(&args.output)
         .with_context(|| format!("{}", args.output.display()))?;
     let source = source::open_source(&spec)?;
-    let opts = options_from_args(&args, source.as_ref(), &spec)?;
+    let opts = options_from_args(args, source.as_ref(), &spec)?;
 
     let shape_cells: u64 = match opts.tile {
         None => opts.cells.iter().map(|&c| u64::from(c)).product(),
@@ -453,14 +472,12 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
         .with_context(|| format!("{}", args.output.display()))?
         .len();
     let seconds = started.elapsed().as_secs_f64();
-    if args.json {
-        let mut v = super::inspect::summary_json(&grid, file_bytes, Some(&stats));
-        v["seconds"] = serde_json::json!(seconds);
-        v["bake_seconds"] = serde_json::json!(stats.seconds);
-        v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
-        v["output"] = serde_json::json!(args.output.display().to_string());
-        println!("{v}");
-    } else {
+    let mut v = super::inspect::summary_json(&grid, file_bytes, Some(&stats));
+    v["seconds"] = serde_json::json!(seconds);
+    v["bake_seconds"] = serde_json::json!(stats.seconds);
+    v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
+    v["output"] = serde_json::json!(args.output.display().to_string());
+    if !args.json {
         eprintln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
             args.input.display(),
@@ -473,5 +490,5 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
             stats.pins_per_s / 1e6
         );
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(v)
 }

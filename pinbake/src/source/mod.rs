@@ -5,7 +5,7 @@
 //! been applied by the time a value leaves a source.
 //!
 //! What lives here:
-//! * [`grid`]: a dense f32 grid with the shared world placement (DESIGN.md section 2);
+//! * [`grid`]: a dense f32 grid with the shared world placement (docs/background.md section 2);
 //! * [`raw`]: the headerless raw reader that produces such a grid;
 //! * [`procedural`]: analytic fields (box, sphere, cosine noise) with closed-form optical depth;
 //! * `vdb` (feature `vdb`): OpenVDB float/half grids, read in an isolated child process.

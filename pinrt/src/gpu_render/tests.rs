@@ -852,7 +852,7 @@ fn media_and_estimators_are_checked() {
     assert_eq!(grid.parts().3, &[0.0, 0.0, f32::MAX, 2.0]);
 }
 
-/// DESIGN section 5 on the GPU path tracer: an empty medium (extinction 0, majorant 0), an
+/// docs/background.md section 3 on the GPU path tracer: an empty medium (extinction 0, majorant 0), an
 /// opaque one (extinction 1e30, majorant 1e30) and NaN / infinite voxels give finite images
 /// with the expected transmittance for every estimator.
 #[test]

@@ -2,7 +2,7 @@
 //!
 //! A small, CPU-parallel, deterministic path tracer for grey participating media, used to
 //! *see* what an estimator does and to *measure* it: error (RMSE, relative MSE) against run
-//! time, per estimator, on the same scene (DESIGN sections 2, 6). Every transport query
+//! time, per estimator, on the same scene (docs/background.md section 2, docs/evaluation.md). Every transport query
 //! goes through the object-safe [`TransportEstimator`] trait, so ray marching, delta and
 //! ratio tracking (here) and the pin estimators (plugged in from outside) are compared
 //! under exactly the same path tracer.
