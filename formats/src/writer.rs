@@ -149,6 +149,44 @@ pub(crate) fn header_checksum(h: &FileHeader) -> u64 {
     checksum(&bytemuck::bytes_of(h)[..56])
 }
 
+/// Removes `PREFIX*.partial` files in `dir` that no live writer holds: temp files of writes
+/// to the same target that were killed before they could clean up (SIGKILL, power loss).
+/// A writer holds an exclusive lock on its temp file from creation to rename, so a file whose
+/// lock can be taken belongs to nobody. Failures are ignored: this is tidying, not the write.
+/// Length of the random part of a temp file name (tempfile's default, set explicitly below).
+const TEMP_RAND_LEN: usize = 6;
+
+fn remove_stale_partials(dir: &Path, prefix: &str) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name();
+        let Some(name) = name.to_str() else { continue };
+        // Exactly PREFIX + tempfile's random part + ".partial": the temp files of "a" must
+        // not match those of "a.pin".
+        let Some(rand) = name
+            .strip_prefix(prefix)
+            .and_then(|r| r.strip_suffix(".partial"))
+        else {
+            continue;
+        };
+        if rand.len() != TEMP_RAND_LEN || !rand.bytes().all(|b| b.is_ascii_alphanumeric()) {
+            continue;
+        }
+        // Only regular files (never follow a planted symlink), opened without blocking.
+        if !e.file_type().is_ok_and(|t| t.is_file()) {
+            continue;
+        }
+        let path = e.path();
+        if let Ok(f) = File::open(&path)
+            && f.try_lock().is_ok()
+        {
+            let _ = std::fs::remove_file(&path);
+        }
+    }
+}
+
 /// A pin file being written to a temporary file beside its final path.
 ///
 /// [`commit`](Self::commit) fsyncs, renames over the target and fsyncs the directory. Dropping
@@ -172,13 +210,22 @@ impl AtomicPinFile {
             .unwrap_or_else(|| "pin".into());
         let prefix = format!(".{name}.");
         let mut builder = tempfile::Builder::new();
-        builder.prefix(&prefix).suffix(".partial");
+        builder
+            .prefix(&prefix)
+            .suffix(".partial")
+            .rand_bytes(TEMP_RAND_LEN);
         // tempfile creates 0600 files; a pin file is an asset others read, so ask for what
         // `File::create` would give (0666, narrowed by the umask on creation).
         #[cfg(unix)]
         builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+        remove_stale_partials(&dir, &prefix);
         let temp = builder.tempfile_in(&dir)?;
         let (file, temp) = temp.into_parts();
+        // The lock marks the temp file as live for `remove_stale_partials` of other writers;
+        // the kernel drops it when the process dies, however it dies. A filesystem without
+        // locks fails the sweeper's lock attempt the same way, so the file is never swept
+        // there, and the write itself does not need the lock.
+        let _ = file.try_lock();
         let writer = PinFileWriter::new(BufWriter::with_capacity(1 << 20, file))?;
         Ok(Self {
             writer,
@@ -200,8 +247,10 @@ impl AtomicPinFile {
         let buf = self.writer.finish()?;
         let file = buf.into_inner().map_err(|e| e.into_error())?;
         file.sync_all()?;
-        drop(file);
+        // Rename while the file (and its lock) is still open, so that a concurrent writer's
+        // stale-file sweep cannot take it for litter between the close and the rename.
         self.temp.persist(&self.target).map_err(|e| e.error)?;
+        drop(file);
         if let Some(dir) = self.target.parent() {
             let dir = if dir.as_os_str().is_empty() {
                 Path::new(".")

@@ -196,6 +196,29 @@ fn overwrite_replaces_atomically_and_drop_leaves_target_alone() {
     assert_eq!(std::fs::read(&path).unwrap(), b.to_bytes().unwrap());
 }
 
+/// Temp files a SIGKILL left behind are swept by the next write to the same target; a live
+/// writer's (locked) temp file and other targets' temp files are not.
+#[test]
+fn next_write_sweeps_only_dead_writers_temp_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let path = d.join("a.pin");
+    let stale = d.join(".a.pin.Xy12Zq.partial");
+    std::fs::write(&stale, b"killed").unwrap();
+    let other_target = d.join(".a.pin.bak.Xy12Zq.partial");
+    std::fs::write(&other_target, b"other").unwrap();
+    let not_ours = d.join(".a.pin.Xy12Zq.partial.keep");
+    std::fs::write(&not_ours, b"keep").unwrap();
+    let live = AtomicPinFile::create(&path).unwrap();
+    let live_temp = live.temp_path().to_path_buf();
+    assert!(!stale.exists(), "the dead writer's temp file stayed");
+    dense_grid().write_atomic(&path).unwrap();
+    assert!(live_temp.exists(), "a live writer's temp file was swept");
+    assert!(other_target.exists() && not_ours.exists());
+    drop(live);
+    assert!(!live_temp.exists());
+}
+
 #[test]
 fn streamed_sections_equal_one_shot_sections() {
     // Writing a section in many small pieces gives the same bytes as one call.

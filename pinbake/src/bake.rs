@@ -92,6 +92,8 @@ pub enum BakeError {
     DensityRange { value: f32, at: [f64; 3] },
     #[error("bake needs about {need} bytes, more than --max-memory {limit}")]
     Memory { need: u64, limit: u64 },
+    #[error("cannot allocate {bytes} bytes for {what}")]
+    Alloc { what: &'static str, bytes: u64 },
     #[error(transparent)]
     Format(#[from] pin_format::FormatError),
     #[error("thread pool: {0}")]
@@ -145,10 +147,12 @@ pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
         d.map_or(0, |d| d.iter().map(|&x| u64::from(x)).product::<u64>() * b)
     };
     // Dense pins plus the compacted copy, the index, and the optional sections.
-    cells.saturating_mul(block).saturating_mul(2)
-        + cells * 4
-        + vol(opts.majorant, 4)
-        + vol(opts.embed_density, 2)
+    cells
+        .saturating_mul(block)
+        .saturating_mul(2)
+        .saturating_add(cells.saturating_mul(4))
+        .saturating_add(vol(opts.majorant, 4))
+        .saturating_add(vol(opts.embed_density, 2))
 }
 
 /// Deterministic per-pin geometry in unit-cube coordinates.
@@ -283,7 +287,11 @@ fn bake_in_pool(
     let block_len = shape.block_len as usize;
     let covered = shape.covered_cells as usize;
     let (nx, ny) = (opts.cells[0] as usize, opts.cells[1] as usize);
-    let mut dense = vec![PinEntry::EMPTY; covered * block_len];
+    let mut dense = try_filled(
+        "the pins",
+        covered.saturating_mul(block_len),
+        PinEntry::EMPTY,
+    )?;
     dense
         .par_chunks_mut(block_len)
         .enumerate()
@@ -306,8 +314,19 @@ fn bake_in_pool(
         });
 
     // Compact: empty cells keep only their index entry.
-    let mut index = Vec::with_capacity(covered);
-    let mut pins = Vec::new();
+    let mut index = try_filled("the cell index", covered, 0u32)?;
+    index.clear();
+    // Sized in a first pass so that the compacted copy is one fallible allocation.
+    let stored_blocks = dense
+        .par_chunks(block_len)
+        .filter(|b| !b.iter().all(PinEntry::is_empty))
+        .count();
+    let mut pins = try_filled(
+        "the stored pins",
+        stored_blocks * block_len,
+        PinEntry::EMPTY,
+    )?;
+    pins.clear();
     let mut stored = 0u32;
     for block in dense.chunks(block_len) {
         if block.iter().all(PinEntry::is_empty) {
@@ -382,6 +401,17 @@ fn cell_box(bbox: &Aabb, dims: [u32; 3], c: [u32; 3]) -> Aabb {
     )
 }
 
+/// `vec![value; n]` that reports a failed allocation instead of aborting the process.
+fn try_filled<T: Clone>(what: &'static str, n: usize, value: T) -> Result<Vec<T>, BakeError> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| BakeError::Alloc {
+        what,
+        bytes: (n as u64).saturating_mul(size_of::<T>() as u64),
+    })?;
+    v.resize(n, value);
+    Ok(v)
+}
+
 fn check_dims(what: &str, dims: [u32; 3]) -> Result<usize, BakeError> {
     if dims.contains(&0) || dims.iter().any(|&d| d > 4096) {
         return Err(BakeError::Options(format!(
@@ -397,13 +427,11 @@ fn bake_majorant(
     dims: [u32; 3],
 ) -> Result<(MajorantHeader, Vec<f32>), BakeError> {
     let n = check_dims("majorant", dims)?;
-    let values = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let c = unflatten(i, dims);
-            source.max_extinction_in(cell_box(bbox, dims, c))
-        })
-        .collect();
+    let mut values = try_filled("the majorant grid", n, 0.0f32)?;
+    values.par_iter_mut().enumerate().for_each(|(i, v)| {
+        let c = unflatten(i, dims);
+        *v = source.max_extinction_in(cell_box(bbox, dims, c));
+    });
     Ok((MajorantHeader { dims, reserved: 0 }, values))
 }
 
@@ -414,28 +442,29 @@ fn bake_density(
 ) -> Result<(DensityHeader, Vec<f16>), BakeError> {
     let n = check_dims("density", dims)?;
     let e = bbox.extent();
-    let values: Vec<Result<f16, BakeError>> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let c = unflatten(i, dims);
-            let p = DVec3::new(
-                bbox.min.x + e.x * (f64::from(c[0]) + 0.5) / f64::from(dims[0]),
-                bbox.min.y + e.y * (f64::from(c[1]) + 0.5) / f64::from(dims[1]),
-                bbox.min.z + e.z * (f64::from(c[2]) + 0.5) / f64::from(dims[2]),
-            );
-            let v = source.extinction(p);
-            let h = f16::from_f32(v);
-            if h.is_finite() {
-                Ok(h)
-            } else {
-                Err(BakeError::DensityRange {
-                    value: v,
-                    at: p.to_array(),
-                })
-            }
-        })
-        .collect();
-    let values = values.into_iter().collect::<Result<Vec<_>, _>>()?;
+    // Filled in place: collecting a `Result` (tens of bytes) per 2-byte voxel first made the
+    // peak many times the grid (7.6 GB for a 268 MB field).
+    let centre = |i: usize| {
+        let c = unflatten(i, dims);
+        DVec3::new(
+            bbox.min.x + e.x * (f64::from(c[0]) + 0.5) / f64::from(dims[0]),
+            bbox.min.y + e.y * (f64::from(c[1]) + 0.5) / f64::from(dims[1]),
+            bbox.min.z + e.z * (f64::from(c[2]) + 0.5) / f64::from(dims[2]),
+        )
+    };
+    let mut values = try_filled("the embedded density", n, f16::ZERO)?;
+    values
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(i, out)| *out = f16::from_f32(source.extinction(centre(i))));
+    // The first bad voxel in index order, so the message does not depend on scheduling.
+    if let Some(i) = values.iter().position(|h| !h.is_finite()) {
+        let p = centre(i);
+        return Err(BakeError::DensityRange {
+            value: source.extinction(p),
+            at: p.to_array(),
+        });
+    }
     Ok((
         DensityHeader {
             dims,

@@ -14,6 +14,8 @@
 pub use glam;
 
 pub mod bake;
+pub mod files;
+pub mod limits;
 pub mod merge;
 pub mod pin;
 pub mod rng;

@@ -1,14 +1,23 @@
-//! Hostile input through the `pinbake` binary (DESIGN section 5, issue "hostile input"):
-//! every damaged VDB of `data//oiio_damaged` through `bake`, and generated corrupt
+//! Hostile input through the `pinbake` binary (docs/background.md section 3, docs/stability.md "Hostile use"):
+//! every damaged VDB of `data/oiio_damaged` through `bake`, and generated corrupt
 //! pin files (truncated, flipped, lying header) through `verify` and `inspect`. Each must
 //! give a one-line error and exit code 1 within generous bounds on peak RSS (wait4's
 //! ru_maxrss, which includes the isolated VDB worker) and wall time. Prints the table that
 //! `docs/stability.md` quotes (`-- --nocapture`).
+//!
+//! Then hostile and careless use (issue 12, `docs/stability.md` "Hostile use"): outputs that
+//! are devices, FIFOs, symlinks to them or the input itself; special files as input;
+//! non-UTF-8 arguments; sizes beyond memory; out-of-range values (exit 2); signals during a
+//! bake. Each checks the exit code, a one-line stderr, bounded time and memory, and that
+//! nothing was damaged.
 #![cfg(all(feature = "cli", feature = "vdb"))]
 
+use std::ffi::{OsStr, OsString};
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::fs::FileTypeExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use glam::DVec3;
 use pin_format::{Directions, checksum};
@@ -27,34 +36,58 @@ fn data(name: &str) -> PathBuf {
 
 struct Run {
     code: Option<i32>,
+    /// The signal that ended the process, if one did.
+    signal: Option<i32>,
     stderr: String,
     rss_kib: i64,
     seconds: f64,
 }
 
-/// Runs the binary and reaps it with `wait4` to get its own peak RSS (children included).
-#[allow(clippy::zombie_processes)] // reaped by wait4 below, which std cannot see
 fn run(args: &[&str]) -> Run {
+    let args: Vec<&OsStr> = args.iter().map(OsStr::new).collect();
+    run_os(&args, Duration::from_secs(60))
+}
+
+/// Runs the binary and reaps it with `wait4` to get its own peak RSS (children included).
+/// A process still running after `limit` is killed (the test then fails on its time): a
+/// FIFO that blocks an open must not hang the suite.
+#[allow(clippy::zombie_processes)] // reaped by wait4 below, which std cannot see
+fn run_os(args: &[&OsStr], limit: Duration) -> Run {
     let started = Instant::now();
     let child = Command::new(BIN)
         .args(args)
+        .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let pid = child.id() as libc::pid_t;
-    let mut stderr = String::new();
-    use std::io::Read;
-    child.stderr.unwrap().read_to_string(&mut stderr).unwrap();
+    let mut pipe = child.stderr.unwrap();
+    let reader = std::thread::spawn(move || {
+        let mut s = Vec::new();
+        use std::io::Read;
+        let _ = pipe.read_to_end(&mut s);
+        String::from_utf8_lossy(&s).into_owned()
+    });
     let mut status = 0;
     // SAFETY: an all-zero rusage is a valid value; wait4 reaps our own child.
     let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
-    let r = unsafe { libc::wait4(pid, &mut status, 0, &mut ru) };
-    assert_eq!(r, pid, "wait4 failed");
-    let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
+    loop {
+        let r = unsafe { libc::wait4(pid, &mut status, libc::WNOHANG, &mut ru) };
+        if r == pid {
+            break;
+        }
+        assert_eq!(r, 0, "wait4 failed");
+        if started.elapsed() > limit {
+            // SAFETY: our own child, not yet reaped.
+            unsafe { libc::kill(pid, libc::SIGKILL) };
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
     Run {
-        code,
-        stderr,
+        code: libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status)),
+        signal: libc::WIFSIGNALED(status).then(|| libc::WTERMSIG(status)),
+        stderr: reader.join().unwrap(),
         rss_kib: ru.ru_maxrss,
         seconds: started.elapsed().as_secs_f64(),
     }
@@ -182,7 +215,7 @@ fn hostile_inputs_fail_in_one_line_with_bounded_memory_and_time() {
     ];
     let mut rows = Vec::new();
     let mut damaged: Vec<PathBuf> = std::fs::read_dir(data("oiio_damaged"))
-        .expect("data//oiio_damaged")
+        .expect("data/oiio_damaged")
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "vdb"))
         .collect();
@@ -222,4 +255,484 @@ fn hostile_inputs_fail_in_one_line_with_bounded_memory_and_time() {
     }
     table.extend(rows);
     eprintln!("\n{}", table.join("\n"));
+}
+
+// ---------------------------------------------------------------------------------------
+// Hostile and careless use (issue 12).
+
+/// Small, fast bake settings.
+const FAST: [&str; 6] = ["--cells", "4", "--dirs", "octahedral:2", "--step", "0.05"];
+
+/// Exit `code`, one stderr line starting with `pinbake: error: ` and containing `needle`,
+/// no panic, bounded time and peak RSS.
+fn expect(name: &str, r: &Run, code: i32, needle: &str) {
+    let lines: Vec<&str> = r.stderr.lines().collect();
+    assert_eq!(
+        r.code,
+        Some(code),
+        "{name}: exit {:?} (signal {:?}), stderr {:?}",
+        r.code,
+        r.signal,
+        r.stderr
+    );
+    assert_eq!(lines.len(), 1, "{name}: not one line: {:?}", r.stderr);
+    assert!(
+        lines[0].starts_with("pinbake: error: "),
+        "{name}: {:?}",
+        lines[0]
+    );
+    assert!(
+        lines[0].contains(needle),
+        "{name}: {:?} lacks {needle:?}",
+        lines[0]
+    );
+    assert!(!r.stderr.contains("panicked"), "{name}: {}", r.stderr);
+    assert!(
+        r.rss_kib < MAX_RSS_KIB,
+        "{name}: peak RSS {} KiB",
+        r.rss_kib
+    );
+    assert!(r.seconds < MAX_SECONDS, "{name}: {} s", r.seconds);
+}
+
+fn os(args: &[&str]) -> Vec<OsString> {
+    args.iter().map(OsString::from).collect()
+}
+
+fn run_args(args: &[OsString]) -> Run {
+    let a: Vec<&OsStr> = args.iter().map(OsString::as_os_str).collect();
+    run_os(&a, Duration::from_secs(30))
+}
+
+fn mkfifo(path: &Path) {
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: a valid C string; creates a FIFO in our temp dir.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+}
+
+fn partials(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".partial"))
+        .collect();
+    v.sort();
+    v
+}
+
+fn copy_raw(dir: &Path) -> PathBuf {
+    let input = dir.join("w_31x34x33_f32.raw");
+    std::fs::copy(data("water_esp_31x34x33_float32.raw"), &input).unwrap();
+    input
+}
+
+#[test]
+fn outputs_only_to_regular_files_or_new_paths() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let input = copy_raw(d);
+    let input_bytes = std::fs::read(&input).unwrap();
+    let fifo = d.join("fifo.pin");
+    mkfifo(&fifo);
+    let link = |name: &str, to: &Path| {
+        let p = d.join(name);
+        std::os::unix::fs::symlink(to, &p).unwrap();
+        p
+    };
+    let to_fifo = link("to_fifo.pin", &fifo);
+    // Devices only through symlinks in our temp dir: if the check failed, the rename would
+    // replace the link, never the device.
+    let to_null = link("to_null.pin", Path::new("/dev/null"));
+    let to_stdout = link("to_stdout.pin", Path::new("/proc/self/fd/1"));
+    let dangling = link("dangling.pin", &d.join("nothing"));
+    let hard = d.join("hard.raw");
+    std::fs::hard_link(&input, &hard).unwrap();
+    let to_input = link("to_input.pin", &input);
+    let sub = d.join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    let cases: [(&Path, &str); 9] = [
+        (&fifo, "fifo.pin: not a regular file"),
+        (&to_fifo, "to_fifo.pin: not a regular file"),
+        (&to_null, "to_null.pin: not a regular file"),
+        (&to_stdout, "to_stdout.pin: not a regular file"),
+        (&dangling, "symlink to a missing file"),
+        (&sub, "sub: is a directory"),
+        (&input, "is the input file"),
+        (&hard, "is the input file"),
+        (&to_input, "is the input file"),
+    ];
+    for (out, needle) in cases {
+        let mut args = vec!["bake", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        args.extend(FAST);
+        expect(
+            &format!("bake -o {}", out.display()),
+            &run(&args),
+            1,
+            needle,
+        );
+    }
+    // Nothing was damaged: the FIFO, the links and the input are as they were.
+    assert!(
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo()
+    );
+    for (l, to) in [
+        (&to_fifo, fifo.as_path()),
+        (&to_null, Path::new("/dev/null")),
+        (&to_stdout, Path::new("/proc/self/fd/1")),
+        (&to_input, input.as_path()),
+    ] {
+        assert_eq!(std::fs::read_link(l).unwrap(), to);
+    }
+    assert_eq!(std::fs::read(&input).unwrap(), input_bytes);
+    assert!(sub.read_dir().unwrap().next().is_none());
+    assert_eq!(partials(d), Vec::<String>::new());
+
+    // merge: the output may not be a tile or a device either.
+    let valid = valid_pin(d);
+    let tile = d.join("valid.pin");
+    for (out, needle) in [
+        (&tile, "is the input file"),
+        (&to_null, "not a regular file"),
+    ] {
+        let r = run(&["merge", tile.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+        expect("merge", &r, 1, needle);
+    }
+    assert_eq!(std::fs::read(&tile).unwrap(), valid);
+
+    // A symlink to a regular file is followed: the file is replaced, the link stays.
+    let old = d.join("old.pin");
+    std::fs::write(&old, b"old").unwrap();
+    let to_old = link("to_old.pin", &old);
+    let mut args = vec!["bake", "procedural:box", "-o", to_old.to_str().unwrap()];
+    args.extend(FAST);
+    let r = run(&args);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(std::fs::read_link(&to_old).unwrap(), old);
+    let r = run(&["verify", old.to_str().unwrap()]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+}
+
+#[test]
+fn special_files_as_input_are_refused_without_reading() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let fifo = d.join("pipe.pin");
+    mkfifo(&fifo);
+    let fifo_raw = d.join("pipe_2x2x2_u8.raw");
+    mkfifo(&fifo_raw);
+    let fifo_vdb = d.join("pipe.vdb");
+    mkfifo(&fifo_vdb);
+    let out = d.join("out.pin");
+    let special: [(&Path, &str); 4] = [
+        (Path::new("/dev/zero"), "/dev/zero: not a regular file"),
+        (
+            Path::new("/dev/urandom"),
+            "/dev/urandom: not a regular file",
+        ),
+        (&fifo, "pipe.pin: not a regular file"),
+        (d, "is a directory"),
+    ];
+    for (input, needle) in special {
+        let i = input.to_str().unwrap();
+        let name = |c: &str| format!("{c} {i}");
+        expect(&name("inspect"), &run(&["inspect", i]), 1, needle);
+        expect(&name("verify"), &run(&["verify", i]), 1, needle);
+        let r = run(&["merge", i, "-o", out.to_str().unwrap()]);
+        expect(&name("merge"), &r, 1, needle);
+    }
+    for (input, extra) in [
+        (&fifo_raw, &[][..]),
+        (&fifo_vdb, &[][..]),
+        (
+            &PathBuf::from("/dev/zero"),
+            &["--dims", "2", "--type", "u8"][..],
+        ),
+    ] {
+        let mut args = vec!["bake", input.to_str().unwrap(), "-o", out.to_str().unwrap()];
+        args.extend(FAST);
+        args.extend(extra);
+        expect(
+            &format!("bake {}", input.display()),
+            &run(&args),
+            1,
+            "not a regular file",
+        );
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn non_utf8_arguments_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let bad = OsStr::from_bytes(b"\xff.pin");
+    let bad_in_dir = d.join(bad);
+    let out = d.join("o.pin");
+    let mut cases: Vec<(Vec<OsString>, i32)> = Vec::new();
+    for cmd in ["inspect", "verify"] {
+        cases.push((vec![cmd.into(), bad.into()], 1));
+    }
+    cases.push((
+        vec!["merge".into(), bad.into(), "-o".into(), out.clone().into()],
+        1,
+    ));
+    cases.push((
+        vec!["bake".into(), bad.into(), "-o".into(), out.clone().into()],
+        1,
+    ));
+    let mut a = os(&["bake", "procedural:box", "--grid"]);
+    a.extend([bad.into(), "-o".into(), out.clone().into()]);
+    cases.push((a, 2));
+    let mut a = os(&["bench", "--threads"]);
+    a.push(bad.into());
+    cases.push((a, 2));
+    for (args, code) in &cases {
+        let r = run_args(args);
+        expect(&format!("{args:?}"), &r, *code, "");
+    }
+    // A non-UTF-8 output path is a path like any other.
+    let mut a = os(&["bake", "procedural:box", "-o"]);
+    a.push(bad_in_dir.clone().into());
+    a.extend(os(&FAST));
+    let r = run_args(&a);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let r = run_args(&[OsString::from("verify"), bad_in_dir.into()]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+}
+
+#[test]
+fn sizes_beyond_memory_fail_before_allocating() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("big.pin");
+    let o = out.to_str().unwrap();
+    let cases: [(&[&str], i32, &str); 8] = [
+        (&["--cells", "1000"], 1, "memory budget"),
+        (&["--cells", "350"], 1, "memory budget"),
+        (&["--embed-density", "2000"], 1, "memory budget"),
+        (&["--embed-density", "1024"], 1, "memory budget"),
+        // The estimate counts the f16 grid: 2.18 GB, just above 2 GiB.
+        (&["--embed-density", "1024"], 1, "2181185536 bytes"),
+        (&["--majorant", "2000"], 1, "memory budget"),
+        (&["--cells", "300", "--majorant", "0"], 1, "memory budget"),
+        (&["--embed-density", "5000"], 2, "at most 4096"),
+    ];
+    for (extra, code, needle) in cases {
+        // 2G keeps the limit machine-independent (the default is half the physical memory).
+        let mut args = vec!["bake", "procedural:box", "-o", o, "--max-memory", "2G"];
+        args.extend(extra);
+        expect(&format!("bake {extra:?}"), &run(&args), code, needle);
+        assert!(!out.exists());
+    }
+    let r = run(&["bench", "--grid-only", "--voxels", "5000"]);
+    expect("bench --voxels 5000", &r, 2, "1..=4096");
+    let r = run(&[
+        "bench",
+        "--grid-only",
+        "--voxels",
+        "4096",
+        "--max-memory",
+        "2G",
+    ]);
+    expect("bench --voxels 4096", &r, 1, "memory budget");
+    assert_eq!(partials(dir.path()), Vec::<String>::new());
+}
+
+/// `--embed-density 512 --max-memory 300M` passed its check and then peaked at 7.6 GB (a
+/// `Result` per voxel collected before the f16 grid). Now the peak is the 256 MiB grid plus
+/// the process; a mutation back to the per-voxel `Result` fails this by a factor of ten.
+#[test]
+fn embedded_density_peak_stays_near_its_size() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("dense.pin");
+    let r = run(&[
+        "bake",
+        "procedural:box",
+        "-o",
+        out.to_str().unwrap(),
+        "--cells",
+        "4",
+        "--dirs",
+        "octahedral:2",
+        "--majorant",
+        "0",
+        "--embed-density",
+        "512",
+        "--max-memory",
+        "300M",
+        "--quiet",
+    ]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    let grid_kib = 512 * 512 * 512 * 2 / 1024;
+    assert!(
+        r.rss_kib < grid_kib + 96 * 1024,
+        "peak RSS {} KiB for a {grid_kib} KiB grid",
+        r.rss_kib
+    );
+    assert!(std::fs::metadata(&out).unwrap().len() > 512 * 512 * 512 * 2);
+}
+
+#[test]
+fn out_of_range_values_are_usage_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let input = copy_raw(d);
+    let raw = input.to_str().unwrap();
+    let out = d.join("o.pin");
+    let o = out.to_str().unwrap();
+    let smoke = data("openvdb_smoke1.vdb");
+    let vdb = smoke.to_str().unwrap();
+    let cases: &[(&str, &[&str], &str)] = &[
+        ("procedural:box", &["--step", "0"], "--step"),
+        ("procedural:box", &["--step", "1e-12"], "[1e-5, 1]"),
+        ("procedural:box", &["--step", "nan"], "--step"),
+        (
+            "procedural:box",
+            &["--pins-per-entry", "0"],
+            "--pins-per-entry",
+        ),
+        (
+            "procedural:box",
+            &["--density-scale", "nan"],
+            "--density-scale",
+        ),
+        ("procedural:box", &["--density-scale=-1"], "--density-scale"),
+        ("procedural:box", &["--threads", "10000"], "--threads"),
+        ("procedural:box", &["--threads", "0"], "--threads"),
+        ("procedural:box", &["--max-memory", "0"], "--max-memory"),
+        ("procedural:box", &["--max-memory", "nanG"], "--max-memory"),
+        ("procedural:box", &["--majorant", "5000"], "--majorant"),
+        ("procedural:box", &["--type", "u8"], "--type does not apply"),
+        (raw, &["--spacing", "1e153"], "1e153"),
+        (raw, &["--origin", "1e300,0,0"], "1e300"),
+        (
+            raw,
+            &["--grid", "density"],
+            "--grid does not apply to a raw input",
+        ),
+        (
+            raw,
+            &["--levelset-to-fog"],
+            "--levelset-to-fog does not apply",
+        ),
+        (raw, &["--endian", "middle"], "--endian"),
+        (
+            vdb,
+            &["--dims", "4"],
+            "--dims does not apply to an OpenVDB input",
+        ),
+        (vdb, &["--type", "f32"], "--type does not apply"),
+    ];
+    for (input, extra, needle) in cases {
+        let mut args = vec!["bake", input, "-o", o, "--cells", "4"];
+        args.extend(*extra);
+        expect(&format!("bake {input} {extra:?}"), &run(&args), 2, needle);
+        assert!(!out.exists());
+    }
+    for extra in [
+        &["--voxels", "0"][..],
+        &["--rays", "1"][..],
+        &["--threads", "0"][..],
+        &["--cells", "0"][..],
+    ] {
+        let mut args = vec!["bench", "--grid-only"];
+        args.extend(extra);
+        expect(&format!("bench {extra:?}"), &run(&args), 2, "");
+    }
+}
+
+/// Starts a slow bake to `out` and returns it once its temp file exists (one more
+/// `.partial` in the directory than `before`).
+fn slow_bake(out: &Path, before: usize) -> std::process::Child {
+    let child = Command::new(BIN)
+        .args([
+            "bake",
+            "procedural:cosine",
+            "--cells",
+            "48",
+            "--threads",
+            "1",
+        ])
+        .args(["--quiet", "-o"])
+        .arg(out)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t = Instant::now();
+    while partials(out.parent().unwrap()).len() <= before {
+        assert!(
+            t.elapsed() < Duration::from_secs(20),
+            "no temp file appeared"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    child
+}
+
+#[test]
+fn interrupted_bakes_leave_no_partial_files() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let target = d.join("t.pin");
+    let old = valid_pin(d);
+    std::fs::copy(d.join("valid.pin"), &target).unwrap();
+    // Another target's temp file: never touched by writes to t.pin.
+    let other = d.join(".t.pin.bak.abcdef.partial");
+    std::fs::write(&other, b"x").unwrap();
+    let others = partials(d);
+    for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+        let mut child = slow_bake(&target, 1);
+        assert_eq!(partials(d).len(), 2);
+        // SAFETY: our own running child.
+        unsafe { libc::kill(child.id() as libc::pid_t, sig) };
+        let status = child.wait().unwrap();
+        assert_eq!(status.signal(), Some(sig), "{status:?}");
+        assert_eq!(partials(d), others, "signal {sig} left a temp file");
+        assert_eq!(std::fs::read(&target).unwrap(), old, "the target changed");
+    }
+    // SIGKILL cannot be handled: the temp file stays until the next write to the target.
+    let mut child = slow_bake(&target, 1);
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(partials(d).len(), 2, "SIGKILL leaves the temp file");
+    assert_eq!(std::fs::read(&target).unwrap(), old);
+    let mut args = vec!["bake", "procedural:box", "-o", target.to_str().unwrap()];
+    args.extend(FAST);
+    let r = run(&args);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    assert_eq!(partials(d), others, "the stale temp file was not removed");
+    assert!(other.exists());
+}
+
+#[test]
+fn messages_are_one_line_and_compact() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let missing = d.join("missing.pin");
+    let r = run(&["inspect", missing.to_str().unwrap()]);
+    expect("missing", &r, 1, "missing.pin: No such file or directory");
+    assert_eq!(r.stderr.matches("No such file").count(), 1, "{}", r.stderr);
+    let r = run(&[
+        "bake",
+        missing.with_extension("raw").to_str().unwrap(),
+        "-o",
+        "x.pin",
+    ]);
+    expect("missing raw", &r, 1, "missing.raw");
+    assert_eq!(r.stderr.matches("os error 2").count(), 1, "{}", r.stderr);
+    let r = run(&["verify", d.to_str().unwrap()]);
+    expect("directory", &r, 1, "is a directory");
+    assert!(!r.stderr.contains("bytes"), "{}", r.stderr);
+    let out = d.join("o.pin");
+    let mut args = vec!["bake", "procedural:box", "-o", out.to_str().unwrap()];
+    args.extend(FAST);
+    args.extend(["--density-scale", "1e308"]);
+    let r = run(&args);
+    expect("1e308", &r, 1, "1e308");
+    assert!(r.stderr.len() < 300, "{}", r.stderr);
 }

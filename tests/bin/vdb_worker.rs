@@ -2,8 +2,11 @@
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
-    if args.get(1).map(String::as_str) != Some(pinbake::source::vdb::WORKER_SUBCOMMAND) {
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    if args
+        .get(1)
+        .is_none_or(|a| a != pinbake::source::vdb::WORKER_SUBCOMMAND)
+    {
         eprintln!(
             "usage: pin-tests-vdb-worker {} <file> <grid-selector> <mode>",
             pinbake::source::vdb::WORKER_SUBCOMMAND

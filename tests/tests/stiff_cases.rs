@@ -365,7 +365,7 @@ fn raw_reader_cases() {
 fn vdb_reader_damaged_files() {
     let dir = data("oiio_damaged");
     let mut names: Vec<_> = std::fs::read_dir(&dir)
-        .expect("data//oiio_damaged must exist")
+        .expect("data/oiio_damaged must exist")
         .map(|e| e.unwrap().path())
         .filter(|p| p.extension().is_some_and(|e| e == "vdb"))
         .collect();

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::{Directions, Metadata};
@@ -28,8 +28,9 @@ Examples:
   pinbake bake 'smoke.####.vdb' --frames 1-240 -o 'smoke.####.pin'   (one file per frame)")]
 pub struct BakeArgs {
     /// Input volume (see below).
-    pub input: String,
-    /// Output pin file; written atomically (a temp file renamed into place).
+    pub input: PathBuf,
+    /// Output pin file; written atomically (a temp file renamed into place). Must be a new
+    /// path or a regular file other than the input.
     #[arg(short, long)]
     pub output: PathBuf,
 
@@ -46,14 +47,14 @@ pub struct BakeArgs {
     /// Raw: voxel type: u8, u16, f16, f32, f64.
     #[arg(long = "type", help_heading = "Raw input")]
     pub voxel_type: Option<String>,
-    /// Raw: byte order of multi-byte types: little or big.
-    #[arg(long, default_value = "little", help_heading = "Raw input")]
-    pub endian: String,
-    /// Raw: world size of a voxel, one value or X,Y,Z.
-    #[arg(long, value_parser = parse_f64x3, help_heading = "Raw input")]
+    /// Raw: byte order of multi-byte types: little (default) or big.
+    #[arg(long, help_heading = "Raw input")]
+    pub endian: Option<String>,
+    /// Raw: world size of a voxel, one value or X,Y,Z, each in [1e-9, 1e9].
+    #[arg(long, value_parser = pinbake::limits::parse_spacing, help_heading = "Raw input")]
     pub spacing: Option<[f64; 3]>,
-    /// Raw: world position of the grid box's minimum corner X,Y,Z.
-    #[arg(long, value_parser = parse_f64x3, help_heading = "Raw input")]
+    /// Raw: world position of the grid box's minimum corner X,Y,Z, each within +-1e12.
+    #[arg(long, value_parser = pinbake::limits::parse_origin, help_heading = "Raw input")]
     pub origin: Option<[f64; 3]>,
     /// Raw: treat negative values as 0 instead of failing.
     #[arg(long, help_heading = "Raw input")]
@@ -62,8 +63,8 @@ pub struct BakeArgs {
     #[arg(long, help_heading = "Raw input")]
     pub nan_as_zero: bool,
 
-    /// Multiply every density by this (extinction = density x scale).
-    #[arg(long, default_value_t = 1.0)]
+    /// Multiply every density by this (extinction = density x scale); finite, >= 0.
+    #[arg(long, default_value_t = 1.0, value_parser = pinbake::limits::parse_density_scale)]
     pub density_scale: f64,
 
     /// Spatial cells: N or X,Y,Z.
@@ -73,10 +74,11 @@ pub struct BakeArgs {
     #[arg(long, default_value = "polar:16x4", value_parser = parse_dirs, help_heading = "Grid")]
     pub dirs: Directions,
     /// Pins stored per (cell, direction) entry.
-    #[arg(long, default_value_t = 1, help_heading = "Grid")]
+    #[arg(long, default_value_t = 1, help_heading = "Grid",
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(pin_format::MAX_PINS_PER_ENTRY)))]
     pub pins_per_entry: u32,
-    /// Ray-marching step relative to the longest box edge.
-    #[arg(long, default_value_t = 0.01, help_heading = "Grid")]
+    /// Ray-marching step relative to the longest box edge, in [1e-5, 1].
+    #[arg(long, default_value_t = 0.01, value_parser = pinbake::limits::parse_step, help_heading = "Grid")]
     pub step: f64,
     /// Seed of the pins' random lines and mask bits.
     #[arg(long, default_value_t = 0, help_heading = "Grid")]
@@ -90,18 +92,20 @@ pub struct BakeArgs {
     /// Majorant bricks per axis (N or X,Y,Z); 0 leaves the majorant grid out.
     #[arg(long, default_value = "16", value_parser = parse_u32x3_or_zero, help_heading = "Grid")]
     pub majorant: [u32; 3],
-    /// Embed the density as an f16 grid of N or X,Y,Z voxels (for ray-marched primary rays).
-    #[arg(long, value_parser = parse_u32x3, help_heading = "Grid")]
+    /// Embed the density as an f16 grid of N or X,Y,Z voxels, at most 4096 per axis (for
+    /// ray-marched primary rays).
+    #[arg(long, value_parser = parse_u32x3_max4096, help_heading = "Grid")]
     pub embed_density: Option<[u32; 3]>,
 
     /// Bake only tile I of N (a slab of z layers); join tiles with `pinbake merge`.
     #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
     pub tile: Option<Tile>,
-    /// Worker threads (default: all cores).
-    #[arg(long, help_heading = "Execution")]
+    /// Worker threads (default: all cores; at most 64 per core and 4096).
+    #[arg(long, value_parser = pinbake::limits::parse_threads, help_heading = "Execution")]
     pub threads: Option<usize>,
-    /// Refuse to start a bake whose output would need more than this many bytes (K/M/G suffixes).
-    #[arg(long, value_parser = parse_bytes, help_heading = "Execution")]
+    /// Refuse to start a bake that would need more than this many bytes of memory (K/M/G/T
+    /// suffixes; default: half of the physical memory).
+    #[arg(long, value_parser = pinbake::files::parse_bytes, help_heading = "Execution")]
     pub max_memory: Option<u64>,
     /// Bake an animated sequence: INPUT and --output each hold one frame field (`####` or
     /// `%04d`); FRAMES is A-B, A-BxSTEP, single frames, or a comma list of those. A frame that
@@ -132,32 +136,25 @@ pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
     Ok(out)
 }
 
+/// Majorant and embedded-density grids: 1..=4096 voxels per axis (the format's limit).
+fn parse_u32x3_max4096(s: &str) -> Result<[u32; 3], String> {
+    let v = parse_u32x3(s)?;
+    if v.iter().any(|&d| d > 4096) {
+        return Err(format!("{v:?}: at most 4096 per axis"));
+    }
+    Ok(v)
+}
+
 fn parse_u32x3_or_zero(s: &str) -> Result<[u32; 3], String> {
     if s.trim() == "0" {
         Ok([0; 3])
     } else {
-        parse_u32x3(s)
+        parse_u32x3_max4096(s)
     }
 }
 
 fn majorant_dims(d: [u32; 3]) -> Option<[u32; 3]> {
     (d != [0; 3]).then_some(d)
-}
-
-fn parse_f64x3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>().map_err(|e| format!("'{p}': {e}")))
-        .collect::<Result<_, _>>()?;
-    let out = match v.as_slice() {
-        [n] => [*n; 3],
-        [x, y, z] => [*x, *y, *z],
-        _ => return Err("expected V or X,Y,Z".into()),
-    };
-    if out.iter().any(|x| !x.is_finite()) {
-        return Err("values must be finite".into());
-    }
-    Ok(out)
 }
 
 pub fn parse_dirs(s: &str) -> Result<Directions, String> {
@@ -193,36 +190,66 @@ fn parse_tile(s: &str) -> Result<Tile, String> {
     Ok(Tile { index, count })
 }
 
-fn parse_bytes(s: &str) -> Result<u64, String> {
-    let s = s.trim();
-    let (num, mult) = match s.chars().last() {
-        Some('K' | 'k') => (&s[..s.len() - 1], 1u64 << 10),
-        Some('M' | 'm') => (&s[..s.len() - 1], 1 << 20),
-        Some('G' | 'g') => (&s[..s.len() - 1], 1 << 30),
-        _ => (s, 1),
-    };
-    let n: f64 = num.parse().map_err(|e| format!("'{s}': {e}"))?;
-    if !(n.is_finite() && n >= 0.0) {
-        return Err(format!("'{s}' is not a size"));
-    }
-    Ok((n * mult as f64) as u64)
-}
-
-/// What the input string names.
+/// What the input names. Flags meant for another kind of input are usage errors: ignoring
+/// them would bake something other than what the user asked for.
 pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
-    let input = args.input.as_str();
-    if let Some(rest) = input.strip_prefix("procedural:") {
+    let procedural = args
+        .input
+        .to_str()
+        .and_then(|s| s.strip_prefix("procedural:"));
+    let is_vdb = procedural.is_none()
+        && args
+            .input
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
+    let raw_flags = [
+        ("--dims", args.dims.is_some()),
+        ("--type", args.voxel_type.is_some()),
+        ("--endian", args.endian.is_some()),
+        ("--spacing", args.spacing.is_some()),
+        ("--origin", args.origin.is_some()),
+        ("--clamp-negative", args.clamp_negative),
+        ("--nan-as-zero", args.nan_as_zero),
+    ];
+    let vdb_flags = [
+        ("--grid", args.grid.is_some()),
+        ("--levelset-to-fog", args.levelset_to_fog),
+    ];
+    let (kind, ignored): (&str, Vec<&str>) = if procedural.is_some() {
+        (
+            "a procedural input",
+            raw_flags
+                .iter()
+                .chain(&vdb_flags)
+                .filter(|f| f.1)
+                .map(|f| f.0)
+                .collect(),
+        )
+    } else if is_vdb {
+        (
+            "an OpenVDB input",
+            raw_flags.iter().filter(|f| f.1).map(|f| f.0).collect(),
+        )
+    } else {
+        (
+            "a raw input",
+            vdb_flags.iter().filter(|f| f.1).map(|f| f.0).collect(),
+        )
+    };
+    if let Some(flag) = ignored.first() {
+        super::usage!("{flag} does not apply to {kind} ({})", args.input.display());
+    }
+    if let Some(rest) = procedural {
         let mut spec: ProceduralSpec = rest
             .parse()
             .map_err(|e: source::SourceError| anyhow::anyhow!("{e}"))?;
         spec.density *= args.density_scale;
         return Ok(SourceSpec::Procedural(spec));
     }
-    let path = PathBuf::from(input);
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase());
-    if ext.as_deref() == Some("vdb") {
+    let path = args.input.clone();
+    // A FIFO, device or directory is refused before anything opens it.
+    pinbake::files::check_input(&path)?;
+    if is_vdb {
         #[cfg(feature = "vdb")]
         {
             let worker_exe = std::env::current_exe().context("locating the pinbake binary")?;
@@ -240,17 +267,24 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
         #[cfg(not(feature = "vdb"))]
         return Ok(SourceSpec::Vdb(path));
     }
-    let voxel_type =
-        match args.voxel_type.as_deref() {
-            None => None,
-            Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
-                anyhow::anyhow!("--type '{t}' is not one of u8, u16, f16, f32, f64")
-            })?),
-        };
-    let endian = match args.endian.to_ascii_lowercase().as_str() {
+    let voxel_type = match args.voxel_type.as_deref() {
+        None => None,
+        Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
+            anyhow::Error::new(super::UsageError(format!(
+                "--type '{t}' is not one of u8, u16, f16, f32, f64"
+            )))
+        })?),
+    };
+    let endian = match args
+        .endian
+        .as_deref()
+        .unwrap_or("little")
+        .to_ascii_lowercase()
+        .as_str()
+    {
         "little" | "le" => source::Endian::Little,
         "big" | "be" => source::Endian::Big,
-        other => bail!("--endian '{other}' is not little or big"),
+        other => super::usage!("--endian '{other}' is not little or big"),
     };
     Ok(SourceSpec::Raw(
         path,
@@ -270,7 +304,7 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
 /// Hex xxh3-128 of a file, streamed so a large volume is not read twice into memory.
 fn hash_file(path: &Path) -> Result<String> {
     use std::io::Read;
-    let mut f = std::fs::File::open(path).with_context(|| format!("{}", path.display()))?;
+    let (mut f, _) = pinbake::files::open_input(path)?;
     let mut h = xxhash_rust::xxh3::Xxh3::new();
     let mut buf = vec![0u8; 1 << 20];
     loop {
@@ -356,48 +390,44 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
 /// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
 /// human summary goes to stderr here).
 pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
-    if !(args.density_scale.is_finite() && args.density_scale >= 0.0) {
-        bail!(
-            "--density-scale {} must be finite and >= 0",
-            args.density_scale
-        );
-    }
-    if args.pins_per_entry == 0 || args.pins_per_entry > pin_format::MAX_PINS_PER_ENTRY {
-        bail!(
-            "--pins-per-entry must be in 1..={}",
-            pin_format::MAX_PINS_PER_ENTRY
-        );
-    }
-    if !(args.step > 0.0 && args.step <= 1.0) {
-        bail!("--step {} must be in (0, 1]", args.step);
-    }
+    // Ranges of single flags are checked by their parsers (exit 2); this is what needs the
+    // input or several flags.
     let spec = source_spec(args)?;
-    if let Some(limit) = args.max_memory {
-        let probe = BakeOptions {
-            cells: args.cells,
-            directions: args.dirs,
-            pins_per_entry: args.pins_per_entry,
-            majorant: majorant_dims(args.majorant),
-            embed_density: args.embed_density,
-            ..BakeOptions::default()
-        };
-        let input = match &spec {
-            SourceSpec::Procedural(_) => 0,
-            // f32 voxels in memory: up to 4x the file for 8-bit input.
-            SourceSpec::Raw(p, _) => std::fs::metadata(p).map(|m| m.len() * 4).unwrap_or(0),
-            #[cfg(feature = "vdb")]
-            SourceSpec::Vdb(p, _) => std::fs::metadata(p).map(|m| m.len() * 8).unwrap_or(0),
-            #[cfg(not(feature = "vdb"))]
-            SourceSpec::Vdb(p) => std::fs::metadata(p).map(|m| m.len() * 8).unwrap_or(0),
-        };
-        let need = pinbake::bake::estimate_output_bytes(&probe) + input;
-        if need > limit {
-            bail!(
-                "{}: bake needs about {need} bytes, more than --max-memory {limit}",
-                args.input
-            );
+    let input_path: Option<&Path> = match &spec {
+        SourceSpec::Procedural(_) => None,
+        _ => Some(args.input.as_path()),
+    };
+    // Before the bake, not after it: minutes of work for a refused path help nobody.
+    super::check_output(&args.output, input_path.as_slice())?;
+    let budget = pinbake::files::MemoryBudget::new(args.max_memory);
+    let probe = BakeOptions {
+        cells: args.cells,
+        directions: args.dirs,
+        pins_per_entry: args.pins_per_entry,
+        majorant: majorant_dims(args.majorant),
+        embed_density: args.embed_density,
+        ..BakeOptions::default()
+    };
+    let input_bytes = match input_path {
+        None => 0,
+        // f32 voxels in memory: up to 4x the file for 8-bit input; a VDB's leaves and
+        // the worker's copy up to 8x its compressed file.
+        Some(p) => {
+            let len = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
+            let factor = if matches!(spec, SourceSpec::Raw(..)) {
+                4
+            } else {
+                8
+            };
+            len.saturating_mul(factor)
         }
-    }
+    };
+    let need = pinbake::bake::estimate_output_bytes(&probe).saturating_add(input_bytes);
+    budget.check(&format!("baking {}", args.input.display()), need)?;
+    // The temp file beside the target exists from here on, registered for removal on
+    // SIGINT/SIGTERM; a stale one of an earlier killed bake is swept away by its creation.
+    let pending = pinbake::files::PendingPin::create(&args.output)
+        .with_context(|| format!("{}", args.output.display()))?;
     let source = source::open_source(&spec)?;
     let opts = options_from_args(args, source.as_ref(), &spec)?;
 
@@ -425,12 +455,20 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     };
     let started = Instant::now();
     let progress = |n: u64| bar.inc(n);
-    let (grid, stats) =
-        pinbake::bake(source.as_ref(), &opts, &progress).with_context(|| args.input.clone())?;
+    let (grid, stats) = pinbake::bake(source.as_ref(), &opts, &progress)
+        .with_context(|| args.input.display().to_string())?;
     bar.finish_and_clear();
-    grid.write_atomic(&args.output)
-        .with_context(|| format!("{}", args.output.display()))?;
-    let file_bytes = std::fs::metadata(&args.output)
+    // Checked again just before the rename: the path may have been replaced during the bake.
+    let target = super::check_output(&args.output, input_path.as_slice())?;
+    if target != args.output {
+        // A symlink to a regular file: the file it points to is replaced, the link stays.
+        drop(pending);
+        pinbake::files::write_pin_atomic(&grid, &target)
+    } else {
+        pending.write(&grid)
+    }
+    .with_context(|| format!("{}", args.output.display()))?;
+    let file_bytes = std::fs::metadata(&target)
         .with_context(|| format!("{}", args.output.display()))?
         .len();
     let seconds = started.elapsed().as_secs_f64();
@@ -442,7 +480,7 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     if !args.json {
         eprintln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
-            args.input,
+            args.input.display(),
             args.output.display(),
             stats.covered_cells,
             stats.empty_cells,

@@ -21,15 +21,19 @@ use serde_json::json;
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
-    /// Spatial cells per axis.
-    #[arg(long, default_value_t = 37)]
+    /// Spatial cells per axis (1..=4096).
+    #[arg(long, default_value_t = 37, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub cells: u32,
-    /// Voxels per axis of the voxelised noise volume.
-    #[arg(long, default_value_t = 512)]
+    /// Voxels per axis of the voxelised noise volume (1..=4096).
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub voxels: u32,
     /// Thread counts to run, comma separated.
-    #[arg(long, default_value = "1,2", value_delimiter = ',')]
+    #[arg(long, default_value = "1,2", value_delimiter = ',', value_parser = pinbake::limits::parse_threads)]
     pub threads: Vec<usize>,
+    /// Refuse a configuration that needs more than this many bytes of memory (K/M/G/T
+    /// suffixes; default: half of the physical memory).
+    #[arg(long, value_parser = pinbake::files::parse_bytes)]
+    pub max_memory: Option<u64>,
     /// Only the voxelised grid (skip the slower analytic-noise rows).
     #[arg(long)]
     pub grid_only: bool,
@@ -43,10 +47,25 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
     spec.noise.seed = 7;
     let noise = spec.build_noise()?;
     let n = args.voxels;
+    let voxels = u64::from(n).pow(3);
+    let probe = BakeOptions {
+        cells: [args.cells; 3],
+        majorant: None,
+        ..BakeOptions::default()
+    };
+    pinbake::files::MemoryBudget::new(args.max_memory).check(
+        "the benchmark volume and bake",
+        voxels
+            .saturating_mul(4)
+            .saturating_add(pinbake::bake::estimate_output_bytes(&probe)),
+    )?;
     let t0 = Instant::now();
     let h = 1.0 / f64::from(n);
     let row = n as usize;
-    let mut data = vec![0.0f32; row * row * row];
+    let mut data = Vec::new();
+    data.try_reserve_exact(row * row * row)
+        .map_err(|_| anyhow::anyhow!("cannot allocate {} bytes for the voxels", voxels * 4))?;
+    data.resize(row * row * row, 0.0f32);
     // One x-row per call so the noise can step its waves incrementally.
     data.par_chunks_mut(row).enumerate().for_each(|(i, out)| {
         let (y, z) = ((i % row) as f64, (i / row) as f64);

@@ -184,12 +184,17 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
         Ok(f) => f,
         Err(e) => return Ok(usage(e)),
     };
-    let input = match FramePattern::parse(&args.input) {
+    let Some(in_str) = args.input.to_str() else {
+        return Ok(usage(format!(
+            "{}: a sequence input pattern must be UTF-8",
+            args.input.display()
+        )));
+    };
+    let input = match FramePattern::parse(in_str) {
         Ok(Some(p)) => p,
         Ok(None) => {
             return Ok(usage(format!(
-                "{}: with --frames the input needs a frame field (#### or %04d)",
-                args.input
+                "{in_str}: with --frames the input needs a frame field (#### or %04d)"
             )));
         }
         Err(e) => return Ok(usage(e)),
@@ -215,23 +220,25 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
     for &frame in &frames {
         let mut one = args.clone();
         one.frames = None;
-        one.input = input.name(frame);
+        one.input = input.name(frame).into();
         one.output = output.name(frame).into();
         match super::bake::bake_one(&one) {
             Ok(summary) => results.push(serde_json::json!({
                 "frame": frame,
-                "input": one.input,
+                "input": one.input.display().to_string(),
                 "output": one.output.display().to_string(),
                 "ok": true,
                 "summary": summary,
             })),
+            // A flag that does not fit the input fits no frame: stop with the usage error.
+            Err(e) if e.downcast_ref::<pinbake::files::UsageError>().is_some() => return Err(e),
             Err(e) => {
                 failed += 1;
-                let msg = format!("{e:#}").replace(['\n', '\r'], " ");
+                let msg = pinbake::files::error_line(e.as_ref());
                 eprintln!("pinbake: error: frame {frame}: {msg}");
                 results.push(serde_json::json!({
                     "frame": frame,
-                    "input": one.input,
+                    "input": one.input.display().to_string(),
                     "output": one.output.display().to_string(),
                     "ok": false,
                     "error": msg,
@@ -249,7 +256,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
         eprintln!(
             "baked {ok} of {} frames of {}{}",
             frames.len(),
-            args.input,
+            args.input.display(),
             if failed > 0 {
                 format!(", {failed} failed")
             } else {

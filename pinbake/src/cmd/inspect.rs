@@ -103,7 +103,7 @@ fn summary(
 }
 
 pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
-    let bytes = super::read_file(path)?;
+    let bytes = super::read_file(path, &pinbake::files::MemoryBudget::new(None))?;
     let file = PinFile::parse(&bytes).with_context(|| format!("{}", path.display()))?;
     let metadata = file
         .metadata()

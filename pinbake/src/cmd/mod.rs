@@ -10,6 +10,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use pinbake::files::MemoryBudget;
 
 pub use bake::BakeArgs;
 pub use bench::BenchArgs;
@@ -60,9 +61,13 @@ pub enum Command {
         /// Tile files, any order.
         #[arg(required = true)]
         tiles: Vec<PathBuf>,
-        /// Output pin file (written atomically).
+        /// Output pin file (written atomically; a new path or a regular file, not a tile).
         #[arg(short, long)]
         output: PathBuf,
+        /// Refuse tiles whose total size exceeds this many bytes (K/M/G/T suffixes; default:
+        /// half of the physical memory).
+        #[arg(long, value_parser = pinbake::files::parse_bytes)]
+        max_memory: Option<u64>,
     },
     /// Bake the thesis' largest configuration and print pins/s for 1 and 2 threads.
     Bench(BenchArgs),
@@ -73,8 +78,9 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
         Command::Bake(args) => bake::run(*args),
         Command::Inspect { file, json } => inspect::run(&file, json),
         Command::Verify { files } => {
+            let budget = MemoryBudget::new(None);
             for file in &files {
-                let bytes = read_file(file)?;
+                let bytes = read_file(file, &budget)?;
                 let parsed = pin_format::PinFile::parse(&bytes)
                     .with_context(|| format!("{}", file.display()))?;
                 parsed
@@ -84,10 +90,23 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Merge { tiles, output } => {
+        Command::Merge {
+            tiles,
+            output,
+            max_memory,
+        } => {
+            let inputs: Vec<&std::path::Path> = tiles.iter().map(PathBuf::as_path).collect();
+            check_output(&output, &inputs)?;
+            // The tiles are held in memory together, and the merged grid once more.
+            let mut total = 0u64;
+            for t in &tiles {
+                total = total.saturating_add(pinbake::files::check_input(t)?);
+            }
+            let budget = MemoryBudget::new(max_memory);
+            budget.check("merging the tiles", total.saturating_mul(2))?;
             let data: Vec<(String, Vec<u8>)> = tiles
                 .iter()
-                .map(|t| Ok((t.display().to_string(), read_file(t)?)))
+                .map(|t| Ok((t.display().to_string(), read_file(t, &budget)?)))
                 .collect::<Result<_>>()?;
             let parsed = data
                 .iter()
@@ -98,8 +117,9 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
                 })
                 .collect::<Result<Vec<_>>>()?;
             let merged = pinbake::merge_tiles(&parsed)?;
-            merged
-                .write_atomic(&output)
+            // Checked again just before the write: the path may have changed meanwhile.
+            let target = check_output(&output, &inputs)?;
+            pinbake::files::write_pin_atomic(&merged, &target)
                 .with_context(|| format!("{}", output.display()))?;
             Ok(ExitCode::SUCCESS)
         }
@@ -107,7 +127,24 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
     }
 }
 
-/// Reads a whole file into a buffer whose start is 8-byte aligned (the reader casts in place).
-pub fn read_file(path: &std::path::Path) -> Result<Vec<u8>> {
-    std::fs::read(path).with_context(|| format!("{}", path.display()))
+/// Reads a whole regular file (refusing devices, FIFOs and directories, and files larger
+/// than the memory budget) into a buffer whose start is 8-byte aligned on the supported
+/// allocators (the reader casts in place and reports a misaligned buffer).
+pub fn read_file(path: &std::path::Path, budget: &MemoryBudget) -> Result<Vec<u8>> {
+    Ok(pinbake::files::read_input(path, budget)?)
 }
+
+/// [`pinbake::files::check_output`] with its error as an `anyhow` error.
+pub fn check_output(output: &std::path::Path, inputs: &[&std::path::Path]) -> Result<PathBuf> {
+    Ok(pinbake::files::check_output(output, inputs)?)
+}
+
+pub use pinbake::files::UsageError;
+
+/// Returns a [`UsageError`] from the enclosing function.
+macro_rules! usage {
+    ($($t:tt)*) => {
+        return Err(anyhow::Error::new($crate::cmd::UsageError(format!($($t)*))))
+    };
+}
+pub(crate) use usage;

@@ -112,6 +112,9 @@ pub enum SourceError {
         #[source]
         source: std::io::Error,
     },
+    /// The path names a directory, device, FIFO or socket, not a regular file.
+    #[error("{}: {what}", .path.display())]
+    NotAFile { path: PathBuf, what: &'static str },
     /// A raw volume is malformed or does not match its options.
     #[error("{}: {}", .path.display(), one_line(.message))]
     Raw { path: PathBuf, message: String },
@@ -136,10 +139,20 @@ impl SourceError {
             message: message.into(),
         }
     }
-    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
-        Self::Io {
-            path: path.to_path_buf(),
-            source,
+    /// A refused input path ([`crate::files`]): an I/O error keeps its kind, the rest
+    /// (not a regular file, a directory) is a message about the file.
+    pub(crate) fn from_file(e: crate::files::FileError) -> Self {
+        match e {
+            crate::files::FileError::Io { path, err } => Self::Io { path, source: err },
+            crate::files::FileError::IsDirectory(path) => Self::NotAFile {
+                path,
+                what: "is a directory",
+            },
+            crate::files::FileError::NotRegular(path) => Self::NotAFile {
+                path,
+                what: "not a regular file",
+            },
+            other => Self::InvalidOption(other.to_string()),
         }
     }
 }

@@ -623,26 +623,38 @@ impl ProceduralSpec {
 
 impl fmt::Display for ProceduralSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        // `num`: short values as before, long ones (1e308) in scientific notation; both
+        // parse back to the same f64.
+        use crate::limits::num;
         write!(
             f,
             "{}:density={},extent={}",
             self.kind.name(),
-            self.density,
-            self.extent
+            num(self.density),
+            num(self.extent)
         )?;
         let n = &self.noise;
         match self.kind {
             ProceduralKind::Box => Ok(()),
             ProceduralKind::Sphere => {
-                write!(f, ",radius={}", self.radius.unwrap_or(0.5 * self.extent))
+                write!(
+                    f,
+                    ",radius={}",
+                    num(self.radius.unwrap_or(0.5 * self.extent))
+                )
             }
             ProceduralKind::Cosine => {
-                write!(f, ",seed={},freq={},waves={}", n.seed, n.freq, n.waves)
+                write!(f, ",seed={},freq={},waves={}", n.seed, num(n.freq), n.waves)
             }
             ProceduralKind::Fractal => write!(
                 f,
                 ",seed={},freq={},waves={},octaves={},lacunarity={},gain={}",
-                n.seed, n.freq, n.waves, n.octaves, n.lacunarity, n.gain
+                n.seed,
+                num(n.freq),
+                n.waves,
+                n.octaves,
+                num(n.lacunarity),
+                num(n.gain)
             ),
         }
     }

@@ -9,7 +9,6 @@
 //! Not for: multi-component volumes, headers with offsets (`.dat`/`.nhdr` descriptors are
 //! parsed elsewhere, if at all), signed integer types.
 
-use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 
@@ -153,8 +152,7 @@ pub fn read_raw(path: &Path, opt: &RawOptions) -> Result<DenseGrid, SourceError>
     // 2^31+ voxels with a small file must be a message, not an allocation.
     let count = voxel_count(dims);
     let expected = count.and_then(|c| c.checked_mul(ty.size()));
-    let mut file = File::open(path).map_err(|e| SourceError::io(path, e))?;
-    let actual = file.metadata().map_err(|e| SourceError::io(path, e))?.len();
+    let (mut file, actual) = crate::files::open_input(path).map_err(SourceError::from_file)?;
     let (Some(count), Some(expected)) = (count, expected) else {
         return Err(err(format!(
             "dims {}x{}x{} of {} overflow the address space (file has {actual} bytes)",

@@ -121,8 +121,15 @@ pub fn default_memory_limit(file_size: u64) -> u64 {
 /// Writes the binary description to stdout and returns 0, or writes one line to stderr and
 /// returns 2. Meant to run in its own process only (see [`VdbSource::open`]); it installs a
 /// silent panic hook.
-pub fn worker_main(args: &[String]) -> i32 {
+pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
+    // The file may be any path; the selector and mode come from our own command line.
     let [file, selector, mode] = args else {
+        eprintln!(
+            "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
+        );
+        return 2;
+    };
+    let (Some(selector), Some(mode)) = (selector.to_str(), mode.to_str()) else {
         eprintln!(
             "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
         );
@@ -130,7 +137,7 @@ pub fn worker_main(args: &[String]) -> i32 {
     };
     std::panic::set_hook(Box::new(|_| {}));
     let to_fog = mode == "levelset-to-fog";
-    let selector = (!selector.is_empty()).then_some(selector.as_str());
+    let selector = (!selector.is_empty()).then_some(selector);
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 20, stdout.lock());
     let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
@@ -1251,9 +1258,9 @@ impl VdbSource {
             message: m,
         };
         let scale = DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
-        let file_size = std::fs::metadata(path)
-            .map_err(|e| SourceError::io(path, e))?
-            .len();
+        // A FIFO, device or directory is refused before the worker could block on it or
+        // read it without end.
+        let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
         let limit = opt
             .memory_limit
             .unwrap_or_else(|| default_memory_limit(file_size));

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Result, anyhow};
 use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
@@ -22,17 +22,22 @@ use crate::volume::{self, SourceField, VolumeArgs};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
-    /// Pin file to benchmark (default: bake each volume, cached in the temp directory).
+    /// Pin file to benchmark (default: bake each volume once, cached in the private
+    /// per-user directory $XDG_CACHE_HOME/pinbake or ~/.cache/pinbake).
     #[arg(long)]
     pub pins: Option<PathBuf>,
     #[command(flatten)]
     pub volume: VolumeArgs,
-    /// Random rays per measurement (ray marching uses a quarter of them).
-    #[arg(long, default_value_t = 200_000)]
+    /// Random rays per measurement (ray marching uses a quarter of them; 1..=10^8).
+    #[arg(long, default_value_t = 200_000, value_parser = parse_rays)]
     pub rays: usize,
-    /// Spatial cells per axis when baking (x 16x4 polar directions, as in the thesis).
-    #[arg(long, default_value_t = 37)]
+    /// Spatial cells per axis when baking (x 16x4 polar directions, as in the thesis; 1..=4096).
+    #[arg(long, default_value_t = 37, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub cells: u32,
+    /// Refuse a configuration that needs more than this many bytes of memory (K/M/G/T
+    /// suffixes; default: half of the physical memory).
+    #[arg(long, value_parser = pinbake::files::parse_bytes)]
+    pub max_memory: Option<u64>,
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
@@ -81,13 +86,58 @@ fn noise_volume() -> Result<Arc<dyn DensitySource>> {
     )?))
 }
 
-/// Bakes (or reuses a cached bake of) the pins for a benchmark volume.
+fn parse_rays(s: &str) -> Result<usize, String> {
+    let n: usize = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    if !(1..=100_000_000).contains(&n) {
+        return Err(format!("{n} is not in 1..=100000000"));
+    }
+    Ok(n)
+}
+
+/// The benchmark's pin cache: `$XDG_CACHE_HOME/pinbake` (absolute paths only, as the XDG
+/// spec says) or `~/.cache/pinbake`, created 0700 and refused unless it is a directory we
+/// own that nobody else can write. A predictable path in the shared /tmp let any user plant
+/// a file that the benchmark then measured.
+fn cache_dir() -> Result<PathBuf> {
+    let base = match std::env::var_os("XDG_CACHE_HOME").map(PathBuf::from) {
+        Some(p) if p.is_absolute() => p,
+        _ => match std::env::var_os("HOME").map(PathBuf::from) {
+            Some(h) if h.is_absolute() => h.join(".cache"),
+            _ => {
+                anyhow::bail!("no cache directory: set HOME or XDG_CACHE_HOME, or pass --pins FILE")
+            }
+        },
+    };
+    let dir = base.join("pinbake");
+    pinbake::files::ensure_private_dir(&dir)?;
+    Ok(dir)
+}
+
+/// Bakes (or reuses a cached bake of) the pins for a benchmark volume. A cached file is used
+/// only when it is a regular file of ours that verifies and was baked from the same settings.
 fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<PinGrid> {
-    let dir = std::env::temp_dir().join("pinrender-bench");
-    std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-    let path = dir.join(format!("{name}-{cells}-v{}.pin", env!("CARGO_PKG_VERSION")));
-    if let Ok(g) = PinGrid::open(&path)
+    let dir = cache_dir()?;
+    let safe_name: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    let path = dir.join(format!(
+        "bench-{safe_name}-{cells}-v{}.pin",
+        env!("CARGO_PKG_VERSION")
+    ));
+    if pinbake::files::check_input(&path).is_ok()
+        && let Ok(g) = PinGrid::open(&path)
         && g.verify().is_ok()
+        && g.desc().dims == [cells; 3]
+        && g.desc().seed == 0
+        && g.desc().source_box_min == source.bounds().min.to_array()
+        && g.desc().source_box_max == source.bounds().max.to_array()
     {
         return Ok(g);
     }
@@ -100,7 +150,7 @@ fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<Pin
         ..pinbake::BakeOptions::default()
     };
     let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
-    grid.write_atomic(&path)?;
+    pinbake::files::write_pin_atomic(&grid, &pinbake::files::check_output(&path, &[])?)?;
     PinGrid::open(&path).map_err(|e| anyhow!("{e}"))
 }
 
@@ -286,14 +336,32 @@ pub fn run(args: BenchArgs) -> Result<()> {
     if let Some(d) = &args.data {
         crate::data::set_dir(d.clone());
     }
+    let budget = pinbake::files::MemoryBudget::new(args.max_memory);
+    // The rays, the two result arrays and the noise volume.
+    budget.check(
+        &format!("{} rays", args.rays),
+        (args.rays as u64).saturating_mul(64) + 256u64.pow(3) * 4,
+    )?;
+    if args.pins.is_none() {
+        let probe = pinbake::BakeOptions {
+            cells: [args.cells; 3],
+            ..pinbake::BakeOptions::default()
+        };
+        budget.check(
+            &format!("baking {}^3 pin cells", args.cells),
+            pinbake::bake::estimate_output_bytes(&probe),
+        )?;
+    }
     let mut volumes: Vec<(String, Arc<dyn DensitySource>)> = Vec::new();
     if let Some(v) = &args.volume.volume {
-        volumes.push((v.clone(), volume::open_volume(v, &args.volume)?));
+        volumes.push((
+            v.display().to_string(),
+            volume::open_volume(v, &args.volume)?,
+        ));
     } else {
         let smoke = crate::data::path("openvdb_smoke1.vdb")?;
         if smoke.exists() {
-            let v = smoke.to_string_lossy().into_owned();
-            volumes.push(("smoke".into(), volume::open_volume(&v, &args.volume)?));
+            volumes.push(("smoke".into(), volume::open_volume(&smoke, &args.volume)?));
         } else {
             eprintln!(
                 "pinrender bench: {} not found, skipping the smoke",
@@ -310,7 +378,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let mut rows = Vec::new();
     for (name, source) in &volumes {
         let grid = match &args.pins {
-            Some(p) => PinGrid::open(p).map_err(|e| anyhow!("{e}"))?,
+            Some(p) => {
+                pinbake::files::check_input(p)?;
+                PinGrid::open(p).map_err(|e| anyhow!("{e}"))?
+            }
             None => cached_pins(name, source.as_ref(), args.cells)?,
         };
         bench_volume(name, source, &grid, &args, gpu.as_ref(), &mut rows)?;

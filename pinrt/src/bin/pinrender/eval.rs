@@ -98,8 +98,8 @@ pub struct EvalArgs {
     pub no_reference_cache: bool,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads (default: all cores; at most 64 per core and 4096).
+    #[arg(long, value_parser = pinbake::limits::parse_threads)]
     pub threads: Option<usize>,
     /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
     #[arg(long)]
@@ -240,13 +240,13 @@ pub fn run(a: EvalArgs) -> Result<()> {
         };
         if let Some(n) = a.size {
             if !(4..=4096).contains(&n) {
-                bail!("--size {n} must be in 4..=4096");
+                crate::usage!("--size {n} must be in 4..=4096");
             }
             s.image = n;
         }
         if let Some(r) = a.ref_spp {
             if r == 0 {
-                bail!("--ref-spp must be >= 1");
+                crate::usage!("--ref-spp must be >= 1");
             }
             s.ref_spp = r;
         }
@@ -264,15 +264,15 @@ pub fn run(a: EvalArgs) -> Result<()> {
             .iter()
             .any(|b| !(b.is_finite() && *b > 0.0 && *b <= 1e5))
     {
-        bail!("--budgets must be positive finite seconds (at most 1e5), got {budgets:?}");
+        crate::usage!("--budgets must be positive finite seconds (at most 1e5), got {budgets:?}");
     }
     budgets.sort_by(f64::total_cmp);
     budgets.dedup();
-    if a.threads == Some(0) {
-        bail!("--threads must be >= 1");
-    }
     if a.gpu_batch == 0 {
-        bail!("--gpu-batch must be >= 1");
+        crate::usage!("--gpu-batch must be >= 1");
+    }
+    for e in a.estimators.iter().flatten() {
+        check_estimator_name(e)?;
     }
     let scene_names: Vec<String> = match &a.scenes {
         Some(v) => v.iter().map(|s| s.trim().to_string()).collect(),
@@ -280,11 +280,21 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     for s in &scene_names {
         if !scenes::SCENES.contains(&s.as_str()) {
-            bail!("unknown scene '{s}' (known: {})", scenes::SCENES.join(", "));
+            crate::usage!("unknown scene '{s}' (known: {})", scenes::SCENES.join(", "));
         }
+    }
+    // An output directory only: a file, device or FIFO there is refused, not written into.
+    if let Ok(m) = std::fs::metadata(&a.out)
+        && !m.is_dir()
+    {
+        bail!("{}: not a directory", a.out.display());
     }
     std::fs::create_dir_all(a.out.join("cache"))
         .with_context(|| format!("creating {}", a.out.display()))?;
+    refuse_special_entries(&a.out, 2)?;
+    if let Some(docs) = &a.docs {
+        refuse_special_entries(docs, 2)?;
+    }
 
     let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();
@@ -311,6 +321,66 @@ pub fn run(a: EvalArgs) -> Result<()> {
         report::write_docs(docs, &a.out, &results, &meta)?;
     }
     eprintln!("eval done in {total:.1} s -> {}", summary.display());
+    Ok(())
+}
+
+/// The report is written with plain `std::fs::write` under `dir`; a symlink or special file
+/// planted there (`report.md -> /dev/sda`) would be written through. Refuses any entry of
+/// `dir` (and of its subdirectories, `depth` levels) that is neither a regular file nor a
+/// directory, symlinks included.
+fn refuse_special_entries(dir: &std::path::Path, depth: u32) -> Result<()> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Ok(());
+    };
+    for e in entries {
+        let e = e.with_context(|| dir.display().to_string())?;
+        let t = e
+            .file_type()
+            .with_context(|| e.path().display().to_string())?;
+        if t.is_dir() {
+            if depth > 1 {
+                refuse_special_entries(&e.path(), depth - 1)?;
+            }
+        } else if !t.is_file() {
+            bail!(
+                "{}: not a regular file (eval writes only regular files under its output folders)",
+                e.path().display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Estimator names `--estimators` accepts; a typo used to select nothing and exit 0.
+const ESTIMATOR_NAMES: [&str; 8] = [
+    "delta",
+    "ratio",
+    "pins",
+    "pinms",
+    "pinms+cache",
+    "cosine-closed-form",
+    "box-closed-form",
+    "whole-volume",
+];
+
+fn check_estimator_name(e: &str) -> Result<()> {
+    if let Some(step) = e.strip_prefix("rm@") {
+        let ok = step
+            .parse::<f64>()
+            .is_ok_and(|v| pinbake::limits::check_rel_step(v).is_ok());
+        if !ok {
+            crate::usage!("--estimators {e}: rm@STEP needs STEP in [1e-5, 1]");
+        }
+    } else if let Some(comb) = pinrt::render::CombKind::parse(e) {
+        if let Err(why) = comb {
+            crate::usage!("--estimators {e}: {why}");
+        }
+    } else if !ESTIMATOR_NAMES.contains(&e) {
+        crate::usage!(
+            "--estimators: unknown estimator '{e}' (known: rm@STEP, urm[@N], jackknife[@N], {})",
+            ESTIMATOR_NAMES.join(", ")
+        );
+    }
     Ok(())
 }
 

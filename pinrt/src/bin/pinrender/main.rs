@@ -36,12 +36,16 @@ enum Command {
 }
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
+    // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
     // The isolated OpenVDB reader re-executes this binary (see `pinbake::source::vdb`).
-    if args.get(1).map(String::as_str) == Some("__vdb-worker") {
+    if args.get(1).is_some_and(|a| a == "__vdb-worker") {
         return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
     }
-    let cli = Cli::parse_from(args);
+    let cli = match parse_cli::<Cli>("pinrender", args) {
+        Ok(c) => c,
+        Err(code) => return code,
+    };
     let result = match cli.command {
         Command::Bench(a) => bench::run(*a),
         Command::Render(a) => render_cmd::run(*a),
@@ -50,9 +54,61 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            let msg = format!("{e:#}").replace(['\n', '\r'], " ");
-            eprintln!("pinrender: error: {msg}");
-            ExitCode::from(1)
+            eprintln!(
+                "pinrender: error: {}",
+                pinbake::files::error_line(e.as_ref())
+            );
+            if e.downcast_ref::<pinbake::files::UsageError>().is_some() {
+                ExitCode::from(2)
+            } else {
+                ExitCode::from(1)
+            }
         }
     }
 }
+
+/// Parses the command line; a usage error becomes one line on stderr and exit code 2 (clap's
+/// own report spans several lines), while `--help` and `--version` print as usual.
+fn parse_cli<C: clap::Parser>(tool: &str, args: Vec<std::ffi::OsString>) -> Result<C, ExitCode> {
+    use clap::error::ErrorKind;
+    match C::try_parse_from(args) {
+        Ok(c) => Ok(c),
+        Err(e)
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) =>
+        {
+            let _ = e.print();
+            Err(ExitCode::from(if e.use_stderr() { 2 } else { 0 }))
+        }
+        Err(e) => {
+            let text = e.render().to_string();
+            let line: Vec<&str> = text
+                .lines()
+                .map(str::trim)
+                .filter(|l| {
+                    !(l.is_empty()
+                        || l.starts_with("Usage:")
+                        || l.starts_with("For more information"))
+                })
+                .collect();
+            let line = line.join(" ");
+            eprintln!(
+                "{tool}: error: {}",
+                line.strip_prefix("error: ").unwrap_or(&line)
+            );
+            Err(ExitCode::from(2))
+        }
+    }
+}
+
+/// Returns a [`pinbake::files::UsageError`] (exit code 2) from the enclosing function.
+macro_rules! usage {
+    ($($t:tt)*) => {
+        return Err(anyhow::Error::new(pinbake::files::UsageError(format!($($t)*))))
+    };
+}
+pub(crate) use usage;

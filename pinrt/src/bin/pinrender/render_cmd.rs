@@ -1,6 +1,6 @@
 //! `pinrender render`: one image of one volume with a chosen estimator.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Result, anyhow, bail};
@@ -17,7 +17,8 @@ use pinrt::render::{
     RenderSettings, Scene, Sun, TransportEstimator, render,
 };
 
-use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs, parse_f64x3};
+use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
+use pinbake::limits::parse_f64x3;
 
 #[derive(Args, Debug)]
 #[command(after_help = "\
@@ -52,18 +53,20 @@ pub struct RenderArgs {
     /// Pin file for the `pins` and `pinms` estimators (default: bake the volume in memory).
     #[arg(long)]
     pub pins: Option<PathBuf>,
-    /// rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins or pinms.
-    #[arg(long, default_value = "ratio")]
+    /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, urm[@N], jackknife[@N], pins or pinms.
+    #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
     pub estimator: String,
-    #[arg(long, default_value_t = 256)]
+    /// Image width in pixels (1..=16384).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
-    #[arg(long, default_value_t = 256)]
+    /// Image height in pixels (1..=16384).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub height: u32,
     /// Samples per pixel (ignored when --seconds is given).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: u32,
-    /// Render for this many seconds instead of a fixed --spp.
-    #[arg(long)]
+    /// Render for this many seconds instead of a fixed --spp (at most 1e5).
+    #[arg(long, value_parser = parse_seconds)]
     pub seconds: Option<f64>,
     /// Camera position X,Y,Z (default: in front of the volume's box, looking at its centre).
     #[arg(long, value_parser = parse_f64x3)]
@@ -72,49 +75,142 @@ pub struct RenderArgs {
     #[arg(long, value_parser = parse_f64x3)]
     pub camera_target: Option<[f64; 3]>,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0)]
+    #[arg(long, default_value_t = 40.0, value_parser = pinbake::limits::parse_finite)]
     pub fov: f64,
     /// Direction from the scene towards the sun.
     #[arg(long, value_parser = parse_f64x3, default_value = "0.3,1,0.2")]
     pub sun_dir: [f64; 3],
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = pinbake::limits::parse_nonneg)]
     pub sun_radiance: f64,
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.3, value_parser = pinbake::limits::parse_nonneg)]
     pub env_radiance: f64,
-    #[arg(long, default_value_t = 0.9)]
+    #[arg(long, default_value_t = 0.9, value_parser = pinbake::limits::parse_nonneg)]
     pub albedo: f64,
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, value_parser = pinbake::limits::parse_finite)]
     pub g: f64,
     #[arg(long, default_value_t = 8)]
     pub max_bounces: u32,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Majorant bricks per axis for the trackers.
-    #[arg(long, default_value_t = 16)]
+    /// Majorant bricks per axis for the trackers (1..=1024).
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub majorant_bricks: u32,
-    /// Spatial cells per axis when baking pins in memory.
-    #[arg(long, default_value_t = 32)]
+    /// Spatial cells per axis when baking pins in memory (1..=4096).
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub pin_cells: u32,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
+    /// Worker threads (default: all cores; at most 64 per core and 4096).
+    #[arg(long, value_parser = pinbake::limits::parse_threads)]
     pub threads: Option<usize>,
-    /// Exposure for the PNG written next to the EXR.
-    #[arg(long, default_value_t = 1.0)]
+    /// Exposure for the PNG (finite, > 0).
+    #[arg(long, default_value_t = 1.0, value_parser = parse_exposure)]
     pub exposure: f32,
-    /// Output image (linear float RGB EXR); a tone-mapped PNG is written beside it.
+    /// Output image: FILE.exr (linear float RGB) with a tone-mapped FILE.png beside it, or
+    /// FILE.png alone. A new path or a regular file other than the inputs.
     #[arg(long)]
     pub out: PathBuf,
+    /// Refuse a render that would need more than this many bytes of memory (K/M/G/T
+    /// suffixes; default: half of the physical memory).
+    #[arg(long, value_parser = pinbake::files::parse_bytes)]
+    pub max_memory: Option<u64>,
     /// cpu (rayon path tracer) or gpu (the WGSL path tracer through wgpu).
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
     pub backend: String,
 }
 
+/// `--estimator`: a known name, or `rm@STEP` with STEP in [1e-5, 1] (smaller steps ran for
+/// minutes per pixel).
+fn parse_estimator(s: &str) -> Result<String, String> {
+    if let Some(step) = s.strip_prefix("rm@") {
+        let v: f64 = step.parse().map_err(|e| format!("'{step}': {e}"))?;
+        pinbake::limits::check_rel_step(v).map_err(|e| format!("rm@STEP: {e}"))?;
+    } else if let Some(comb) = CombKind::parse(s) {
+        comb?;
+    } else if !["delta", "ratio", "pins", "pinms"].contains(&s) {
+        return Err(format!(
+            "unknown estimator '{s}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
+        ));
+    }
+    Ok(s.to_string())
+}
+
+fn parse_seconds(s: &str) -> Result<f64, String> {
+    let v = pinbake::limits::parse_finite(s)?;
+    if !(v > 0.0 && v <= 1e5) {
+        return Err(format!("{} must be in (0, 1e5]", pinbake::limits::num(v)));
+    }
+    Ok(v)
+}
+
+fn parse_exposure(s: &str) -> Result<f32, String> {
+    let v = pinbake::limits::parse_finite(s)?;
+    if !(v > 0.0 && v <= f64::from(f32::MAX)) {
+        return Err(format!("{} must be > 0", pinbake::limits::num(v)));
+    }
+    Ok(v as f32)
+}
+
+/// Bytes per pixel the renderers hold at most: the f32 RGB image, f64 sums of the passes,
+/// the PNG and EXR encoders' copies, with slack.
+const BYTES_PER_PIXEL: u64 = 96;
+
+/// Where the images go: `(exr, png)`; `FILE.png` writes the PNG only. Both are checked
+/// against the inputs and refused when they are not a new path or a regular file.
+fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf)> {
+    let is_png = a
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    if is_png {
+        return Ok((None, pinbake::files::check_output(&a.out, inputs)?));
+    }
+    let png = a.out.with_extension("png");
+    Ok((
+        Some(pinbake::files::check_output(&a.out, inputs)?),
+        pinbake::files::check_output(&png, inputs)?,
+    ))
+}
+
 pub fn run(a: RenderArgs) -> Result<()> {
-    let input = a
-        .volume
-        .volume
-        .clone()
-        .ok_or_else(|| anyhow!("--volume is required"))?;
+    let Some(input) = a.volume.volume.clone() else {
+        crate::usage!("--volume is required");
+    };
+    let inputs: Vec<&Path> = [Some(input.as_path()), a.pins.as_deref()]
+        .into_iter()
+        .flatten()
+        .collect();
+    // Before the render, not after it.
+    outputs(&a, &inputs)?;
+    let budget = pinbake::files::MemoryBudget::new(a.max_memory);
+    budget.check(
+        &format!("a {}x{} image", a.width, a.height),
+        u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
+    )?;
+    if let Ok(m) = std::fs::metadata(&input) {
+        // f32 voxels: up to 4x a raw file of bytes; a VDB's leaves up to 8x its file.
+        budget.check(
+            &format!("reading {}", input.display()),
+            m.len().saturating_mul(8),
+        )?;
+    }
+    let uses_majorants = !a.estimator.starts_with("rm@") && a.estimator != "pins";
+    if uses_majorants {
+        // f32 values plus the brick bounds the grid keeps, per brick.
+        budget.check(
+            &format!("{}^3 majorant bricks", a.majorant_bricks),
+            u64::from(a.majorant_bricks).pow(3) * 16,
+        )?;
+    }
+    if a.estimator.starts_with("pin") && a.pins.is_none() {
+        let probe = pinbake::BakeOptions {
+            cells: [a.pin_cells; 3],
+            ..pinbake::BakeOptions::default()
+        };
+        // The bake, its serialised bytes and the loaded copy.
+        budget.check(
+            &format!("baking {}^3 pin cells in memory", a.pin_cells),
+            pinbake::bake::estimate_output_bytes(&probe).saturating_mul(2),
+        )?;
+    }
     let opened = volume::open_volume_typed(&input, &a.volume)?;
     let source = opened.source();
     let field = Arc::new(SourceField(source.clone()));
@@ -212,25 +308,34 @@ pub fn run(a: RenderArgs) -> Result<()> {
     write(&a, &input, &out.image, out.spp, out.seconds)
 }
 
-fn write(a: &RenderArgs, input: &str, image: &Image, spp: u32, seconds: f64) -> Result<()> {
-    image
-        .write_exr(&a.out)
-        .map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
-    let png = a.out.with_extension("png");
+fn write(a: &RenderArgs, input: &Path, image: &Image, spp: u32, seconds: f64) -> Result<()> {
+    let inputs: Vec<&Path> = [Some(input), a.pins.as_deref()]
+        .into_iter()
+        .flatten()
+        .collect();
+    // Checked again: the paths may have been replaced during the render.
+    let (exr, png) = outputs(a, &inputs)?;
+    if let Some(exr) = &exr {
+        image
+            .write_exr(exr)
+            .map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
+    }
     image
         .write_png(&png, a.exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
     eprintln!(
-        "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {} (+ {})",
-        input,
+        "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {}",
+        input.display(),
         a.estimator,
         a.backend,
         a.width,
         a.height,
         spp,
         seconds,
-        a.out.display(),
-        png.display()
+        match exr {
+            Some(_) => format!("{} (+ {})", a.out.display(), png.display()),
+            None => png.display().to_string(),
+        }
     );
     Ok(())
 }

@@ -1,6 +1,7 @@
 //! Loading volumes through pinbake's sources and adapting them to the renderer, plus the
 //! pin-grid estimator adapter.
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -18,7 +19,7 @@ use pinrt::{PinGrid, Ray, Rng, Sampler};
 pub struct VolumeArgs {
     /// Volume: FILE.vdb, FILE.raw or procedural:SPEC (see `pinbake bake --help`).
     #[arg(long)]
-    pub volume: Option<String>,
+    pub volume: Option<PathBuf>,
     /// VDB grid name (`density#1` for the second grid named density).
     #[arg(long)]
     pub grid: Option<String>,
@@ -28,14 +29,15 @@ pub struct VolumeArgs {
     /// Raw: u8, u16, f16, f32 or f64.
     #[arg(long = "type")]
     pub voxel_type: Option<String>,
-    /// Raw: world size of a voxel (V or X,Y,Z); the grid occupies [origin, origin + dims * spacing].
-    #[arg(long, value_parser = parse_f64x3)]
+    /// Raw: world size of a voxel (V or X,Y,Z, each in [1e-9, 1e9]); the grid occupies
+    /// [origin, origin + dims * spacing].
+    #[arg(long, value_parser = pinbake::limits::parse_spacing)]
     pub spacing: Option<[f64; 3]>,
-    /// Raw: world position of the grid box's minimum corner.
-    #[arg(long, value_parser = parse_f64x3)]
+    /// Raw: world position of the grid box's minimum corner (each within +-1e12).
+    #[arg(long, value_parser = pinbake::limits::parse_origin)]
     pub origin: Option<[f64; 3]>,
-    /// Multiply every density by this.
-    #[arg(long, default_value_t = 1.0)]
+    /// Multiply every density by this (finite, >= 0).
+    #[arg(long, default_value_t = 1.0, value_parser = pinbake::limits::parse_density_scale)]
     pub density_scale: f64,
 }
 
@@ -51,25 +53,8 @@ pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
     }
 }
 
-pub fn parse_f64x3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse().map_err(|e| format!("'{p}': {e}")))
-        .collect::<Result<_, String>>()?;
-    let out = match v.as_slice() {
-        [n] => [*n; 3],
-        [x, y, z] => [*x, *y, *z],
-        _ => return Err("expected V or X,Y,Z".into()),
-    };
-    if out.iter().all(|x| x.is_finite()) {
-        Ok(out)
-    } else {
-        Err("values must be finite".into())
-    }
-}
-
 /// Opens a volume given as a path or `procedural:SPEC`.
-pub fn open_volume(input: &str, a: &VolumeArgs) -> Result<Arc<dyn DensitySource>> {
+pub fn open_volume(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Arc<dyn DensitySource>> {
     Ok(open_volume_typed(input, a)?.source())
 }
 
@@ -179,14 +164,58 @@ impl Opened {
 }
 
 /// [`open_volume`] with the concrete source type kept.
-pub fn open_volume_typed(input: &str, a: &VolumeArgs) -> Result<Opened> {
-    let spec = if let Some(rest) = input.strip_prefix("procedural:") {
+///
+/// Flags for another kind of input (`--grid` on a raw file, `--dims` on a VDB) are usage
+/// errors, and a path must name a regular file.
+pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Opened> {
+    let input = input.as_ref();
+    let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
+    let path = PathBuf::from(input);
+    let is_vdb = procedural.is_none()
+        && path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
+    let raw_flags = [
+        ("--dims", a.dims.is_some()),
+        ("--type", a.voxel_type.is_some()),
+        ("--spacing", a.spacing.is_some()),
+        ("--origin", a.origin.is_some()),
+    ];
+    let grid_flag = [("--grid", a.grid.is_some())];
+    let (kind, wrong): (&str, Vec<&str>) = if procedural.is_some() {
+        let all = raw_flags.iter().chain(&grid_flag);
+        (
+            "a procedural volume",
+            all.filter(|f| f.1).map(|f| f.0).collect(),
+        )
+    } else if is_vdb {
+        let raw = raw_flags.iter();
+        (
+            "an OpenVDB volume",
+            raw.filter(|f| f.1).map(|f| f.0).collect(),
+        )
+    } else {
+        (
+            "a raw volume",
+            grid_flag.iter().filter(|f| f.1).map(|f| f.0).collect(),
+        )
+    };
+    if let Some(flag) = wrong.first() {
+        // A usage error (exit 2); spelled out because tests include this file as a module.
+        return Err(anyhow::Error::new(pinbake::files::UsageError(format!(
+            "{flag} does not apply to {kind} ({})",
+            path.display()
+        ))));
+    }
+    if procedural.is_none() {
+        pinbake::files::check_input(&path)?;
+    }
+    let spec = if let Some(rest) = procedural {
         let mut p: ProceduralSpec = rest.parse().map_err(|e| anyhow!("{e}"))?;
         p.density *= a.density_scale;
         SourceSpec::Procedural(p)
     } else {
-        let path = PathBuf::from(input);
-        if path.extension().and_then(|e| e.to_str()) == Some("vdb") {
+        if is_vdb {
             SourceSpec::Vdb(
                 path,
                 source::VdbOptions {
@@ -320,6 +349,8 @@ pub fn pins_for(
     seed: u64,
 ) -> Result<PinGrid> {
     if let Some(p) = pins {
+        // A FIFO would block the open, a device or directory map as nonsense.
+        pinbake::files::check_input(p)?;
         return PinGrid::open(p).map_err(|e| anyhow!("{e}"));
     }
     let opts = pinbake::BakeOptions {

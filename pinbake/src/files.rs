@@ -1,0 +1,536 @@
+//! Files and memory under hostile or careless use (see `docs/stability.md`, "Hostile use").
+//!
+//! The command-line tools of this workspace (`pinbake`, `pinrender`) go through these checks
+//! for every path and every size that comes from a user:
+//!
+//! * inputs must be regular files ([`check_input`], [`read_input`]): a FIFO would block
+//!   forever, `/dev/zero` would be read until memory runs out, a directory has no bytes;
+//! * outputs may only be a new path or an existing regular file that is not one of the
+//!   inputs ([`check_output`]): renaming over a device node or a symlink to one replaces it,
+//!   and writing over the input destroys it before it has been read;
+//! * every allocation whose size comes from input or flags is first compared with a memory
+//!   budget ([`MemoryBudget`], default: half of the physical memory) and then made fallibly;
+//! * the temporary `.NAME.*.partial` file of an atomic write is unlinked on SIGINT, SIGTERM
+//!   and SIGHUP ([`write_pin_atomic`]); those a SIGKILL leaves behind are removed by the next
+//!   write to the same target (`pin_format::AtomicPinFile::create`).
+
+use std::fs::{File, Metadata};
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+/// Why a path or a size was refused. Messages are one line and name the file.
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    #[error("{}: is a directory", .0.display())]
+    IsDirectory(PathBuf),
+    /// A device, FIFO or socket (or a symlink to one).
+    #[error("{}: not a regular file", .0.display())]
+    NotRegular(PathBuf),
+    #[error(
+        "{}: is the input file {}; refusing to overwrite it (choose another output)",
+        .output.display(),
+        .input.display()
+    )]
+    SameAsInput { output: PathBuf, input: PathBuf },
+    #[error("{}: is a symlink to a missing file; refusing to replace the link", .0.display())]
+    DanglingSymlink(PathBuf),
+    #[error(
+        "{}: not a private directory (must be a directory of this user that nobody else can write)",
+        .0.display()
+    )]
+    NotPrivate(PathBuf),
+    /// The OS error is part of the message and deliberately not a `source()`: an error
+    /// chain printer would otherwise print it twice.
+    #[error("{}: {err}", .path.display())]
+    Io { path: PathBuf, err: std::io::Error },
+    #[error("{what} needs {} bytes, more than the memory budget of {} bytes (--max-memory)", .need, .limit)]
+    Memory { what: String, need: u64, limit: u64 },
+}
+
+/// A value out of its documented range, or flags that contradict each other: the binaries
+/// exit with code 2 for it (1 is for bad input files).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// An error and its causes on one line, each cause once: errors that put their source's
+/// text into their own message (`"{path}: {source}"`) and also return it from `source()`
+/// would otherwise print the OS error twice.
+pub fn error_line(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut msg = String::new();
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        let text = c.to_string();
+        if !msg.contains(&text) {
+            if !msg.is_empty() {
+                msg.push_str(": ");
+            }
+            msg.push_str(&text);
+        }
+        cause = c.source();
+    }
+    msg.replace(['\n', '\r'], " ")
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FileError + '_ {
+    move |err| FileError::Io {
+        path: path.to_path_buf(),
+        err,
+    }
+}
+
+fn require_regular(path: &Path, m: &Metadata) -> Result<(), FileError> {
+    if m.is_dir() {
+        Err(FileError::IsDirectory(path.to_path_buf()))
+    } else if !m.is_file() {
+        Err(FileError::NotRegular(path.to_path_buf()))
+    } else {
+        Ok(())
+    }
+}
+
+/// Checks that `path` names a regular file (symlinks followed) and returns its length.
+/// `stat` never blocks, so a FIFO is refused here before anything opens it.
+pub fn check_input(path: &Path) -> Result<u64, FileError> {
+    let m = std::fs::metadata(path).map_err(io(path))?;
+    require_regular(path, &m)?;
+    Ok(m.len())
+}
+
+/// Opens `path` for reading only if it is a regular file. The open is non-blocking, so a
+/// FIFO swapped in after [`check_input`] cannot hang it; the type is checked again on the
+/// open descriptor.
+pub fn open_input(path: &Path) -> Result<(File, u64), FileError> {
+    check_input(path)?;
+    let mut o = std::fs::OpenOptions::new();
+    o.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        o.custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY);
+    }
+    let f = o.open(path).map_err(io(path))?;
+    let m = f.metadata().map_err(io(path))?;
+    require_regular(path, &m)?;
+    Ok((f, m.len()))
+}
+
+/// Reads a whole regular file into a buffer whose start is 8-byte aligned (pin files are
+/// cast in place), after checking its length against `budget`.
+pub fn read_input(path: &Path, budget: &MemoryBudget) -> Result<Vec<u8>, FileError> {
+    let (f, len) = open_input(path)?;
+    budget.check(&format!("reading {}", path.display()), len)?;
+    let mut bytes = Vec::new();
+    try_alloc(&mut bytes, len, path)?;
+    // One byte more than the length: a file that grows while being read is not read forever,
+    // and the pin reader's size check reports the difference.
+    f.take(len.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(io(path))?;
+    Ok(bytes)
+}
+
+fn try_alloc(v: &mut Vec<u8>, len: u64, path: &Path) -> Result<(), FileError> {
+    let n = usize::try_from(len).unwrap_or(usize::MAX);
+    v.try_reserve_exact(n).map_err(|_| FileError::Memory {
+        what: format!("reading {}", path.display()),
+        need: len,
+        limit: 0,
+    })
+}
+
+/// Checks an output path and returns the path to write to.
+///
+/// Accepted: a path that does not exist yet, or an existing regular file that is none of
+/// `inputs` (same device and inode; hard links and symlinks count as the same file). A
+/// symlink to a regular file is resolved, so the write replaces the file it points to and
+/// the link stays. Refused: directories, devices, FIFOs, sockets, symlinks to them and
+/// dangling symlinks. Missing inputs are ignored (they fail on their own).
+pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<PathBuf, FileError> {
+    let link = match std::fs::symlink_metadata(output) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(output.to_path_buf()),
+        Err(e) => return Err(io(output)(e)),
+    };
+    let target = match std::fs::metadata(output) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound && link.is_symlink() => {
+            return Err(FileError::DanglingSymlink(output.to_path_buf()));
+        }
+        Err(e) => return Err(io(output)(e)),
+    };
+    require_regular(output, &target)?;
+    for input in inputs {
+        if let Ok(m) = std::fs::metadata(input)
+            && same_file(&m, &target)
+        {
+            return Err(FileError::SameAsInput {
+                output: output.to_path_buf(),
+                input: input.to_path_buf(),
+            });
+        }
+    }
+    if link.is_symlink() {
+        return std::fs::canonicalize(output).map_err(io(output));
+    }
+    Ok(output.to_path_buf())
+}
+
+#[cfg(unix)]
+fn same_file(a: &Metadata, b: &Metadata) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    a.dev() == b.dev() && a.ino() == b.ino()
+}
+
+#[cfg(not(unix))]
+fn same_file(_: &Metadata, _: &Metadata) -> bool {
+    false
+}
+
+/// Creates `dir` (and its parents) with mode 0700 if missing, then refuses it unless it is
+/// a real directory (not a symlink) owned by this user that no one else can write: a cache
+/// there cannot be planted or swapped by another user.
+pub fn ensure_private_dir(dir: &Path) -> Result<(), FileError> {
+    let mut b = std::fs::DirBuilder::new();
+    b.recursive(true);
+    #[cfg(unix)]
+    std::os::unix::fs::DirBuilderExt::mode(&mut b, 0o700);
+    b.create(dir).map_err(io(dir))?;
+    let m = std::fs::symlink_metadata(dir).map_err(io(dir))?;
+    if !m.is_dir() {
+        return Err(FileError::NotPrivate(dir.to_path_buf()));
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        // SAFETY: geteuid has no preconditions.
+        let me = unsafe { libc::geteuid() };
+        if m.uid() != me || m.mode() & 0o022 != 0 {
+            return Err(FileError::NotPrivate(dir.to_path_buf()));
+        }
+    }
+    Ok(())
+}
+
+/// A ceiling on the bytes one command may allocate for data whose size comes from input or
+/// flags. Sizes are checked against it before the allocation, which is then made with
+/// `try_reserve`: an overcommitting kernel would otherwise accept a 500 GB request and kill
+/// the process (or a neighbour) later, and an allocation failure aborts without a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryBudget {
+    pub limit: u64,
+}
+
+impl MemoryBudget {
+    /// `--max-memory` if given, else [`default_memory_limit`].
+    pub fn new(limit: Option<u64>) -> Self {
+        Self {
+            limit: limit.unwrap_or_else(default_memory_limit),
+        }
+    }
+
+    /// Refuses `need` bytes for `what` above the limit.
+    pub fn check(&self, what: &str, need: u64) -> Result<(), FileError> {
+        if need > self.limit {
+            return Err(FileError::Memory {
+                what: what.to_string(),
+                need,
+                limit: self.limit,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Half of the physical memory (or of the cgroup's limit when lower), 4 GiB if unknown:
+/// leaves room for the rest of the machine and for the estimates' slack.
+pub fn default_memory_limit() -> u64 {
+    physical_memory().map_or(4 << 30, |m| m / 2)
+}
+
+/// Physical memory in bytes, capped by a cgroup v2 `memory.max` when one is set.
+pub fn physical_memory() -> Option<u64> {
+    #[cfg(unix)]
+    let phys = {
+        // SAFETY: sysconf has no preconditions.
+        let (pages, size) = unsafe {
+            (
+                libc::sysconf(libc::_SC_PHYS_PAGES),
+                libc::sysconf(libc::_SC_PAGESIZE),
+            )
+        };
+        (pages > 0 && size > 0).then(|| (pages as u64).saturating_mul(size as u64))
+    };
+    #[cfg(not(unix))]
+    let phys: Option<u64> = None;
+    let cgroup = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok());
+    match (phys, cgroup) {
+        (Some(p), Some(c)) => Some(p.min(c)),
+        (p, c) => p.or(c),
+    }
+}
+
+/// Parses a byte size with an optional K/M/G/T suffix (powers of 1024): `300M`, `1.5G`.
+pub fn parse_bytes(s: &str) -> Result<u64, String> {
+    let s = s.trim();
+    let (num, mult) = match s.chars().last() {
+        Some('K' | 'k') => (&s[..s.len() - 1], 1u64 << 10),
+        Some('M' | 'm') => (&s[..s.len() - 1], 1 << 20),
+        Some('G' | 'g') => (&s[..s.len() - 1], 1 << 30),
+        Some('T' | 't') => (&s[..s.len() - 1], 1 << 40),
+        _ => (s, 1),
+    };
+    let n: f64 = num.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    let bytes = n * mult as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < 2f64.powi(63)) {
+        return Err(format!("'{s}' is not a size between 1 byte and 8 EiB"));
+    }
+    Ok(bytes as u64)
+}
+
+/// Writes `grid` atomically to `target` (temp file beside it, fsync, rename) with the temp
+/// file registered for removal on SIGINT/SIGTERM/SIGHUP while it exists.
+pub fn write_pin_atomic(
+    grid: &pin_format::OwnedPinGrid,
+    target: &Path,
+) -> Result<(), pin_format::FormatError> {
+    PendingPin::create(target)?.write(grid)
+}
+
+/// A pin file whose temp file is created (and registered for removal on signals) before
+/// the work that produces the grid: a long bake holds its `.NAME.*.partial` from the start,
+/// so an interrupted bake is cleaned up the same way as an interrupted write.
+pub struct PendingPin {
+    file: pin_format::AtomicPinFile,
+    _signals: signals::Registration,
+}
+
+impl PendingPin {
+    pub fn create(target: &Path) -> Result<Self, pin_format::FormatError> {
+        let file = pin_format::AtomicPinFile::create(target)?;
+        let _signals = signals::register(file.temp_path());
+        Ok(Self { file, _signals })
+    }
+
+    /// The temporary file's path.
+    pub fn temp_path(&self) -> &Path {
+        self.file.temp_path()
+    }
+
+    pub fn write(mut self, grid: &pin_format::OwnedPinGrid) -> Result<(), pin_format::FormatError> {
+        grid.write_into(self.file.writer())?;
+        self.file.commit()
+    }
+}
+
+/// Unlinking the registered temporary file when the process is interrupted.
+///
+/// A signal handler may only call async-signal-safe functions: it reads one pointer to a
+/// NUL-terminated path (registered before the file is written to), calls `unlink`, and
+/// re-raises the signal with the default action so the exit status still says "killed by
+/// SIGINT". Registered paths are leaked on purpose: freeing one while a handler on another
+/// thread reads it would be a use-after-free, and a process registers a handful at most.
+pub mod signals {
+    use std::path::Path;
+    #[cfg(unix)]
+    use std::sync::atomic::{AtomicBool, AtomicPtr, Ordering};
+
+    #[cfg(unix)]
+    static PARTIAL: AtomicPtr<libc::c_char> = AtomicPtr::new(std::ptr::null_mut());
+    #[cfg(unix)]
+    static INSTALLED: AtomicBool = AtomicBool::new(false);
+
+    /// Unregisters on drop.
+    pub struct Registration(());
+
+    impl Drop for Registration {
+        fn drop(&mut self) {
+            #[cfg(unix)]
+            PARTIAL.store(std::ptr::null_mut(), Ordering::SeqCst);
+        }
+    }
+
+    #[cfg(unix)]
+    extern "C" fn on_signal(sig: libc::c_int) {
+        let p = PARTIAL.load(Ordering::SeqCst);
+        // SAFETY: unlink and raise are async-signal-safe; `p` is null or a leaked C string.
+        unsafe {
+            if !p.is_null() {
+                libc::unlink(p);
+            }
+            // SA_RESETHAND restored the default action on entry; the re-raised signal is
+            // delivered when the handler returns.
+            libc::raise(sig);
+        }
+    }
+
+    /// Installs the handlers (once per process).
+    pub fn install() {
+        #[cfg(unix)]
+        if !INSTALLED.swap(true, Ordering::SeqCst) {
+            for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+                // SAFETY: a zeroed sigaction is valid; the handler only makes
+                // async-signal-safe calls.
+                unsafe {
+                    let mut sa: libc::sigaction = std::mem::zeroed();
+                    sa.sa_sigaction = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
+                    sa.sa_flags = libc::SA_RESETHAND;
+                    libc::sigemptyset(&mut sa.sa_mask);
+                    libc::sigaction(sig, &sa, std::ptr::null_mut());
+                }
+            }
+        }
+    }
+
+    /// Registers `path` as the file to unlink on a signal (replacing any earlier one) and
+    /// installs the handlers.
+    pub fn register(path: &Path) -> Registration {
+        #[cfg(unix)]
+        {
+            use std::os::unix::ffi::OsStrExt;
+            install();
+            if let Ok(c) = std::ffi::CString::new(path.as_os_str().as_bytes()) {
+                PARTIAL.store(c.into_raw(), Ordering::SeqCst);
+            }
+        }
+        #[cfg(not(unix))]
+        let _ = path;
+        Registration(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outputs_new_regular_and_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in.raw");
+        std::fs::write(&input, b"abc").unwrap();
+        let new = dir.path().join("new.pin");
+        assert_eq!(check_output(&new, &[&input]).unwrap(), new);
+        let old = dir.path().join("old.pin");
+        std::fs::write(&old, b"x").unwrap();
+        assert_eq!(check_output(&old, &[&input]).unwrap(), old);
+        assert!(matches!(
+            check_output(&input, &[&input]),
+            Err(FileError::SameAsInput { .. })
+        ));
+        assert!(matches!(
+            check_output(dir.path(), &[]),
+            Err(FileError::IsDirectory(_))
+        ));
+        #[cfg(unix)]
+        {
+            let hard = dir.path().join("hard.raw");
+            std::fs::hard_link(&input, &hard).unwrap();
+            assert!(matches!(
+                check_output(&hard, &[&input]),
+                Err(FileError::SameAsInput { .. })
+            ));
+            let link = dir.path().join("link.pin");
+            std::os::unix::fs::symlink(&old, &link).unwrap();
+            assert_eq!(
+                check_output(&link, &[&input]).unwrap(),
+                std::fs::canonicalize(&old).unwrap()
+            );
+            let dangling = dir.path().join("dangling.pin");
+            std::os::unix::fs::symlink(dir.path().join("nothing"), &dangling).unwrap();
+            assert!(matches!(
+                check_output(&dangling, &[]),
+                Err(FileError::DanglingSymlink(_))
+            ));
+            let fifo = dir.path().join("fifo");
+            let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+            assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+            assert!(matches!(
+                check_output(&fifo, &[]),
+                Err(FileError::NotRegular(_))
+            ));
+            let to_fifo = dir.path().join("to_fifo.pin");
+            std::os::unix::fs::symlink(&fifo, &to_fifo).unwrap();
+            assert!(matches!(
+                check_output(&to_fifo, &[]),
+                Err(FileError::NotRegular(_))
+            ));
+            // The same FIFO as an input: refused by stat, without blocking on open.
+            assert!(matches!(open_input(&fifo), Err(FileError::NotRegular(_))));
+        }
+    }
+
+    #[test]
+    fn inputs_must_be_regular_and_fit_the_budget() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(
+            check_input(dir.path()).unwrap_err().to_string(),
+            format!("{}: is a directory", dir.path().display())
+        );
+        let f = dir.path().join("f");
+        std::fs::write(&f, [1u8; 100]).unwrap();
+        let big = MemoryBudget { limit: 1000 };
+        assert_eq!(read_input(&f, &big).unwrap(), vec![1u8; 100]);
+        let small = MemoryBudget { limit: 99 };
+        assert!(matches!(
+            read_input(&f, &small),
+            Err(FileError::Memory { need: 100, .. })
+        ));
+        #[cfg(unix)]
+        assert!(matches!(
+            check_input(Path::new("/dev/zero")),
+            Err(FileError::NotRegular(_))
+        ));
+    }
+
+    #[test]
+    fn error_lines_print_each_cause_once() {
+        let e = FileError::Io {
+            path: PathBuf::from("a.pin"),
+            err: std::io::Error::from(std::io::ErrorKind::NotFound),
+        };
+        #[derive(Debug, thiserror::Error)]
+        #[error("{path}: {source}")]
+        struct Twice {
+            path: String,
+            source: std::io::Error,
+        }
+        let t = Twice {
+            path: "b.pin".into(),
+            source: std::io::Error::from(std::io::ErrorKind::NotFound),
+        };
+        assert_eq!(error_line(&e), "a.pin: entity not found");
+        assert_eq!(error_line(&t), "b.pin: entity not found");
+    }
+
+    #[test]
+    #[cfg(unix)]
+    fn private_dirs() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let cache = dir.path().join("a/pinbake");
+        ensure_private_dir(&cache).unwrap();
+        let mode = std::fs::metadata(&cache).unwrap().permissions().mode();
+        assert_eq!(mode & 0o777, 0o700);
+        std::fs::set_permissions(&cache, std::fs::Permissions::from_mode(0o777)).unwrap();
+        assert!(matches!(
+            ensure_private_dir(&cache),
+            Err(FileError::NotPrivate(_))
+        ));
+        let link = dir.path().join("link");
+        std::os::unix::fs::symlink(&cache, &link).unwrap();
+        assert!(ensure_private_dir(&link).is_err());
+    }
+
+    #[test]
+    fn byte_sizes() {
+        assert_eq!(parse_bytes("300M").unwrap(), 300 << 20);
+        assert_eq!(parse_bytes("1.5k").unwrap(), 1536);
+        assert_eq!(parse_bytes("2T").unwrap(), 2 << 40);
+        for bad in ["", "0", "-1G", "nanG", "infK", "1e30G", "x"] {
+            assert!(parse_bytes(bad).is_err(), "{bad}");
+        }
+        assert!(physical_memory().is_some_and(|m| m > 1 << 20));
+    }
+}

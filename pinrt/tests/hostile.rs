@@ -1,0 +1,492 @@
+//! Hostile and careless use of the `pinrender` binary (issue 12, `docs/stability.md` "Hostile
+//! use"): outputs that are devices, FIFOs, symlinks to them or an input; special files as
+//! input; non-UTF-8 arguments; sizes beyond memory; out-of-range values (exit 2, before any
+//! rendering); the private bench cache; silently ignored flags. Each case checks the exit
+//! code, a one-line stderr, bounded time, and that nothing was damaged.
+
+use std::ffi::{OsStr, OsString};
+use std::os::unix::ffi::OsStrExt;
+use std::os::unix::fs::{FileTypeExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::Instant;
+
+const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
+const MAX_SECONDS: f64 = 20.0;
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data")
+        .join(name)
+}
+
+struct Run {
+    out: Output,
+    seconds: f64,
+}
+
+impl Run {
+    fn stderr(&self) -> String {
+        String::from_utf8_lossy(&self.out.stderr).into_owned()
+    }
+}
+
+/// Runs pinrender with a private cache home and runtime dir, killed after 60 s (a FIFO that
+/// blocked an open would otherwise hang the suite).
+fn run_env(args: &[OsString], cache_home: &Path) -> Run {
+    let t = Instant::now();
+    let out = Command::new("timeout")
+        .args(["-s", "KILL", "60"])
+        .arg(BIN)
+        .args(args)
+        .env("XDG_CACHE_HOME", cache_home)
+        .env("XDG_RUNTIME_DIR", cache_home)
+        .stdin(Stdio::null())
+        .output()
+        .expect("run pinrender");
+    Run {
+        out,
+        seconds: t.elapsed().as_secs_f64(),
+    }
+}
+
+fn os(args: &[&str]) -> Vec<OsString> {
+    args.iter().map(OsString::from).collect()
+}
+
+fn run(args: &[&str], home: &Path) -> Run {
+    run_env(&os(args), home)
+}
+
+/// Exit `code`, one stderr line `pinrender: error: ...` containing `needle`, in bounded time.
+fn expect(name: &str, r: &Run, code: i32, needle: &str) {
+    let err = r.stderr();
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(r.out.status.code(), Some(code), "{name}: {err}");
+    assert_eq!(lines.len(), 1, "{name}: not one line: {err:?}");
+    assert!(
+        lines[0].starts_with("pinrender: error: "),
+        "{name}: {err:?}"
+    );
+    assert!(
+        lines[0].contains(needle),
+        "{name}: {err:?} lacks {needle:?}"
+    );
+    assert!(!err.contains("panicked"), "{name}: {err}");
+    assert!(r.seconds < MAX_SECONDS, "{name}: {} s", r.seconds);
+}
+
+fn mkfifo(path: &Path) {
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: a valid C string; creates a FIFO in our temp dir.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+}
+
+/// A fast render of the procedural box.
+fn render_args(out: &Path) -> Vec<String> {
+    [
+        "render",
+        "--volume",
+        "procedural:box",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--spp",
+        "1",
+        "--out",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .chain([out.to_str().unwrap().to_string()])
+    .collect()
+}
+
+fn strs(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
+#[test]
+fn render_outputs_only_to_regular_files_or_new_paths() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let input = d.join("w_31x34x33_f32.raw");
+    std::fs::copy(data("water_esp_31x34x33_float32.raw"), &input).unwrap();
+    let input_bytes = std::fs::read(&input).unwrap();
+    let fifo = d.join("fifo.exr");
+    mkfifo(&fifo);
+    let link = |name: &str, to: &Path| {
+        let p = d.join(name);
+        std::os::unix::fs::symlink(to, &p).unwrap();
+        p
+    };
+    let to_null = link("to_null.exr", Path::new("/dev/null"));
+    let to_stdout = link("to_stdout.png", Path::new("/proc/self/fd/1"));
+    // The PNG beside the EXR is checked too.
+    let png_fifo = d.join("img.png");
+    mkfifo(&png_fifo);
+    let cases: [(&Path, &str); 5] = [
+        (&fifo, "fifo.exr: not a regular file"),
+        (&to_null, "to_null.exr: not a regular file"),
+        (&to_stdout, "to_stdout.png: not a regular file"),
+        (&d.join("img.exr"), "img.png: not a regular file"),
+        (d, "is a directory"),
+    ];
+    for (out, needle) in cases {
+        let args = render_args(out);
+        expect(
+            &format!("render --out {}", out.display()),
+            &run(&strs(&args), d),
+            1,
+            needle,
+        );
+    }
+    let mut args = render_args(&input);
+    args[2] = input.to_str().unwrap().to_string();
+    expect(
+        "render --out INPUT",
+        &run(&strs(&args), d),
+        1,
+        "is the input file",
+    );
+    assert_eq!(std::fs::read(&input).unwrap(), input_bytes);
+    assert!(
+        std::fs::symlink_metadata(&fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo()
+    );
+    assert!(
+        std::fs::symlink_metadata(&png_fifo)
+            .unwrap()
+            .file_type()
+            .is_fifo()
+    );
+    assert_eq!(
+        std::fs::read_link(&to_null).unwrap(),
+        Path::new("/dev/null")
+    );
+    assert!(!d.join("img.exr").exists());
+
+    // --out x.png writes the PNG only (it used to write an EXR there, then overwrite it).
+    let png = d.join("only.png");
+    let r = run(&strs(&render_args(&png)), d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    assert_eq!(&std::fs::read(&png).unwrap()[1..4], b"PNG");
+    let r = run(&strs(&render_args(&d.join("both.exr"))), d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    assert!(d.join("both.exr").exists() && d.join("both.png").exists());
+}
+
+#[test]
+fn special_files_as_input_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("o.exr");
+    let fifo_raw = d.join("pipe_2x2x2_u8.raw");
+    mkfifo(&fifo_raw);
+    let fifo_pin = d.join("pipe.pin");
+    mkfifo(&fifo_pin);
+    for (volume, needle) in [
+        (fifo_raw.as_path(), "not a regular file"),
+        (Path::new("/dev/zero"), "/dev/zero: not a regular file"),
+        (d, "is a directory"),
+    ] {
+        let mut args = render_args(&out);
+        args[2] = volume.to_str().unwrap().to_string();
+        expect(
+            &format!("--volume {}", volume.display()),
+            &run(&strs(&args), d),
+            1,
+            needle,
+        );
+    }
+    for (pins, needle) in [
+        (fifo_pin.as_path(), "pipe.pin: not a regular file"),
+        (d, "is a directory"),
+    ] {
+        let mut args = render_args(&out);
+        args.extend(["--estimator", "pins", "--pins", pins.to_str().unwrap()].map(String::from));
+        expect(
+            &format!("--pins {}", pins.display()),
+            &run(&strs(&args), d),
+            1,
+            needle,
+        );
+        let r = run(
+            &[
+                "bench",
+                "--no-gpu",
+                "--volume",
+                "procedural:box",
+                "--rays",
+                "10",
+                "--pins",
+                pins.to_str().unwrap(),
+            ],
+            d,
+        );
+        expect("bench --pins", &r, 1, needle);
+    }
+    assert!(!out.exists());
+}
+
+#[test]
+fn non_utf8_arguments_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let bad = OsStr::from_bytes(b"\xff.raw");
+    let mut cases: Vec<(Vec<OsString>, i32)> = Vec::new();
+    let mut a = os(&["render", "--out", "o.exr", "--volume"]);
+    a.push(bad.into());
+    cases.push((a, 1));
+    let mut a = os(&[
+        "render",
+        "--volume",
+        "procedural:box",
+        "--out",
+        "o.exr",
+        "--estimator",
+    ]);
+    a.push(bad.into());
+    cases.push((a, 2));
+    let mut a = os(&["bench", "--no-gpu", "--volume"]);
+    a.push(bad.into());
+    cases.push((a, 1));
+    let mut a = os(&["eval", "--no-gpu", "--scenes"]);
+    a.push(bad.into());
+    cases.push((a, 2));
+    for (args, code) in &cases {
+        expect(&format!("{args:?}"), &run_env(args, d), *code, "");
+    }
+    // A non-UTF-8 output path is a path like any other.
+    let out = d.join(OsStr::from_bytes(b"\xff.png"));
+    let mut a: Vec<OsString> = render_args(Path::new("x"))
+        .into_iter()
+        .map(OsString::from)
+        .collect();
+    *a.last_mut().unwrap() = out.clone().into();
+    let r = run_env(&a, d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    assert!(out.exists());
+}
+
+#[test]
+fn sizes_beyond_memory_fail_before_allocating() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("o.exr");
+    let cases: &[(&[&str], i32, &str)] = &[
+        (&["--width", "32768", "--height", "32768"], 2, "1..=16384"),
+        (
+            &["--width", "16384", "--height", "16384"],
+            1,
+            "memory budget",
+        ),
+        (
+            &["--estimator", "pinms", "--pin-cells", "1000"],
+            1,
+            "memory budget",
+        ),
+        (
+            &["--estimator", "pins", "--pin-cells", "300"],
+            1,
+            "memory budget",
+        ),
+        (&["--majorant-bricks", "1024"], 1, "memory budget"),
+        (&["--majorant-bricks", "5000"], 2, "1..=1024"),
+        (&["--pin-cells", "5000"], 2, "1..=4096"),
+    ];
+    for (extra, code, needle) in cases {
+        // 2G keeps the limit machine-independent (the default is half the physical memory).
+        let mut args = vec![
+            "render",
+            "--volume",
+            "procedural:box",
+            "--out",
+            out.to_str().unwrap(),
+            "--max-memory",
+            "2G",
+        ];
+        args.extend(*extra);
+        expect(&format!("render {extra:?}"), &run(&args, d), *code, needle);
+    }
+    let r = run(
+        &[
+            "bench",
+            "--no-gpu",
+            "--rays",
+            "100000000",
+            "--max-memory",
+            "2G",
+        ],
+        d,
+    );
+    expect("bench --rays 1e8", &r, 1, "memory budget");
+    let r = run(
+        &["bench", "--no-gpu", "--cells", "1000", "--max-memory", "2G"],
+        d,
+    );
+    expect("bench --cells 1000", &r, 1, "memory budget");
+    assert!(!out.exists());
+}
+
+#[test]
+fn out_of_range_values_are_usage_errors_before_rendering() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("o.exr");
+    let raw = data("water_esp_31x34x33_float32.raw");
+    let vdb = data("openvdb_smoke1.vdb");
+    // A render that would take minutes: a usage error must come before it.
+    let slow = ["--width", "512", "--height", "512", "--spp", "100000"];
+    let cases: &[(&str, &[&str], &str)] = &[
+        ("procedural:box", &["--exposure", "nan"], "--exposure"),
+        ("procedural:box", &["--exposure", "0"], "--exposure"),
+        ("procedural:box", &["--estimator", "rm@1e-12"], "[1e-5, 1]"),
+        ("procedural:box", &["--estimator", "rm@0"], "[1e-5, 1]"),
+        (
+            "procedural:box",
+            &["--estimator", "nosuch"],
+            "unknown estimator",
+        ),
+        ("procedural:box", &["--threads", "10000"], "--threads"),
+        ("procedural:box", &["--threads", "0"], "--threads"),
+        (
+            "procedural:box",
+            &["--density-scale", "nan"],
+            "--density-scale",
+        ),
+        ("procedural:box", &["--spp", "0"], "--spp"),
+        ("procedural:box", &["--seconds", "nan"], "--seconds"),
+        (
+            "procedural:box",
+            &["--sun-radiance", "inf"],
+            "--sun-radiance",
+        ),
+        ("procedural:box", &["--fov", "nan"], "--fov"),
+        ("procedural:box", &["--max-memory", "0"], "--max-memory"),
+        ("procedural:box", &["--dims", "4"], "--dims does not apply"),
+        (raw.to_str().unwrap(), &["--spacing", "1e153"], "1e153"),
+        (
+            raw.to_str().unwrap(),
+            &["--grid", "density"],
+            "--grid does not apply to a raw volume",
+        ),
+        (
+            vdb.to_str().unwrap(),
+            &["--dims", "4"],
+            "--dims does not apply to an OpenVDB volume",
+        ),
+    ];
+    for (volume, extra, needle) in cases {
+        let mut args = vec!["render", "--volume", volume, "--out", out.to_str().unwrap()];
+        args.extend(slow);
+        args.extend(*extra);
+        expect(
+            &format!("render {volume} {extra:?}"),
+            &run(&args, d),
+            2,
+            needle,
+        );
+    }
+    let r = run(&["render", "--out", out.to_str().unwrap()], d);
+    expect("no --volume", &r, 2, "--volume");
+    assert!(!out.exists());
+    for extra in [
+        &["--rays", "0"][..],
+        &["--cells", "0"][..],
+        &["--rays=-5"][..],
+    ] {
+        let mut args = vec!["bench", "--no-gpu"];
+        args.extend(extra);
+        expect(&format!("bench {extra:?}"), &run(&args, d), 2, "");
+    }
+    let ev = d.join("ev");
+    let e = ev.to_str().unwrap();
+    for (extra, needle) in [
+        (
+            &["--estimators", "nosuch"][..],
+            "unknown estimator 'nosuch'",
+        ),
+        (&["--estimators", "rm@1e-9"][..], "rm@STEP"),
+        (&["--scenes", "nosuch"][..], "unknown scene"),
+        (&["--threads", "10000"][..], "--threads"),
+        (&["--budgets", "nan"][..], "--budgets"),
+    ] {
+        let mut args = vec!["eval", "--quick", "--no-gpu", "--out", e];
+        args.extend(extra);
+        expect(&format!("eval {extra:?}"), &run(&args, d), 2, needle);
+    }
+    assert!(!ev.exists());
+    // eval --out must be a directory: a FIFO there is refused, not opened.
+    let fifo = d.join("fifo");
+    mkfifo(&fifo);
+    let r = run(
+        &[
+            "eval",
+            "--quick",
+            "--no-gpu",
+            "--out",
+            fifo.to_str().unwrap(),
+        ],
+        d,
+    );
+    expect("eval --out FIFO", &r, 1, "not a directory");
+    // A symlink to a device planted in the output folder is refused, not written through.
+    std::fs::create_dir(&ev).unwrap();
+    std::os::unix::fs::symlink("/dev/null", ev.join("report.md")).unwrap();
+    let r = run(&["eval", "--quick", "--no-gpu", "--out", e], d);
+    expect(
+        "eval --out with a planted link",
+        &r,
+        1,
+        "report.md: not a regular file",
+    );
+    assert!(
+        std::fs::symlink_metadata(ev.join("report.md"))
+            .unwrap()
+            .is_symlink()
+    );
+}
+
+#[test]
+fn bench_cache_is_private_and_verified() {
+    let dir = tempfile::tempdir().unwrap();
+    let home = dir.path();
+    let args = [
+        "bench",
+        "--no-gpu",
+        "--json",
+        "--volume",
+        "procedural:box",
+        "--cells",
+        "4",
+        "--rays",
+        "64",
+    ];
+    let r = run(&args, home);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    let cache = home.join("pinbake");
+    let mode = std::fs::metadata(&cache).unwrap().permissions().mode();
+    assert_eq!(mode & 0o777, 0o700, "cache dir mode {mode:o}");
+    let files: Vec<PathBuf> = std::fs::read_dir(&cache)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(files.len(), 1, "{files:?}");
+    let cached = std::fs::read(&files[0]).unwrap();
+    // A planted (here: garbage) file at the cache path is not used: it is rebaked.
+    std::fs::write(&files[0], b"planted").unwrap();
+    let r = run(&args, home);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    assert!(r.stderr().contains("baking"), "{}", r.stderr());
+    assert_eq!(std::fs::read(&files[0]).unwrap(), cached);
+    // A second run reuses the good file without baking.
+    let r = run(&args, home);
+    assert!(!r.stderr().contains("baking"), "{}", r.stderr());
+    // A cache directory others can write is refused.
+    std::fs::set_permissions(&cache, std::fs::Permissions::from_mode(0o777)).unwrap();
+    let r = run(&args, home);
+    expect("world-writable cache", &r, 1, "not a private directory");
+}
