@@ -191,6 +191,56 @@ typedef struct PinrtResult {
   uint32_t rng_state;
 } PinrtResult;
 
+/**
+ * The uniform block of the GPU query shader (binding 0 of `shaders/pin.wgsl` and of its
+ * translations in `shaders/generated/`; 128 bytes, see `docs/gpu.md`).
+ */
+typedef struct PinrtGpuParams {
+  /**
+   * World -> unit cube: row i = (A_i0, A_i1, A_i2, b_i).
+   */
+  float rows[3][4];
+  /**
+   * Spatial and directional lookup jitter in cells (0 = off), 0, 0.
+   */
+  float jitter[4];
+  /**
+   * Cells x, y, z, z_begin.
+   */
+  uint32_t dims[4];
+  /**
+   * z_end, pins_per_entry, block_len (direction cells x pins per entry), stored_cells.
+   */
+  uint32_t grid[4];
+  /**
+   * Direction kind (0 polar, 1 octahedral), res0, res1, 1 if the cell index is bound.
+   */
+  uint32_t dirs[4];
+  /**
+   * Seed, first query index, ray count, invocations per dispatch row: set by the caller
+   * for each dispatch (`pinrt_gpu_params` leaves them 0).
+   */
+  uint32_t run[4];
+} PinrtGpuParams;
+
+/**
+ * Where an open grid's GPU buffers start: the pin section and the cell index as stored in the
+ * file, to be uploaded without repacking. Valid until `pinrt_close`.
+ */
+typedef struct PinrtGpuBuffers {
+  /**
+   * Storage buffer binding 1: `pin_count` entries of 8 bytes (u32 mask, f32 t_min).
+   */
+  const uint8_t *pins;
+  size_t pins_bytes;
+  /**
+   * Storage buffer binding 2: one u32 per covered cell; NULL for a dense grid (bind any
+   * buffer of at least 4 bytes then).
+   */
+  const uint8_t *cell_index;
+  size_t cell_index_bytes;
+} PinrtGpuBuffers;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -288,6 +338,27 @@ enum PinrtStatus pinrt_query(const struct PinrtGrid *grid,
                              uint32_t seed,
                              uint32_t first_index,
                              struct PinrtResult *out);
+
+/**
+ * Fills `*out` with the uniform block for the GPU query shader: this grid placed by its own
+ * `local_to_world` (or `opts->local_to_world`) with `opts`' jitter. The world -> unit cube
+ * rows are computed exactly as the CPU sampler computes them, which the bit-exact agreement
+ * needs. `run` is left 0 for the caller to fill per dispatch.
+ *
+ * # Safety
+ * `grid` is NULL or an open grid; `opts` NULL or valid; `out` NULL or writable.
+ */
+enum PinrtStatus pinrt_gpu_params(const struct PinrtGrid *grid,
+                                  const struct PinrtQueryOptions *opts,
+                                  struct PinrtGpuParams *out);
+
+/**
+ * Fills `*out` with the grid's pin section and cell index bytes (for GPU upload).
+ *
+ * # Safety
+ * `grid` is NULL or an open grid; `out` NULL or writable.
+ */
+enum PinrtStatus pinrt_gpu_buffers(const struct PinrtGrid *grid, struct PinrtGpuBuffers *out);
 
 /**
  * The one-line message of the last failed call on this thread, or "" if the last call

@@ -143,6 +143,40 @@ pub struct PinrtDesc {
     pub density_scale: f64,
 }
 
+/// The uniform block of the GPU query shader (binding 0 of `shaders/pin.wgsl` and of its
+/// translations in `shaders/generated/`; 128 bytes, see `docs/gpu.md`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct PinrtGpuParams {
+    /// World -> unit cube: row i = (A_i0, A_i1, A_i2, b_i).
+    pub rows: [[f32; 4]; 3],
+    /// Spatial and directional lookup jitter in cells (0 = off), 0, 0.
+    pub jitter: [f32; 4],
+    /// Cells x, y, z, z_begin.
+    pub dims: [u32; 4],
+    /// z_end, pins_per_entry, block_len (direction cells x pins per entry), stored_cells.
+    pub grid: [u32; 4],
+    /// Direction kind (0 polar, 1 octahedral), res0, res1, 1 if the cell index is bound.
+    pub dirs: [u32; 4],
+    /// Seed, first query index, ray count, invocations per dispatch row: set by the caller
+    /// for each dispatch (`pinrt_gpu_params` leaves them 0).
+    pub run: [u32; 4],
+}
+
+/// Where an open grid's GPU buffers start: the pin section and the cell index as stored in the
+/// file, to be uploaded without repacking. Valid until `pinrt_close`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub struct PinrtGpuBuffers {
+    /// Storage buffer binding 1: `pin_count` entries of 8 bytes (u32 mask, f32 t_min).
+    pub pins: *const u8,
+    pub pins_bytes: usize,
+    /// Storage buffer binding 2: one u32 per covered cell; NULL for a dense grid (bind any
+    /// buffer of at least 4 bytes then).
+    pub cell_index: *const u8,
+    pub cell_index_bytes: usize,
+}
+
 thread_local! {
     static LAST_ERROR: RefCell<CString> = RefCell::new(CString::default());
 }
@@ -552,6 +586,83 @@ pub unsafe extern "C" fn pinrt_query(
                 s.query_batch(r, seed, first_index, o)
             })
         }
+    })
+}
+
+/// Fills `*out` with the uniform block for the GPU query shader: this grid placed by its own
+/// `local_to_world` (or `opts->local_to_world`) with `opts`' jitter. The world -> unit cube
+/// rows are computed exactly as the CPU sampler computes them, which the bit-exact agreement
+/// needs. `run` is left 0 for the caller to fill per dispatch.
+///
+/// # Safety
+/// `grid` is NULL or an open grid; `opts` NULL or valid; `out` NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinrt_gpu_params(
+    grid: *const PinrtGrid,
+    opts: *const PinrtQueryOptions,
+    out: *mut PinrtGpuParams,
+) -> PinrtStatus {
+    guard("pinrt_gpu_params", || {
+        // SAFETY: caller's contract.
+        let g = unsafe { grid_ref(grid) }?;
+        let s = unsafe { sampler(g, opts) }?;
+        check_out(out)?;
+        let shape = g.grid.shape();
+        let too_big = |what: &str, v: u64| {
+            Fail(
+                PinrtStatus::InvalidArgument,
+                format!("{what} {v} does not fit the shader's u32 fields"),
+            )
+        };
+        let block_len =
+            u32::try_from(shape.block_len).map_err(|_| too_big("block length", shape.block_len))?;
+        let stored = g.grid.desc().stored_cells;
+        let stored = u32::try_from(stored).map_err(|_| too_big("stored cells", stored))?;
+        let (kind, res) = shape.directions.to_desc();
+        let o = s.options();
+        let params = PinrtGpuParams {
+            rows: s.transform().rows,
+            jitter: [o.spatial_jitter, o.directional_jitter, 0.0, 0.0],
+            dims: [shape.dims[0], shape.dims[1], shape.dims[2], shape.z_begin],
+            grid: [shape.z_end, shape.pins_per_entry, block_len, stored],
+            dirs: [
+                kind,
+                res[0],
+                res[1],
+                u32::from(g.grid.cell_index().is_some()),
+            ],
+            run: [0; 4],
+        };
+        // SAFETY: checked non-null and aligned.
+        unsafe { out.write(params) };
+        Ok(())
+    })
+}
+
+/// Fills `*out` with the grid's pin section and cell index bytes (for GPU upload).
+///
+/// # Safety
+/// `grid` is NULL or an open grid; `out` NULL or writable.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinrt_gpu_buffers(
+    grid: *const PinrtGrid,
+    out: *mut PinrtGpuBuffers,
+) -> PinrtStatus {
+    guard("pinrt_gpu_buffers", || {
+        // SAFETY: caller's contract.
+        let g = unsafe { grid_ref(grid) }?;
+        check_out(out)?;
+        let pins = g.grid.pins_bytes();
+        let index = g.grid.cell_index_bytes();
+        let bufs = PinrtGpuBuffers {
+            pins: pins.as_ptr(),
+            pins_bytes: pins.len(),
+            cell_index: index.map_or(std::ptr::null(), |b| b.as_ptr()),
+            cell_index_bytes: index.map_or(0, |b| b.len()),
+        };
+        // SAFETY: checked non-null and aligned.
+        unsafe { out.write(bufs) };
+        Ok(())
     })
 }
 

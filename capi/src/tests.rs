@@ -376,3 +376,49 @@ fn errors_are_per_thread_and_one_line() {
     let v = unsafe { CStr::from_ptr(pinrt_version()) };
     assert_eq!(v.to_str().unwrap(), env!("CARGO_PKG_VERSION"));
 }
+
+#[test]
+fn gpu_params_and_buffers_describe_the_grid_as_the_sampler_sees_it() {
+    for sparse in [false, true] {
+        let bytes = grid_bytes(sparse);
+        let g = open_mem(&bytes);
+        let reference = PinGrid::from_bytes(bytes.clone()).unwrap();
+        let l2w = [0.0, -2.0, 0.0, 1.0, 3.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, -4.0];
+        let opts = PinrtQueryOptions {
+            spatial_jitter: 0.25,
+            directional_jitter: 0.0,
+            local_to_world: l2w.as_ptr(),
+        };
+        let mut p = PinrtGpuParams::default();
+        let mut b = PinrtGpuBuffers {
+            pins: ptr::null(),
+            pins_bytes: 0,
+            cell_index: ptr::null(),
+            cell_index_bytes: 0,
+        };
+        // SAFETY: valid grid, options and out pointers.
+        unsafe {
+            assert_eq!(pinrt_gpu_params(g, &opts, &mut p), PinrtStatus::Ok);
+            assert_eq!(pinrt_gpu_buffers(g, &mut b), PinrtStatus::Ok);
+        }
+        let s = pinrt::Sampler::with_local_to_world(&reference, &l2w).unwrap();
+        assert_eq!(p.rows, s.transform().rows);
+        assert_eq!(p.jitter, [0.25, 0.0, 0.0, 0.0]);
+        assert_eq!(p.dims, [5, 4, 3, 0]);
+        let stored = reference.desc().stored_cells as u32;
+        assert_eq!(p.grid, [3, 2, 128, stored]);
+        assert_eq!(p.dirs, [0, 16, 4, u32::from(sparse)]);
+        assert_eq!(p.run, [0; 4]);
+        assert_eq!(size_of::<PinrtGpuParams>(), 128);
+        // SAFETY: the grid is open, so its bytes are alive.
+        let pins = unsafe { std::slice::from_raw_parts(b.pins, b.pins_bytes) };
+        assert_eq!(pins, reference.pins_bytes());
+        assert_eq!(b.cell_index.is_null(), !sparse);
+        assert_eq!(
+            b.cell_index_bytes,
+            reference.cell_index_bytes().map_or(0, <[u8]>::len)
+        );
+        // SAFETY: opened above.
+        unsafe { pinrt_close(g) };
+    }
+}
