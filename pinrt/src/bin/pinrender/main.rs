@@ -2,12 +2,13 @@
 //!
 //! Subcommands: `bench` (pins vs ray marching queries per second, CPU and wgpu), `render`
 //! (one image with a chosen estimator), `eval` (error against run time of every estimator on
-//! the evaluation scenes). Exit codes: 0 success, 1 bad input, 2 usage error.
+//! the evaluation scenes), `shaders` (pin.wgsl in SPIR-V, GLSL, HLSL and MSL). Exit codes: 0 success, 1 bad input, 2 usage error.
 
 mod bench;
 mod data;
 mod eval;
 mod render_cmd;
+mod shaders;
 mod volume;
 
 use std::process::ExitCode;
@@ -33,6 +34,8 @@ enum Command {
     Render(Box<render_cmd::RenderArgs>),
     /// Error against run time of every estimator on the evaluation scenes (CSV, plots, report).
     Eval(Box<eval::EvalArgs>),
+    /// Write shaders/pin.wgsl as SPIR-V, GLSL 450, HLSL and MSL (naga) into a directory.
+    Shaders(shaders::ShadersArgs),
 }
 
 fn main() -> ExitCode {
@@ -50,6 +53,7 @@ fn main() -> ExitCode {
         Command::Bench(a) => bench::run(*a),
         Command::Render(a) => render_cmd::run(*a),
         Command::Eval(a) => eval::run(*a),
+        Command::Shaders(a) => shaders::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

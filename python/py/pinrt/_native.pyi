@@ -1,0 +1,64 @@
+# Typed stub of the compiled module (python/src/lib.rs). The public API is pinrt/__init__.py.
+from os import PathLike
+from typing import Optional, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+class PinError(Exception): ...
+
+class PinGrid:
+    def __init__(self, path: Union[str, PathLike[str]]) -> None: ...
+    @staticmethod
+    def from_bytes(data: bytes) -> PinGrid: ...
+    def verify(self) -> None: ...
+    def info_json(self) -> str: ...
+    def transmittance(
+        self,
+        origins: npt.NDArray[np.float32],
+        directions: npt.NDArray[np.float32],
+        t_max: npt.NDArray[np.float32],
+        seed: int,
+        first_index: int,
+        spatial_jitter: float,
+        directional_jitter: float,
+    ) -> npt.NDArray[np.float32]: ...
+    def sample_distance(
+        self,
+        origins: npt.NDArray[np.float32],
+        directions: npt.NDArray[np.float32],
+        t_max: npt.NDArray[np.float32],
+        seed: int,
+        first_index: int,
+        spatial_jitter: float,
+        directional_jitter: float,
+    ) -> npt.NDArray[np.float32]: ...
+
+def bake(
+    input: str,
+    output: Union[str, PathLike[str]],
+    *,
+    data: Optional[npt.NDArray[np.float32]] = ...,
+    spacing: Optional[Tuple[float, float, float]] = ...,
+    origin: Optional[Tuple[float, float, float]] = ...,
+    cells: Tuple[int, int, int] = ...,
+    directions: str = ...,
+    pins_per_entry: int = ...,
+    step: float = ...,
+    seed: int = ...,
+    crop: bool = ...,
+    center_pins: bool = ...,
+    majorant: Tuple[int, int, int] = ...,
+    embed_density: Optional[Tuple[int, int, int]] = ...,
+    density_scale: float = ...,
+    threads: Optional[int] = ...,
+    grid: Optional[str] = ...,
+    levelset_to_fog: bool = ...,
+    dims: Optional[Tuple[int, int, int]] = ...,
+    voxel_type: Optional[str] = ...,
+    endian: str = ...,
+    clamp_negative: bool = ...,
+    nan_as_zero: bool = ...,
+    vdb_worker: Optional[Union[str, PathLike[str]]] = ...,
+) -> str: ...
+def vdb_worker(args: list[str]) -> int: ...

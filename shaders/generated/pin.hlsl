@@ -1,0 +1,1040 @@
+struct Params {
+    float4 row0_;
+    float4 row1_;
+    float4 row2_;
+    float4 jitter;
+    uint4 dims;
+    uint4 grid;
+    uint4 dirs;
+    uint4 run;
+};
+
+struct Ray {
+    float3 origin;
+    float t_max;
+    float3 dir;
+    uint pad;
+};
+
+struct QueryResult {
+    float distance_;
+    float transmittance;
+    uint hit;
+    uint entry;
+    uint popcount;
+    uint interval;
+    uint status;
+    uint rng_state;
+};
+
+struct Chord {
+    bool ok;
+    float t_enter;
+    float t_exit;
+};
+
+struct Segment {
+    bool ok;
+    float t_enter;
+    float interval_len;
+    float t0_;
+    float t1_;
+    float s0_;
+    float s1_;
+    uint a;
+    uint b;
+};
+
+static const uint STATUS_OK = 0u;
+static const uint STATUS_MISS = 1u;
+static const uint STATUS_INVALID = 2u;
+static const uint NO_ENTRY = 4294967295u;
+static const uint NO_INTERVAL = 32u;
+static const uint EMPTY_CELL = 4294967295u;
+static const float C0_ = 0.999866;
+static const float C1_ = -0.3302995;
+static const float C2_ = 0.180141;
+static const float C3_ = -0.085133;
+static const float C4_ = 0.0208351;
+static const float HALF_PI = 1.5707964;
+static const float PI = 3.1415927;
+static const float INV_TAU = 0.15915494;
+static const float MAXF = 3.4028235e38;
+static const float TWO_M24_ = 5.9604645e-8;
+static const float TWO_32_ = 4294967300.0;
+static const uint PCG_MUL = 747796405u;
+static const uint PCG_INC = 2891336453u;
+static const uint PCG_OUT_MUL = 277803737u;
+
+cbuffer P : register(b0) { Params P; }
+ByteAddressBuffer pins : register(t1);
+ByteAddressBuffer cell_index : register(t2);
+ByteAddressBuffer rays : register(t3);
+RWByteAddressBuffer results : register(u4);
+static Params G = (Params)0;
+static uint G_PIN_BASE = (uint)0;
+static uint G_INDEX_BASE = (uint)0;
+static uint inf_bits = 2139095040u;
+static uint rng_state = (uint)0;
+
+uint pcg_output(uint state)
+{
+    uint word = (((state >> ((state >> 28u) + 4u)) ^ state) * PCG_OUT_MUL);
+    return ((word >> 22u) ^ word);
+}
+
+uint pcg_hash(uint x)
+{
+    const uint _e5 = pcg_output(((x * PCG_MUL) + PCG_INC));
+    return _e5;
+}
+
+uint rng_next()
+{
+    uint _e2 = rng_state;
+    rng_state = ((_e2 * PCG_MUL) + PCG_INC);
+    uint _e8 = rng_state;
+    const uint _e9 = pcg_output(_e8);
+    return _e9;
+}
+
+float rng_f32_()
+{
+    const uint _e0 = rng_next();
+    return (float((_e0 >> 8u)) * TWO_M24_);
+}
+
+bool is_finite_bits(float x_1)
+{
+    return ((asuint(x_1) & 2139095040u) != 2139095040u);
+}
+
+uint interval_bit(uint j)
+{
+    if ((j >= 32u)) {
+        return 0u;
+    }
+    return (2147483648u >> j);
+}
+
+uint interval_range(uint a, uint b)
+{
+    bool local = (bool)0;
+
+    if (!((a > b))) {
+        local = (b > 31u);
+    } else {
+        local = true;
+    }
+    bool _e9 = local;
+    if (_e9) {
+        return 0u;
+    }
+    return ((4294967295u >> a) & (4294967295u << (31u - b)));
+}
+
+float pow_int(float base, uint n)
+{
+    float result = 1.0;
+    float b_1 = (float)0;
+    uint i = 0u;
+    float f = (float)0;
+
+    b_1 = base;
+    uint2 loop_bound = uint2(4294967295u, 4294967295u);
+    bool loop_init = true;
+    while(true) {
+        if (all(loop_bound == uint2(0u, 0u))) { break; }
+        loop_bound -= uint2(loop_bound.y == 0u, 1u);
+        if (!loop_init) {
+            uint _e25 = i;
+            i = (_e25 + 1u);
+        }
+        loop_init = false;
+        uint _e7 = i;
+        if ((_e7 < 6u)) {
+        } else {
+            break;
+        }
+        {
+            f = 1.0;
+            uint _e12 = i;
+            if ((((n >> _e12) & 1u) != 0u)) {
+                float _e18 = b_1;
+                f = _e18;
+            }
+            float _e19 = result;
+            float _e20 = f;
+            result = (_e19 * _e20);
+            float _e22 = b_1;
+            float _e23 = b_1;
+            b_1 = (_e22 * _e23);
+        }
+    }
+    float _e28 = result;
+    return _e28;
+}
+
+float sanitize_t_min(float t)
+{
+    uint bits = asuint(t);
+    uint mag = (bits & 2147483647u);
+    if ((mag > 2139095040u)) {
+        return 1.0;
+    }
+    if (((bits & 2147483648u) != 0u)) {
+        return 0.0;
+    }
+    if ((mag >= 1065353216u)) {
+        return 1.0;
+    }
+    return t;
+}
+
+uint naga_f2u32(float value) {
+    return uint(clamp(value, 0.0, 4294967000.0));
+}
+
+uint exact_sample_mask(float t_1)
+{
+    uint tq = (uint)0;
+    bool local_1 = (bool)0;
+    bool local_2 = (bool)0;
+    uint result_1 = 0u;
+    uint undecided = 4294967295u;
+    uint j_1 = 31u;
+    bool local_3 = (bool)0;
+
+    if ((t_1 >= 1.0)) {
+        return 0u;
+    }
+    float x_4 = (t_1 * TWO_32_);
+    uint fl = naga_f2u32(x_4);
+    float frac_ = (x_4 - float(fl));
+    tq = fl;
+    if (!((frac_ > 0.5))) {
+        if ((frac_ == 0.5)) {
+            local_2 = ((fl & 1u) == 1u);
+        } else {
+            local_2 = false;
+        }
+        bool _e24 = local_2;
+        local_1 = _e24;
+    } else {
+        local_1 = true;
+    }
+    bool _e26 = local_1;
+    if (_e26) {
+        tq = (fl + 1u);
+    }
+    uint _e29 = tq;
+    if ((_e29 == 0u)) {
+        return 4294967295u;
+    }
+    uint _e34 = tq;
+    uint q = (0u - _e34);
+    uint stop = min(32u, firstbitlow(q));
+    uint2 loop_bound_1 = uint2(4294967295u, 4294967295u);
+    while(true) {
+        if (all(loop_bound_1 == uint2(0u, 0u))) { break; }
+        loop_bound_1 -= uint2(loop_bound_1.y == 0u, 1u);
+        const uint _e43 = rng_next();
+        uint _e45 = j_1;
+        uint qb = (0u - ((q >> _e45) & 1u));
+        uint _e50 = result_1;
+        uint _e51 = undecided;
+        result_1 = (_e50 | ((_e51 & ~(_e43)) & qb));
+        uint _e56 = undecided;
+        undecided = (_e56 & ~((_e43 ^ qb)));
+        uint _e60 = undecided;
+        if (!((_e60 == 0u))) {
+            uint _e66 = j_1;
+            local_3 = (_e66 == stop);
+        } else {
+            local_3 = true;
+        }
+        bool _e69 = local_3;
+        if (_e69) {
+            break;
+        }
+        uint _e70 = j_1;
+        j_1 = (_e70 - 1u);
+    }
+    uint _e73 = result_1;
+    return _e73;
+}
+
+uint bin(float x_2, uint n_1)
+{
+    if (!((x_2 >= 1.0))) {
+        return 0u;
+    }
+    if ((x_2 >= float(n_1))) {
+        return (n_1 - 1u);
+    }
+    return min(naga_f2u32(x_2), (n_1 - 1u));
+}
+
+Chord ConstructChord(bool arg0, float arg1, float arg2) {
+    Chord ret = (Chord)0;
+    ret.ok = arg0;
+    ret.t_enter = arg1;
+    ret.t_exit = arg2;
+    return ret;
+}
+
+Chord unit_cube_chord(float3 o, float3 d)
+{
+    Chord c = ConstructChord(false, 0.0, 0.0);
+    float lo = -3.4028235e38;
+    float hi = MAXF;
+    bool constrained = false;
+    uint a_1 = 0u;
+    bool parallel = (bool)0;
+    float inv = (float)0;
+    bool local_4 = (bool)0;
+    float n_2 = (float)0;
+    float f_1 = (float)0;
+    bool local_5 = (bool)0;
+    bool local_6 = (bool)0;
+    bool local_7 = (bool)0;
+
+    uint2 loop_bound_2 = uint2(4294967295u, 4294967295u);
+    bool loop_init_1 = true;
+    while(true) {
+        if (all(loop_bound_2 == uint2(0u, 0u))) { break; }
+        loop_bound_2 -= uint2(loop_bound_2.y == 0u, 1u);
+        if (!loop_init_1) {
+            uint _e64 = a_1;
+            a_1 = (_e64 + 1u);
+        }
+        loop_init_1 = false;
+        uint _e15 = a_1;
+        if ((_e15 < 3u)) {
+        } else {
+            break;
+        }
+        {
+            uint _e18 = a_1;
+            float oa = o[min(uint(_e18), 2u)];
+            uint _e20 = a_1;
+            float da = d[min(uint(_e20), 2u)];
+            parallel = (da == 0.0);
+            inv = 0.0;
+            bool _e27 = parallel;
+            if (!(_e27)) {
+                inv = (1.0 / da);
+                float _e31 = inv;
+                const bool _e32 = is_finite_bits(_e31);
+                parallel = !(_e32);
+            }
+            bool _e34 = parallel;
+            if (_e34) {
+                if ((oa >= 0.0)) {
+                    local_4 = (oa <= 1.0);
+                } else {
+                    local_4 = false;
+                }
+                bool _e42 = local_4;
+                if (!(_e42)) {
+                    Chord _e44 = c;
+                    const Chord chord = _e44;
+                    return chord;
+                }
+                continue;
+            }
+            float _e46 = inv;
+            float t0_1 = (-(oa) * _e46);
+            float _e50 = inv;
+            float t1_1 = ((1.0 - oa) * _e50);
+            n_2 = t1_1;
+            f_1 = t0_1;
+            if ((t0_1 < t1_1)) {
+                n_2 = t0_1;
+                f_1 = t1_1;
+            }
+            float _e55 = n_2;
+            float _e56 = lo;
+            if ((_e55 > _e56)) {
+                float _e58 = n_2;
+                lo = _e58;
+            }
+            float _e59 = f_1;
+            float _e60 = hi;
+            if ((_e59 < _e60)) {
+                float _e62 = f_1;
+                hi = _e62;
+            }
+            constrained = true;
+        }
+    }
+    bool _e67 = constrained;
+    if (!(!(_e67))) {
+        float _e72 = lo;
+        float _e73 = hi;
+        local_5 = !((_e72 < _e73));
+    } else {
+        local_5 = true;
+    }
+    bool _e77 = local_5;
+    if (!(_e77)) {
+        float _e81 = lo;
+        const bool _e82 = is_finite_bits(_e81);
+        local_6 = !(_e82);
+    } else {
+        local_6 = true;
+    }
+    bool _e85 = local_6;
+    if (!(_e85)) {
+        float _e89 = hi;
+        const bool _e90 = is_finite_bits(_e89);
+        local_7 = !(_e90);
+    } else {
+        local_7 = true;
+    }
+    bool _e93 = local_7;
+    if (_e93) {
+        Chord _e94 = c;
+        const Chord chord_1 = _e94;
+        return chord_1;
+    }
+    c.ok = true;
+    float _e98 = lo;
+    c.t_enter = _e98;
+    float _e100 = hi;
+    c.t_exit = _e100;
+    Chord _e101 = c;
+    const Chord chord_2 = _e101;
+    return chord_2;
+}
+
+Segment ConstructSegment(bool arg0, float arg1, float arg2, float arg3, float arg4, float arg5, float arg6, uint arg7, uint arg8) {
+    Segment ret = (Segment)0;
+    ret.ok = arg0;
+    ret.t_enter = arg1;
+    ret.interval_len = arg2;
+    ret.t0_ = arg3;
+    ret.t1_ = arg4;
+    ret.s0_ = arg5;
+    ret.s1_ = arg6;
+    ret.a = arg7;
+    ret.b = arg8;
+    return ret;
+}
+
+Segment make_segment(Chord ch, float t_max)
+{
+    Segment s = ConstructSegment(false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0u, 0u);
+    float t0_ = 0.0;
+    float t1_ = (float)0;
+    bool local_8 = (bool)0;
+    float s0_ = 0.0;
+    float s1_ = 32.0;
+    uint b_2 = (uint)0;
+    bool local_9 = (bool)0;
+
+    float te = ch.t_enter;
+    float tx = ch.t_exit;
+    if ((te > 0.0)) {
+        t0_ = te;
+    }
+    t1_ = tx;
+    if ((t_max < tx)) {
+        t1_ = t_max;
+    }
+    float _e21 = t0_;
+    float _e22 = t1_;
+    if (!((_e21 < _e22))) {
+        Segment _e25 = s;
+        const Segment segment = _e25;
+        return segment;
+    }
+    float c_2 = (tx - te);
+    float k = (32.0 / c_2);
+    const bool _e29 = is_finite_bits(c_2);
+    if (!(!(_e29))) {
+        const bool _e34 = is_finite_bits(k);
+        local_8 = !(_e34);
+    } else {
+        local_8 = true;
+    }
+    bool _e37 = local_8;
+    if (_e37) {
+        Segment _e38 = s;
+        const Segment segment_1 = _e38;
+        return segment_1;
+    }
+    float _e41 = t0_;
+    if ((_e41 != te)) {
+        float _e43 = t0_;
+        s0_ = ((_e43 - te) * k);
+        float _e46 = s0_;
+        if (!((_e46 < 32.0))) {
+            s0_ = 32.0;
+        }
+    }
+    float _e53 = t1_;
+    if ((_e53 != tx)) {
+        float _e55 = t1_;
+        s1_ = ((_e55 - te) * k);
+        float _e58 = s1_;
+        if (!((_e58 < 32.0))) {
+            s1_ = 32.0;
+        }
+    }
+    float _e63 = s0_;
+    const uint _e65 = bin(_e63, 32u);
+    float _e66 = s1_;
+    const uint _e68 = bin(_e66, 32u);
+    b_2 = _e68;
+    float _e71 = s1_;
+    if ((float(_e68) == _e71)) {
+        local_9 = (_e68 > 0u);
+    } else {
+        local_9 = false;
+    }
+    bool _e78 = local_9;
+    if (_e78) {
+        b_2 = (_e68 - 1u);
+    }
+    uint _e81 = b_2;
+    if ((_e81 < _e65)) {
+        b_2 = _e65;
+    }
+    s.ok = true;
+    s.t_enter = te;
+    s.interval_len = (c_2 * 0.03125);
+    float _e90 = t0_;
+    s.t0_ = _e90;
+    float _e92 = t1_;
+    s.t1_ = _e92;
+    float _e94 = s0_;
+    s.s0_ = _e94;
+    float _e96 = s1_;
+    s.s1_ = _e96;
+    s.a = _e65;
+    uint _e99 = b_2;
+    s.b = _e99;
+    Segment _e100 = s;
+    const Segment segment_2 = _e100;
+    return segment_2;
+}
+
+float atan2_turns(float y, float x_3)
+{
+    float mx = (float)0;
+    float mn = (float)0;
+    float r = (float)0;
+    float turns = (float)0;
+
+    float ax = abs(x_3);
+    float ay = abs(y);
+    mx = ay;
+    mn = ax;
+    if ((ax > ay)) {
+        mx = ax;
+        mn = ay;
+    }
+    float _e7 = mx;
+    if ((_e7 == 0.0)) {
+        return 0.0;
+    }
+    float _e11 = mn;
+    float _e12 = mx;
+    float a_2 = (_e11 / _e12);
+    float s_1 = (a_2 * a_2);
+    r = (a_2 * (C0_ + (s_1 * (C1_ + (s_1 * (C2_ + (s_1 * (C3_ + (s_1 * C4_)))))))));
+    if ((ay > ax)) {
+        float _e32 = r;
+        r = (HALF_PI - _e32);
+    }
+    if ((x_3 < 0.0)) {
+        float _e37 = r;
+        r = (PI - _e37);
+    }
+    if ((y < 0.0)) {
+        float _e41 = r;
+        r = -(_e41);
+    }
+    float _e43 = r;
+    turns = (_e43 * INV_TAU);
+    float _e47 = turns;
+    if ((_e47 < 0.0)) {
+        float _e50 = turns;
+        turns = (_e50 + 1.0);
+    }
+    float _e53 = turns;
+    if ((_e53 >= 1.0)) {
+        return 0.0;
+    }
+    float _e57 = turns;
+    return _e57;
+}
+
+uint direction_cell(float3 d_1, bool jitter, float strength, float xi0_, float xi1_)
+{
+    float ct = (float)0;
+    float cp = (float)0;
+    float cu = (float)0;
+    float cv = (float)0;
+
+    uint _e8 = G.dirs.x;
+    if ((_e8 == 0u)) {
+        uint n_phi = G.dirs.y;
+        uint n_theta = G.dirs.z;
+        float len2_ = (((d_1.x * d_1.x) + (d_1.y * d_1.y)) + (d_1.z * d_1.z));
+        float z = (d_1.z / sqrt(len2_));
+        ct = ((1.0 - z) * float(n_theta));
+        const float _e40 = atan2_turns(d_1.y, d_1.x);
+        cp = (_e40 * float(n_phi));
+        if (jitter) {
+            float _e44 = ct;
+            ct = (_e44 + ((xi0_ - 0.5) * strength));
+            float _e49 = cp;
+            cp = (_e49 + ((xi1_ - 0.5) * strength));
+            float n_3 = float(n_phi);
+            float _e55 = cp;
+            if ((_e55 < 0.0)) {
+                float _e58 = cp;
+                cp = (_e58 + n_3);
+            } else {
+                float _e60 = cp;
+                if ((_e60 >= n_3)) {
+                    float _e62 = cp;
+                    cp = (_e62 - n_3);
+                }
+            }
+        }
+        float _e64 = ct;
+        const uint _e65 = bin(_e64, n_theta);
+        float _e67 = cp;
+        const uint _e68 = bin(_e67, n_phi);
+        return ((_e65 * n_phi) + _e68);
+    }
+    uint n_4 = G.dirs.y;
+    float sum = ((abs(d_1.x) + abs(d_1.y)) + d_1.z);
+    float px = (d_1.x / sum);
+    float py = (d_1.y / sum);
+    float u = (((px + py) + 1.0) * 0.5);
+    float v_1 = (((px - py) + 1.0) * 0.5);
+    cu = (u * float(n_4));
+    cv = (v_1 * float(n_4));
+    if (jitter) {
+        float _e101 = cu;
+        cu = (_e101 + ((xi0_ - 0.5) * strength));
+        float _e106 = cv;
+        cv = (_e106 + ((xi1_ - 0.5) * strength));
+    }
+    float _e111 = cv;
+    const uint _e112 = bin(_e111, n_4);
+    float _e114 = cu;
+    const uint _e115 = bin(_e114, n_4);
+    return ((_e112 * n_4) + _e115);
+}
+
+float3 xf_point(float3 p)
+{
+    float _e4 = G.row0_.x;
+    float _e10 = G.row0_.y;
+    float _e17 = G.row0_.z;
+    float _e24 = G.row0_.w;
+    float _e29 = G.row1_.x;
+    float _e35 = G.row1_.y;
+    float _e42 = G.row1_.z;
+    float _e49 = G.row1_.w;
+    float _e54 = G.row2_.x;
+    float _e60 = G.row2_.y;
+    float _e67 = G.row2_.z;
+    float _e74 = G.row2_.w;
+    return float3(((((_e4 * p.x) + (_e10 * p.y)) + (_e17 * p.z)) + _e24), ((((_e29 * p.x) + (_e35 * p.y)) + (_e42 * p.z)) + _e49), ((((_e54 * p.x) + (_e60 * p.y)) + (_e67 * p.z)) + _e74));
+}
+
+float3 xf_vector(float3 v)
+{
+    float _e4 = G.row0_.x;
+    float _e10 = G.row0_.y;
+    float _e17 = G.row0_.z;
+    float _e24 = G.row1_.x;
+    float _e30 = G.row1_.y;
+    float _e37 = G.row1_.z;
+    float _e44 = G.row2_.x;
+    float _e50 = G.row2_.y;
+    float _e57 = G.row2_.z;
+    return float3((((_e4 * v.x) + (_e10 * v.y)) + (_e17 * v.z)), (((_e24 * v.x) + (_e30 * v.y)) + (_e37 * v.z)), (((_e44 * v.x) + (_e50 * v.y)) + (_e57 * v.z)));
+}
+
+QueryResult ConstructQueryResult(float arg0, float arg1, uint arg2, uint arg3, uint arg4, uint arg5, uint arg6, uint arg7) {
+    QueryResult ret = (QueryResult)0;
+    ret.distance_ = arg0;
+    ret.transmittance = arg1;
+    ret.hit = arg2;
+    ret.entry = arg3;
+    ret.popcount = arg4;
+    ret.interval = arg5;
+    ret.status = arg6;
+    ret.rng_state = arg7;
+    return ret;
+}
+
+QueryResult empty_result(uint status)
+{
+    uint _e2 = inf_bits;
+    uint _e9 = rng_state;
+    const QueryResult queryresult = ConstructQueryResult(asfloat(_e2), 1.0, 0u, NO_ENTRY, 0u, NO_INTERVAL, status, _e9);
+    return queryresult;
+}
+
+QueryResult query(Ray ray)
+{
+    bool local_10 = (bool)0;
+    bool local_11 = (bool)0;
+    bool local_12 = (bool)0;
+    bool local_13 = (bool)0;
+    bool local_14 = (bool)0;
+    bool local_15 = (bool)0;
+    bool local_16 = (bool)0;
+    bool local_17 = (bool)0;
+    bool local_18 = (bool)0;
+    bool local_19 = (bool)0;
+    float3 sxi = float3(0.0, 0.0, 0.0);
+    bool local_20 = (bool)0;
+    float dxi0_ = 0.0;
+    float dxi1_ = 0.0;
+    float3 dl = (float3)0;
+    float3 c_1 = (float3)0;
+    uint entry_id = NO_ENTRY;
+    uint mask = 0u;
+    float t_min = 1.0;
+    bool local_21 = (bool)0;
+    uint block = (uint)0;
+    bool present = true;
+    bool local_22 = (bool)0;
+    bool local_23 = (bool)0;
+    uint part = (uint)0;
+    QueryResult r_1 = (QueryResult)0;
+    float lo_1 = (float)0;
+    float hi_1 = (float)0;
+    float t_2 = (float)0;
+
+    const float3 _e2 = xf_point(ray.origin);
+    const float3 _e4 = xf_vector(ray.dir);
+    const bool _e6 = is_finite_bits(_e2.x);
+    if (_e6) {
+        const bool _e10 = is_finite_bits(_e2.y);
+        local_10 = _e10;
+    } else {
+        local_10 = false;
+    }
+    bool _e12 = local_10;
+    if (_e12) {
+        const bool _e16 = is_finite_bits(_e2.z);
+        local_11 = _e16;
+    } else {
+        local_11 = false;
+    }
+    bool _e18 = local_11;
+    if (_e18) {
+        const bool _e22 = is_finite_bits(_e4.x);
+        local_12 = _e22;
+    } else {
+        local_12 = false;
+    }
+    bool _e24 = local_12;
+    if (_e24) {
+        const bool _e28 = is_finite_bits(_e4.y);
+        local_13 = _e28;
+    } else {
+        local_13 = false;
+    }
+    bool _e30 = local_13;
+    if (_e30) {
+        const bool _e34 = is_finite_bits(_e4.z);
+        local_14 = _e34;
+    } else {
+        local_14 = false;
+    }
+    bool finite = local_14;
+    bool nan_tmax = ((asuint(ray.t_max) & 2147483647u) > 2139095040u);
+    if (!(!(finite))) {
+        local_15 = nan_tmax;
+    } else {
+        local_15 = true;
+    }
+    bool _e48 = local_15;
+    if (!(_e48)) {
+        if ((_e4.x == 0.0)) {
+            local_17 = (_e4.y == 0.0);
+        } else {
+            local_17 = false;
+        }
+        bool _e61 = local_17;
+        if (_e61) {
+            local_18 = (_e4.z == 0.0);
+        } else {
+            local_18 = false;
+        }
+        bool _e68 = local_18;
+        local_16 = _e68;
+    } else {
+        local_16 = true;
+    }
+    bool _e70 = local_16;
+    if (_e70) {
+        const QueryResult _e72 = empty_result(STATUS_INVALID);
+        const QueryResult queryresult_1 = _e72;
+        return queryresult_1;
+    }
+    const Chord _e73 = unit_cube_chord(_e2, _e4);
+    if (!(_e73.ok)) {
+        const QueryResult _e77 = empty_result(STATUS_MISS);
+        const QueryResult queryresult_2 = _e77;
+        return queryresult_2;
+    }
+    const Segment _e79 = make_segment(_e73, ray.t_max);
+    if (!(_e79.ok)) {
+        const QueryResult _e83 = empty_result(STATUS_MISS);
+        const QueryResult queryresult_3 = _e83;
+        return queryresult_3;
+    }
+    uint ppe = G.grid.y;
+    const uint _e88 = rng_next();
+    uint k_1 = (((_e88 >> 8u) * ppe) >> 24u);
+    float _e97 = G.jitter.x;
+    if ((_e97 > 0.0)) {
+        float _e105 = G.jitter.x;
+        const bool _e106 = is_finite_bits(_e105);
+        local_19 = _e106;
+    } else {
+        local_19 = false;
+    }
+    bool sj = local_19;
+    if (sj) {
+        const float _e115 = rng_f32_();
+        sxi.x = _e115;
+        const float _e117 = rng_f32_();
+        sxi.y = _e117;
+        const float _e119 = rng_f32_();
+        sxi.z = _e119;
+    }
+    float _e123 = G.jitter.y;
+    if ((_e123 > 0.0)) {
+        float _e131 = G.jitter.y;
+        const bool _e132 = is_finite_bits(_e131);
+        local_20 = _e132;
+    } else {
+        local_20 = false;
+    }
+    bool dj = local_20;
+    if (dj) {
+        const float _e139 = rng_f32_();
+        dxi0_ = _e139;
+        const float _e140 = rng_f32_();
+        dxi1_ = _e140;
+    }
+    bool reversed = (_e4.z < 0.0);
+    dl = _e4;
+    if (reversed) {
+        dl = -(_e4);
+    }
+    float t0_2 = _e79.t0_;
+    float3 p_1 = float3((_e2.x + (_e4.x * t0_2)), (_e2.y + (_e4.y * t0_2)), (_e2.z + (_e4.z * t0_2)));
+    uint _e164 = G.dims.x;
+    uint _e171 = G.dims.y;
+    uint _e178 = G.dims.z;
+    c_1 = float3((p_1.x * float(_e164)), (p_1.y * float(_e171)), (p_1.z * float(_e178)));
+    if (sj) {
+        float _e185 = c_1.x;
+        float _e187 = sxi.x;
+        float _e193 = G.jitter.x;
+        c_1.x = (_e185 + ((_e187 - 0.5) * _e193));
+        float _e198 = c_1.y;
+        float _e200 = sxi.y;
+        float _e206 = G.jitter.x;
+        c_1.y = (_e198 + ((_e200 - 0.5) * _e206));
+        float _e211 = c_1.z;
+        float _e213 = sxi.z;
+        float _e219 = G.jitter.x;
+        c_1.z = (_e211 + ((_e213 - 0.5) * _e219));
+    }
+    float _e223 = c_1.x;
+    uint _e227 = G.dims.x;
+    const uint _e228 = bin(_e223, _e227);
+    float _e230 = c_1.y;
+    uint _e234 = G.dims.y;
+    const uint _e235 = bin(_e230, _e234);
+    float _e237 = c_1.z;
+    uint _e241 = G.dims.z;
+    const uint _e242 = bin(_e237, _e241);
+    float3 _e243 = dl;
+    float _e247 = G.jitter.y;
+    float _e248 = dxi0_;
+    float _e249 = dxi1_;
+    const uint _e250 = direction_cell(_e243, dj, _e247, _e248, _e249);
+    uint _e260 = G.dims.w;
+    if ((_e242 >= _e260)) {
+        uint _e267 = G.grid.x;
+        local_21 = (_e242 < _e267);
+    } else {
+        local_21 = false;
+    }
+    bool _e270 = local_21;
+    if (_e270) {
+        uint _e274 = G.dims.x;
+        uint _e278 = G.dims.y;
+        uint _e282 = G.dims.w;
+        uint local_24 = (_e228 + (_e274 * (_e235 + (_e278 * (_e242 - _e282)))));
+        block = local_24;
+        uint _e294 = G.dirs.w;
+        if ((_e294 != 0u)) {
+            uint _e299 = G_INDEX_BASE;
+            uint _e302 = asuint(cell_index.Load((_e299 + local_24)*4));
+            block = _e302;
+            uint _e303 = block;
+            if ((_e303 != EMPTY_CELL)) {
+                uint _e308 = block;
+                uint _e312 = G.grid.w;
+                local_22 = (_e308 < _e312);
+            } else {
+                local_22 = false;
+            }
+            bool _e315 = local_22;
+            present = _e315;
+        }
+        uint within = ((_e250 * ppe) + k_1);
+        bool _e318 = present;
+        if (_e318) {
+            uint _e324 = G.grid.z;
+            local_23 = (within < _e324);
+        } else {
+            local_23 = false;
+        }
+        bool _e327 = local_23;
+        if (_e327) {
+            uint _e328 = block;
+            uint _e332 = G.grid.z;
+            entry_id = ((_e328 * _e332) + within);
+            uint _e337 = G_PIN_BASE;
+            uint _e338 = entry_id;
+            uint2 e = asuint(pins.Load2((_e337 + _e338)*8));
+            mask = e.x;
+            t_min = asfloat(e.y);
+        }
+    }
+    const float _e345 = rng_f32_();
+    const float _e346 = rng_f32_();
+    float _e347 = t_min;
+    const float _e348 = sanitize_t_min(_e347);
+    t_min = _e348;
+    if (reversed) {
+        uint _e349 = mask;
+        mask = reversebits(_e349);
+    }
+    const uint _e353 = interval_range(_e79.a, _e79.b);
+    part = _e353;
+    if ((_e79.a == _e79.b)) {
+        if (!((_e345 < (_e79.s1_ - _e79.s0_)))) {
+            part = 0u;
+        }
+    } else {
+        if (!((_e345 < (float((_e79.a + 1u)) - _e79.s0_)))) {
+            uint _e372 = part;
+            const uint _e374 = interval_bit(_e79.a);
+            part = (_e372 & ~(_e374));
+        }
+        if (!((_e346 < (_e79.s1_ - float(_e79.b))))) {
+            uint _e383 = part;
+            const uint _e385 = interval_bit(_e79.b);
+            part = (_e383 & ~(_e385));
+        }
+    }
+    uint _e388 = mask;
+    uint _e389 = part;
+    uint popcount = countbits((_e388 & _e389));
+    uint _e393 = inf_bits;
+    float _e395 = t_min;
+    const float _e396 = pow_int(_e395, popcount);
+    uint _e398 = entry_id;
+    r_1 = ConstructQueryResult(asfloat(_e393), _e396, 0u, _e398, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    float _e404 = t_min;
+    const uint _e405 = exact_sample_mask(_e404);
+    uint _e406 = mask;
+    uint _e407 = part;
+    uint m = ((_e406 & _e407) & _e405);
+    if ((m != 0u)) {
+        uint j_2 = (31u - firstbithigh(m));
+        lo_1 = float(j_2);
+        if ((j_2 == _e79.a)) {
+            lo_1 = _e79.s0_;
+        }
+        hi_1 = float((j_2 + 1u));
+        if ((j_2 == _e79.b)) {
+            hi_1 = _e79.s1_;
+        }
+        const float _e425 = rng_f32_();
+        float _e426 = lo_1;
+        float _e427 = hi_1;
+        float _e428 = lo_1;
+        float s_2 = (_e426 + (_e425 * (_e427 - _e428)));
+        t_2 = (_e79.t_enter + (s_2 * _e79.interval_len));
+        float _e437 = t_2;
+        if (!((_e437 > _e79.t0_))) {
+            t_2 = _e79.t0_;
+        }
+        float _e442 = t_2;
+        if (!((_e442 < _e79.t1_))) {
+            t_2 = _e79.t1_;
+        }
+        float _e448 = t_2;
+        r_1.distance_ = _e448;
+        r_1.hit = 1u;
+        r_1.interval = j_2;
+    }
+    uint _e454 = rng_state;
+    r_1.rng_state = _e454;
+    QueryResult _e455 = r_1;
+    const QueryResult queryresult_4 = _e455;
+    return queryresult_4;
+}
+
+Ray ConstructRay(float3 arg0, float arg1, float3 arg2, uint arg3) {
+    Ray ret = (Ray)0;
+    ret.origin = arg0;
+    ret.t_max = arg1;
+    ret.dir = arg2;
+    ret.pad = arg3;
+    return ret;
+}
+
+[numthreads(64, 1, 1)]
+void main(uint3 gid : SV_DispatchThreadID)
+{
+    uint _e6 = P.run.w;
+    uint i_1 = (gid.x + (gid.y * _e6));
+    uint _e12 = P.run.z;
+    if ((i_1 >= _e12)) {
+        return;
+    }
+    uint _e18 = P.run.x;
+    const uint _e19 = pcg_hash(_e18);
+    uint _e23 = P.run.y;
+    const uint _e26 = pcg_hash((_e19 ^ (_e23 + i_1)));
+    rng_state = _e26;
+    Params _e29 = P;
+    G = _e29;
+    G_PIN_BASE = 0u;
+    G_INDEX_BASE = 0u;
+    Ray _e38 = ConstructRay(asfloat(rays.Load3(i_1*32+0)), asfloat(rays.Load(i_1*32+12)), asfloat(rays.Load3(i_1*32+16)), asuint(rays.Load(i_1*32+28)));
+    const QueryResult _e39 = query(_e38);
+    {
+        QueryResult _value2 = _e39;
+        results.Store(i_1*32+0, asuint(_value2.distance_));
+        results.Store(i_1*32+4, asuint(_value2.transmittance));
+        results.Store(i_1*32+8, asuint(_value2.hit));
+        results.Store(i_1*32+12, asuint(_value2.entry));
+        results.Store(i_1*32+16, asuint(_value2.popcount));
+        results.Store(i_1*32+20, asuint(_value2.interval));
+        results.Store(i_1*32+24, asuint(_value2.status));
+        results.Store(i_1*32+28, asuint(_value2.rng_state));
+    }
+    return;
+}
