@@ -190,10 +190,14 @@ fn valgrind(exe: &Path, pin: &Path, dir: &Path) {
 }
 
 fn main() -> ExitCode {
-    let args: Vec<String> = std::env::args().collect();
-    if args.get(1).map(String::as_str) == Some(WORKER_SUBCOMMAND) {
-        return ExitCode::from(worker_main(&args[2..]).clamp(0, 255) as u8);
+    let os_args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    if os_args.get(1).is_some_and(|a| a == WORKER_SUBCOMMAND) {
+        return ExitCode::from(worker_main(&os_args[2..]).clamp(0, 255) as u8);
     }
+    let args: Vec<String> = os_args
+        .iter()
+        .map(|a| a.to_string_lossy().into_owned())
+        .collect();
     // libtest's flags (--list, filters) are accepted and ignored, except that listing must not
     // run anything.
     if args.iter().any(|a| a == "--list") {

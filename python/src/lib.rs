@@ -548,6 +548,7 @@ fn bake(
 /// are the arguments after the subcommand. Returns the process exit code.
 #[pyfunction]
 fn vdb_worker(args: Vec<String>) -> i32 {
+    let args: Vec<std::ffi::OsString> = args.into_iter().map(Into::into).collect();
     pinbake::source::vdb::worker_main(&args)
 }
 
