@@ -1455,6 +1455,11 @@ impl DensitySource for VdbSource {
         Some(self.bounds)
     }
 
+    fn voxel_size(&self) -> Option<DVec3> {
+        // A negative scale mirrors the grid; the voxel is as large either way.
+        Some(self.scale.abs())
+    }
+
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         let lo = region.min.max(self.bounds.min);
         let hi = region.max.min(self.bounds.max);
