@@ -8,7 +8,9 @@
 #  `FILE.raw --spacing 0.025`; the first one is the input.)
 # Environment: REF_SPP (default 1024), PIN_SPP (256), SIZE (96), EQUAL_CELLS (20: the cells
 # per axis of the 256-direction bakes, about the bytes of 32^3 x 64 directions), CONFIGS
-# (space-separated config names to run; default all).
+# (space-separated config names to run; default all), LIGHT (render lighting options; default
+# a sun and a dim sky, so that the medium stands out from the background and transmittance
+# errors show).
 set -euo pipefail
 name=$1 work=$2 centre=$3 dist=$4
 shift 5
@@ -25,7 +27,8 @@ cam() { # view vector -> camera origin
     awk -v cx="$cx" -v cy="$cy" -v cz="$cz" -v d="$dist" -v x="$vx" -v y="$vy" -v z="$vz" \
         'BEGIN { printf "%.5f,%.5f,%.5f", cx + d * x, cy + d * y, cz + d * z }'
 }
-common=(--width "$SIZE" --height "$SIZE" --camera-target "$centre" --threads 2)
+read -r -a light <<<"${LIGHT:---sun-radiance 3 --env-radiance 0.05}"
+common=(--width "$SIZE" --height "$SIZE" --camera-target "$centre" --threads 2 "${light[@]}")
 # A camera straight above/below along y would be degenerate; none of the views is.
 for v in "${views[@]}"; do
     ref="$work/ref_${v%%:*}.exr"
@@ -35,6 +38,7 @@ for v in "${views[@]}"; do
 done
 configs=(
     "polar16x4|--dirs polar:16x4|1|1"
+    "polar16x4-j0|--dirs polar:16x4|0|0"
     "polar8x8|--dirs polar:8x8|1|1"
     "oct8|--dirs octahedral:8|1|1"
     "oct8-j0|--dirs octahedral:8|0|0"

@@ -28,7 +28,7 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Queries per second: pins vs ray marching (steps 0.015 and 0.005) on the same rays.
-    Bench(bench::BenchArgs),
+    Bench(Box<bench::BenchArgs>),
     /// Render one image of a volume with a chosen estimator.
     Render(Box<render_cmd::RenderArgs>),
     /// Error against run time of every estimator on the evaluation scenes (CSV, plots, report).
@@ -43,7 +43,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse_from(args);
     let result = match cli.command {
-        Command::Bench(a) => bench::run(a),
+        Command::Bench(a) => bench::run(*a),
         Command::Render(a) => render_cmd::run(*a),
         Command::Eval(a) => eval::run(*a),
     };
