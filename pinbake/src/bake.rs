@@ -63,10 +63,8 @@ pub struct BakeOptions {
 impl Default for BakeOptions {
     fn default() -> Self {
         Self {
-            cells: [32; 3],
-            // Not the thesis' polar 16x4: its cap cells put near-axis pins ~29 degrees off
-            // the query (docs/sampling.md, "Direction cells").
-            directions: Directions::Octahedral { n: 8 },
+            cells: [DEFAULT_MAX_CELLS; 3],
+            directions: DEFAULT_DIRECTIONS,
             pins_per_entry: 1,
             step: 0.01,
             seed: 0,
@@ -137,6 +135,16 @@ pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), 
         None => Ok((bounds, false)),
     }
 }
+
+/// The default direction set. Not the thesis' polar 16x4, whose cap cells put near-axis pins
+/// ~29 degrees off the query: octahedral:16 at 20^3 cells beat polar 16x4, polar 8x8,
+/// octahedral:8 at 32^3 and polar 32x8 at 20^3 (all about the same bytes) on pins-only renders
+/// of volumes nobody tuned for (docs/sampling.md section 10, docs/evaluation.md).
+pub const DEFAULT_DIRECTIONS: Directions = Directions::Octahedral { n: 16 };
+
+/// The default spatial cells per axis (fewer where the volume has fewer voxels, see
+/// [`default_cells`]): 20^3 cells x 256 directions is about the bytes of the thesis' 32^3 x 64.
+pub const DEFAULT_MAX_CELLS: u32 = 20;
 
 /// Spatial cells per axis when the user names none: `max` per axis, but never more cells than
 /// the bake box spans voxels along that axis (finer cells than voxels store the same

@@ -354,7 +354,7 @@ fn a_worker_never_spawns_a_worker() {
 }
 
 /// Issue 14: without `--cells` a bake never uses more spatial cells than the volume has voxels
-/// along an axis (32 at most), and the default direction set is octahedral:8.
+/// along an axis (20 at most), and the default direction set is octahedral:16.
 #[test]
 fn default_bake_fits_the_voxels() {
     let dir = tempfile::tempdir().unwrap();
@@ -375,10 +375,10 @@ fn default_bake_fits_the_voxels() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["dims"], serde_json::json!([31, 32, 32]));
+    assert_eq!(v["dims"], serde_json::json!([20, 20, 20]));
     assert_eq!(
         v["directions"],
-        serde_json::json!({"kind": "octahedral", "n": 8})
+        serde_json::json!({"kind": "octahedral", "n": 16})
     );
     // An explicit --cells is taken as given, finer than the voxels or not.
     let out = dir.path().join("water40.pin");

@@ -65,7 +65,7 @@ pub struct BakeArgs {
     #[arg(long, default_value_t = 1.0)]
     pub density_scale: f64,
 
-    /// Spatial cells: N or X,Y,Z (default: 32 per axis, but no more than the volume has voxels
+    /// Spatial cells: N or X,Y,Z (default: 20 per axis, but no more than the volume has voxels
     /// along that axis).
     #[arg(long, value_parser = parse_u32x3, help_heading = "Grid")]
     pub cells: Option<[u32; 3]>,
@@ -112,11 +112,11 @@ pub struct BakeArgs {
     pub quiet: bool,
 }
 
-/// `--dirs` unless told otherwise; must name `BakeOptions::default().directions`.
-pub const DEFAULT_DIRS: &str = "octahedral:8";
+/// `--dirs` unless told otherwise: `pinbake::bake::DEFAULT_DIRECTIONS` (a test checks).
+pub const DEFAULT_DIRS: &str = "octahedral:16";
 
 /// Spatial cells per axis unless `--cells` is given (capped by the volume's voxels).
-pub const DEFAULT_MAX_CELLS: u32 = 32;
+pub const DEFAULT_MAX_CELLS: u32 = pinbake::bake::DEFAULT_MAX_CELLS;
 
 pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
     let v: Vec<u32> = s
@@ -450,4 +450,21 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_dirs_name_the_library_default() {
+        assert_eq!(
+            parse_dirs(DEFAULT_DIRS).unwrap(),
+            pinbake::bake::DEFAULT_DIRECTIONS
+        );
+        assert_eq!(
+            pinbake::BakeOptions::default().directions,
+            pinbake::bake::DEFAULT_DIRECTIONS
+        );
+    }
 }

@@ -88,7 +88,7 @@ pub struct RenderArgs {
     /// Majorant bricks per axis for the trackers.
     #[arg(long, default_value_t = 16)]
     pub majorant_bricks: u32,
-    /// Spatial cells per axis when baking pins in memory (default: 32, but no more than the
+    /// Spatial cells per axis when baking pins in memory (default: 20, but no more than the
     /// volume has voxels along an axis).
     #[arg(long)]
     pub pin_cells: Option<u32>,

@@ -301,7 +301,7 @@ impl TransportEstimator for PinsEstimator {
 }
 
 /// Loads `--pins FILE`, or bakes the volume in memory with the default settings (cells: as
-/// given, else 32 per axis capped by the voxels).
+/// given, else `pinbake::bake::DEFAULT_MAX_CELLS` per axis capped by the voxels).
 pub fn pins_for(
     pins: Option<&Path>,
     source: &dyn DensitySource,
@@ -313,7 +313,7 @@ pub fn pins_for(
     }
     let cells = match cells {
         Some(c) => [c; 3],
-        None => pinbake::bake::default_cells(source, true, 32)?,
+        None => pinbake::bake::default_cells(source, true, pinbake::bake::DEFAULT_MAX_CELLS)?,
     };
     let opts = pinbake::BakeOptions {
         cells,
