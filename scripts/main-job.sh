@@ -4,12 +4,7 @@
 # Outputs land in ./out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-export DEBIAN_FRONTEND=noninteractive
-SUDO=""
-if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi
-if ! dpkg -s mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core >/dev/null 2>&1; then
-  $SUDO apt-get update -qq && $SUDO apt-get install -y -qq mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev >/dev/null
-fi
+source scripts/deps.sh
 source scripts/env.sh
 DATA=data
 mkdir -p out
@@ -27,6 +22,12 @@ for est in pinms ratio; do
   $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
 done
-# The error-against-run-time report on small budgets (the full one: `pinrender eval`, ~10 min on 2 cores with the GPU rows).
+# The error-against-run-time report on sub-second budgets, about two minutes on 2 cores (the
+# full one: `pinrender eval`, ~10 min with the GPU rows).
 $R eval --quick --out out/eval
-echo "main job done: out/smoke.pin, out/hydrogen.pin, out/smoke_{pinms,ratio}.{exr,png}, out/eval/report.md"
+cat <<EOT
+main job done. Read first: out/eval/summary.md (what the report shows, tables, errors.png).
+  pin files:   out/smoke.pin, out/hydrogen.pin (pinbake inspect FILE describes them)
+  renders:     out/smoke_pinms.png, out/smoke_ratio.png (and .exr)
+  raw figures: out/eval/errors.csv
+EOT

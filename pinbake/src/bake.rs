@@ -139,7 +139,7 @@ pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), 
 /// The default direction set. Not the thesis' polar 16x4, whose cap cells put near-axis pins
 /// ~29 degrees off the query: octahedral:16 at 20^3 cells beat polar 16x4, polar 8x8,
 /// octahedral:8 at 32^3 and polar 32x8 at 20^3 (all about the same bytes) on pins-only renders
-/// of volumes nobody tuned for (docs/sampling.md section 10, docs/evaluation.md).
+/// of volumes nobody tuned for (docs/sampling.md section 11, docs/evaluation.md).
 pub const DEFAULT_DIRECTIONS: Directions = Directions::Octahedral { n: 16 };
 
 /// The default spatial cells per axis (fewer where the volume has fewer voxels, see
@@ -244,7 +244,15 @@ pub fn bake(
         }
         b.build().map_err(|e| BakeError::Threads(e.to_string()))?
     };
-    pool.install(|| bake_in_pool(source, opts, progress))
+    match source.bake_frame() {
+        None => pool.install(|| bake_in_pool(source, opts, progress)),
+        Some((local, local_to_world)) => {
+            let (mut grid, stats) =
+                pool.install(|| bake_in_pool(local.as_ref(), opts, progress))?;
+            grid.desc.local_to_world = local_to_world;
+            Ok((grid, stats))
+        }
+    }
 }
 
 fn bake_in_pool(

@@ -9,6 +9,10 @@
 //! What it is not for: reading pin files at render time (that is `pinrt`, which never needs
 //! this crate) or defining the file layout (that is `pin-format`).
 
+/// The vector library of the public API (`source::Aabb`, `DensitySource` positions), so
+/// users name the same version of its types without a direct dependency.
+pub use glam;
+
 pub mod bake;
 pub mod merge;
 pub mod pin;

@@ -344,7 +344,9 @@ fn level_set_is_refused_then_converted() {
 #[test]
 fn every_damaged_file_is_a_quick_one_line_error() {
     let expect = [
-        ("bad-bbox-bomb.vdb", "bounding box"),
+        // A 200,000^3 box in the metadata around an empty tree: the sparse reader has no
+        // reason to fear the box (OpenVDB writes valid grids that large), only the tree.
+        ("bad-bbox-bomb.vdb", "no active voxels"),
         ("bad-bbox-empty.vdb", "no active voxels"),
         ("bad-bbox-huge.vdb", "out-of-range"),
         ("bad-bbox-inverted.vdb", "inverted"),

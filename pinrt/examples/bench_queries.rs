@@ -1,5 +1,5 @@
 //! CPU query throughput on a ~26 MB grid (37^3 cells x 16x4 polar directions x 1 pin, the
-//! calibration of DESIGN section 9) with random rays: single queries vs prefetching batches.
+//! calibration of docs/background.md section 4) with random rays: single queries vs prefetching batches.
 //!
 //! `cargo run --release -p pinrt --example bench_queries [rays]`
 

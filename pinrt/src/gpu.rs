@@ -518,7 +518,7 @@ mod tests {
         v
     }
 
-    /// The stiff rays of DESIGN section 5.
+    /// The stiff rays of docs/background.md section 3.
     fn stiff_rays() -> Vec<RayQuery> {
         let inf = f32::INFINITY;
         let nan = f32::NAN;

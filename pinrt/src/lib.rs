@@ -42,6 +42,19 @@
 //! The random draws of a query follow a fixed order ([`sampler`] docs) with the 32-bit
 //! generator in [`rng`], so the GPU reproduces the CPU bit for bit (`docs/gpu.md`).
 //!
+//! ## Accuracy: one estimate is not the transmittance
+//!
+//! A single transmittance estimate is `t_min^n` for a whole number `n` of set mask bits, from
+//! one pin that runs near, not along, the query ray. It is right *on average* over the pin
+//! model's random draws, not per call: one ray's estimate can be 0 where the true
+//! transmittance is 0.8, or the other way round. Average many draws
+//! ([`Sampler::mean_transmittance`]) or take the model's expectation in closed form
+//! ([`Sampler::expected_transmittance`], without lookup jitter) when a single ray's value
+//! matters. The model itself has a bias against the true transmittance, which depends on the
+//! bake (spatial cells, direction set, pins per entry) and the lookup jitter; how large it is
+//! on real volumes, and at which file size, is measured in `docs/evaluation.md`. Renderers
+//! average millions of estimates per image, which is the use the model is built for.
+//!
 //! ## Performance
 //!
 //! A single query is dominated by one cache miss for its entry. The batch methods
@@ -135,6 +148,9 @@ pub use sampler::{
 pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");
 
 // Re-exported so users need not depend on the format crate for the basic types.
+/// The vector library of the public API (`march::MarchBox`, the renderer's scenes), so users
+/// name the same version of its types without a direct dependency.
+pub use glam;
 pub use pin_format::{Directions, GridDesc, PinEntry};
 #[cfg(all(feature = "gpu", feature = "render"))]
 pub mod gpu_render;

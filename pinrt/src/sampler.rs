@@ -1,7 +1,7 @@
 //! Distance sampling and transmittance estimation: single queries and prefetching batches.
 //!
 //! A query runs in three steps, which the batch API interleaves over 32 rays at a time so that
-//! all memory fetches of a batch are in flight together (DESIGN section 9):
+//! all memory fetches of a batch are in flight together (docs/background.md section 4):
 //!
 //! 1. **prepare** (pure arithmetic): world -> unit cube, validity, chord, segment, then the
 //!    draws for the pin number and jitter, the spatial and direction cells.
@@ -365,6 +365,88 @@ impl<'g> Sampler<'g> {
     /// Both estimates and the debug integers from one lookup.
     pub fn query(&self, ray: &Ray, t_max: f32, rng: &mut Rng) -> QueryResult {
         self.single(ray, t_max, rng, Mode::Both)
+    }
+
+    /// The mean of `draws` independent transmittance estimates of one ray (query `i` seeded
+    /// by `Rng::for_query(seed, i)`, as in the batch methods).
+    ///
+    /// A single estimate is `t_min^n` for an integer `n`: it can be far from the true
+    /// transmittance even where the pin model is accurate in the mean (see the crate docs).
+    /// The mean over many draws converges to the pin model's expectation for this ray,
+    /// lookup jitter included; its standard error is at most `0.5 / sqrt(draws)`.
+    pub fn mean_transmittance(&self, ray: &Ray, t_max: f32, draws: u32, seed: u32) -> f64 {
+        if draws == 0 {
+            return f64::NAN;
+        }
+        let rays = [RayQuery::new(ray.origin, ray.dir, t_max); BATCH];
+        let mut sum = 0.0f64;
+        let mut first = 0u32;
+        while first < draws {
+            let n = (draws - first).min(BATCH as u32) as usize;
+            self.batch(&rays[..n], seed, first, Mode::Transmittance, |_, r| {
+                sum += f64::from(r.transmittance)
+            });
+            first += n as u32;
+        }
+        sum / f64::from(draws)
+    }
+
+    /// The pin model's expected transmittance of one ray in closed form, for a sampler
+    /// without lookup jitter: the average over the entry's pins of
+    /// `t_min^(set bits fully inside the segment) * prod over the partial end intervals whose
+    /// bit is set of (1 - f + f t_min)`, where `f` is the covered fraction (a partial
+    /// interval takes part with probability `f`). This is exactly what
+    /// [`Sampler::transmittance`] returns on average. `None` when the sampler jitters its
+    /// lookups (then use [`Sampler::mean_transmittance`]).
+    pub fn expected_transmittance(&self, ray: &Ray, t_max: f32) -> Option<f64> {
+        if self.opts.spatial_on() || self.opts.directional_on() {
+            return None;
+        }
+        let p = self.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
+        if p.status != status::OK {
+            return Some(1.0);
+        }
+        let ppe = u64::from(self.view.shape.pins_per_entry.max(1));
+        let first_pin = p.within - p.within % ppe;
+        let seg = &p.seg;
+        // Covered fractions of the end intervals (one interval: the segment's length).
+        let (fa, fb) = if seg.a == seg.b {
+            (f64::from(seg.s1 - seg.s0), 0.0)
+        } else {
+            (
+                f64::from((seg.a + 1) as f32 - seg.s0),
+                f64::from(seg.s1 - seg.b as f32),
+            )
+        };
+        let mut sum = 0.0f64;
+        for k in 0..ppe {
+            let q = Prepared {
+                within: first_pin + k,
+                ..p
+            };
+            let entry = self
+                .address(&q)
+                .and_then(|i| self.view.pins.get(i as usize).copied())
+                .unwrap_or(PinEntry::EMPTY);
+            let t_min = f64::from(sanitize_t_min(entry.t_min));
+            let mask = if p.reversed {
+                entry.mask.reverse_bits()
+            } else {
+                entry.mask
+            };
+            let range = interval_range(seg.a, seg.b);
+            let ends = interval_bit(seg.a) | interval_bit(seg.b);
+            let full = (mask & range & !ends).count_ones();
+            let mut e = t_min.powi(full as i32);
+            if mask & interval_bit(seg.a) != 0 {
+                e *= 1.0 - fa + fa * t_min;
+            }
+            if seg.b != seg.a && mask & interval_bit(seg.b) != 0 {
+                e *= 1.0 - fb + fb * t_min;
+            }
+            sum += e;
+        }
+        Some(sum / ppe as f64)
     }
 
     #[inline(always)]

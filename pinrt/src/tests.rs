@@ -1,4 +1,4 @@
-//! Cross-module tests: the stiff cases of DESIGN section 5, statistics of the estimators,
+//! Cross-module tests: the stiff cases of docs/background.md section 3, statistics of the estimators,
 //! batch/single and multi-thread agreement.
 
 use pin_format::{Directions, PinEntry};
@@ -53,7 +53,7 @@ fn check_finite(r: &QueryResult) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Stiff cases (DESIGN section 5)
+// Stiff cases (docs/background.md section 3)
 // ---------------------------------------------------------------------------------------------
 
 #[test]
@@ -854,4 +854,57 @@ fn world_bounds_contain_every_hit() {
         }
         assert!(hits > 1000 && misses > 1000, "{hits} / {misses}");
     }
+}
+
+/// `Sampler::expected_transmittance` (closed form) against `Sampler::mean_transmittance`
+/// (the mean of many single estimates) on random rays with partial segments through a random
+/// grid with several pins per entry: a 5-sigma bound from the estimate's variance (each
+/// estimate lies in [0, 1], so var <= E (1 - E)). The power check: a nearby wrong answer, the
+/// expectation over the segment extended to the box exit (what a closed form that ignored
+/// `t_max` would give), must fall outside the bound for some ray.
+#[test]
+fn expected_transmittance_is_the_mean_of_the_estimates() {
+    let grid = PinGrid::from_bytes(
+        random_grid(Directions::THESIS_DEFAULT, [3, 4, 2], 3, false, 17)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let s = Sampler::new(&grid).unwrap();
+    let mut rng = Rng::new(99);
+    let draws = 8192u32;
+    let mut mutation_caught = false;
+    for i in 0..60 {
+        let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+        let d = [
+            rng.next_f32() - 0.5,
+            rng.next_f32() - 0.5,
+            rng.next_f32() - 0.5,
+        ];
+        let ray = Ray::new(o, d);
+        let t_max = 0.05 + rng.next_f32();
+        let want = s.expected_transmittance(&ray, t_max).unwrap();
+        let got = s.mean_transmittance(&ray, t_max, draws, i);
+        let sigma = (want * (1.0 - want) / f64::from(draws)).sqrt();
+        let bound = 5.0 * sigma + 1e-6;
+        assert!(
+            (got - want).abs() <= bound,
+            "ray {i}: mean {got} vs expected {want} (bound {bound})"
+        );
+        let wrong = s.expected_transmittance(&ray, f32::INFINITY).unwrap();
+        if (got - wrong).abs() > bound {
+            mutation_caught = true;
+        }
+    }
+    assert!(
+        mutation_caught,
+        "the bound cannot tell a wrong expectation apart"
+    );
+    let jittered = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
+        spatial_jitter: 1.0,
+        directional_jitter: 0.0,
+    });
+    let ray = Ray::new([0.5; 3], [0.0, 0.0, 1.0]);
+    assert_eq!(jittered.expected_transmittance(&ray, 1.0), None);
+    assert!(jittered.mean_transmittance(&ray, 1.0, 256, 1).is_finite());
 }

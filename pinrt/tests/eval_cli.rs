@@ -1,5 +1,7 @@
 //! `pinrender eval --quick` end to end: every scene and estimator gets a CSV row per budget
-//! with finite errors, and the plots, montages and report are written. The GPU path tracer
+//! with finite errors, and the plots, montages and report are written under the output
+//! contract (`errors.csv`, `errors.png`, `summary.md`). The sizes are shrunk below the quick
+//! run's (16 px, 4 reference spp, three tiny budgets) so the test checks the plumbing fast. The GPU path tracer
 //! (`pins`, backend `gpu`) must give rows too: CI has lavapipe, and a missing adapter should be
 //! noticed (as in the GPU unit tests), not skipped.
 
@@ -15,6 +17,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -28,6 +32,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -41,6 +47,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -55,6 +63,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -69,6 +79,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "box-closed-form",
             "whole-volume",
@@ -82,6 +94,8 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "rm@0.005",
             "delta",
             "ratio",
+            "urm",
+            "jackknife",
             "pins",
             "pinms",
             "pinms+cache",
@@ -89,8 +103,18 @@ const EXPECTED: [(&str, &[&str]); 6] = [
     ),
 ];
 
+/// Shrinks `--quick` further: the test checks the plumbing, not the figures.
+const TINY: [&str; 6] = [
+    "--size",
+    "16",
+    "--ref-spp",
+    "4",
+    "--budgets",
+    "0.01,0.02,0.03",
+];
+
 /// What the GPU path tracer runs besides `rm@STEP`.
-const GPU_ESTIMATORS: [&str; 4] = ["delta", "ratio", "pins", "pinms"];
+const GPU_ESTIMATORS: [&str; 6] = ["delta", "ratio", "urm", "jackknife", "pins", "pinms"];
 
 #[test]
 fn eval_quick_end_to_end() {
@@ -104,17 +128,18 @@ fn eval_quick_end_to_end() {
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
         .args(["eval", "--quick", "--out"])
         .arg(&out)
+        .args(TINY)
         .arg("--docs")
         .arg(&docs)
         .status()
         .unwrap();
     assert!(status.success(), "pinrender eval --quick failed: {status}");
 
-    let csv = std::fs::read_to_string(out.join("results.csv")).unwrap();
+    let csv = std::fs::read_to_string(out.join("errors.csv")).unwrap();
     let mut lines = csv.lines();
     assert_eq!(
         lines.next(),
-        Some("scene,estimator,backend,budget_s,spp,seconds,rmse,rel_mse")
+        Some("scene,estimator,backend,seconds,rmse,relmse,budget_s,spp")
     );
     let mut seen = BTreeSet::new();
     let mut gpu_seen = BTreeSet::new();
@@ -133,18 +158,18 @@ fn eval_quick_end_to_end() {
             }
             other => panic!("unknown backend {other}: {line}"),
         }
-        let spp: u32 = f[4].parse().unwrap();
+        let spp: u32 = f[7].parse().unwrap();
         assert!(spp >= 1, "{line}");
-        for v in [f[3], f[5], f[6], f[7]] {
+        for v in [f[3], f[4], f[5], f[6]] {
             let x: f64 = v.parse().unwrap();
             assert!(x.is_finite() && x >= 0.0, "{line}");
         }
         if f[2] == "cpu" {
             seen.insert((f[0].to_string(), f[1].to_string()));
         }
-        budgets.insert(f[3].to_string());
+        budgets.insert(f[6].to_string());
     }
-    assert_eq!(budgets.len(), 2, "two --quick budgets");
+    assert_eq!(budgets.len(), 3, "three budgets");
     // Every scene, every estimator the GPU path tracer has (instances included).
     assert!(
         !gpu_seen.is_empty(),
@@ -177,7 +202,13 @@ fn eval_quick_end_to_end() {
         }
         assert!(out.join(scene).join("reference.exr").is_file());
     }
-    assert!(out.join("report.md").is_file());
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(
+        summary.contains("This report measures how quickly each way"),
+        "summary.md opens with what the reader is looking at"
+    );
+    assert!(out.join("errors.png").is_file());
+    assert!(docs.join("eval").join("errors.png").is_file());
     let md = std::fs::read_to_string(docs.join("evaluation.md")).unwrap();
     assert!(md.ends_with(tail), "the companion-papers part must be kept");
     assert!(!md.contains("# old head"));
@@ -196,18 +227,20 @@ fn eval_quick_end_to_end() {
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
         .args(["eval", "--quick", "--no-gpu", "--scenes", "box", "--out"])
         .arg(&out2)
+        .args(TINY)
         .status()
         .unwrap();
     assert!(status.success());
-    let csv = std::fs::read_to_string(out2.join("results.csv")).unwrap();
+    let csv = std::fs::read_to_string(out2.join("errors.csv")).unwrap();
     assert!(!csv.contains(",gpu,"), "{csv}");
-    let md = std::fs::read_to_string(out2.join("report.md")).unwrap();
+    let md = std::fs::read_to_string(out2.join("summary.md")).unwrap();
     assert!(md.contains("GPU: not measured** (`--no-gpu`)"), "{md}");
 
     // A second run reuses the cached references and still succeeds.
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
         .args(["eval", "--quick", "--scenes", "box", "--out"])
         .arg(&out)
+        .args(TINY)
         .status()
         .unwrap();
     assert!(status.success());

@@ -359,7 +359,7 @@ fn bake_blob(dirs: Directions) -> PinGrid {
 ///
 /// The diagonal is printed, not asserted: there octahedral cells are largest (the map gives a
 /// face centre 5.2 times the solid angle per cell of a vertex); octahedral:8's bias is 0.24,
-/// worse than polar 16x4's 0.19, octahedral:16's 0.044 (docs/sampling.md section 10).
+/// worse than polar 16x4's 0.19, octahedral:16's 0.044 (docs/sampling.md section 11).
 #[test]
 fn near_axis_rays_match_ray_marching() {
     let mut t = Table::new(

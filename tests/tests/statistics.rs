@@ -1,4 +1,4 @@
-//! Statistical correctness, end to end through baked files (DESIGN sections 2, 3, 5).
+//! Statistical correctness, end to end through baked files (docs/background.md sections 2 and 3, docs/sampling.md).
 //! Fixed seeds: every run draws the same numbers; the printed p-values go into
 //! `docs/stability.md`.
 

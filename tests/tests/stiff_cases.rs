@@ -1,4 +1,4 @@
-//! DESIGN.md section 5, table-driven, through every path that can meet each case: the raw
+//! docs/background.md section 3, table-driven, through every path that can meet each case: the raw
 //! reader, the VDB reader, the baker, the CPU sampler, the WGSL sampler (wgpu, lavapipe) and
 //! the renderer's trackers. Every case states its expected behaviour as data and every test
 //! prints its rows of the cases x paths matrix (`-- --nocapture`; copied into

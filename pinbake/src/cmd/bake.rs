@@ -12,7 +12,7 @@ use pin_format::{Directions, Metadata};
 use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
 use pinbake::{BakeOptions, Tile};
 
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Clone)]
 #[command(after_help = "\
 INPUT is one of:
   FILE.vdb                 an OpenVDB fog volume (float or half grid)
@@ -24,7 +24,8 @@ Examples:
   pinbake bake smoke.vdb -o smoke.pin
   pinbake bake hydrogen_atom_128x128x128_uint8.raw --density-scale 0.1 -o h.pin --json
   pinbake bake procedural:cosine:seed=3 --cells 37 --dirs octahedral:8 -o noise.pin
-  pinbake bake smoke.vdb --tile 0/4 -o part0.pin    (then `pinbake merge part*.pin -o all.pin`)")]
+  pinbake bake smoke.vdb --tile 0/4 -o part0.pin    (then `pinbake merge part*.pin -o all.pin`)
+  pinbake bake 'smoke.####.vdb' --frames 1-240 -o 'smoke.####.pin'   (one file per frame)")]
 pub struct BakeArgs {
     /// Input volume (see below).
     pub input: String,
@@ -104,7 +105,12 @@ pub struct BakeArgs {
     /// Refuse to start a bake whose output would need more than this many bytes (K/M/G suffixes).
     #[arg(long, value_parser = parse_bytes, help_heading = "Execution")]
     pub max_memory: Option<u64>,
-    /// Print one JSON summary object on stdout.
+    /// Bake an animated sequence: INPUT and --output each hold one frame field (`####` or
+    /// `%04d`); FRAMES is A-B, A-BxSTEP, single frames, or a comma list of those. A frame that
+    /// fails is reported and the rest go on; the exit code is 1 if any failed.
+    #[arg(long, value_name = "FRAMES", help_heading = "Execution")]
+    pub frames: Option<String>,
+    /// Print one JSON summary object on stdout (with --frames: {"frames": [...], ...}).
     #[arg(long, help_heading = "Execution")]
     pub json: bool,
     /// No progress bar even on a terminal.
@@ -350,6 +356,19 @@ fn file_name(p: &Path) -> String {
 }
 
 pub fn run(args: BakeArgs) -> Result<ExitCode> {
+    if args.frames.is_some() {
+        return super::frames::run_sequence(args);
+    }
+    let summary = bake_one(&args)?;
+    if args.json {
+        println!("{summary}");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
+/// human summary goes to stderr here).
+pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     if !(args.density_scale.is_finite() && args.density_scale >= 0.0) {
         bail!(
             "--density-scale {} must be finite and >= 0",
@@ -365,7 +384,7 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     if !(args.step > 0.0 && args.step <= 1.0) {
         bail!("--step {} must be in (0, 1]", args.step);
     }
-    let spec = source_spec(&args)?;
+    let spec = source_spec(args)?;
     if let Some(limit) = args.max_memory {
         let probe = BakeOptions {
             // Before the source is open: the default's upper bound.
@@ -394,7 +413,7 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
         }
     }
     let source = source::open_source(&spec)?;
-    let opts = options_from_args(&args, source.as_ref(), &spec)?;
+    let opts = options_from_args(args, source.as_ref(), &spec)?;
 
     let shape_cells: u64 = match opts.tile {
         None => opts.cells.iter().map(|&c| u64::from(c)).product(),
@@ -429,14 +448,12 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
         .with_context(|| format!("{}", args.output.display()))?
         .len();
     let seconds = started.elapsed().as_secs_f64();
-    if args.json {
-        let mut v = super::inspect::summary_json(&grid, file_bytes, Some(&stats));
-        v["seconds"] = serde_json::json!(seconds);
-        v["bake_seconds"] = serde_json::json!(stats.seconds);
-        v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
-        v["output"] = serde_json::json!(args.output.display().to_string());
-        println!("{v}");
-    } else {
+    let mut v = super::inspect::summary_json(&grid, file_bytes, Some(&stats));
+    v["seconds"] = serde_json::json!(seconds);
+    v["bake_seconds"] = serde_json::json!(stats.seconds);
+    v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
+    v["output"] = serde_json::json!(args.output.display().to_string());
+    if !args.json {
         eprintln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
             args.input,
@@ -449,7 +466,7 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
             stats.pins_per_s / 1e6
         );
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(v)
 }
 
 #[cfg(test)]

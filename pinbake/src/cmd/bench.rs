@@ -1,5 +1,10 @@
 //! `pinbake bench`: the thesis' largest configuration (37^3 cells x 16x4 directions) baked
 //! from a 512^3 voxelisation of cosine noise (and from the analytic noise), for 1 and 2 threads.
+//!
+//! Every row reports `wall_s`, `pins_per_s`, `threads`, `peak_rss_bytes` (the process's
+//! high-water mark so far, from /proc; null where unavailable) and `integration_error` (the
+//! mean absolute error of the interval transmittances against a 16x supersampled march, over
+//! 256 random pins: [`pinbake::pin::integration_error`]).
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -72,6 +77,14 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             let (g, stats) = pinbake::bake(source, &opts, &|_| {})?;
             let wall = t.elapsed().as_secs_f64();
             let pins = u64::from(args.cells).pow(3) * 64;
+            let b = source.bounds();
+            let extent = b.max - b.min;
+            let placement = pinbake::pin::Placement {
+                box_min: b.min,
+                extent,
+                step: opts.step * extent.max_element(),
+            };
+            let err = pinbake::pin::integration_error(source, &placement, 256, 16, 1);
             rows.push(json!({
                 "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
                 "threads": threads,
@@ -80,6 +93,10 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 "wall_s": wall,
                 "pins_per_s": pins as f64 / wall,
                 "t_min_mean": stats.t_min_mean,
+                "peak_rss_bytes": peak_rss_bytes(),
+                "integration_error": err.mean_abs_transmittance,
+                "integration_error_max": err.max_abs_transmittance,
+                "optical_depth_rel_error": err.mean_rel_optical_depth,
             }));
         }
     }
@@ -92,18 +109,28 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             c = args.cells
         );
         println!(
-            "{:<22} {:>8} {:>10} {:>14}",
-            "source", "threads", "wall s", "pins/s"
+            "{:<22} {:>8} {:>10} {:>14} {:>12} {:>12}",
+            "source", "threads", "wall s", "pins/s", "peak RSS MB", "T error"
         );
         for r in &rows {
             println!(
-                "{:<22} {:>8} {:>10.2} {:>14.0}",
+                "{:<22} {:>8} {:>10.2} {:>14.0} {:>12.0} {:>12.2e}",
                 r["source"].as_str().unwrap_or(""),
                 r["threads"],
                 r["wall_s"].as_f64().unwrap_or(0.0),
-                r["pins_per_s"].as_f64().unwrap_or(0.0)
+                r["pins_per_s"].as_f64().unwrap_or(0.0),
+                r["peak_rss_bytes"].as_f64().unwrap_or(f64::NAN) / 1e6,
+                r["integration_error"].as_f64().unwrap_or(f64::NAN)
             );
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The process's peak resident set so far (`VmHWM` in /proc/self/status), if the OS says.
+fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
 }

@@ -2,6 +2,7 @@
 
 mod bake;
 mod bench;
+mod frames;
 mod inspect;
 
 use std::path::PathBuf;

@@ -1,4 +1,4 @@
-//! A dense scalar grid placed in world space by the shared convention of DESIGN.md section 2.
+//! A dense scalar grid placed in world space by the shared convention of docs/background.md section 2.
 //!
 //! This is what raw volumes become, and what tests build by hand. A grid of dims `N`, spacing
 //! `s` and origin `o` occupies `[o, o + N*s]`; voxel centres sit at `o + (i + 0.5) * s`; values

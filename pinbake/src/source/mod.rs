@@ -5,7 +5,7 @@
 //! been applied by the time a value leaves a source.
 //!
 //! What lives here:
-//! * [`grid`]: a dense f32 grid with the shared world placement (DESIGN.md section 2);
+//! * [`grid`]: a dense f32 grid with the shared world placement (docs/background.md section 2);
 //! * [`raw`]: the headerless raw reader that produces such a grid;
 //! * [`procedural`]: analytic fields (box, sphere, cosine noise) with closed-form optical depth;
 //! * `vdb` (feature `vdb`): OpenVDB float/half grids, read in an isolated child process.
@@ -82,6 +82,15 @@ pub trait DensitySource: Send + Sync {
 
     /// A short human-readable description for provenance ("raw u8 128x128x128", ...).
     fn describe(&self) -> String;
+
+    /// The frame the baker should work in when it is not world space: a view of this source
+    /// in its own local coordinates and the row-major 3x4 `local_to_world` that places it.
+    /// A rotated or sheared VDB returns its index space here, so that the pin grid's box is
+    /// the grid's own box and the pin file records the placement; `None` (the default) bakes
+    /// in world space with an identity placement.
+    fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
+        None
+    }
 
     /// Batched sampling along a line: `out[i] = extinction(origin + i * step)` for
     /// `i < min(n, out.len())`.

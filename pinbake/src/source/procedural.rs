@@ -1,5 +1,5 @@
 //! Analytic density fields: a homogeneous box, a constant-density sphere, and cosine noise
-//! (papers/closed-form-cosine-noise-transmittance.txt) in a single-octave and a fractal form.
+//! (the cosine-noise paper, docs/background.md) in a single-octave and a fractal form.
 //!
 //! These are for exact references and for tests: they need no voxel storage, can be sampled at
 //! any resolution, and the cosine noise has a closed-form optical depth along any segment
@@ -973,7 +973,7 @@ mod tests {
             let e = bad.parse::<ProceduralSpec>().unwrap_err().to_string();
             assert!(e.starts_with("procedural source"), "{bad}: {e}");
         }
-        // Density extremes from DESIGN.md section 5.
+        // Density extremes from docs/background.md section 3.
         let z: ProceduralSpec = "cosine:density=0".parse().unwrap();
         assert_eq!(z.build().unwrap().extinction(DVec3::splat(0.5)), 0.0);
         let h: ProceduralSpec = "cosine:density=1e30".parse().unwrap();

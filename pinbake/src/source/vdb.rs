@@ -15,9 +15,14 @@
 //!
 //! # Placement and sampling
 //!
-//! Voxel centres sit at integer index coordinates; world = index * scale + translation
-//! (`UniformScaleMap`, `UniformScaleTranslateMap`, `ScaleTranslateMap`; any other map is an
-//! error). Sampling is trilinear between voxel centres; inactive voxels of fog volumes are 0.
+//! Voxel centres sit at integer index coordinates; world = M index + t for every linear map
+//! OpenVDB writes (`UniformScaleMap`, `ScaleMap`, `UniformScaleTranslateMap`,
+//! `ScaleTranslateMap`, `TranslationMap`, `AffineMap`, `UnitaryMap`; the frustum map is an
+//! "unsupported encoding"). Axis-aligned maps keep the per-axis arithmetic and bake in world
+//! space; a rotated or sheared grid bakes in its own frame and the pin file records the
+//! placement (see [`DensitySource::bake_frame`] and `GridFrame`). Sampling is trilinear
+//! between voxel centres. Fog volumes: inactive voxels and tiles are 0 whatever value they
+//! hold (an inactive value is not density), active values below 0 are clamped to 0.
 //!
 //! # Grid selection
 //!
@@ -30,8 +35,8 @@
 //! Refused unless `levelset_to_fog`, which maps the interior (negative distance) to density 1.
 //! vdb-rs loses the background value and the sign of inactive values, so the worker rebuilds
 //! the inside/outside classification with OpenVDB's signed flood fill over leaves and internal
-//! nodes. Root-level tiles are dropped by vdb-rs, so the interior of a level set wider than one
-//! 4096^3 root node can be incomplete.
+//! nodes; root tiles (kept by our vdb-rs patch) are inside when negative. See docs/vdb.md for
+//! every vdb-rs problem this module works around and the patches in vendor/vdb-rs.
 //!
 //! Not for: vector, integer or point grids; multi-grid compositing; writing VDB files.
 
@@ -42,7 +47,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use glam::{DVec3, IVec3};
+use glam::{DMat3, DVec3, IVec3};
 
 use super::{Aabb, DensityScale, DensitySource, SourceError, one_line};
 
@@ -57,9 +62,6 @@ const TAG_TILE: u8 = 2;
 const MAX_NAME: usize = 1024;
 /// Largest accepted extent of a grid, per axis, in voxels (OpenImageIO uses the same).
 pub const MAX_AXIS_VOXELS: i64 = 1 << 20;
-/// Largest accepted bounding-box volume in voxels: anything beyond is a decompression bomb,
-/// not a volume anyone bakes.
-pub const MAX_BOX_VOXELS: i64 = 1 << 40;
 const MIB: u64 = 1 << 20;
 
 /// How to open a VDB file.
@@ -357,9 +359,24 @@ fn check_header(path: &Path) -> Result<u32, String> {
     Ok(version)
 }
 
-/// Reads the transform map name of a grid (after its compression flags and metadata), so an
-/// unsupported map becomes a message instead of a vdb-rs panic.
-fn peek_transform_name(path: &Path, grid_pos: u64, version: u32) -> Result<String, String> {
+/// Bytes of a linear map's payload after its name, or `None` for a map this reader does not
+/// read (the frustum map, or a name OpenVDB does not write).
+fn linear_map_payload(name: &str) -> Option<usize> {
+    Some(match name {
+        // Scale, voxel size, inverse scale, inverse scale squared, inverse twice scale.
+        "UniformScaleMap" | "ScaleMap" => 5 * 24,
+        // The same after a translation.
+        "UniformScaleTranslateMap" | "ScaleTranslateMap" => 6 * 24,
+        "TranslationMap" => 24,
+        // One 4x4 matrix of doubles.
+        "AffineMap" | "UnitaryMap" => 128,
+        _ => return None,
+    })
+}
+
+/// Reads a grid's transform map name and its tree's buffer count (after its compression flags
+/// and metadata), so that an encoding vdb-rs would panic on becomes a message.
+fn peek_grid(path: &Path, grid_pos: u64, version: u32) -> Result<(String, Option<u32>), String> {
     use std::io::{Seek, SeekFrom};
     let mut f = std::fs::File::open(path).map_err(|e| format!("cannot open: {e}"))?;
     f.seek(SeekFrom::Start(grid_pos))
@@ -383,7 +400,12 @@ fn peek_transform_name(path: &Path, grid_pos: u64, version: u32) -> Result<Strin
         }
         p.bytes(len)?;
     }
-    p.string(1 << 10)
+    let map = p.string(1 << 10)?;
+    let Some(payload) = linear_map_payload(&map) else {
+        return Ok((map, None));
+    };
+    p.bytes(payload)?;
+    Ok((map, Some(p.u32()?)))
 }
 
 fn meta_vec3i(gd: &vdb_rs::GridDescriptor, key: &str) -> Option<glam024::IVec3> {
@@ -432,13 +454,8 @@ fn check_bbox(
             ext[2]
         ));
     }
-    let vol = ext[0].saturating_mul(ext[1]).saturating_mul(ext[2]);
-    if vol > MAX_BOX_VOXELS {
-        return Err(format!(
-            "grid '{name}' claims a {}x{}x{} bounding box ({vol} voxels, limit 2^40). Possible corrupt input?",
-            ext[0], ext[1], ext[2]
-        ));
-    }
+    // No limit on the box's volume: the reader is sparse, and OpenVDB writes valid grids
+    // with a few voxels 200,000 apart on every axis (see tests/vdb_corpus.rs).
     Ok(())
 }
 
@@ -495,14 +512,16 @@ fn worker_run(
         meta_vec3i(&gd, "file_bbox_min"),
         meta_vec3i(&gd, "file_bbox_max"),
     )?;
-    let map_name = peek_transform_name(path, gd.grid_pos, version)?;
-    if !matches!(
-        map_name.as_str(),
-        "UniformScaleMap" | "UniformScaleTranslateMap" | "ScaleTranslateMap"
-    ) {
+    let (map_name, buffers) = peek_grid(path, gd.grid_pos, version)?;
+    let Some(buffers) = buffers else {
         return Err(format!(
-            "grid '{shown}' uses transform '{}'; only UniformScaleMap, UniformScaleTranslateMap and ScaleTranslateMap are supported",
+            "unsupported encoding: grid '{shown}' uses transform '{}'; only linear maps (scale, translation, affine) are supported",
             one_line(&map_name)
+        ));
+    };
+    if buffers != 1 {
+        return Err(format!(
+            "unsupported encoding: grid '{shown}' has a tree with {buffers} value buffers; only single-buffer trees are supported"
         ));
     }
 
@@ -664,18 +683,7 @@ fn emit_grid<T: Val>(
     shown: &str,
     out: &mut impl Write,
 ) -> Result<(), String> {
-    let (scale, translation) = match &g.transform {
-        vdb_rs::Map::UniformScaleMap { scale_values, .. } => (*scale_values, glam024::DVec3::ZERO),
-        vdb_rs::Map::ScaleTranslateMap {
-            scale_values,
-            translation,
-            ..
-        } => (*scale_values, *translation),
-    };
-    for v in scale.to_array() {
-        put_f64(out, v)?;
-    }
-    for v in translation.to_array() {
+    for v in affine_rows(&g.transform, shown)? {
         put_f64(out, v)?;
     }
 
@@ -810,6 +818,40 @@ fn emit_grid<T: Val>(
             }
         }
     }
+    // Root tiles (4096^3 each). A level set's signed flood fill leaves the inside ones at
+    // -background, so their sign is the inside test.
+    for t in &g.tree.root_tiles {
+        let o = t.origin.to_array();
+        if o.iter().any(|c| c & 4095 != 0) {
+            return Err(format!(
+                "root tile at ({},{},{}) is misaligned (corrupt file)",
+                o[0], o[1], o[2]
+            ));
+        }
+        let v = t.value.to_f32();
+        active = active.saturating_add(u64::from(t.active) << 36);
+        let d = if level_set {
+            if v < 0.0 { 1.0 } else { 0.0 }
+        } else if !t.active {
+            0.0
+        } else if !v.is_finite() {
+            return Err(format!(
+                "grid '{shown}' has value {v} in the root tile at ({},{},{})",
+                o[0], o[1], o[2]
+            ));
+        } else {
+            if v < 0.0 {
+                negatives += 1;
+            }
+            v.max(0.0)
+        };
+        if d != 0.0 {
+            put_u8(out, TAG_TILE)?;
+            put_ivec(out, o)?;
+            put_u8(out, 3)?;
+            out.write_all(&d.to_le_bytes()).map_err(wr)?;
+        }
+    }
     if active == 0 {
         return Err(format!(
             "grid '{shown}' has no active voxels; contains no readable grids"
@@ -819,6 +861,36 @@ fn emit_grid<T: Val>(
     put_u64(out, active)?;
     put_u64(out, negatives)?;
     out.write_all(STREAM_END).map_err(wr)
+}
+
+/// The map as a row-major 3x4 matrix: `world = M[..3] * index + M[3]` row by row.
+fn affine_rows(map: &vdb_rs::Map, shown: &str) -> Result<[f64; 12], String> {
+    let diag = |s: glam024::DVec3, t: glam024::DVec3| {
+        [s.x, 0.0, 0.0, t.x, 0.0, s.y, 0.0, t.y, 0.0, 0.0, s.z, t.z]
+    };
+    Ok(match map {
+        vdb_rs::Map::UniformScaleMap { scale_values, .. } => {
+            diag(*scale_values, glam024::DVec3::ZERO)
+        }
+        vdb_rs::Map::ScaleTranslateMap {
+            scale_values,
+            translation,
+            ..
+        } => diag(*scale_values, *translation),
+        vdb_rs::Map::TranslationMap { translation } => diag(glam024::DVec3::ONE, *translation),
+        vdb_rs::Map::AffineMap { matrix } => {
+            // Column-major with column vectors; the last row must be (0, 0, 0, 1).
+            let row = |r: usize| matrix.row(r);
+            let w = row(3);
+            if w != glam024::DVec4::new(0.0, 0.0, 0.0, 1.0) {
+                return Err(format!(
+                    "unsupported encoding: grid '{shown}' has a projective transform matrix (last row {w}); only affine maps are supported"
+                ));
+            }
+            let (a, b, c) = (row(0), row(1), row(2));
+            [a.x, a.y, a.z, a.w, b.x, b.y, b.z, b.w, c.x, c.y, c.z, c.w]
+        }
+    })
 }
 
 /// Density of an internal-node tile: fog tiles count when active, level-set tiles when inside.
@@ -986,12 +1058,21 @@ pub struct VdbSource {
     /// 128^3 constant tiles keyed by `index >> 7`.
     big: KeyMap<f32>,
     big_base: IVec3,
+    /// 4096^3 constant root tiles keyed by `index >> 12`.
+    huge: KeyMap<f32>,
+    huge_base: IVec3,
     /// Leaf values, OpenVDB order (`x * 64 + y * 8 + z`).
     leaves: Vec<[f32; 512]>,
     leaf_max: Vec<f32>,
-    scale: DVec3,
-    inv_scale: DVec3,
+    /// Index to world: `world = lin * index + translation`.
+    lin: DMat3,
+    inv_lin: DMat3,
     translation: DVec3,
+    /// `(scale, 1 / scale)` of an axis-aligned map, which keeps the per-axis arithmetic (and
+    /// so the bits) of the scale-and-translate maps this reader started with.
+    diag: Option<(DVec3, DVec3)>,
+    /// `lin` and `translation` as the pin format's row-major 3x4 `local_to_world`.
+    xf: [f64; 12],
     /// Index box (inclusive voxel coordinates) of the non-zero voxels.
     index_min: IVec3,
     index_max: IVec3,
@@ -1012,8 +1093,8 @@ struct Stream {
     chosen: usize,
     kind: ValueKind,
     level_set: bool,
-    scale: DVec3,
-    translation: DVec3,
+    /// Index to world, row-major 3x4.
+    xf: [f64; 12],
     leaves: Vec<([i32; 3], [f32; 512])>,
     tiles: Vec<([i32; 3], u8, f32)>,
     active: u64,
@@ -1098,13 +1179,9 @@ fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, String> {
         1 => true,
         _ => return Err("worker stream has a bad grid class".into()),
     };
-    let mut scale = DVec3::ZERO;
-    let mut translation = DVec3::ZERO;
-    for a in 0..3 {
-        scale[a] = s.f64()?;
-    }
-    for a in 0..3 {
-        translation[a] = s.f64()?;
+    let mut xf = [0f64; 12];
+    for v in &mut xf {
+        *v = s.f64()?;
     }
     let max_leaves = file_size / 64 + 1;
     let max_tiles = file_size.saturating_mul(4) + 64;
@@ -1157,8 +1234,7 @@ fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, String> {
         chosen,
         kind,
         level_set,
-        scale,
-        translation,
+        xf,
         leaves,
         tiles,
         active,
@@ -1187,17 +1263,28 @@ impl VdbSource {
 
     fn from_stream(path: &Path, st: Stream, scale: DensityScale) -> Result<Self, String> {
         let grid = st.grids[st.chosen].display();
-        if !(st.scale.is_finite()
-            && st.scale.cmpne(DVec3::ZERO).all()
-            && st.translation.is_finite())
+        let x = st.xf;
+        let lin = DMat3::from_cols_array(&[x[0], x[4], x[8], x[1], x[5], x[9], x[2], x[6], x[10]]);
+        let translation = DVec3::new(x[3], x[7], x[11]);
+        let inv_lin = lin.inverse();
+        if !(x.iter().all(|v| v.is_finite())
+            && lin.determinant() != 0.0
+            && inv_lin.is_finite()
+            && inv_lin.determinant() != 0.0)
         {
             return Err(format!(
-                "grid '{grid}' has a degenerate transform (scale {}, translation {})",
-                st.scale, st.translation
+                "grid '{grid}' has a degenerate transform (index to world {:?})",
+                st.xf
             ));
         }
+        let off_diagonal = [x[1], x[2], x[4], x[6], x[8], x[9]];
+        let diag = off_diagonal.iter().all(|v| *v == 0.0).then(|| {
+            let s = DVec3::new(x[0], x[5], x[10]);
+            (s, s.recip())
+        });
         let mut blocks: KeyMap<Block> = KeyMap::default();
         let mut big: KeyMap<f32> = KeyMap::default();
+        let mut huge: KeyMap<f32> = KeyMap::default();
         let mut leaves = Vec::new();
         let mut leaf_max = Vec::new();
         let mut lo = IVec3::MAX;
@@ -1217,6 +1304,7 @@ impl VdbSource {
         // Keys are collected first so they can be packed relative to their minimum.
         let mut entries: Vec<(IVec3, Block)> = Vec::with_capacity(st.leaves.len() + st.tiles.len());
         let mut big_entries: Vec<(IVec3, f32)> = Vec::new();
+        let mut huge_entries: Vec<(IVec3, f32)> = Vec::new();
         for (o, vals) in &st.leaves {
             let o = IVec3::from_array(*o);
             if (o & 7) != IVec3::ZERO {
@@ -1253,6 +1341,7 @@ impl VdbSource {
             let size = match level {
                 1 => 8,
                 2 => 128,
+                3 => 4096,
                 _ => return Err("worker sent a tile of unknown size".into()),
             };
             if (o & (size - 1)) != IVec3::ZERO {
@@ -1260,13 +1349,17 @@ impl VdbSource {
             }
             lo = lo.min(o);
             hi = hi.max(o + (size - 1));
-            if size == 8 {
-                entries.push((o >> 3, Block::Const(s)));
-            } else {
-                big_entries.push((o >> 7, s));
+            match size {
+                8 => entries.push((o >> 3, Block::Const(s))),
+                128 => big_entries.push((o >> 7, s)),
+                _ => huge_entries.push((o >> 12, s)),
             }
         }
-        if leaves.is_empty() && entries.is_empty() && big_entries.is_empty() {
+        if leaves.is_empty()
+            && entries.is_empty()
+            && big_entries.is_empty()
+            && huge_entries.is_empty()
+        {
             return Err(format!(
                 "grid '{grid}' has {} active voxels but all are zero{}",
                 st.active,
@@ -1297,19 +1390,37 @@ impl VdbSource {
                 return Err(format!("worker sent two tiles at {}", k * 128));
             }
         }
+        let huge_base = lo >> 12;
+        for (k, v) in huge_entries {
+            let key = pack(k, huge_base).ok_or("tile key out of range")?;
+            if huge.insert(key, v).is_some() {
+                return Err(format!("worker sent two root tiles at {}", k * 4096));
+            }
+        }
 
         // Trilinear support reaches one voxel beyond the outermost non-zero centre.
-        let a = (lo - 1).as_dvec3() * st.scale + st.translation;
-        let b = (hi + 1).as_dvec3() * st.scale + st.translation;
-        let bounds = Aabb::new(a.min(b), a.max(b));
+        let to_world = |i: DVec3| match diag {
+            Some((s, _)) => i * s + translation,
+            None => lin * i + translation,
+        };
+        let (ilo, ihi) = ((lo - 1).as_dvec3(), (hi + 1).as_dvec3());
+        let mut bounds = Aabb::new(DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let i = DVec3::select(
+                glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0),
+                ihi,
+                ilo,
+            );
+            let w = to_world(i);
+            bounds = Aabb::new(bounds.min.min(w), bounds.max.max(w));
+        }
         // A transform with an absurd translation or scale (found by fuzzing: a translation
         // of -1.7e277) maps the grid to a box that f64 cannot resolve: its extent rounds to
         // zero or overflows. Nothing downstream can place pins in such a box.
         if !bounds.is_valid() || !bounds.extent().is_finite() {
             return Err(format!(
-                "grid '{grid}' has an unusable index-to-world transform (scale {:?}, translation {:?}): its world box is empty or not finite",
-                st.scale.to_array(),
-                st.translation.to_array()
+                "grid '{grid}' has an unusable index-to-world transform ({:?}): its world box is empty or not finite",
+                st.xf
             ));
         }
         let name = path
@@ -1326,8 +1437,11 @@ impl VdbSource {
                 ""
             },
             leaves.len(),
-            blocks.len() - leaves.len() + big.len(),
-            st.scale,
+            blocks.len() - leaves.len() + big.len() + huge.len(),
+            match diag {
+                Some((s, _)) => s.to_string(),
+                None => format!("{:?} (affine)", st.xf),
+            },
         );
         if st.negatives > 0 {
             label.push_str(&format!(", {} negative values clamped to 0", st.negatives));
@@ -1337,11 +1451,15 @@ impl VdbSource {
             block_base,
             big,
             big_base,
+            huge,
+            huge_base,
             leaves,
             leaf_max,
-            scale: st.scale,
-            inv_scale: st.scale.recip(),
-            translation: st.translation,
+            lin,
+            inv_lin,
+            translation,
+            diag,
+            xf: st.xf,
             index_min: lo,
             index_max: hi,
             bounds,
@@ -1352,129 +1470,37 @@ impl VdbSource {
 
     /// World position of index-space point `i` (voxel centres are at integers).
     pub fn index_to_world(&self, i: DVec3) -> DVec3 {
-        i * self.scale + self.translation
+        match self.diag {
+            Some((s, _)) => i * s + self.translation,
+            None => self.lin * i + self.translation,
+        }
     }
 
     /// Index-space position of world point `p`.
+    #[inline]
     pub fn world_to_index(&self, p: DVec3) -> DVec3 {
-        (p - self.translation) * self.inv_scale
-    }
-
-    /// Inclusive index box of the non-zero voxels.
-    pub fn index_bounds(&self) -> (IVec3, IVec3) {
-        (self.index_min, self.index_max)
-    }
-
-    /// Value of one voxel (0 where nothing is stored).
-    #[inline]
-    pub fn voxel(&self, i: IVec3) -> f32 {
-        if let Some(k) = pack(i >> 3, self.block_base)
-            && let Some(b) = self.blocks.get(&k)
-        {
-            return match *b {
-                Block::Dense(l) => {
-                    let l8 = i & 7;
-                    self.leaves[l as usize][((l8.x << 6) | (l8.y << 3) | l8.z) as usize]
-                }
-                Block::Const(v) => v,
-            };
+        match self.diag {
+            Some((_, inv)) => (p - self.translation) * inv,
+            None => self.inv_lin * (p - self.translation),
         }
-        if self.big.is_empty() {
-            return 0.0;
-        }
-        pack(i >> 7, self.big_base)
-            .and_then(|k| self.big.get(&k).copied())
-            .unwrap_or(0.0)
     }
 
-    #[inline]
-    fn sample_index(&self, u: DVec3) -> f32 {
-        let f = u.floor();
-        let i = f.as_ivec3();
-        let t = (u - f).as_vec3();
-        let l = i & 7;
-        let c: [f32; 8] = if l.x < 7 && l.y < 7 && l.z < 7 {
-            // All eight corners in one block: one hash lookup.
-            match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
-                Some(Block::Dense(li)) => {
-                    let leaf = &self.leaves[*li as usize];
-                    let b = ((l.x << 6) | (l.y << 3) | l.z) as usize;
-                    [
-                        leaf[b],
-                        leaf[b + 64],
-                        leaf[b + 8],
-                        leaf[b + 72],
-                        leaf[b + 1],
-                        leaf[b + 65],
-                        leaf[b + 9],
-                        leaf[b + 73],
-                    ]
-                }
-                Some(Block::Const(v)) => [*v; 8],
-                None if self.big.is_empty() => return 0.0,
-                None => self.corners(i),
-            }
-        } else {
-            self.corners(i)
-        };
-        let c00 = c[0] + (c[1] - c[0]) * t.x;
-        let c10 = c[2] + (c[3] - c[2]) * t.x;
-        let c01 = c[4] + (c[5] - c[4]) * t.x;
-        let c11 = c[6] + (c[7] - c[6]) * t.x;
-        let c0 = c00 + (c10 - c00) * t.y;
-        let c1 = c01 + (c11 - c01) * t.y;
-        (c0 + (c1 - c0) * t.z).max(0.0)
+    /// The index-to-world map as a row-major 3x4 matrix (the pin format's `local_to_world`).
+    pub fn index_to_world_matrix(&self) -> [f64; 12] {
+        self.xf
     }
 
-    /// Corner values in the order (x, then y, then z varying fastest-to-slowest).
-    fn corners(&self, i: IVec3) -> [f32; 8] {
-        let mut c = [0f32; 8];
-        for (n, v) in c.iter_mut().enumerate() {
-            let d = IVec3::new((n & 1) as i32, ((n >> 1) & 1) as i32, ((n >> 2) & 1) as i32);
-            *v = self.voxel(i + d);
-        }
-        c
-    }
-}
-
-impl DensitySource for VdbSource {
-    fn bounds(&self) -> Aabb {
-        self.bounds
+    /// True when the map only scales and translates each axis (no rotation or shear): the
+    /// index box is then a world-space box.
+    pub fn is_axis_aligned(&self) -> bool {
+        self.diag.is_some()
     }
 
-    #[inline]
-    fn extinction(&self, p: DVec3) -> f32 {
-        // The box test also keeps the index conversion in i32 range and rejects NaN.
-        if !(p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()) {
-            return 0.0;
-        }
-        self.sample_index((p - self.translation) * self.inv_scale)
-    }
-
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.bounds)
-    }
-
-    fn voxel_size(&self) -> Option<DVec3> {
-        // A negative scale mirrors the grid; the voxel is as large either way.
-        Some(self.scale.abs())
-    }
-
-    fn max_extinction_in(&self, region: Aabb) -> f32 {
-        let lo = region.min.max(self.bounds.min);
-        let hi = region.max.min(self.bounds.max);
-        if !lo.cmple(hi).all() {
-            return 0.0;
-        }
-        let a = self.world_to_index(lo);
-        let b = self.world_to_index(hi);
+    /// Largest value that trilinear sampling can return in the index-space box `[a, b]`.
+    fn max_in_index_box(&self, a: DVec3, b: DVec3) -> f32 {
         // Voxels within one voxel of the region influence it.
-        let ilo = (a.min(b).floor() - 1.0)
-            .max(self.index_min.as_dvec3())
-            .as_ivec3();
-        let ihi = (a.max(b).ceil() + 1.0)
-            .min(self.index_max.as_dvec3())
-            .as_ivec3();
+        let ilo = (a.floor() - 1.0).max(self.index_min.as_dvec3()).as_ivec3();
+        let ihi = (b.ceil() + 1.0).min(self.index_max.as_dvec3()).as_ivec3();
         if !ilo.cmple(ihi).all() {
             return 0.0;
         }
@@ -1524,23 +1550,279 @@ impl DensitySource for VdbSource {
                     m = m.max(*v);
                 }
             }
+            let (hlo, hhi): (IVec3, IVec3) = (ilo >> 12, ihi >> 12);
+            for (k, v) in &self.huge {
+                let key = IVec3::new(
+                    (k & lim) as i32,
+                    ((k >> 21) & lim) as i32,
+                    ((k >> 42) & lim) as i32,
+                ) + self.huge_base;
+                if key.cmpge(hlo).all() && key.cmple(hhi).all() {
+                    m = m.max(*v);
+                }
+            }
         }
         m
+    }
+
+    /// Inclusive index box of the non-zero voxels.
+    pub fn index_bounds(&self) -> (IVec3, IVec3) {
+        (self.index_min, self.index_max)
+    }
+
+    /// Value of one voxel (0 where nothing is stored).
+    #[inline]
+    pub fn voxel(&self, i: IVec3) -> f32 {
+        if let Some(k) = pack(i >> 3, self.block_base)
+            && let Some(b) = self.blocks.get(&k)
+        {
+            return match *b {
+                Block::Dense(l) => {
+                    let l8 = i & 7;
+                    self.leaves[l as usize][((l8.x << 6) | (l8.y << 3) | l8.z) as usize]
+                }
+                Block::Const(v) => v,
+            };
+        }
+        if !self.big.is_empty()
+            && let Some(v) = pack(i >> 7, self.big_base).and_then(|k| self.big.get(&k))
+        {
+            return *v;
+        }
+        if self.huge.is_empty() {
+            return 0.0;
+        }
+        pack(i >> 12, self.huge_base)
+            .and_then(|k| self.huge.get(&k).copied())
+            .unwrap_or(0.0)
+    }
+
+    #[inline]
+    fn sample_index(&self, u: DVec3) -> f32 {
+        let f = u.floor();
+        let i = f.as_ivec3();
+        let t = (u - f).as_vec3();
+        let l = i & 7;
+        let c: [f32; 8] = if l.x < 7 && l.y < 7 && l.z < 7 {
+            // All eight corners in one block: one hash lookup.
+            match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
+                Some(Block::Dense(li)) => {
+                    let leaf = &self.leaves[*li as usize];
+                    let b = ((l.x << 6) | (l.y << 3) | l.z) as usize;
+                    [
+                        leaf[b],
+                        leaf[b + 64],
+                        leaf[b + 8],
+                        leaf[b + 72],
+                        leaf[b + 1],
+                        leaf[b + 65],
+                        leaf[b + 9],
+                        leaf[b + 73],
+                    ]
+                }
+                Some(Block::Const(v)) => [*v; 8],
+                None if self.big.is_empty() && self.huge.is_empty() => return 0.0,
+                None => self.corners(i),
+            }
+        } else {
+            self.corners(i)
+        };
+        let c00 = c[0] + (c[1] - c[0]) * t.x;
+        let c10 = c[2] + (c[3] - c[2]) * t.x;
+        let c01 = c[4] + (c[5] - c[4]) * t.x;
+        let c11 = c[6] + (c[7] - c[6]) * t.x;
+        let c0 = c00 + (c10 - c00) * t.y;
+        let c1 = c01 + (c11 - c01) * t.y;
+        (c0 + (c1 - c0) * t.z).max(0.0)
+    }
+
+    /// Corner values in the order (x, then y, then z varying fastest-to-slowest).
+    fn corners(&self, i: IVec3) -> [f32; 8] {
+        let mut c = [0f32; 8];
+        for (n, v) in c.iter_mut().enumerate() {
+            let d = IVec3::new((n & 1) as i32, ((n >> 1) & 1) as i32, ((n >> 2) & 1) as i32);
+            *v = self.voxel(i + d);
+        }
+        c
+    }
+}
+
+impl DensitySource for VdbSource {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    #[inline]
+    fn extinction(&self, p: DVec3) -> f32 {
+        // The box test also keeps the index conversion in i32 range and rejects NaN.
+        if !(p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()) {
+            return 0.0;
+        }
+        self.sample_index(self.world_to_index(p))
+    }
+
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
+    }
+
+    fn voxel_size(&self) -> Option<DVec3> {
+        // The world length of one index step per axis; a negative scale mirrors the grid and
+        // the voxel is as large either way.
+        Some(match self.diag {
+            Some((s, _)) => s.abs(),
+            None => DVec3::new(
+                self.lin.x_axis.length(),
+                self.lin.y_axis.length(),
+                self.lin.z_axis.length(),
+            ),
+        })
+    }
+
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
+        if !lo.cmple(hi).all() {
+            return 0.0;
+        }
+        // The index box around the region's corners (for an axis-aligned map, the images of
+        // `lo` and `hi`).
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let i = self.world_to_index(p);
+            a = a.min(i);
+            b = b.max(i);
+        }
+        self.max_in_index_box(a, b)
     }
 
     fn describe(&self) -> String {
         self.label.clone()
     }
 
+    fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
+        // Axis-aligned grids keep baking in world space, as they always have.
+        let (frame, local_to_world) = GridFrame::new(self)?;
+        Some((Box::new(frame), local_to_world))
+    }
+
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
         for (i, o) in out.iter_mut().take(n).enumerate() {
             let p = origin + step * i as f64;
             *o = if p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all() {
-                self.sample_index((p - self.translation) * self.inv_scale)
+                self.sample_index(self.world_to_index(p))
             } else {
                 0.0
             };
         }
+    }
+}
+
+/// A rotated or sheared grid in its own frame, which is where the baker works on it: the
+/// index axes, turned into world units. With `index_to_world = Q R + t` (QR decomposition of
+/// the linear part: `Q` orthonormal, `R` upper triangular), local = `R index`, and the rigid
+/// `[Q | t]` places the result. Index space itself would not do: pins store optical depth,
+/// and a non-uniform scale or shear makes a unit of index length a direction-dependent world
+/// length; a rigid placement keeps lengths, so local extinction is world extinction.
+///
+/// For a rotation times a per-axis scale, `R` is that scale and the pin box is exactly the
+/// grid's index box scaled; for a shear it is the box around the sheared index box.
+struct GridFrame<'a> {
+    grid: &'a VdbSource,
+    /// Local to index (`R^-1`).
+    to_index: DMat3,
+    /// The local box: `R` applied to the index box.
+    bounds: Aabb,
+}
+
+impl<'a> GridFrame<'a> {
+    /// The frame and its `local_to_world` (row-major 3x4), or `None` when the map is
+    /// axis-aligned or degenerate.
+    fn new(grid: &'a VdbSource) -> Option<(Self, [f64; 12])> {
+        if grid.diag.is_some() {
+            return None;
+        }
+        // Gram-Schmidt on the columns of the linear part (the image of each index axis).
+        let m = grid.lin;
+        let q0 = m.x_axis.normalize();
+        let q1 = (m.y_axis - q0 * q0.dot(m.y_axis)).normalize();
+        let q2 = (m.z_axis - q0 * q0.dot(m.z_axis) - q1 * q1.dot(m.z_axis)).normalize();
+        let q = DMat3::from_cols(q0, q1, q2);
+        let r = q.transpose() * m;
+        let to_index = r.inverse();
+        if !(q.is_finite() && to_index.is_finite()) {
+            return None;
+        }
+        let (lo, hi) = (
+            (grid.index_min - 1).as_dvec3(),
+            (grid.index_max + 1).as_dvec3(),
+        );
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let i = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let l = r * i;
+            a = a.min(l);
+            b = b.max(l);
+        }
+        let t = grid.translation;
+        let xf = [
+            q.x_axis.x, q.y_axis.x, q.z_axis.x, t.x, q.x_axis.y, q.y_axis.y, q.z_axis.y, t.y,
+            q.x_axis.z, q.y_axis.z, q.z_axis.z, t.z,
+        ];
+        Some((
+            Self {
+                grid,
+                to_index,
+                bounds: Aabb::new(a, b),
+            },
+            xf,
+        ))
+    }
+
+    fn index_inside(&self, u: DVec3) -> bool {
+        let g = self.grid;
+        u.cmpge((g.index_min - 1).as_dvec3()).all() && u.cmple((g.index_max + 1).as_dvec3()).all()
+    }
+}
+
+impl DensitySource for GridFrame<'_> {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    fn extinction(&self, p: DVec3) -> f32 {
+        if !(p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()) {
+            return 0.0;
+        }
+        let u = self.to_index * p;
+        if !self.index_inside(u) {
+            return 0.0;
+        }
+        self.grid.sample_index(u)
+    }
+
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
+    }
+
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
+        if !lo.cmple(hi).all() {
+            return 0.0;
+        }
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let u = self.to_index * p;
+            a = a.min(u);
+            b = b.max(u);
+        }
+        self.grid.max_in_index_box(a, b)
+    }
+
+    fn describe(&self) -> String {
+        format!("{}, baked in the grid's own frame", self.grid.label)
     }
 }
 
@@ -1654,10 +1936,19 @@ fn run_worker(path: &Path, opt: &VdbOptions, file_size: u64, limit: u64) -> Resu
         return parsed;
     }
     if stderr_text.contains("memory allocation of") {
-        return Err(format!(
-            "VDB reader needs more than {} MiB of memory (its limit; the file may be corrupt)",
-            limit / MIB
-        ));
+        // The default limit is 64 MiB + 64 x the file size; every stored node carries its
+        // masks uncompressed, so a valid file stays below it (docs/vdb.md).
+        return Err(if opt.memory_limit.is_some() {
+            format!(
+                "VDB reader needs more than {} MiB of memory (the limit it was given)",
+                limit / MIB
+            )
+        } else {
+            format!(
+                "VDB reader needs more than {} MiB of memory, more than a valid file of {file_size} bytes needs (docs/vdb.md): the file is probably corrupt",
+                limit / MIB
+            )
+        });
     }
     #[cfg(unix)]
     {
@@ -1734,7 +2025,9 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.contains("out-of-range"), "{e}");
-        let e = check_bbox("g", Some(v(0, 0, 0)), Some(v(200000, 200000, 200000))).unwrap_err();
+        // A huge but sparse box is valid.
+        assert!(check_bbox("g", Some(v(0, 0, 0)), Some(v(200000, 200000, 200000))).is_ok());
+        let e = check_bbox("g", Some(v(0, 0, 0)), Some(v(2000000, 0, 0))).unwrap_err();
         assert!(e.contains("bounding box"), "{e}");
     }
 

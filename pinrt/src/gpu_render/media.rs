@@ -32,7 +32,7 @@ pub struct CosineWave {
 /// The extinction function of a [`GpuDensity`], in its local frame.
 #[derive(Clone, Debug)]
 pub enum GpuDensityKind {
-    /// A dense voxel grid in the convention of [`VoxelGrid`] (DESIGN section 2): dims `N`,
+    /// A dense voxel grid in the convention of [`VoxelGrid`] (docs/background.md section 2): dims `N`,
     /// spacing `s`, origin `o` occupy `[o, o + N s]`, voxel centres at `o + (i + 0.5) s`,
     /// trilinear between centres, the edge voxel's value in the outer half voxel; values `x`
     /// fastest, cleaned by [`VoxelGrid::new`]. Evaluated in f32 on the GPU.

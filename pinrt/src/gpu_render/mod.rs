@@ -199,8 +199,8 @@ struct RtParams {
     seed: [u32; 4],
 }
 
-/// The transport estimator of a GPU render (the CPU's `rm@STEP`, `delta`, `ratio`, `pins`,
-/// `pinms`).
+/// The transport estimator of a GPU render (the CPU's `rm@STEP`, `delta`, `ratio`,
+/// `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum GpuEstimator {
     /// Ray marching, midpoint rule, step `rel_step` (in `(0, 1]`) times the longest edge of
@@ -211,6 +211,12 @@ pub enum GpuEstimator {
     /// Ratio tracking for transmittance, delta tracking for distances. Needs a density and
     /// majorants on every medium.
     RatioTracking,
+    /// Unbiased ray marching (combs of `lookups` per longest edge of the majorant box) for
+    /// transmittance, delta tracking for distances. Needs a density and majorants.
+    Urm { lookups: u32 },
+    /// Jackknife transmittance (two combs of `lookups` per longest edge of the majorant
+    /// box), delta tracking for distances. Needs a density and majorants.
+    Jackknife { lookups: u32 },
     /// The pin grid for every query. Needs pins on every medium.
     Pins,
     /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
@@ -223,11 +229,19 @@ const EST_MARCH: u32 = 0;
 const EST_DELTA: u32 = 1;
 const EST_RATIO: u32 = 2;
 const EST_PINS: u32 = 3;
+const EST_URM: u32 = 4;
+const EST_JACKKNIFE: u32 = 5;
 
 impl GpuEstimator {
-    /// Parses the names the CLI and the evaluation use: `rm@STEP`, `delta`, `ratio`, `pins`,
-    /// `pinms`.
+    /// Parses the names the CLI and the evaluation use: `rm@STEP`, `delta`, `ratio`,
+    /// `urm[@N]`, `jackknife[@N]`, `pins`, `pinms` (a comb name with a bad count is `None`).
     pub fn parse(name: &str) -> Option<Self> {
+        if let Some(parsed) = crate::render::CombKind::parse(name) {
+            return Some(match parsed.ok()? {
+                (crate::render::CombKind::Urm, lookups) => Self::Urm { lookups },
+                (crate::render::CombKind::Jackknife, lookups) => Self::Jackknife { lookups },
+            });
+        }
         Some(match name {
             "delta" => Self::DeltaTracking,
             "ratio" => Self::RatioTracking,
@@ -246,6 +260,13 @@ impl GpuEstimator {
             Self::RayMarching { rel_step } => format!("rm@{rel_step}"),
             Self::DeltaTracking => "delta".into(),
             Self::RatioTracking => "ratio".into(),
+            // The default count is the bare name, as the evaluation's CPU rows spell it.
+            Self::Urm { lookups } if lookups == crate::render::URM_DEFAULT_LOOKUPS => "urm".into(),
+            Self::Jackknife { lookups } if lookups == crate::render::JACKKNIFE_DEFAULT_LOOKUPS => {
+                "jackknife".into()
+            }
+            Self::Urm { lookups } => format!("urm@{lookups}"),
+            Self::Jackknife { lookups } => format!("jackknife@{lookups}"),
             Self::Pins => "pins".into(),
             Self::PinMs => "pinms".into(),
         }
@@ -257,14 +278,18 @@ impl GpuEstimator {
             Self::RayMarching { .. } => (EST_MARCH, EST_MARCH),
             Self::DeltaTracking => (EST_DELTA, EST_DELTA),
             Self::RatioTracking => (EST_RATIO, EST_RATIO),
+            Self::Urm { .. } => (EST_URM, EST_URM),
+            Self::Jackknife { .. } => (EST_JACKKNIFE, EST_JACKKNIFE),
             Self::Pins => (EST_PINS, EST_PINS),
             Self::PinMs => (EST_RATIO, EST_PINS),
         }
     }
 
+    /// `RP.material.z`: the march step, or a comb's spacing, relative to the longest edge.
     fn rel_step(self) -> f64 {
         match self {
             Self::RayMarching { rel_step } => rel_step,
+            Self::Urm { lookups } | Self::Jackknife { lookups } => 1.0 / lookups.max(1) as f64,
             _ => 0.0,
         }
     }
@@ -285,8 +310,12 @@ impl GpuEstimator {
         let any = |code: u32| p == code || s == code;
         media::Caps {
             pins: any(EST_PINS),
-            density: any(EST_MARCH) || any(EST_DELTA) || any(EST_RATIO),
-            majorants: any(EST_DELTA) || any(EST_RATIO),
+            density: any(EST_MARCH)
+                || any(EST_DELTA)
+                || any(EST_RATIO)
+                || any(EST_URM)
+                || any(EST_JACKKNIFE),
+            majorants: any(EST_DELTA) || any(EST_RATIO) || any(EST_URM) || any(EST_JACKKNIFE),
         }
     }
 
@@ -297,6 +326,17 @@ impl GpuEstimator {
             return Err(RenderError::Invalid {
                 what: "ray marching step",
                 why: format!("relative step {rel_step} must be in (0, 1]"),
+            });
+        }
+        if let Self::Urm { lookups } | Self::Jackknife { lookups } = self
+            && !(1..=crate::render::comb::MAX_COMB_LOOKUPS as u32).contains(&lookups)
+        {
+            return Err(RenderError::Invalid {
+                what: "comb lookups",
+                why: format!(
+                    "{lookups} lookups per edge must be in 1..={}",
+                    crate::render::comb::MAX_COMB_LOOKUPS
+                ),
             });
         }
         Ok(())

@@ -576,6 +576,14 @@ impl MultiScene {
                     GpuEstimator::RatioTracking => Medium::single(ratio),
                     GpuEstimator::Pins => Medium::single(self.samplers[k].clone()),
                     GpuEstimator::PinMs => Medium::new(ratio, self.samplers[k].clone()),
+                    GpuEstimator::Urm { lookups } => {
+                        Medium::single(crate::render::CombKind::Urm.build(f, maj, lookups).unwrap())
+                    }
+                    GpuEstimator::Jackknife { lookups } => Medium::single(
+                        crate::render::CombKind::Jackknife
+                            .build(f, maj, lookups)
+                            .unwrap(),
+                    ),
                 }
             })
             .collect()
@@ -635,6 +643,8 @@ fn every_estimator_matches_cpu_with_instances() {
         GpuEstimator::RatioTracking,
         GpuEstimator::Pins,
         GpuEstimator::PinMs,
+        GpuEstimator::Urm { lookups: 8 },
+        GpuEstimator::Jackknife { lookups: 8 },
     ] {
         let name = format!("3 instances, {}", est.name());
         compare_with(
@@ -852,7 +862,7 @@ fn media_and_estimators_are_checked() {
     assert_eq!(grid.parts().3, &[0.0, 0.0, f32::MAX, 2.0]);
 }
 
-/// DESIGN section 5 on the GPU path tracer: an empty medium (extinction 0, majorant 0), an
+/// docs/background.md section 3 on the GPU path tracer: an empty medium (extinction 0, majorant 0), an
 /// opaque one (extinction 1e30, majorant 1e30) and NaN / infinite voxels give finite images
 /// with the expected transmittance for every estimator.
 #[test]
@@ -867,6 +877,8 @@ fn stiff_media_stay_finite() {
         GpuEstimator::RayMarching { rel_step: 0.05 },
         GpuEstimator::DeltaTracking,
         GpuEstimator::RatioTracking,
+        GpuEstimator::Urm { lookups: 16 },
+        GpuEstimator::Jackknife { lookups: 16 },
     ];
     for (label, value, expect_t) in [
         ("empty", 0.0f32, 1.0f32),
@@ -906,6 +918,12 @@ fn stiff_media_stay_finite() {
                 GpuEstimator::DeltaTracking => {
                     Arc::new(crate::render::DeltaTracking::new(grid.clone(), maj.clone()))
                 }
+                GpuEstimator::Urm { lookups } => crate::render::CombKind::Urm
+                    .build(grid.clone(), maj.clone(), lookups)
+                    .unwrap(),
+                GpuEstimator::Jackknife { lookups } => crate::render::CombKind::Jackknife
+                    .build(grid.clone(), maj.clone(), lookups)
+                    .unwrap(),
                 _ => Arc::new(crate::render::RatioTracking::new(grid.clone(), maj.clone())),
             };
             let cpu = cpu_render_media(vec![Medium::single(cpu_est)], &sc, 4, 1);

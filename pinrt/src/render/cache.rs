@@ -1,7 +1,7 @@
 //! # Path-space radiance cache (`pinms+cache`)
 //!
 //! A hash-grid radiance cache for the volumetric path tracer after the adaptive path space
-//! filtering thesis (papers/adaptive-path-space-filtering.txt, sections 2.4 and 4.2) and
+//! filtering thesis (docs/background.md, sections 2.4 and 4.2) and
 //! Binder et al.'s hashed cells it builds on:
 //!
 //! * **Cells**: a vertex position is quantised on a grid whose cell size grows with the

@@ -1,6 +1,6 @@
 //! # Closed-form transmittance and distance sampling (`cosine-closed-form`)
 //!
-//! The estimator of the cosine-noise paper (papers/closed-form-cosine-noise-transmittance.txt,
+//! The estimator of the cosine-noise paper (docs/background.md,
 //! sections 4 and 5) for any field whose optical depth along a segment has a closed form:
 //! transmittance is `exp(-tau)` evaluated exactly (deterministic, no noise) and a free-flight
 //! distance is found by drawing a target optical depth `-ln(1 - u)` and inverting the

@@ -87,7 +87,7 @@ impl<F: Fn(Vec3) -> f32 + Send + Sync> DensityField for FnField<F> {
     }
 }
 
-/// A dense voxel grid in the project's shared convention (DESIGN section 2, Mitsuba's grid
+/// A dense voxel grid in the project's shared convention (docs/background.md section 2, Mitsuba's grid
 /// volume): dims `N`, spacing `s`, origin `o` occupy `[o, o + N s]`, voxel centres at
 /// `o + (i + 0.5) s`, trilinear between centres, the edge voxel's value in the outer half voxel,
 /// 0 outside. Values are `x` fastest, then `y`, then `z`.

@@ -2,7 +2,7 @@
 //!
 //! A small, CPU-parallel, deterministic path tracer for grey participating media, used to
 //! *see* what an estimator does and to *measure* it: error (RMSE, relative MSE) against run
-//! time, per estimator, on the same scene (DESIGN sections 2, 6). Every transport query
+//! time, per estimator, on the same scene (docs/background.md section 2, docs/evaluation.md). Every transport query
 //! goes through the object-safe [`TransportEstimator`] trait, so ray marching, delta and
 //! ratio tracking (here) and the pin estimators (plugged in from outside) are compared
 //! under exactly the same path tracer.
@@ -92,6 +92,7 @@
 mod bounds;
 pub mod cache;
 pub mod closed_form;
+pub mod comb;
 mod estimator;
 mod field;
 mod image;
@@ -107,8 +108,9 @@ mod tests;
 pub use cache::{CacheSettings, RadianceCache};
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
-    DeltaTracking, MAX_MARCH_STEPS, MAX_TRACKING_STEPS, RatioTracking, RayMarching,
-    TransportEstimator,
+    CombKind, DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
+    MAX_TRACKING_STEPS, RatioTracking, RayMarching, TransportEstimator, URM_DEFAULT_LOOKUPS,
+    UnbiasedRayMarching,
 };
 pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};

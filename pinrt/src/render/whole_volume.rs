@@ -1,6 +1,6 @@
 //! # Whole-volume single scattering in a homogeneous box (`whole-volume`)
 //!
-//! The collimated-light paper (papers/whole-volume-collimated-scattering.txt, sections 4-6)
+//! The collimated-light paper (docs/background.md, sections 4-6)
 //! for an axis-aligned homogeneous box lit by the [`Sun`](super::Sun):
 //!
 //! * **Analytic unoccluded single scattering** along a camera ray. For a point `o + t d` in

@@ -1,5 +1,8 @@
 //! `pinrender bench`: queries per second of pins vs ray marching the source density at
-//! relative steps 0.015 and 0.005, on the same random rays, CPU single thread and wgpu.
+//! relative steps 0.015 and 0.005, unbiased ray marching (`urm`) and jackknife transmittance
+//! (`jackknife`), on the same random rays, CPU single thread and wgpu. Transmittance rows also
+//! carry their mean absolute error against a converged per-ray reference (ray marching at
+//! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -8,12 +11,14 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::DVec3;
+use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrt::march::{self, MarchBox};
+use pinrt::render::{CombKind, Pcg32};
 use pinrt::{PinGrid, RayQuery, Rng};
 use serde_json::{Value, json};
 
-use crate::volume::{self, VolumeArgs};
+use crate::volume::{self, SourceField, VolumeArgs};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -31,7 +36,8 @@ pub struct BenchArgs {
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
-    /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s}, ...]}.
+    /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
+    /// mean_abs_error?, error_rays?}, ...]} (the error fields on transmittance rows).
     #[arg(long)]
     pub json: bool,
     /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
@@ -39,6 +45,15 @@ pub struct BenchArgs {
     #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,
 }
+
+/// Relative step of the per-ray reference (1/4000 of the longest edge: 1/16 of a voxel of
+/// the 256^3 noise; the midpoint rule's error is then far below any estimator's here).
+pub const REFERENCE_STEP: f64 = 0.00025;
+/// Majorant bricks per axis for the `urm` and `jackknife` rows, as `pinrender render`'s
+/// default (the grid sets their lookups per majorant optical depth).
+pub const MAJORANT_BRICKS: u32 = 16;
+/// Rays (the first ones of each volume) over which the mean absolute errors are taken.
+pub const ERROR_RAYS: usize = 2000;
 
 /// The 256^3 voxelised cosine noise of the benchmark (no file needed).
 fn noise_volume() -> Result<Arc<dyn DensitySource>> {
@@ -117,29 +132,69 @@ fn row(volume: &str, method: &str, query: &str, backend: &str, qps: f64) -> Valu
     json!({"volume": volume, "method": method, "query": query, "backend": backend, "queries_per_s": qps})
 }
 
+/// A transmittance row with its mean absolute error against `reference` (per ray, the first
+/// `min(estimates, reference)` rays).
+fn row_err(
+    volume: &str,
+    method: &str,
+    backend: &str,
+    qps: f64,
+    estimates: &[f64],
+    reference: &[f64],
+) -> Value {
+    let n = estimates.len().min(reference.len());
+    let mae = estimates[..n]
+        .iter()
+        .zip(&reference[..n])
+        .map(|(e, r)| (e - r).abs())
+        .sum::<f64>()
+        / n.max(1) as f64;
+    let mut r = row(volume, method, "transmittance", backend, qps);
+    r["mean_abs_error"] = json!(mae);
+    r["error_rays"] = json!(n);
+    r
+}
+
 fn bench_volume(
     name: &str,
-    source: &dyn DensitySource,
+    source_arc: &Arc<dyn DensitySource>,
     grid: &PinGrid,
     args: &BenchArgs,
     gpu: Option<&pinrt::gpu::GpuContext>,
     rows: &mut Vec<Value>,
 ) -> Result<()> {
+    let source: &dyn DensitySource = source_arc.as_ref();
     let rays = random_rays(source, args.rays);
     let sampler = grid.sampler()?;
+    let b = source.bounds();
+    let mbox = MarchBox {
+        min: b.min,
+        max: b.max,
+    };
+    let density = |p: DVec3| source.extinction(p);
+    let ray_od = |r: &RayQuery| {
+        (
+            DVec3::from(r.origin.map(f64::from)),
+            DVec3::from(r.dir.map(f64::from)),
+        )
+    };
+    let n_err = rays.len().min(ERROR_RAYS);
+    let reference: Vec<f64> = rays[..n_err]
+        .iter()
+        .map(|r| {
+            let (o, d) = ray_od(r);
+            march::transmittance(density, &mbox, o, d, f64::INFINITY, REFERENCE_STEP)
+        })
+        .collect();
     // Pins, batched, one thread. A warm-up pass first so page faults of the mmap are not timed.
     let mut t_out = vec![0.0f32; rays.len()];
     let mut d_out = vec![None; rays.len()];
     sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
     let t = Instant::now();
     sampler.transmittance_batch(&rays, 2, 0, &mut t_out);
-    rows.push(row(
-        name,
-        "pins",
-        "transmittance",
-        "cpu",
-        rays.len() as f64 / t.elapsed().as_secs_f64(),
-    ));
+    let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+    let est: Vec<f64> = t_out.iter().map(|&t| f64::from(t)).collect();
+    rows.push(row_err(name, "pins", "cpu", qps, &est, &reference));
     let t = Instant::now();
     sampler.sample_distance_batch(&rays, 3, 0, &mut d_out);
     rows.push(row(
@@ -150,30 +205,24 @@ fn bench_volume(
         rays.len() as f64 / t.elapsed().as_secs_f64(),
     ));
 
-    let b = source.bounds();
-    let mbox = MarchBox {
-        min: b.min,
-        max: b.max,
-    };
     let n_rm = (rays.len() / 4).max(1);
-    let density = |p: DVec3| source.extinction(p);
     for step in [0.015, 0.005] {
         let t = Instant::now();
-        let mut acc = 0.0;
+        let mut est = Vec::with_capacity(n_rm);
         for r in &rays[..n_rm] {
-            let o = DVec3::from(r.origin.map(f64::from));
-            let d = DVec3::from(r.dir.map(f64::from));
-            acc += march::transmittance(density, &mbox, o, d, f64::INFINITY, step);
+            let (o, d) = ray_od(r);
+            est.push(march::transmittance(
+                density,
+                &mbox,
+                o,
+                d,
+                f64::INFINITY,
+                step,
+            ));
         }
-        std::hint::black_box(acc);
+        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
         let method = format!("rm@{step}");
-        rows.push(row(
-            name,
-            &method,
-            "transmittance",
-            "cpu",
-            n_rm as f64 / t.elapsed().as_secs_f64(),
-        ));
+        rows.push(row_err(name, &method, "cpu", qps, &est, &reference));
         let t = Instant::now();
         let mut hits = 0usize;
         for (i, r) in rays[..n_rm].iter().enumerate() {
@@ -193,15 +242,41 @@ fn bench_volume(
         ));
     }
 
+    // The comb estimators at their default lookups, on the same rays as ray marching, as
+    // the path tracer builds them: combs and their majorant-depth rule over a majorant grid
+    // of the source (built once, not timed).
+    let field = Arc::new(SourceField(source_arc.clone()));
+    let majorants = volume::majorants(&field, MAJORANT_BRICKS)?;
+    for kind in [CombKind::Urm, CombKind::Jackknife] {
+        let est = kind
+            .build(field.clone(), majorants.clone(), kind.default_lookups())
+            .map_err(|e| anyhow!("{e}"))?;
+        let mut rng = Pcg32::new(6, kind as u64);
+        let t = Instant::now();
+        let est: Vec<f64> = rays[..n_rm]
+            .iter()
+            .map(|r| {
+                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+                f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng))
+            })
+            .collect();
+        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        let method = match kind {
+            CombKind::Urm => "urm",
+            CombKind::Jackknife => "jackknife",
+        };
+        rows.push(row_err(name, method, "cpu", qps, &est, &reference));
+    }
+
     if let Some(ctx) = gpu {
         let g = pinrt::gpu::GpuPinGrid::upload(ctx, grid)?;
         g.run_queries(&rays[..rays.len().min(4096)], 0, 0)?; // warm-up: pipeline, buffers
         let t = Instant::now();
         let res = g.run_queries(&rays, 5, 0)?;
         let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
-        std::hint::black_box(res);
+        let est: Vec<f64> = res.iter().map(|q| f64::from(q.transmittance)).collect();
         // One dispatch answers both queries; report it under both names.
-        rows.push(row(name, "pins", "transmittance", "gpu", qps));
+        rows.push(row_err(name, "pins", "gpu", qps, &est, &reference));
         rows.push(row(name, "pins", "distance", "gpu", qps));
     }
     Ok(())
@@ -238,7 +313,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             Some(p) => PinGrid::open(p).map_err(|e| anyhow!("{e}"))?,
             None => cached_pins(name, source.as_ref(), args.cells)?,
         };
-        bench_volume(name, source.as_ref(), &grid, &args, gpu.as_ref(), &mut rows)?;
+        bench_volume(name, source, &grid, &args, gpu.as_ref(), &mut rows)?;
     }
     if args.json {
         println!("{}", json!({"results": rows}));
@@ -248,8 +323,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("gpu: {}", ctx.describe());
     }
     println!(
-        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10}",
-        "volume", "method", "query", "on", "queries/s", "pins/x"
+        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10} {:>10}",
+        "volume", "method", "query", "on", "queries/s", "pins/x", "mean|err|"
     );
     for r in &rows {
         let base = rows
@@ -263,14 +338,18 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .and_then(|b| b["queries_per_s"].as_f64())
             .unwrap_or(f64::NAN);
         let q = r["queries_per_s"].as_f64().unwrap_or(f64::NAN);
+        let err = r["mean_abs_error"]
+            .as_f64()
+            .map_or(String::new(), |e| format!("{e:.2e}"));
         println!(
-            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1}",
+            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
             r["query"].as_str().unwrap_or(""),
             r["backend"].as_str().unwrap_or(""),
             q,
-            base / q
+            base / q,
+            err
         );
     }
     Ok(())

@@ -64,7 +64,10 @@ pub fn dir() -> Result<PathBuf> {
 pub fn path(name: &str) -> Result<PathBuf> {
     let p = dir()?.join(name);
     if !p.is_file() {
-        bail!("{}: sample volume not found in the data folder", p.display());
+        bail!(
+            "{}: sample volume not found in the data folder",
+            p.display()
+        );
     }
     Ok(p)
 }

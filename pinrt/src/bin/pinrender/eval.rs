@@ -11,17 +11,24 @@
 //!
 //! Rows marked `(gpu)` (CSV: backend `gpu`) are the WGSL path tracer
 //! ([`pinrt::gpu_render::GpuRenderer`]) with every estimator it has (`rm@STEP`, `delta`,
-//! `ratio`, `pins`, `pinms`) over the scene's media as the CPU sees them: the same pin grid,
+//! `ratio`, `urm`, `jackknife`, `pins`, `pinms`) over the scene's media as the CPU sees them: the same pin grid,
 //! placements and lookup jitter, a GPU copy of the density ([`scenes::gpu_media`]) and the
 //! CPU's majorant grids; measured the same way (`--gpu-batch` spp per render call, distinct
 //! seeds, averaged); the one-time renderer setup (upload, pipeline compile) is reported but
 //! not counted. `--no-gpu` skips them; without an adapter the run warns and the report says
 //! "GPU: no adapter".
 //!
-//! Outputs (in `--out`): `results.csv`, `bake.csv`, `error_vs_time_<scene>.png`,
-//! `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at the largest budget),
-//! `<scene>/reference.exr` and `report.md`; with `--docs DIR` also `DIR/evaluation.md` (the
-//! part above `<!-- companion papers -->`) and small PNG copies under `DIR/eval/`.
+//! Outputs (in `--out`), a contract that scripts rely on: `errors.csv` (header
+//! `scene,estimator,backend,seconds,rmse,relmse,budget_s,spp`: the first six columns are
+//! fixed, later ones may be added), `errors.png` (error against time, every scene),
+//! `summary.md` (the report); also `bake.csv`, `error_vs_time_<scene>.png`,
+//! `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at the largest budget) and
+//! `<scene>/reference.exr`. With `--docs DIR` also `DIR/evaluation.md` (the part above
+//! `<!-- companion papers -->`) and small PNG copies under `DIR/eval/`.
+//!
+//! Each reference is rendered as two independent halves; half their RMSE against each other
+//! is the reference's own noise, reported per scene, and a time-to-error target below twice
+//! that noise prints "n/a (reference noise)" instead of a speedup that would measure noise.
 
 mod plot;
 mod report;
@@ -47,7 +54,7 @@ use crate::volume::{PinsEstimator, leak_grid};
 use scenes::{EvalScene, RefKind, Sizes};
 
 /// Bump when anything that changes reference images changes (renderer, scenes).
-pub const REFERENCE_VERSION: &str = "eval-ref-v1";
+pub const REFERENCE_VERSION: &str = "eval-ref-v2";
 
 #[derive(Args, Debug)]
 #[command(after_help = "\
@@ -55,11 +62,13 @@ Scenes: smoke (OpenVDB smoke), hydrogen (raw u8 128^3), cosine (high-frequency c
 closed-form reference), box (homogeneous box, closed-form reference), box-ss (its single
 scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
-Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), pins (pins for
-every ray), pinms (ratio tracking for primary rays and single scattering, pins after),
-pinms+cache (pinms with the hash-grid radiance cache), cosine-closed-form / box-closed-form
-(exact transmittance), whole-volume (box-ss only). rm@STEP, delta, ratio, pins and pinms also run
-on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
+Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), urm[@N]
+(unbiased ray marching), jackknife[@N] (jackknife transmittance; both: combs of N lookups per
+longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
+tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
+hash-grid radiance cache), cosine-closed-form / box-closed-form (exact transmittance),
+whole-volume (box-ss only). rm@STEP, delta, ratio, urm, jackknife, pins and pinms also run on
+the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
 Example: pinrender eval --out out/eval --docs docs")]
 pub struct EvalArgs {
@@ -69,7 +78,7 @@ pub struct EvalArgs {
     /// Tiny images, budgets and references: an end-to-end smoke test in seconds.
     #[arg(long)]
     pub quick: bool,
-    /// Time budgets in seconds, comma separated (default 0.25,0.5,1,2,4; --quick 0.01,0.03).
+    /// Time budgets in seconds, comma separated (default 0.25,0.5,1,2,4; --quick 0.1,0.2,0.4).
     #[arg(long, value_delimiter = ',')]
     pub budgets: Option<Vec<f64>>,
     /// Only these scenes (comma separated).
@@ -197,6 +206,9 @@ pub struct SceneResult {
     pub reference: String,
     pub reference_spp: u32,
     pub reference_seconds: Option<f64>,
+    /// The reference's own RMSE (its Monte Carlo noise), estimated from two independent
+    /// halves: errors measured against it cannot fall below this.
+    pub reference_noise: f64,
     pub bake: Option<BakeInfo>,
     /// The GPU line of the scene (setup time, or why there is no GPU row).
     pub gpu_note: Option<String>,
@@ -242,7 +254,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let mut budgets = a.budgets.clone().unwrap_or_else(|| {
         if a.quick {
-            vec![0.01, 0.03]
+            vec![0.1, 0.2, 0.4]
         } else {
             vec![0.25, 0.5, 1.0, 2.0, 4.0]
         }
@@ -282,25 +294,23 @@ pub fn run(a: EvalArgs) -> Result<()> {
             .with_context(|| format!("scene {name}"))?;
         results.push(r);
         // Write what we have after every scene, so an interrupted run leaves usable output.
-        report::write_csv(&a.out.join("results.csv"), &results)?;
+        report::write_csv(&a.out.join(report::ERRORS_CSV), &results)?;
     }
     report::write_bake_csv(&a.out.join("bake.csv"), &results)?;
     for r in &results {
         plot::error_vs_time(&a.out.join(format!("error_vs_time_{}.png", r.name)), r)?;
         plot::montage(&a.out.join(format!("images_{}.png", r.name)), r)?;
     }
+    plot::error_vs_time_all(&a.out.join(report::ERRORS_PNG), &results)?;
     let total = started.elapsed().as_secs_f64();
     let meta = report::RunMeta::new(&a, &budgets, &sizes, total, &gpu);
     let md = report::markdown(&results, &meta, "")?;
-    std::fs::write(a.out.join("report.md"), md)
-        .with_context(|| format!("writing {}", a.out.join("report.md").display()))?;
+    let summary = a.out.join(report::SUMMARY_MD);
+    std::fs::write(&summary, md).with_context(|| format!("writing {}", summary.display()))?;
     if let Some(docs) = &a.docs {
         report::write_docs(docs, &a.out, &results, &meta)?;
     }
-    eprintln!(
-        "eval done in {total:.1} s -> {}",
-        a.out.join("report.md").display()
-    );
+    eprintln!("eval done in {total:.1} s -> {}", summary.display());
     Ok(())
 }
 
@@ -343,8 +353,9 @@ fn file_name(estimator: &str) -> String {
         .collect()
 }
 
-/// The reference image: from the cache when present, else rendered and cached.
-fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, Option<f64>)> {
+/// The reference image and its noise (see [`SceneResult::reference_noise`]): from the cache
+/// when present, else rendered as two independent halves, averaged and cached.
+fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, f64, Option<f64>)> {
     let cam = &es.scene.camera;
     let key = format!(
         "{REFERENCE_VERSION}|{}|{:?}|{}x{}|fov={}|bounces={}|spp={}|seed={}|ref={:?}|albedo={}|g={}|sun={:?}|env={:?}",
@@ -367,18 +378,59 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, Option<f64>)> {
         .join("cache")
         .join(format!("{}-{:016x}.exr", es.name, fnv1a(&key)));
     let key_path = path.with_extension("key");
+    let noise_path = path.with_extension("noise");
     if !a.no_reference_cache
-        && let (Ok(img), Ok(k)) = (Image::read_exr(&path), std::fs::read_to_string(&key_path))
+        && let (Ok(img), Ok(k), Ok(noise)) = (
+            Image::read_exr(&path),
+            std::fs::read_to_string(&key_path),
+            std::fs::read_to_string(&noise_path),
+        )
         && k == key
+        && let Ok(noise) = noise.trim().parse::<f64>()
+        && noise.is_finite()
         && img.width == cam.width
         && img.height == cam.height
     {
         eprintln!("  reference: cached {}", path.display());
-        return Ok((img, None));
+        return Ok((img, noise, None));
     }
-    let seed = splitmix64(a.seed ^ 0x5EF0_5EF0_5EF0_5EF0);
-    let st = settings(es, seed, Budget::Spp(es.ref_spp), a.threads);
     let t = Instant::now();
+    let half_spp = es.ref_spp.div_ceil(2);
+    let halves = [0x5EF0_5EF0_5EF0_5EF0u64, 0x0FE5_0FE5_0FE5_0FE5]
+        .map(|salt| reference_half(es, a, splitmix64(a.seed ^ salt), half_spp));
+    let [h0, h1] = halves;
+    let (h0, h1) = (h0?, h1?);
+    // Two independent halves: E|h0 - h1|^2 = 2 var(half) = 4 var(mean), so the mean's RMSE
+    // against the true image is rmse(h0, h1) / 2.
+    let noise = rmse(&h0, &h1).map_err(|e| anyhow!("{e}"))? / 2.0;
+    let image = Image {
+        width: h0.width,
+        height: h0.height,
+        rgb: h0
+            .rgb
+            .iter()
+            .zip(&h1.rgb)
+            .map(|(p, q)| [0, 1, 2].map(|c| 0.5 * (p[c] + q[c])))
+            .collect(),
+    };
+    let secs = t.elapsed().as_secs_f64();
+    eprintln!(
+        "  reference: {} spp in {secs:.1} s ({}), noise RMSE {noise:.2e}",
+        2 * half_spp,
+        es.reference.label()
+    );
+    image
+        .write_exr(&path)
+        .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    std::fs::write(&key_path, &key).with_context(|| format!("writing {}", key_path.display()))?;
+    std::fs::write(&noise_path, format!("{noise:e}\n"))
+        .with_context(|| format!("writing {}", noise_path.display()))?;
+    Ok((image, noise, Some(secs)))
+}
+
+/// One half of the reference: `spp` samples per pixel with its own seed.
+fn reference_half(es: &EvalScene, a: &EvalArgs, seed: u64, spp: u32) -> Result<Image> {
+    let st = settings(es, seed, Budget::Spp(spp), a.threads);
     let out = match es.reference {
         RefKind::Tracker => {
             let media = es
@@ -415,17 +467,7 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, Option<f64>)> {
         }
     }
     .map_err(|e| anyhow!("reference render: {e}"))?;
-    let secs = t.elapsed().as_secs_f64();
-    eprintln!(
-        "  reference: {} spp in {secs:.1} s ({})",
-        es.ref_spp,
-        es.reference.label()
-    );
-    out.image
-        .write_exr(&path)
-        .map_err(|e| anyhow!("{}: {e}", path.display()))?;
-    std::fs::write(&key_path, &key).with_context(|| format!("writing {}", key_path.display()))?;
-    Ok((out.image, Some(secs)))
+    Ok(out.image)
 }
 
 /// The pins' lookup options, CPU and GPU: the thesis' evaluation jitters the lookup by a full
@@ -505,7 +547,7 @@ fn eval_scene(
     } else {
         None
     };
-    let (reference_image, reference_seconds) = reference(&es, a)?;
+    let (reference_image, reference_noise, reference_seconds) = reference(&es, a)?;
     let dir = a.out.join(es.name);
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
     reference_image
@@ -547,16 +589,15 @@ fn eval_scene(
             let media = scenes::gpu_media(&es, LOOKUP)?;
             let renderer = GpuRenderer::with_media(ctx, &media)
                 .map_err(|e| anyhow!("GPU renderer for {}: {e}", es.name))?;
-            // Drivers compile the pipeline on its first dispatch (lavapipe JITs it): one
-            // warm-up pass belongs to the setup, not to the first estimator's times.
-            renderer
-                .render(
-                    &GpuScene::from_scene(&es.scene, es.max_bounces),
-                    gpu_ests[0],
-                    1,
-                    0,
-                )
-                .map_err(|e| anyhow!("GPU warm-up for {}: {e}", es.name))?;
+            // Each estimator has its own pipeline, compiled on its first dispatch (lavapipe
+            // JITs it): one warm-up pass per estimator belongs to the setup, not to that
+            // estimator's times.
+            let gs = GpuScene::from_scene(&es.scene, es.max_bounces);
+            for est in &gpu_ests {
+                renderer
+                    .render(&gs, *est, 1, 0)
+                    .map_err(|e| anyhow!("GPU warm-up of {} for {}: {e}", est.name(), es.name))?;
+            }
             let setup = t.elapsed().as_secs_f64();
             for est in gpu_ests {
                 let (pts, img) = measure_gpu(&es, &renderer, est, a, budgets, &reference_image)
@@ -564,9 +605,9 @@ fn eval_scene(
                 keep(pts, img, &mut rows)?;
             }
             format!(
-                "GPU renderer setup (density, majorant and pin upload, pipeline compile, one \
-                 warm-up pass; once, not in the times below): {setup:.2} s; {} spp per render \
-                 call.",
+                "GPU renderer setup (density, majorant and pin upload, pipeline compiles, one \
+                 warm-up pass per estimator; once, not in the times below): {setup:.2} s; {} \
+                 spp per render call.",
                 a.gpu_batch
             )
         }
@@ -580,6 +621,7 @@ fn eval_scene(
         reference: es.reference.label().to_string(),
         reference_spp: es.ref_spp,
         reference_seconds,
+        reference_noise,
         bake,
         gpu_note,
         rows,

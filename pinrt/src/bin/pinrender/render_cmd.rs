@@ -13,8 +13,8 @@ use pinrt::gpu_render::{
     GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
 };
 use pinrt::render::{
-    Budget, Camera, DeltaTracking, Image, Medium, RatioTracking, RayMarching, RenderSettings,
-    Scene, Sun, TransportEstimator, block_bias, render,
+    Budget, Camera, CombKind, DeltaTracking, Image, Medium, RatioTracking, RayMarching,
+    RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
 };
 
 use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs, parse_f64x3};
@@ -34,6 +34,10 @@ Estimators:
   rm@STEP     ray marching at a relative step (fraction of the longest box edge), e.g. rm@0.015
   delta       delta tracking (distances) + delta tracking (transmittance) over a majorant grid
   ratio       delta tracking (distances) + ratio tracking (transmittance) over a majorant grid
+  urm[@N]     delta tracking (distances) + unbiased ray marching (transmittance, Kettunen et al.
+              2021): combs of N lookups per longest box edge (default 16), power-series roulette
+  jackknife[@N] delta tracking (distances) + jackknife transmittance (Peters 2025): two combs of
+              N lookups per longest box edge (default 32); slightly biased
   pins        pins for every ray (uses --pins FILE, or bakes the volume in memory)
   pinms       pins for multiple scattering only; ratio tracking for primary rays and single scattering
 
@@ -48,7 +52,7 @@ pub struct RenderArgs {
     /// Pin file for the `pins` and `pinms` estimators (default: bake the volume in memory).
     #[arg(long)]
     pub pins: Option<PathBuf>,
-    /// rm@STEP, delta, ratio, pins or pinms.
+    /// rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins or pinms.
     #[arg(long, default_value = "ratio")]
     pub estimator: String,
     #[arg(long, default_value_t = 256)]
@@ -187,7 +191,20 @@ pub fn run(a: RenderArgs) -> Result<()> {
                     .map_err(|e| anyhow!("--estimator {s}: {e}"))?;
                 Arc::new(RayMarching::new(field.clone(), step).map_err(|e| anyhow!("{e}"))?)
             }
-            other => bail!("unknown estimator '{other}' (rm@STEP, delta, ratio, pins, pinms)"),
+            s if CombKind::parse(s).is_some() => {
+                let (kind, lookups) = CombKind::parse(s)
+                    .expect("checked by the guard")
+                    .map_err(|e| anyhow!("--estimator: {e}"))?;
+                kind.build(
+                    field.clone(),
+                    volume::majorants(&field, a.majorant_bricks)?,
+                    lookups,
+                )
+                .map_err(|e| anyhow!("{e}"))?
+            }
+            other => bail!(
+                "unknown estimator '{other}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
+            ),
         })
     };
     let centre = (lo + hi) * 0.5;

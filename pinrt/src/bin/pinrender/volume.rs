@@ -109,6 +109,13 @@ impl Opened {
         let (lo, hi) = (b.min.to_array(), b.max.to_array());
         let d = match self {
             Opened::Vdb(v) => {
+                // The GPU's voxel grid is axis-aligned; a rotated or sheared VDB has no such
+                // copy (its pins carry the rotation, and the CPU reference samples it).
+                if !v.is_axis_aligned() {
+                    anyhow::bail!(
+                        "the GPU density needs an axis-aligned VDB transform; this grid is rotated or sheared (bake it to pins, or use the CPU renderer)"
+                    );
+                }
                 let (ilo, ihi) = v.index_bounds();
                 let first = ilo - glam::IVec3::ONE;
                 let dims = (ihi - ilo + glam::IVec3::splat(3)).to_array().map(|d| d as u32);

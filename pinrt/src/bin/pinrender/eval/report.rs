@@ -11,6 +11,16 @@ use super::{EvalArgs, Gpu, SceneResult};
 /// The estimator whose error at its largest budget is the target of the time-to-error column.
 pub const BASELINE: &str = "rm@0.015";
 
+/// The output contract of `pinrender eval` (file names and the CSV's first columns).
+pub const ERRORS_CSV: &str = "errors.csv";
+pub const ERRORS_PNG: &str = "errors.png";
+pub const SUMMARY_MD: &str = "summary.md";
+pub const ERRORS_CSV_HEADER: &str = "scene,estimator,backend,seconds,rmse,relmse,budget_s,spp";
+
+/// A time-to-error target closer than this factor to the reference's own noise is not
+/// resolved by the reference: the column says so instead of printing a speedup of noise.
+pub const REFERENCE_NOISE_FACTOR: f64 = 2.0;
+
 /// Markers of docs/evaluation.md: everything from the first one found on is kept as is.
 pub const DOC_MARKERS: [&str; 2] = [
     "<!-- companion papers -->",
@@ -85,7 +95,8 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
             let mut s = format!(
                 "GPU: rows marked `(gpu)` are the WGSL path tracer \
                  (`pinrt::gpu_render::GpuRenderer`, backend `gpu` in the CSV) on `{describe}` \
-                 with every estimator it has (`rm@STEP`, `delta`, `ratio`, `pins`, `pinms`) \
+                 with every estimator it has (`rm@STEP`, `delta`, `ratio`, `urm`, `jackknife`, \
+                 `pins`, `pinms`) \
                  over the same media as the CPU rows (the same pin grid and lookup jitter, a GPU \
                  copy of the density, the CPU's majorant grids, every instance), measured the \
                  same way ({batch} spp per render call, each call a pass with its own seed, \
@@ -105,20 +116,20 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
 }
 
 pub fn write_csv(path: &Path, results: &[SceneResult]) -> Result<()> {
-    let mut s = String::from("scene,estimator,backend,budget_s,spp,seconds,rmse,rel_mse\n");
+    let mut s = format!("{ERRORS_CSV_HEADER}\n");
     for r in results {
         for row in &r.rows {
             let _ = writeln!(
                 s,
-                "{},{},{},{},{},{:.4},{:.6e},{:.6e}",
+                "{},{},{},{:.4},{:.6e},{:.6e},{},{}",
                 row.scene,
                 row.estimator,
                 row.backend,
-                row.budget_s,
-                row.spp,
                 row.seconds,
                 row.rmse,
-                row.rel_mse
+                row.rel_mse,
+                row.budget_s,
+                row.spp,
             );
         }
     }
@@ -240,6 +251,9 @@ pub fn scene_table(r: &SceneResult) -> String {
             .unwrap_or(f64::NAN);
         let (reach, speed) = match target_of(est) {
             None => ("n/a (no baseline)".to_string(), "n/a".to_string()),
+            Some((e_target, _)) if e_target < REFERENCE_NOISE_FACTOR * r.reference_noise => {
+                ("n/a (reference noise)".to_string(), "n/a".to_string())
+            }
             Some((e_target, t_base)) => match time_to(&c, e_target) {
                 Reach::At(t) => (fmt_s(t), format!("{:.2}x", t_base / t)),
                 Reach::Before(t) => (format!("<= {}", fmt_s(t)), format!(">= {:.2}x", t_base / t)),
@@ -264,7 +278,7 @@ pub fn scene_table(r: &SceneResult) -> String {
     s
 }
 
-/// The report body (shared by report.md and docs/evaluation.md); `link_prefix` goes in front
+/// The report body (shared by summary.md and docs/evaluation.md); `link_prefix` goes in front
 /// of image file names.
 pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> String {
     let mut s = String::new();
@@ -291,7 +305,9 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
          first reaches the RMSE that ray marching at step 0.015 reaches at the largest budget \
          on the same backend (CPU rows against `{BASELINE}`, `(gpu)` rows against \
          `{BASELINE} (gpu)`), interpolated log-log between measurements (`<= t`: already there \
-         at the first measurement; *not reached*: never within the budgets, usually bias). \
+         at the first measurement; *not reached*: never within the budgets, usually bias; *n/a \
+         (reference noise)*: that RMSE is within {REFERENCE_NOISE_FACTOR}x the reference's own \
+         noise, so the reference cannot resolve it). \
          *Speedup* is that baseline's time divided by that time. Errors are against a high-sample reference \
          rendered once and cached (`out/eval/cache/`); relative MSE is \
          `mean((x - ref)^2 / (ref^2 + 0.01))`. Pin bakes are an offline asset step: their time \
@@ -308,13 +324,15 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
         let _ = writeln!(s);
         let _ = writeln!(
             s,
-            "Reference: {}, {} spp{}.",
+            "Reference: {}, {} spp{}; its own noise (RMSE, from two independent halves): \
+             {:.2e}.",
             r.reference,
             r.reference_spp,
             match r.reference_seconds {
                 Some(t) => format!(" ({t:.1} s)"),
                 None => " (from the cache)".into(),
-            }
+            },
+            r.reference_noise
         );
         if let Some(b) = &r.bake {
             let _ = writeln!(
@@ -352,14 +370,48 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
     s
 }
 
-/// report.md in the output directory.
+/// The three sentences that open summary.md: what the reader is looking at.
+fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
+    let names: Vec<&str> = results.iter().map(|r| r.name.as_str()).collect();
+    format!(
+        "This report measures how quickly each way of computing light transport through a \
+         volume (an *estimator*) approaches a converged reference image, on {} scene{} ({}). \
+         Every estimator renders the same image for fixed amounts of wall time ({} s), and \
+         lower error (RMSE against the reference) at equal time is better; `pins` and \
+         `pinms` answer transmittance from a pin grid that was baked once beforehand, the \
+         others need nothing precomputed. `{ERRORS_PNG}` plots error against time for every \
+         scene, `{ERRORS_CSV}` holds every measurement, and the tables below say how much \
+         sooner each estimator reaches the error of ray marching at step 0.015.{}\n\n",
+        names.len(),
+        if names.len() == 1 { "" } else { "s" },
+        names.join(", "),
+        meta.budgets
+            .iter()
+            .map(|b| format!("{b}"))
+            .collect::<Vec<_>>()
+            .join(", "),
+        if meta.quick {
+            " This is the quick run (64 px images, sub-second budgets): its figures show the \
+             shape of the curves, not final numbers; `pinrender eval` without `--quick` makes \
+             the full report."
+        } else {
+            ""
+        }
+    )
+}
+
+/// summary.md in the output directory.
 pub fn markdown(results: &[SceneResult], meta: &RunMeta, discussion: &str) -> Result<String> {
     let mut s = String::from("# pinrender eval: error against run time\n\n");
+    s.push_str(&opening(results, meta));
+    let _ = writeln!(s, "![error against time, every scene]({ERRORS_PNG})\n");
     s.push_str(&body(results, meta, ""));
     if !discussion.is_empty() {
         s.push_str(discussion);
     }
-    s.push_str("Raw numbers: `results.csv` (every budget), `bake.csv`; images: `<scene>/*.exr`.\n");
+    s.push_str(&format!(
+        "Raw numbers: `{ERRORS_CSV}` (every budget), `bake.csv`; images: `<scene>/*.exr`.\n"
+    ));
     Ok(s)
 }
 
@@ -370,14 +422,15 @@ pub fn write_docs(docs: &Path, out: &Path, results: &[SceneResult], meta: &RunMe
     let eval_dir = docs.join("eval");
     std::fs::create_dir_all(&eval_dir)
         .with_context(|| format!("creating {}", eval_dir.display()))?;
-    for r in results {
-        for f in [
+    let per_scene = results.iter().flat_map(|r| {
+        [
             format!("error_vs_time_{}.png", r.name),
             format!("images_{}.png", r.name),
-        ] {
-            std::fs::copy(out.join(&f), eval_dir.join(&f))
-                .with_context(|| format!("copying {f} to {}", eval_dir.display()))?;
-        }
+        ]
+    });
+    for f in per_scene.chain([ERRORS_PNG.to_string()]) {
+        std::fs::copy(out.join(&f), eval_dir.join(&f))
+            .with_context(|| format!("copying {f} to {}", eval_dir.display()))?;
     }
     let path = docs.join("evaluation.md");
     let old = std::fs::read_to_string(&path).unwrap_or_default();
@@ -402,11 +455,13 @@ pub fn write_docs(docs: &Path, out: &Path, results: &[SceneResult], meta: &RunMe
         ),
     };
     let mut s = String::from("# Evaluation\n\n## Error against run time (`pinrender eval`)\n\n");
+    s.push_str(&opening(results, meta).replace(ERRORS_PNG, &format!("eval/{ERRORS_PNG}")));
+    let _ = writeln!(s, "![error against time, every scene](eval/{ERRORS_PNG})\n");
     s.push_str(&body(results, meta, "eval/"));
     s.push_str("### What the numbers show\n\n");
     s.push_str(&discussion);
     s.push_str(
-        "\n\nRaw numbers: `out/eval/results.csv` and `out/eval/bake.csv` of the run above (not \
+        "\n\nRaw numbers: `out/eval/errors.csv` and `out/eval/bake.csv` of the run above (not \
          committed; rerun the command, references are cached).\n\n",
     );
     s.push_str(&tail);

@@ -9,8 +9,9 @@ use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, Procedu
 use pinrt::render::cache::CacheSettings;
 use pinrt::render::whole_volume::WholeVolumeBox;
 use pinrt::render::{
-    AnalyticOpticalDepth, Camera, ClosedFormTracker, DeltaTracking, DensityField, HomogeneousBox,
-    MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun, TransportEstimator, splitmix64,
+    AnalyticOpticalDepth, Camera, ClosedFormTracker, CombKind, DeltaTracking, DensityField,
+    HomogeneousBox, MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun,
+    TransportEstimator, splitmix64,
 };
 
 use pinrt::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
@@ -42,12 +43,14 @@ impl Sizes {
             cache_training_spp: 2,
         }
     }
+    /// Small enough for about two minutes on 2 cores, large enough to read: 64 px images,
+    /// references converged well below the errors measured at the quick budgets.
     pub fn quick() -> Self {
         Sizes {
-            image: 12,
-            pin_cells: 4,
-            ref_spp: 4,
-            max_bounces: 3,
+            image: 64,
+            pin_cells: 12,
+            ref_spp: 64,
+            max_bounces: 4,
             cache_training_spp: 1,
         }
     }
@@ -130,7 +133,15 @@ const INSTANCES_PER_AXIS: usize = 4;
 /// The standard estimator list, plus scene extras.
 fn estimators(extra: &[&str], cache: bool) -> Vec<String> {
     let mut v: Vec<String> = [
-        "rm@0.05", "rm@0.015", "rm@0.005", "delta", "ratio", "pins", "pinms",
+        "rm@0.05",
+        "rm@0.015",
+        "rm@0.005",
+        "delta",
+        "ratio",
+        "urm",
+        "jackknife",
+        "pins",
+        "pinms",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -424,6 +435,8 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
                 "rm@0.005",
                 "delta",
                 "ratio",
+                "urm",
+                "jackknife",
                 "pins",
                 "box-closed-form",
                 "whole-volume",
@@ -643,6 +656,13 @@ pub fn estimator(inst: &Instance, name: &str) -> Result<Arc<dyn TransportEstimat
                 .clone()
                 .ok_or_else(|| anyhow!("{name}: this scene has no closed form"))?;
             Arc::new(ClosedFormTracker::new(a).map_err(|e| anyhow!("{e}"))?)
+        }
+        s if CombKind::parse(s).is_some() => {
+            let (kind, lookups) = CombKind::parse(s)
+                .expect("checked by the guard")
+                .map_err(|e| anyhow!("{e}"))?;
+            kind.build(inst.field.clone(), inst.majorants.clone(), lookups)
+                .map_err(|e| anyhow!("{e}"))?
         }
         s if s.starts_with("rm@") => {
             let step: f64 = s[3..].parse().map_err(|e| anyhow!("estimator {s}: {e}"))?;

@@ -1,0 +1,18 @@
+# Sourced by the scripts and .ci/run: installs the Debian packages the project needs, once.
+# shellcheck shell=bash
+#   Vulkan on the CPU (Mesa lavapipe) for the wgpu paths, which fail loudly without an adapter;
+#   fontconfig and a font for the plot labels of `pinrender eval`; Slurm and munge for the farm
+#   test (pinbake/tests/slurm.rs starts a single-node cluster with scripts/slurm-local.sh);
+#   OpenVDB's C++ library, Boost headers and g++ for the VDB compatibility corpus
+#   (pinbake/tests/vdb_corpus.rs writes its files with OpenVDB itself).
+APT_PACKAGES="mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev slurm-wlm munge g++ libopenvdb-dev libboost-dev"
+export DEBIAN_FRONTEND=noninteractive
+SUDO=""
+if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi
+# shellcheck disable=SC2086
+if ! dpkg -s $APT_PACKAGES >/dev/null 2>&1; then
+  echo "installing Debian packages: $APT_PACKAGES" >&2
+  $SUDO apt-get update -qq
+  # shellcheck disable=SC2086
+  $SUDO apt-get install -y -qq $APT_PACKAGES >/dev/null
+fi
