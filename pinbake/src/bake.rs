@@ -63,8 +63,8 @@ pub struct BakeOptions {
 impl Default for BakeOptions {
     fn default() -> Self {
         Self {
-            cells: [32; 3],
-            directions: Directions::THESIS_DEFAULT,
+            cells: [DEFAULT_MAX_CELLS; 3],
+            directions: DEFAULT_DIRECTIONS,
             pins_per_entry: 1,
             step: 0.01,
             seed: 0,
@@ -136,6 +136,42 @@ pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), 
         }
         None => Ok((bounds, false)),
     }
+}
+
+/// The default direction set. Not the thesis' polar 16x4, whose cap cells put near-axis pins
+/// ~29 degrees off the query: octahedral:16 at 20^3 cells beat polar 16x4, polar 8x8,
+/// octahedral:8 at 32^3 and polar 32x8 at 20^3 (all about the same bytes) on pins-only renders
+/// of volumes nobody tuned for (docs/sampling.md section 11, docs/evaluation.md).
+pub const DEFAULT_DIRECTIONS: Directions = Directions::Octahedral { n: 16 };
+
+/// The default spatial cells per axis (fewer where the volume has fewer voxels, see
+/// [`default_cells`]): 20^3 cells x 256 directions is about the bytes of the thesis' 32^3 x 64.
+pub const DEFAULT_MAX_CELLS: u32 = 20;
+
+/// Spatial cells per axis when the user names none: `max` per axis, but never more cells than
+/// the bake box spans voxels along that axis (finer cells than voxels store the same
+/// interpolated density many times over and only add bytes; issue 14). Analytic sources have
+/// no voxels and get `max`.
+pub fn default_cells(
+    source: &dyn DensitySource,
+    crop: bool,
+    max: u32,
+) -> Result<[u32; 3], BakeError> {
+    let (bbox, _) = bake_box(source, crop)?;
+    let extent = bbox.extent();
+    let max = max.max(1);
+    Ok(match source.voxel_size() {
+        Some(v) => [0, 1, 2].map(|a| {
+            let voxels = extent[a] / v[a];
+            // Rounded: a box of whole voxels divides to an integer up to rounding error.
+            if voxels.is_finite() && voxels > 0.0 {
+                (voxels.round().max(1.0).min(f64::from(max))) as u32
+            } else {
+                max
+            }
+        }),
+        None => [max; 3],
+    })
 }
 
 /// Bytes the output of a bake with these options may need at most (dense pins, index,
@@ -507,6 +543,33 @@ mod tests {
             embed_density: Some([3, 3, 3]),
             ..BakeOptions::default()
         }
+    }
+
+    #[test]
+    fn default_cells_never_exceed_voxels() {
+        use crate::source::DenseGrid;
+        // The issue's case: a 31x34x33 grid with density everywhere.
+        let dims = [31u32, 34, 33];
+        let n = (dims[0] * dims[1] * dims[2]) as usize;
+        let spacing = DVec3::new(0.5, 2.0, 1.0);
+        let g = DenseGrid::new(dims, vec![1.0; n], spacing, DVec3::ZERO, "t").unwrap();
+        assert_eq!(default_cells(&g, true, 32).unwrap(), [31, 32, 32]);
+        assert_eq!(default_cells(&g, false, 16).unwrap(), [16, 16, 16]);
+        assert_eq!(default_cells(&g, false, 0).unwrap(), [1, 1, 1]);
+        // Cropping to 5 occupied voxels along x leaves 7 (one voxel of margin each side).
+        let mut data = vec![0.0; n];
+        for z in 0..33 {
+            for y in 0..34 {
+                for x in 10..15 {
+                    data[x + 31 * (y + 34 * z)] = 1.0;
+                }
+            }
+        }
+        let g = DenseGrid::new(dims, data, spacing, DVec3::ZERO, "t").unwrap();
+        assert_eq!(default_cells(&g, true, 32).unwrap(), [7, 32, 32]);
+        assert_eq!(default_cells(&g, false, 32).unwrap(), [31, 32, 32]);
+        // An analytic field has no voxels.
+        assert_eq!(default_cells(&homogeneous(1.0), true, 32).unwrap(), [32; 3]);
     }
 
     #[test]

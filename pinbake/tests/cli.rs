@@ -352,3 +352,49 @@ fn a_worker_never_spawns_a_worker() {
         .unwrap();
     assert_clean_failure(&o, "refusing to start a VDB reader", &out);
 }
+
+/// Issue 14: without `--cells` a bake never uses more spatial cells than the volume has voxels
+/// along an axis (20 at most), and the default direction set is octahedral:16.
+#[test]
+fn default_bake_fits_the_voxels() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("water.pin");
+    let input = data("water_esp_31x34x33_float32.raw");
+    let o = pinbake(&[
+        "bake",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+        "--clamp-negative",
+        "--no-crop",
+        "--step",
+        "0.1",
+        "--majorant",
+        "0",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["dims"], serde_json::json!([20, 20, 20]));
+    assert_eq!(
+        v["directions"],
+        serde_json::json!({"kind": "octahedral", "n": 16})
+    );
+    // An explicit --cells is taken as given, finer than the voxels or not.
+    let out = dir.path().join("water40.pin");
+    let o = pinbake(&[
+        "bake",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+        "--clamp-negative",
+        "--cells",
+        "40,2,3",
+        "--dirs",
+        "octahedral:2",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["dims"], serde_json::json!([40, 2, 3]));
+}

@@ -377,3 +377,80 @@ fn render_backends_agree() {
         .unwrap();
     assert_eq!(o.status.code(), Some(2));
 }
+
+/// `pinrender render --reference` prints the mean and 8x8-block errors against a reference
+/// image; the lookup jitter options are accepted and checked.
+#[test]
+fn render_compares_with_a_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |extra: &[&str], out: &str| {
+        Command::new(env!("CARGO_BIN_EXE_pinrender"))
+            .args([
+                "render",
+                "--volume",
+                "procedural:cosine:seed=2,freq=2,density=3",
+                "--width",
+                "16",
+                "--height",
+                "16",
+                "--max-bounces",
+                "2",
+                "--pin-cells",
+                "4",
+                "--spp",
+                "8",
+                "--out",
+            ])
+            .arg(dir.path().join(out))
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let o = run(&["--estimator", "ratio"], "ref.exr");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let reference = dir.path().join("ref.exr");
+    let r = reference.to_str().unwrap();
+    // The reference against itself: zero error.
+    let o = run(&["--estimator", "ratio", "--reference", r], "same.exr");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let line = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(
+        line.starts_with("mean_error +0.0000 block8_rms_error 0.0000"),
+        "{line}"
+    );
+    // Pins with jitter: some error, printed as one line of numbers.
+    let o = run(
+        &[
+            "--estimator",
+            "pins",
+            "--spatial-jitter",
+            "0.5",
+            "--directional-jitter",
+            "2",
+            "--reference",
+            r,
+        ],
+        "pins.exr",
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let line = String::from_utf8_lossy(&o.stdout).into_owned();
+    let f: Vec<&str> = line.split_whitespace().collect();
+    assert_eq!(f[0], "mean_error");
+    let block: f64 = f[3].parse().unwrap();
+    assert!(block > 0.0 && block.is_finite(), "{line}");
+    // A bad strength is a usage error; a missing reference fails before rendering.
+    let o = run(
+        &["--estimator", "pins", "--spatial-jitter", "-1"],
+        "bad.exr",
+    );
+    assert_eq!(o.status.code(), Some(2));
+    let o = run(
+        &["--estimator", "pins", "--reference", "/nonexistent/ref.exr"],
+        "missing.exr",
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(err.contains("/nonexistent/ref.exr"), "{err}");
+    assert!(!dir.path().join("missing.exr").exists());
+}

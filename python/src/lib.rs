@@ -358,8 +358,8 @@ fn file_name(p: &Path) -> String {
 /// them.
 #[pyfunction]
 #[pyo3(signature = (
-    input, output, *, data=None, spacing=None, origin=None, cells=[32, 32, 32],
-    directions="polar:16x4", pins_per_entry=1, step=0.01, seed=0, crop=true,
+    input, output, *, data=None, spacing=None, origin=None, cells=None,
+    directions=None, pins_per_entry=1, step=0.01, seed=0, crop=true,
     center_pins=false, majorant=[16, 16, 16], embed_density=None, density_scale=1.0,
     threads=None, grid=None, levelset_to_fog=false, dims=None, voxel_type=None,
     endian="little", clamp_negative=false, nan_as_zero=false, vdb_worker=None
@@ -372,8 +372,8 @@ fn bake(
     data: Option<PyReadonlyArray3<'_, f32>>,
     spacing: Option<[f64; 3]>,
     origin: Option<[f64; 3]>,
-    cells: [u32; 3],
-    directions: &str,
+    cells: Option<[u32; 3]>,
+    directions: Option<&str>,
     pins_per_entry: u32,
     step: f64,
     seed: u64,
@@ -406,7 +406,11 @@ fn bake(
     if !(step > 0.0 && step <= 1.0) {
         return Err(value_err(format!("step {step} must be in (0, 1]")));
     }
-    let dirs = parse_dirs(directions)?;
+    // pinbake bake's defaults: the measured-best direction set, cells capped by the voxels.
+    let dirs = match directions {
+        Some(d) => parse_dirs(d)?,
+        None => pinbake::bake::DEFAULT_DIRECTIONS,
+    };
     let spacing = spacing.unwrap_or([1.0; 3]);
     let origin = origin.unwrap_or([0.0; 3]);
 
@@ -490,6 +494,13 @@ fn bake(
         (src, file_name(&path), hash_file(&path)?)
     };
 
+    let cells = match cells {
+        Some(c) => c,
+        None => {
+            pinbake::bake::default_cells(source.as_ref(), crop, pinbake::bake::DEFAULT_MAX_CELLS)
+                .map_err(|e| pin_err(format!("{input}: {e}")))?
+        }
+    };
     let (kind, res) = dirs.to_desc();
     let metadata = Metadata {
         tool: "pinbake".into(),

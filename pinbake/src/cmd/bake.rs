@@ -67,11 +67,13 @@ pub struct BakeArgs {
     #[arg(long, default_value_t = 1.0, value_parser = pinbake::limits::parse_density_scale)]
     pub density_scale: f64,
 
-    /// Spatial cells: N or X,Y,Z.
-    #[arg(long, default_value = "32", value_parser = parse_u32x3, help_heading = "Grid")]
-    pub cells: [u32; 3],
-    /// Direction cells: polar:PHIxTHETA (thesis default 16x4) or octahedral:N.
-    #[arg(long, default_value = "polar:16x4", value_parser = parse_dirs, help_heading = "Grid")]
+    /// Spatial cells: N or X,Y,Z (default: 20 per axis, but no more than the volume has voxels
+    /// along that axis).
+    #[arg(long, value_parser = parse_u32x3, help_heading = "Grid")]
+    pub cells: Option<[u32; 3]>,
+    /// Direction cells: octahedral:N or polar:PHIxTHETA (the thesis used polar:16x4, which is
+    /// biased near +-z; see docs/sampling.md).
+    #[arg(long, default_value = DEFAULT_DIRS, value_parser = parse_dirs, help_heading = "Grid")]
     pub dirs: Directions,
     /// Pins stored per (cell, direction) entry.
     #[arg(long, default_value_t = 1, help_heading = "Grid",
@@ -119,6 +121,12 @@ pub struct BakeArgs {
     #[arg(long, short, help_heading = "Execution")]
     pub quiet: bool,
 }
+
+/// `--dirs` unless told otherwise: `pinbake::bake::DEFAULT_DIRECTIONS` (a test checks).
+pub const DEFAULT_DIRS: &str = "octahedral:16";
+
+/// Spatial cells per axis unless `--cells` is given (capped by the volume's voxels).
+pub const DEFAULT_MAX_CELLS: u32 = pinbake::bake::DEFAULT_MAX_CELLS;
 
 pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
     let v: Vec<u32> = s
@@ -337,6 +345,11 @@ pub fn options_from_args(
         .ok()
         .and_then(|s| s.parse().ok());
     let (kind, res) = args.dirs.to_desc();
+    let cells = match args.cells {
+        Some(c) => c,
+        None => pinbake::bake::default_cells(source, !args.no_crop, DEFAULT_MAX_CELLS)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?,
+    };
     let metadata = Metadata {
         tool: "pinbake".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -348,13 +361,13 @@ pub fn options_from_args(
         density_scale: args.density_scale,
         bake_unix_time,
         extra: vec![
-            ("cells".into(), format!("{:?}", args.cells)),
+            ("cells".into(), format!("{cells:?}")),
             ("crop".into(), (!args.no_crop).to_string()),
             ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
         ],
     };
     Ok(BakeOptions {
-        cells: args.cells,
+        cells,
         directions: args.dirs,
         pins_per_entry: args.pins_per_entry,
         step: args.step,
@@ -401,7 +414,8 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     super::check_output(&args.output, input_path.as_slice())?;
     let budget = pinbake::files::MemoryBudget::new(args.max_memory);
     let probe = BakeOptions {
-        cells: args.cells,
+        // Before the source is open: the default's upper bound.
+        cells: args.cells.unwrap_or([DEFAULT_MAX_CELLS; 3]),
         directions: args.dirs,
         pins_per_entry: args.pins_per_entry,
         majorant: majorant_dims(args.majorant),
@@ -491,4 +505,21 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
         );
     }
     Ok(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_dirs_name_the_library_default() {
+        assert_eq!(
+            parse_dirs(DEFAULT_DIRS).unwrap(),
+            pinbake::bake::DEFAULT_DIRECTIONS
+        );
+        assert_eq!(
+            pinbake::BakeOptions::default().directions,
+            pinbake::bake::DEFAULT_DIRECTIONS
+        );
+    }
 }

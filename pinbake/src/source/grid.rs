@@ -236,6 +236,10 @@ impl DensitySource for DenseGrid {
         Some(self.occupied)
     }
 
+    fn voxel_size(&self) -> Option<DVec3> {
+        Some(self.spacing)
+    }
+
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         let lo = region.min.max(self.bounds.min);
         let hi = region.max.min(self.bounds.max);

@@ -70,6 +70,12 @@ pub trait DensitySource: Send + Sync {
         None
     }
 
+    /// World size of one voxel per axis for a voxel grid, `None` for an analytic field. Bakes
+    /// use it to keep the default spatial cells no finer than the voxels.
+    fn voxel_size(&self) -> Option<DVec3> {
+        None
+    }
+
     /// Maximum extinction inside `region` (a conservative upper bound is fine). Used for
     /// majorant grids and empty-space detection.
     fn max_extinction_in(&self, region: Aabb) -> f32;

@@ -1672,6 +1672,19 @@ impl DensitySource for VdbSource {
         Some(self.bounds)
     }
 
+    fn voxel_size(&self) -> Option<DVec3> {
+        // The world length of one index step per axis; a negative scale mirrors the grid and
+        // the voxel is as large either way.
+        Some(match self.diag {
+            Some((s, _)) => s.abs(),
+            None => DVec3::new(
+                self.lin.x_axis.length(),
+                self.lin.y_axis.length(),
+                self.lin.z_axis.length(),
+            ),
+        })
+    }
+
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         let lo = region.min.max(self.bounds.min);
         let hi = region.max.min(self.bounds.max);

@@ -227,6 +227,54 @@ pub fn relative_mse(a: &Image, reference: &Image) -> Result<f64, RenderError> {
     Ok(s / (3 * n) as f64)
 }
 
+/// The bias of an image against a converged `reference`, as issue 14 measures it, on the
+/// channel mean of each pixel: `(mean error, block rms error)`.
+///
+/// * mean error: `(mean(a) - mean(ref)) / mean(ref)` over the whole image;
+/// * block rms error: the root mean square over the whole `block x block` tiles (a partial
+///   tile at the right or bottom edge is left out) of `(A - R) / R`, `A` and `R` the tile
+///   means, tiles whose reference mean is not positive left out.
+///
+/// Averaging over tiles first removes most of the per-pixel noise of a finite-spp render, so
+/// what remains is bias (blocky or smooth) plus a noise floor of `sigma / (block * sqrt(spp))`.
+/// Errors: different sizes, `block == 0`, or no tile with a positive reference mean.
+pub fn block_bias(a: &Image, reference: &Image, block: u32) -> Result<(f64, f64), RenderError> {
+    same_size(a, reference)?;
+    let lum = |p: &[f32; 3]| (f64::from(p[0]) + f64::from(p[1]) + f64::from(p[2])) / 3.0;
+    let (bx, by) = match block {
+        0 => (0, 0),
+        b => (a.width / b, a.height / b),
+    };
+    let mut sq = 0.0f64;
+    let mut tiles = 0u64;
+    for ty in 0..by {
+        for tx in 0..bx {
+            let (mut sa, mut sr) = (0.0f64, 0.0f64);
+            for y in ty * block..(ty + 1) * block {
+                for x in tx * block..(tx + 1) * block {
+                    let i = y as usize * a.width as usize + x as usize;
+                    sa += lum(&a.rgb[i]);
+                    sr += lum(&reference.rgb[i]);
+                }
+            }
+            if sr > 0.0 {
+                let e = (sa - sr) / sr;
+                sq += e * e;
+                tiles += 1;
+            }
+        }
+    }
+    let mean_a: f64 = a.rgb.iter().map(lum).sum();
+    let mean_r: f64 = reference.rgb.iter().map(lum).sum();
+    if tiles == 0 || !(mean_r > 0.0) {
+        return Err(RenderError::Invalid {
+            what: "reference image",
+            why: format!("no {block}x{block} tile with a positive mean"),
+        });
+    }
+    Ok(((mean_a - mean_r) / mean_r, (sq / tiles as f64).sqrt()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -300,5 +348,34 @@ mod tests {
         };
         assert!(rmse(&bad, &bad).is_err());
         assert!(bad.write_exr("x.exr").is_err());
+    }
+
+    #[test]
+    fn block_bias_measures_mean_and_tiles() {
+        let mut r = Image::new(16, 8).unwrap();
+        for p in r.rgb.iter_mut() {
+            *p = [1.0; 3];
+        }
+        assert_eq!(block_bias(&r, &r, 8).unwrap(), (0.0, 0.0));
+        // +10% everywhere: both metrics 0.1.
+        let mut a = r.clone();
+        a.rgb.iter_mut().for_each(|p| *p = [1.1; 3]);
+        let (m, b) = block_bias(&a, &r, 8).unwrap();
+        assert!((m - 0.1).abs() < 1e-6 && (b - 0.1).abs() < 1e-6, "{m} {b}");
+        // +20% on the left tile, -20% on the right: the mean cancels, the tiles do not.
+        for (i, p) in a.rgb.iter_mut().enumerate() {
+            *p = [if i % 16 < 8 { 1.2 } else { 0.8 }; 3];
+        }
+        let (m, b) = block_bias(&a, &r, 8).unwrap();
+        assert!(m.abs() < 1e-6 && (b - 0.2).abs() < 1e-6, "{m} {b}");
+        // Pixel noise that cancels within a tile does not count.
+        for (i, p) in a.rgb.iter_mut().enumerate() {
+            *p = [if i % 2 == 0 { 1.5 } else { 0.5 }; 3];
+        }
+        let (m, b) = block_bias(&a, &r, 8).unwrap();
+        assert!(m.abs() < 1e-6 && b < 1e-6, "{m} {b}");
+        assert!(block_bias(&a, &r, 0).is_err());
+        assert!(block_bias(&a, &r, 9).is_err());
+        assert!(block_bias(&Image::new(4, 4).unwrap(), &r, 8).is_err());
     }
 }

@@ -113,7 +113,7 @@ pub use estimator::{
     UnbiasedRayMarching,
 };
 pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
-pub use image::{Image, RELATIVE_MSE_EPS, relative_mse, rmse, tone_map};
+pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use rng::{Pcg32, splitmix64};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};

@@ -78,8 +78,8 @@ def bake(
     *,
     spacing: Union[float, Sequence[float], None] = None,
     origin: Union[float, Sequence[float], None] = None,
-    cells: Union[int, Sequence[int]] = 32,
-    directions: str = "polar:16x4",
+    cells: Union[int, Sequence[int], None] = None,
+    directions: Optional[str] = None,
     pins_per_entry: int = 1,
     step: float = 0.01,
     seed: int = 0,
@@ -108,15 +108,17 @@ def bake(
     ``nan_as_zero``; dims and type may come from a ``NAME_XxYxZ_TYPE.raw`` file name), or
     ``"procedural:SPEC"``.
 
-    The other options are ``pinbake bake``'s flags: ``cells`` (N or (X, Y, Z)),
-    ``directions`` (``polar:PHIxTHETA`` or ``octahedral:N``), ``pins_per_entry``, ``step``
+    The other options are ``pinbake bake``'s flags, with its defaults: ``cells`` (N or
+    (X, Y, Z); default 20 per axis but no more than the volume's voxels along it),
+    ``directions`` (``octahedral:N`` or ``polar:PHIxTHETA``; default ``octahedral:16``),
+    ``pins_per_entry``, ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
     ``center_pins``, ``majorant`` (0 leaves it out), ``embed_density``, ``density_scale``
     and ``threads``. A bake is deterministic: the same input and options give the same bytes
     as the ``pinbake`` command.
     """
     kwargs: Dict[str, Any] = dict(
-        cells=_triple("cells", cells),
+        cells=None if cells is None else _triple("cells", cells),
         directions=directions,
         pins_per_entry=pins_per_entry,
         step=step,

@@ -551,6 +551,9 @@ const LOOKUP: SamplerOptions = SamplerOptions {
 fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     let opts = pinbake::BakeOptions {
         cells: [es.bake_cells; 3],
+        // The scenes' cells were sized for 64 directions; keep their bytes (the CLI default
+        // is octahedral:16 at fewer cells, docs/evaluation.md).
+        directions: pinrt::Directions::Octahedral { n: 8 },
         seed: a.seed,
         threads: a.threads,
         ..pinbake::BakeOptions::default()

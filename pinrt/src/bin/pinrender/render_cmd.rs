@@ -14,7 +14,7 @@ use pinrt::gpu_render::{
 };
 use pinrt::render::{
     Budget, Camera, CombKind, DeltaTracking, Image, Medium, RatioTracking, RayMarching,
-    RenderSettings, Scene, Sun, TransportEstimator, render,
+    RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
 };
 
 use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
@@ -95,9 +95,10 @@ pub struct RenderArgs {
     /// Majorant bricks per axis for the trackers (1..=1024).
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub majorant_bricks: u32,
-    /// Spatial cells per axis when baking pins in memory (1..=4096).
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(1..=4096))]
-    pub pin_cells: u32,
+    /// Spatial cells per axis when baking pins in memory (1..=4096; default: 20, but no more
+    /// than the volume has voxels along an axis).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub pin_cells: Option<u32>,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
     #[arg(long, value_parser = pinbake::limits::parse_threads)]
     pub threads: Option<usize>,
@@ -115,6 +116,40 @@ pub struct RenderArgs {
     /// cpu (rayon path tracer) or gpu (the WGSL path tracer through wgpu).
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
     pub backend: String,
+    /// Pins: the lookup point moves by up to half this many spatial cells per axis (0: off).
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.spatial_jitter, value_parser = parse_jitter)]
+    pub spatial_jitter: f32,
+    /// Pins: the direction moves by up to half this many direction cells per axis (0: off).
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.directional_jitter, value_parser = parse_jitter)]
+    pub directional_jitter: f32,
+    /// Compare with this converged image (EXR of the same size) and print the mean error and
+    /// the 8x8-block rms error (relative; see `docs/evaluation.md`).
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+}
+
+/// The lookup jitter `pinrender render` uses unless told otherwise (measured in
+/// `docs/sampling.md`, "Direction cells").
+pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions {
+    spatial_jitter: 1.0,
+    directional_jitter: 1.0,
+};
+
+fn parse_jitter(s: &str) -> Result<f32, String> {
+    let v: f32 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    if !(v.is_finite() && (0.0..=16.0).contains(&v)) {
+        return Err(format!("'{s}' is not a jitter strength in 0..=16 cells"));
+    }
+    Ok(v)
+}
+
+impl RenderArgs {
+    fn lookup(&self) -> SamplerOptions {
+        SamplerOptions {
+            spatial_jitter: self.spatial_jitter,
+            directional_jitter: self.directional_jitter,
+        }
+    }
 }
 
 /// `--estimator`: a known name, or `rm@STEP` with STEP in [1e-5, 1] (smaller steps ran for
@@ -202,15 +237,24 @@ pub fn run(a: RenderArgs) -> Result<()> {
     }
     if a.estimator.starts_with("pin") && a.pins.is_none() {
         let probe = pinbake::BakeOptions {
-            cells: [a.pin_cells; 3],
+            // Before the source is open: the default's upper bound.
+            cells: [a.pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS); 3],
             ..pinbake::BakeOptions::default()
         };
         // The bake, its serialised bytes and the loaded copy.
         budget.check(
-            &format!("baking {}^3 pin cells in memory", a.pin_cells),
+            &format!(
+                "baking {}^3 pin cells in memory",
+                a.pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS)
+            ),
             pinbake::bake::estimate_output_bytes(&probe).saturating_mul(2),
         )?;
     }
+    // Read the reference first: a bad path should not cost a whole render.
+    let reference = match &a.reference {
+        Some(r) => Some(Image::read_exr(r).map_err(|e| anyhow!("{}: {e}", r.display()))?),
+        None => None,
+    };
     let opened = volume::open_volume_typed(&input, &a.volume)?;
     let source = opened.source();
     let field = Arc::new(SourceField(source.clone()));
@@ -228,12 +272,19 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 field.clone(),
                 volume::majorants(&field, a.majorant_bricks)?,
             )),
-            "pins" => Arc::new(PinsEstimator::new(volume::pins_for(
-                a.pins.as_deref(),
-                source.as_ref(),
-                a.pin_cells,
-                a.seed,
-            )?)?),
+            "pins" => {
+                let grid = volume::leak_grid(volume::pins_for(
+                    a.pins.as_deref(),
+                    source.as_ref(),
+                    a.pin_cells,
+                    a.seed,
+                )?);
+                let sampler = grid
+                    .sampler()
+                    .map_err(|e| anyhow!("{e}"))?
+                    .with_options(a.lookup());
+                Arc::new(PinsEstimator::from_sampler(sampler))
+            }
             s if s.starts_with("rm@") => {
                 let step: f64 = s[3..]
                     .parse()
@@ -284,7 +335,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     if a.backend == "gpu" {
         let image = render_gpu(&a, &opened, &field, &scene)?;
-        return write(&a, &input, &image.0, image.1, image.2);
+        return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
     let medium = match a.estimator.as_str() {
         "pinms" => Medium::new(estimator("ratio")?, estimator("pins")?),
@@ -305,10 +356,24 @@ pub fn run(a: RenderArgs) -> Result<()> {
         cache: None,
     };
     let out = render(&scene, &settings).map_err(|e| anyhow!("{e}"))?;
-    write(&a, &input, &out.image, out.spp, out.seconds)
+    write(
+        &a,
+        &input,
+        &out.image,
+        out.spp,
+        out.seconds,
+        reference.as_ref(),
+    )
 }
 
-fn write(a: &RenderArgs, input: &Path, image: &Image, spp: u32, seconds: f64) -> Result<()> {
+fn write(
+    a: &RenderArgs,
+    input: &Path,
+    image: &Image,
+    spp: u32,
+    seconds: f64,
+    reference: Option<&Image>,
+) -> Result<()> {
     let inputs: Vec<&Path> = [Some(input), a.pins.as_deref()]
         .into_iter()
         .flatten()
@@ -337,6 +402,15 @@ fn write(a: &RenderArgs, input: &Path, image: &Image, spp: u32, seconds: f64) ->
             None => png.display().to_string(),
         }
     );
+    if let (Some(r), Some(path)) = (reference, &a.reference) {
+        let (mean, block) =
+            block_bias(image, r, 8).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        // stdout, one line, for scripts; the render summary above goes to stderr.
+        println!(
+            "mean_error {:+.4} block8_rms_error {:.4} spp {spp} seconds {seconds:.2}",
+            mean, block
+        );
+    }
     Ok(())
 }
 
@@ -376,7 +450,7 @@ fn render_gpu(
             pins: grid.map(|_| GpuPins {
                 grid: 0,
                 local_to_world: None,
-                options: SamplerOptions::default(),
+                options: a.lookup(),
             }),
             density: Some(GpuPlacedDensity {
                 density: 0,

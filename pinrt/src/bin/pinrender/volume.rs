@@ -302,11 +302,6 @@ pub struct PinsEstimator {
 }
 
 impl PinsEstimator {
-    pub fn new(grid: PinGrid) -> Result<Self> {
-        let grid: &'static PinGrid = Box::leak(Box::new(grid));
-        Ok(Self::from_sampler(grid.sampler()?))
-    }
-
     /// An estimator over an already placed sampler (instances, lookup options).
     pub fn from_sampler(sampler: Sampler<'static>) -> Self {
         Self {
@@ -341,11 +336,12 @@ impl TransportEstimator for PinsEstimator {
     }
 }
 
-/// Loads `--pins FILE`, or bakes the volume in memory with default-ish settings.
+/// Loads `--pins FILE`, or bakes the volume in memory with the default settings (cells: as
+/// given, else `pinbake::bake::DEFAULT_MAX_CELLS` per axis capped by the voxels).
 pub fn pins_for(
     pins: Option<&Path>,
     source: &dyn DensitySource,
-    cells: u32,
+    cells: Option<u32>,
     seed: u64,
 ) -> Result<PinGrid> {
     if let Some(p) = pins {
@@ -353,8 +349,12 @@ pub fn pins_for(
         pinbake::files::check_input(p)?;
         return PinGrid::open(p).map_err(|e| anyhow!("{e}"));
     }
+    let cells = match cells {
+        Some(c) => [c; 3],
+        None => pinbake::bake::default_cells(source, true, pinbake::bake::DEFAULT_MAX_CELLS)?,
+    };
     let opts = pinbake::BakeOptions {
-        cells: [cells; 3],
+        cells,
         seed,
         ..pinbake::BakeOptions::default()
     };
