@@ -10,15 +10,16 @@ DATA=data
 mkdir -p out
 cargo build "${PROFILE_FLAGS[@]}" --bins
 BIN="$BIN_DIR/pinbake"
-$BIN bake "$DATA/openvdb_smoke1.vdb" -o out/smoke.pin --cells 37 --dirs polar:16x4 \
+# The default bake (octahedral:16 directions, up to 20^3 cells), with an f16 copy of the density.
+$BIN bake "$DATA/openvdb_smoke1.vdb" -o out/smoke.pin \
   --density-scale 4 --embed-density 64 --json > out/smoke.bake.json
 $BIN verify out/smoke.pin
 $BIN inspect out/smoke.pin
 $BIN bake "$DATA/hydrogen_atom_128x128x128_uint8.raw" --density-scale 0.05 -o out/hydrogen.pin \
-  --dirs octahedral:8 --json > out/hydrogen.bake.json
+  --json > out/hydrogen.bake.json
 $BIN inspect out/hydrogen.pin --json > out/hydrogen.inspect.json
 R="$BIN_DIR/pinrender"
-for est in pinms ratio; do
+for est in pins pinms ratio; do
   $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
 done
@@ -28,6 +29,6 @@ $R eval --quick --out out/eval
 cat <<EOT
 main job done. Read first: out/eval/summary.md (what the report shows, tables, errors.png).
   pin files:   out/smoke.pin, out/hydrogen.pin (pinbake inspect FILE describes them)
-  renders:     out/smoke_pinms.png, out/smoke_ratio.png (and .exr)
+  renders:     out/smoke_pins.png, out/smoke_pinms.png, out/smoke_ratio.png (and .exr)
   raw figures: out/eval/errors.csv
 EOT
