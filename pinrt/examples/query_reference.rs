@@ -24,7 +24,11 @@ fn run(args: &[String]) -> Result<(), String> {
             bytes.len()
         ));
     }
-    let rays: Vec<RayQuery> = bytemuck::pod_collect_to_vec(&bytes);
+    // Unaligned reads: a Vec<u8> promises no 16-byte alignment for a cast in place.
+    let rays: Vec<RayQuery> = bytes
+        .chunks_exact(size_of::<RayQuery>())
+        .map(bytemuck::pod_read_unaligned)
+        .collect();
     let grid = PinGrid::open(grid).map_err(|e| e.to_string())?;
     let s = grid.sampler().map_err(|e| e.to_string())?;
     let n = rays.len();
