@@ -14,6 +14,8 @@
 pub use glam;
 
 pub mod bake;
+#[cfg(feature = "cli")]
+pub mod cli_args;
 pub mod files;
 pub mod limits;
 pub mod merge;

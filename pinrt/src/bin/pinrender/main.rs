@@ -45,7 +45,7 @@ fn main() -> ExitCode {
     if args.get(1).is_some_and(|a| a == "__vdb-worker") {
         return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
     }
-    let cli = match parse_cli::<Cli>("pinrender", args) {
+    let cli = match pinbake::cli_args::parse_cli::<Cli>("pinrender", args) {
         Ok(c) => c,
         Err(code) => return code,
     };
@@ -67,44 +67,6 @@ fn main() -> ExitCode {
             } else {
                 ExitCode::from(1)
             }
-        }
-    }
-}
-
-/// Parses the command line; a usage error becomes one line on stderr and exit code 2 (clap's
-/// own report spans several lines), while `--help` and `--version` print as usual.
-fn parse_cli<C: clap::Parser>(tool: &str, args: Vec<std::ffi::OsString>) -> Result<C, ExitCode> {
-    use clap::error::ErrorKind;
-    match C::try_parse_from(args) {
-        Ok(c) => Ok(c),
-        Err(e)
-            if matches!(
-                e.kind(),
-                ErrorKind::DisplayHelp
-                    | ErrorKind::DisplayVersion
-                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
-            ) =>
-        {
-            let _ = e.print();
-            Err(ExitCode::from(if e.use_stderr() { 2 } else { 0 }))
-        }
-        Err(e) => {
-            let text = e.render().to_string();
-            let line: Vec<&str> = text
-                .lines()
-                .map(str::trim)
-                .filter(|l| {
-                    !(l.is_empty()
-                        || l.starts_with("Usage:")
-                        || l.starts_with("For more information"))
-                })
-                .collect();
-            let line = line.join(" ");
-            eprintln!(
-                "{tool}: error: {}",
-                line.strip_prefix("error: ").unwrap_or(&line)
-            );
-            Err(ExitCode::from(2))
         }
     }
 }
