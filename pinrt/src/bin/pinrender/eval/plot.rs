@@ -156,7 +156,7 @@ fn draw_scene(area: &Area<'_>, r: &SceneResult, palette: &[String], font: u32) -
         // Text needs a system font; without one the chart is still useful.
         let _ = legend_area.draw(&Text::new(
             name.clone(),
-            (25, y - font as i32 / 2),
+            (30, y - font as i32 / 2),
             ("sans-serif", font).into_font().color(&BLACK),
         ));
     }

@@ -49,7 +49,7 @@ impl Sizes {
         Sizes {
             image: 64,
             pin_cells: 12,
-            ref_spp: 64,
+            ref_spp: 256,
             max_bounces: 4,
             cache_training_spp: 1,
         }
