@@ -20,7 +20,9 @@ $BIN bake "$DATA/hydrogen_atom_128x128x128_uint8.raw" --density-scale 0.05 -o ou
 $BIN inspect out/hydrogen.pin --json > out/hydrogen.inspect.json
 R="$BIN_DIR/pinrender"
 for est in pins pinms ratio; do
-  $R render --volume "$DATA/openvdb_smoke1.vdb" --pins out/smoke.pin --density-scale 4 \
+  pins=()
+  case $est in pins | pinms) pins=(--pins out/smoke.pin) ;; esac
+  $R render --volume "$DATA/openvdb_smoke1.vdb" "${pins[@]}" --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
 done
 # The error-against-run-time report on sub-second budgets, about two minutes on 2 cores (the

@@ -490,3 +490,43 @@ fn bench_cache_is_private_and_verified() {
     let r = run(&args, home);
     expect("world-writable cache", &r, 1, "not a private directory");
 }
+
+/// `--pins` is refused where it would be ignored (an estimator without pins) and where it
+/// would render wrongly (a tile of a farm bake, which covers only its slab of cells).
+#[test]
+fn pins_that_cannot_serve_the_render_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let home = dir.path();
+    let out = dir.path().join("img.exr");
+    let tile = dir.path().join("tile.pin");
+    // A 2-tile bake's first tile, written with the library (no pinbake binary in this crate).
+    let spec: pinbake::source::ProceduralSpec = "box".parse().unwrap();
+    let src = pinbake::source::open_source(&pinbake::source::SourceSpec::Procedural(spec)).unwrap();
+    let opts = pinbake::BakeOptions {
+        cells: [4; 3],
+        tile: Some(pinbake::Tile { index: 0, count: 2 }),
+        ..pinbake::BakeOptions::default()
+    };
+    let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
+    std::fs::write(&tile, grid.to_bytes().unwrap()).unwrap();
+
+    let mut args = render_args(&out);
+    args.extend(["--estimator", "ratio", "--pins"].map(String::from));
+    args.push("/nonexistent.pin".into());
+    expect(
+        "--pins with ratio",
+        &run(&strs(&args), home),
+        2,
+        "--pins is used only by",
+    );
+    let mut args = render_args(&out);
+    args.extend(["--estimator", "pins", "--pins"].map(String::from));
+    args.push(tile.to_str().unwrap().into());
+    expect(
+        "a tile as --pins",
+        &run(&strs(&args), home),
+        1,
+        "pinbake merge",
+    );
+    assert!(!out.exists());
+}

@@ -209,6 +209,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
     let Some(input) = a.volume.volume.clone() else {
         crate::usage!("--volume is required");
     };
+    if a.pins.is_some() && !matches!(a.estimator.as_str(), "pins" | "pinms") {
+        // It used to be ignored silently, so a typo in the estimator went unnoticed.
+        crate::usage!(
+            "--pins is used only by the pins and pinms estimators, not by {}",
+            a.estimator
+        );
+    }
     let inputs: Vec<&Path> = [Some(input.as_path()), a.pins.as_deref()]
         .into_iter()
         .flatten()

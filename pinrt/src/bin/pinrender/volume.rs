@@ -347,7 +347,23 @@ pub fn pins_for(
     if let Some(p) = pins {
         // A FIFO would block the open, a device or directory map as nonsense.
         pinbake::files::check_input(p)?;
-        return PinGrid::open(p).map_err(|e| anyhow!("{e}"));
+        let grid = PinGrid::open(p).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+        // A tile covers only its slab of cells: rendering with it would treat the rest of the
+        // volume as empty.
+        if let Some(t) = grid
+            .file()
+            .map_err(|e| anyhow!("{}: {e}", p.display()))?
+            .tile()
+        {
+            anyhow::bail!(
+                "{}: tile {}/{} of a farm bake, not a whole grid; join the tiles with \
+                 `pinbake merge` first",
+                p.display(),
+                t.tile_index,
+                t.tile_count
+            );
+        }
+        return Ok(grid);
     }
     let cells = match cells {
         Some(c) => [c; 3],
