@@ -398,3 +398,37 @@ fn default_bake_fits_the_voxels() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["dims"], serde_json::json!([40, 2, 3]));
 }
+
+/// `pinbake bench --json`: every row carries the fields scripts read (issue 15), with sane
+/// values, on a tiny configuration.
+#[test]
+fn bench_json_rows_carry_time_memory_and_integration_error() {
+    let o = pinbake(&[
+        "bench",
+        "--voxels",
+        "16",
+        "--cells",
+        "4",
+        "--grid-only",
+        "--threads",
+        "1,2",
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    let rows = v["results"].as_array().unwrap();
+    assert_eq!(rows.len(), 2, "one row per thread count");
+    for (r, threads) in rows.iter().zip([1, 2]) {
+        assert_eq!(r["threads"], threads, "{r}");
+        assert!(r["wall_s"].as_f64().unwrap() > 0.0, "{r}");
+        assert!(r["pins_per_s"].as_f64().unwrap() > 0.0, "{r}");
+        assert_eq!(r["pins"], 4 * 4 * 4 * 64, "{r}");
+        // Linux reports the high-water mark; a bake of this size stays far below 1 GB.
+        let rss = r["peak_rss_bytes"].as_u64().unwrap();
+        assert!(rss > 0 && rss < 1 << 30, "{r}");
+        // The midpoint rule at step 0.01 on smooth noise: small but not zero.
+        let e = r["integration_error"].as_f64().unwrap();
+        assert!(e > 0.0 && e < 1e-2, "{r}");
+        assert!(r["integration_error_max"].as_f64().unwrap() >= e, "{r}");
+    }
+}

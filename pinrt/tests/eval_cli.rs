@@ -454,3 +454,54 @@ fn render_compares_with_a_reference() {
     assert!(err.contains("/nonexistent/ref.exr"), "{err}");
     assert!(!dir.path().join("missing.exr").exists());
 }
+
+/// `pinrender bench --json` on a tiny CPU run: every row carries `volume, method, query,
+/// backend, queries_per_s`; every transmittance row its mean absolute error against the
+/// converged march; the strongest no-bake estimators (`urm`, `jackknife`) sit beside pins
+/// and ray marching on the same rays.
+#[test]
+fn bench_json_rows_have_rates_and_errors() {
+    let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
+        .args([
+            "bench",
+            "--volume",
+            "procedural:box",
+            "--rays",
+            "2000",
+            "--cells",
+            "4",
+            "--no-gpu",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    let rows = v["results"].as_array().unwrap();
+    let mut methods = BTreeSet::new();
+    for r in rows {
+        for key in ["volume", "method", "query", "backend"] {
+            assert!(r[key].is_string(), "{key} in {r}");
+        }
+        assert_eq!(r["backend"], "cpu", "--no-gpu: {r}");
+        assert!(r["queries_per_s"].as_f64().unwrap() > 0.0, "{r}");
+        if r["query"] == "transmittance" {
+            let e = r["mean_abs_error"].as_f64().unwrap();
+            assert!((0.0..=1.0).contains(&e), "{r}");
+        }
+        methods.insert(format!(
+            "{}/{}",
+            r["method"].as_str().unwrap(),
+            r["query"].as_str().unwrap()
+        ));
+    }
+    for m in [
+        "pins/transmittance",
+        "pins/distance",
+        "rm@0.015/transmittance",
+        "urm/transmittance",
+        "jackknife/transmittance",
+    ] {
+        assert!(methods.contains(m), "{m} missing from {methods:?}");
+    }
+}
