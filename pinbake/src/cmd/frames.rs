@@ -164,12 +164,6 @@ pub fn parse_frames(s: &str) -> Result<Vec<i64>, FrameError> {
     Ok(out)
 }
 
-/// A usage problem of `--frames`: one line, exit 2.
-fn usage(msg: impl fmt::Display) -> std::process::ExitCode {
-    eprintln!("pinbake: error: {msg}");
-    std::process::ExitCode::from(2)
-}
-
 /// `pinbake bake INPUT --frames F -o OUTPUT`: one deterministic bake per frame, each written
 /// atomically to its own file. A frame that fails is reported on stderr (one line naming the
 /// frame and its file) and the rest go on; the exit code is 1 if any frame failed. With
@@ -178,42 +172,38 @@ fn usage(msg: impl fmt::Display) -> std::process::ExitCode {
 /// same tile.
 pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitCode> {
     let Some(spec) = args.frames.as_deref() else {
-        return Ok(usage("--frames is missing"));
+        super::usage!("--frames is missing");
     };
     let frames = match parse_frames(spec) {
         Ok(f) => f,
-        Err(e) => return Ok(usage(e)),
+        Err(e) => super::usage!("{e}"),
     };
     let Some(in_str) = args.input.to_str() else {
-        return Ok(usage(format!(
+        super::usage!(
             "{}: a sequence input pattern must be UTF-8",
             args.input.display()
-        )));
+        );
     };
     let input = match FramePattern::parse(in_str) {
         Ok(Some(p)) => p,
         Ok(None) => {
-            return Ok(usage(format!(
-                "{in_str}: with --frames the input needs a frame field (#### or %04d)"
-            )));
+            super::usage!("{in_str}: with --frames the input needs a frame field (#### or %04d)")
         }
-        Err(e) => return Ok(usage(e)),
+        Err(e) => super::usage!("{e}"),
     };
     let Some(out_str) = args.output.to_str() else {
-        return Ok(usage(format!(
+        super::usage!(
             "{}: a sequence output pattern must be UTF-8",
             args.output.display()
-        )));
+        );
     };
     let output = match FramePattern::parse(out_str) {
         Ok(Some(p)) => p,
-        Ok(None) => {
-            return Ok(usage(format!(
-                "{out_str}: with --frames the output needs a frame field (#### or %04d), \
-                 or every frame would overwrite one file"
-            )));
-        }
-        Err(e) => return Ok(usage(e)),
+        Ok(None) => super::usage!(
+            "{out_str}: with --frames the output needs a frame field (#### or %04d), or every \
+             frame would overwrite one file"
+        ),
+        Err(e) => super::usage!("{e}"),
     };
     let mut results = Vec::with_capacity(frames.len());
     let mut failed = 0usize;
