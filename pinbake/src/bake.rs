@@ -306,12 +306,7 @@ fn bake_in_pool(
         }
     };
     let shape = GridShape::new(&desc, tile.as_ref()).map_err(BakeError::Format)?;
-    let extent = bbox.extent();
-    let placement = Placement {
-        box_min: bbox.min,
-        extent,
-        step: opts.step * extent.max_element(),
-    };
+    let placement = Placement::over(&bbox, opts.step);
     let layout = PinLayout {
         dims: opts.cells,
         directions: opts.directions,

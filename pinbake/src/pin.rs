@@ -21,6 +21,17 @@ pub struct Placement {
 }
 
 impl Placement {
+    /// A bake over `bbox` marching `rel_step` of the box's longest edge per sample (the
+    /// baker's `--step` convention).
+    pub fn over(bbox: &crate::source::Aabb, rel_step: f64) -> Self {
+        let extent = bbox.extent();
+        Placement {
+            box_min: bbox.min,
+            extent,
+            step: rel_step * extent.max_element(),
+        }
+    }
+
     pub fn to_world(&self, u: DVec3) -> DVec3 {
         self.box_min + u * self.extent
     }

@@ -96,13 +96,7 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             let (g, stats) = pinbake::bake(source, &opts, &|_| {})?;
             let wall = t.elapsed().as_secs_f64();
             let pins = u64::from(args.cells).pow(3) * 64;
-            let b = source.bounds();
-            let extent = b.max - b.min;
-            let placement = pinbake::pin::Placement {
-                box_min: b.min,
-                extent,
-                step: opts.step * extent.max_element(),
-            };
+            let placement = pinbake::pin::Placement::over(&source.bounds(), opts.step);
             let err = pinbake::pin::integration_error(source, &placement, 256, 16, 1);
             rows.push(json!({
                 "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
