@@ -530,3 +530,35 @@ fn extinction_cost() {
         println!("{name:>20}: random {random:6.1} ns/call, marching {march:6.1} ns/sample ({acc})");
     }
 }
+
+// ------------------------------------------------------------------------------------------
+// Prefiltered levels: the bake's rule against the exact optical depth on real data.
+
+/// The smoke at the default step (0.01 of the box: ~2.2 voxels) through its prefiltered
+/// level is closer to the 16x supersampled optical depth than point sampling at the same
+/// step, on the same 256 fixed-seed pins. Deliberate mutation: with the mip's sharpening or
+/// sub-steps removed the measured ratio rises (printed with `--nocapture`).
+#[test]
+fn smoke_prefiltered_beats_point_sampling() {
+    use pinbake::pin::{Field, Placement, integration_error_of};
+    let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
+    let (bbox, _) = pinbake::bake::bake_box(&smoke, true).unwrap();
+    let placement = Placement::over(&bbox, 0.01);
+    let mip = smoke.prefiltered(placement.step).unwrap().expect("a level");
+    let with_mip = integration_error_of(Field::Mip(&mip), &smoke, &placement, 256, 16, 1);
+    let point = integration_error_of(Field::Source(&smoke), &smoke, &placement, 256, 16, 1);
+    println!(
+        "smoke: mip {:?} ({} bytes): {with_mip:?}; point sampling: {point:?}",
+        mip.dims(),
+        mip.bytes()
+    );
+    assert!(
+        with_mip.mean_abs_transmittance < point.mean_abs_transmittance,
+        "{with_mip:?} vs {point:?}"
+    );
+    // Deterministic.
+    assert_eq!(
+        with_mip,
+        integration_error_of(Field::Mip(&mip), &smoke, &placement, 256, 16, 1)
+    );
+}

@@ -14,6 +14,7 @@ use clap::Args;
 use glam::DVec3;
 use pin_format::Directions;
 use pinbake::BakeOptions;
+use pinbake::pin::{Field, integration_error_of};
 use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use rayon::prelude::*;
@@ -92,12 +93,24 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 majorant: None,
                 ..BakeOptions::default()
             };
+            let cpu0 = cpu_seconds();
             let t = Instant::now();
             let (g, stats) = pinbake::bake(source, &opts, &|_| {})?;
             let wall = t.elapsed().as_secs_f64();
+            let cpu = cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
             let pins = u64::from(args.cells).pow(3) * 64;
-            let placement = pinbake::pin::Placement::over(&source.bounds(), opts.step);
-            let err = pinbake::pin::integration_error(source, &placement, 256, 16, 1);
+            // The bake's own rule against the 16x supersampled march of the source; beside
+            // it the same midpoint rule on the box-filtered level (mip) whose voxels match the
+            // step, on the same pins (docs/performance.md: it is less accurate, so bakes do
+            // not use it).
+            let (bbox, _) = pinbake::bake::bake_box(source, opts.crop)?;
+            let placement = pinbake::pin::Placement::over(&bbox, opts.step);
+            let err = integration_error_of(Field::of(source), source, &placement, 256, 16, 1);
+            let mip = source.prefiltered(placement.step)?;
+            let mip_err = mip
+                .as_ref()
+                .map(|m| integration_error_of(Field::Mip(m), source, &placement, 256, 16, 1));
+            drop(mip);
             rows.push(json!({
                 "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
                 "threads": threads,
@@ -110,6 +123,8 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 "integration_error": err.mean_abs_transmittance,
                 "integration_error_max": err.max_abs_transmittance,
                 "optical_depth_rel_error": err.mean_rel_optical_depth,
+                "integration_error_prefiltered": mip_err.map(|e| e.mean_abs_transmittance),
+                "cpu_s": cpu,
             }));
         }
     }
@@ -146,4 +161,15 @@ fn peak_rss_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
+}
+
+/// User plus system CPU seconds of this process so far (`/proc/self/stat`, in clock ticks of
+/// 1/100 s on Linux), if the OS says: on a shared machine CPU time is the steadier figure.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let (u, s): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
+    Some((u + s) / 100.0)
 }
