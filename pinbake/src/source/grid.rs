@@ -559,6 +559,45 @@ mod tests {
     }
 
     #[test]
+    fn march_runs_match_point_samples() {
+        // Runs inside the box, touching its faces (clamp-to-edge), on grids with a one-voxel
+        // axis too; more samples than one prefetch block.
+        for dims in [[5u32, 6, 7], [9, 1, 4], [1, 1, 1]] {
+            let g = ramp(dims);
+            let ext = g.bounds().extent();
+            let n = 57;
+            let du_world = DVec3::new(0.012, 0.007, -0.011) * ext;
+            let starts: Vec<DVec3> = (0..4)
+                .map(|r| DVec3::new(0.05 + 0.08 * r as f64, 0.2, 0.95) * ext)
+                .collect();
+            let f = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+            let u0: Vec<[f32; 3]> = starts.iter().map(|p| f(g.index_of(*p))).collect();
+            let mut sums = vec![0.0f64; 4];
+            g.march_runs(&u0, f(g.index_dir(du_world)), n, &mut sums);
+            for (r, p) in starts.iter().enumerate() {
+                let want: f64 = (0..n)
+                    .map(|j| f64::from(g.extinction(*p + du_world * j as f64)))
+                    .sum();
+                assert!(
+                    (sums[r] - want).abs() <= 1e-5 * want.max(1.0),
+                    "{dims:?} run {r}: {} vs {want}",
+                    sums[r]
+                );
+            }
+        }
+        // Indices far outside or NaN clamp instead of reading out of bounds.
+        let g = ramp([3, 3, 3]);
+        let mut s = [0.0];
+        g.march_runs(
+            &[[f32::NAN, 1e30, -1e30]],
+            [1e20, f32::NAN, 0.0],
+            300,
+            &mut s,
+        );
+        assert!(s[0].is_finite());
+    }
+
+    #[test]
     fn batched_matches_single() {
         let g = ramp([5, 6, 7]);
         let mut out = vec![0.0; 40];
