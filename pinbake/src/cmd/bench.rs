@@ -4,7 +4,10 @@
 //! Every row reports `wall_s`, `pins_per_s`, `threads`, `peak_rss_bytes` (the process's
 //! high-water mark so far, from /proc; null where unavailable) and `integration_error` (the
 //! mean absolute error of the interval transmittances against a 16x supersampled march, over
-//! 256 random pins: [`pinbake::pin::integration_error`]).
+//! 256 random pins: [`pinbake::pin::integration_error_of`]). Beside them: `cpu_s` (user +
+//! system CPU seconds of the bake, steadier than wall time on a shared machine) and
+//! `integration_error_prefiltered` (the same error for the box-filtered level,
+//! [`pinbake::source::Mip`], null where the grid has none; docs/performance.md).
 
 use std::process::ExitCode;
 use std::time::Instant;

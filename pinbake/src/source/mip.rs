@@ -1,4 +1,10 @@
-//! A prefiltered level ("mip") of a voxel grid, for bakes that march coarser than the voxels.
+//! A prefiltered level ("mip") of a voxel grid, for marching coarser than the voxels.
+//!
+//! Measured, not used by bakes: `pinbake bench` reports its integration error beside the
+//! bake's (`integration_error_prefiltered`). It makes a bake several times cheaper but its
+//! optical depths are further from the exact ones than point samples of the grid itself, on
+//! smooth noise and on the smoke alike (docs/performance.md, "The prefiltered level"): the
+//! box filter blurs across the ray, and that error does not average out along it.
 //!
 //! The baker's midpoint rule takes one sample per `step` of world length. On a grid whose
 //! voxels are several times smaller than that, point samples of the trilinear field skip most

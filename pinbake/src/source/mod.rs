@@ -95,7 +95,7 @@ pub trait DensitySource: Send + Sync {
     }
 
     /// The source as a dense grid, when it is one: the baker then marches its voxels directly
-    /// ([`DenseGrid::march_sum`]) instead of going through `extinction_along`.
+    /// ([`DenseGrid::march_runs`]) instead of going through `extinction_along`.
     fn as_dense_grid(&self) -> Option<&DenseGrid> {
         None
     }
