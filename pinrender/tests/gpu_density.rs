@@ -65,7 +65,7 @@ fn gpu_density_reproduces_the_source() {
         let b = src.bounds();
         assert_eq!(gpu.bounds, (b.min.to_array(), b.max.to_array()), "{input}");
         let scale = src.max_extinction_in(b).max(1e-6) as f64;
-        let mut rng = pinrt::render::Pcg32::new(3, 4);
+        let mut rng = pinrender::render::Pcg32::new(3, 4);
         let mut worst = 0.0f64;
         let mut nonzero = 0;
         for _ in 0..20_000 {

@@ -6,15 +6,15 @@ use anyhow::{Context, Result, anyhow, bail};
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::CosineParams;
 use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, ProceduralSpec};
-use pinrt::render::cache::CacheSettings;
-use pinrt::render::whole_volume::WholeVolumeBox;
-use pinrt::render::{
+use pinrender::render::cache::CacheSettings;
+use pinrender::render::whole_volume::WholeVolumeBox;
+use pinrender::render::{
     AnalyticOpticalDepth, Camera, ClosedFormTracker, CombKind, DeltaTracking, DensityField,
     HomogeneousBox, MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun,
     TransportEstimator, splitmix64,
 };
 
-use pinrt::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
+use pinrender::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
 use pinrt::{PinGrid, SamplerOptions};
 
 use crate::volume::{Opened, SourceField, VolumeArgs};

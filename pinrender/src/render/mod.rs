@@ -1,4 +1,4 @@
-//! # Reference volumetric path tracer (feature `render`)
+//! # Reference volumetric path tracer
 //!
 //! A small, CPU-parallel, deterministic path tracer for grey participating media, used to
 //! *see* what an estimator does and to *measure* it: error (RMSE, relative MSE) against run
@@ -62,7 +62,7 @@
 //! (rays are f32, `t` in units of `|d|`, the renderer passes unit directions and
 //! `t_max = inf` or the nearest collision so far), may seed its own generator per query
 //! from [`Pcg32::next_u64`], and should return its sampler's
-//! [`Sampler::world_bounds`](crate::Sampler::world_bounds) from `bounds()` so that rays
+//! [`Sampler::world_bounds`](pinrt::Sampler::world_bounds) from `bounds()` so that rays
 //! missing the placed grid never reach it.
 //!
 //! ## The companion papers

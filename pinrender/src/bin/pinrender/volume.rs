@@ -10,8 +10,8 @@ use clap::Args;
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
-use pinrt::gpu_render::{CosineWave, GpuDensity};
-use pinrt::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator};
+use pinrender::gpu_render::{CosineWave, GpuDensity};
+use pinrender::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator};
 use pinrt::{PinGrid, Ray, Rng, Sampler};
 
 /// How to read the volume (the same flags as `pinbake bake`).
@@ -148,7 +148,7 @@ impl Opened {
                     })
                     .collect(),
             ),
-            Opened::Box(bx) => GpuDensity::homogeneous(&pinrt::render::HomogeneousBox {
+            Opened::Box(bx) => GpuDensity::homogeneous(&pinrender::render::HomogeneousBox {
                 min: lo,
                 max: hi,
                 sigma_t: bx.density(),

@@ -39,12 +39,12 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use wgpu::util::DeviceExt;
 
-use crate::error::Error;
-use crate::gpu::GpuContext;
-use crate::loader::PinGrid;
 use crate::render::phase::G_LIMIT;
 use crate::render::{Camera, Image, RenderError, Scene, Sun};
-use crate::sampler::SamplerOptions;
+use pinrt::Error;
+use pinrt::PinGrid;
+use pinrt::SamplerOptions;
+use pinrt::gpu::GpuContext;
 
 /// The WGSL of the GPU path tracer: the pin sampler followed by `shaders/render.wgsl`
 /// (entry point `render_main`).
@@ -405,30 +405,30 @@ fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
 impl GpuRenderer {
     /// Uploads `grid` (placed by the file's `local_to_world`, no lookup jitter) as the only
     /// medium, for [`GpuEstimator::Pins`], and compiles the path tracer.
-    pub fn new(ctx: &GpuContext, grid: &PinGrid) -> crate::Result<Self> {
+    pub fn new(ctx: &GpuContext, grid: &PinGrid) -> pinrt::Result<Self> {
         Self::with_options(ctx, grid, None, SamplerOptions::default())
     }
 
     /// One pin grid as the only medium, with an optional `local_to_world` override and lookup
-    /// options (as [`crate::gpu::GpuPinGrid::upload_with`]).
+    /// options (as [`pinrt::gpu::GpuPinGrid::upload_with`]).
     pub fn with_options(
         ctx: &GpuContext,
         grid: &PinGrid,
         local_to_world: Option<&[f64; 12]>,
         options: SamplerOptions,
-    ) -> crate::Result<Self> {
+    ) -> pinrt::Result<Self> {
         Self::with_media(ctx, &GpuMedia::pins_only(grid, local_to_world, options))
     }
 
     /// Uploads a scene's media (pin grids, densities, majorants, instances) and compiles the
     /// path tracer. Errors: an index out of range, a placement that is not invertible, a
     /// buffer larger than the device binds, a GPU failure.
-    pub fn with_media(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
+    pub fn with_media(ctx: &GpuContext, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
         pollster::block_on(Self::create(ctx, media))
     }
 
-    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
-        let packed = media::pack(media, crate::gpu::binding_limit(&ctx.limits))?;
+    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
+        let packed = media::pack(media, pinrt::gpu::binding_limit(&ctx.limits))?;
 
         let dev = &ctx.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -543,7 +543,7 @@ impl GpuRenderer {
     async fn pipeline(
         &self,
         (primary, secondary): (u32, u32),
-    ) -> crate::Result<wgpu::ComputePipeline> {
+    ) -> pinrt::Result<wgpu::ComputePipeline> {
         let cache = || {
             self.pipelines
                 .lock()
@@ -643,7 +643,7 @@ impl GpuRenderer {
         }
         let pixels = u64::from(w) * u64::from(h);
         let accum_size = pixels * 32;
-        let limit = crate::gpu::binding_limit(&self.limits);
+        let limit = pinrt::gpu::binding_limit(&self.limits);
         if accum_size > limit {
             return Err(Error::Gpu(format!(
                 "image {w}x{h} needs a {accum_size}-byte accumulation buffer, more than this \
@@ -672,7 +672,7 @@ impl GpuRenderer {
         accum_size: u64,
         width: u32,
         height: u32,
-    ) -> crate::Result<Image> {
+    ) -> pinrt::Result<Image> {
         let dev = &self.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
         let scene_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -769,7 +769,7 @@ impl GpuRenderer {
         enc.copy_buffer_to_buffer(&accum, 0, &staging, 0, accum_size);
         self.queue.submit([enc.finish()]);
         let sums: Vec<[f32; 8]> =
-            crate::gpu::read_back(dev, &staging, scope, "render dispatch").await?;
+            pinrt::gpu::read_back(dev, &staging, scope, "render dispatch").await?;
         let inv = 1.0 / f64::from(spp);
         let rgb = sums
             .iter()

@@ -7,15 +7,15 @@ use anyhow::{Result, anyhow, bail};
 use clap::Args;
 use std::time::Instant;
 
-use pinrt::SamplerOptions;
-use pinrt::gpu::GpuContext;
-use pinrt::gpu_render::{
+use pinrender::gpu_render::{
     GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
 };
-use pinrt::render::{
+use pinrender::render::{
     Budget, Camera, CombKind, DeltaTracking, Image, Medium, RatioTracking, RayMarching,
     RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
 };
+use pinrt::SamplerOptions;
+use pinrt::gpu::GpuContext;
 
 use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
 use pinbake::limits::parse_f64x3;
@@ -482,7 +482,7 @@ fn render_gpu(
             let mut sum: Vec<[f64; 3]> = Vec::new();
             let mut spp = 0u32;
             while spp == 0 || (start.elapsed().as_secs_f64() < limit && spp < u32::MAX) {
-                let seed = pinrt::render::splitmix64(a.seed ^ u64::from(spp));
+                let seed = pinrender::render::splitmix64(a.seed ^ u64::from(spp));
                 let img = renderer
                     .render(&gs, est, 1, seed)
                     .map_err(|e| anyhow!("{e}"))?;
