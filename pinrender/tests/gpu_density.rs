@@ -19,15 +19,9 @@ fn data(name: &str) -> String {
 }
 
 fn args(density_scale: f64, spacing: Option<[f64; 3]>) -> VolumeArgs {
-    VolumeArgs {
-        volume: None,
-        grid: None,
-        dims: None,
-        voxel_type: None,
-        spacing,
-        origin: None,
-        density_scale,
-    }
+    let mut a = VolumeArgs::scaled(density_scale);
+    a.read.spacing = spacing;
+    a
 }
 
 /// The GPU copy of each kind of source gives the source's extinction at random points

@@ -131,6 +131,7 @@ pub mod march;
 pub mod mask;
 pub mod rng;
 pub mod sampler;
+pub mod sections;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
 #[cfg(test)]
@@ -141,6 +142,7 @@ pub use error::{Error, Result};
 pub use instances::Instances;
 pub use loader::PinGrid;
 pub use rng::Rng;
+pub use sections::{Density, Majorants};
 pub use sampler::{
     BATCH, GpuRay, GpuResult, NO_ENTRY, NO_INTERVAL, QueryResult, Ray, RayQuery, Sampler,
     SamplerOptions, status,

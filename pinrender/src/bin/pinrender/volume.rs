@@ -9,47 +9,31 @@ use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
+use pinbake::source::{self, DensitySource, SourceSpec};
 use pinrender::gpu_render::{CosineWave, GpuDensity};
 use pinrender::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator};
 use pinrt::{PinGrid, Ray, Rng, Sampler};
 
-/// How to read the volume (the same flags as `pinbake bake`).
-#[derive(Args, Debug, Clone)]
+/// The volume and how to read it (the flags shared with `pinbake bake`).
+#[derive(Args, Debug, Clone, Default)]
 pub struct VolumeArgs {
     /// Volume: FILE.vdb, FILE.raw or procedural:SPEC (see `pinbake bake --help`).
     #[arg(long)]
     pub volume: Option<PathBuf>,
-    /// VDB grid name (`density#1` for the second grid named density).
-    #[arg(long)]
-    pub grid: Option<String>,
-    /// Raw: voxel counts X,Y,Z.
-    #[arg(long, value_parser = parse_u32x3)]
-    pub dims: Option<[u32; 3]>,
-    /// Raw: u8, u16, f16, f32 or f64.
-    #[arg(long = "type")]
-    pub voxel_type: Option<String>,
-    /// Raw: world size of a voxel (V or X,Y,Z, each in [1e-9, 1e9]); the grid occupies
-    /// [origin, origin + dims * spacing].
-    #[arg(long, value_parser = pinbake::limits::parse_spacing)]
-    pub spacing: Option<[f64; 3]>,
-    /// Raw: world position of the grid box's minimum corner (each within +-1e12).
-    #[arg(long, value_parser = pinbake::limits::parse_origin)]
-    pub origin: Option<[f64; 3]>,
-    /// Multiply every density by this (finite, >= 0).
-    #[arg(long, default_value_t = 1.0, value_parser = pinbake::limits::parse_density_scale)]
-    pub density_scale: f64,
+    #[command(flatten)]
+    pub read: pinbake::cli_args::VolumeArgs,
 }
 
-pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
-    let v: Vec<u32> = s
-        .split(',')
-        .map(|p| p.trim().parse().map_err(|e| format!("'{p}': {e}")))
-        .collect::<Result<_, String>>()?;
-    match v.as_slice() {
-        [n] => Ok([*n; 3]),
-        [x, y, z] => Ok([*x, *y, *z]),
-        _ => Err("expected N or X,Y,Z".into()),
+impl VolumeArgs {
+    /// No volume, the default reading flags but this density scale (the eval's scenes).
+    pub fn scaled(density_scale: f64) -> Self {
+        Self {
+            volume: None,
+            read: pinbake::cli_args::VolumeArgs {
+                density_scale,
+                ..Default::default()
+            },
+        }
     }
 }
 
@@ -166,86 +150,11 @@ impl Opened {
 /// [`open_volume`] with the concrete source type kept.
 ///
 /// Flags for another kind of input (`--grid` on a raw file, `--dims` on a VDB) are usage
-/// errors, and a path must name a regular file.
+/// errors, and a path must name a regular file ([`pinbake::cli_args::VolumeArgs::source_spec`]).
 pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Opened> {
-    let input = input.as_ref();
-    let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
-    let path = PathBuf::from(input);
-    let is_vdb = procedural.is_none()
-        && path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
-    let raw_flags = [
-        ("--dims", a.dims.is_some()),
-        ("--type", a.voxel_type.is_some()),
-        ("--spacing", a.spacing.is_some()),
-        ("--origin", a.origin.is_some()),
-    ];
-    let grid_flag = [("--grid", a.grid.is_some())];
-    let (kind, wrong): (&str, Vec<&str>) = if procedural.is_some() {
-        let all = raw_flags.iter().chain(&grid_flag);
-        (
-            "a procedural volume",
-            all.filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    } else if is_vdb {
-        let raw = raw_flags.iter();
-        (
-            "an OpenVDB volume",
-            raw.filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    } else {
-        (
-            "a raw volume",
-            grid_flag.iter().filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    };
-    if let Some(flag) = wrong.first() {
-        // A usage error (exit 2); spelled out because tests include this file as a module.
-        return Err(anyhow::Error::new(pinbake::files::UsageError(format!(
-            "{flag} does not apply to {kind} ({})",
-            path.display()
-        ))));
-    }
-    if procedural.is_none() {
-        pinbake::files::check_input(&path)?;
-    }
-    let spec = if let Some(rest) = procedural {
-        let mut p: ProceduralSpec = rest.parse().map_err(|e| anyhow!("{e}"))?;
-        p.density *= a.density_scale;
-        SourceSpec::Procedural(p)
-    } else {
-        if is_vdb {
-            SourceSpec::Vdb(
-                path,
-                source::VdbOptions {
-                    grid: a.grid.clone(),
-                    density_scale: a.density_scale,
-                    worker_exe: std::env::current_exe().context("locating pinrender")?,
-                    ..source::VdbOptions::default()
-                },
-            )
-        } else {
-            let voxel_type = match a.voxel_type.as_deref() {
-                None => None,
-                Some(t) => Some(
-                    source::RawType::parse(t)
-                        .ok_or_else(|| anyhow!("--type '{t}' is not u8, u16, f16, f32 or f64"))?,
-                ),
-            };
-            SourceSpec::Raw(
-                path,
-                RawOptions {
-                    dims: a.dims,
-                    voxel_type,
-                    spacing: a.spacing.unwrap_or([1.0; 3]),
-                    origin: a.origin.unwrap_or([0.0; 3]),
-                    density_scale: a.density_scale,
-                    ..RawOptions::default()
-                },
-            )
-        }
-    };
+    let spec = a.read.source_spec(Path::new(input.as_ref()), "volume", || {
+        std::env::current_exe().context("locating pinrender")
+    })?;
     Ok(match spec {
         SourceSpec::Vdb(path, opts) => {
             Opened::Vdb(Arc::new(source::VdbSource::open(&path, &opts)?))

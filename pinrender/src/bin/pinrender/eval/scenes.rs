@@ -167,15 +167,7 @@ pub fn build(name: &str, sizes: &Sizes) -> Result<EvalScene> {
 }
 
 fn volume_args(density_scale: f64) -> VolumeArgs {
-    VolumeArgs {
-        volume: None,
-        grid: None,
-        dims: None,
-        voxel_type: None,
-        spacing: None,
-        origin: None,
-        density_scale,
-    }
+    VolumeArgs::scaled(density_scale)
 }
 
 /// A camera looking at the box centre from the front-right-above, framing the box.
