@@ -124,6 +124,26 @@ fn usage(msg: String) -> anyhow::Error {
 }
 
 impl VolumeArgs {
+    /// The flags given (differing from their defaults), by name: what a command that reads
+    /// no volume this time refuses.
+    pub fn given(&self) -> Vec<&'static str> {
+        [
+            ("--grid", self.grid.is_some()),
+            ("--levelset-to-fog", self.levelset_to_fog),
+            ("--dims", self.dims.is_some()),
+            ("--type", self.voxel_type.is_some()),
+            ("--endian", self.endian.is_some()),
+            ("--spacing", self.spacing.is_some()),
+            ("--origin", self.origin.is_some()),
+            ("--clamp-negative", self.clamp_negative),
+            ("--nan-as-zero", self.nan_as_zero),
+            ("--density-scale", self.density_scale != 1.0),
+        ]
+        .into_iter()
+        .filter_map(|(name, set)| set.then_some(name))
+        .collect()
+    }
+
     /// What `input` (a path or `procedural:SPEC`) names, read with these flags. Flags meant for
     /// another kind of input are usage errors ("`--dims` does not apply to a procedural
     /// {noun}"): ignoring them would read something other than what the user asked for. A
@@ -159,7 +179,10 @@ impl VolumeArgs {
             let all = raw_flags.iter().chain(&vdb_flags);
             ("a procedural", all.filter(set).map(|f| f.0).collect())
         } else if is_vdb {
-            ("an OpenVDB", raw_flags.iter().filter(set).map(|f| f.0).collect())
+            (
+                "an OpenVDB",
+                raw_flags.iter().filter(set).map(|f| f.0).collect(),
+            )
         } else {
             ("a raw", vdb_flags.iter().filter(set).map(|f| f.0).collect())
         };
@@ -272,7 +295,8 @@ mod tests {
             .source_spec("x.raw".as_ref(), "input", no_worker)
             .unwrap_err();
         assert!(
-            e.to_string().starts_with("--grid does not apply to a raw input"),
+            e.to_string()
+                .starts_with("--grid does not apply to a raw input"),
             "{e}"
         );
     }
@@ -292,5 +316,7 @@ mod tests {
             _ => panic!("not procedural"),
         };
         assert_eq!(get(&a), 2.5 * get(&plain));
+        assert_eq!(a.given(), ["--density-scale"]);
+        assert!(plain.given().is_empty());
     }
 }

@@ -142,11 +142,11 @@ pub use error::{Error, Result};
 pub use instances::Instances;
 pub use loader::PinGrid;
 pub use rng::Rng;
-pub use sections::{Density, Majorants};
 pub use sampler::{
     BATCH, GpuRay, GpuResult, NO_ENTRY, NO_INTERVAL, QueryResult, Ray, RayQuery, Sampler,
     SamplerOptions, status,
 };
+pub use sections::{Density, Majorants};
 
 /// The WGSL source of the GPU path (`shaders/pin.wgsl`).
 pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");

@@ -35,7 +35,9 @@ pub struct Density<'g> {
 
 /// `dims[0] * dims[1] * dims[2]` when every dim is `>= 1` and the product equals `len`.
 fn check_dims(what: &str, dims: [u32; 3], len: usize) -> std::result::Result<(), String> {
-    let n = dims.iter().try_fold(1u64, |acc, &d| acc.checked_mul(u64::from(d)));
+    let n = dims
+        .iter()
+        .try_fold(1u64, |acc, &d| acc.checked_mul(u64::from(d)));
     match n {
         Some(n) if dims.iter().all(|&d| d >= 1) && n == len as u64 => Ok(()),
         _ => Err(format!(
@@ -46,7 +48,9 @@ fn check_dims(what: &str, dims: [u32; 3], len: usize) -> std::result::Result<(),
 
 /// The index and value of the first value that is not finite and `>= 0`.
 fn first_bad(values: impl Iterator<Item = f32>) -> Option<(usize, f32)> {
-    values.enumerate().find(|(_, v)| !(v.is_finite() && *v >= 0.0))
+    values
+        .enumerate()
+        .find(|(_, v)| !(v.is_finite() && *v >= 0.0))
 }
 
 impl<'g> Majorants<'g> {
@@ -276,7 +280,17 @@ mod tests {
     fn views_refuse_values_and_dims_they_cannot_trust() {
         let b = ([0.0; 3], [1.0; 3]);
         let ok = [1.0f32, 2.0];
-        assert!(Majorants::new(MajorantView { dims: [2, 1, 1], values: &ok }, b.0, b.1).is_ok());
+        assert!(
+            Majorants::new(
+                MajorantView {
+                    dims: [2, 1, 1],
+                    values: &ok
+                },
+                b.0,
+                b.1
+            )
+            .is_ok()
+        );
         // A count that disagrees with the values actually there.
         for dims in [[3, 1, 1], [0, 1, 1], [u32::MAX, u32::MAX, 2]] {
             let e = Majorants::new(MajorantView { dims, values: &ok }, b.0, b.1).unwrap_err();
@@ -284,13 +298,37 @@ mod tests {
         }
         for bad in [f32::NAN, -1.0, f32::INFINITY] {
             let v = [1.0, bad];
-            let e = Majorants::new(MajorantView { dims: [2, 1, 1], values: &v }, b.0, b.1);
+            let e = Majorants::new(
+                MajorantView {
+                    dims: [2, 1, 1],
+                    values: &v,
+                },
+                b.0,
+                b.1,
+            );
             assert!(e.unwrap_err().contains("at 1"));
         }
         let v = [f16::from_f32(1.0), f16::NAN];
-        let e = Density::new(DensityView { dims: [2, 1, 1], values: &v }, b.0, b.1);
+        let e = Density::new(
+            DensityView {
+                dims: [2, 1, 1],
+                values: &v,
+            },
+            b.0,
+            b.1,
+        );
         assert!(e.unwrap_err().contains("not finite"));
         let v = [f16::from_f32(-0.5)];
-        assert!(Density::new(DensityView { dims: [1, 1, 1], values: &v }, b.0, b.1).is_err());
+        assert!(
+            Density::new(
+                DensityView {
+                    dims: [1, 1, 1],
+                    values: &v
+                },
+                b.0,
+                b.1
+            )
+            .is_err()
+        );
     }
 }

@@ -215,11 +215,17 @@ pub fn options_from_args(
         step_size: args.step,
         density_scale: args.volume.density_scale,
         bake_unix_time,
-        extra: vec![
-            ("cells".into(), format!("{cells:?}")),
-            ("crop".into(), (!args.no_crop).to_string()),
-            ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
-        ],
+        extra: {
+            let mut extra = vec![
+                ("cells".into(), format!("{cells:?}")),
+                ("crop".into(), (!args.no_crop).to_string()),
+                ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
+            ];
+            // What `pinrender` checks `--pins` against its `--volume` with.
+            extra.extend(source::SourceIdentity::of(source, args.volume.density_scale).to_extra());
+            extra.sort();
+            extra
+        },
     };
     Ok(BakeOptions {
         cells,

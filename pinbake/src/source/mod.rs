@@ -22,12 +22,14 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 pub mod grid;
+pub mod identity;
 pub mod procedural;
 pub mod raw;
 #[cfg(feature = "vdb")]
 pub mod vdb;
 
 pub use grid::DenseGrid;
+pub use identity::SourceIdentity;
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
 #[cfg(feature = "vdb")]

@@ -8,11 +8,12 @@ use clap::Args;
 use std::time::Instant;
 
 use pinrender::gpu_render::{
-    GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
+    GpuDensity, GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
 };
 use pinrender::render::{
-    Budget, Camera, CombKind, DeltaTracking, Image, Medium, RatioTracking, RayMarching,
-    RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
+    Budget, Camera, CombKind, DeltaTracking, DensityField, Image, MajorantGrid, Medium,
+    RatioTracking, RayMarching, RenderSettings, Scene, Sun, TransportEstimator, VoxelGrid,
+    block_bias, render,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -51,8 +52,14 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
     /// Pin file for the `pins` and `pinms` estimators (default: bake the volume in memory).
+    /// Without --volume, the medium itself: the estimators that need density use the file's
+    /// embedded density (`pinbake bake --embed-density`) and majorant sections.
     #[arg(long)]
     pub pins: Option<PathBuf>,
+    /// Render with --pins even when the pin file records a different source than --volume
+    /// (another volume, density scale, transform or box).
+    #[arg(long)]
+    pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, urm[@N], jackknife[@N], pins or pinms.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
     pub estimator: String,
@@ -206,17 +213,28 @@ fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let Some(input) = a.volume.volume.clone() else {
-        crate::usage!("--volume is required");
+    let uses_pins = matches!(a.estimator.as_str(), "pins" | "pinms");
+    let input = match (&a.volume.volume, &a.pins) {
+        (None, None) => crate::usage!(
+            "--volume is required (or --pins FILE alone, to render a pin file's own medium)"
+        ),
+        (Some(_), Some(_)) if !uses_pins => {
+            // It used to be ignored silently, so a typo in the estimator went unnoticed.
+            crate::usage!(
+                "--pins is used only by the pins and pinms estimators, not by {} (or give \
+                 --pins without --volume to render the pin file's own medium)",
+                a.estimator
+            )
+        }
+        (None, Some(pins)) => {
+            if let Some(flag) = a.volume.read.given().first() {
+                crate::usage!("{flag} applies to --volume, which is not given");
+            }
+            pins.clone()
+        }
+        (Some(v), _) => v.clone(),
     };
-    if a.pins.is_some() && !matches!(a.estimator.as_str(), "pins" | "pinms") {
-        // It used to be ignored silently, so a typo in the estimator went unnoticed.
-        crate::usage!(
-            "--pins is used only by the pins and pinms estimators, not by {}",
-            a.estimator
-        );
-    }
-    let inputs: Vec<&Path> = [Some(input.as_path()), a.pins.as_deref()]
+    let inputs: Vec<&Path> = [a.volume.volume.as_deref(), a.pins.as_deref()]
         .into_iter()
         .flatten()
         .collect();
@@ -228,21 +246,22 @@ pub fn run(a: RenderArgs) -> Result<()> {
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
     if let Ok(m) = std::fs::metadata(&input) {
-        // f32 voxels: up to 4x a raw file of bytes; a VDB's leaves up to 8x its file.
+        // f32 voxels: up to 4x a raw file of bytes (or an embedded f16 density); a VDB's
+        // leaves up to 8x its file.
         budget.check(
             &format!("reading {}", input.display()),
             m.len().saturating_mul(8),
         )?;
     }
     let uses_majorants = !a.estimator.starts_with("rm@") && a.estimator != "pins";
-    if uses_majorants {
+    if uses_majorants && a.volume.volume.is_some() {
         // f32 values plus the brick bounds the grid keeps, per brick.
         budget.check(
             &format!("{}^3 majorant bricks", a.majorant_bricks),
             u64::from(a.majorant_bricks).pow(3) * 16,
         )?;
     }
-    if a.estimator.starts_with("pin") && a.pins.is_none() {
+    if uses_pins && a.pins.is_none() {
         let probe = pinbake::BakeOptions {
             // Before the source is open: the default's upper bound.
             cells: [a.pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS); 3],
@@ -262,30 +281,39 @@ pub fn run(a: RenderArgs) -> Result<()> {
         Some(r) => Some(Image::read_exr(r).map_err(|e| anyhow!("{}: {e}", r.display()))?),
         None => None,
     };
-    let opened = volume::open_volume_typed(&input, &a.volume)?;
-    let source = opened.source();
-    let field = Arc::new(SourceField(source.clone()));
-    let (lo, hi) = {
-        let b = source.bounds();
-        (b.min, b.max)
+    let medium = match &a.volume.volume {
+        Some(v) => open_medium_from_volume(&a, v)?,
+        None => open_medium_from_pins(&input)?,
+    };
+    let (lo, hi) = (
+        glam::DVec3::from(medium.bounds.0),
+        glam::DVec3::from(medium.bounds.1),
+    );
+    let field = || -> Result<Arc<dyn DensityField>> {
+        medium.field.clone().ok_or_else(|| {
+            anyhow!(
+                "{}: no embedded density, which the {} estimator needs (bake with \
+                 `pinbake bake --embed-density N`, or render with --volume)",
+                input.display(),
+                a.estimator
+            )
+        })
+    };
+    let majorants = || -> Result<Arc<MajorantGrid>> {
+        match &medium.majorants {
+            Some(m) => Ok(m.clone()),
+            None => Ok(Arc::new(
+                MajorantGrid::from_field(&*field()?, [a.majorant_bricks; 3])
+                    .map_err(|e| anyhow!("{e}"))?,
+            )),
+        }
     };
     let estimator = |name: &str| -> Result<Arc<dyn TransportEstimator>> {
         Ok(match name {
-            "delta" => Arc::new(DeltaTracking::new(
-                field.clone(),
-                volume::majorants(&field, a.majorant_bricks)?,
-            )),
-            "ratio" => Arc::new(RatioTracking::new(
-                field.clone(),
-                volume::majorants(&field, a.majorant_bricks)?,
-            )),
+            "delta" => Arc::new(DeltaTracking::new(field()?, majorants()?)),
+            "ratio" => Arc::new(RatioTracking::new(field()?, majorants()?)),
             "pins" => {
-                let grid = volume::leak_grid(volume::pins_for(
-                    a.pins.as_deref(),
-                    source.as_ref(),
-                    a.pin_cells,
-                    a.seed,
-                )?);
+                let grid = medium.pins.expect("opened for the pin estimators");
                 let sampler = grid
                     .sampler()
                     .map_err(|e| anyhow!("{e}"))?
@@ -296,18 +324,14 @@ pub fn run(a: RenderArgs) -> Result<()> {
                 let step: f64 = s[3..]
                     .parse()
                     .map_err(|e| anyhow!("--estimator {s}: {e}"))?;
-                Arc::new(RayMarching::new(field.clone(), step).map_err(|e| anyhow!("{e}"))?)
+                Arc::new(RayMarching::new(field()?, step).map_err(|e| anyhow!("{e}"))?)
             }
             s if CombKind::parse(s).is_some() => {
                 let (kind, lookups) = CombKind::parse(s)
                     .expect("checked by the guard")
                     .map_err(|e| anyhow!("--estimator: {e}"))?;
-                kind.build(
-                    field.clone(),
-                    volume::majorants(&field, a.majorant_bricks)?,
-                    lookups,
-                )
-                .map_err(|e| anyhow!("{e}"))?
+                kind.build(field()?, majorants()?, lookups)
+                    .map_err(|e| anyhow!("{e}"))?
             }
             other => bail!(
                 "unknown estimator '{other}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
@@ -341,7 +365,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         media: Vec::new(),
     };
     if a.backend == "gpu" {
-        let image = render_gpu(&a, &opened, &field, &scene)?;
+        let image = render_gpu(&a, &medium, &field, &majorants, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
     let medium = match a.estimator.as_str() {
@@ -371,6 +395,81 @@ pub fn run(a: RenderArgs) -> Result<()> {
         out.seconds,
         reference.as_ref(),
     )
+}
+
+/// The medium a render reads: from `--volume` (with `--pins` or in-memory pins for the pin
+/// estimators), or from a pin file alone.
+struct OpenedMedium {
+    bounds: ([f64; 3], [f64; 3]),
+    field: Option<Arc<dyn DensityField>>,
+    /// The file's majorants (a pin file alone); `None`: built from the field.
+    majorants: Option<Arc<MajorantGrid>>,
+    pins: Option<&'static pinrt::PinGrid>,
+    /// The source volume, for its GPU copy.
+    opened: Option<volume::Opened>,
+    /// A pin file's embedded density, for its GPU copy.
+    voxels: Option<Arc<VoxelGrid>>,
+}
+
+impl OpenedMedium {
+    fn gpu_density(&self) -> Result<GpuDensity> {
+        match (&self.opened, &self.voxels) {
+            (Some(o), _) => o.gpu_density(),
+            (None, Some(v)) => {
+                GpuDensity::from_voxel_grid((**v).clone()).map_err(|e| anyhow!("{e}"))
+            }
+            (None, None) => bail!("no density to upload"),
+        }
+    }
+}
+
+fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium> {
+    let opened = volume::open_volume_typed(input, &a.volume)?;
+    let source = opened.source();
+    let b = source.bounds();
+    let pins = if matches!(a.estimator.as_str(), "pins" | "pinms") {
+        let grid = volume::pins_for(a.pins.as_deref(), source.as_ref(), a.pin_cells, a.seed)?;
+        if let Some(p) = &a.pins {
+            volume::check_pins_match(
+                p,
+                &grid,
+                input,
+                source.as_ref(),
+                a.volume.read.density_scale,
+                a.allow_mismatched_pins,
+            )?;
+        }
+        Some(volume::leak_grid(grid))
+    } else {
+        None
+    };
+    Ok(OpenedMedium {
+        bounds: (b.min.to_array(), b.max.to_array()),
+        field: Some(Arc::new(SourceField(source))),
+        majorants: None,
+        pins,
+        opened: Some(opened),
+        voxels: None,
+    })
+}
+
+fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
+    let grid = volume::leak_grid(volume::load_pins(path)?);
+    let m = volume::pin_file_medium(path, grid)?;
+    // The placed grid's world box (rotations included) frames the camera.
+    let bounds = grid
+        .sampler()
+        .map_err(|e| anyhow!("{}: {e}", path.display()))?
+        .world_bounds()
+        .unwrap_or(m.bounds);
+    Ok(OpenedMedium {
+        bounds,
+        field: m.density.clone().map(|d| d as Arc<dyn DensityField>),
+        majorants: m.majorants,
+        pins: Some(grid),
+        opened: None,
+        voxels: m.density,
+    })
 }
 
 fn write(
@@ -425,8 +524,9 @@ fn write(
 /// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
 fn render_gpu(
     a: &RenderArgs,
-    opened: &volume::Opened,
-    field: &Arc<SourceField>,
+    medium: &OpenedMedium,
+    field: &dyn Fn() -> Result<Arc<dyn DensityField>>,
+    majorants: &dyn Fn() -> Result<Arc<MajorantGrid>>,
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
     let est = GpuEstimator::parse(&a.estimator).ok_or_else(|| {
@@ -435,31 +535,29 @@ fn render_gpu(
             a.estimator
         )
     })?;
-    let grid = if est.uses_pins() {
-        Some(volume::leak_grid(volume::pins_for(
-            a.pins.as_deref(),
-            opened.source().as_ref(),
-            a.pin_cells,
-            a.seed,
-        )?))
+    let grid = if est.uses_pins() { medium.pins } else { None };
+    let majorants = if est.uses_majorants() {
+        Some(majorants()?)
     } else {
         None
     };
-    let majorants = if est.uses_majorants() {
-        Some(volume::majorants(field, a.majorant_bricks)?)
-    } else {
+    // Every estimator but `pins` reads the density (`field` names the file that lacks it).
+    let density = if est == GpuEstimator::Pins {
         None
+    } else {
+        field()?;
+        Some(medium.gpu_density()?)
     };
     let media = GpuMedia {
         grids: grid.into_iter().collect(),
-        densities: vec![opened.gpu_density()?],
+        densities: density.into_iter().collect(),
         media: vec![GpuMedium {
             pins: grid.map(|_| GpuPins {
                 grid: 0,
                 local_to_world: None,
                 options: a.lookup(),
             }),
-            density: Some(GpuPlacedDensity {
+            density: (est != GpuEstimator::Pins).then_some(GpuPlacedDensity {
                 density: 0,
                 translation: [0.0; 3],
                 majorants,
