@@ -199,30 +199,11 @@ struct RtParams {
     seed: [u32; 4],
 }
 
-/// The transport estimator of a GPU render (the CPU's `rm@STEP`, `delta`, `ratio`,
-/// `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum GpuEstimator {
-    /// Ray marching, midpoint rule, step `rel_step` (in `(0, 1]`) times the longest edge of
-    /// each density's box. Needs a density on every medium.
-    RayMarching { rel_step: f64 },
-    /// Delta tracking for both queries. Needs a density and majorants on every medium.
-    DeltaTracking,
-    /// Ratio tracking for transmittance, delta tracking for distances. Needs a density and
-    /// majorants on every medium.
-    RatioTracking,
-    /// Unbiased ray marching (combs of `lookups` per longest edge of the majorant box) for
-    /// transmittance, delta tracking for distances. Needs a density and majorants.
-    Urm { lookups: u32 },
-    /// Jackknife transmittance (two combs of `lookups` per longest edge of the majorant
-    /// box), delta tracking for distances. Needs a density and majorants.
-    Jackknife { lookups: u32 },
-    /// The pin grid for every query. Needs pins on every medium.
-    Pins,
-    /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
-    /// first scattering event. Needs pins, a density and majorants on every medium.
-    PinMs,
-}
+/// The transport estimator of a GPU render: the renderer's one [`EstimatorSpec`] (the CPU's
+/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`).
+///
+/// [`EstimatorSpec`]: crate::render::EstimatorSpec
+pub type GpuEstimator = crate::render::EstimatorSpec;
 
 /// Estimator codes of `render.wgsl`.
 const EST_MARCH: u32 = 0;
@@ -233,43 +214,17 @@ const EST_URM: u32 = 4;
 const EST_JACKKNIFE: u32 = 5;
 
 impl GpuEstimator {
-    /// Parses the names the CLI and the evaluation use: `rm@STEP`, `delta`, `ratio`,
-    /// `urm[@N]`, `jackknife[@N]`, `pins`, `pinms` (a comb name with a bad count is `None`).
+    /// Parses the names the CLI and the evaluation use ([`EstimatorSpec`]'s `FromStr`;
+    /// `None` for a bad name or parameter).
+    ///
+    /// [`EstimatorSpec`]: crate::render::EstimatorSpec
     pub fn parse(name: &str) -> Option<Self> {
-        if let Some(parsed) = crate::render::CombKind::parse(name) {
-            return Some(match parsed.ok()? {
-                (crate::render::CombKind::Urm, lookups) => Self::Urm { lookups },
-                (crate::render::CombKind::Jackknife, lookups) => Self::Jackknife { lookups },
-            });
-        }
-        Some(match name {
-            "delta" => Self::DeltaTracking,
-            "ratio" => Self::RatioTracking,
-            "pins" => Self::Pins,
-            "pinms" => Self::PinMs,
-            s => {
-                let rel_step: f64 = s.strip_prefix("rm@")?.parse().ok()?;
-                Self::RayMarching { rel_step }
-            }
-        })
+        name.parse().ok()
     }
 
     /// The name [`GpuEstimator::parse`] reads.
     pub fn name(self) -> String {
-        match self {
-            Self::RayMarching { rel_step } => format!("rm@{rel_step}"),
-            Self::DeltaTracking => "delta".into(),
-            Self::RatioTracking => "ratio".into(),
-            // The default count is the bare name, as the evaluation's CPU rows spell it.
-            Self::Urm { lookups } if lookups == crate::render::URM_DEFAULT_LOOKUPS => "urm".into(),
-            Self::Jackknife { lookups } if lookups == crate::render::JACKKNIFE_DEFAULT_LOOKUPS => {
-                "jackknife".into()
-            }
-            Self::Urm { lookups } => format!("urm@{lookups}"),
-            Self::Jackknife { lookups } => format!("jackknife@{lookups}"),
-            Self::Pins => "pins".into(),
-            Self::PinMs => "pinms".into(),
-        }
+        self.to_string()
     }
 
     /// (primary, secondary) codes.

@@ -99,6 +99,7 @@ mod image;
 mod majorant;
 pub mod phase;
 mod rng;
+mod spec;
 mod tracer;
 pub mod whole_volume;
 
@@ -116,6 +117,7 @@ pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use rng::{Pcg32, splitmix64};
+pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
 pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 

@@ -364,24 +364,17 @@ const ESTIMATOR_NAMES: [&str; 8] = [
 ];
 
 fn check_estimator_name(e: &str) -> Result<()> {
-    if let Some(step) = e.strip_prefix("rm@") {
-        let ok = step
-            .parse::<f64>()
-            .is_ok_and(|v| pinbake::limits::check_rel_step(v).is_ok());
-        if !ok {
-            crate::usage!("--estimators {e}: rm@STEP needs STEP in [1e-5, 1]");
-        }
-    } else if let Some(comb) = pinrender::render::CombKind::parse(e) {
-        if let Err(why) = comb {
-            crate::usage!("--estimators {e}: {why}");
-        }
-    } else if !ESTIMATOR_NAMES.contains(&e) {
-        crate::usage!(
+    if ESTIMATOR_NAMES.contains(&e) {
+        return Ok(());
+    }
+    match e.parse::<pinrender::render::EstimatorSpec>() {
+        Ok(_) => Ok(()),
+        Err(why) if why.starts_with("unknown estimator") => crate::usage!(
             "--estimators: unknown estimator '{e}' (known: rm@STEP, urm[@N], jackknife[@N], {})",
             ESTIMATOR_NAMES.join(", ")
-        );
+        ),
+        Err(why) => crate::usage!("--estimators {e}: {why}"),
     }
-    Ok(())
 }
 
 fn settings(es: &EvalScene, seed: u64, budget: Budget, threads: Option<usize>) -> RenderSettings {

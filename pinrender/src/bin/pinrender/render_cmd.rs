@@ -11,9 +11,8 @@ use pinrender::gpu_render::{
     GpuDensity, GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
 };
 use pinrender::render::{
-    Budget, Camera, CombKind, DeltaTracking, DensityField, Image, MajorantGrid, Medium,
-    RatioTracking, RayMarching, RenderSettings, Scene, Sun, TransportEstimator, VoxelGrid,
-    block_bias, render,
+    Budget, Camera, DensityField, EstimatorSpec, Image, MajorantGrid, Medium, RenderSettings,
+    Scene, Sun, TransportEstimator, VoxelGrid, block_bias, render,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -62,7 +61,7 @@ pub struct RenderArgs {
     pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, urm[@N], jackknife[@N], pins or pinms.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
-    pub estimator: String,
+    pub estimator: EstimatorSpec,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -159,20 +158,9 @@ impl RenderArgs {
     }
 }
 
-/// `--estimator`: a known name, or `rm@STEP` with STEP in [1e-5, 1] (smaller steps ran for
-/// minutes per pixel).
-fn parse_estimator(s: &str) -> Result<String, String> {
-    if let Some(step) = s.strip_prefix("rm@") {
-        let v: f64 = step.parse().map_err(|e| format!("'{step}': {e}"))?;
-        pinbake::limits::check_rel_step(v).map_err(|e| format!("rm@STEP: {e}"))?;
-    } else if let Some(comb) = CombKind::parse(s) {
-        comb?;
-    } else if !["delta", "ratio", "pins", "pinms"].contains(&s) {
-        return Err(format!(
-            "unknown estimator '{s}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
-        ));
-    }
-    Ok(s.to_string())
+/// `--estimator`: [`EstimatorSpec`]'s names.
+fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
+    s.parse()
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
@@ -213,7 +201,7 @@ fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let uses_pins = matches!(a.estimator.as_str(), "pins" | "pinms");
+    let uses_pins = a.estimator.needs_pins();
     let input = match (&a.volume.volume, &a.pins) {
         (None, None) => crate::usage!(
             "--volume is required (or --pins FILE alone, to render a pin file's own medium)"
@@ -253,7 +241,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             m.len().saturating_mul(8),
         )?;
     }
-    let uses_majorants = !a.estimator.starts_with("rm@") && a.estimator != "pins";
+    let uses_majorants = a.estimator.needs_majorants();
     if uses_majorants && a.volume.volume.is_some() {
         // f32 values plus the brick bounds the grid keeps, per brick.
         budget.check(
@@ -308,35 +296,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
             )),
         }
     };
-    let estimator = |name: &str| -> Result<Arc<dyn TransportEstimator>> {
-        Ok(match name {
-            "delta" => Arc::new(DeltaTracking::new(field()?, majorants()?)),
-            "ratio" => Arc::new(RatioTracking::new(field()?, majorants()?)),
-            "pins" => {
-                let grid = medium.pins.expect("opened for the pin estimators");
-                let sampler = grid
-                    .sampler()
-                    .map_err(|e| anyhow!("{e}"))?
-                    .with_options(a.lookup());
-                Arc::new(PinsEstimator::from_sampler(sampler))
-            }
-            s if s.starts_with("rm@") => {
-                let step: f64 = s[3..]
-                    .parse()
-                    .map_err(|e| anyhow!("--estimator {s}: {e}"))?;
-                Arc::new(RayMarching::new(field()?, step).map_err(|e| anyhow!("{e}"))?)
-            }
-            s if CombKind::parse(s).is_some() => {
-                let (kind, lookups) = CombKind::parse(s)
-                    .expect("checked by the guard")
-                    .map_err(|e| anyhow!("--estimator: {e}"))?;
-                kind.build(field()?, majorants()?, lookups)
-                    .map_err(|e| anyhow!("{e}"))?
-            }
-            other => bail!(
-                "unknown estimator '{other}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
-            ),
-        })
+    let pins_estimator = || -> Result<Arc<dyn TransportEstimator>> {
+        let grid = medium.pins.expect("opened for the pin estimators");
+        let sampler = grid
+            .sampler()
+            .map_err(|e| anyhow!("{e}"))?
+            .with_options(a.lookup());
+        Ok(Arc::new(PinsEstimator::from_sampler(sampler)))
     };
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
@@ -368,9 +334,12 @@ pub fn run(a: RenderArgs) -> Result<()> {
         let image = render_gpu(&a, &medium, &field, &majorants, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
-    let medium = match a.estimator.as_str() {
-        "pinms" => Medium::new(estimator("ratio")?, estimator("pins")?),
-        name => Medium::single(estimator(name)?),
+    let density = a.estimator.build_density_estimator(&field, &majorants)?;
+    let medium = match (density, a.estimator.needs_pins()) {
+        // pinms: ratio tracking for primary rays, pins after the first scattering event.
+        (Some(primary), true) => Medium::new(primary, pins_estimator()?),
+        (Some(only), false) => Medium::single(only),
+        (None, _) => Medium::single(pins_estimator()?),
     };
     let scene = Scene {
         media: vec![medium],
@@ -427,7 +396,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     let opened = volume::open_volume_typed(input, &a.volume)?;
     let source = opened.source();
     let b = source.bounds();
-    let pins = if matches!(a.estimator.as_str(), "pins" | "pinms") {
+    let pins = if a.estimator.needs_pins() {
         let grid = volume::pins_for(a.pins.as_deref(), source.as_ref(), a.pin_cells, a.seed)?;
         if let Some(p) = &a.pins {
             volume::check_pins_match(
@@ -529,24 +498,19 @@ fn render_gpu(
     majorants: &dyn Fn() -> Result<Arc<MajorantGrid>>,
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
-    let est = GpuEstimator::parse(&a.estimator).ok_or_else(|| {
-        anyhow!(
-            "unknown estimator '{}' (rm@STEP, delta, ratio, pins, pinms)",
-            a.estimator
-        )
-    })?;
+    let est: GpuEstimator = a.estimator;
     let grid = if est.uses_pins() { medium.pins } else { None };
     let majorants = if est.uses_majorants() {
         Some(majorants()?)
     } else {
         None
     };
-    // Every estimator but `pins` reads the density (`field` names the file that lacks it).
-    let density = if est == GpuEstimator::Pins {
-        None
-    } else {
+    // `field` names the pin file that lacks a density.
+    let density = if est.needs_density() {
         field()?;
         Some(medium.gpu_density()?)
+    } else {
+        None
     };
     let media = GpuMedia {
         grids: grid.into_iter().collect(),
@@ -557,7 +521,7 @@ fn render_gpu(
                 local_to_world: None,
                 options: a.lookup(),
             }),
-            density: (est != GpuEstimator::Pins).then_some(GpuPlacedDensity {
+            density: est.needs_density().then_some(GpuPlacedDensity {
                 density: 0,
                 translation: [0.0; 3],
                 majorants,
