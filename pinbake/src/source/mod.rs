@@ -22,6 +22,7 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 pub mod grid;
+pub mod identity;
 pub mod mip;
 pub mod procedural;
 pub mod raw;
@@ -29,6 +30,7 @@ pub mod raw;
 pub mod vdb;
 
 pub use grid::DenseGrid;
+pub use identity::SourceIdentity;
 pub use mip::{Mip, MipAllocError};
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
