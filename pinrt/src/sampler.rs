@@ -164,18 +164,32 @@ impl SamplerOptions {
 /// Rays per batch step: enough misses in flight to cover DRAM latency, few enough to stay in L1.
 pub const BATCH: usize = 32;
 
-const NO_CELL: u64 = u64::MAX;
+pub(crate) const NO_CELL: u64 = u64::MAX;
 
-#[derive(Clone, Copy, Debug)]
-struct Prepared {
-    status: u32,
-    rng: Rng,
-    seg: Segment,
-    reversed: bool,
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Prepared {
+    pub(crate) status: u32,
+    pub(crate) rng: Rng,
+    pub(crate) seg: Segment,
+    pub(crate) reversed: bool,
     /// Covered-slab cell index, or `NO_CELL` (outside this tile).
-    local: u64,
+    pub(crate) local: u64,
     /// `direction * pins_per_entry + k`.
-    within: u64,
+    pub(crate) within: u64,
+}
+
+impl Prepared {
+    /// A query that draws nothing and reads nothing (invalid or missing).
+    pub(crate) fn empty(status: u32, rng: Rng) -> Self {
+        Self {
+            status,
+            rng,
+            seg: EMPTY_SEGMENT,
+            reversed: false,
+            local: NO_CELL,
+            within: 0,
+        }
+    }
 }
 
 const EMPTY_SEGMENT: Segment = Segment {
@@ -194,6 +208,14 @@ enum Mode {
     Transmittance,
     Distance,
     Both,
+}
+
+/// Where a batch's generators come from.
+enum Seeds<'a> {
+    /// `Rng::for_query(seed, first_index + i)` (the GPU's seeding).
+    Indexed(u32, u32),
+    /// One generator per ray, advanced in place.
+    Given(&'a mut [Rng]),
 }
 
 #[inline(always)]
@@ -265,15 +287,14 @@ impl<'g> Sampler<'g> {
     }
 
     #[inline(always)]
-    fn prepare(&self, origin: [f32; 3], dir: [f32; 3], t_max: f32, mut rng: Rng) -> Prepared {
-        let bad = Prepared {
-            status: crate::sampler::status::INVALID,
-            rng,
-            seg: EMPTY_SEGMENT,
-            reversed: false,
-            local: NO_CELL,
-            within: 0,
-        };
+    pub(crate) fn prepare(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_max: f32,
+        mut rng: Rng,
+    ) -> Prepared {
+        let bad = Prepared::empty(status::INVALID, rng);
         let o = self.xf.point(origin);
         let d = self.xf.vector(dir);
         let finite = o.iter().chain(d.iter()).all(|&x| is_finite_bits(x));
@@ -456,39 +477,72 @@ impl<'g> Sampler<'g> {
         seed: u32,
         first_index: u32,
         mode: Mode,
+        emit: impl FnMut(usize, QueryResult),
+    ) {
+        self.batch_with(rays, Seeds::Indexed(seed, first_index), mode, emit);
+    }
+
+    /// The batch machinery: per step of [`BATCH`] rays, the set-up of every ray (lane
+    /// parallel without jitter, see [`crate::lanes`]), a prefetch of every cell-index word,
+    /// the addresses and a prefetch of every entry, then the finishes in ray order.
+    #[inline(always)]
+    fn batch_with(
+        &self,
+        rays: &[RayQuery],
+        mut seeds: Seeds<'_>,
+        mode: Mode,
         mut emit: impl FnMut(usize, QueryResult),
     ) {
-        let mut prep = [Prepared {
-            status: status::MISS,
-            rng: Rng::new(0),
-            seg: EMPTY_SEGMENT,
-            reversed: false,
-            local: NO_CELL,
-            within: 0,
-        }; BATCH];
+        let mut prep = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
         let mut addr = [None::<u64>; BATCH];
+        let mut rng = [Rng::new(0); BATCH];
+        let lanes = !self.opts.spatial_on() && !self.opts.directional_on();
+        let seed_hash = match seeds {
+            Seeds::Indexed(seed, _) => crate::rng::pcg_hash(seed),
+            Seeds::Given(_) => 0,
+        };
         let pins = self.view.pins.as_ptr();
         for (c, chunk) in rays.chunks(BATCH).enumerate() {
             let base = c * BATCH;
-            for (i, r) in chunk.iter().enumerate() {
-                let q = first_index.wrapping_add((base + i) as u32);
-                prep[i] = self.prepare(r.origin, r.dir, r.t_max, Rng::for_query(seed, q));
+            let n = chunk.len();
+            let indexed = match &mut seeds {
+                Seeds::Indexed(_, first) => Some((seed_hash, first.wrapping_add(base as u32))),
+                Seeds::Given(g) => {
+                    rng[..n].copy_from_slice(&g[base..base + n]);
+                    None
+                }
+            };
+            if lanes {
+                crate::lanes::prepare_lanes(
+                    &self.view, &self.xf, chunk, &mut rng, indexed, &mut prep,
+                );
+            } else {
+                for (i, r) in chunk.iter().enumerate() {
+                    if let Some((h, first)) = indexed {
+                        rng[i] = Rng::new(crate::rng::pcg_hash(h ^ first.wrapping_add(i as u32)));
+                    }
+                    prep[i] = self.prepare(r.origin, r.dir, r.t_max, rng[i]);
+                }
             }
             if let Some(ix) = self.view.index {
-                for p in &prep[..chunk.len()] {
+                for p in &prep[..n] {
                     if p.local != NO_CELL {
                         prefetch(ix.as_ptr().wrapping_add(p.local as usize));
                     }
                 }
             }
-            for (i, p) in prep[..chunk.len()].iter().enumerate() {
+            for (i, p) in prep[..n].iter().enumerate() {
                 addr[i] = self.address(p);
                 if let Some(a) = addr[i] {
                     prefetch(pins.wrapping_add(a as usize));
                 }
             }
-            for (i, p) in prep[..chunk.len()].iter().enumerate() {
-                emit(base + i, self.finish(p, addr[i], mode));
+            for (i, p) in prep[..n].iter().enumerate() {
+                let r = self.finish(p, addr[i], mode);
+                if let Seeds::Given(g) = &mut seeds {
+                    g[base + i].state = r.rng_state;
+                }
+                emit(base + i, r);
             }
         }
     }
@@ -534,6 +588,47 @@ impl<'g> Sampler<'g> {
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         self.batch(rays, seed, first_index, Mode::Both, |i, r| out[i] = r);
+    }
+
+    /// Transmittance of many rays, ray `i` with its own generator `rngs[i]`, which is
+    /// advanced exactly as [`Self::transmittance`] advances it: the results and the
+    /// generators afterwards equal those of one single query per ray. For callers that own
+    /// a generator per path (a wavefront renderer); `rays`, `rngs` and `out` have one
+    /// element per ray.
+    pub fn transmittance_batch_rngs(&self, rays: &[RayQuery], rngs: &mut [Rng], out: &mut [f32]) {
+        assert!(
+            rays.len() == out.len() && rays.len() == rngs.len(),
+            "one generator and output per ray"
+        );
+        self.batch_with(rays, Seeds::Given(rngs), Mode::Transmittance, |i, r| {
+            out[i] = r.transmittance
+        });
+    }
+
+    /// Sampled distances of many rays with a generator per ray, as
+    /// [`Self::transmittance_batch_rngs`] (equal to [`Self::sample_distance`] per ray).
+    pub fn sample_distance_batch_rngs(
+        &self,
+        rays: &[RayQuery],
+        rngs: &mut [Rng],
+        out: &mut [Option<f32>],
+    ) {
+        assert!(
+            rays.len() == out.len() && rays.len() == rngs.len(),
+            "one generator and output per ray"
+        );
+        self.batch_with(rays, Seeds::Given(rngs), Mode::Distance, |i, r| {
+            out[i] = r.collision()
+        });
+    }
+
+    /// Full results of many rays with a generator per ray (equal to [`Self::query`] per ray).
+    pub fn query_batch_rngs(&self, rays: &[RayQuery], rngs: &mut [Rng], out: &mut [QueryResult]) {
+        assert!(
+            rays.len() == out.len() && rays.len() == rngs.len(),
+            "one generator and output per ray"
+        );
+        self.batch_with(rays, Seeds::Given(rngs), Mode::Both, |i, r| out[i] = r);
     }
 }
 
