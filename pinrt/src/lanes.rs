@@ -14,13 +14,13 @@
 //! never computes are computed and then thrown away. `sampler::tests` checks the equality on
 //! random and hostile rays.
 
-use pin_format::Directions;
+use pin_format::{Directions, PinEntry};
 
 use crate::chord::{Segment, UnitTransform, bin};
 use crate::lookup::{GridView, direction_cell};
-use crate::mask::is_finite_bits;
+use crate::mask::{is_finite_bits, pow_int, sanitize_t_min};
 use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output};
-use crate::sampler::{BATCH, NO_CELL, Prepared, RayQuery, status};
+use crate::sampler::{BATCH, NO_CELL, Prepared, RayQuery, participating, status};
 
 /// Fills `out[..rays.len()]` with what `Sampler::prepare` returns for `rays[i]` and
 /// generator `rng[i]`, for a sampler without lookup jitter. `rays.len() <= BATCH`.
@@ -243,6 +243,69 @@ fn lanes_body(
             }
         } else {
             Prepared::empty(code, Rng::new(state[i]))
+        };
+    }
+}
+
+/// What the lane part of the resolve leaves for each ray: the generator after the two
+/// partial-interval draws, the participating set of the mask and the transmittance.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Head {
+    pub(crate) state: u32,
+    pub(crate) t_min: f32,
+    /// `mask & participating`.
+    pub(crate) set: u32,
+    pub(crate) popcount: u32,
+    pub(crate) transmittance: f32,
+}
+
+/// The start of `sampler::resolve` for all lanes: the two partial-interval draws, the
+/// sanitised `t_min`, the (reversed) mask, the participating set, its popcount and
+/// `t_min^popcount`. `entries[i]` is lane `i`'s entry (`PinEntry::EMPTY` when none was
+/// read). Lanes whose query did not resolve compute values nobody reads.
+#[inline]
+pub(crate) fn resolve_heads(
+    prep: &[Prepared; BATCH],
+    entries: &[PinEntry; BATCH],
+    out: &mut [Head; BATCH],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked on the line above.
+        unsafe { heads_avx2(prep, entries, out) };
+        return;
+    }
+    heads_body(prep, entries, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn heads_avx2(prep: &[Prepared; BATCH], entries: &[PinEntry; BATCH], out: &mut [Head; BATCH]) {
+    heads_body(prep, entries, out);
+}
+
+#[inline(always)]
+fn heads_body(prep: &[Prepared; BATCH], entries: &[PinEntry; BATCH], out: &mut [Head; BATCH]) {
+    for i in 0..BATCH {
+        let p = &prep[i];
+        let e = entries[i];
+        let mut rng = p.rng;
+        let xa = rng.next_f32();
+        let xb = rng.next_f32();
+        let t_min = sanitize_t_min(e.t_min);
+        let mask = if p.reversed {
+            e.mask.reverse_bits()
+        } else {
+            e.mask
+        };
+        let set = mask & participating(&p.seg, xa, xb);
+        let popcount = set.count_ones();
+        out[i] = Head {
+            state: rng.state,
+            t_min,
+            set,
+            popcount,
+            transmittance: pow_int(t_min, popcount),
         };
     }
 }

@@ -362,6 +362,50 @@ impl<'g> Sampler<'g> {
         resolve(entry, entry_id, p.reversed, &p.seg, p.rng, mode)
     }
 
+    /// [`Self::finish`] after [`crate::lanes::resolve_heads`] computed the start of the
+    /// resolve: the same result, bit for bit (the distance part is `resolve`'s).
+    #[inline(always)]
+    fn finish_head(
+        &self,
+        p: &Prepared,
+        entry_index: Option<u64>,
+        h: &crate::lanes::Head,
+        mode: Mode,
+    ) -> QueryResult {
+        if p.status != status::OK {
+            return QueryResult::empty(p.status, p.rng);
+        }
+        let entry_id = match entry_index {
+            Some(i) if (i as usize) < self.view.pins.len() => i as u32,
+            _ => NO_ENTRY,
+        };
+        let mut r = QueryResult {
+            distance: f32::INFINITY,
+            transmittance: 1.0,
+            hit: 0,
+            entry: entry_id,
+            popcount: h.popcount,
+            interval: NO_INTERVAL,
+            status: status::OK,
+            rng_state: h.state,
+        };
+        if mode != Mode::Distance {
+            r.transmittance = h.transmittance;
+        }
+        if mode != Mode::Transmittance {
+            let mut rng = Rng::new(h.state);
+            let m = h.set & exact_sample_mask(h.t_min, &mut rng);
+            if m != 0 {
+                let j = m.leading_zeros();
+                r.interval = j;
+                r.hit = 1;
+                r.distance = position_in_interval(&p.seg, j, rng.next_f32());
+            }
+            r.rng_state = rng.state;
+        }
+        r
+    }
+
     #[inline(always)]
     fn single(&self, ray: &Ray, t_max: f32, rng: &mut Rng, mode: Mode) -> QueryResult {
         let p = self.prepare(ray.origin, ray.dir, t_max, *rng);
@@ -496,6 +540,8 @@ impl<'g> Sampler<'g> {
         let mut prep = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
         let mut addr = [None::<u64>; BATCH];
         let mut rng = [Rng::new(0); BATCH];
+        let mut entries = [PinEntry::EMPTY; BATCH];
+        let mut heads = [crate::lanes::Head::default(); BATCH];
         let lanes = !self.opts.spatial_on() && !self.opts.directional_on();
         let seed_hash = match seeds {
             Seeds::Indexed(seed, _) => crate::rng::pcg_hash(seed),
@@ -537,8 +583,23 @@ impl<'g> Sampler<'g> {
                     prefetch(pins.wrapping_add(a as usize));
                 }
             }
+            if lanes {
+                // The entries (their lines were prefetched above), then the shared start of
+                // every resolve in lanes.
+                for i in 0..n {
+                    entries[i] = match addr[i].and_then(|a| self.view.pins.get(a as usize)) {
+                        Some(e) => *e,
+                        None => PinEntry::EMPTY,
+                    };
+                }
+                crate::lanes::resolve_heads(&prep, &entries, &mut heads);
+            }
             for (i, p) in prep[..n].iter().enumerate() {
-                let r = self.finish(p, addr[i], mode);
+                let r = if lanes {
+                    self.finish_head(p, addr[i], &heads[i], mode)
+                } else {
+                    self.finish(p, addr[i], mode)
+                };
                 if let Seeds::Given(g) = &mut seeds {
                     g[base + i].state = r.rng_state;
                 }
