@@ -457,8 +457,9 @@ fn render_compares_with_a_reference() {
 
 /// `pinrender bench --json` on a tiny CPU run: every row carries `volume, method, query,
 /// backend, queries_per_s`; every transmittance row its mean absolute error against the
-/// converged march; the strongest no-bake estimators (`urm`, `jackknife`) sit beside pins
-/// and ray marching on the same rays.
+/// converged march; the strongest no-bake estimators (`urm`, `jackknife`) and the trackers
+/// (`ratio`, `delta`, transmittance and distance) sit beside pins (single and batched) and
+/// ray marching on the same rays.
 #[test]
 fn bench_json_rows_have_rates_and_errors() {
     let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
@@ -498,6 +499,12 @@ fn bench_json_rows_have_rates_and_errors() {
     for m in [
         "pins/transmittance",
         "pins/distance",
+        "pins-batched/transmittance",
+        "pins-batched/distance",
+        "ratio/transmittance",
+        "ratio/distance",
+        "delta/transmittance",
+        "delta/distance",
         "rm@0.015/transmittance",
         "urm/transmittance",
         "jackknife/transmittance",
