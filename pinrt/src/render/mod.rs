@@ -100,6 +100,7 @@ mod majorant;
 pub mod phase;
 mod rng;
 mod tracer;
+mod wavefront;
 pub mod whole_volume;
 
 #[cfg(test)]
@@ -117,6 +118,7 @@ pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_ma
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use rng::{Pcg32, splitmix64};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
+pub use wavefront::{DEFAULT_WAVEFRONT_BATCH, render_wavefront};
 pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 
 /// Errors of the render module.

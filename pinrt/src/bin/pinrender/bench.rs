@@ -453,7 +453,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("gpu: {}", ctx.describe());
     }
     println!(
-        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10} {:>10}",
+        "{:<12} {:<12} {:<14} {:<5} {:>14} {:>10} {:>10}",
         "volume", "method", "query", "on", "queries/s", "batched/x", "mean|err|"
     );
     for r in &rows {
@@ -472,7 +472,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
         println!(
-            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
+            "{:<12} {:<12} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
             r["query"].as_str().unwrap_or(""),

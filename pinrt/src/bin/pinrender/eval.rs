@@ -45,8 +45,8 @@ use pinrt::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
 use pinrt::render::cache::{render_with_cache, train_cache};
 use pinrt::render::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrt::render::{
-    Budget, Image, Medium, RatioTracking, RenderOutput, RenderSettings, Scene, TransportEstimator,
-    relative_mse, render, rmse, splitmix64,
+    Budget, DEFAULT_WAVEFRONT_BATCH, Image, Medium, RatioTracking, RenderOutput, RenderSettings,
+    Scene, TransportEstimator, relative_mse, render, render_wavefront, rmse, splitmix64,
 };
 use pinrt::{PinGrid, Sampler, SamplerOptions};
 
@@ -742,6 +742,8 @@ fn measure(
                 render_single_scattering(&scene, wv, SingleScatterSampling::WholeVolume, &st)
             }
             (_, Some(c)) => render_with_cache(&scene, &st, &es.cache, c, Instant::now()),
+            // Pin queries answered in batches: the same image as `render`, sooner.
+            ("pins" | "pinms", _) => render_wavefront(&scene, &st, DEFAULT_WAVEFRONT_BATCH),
             _ => render(&scene, &st),
         };
         out.map_err(|e| anyhow!("{e}"))

@@ -13,8 +13,9 @@ use pinrt::gpu_render::{
     GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
 };
 use pinrt::render::{
-    Budget, Camera, CombKind, DeltaTracking, Image, Medium, RatioTracking, RayMarching,
-    RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
+    Budget, Camera, CombKind, DEFAULT_WAVEFRONT_BATCH, DeltaTracking, Image, Medium, RatioTracking,
+    RayMarching, RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
+    render_wavefront,
 };
 
 use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
@@ -362,7 +363,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
         threads: a.threads,
         cache: None,
     };
-    let out = render(&scene, &settings).map_err(|e| anyhow!("{e}"))?;
+    // Pin queries answered in batches (wavefront loop): the same image as `render`, sooner.
+    let out = if matches!(a.estimator.as_str(), "pins" | "pinms") {
+        render_wavefront(&scene, &settings, DEFAULT_WAVEFRONT_BATCH)
+    } else {
+        render(&scene, &settings)
+    }
+    .map_err(|e| anyhow!("{e}"))?;
     write(
         &a,
         &input,
