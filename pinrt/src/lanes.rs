@@ -86,7 +86,7 @@ fn lanes_body(
     let mut b_s = [0u32; BATCH];
     let mut rev = [false; BATCH];
     let mut dl = [[0f32; BATCH]; 3];
-    let mut local = [0u64; BATCH];
+    let mut cells = [[0u32; BATCH]; 3];
     let shape = &view.shape;
     let ppe = shape.pins_per_entry;
     if let Some((seed_hash, first)) = indexed {
@@ -183,12 +183,11 @@ fn lanes_body(
         let cx = bin(p[0] * view.dims_f[0], shape.dims[0]);
         let cy = bin(p[1] * view.dims_f[1], shape.dims[1]);
         let cz = bin(p[2] * view.dims_f[2], shape.dims[2]);
-        let inside = (cz >= shape.z_begin) & (cz < shape.z_end);
-        let lin = u64::from(cx)
-            + u64::from(shape.dims[0])
-                * (u64::from(cy)
-                    + u64::from(shape.dims[1]) * u64::from(cz.wrapping_sub(shape.z_begin)));
-        local[i] = if inside { lin } else { NO_CELL };
+        // The 64-bit linear index is formed in the assembly loop below: 64-bit lanes here
+        // would halve the vector width of the whole loop.
+        cells[0][i] = cx;
+        cells[1][i] = cy;
+        cells[2][i] = cz;
 
         t_enter[i] = lo;
         ilen[i] = c * 0.03125;
@@ -221,6 +220,15 @@ fn lanes_body(
     }
 
     for i in 0..n {
+        // `GridShape::local_cell`.
+        let (cx, cy, cz) = (cells[0][i], cells[1][i], cells[2][i]);
+        let local = if cz >= shape.z_begin && cz < shape.z_end {
+            u64::from(cx)
+                + u64::from(shape.dims[0])
+                    * (u64::from(cy) + u64::from(shape.dims[1]) * u64::from(cz - shape.z_begin))
+        } else {
+            NO_CELL
+        };
         let code = st[i] & 0xff;
         let kdraw = st[i] >> 8;
         out[i] = if code == status::OK {
@@ -238,7 +246,7 @@ fn lanes_body(
                     b: b_s[i],
                 },
                 reversed: rev[i],
-                local: local[i],
+                local,
                 within: u64::from(dcell[i]) * u64::from(ppe) + u64::from(kdraw),
             }
         } else {
