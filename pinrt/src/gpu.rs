@@ -158,8 +158,9 @@ impl Params {
             jitter: [
                 on(options.spatial_jitter),
                 on(options.directional_jitter),
-                0.0,
-                0.0,
+                // Small integers, exact in f32.
+                options.stride() as f32,
+                if options.midpoint_lookup { 1.0 } else { 0.0 },
             ],
             dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
             grid: [s.z_end, s.pins_per_entry, block_len, stored],
@@ -630,6 +631,7 @@ mod tests {
         let jitter = SamplerOptions {
             spatial_jitter: 1.0,
             directional_jitter: 1.0,
+            ..SamplerOptions::default()
         };
         check("polar sparse", &ctx, &polar, SamplerOptions::default());
         check("octahedral dense", &ctx, &oct, SamplerOptions::default());

@@ -597,6 +597,7 @@ fn batch_equals_single_and_query_parts() {
             SamplerOptions {
                 spatial_jitter: 1.0,
                 directional_jitter: 0.5,
+                ..SamplerOptions::default()
             },
         ] {
             let s = g.sampler().unwrap().with_options(opts);
@@ -903,6 +904,7 @@ fn expected_transmittance_is_the_mean_of_the_estimates() {
     let jittered = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
         spatial_jitter: 1.0,
         directional_jitter: 0.0,
+        ..SamplerOptions::default()
     });
     let ray = Ray::new([0.5; 3], [0.0, 0.0, 1.0]);
     assert_eq!(jittered.expected_transmittance(&ray, 1.0), None);
