@@ -637,6 +637,21 @@ mod tests {
         check("octahedral dense", &ctx, &oct, SamplerOptions::default());
         check("polar sparse jittered", &ctx, &polar, jitter);
         check("octahedral dense jittered", &ctx, &oct, jitter);
+        // Chained lookups: a divisor of 32, a stride that leaves a short last piece, one
+        // lookup per interval; at the start and at the middle of each piece.
+        let chained = |chain_stride, midpoint_lookup, jittered: bool| SamplerOptions {
+            chain_stride,
+            midpoint_lookup,
+            ..if jittered {
+                jitter
+            } else {
+                SamplerOptions::default()
+            }
+        };
+        check("polar sparse jittered chained 4", &ctx, &polar, chained(4, false, true));
+        check("octahedral dense chained 7 middle", &ctx, &oct, chained(7, true, false));
+        check("octahedral dense jittered chained 1", &ctx, &oct, chained(1, false, true));
+        check("polar sparse one lookup middle", &ctx, &polar, chained(32, true, true));
     }
 
     #[test]
