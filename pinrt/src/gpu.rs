@@ -648,10 +648,30 @@ mod tests {
                 SamplerOptions::default()
             }
         };
-        check("polar sparse jittered chained 4", &ctx, &polar, chained(4, false, true));
-        check("octahedral dense chained 7 middle", &ctx, &oct, chained(7, true, false));
-        check("octahedral dense jittered chained 1", &ctx, &oct, chained(1, false, true));
-        check("polar sparse one lookup middle", &ctx, &polar, chained(32, true, true));
+        check(
+            "polar sparse jittered chained 4",
+            &ctx,
+            &polar,
+            chained(4, false, true),
+        );
+        check(
+            "octahedral dense chained 7 middle",
+            &ctx,
+            &oct,
+            chained(7, true, false),
+        );
+        check(
+            "octahedral dense jittered chained 1",
+            &ctx,
+            &oct,
+            chained(1, false, true),
+        );
+        check(
+            "polar sparse one lookup middle",
+            &ctx,
+            &polar,
+            chained(32, true, true),
+        );
     }
 
     #[test]

@@ -25,6 +25,16 @@
 //! [`Sampler::query`] computes both estimates from one lookup: its transmittance equals
 //! [`Sampler::transmittance`] and its distance [`Sampler::sample_distance`] for the same
 //! starting generator.
+//!
+//! ## Chained lookups (`SamplerOptions::chain_stride`, docs/sampling.md section 12)
+//!
+//! With a stride `S < 32` the segment is cut at the chord's interval boundaries `S, 2S, ...`
+//! and each piece is one lookup as above (draws 1-6 in that order, piece after piece, at the
+//! piece's start or, with `midpoint_lookup`, its middle). Transmittance multiplies the pieces;
+//! distance sampling stops at the first piece with a collision; `query` continues after a
+//! collision with draws 1-4 only, for the transmittance. So `query`'s distance is
+//! `sample_distance`'s, but its transmittance equals `transmittance`'s only with one piece.
+//! The batch methods run one round of fetches per piece over all rays still walking.
 
 use bytemuck::{Pod, Zeroable};
 use pin_format::PinEntry;
@@ -349,7 +359,14 @@ impl<'g> Sampler<'g> {
 
     /// Draws 1-3 and the cells for piece `piece` of the segment `full` (unit-cube `o`, `d`).
     #[inline(always)]
-    fn lookup(&self, o: [f32; 3], d: [f32; 3], full: Segment, piece: u32, mut rng: Rng) -> Prepared {
+    fn lookup(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        full: Segment,
+        piece: u32,
+        mut rng: Rng,
+    ) -> Prepared {
         let v = &self.view;
         let seg = piece_of(&full, piece, self.opts.stride());
         let k = rng.below_256(v.shape.pins_per_entry);

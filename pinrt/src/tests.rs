@@ -967,7 +967,11 @@ fn one_lookup_per_chord_reproduces_the_unchained_sampler() {
     let recorded = [0xcabf_0bc0_3061_f62c_u64, 0xe22b_cbf1_f69a_6aab];
     for (i, jitter) in [0.0, 1.0].into_iter().enumerate() {
         for stride in [0, 32, 33, u32::MAX] {
-            assert_eq!(run(chain(stride, false, jitter)), recorded[i], "stride {stride}");
+            assert_eq!(
+                run(chain(stride, false, jitter)),
+                recorded[i],
+                "stride {stride}"
+            );
         }
         // The mutation: a real chain changes the results.
         assert_ne!(run(chain(16, false, jitter)), recorded[i]);
@@ -986,7 +990,11 @@ fn chained_batch_equals_single() {
             .unwrap(),
     )
     .unwrap();
-    for opts in [chain(4, false, 1.0), chain(7, true, 0.0), chain(1, false, 0.5)] {
+    for opts in [
+        chain(4, false, 1.0),
+        chain(7, true, 0.0),
+        chain(1, false, 0.5),
+    ] {
         let s = g.sampler().unwrap().with_options(opts);
         let rays = random_rays(3000, 6);
         let mut full = vec![QueryResult::empty_for_tests(); rays.len()];
@@ -1073,18 +1081,22 @@ fn chained_mean_is_the_product_of_the_pieces() {
                 "{opts:?} ray {i}: P(no collision) {miss} vs {want} (bound {bound})"
             );
             // The first piece alone: the segment cut at its end.
-            let seg = crate::chord::unit_cube_chord(
-                s.transform().point(o),
-                s.transform().vector(d),
-            )
-            .and_then(|c| segment(c, t_max))
-            .unwrap();
+            let seg =
+                crate::chord::unit_cube_chord(s.transform().point(o), s.transform().vector(d))
+                    .and_then(|c| segment(c, t_max))
+                    .unwrap();
             let first = crate::sampler::piece_of(&seg, seg.a / opts.stride(), opts.stride());
             let first_only = s.expected_transmittance(&ray, first.t1).unwrap();
             caught_d |= (miss - first_only).abs() > bound;
         }
-        assert!(caught_t, "{opts:?}: the bound cannot tell one lookup from a chain");
-        assert!(caught_d, "{opts:?}: the bound cannot tell a walk that stops early");
+        assert!(
+            caught_t,
+            "{opts:?}: the bound cannot tell one lookup from a chain"
+        );
+        assert!(
+            caught_d,
+            "{opts:?}: the bound cannot tell a walk that stops early"
+        );
     }
 }
 
