@@ -56,6 +56,9 @@ configs=(
     "oct16@${EQUAL_CELLS}-c8mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|8|middle"
     "oct16@${EQUAL_CELLS}-c4|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|4|start"
     "oct16@${EQUAL_CELLS}-c2|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|2|start"
+    "oct16@${EQUAL_CELLS}-c16mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|16|middle"
+    "oct16@${EQUAL_CELLS}-c4mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|4|middle"
+    "oct16@${EQUAL_CELLS}-mid-j0.5|--dirs octahedral:16 --cells $EQUAL_CELLS|0.5|0.5|32|middle"
     "oct16@${EQUAL_CELLS}-c8-j0|--dirs octahedral:16 --cells $EQUAL_CELLS|0|0|8|start"
     "oct16@${EQUAL_CELLS}-c4-j0.5|--dirs octahedral:16 --cells $EQUAL_CELLS|0.5|0.5|4|start"
 )

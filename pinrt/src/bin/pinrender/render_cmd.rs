@@ -135,13 +135,15 @@ pub struct RenderArgs {
     pub reference: Option<PathBuf>,
 }
 
-/// The lookup jitter `pinrender render` uses unless told otherwise (measured in
-/// `docs/sampling.md`, "Direction cells").
+/// The lookup options `pinrender render` (and `pinrender eval`'s pins) use unless told
+/// otherwise: one cell of jitter (`docs/sampling.md` section 11) and one lookup per query at
+/// the middle of the segment, which beat chained lookups at their cost on the renders of
+/// `docs/evaluation.md` ("Chained lookups and the lookup point").
 pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions {
     spatial_jitter: 1.0,
     directional_jitter: 1.0,
     chain_stride: 32,
-    midpoint_lookup: false,
+    midpoint_lookup: true,
 };
 
 fn parse_jitter(s: &str) -> Result<f32, String> {
