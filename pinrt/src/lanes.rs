@@ -1,5 +1,7 @@
 //! The set-up of one batch step (`prepare` of [`crate::sampler`]) computed for all
-//! [`BATCH`] lanes at once, structure-of-arrays, for samplers without lookup jitter.
+//! [`BATCH`] lanes at once, structure-of-arrays, for every lookup option: jitter, the lookup
+//! point and the first piece of a chained lookup (`Sampler::next_piece` sets up the later
+//! pieces one ray at a time).
 //!
 //! Why: at 32 rays per step the memory fetches overlap, and what is left of a batched query
 //! is the arithmetic of the set-up (transform, slab test, segment, direction cell, the
@@ -17,13 +19,15 @@
 use pin_format::{Directions, PinEntry};
 
 use crate::chord::{Segment, UnitTransform, bin};
-use crate::lookup::{GridView, direction_cell};
+use crate::lookup::{DirJitter, GridView, direction_cell};
 use crate::mask::{is_finite_bits, pow_int, sanitize_t_min};
-use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output};
-use crate::sampler::{BATCH, NO_CELL, Prepared, RayQuery, participating, status};
+use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output, unit_f32};
+use crate::sampler::{
+    BATCH, NO_CELL, Prepared, RayQuery, SamplerOptions, participating, piece_of, status,
+};
 
 /// Fills `out[..rays.len()]` with what `Sampler::prepare` returns for `rays[i]` and
-/// generator `rng[i]`, for a sampler without lookup jitter. `rays.len() <= BATCH`.
+/// generator `rng[i]`, for a sampler with options `opts`. `rays.len() <= BATCH`.
 /// With `indexed = Some((pcg_hash(seed), first))` the generators are first set to
 /// `Rng::for_query(seed, first + i)` (the batch API's seeding, done here so that it runs in
 /// vector registers too).
@@ -31,6 +35,7 @@ use crate::sampler::{BATCH, NO_CELL, Prepared, RayQuery, participating, status};
 pub(crate) fn prepare_lanes(
     view: &GridView<'_>,
     xf: &UnitTransform,
+    opts: &SamplerOptions,
     rays: &[RayQuery],
     rng: &mut [Rng; BATCH],
     indexed: Option<(u32, u32)>,
@@ -39,10 +44,10 @@ pub(crate) fn prepare_lanes(
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU supports AVX2, checked on the line above.
-        unsafe { prepare_avx2(view, xf, rays, rng, indexed, out) };
+        unsafe { prepare_avx2(view, xf, opts, rays, rng, indexed, out) };
         return;
     }
-    lanes_body(view, xf, rays, rng, indexed, out);
+    lanes_body(view, xf, opts, rays, rng, indexed, out);
 }
 
 /// [`lanes_body`] compiled for AVX2 (8 f32 lanes, per-lane variable shifts for the
@@ -52,18 +57,32 @@ pub(crate) fn prepare_lanes(
 fn prepare_avx2(
     view: &GridView<'_>,
     xf: &UnitTransform,
+    opts: &SamplerOptions,
     rays: &[RayQuery],
     rng: &mut [Rng; BATCH],
     indexed: Option<(u32, u32)>,
     out: &mut [Prepared; BATCH],
 ) {
-    lanes_body(view, xf, rays, rng, indexed, out);
+    lanes_body(view, xf, opts, rays, rng, indexed, out);
 }
+
+/// A placeholder segment for lanes whose query does not resolve (never read back).
+const EMPTY: Segment = Segment {
+    t_enter: 0.0,
+    interval_len: 0.0,
+    t0: 0.0,
+    t1: 0.0,
+    s0: 0.0,
+    s1: 0.0,
+    a: 0,
+    b: 0,
+};
 
 #[inline(always)]
 fn lanes_body(
     view: &GridView<'_>,
     xf: &UnitTransform,
+    opts: &SamplerOptions,
     rays: &[RayQuery],
     rng: &mut [Rng; BATCH],
     indexed: Option<(u32, u32)>,
@@ -86,6 +105,15 @@ fn lanes_body(
     let mut b_s = [0u32; BATCH];
     let mut rev = [false; BATCH];
     let mut dl = [[0f32; BATCH]; 3];
+    let mut os = [[0f32; BATCH]; 3];
+    let mut ds = [[0f32; BATCH]; 3];
+    let mut pieces = [0u32; BATCH];
+    let mut psegs = [EMPTY; BATCH];
+    let mut dxi = [[0f32; BATCH]; 2];
+    let stride = opts.stride();
+    let spatial = opts.spatial_on();
+    let directional = opts.directional_on();
+    let midpoint = opts.midpoint_lookup;
     let mut cells = [[0u32; BATCH]; 3];
     let shape = &view.shape;
     let ppe = shape.pins_per_entry;
@@ -168,29 +196,80 @@ fn lanes_body(
             status::MISS
         };
 
-        // The pin number's draw (`Rng::below_256`); only a resolved query draws.
-        let s = rng[i].state;
-        let next = s.wrapping_mul(PCG_MUL).wrapping_add(PCG_INC);
-        state[i] = if ok { next } else { s };
-        let kdraw = ((pcg_output(next) >> 8) * ppe) >> 24;
+        // `Sampler::lookup` of the segment's first piece (the whole segment unless
+        // chained).
+        let full = Segment {
+            t_enter: lo,
+            interval_len: c * 0.03125,
+            t0,
+            t1,
+            s0,
+            s1,
+            a,
+            b,
+        };
+        let piece = a / stride;
+        let seg = piece_of(&full, piece, stride);
+
+        // The draws: the pin number (`Rng::below_256`), then the spatial jitter's three and
+        // the directional jitter's two uniforms when they are on; only a resolved query draws.
+        let s0_state = rng[i].state;
+        let mut s = s0_state;
+        let mut draw = || {
+            s = s.wrapping_mul(PCG_MUL).wrapping_add(PCG_INC);
+            pcg_output(s)
+        };
+        let kdraw = ((draw() >> 8) * ppe) >> 24;
+        let mut sxi = [0f32; 3];
+        if spatial {
+            for x in &mut sxi {
+                *x = unit_f32(draw());
+            }
+        }
+        if directional {
+            dxi[0][i] = unit_f32(draw());
+            dxi[1][i] = unit_f32(draw());
+        }
+        state[i] = if ok { s } else { s0_state };
 
         let reversed = d[2] < 0.0;
         for ax in 0..3 {
             dl[ax][i] = if reversed { -d[ax] } else { d[ax] };
         }
-        let p = [o[0] + d[0] * t0, o[1] + d[1] * t0, o[2] + d[2] * t0];
-        // `lookup::spatial_cell` without jitter, then `GridShape::local_cell`.
-        let cx = bin(p[0] * view.dims_f[0], shape.dims[0]);
-        let cy = bin(p[1] * view.dims_f[1], shape.dims[1]);
-        let cz = bin(p[2] * view.dims_f[2], shape.dims[2]);
+        let t = if midpoint {
+            0.5 * (seg.t0 + seg.t1)
+        } else {
+            seg.t0
+        };
+        let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
+        // `lookup::spatial_cell`, then `GridShape::local_cell`.
+        let mut cf = [
+            p[0] * view.dims_f[0],
+            p[1] * view.dims_f[1],
+            p[2] * view.dims_f[2],
+        ];
+        if spatial {
+            for ax in 0..3 {
+                cf[ax] += (sxi[ax] - 0.5) * opts.spatial_jitter;
+            }
+        }
+        let cx = bin(cf[0], shape.dims[0]);
+        let cy = bin(cf[1], shape.dims[1]);
+        let cz = bin(cf[2], shape.dims[2]);
         // The 64-bit linear index is formed in the assembly loop below: 64-bit lanes here
         // would halve the vector width of the whole loop.
         cells[0][i] = cx;
         cells[1][i] = cy;
         cells[2][i] = cz;
 
+        for ax in 0..3 {
+            os[ax][i] = o[ax];
+            ds[ax][i] = d[ax];
+        }
+        pieces[i] = piece;
+        psegs[i] = seg;
         t_enter[i] = lo;
-        ilen[i] = c * 0.03125;
+        ilen[i] = full.interval_len;
         t0s[i] = t0;
         t1s[i] = t1;
         s0s[i] = s0;
@@ -207,15 +286,11 @@ fn lanes_body(
     match shape.directions {
         Directions::Polar { n_phi, n_theta } => {
             let dirs = Directions::Polar { n_phi, n_theta };
-            for i in 0..BATCH {
-                dcell[i] = direction_cell(&dirs, [dl[0][i], dl[1][i], dl[2][i]], None);
-            }
+            direction_cells(&dirs, &dl, directional.then_some((opts, &dxi)), &mut dcell);
         }
         Directions::Octahedral { n } => {
             let dirs = Directions::Octahedral { n };
-            for i in 0..BATCH {
-                dcell[i] = direction_cell(&dirs, [dl[0][i], dl[1][i], dl[2][i]], None);
-            }
+            direction_cells(&dirs, &dl, directional.then_some((opts, &dxi)), &mut dcell);
         }
     }
 
@@ -235,7 +310,8 @@ fn lanes_body(
             Prepared {
                 status: status::OK,
                 rng: Rng::new(state[i]),
-                seg: Segment {
+                seg: psegs[i],
+                full: Segment {
                     t_enter: t_enter[i],
                     interval_len: ilen[i],
                     t0: t0s[i],
@@ -248,10 +324,41 @@ fn lanes_body(
                 reversed: rev[i],
                 local,
                 within: u64::from(dcell[i]) * u64::from(ppe) + u64::from(kdraw),
+                o: [os[0][i], os[1][i], os[2][i]],
+                d: [ds[0][i], ds[1][i], ds[2][i]],
+                piece: pieces[i],
             }
         } else {
             Prepared::empty(code, Rng::new(state[i]))
         };
+    }
+}
+
+/// The direction cells of all lanes for one layout (`dirs` a constant of the caller's
+/// match arm, so each layout's loop is straight-line code), with the directional jitter's
+/// uniforms `xi` when it is on.
+#[inline(always)]
+fn direction_cells(
+    dirs: &Directions,
+    dl: &[[f32; BATCH]; 3],
+    jitter: Option<(&SamplerOptions, &[[f32; BATCH]; 2])>,
+    out: &mut [u32; BATCH],
+) {
+    match jitter {
+        None => {
+            for i in 0..BATCH {
+                out[i] = direction_cell(dirs, [dl[0][i], dl[1][i], dl[2][i]], None);
+            }
+        }
+        Some((opts, xi)) => {
+            for i in 0..BATCH {
+                let j = DirJitter {
+                    strength: opts.directional_jitter,
+                    xi: [xi[0][i], xi[1][i]],
+                };
+                out[i] = direction_cell(dirs, [dl[0][i], dl[1][i], dl[2][i]], Some(j));
+            }
+        }
     }
 }
 
@@ -398,14 +505,38 @@ mod tests {
         ]
     }
 
+    /// Lookup options the lanes serve: none, the render defaults (jitter 1/1, midpoint),
+    /// chains with and without jitter, each jitter alone.
+    fn option_sets() -> Vec<SamplerOptions> {
+        let o =
+            |spatial_jitter, directional_jitter, chain_stride, midpoint_lookup| SamplerOptions {
+                spatial_jitter,
+                directional_jitter,
+                chain_stride,
+                midpoint_lookup,
+            };
+        vec![
+            SamplerOptions::default(),
+            o(1.0, 1.0, 32, true),
+            o(0.0, 0.0, 32, true),
+            o(0.0, 0.0, 5, true),
+            o(0.7, 0.4, 8, false),
+            o(1.0, 0.0, 1, true),
+            o(0.0, 2.5, 32, false),
+        ]
+    }
+
     /// The lane set-up equals the scalar `prepare`, field for field, on ordinary and
-    /// hostile rays, for both seedings and every direction layout.
+    /// hostile rays, for both seedings, every direction layout and every option set.
     #[test]
     fn lanes_equal_scalar_prepare() {
-        for owned in grids() {
+        for (owned, opts) in grids()
+            .into_iter()
+            .flat_map(|g| option_sets().into_iter().map(move |o| (g.clone(), o)))
+        {
             let bytes = owned.to_bytes().unwrap();
             let g = PinGrid::from_bytes(bytes).unwrap();
-            let s = g.sampler().unwrap();
+            let s = g.sampler().unwrap().with_options(opts);
             let shape: GridShape = *g.shape();
             let all = rays(4000, 77);
             let mut resolved = 0;
@@ -416,6 +547,7 @@ mod tests {
                 prepare_lanes(
                     s.view(),
                     s.transform(),
+                    s.options(),
                     chunk,
                     &mut rng,
                     Some((crate::rng::pcg_hash(9), first)),
@@ -428,7 +560,7 @@ mod tests {
                         q.t_max,
                         Rng::for_query(9, first + i as u32),
                     );
-                    assert_eq!(out[i], want, "{shape:?} ray {q:?}");
+                    assert_eq!(out[i], want, "{shape:?} {opts:?} ray {q:?}");
                     resolved += usize::from(want.status == status::OK);
                 }
                 // Given generators.
@@ -437,7 +569,15 @@ mod tests {
                     *r = Rng::new(i as u32 * 7919 + c as u32);
                 }
                 let start = given;
-                prepare_lanes(s.view(), s.transform(), chunk, &mut given, None, &mut out);
+                prepare_lanes(
+                    s.view(),
+                    s.transform(),
+                    s.options(),
+                    chunk,
+                    &mut given,
+                    None,
+                    &mut out,
+                );
                 for (i, q) in chunk.iter().enumerate() {
                     assert_eq!(out[i], s.prepare(q.origin, q.dir, q.t_max, start[i]));
                 }
@@ -455,23 +595,25 @@ mod tests {
         let q = RayQuery::new([0.3, 0.4, 0.5], [0.2, -0.7, 0.1], 0.4);
         let mut rng = [Rng::new(5); BATCH];
         let mut out = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
-        prepare_lanes(s.view(), s.transform(), &[q], &mut rng, None, &mut out);
+        prepare_lanes(
+            s.view(),
+            s.transform(),
+            s.options(),
+            &[q],
+            &mut rng,
+            None,
+            &mut out,
+        );
         let mut want = s.prepare(q.origin, q.dir, q.t_max, Rng::new(5));
         assert_eq!(out[0], want);
         want.seg.s1 = f32::from_bits(want.seg.s1.to_bits() + 1);
         assert_ne!(out[0], want);
     }
 
-    fn sampler_for(g: &PinGrid, jitter: bool) -> Sampler<'_> {
-        let opts = if jitter {
-            SamplerOptions {
-                spatial_jitter: 0.7,
-                directional_jitter: 0.4,
-            }
-        } else {
-            SamplerOptions::default()
-        };
-        g.sampler().unwrap().with_options(opts)
+    fn sampler_for(g: &PinGrid, options: usize) -> Sampler<'_> {
+        g.sampler()
+            .unwrap()
+            .with_options(option_sets()[options % option_sets().len()])
     }
 
     proptest! {
@@ -479,16 +621,16 @@ mod tests {
 
         /// Batches with a generator per ray equal one single query per ray, results and
         /// generators afterwards, for random rays including NaN, infinite and zero
-        /// directions and origins, with and without lookup jitter.
+        /// directions and origins, for every option set (jitter, lookup point, chains).
         #[test]
         fn batch_with_generators_equals_single(
             seed in any::<u32>(),
             n in 1usize..200,
-            jitter in any::<bool>(),
+            options in 0usize..7,
             grid in 0usize..4,
         ) {
             let g = PinGrid::from_bytes(grids().swap_remove(grid).to_bytes().unwrap()).unwrap();
-            let s = sampler_for(&g, jitter);
+            let s = sampler_for(&g, options);
             let rays = rays(n, seed);
             let start: Vec<Rng> = (0..n as u32).map(|i| Rng::new(seed ^ i.wrapping_mul(0x9e37_79b9))).collect();
             let mut rq = start.clone();

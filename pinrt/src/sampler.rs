@@ -25,6 +25,16 @@
 //! [`Sampler::query`] computes both estimates from one lookup: its transmittance equals
 //! [`Sampler::transmittance`] and its distance [`Sampler::sample_distance`] for the same
 //! starting generator.
+//!
+//! ## Chained lookups (`SamplerOptions::chain_stride`, docs/sampling.md section 12)
+//!
+//! With a stride `S < 32` the segment is cut at the chord's interval boundaries `S, 2S, ...`
+//! and each piece is one lookup as above (draws 1-6 in that order, piece after piece, at the
+//! piece's start or, with `midpoint_lookup`, its middle). Transmittance multiplies the pieces;
+//! distance sampling stops at the first piece with a collision; `query` continues after a
+//! collision with draws 1-4 only, for the transmittance. So `query`'s distance is
+//! `sample_distance`'s, but its transmittance equals `transmittance`'s only with one piece.
+//! The batch methods run one round of fetches per piece over all rays still walking.
 
 use bytemuck::{Pod, Zeroable};
 use pin_format::PinEntry;
@@ -143,16 +153,32 @@ impl QueryResult {
 }
 
 /// Runtime lookup options (thesis fig. 4.4). Strengths are in cells; 0 (default) turns the
-/// jitter off and draws no random numbers for it.
+/// jitter off and draws no random numbers for it. The default is the thesis' model: one
+/// lookup per query, at the segment start.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct SamplerOptions {
     /// The lookup point moves by `(xi - 0.5) * strength` cells per axis.
     pub spatial_jitter: f32,
     /// The direction's continuous cell coordinates move by `(xi - 0.5) * strength` cells.
     pub directional_jitter: f32,
+    /// Chained lookups (`docs/sampling.md` section 12): the query segment is cut at every
+    /// `chain_stride`-th interval boundary of its chord and each piece is looked up at its own
+    /// point. 0 or 32 and above: one lookup (the thesis' model).
+    pub chain_stride: u32,
+    /// Look each piece up at its midpoint instead of its start (section 12).
+    pub midpoint_lookup: bool,
 }
 
 impl SamplerOptions {
+    /// Intervals per lookup, in `1..=32`.
+    pub fn stride(&self) -> u32 {
+        if self.chain_stride == 0 || self.chain_stride > 32 {
+            32
+        } else {
+            self.chain_stride
+        }
+    }
+
     pub(crate) fn spatial_on(&self) -> bool {
         self.spatial_jitter > 0.0 && self.spatial_jitter.is_finite()
     }
@@ -170,13 +196,33 @@ pub(crate) const NO_CELL: u64 = u64::MAX;
 pub(crate) struct Prepared {
     pub(crate) status: u32,
     pub(crate) rng: Rng,
+    /// The piece of the query segment this lookup resolves (the whole segment unless chained).
     pub(crate) seg: Segment,
     pub(crate) reversed: bool,
     /// Covered-slab cell index, or `NO_CELL` (outside this tile).
     pub(crate) local: u64,
     /// `direction * pins_per_entry + k`.
     pub(crate) within: u64,
+    /// Unit-cube origin and direction, the whole segment and the piece's number: what the
+    /// next lookup of a chain needs.
+    pub(crate) o: [f32; 3],
+    pub(crate) d: [f32; 3],
+    pub(crate) full: Segment,
+    pub(crate) piece: u32,
 }
+
+const NOT_PREPARED: Prepared = Prepared {
+    status: status::MISS,
+    rng: Rng { state: 0 },
+    seg: EMPTY_SEGMENT,
+    reversed: false,
+    local: NO_CELL,
+    within: 0,
+    o: [0.0; 3],
+    d: [0.0; 3],
+    full: EMPTY_SEGMENT,
+    piece: 0,
+};
 
 impl Prepared {
     /// A query that draws nothing and reads nothing (invalid or missing).
@@ -184,12 +230,32 @@ impl Prepared {
         Self {
             status,
             rng,
-            seg: EMPTY_SEGMENT,
-            reversed: false,
-            local: NO_CELL,
-            within: 0,
+            ..NOT_PREPARED
         }
     }
+}
+
+/// Piece `j` of `full` when the chord is cut every `stride` intervals: the intervals
+/// `[j stride, (j + 1) stride)` that the segment touches. Cuts fall on interval boundaries, so
+/// only the segment's own ends stay partial; with `stride = 32` piece 0 is `full` itself.
+#[inline(always)]
+pub fn piece_of(full: &Segment, j: u32, stride: u32) -> Segment {
+    let lo = j * stride;
+    let hi = (lo + stride).min(32);
+    let mut p = *full;
+    if full.a < lo {
+        p.a = lo;
+        p.s0 = lo as f32;
+        let t = full.t_enter + lo as f32 * full.interval_len;
+        p.t0 = if t > full.t0 { t } else { full.t0 };
+    }
+    if full.b >= hi {
+        p.b = hi - 1;
+        p.s1 = hi as f32;
+        let t = full.t_enter + hi as f32 * full.interval_len;
+        p.t1 = if t < full.t1 { t } else { full.t1 };
+    }
+    p
 }
 
 const EMPTY_SEGMENT: Segment = Segment {
@@ -292,7 +358,7 @@ impl<'g> Sampler<'g> {
         origin: [f32; 3],
         dir: [f32; 3],
         t_max: f32,
-        mut rng: Rng,
+        rng: Rng,
     ) -> Prepared {
         let bad = Prepared::empty(status::INVALID, rng);
         let o = self.xf.point(origin);
@@ -308,7 +374,22 @@ impl<'g> Sampler<'g> {
                 ..bad
             };
         };
+        let stride = self.opts.stride();
+        self.lookup(o, d, seg, seg.a / stride, rng)
+    }
+
+    /// Draws 1-3 and the cells for piece `piece` of the segment `full` (unit-cube `o`, `d`).
+    #[inline(always)]
+    fn lookup(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        full: Segment,
+        piece: u32,
+        mut rng: Rng,
+    ) -> Prepared {
         let v = &self.view;
+        let seg = piece_of(&full, piece, self.opts.stride());
         let k = rng.below_256(v.shape.pins_per_entry);
         let sj = if self.opts.spatial_on() {
             let xi = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
@@ -326,8 +407,12 @@ impl<'g> Sampler<'g> {
         };
         let reversed = d[2] < 0.0;
         let dl = if reversed { [-d[0], -d[1], -d[2]] } else { d };
-        let t0 = seg.t0;
-        let p = [o[0] + d[0] * t0, o[1] + d[1] * t0, o[2] + d[2] * t0];
+        let t = if self.opts.midpoint_lookup {
+            0.5 * (seg.t0 + seg.t1)
+        } else {
+            seg.t0
+        };
+        let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
         let cell = spatial_cell(p, v, sj);
         let dcell = direction_cell(&v.shape.directions, dl, dj);
         Prepared {
@@ -337,7 +422,21 @@ impl<'g> Sampler<'g> {
             reversed,
             local: v.local_cell(cell).unwrap_or(NO_CELL),
             within: u64::from(dcell) * u64::from(v.shape.pins_per_entry) + u64::from(k),
+            o,
+            d,
+            full,
+            piece,
         }
+    }
+
+    /// The next lookup of a chain after `p`, drawing from `rng` (the state after `p`'s
+    /// resolve); `None` after the last piece or for a query that never resolved.
+    #[inline(always)]
+    fn next_piece(&self, p: &Prepared, rng: Rng) -> Option<Prepared> {
+        if p.status != status::OK || p.seg.b >= p.full.b {
+            return None;
+        }
+        Some(self.lookup(p.o, p.d, p.full, p.piece + 1, rng))
     }
 
     /// Entry index for a prepared query (reads the sparse index).
@@ -406,11 +505,63 @@ impl<'g> Sampler<'g> {
         r
     }
 
+    /// Resolves the prepared lookup `p` (entry index `entry_index`) and folds it into the
+    /// chain's result so far (`acc`, `None` for the first piece); returns the new result and
+    /// the chain's next lookup, if any. A chain of pieces multiplies their transmittances;
+    /// distance sampling walks the pieces in order and stops at the first collision, while
+    /// `Mode::Both` keeps estimating the transmittance of the remaining pieces. With `head`
+    /// (the lane-computed start of `p`'s resolve) the piece is finished by
+    /// [`Self::finish_head`], which gives the same result as [`Self::finish`].
+    #[inline(always)]
+    fn step(
+        &self,
+        p: &Prepared,
+        entry_index: Option<u64>,
+        mode: Mode,
+        acc: Option<QueryResult>,
+        head: Option<&crate::lanes::Head>,
+    ) -> (QueryResult, Option<Prepared>) {
+        let finish = |m| match head {
+            Some(h) => self.finish_head(p, entry_index, h, m),
+            None => self.finish(p, entry_index, m),
+        };
+        let r = match acc {
+            None => finish(mode),
+            Some(acc) => {
+                let m = if mode == Mode::Both && acc.hit != 0 {
+                    Mode::Transmittance
+                } else {
+                    mode
+                };
+                let r = finish(m);
+                let mut out = acc;
+                out.transmittance = acc.transmittance * r.transmittance;
+                out.popcount = acc.popcount + r.popcount;
+                if acc.hit == 0 && r.hit != 0 {
+                    out.hit = 1;
+                    out.distance = r.distance;
+                    out.interval = r.interval;
+                }
+                out.rng_state = r.rng_state;
+                out
+            }
+        };
+        let next = if mode == Mode::Distance && r.hit != 0 {
+            None
+        } else {
+            self.next_piece(p, Rng { state: r.rng_state })
+        };
+        (r, next)
+    }
+
     #[inline(always)]
     fn single(&self, ray: &Ray, t_max: f32, rng: &mut Rng, mode: Mode) -> QueryResult {
-        let p = self.prepare(ray.origin, ray.dir, t_max, *rng);
-        let e = self.address(&p);
-        let r = self.finish(&p, e, mode);
+        let mut p = self.prepare(ray.origin, ray.dir, t_max, *rng);
+        let (mut r, mut next) = self.step(&p, self.address(&p), mode, None, None);
+        while let Some(n) = next {
+            p = n;
+            (r, next) = self.step(&p, self.address(&p), mode, Some(r), None);
+        }
         rng.state = r.rng_state;
         r
     }
@@ -467,10 +618,22 @@ impl<'g> Sampler<'g> {
         if self.opts.spatial_on() || self.opts.directional_on() {
             return None;
         }
-        let p = self.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
+        let mut p = self.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
         if p.status != status::OK {
             return Some(1.0);
         }
+        // The pieces of a chain draw their pins independently: the expectation is the
+        // product of the pieces' expectations.
+        let mut product = self.piece_expectation(&p);
+        while let Some(n) = self.next_piece(&p, Rng::new(0)) {
+            p = n;
+            product *= self.piece_expectation(&p);
+        }
+        Some(product)
+    }
+
+    /// The expected transmittance of one unjittered lookup over its piece `p.seg`.
+    fn piece_expectation(&self, p: &Prepared) -> f64 {
         let ppe = u64::from(self.view.shape.pins_per_entry.max(1));
         let first_pin = p.within - p.within % ppe;
         let seg = &p.seg;
@@ -487,7 +650,7 @@ impl<'g> Sampler<'g> {
         for k in 0..ppe {
             let q = Prepared {
                 within: first_pin + k,
-                ..p
+                ..*p
             };
             let entry = self
                 .address(&q)
@@ -511,7 +674,7 @@ impl<'g> Sampler<'g> {
             }
             sum += e;
         }
-        Some(sum / ppe as f64)
+        sum / ppe as f64
     }
 
     #[inline(always)]
@@ -537,12 +700,13 @@ impl<'g> Sampler<'g> {
         mode: Mode,
         mut emit: impl FnMut(usize, QueryResult),
     ) {
-        let mut prep = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
+        let mut prep = [NOT_PREPARED; BATCH];
         let mut addr = [None::<u64>; BATCH];
+        let mut acc = [None::<QueryResult>; BATCH];
+        let mut live = [false; BATCH];
         let mut rng = [Rng::new(0); BATCH];
         let mut entries = [PinEntry::EMPTY; BATCH];
         let mut heads = [crate::lanes::Head::default(); BATCH];
-        let lanes = !self.opts.spatial_on() && !self.opts.directional_on();
         let seed_hash = match seeds {
             Seeds::Indexed(seed, _) => crate::rng::pcg_hash(seed),
             Seeds::Given(_) => 0,
@@ -558,52 +722,68 @@ impl<'g> Sampler<'g> {
                     None
                 }
             };
-            if lanes {
-                crate::lanes::prepare_lanes(
-                    &self.view, &self.xf, chunk, &mut rng, indexed, &mut prep,
-                );
-            } else {
-                for (i, r) in chunk.iter().enumerate() {
-                    if let Some((h, first)) = indexed {
-                        rng[i] = Rng::new(crate::rng::pcg_hash(h ^ first.wrapping_add(i as u32)));
+            // The first lookup of every ray in lanes (every option: jitter, lookup point,
+            // the first piece of a chain); later pieces of chains come from the scalar
+            // `next_piece`, since few rays of a step walk them.
+            crate::lanes::prepare_lanes(
+                &self.view, &self.xf, &self.opts, chunk, &mut rng, indexed, &mut prep,
+            );
+            acc[..n].fill(None);
+            live[..n].fill(true);
+            // One round per piece of a chain: every round issues the fetches of all the rays
+            // still walking their chains before resolving any of them.
+            loop {
+                if let Some(ix) = self.view.index {
+                    for (p, _) in prep[..n].iter().zip(&live).filter(|(_, l)| **l) {
+                        if p.local != NO_CELL {
+                            prefetch(ix.as_ptr().wrapping_add(p.local as usize));
+                        }
                     }
-                    prep[i] = self.prepare(r.origin, r.dir, r.t_max, rng[i]);
                 }
-            }
-            if let Some(ix) = self.view.index {
-                for p in &prep[..n] {
-                    if p.local != NO_CELL {
-                        prefetch(ix.as_ptr().wrapping_add(p.local as usize));
-                    }
-                }
-            }
-            for (i, p) in prep[..n].iter().enumerate() {
-                addr[i] = self.address(p);
-                if let Some(a) = addr[i] {
-                    prefetch(pins.wrapping_add(a as usize));
-                }
-            }
-            if lanes {
-                // The entries (their lines were prefetched above), then the shared start of
-                // every resolve in lanes.
                 for i in 0..n {
-                    entries[i] = match addr[i].and_then(|a| self.view.pins.get(a as usize)) {
-                        Some(e) => *e,
-                        None => PinEntry::EMPTY,
-                    };
+                    if live[i] {
+                        addr[i] = self.address(&prep[i]);
+                        if let Some(a) = addr[i] {
+                            prefetch(pins.wrapping_add(a as usize));
+                        }
+                    }
+                }
+                // The entries (their lines were prefetched above), then the shared start of
+                // every resolve in lanes; lanes no longer walking compute unread values.
+                for i in 0..n {
+                    entries[i] = match addr[i].filter(|_| live[i]) {
+                        Some(a) => self.view.pins.get(a as usize).copied(),
+                        None => None,
+                    }
+                    .unwrap_or(PinEntry::EMPTY);
                 }
                 crate::lanes::resolve_heads(&prep, &entries, &mut heads);
-            }
-            for (i, p) in prep[..n].iter().enumerate() {
-                let r = if lanes {
-                    self.finish_head(p, addr[i], &heads[i], mode)
-                } else {
-                    self.finish(p, addr[i], mode)
-                };
-                if let Seeds::Given(g) = &mut seeds {
-                    g[base + i].state = r.rng_state;
+                let mut more = false;
+                for i in 0..n {
+                    if !live[i] {
+                        continue;
+                    }
+                    let (r, next) = self.step(&prep[i], addr[i], mode, acc[i], Some(&heads[i]));
+                    acc[i] = Some(r);
+                    match next {
+                        Some(p) => {
+                            prep[i] = p;
+                            more = true;
+                        }
+                        None => live[i] = false,
+                    }
                 }
-                emit(base + i, r);
+                if !more {
+                    break;
+                }
+            }
+            for (i, r) in acc[..n].iter().enumerate() {
+                if let Some(r) = r {
+                    if let Seeds::Given(g) = &mut seeds {
+                        g[base + i].state = r.rng_state;
+                    }
+                    emit(base + i, *r);
+                }
             }
         }
     }
