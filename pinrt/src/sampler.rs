@@ -689,6 +689,43 @@ impl<'g> Sampler<'g> {
         self.batch_with(rays, Seeds::Indexed(seed, first_index), mode, emit);
     }
 
+    /// One round of fetches of a batch step for the lanes `live[..n]`: a prefetch of every
+    /// cell-index word, the addresses and a prefetch of every entry, then the entries (their
+    /// lines now on the way) into `entries`.
+    #[inline(always)]
+    fn fetch_round(
+        &self,
+        prep: &[Prepared; BATCH],
+        addr: &mut [Option<u64>; BATCH],
+        entries: &mut [PinEntry; BATCH],
+        live: &[bool; BATCH],
+        n: usize,
+    ) {
+        if let Some(ix) = self.view.index {
+            for (p, _) in prep[..n].iter().zip(live).filter(|(_, l)| **l) {
+                if p.local != NO_CELL {
+                    prefetch(ix.as_ptr().wrapping_add(p.local as usize));
+                }
+            }
+        }
+        let pins = self.view.pins.as_ptr();
+        for i in 0..n {
+            if live[i] {
+                addr[i] = self.address(&prep[i]);
+                if let Some(a) = addr[i] {
+                    prefetch(pins.wrapping_add(a as usize));
+                }
+            }
+        }
+        for i in 0..n {
+            entries[i] = match addr[i].filter(|_| live[i]) {
+                Some(a) => self.view.pins.get(a as usize).copied(),
+                None => None,
+            }
+            .unwrap_or(PinEntry::EMPTY);
+        }
+    }
+
     /// The batch machinery: per step of [`BATCH`] rays, the set-up of every ray (lane
     /// parallel without jitter, see [`crate::lanes`]), a prefetch of every cell-index word,
     /// the addresses and a prefetch of every entry, then the finishes in ray order.
@@ -711,7 +748,6 @@ impl<'g> Sampler<'g> {
             Seeds::Indexed(seed, _) => crate::rng::pcg_hash(seed),
             Seeds::Given(_) => 0,
         };
-        let pins = self.view.pins.as_ptr();
         for (c, chunk) in rays.chunks(BATCH).enumerate() {
             let base = c * BATCH;
             let n = chunk.len();
@@ -728,35 +764,27 @@ impl<'g> Sampler<'g> {
             crate::lanes::prepare_lanes(
                 &self.view, &self.xf, &self.opts, chunk, &mut rng, indexed, &mut prep,
             );
+            if self.opts.stride() == 32 {
+                // One lookup per query (no chain): a single round, without the chain's
+                // bookkeeping, which costs a third of a cached batched query.
+                self.fetch_round(&prep, &mut addr, &mut entries, &[true; BATCH], n);
+                crate::lanes::resolve_heads(&prep, &entries, &mut heads);
+                for (i, p) in prep[..n].iter().enumerate() {
+                    let r = self.finish_head(p, addr[i], &heads[i], mode);
+                    if let Seeds::Given(g) = &mut seeds {
+                        g[base + i].state = r.rng_state;
+                    }
+                    emit(base + i, r);
+                }
+                continue;
+            }
             acc[..n].fill(None);
             live[..n].fill(true);
             // One round per piece of a chain: every round issues the fetches of all the rays
             // still walking their chains before resolving any of them.
             loop {
-                if let Some(ix) = self.view.index {
-                    for (p, _) in prep[..n].iter().zip(&live).filter(|(_, l)| **l) {
-                        if p.local != NO_CELL {
-                            prefetch(ix.as_ptr().wrapping_add(p.local as usize));
-                        }
-                    }
-                }
-                for i in 0..n {
-                    if live[i] {
-                        addr[i] = self.address(&prep[i]);
-                        if let Some(a) = addr[i] {
-                            prefetch(pins.wrapping_add(a as usize));
-                        }
-                    }
-                }
-                // The entries (their lines were prefetched above), then the shared start of
-                // every resolve in lanes; lanes no longer walking compute unread values.
-                for i in 0..n {
-                    entries[i] = match addr[i].filter(|_| live[i]) {
-                        Some(a) => self.view.pins.get(a as usize).copied(),
-                        None => None,
-                    }
-                    .unwrap_or(PinEntry::EMPTY);
-                }
+                self.fetch_round(&prep, &mut addr, &mut entries, &live, n);
+                // Lanes no longer walking compute unread values.
                 crate::lanes::resolve_heads(&prep, &entries, &mut heads);
                 let mut more = false;
                 for i in 0..n {
