@@ -726,9 +726,10 @@ impl<'g> Sampler<'g> {
         }
     }
 
-    /// The batch machinery: per step of [`BATCH`] rays, the set-up of every ray (lane
-    /// parallel without jitter, see [`crate::lanes`]), a prefetch of every cell-index word,
-    /// the addresses and a prefetch of every entry, then the finishes in ray order.
+    /// The batch machinery: per step of [`BATCH`] rays, the set-up of every ray's first
+    /// lookup (lane parallel, see [`crate::lanes`]), a prefetch of every cell-index word,
+    /// the addresses and a prefetch of every entry, then the finishes in ray order; chains
+    /// repeat the fetches and finishes once per piece for the rays still walking.
     #[inline(always)]
     fn batch_with(
         &self,
