@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Issue 14: pins-only renders of one volume from four view directions (+z, -z, +x, diagonal)
 # against a ratio-tracking reference, for several direction sets at equal bytes and for the
-# lookup jitter. Prints one CSV row per (bake, jitter, view):
+# lookup jitter and lookup chaining. Prints one CSV row per (bake, lookup options, view):
 #   volume,config,bytes,spatial_jitter,directional_jitter,view,mean_error,block8_rms_error
+# (the chain stride and lookup point are in the config name: `-cS` a stride of S intervals,
+# `-mid` lookups at the middle of each piece; without them one lookup at the segment start).
 # Usage: direction_sweep.sh NAME WORKDIR CX,CY,CZ DISTANCE -- VOLUME-ARGS...
 # (VOLUME-ARGS: what `pinbake bake` and `pinrender render --volume` both accept, e.g.
 #  `FILE.raw --spacing 0.025`; the first one is the input.)
@@ -48,9 +50,20 @@ configs=(
     "oct8-s0d1|--dirs octahedral:8|0|1"
     "oct16@${EQUAL_CELLS}|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1"
     "polar32x8@${EQUAL_CELLS}|--dirs polar:32x8 --cells $EQUAL_CELLS|1|1"
+    "oct16@${EQUAL_CELLS}-mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|32|middle"
+    "oct16@${EQUAL_CELLS}-c16|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|16|start"
+    "oct16@${EQUAL_CELLS}-c8|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|8|start"
+    "oct16@${EQUAL_CELLS}-c8mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|8|middle"
+    "oct16@${EQUAL_CELLS}-c4|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|4|start"
+    "oct16@${EQUAL_CELLS}-c2|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|2|start"
+    "oct16@${EQUAL_CELLS}-c16mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|16|middle"
+    "oct16@${EQUAL_CELLS}-c4mid|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1|4|middle"
+    "oct16@${EQUAL_CELLS}-mid-j0.5|--dirs octahedral:16 --cells $EQUAL_CELLS|0.5|0.5|32|middle"
+    "oct16@${EQUAL_CELLS}-c8-j0|--dirs octahedral:16 --cells $EQUAL_CELLS|0|0|8|start"
+    "oct16@${EQUAL_CELLS}-c4-j0.5|--dirs octahedral:16 --cells $EQUAL_CELLS|0.5|0.5|4|start"
 )
 for c in "${configs[@]}"; do
-    IFS='|' read -r cname bake sj dj <<<"$c"
+    IFS='|' read -r cname bake sj dj stride point <<<"$c"
     if [ -n "${CONFIGS:-}" ] && [[ " $CONFIGS " != *" $cname "* ]]; then
         continue
     fi
@@ -62,6 +75,7 @@ for c in "${configs[@]}"; do
         line=$("$bin/pinrender" render --volume "$input" "${rest[@]}" "${common[@]}" \
             --camera-origin "$(cam "${v#*:}")" --estimator pins --pins "$pin" --spp "$PIN_SPP" \
             --seed 2 --spatial-jitter "$sj" --directional-jitter "$dj" \
+            --chain-stride "${stride:-32}" --lookup-point "${point:-start}" \
             --reference "$work/ref_${v%%:*}.exr" --out "$work/pins.exr" 2>/dev/null)
         read -r _ mean _ block _ <<<"$line"
         echo "$name,$cname,$bytes,$sj,$dj,${v%%:*},$mean,$block"

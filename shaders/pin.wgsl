@@ -20,7 +20,8 @@ struct Params {
     row0: vec4<f32>,
     row1: vec4<f32>,
     row2: vec4<f32>,
-    // Spatial strength, directional strength (0 = off).
+    // Spatial strength, directional strength (0 = off), chain stride (intervals per lookup,
+    // 1..=32; 0 reads as 32), midpoint lookup (1) or segment start (0).
     jitter: vec4<f32>,
     // dims x, y, z, z_begin
     dims: vec4<u32>,
@@ -448,6 +449,67 @@ fn query(ray: Ray) -> QueryResult {
         return empty_result(STATUS_MISS);
     }
 
+    // Chained lookups (pinrt::sampler::piece_of): one lookup per piece of the segment cut at
+    // every `stride`-th interval boundary; stride 32 is the single lookup.
+    var stride = u32(G.jitter.z);
+    if (stride == 0u || stride > 32u) {
+        stride = 32u;
+    }
+    var piece = seg.a / stride;
+    var r = piece_query(o, d, piece_of(seg, piece, stride), false);
+    // Like the CPU's `query` (Mode::Both): after a collision the remaining pieces still
+    // multiply into the transmittance, without draws 5-6.
+    loop {
+        let cur = piece_of(seg, piece, stride);
+        if (cur.b >= seg.b) {
+            break;
+        }
+        piece = piece + 1u;
+        let n = piece_query(o, d, piece_of(seg, piece, stride), r.hit != 0u);
+        r.transmittance = r.transmittance * n.transmittance;
+        r.popcount = r.popcount + n.popcount;
+        if (r.hit == 0u && n.hit != 0u) {
+            r.hit = 1u;
+            r.distance = n.distance;
+            r.interval = n.interval;
+        }
+    }
+    r.rng_state = rng_state;
+    return r;
+}
+
+// Piece `j` of `full` cut every `stride` intervals (pinrt::sampler::piece_of).
+fn piece_of(full: Segment, j: u32, stride: u32) -> Segment {
+    let lo = j * stride;
+    var hi = lo + stride;
+    if (hi > 32u) {
+        hi = 32u;
+    }
+    var p = full;
+    if (full.a < lo) {
+        p.a = lo;
+        p.s0 = f32(lo);
+        let t = full.t_enter + f32(lo) * full.interval_len;
+        p.t0 = full.t0;
+        if (t > full.t0) {
+            p.t0 = t;
+        }
+    }
+    if (full.b >= hi) {
+        p.b = hi - 1u;
+        p.s1 = f32(hi);
+        let t = full.t_enter + f32(hi) * full.interval_len;
+        p.t1 = full.t1;
+        if (t < full.t1) {
+            p.t1 = t;
+        }
+    }
+    return p;
+}
+
+// One lookup over the piece `seg` (draws 1-6); `transmittance_only` skips draws 5-6 (a
+// collision was already sampled in an earlier piece).
+fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: bool) -> QueryResult {
     // Draws 1-3: pin number, spatial jitter, directional jitter.
     let ppe = G.grid.y;
     let k = ((rng_next() >> 8u) * ppe) >> 24u;
@@ -471,7 +533,10 @@ fn query(ray: Ray) -> QueryResult {
     if (reversed) {
         dl = -d;
     }
-    let t0 = seg.t0;
+    var t0 = seg.t0;
+    if (G.jitter.w != 0.0) {
+        t0 = 0.5 * (seg.t0 + seg.t1);
+    }
     let p = vec3<f32>(o.x + d.x * t0, o.y + d.y * t0, o.z + d.z * t0);
     var c = vec3<f32>(p.x * f32(G.dims.x), p.y * f32(G.dims.y), p.z * f32(G.dims.z));
     if (sj) {
@@ -528,6 +593,10 @@ fn query(ray: Ray) -> QueryResult {
     let popcount = countOneBits(mask & part);
     var r = QueryResult(bitcast<f32>(inf_bits), pow_int(t_min, popcount), 0u, entry_id, popcount, NO_INTERVAL, STATUS_OK, 0u);
 
+    if (transmittance_only) {
+        r.rng_state = rng_state;
+        return r;
+    }
     // Draws 5-6: sample mask, position in the collision interval.
     let h = exact_sample_mask(t_min);
     let m = mask & part & h;

@@ -201,7 +201,8 @@ typedef struct PinrtGpuParams {
    */
   float rows[3][4];
   /**
-   * Spatial and directional lookup jitter in cells (0 = off), 0, 0.
+   * Spatial and directional lookup jitter in cells (0 = off), chain stride in intervals (0:
+   * one lookup), lookup point (0: segment start, 1: middle; `docs/sampling.md` section 12).
    */
   float jitter[4];
   /**

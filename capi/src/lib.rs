@@ -150,7 +150,8 @@ pub struct PinrtDesc {
 pub struct PinrtGpuParams {
     /// World -> unit cube: row i = (A_i0, A_i1, A_i2, b_i).
     pub rows: [[f32; 4]; 3],
-    /// Spatial and directional lookup jitter in cells (0 = off), 0, 0.
+    /// Spatial and directional lookup jitter in cells (0 = off), chain stride in intervals (0:
+    /// one lookup), lookup point (0: segment start, 1: middle; `docs/sampling.md` section 12).
     pub jitter: [f32; 4],
     /// Cells x, y, z, z_begin.
     pub dims: [u32; 4],
@@ -470,9 +471,11 @@ unsafe fn sampler<'g>(
             ));
         }
     }
+    // The C options predate chained lookups: one lookup per query, at the segment start.
     Ok(s.with_options(SamplerOptions {
         spatial_jitter: o.spatial_jitter,
         directional_jitter: o.directional_jitter,
+        ..SamplerOptions::default()
     }))
 }
 

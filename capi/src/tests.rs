@@ -131,6 +131,7 @@ fn options_jitter_and_placement_reach_the_sampler() {
         .with_options(SamplerOptions {
             spatial_jitter: 0.5,
             directional_jitter: 1.0,
+            ..SamplerOptions::default()
         });
     let rs = rays(300);
     let mut want = vec![0f32; rs.len()];

@@ -379,7 +379,7 @@ fn render_backends_agree() {
 }
 
 /// `pinrender render --reference` prints the mean and 8x8-block errors against a reference
-/// image; the lookup jitter options are accepted and checked.
+/// image; the lookup options (jitter, chain stride, lookup point) are accepted and checked.
 #[test]
 fn render_compares_with_a_reference() {
     let dir = tempfile::tempdir().unwrap();
@@ -438,12 +438,38 @@ fn render_compares_with_a_reference() {
     assert_eq!(f[0], "mean_error");
     let block: f64 = f[3].parse().unwrap();
     assert!(block > 0.0 && block.is_finite(), "{line}");
-    // A bad strength is a usage error; a missing reference fails before rendering.
+    // Chained lookups from the segment start: another image, still one line of numbers.
     let o = run(
-        &["--estimator", "pins", "--spatial-jitter", "-1"],
-        "bad.exr",
+        &[
+            "--estimator",
+            "pins",
+            "--chain-stride",
+            "4",
+            "--lookup-point",
+            "start",
+            "--reference",
+            r,
+        ],
+        "chained.exr",
     );
-    assert_eq!(o.status.code(), Some(2));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let chained = String::from_utf8_lossy(&o.stdout).into_owned();
+    assert!(chained.starts_with("mean_error "), "{chained}");
+    assert_ne!(
+        std::fs::read(dir.path().join("chained.exr")).unwrap(),
+        std::fs::read(dir.path().join("pins.exr")).unwrap()
+    );
+    // A bad strength, stride or lookup point is a usage error; a missing reference fails
+    // before rendering.
+    for bad in [
+        ["--spatial-jitter", "-1"],
+        ["--chain-stride", "0"],
+        ["--chain-stride", "33"],
+        ["--lookup-point", "end"],
+    ] {
+        let o = run(&["--estimator", "pins", bad[0], bad[1]], "bad.exr");
+        assert_eq!(o.status.code(), Some(2), "{bad:?}");
+    }
     let o = run(
         &["--estimator", "pins", "--reference", "/nonexistent/ref.exr"],
         "missing.exr",
@@ -457,8 +483,9 @@ fn render_compares_with_a_reference() {
 
 /// `pinrender bench --json` on a tiny CPU run: every row carries `volume, method, query,
 /// backend, queries_per_s`; every transmittance row its mean absolute error against the
-/// converged march; the strongest no-bake estimators (`urm`, `jackknife`) sit beside pins
-/// and ray marching on the same rays.
+/// converged march; the strongest no-bake estimators (`urm`, `jackknife`) and the trackers
+/// (`ratio`, `delta`, transmittance and distance) sit beside pins (single and batched) and
+/// ray marching on the same rays.
 #[test]
 fn bench_json_rows_have_rates_and_errors() {
     let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
@@ -498,6 +525,12 @@ fn bench_json_rows_have_rates_and_errors() {
     for m in [
         "pins/transmittance",
         "pins/distance",
+        "pins-batched/transmittance",
+        "pins-batched/distance",
+        "ratio/transmittance",
+        "ratio/distance",
+        "delta/transmittance",
+        "delta/distance",
         "rm@0.015/transmittance",
         "urm/transmittance",
         "jackknife/transmittance",

@@ -154,8 +154,9 @@ impl Params {
             jitter: [
                 on(options.spatial_jitter),
                 on(options.directional_jitter),
-                0.0,
-                0.0,
+                // Small integers, exact in f32.
+                options.stride() as f32,
+                if options.midpoint_lookup { 1.0 } else { 0.0 },
             ],
             dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
             grid: [s.z_end, s.pins_per_entry, block_len, stored],
@@ -626,11 +627,47 @@ mod tests {
         let jitter = SamplerOptions {
             spatial_jitter: 1.0,
             directional_jitter: 1.0,
+            ..SamplerOptions::default()
         };
         check("polar sparse", &ctx, &polar, SamplerOptions::default());
         check("octahedral dense", &ctx, &oct, SamplerOptions::default());
         check("polar sparse jittered", &ctx, &polar, jitter);
         check("octahedral dense jittered", &ctx, &oct, jitter);
+        // Chained lookups: a divisor of 32, a stride that leaves a short last piece, one
+        // lookup per interval; at the start and at the middle of each piece.
+        let chained = |chain_stride, midpoint_lookup, jittered: bool| SamplerOptions {
+            chain_stride,
+            midpoint_lookup,
+            ..if jittered {
+                jitter
+            } else {
+                SamplerOptions::default()
+            }
+        };
+        check(
+            "polar sparse jittered chained 4",
+            &ctx,
+            &polar,
+            chained(4, false, true),
+        );
+        check(
+            "octahedral dense chained 7 middle",
+            &ctx,
+            &oct,
+            chained(7, true, false),
+        );
+        check(
+            "octahedral dense jittered chained 1",
+            &ctx,
+            &oct,
+            chained(1, false, true),
+        );
+        check(
+            "polar sparse one lookup middle",
+            &ctx,
+            &polar,
+            chained(32, true, true),
+        );
     }
 
     #[test]

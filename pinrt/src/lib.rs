@@ -124,6 +124,7 @@ mod error;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod instances;
+mod lanes;
 pub mod loader;
 pub mod lookup;
 #[cfg(any(test, feature = "testing"))]

@@ -25,6 +25,16 @@
 //! [`Sampler::query`] computes both estimates from one lookup: its transmittance equals
 //! [`Sampler::transmittance`] and its distance [`Sampler::sample_distance`] for the same
 //! starting generator.
+//!
+//! ## Chained lookups (`SamplerOptions::chain_stride`, docs/sampling.md section 12)
+//!
+//! With a stride `S < 32` the segment is cut at the chord's interval boundaries `S, 2S, ...`
+//! and each piece is one lookup as above (draws 1-6 in that order, piece after piece, at the
+//! piece's start or, with `midpoint_lookup`, its middle). Transmittance multiplies the pieces;
+//! distance sampling stops at the first piece with a collision; `query` continues after a
+//! collision with draws 1-4 only, for the transmittance. So `query`'s distance is
+//! `sample_distance`'s, but its transmittance equals `transmittance`'s only with one piece.
+//! The batch methods run one round of fetches per piece over all rays still walking.
 
 use bytemuck::{Pod, Zeroable};
 use pin_format::PinEntry;
@@ -143,16 +153,32 @@ impl QueryResult {
 }
 
 /// Runtime lookup options (thesis fig. 4.4). Strengths are in cells; 0 (default) turns the
-/// jitter off and draws no random numbers for it.
+/// jitter off and draws no random numbers for it. The default is the thesis' model: one
+/// lookup per query, at the segment start.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct SamplerOptions {
     /// The lookup point moves by `(xi - 0.5) * strength` cells per axis.
     pub spatial_jitter: f32,
     /// The direction's continuous cell coordinates move by `(xi - 0.5) * strength` cells.
     pub directional_jitter: f32,
+    /// Chained lookups (`docs/sampling.md` section 12): the query segment is cut at every
+    /// `chain_stride`-th interval boundary of its chord and each piece is looked up at its own
+    /// point. 0 or 32 and above: one lookup (the thesis' model).
+    pub chain_stride: u32,
+    /// Look each piece up at its midpoint instead of its start (section 12).
+    pub midpoint_lookup: bool,
 }
 
 impl SamplerOptions {
+    /// Intervals per lookup, in `1..=32`.
+    pub fn stride(&self) -> u32 {
+        if self.chain_stride == 0 || self.chain_stride > 32 {
+            32
+        } else {
+            self.chain_stride
+        }
+    }
+
     pub(crate) fn spatial_on(&self) -> bool {
         self.spatial_jitter > 0.0 && self.spatial_jitter.is_finite()
     }
@@ -164,18 +190,72 @@ impl SamplerOptions {
 /// Rays per batch step: enough misses in flight to cover DRAM latency, few enough to stay in L1.
 pub const BATCH: usize = 32;
 
-const NO_CELL: u64 = u64::MAX;
+pub(crate) const NO_CELL: u64 = u64::MAX;
 
-#[derive(Clone, Copy, Debug)]
-struct Prepared {
-    status: u32,
-    rng: Rng,
-    seg: Segment,
-    reversed: bool,
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Prepared {
+    pub(crate) status: u32,
+    pub(crate) rng: Rng,
+    /// The piece of the query segment this lookup resolves (the whole segment unless chained).
+    pub(crate) seg: Segment,
+    pub(crate) reversed: bool,
     /// Covered-slab cell index, or `NO_CELL` (outside this tile).
-    local: u64,
+    pub(crate) local: u64,
     /// `direction * pins_per_entry + k`.
-    within: u64,
+    pub(crate) within: u64,
+    /// Unit-cube origin and direction, the whole segment and the piece's number: what the
+    /// next lookup of a chain needs.
+    pub(crate) o: [f32; 3],
+    pub(crate) d: [f32; 3],
+    pub(crate) full: Segment,
+    pub(crate) piece: u32,
+}
+
+const NOT_PREPARED: Prepared = Prepared {
+    status: status::MISS,
+    rng: Rng { state: 0 },
+    seg: EMPTY_SEGMENT,
+    reversed: false,
+    local: NO_CELL,
+    within: 0,
+    o: [0.0; 3],
+    d: [0.0; 3],
+    full: EMPTY_SEGMENT,
+    piece: 0,
+};
+
+impl Prepared {
+    /// A query that draws nothing and reads nothing (invalid or missing).
+    pub(crate) fn empty(status: u32, rng: Rng) -> Self {
+        Self {
+            status,
+            rng,
+            ..NOT_PREPARED
+        }
+    }
+}
+
+/// Piece `j` of `full` when the chord is cut every `stride` intervals: the intervals
+/// `[j stride, (j + 1) stride)` that the segment touches. Cuts fall on interval boundaries, so
+/// only the segment's own ends stay partial; with `stride = 32` piece 0 is `full` itself.
+#[inline(always)]
+pub fn piece_of(full: &Segment, j: u32, stride: u32) -> Segment {
+    let lo = j * stride;
+    let hi = (lo + stride).min(32);
+    let mut p = *full;
+    if full.a < lo {
+        p.a = lo;
+        p.s0 = lo as f32;
+        let t = full.t_enter + lo as f32 * full.interval_len;
+        p.t0 = if t > full.t0 { t } else { full.t0 };
+    }
+    if full.b >= hi {
+        p.b = hi - 1;
+        p.s1 = hi as f32;
+        let t = full.t_enter + hi as f32 * full.interval_len;
+        p.t1 = if t < full.t1 { t } else { full.t1 };
+    }
+    p
 }
 
 const EMPTY_SEGMENT: Segment = Segment {
@@ -194,6 +274,14 @@ enum Mode {
     Transmittance,
     Distance,
     Both,
+}
+
+/// Where a batch's generators come from.
+enum Seeds<'a> {
+    /// `Rng::for_query(seed, first_index + i)` (the GPU's seeding).
+    Indexed(u32, u32),
+    /// One generator per ray, advanced in place.
+    Given(&'a mut [Rng]),
 }
 
 #[inline(always)]
@@ -265,15 +353,14 @@ impl<'g> Sampler<'g> {
     }
 
     #[inline(always)]
-    fn prepare(&self, origin: [f32; 3], dir: [f32; 3], t_max: f32, mut rng: Rng) -> Prepared {
-        let bad = Prepared {
-            status: crate::sampler::status::INVALID,
-            rng,
-            seg: EMPTY_SEGMENT,
-            reversed: false,
-            local: NO_CELL,
-            within: 0,
-        };
+    pub(crate) fn prepare(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_max: f32,
+        rng: Rng,
+    ) -> Prepared {
+        let bad = Prepared::empty(status::INVALID, rng);
         let o = self.xf.point(origin);
         let d = self.xf.vector(dir);
         let finite = o.iter().chain(d.iter()).all(|&x| is_finite_bits(x));
@@ -287,7 +374,22 @@ impl<'g> Sampler<'g> {
                 ..bad
             };
         };
+        let stride = self.opts.stride();
+        self.lookup(o, d, seg, seg.a / stride, rng)
+    }
+
+    /// Draws 1-3 and the cells for piece `piece` of the segment `full` (unit-cube `o`, `d`).
+    #[inline(always)]
+    fn lookup(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        full: Segment,
+        piece: u32,
+        mut rng: Rng,
+    ) -> Prepared {
         let v = &self.view;
+        let seg = piece_of(&full, piece, self.opts.stride());
         let k = rng.below_256(v.shape.pins_per_entry);
         let sj = if self.opts.spatial_on() {
             let xi = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
@@ -305,8 +407,12 @@ impl<'g> Sampler<'g> {
         };
         let reversed = d[2] < 0.0;
         let dl = if reversed { [-d[0], -d[1], -d[2]] } else { d };
-        let t0 = seg.t0;
-        let p = [o[0] + d[0] * t0, o[1] + d[1] * t0, o[2] + d[2] * t0];
+        let t = if self.opts.midpoint_lookup {
+            0.5 * (seg.t0 + seg.t1)
+        } else {
+            seg.t0
+        };
+        let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
         let cell = spatial_cell(p, v, sj);
         let dcell = direction_cell(&v.shape.directions, dl, dj);
         Prepared {
@@ -316,7 +422,21 @@ impl<'g> Sampler<'g> {
             reversed,
             local: v.local_cell(cell).unwrap_or(NO_CELL),
             within: u64::from(dcell) * u64::from(v.shape.pins_per_entry) + u64::from(k),
+            o,
+            d,
+            full,
+            piece,
         }
+    }
+
+    /// The next lookup of a chain after `p`, drawing from `rng` (the state after `p`'s
+    /// resolve); `None` after the last piece or for a query that never resolved.
+    #[inline(always)]
+    fn next_piece(&self, p: &Prepared, rng: Rng) -> Option<Prepared> {
+        if p.status != status::OK || p.seg.b >= p.full.b {
+            return None;
+        }
+        Some(self.lookup(p.o, p.d, p.full, p.piece + 1, rng))
     }
 
     /// Entry index for a prepared query (reads the sparse index).
@@ -341,11 +461,107 @@ impl<'g> Sampler<'g> {
         resolve(entry, entry_id, p.reversed, &p.seg, p.rng, mode)
     }
 
+    /// [`Self::finish`] after [`crate::lanes::resolve_heads`] computed the start of the
+    /// resolve: the same result, bit for bit (the distance part is `resolve`'s).
+    #[inline(always)]
+    fn finish_head(
+        &self,
+        p: &Prepared,
+        entry_index: Option<u64>,
+        h: &crate::lanes::Head,
+        mode: Mode,
+    ) -> QueryResult {
+        if p.status != status::OK {
+            return QueryResult::empty(p.status, p.rng);
+        }
+        let entry_id = match entry_index {
+            Some(i) if (i as usize) < self.view.pins.len() => i as u32,
+            _ => NO_ENTRY,
+        };
+        let mut r = QueryResult {
+            distance: f32::INFINITY,
+            transmittance: 1.0,
+            hit: 0,
+            entry: entry_id,
+            popcount: h.popcount,
+            interval: NO_INTERVAL,
+            status: status::OK,
+            rng_state: h.state,
+        };
+        if mode != Mode::Distance {
+            r.transmittance = h.transmittance;
+        }
+        if mode != Mode::Transmittance {
+            let mut rng = Rng::new(h.state);
+            let m = h.set & exact_sample_mask(h.t_min, &mut rng);
+            if m != 0 {
+                let j = m.leading_zeros();
+                r.interval = j;
+                r.hit = 1;
+                r.distance = position_in_interval(&p.seg, j, rng.next_f32());
+            }
+            r.rng_state = rng.state;
+        }
+        r
+    }
+
+    /// Resolves the prepared lookup `p` (entry index `entry_index`) and folds it into the
+    /// chain's result so far (`acc`, `None` for the first piece); returns the new result and
+    /// the chain's next lookup, if any. A chain of pieces multiplies their transmittances;
+    /// distance sampling walks the pieces in order and stops at the first collision, while
+    /// `Mode::Both` keeps estimating the transmittance of the remaining pieces. With `head`
+    /// (the lane-computed start of `p`'s resolve) the piece is finished by
+    /// [`Self::finish_head`], which gives the same result as [`Self::finish`].
+    #[inline(always)]
+    fn step(
+        &self,
+        p: &Prepared,
+        entry_index: Option<u64>,
+        mode: Mode,
+        acc: Option<QueryResult>,
+        head: Option<&crate::lanes::Head>,
+    ) -> (QueryResult, Option<Prepared>) {
+        let finish = |m| match head {
+            Some(h) => self.finish_head(p, entry_index, h, m),
+            None => self.finish(p, entry_index, m),
+        };
+        let r = match acc {
+            None => finish(mode),
+            Some(acc) => {
+                let m = if mode == Mode::Both && acc.hit != 0 {
+                    Mode::Transmittance
+                } else {
+                    mode
+                };
+                let r = finish(m);
+                let mut out = acc;
+                out.transmittance = acc.transmittance * r.transmittance;
+                out.popcount = acc.popcount + r.popcount;
+                if acc.hit == 0 && r.hit != 0 {
+                    out.hit = 1;
+                    out.distance = r.distance;
+                    out.interval = r.interval;
+                }
+                out.rng_state = r.rng_state;
+                out
+            }
+        };
+        let next = if mode == Mode::Distance && r.hit != 0 {
+            None
+        } else {
+            self.next_piece(p, Rng { state: r.rng_state })
+        };
+        (r, next)
+    }
+
     #[inline(always)]
     fn single(&self, ray: &Ray, t_max: f32, rng: &mut Rng, mode: Mode) -> QueryResult {
-        let p = self.prepare(ray.origin, ray.dir, t_max, *rng);
-        let e = self.address(&p);
-        let r = self.finish(&p, e, mode);
+        let mut p = self.prepare(ray.origin, ray.dir, t_max, *rng);
+        let (mut r, mut next) = self.step(&p, self.address(&p), mode, None, None);
+        while let Some(n) = next {
+            p = n;
+            (r, next) = self.step(&p, self.address(&p), mode, Some(r), None);
+        }
         rng.state = r.rng_state;
         r
     }
@@ -402,10 +618,22 @@ impl<'g> Sampler<'g> {
         if self.opts.spatial_on() || self.opts.directional_on() {
             return None;
         }
-        let p = self.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
+        let mut p = self.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
         if p.status != status::OK {
             return Some(1.0);
         }
+        // The pieces of a chain draw their pins independently: the expectation is the
+        // product of the pieces' expectations.
+        let mut product = self.piece_expectation(&p);
+        while let Some(n) = self.next_piece(&p, Rng::new(0)) {
+            p = n;
+            product *= self.piece_expectation(&p);
+        }
+        Some(product)
+    }
+
+    /// The expected transmittance of one unjittered lookup over its piece `p.seg`.
+    fn piece_expectation(&self, p: &Prepared) -> f64 {
         let ppe = u64::from(self.view.shape.pins_per_entry.max(1));
         let first_pin = p.within - p.within % ppe;
         let seg = &p.seg;
@@ -422,7 +650,7 @@ impl<'g> Sampler<'g> {
         for k in 0..ppe {
             let q = Prepared {
                 within: first_pin + k,
-                ..p
+                ..*p
             };
             let entry = self
                 .address(&q)
@@ -446,7 +674,7 @@ impl<'g> Sampler<'g> {
             }
             sum += e;
         }
-        Some(sum / ppe as f64)
+        sum / ppe as f64
     }
 
     #[inline(always)]
@@ -456,39 +684,135 @@ impl<'g> Sampler<'g> {
         seed: u32,
         first_index: u32,
         mode: Mode,
-        mut emit: impl FnMut(usize, QueryResult),
+        emit: impl FnMut(usize, QueryResult),
     ) {
-        let mut prep = [Prepared {
-            status: status::MISS,
-            rng: Rng::new(0),
-            seg: EMPTY_SEGMENT,
-            reversed: false,
-            local: NO_CELL,
-            within: 0,
-        }; BATCH];
-        let mut addr = [None::<u64>; BATCH];
-        let pins = self.view.pins.as_ptr();
-        for (c, chunk) in rays.chunks(BATCH).enumerate() {
-            let base = c * BATCH;
-            for (i, r) in chunk.iter().enumerate() {
-                let q = first_index.wrapping_add((base + i) as u32);
-                prep[i] = self.prepare(r.origin, r.dir, r.t_max, Rng::for_query(seed, q));
-            }
-            if let Some(ix) = self.view.index {
-                for p in &prep[..chunk.len()] {
-                    if p.local != NO_CELL {
-                        prefetch(ix.as_ptr().wrapping_add(p.local as usize));
-                    }
+        self.batch_with(rays, Seeds::Indexed(seed, first_index), mode, emit);
+    }
+
+    /// One round of fetches of a batch step for the lanes `live[..n]`: a prefetch of every
+    /// cell-index word, the addresses and a prefetch of every entry, then the entries (their
+    /// lines now on the way) into `entries`.
+    #[inline(always)]
+    fn fetch_round(
+        &self,
+        prep: &[Prepared; BATCH],
+        addr: &mut [Option<u64>; BATCH],
+        entries: &mut [PinEntry; BATCH],
+        live: &[bool; BATCH],
+        n: usize,
+    ) {
+        if let Some(ix) = self.view.index {
+            for (p, _) in prep[..n].iter().zip(live).filter(|(_, l)| **l) {
+                if p.local != NO_CELL {
+                    prefetch(ix.as_ptr().wrapping_add(p.local as usize));
                 }
             }
-            for (i, p) in prep[..chunk.len()].iter().enumerate() {
-                addr[i] = self.address(p);
+        }
+        let pins = self.view.pins.as_ptr();
+        for i in 0..n {
+            if live[i] {
+                addr[i] = self.address(&prep[i]);
                 if let Some(a) = addr[i] {
                     prefetch(pins.wrapping_add(a as usize));
                 }
             }
-            for (i, p) in prep[..chunk.len()].iter().enumerate() {
-                emit(base + i, self.finish(p, addr[i], mode));
+        }
+        for i in 0..n {
+            entries[i] = match addr[i].filter(|_| live[i]) {
+                Some(a) => self.view.pins.get(a as usize).copied(),
+                None => None,
+            }
+            .unwrap_or(PinEntry::EMPTY);
+        }
+    }
+
+    /// The batch machinery: per step of [`BATCH`] rays, the set-up of every ray's first
+    /// lookup (lane parallel, see [`crate::lanes`]), a prefetch of every cell-index word,
+    /// the addresses and a prefetch of every entry, then the finishes in ray order; chains
+    /// repeat the fetches and finishes once per piece for the rays still walking.
+    #[inline(always)]
+    fn batch_with(
+        &self,
+        rays: &[RayQuery],
+        mut seeds: Seeds<'_>,
+        mode: Mode,
+        mut emit: impl FnMut(usize, QueryResult),
+    ) {
+        let mut prep = [NOT_PREPARED; BATCH];
+        let mut addr = [None::<u64>; BATCH];
+        let mut acc = [None::<QueryResult>; BATCH];
+        let mut live = [false; BATCH];
+        let mut rng = [Rng::new(0); BATCH];
+        let mut entries = [PinEntry::EMPTY; BATCH];
+        let mut heads = [crate::lanes::Head::default(); BATCH];
+        let seed_hash = match seeds {
+            Seeds::Indexed(seed, _) => crate::rng::pcg_hash(seed),
+            Seeds::Given(_) => 0,
+        };
+        for (c, chunk) in rays.chunks(BATCH).enumerate() {
+            let base = c * BATCH;
+            let n = chunk.len();
+            let indexed = match &mut seeds {
+                Seeds::Indexed(_, first) => Some((seed_hash, first.wrapping_add(base as u32))),
+                Seeds::Given(g) => {
+                    rng[..n].copy_from_slice(&g[base..base + n]);
+                    None
+                }
+            };
+            // The first lookup of every ray in lanes (every option: jitter, lookup point,
+            // the first piece of a chain); later pieces of chains come from the scalar
+            // `next_piece`, since few rays of a step walk them.
+            crate::lanes::prepare_lanes(
+                &self.view, &self.xf, &self.opts, chunk, &mut rng, indexed, &mut prep,
+            );
+            if self.opts.stride() == 32 {
+                // One lookup per query (no chain): a single round, without the chain's
+                // bookkeeping, which costs a third of a cached batched query.
+                self.fetch_round(&prep, &mut addr, &mut entries, &[true; BATCH], n);
+                crate::lanes::resolve_heads(&prep, &entries, &mut heads);
+                for (i, p) in prep[..n].iter().enumerate() {
+                    let r = self.finish_head(p, addr[i], &heads[i], mode);
+                    if let Seeds::Given(g) = &mut seeds {
+                        g[base + i].state = r.rng_state;
+                    }
+                    emit(base + i, r);
+                }
+                continue;
+            }
+            acc[..n].fill(None);
+            live[..n].fill(true);
+            // One round per piece of a chain: every round issues the fetches of all the rays
+            // still walking their chains before resolving any of them.
+            loop {
+                self.fetch_round(&prep, &mut addr, &mut entries, &live, n);
+                // Lanes no longer walking compute unread values.
+                crate::lanes::resolve_heads(&prep, &entries, &mut heads);
+                let mut more = false;
+                for i in 0..n {
+                    if !live[i] {
+                        continue;
+                    }
+                    let (r, next) = self.step(&prep[i], addr[i], mode, acc[i], Some(&heads[i]));
+                    acc[i] = Some(r);
+                    match next {
+                        Some(p) => {
+                            prep[i] = p;
+                            more = true;
+                        }
+                        None => live[i] = false,
+                    }
+                }
+                if !more {
+                    break;
+                }
+            }
+            for (i, r) in acc[..n].iter().enumerate() {
+                if let Some(r) = r {
+                    if let Seeds::Given(g) = &mut seeds {
+                        g[base + i].state = r.rng_state;
+                    }
+                    emit(base + i, *r);
+                }
             }
         }
     }
@@ -534,6 +858,47 @@ impl<'g> Sampler<'g> {
     ) {
         assert_eq!(rays.len(), out.len(), "one output per ray");
         self.batch(rays, seed, first_index, Mode::Both, |i, r| out[i] = r);
+    }
+
+    /// Transmittance of many rays, ray `i` with its own generator `rngs[i]`, which is
+    /// advanced exactly as [`Self::transmittance`] advances it: the results and the
+    /// generators afterwards equal those of one single query per ray. For callers that own
+    /// a generator per path (a wavefront renderer); `rays`, `rngs` and `out` have one
+    /// element per ray.
+    pub fn transmittance_batch_rngs(&self, rays: &[RayQuery], rngs: &mut [Rng], out: &mut [f32]) {
+        assert!(
+            rays.len() == out.len() && rays.len() == rngs.len(),
+            "one generator and output per ray"
+        );
+        self.batch_with(rays, Seeds::Given(rngs), Mode::Transmittance, |i, r| {
+            out[i] = r.transmittance
+        });
+    }
+
+    /// Sampled distances of many rays with a generator per ray, as
+    /// [`Self::transmittance_batch_rngs`] (equal to [`Self::sample_distance`] per ray).
+    pub fn sample_distance_batch_rngs(
+        &self,
+        rays: &[RayQuery],
+        rngs: &mut [Rng],
+        out: &mut [Option<f32>],
+    ) {
+        assert!(
+            rays.len() == out.len() && rays.len() == rngs.len(),
+            "one generator and output per ray"
+        );
+        self.batch_with(rays, Seeds::Given(rngs), Mode::Distance, |i, r| {
+            out[i] = r.collision()
+        });
+    }
+
+    /// Full results of many rays with a generator per ray (equal to [`Self::query`] per ray).
+    pub fn query_batch_rngs(&self, rays: &[RayQuery], rngs: &mut [Rng], out: &mut [QueryResult]) {
+        assert!(
+            rays.len() == out.len() && rays.len() == rngs.len(),
+            "one generator and output per ray"
+        );
+        self.batch_with(rays, Seeds::Given(rngs), Mode::Both, |i, r| out[i] = r);
     }
 }
 

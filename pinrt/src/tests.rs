@@ -597,6 +597,7 @@ fn batch_equals_single_and_query_parts() {
             SamplerOptions {
                 spatial_jitter: 1.0,
                 directional_jitter: 0.5,
+                ..SamplerOptions::default()
             },
         ] {
             let s = g.sampler().unwrap().with_options(opts);
@@ -903,8 +904,244 @@ fn expected_transmittance_is_the_mean_of_the_estimates() {
     let jittered = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
         spatial_jitter: 1.0,
         directional_jitter: 0.0,
+        ..SamplerOptions::default()
     });
     let ray = Ray::new([0.5; 3], [0.0, 0.0, 1.0]);
     assert_eq!(jittered.expected_transmittance(&ray, 1.0), None);
     assert!(jittered.mean_transmittance(&ray, 1.0, 256, 1).is_finite());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Chained lookups (docs/sampling.md section 12)
+// ---------------------------------------------------------------------------------------------
+
+fn chain(chain_stride: u32, midpoint_lookup: bool, jitter: f32) -> SamplerOptions {
+    SamplerOptions {
+        spatial_jitter: jitter,
+        directional_jitter: jitter,
+        chain_stride,
+        midpoint_lookup,
+    }
+}
+
+/// FNV-1a over every field of every result: a fingerprint of a run.
+fn fingerprint(results: &[QueryResult]) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for r in results {
+        for w in [
+            r.distance.to_bits(),
+            r.transmittance.to_bits(),
+            r.hit,
+            r.entry,
+            r.popcount,
+            r.interval,
+            r.status,
+            r.rng_state,
+        ] {
+            h = (h ^ u64::from(w)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    h
+}
+
+/// One lookup per chord (stride 0, 32 or more) must reproduce the sampler from before chained
+/// lookups existed bit for bit. The fingerprints were recorded with that sampler (commit
+/// 37f2b2c) on these rays and grids, without and with jitter.
+#[test]
+fn one_lookup_per_chord_reproduces_the_unchained_sampler() {
+    let g = PinGrid::from_bytes(
+        random_grid(Directions::Octahedral { n: 5 }, [5, 4, 3], 3, true, 17)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let rays = random_rays(4000, 5);
+    let run = |opts: SamplerOptions| {
+        let mut out = vec![QueryResult::empty_for_tests(); rays.len()];
+        g.sampler()
+            .unwrap()
+            .with_options(opts)
+            .query_batch(&rays, 7, 3, &mut out);
+        fingerprint(&out)
+    };
+    let recorded = [0xcabf_0bc0_3061_f62c_u64, 0xe22b_cbf1_f69a_6aab];
+    for (i, jitter) in [0.0, 1.0].into_iter().enumerate() {
+        for stride in [0, 32, 33, u32::MAX] {
+            assert_eq!(
+                run(chain(stride, false, jitter)),
+                recorded[i],
+                "stride {stride}"
+            );
+        }
+        // The mutation: a real chain changes the results.
+        assert_ne!(run(chain(16, false, jitter)), recorded[i]);
+    }
+}
+
+/// Chained queries agree between the single and the batch paths, and `query`'s distance is
+/// `sample_distance`'s. Its transmittance is `transmittance()`'s only with one lookup: `query`
+/// draws the sample mask (and position) of each piece that `transmittance()` does not draw,
+/// so the later pieces see other numbers (both estimates are unbiased).
+#[test]
+fn chained_batch_equals_single() {
+    let g = PinGrid::from_bytes(
+        random_grid(Directions::THESIS_DEFAULT, [5, 4, 3], 3, true, 17)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    for opts in [
+        chain(4, false, 1.0),
+        chain(7, true, 0.0),
+        chain(1, false, 0.5),
+    ] {
+        let s = g.sampler().unwrap().with_options(opts);
+        let rays = random_rays(3000, 6);
+        let mut full = vec![QueryResult::empty_for_tests(); rays.len()];
+        let mut ts = vec![0.0; rays.len()];
+        let mut ds = vec![None; rays.len()];
+        s.query_batch(&rays, 99, 1000, &mut full);
+        s.transmittance_batch(&rays, 99, 1000, &mut ts);
+        s.sample_distance_batch(&rays, 99, 1000, &mut ds);
+        let mut chained = 0;
+        for (i, q) in rays.iter().enumerate() {
+            let rng = Rng::for_query(99, 1000 + i as u32);
+            assert_eq!(s.query(&q.ray(), q.t_max, &mut rng.clone()), full[i]);
+            assert_eq!(s.transmittance(&q.ray(), q.t_max, &mut rng.clone()), ts[i]);
+            let d = s.sample_distance(&q.ray(), q.t_max, &mut rng.clone());
+            assert_eq!(d, ds[i]);
+            assert_eq!(d, full[i].collision());
+            check_finite(&full[i]);
+            let seg = crate::chord::unit_cube_chord(
+                s.transform().point(q.origin),
+                s.transform().vector(q.dir),
+            )
+            .and_then(|c| segment(c, q.t_max));
+            if let Some(seg) = seg.filter(|_| full[i].status == status::OK) {
+                if seg.a / opts.stride() != seg.b / opts.stride() {
+                    chained += 1;
+                }
+                if let Some(t) = d {
+                    assert!(seg.t0 <= t && t <= seg.t1, "{t} outside {seg:?}");
+                }
+            }
+        }
+        assert!(chained > 50, "{opts:?}: {chained} multi-piece queries");
+    }
+}
+
+/// The chain's claim (docs/sampling.md section 12): independent lookups per piece make the
+/// mean transmittance the product of the pieces' expectations, and distance sampling that
+/// walks the pieces misses every piece with that same probability. Checked on random rays
+/// against `expected_transmittance` (which multiplies the pieces' closed forms) with a
+/// 5-sigma bound from the variance (each estimate and each miss indicator lies in [0, 1]).
+/// The power checks: the one-lookup expectation of the same ray, and for distances a walk
+/// that stops after the first piece (its miss probability is the first piece's expectation),
+/// must each fall outside the bound for some ray.
+#[test]
+fn chained_mean_is_the_product_of_the_pieces() {
+    let grid = PinGrid::from_bytes(
+        random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 23)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let draws = 8192u32;
+    for opts in [chain(8, false, 0.0), chain(5, true, 0.0)] {
+        let s = Sampler::new(&grid).unwrap().with_options(opts);
+        let one = Sampler::new(&grid).unwrap();
+        let mut rng = Rng::new(41);
+        let (mut caught_t, mut caught_d) = (false, false);
+        for i in 0..40 {
+            let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+            let d = [
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+            ];
+            let ray = Ray::new(o, d);
+            let t_max = 0.2 + 2.0 * rng.next_f32();
+            let want = s.expected_transmittance(&ray, t_max).unwrap();
+            let got = s.mean_transmittance(&ray, t_max, draws, i);
+            let sigma = (want * (1.0 - want) / f64::from(draws)).sqrt();
+            let bound = 5.0 * sigma + 1e-6;
+            assert!(
+                (got - want).abs() <= bound,
+                "{opts:?} ray {i}: mean {got} vs expected {want} (bound {bound})"
+            );
+            let wrong = one.expected_transmittance(&ray, t_max).unwrap();
+            caught_t |= (got - wrong).abs() > bound;
+
+            let rays = vec![RayQuery::new(o, d, t_max); draws as usize];
+            let mut dist = vec![None; rays.len()];
+            s.sample_distance_batch(&rays, 5, i * draws, &mut dist);
+            let miss = dist.iter().filter(|x| x.is_none()).count() as f64 / f64::from(draws);
+            assert!(
+                (miss - want).abs() <= bound,
+                "{opts:?} ray {i}: P(no collision) {miss} vs {want} (bound {bound})"
+            );
+            // The first piece alone: the segment cut at its end.
+            let seg =
+                crate::chord::unit_cube_chord(s.transform().point(o), s.transform().vector(d))
+                    .and_then(|c| segment(c, t_max))
+                    .unwrap();
+            let first = crate::sampler::piece_of(&seg, seg.a / opts.stride(), opts.stride());
+            let first_only = s.expected_transmittance(&ray, first.t1).unwrap();
+            caught_d |= (miss - first_only).abs() > bound;
+        }
+        assert!(
+            caught_t,
+            "{opts:?}: the bound cannot tell one lookup from a chain"
+        );
+        assert!(
+            caught_d,
+            "{opts:?}: the bound cannot tell a walk that stops early"
+        );
+    }
+}
+
+/// Pieces cut only at interval boundaries: every interval of the segment belongs to exactly
+/// one piece, the segment's partial ends stay where they were, and inner cuts are whole
+/// numbers of intervals.
+#[test]
+fn pieces_tile_the_segment() {
+    let mut rng = Rng::new(3);
+    for _ in 0..2000 {
+        let u0 = rng.next_f32();
+        let u1 = u0 + (1.0 - u0) * rng.next_f32();
+        if !(u1 > u0) {
+            continue;
+        }
+        let seg = seg_frac(u0, u1);
+        for stride in [1, 3, 4, 7, 16, 31, 32] {
+            let mut covered = 0u32;
+            let mut j = seg.a / stride;
+            let mut last_t1 = seg.t0;
+            loop {
+                let p = crate::sampler::piece_of(&seg, j, stride);
+                assert!(p.a <= p.b && p.s0 <= p.s1, "{p:?}");
+                assert_eq!(covered & interval_range_bits(p.a, p.b), 0, "overlap");
+                covered |= interval_range_bits(p.a, p.b);
+                assert_eq!(p.t0, last_t1.max(p.t0), "pieces in order");
+                if p.a != seg.a {
+                    assert_eq!(p.s0, p.a as f32);
+                } else {
+                    assert_eq!((p.s0, p.t0), (seg.s0, seg.t0));
+                }
+                if p.b == seg.b {
+                    assert_eq!((p.s1, p.t1), (seg.s1, seg.t1));
+                    break;
+                }
+                assert_eq!(p.s1, (p.b + 1) as f32);
+                assert_eq!((p.b + 1) % stride, 0);
+                last_t1 = p.t1;
+                j += 1;
+            }
+            assert_eq!(covered, interval_range_bits(seg.a, seg.b));
+        }
+    }
+}
+
+fn interval_range_bits(a: u32, b: u32) -> u32 {
+    crate::mask::interval_range(a, b)
 }

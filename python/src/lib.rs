@@ -117,6 +117,7 @@ impl PinGrid {
                 .with_options(SamplerOptions {
                     spatial_jitter,
                     directional_jitter,
+                    ..SamplerOptions::default()
                 });
             let mut out = vec![0f32; n];
             match kind {

@@ -316,13 +316,13 @@ Chord unit_cube_chord(vec3 o, vec3 d) {
                 continue;
             }
             float _e46 = inv;
-            float t0_1 = (-(oa) * _e46);
+            float t0_2 = (-(oa) * _e46);
             float _e50 = inv;
             float t1_1 = ((1.0 - oa) * _e50);
             n_2 = t1_1;
-            f_1 = t0_1;
-            if ((t0_1 < t1_1)) {
-                n_2 = t0_1;
+            f_1 = t0_2;
+            if ((t0_2 < t1_1)) {
+                n_2 = t0_2;
                 f_1 = t1_1;
             }
             float _e55 = n_2;
@@ -614,99 +614,354 @@ QueryResult empty_result(uint status) {
     return QueryResult(uintBitsToFloat(_e2), 1.0, 0u, NO_ENTRY, 0u, NO_INTERVAL, status, _e9);
 }
 
-QueryResult query(Ray ray) {
+QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only) {
     bool local_10 = false;
-    bool local_11 = false;
-    bool local_12 = false;
-    bool local_13 = false;
-    bool local_14 = false;
-    bool local_15 = false;
-    bool local_16 = false;
-    bool local_17 = false;
-    bool local_18 = false;
-    bool local_19 = false;
     vec3 sxi = vec3(0.0, 0.0, 0.0);
-    bool local_20 = false;
+    bool local_11 = false;
     float dxi0_ = 0.0;
     float dxi1_ = 0.0;
     vec3 dl = vec3(0.0);
+    float t0_1 = 0.0;
     vec3 c_1 = vec3(0.0);
     uint entry_id = NO_ENTRY;
     uint mask = 0u;
     float t_min = 1.0;
-    bool local_21 = false;
+    bool local_12 = false;
     uint block = 0u;
     bool present = true;
-    bool local_22 = false;
-    bool local_23 = false;
+    bool local_13 = false;
+    bool local_14 = false;
     uint part = 0u;
     QueryResult r_1 = QueryResult(0.0, 0.0, 0u, 0u, 0u, 0u, 0u, 0u);
     float lo_1 = 0.0;
     float hi_1 = 0.0;
     float t_2 = 0.0;
+    uint ppe = G.grid.y;
+    uint _e8 = rng_next();
+    uint k_1 = (((_e8 >> 8u) * ppe) >> 24u);
+    float _e17 = G.jitter.x;
+    if ((_e17 > 0.0)) {
+        float _e25 = G.jitter.x;
+        bool _e26 = is_finite_bits(_e25);
+        local_10 = _e26;
+    } else {
+        local_10 = false;
+    }
+    bool sj = local_10;
+    if (sj) {
+        float _e35 = rng_f32_();
+        sxi.x = _e35;
+        float _e37 = rng_f32_();
+        sxi.y = _e37;
+        float _e39 = rng_f32_();
+        sxi.z = _e39;
+    }
+    float _e43 = G.jitter.y;
+    if ((_e43 > 0.0)) {
+        float _e51 = G.jitter.y;
+        bool _e52 = is_finite_bits(_e51);
+        local_11 = _e52;
+    } else {
+        local_11 = false;
+    }
+    bool dj = local_11;
+    if (dj) {
+        float _e59 = rng_f32_();
+        dxi0_ = _e59;
+        float _e60 = rng_f32_();
+        dxi1_ = _e60;
+    }
+    bool reversed = (d_2.z < 0.0);
+    dl = d_2;
+    if (reversed) {
+        dl = -(d_2);
+    }
+    t0_1 = seg.t0_;
+    float _e71 = G.jitter.w;
+    if ((_e71 != 0.0)) {
+        t0_1 = (0.5 * (seg.t0_ + seg.t1_));
+    }
+    float _e81 = t0_1;
+    float _e86 = t0_1;
+    float _e91 = t0_1;
+    vec3 p_2 = vec3((o_1.x + (d_2.x * _e81)), (o_1.y + (d_2.y * _e86)), (o_1.z + (d_2.z * _e91)));
+    uint _e99 = G.dims.x;
+    uint _e106 = G.dims.y;
+    uint _e113 = G.dims.z;
+    c_1 = vec3((p_2.x * float(_e99)), (p_2.y * float(_e106)), (p_2.z * float(_e113)));
+    if (sj) {
+        float _e120 = c_1.x;
+        float _e122 = sxi.x;
+        float _e128 = G.jitter.x;
+        c_1.x = (_e120 + ((_e122 - 0.5) * _e128));
+        float _e133 = c_1.y;
+        float _e135 = sxi.y;
+        float _e141 = G.jitter.x;
+        c_1.y = (_e133 + ((_e135 - 0.5) * _e141));
+        float _e146 = c_1.z;
+        float _e148 = sxi.z;
+        float _e154 = G.jitter.x;
+        c_1.z = (_e146 + ((_e148 - 0.5) * _e154));
+    }
+    float _e158 = c_1.x;
+    uint _e162 = G.dims.x;
+    uint _e163 = bin(_e158, _e162);
+    float _e165 = c_1.y;
+    uint _e169 = G.dims.y;
+    uint _e170 = bin(_e165, _e169);
+    float _e172 = c_1.z;
+    uint _e176 = G.dims.z;
+    uint _e177 = bin(_e172, _e176);
+    vec3 _e178 = dl;
+    float _e182 = G.jitter.y;
+    float _e183 = dxi0_;
+    float _e184 = dxi1_;
+    uint _e185 = direction_cell(_e178, dj, _e182, _e183, _e184);
+    uint _e195 = G.dims.w;
+    if ((_e177 >= _e195)) {
+        uint _e202 = G.grid.x;
+        local_12 = (_e177 < _e202);
+    } else {
+        local_12 = false;
+    }
+    bool _e205 = local_12;
+    if (_e205) {
+        uint _e209 = G.dims.x;
+        uint _e213 = G.dims.y;
+        uint _e217 = G.dims.w;
+        uint local_26 = (_e163 + (_e209 * (_e170 + (_e213 * (_e177 - _e217)))));
+        block = local_26;
+        uint _e229 = G.dirs.w;
+        if ((_e229 != 0u)) {
+            uint _e234 = G_INDEX_BASE;
+            uint _e237 = _group_0_binding_2_cs[(_e234 + local_26)];
+            block = _e237;
+            uint _e238 = block;
+            if ((_e238 != EMPTY_CELL)) {
+                uint _e243 = block;
+                uint _e247 = G.grid.w;
+                local_13 = (_e243 < _e247);
+            } else {
+                local_13 = false;
+            }
+            bool _e250 = local_13;
+            present = _e250;
+        }
+        uint within = ((_e185 * ppe) + k_1);
+        bool _e253 = present;
+        if (_e253) {
+            uint _e259 = G.grid.z;
+            local_14 = (within < _e259);
+        } else {
+            local_14 = false;
+        }
+        bool _e262 = local_14;
+        if (_e262) {
+            uint _e263 = block;
+            uint _e267 = G.grid.z;
+            entry_id = ((_e263 * _e267) + within);
+            uint _e272 = G_PIN_BASE;
+            uint _e273 = entry_id;
+            uvec2 e = _group_0_binding_1_cs[(_e272 + _e273)];
+            mask = e.x;
+            t_min = uintBitsToFloat(e.y);
+        }
+    }
+    float _e280 = rng_f32_();
+    float _e281 = rng_f32_();
+    float _e282 = t_min;
+    float _e283 = sanitize_t_min(_e282);
+    t_min = _e283;
+    if (reversed) {
+        uint _e284 = mask;
+        mask = bitfieldReverse(_e284);
+    }
+    uint _e288 = interval_range(seg.a, seg.b);
+    part = _e288;
+    if ((seg.a == seg.b)) {
+        if (!((_e280 < (seg.s1_ - seg.s0_)))) {
+            part = 0u;
+        }
+    } else {
+        if (!((_e280 < (float((seg.a + 1u)) - seg.s0_)))) {
+            uint _e307 = part;
+            uint _e309 = interval_bit(seg.a);
+            part = (_e307 & ~(_e309));
+        }
+        if (!((_e281 < (seg.s1_ - float(seg.b))))) {
+            uint _e318 = part;
+            uint _e320 = interval_bit(seg.b);
+            part = (_e318 & ~(_e320));
+        }
+    }
+    uint _e323 = mask;
+    uint _e324 = part;
+    uint popcount = uint(bitCount((_e323 & _e324)));
+    uint _e328 = inf_bits;
+    float _e330 = t_min;
+    float _e331 = pow_int(_e330, popcount);
+    uint _e333 = entry_id;
+    r_1 = QueryResult(uintBitsToFloat(_e328), _e331, 0u, _e333, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    if (transmittance_only) {
+        uint _e341 = rng_state;
+        r_1.rng_state = _e341;
+        QueryResult _e342 = r_1;
+        return _e342;
+    }
+    float _e343 = t_min;
+    uint _e344 = exact_sample_mask(_e343);
+    uint _e345 = mask;
+    uint _e346 = part;
+    uint m = ((_e345 & _e346) & _e344);
+    if ((m != 0u)) {
+        uint j_3 = uint(31 - findMSB(m));
+        lo_1 = float(j_3);
+        if ((j_3 == seg.a)) {
+            lo_1 = seg.s0_;
+        }
+        hi_1 = float((j_3 + 1u));
+        if ((j_3 == seg.b)) {
+            hi_1 = seg.s1_;
+        }
+        float _e364 = rng_f32_();
+        float _e365 = lo_1;
+        float _e366 = hi_1;
+        float _e367 = lo_1;
+        float s_2 = (_e365 + (_e364 * (_e366 - _e367)));
+        t_2 = (seg.t_enter + (s_2 * seg.interval_len));
+        float _e376 = t_2;
+        if (!((_e376 > seg.t0_))) {
+            t_2 = seg.t0_;
+        }
+        float _e381 = t_2;
+        if (!((_e381 < seg.t1_))) {
+            t_2 = seg.t1_;
+        }
+        float _e387 = t_2;
+        r_1.distance_ = _e387;
+        r_1.hit = 1u;
+        r_1.interval = j_3;
+    }
+    uint _e393 = rng_state;
+    r_1.rng_state = _e393;
+    QueryResult _e394 = r_1;
+    return _e394;
+}
+
+Segment piece_of(Segment full, uint j_2, uint stride) {
+    uint hi_2 = 0u;
+    Segment p_1 = Segment(false, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0u, 0u);
+    uint lo_2 = (j_2 * stride);
+    hi_2 = (lo_2 + stride);
+    uint _e6 = hi_2;
+    if ((_e6 > 32u)) {
+        hi_2 = 32u;
+    }
+    p_1 = full;
+    if ((full.a < lo_2)) {
+        p_1.a = lo_2;
+        p_1.s0_ = float(lo_2);
+        float t_3 = (full.t_enter + (float(lo_2) * full.interval_len));
+        p_1.t0_ = full.t0_;
+        if ((t_3 > full.t0_)) {
+            p_1.t0_ = t_3;
+        }
+    }
+    uint _e27 = hi_2;
+    if ((full.b >= _e27)) {
+        uint _e30 = hi_2;
+        p_1.b = (_e30 - 1u);
+        uint _e34 = hi_2;
+        p_1.s1_ = float(_e34);
+        uint _e37 = hi_2;
+        float t_4 = (full.t_enter + (float(_e37) * full.interval_len));
+        p_1.t1_ = full.t1_;
+        if ((t_4 < full.t1_)) {
+            p_1.t1_ = t_4;
+        }
+    }
+    Segment _e47 = p_1;
+    return _e47;
+}
+
+QueryResult query(Ray ray) {
+    bool local_15 = false;
+    bool local_16 = false;
+    bool local_17 = false;
+    bool local_18 = false;
+    bool local_19 = false;
+    bool local_20 = false;
+    bool local_21 = false;
+    bool local_22 = false;
+    bool local_23 = false;
+    uint stride_1 = 0u;
+    bool local_24 = false;
+    uint piece = 0u;
+    QueryResult r_2 = QueryResult(0.0, 0.0, 0u, 0u, 0u, 0u, 0u, 0u);
+    bool local_25 = false;
     vec3 _e2 = xf_point(ray.origin);
     vec3 _e4 = xf_vector(ray.dir);
     bool _e6 = is_finite_bits(_e2.x);
     if (_e6) {
         bool _e10 = is_finite_bits(_e2.y);
-        local_10 = _e10;
+        local_15 = _e10;
     } else {
-        local_10 = false;
+        local_15 = false;
     }
-    bool _e12 = local_10;
+    bool _e12 = local_15;
     if (_e12) {
         bool _e16 = is_finite_bits(_e2.z);
-        local_11 = _e16;
+        local_16 = _e16;
     } else {
-        local_11 = false;
+        local_16 = false;
     }
-    bool _e18 = local_11;
+    bool _e18 = local_16;
     if (_e18) {
         bool _e22 = is_finite_bits(_e4.x);
-        local_12 = _e22;
+        local_17 = _e22;
     } else {
-        local_12 = false;
+        local_17 = false;
     }
-    bool _e24 = local_12;
+    bool _e24 = local_17;
     if (_e24) {
         bool _e28 = is_finite_bits(_e4.y);
-        local_13 = _e28;
+        local_18 = _e28;
     } else {
-        local_13 = false;
+        local_18 = false;
     }
-    bool _e30 = local_13;
+    bool _e30 = local_18;
     if (_e30) {
         bool _e34 = is_finite_bits(_e4.z);
-        local_14 = _e34;
+        local_19 = _e34;
     } else {
-        local_14 = false;
+        local_19 = false;
     }
-    bool finite = local_14;
+    bool finite = local_19;
     bool nan_tmax = ((floatBitsToUint(ray.t_max) & 2147483647u) > 2139095040u);
     if (!(!(finite))) {
-        local_15 = nan_tmax;
+        local_20 = nan_tmax;
     } else {
-        local_15 = true;
+        local_20 = true;
     }
-    bool _e48 = local_15;
+    bool _e48 = local_20;
     if (!(_e48)) {
         if ((_e4.x == 0.0)) {
-            local_17 = (_e4.y == 0.0);
+            local_22 = (_e4.y == 0.0);
         } else {
-            local_17 = false;
+            local_22 = false;
         }
-        bool _e61 = local_17;
+        bool _e61 = local_22;
         if (_e61) {
-            local_18 = (_e4.z == 0.0);
+            local_23 = (_e4.z == 0.0);
         } else {
-            local_18 = false;
+            local_23 = false;
         }
-        bool _e68 = local_18;
-        local_16 = _e68;
+        bool _e68 = local_23;
+        local_21 = _e68;
     } else {
-        local_16 = true;
+        local_21 = true;
     }
-    bool _e70 = local_16;
+    bool _e70 = local_21;
     if (_e70) {
         QueryResult _e72 = empty_result(STATUS_INVALID);
         return _e72;
@@ -721,203 +976,61 @@ QueryResult query(Ray ray) {
         QueryResult _e83 = empty_result(STATUS_MISS);
         return _e83;
     }
-    uint ppe = G.grid.y;
-    uint _e88 = rng_next();
-    uint k_1 = (((_e88 >> 8u) * ppe) >> 24u);
-    float _e97 = G.jitter.x;
-    if ((_e97 > 0.0)) {
-        float _e105 = G.jitter.x;
-        bool _e106 = is_finite_bits(_e105);
-        local_19 = _e106;
+    float _e87 = G.jitter.z;
+    stride_1 = uint(_e87);
+    uint _e90 = stride_1;
+    if (!((_e90 == 0u))) {
+        uint _e96 = stride_1;
+        local_24 = (_e96 > 32u);
     } else {
-        local_19 = false;
+        local_24 = true;
     }
-    bool sj = local_19;
-    if (sj) {
-        float _e115 = rng_f32_();
-        sxi.x = _e115;
-        float _e117 = rng_f32_();
-        sxi.y = _e117;
-        float _e119 = rng_f32_();
-        sxi.z = _e119;
+    bool _e100 = local_24;
+    if (_e100) {
+        stride_1 = 32u;
     }
-    float _e123 = G.jitter.y;
-    if ((_e123 > 0.0)) {
-        float _e131 = G.jitter.y;
-        bool _e132 = is_finite_bits(_e131);
-        local_20 = _e132;
-    } else {
-        local_20 = false;
-    }
-    bool dj = local_20;
-    if (dj) {
-        float _e139 = rng_f32_();
-        dxi0_ = _e139;
-        float _e140 = rng_f32_();
-        dxi1_ = _e140;
-    }
-    bool reversed = (_e4.z < 0.0);
-    dl = _e4;
-    if (reversed) {
-        dl = -(_e4);
-    }
-    float t0_2 = _e79.t0_;
-    vec3 p_1 = vec3((_e2.x + (_e4.x * t0_2)), (_e2.y + (_e4.y * t0_2)), (_e2.z + (_e4.z * t0_2)));
-    uint _e164 = G.dims.x;
-    uint _e171 = G.dims.y;
-    uint _e178 = G.dims.z;
-    c_1 = vec3((p_1.x * float(_e164)), (p_1.y * float(_e171)), (p_1.z * float(_e178)));
-    if (sj) {
-        float _e185 = c_1.x;
-        float _e187 = sxi.x;
-        float _e193 = G.jitter.x;
-        c_1.x = (_e185 + ((_e187 - 0.5) * _e193));
-        float _e198 = c_1.y;
-        float _e200 = sxi.y;
-        float _e206 = G.jitter.x;
-        c_1.y = (_e198 + ((_e200 - 0.5) * _e206));
-        float _e211 = c_1.z;
-        float _e213 = sxi.z;
-        float _e219 = G.jitter.x;
-        c_1.z = (_e211 + ((_e213 - 0.5) * _e219));
-    }
-    float _e223 = c_1.x;
-    uint _e227 = G.dims.x;
-    uint _e228 = bin(_e223, _e227);
-    float _e230 = c_1.y;
-    uint _e234 = G.dims.y;
-    uint _e235 = bin(_e230, _e234);
-    float _e237 = c_1.z;
-    uint _e241 = G.dims.z;
-    uint _e242 = bin(_e237, _e241);
-    vec3 _e243 = dl;
-    float _e247 = G.jitter.y;
-    float _e248 = dxi0_;
-    float _e249 = dxi1_;
-    uint _e250 = direction_cell(_e243, dj, _e247, _e248, _e249);
-    uint _e260 = G.dims.w;
-    if ((_e242 >= _e260)) {
-        uint _e267 = G.grid.x;
-        local_21 = (_e242 < _e267);
-    } else {
-        local_21 = false;
-    }
-    bool _e270 = local_21;
-    if (_e270) {
-        uint _e274 = G.dims.x;
-        uint _e278 = G.dims.y;
-        uint _e282 = G.dims.w;
-        uint local_24 = (_e228 + (_e274 * (_e235 + (_e278 * (_e242 - _e282)))));
-        block = local_24;
-        uint _e294 = G.dirs.w;
-        if ((_e294 != 0u)) {
-            uint _e299 = G_INDEX_BASE;
-            uint _e302 = _group_0_binding_2_cs[(_e299 + local_24)];
-            block = _e302;
-            uint _e303 = block;
-            if ((_e303 != EMPTY_CELL)) {
-                uint _e308 = block;
-                uint _e312 = G.grid.w;
-                local_22 = (_e308 < _e312);
-            } else {
-                local_22 = false;
-            }
-            bool _e315 = local_22;
-            present = _e315;
+    uint _e103 = stride_1;
+    piece = (_e79.a / _e103);
+    uint _e106 = piece;
+    uint _e107 = stride_1;
+    Segment _e108 = piece_of(_e79, _e106, _e107);
+    QueryResult _e110 = piece_query(_e2, _e4, _e108, false);
+    r_2 = _e110;
+    while(true) {
+        uint _e112 = piece;
+        uint _e113 = stride_1;
+        Segment _e114 = piece_of(_e79, _e112, _e113);
+        if ((_e114.b >= _e79.b)) {
+            break;
         }
-        uint within = ((_e250 * ppe) + k_1);
-        bool _e318 = present;
-        if (_e318) {
-            uint _e324 = G.grid.z;
-            local_23 = (within < _e324);
+        uint _e118 = piece;
+        piece = (_e118 + 1u);
+        uint _e121 = piece;
+        uint _e122 = stride_1;
+        Segment _e123 = piece_of(_e79, _e121, _e122);
+        uint _e125 = r_2.hit;
+        QueryResult _e128 = piece_query(_e2, _e4, _e123, (_e125 != 0u));
+        float _e131 = r_2.transmittance;
+        r_2.transmittance = (_e131 * _e128.transmittance);
+        uint _e136 = r_2.popcount;
+        r_2.popcount = (_e136 + _e128.popcount);
+        uint _e140 = r_2.hit;
+        if ((_e140 == 0u)) {
+            local_25 = (_e128.hit != 0u);
         } else {
-            local_23 = false;
+            local_25 = false;
         }
-        bool _e327 = local_23;
-        if (_e327) {
-            uint _e328 = block;
-            uint _e332 = G.grid.z;
-            entry_id = ((_e328 * _e332) + within);
-            uint _e337 = G_PIN_BASE;
-            uint _e338 = entry_id;
-            uvec2 e = _group_0_binding_1_cs[(_e337 + _e338)];
-            mask = e.x;
-            t_min = uintBitsToFloat(e.y);
+        bool _e149 = local_25;
+        if (_e149) {
+            r_2.hit = 1u;
+            r_2.distance_ = _e128.distance_;
+            r_2.interval = _e128.interval;
         }
     }
-    float _e345 = rng_f32_();
-    float _e346 = rng_f32_();
-    float _e347 = t_min;
-    float _e348 = sanitize_t_min(_e347);
-    t_min = _e348;
-    if (reversed) {
-        uint _e349 = mask;
-        mask = bitfieldReverse(_e349);
-    }
-    uint _e353 = interval_range(_e79.a, _e79.b);
-    part = _e353;
-    if ((_e79.a == _e79.b)) {
-        if (!((_e345 < (_e79.s1_ - _e79.s0_)))) {
-            part = 0u;
-        }
-    } else {
-        if (!((_e345 < (float((_e79.a + 1u)) - _e79.s0_)))) {
-            uint _e372 = part;
-            uint _e374 = interval_bit(_e79.a);
-            part = (_e372 & ~(_e374));
-        }
-        if (!((_e346 < (_e79.s1_ - float(_e79.b))))) {
-            uint _e383 = part;
-            uint _e385 = interval_bit(_e79.b);
-            part = (_e383 & ~(_e385));
-        }
-    }
-    uint _e388 = mask;
-    uint _e389 = part;
-    uint popcount = uint(bitCount((_e388 & _e389)));
-    uint _e393 = inf_bits;
-    float _e395 = t_min;
-    float _e396 = pow_int(_e395, popcount);
-    uint _e398 = entry_id;
-    r_1 = QueryResult(uintBitsToFloat(_e393), _e396, 0u, _e398, popcount, NO_INTERVAL, STATUS_OK, 0u);
-    float _e404 = t_min;
-    uint _e405 = exact_sample_mask(_e404);
-    uint _e406 = mask;
-    uint _e407 = part;
-    uint m = ((_e406 & _e407) & _e405);
-    if ((m != 0u)) {
-        uint j_2 = uint(31 - findMSB(m));
-        lo_1 = float(j_2);
-        if ((j_2 == _e79.a)) {
-            lo_1 = _e79.s0_;
-        }
-        hi_1 = float((j_2 + 1u));
-        if ((j_2 == _e79.b)) {
-            hi_1 = _e79.s1_;
-        }
-        float _e425 = rng_f32_();
-        float _e426 = lo_1;
-        float _e427 = hi_1;
-        float _e428 = lo_1;
-        float s_2 = (_e426 + (_e425 * (_e427 - _e428)));
-        t_2 = (_e79.t_enter + (s_2 * _e79.interval_len));
-        float _e437 = t_2;
-        if (!((_e437 > _e79.t0_))) {
-            t_2 = _e79.t0_;
-        }
-        float _e442 = t_2;
-        if (!((_e442 < _e79.t1_))) {
-            t_2 = _e79.t1_;
-        }
-        float _e448 = t_2;
-        r_1.distance_ = _e448;
-        r_1.hit = 1u;
-        r_1.interval = j_2;
-    }
-    uint _e454 = rng_state;
-    r_1.rng_state = _e454;
-    QueryResult _e455 = r_1;
-    return _e455;
+    uint _e158 = rng_state;
+    r_2.rng_state = _e158;
+    QueryResult _e159 = r_2;
+    return _e159;
 }
 
 void main() {

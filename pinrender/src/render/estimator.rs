@@ -38,6 +38,37 @@ pub trait TransportEstimator: Send + Sync {
     fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
         None
     }
+
+    /// Transmittance estimates of many rays `rays[i] = [o, d]` over `[0, t_max]`, ray `i`
+    /// drawing from `rngs[i]`: what [`Self::transmittance`] returns for each ray and its
+    /// generator, and the generators left as it leaves them (the wavefront renderer relies
+    /// on it for images that do not depend on the batch size). The default asks one ray at
+    /// a time; an estimator with a batched lookup (pins) overrides it.
+    fn transmittance_batch(
+        &self,
+        rays: &[[Vec3; 2]],
+        t_max: f32,
+        rngs: &mut [Pcg32],
+        out: &mut [f32],
+    ) {
+        for ((r, rng), o) in rays.iter().zip(rngs.iter_mut()).zip(out.iter_mut()) {
+            *o = self.transmittance(r[0], r[1], t_max, rng);
+        }
+    }
+
+    /// Sampled distances of many rays, as [`Self::transmittance_batch`] for
+    /// [`Self::sample_distance`].
+    fn sample_distance_batch(
+        &self,
+        rays: &[[Vec3; 2]],
+        t_max: f32,
+        rngs: &mut [Pcg32],
+        out: &mut [Option<f32>],
+    ) {
+        for ((r, rng), o) in rays.iter().zip(rngs.iter_mut()).zip(out.iter_mut()) {
+            *o = self.sample_distance(r[0], r[1], t_max, rng);
+        }
+    }
 }
 
 /// A validated ray in f64 with unit direction; `scale = |d|` converts back to the caller's t.

@@ -101,6 +101,7 @@ pub mod phase;
 mod rng;
 mod spec;
 mod tracer;
+mod wavefront;
 pub mod whole_volume;
 
 #[cfg(test)]
@@ -119,6 +120,7 @@ pub use majorant::{Dda, MajorantGrid, Segment};
 pub use rng::{Pcg32, splitmix64};
 pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
+pub use wavefront::{DEFAULT_WAVEFRONT_BATCH, render_wavefront};
 pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 
 /// Errors of the render module.

@@ -187,7 +187,7 @@ impl Frame {
     }
 }
 
-#[derive(Clone, Copy, PartialEq, Eq)]
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
 pub(crate) enum Which {
     Primary = 0,
     Secondary = 1,
@@ -313,6 +313,19 @@ impl Ctx<'_> {
             }
         }
         t
+    }
+
+    /// With one medium: whether `transmittance` / `distance` ask its estimator for the ray
+    /// `o + t d` (not when the ray misses the medium's box). For the wavefront loop, which
+    /// asks the estimator itself.
+    pub(crate) fn single_medium_asked(&self, which: Which, o: Vec3, d: Vec3) -> bool {
+        debug_assert_eq!(self.media.len(), 1);
+        let Some(ray) = RaySlabs::new(o, d) else {
+            return true;
+        };
+        let mut entry = [MISS; CHUNK];
+        self.boxes[which as usize].entries(0, &ray, f32::INFINITY, &mut entry);
+        entry[0] != MISS
     }
 
     /// Nearest collision over the instances. Each later instance only searches up to the

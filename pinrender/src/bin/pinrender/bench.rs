@@ -1,6 +1,8 @@
-//! `pinrender bench`: queries per second of pins vs ray marching the source density at
-//! relative steps 0.015 and 0.005, unbiased ray marching (`urm`) and jackknife transmittance
-//! (`jackknife`), on the same random rays, CPU single thread and wgpu. Transmittance rows also
+//! `pinrender bench`: queries per second of pins (`pins`: one query at a time;
+//! `pins-batched`: the prefetching batch API) vs ray marching the source density at
+//! relative steps 0.015 and 0.005, ratio and delta tracking over a majorant grid (`ratio`,
+//! `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
+//! the same random rays, CPU single thread and wgpu. Transmittance rows also
 //! carry their mean absolute error against a converged per-ray reference (ray marching at
 //! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays.
 
@@ -13,7 +15,7 @@ use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
-use pinrender::render::{CombKind, Pcg32};
+use pinrender::render::{CombKind, DeltaTracking, Pcg32, RatioTracking, TransportEstimator};
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng};
 use serde_json::{Value, json};
@@ -236,20 +238,39 @@ fn bench_volume(
             march::transmittance(density, &mbox, o, d, f64::INFINITY, REFERENCE_STEP)
         })
         .collect();
-    // Pins, batched, one thread. A warm-up pass first so page faults of the mmap are not timed.
+    // Pins, one thread: `pins` answers one query at a time (one generator running through
+    // the rays, as a renderer without batching calls it), `pins-batched` the same rays
+    // through the prefetching batch API. A warm-up pass first so that page faults of the
+    // mmap are not timed.
     let mut t_out = vec![0.0f32; rays.len()];
     let mut d_out = vec![None; rays.len()];
     sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
+    let mut rng = Rng::for_query(2, 0);
+    let t = Instant::now();
+    for (o, r) in t_out.iter_mut().zip(&rays) {
+        *o = sampler.transmittance(&r.ray(), r.t_max, &mut rng);
+    }
+    let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+    let est: Vec<f64> = t_out.iter().map(|&t| f64::from(t)).collect();
+    rows.push(row_err(name, "pins", "cpu", qps, &est, &reference));
+    let mut rng = Rng::for_query(3, 0);
+    let t = Instant::now();
+    for (o, r) in d_out.iter_mut().zip(&rays) {
+        *o = sampler.sample_distance(&r.ray(), r.t_max, &mut rng);
+    }
+    let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+    std::hint::black_box(&d_out);
+    rows.push(row(name, "pins", "distance", "cpu", qps));
     let t = Instant::now();
     sampler.transmittance_batch(&rays, 2, 0, &mut t_out);
     let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
     let est: Vec<f64> = t_out.iter().map(|&t| f64::from(t)).collect();
-    rows.push(row_err(name, "pins", "cpu", qps, &est, &reference));
+    rows.push(row_err(name, "pins-batched", "cpu", qps, &est, &reference));
     let t = Instant::now();
     sampler.sample_distance_batch(&rays, 3, 0, &mut d_out);
     rows.push(row(
         name,
-        "pins",
+        "pins-batched",
         "distance",
         "cpu",
         rays.len() as f64 / t.elapsed().as_secs_f64(),
@@ -297,6 +318,44 @@ fn bench_volume(
     // of the source (built once, not timed).
     let field = Arc::new(SourceField(source_arc.clone()));
     let majorants = volume::majorants(&field, MAJORANT_BRICKS)?;
+    // The trackers production renderers use, over the same majorant grid and rays: ratio
+    // tracking (transmittance; its distances are delta tracking's) and delta tracking.
+    for (method, tracker) in [
+        (
+            "ratio",
+            Arc::new(RatioTracking::new(field.clone(), majorants.clone()))
+                as Arc<dyn TransportEstimator>,
+        ),
+        (
+            "delta",
+            Arc::new(DeltaTracking::new(field.clone(), majorants.clone())),
+        ),
+    ] {
+        let mut rng = Pcg32::new(7, method.len() as u64);
+        let t = Instant::now();
+        let est: Vec<f64> = rays[..n_rm]
+            .iter()
+            .map(|r| {
+                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+                f64::from(tracker.transmittance(o, d, f32::INFINITY, &mut rng))
+            })
+            .collect();
+        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        rows.push(row_err(name, method, "cpu", qps, &est, &reference));
+        let t = Instant::now();
+        let hits = rays[..n_rm]
+            .iter()
+            .filter(|r| {
+                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+                tracker
+                    .sample_distance(o, d, f32::INFINITY, &mut rng)
+                    .is_some()
+            })
+            .count();
+        std::hint::black_box(hits);
+        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        rows.push(row(name, method, "distance", "cpu", qps));
+    }
     for kind in [CombKind::Urm, CombKind::Jackknife] {
         let est = kind
             .build(field.clone(), majorants.clone(), kind.default_lookups())
@@ -394,8 +453,8 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("gpu: {}", ctx.describe());
     }
     println!(
-        "{:<12} {:<10} {:<14} {:<5} {:>14} {:>10} {:>10}",
-        "volume", "method", "query", "on", "queries/s", "pins/x", "mean|err|"
+        "{:<12} {:<12} {:<14} {:<5} {:>14} {:>10} {:>10}",
+        "volume", "method", "query", "on", "queries/s", "batched/x", "mean|err|"
     );
     for r in &rows {
         let base = rows
@@ -404,7 +463,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 b["volume"] == r["volume"]
                     && b["query"] == r["query"]
                     && b["backend"] == "cpu"
-                    && b["method"] == "pins"
+                    && b["method"] == "pins-batched"
             })
             .and_then(|b| b["queries_per_s"].as_f64())
             .unwrap_or(f64::NAN);
@@ -413,7 +472,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
         println!(
-            "{:<12} {:<10} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
+            "{:<12} {:<12} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
             r["query"].as_str().unwrap_or(""),

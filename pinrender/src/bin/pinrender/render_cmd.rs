@@ -11,8 +11,9 @@ use pinrender::gpu_render::{
     GpuDensity, GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
 };
 use pinrender::render::{
-    Budget, Camera, DensityField, EstimatorSpec, Image, MajorantGrid, Medium, RenderSettings,
-    Scene, Sun, TransportEstimator, VoxelGrid, block_bias, render,
+    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image, MajorantGrid,
+    Medium, RenderSettings, Scene, Sun, TransportEstimator, VoxelGrid, block_bias, render,
+    render_wavefront,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -128,17 +129,28 @@ pub struct RenderArgs {
     /// Pins: the direction moves by up to half this many direction cells per axis (0: off).
     #[arg(long, default_value_t = DEFAULT_LOOKUP.directional_jitter, value_parser = parse_jitter)]
     pub directional_jitter: f32,
+    /// Pins: intervals of the ray's chord per lookup (1..=32; 32 = one lookup, the thesis'
+    /// model). Smaller strides follow the ray with more lookups (docs/sampling.md section 12).
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.chain_stride, value_parser = clap::value_parser!(u32).range(1..=32))]
+    pub chain_stride: u32,
+    /// Pins: where each lookup reads its cell: `start` or `middle` of its piece of the ray.
+    #[arg(long, default_value = if DEFAULT_LOOKUP.midpoint_lookup { "middle" } else { "start" }, value_parser = ["start", "middle"])]
+    pub lookup_point: String,
     /// Compare with this converged image (EXR of the same size) and print the mean error and
     /// the 8x8-block rms error (relative; see `docs/evaluation.md`).
     #[arg(long)]
     pub reference: Option<PathBuf>,
 }
 
-/// The lookup jitter `pinrender render` uses unless told otherwise (measured in
-/// `docs/sampling.md`, "Direction cells").
+/// The lookup options `pinrender render` (and `pinrender eval`'s pins) use unless told
+/// otherwise: one cell of jitter (`docs/sampling.md` section 11) and one lookup per query at
+/// the middle of the segment, which beat chained lookups at their cost on the renders of
+/// `docs/evaluation.md` ("Chained lookups and the lookup point").
 pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions {
     spatial_jitter: 1.0,
     directional_jitter: 1.0,
+    chain_stride: 32,
+    midpoint_lookup: true,
 };
 
 fn parse_jitter(s: &str) -> Result<f32, String> {
@@ -154,6 +166,8 @@ impl RenderArgs {
         SamplerOptions {
             spatial_jitter: self.spatial_jitter,
             directional_jitter: self.directional_jitter,
+            chain_stride: self.chain_stride,
+            midpoint_lookup: self.lookup_point == "middle",
         }
     }
 }
@@ -355,7 +369,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
         threads: a.threads,
         cache: None,
     };
-    let out = render(&scene, &settings).map_err(|e| anyhow!("{e}"))?;
+    // Pin queries answered in batches (wavefront loop): the same image as `render`, sooner.
+    let out = if a.estimator.needs_pins() {
+        render_wavefront(&scene, &settings, DEFAULT_WAVEFRONT_BATCH)
+    } else {
+        render(&scene, &settings)
+    }
+    .map_err(|e| anyhow!("{e}"))?;
     write(
         &a,
         &input,

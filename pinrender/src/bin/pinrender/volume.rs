@@ -12,7 +12,7 @@ use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{self, DensitySource, SourceSpec};
 use pinrender::gpu_render::{CosineWave, GpuDensity};
 use pinrender::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator, VoxelGrid};
-use pinrt::{PinGrid, Ray, Rng, Sampler};
+use pinrt::{PinGrid, Ray, RayQuery, Rng, Sampler};
 
 /// The volume and how to read it (the flags shared with `pinbake bake`).
 #[derive(Args, Debug, Clone, Default)]
@@ -228,6 +228,20 @@ pub fn leak_grid(grid: PinGrid) -> &'static PinGrid {
     Box::leak(Box::new(grid))
 }
 
+/// The batch form of the single queries' seeding: each ray's pin generator from two draws of
+/// its path generator, in the order `sample_distance` and `transmittance` draw them.
+fn pin_queries(rays: &[[Vec3; 2]], t_max: f32, rngs: &mut [Pcg32]) -> (Vec<RayQuery>, Vec<Rng>) {
+    let q = rays
+        .iter()
+        .map(|r| RayQuery::new(r[0].to_array(), r[1].to_array(), t_max))
+        .collect();
+    let g = rngs
+        .iter_mut()
+        .map(|rng| Rng::for_query(rng.next_u32(), rng.next_u32()))
+        .collect();
+    (q, g)
+}
+
 impl TransportEstimator for PinsEstimator {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
@@ -238,6 +252,26 @@ impl TransportEstimator for PinsEstimator {
         let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
         self.sampler
             .transmittance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
+    }
+    fn transmittance_batch(
+        &self,
+        rays: &[[Vec3; 2]],
+        t_max: f32,
+        rngs: &mut [Pcg32],
+        out: &mut [f32],
+    ) {
+        let (q, mut r) = pin_queries(rays, t_max, rngs);
+        self.sampler.transmittance_batch_rngs(&q, &mut r, out);
+    }
+    fn sample_distance_batch(
+        &self,
+        rays: &[[Vec3; 2]],
+        t_max: f32,
+        rngs: &mut [Pcg32],
+        out: &mut [Option<f32>],
+    ) {
+        let (q, mut r) = pin_queries(rays, t_max, rngs);
+        self.sampler.sample_distance_batch_rngs(&q, &mut r, out);
     }
     fn name(&self) -> String {
         "pins".into()

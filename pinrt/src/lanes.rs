@@ -1,0 +1,665 @@
+//! The set-up of one batch step (`prepare` of [`crate::sampler`]) computed for all
+//! [`BATCH`] lanes at once, structure-of-arrays, for every lookup option: jitter, the lookup
+//! point and the first piece of a chained lookup (`Sampler::next_piece` sets up the later
+//! pieces one ray at a time).
+//!
+//! Why: at 32 rays per step the memory fetches overlap, and what is left of a batched query
+//! is the arithmetic of the set-up (transform, slab test, segment, direction cell, the
+//! generator's seeding and first draw). Written per ray it branches at every early exit and
+//! the compiler cannot use vector registers. Here every lane runs the same straight-line
+//! code and the early exits become selects, so each loop compiles to SIMD instructions
+//! (8 lanes with AVX2, chosen at run time; 4 with the SSE2 baseline).
+//!
+//! The result is bit for bit the scalar `prepare`: the same f32 operations in the same order
+//! (vector `+ - * / sqrt` round exactly like scalar ones, and Rust never fuses a multiply
+//! and an add), and the same selects. The only difference is that values a scalar early exit
+//! never computes are computed and then thrown away. `sampler::tests` checks the equality on
+//! random and hostile rays.
+
+use pin_format::{Directions, PinEntry};
+
+use crate::chord::{Segment, UnitTransform, bin};
+use crate::lookup::{DirJitter, GridView, direction_cell};
+use crate::mask::{is_finite_bits, pow_int, sanitize_t_min};
+use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output, unit_f32};
+use crate::sampler::{
+    BATCH, NO_CELL, Prepared, RayQuery, SamplerOptions, participating, piece_of, status,
+};
+
+/// Fills `out[..rays.len()]` with what `Sampler::prepare` returns for `rays[i]` and
+/// generator `rng[i]`, for a sampler with options `opts`. `rays.len() <= BATCH`.
+/// With `indexed = Some((pcg_hash(seed), first))` the generators are first set to
+/// `Rng::for_query(seed, first + i)` (the batch API's seeding, done here so that it runs in
+/// vector registers too).
+#[inline]
+pub(crate) fn prepare_lanes(
+    view: &GridView<'_>,
+    xf: &UnitTransform,
+    opts: &SamplerOptions,
+    rays: &[RayQuery],
+    rng: &mut [Rng; BATCH],
+    indexed: Option<(u32, u32)>,
+    out: &mut [Prepared; BATCH],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked on the line above.
+        unsafe { prepare_avx2(view, xf, opts, rays, rng, indexed, out) };
+        return;
+    }
+    lanes_body(view, xf, opts, rays, rng, indexed, out);
+}
+
+/// [`lanes_body`] compiled for AVX2 (8 f32 lanes, per-lane variable shifts for the
+/// generator's output permutation). AVX2 only, not FMA: no multiply-add may be fused.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn prepare_avx2(
+    view: &GridView<'_>,
+    xf: &UnitTransform,
+    opts: &SamplerOptions,
+    rays: &[RayQuery],
+    rng: &mut [Rng; BATCH],
+    indexed: Option<(u32, u32)>,
+    out: &mut [Prepared; BATCH],
+) {
+    lanes_body(view, xf, opts, rays, rng, indexed, out);
+}
+
+/// A placeholder segment for lanes whose query does not resolve (never read back).
+const EMPTY: Segment = Segment {
+    t_enter: 0.0,
+    interval_len: 0.0,
+    t0: 0.0,
+    t1: 0.0,
+    s0: 0.0,
+    s1: 0.0,
+    a: 0,
+    b: 0,
+};
+
+#[inline(always)]
+fn lanes_body(
+    view: &GridView<'_>,
+    xf: &UnitTransform,
+    opts: &SamplerOptions,
+    rays: &[RayQuery],
+    rng: &mut [Rng; BATCH],
+    indexed: Option<(u32, u32)>,
+    out: &mut [Prepared; BATCH],
+) {
+    let n = rays.len().min(BATCH);
+    // Lanes past the end get a zero direction: invalid, never read back.
+    let mut rq = [RayQuery::default(); BATCH];
+    rq[..n].copy_from_slice(&rays[..n]);
+
+    let mut st = [0u32; BATCH];
+    let mut state = [0u32; BATCH];
+    let mut t_enter = [0f32; BATCH];
+    let mut ilen = [0f32; BATCH];
+    let mut t0s = [0f32; BATCH];
+    let mut t1s = [0f32; BATCH];
+    let mut s0s = [0f32; BATCH];
+    let mut s1s = [0f32; BATCH];
+    let mut a_s = [0u32; BATCH];
+    let mut b_s = [0u32; BATCH];
+    let mut rev = [false; BATCH];
+    let mut dl = [[0f32; BATCH]; 3];
+    let mut os = [[0f32; BATCH]; 3];
+    let mut ds = [[0f32; BATCH]; 3];
+    let mut pieces = [0u32; BATCH];
+    let mut psegs = [EMPTY; BATCH];
+    let mut dxi = [[0f32; BATCH]; 2];
+    let stride = opts.stride();
+    let spatial = opts.spatial_on();
+    let directional = opts.directional_on();
+    let midpoint = opts.midpoint_lookup;
+    let mut cells = [[0u32; BATCH]; 3];
+    let shape = &view.shape;
+    let ppe = shape.pins_per_entry;
+    if let Some((seed_hash, first)) = indexed {
+        for (i, r) in rng.iter_mut().enumerate() {
+            r.state = pcg_hash(seed_hash ^ first.wrapping_add(i as u32));
+        }
+    }
+
+    // Transform, validity, slab test, segment, spatial cell, the pin draw.
+    for i in 0..BATCH {
+        let q = &rq[i];
+        let o = xf.point(q.origin);
+        let d = xf.vector(q.dir);
+        let finite = is_finite_bits(o[0])
+            & is_finite_bits(o[1])
+            & is_finite_bits(o[2])
+            & is_finite_bits(d[0])
+            & is_finite_bits(d[1])
+            & is_finite_bits(d[2]);
+        let nan_tmax = (q.t_max.to_bits() & 0x7fff_ffff) > 0x7f80_0000;
+        let zero = (d[0] == 0.0) & (d[1] == 0.0) & (d[2] == 0.0);
+        let valid = finite & !nan_tmax & !zero;
+
+        // `chord::unit_cube_chord` with its early exits as flags.
+        let mut lo = -f32::MAX;
+        let mut hi = f32::MAX;
+        let mut constrained = false;
+        let mut outside = false;
+        for a in 0..3 {
+            let inv = if d[a] == 0.0 {
+                f32::INFINITY
+            } else {
+                1.0 / d[a]
+            };
+            let parallel = !is_finite_bits(inv);
+            outside |= parallel & !((o[a] >= 0.0) & (o[a] <= 1.0));
+            let t0 = -o[a] * inv;
+            let t1 = (1.0 - o[a]) * inv;
+            let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
+            lo = if !parallel & (near > lo) { near } else { lo };
+            hi = if !parallel & (far < hi) { far } else { hi };
+            constrained |= !parallel;
+        }
+        let chord = !outside & constrained & (lo < hi) & is_finite_bits(lo) & is_finite_bits(hi);
+
+        // `chord::segment`.
+        let t0 = if lo > 0.0 { lo } else { 0.0 };
+        let t1 = if q.t_max < hi { q.t_max } else { hi };
+        let c = hi - lo;
+        let k = 32.0 / c;
+        let seg_ok = (t0 < t1) & is_finite_bits(c) & is_finite_bits(k);
+        let s0 = if t0 == lo {
+            0.0
+        } else {
+            let s = (t0 - lo) * k;
+            if s < 32.0 { s } else { 32.0 }
+        };
+        let s1 = if t1 == hi {
+            32.0
+        } else {
+            let s = (t1 - lo) * k;
+            if s < 32.0 { s } else { 32.0 }
+        };
+        let a = bin(s0, 32);
+        let fl = bin(s1, 32);
+        let b = if (fl as f32 == s1) & (fl > 0) {
+            fl.wrapping_sub(1)
+        } else {
+            fl
+        };
+        let b = if b < a { a } else { b };
+
+        let ok = valid & chord & seg_ok;
+        st[i] = if !valid {
+            status::INVALID
+        } else if ok {
+            status::OK
+        } else {
+            status::MISS
+        };
+
+        // `Sampler::lookup` of the segment's first piece (the whole segment unless
+        // chained).
+        let full = Segment {
+            t_enter: lo,
+            interval_len: c * 0.03125,
+            t0,
+            t1,
+            s0,
+            s1,
+            a,
+            b,
+        };
+        let piece = a / stride;
+        let seg = piece_of(&full, piece, stride);
+
+        // The draws: the pin number (`Rng::below_256`), then the spatial jitter's three and
+        // the directional jitter's two uniforms when they are on; only a resolved query draws.
+        let s0_state = rng[i].state;
+        let mut s = s0_state;
+        let mut draw = || {
+            s = s.wrapping_mul(PCG_MUL).wrapping_add(PCG_INC);
+            pcg_output(s)
+        };
+        let kdraw = ((draw() >> 8) * ppe) >> 24;
+        let mut sxi = [0f32; 3];
+        if spatial {
+            for x in &mut sxi {
+                *x = unit_f32(draw());
+            }
+        }
+        if directional {
+            dxi[0][i] = unit_f32(draw());
+            dxi[1][i] = unit_f32(draw());
+        }
+        state[i] = if ok { s } else { s0_state };
+
+        let reversed = d[2] < 0.0;
+        for ax in 0..3 {
+            dl[ax][i] = if reversed { -d[ax] } else { d[ax] };
+        }
+        let t = if midpoint {
+            0.5 * (seg.t0 + seg.t1)
+        } else {
+            seg.t0
+        };
+        let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
+        // `lookup::spatial_cell`, then `GridShape::local_cell`.
+        let mut cf = [
+            p[0] * view.dims_f[0],
+            p[1] * view.dims_f[1],
+            p[2] * view.dims_f[2],
+        ];
+        if spatial {
+            for ax in 0..3 {
+                cf[ax] += (sxi[ax] - 0.5) * opts.spatial_jitter;
+            }
+        }
+        let cx = bin(cf[0], shape.dims[0]);
+        let cy = bin(cf[1], shape.dims[1]);
+        let cz = bin(cf[2], shape.dims[2]);
+        // The 64-bit linear index is formed in the assembly loop below: 64-bit lanes here
+        // would halve the vector width of the whole loop.
+        cells[0][i] = cx;
+        cells[1][i] = cy;
+        cells[2][i] = cz;
+
+        for ax in 0..3 {
+            os[ax][i] = o[ax];
+            ds[ax][i] = d[ax];
+        }
+        pieces[i] = piece;
+        psegs[i] = seg;
+        t_enter[i] = lo;
+        ilen[i] = full.interval_len;
+        t0s[i] = t0;
+        t1s[i] = t1;
+        s0s[i] = s0;
+        s1s[i] = s1;
+        a_s[i] = a;
+        b_s[i] = b;
+        rev[i] = reversed;
+        // Only the pin number is kept until the direction cell is known.
+        st[i] |= kdraw << 8;
+    }
+
+    // Direction cells: one loop per layout so that each is straight-line code.
+    let mut dcell = [0u32; BATCH];
+    match shape.directions {
+        Directions::Polar { n_phi, n_theta } => {
+            let dirs = Directions::Polar { n_phi, n_theta };
+            direction_cells(&dirs, &dl, directional.then_some((opts, &dxi)), &mut dcell);
+        }
+        Directions::Octahedral { n } => {
+            let dirs = Directions::Octahedral { n };
+            direction_cells(&dirs, &dl, directional.then_some((opts, &dxi)), &mut dcell);
+        }
+    }
+
+    for i in 0..n {
+        // `GridShape::local_cell`.
+        let (cx, cy, cz) = (cells[0][i], cells[1][i], cells[2][i]);
+        let local = if cz >= shape.z_begin && cz < shape.z_end {
+            u64::from(cx)
+                + u64::from(shape.dims[0])
+                    * (u64::from(cy) + u64::from(shape.dims[1]) * u64::from(cz - shape.z_begin))
+        } else {
+            NO_CELL
+        };
+        let code = st[i] & 0xff;
+        let kdraw = st[i] >> 8;
+        out[i] = if code == status::OK {
+            Prepared {
+                status: status::OK,
+                rng: Rng::new(state[i]),
+                seg: psegs[i],
+                full: Segment {
+                    t_enter: t_enter[i],
+                    interval_len: ilen[i],
+                    t0: t0s[i],
+                    t1: t1s[i],
+                    s0: s0s[i],
+                    s1: s1s[i],
+                    a: a_s[i],
+                    b: b_s[i],
+                },
+                reversed: rev[i],
+                local,
+                within: u64::from(dcell[i]) * u64::from(ppe) + u64::from(kdraw),
+                o: [os[0][i], os[1][i], os[2][i]],
+                d: [ds[0][i], ds[1][i], ds[2][i]],
+                piece: pieces[i],
+            }
+        } else {
+            Prepared::empty(code, Rng::new(state[i]))
+        };
+    }
+}
+
+/// The direction cells of all lanes for one layout (`dirs` a constant of the caller's
+/// match arm, so each layout's loop is straight-line code), with the directional jitter's
+/// uniforms `xi` when it is on.
+#[inline(always)]
+fn direction_cells(
+    dirs: &Directions,
+    dl: &[[f32; BATCH]; 3],
+    jitter: Option<(&SamplerOptions, &[[f32; BATCH]; 2])>,
+    out: &mut [u32; BATCH],
+) {
+    match jitter {
+        None => {
+            for i in 0..BATCH {
+                out[i] = direction_cell(dirs, [dl[0][i], dl[1][i], dl[2][i]], None);
+            }
+        }
+        Some((opts, xi)) => {
+            for i in 0..BATCH {
+                let j = DirJitter {
+                    strength: opts.directional_jitter,
+                    xi: [xi[0][i], xi[1][i]],
+                };
+                out[i] = direction_cell(dirs, [dl[0][i], dl[1][i], dl[2][i]], Some(j));
+            }
+        }
+    }
+}
+
+/// What the lane part of the resolve leaves for each ray: the generator after the two
+/// partial-interval draws, the participating set of the mask and the transmittance.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Head {
+    pub(crate) state: u32,
+    pub(crate) t_min: f32,
+    /// `mask & participating`.
+    pub(crate) set: u32,
+    pub(crate) popcount: u32,
+    pub(crate) transmittance: f32,
+}
+
+/// The start of `sampler::resolve` for all lanes: the two partial-interval draws, the
+/// sanitised `t_min`, the (reversed) mask, the participating set, its popcount and
+/// `t_min^popcount`. `entries[i]` is lane `i`'s entry (`PinEntry::EMPTY` when none was
+/// read). Lanes whose query did not resolve compute values nobody reads.
+#[inline]
+pub(crate) fn resolve_heads(
+    prep: &[Prepared; BATCH],
+    entries: &[PinEntry; BATCH],
+    out: &mut [Head; BATCH],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2, checked on the line above.
+        unsafe { heads_avx2(prep, entries, out) };
+        return;
+    }
+    heads_body(prep, entries, out);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn heads_avx2(prep: &[Prepared; BATCH], entries: &[PinEntry; BATCH], out: &mut [Head; BATCH]) {
+    heads_body(prep, entries, out);
+}
+
+#[inline(always)]
+fn heads_body(prep: &[Prepared; BATCH], entries: &[PinEntry; BATCH], out: &mut [Head; BATCH]) {
+    for i in 0..BATCH {
+        let p = &prep[i];
+        let e = entries[i];
+        let mut rng = p.rng;
+        let xa = rng.next_f32();
+        let xb = rng.next_f32();
+        let t_min = sanitize_t_min(e.t_min);
+        let mask = if p.reversed {
+            e.mask.reverse_bits()
+        } else {
+            e.mask
+        };
+        let set = mask & participating(&p.seg, xa, xb);
+        let popcount = set.count_ones();
+        out[i] = Head {
+            state: rng.state,
+            t_min,
+            set,
+            popcount,
+            transmittance: pow_int(t_min, popcount),
+        };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::Rng;
+    use crate::testing::random_grid;
+    use crate::{PinGrid, QueryResult, Sampler, SamplerOptions};
+    use pin_format::{GridShape, OwnedPinGrid};
+    use proptest::prelude::{ProptestConfig, any, prop_assert_eq, proptest};
+
+    /// Components that break the scalar set-up's early exits one at a time: zeros of both
+    /// signs, subnormals, the largest finite values, infinities and NaN, besides ordinary ones.
+    fn hostile(r: &mut Rng) -> f32 {
+        match r.next_u32() % 16 {
+            0 => 0.0,
+            1 => -0.0,
+            2 => f32::NAN,
+            3 => f32::INFINITY,
+            4 => f32::NEG_INFINITY,
+            5 => 1e-40,
+            6 => -1e-40,
+            7 => f32::MAX,
+            8 => 1.0,
+            9 => 0.5,
+            _ => r.next_f32() * 3.0 - 1.0,
+        }
+    }
+
+    fn rays(n: usize, seed: u32) -> Vec<RayQuery> {
+        let mut r = Rng::new(seed);
+        (0..n)
+            .map(|i| {
+                let ordinary = i % 3 != 0;
+                let mut c = || {
+                    if ordinary {
+                        r.next_f32() * 3.0 - 1.0
+                    } else {
+                        hostile(&mut r)
+                    }
+                };
+                let o = [c(), c(), c()];
+                let d = [c() - 0.5, c() - 0.5, c() - 0.5];
+                let t_max = match i % 5 {
+                    0 => f32::INFINITY,
+                    1 => f32::NAN,
+                    2 => 0.0,
+                    _ => r.next_f32() * 2.0,
+                };
+                RayQuery::new(o, d, t_max)
+            })
+            .collect()
+    }
+
+    fn grids() -> Vec<OwnedPinGrid> {
+        let mut tile = random_grid(Directions::THESIS_DEFAULT, [4, 5, 6], 2, false, 3);
+        // A tile covering z cells 2..5 only: the others are outside (`NO_CELL`).
+        tile.tile = Some(pin_format::TileDesc {
+            tile_index: 1,
+            tile_count: 3,
+            z_begin: 2,
+            z_end: 5,
+        });
+        tile.desc.stored_cells = 4 * 5 * 3;
+        tile.pins.truncate(4 * 5 * 3 * 64 * 2);
+        vec![
+            random_grid(Directions::THESIS_DEFAULT, [5, 4, 3], 3, true, 17),
+            random_grid(Directions::Octahedral { n: 5 }, [7, 1, 2], 1, false, 18),
+            random_grid(
+                Directions::Polar {
+                    n_phi: 7,
+                    n_theta: 3,
+                },
+                [1, 1, 1],
+                256,
+                false,
+                19,
+            ),
+            tile,
+        ]
+    }
+
+    /// Lookup options the lanes serve: none, the render defaults (jitter 1/1, midpoint),
+    /// chains with and without jitter, each jitter alone.
+    fn option_sets() -> Vec<SamplerOptions> {
+        let o =
+            |spatial_jitter, directional_jitter, chain_stride, midpoint_lookup| SamplerOptions {
+                spatial_jitter,
+                directional_jitter,
+                chain_stride,
+                midpoint_lookup,
+            };
+        vec![
+            SamplerOptions::default(),
+            o(1.0, 1.0, 32, true),
+            o(0.0, 0.0, 32, true),
+            o(0.0, 0.0, 5, true),
+            o(0.7, 0.4, 8, false),
+            o(1.0, 0.0, 1, true),
+            o(0.0, 2.5, 32, false),
+        ]
+    }
+
+    /// The lane set-up equals the scalar `prepare`, field for field, on ordinary and
+    /// hostile rays, for both seedings, every direction layout and every option set.
+    #[test]
+    fn lanes_equal_scalar_prepare() {
+        for (owned, opts) in grids()
+            .into_iter()
+            .flat_map(|g| option_sets().into_iter().map(move |o| (g.clone(), o)))
+        {
+            let bytes = owned.to_bytes().unwrap();
+            let g = PinGrid::from_bytes(bytes).unwrap();
+            let s = g.sampler().unwrap().with_options(opts);
+            let shape: GridShape = *g.shape();
+            let all = rays(4000, 77);
+            let mut resolved = 0;
+            for (c, chunk) in all.chunks(BATCH - 3).enumerate() {
+                let mut rng = [Rng::new(0); BATCH];
+                let mut out = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
+                let first = (c * 1000) as u32;
+                prepare_lanes(
+                    s.view(),
+                    s.transform(),
+                    s.options(),
+                    chunk,
+                    &mut rng,
+                    Some((crate::rng::pcg_hash(9), first)),
+                    &mut out,
+                );
+                for (i, q) in chunk.iter().enumerate() {
+                    let want = s.prepare(
+                        q.origin,
+                        q.dir,
+                        q.t_max,
+                        Rng::for_query(9, first + i as u32),
+                    );
+                    assert_eq!(out[i], want, "{shape:?} {opts:?} ray {q:?}");
+                    resolved += usize::from(want.status == status::OK);
+                }
+                // Given generators.
+                let mut given = [Rng::new(0); BATCH];
+                for (i, r) in given.iter_mut().enumerate() {
+                    *r = Rng::new(i as u32 * 7919 + c as u32);
+                }
+                let start = given;
+                prepare_lanes(
+                    s.view(),
+                    s.transform(),
+                    s.options(),
+                    chunk,
+                    &mut given,
+                    None,
+                    &mut out,
+                );
+                for (i, q) in chunk.iter().enumerate() {
+                    assert_eq!(out[i], s.prepare(q.origin, q.dir, q.t_max, start[i]));
+                }
+            }
+            assert!(resolved > 100, "{resolved} resolved queries");
+        }
+    }
+
+    /// A deliberate slip in the lane code (a different rounding of the segment start) is
+    /// caught by the comparison the test above makes: the test can fail.
+    #[test]
+    fn the_comparison_catches_a_one_ulp_difference() {
+        let g = PinGrid::from_bytes(grids().remove(0).to_bytes().unwrap()).unwrap();
+        let s = g.sampler().unwrap();
+        let q = RayQuery::new([0.3, 0.4, 0.5], [0.2, -0.7, 0.1], 0.4);
+        let mut rng = [Rng::new(5); BATCH];
+        let mut out = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
+        prepare_lanes(
+            s.view(),
+            s.transform(),
+            s.options(),
+            &[q],
+            &mut rng,
+            None,
+            &mut out,
+        );
+        let mut want = s.prepare(q.origin, q.dir, q.t_max, Rng::new(5));
+        assert_eq!(out[0], want);
+        want.seg.s1 = f32::from_bits(want.seg.s1.to_bits() + 1);
+        assert_ne!(out[0], want);
+    }
+
+    fn sampler_for(g: &PinGrid, options: usize) -> Sampler<'_> {
+        g.sampler()
+            .unwrap()
+            .with_options(option_sets()[options % option_sets().len()])
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// Batches with a generator per ray equal one single query per ray, results and
+        /// generators afterwards, for random rays including NaN, infinite and zero
+        /// directions and origins, for every option set (jitter, lookup point, chains).
+        #[test]
+        fn batch_with_generators_equals_single(
+            seed in any::<u32>(),
+            n in 1usize..200,
+            options in 0usize..7,
+            grid in 0usize..4,
+        ) {
+            let g = PinGrid::from_bytes(grids().swap_remove(grid).to_bytes().unwrap()).unwrap();
+            let s = sampler_for(&g, options);
+            let rays = rays(n, seed);
+            let start: Vec<Rng> = (0..n as u32).map(|i| Rng::new(seed ^ i.wrapping_mul(0x9e37_79b9))).collect();
+            let mut rq = start.clone();
+            let mut full = vec![QueryResult::empty_for_tests(); n];
+            s.query_batch_rngs(&rays, &mut rq, &mut full);
+            let mut rt = start.clone();
+            let mut ts = vec![0.0; n];
+            s.transmittance_batch_rngs(&rays, &mut rt, &mut ts);
+            let mut rd = start.clone();
+            let mut ds = vec![None; n];
+            s.sample_distance_batch_rngs(&rays, &mut rd, &mut ds);
+            for (i, q) in rays.iter().enumerate() {
+                let mut r1 = start[i];
+                prop_assert_eq!(s.query(&q.ray(), q.t_max, &mut r1), full[i]);
+                prop_assert_eq!(r1, rq[i]);
+                let mut r2 = start[i];
+                prop_assert_eq!(s.transmittance(&q.ray(), q.t_max, &mut r2).to_bits(), ts[i].to_bits());
+                prop_assert_eq!(r2, rt[i]);
+                let mut r3 = start[i];
+                prop_assert_eq!(s.sample_distance(&q.ray(), q.t_max, &mut r3).map(f32::to_bits), ds[i].map(f32::to_bits));
+                prop_assert_eq!(r3, rd[i]);
+            }
+            // And the seeded batch equals single queries seeded the same way.
+            let mut seeded = vec![QueryResult::empty_for_tests(); n];
+            s.query_batch(&rays, seed, 17, &mut seeded);
+            for (i, q) in rays.iter().enumerate() {
+                let mut r = Rng::for_query(seed, 17 + i as u32);
+                prop_assert_eq!(s.query(&q.ray(), q.t_max, &mut r), seeded[i]);
+            }
+        }
+    }
+}
