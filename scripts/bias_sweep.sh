@@ -61,6 +61,10 @@ configs+=(
     "c16-oct8-j0|--cells 16 --dirs octahedral:8|0"
     "c16-oct8-j0.5|--cells 16 --dirs octahedral:8|0.5"
     "c16-oct8-j2|--cells 16 --dirs octahedral:8|2"
+    # What `pinbake bake` chooses by itself (cells and directions from the volume): the
+    # default target and a tighter one, to check the model's prediction against a render.
+    "default||1"
+    "target0.03|--target-error 0.03|1"
 )
 
 for s in "${scenes[@]}"; do
@@ -75,7 +79,7 @@ for s in "${scenes[@]}"; do
         printf "%.5f,%.5f,%.5f %.5f,%.5f,%.5f\n", c[1] + v[1] / sqrt(n) * dist,
             c[2] + v[2] / sqrt(n) * dist, c[3] + v[3] / sqrt(n) * dist, c[1], c[2], c[3] }')"
     dens_bytes=$(awk -v v="$vox" 'BEGIN { split(v, a, "x"); print a[1] * a[2] * a[3] * 2 }')
-    common=(--width "$SIZE" --height "$SIZE" --camera-origin "$origin" --camera-target "$target"
+    common=(--width "$SIZE" --height "$SIZE" --camera-origin="$origin" --camera-target="$target"
         --fov 40 --sun-dir=-0.5,0.8,0.35 --sun-radiance 3 --env-radiance 0.3 --albedo 0.95
         --max-bounces 8 --threads "$THREADS")
     variation=$("$bin/pinbake" bake "${volargs[@]}" --cells 1 --dirs octahedral:1 --majorant 0 \
@@ -114,6 +118,11 @@ for s in "${scenes[@]}"; do
         read -r _ mean _ block _ <<<"$line"
         cells=$(awk '{ for (i = 1; i <= NF; i++) if ($i == "--cells") print $(i + 1) }' <<<"$bake")
         dirs=$(awk '{ for (i = 1; i <= NF; i++) if ($i == "--dirs") print $(i + 1) }' <<<"$bake")
+        if [ -z "$cells" ]; then # chosen by pinbake: read them back from the file
+            info=$("$bin/pinbake" inspect "$pin" --json)
+            cells=$(grep -o '"dims":\[[0-9,]*\]' <<<"$info" | grep -o '[0-9,]*' | tr , x)
+            dirs=octahedral:$(grep -o '"directions":{"kind":"octahedral","n":[0-9]*' <<<"$info" | grep -o '[0-9]*$')
+        fi
         ppe=$(awk '{ k = 1; for (i = 1; i <= NF; i++) if ($i == "--pins-per-entry") k = $(i + 1); print k }' <<<"$bake")
         ndirs=$(awk -v d="$dirs" 'BEGIN { split(d, a, ":"); split(a[2], b, "x");
             print (a[1] == "polar") ? b[1] * b[2] : b[1] * b[1] }')

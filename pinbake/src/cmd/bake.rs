@@ -9,8 +9,8 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::{Directions, Metadata};
-use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
 use pinbake::choose::Choice;
+use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
 use pinbake::{BakeOptions, Tile};
 
 #[derive(Args, Debug, Clone)]

@@ -1,8 +1,9 @@
 //! `pinrender plot-bias`: the plot of `scripts/bias_sweep.sh`'s CSV (issue 14 part 2): the
 //! 8x8-block error of pins alone against the pin file's size relative to the f16 density, one
 //! colour per scene, one line per octahedral direction set through its cell counts, other
-//! bakes (polar, several pins per entry, other jitter) as crosses, and each scene's noise floor
-//! (ratio tracking at the same spp) as a dashed line.
+//! bakes (polar, several pins per entry, other jitter) as crosses, the bakes `pinbake bake`
+//! chose as triangles, and each scene's noise floor (ratio tracking at the same spp) as a
+//! dashed line.
 
 use std::path::PathBuf;
 
@@ -59,7 +60,12 @@ pub fn parse(text: &str) -> Result<Vec<Row>> {
         }
         let f: Vec<&str> = line.split(',').collect();
         if f.len() != header.len() {
-            bail!("line {}: {} fields, the header has {}", i + 2, f.len(), header.len());
+            bail!(
+                "line {}: {} fields, the header has {}",
+                i + 2,
+                f.len(),
+                header.len()
+            );
         }
         let num = |k: usize| -> Result<f64> {
             f[k].trim()
@@ -91,8 +97,7 @@ const COLORS: [RGBColor; 6] = [
 ];
 
 pub fn run(a: PlotBiasArgs) -> Result<()> {
-    let text =
-        std::fs::read_to_string(&a.csv).with_context(|| format!("{}", a.csv.display()))?;
+    let text = std::fs::read_to_string(&a.csv).with_context(|| format!("{}", a.csv.display()))?;
     let rows = parse(&text).with_context(|| format!("{}", a.csv.display()))?;
     draw(&rows, &a.out).with_context(|| format!("{}", a.out.display()))
 }
@@ -103,7 +108,10 @@ fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
 
 /// The plot (module docs) of `rows` into `out`.
 pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
-    let bakes: Vec<&Row> = rows.iter().filter(|r| r.ratio > 0.0 && r.block > 0.0).collect();
+    let bakes: Vec<&Row> = rows
+        .iter()
+        .filter(|r| r.ratio > 0.0 && r.block > 0.0)
+        .collect();
     if bakes.is_empty() {
         bail!("no bake rows with positive bytes and error");
     }
@@ -145,11 +153,18 @@ pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
         .map_err(plot_err)?;
     for (si, scene) in scenes.iter().enumerate() {
         let color = COLORS[si % COLORS.len()];
-        let mine: Vec<&Row> = bakes.iter().copied().filter(|r| r.scene == *scene).collect();
+        let mine: Vec<&Row> = bakes
+            .iter()
+            .copied()
+            .filter(|r| r.scene == *scene)
+            .collect();
         // Octahedral sets at jitter 1 and one pin per entry: a line through the cell counts.
         let mut sets: Vec<&str> = Vec::new();
         for r in &mine {
-            if r.dirs.starts_with("octahedral") && !sets.contains(&r.dirs.as_str()) {
+            if r.cells.is_some()
+                && r.dirs.starts_with("octahedral")
+                && !sets.contains(&r.dirs.as_str())
+            {
                 sets.push(&r.dirs);
             }
         }
@@ -158,7 +173,10 @@ pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
             let mut pts: Vec<(f64, f64)> = mine
                 .iter()
                 .filter(|r| {
-                    r.dirs == set && r.pins_per_entry == Some(1) && r.jitter == Some(1.0)
+                    r.cells.is_some()
+                        && r.dirs == set
+                        && r.pins_per_entry == Some(1)
+                        && r.jitter == Some(1.0)
                 })
                 .map(|r| (r.ratio, r.block))
                 .collect();
@@ -185,17 +203,35 @@ pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
                     .map_err(plot_err)?;
             }
         }
+        // Bakes pinbake chose (their cells are written XxYxZ, not one number): triangles.
+        let chosen: Vec<(f64, f64)> = mine
+            .iter()
+            .filter(|r| r.cells.is_none())
+            .map(|r| (r.ratio, r.block))
+            .collect();
+        chart
+            .draw_series(
+                chosen
+                    .iter()
+                    .map(|p| TriangleMarker::new(*p, 7, color.filled())),
+            )
+            .map_err(plot_err)?;
         let others: Vec<(f64, f64)> = mine
             .iter()
             .filter(|r| {
-                !(r.dirs.starts_with("octahedral")
-                    && r.pins_per_entry == Some(1)
-                    && r.jitter == Some(1.0))
+                r.cells.is_some()
+                    && !(r.dirs.starts_with("octahedral")
+                        && r.pins_per_entry == Some(1)
+                        && r.jitter == Some(1.0))
             })
             .map(|r| (r.ratio, r.block))
             .collect();
         chart
-            .draw_series(others.iter().map(|p| Cross::new(*p, 5, color.stroke_width(2))))
+            .draw_series(
+                others
+                    .iter()
+                    .map(|p| Cross::new(*p, 5, color.stroke_width(2))),
+            )
             .map_err(plot_err)?;
         if let Some(floor) = rows
             .iter()
@@ -215,7 +251,7 @@ pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
         .configure_series_labels()
         .background_style(WHITE.mix(0.8))
         .border_style(BLACK)
-        .position(SeriesLabelPosition::UpperRight)
+        .position(SeriesLabelPosition::LowerLeft)
         .draw()
         .map_err(plot_err)?;
     root.present().map_err(plot_err)?;

@@ -288,7 +288,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
             crate::usage!("unknown scene '{s}' (known: {})", scenes::SCENES.join(", "));
         }
         if a.quick && scenes::FULL_ONLY.contains(&s.as_str()) {
-            crate::usage!("scene '{s}' is production scale and runs in the full eval only, not with --quick");
+            crate::usage!(
+                "scene '{s}' is production scale and runs in the full eval only, not with --quick"
+            );
         }
     }
     // An output directory only: a file, device or FIFO there is refused, not written into.
@@ -573,10 +575,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     } else {
         // The scenes' cells were sized for 64 directions; keep their bytes (the CLI default
         // is octahedral:16 at fewer cells, docs/evaluation.md).
-        (
-            [es.bake_cells; 3],
-            pinrt::Directions::Octahedral { n: 8 },
-        )
+        ([es.bake_cells; 3], pinrt::Directions::Octahedral { n: 8 })
     };
     let opts = pinbake::BakeOptions {
         cells,

@@ -42,12 +42,16 @@ impl Lattice {
     fn at(&self, p: DVec3) -> f64 {
         let n = self.f + 1;
         let q = p * self.f as f64;
-        let i = q.floor().clamp(DVec3::ZERO, DVec3::splat(self.f as f64 - 1.0));
+        let i = q
+            .floor()
+            .clamp(DVec3::ZERO, DVec3::splat(self.f as f64 - 1.0));
         let t = q - i;
         // Smoothstep weights: the noise has continuous gradients across lattice cells.
         let s = t * t * (DVec3::splat(3.0) - 2.0 * t);
         let (x, y, z) = (i.x as usize, i.y as usize, i.z as usize);
-        let v = |dx: usize, dy: usize, dz: usize| f64::from(self.v[(x + dx) + n * ((y + dy) + n * (z + dz))]);
+        let v = |dx: usize, dy: usize, dz: usize| {
+            f64::from(self.v[(x + dx) + n * ((y + dy) + n * (z + dz))])
+        };
         let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
         let x00 = lerp(v(0, 0, 0), v(1, 0, 0), s.x);
         let x10 = lerp(v(0, 1, 0), v(1, 1, 0), s.x);
@@ -86,7 +90,8 @@ pub fn cloud(n: u32) -> anyhow::Result<DenseGrid> {
         .enumerate()
         .for_each(|(z, slab)| {
             for (i, v) in slab.iter_mut().enumerate() {
-                let p = DVec3::new((i % nu) as f64 + 0.5, (i / nu) as f64 + 0.5, z as f64 + 0.5) * h;
+                let p =
+                    DVec3::new((i % nu) as f64 + 0.5, (i / nu) as f64 + 0.5, z as f64 + 0.5) * h;
                 *v = (CLOUD_DENSITY * shape(&lattices, p)) as f32;
             }
         });
@@ -112,7 +117,10 @@ mod tests {
         let d = a.data();
         assert!(d.iter().all(|v| (0.0..=CLOUD_DENSITY as f32).contains(v)));
         let empty = d.iter().filter(|v| **v == 0.0).count();
-        let full = d.iter().filter(|v| **v > 0.5 * CLOUD_DENSITY as f32).count();
+        let full = d
+            .iter()
+            .filter(|v| **v > 0.5 * CLOUD_DENSITY as f32)
+            .count();
         // Both empty space around the cloud and a dense core.
         assert!(empty > d.len() / 4, "{empty} of {}", d.len());
         assert!(full > d.len() / 100, "{full} of {}", d.len());
