@@ -91,6 +91,7 @@ for s in "${scenes[@]}"; do
         "$bin/pinrender" render --volume "${volargs[@]}" "${common[@]}" --estimator ratio \
             --spp "$REF_SPP" --seed 1 --out "$work/$s.tmp.exr" >/dev/null
         mv "$work/$s.tmp.exr" "$ref"
+        rm -f "$work/$s.tmp.png" # render's tone-mapped preview
     fi
     # The noise floor: an unbiased estimator (ratio tracking) at the pins' spp.
     if ! grep -q "^$s,noise-floor," "$csv"; then
@@ -128,7 +129,7 @@ for s in "${scenes[@]}"; do
             print (a[1] == "polar") ? b[1] * b[2] : b[1] * b[1] }')
         ratio=$(awk -v a="$bytes" -v b="$dens_bytes" 'BEGIN { printf "%.4f", a / b }')
         echo "$s,$cname,$cells,$dirs,$ndirs,$ppe,$jit,$bytes,$dens_bytes,$ratio,$mean,$block,$variation" | tee -a "$csv"
-        rm -f "$work/pins.exr"
+        rm -f "$work/pins.exr" "$work/pins.png"
     done
 done
 if [ "${PLOT:-1}" = 1 ]; then
