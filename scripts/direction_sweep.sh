@@ -48,6 +48,8 @@ configs=(
     "oct8-s0d1|--dirs octahedral:8|0|1"
     "oct16@${EQUAL_CELLS}|--dirs octahedral:16 --cells $EQUAL_CELLS|1|1"
     "polar32x8@${EQUAL_CELLS}|--dirs polar:32x8 --cells $EQUAL_CELLS|1|1"
+    # What `pinbake bake` chooses by itself (docs/evaluation.md, "Bias against bytes").
+    "chosen||1|1"
 )
 for c in "${configs[@]}"; do
     IFS='|' read -r cname bake sj dj <<<"$c"

@@ -82,8 +82,10 @@ pub struct BakeArgs {
           value_parser = clap::value_parser!(u32).range(1..=i64::from(pin_format::MAX_PINS_PER_ENTRY)))]
     pub pins_per_entry: Option<u32>,
     /// The smallest bake whose predicted 8x8-block error of pins alone is at most E (a
-    /// fraction, e.g. 0.05), for the parameters not given (default 0.05). The model is fitted
-    /// to measurements (docs/evaluation.md, "Bias against bytes"); --json reports the choice.
+    /// fraction, e.g. 0.05), for the parameters not given. Without it: 0.05, but never below
+    /// 20 cells along the longest axis (or the voxels) and octahedral:16, since the model is
+    /// fitted on the eval scenes only (docs/evaluation.md, "Bias against bytes"). --json
+    /// reports the choice.
     #[arg(long, value_name = "E", value_parser = parse_target_error, help_heading = "Grid")]
     pub target_error: Option<f64>,
     /// Ray-marching step relative to the longest box edge, in [1e-5, 1].
@@ -350,12 +352,10 @@ pub fn choose_from_args(args: &BakeArgs, source: &dyn DensitySource) -> Result<C
         directions: args.dirs,
         pins_per_entry: args.pins_per_entry,
     };
-    Ok(pinbake::choose::choose(
-        &stats,
-        fixed,
-        args.target_error
-            .unwrap_or(pinbake::choose::DEFAULT_TARGET_ERROR),
-    ))
+    Ok(match args.target_error {
+        Some(e) => pinbake::choose::choose(&stats, fixed, e),
+        None => pinbake::choose::choose_default(&stats, fixed),
+    })
 }
 
 pub fn options_from_args(

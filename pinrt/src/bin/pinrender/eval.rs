@@ -562,11 +562,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     let (cells, directions) = if es.choose_bake {
         // What `pinbake bake` chooses for the volume by default.
         let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
-        let c = pinbake::choose::choose(
-            &stats,
-            pinbake::choose::Fixed::default(),
-            pinbake::choose::DEFAULT_TARGET_ERROR,
-        );
+        let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
         eprintln!(
             "  pins chosen: {:?} cells x {:?} (variation {:.1}, predicted block error {:.3})",
             c.cells, c.directions, stats.variation, c.predicted_error
