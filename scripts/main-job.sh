@@ -25,12 +25,18 @@ for est in pins pinms ratio; do
   $R render --volume "$DATA/openvdb_smoke1.vdb" "${pins[@]}" --density-scale 4 \
     --estimator $est --width 256 --height 256 --spp 32 --seed 1 --out out/smoke_$est.exr
 done
+# The same smoke from its .pin alone: its majorant and embedded density sections, no --volume.
+for est in pins pinms; do
+  $R render --pins out/smoke.pin --estimator $est --width 256 --height 256 --spp 32 --seed 1 \
+    --out out/smoke_${est}_pin_alone.exr
+done
 # The error-against-run-time report on sub-second budgets, about two minutes on 2 cores (the
 # full one: `pinrender eval`, ~10 min with the GPU rows).
 $R eval --quick --out out/eval
 cat <<EOT
 main job done. Read first: out/eval/summary.md (what the report shows, tables, errors.png).
   pin files:   out/smoke.pin, out/hydrogen.pin (pinbake inspect FILE describes them)
-  renders:     out/smoke_pins.png, out/smoke_pinms.png, out/smoke_ratio.png (and .exr)
+  renders:     out/smoke_pins.png, out/smoke_pinms.png, out/smoke_ratio.png (and .exr);
+               out/smoke_pins_pin_alone.png, out/smoke_pinms_pin_alone.png (from the .pin alone)
   raw figures: out/eval/errors.csv
 EOT

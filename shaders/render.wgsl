@@ -1,4 +1,4 @@
-// The reference volumetric path tracer on the GPU (pinrt::gpu_render).
+// The reference volumetric path tracer on the GPU (pinrender::gpu_render).
 //
 // Appended to shaders/pin.wgsl (the Rust side concatenates the two sources). Pin queries are
 // pin.wgsl's `query`, unchanged, pointed at one instance's grid through its private `G`,
@@ -8,7 +8,7 @@
 // pin.wgsl's own entry point and are not used here. This file adds group 1 and the entry
 // point `render_main`; all its names start with `rt_` / `Rt` so nothing collides.
 //
-// The estimator is the one of pinrt::render (tracer.rs, `Ctx::trace`), with the media of the
+// The estimator is the one of pinrender::render (tracer.rs, `Ctx::trace`), with the media of the
 // scene combined additively (distance sampling: nearest collision over the instances, each
 // searching only up to the nearest so far; transmittance: the product):
 //

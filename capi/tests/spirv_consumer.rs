@@ -87,7 +87,7 @@ fn vulkan() -> Vk {
     }))
     .expect("request_device");
     // SAFETY: the module is the committed pin.spv, which spirv-val accepts
-    // (pinrt/tests/shaders.rs); the layout below matches its declared bindings.
+    // (pinrender/tests/shaders.rs); the layout below matches its declared bindings.
     let module = unsafe {
         device.create_shader_module_passthrough(wgpu::ShaderModuleDescriptorPassthrough {
             label: Some("pin.spv"),

@@ -42,3 +42,281 @@ pub fn parse_cli<C: clap::Parser>(
         }
     }
 }
+
+/// The flags that say how to read a volume, shared by `pinbake bake` and `pinrender` through
+/// `#[command(flatten)]` so that the two tools accept the same volumes the same way (the input
+/// itself is each tool's own argument: a positional INPUT for the baker, `--volume` for the
+/// renderer).
+#[derive(clap::Args, Debug, Clone)]
+pub struct VolumeArgs {
+    /// VDB: grid to read (`density#1` picks the second grid named density).
+    #[arg(long, help_heading = "OpenVDB input")]
+    pub grid: Option<String>,
+    /// VDB: read a level set as a fog volume (interior = density 1).
+    #[arg(long, help_heading = "OpenVDB input")]
+    pub levelset_to_fog: bool,
+
+    /// Raw: voxel counts X,Y,Z (x fastest in the file).
+    #[arg(long, value_parser = parse_u32x3, help_heading = "Raw input")]
+    pub dims: Option<[u32; 3]>,
+    /// Raw: voxel type: u8, u16, f16, f32, f64.
+    #[arg(long = "type", help_heading = "Raw input")]
+    pub voxel_type: Option<String>,
+    /// Raw: byte order of multi-byte types: little (default) or big.
+    #[arg(long, help_heading = "Raw input")]
+    pub endian: Option<String>,
+    /// Raw: world size of a voxel, one value or X,Y,Z, each in [1e-9, 1e9]; the grid occupies
+    /// [origin, origin + dims * spacing].
+    #[arg(long, value_parser = crate::limits::parse_spacing, help_heading = "Raw input")]
+    pub spacing: Option<[f64; 3]>,
+    /// Raw: world position of the grid box's minimum corner X,Y,Z, each within +-1e12.
+    #[arg(long, value_parser = crate::limits::parse_origin, help_heading = "Raw input")]
+    pub origin: Option<[f64; 3]>,
+    /// Raw: treat negative values as 0 instead of failing.
+    #[arg(long, help_heading = "Raw input")]
+    pub clamp_negative: bool,
+    /// Raw: treat NaN and infinities as 0 instead of failing.
+    #[arg(long, help_heading = "Raw input")]
+    pub nan_as_zero: bool,
+
+    /// Multiply every density by this (extinction = density x scale); finite, >= 0.
+    #[arg(long, default_value_t = 1.0, value_parser = crate::limits::parse_density_scale)]
+    pub density_scale: f64,
+}
+
+impl Default for VolumeArgs {
+    /// No flags given (what clap produces for an empty command line).
+    fn default() -> Self {
+        Self {
+            grid: None,
+            levelset_to_fog: false,
+            dims: None,
+            voxel_type: None,
+            endian: None,
+            spacing: None,
+            origin: None,
+            clamp_negative: false,
+            nan_as_zero: false,
+            density_scale: 1.0,
+        }
+    }
+}
+
+/// `N` or `X,Y,Z` (also `XxYxZ`) counts, each at least 1.
+pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
+    let v: Vec<u32> = s
+        .split([',', 'x'])
+        .map(|p| p.trim().parse::<u32>().map_err(|e| format!("'{p}': {e}")))
+        .collect::<Result<_, _>>()?;
+    let out = match v.as_slice() {
+        [n] => [*n; 3],
+        [x, y, z] => [*x, *y, *z],
+        _ => return Err("expected N or X,Y,Z".into()),
+    };
+    if out.contains(&0) {
+        return Err("every count must be at least 1".into());
+    }
+    Ok(out)
+}
+
+fn usage(msg: String) -> anyhow::Error {
+    anyhow::Error::new(crate::files::UsageError(msg))
+}
+
+impl VolumeArgs {
+    /// The flags given (differing from their defaults), by name: what a command that reads
+    /// no volume this time refuses.
+    pub fn given(&self) -> Vec<&'static str> {
+        [
+            ("--grid", self.grid.is_some()),
+            ("--levelset-to-fog", self.levelset_to_fog),
+            ("--dims", self.dims.is_some()),
+            ("--type", self.voxel_type.is_some()),
+            ("--endian", self.endian.is_some()),
+            ("--spacing", self.spacing.is_some()),
+            ("--origin", self.origin.is_some()),
+            ("--clamp-negative", self.clamp_negative),
+            ("--nan-as-zero", self.nan_as_zero),
+            ("--density-scale", self.density_scale != 1.0),
+        ]
+        .into_iter()
+        .filter_map(|(name, set)| set.then_some(name))
+        .collect()
+    }
+
+    /// What `input` (a path or `procedural:SPEC`) names, read with these flags. Flags meant for
+    /// another kind of input are usage errors ("`--dims` does not apply to a procedural
+    /// {noun}"): ignoring them would read something other than what the user asked for. A
+    /// path must name a regular file. `worker_exe` is the executable that serves
+    /// `__vdb-worker` (the calling binary itself), run only when a VDB is opened.
+    pub fn source_spec(
+        &self,
+        input: &std::path::Path,
+        noun: &str,
+        worker_exe: impl FnOnce() -> anyhow::Result<std::path::PathBuf>,
+    ) -> anyhow::Result<crate::source::SourceSpec> {
+        use crate::source::{self, ProceduralSpec, RawOptions, SourceSpec};
+        let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
+        let is_vdb = procedural.is_none()
+            && input
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
+        let raw_flags = [
+            ("--dims", self.dims.is_some()),
+            ("--type", self.voxel_type.is_some()),
+            ("--endian", self.endian.is_some()),
+            ("--spacing", self.spacing.is_some()),
+            ("--origin", self.origin.is_some()),
+            ("--clamp-negative", self.clamp_negative),
+            ("--nan-as-zero", self.nan_as_zero),
+        ];
+        let vdb_flags = [
+            ("--grid", self.grid.is_some()),
+            ("--levelset-to-fog", self.levelset_to_fog),
+        ];
+        let set = |f: &&(&'static str, bool)| f.1;
+        let (kind, ignored): (&str, Vec<&str>) = if procedural.is_some() {
+            let all = raw_flags.iter().chain(&vdb_flags);
+            ("a procedural", all.filter(set).map(|f| f.0).collect())
+        } else if is_vdb {
+            (
+                "an OpenVDB",
+                raw_flags.iter().filter(set).map(|f| f.0).collect(),
+            )
+        } else {
+            ("a raw", vdb_flags.iter().filter(set).map(|f| f.0).collect())
+        };
+        if let Some(flag) = ignored.first() {
+            return Err(usage(format!(
+                "{flag} does not apply to {kind} {noun} ({})",
+                input.display()
+            )));
+        }
+        if let Some(rest) = procedural {
+            let mut spec: ProceduralSpec = rest
+                .parse()
+                .map_err(|e: source::SourceError| anyhow::anyhow!("{e}"))?;
+            spec.density *= self.density_scale;
+            return Ok(SourceSpec::Procedural(spec));
+        }
+        let path = input.to_path_buf();
+        // A FIFO, device or directory is refused before anything opens it.
+        crate::files::check_input(&path)?;
+        if is_vdb {
+            #[cfg(feature = "vdb")]
+            return Ok(SourceSpec::Vdb(
+                path,
+                source::VdbOptions {
+                    grid: self.grid.clone(),
+                    levelset_to_fog: self.levelset_to_fog,
+                    density_scale: self.density_scale,
+                    worker_exe: worker_exe()?,
+                    ..source::VdbOptions::default()
+                },
+            ));
+            #[cfg(not(feature = "vdb"))]
+            {
+                let _ = worker_exe;
+                return Ok(SourceSpec::Vdb(path));
+            }
+        }
+        let voxel_type = match self.voxel_type.as_deref() {
+            None => None,
+            Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
+                usage(format!("--type '{t}' is not one of u8, u16, f16, f32, f64"))
+            })?),
+        };
+        let endian = match self
+            .endian
+            .as_deref()
+            .unwrap_or("little")
+            .to_ascii_lowercase()
+            .as_str()
+        {
+            "little" | "le" => source::Endian::Little,
+            "big" | "be" => source::Endian::Big,
+            other => return Err(usage(format!("--endian '{other}' is not little or big"))),
+        };
+        Ok(SourceSpec::Raw(
+            path,
+            RawOptions {
+                dims: self.dims,
+                voxel_type,
+                endian,
+                spacing: self.spacing.unwrap_or([1.0; 3]),
+                origin: self.origin.unwrap_or([0.0; 3]),
+                clamp_negative: self.clamp_negative,
+                nan_as_zero: self.nan_as_zero,
+                density_scale: self.density_scale,
+            },
+        ))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::source::SourceSpec;
+
+    fn no_worker() -> anyhow::Result<std::path::PathBuf> {
+        anyhow::bail!("no worker in this test")
+    }
+
+    #[test]
+    fn counts_reject_zero_and_accept_both_separators() {
+        assert_eq!(parse_u32x3("4").unwrap(), [4; 3]);
+        assert_eq!(parse_u32x3("2,3,4").unwrap(), [2, 3, 4]);
+        assert_eq!(parse_u32x3("2x3x4").unwrap(), [2, 3, 4]);
+        assert!(parse_u32x3("0").is_err());
+        assert!(parse_u32x3("2,0,4").is_err());
+        assert!(parse_u32x3("2,3").is_err());
+    }
+
+    #[test]
+    fn flags_of_another_kind_of_input_are_usage_errors_naming_the_noun() {
+        let a = VolumeArgs {
+            dims: Some([4; 3]),
+            ..VolumeArgs::default()
+        };
+        let e = a
+            .source_spec("procedural:box".as_ref(), "volume", no_worker)
+            .unwrap_err();
+        assert!(e.downcast_ref::<crate::files::UsageError>().is_some());
+        assert!(
+            e.to_string()
+                .starts_with("--dims does not apply to a procedural volume"),
+            "{e}"
+        );
+        let a = VolumeArgs {
+            grid: Some("density".into()),
+            ..VolumeArgs::default()
+        };
+        let e = a
+            .source_spec("x.raw".as_ref(), "input", no_worker)
+            .unwrap_err();
+        assert!(
+            e.to_string()
+                .starts_with("--grid does not apply to a raw input"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn procedural_density_takes_the_scale() {
+        let a = VolumeArgs {
+            density_scale: 2.5,
+            ..VolumeArgs::default()
+        };
+        let plain = VolumeArgs::default();
+        let get = |a: &VolumeArgs| match a
+            .source_spec("procedural:box".as_ref(), "input", no_worker)
+            .unwrap()
+        {
+            SourceSpec::Procedural(p) => p.density,
+            _ => panic!("not procedural"),
+        };
+        assert_eq!(get(&a), 2.5 * get(&plain));
+        assert_eq!(a.given(), ["--density-scale"]);
+        assert!(plain.given().is_empty());
+    }
+}

@@ -579,5 +579,29 @@ fn bench_json_rows_carry_time_memory_and_integration_error() {
         let e = r["integration_error"].as_f64().unwrap();
         assert!(e > 0.0 && e < 1e-2, "{r}");
         assert!(r["integration_error_max"].as_f64().unwrap() >= e, "{r}");
+        // CPU seconds of the bake (Linux), and no prefiltered level for 16 voxels at 0.01.
+        assert!(r["cpu_s"].as_f64().unwrap() >= 0.0, "{r}");
+        assert!(r["integration_error_prefiltered"].is_null(), "{r}");
     }
+}
+
+/// A bake records its source's identity (what `pinrender` checks `--pins` against): the same
+/// volume read the same way gives the same identity, another density scale another one.
+#[test]
+fn bakes_record_the_source_identity() {
+    let dir = tempfile::tempdir().unwrap();
+    let identity = |name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        bake_ok("procedural:cosine:seed=2", &out, extra);
+        let bytes = std::fs::read(&out).unwrap();
+        let file = pin_format::PinFile::parse(&bytes).unwrap();
+        let meta = file.metadata().unwrap().unwrap();
+        pinbake::source::SourceIdentity::from_extra(&meta.extra)
+            .expect("identity recorded")
+            .unwrap()
+    };
+    let a = identity("a.pin", &[]);
+    assert_eq!(a, identity("b.pin", &["--seed", "9"]));
+    let scaled = identity("c.pin", &["--density-scale", "3"]);
+    assert!(!a.differences(&scaled).is_empty());
 }

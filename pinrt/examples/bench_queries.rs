@@ -1,7 +1,7 @@
 //! CPU query throughput on a ~26 MB grid (37^3 cells x 16x4 polar directions x 1 pin, the
 //! calibration of docs/background.md section 4) with random rays: single queries vs prefetching batches.
 //!
-//! `cargo run --release -p pinrt --example bench_queries [rays]`
+//! `cargo run --release -p pinrt --features testing --example bench_queries [rays]`
 
 use std::hint::black_box;
 use std::time::Instant;

@@ -23,6 +23,9 @@ pub enum Error {
         #[source]
         source: FormatError,
     },
+    /// An optional section (majorant, density) holds values a reader cannot use.
+    #[error("{}: {problem}", .path.display())]
+    Section { path: PathBuf, problem: String },
     /// The placement transform cannot be inverted or does not fit f32.
     #[error("bad grid transform: {0}")]
     BadTransform(String),

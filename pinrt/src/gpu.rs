@@ -130,7 +130,7 @@ impl GpuContext {
 /// options; `run` is filled per dispatch by `main` (the path tracer leaves it 0).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
-pub(crate) struct Params {
+pub struct Params {
     rows: [[f32; 4]; 3],
     jitter: [f32; 4],
     dims: [u32; 4],
@@ -141,11 +141,7 @@ pub(crate) struct Params {
 
 impl Params {
     /// `grid` placed by `xf` with lookup `options`, as `pin.wgsl` reads it.
-    pub(crate) fn for_grid(
-        grid: &PinGrid,
-        xf: &UnitTransform,
-        options: SamplerOptions,
-    ) -> Result<Self> {
+    pub fn for_grid(grid: &PinGrid, xf: &UnitTransform, options: SamplerOptions) -> Result<Self> {
         let s = grid.shape();
         let block_len = u32::try_from(s.block_len)
             .map_err(|_| Error::Gpu("block length exceeds u32".into()))?;
@@ -176,7 +172,7 @@ impl Params {
 
 /// Waits for the submitted work, reports a validation error caught by `scope` (named `what`),
 /// then maps the whole `staging` buffer and copies it out as `T`s.
-pub(crate) async fn read_back<T: Pod>(
+pub async fn read_back<T: Pod>(
     dev: &wgpu::Device,
     staging: &wgpu::Buffer,
     scope: wgpu::ErrorScopeGuard,
@@ -205,14 +201,14 @@ pub(crate) async fn read_back<T: Pod>(
 }
 
 /// The largest storage buffer `limits` let one binding hold, in bytes.
-pub(crate) fn binding_limit(limits: &wgpu::Limits) -> u64 {
+pub fn binding_limit(limits: &wgpu::Limits) -> u64 {
     limits
         .max_storage_buffer_binding_size
         .min(limits.max_buffer_size)
 }
 
 /// An error naming `what` when `len` bytes exceed one storage binding of `limit` bytes.
-pub(crate) fn check_binding(limit: u64, what: &str, len: usize) -> Result<()> {
+pub fn check_binding(limit: u64, what: &str, len: usize) -> Result<()> {
     if len as u64 > limit {
         return Err(Error::Gpu(format!(
             "{what} is {len} bytes, more than this device binds in one storage buffer \

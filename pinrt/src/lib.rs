@@ -126,10 +126,13 @@ pub mod gpu;
 pub mod instances;
 pub mod loader;
 pub mod lookup;
+#[cfg(any(test, feature = "testing"))]
 pub mod march;
 pub mod mask;
 pub mod rng;
 pub mod sampler;
+pub mod sections;
+#[cfg(any(test, feature = "testing"))]
 pub mod testing;
 #[cfg(test)]
 mod tests;
@@ -143,6 +146,7 @@ pub use sampler::{
     BATCH, GpuRay, GpuResult, NO_ENTRY, NO_INTERVAL, QueryResult, Ray, RayQuery, Sampler,
     SamplerOptions, status,
 };
+pub use sections::{Density, Majorants};
 
 /// The WGSL source of the GPU path (`shaders/pin.wgsl`).
 pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");
@@ -152,7 +156,3 @@ pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");
 /// name the same version of its types without a direct dependency.
 pub use glam;
 pub use pin_format::{Directions, GridDesc, PinEntry};
-#[cfg(all(feature = "gpu", feature = "render"))]
-pub mod gpu_render;
-#[cfg(feature = "render")]
-pub mod render;

@@ -9,7 +9,7 @@ use glam::DVec3;
 use pinbake::pin::{Placement, interval_optical_depths};
 use pinbake::source::procedural::{CosineParams, sinc};
 use pinbake::source::{Aabb, CosineNoise, DensitySource, HomogeneousBox};
-use pinrt::render::exprel;
+use pinrender::render::exprel;
 
 /// Neumaier-compensated f64 sum: the reference for "the exact sum of these f32 samples".
 fn neumaier(v: &[f32]) -> f64 {

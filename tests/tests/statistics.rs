@@ -423,7 +423,7 @@ fn cpu_and_gpu_sample_the_same_distribution() {
 /// estimates each, z-test of the mean transmittance against `exp(-1.5)`.
 #[test]
 fn trackers_are_unbiased_on_the_homogeneous_box() {
-    use pinrt::render::{
+    use pinrender::render::{
         DeltaTracking, HomogeneousBox as Field, MajorantGrid, Pcg32, RatioTracking,
         TransportEstimator,
     };

@@ -19,7 +19,7 @@ use pinbake::source::{
     VdbSource,
 };
 use pinbake::{BakeError, BakeOptions, bake};
-use pinrt::render::{
+use pinrender::render::{
     DeltaTracking, MajorantGrid, Pcg32, RatioTracking, RayMarching, TransportEstimator,
 };
 use pinrt::{PinGrid, QueryResult, Ray, RayQuery, Rng, status};
@@ -1239,12 +1239,12 @@ fn gpu_sampler_cases() {
 #[test]
 fn tracker_cases() {
     let sigma = 1.5f32;
-    let field = Arc::new(pinrt::render::HomogeneousBox {
+    let field = Arc::new(pinrender::render::HomogeneousBox {
         min: [0.0; 3],
         max: [1.0; 3],
         sigma_t: sigma,
     });
-    let empty = Arc::new(pinrt::render::HomogeneousBox {
+    let empty = Arc::new(pinrender::render::HomogeneousBox {
         min: [0.0; 3],
         max: [1.0; 3],
         sigma_t: 0.0,

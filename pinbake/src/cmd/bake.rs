@@ -10,7 +10,8 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::{Directions, Metadata};
 use pinbake::choose::Choice;
-use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
+use pinbake::cli_args::VolumeArgs;
+use pinbake::source::{self, DensitySource, SourceSpec};
 use pinbake::{BakeOptions, Tile};
 
 #[derive(Args, Debug, Clone)]
@@ -35,38 +36,9 @@ pub struct BakeArgs {
     #[arg(short, long)]
     pub output: PathBuf,
 
-    /// VDB: grid to bake (`density#1` picks the second grid named density).
-    #[arg(long, help_heading = "OpenVDB input")]
-    pub grid: Option<String>,
-    /// VDB: bake a level set as a fog volume (interior = density 1).
-    #[arg(long, help_heading = "OpenVDB input")]
-    pub levelset_to_fog: bool,
-
-    /// Raw: voxel counts X,Y,Z (x fastest in the file).
-    #[arg(long, value_parser = parse_u32x3, help_heading = "Raw input")]
-    pub dims: Option<[u32; 3]>,
-    /// Raw: voxel type: u8, u16, f16, f32, f64.
-    #[arg(long = "type", help_heading = "Raw input")]
-    pub voxel_type: Option<String>,
-    /// Raw: byte order of multi-byte types: little (default) or big.
-    #[arg(long, help_heading = "Raw input")]
-    pub endian: Option<String>,
-    /// Raw: world size of a voxel, one value or X,Y,Z, each in [1e-9, 1e9].
-    #[arg(long, value_parser = pinbake::limits::parse_spacing, help_heading = "Raw input")]
-    pub spacing: Option<[f64; 3]>,
-    /// Raw: world position of the grid box's minimum corner X,Y,Z, each within +-1e12.
-    #[arg(long, value_parser = pinbake::limits::parse_origin, help_heading = "Raw input")]
-    pub origin: Option<[f64; 3]>,
-    /// Raw: treat negative values as 0 instead of failing.
-    #[arg(long, help_heading = "Raw input")]
-    pub clamp_negative: bool,
-    /// Raw: treat NaN and infinities as 0 instead of failing.
-    #[arg(long, help_heading = "Raw input")]
-    pub nan_as_zero: bool,
-
-    /// Multiply every density by this (extinction = density x scale); finite, >= 0.
-    #[arg(long, default_value_t = 1.0, value_parser = pinbake::limits::parse_density_scale)]
-    pub density_scale: f64,
+    /// How to read the input (the same flags as `pinrender --volume`).
+    #[command(flatten)]
+    pub volume: VolumeArgs,
 
     /// Spatial cells: N or X,Y,Z (default: chosen from the volume, never more than it has
     /// voxels along an axis; see --target-error).
@@ -143,21 +115,7 @@ fn parse_target_error(s: &str) -> Result<f64, String> {
     Ok(e)
 }
 
-pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
-    let v: Vec<u32> = s
-        .split([',', 'x'])
-        .map(|p| p.trim().parse::<u32>().map_err(|e| format!("'{p}': {e}")))
-        .collect::<Result<_, _>>()?;
-    let out = match v.as_slice() {
-        [n] => [*n; 3],
-        [x, y, z] => [*x, *y, *z],
-        _ => return Err("expected N or X,Y,Z".into()),
-    };
-    if out.contains(&0) {
-        return Err("every count must be at least 1".into());
-    }
-    Ok(out)
-}
+pub use pinbake::cli_args::parse_u32x3;
 
 /// Majorant and embedded-density grids: 1..=4096 voxels per axis (the format's limit).
 fn parse_u32x3_max4096(s: &str) -> Result<[u32; 3], String> {
@@ -216,112 +174,9 @@ fn parse_tile(s: &str) -> Result<Tile, String> {
 /// What the input names. Flags meant for another kind of input are usage errors: ignoring
 /// them would bake something other than what the user asked for.
 pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
-    let procedural = args
-        .input
-        .to_str()
-        .and_then(|s| s.strip_prefix("procedural:"));
-    let is_vdb = procedural.is_none()
-        && args
-            .input
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
-    let raw_flags = [
-        ("--dims", args.dims.is_some()),
-        ("--type", args.voxel_type.is_some()),
-        ("--endian", args.endian.is_some()),
-        ("--spacing", args.spacing.is_some()),
-        ("--origin", args.origin.is_some()),
-        ("--clamp-negative", args.clamp_negative),
-        ("--nan-as-zero", args.nan_as_zero),
-    ];
-    let vdb_flags = [
-        ("--grid", args.grid.is_some()),
-        ("--levelset-to-fog", args.levelset_to_fog),
-    ];
-    let (kind, ignored): (&str, Vec<&str>) = if procedural.is_some() {
-        (
-            "a procedural input",
-            raw_flags
-                .iter()
-                .chain(&vdb_flags)
-                .filter(|f| f.1)
-                .map(|f| f.0)
-                .collect(),
-        )
-    } else if is_vdb {
-        (
-            "an OpenVDB input",
-            raw_flags.iter().filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    } else {
-        (
-            "a raw input",
-            vdb_flags.iter().filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    };
-    if let Some(flag) = ignored.first() {
-        super::usage!("{flag} does not apply to {kind} ({})", args.input.display());
-    }
-    if let Some(rest) = procedural {
-        let mut spec: ProceduralSpec = rest
-            .parse()
-            .map_err(|e: source::SourceError| anyhow::anyhow!("{e}"))?;
-        spec.density *= args.density_scale;
-        return Ok(SourceSpec::Procedural(spec));
-    }
-    let path = args.input.clone();
-    // A FIFO, device or directory is refused before anything opens it.
-    pinbake::files::check_input(&path)?;
-    if is_vdb {
-        #[cfg(feature = "vdb")]
-        {
-            let worker_exe = std::env::current_exe().context("locating the pinbake binary")?;
-            return Ok(SourceSpec::Vdb(
-                path,
-                source::VdbOptions {
-                    grid: args.grid.clone(),
-                    levelset_to_fog: args.levelset_to_fog,
-                    density_scale: args.density_scale,
-                    worker_exe,
-                    ..source::VdbOptions::default()
-                },
-            ));
-        }
-        #[cfg(not(feature = "vdb"))]
-        return Ok(SourceSpec::Vdb(path));
-    }
-    let voxel_type = match args.voxel_type.as_deref() {
-        None => None,
-        Some(t) => Some(source::RawType::parse(t).ok_or_else(|| {
-            anyhow::Error::new(super::UsageError(format!(
-                "--type '{t}' is not one of u8, u16, f16, f32, f64"
-            )))
-        })?),
-    };
-    let endian = match args
-        .endian
-        .as_deref()
-        .unwrap_or("little")
-        .to_ascii_lowercase()
-        .as_str()
-    {
-        "little" | "le" => source::Endian::Little,
-        "big" | "be" => source::Endian::Big,
-        other => super::usage!("--endian '{other}' is not little or big"),
-    };
-    Ok(SourceSpec::Raw(
-        path,
-        RawOptions {
-            dims: args.dims,
-            voxel_type,
-            endian,
-            spacing: args.spacing.unwrap_or([1.0; 3]),
-            origin: args.origin.unwrap_or([0.0; 3]),
-            clamp_negative: args.clamp_negative,
-            nan_as_zero: args.nan_as_zero,
-            density_scale: args.density_scale,
-        },
-    ))
+    args.volume.source_spec(&args.input, "input", || {
+        std::env::current_exe().context("locating the pinbake binary")
+    })
 }
 
 /// Hex xxh3-128 of a file, streamed so a large volume is not read twice into memory.
@@ -386,13 +241,19 @@ pub fn options_from_args(
         source_description: source.describe(),
         seed: args.seed,
         step_size: args.step,
-        density_scale: args.density_scale,
+        density_scale: args.volume.density_scale,
         bake_unix_time,
-        extra: vec![
-            ("cells".into(), format!("{cells:?}")),
-            ("crop".into(), (!args.no_crop).to_string()),
-            ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
-        ],
+        extra: {
+            let mut extra = vec![
+                ("cells".into(), format!("{cells:?}")),
+                ("crop".into(), (!args.no_crop).to_string()),
+                ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
+            ];
+            // What `pinrender` checks `--pins` against its `--volume` with.
+            extra.extend(source::SourceIdentity::of(source, args.volume.density_scale).to_extra());
+            extra.sort();
+            extra
+        },
     };
     Ok(BakeOptions {
         cells,
@@ -406,7 +267,7 @@ pub fn options_from_args(
         majorant: majorant_dims(args.majorant),
         embed_density: args.embed_density,
         threads: args.threads,
-        density_scale: args.density_scale,
+        density_scale: args.volume.density_scale,
         metadata,
     })
 }

@@ -4,7 +4,10 @@
 //! Every row reports `wall_s`, `pins_per_s`, `threads`, `peak_rss_bytes` (the process's
 //! high-water mark so far, from /proc; null where unavailable) and `integration_error` (the
 //! mean absolute error of the interval transmittances against a 16x supersampled march, over
-//! 256 random pins: [`pinbake::pin::integration_error`]).
+//! 256 random pins: [`pinbake::pin::integration_error_of`]). Beside them: `cpu_s` (user +
+//! system CPU seconds of the bake, steadier than wall time on a shared machine) and
+//! `integration_error_prefiltered` (the same error for the box-filtered level,
+//! [`pinbake::source::Mip`], null where the grid has none; docs/performance.md).
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -14,6 +17,7 @@ use clap::Args;
 use glam::DVec3;
 use pin_format::Directions;
 use pinbake::BakeOptions;
+use pinbake::pin::{Field, integration_error_of};
 use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use rayon::prelude::*;
@@ -92,12 +96,24 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 majorant: None,
                 ..BakeOptions::default()
             };
+            let cpu0 = cpu_seconds();
             let t = Instant::now();
             let (g, stats) = pinbake::bake(source, &opts, &|_| {})?;
             let wall = t.elapsed().as_secs_f64();
+            let cpu = cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
             let pins = u64::from(args.cells).pow(3) * 64;
-            let placement = pinbake::pin::Placement::over(&source.bounds(), opts.step);
-            let err = pinbake::pin::integration_error(source, &placement, 256, 16, 1);
+            // The bake's own rule against the 16x supersampled march of the source; beside
+            // it the same midpoint rule on the box-filtered level (mip) whose voxels match the
+            // step, on the same pins (docs/performance.md: it is less accurate, so bakes do
+            // not use it).
+            let (bbox, _) = pinbake::bake::bake_box(source, opts.crop)?;
+            let placement = pinbake::pin::Placement::over(&bbox, opts.step);
+            let err = integration_error_of(Field::of(source), source, &placement, 256, 16, 1);
+            let mip = source.prefiltered(placement.step)?;
+            let mip_err = mip
+                .as_ref()
+                .map(|m| integration_error_of(Field::Mip(m), source, &placement, 256, 16, 1));
+            drop(mip);
             rows.push(json!({
                 "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
                 "threads": threads,
@@ -110,6 +126,8 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 "integration_error": err.mean_abs_transmittance,
                 "integration_error_max": err.max_abs_transmittance,
                 "optical_depth_rel_error": err.mean_rel_optical_depth,
+                "integration_error_prefiltered": mip_err.map(|e| e.mean_abs_transmittance),
+                "cpu_s": cpu,
             }));
         }
     }
@@ -146,4 +164,15 @@ fn peak_rss_bytes() -> Option<u64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kb * 1024)
+}
+
+/// User plus system CPU seconds of this process so far (`/proc/self/stat`, in clock ticks of
+/// 1/100 s on Linux), if the OS says: on a shared machine CPU time is the steadier figure.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let (u, s): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
+    Some((u + s) / 100.0)
 }

@@ -22,12 +22,16 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 pub mod grid;
+pub mod identity;
+pub mod mip;
 pub mod procedural;
 pub mod raw;
 #[cfg(feature = "vdb")]
 pub mod vdb;
 
 pub use grid::DenseGrid;
+pub use identity::SourceIdentity;
+pub use mip::{Mip, MipAllocError};
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
 #[cfg(feature = "vdb")]
@@ -90,6 +94,21 @@ pub trait DensitySource: Send + Sync {
     /// in world space with an identity placement.
     fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
         None
+    }
+
+    /// The source as a dense grid, when it is one: the baker then marches its voxels directly
+    /// ([`DenseGrid::march_runs`]) instead of going through `extinction_along`.
+    fn as_dense_grid(&self) -> Option<&DenseGrid> {
+        None
+    }
+
+    /// A box-filtered dense level ([`Mip`]) with voxels of about `step` world units, for a
+    /// bake that marches at that step. `Ok(None)` (the default) means "sample the source
+    /// itself": analytic fields, grids whose voxels already match the step, and grids whose
+    /// dense level would not be small (a sparse VDB over a huge box) keep point sampling.
+    fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
+        let _ = step;
+        Ok(None)
     }
 
     /// Batched sampling along a line: `out[i] = extinction(origin + i * step)` for

@@ -49,7 +49,7 @@ use std::time::{Duration, Instant};
 
 use glam::{DMat3, DVec3, IVec3};
 
-use super::{Aabb, DensityScale, DensitySource, SourceError, one_line};
+use super::{Aabb, DensityScale, DensitySource, Mip, MipAllocError, SourceError, one_line};
 
 /// The hidden subcommand the `pinbake` binary dispatches to [`worker_main`].
 pub const WORKER_SUBCOMMAND: &str = "__vdb-worker";
@@ -1711,6 +1711,62 @@ impl DensitySource for VdbSource {
         // Axis-aligned grids keep baking in world space, as they always have.
         let (frame, local_to_world) = GridFrame::new(self)?;
         Some((Box::new(frame), local_to_world))
+    }
+
+    fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
+        // Axis-aligned maps only: a rotated or sheared grid's voxels are not boxes of the bake
+        // frame, and it keeps point sampling.
+        let Some((scale, _)) = self.diag else {
+            return Ok(None);
+        };
+        // The fine grid is every voxel centre the trilinear field reaches (one beyond the
+        // stored ones, where it falls to zero), each the centre of a unit index cell.
+        let (lo, hi) = (self.index_min - 1, self.index_max + 1);
+        let n = (hi - lo + 1).as_i64vec3();
+        if n.cmple(glam::I64Vec3::ZERO).any() || n.max_element() > i64::from(u32::MAX) {
+            return Ok(None);
+        }
+        let fine = [n.x as u32, n.y as u32, n.z as u32];
+        let extent = n.as_dvec3() * scale.abs();
+        // The dense level (and the pass that reads every fine voxel) must stay about the size
+        // of what the sparse grid stores: a few leaves under a huge tile box keep point
+        // sampling instead of a dense copy of the box.
+        let stored = (self.leaves.len() as u64 * 512).max(1 << 24);
+        let coarse: u64 = Mip::coarse_dims(fine, extent, step)
+            .iter()
+            .map(|&c| c as u64)
+            .product();
+        let fine_count = n.x as u64 * n.y as u64 * n.z as u64;
+        if coarse > stored || fine_count > 8 * stored {
+            return Ok(None);
+        }
+        // Fine index j along an axis is index `lo + j`, or `hi - j` where the map mirrors
+        // that axis (so that j grows with world position, as the mip's voxels do).
+        let at = |a: usize, j: usize| {
+            if scale[a] > 0.0 {
+                lo[a] + j as i32
+            } else {
+                hi[a] - j as i32
+            }
+        };
+        let corner = DVec3::new(
+            (lo.x as f64 - 0.5) * scale.x,
+            (lo.y as f64 - 0.5) * scale.y,
+            (lo.z as f64 - 0.5) * scale.z,
+        );
+        let far = DVec3::new(
+            (hi.x as f64 + 0.5) * scale.x,
+            (hi.y as f64 + 0.5) * scale.y,
+            (hi.z as f64 + 0.5) * scale.z,
+        );
+        let origin = corner.min(far) + self.translation;
+        let fill = |y: usize, z: usize, row: &mut [f32]| {
+            let (iy, iz) = (at(1, y), at(2, z));
+            for (x, v) in row.iter_mut().enumerate() {
+                *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+            }
+        };
+        Mip::build(fine, origin, extent, step, &fill)
     }
 
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {

@@ -19,15 +19,9 @@ fn data(name: &str) -> String {
 }
 
 fn args(density_scale: f64, spacing: Option<[f64; 3]>) -> VolumeArgs {
-    VolumeArgs {
-        volume: None,
-        grid: None,
-        dims: None,
-        voxel_type: None,
-        spacing,
-        origin: None,
-        density_scale,
-    }
+    let mut a = VolumeArgs::scaled(density_scale);
+    a.read.spacing = spacing;
+    a
 }
 
 /// The GPU copy of each kind of source gives the source's extinction at random points
@@ -65,7 +59,7 @@ fn gpu_density_reproduces_the_source() {
         let b = src.bounds();
         assert_eq!(gpu.bounds, (b.min.to_array(), b.max.to_array()), "{input}");
         let scale = src.max_extinction_in(b).max(1e-6) as f64;
-        let mut rng = pinrt::render::Pcg32::new(3, 4);
+        let mut rng = pinrender::render::Pcg32::new(3, 4);
         let mut worst = 0.0f64;
         let mut nonzero = 0;
         for _ in 0..20_000 {

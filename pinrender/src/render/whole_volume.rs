@@ -791,8 +791,7 @@ mod tests {
         assert!(mse[0] > 1.5 * mse[1], "{mse:?}");
     }
 
-    /// Equal-time variance comparison. Prints; run with `cargo test -p pinrt
-    /// --no-default-features --features render whole_volume_equal_time --
+    /// Equal-time variance comparison. Prints; run with `cargo test -p pinrender --no-default-features whole_volume_equal_time --
     /// --ignored --nocapture`.
     #[test]
     #[ignore]

@@ -3,8 +3,8 @@ use super::*;
 use crate::render::{
     Budget, MajorantGrid, Medium, Pcg32, RenderSettings, TransportEstimator, VoxelGrid, render,
 };
-use crate::{Ray, Rng, Sampler};
 use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
+use pinrt::{Ray, Rng, Sampler};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -411,7 +411,7 @@ fn deterministic_and_checked() {
     assert!(img.rgb.iter().flatten().all(|&c| c == 0.0));
 }
 
-/// Timing for docs/gpu.md: `cargo test -p pinrt --features render
+/// Timing for docs/gpu.md: `cargo test -p pinrender
 /// gpu_render::tests::measure -- --ignored --nocapture`.
 #[test]
 #[ignore = "timing run for docs/gpu.md"]

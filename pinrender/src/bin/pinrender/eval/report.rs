@@ -94,7 +94,7 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
         } => {
             let mut s = format!(
                 "GPU: rows marked `(gpu)` are the WGSL path tracer \
-                 (`pinrt::gpu_render::GpuRenderer`, backend `gpu` in the CSV) on `{describe}` \
+                 (`pinrender::gpu_render::GpuRenderer`, backend `gpu` in the CSV) on `{describe}` \
                  with every estimator it has (`rm@STEP`, `delta`, `ratio`, `urm`, `jackknife`, \
                  `pins`, `pinms`) \
                  over the same media as the CPU rows (the same pin grid and lookup jitter, a GPU \
@@ -288,7 +288,7 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
     let _ = writeln!(
         s,
         "Machine: {}, {}; total run time {:.0} s{}. Budgets: {} s of wall time per estimator \
-         (CPU path tracer, `pinrt::render`, unless marked `(gpu)`). {}",
+         (CPU path tracer, `pinrender::render`, unless marked `(gpu)`). {}",
         meta.cpu,
         meta.threads,
         meta.total_seconds,

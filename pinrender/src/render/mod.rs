@@ -1,4 +1,4 @@
-//! # Reference volumetric path tracer (feature `render`)
+//! # Reference volumetric path tracer
 //!
 //! A small, CPU-parallel, deterministic path tracer for grey participating media, used to
 //! *see* what an estimator does and to *measure* it: error (RMSE, relative MSE) against run
@@ -62,7 +62,7 @@
 //! (rays are f32, `t` in units of `|d|`, the renderer passes unit directions and
 //! `t_max = inf` or the nearest collision so far), may seed its own generator per query
 //! from [`Pcg32::next_u64`], and should return its sampler's
-//! [`Sampler::world_bounds`](crate::Sampler::world_bounds) from `bounds()` so that rays
+//! [`Sampler::world_bounds`](pinrt::Sampler::world_bounds) from `bounds()` so that rays
 //! missing the placed grid never reach it.
 //!
 //! ## The companion papers
@@ -99,6 +99,7 @@ mod image;
 mod majorant;
 pub mod phase;
 mod rng;
+mod spec;
 mod tracer;
 pub mod whole_volume;
 
@@ -116,6 +117,7 @@ pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use rng::{Pcg32, splitmix64};
+pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
 pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 

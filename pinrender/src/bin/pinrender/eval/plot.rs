@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use anyhow::{Result, anyhow};
-use pinrt::render::{Image, tone_map};
+use pinrender::render::{Image, tone_map};
 use plotters::prelude::*;
 
 use super::SceneResult;

@@ -9,47 +9,31 @@ use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{self, DensitySource, ProceduralSpec, RawOptions, SourceSpec};
-use pinrt::gpu_render::{CosineWave, GpuDensity};
-use pinrt::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator};
+use pinbake::source::{self, DensitySource, SourceSpec};
+use pinrender::gpu_render::{CosineWave, GpuDensity};
+use pinrender::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator, VoxelGrid};
 use pinrt::{PinGrid, Ray, Rng, Sampler};
 
-/// How to read the volume (the same flags as `pinbake bake`).
-#[derive(Args, Debug, Clone)]
+/// The volume and how to read it (the flags shared with `pinbake bake`).
+#[derive(Args, Debug, Clone, Default)]
 pub struct VolumeArgs {
     /// Volume: FILE.vdb, FILE.raw or procedural:SPEC (see `pinbake bake --help`).
     #[arg(long)]
     pub volume: Option<PathBuf>,
-    /// VDB grid name (`density#1` for the second grid named density).
-    #[arg(long)]
-    pub grid: Option<String>,
-    /// Raw: voxel counts X,Y,Z.
-    #[arg(long, value_parser = parse_u32x3)]
-    pub dims: Option<[u32; 3]>,
-    /// Raw: u8, u16, f16, f32 or f64.
-    #[arg(long = "type")]
-    pub voxel_type: Option<String>,
-    /// Raw: world size of a voxel (V or X,Y,Z, each in [1e-9, 1e9]); the grid occupies
-    /// [origin, origin + dims * spacing].
-    #[arg(long, value_parser = pinbake::limits::parse_spacing)]
-    pub spacing: Option<[f64; 3]>,
-    /// Raw: world position of the grid box's minimum corner (each within +-1e12).
-    #[arg(long, value_parser = pinbake::limits::parse_origin)]
-    pub origin: Option<[f64; 3]>,
-    /// Multiply every density by this (finite, >= 0).
-    #[arg(long, default_value_t = 1.0, value_parser = pinbake::limits::parse_density_scale)]
-    pub density_scale: f64,
+    #[command(flatten)]
+    pub read: pinbake::cli_args::VolumeArgs,
 }
 
-pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
-    let v: Vec<u32> = s
-        .split(',')
-        .map(|p| p.trim().parse().map_err(|e| format!("'{p}': {e}")))
-        .collect::<Result<_, String>>()?;
-    match v.as_slice() {
-        [n] => Ok([*n; 3]),
-        [x, y, z] => Ok([*x, *y, *z]),
-        _ => Err("expected N or X,Y,Z".into()),
+impl VolumeArgs {
+    /// No volume, the default reading flags but this density scale (the eval's scenes).
+    pub fn scaled(density_scale: f64) -> Self {
+        Self {
+            volume: None,
+            read: pinbake::cli_args::VolumeArgs {
+                density_scale,
+                ..Default::default()
+            },
+        }
     }
 }
 
@@ -148,7 +132,7 @@ impl Opened {
                     })
                     .collect(),
             ),
-            Opened::Box(bx) => GpuDensity::homogeneous(&pinrt::render::HomogeneousBox {
+            Opened::Box(bx) => GpuDensity::homogeneous(&pinrender::render::HomogeneousBox {
                 min: lo,
                 max: hi,
                 sigma_t: bx.density(),
@@ -166,86 +150,13 @@ impl Opened {
 /// [`open_volume`] with the concrete source type kept.
 ///
 /// Flags for another kind of input (`--grid` on a raw file, `--dims` on a VDB) are usage
-/// errors, and a path must name a regular file.
+/// errors, and a path must name a regular file ([`pinbake::cli_args::VolumeArgs::source_spec`]).
 pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Opened> {
-    let input = input.as_ref();
-    let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
-    let path = PathBuf::from(input);
-    let is_vdb = procedural.is_none()
-        && path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
-    let raw_flags = [
-        ("--dims", a.dims.is_some()),
-        ("--type", a.voxel_type.is_some()),
-        ("--spacing", a.spacing.is_some()),
-        ("--origin", a.origin.is_some()),
-    ];
-    let grid_flag = [("--grid", a.grid.is_some())];
-    let (kind, wrong): (&str, Vec<&str>) = if procedural.is_some() {
-        let all = raw_flags.iter().chain(&grid_flag);
-        (
-            "a procedural volume",
-            all.filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    } else if is_vdb {
-        let raw = raw_flags.iter();
-        (
-            "an OpenVDB volume",
-            raw.filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    } else {
-        (
-            "a raw volume",
-            grid_flag.iter().filter(|f| f.1).map(|f| f.0).collect(),
-        )
-    };
-    if let Some(flag) = wrong.first() {
-        // A usage error (exit 2); spelled out because tests include this file as a module.
-        return Err(anyhow::Error::new(pinbake::files::UsageError(format!(
-            "{flag} does not apply to {kind} ({})",
-            path.display()
-        ))));
-    }
-    if procedural.is_none() {
-        pinbake::files::check_input(&path)?;
-    }
-    let spec = if let Some(rest) = procedural {
-        let mut p: ProceduralSpec = rest.parse().map_err(|e| anyhow!("{e}"))?;
-        p.density *= a.density_scale;
-        SourceSpec::Procedural(p)
-    } else {
-        if is_vdb {
-            SourceSpec::Vdb(
-                path,
-                source::VdbOptions {
-                    grid: a.grid.clone(),
-                    density_scale: a.density_scale,
-                    worker_exe: std::env::current_exe().context("locating pinrender")?,
-                    ..source::VdbOptions::default()
-                },
-            )
-        } else {
-            let voxel_type = match a.voxel_type.as_deref() {
-                None => None,
-                Some(t) => Some(
-                    source::RawType::parse(t)
-                        .ok_or_else(|| anyhow!("--type '{t}' is not u8, u16, f16, f32 or f64"))?,
-                ),
-            };
-            SourceSpec::Raw(
-                path,
-                RawOptions {
-                    dims: a.dims,
-                    voxel_type,
-                    spacing: a.spacing.unwrap_or([1.0; 3]),
-                    origin: a.origin.unwrap_or([0.0; 3]),
-                    density_scale: a.density_scale,
-                    ..RawOptions::default()
-                },
-            )
-        }
-    };
+    let spec = a
+        .read
+        .source_spec(Path::new(input.as_ref()), "volume", || {
+            std::env::current_exe().context("locating pinrender")
+        })?;
     Ok(match spec {
         SourceSpec::Vdb(path, opts) => {
             Opened::Vdb(Arc::new(source::VdbSource::open(&path, &opts)?))
@@ -336,6 +247,148 @@ impl TransportEstimator for PinsEstimator {
     }
 }
 
+/// Opens `--pins FILE` as a whole grid: a tile of a farm bake is refused (it covers only its
+/// slab of cells: rendering with it would treat the rest of the volume as empty).
+pub fn load_pins(p: &Path) -> Result<PinGrid> {
+    // A FIFO would block the open, a device or directory map as nonsense.
+    pinbake::files::check_input(p)?;
+    let grid = PinGrid::open(p).map_err(|e| anyhow!("{}: {e}", p.display()))?;
+    if let Some(t) = grid
+        .file()
+        .map_err(|e| anyhow!("{}: {e}", p.display()))?
+        .tile()
+    {
+        anyhow::bail!(
+            "{}: tile {}/{} of a farm bake, not a whole grid; join the tiles with \
+             `pinbake merge` first",
+            p.display(),
+            t.tile_index,
+            t.tile_count
+        );
+    }
+    Ok(grid)
+}
+
+/// Checks that `grid` (from `pins`) was baked from `source` (read from `volume` with
+/// `density_scale`): the identity the bake recorded against the volume's. A mismatch is an
+/// error naming both files and what differs, unless `allow`; a file without an identity
+/// (baked before it was recorded) passes with a warning.
+pub fn check_pins_match(
+    pins: &Path,
+    grid: &PinGrid,
+    volume: &Path,
+    source: &dyn DensitySource,
+    density_scale: f64,
+    allow: bool,
+) -> Result<()> {
+    let recorded = grid
+        .file()
+        .map_err(|e| anyhow!("{}: {e}", pins.display()))?
+        .metadata()
+        .transpose()
+        .map_err(|e| anyhow!("{}: {e}", pins.display()))?
+        .and_then(|m| source::SourceIdentity::from_extra(&m.extra));
+    let Some(recorded) = recorded else {
+        eprintln!(
+            "pinrender: warning: {} records no source identity (an older bake); not checked \
+             against {}",
+            pins.display(),
+            volume.display()
+        );
+        return Ok(());
+    };
+    let recorded = recorded.map_err(|e| anyhow!("{}: {e}", pins.display()))?;
+    let differences = recorded.differences(&source::SourceIdentity::of(source, density_scale));
+    if differences.is_empty() {
+        return Ok(());
+    }
+    let what = format!(
+        "{} was not baked from {} ({}; pins vs volume)",
+        pins.display(),
+        volume.display(),
+        differences.join("; ")
+    );
+    if allow {
+        eprintln!("pinrender: warning: {what}; rendering anyway (--allow-mismatched-pins)");
+        return Ok(());
+    }
+    anyhow::bail!("{what}; rebake the pins, or pass --allow-mismatched-pins")
+}
+
+/// The medium of a pin file rendered alone (no `--volume`): the world box of its placed
+/// grid, and, when the file embeds density, that density as a world-space voxel grid with
+/// majorants from the file's majorant section.
+pub struct PinFileMedium {
+    pub bounds: ([f64; 3], [f64; 3]),
+    pub density: Option<Arc<VoxelGrid>>,
+    pub majorants: Option<Arc<MajorantGrid>>,
+}
+
+/// Reads the medium sections of `grid` (from `path`). The embedded density and the majorants
+/// live in the grid's local box; the renderer's fields are axis-aligned in the world, so a
+/// placement other than a positive scale and a translation is refused (render such a grid
+/// with `--volume`).
+pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
+    let named = |e: pinrt::Error| anyhow!("{e}");
+    let density = grid.density().map_err(named)?;
+    let majorants = grid.majorants().map_err(named)?;
+    let d = grid.desc();
+    let m = d.local_to_world;
+    let scale = [m[0], m[5], m[10]];
+    let off_diagonal = [m[1], m[2], m[4], m[6], m[8], m[9]];
+    let axis_aligned =
+        off_diagonal.iter().all(|&v| v == 0.0) && scale.iter().all(|&v| v > 0.0 && v.is_finite());
+    let to_world = |p: [f64; 3]| [0, 1, 2].map(|a| scale[a] * p[a] + m[4 * a + 3]);
+    let bounds = (to_world(d.box_min), to_world(d.box_max));
+    if density.is_some() && !axis_aligned {
+        anyhow::bail!(
+            "{}: the grid is rotated or sheared in the world; its embedded density can only be \
+             rendered with --volume",
+            path.display()
+        );
+    }
+    let Some(density) = density else {
+        return Ok(PinFileMedium {
+            bounds,
+            density: None,
+            majorants: None,
+        });
+    };
+    let spacing = [0, 1, 2].map(|a| (bounds.1[a] - bounds.0[a]) / f64::from(density.dims()[a]));
+    let field = Arc::new(
+        VoxelGrid::new(density.dims(), bounds.0, spacing, density.to_f32())
+            .map_err(|e| anyhow!("{}: embedded density: {e}", path.display()))?,
+    );
+    // The file's majorants bound the source's extinction; its f16 copy can round above them,
+    // so each brick is raised to the copy's exact maximum there (delta tracking needs a
+    // bound of the field it tracks).
+    let (dims, values) = match majorants {
+        Some(mj) => (mj.dims(), mj.values().to_vec()),
+        None => ([1; 3], vec![0.0]),
+    };
+    let size = [0, 1, 2].map(|a| (bounds.1[a] - bounds.0[a]) / f64::from(dims[a]));
+    let mut raised = values;
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let i = [x, y, z];
+                let lo = [0, 1, 2].map(|a| bounds.0[a] + size[a] * f64::from(i[a]));
+                let hi = [0, 1, 2].map(|a| bounds.0[a] + size[a] * f64::from(i[a] + 1));
+                let exact = field.max_extinction(lo, hi).unwrap_or(f32::MAX);
+                let k = (x + dims[0] * (y + dims[1] * z)) as usize;
+                raised[k] = raised[k].max(exact);
+            }
+        }
+    }
+    let majorants = MajorantGrid::from_parts(bounds.0, bounds.1, dims, raised)
+        .map_err(|e| anyhow!("{}: majorants: {e}", path.display()))?;
+    Ok(PinFileMedium {
+        bounds,
+        density: Some(field),
+        majorants: Some(Arc::new(majorants)),
+    })
+}
+
 /// Loads `--pins FILE`, or bakes the volume in memory with the default settings (cells: as
 /// given, else `pinbake::bake::DEFAULT_MAX_CELLS` per axis capped by the voxels).
 pub fn pins_for(
@@ -345,25 +398,7 @@ pub fn pins_for(
     seed: u64,
 ) -> Result<PinGrid> {
     if let Some(p) = pins {
-        // A FIFO would block the open, a device or directory map as nonsense.
-        pinbake::files::check_input(p)?;
-        let grid = PinGrid::open(p).map_err(|e| anyhow!("{}: {e}", p.display()))?;
-        // A tile covers only its slab of cells: rendering with it would treat the rest of the
-        // volume as empty.
-        if let Some(t) = grid
-            .file()
-            .map_err(|e| anyhow!("{}: {e}", p.display()))?
-            .tile()
-        {
-            anyhow::bail!(
-                "{}: tile {}/{} of a farm bake, not a whole grid; join the tiles with \
-                 `pinbake merge` first",
-                p.display(),
-                t.tile_index,
-                t.tile_count
-            );
-        }
-        return Ok(grid);
+        return load_pins(p);
     }
     let cells = match cells {
         Some(c) => [c; 3],

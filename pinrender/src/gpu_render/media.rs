@@ -13,13 +13,13 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::chord::UnitTransform;
-use crate::error::Error;
-pub(super) use crate::gpu::Params as GridParams;
-use crate::gpu::check_binding;
-use crate::loader::PinGrid;
 use crate::render::{DensityField, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid};
-use crate::sampler::SamplerOptions;
+use pinrt::Error;
+use pinrt::PinGrid;
+use pinrt::SamplerOptions;
+use pinrt::UnitTransform;
+pub(super) use pinrt::gpu::Params as GridParams;
+use pinrt::gpu::check_binding;
 
 /// One cosine wave of [`GpuDensityKind::Cosine`]: `amplitude * cos(w . p + phase)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -163,7 +163,7 @@ pub struct GpuPins {
     pub grid: usize,
     /// Placement (row-major 3x4 local-to-world); `None`: the file's own.
     pub local_to_world: Option<[f64; 12]>,
-    /// Lookup jitter, as for [`crate::Sampler`].
+    /// Lookup jitter, as for [`pinrt::Sampler`].
     pub options: SamplerOptions,
 }
 
@@ -308,7 +308,7 @@ fn gpu(why: String) -> Error {
 }
 
 /// Packs `media` into the shader's records; `limit` is the largest storage binding in bytes.
-pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> crate::Result<Packed<'g>> {
+pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed<'g>> {
     let check = |what: &str, len: usize| check_binding(limit, what, len);
     // Pin grids: concatenated (borrowed straight from the mapping when there is one).
     let mut pin_base = Vec::with_capacity(media.grids.len());

@@ -6,15 +6,14 @@ use anyhow::{Context, Result, anyhow, bail};
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::CosineParams;
 use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, ProceduralSpec};
-use pinrt::render::cache::CacheSettings;
-use pinrt::render::whole_volume::WholeVolumeBox;
-use pinrt::render::{
-    AnalyticOpticalDepth, Camera, ClosedFormTracker, CombKind, DeltaTracking, DensityField,
-    HomogeneousBox, MajorantGrid, Medium, RatioTracking, RayMarching, Scene, Sun,
-    TransportEstimator, splitmix64,
+use pinrender::render::cache::CacheSettings;
+use pinrender::render::whole_volume::WholeVolumeBox;
+use pinrender::render::{
+    AnalyticOpticalDepth, Camera, ClosedFormTracker, DensityField, EstimatorSpec, HomogeneousBox,
+    MajorantGrid, Medium, Scene, Sun, TransportEstimator, splitmix64,
 };
 
-use pinrt::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
+use pinrender::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
 use pinrt::{PinGrid, SamplerOptions};
 
 use crate::volume::{Opened, SourceField, VolumeArgs};
@@ -183,15 +182,7 @@ pub fn build(name: &str, sizes: &Sizes) -> Result<EvalScene> {
 }
 
 fn volume_args(density_scale: f64) -> VolumeArgs {
-    VolumeArgs {
-        volume: None,
-        grid: None,
-        dims: None,
-        voxel_type: None,
-        spacing: None,
-        origin: None,
-        density_scale,
-    }
+    VolumeArgs::scaled(density_scale)
 }
 
 /// A camera looking at the box centre from the front-right-above, framing the box.
@@ -708,14 +699,6 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
 /// One instance's estimator by name.
 pub fn estimator(inst: &Instance, name: &str) -> Result<Arc<dyn TransportEstimator>> {
     Ok(match name {
-        "delta" => Arc::new(DeltaTracking::new(
-            inst.field.clone(),
-            inst.majorants.clone(),
-        )),
-        "ratio" => Arc::new(RatioTracking::new(
-            inst.field.clone(),
-            inst.majorants.clone(),
-        )),
         "pins" => inst
             .pins
             .clone()
@@ -727,18 +710,14 @@ pub fn estimator(inst: &Instance, name: &str) -> Result<Arc<dyn TransportEstimat
                 .ok_or_else(|| anyhow!("{name}: this scene has no closed form"))?;
             Arc::new(ClosedFormTracker::new(a).map_err(|e| anyhow!("{e}"))?)
         }
-        s if CombKind::parse(s).is_some() => {
-            let (kind, lookups) = CombKind::parse(s)
-                .expect("checked by the guard")
-                .map_err(|e| anyhow!("{e}"))?;
-            kind.build(inst.field.clone(), inst.majorants.clone(), lookups)
-                .map_err(|e| anyhow!("{e}"))?
+        other => {
+            // The estimators over a density: the renderer's one parser and builder.
+            let spec: EstimatorSpec = other.parse().map_err(|e: String| anyhow!("{e}"))?;
+            let field = || Ok::<_, anyhow::Error>(inst.field.clone());
+            let majorants = || Ok::<_, anyhow::Error>(inst.majorants.clone());
+            spec.build_density_estimator(&field, &majorants)?
+                .ok_or_else(|| anyhow!("estimator {other}: not over a density"))?
         }
-        s if s.starts_with("rm@") => {
-            let step: f64 = s[3..].parse().map_err(|e| anyhow!("estimator {s}: {e}"))?;
-            Arc::new(RayMarching::new(inst.field.clone(), step).map_err(|e| anyhow!("{e}"))?)
-        }
-        other => bail!("unknown estimator '{other}'"),
     })
 }
 

@@ -9,7 +9,7 @@
 
 use glam::DVec3;
 use pinbake::source::DenseGrid;
-use pinrt::render::splitmix64;
+use pinrender::render::splitmix64;
 use rayon::prelude::*;
 
 /// Voxels per axis.

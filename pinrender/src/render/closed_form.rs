@@ -454,7 +454,7 @@ pub(crate) mod tests {
 
     /// Per-query cost of the closed form vs delta / ratio tracking over a 16^3 majorant grid
     /// of the same field, on the same rays. Prints; run with
-    /// `cargo test -p pinrt --no-default-features --features render
+    /// `cargo test -p pinrender --no-default-features
     /// closed_form_speed -- --ignored --nocapture`.
     #[test]
     #[ignore]

@@ -37,7 +37,7 @@ fn committed_translations_are_current() {
         let old = std::fs::read(generated().join(name)).unwrap_or_default();
         assert!(
             new == old,
-            "shaders/generated/{name} is stale: run `cargo run --release --features cli -p pinrt \
+            "shaders/generated/{name} is stale: run `cargo run --release --features cli -p pinrender \
              --bin pinrender -- shaders --out shaders/generated` and commit the result"
         );
     }

@@ -105,7 +105,7 @@ impl VoxelGrid {
     /// spacing. Values are cleaned once here, as the estimators read extinction: NaN and
     /// negatives become 0 and `+inf` (opaque) becomes `f32::MAX`, so that trilinear
     /// interpolation never forms `inf - inf` (a NaN that would read as empty space). The GPU
-    /// copy (`pinrt::gpu_render::GpuDensity`) cleans the same way.
+    /// copy (`pinrender::gpu_render::GpuDensity`) cleans the same way.
     pub fn new(
         dims: [u32; 3],
         origin: [f64; 3],

@@ -7,15 +7,15 @@ use anyhow::{Result, anyhow, bail};
 use clap::Args;
 use std::time::Instant;
 
+use pinrender::gpu_render::{
+    GpuDensity, GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
+};
+use pinrender::render::{
+    Budget, Camera, DensityField, EstimatorSpec, Image, MajorantGrid, Medium, RenderSettings,
+    Scene, Sun, TransportEstimator, VoxelGrid, block_bias, render,
+};
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
-use pinrt::gpu_render::{
-    GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
-};
-use pinrt::render::{
-    Budget, Camera, CombKind, DeltaTracking, Image, Medium, RatioTracking, RayMarching,
-    RenderSettings, Scene, Sun, TransportEstimator, block_bias, render,
-};
 
 use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
 use pinbake::limits::parse_f64x3;
@@ -51,11 +51,17 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
     /// Pin file for the `pins` and `pinms` estimators (default: bake the volume in memory).
+    /// Without --volume, the medium itself: the estimators that need density use the file's
+    /// embedded density (`pinbake bake --embed-density`) and majorant sections.
     #[arg(long)]
     pub pins: Option<PathBuf>,
+    /// Render with --pins even when the pin file records a different source than --volume
+    /// (another volume, density scale, transform or box).
+    #[arg(long)]
+    pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, urm[@N], jackknife[@N], pins or pinms.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
-    pub estimator: String,
+    pub estimator: EstimatorSpec,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -152,20 +158,9 @@ impl RenderArgs {
     }
 }
 
-/// `--estimator`: a known name, or `rm@STEP` with STEP in [1e-5, 1] (smaller steps ran for
-/// minutes per pixel).
-fn parse_estimator(s: &str) -> Result<String, String> {
-    if let Some(step) = s.strip_prefix("rm@") {
-        let v: f64 = step.parse().map_err(|e| format!("'{step}': {e}"))?;
-        pinbake::limits::check_rel_step(v).map_err(|e| format!("rm@STEP: {e}"))?;
-    } else if let Some(comb) = CombKind::parse(s) {
-        comb?;
-    } else if !["delta", "ratio", "pins", "pinms"].contains(&s) {
-        return Err(format!(
-            "unknown estimator '{s}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
-        ));
-    }
-    Ok(s.to_string())
+/// `--estimator`: [`EstimatorSpec`]'s names.
+fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
+    s.parse()
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
@@ -206,17 +201,28 @@ fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let Some(input) = a.volume.volume.clone() else {
-        crate::usage!("--volume is required");
+    let uses_pins = a.estimator.needs_pins();
+    let input = match (&a.volume.volume, &a.pins) {
+        (None, None) => crate::usage!(
+            "--volume is required (or --pins FILE alone, to render a pin file's own medium)"
+        ),
+        (Some(_), Some(_)) if !uses_pins => {
+            // It used to be ignored silently, so a typo in the estimator went unnoticed.
+            crate::usage!(
+                "--pins is used only by the pins and pinms estimators, not by {} (or give \
+                 --pins without --volume to render the pin file's own medium)",
+                a.estimator
+            )
+        }
+        (None, Some(pins)) => {
+            if let Some(flag) = a.volume.read.given().first() {
+                crate::usage!("{flag} applies to --volume, which is not given");
+            }
+            pins.clone()
+        }
+        (Some(v), _) => v.clone(),
     };
-    if a.pins.is_some() && !matches!(a.estimator.as_str(), "pins" | "pinms") {
-        // It used to be ignored silently, so a typo in the estimator went unnoticed.
-        crate::usage!(
-            "--pins is used only by the pins and pinms estimators, not by {}",
-            a.estimator
-        );
-    }
-    let inputs: Vec<&Path> = [Some(input.as_path()), a.pins.as_deref()]
+    let inputs: Vec<&Path> = [a.volume.volume.as_deref(), a.pins.as_deref()]
         .into_iter()
         .flatten()
         .collect();
@@ -228,21 +234,22 @@ pub fn run(a: RenderArgs) -> Result<()> {
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
     if let Ok(m) = std::fs::metadata(&input) {
-        // f32 voxels: up to 4x a raw file of bytes; a VDB's leaves up to 8x its file.
+        // f32 voxels: up to 4x a raw file of bytes (or an embedded f16 density); a VDB's
+        // leaves up to 8x its file.
         budget.check(
             &format!("reading {}", input.display()),
             m.len().saturating_mul(8),
         )?;
     }
-    let uses_majorants = !a.estimator.starts_with("rm@") && a.estimator != "pins";
-    if uses_majorants {
+    let uses_majorants = a.estimator.needs_majorants();
+    if uses_majorants && a.volume.volume.is_some() {
         // f32 values plus the brick bounds the grid keeps, per brick.
         budget.check(
             &format!("{}^3 majorant bricks", a.majorant_bricks),
             u64::from(a.majorant_bricks).pow(3) * 16,
         )?;
     }
-    if a.estimator.starts_with("pin") && a.pins.is_none() {
+    if uses_pins && a.pins.is_none() {
         let probe = pinbake::BakeOptions {
             // Before the source is open: the default's upper bound.
             cells: [a.pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS); 3],
@@ -262,57 +269,40 @@ pub fn run(a: RenderArgs) -> Result<()> {
         Some(r) => Some(Image::read_exr(r).map_err(|e| anyhow!("{}: {e}", r.display()))?),
         None => None,
     };
-    let opened = volume::open_volume_typed(&input, &a.volume)?;
-    let source = opened.source();
-    let field = Arc::new(SourceField(source.clone()));
-    let (lo, hi) = {
-        let b = source.bounds();
-        (b.min, b.max)
+    let medium = match &a.volume.volume {
+        Some(v) => open_medium_from_volume(&a, v)?,
+        None => open_medium_from_pins(&input)?,
     };
-    let estimator = |name: &str| -> Result<Arc<dyn TransportEstimator>> {
-        Ok(match name {
-            "delta" => Arc::new(DeltaTracking::new(
-                field.clone(),
-                volume::majorants(&field, a.majorant_bricks)?,
-            )),
-            "ratio" => Arc::new(RatioTracking::new(
-                field.clone(),
-                volume::majorants(&field, a.majorant_bricks)?,
-            )),
-            "pins" => {
-                let grid = volume::leak_grid(volume::pins_for(
-                    a.pins.as_deref(),
-                    source.as_ref(),
-                    a.pin_cells,
-                    a.seed,
-                )?);
-                let sampler = grid
-                    .sampler()
-                    .map_err(|e| anyhow!("{e}"))?
-                    .with_options(a.lookup());
-                Arc::new(PinsEstimator::from_sampler(sampler))
-            }
-            s if s.starts_with("rm@") => {
-                let step: f64 = s[3..]
-                    .parse()
-                    .map_err(|e| anyhow!("--estimator {s}: {e}"))?;
-                Arc::new(RayMarching::new(field.clone(), step).map_err(|e| anyhow!("{e}"))?)
-            }
-            s if CombKind::parse(s).is_some() => {
-                let (kind, lookups) = CombKind::parse(s)
-                    .expect("checked by the guard")
-                    .map_err(|e| anyhow!("--estimator: {e}"))?;
-                kind.build(
-                    field.clone(),
-                    volume::majorants(&field, a.majorant_bricks)?,
-                    lookups,
-                )
-                .map_err(|e| anyhow!("{e}"))?
-            }
-            other => bail!(
-                "unknown estimator '{other}' (rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms)"
-            ),
+    let (lo, hi) = (
+        glam::DVec3::from(medium.bounds.0),
+        glam::DVec3::from(medium.bounds.1),
+    );
+    let field = || -> Result<Arc<dyn DensityField>> {
+        medium.field.clone().ok_or_else(|| {
+            anyhow!(
+                "{}: no embedded density, which the {} estimator needs (bake with \
+                 `pinbake bake --embed-density N`, or render with --volume)",
+                input.display(),
+                a.estimator
+            )
         })
+    };
+    let majorants = || -> Result<Arc<MajorantGrid>> {
+        match &medium.majorants {
+            Some(m) => Ok(m.clone()),
+            None => Ok(Arc::new(
+                MajorantGrid::from_field(&*field()?, [a.majorant_bricks; 3])
+                    .map_err(|e| anyhow!("{e}"))?,
+            )),
+        }
+    };
+    let pins_estimator = || -> Result<Arc<dyn TransportEstimator>> {
+        let grid = medium.pins.expect("opened for the pin estimators");
+        let sampler = grid
+            .sampler()
+            .map_err(|e| anyhow!("{e}"))?
+            .with_options(a.lookup());
+        Ok(Arc::new(PinsEstimator::from_sampler(sampler)))
     };
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
@@ -341,12 +331,15 @@ pub fn run(a: RenderArgs) -> Result<()> {
         media: Vec::new(),
     };
     if a.backend == "gpu" {
-        let image = render_gpu(&a, &opened, &field, &scene)?;
+        let image = render_gpu(&a, &medium, &field, &majorants, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
-    let medium = match a.estimator.as_str() {
-        "pinms" => Medium::new(estimator("ratio")?, estimator("pins")?),
-        name => Medium::single(estimator(name)?),
+    let density = a.estimator.build_density_estimator(&field, &majorants)?;
+    let medium = match (density, a.estimator.needs_pins()) {
+        // pinms: ratio tracking for primary rays, pins after the first scattering event.
+        (Some(primary), true) => Medium::new(primary, pins_estimator()?),
+        (Some(only), false) => Medium::single(only),
+        (None, _) => Medium::single(pins_estimator()?),
     };
     let scene = Scene {
         media: vec![medium],
@@ -371,6 +364,81 @@ pub fn run(a: RenderArgs) -> Result<()> {
         out.seconds,
         reference.as_ref(),
     )
+}
+
+/// The medium a render reads: from `--volume` (with `--pins` or in-memory pins for the pin
+/// estimators), or from a pin file alone.
+struct OpenedMedium {
+    bounds: ([f64; 3], [f64; 3]),
+    field: Option<Arc<dyn DensityField>>,
+    /// The file's majorants (a pin file alone); `None`: built from the field.
+    majorants: Option<Arc<MajorantGrid>>,
+    pins: Option<&'static pinrt::PinGrid>,
+    /// The source volume, for its GPU copy.
+    opened: Option<volume::Opened>,
+    /// A pin file's embedded density, for its GPU copy.
+    voxels: Option<Arc<VoxelGrid>>,
+}
+
+impl OpenedMedium {
+    fn gpu_density(&self) -> Result<GpuDensity> {
+        match (&self.opened, &self.voxels) {
+            (Some(o), _) => o.gpu_density(),
+            (None, Some(v)) => {
+                GpuDensity::from_voxel_grid((**v).clone()).map_err(|e| anyhow!("{e}"))
+            }
+            (None, None) => bail!("no density to upload"),
+        }
+    }
+}
+
+fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium> {
+    let opened = volume::open_volume_typed(input, &a.volume)?;
+    let source = opened.source();
+    let b = source.bounds();
+    let pins = if a.estimator.needs_pins() {
+        let grid = volume::pins_for(a.pins.as_deref(), source.as_ref(), a.pin_cells, a.seed)?;
+        if let Some(p) = &a.pins {
+            volume::check_pins_match(
+                p,
+                &grid,
+                input,
+                source.as_ref(),
+                a.volume.read.density_scale,
+                a.allow_mismatched_pins,
+            )?;
+        }
+        Some(volume::leak_grid(grid))
+    } else {
+        None
+    };
+    Ok(OpenedMedium {
+        bounds: (b.min.to_array(), b.max.to_array()),
+        field: Some(Arc::new(SourceField(source))),
+        majorants: None,
+        pins,
+        opened: Some(opened),
+        voxels: None,
+    })
+}
+
+fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
+    let grid = volume::leak_grid(volume::load_pins(path)?);
+    let m = volume::pin_file_medium(path, grid)?;
+    // The placed grid's world box (rotations included) frames the camera.
+    let bounds = grid
+        .sampler()
+        .map_err(|e| anyhow!("{}: {e}", path.display()))?
+        .world_bounds()
+        .unwrap_or(m.bounds);
+    Ok(OpenedMedium {
+        bounds,
+        field: m.density.clone().map(|d| d as Arc<dyn DensityField>),
+        majorants: m.majorants,
+        pins: Some(grid),
+        opened: None,
+        voxels: m.density,
+    })
 }
 
 fn write(
@@ -425,41 +493,35 @@ fn write(
 /// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
 fn render_gpu(
     a: &RenderArgs,
-    opened: &volume::Opened,
-    field: &Arc<SourceField>,
+    medium: &OpenedMedium,
+    field: &dyn Fn() -> Result<Arc<dyn DensityField>>,
+    majorants: &dyn Fn() -> Result<Arc<MajorantGrid>>,
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
-    let est = GpuEstimator::parse(&a.estimator).ok_or_else(|| {
-        anyhow!(
-            "unknown estimator '{}' (rm@STEP, delta, ratio, pins, pinms)",
-            a.estimator
-        )
-    })?;
-    let grid = if est.uses_pins() {
-        Some(volume::leak_grid(volume::pins_for(
-            a.pins.as_deref(),
-            opened.source().as_ref(),
-            a.pin_cells,
-            a.seed,
-        )?))
+    let est: GpuEstimator = a.estimator;
+    let grid = if est.uses_pins() { medium.pins } else { None };
+    let majorants = if est.uses_majorants() {
+        Some(majorants()?)
     } else {
         None
     };
-    let majorants = if est.uses_majorants() {
-        Some(volume::majorants(field, a.majorant_bricks)?)
+    // `field` names the pin file that lacks a density.
+    let density = if est.needs_density() {
+        field()?;
+        Some(medium.gpu_density()?)
     } else {
         None
     };
     let media = GpuMedia {
         grids: grid.into_iter().collect(),
-        densities: vec![opened.gpu_density()?],
+        densities: density.into_iter().collect(),
         media: vec![GpuMedium {
             pins: grid.map(|_| GpuPins {
                 grid: 0,
                 local_to_world: None,
                 options: a.lookup(),
             }),
-            density: Some(GpuPlacedDensity {
+            density: est.needs_density().then_some(GpuPlacedDensity {
                 density: 0,
                 translation: [0.0; 3],
                 majorants,
@@ -482,7 +544,7 @@ fn render_gpu(
             let mut sum: Vec<[f64; 3]> = Vec::new();
             let mut spp = 0u32;
             while spp == 0 || (start.elapsed().as_secs_f64() < limit && spp < u32::MAX) {
-                let seed = pinrt::render::splitmix64(a.seed ^ u64::from(spp));
+                let seed = pinrender::render::splitmix64(a.seed ^ u64::from(spp));
                 let img = renderer
                     .render(&gs, est, 1, seed)
                     .map_err(|e| anyhow!("{e}"))?;

@@ -13,8 +13,8 @@ use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
+use pinrender::render::{CombKind, Pcg32};
 use pinrt::march::{self, MarchBox};
-use pinrt::render::{CombKind, Pcg32};
 use pinrt::{PinGrid, RayQuery, Rng};
 use serde_json::{Value, json};
 

@@ -574,7 +574,7 @@ fn bad_scenes_are_errors() {
     );
 }
 
-/// Timings for the report (release): `cargo test --release -p pinrt --features render
+/// Timings for the report (release): `cargo test --release -p pinrender
 /// render::tests::timings -- --ignored --nocapture`.
 #[test]
 #[ignore]

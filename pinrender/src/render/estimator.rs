@@ -205,6 +205,16 @@ impl<F: DensityField + ?Sized> TransportEstimator for RayMarching<F> {
 // Trackers over a majorant grid
 // ---------------------------------------------------------------------------------------
 
+/// How [`Tracker::walk`] ended.
+enum Walk<R> {
+    /// `visit` stopped it with this value.
+    Stopped(R),
+    /// It left the last brick.
+    Passed,
+    /// It took `MAX_TRACKING_STEPS` tentative collisions.
+    StepLimit,
+}
+
 /// Shared state of the trackers: a field and a majorant grid over (at least) its support.
 struct Tracker<F: ?Sized> {
     majorants: Arc<MajorantGrid>,
@@ -212,12 +222,19 @@ struct Tracker<F: ?Sized> {
 }
 
 impl<F: DensityField + ?Sized> Tracker<F> {
-    /// Delta tracking: exponential steps at each brick segment's majorant (a piecewise
-    /// constant majorant: the leftover majorant optical depth carries into the next brick);
-    /// a tentative collision is accepted with probability `sigma / majorant` (clamped to 1
-    /// where a supplied majorant is too small). Bricks of majorant 0 are skipped.
+    /// The one majorant-stepping loop under delta and ratio tracking: exponential steps at
+    /// each brick segment's majorant (a piecewise constant majorant: the leftover majorant
+    /// optical depth carries into the next brick; bricks of majorant 0 are skipped). At each
+    /// tentative collision `visit(t, sigma, majorant, 1 / majorant, rng)` decides; `Some`
+    /// stops the walk with its value. The random draws are, in order: one exponential, then
+    /// per tentative collision one exponential before `visit` and whatever `visit` draws.
     #[inline]
-    fn delta(&self, r: &Prepared, rng: &mut Pcg32) -> Option<f64> {
+    fn walk<R>(
+        &self,
+        r: &Prepared,
+        rng: &mut Pcg32,
+        mut visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
+    ) -> Walk<R> {
         let mut steps = 0u32;
         // Majorant optical depth left to the next tentative collision, carried across brick
         // boundaries (equivalent to resampling there, by memorylessness, but one logarithm
@@ -239,64 +256,58 @@ impl<F: DensityField + ?Sized> Tracker<F> {
                 t = t_next;
                 tau = rng.next_exp();
                 let sigma = clean(self.field.extinction(r.at(t)));
-                if rng.next_f64() * maj < sigma {
-                    return Some(t);
+                if let Some(v) = visit(t, sigma, maj, inv, rng) {
+                    return Walk::Stopped(v);
                 }
                 steps += 1;
                 if steps >= MAX_TRACKING_STEPS {
-                    return None;
+                    return Walk::StepLimit;
                 }
             }
         }
-        None
+        Walk::Passed
     }
 
-    /// Ratio tracking: the product of `1 - sigma / majorant` over the tentative collisions,
-    /// unbiased for any positive majorant (weights can turn negative where a supplied
-    /// majorant is too small; they are not clamped, which would bias). Russian roulette
-    /// below |T| = 0.1 (survival probability |T| / 0.1, weight divided by it) keeps dense
-    /// media cheap without bias.
+    /// Delta tracking over [`Tracker::walk`]: a tentative collision is accepted with
+    /// probability `sigma / majorant` (clamped to 1 where a supplied majorant is too small).
+    #[inline]
+    fn delta(&self, r: &Prepared, rng: &mut Pcg32) -> Option<f64> {
+        match self.walk(r, rng, |t, sigma, maj, _, rng| {
+            (rng.next_f64() * maj < sigma).then_some(t)
+        }) {
+            Walk::Stopped(t) => Some(t),
+            Walk::Passed | Walk::StepLimit => None,
+        }
+    }
+
+    /// Ratio tracking over [`Tracker::walk`]: the product of `1 - sigma / majorant` over the
+    /// tentative collisions, unbiased for any positive majorant (weights can turn negative
+    /// where a supplied majorant is too small; they are not clamped, which would bias).
+    /// Russian roulette below |T| = 0.1 (survival probability |T| / 0.1, weight divided by
+    /// it) keeps dense media cheap without bias.
     #[inline]
     fn ratio(&self, r: &Prepared, rng: &mut Pcg32) -> f32 {
         const RR: f64 = 0.1;
         let mut tr = 1.0f64;
-        let mut steps = 0u32;
-        let mut tau = rng.next_exp(); // as in `delta`
-        for seg in self.majorants.segments(r.o, r.d, 0.0, r.t_max) {
-            if !(seg.majorant > 0.0) {
-                continue;
+        let walk = self.walk(r, rng, |_, sigma, _, inv, rng| {
+            tr *= 1.0 - sigma * inv;
+            if tr == 0.0 || tr.is_nan() {
+                // sigma = +inf gives -inf or NaN: an opaque medium.
+                return Some(0.0);
             }
-            let maj = seg.majorant as f64;
-            let inv = 1.0 / maj;
-            let mut t = seg.t0;
-            loop {
-                let t_next = t + tau * inv;
-                if t_next >= seg.t1 {
-                    tau = (tau - (seg.t1 - t) * maj).max(0.0);
-                    break;
+            if tr.abs() < RR {
+                let p = tr.abs() / RR;
+                if rng.next_f64() >= p {
+                    return Some(0.0);
                 }
-                t = t_next;
-                tau = rng.next_exp();
-                let sigma = clean(self.field.extinction(r.at(t)));
-                tr *= 1.0 - sigma * inv;
-                if tr == 0.0 || tr.is_nan() {
-                    // sigma = +inf gives -inf or NaN: an opaque medium.
-                    return 0.0;
-                }
-                if tr.abs() < RR {
-                    let p = tr.abs() / RR;
-                    if rng.next_f64() >= p {
-                        return 0.0;
-                    }
-                    tr /= p;
-                }
-                steps += 1;
-                if steps >= MAX_TRACKING_STEPS {
-                    return tr as f32;
-                }
+                tr /= p;
             }
+            None
+        });
+        match walk {
+            Walk::Stopped(v) => v,
+            Walk::Passed | Walk::StepLimit => tr as f32,
         }
-        tr as f32
     }
 
     fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {

@@ -825,7 +825,7 @@ mod tests {
     }
 
     /// Cached vs uncached at equal time against a high-spp reference. Prints; run with
-    /// `cargo test -p pinrt --no-default-features --features render
+    /// `cargo test -p pinrender --no-default-features
     /// cache_equal_time -- --ignored --nocapture`.
     #[test]
     #[ignore]

@@ -39,12 +39,12 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use wgpu::util::DeviceExt;
 
-use crate::error::Error;
-use crate::gpu::GpuContext;
-use crate::loader::PinGrid;
 use crate::render::phase::G_LIMIT;
 use crate::render::{Camera, Image, RenderError, Scene, Sun};
-use crate::sampler::SamplerOptions;
+use pinrt::Error;
+use pinrt::PinGrid;
+use pinrt::SamplerOptions;
+use pinrt::gpu::GpuContext;
 
 /// The WGSL of the GPU path tracer: the pin sampler followed by `shaders/render.wgsl`
 /// (entry point `render_main`).
@@ -199,30 +199,11 @@ struct RtParams {
     seed: [u32; 4],
 }
 
-/// The transport estimator of a GPU render (the CPU's `rm@STEP`, `delta`, `ratio`,
-/// `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum GpuEstimator {
-    /// Ray marching, midpoint rule, step `rel_step` (in `(0, 1]`) times the longest edge of
-    /// each density's box. Needs a density on every medium.
-    RayMarching { rel_step: f64 },
-    /// Delta tracking for both queries. Needs a density and majorants on every medium.
-    DeltaTracking,
-    /// Ratio tracking for transmittance, delta tracking for distances. Needs a density and
-    /// majorants on every medium.
-    RatioTracking,
-    /// Unbiased ray marching (combs of `lookups` per longest edge of the majorant box) for
-    /// transmittance, delta tracking for distances. Needs a density and majorants.
-    Urm { lookups: u32 },
-    /// Jackknife transmittance (two combs of `lookups` per longest edge of the majorant
-    /// box), delta tracking for distances. Needs a density and majorants.
-    Jackknife { lookups: u32 },
-    /// The pin grid for every query. Needs pins on every medium.
-    Pins,
-    /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
-    /// first scattering event. Needs pins, a density and majorants on every medium.
-    PinMs,
-}
+/// The transport estimator of a GPU render: the renderer's one [`EstimatorSpec`] (the CPU's
+/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`).
+///
+/// [`EstimatorSpec`]: crate::render::EstimatorSpec
+pub type GpuEstimator = crate::render::EstimatorSpec;
 
 /// Estimator codes of `render.wgsl`.
 const EST_MARCH: u32 = 0;
@@ -233,43 +214,17 @@ const EST_URM: u32 = 4;
 const EST_JACKKNIFE: u32 = 5;
 
 impl GpuEstimator {
-    /// Parses the names the CLI and the evaluation use: `rm@STEP`, `delta`, `ratio`,
-    /// `urm[@N]`, `jackknife[@N]`, `pins`, `pinms` (a comb name with a bad count is `None`).
+    /// Parses the names the CLI and the evaluation use ([`EstimatorSpec`]'s `FromStr`;
+    /// `None` for a bad name or parameter).
+    ///
+    /// [`EstimatorSpec`]: crate::render::EstimatorSpec
     pub fn parse(name: &str) -> Option<Self> {
-        if let Some(parsed) = crate::render::CombKind::parse(name) {
-            return Some(match parsed.ok()? {
-                (crate::render::CombKind::Urm, lookups) => Self::Urm { lookups },
-                (crate::render::CombKind::Jackknife, lookups) => Self::Jackknife { lookups },
-            });
-        }
-        Some(match name {
-            "delta" => Self::DeltaTracking,
-            "ratio" => Self::RatioTracking,
-            "pins" => Self::Pins,
-            "pinms" => Self::PinMs,
-            s => {
-                let rel_step: f64 = s.strip_prefix("rm@")?.parse().ok()?;
-                Self::RayMarching { rel_step }
-            }
-        })
+        name.parse().ok()
     }
 
     /// The name [`GpuEstimator::parse`] reads.
     pub fn name(self) -> String {
-        match self {
-            Self::RayMarching { rel_step } => format!("rm@{rel_step}"),
-            Self::DeltaTracking => "delta".into(),
-            Self::RatioTracking => "ratio".into(),
-            // The default count is the bare name, as the evaluation's CPU rows spell it.
-            Self::Urm { lookups } if lookups == crate::render::URM_DEFAULT_LOOKUPS => "urm".into(),
-            Self::Jackknife { lookups } if lookups == crate::render::JACKKNIFE_DEFAULT_LOOKUPS => {
-                "jackknife".into()
-            }
-            Self::Urm { lookups } => format!("urm@{lookups}"),
-            Self::Jackknife { lookups } => format!("jackknife@{lookups}"),
-            Self::Pins => "pins".into(),
-            Self::PinMs => "pinms".into(),
-        }
+        self.to_string()
     }
 
     /// (primary, secondary) codes.
@@ -405,30 +360,30 @@ fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
 impl GpuRenderer {
     /// Uploads `grid` (placed by the file's `local_to_world`, no lookup jitter) as the only
     /// medium, for [`GpuEstimator::Pins`], and compiles the path tracer.
-    pub fn new(ctx: &GpuContext, grid: &PinGrid) -> crate::Result<Self> {
+    pub fn new(ctx: &GpuContext, grid: &PinGrid) -> pinrt::Result<Self> {
         Self::with_options(ctx, grid, None, SamplerOptions::default())
     }
 
     /// One pin grid as the only medium, with an optional `local_to_world` override and lookup
-    /// options (as [`crate::gpu::GpuPinGrid::upload_with`]).
+    /// options (as [`pinrt::gpu::GpuPinGrid::upload_with`]).
     pub fn with_options(
         ctx: &GpuContext,
         grid: &PinGrid,
         local_to_world: Option<&[f64; 12]>,
         options: SamplerOptions,
-    ) -> crate::Result<Self> {
+    ) -> pinrt::Result<Self> {
         Self::with_media(ctx, &GpuMedia::pins_only(grid, local_to_world, options))
     }
 
     /// Uploads a scene's media (pin grids, densities, majorants, instances) and compiles the
     /// path tracer. Errors: an index out of range, a placement that is not invertible, a
     /// buffer larger than the device binds, a GPU failure.
-    pub fn with_media(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
+    pub fn with_media(ctx: &GpuContext, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
         pollster::block_on(Self::create(ctx, media))
     }
 
-    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> crate::Result<Self> {
-        let packed = media::pack(media, crate::gpu::binding_limit(&ctx.limits))?;
+    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
+        let packed = media::pack(media, pinrt::gpu::binding_limit(&ctx.limits))?;
 
         let dev = &ctx.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -543,7 +498,7 @@ impl GpuRenderer {
     async fn pipeline(
         &self,
         (primary, secondary): (u32, u32),
-    ) -> crate::Result<wgpu::ComputePipeline> {
+    ) -> pinrt::Result<wgpu::ComputePipeline> {
         let cache = || {
             self.pipelines
                 .lock()
@@ -643,7 +598,7 @@ impl GpuRenderer {
         }
         let pixels = u64::from(w) * u64::from(h);
         let accum_size = pixels * 32;
-        let limit = crate::gpu::binding_limit(&self.limits);
+        let limit = pinrt::gpu::binding_limit(&self.limits);
         if accum_size > limit {
             return Err(Error::Gpu(format!(
                 "image {w}x{h} needs a {accum_size}-byte accumulation buffer, more than this \
@@ -672,7 +627,7 @@ impl GpuRenderer {
         accum_size: u64,
         width: u32,
         height: u32,
-    ) -> crate::Result<Image> {
+    ) -> pinrt::Result<Image> {
         let dev = &self.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
         let scene_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -769,7 +724,7 @@ impl GpuRenderer {
         enc.copy_buffer_to_buffer(&accum, 0, &staging, 0, accum_size);
         self.queue.submit([enc.finish()]);
         let sums: Vec<[f32; 8]> =
-            crate::gpu::read_back(dev, &staging, scope, "render dispatch").await?;
+            pinrt::gpu::read_back(dev, &staging, scope, "render dispatch").await?;
         let inv = 1.0 / f64::from(spp);
         let rgb = sums
             .iter()

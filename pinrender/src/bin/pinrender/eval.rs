@@ -10,7 +10,7 @@
 //! The radiance cache's training pass counts towards the time.
 //!
 //! Rows marked `(gpu)` (CSV: backend `gpu`) are the WGSL path tracer
-//! ([`pinrt::gpu_render::GpuRenderer`]) with every estimator it has (`rm@STEP`, `delta`,
+//! ([`pinrender::gpu_render::GpuRenderer`]) with every estimator it has (`rm@STEP`, `delta`,
 //! `ratio`, `urm`, `jackknife`, `pins`, `pinms`) over the scene's media as the CPU sees them: the same pin grid,
 //! placements and lookup jitter, a GPU copy of the density ([`scenes::gpu_media`]) and the
 //! CPU's majorant grids; measured the same way (`--gpu-batch` spp per render call, distinct
@@ -41,14 +41,14 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
-use pinrt::gpu::GpuContext;
-use pinrt::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
-use pinrt::render::cache::{render_with_cache, train_cache};
-use pinrt::render::whole_volume::{SingleScatterSampling, render_single_scattering};
-use pinrt::render::{
+use pinrender::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
+use pinrender::render::cache::{render_with_cache, train_cache};
+use pinrender::render::whole_volume::{SingleScatterSampling, render_single_scattering};
+use pinrender::render::{
     Budget, Image, Medium, RatioTracking, RenderOutput, RenderSettings, Scene, TransportEstimator,
     relative_mse, render, rmse, splitmix64,
 };
+use pinrt::gpu::GpuContext;
 use pinrt::{PinGrid, Sampler, SamplerOptions};
 
 use crate::volume::{PinsEstimator, leak_grid};
@@ -374,24 +374,17 @@ const ESTIMATOR_NAMES: [&str; 8] = [
 ];
 
 fn check_estimator_name(e: &str) -> Result<()> {
-    if let Some(step) = e.strip_prefix("rm@") {
-        let ok = step
-            .parse::<f64>()
-            .is_ok_and(|v| pinbake::limits::check_rel_step(v).is_ok());
-        if !ok {
-            crate::usage!("--estimators {e}: rm@STEP needs STEP in [1e-5, 1]");
-        }
-    } else if let Some(comb) = pinrt::render::CombKind::parse(e) {
-        if let Err(why) = comb {
-            crate::usage!("--estimators {e}: {why}");
-        }
-    } else if !ESTIMATOR_NAMES.contains(&e) {
-        crate::usage!(
+    if ESTIMATOR_NAMES.contains(&e) {
+        return Ok(());
+    }
+    match e.parse::<pinrender::render::EstimatorSpec>() {
+        Ok(_) => Ok(()),
+        Err(why) if why.starts_with("unknown estimator") => crate::usage!(
             "--estimators: unknown estimator '{e}' (known: rm@STEP, urm[@N], jackknife[@N], {})",
             ESTIMATOR_NAMES.join(", ")
-        );
+        ),
+        Err(why) => crate::usage!("--estimators {e}: {why}"),
     }
-    Ok(())
 }
 
 fn settings(es: &EvalScene, seed: u64, budget: Budget, threads: Option<usize>) -> RenderSettings {

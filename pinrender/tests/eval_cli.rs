@@ -280,7 +280,7 @@ fn data(name: &str) -> std::path::PathBuf {
 
 /// Mean grey value of an EXR written by `pinrender render`.
 fn exr_mean(path: &std::path::Path) -> f64 {
-    let img = pinrt::render::Image::read_exr(path).unwrap();
+    let img = pinrender::render::Image::read_exr(path).unwrap();
     img.rgb
         .iter()
         .map(|p| p.iter().map(|&c| f64::from(c)).sum::<f64>() / 3.0)
@@ -289,7 +289,7 @@ fn exr_mean(path: &std::path::Path) -> f64 {
 }
 
 /// `pinrender render --backend gpu` renders the same scene as the CPU backend: the image
-/// means agree (the per-pixel statistics are tested in `pinrt::gpu_render`), for a tracker
+/// means agree (the per-pixel statistics are tested in `pinrender::gpu_render`), for a tracker
 /// with scattering and for near-deterministic ray marching without.
 #[test]
 fn render_backends_agree() {

@@ -1,0 +1,163 @@
+//! [`EstimatorSpec`]: the one description of a transport estimator, parsed once from the
+//! names the CLI and the evaluation use (`rm@STEP`, `delta`, `ratio`, `urm[@N]`,
+//! `jackknife[@N]`, `pins`, `pinms`), shared by the CPU estimators and the GPU path tracer
+//! (`gpu_render::GpuEstimator` is this type).
+
+use std::sync::Arc;
+
+use super::estimator::{CombKind, DeltaTracking, RatioTracking, RayMarching, TransportEstimator};
+use super::{DensityField, MajorantGrid, RenderError};
+
+/// Smallest relative ray-marching step (smaller steps ran for minutes per pixel).
+pub const MIN_REL_STEP: f64 = 1e-5;
+
+/// A transport estimator by kind and parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum EstimatorSpec {
+    /// Ray marching, midpoint rule, step `rel_step` (in `[1e-5, 1]`) times the longest edge of
+    /// each density's box. Needs a density.
+    RayMarching { rel_step: f64 },
+    /// Delta tracking for both queries. Needs a density and majorants.
+    DeltaTracking,
+    /// Ratio tracking for transmittance, delta tracking for distances. Needs a density and
+    /// majorants.
+    RatioTracking,
+    /// Unbiased ray marching (combs of `lookups` per longest edge of the majorant box) for
+    /// transmittance, delta tracking for distances. Needs a density and majorants.
+    Urm { lookups: u32 },
+    /// Jackknife transmittance (two combs of `lookups` per longest edge of the majorant
+    /// box), delta tracking for distances. Needs a density and majorants.
+    Jackknife { lookups: u32 },
+    /// The pin grid for every query. Needs pins.
+    Pins,
+    /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
+    /// first scattering event. Needs pins, a density and majorants.
+    PinMs,
+}
+
+/// The names [`EstimatorSpec`] reads, for messages.
+pub const ESTIMATOR_SYNTAX: &str = "rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms";
+
+impl std::str::FromStr for EstimatorSpec {
+    type Err = String;
+
+    /// A known name; an out-of-range `rm@STEP` or comb count is an error naming the range.
+    fn from_str(name: &str) -> Result<Self, String> {
+        if let Some(parsed) = CombKind::parse(name) {
+            return Ok(match parsed? {
+                (CombKind::Urm, lookups) => Self::Urm { lookups },
+                (CombKind::Jackknife, lookups) => Self::Jackknife { lookups },
+            });
+        }
+        Ok(match name {
+            "delta" => Self::DeltaTracking,
+            "ratio" => Self::RatioTracking,
+            "pins" => Self::Pins,
+            "pinms" => Self::PinMs,
+            s => {
+                let Some(step) = s.strip_prefix("rm@") else {
+                    return Err(format!("unknown estimator '{s}' ({ESTIMATOR_SYNTAX})"));
+                };
+                let rel_step: f64 = step.parse().map_err(|e| format!("'{step}': {e}"))?;
+                if !(MIN_REL_STEP..=1.0).contains(&rel_step) {
+                    return Err(format!("rm@STEP: {step} must be in [1e-5, 1]"));
+                }
+                Self::RayMarching { rel_step }
+            }
+        })
+    }
+}
+
+impl std::fmt::Display for EstimatorSpec {
+    /// The name [`EstimatorSpec`] parses back (a comb's default count is the bare name, as the
+    /// evaluation's rows spell it).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            Self::RayMarching { rel_step } => write!(f, "rm@{rel_step}"),
+            Self::DeltaTracking => f.write_str("delta"),
+            Self::RatioTracking => f.write_str("ratio"),
+            Self::Urm { lookups } if lookups == super::URM_DEFAULT_LOOKUPS => f.write_str("urm"),
+            Self::Jackknife { lookups } if lookups == super::JACKKNIFE_DEFAULT_LOOKUPS => {
+                f.write_str("jackknife")
+            }
+            Self::Urm { lookups } => write!(f, "urm@{lookups}"),
+            Self::Jackknife { lookups } => write!(f, "jackknife@{lookups}"),
+            Self::Pins => f.write_str("pins"),
+            Self::PinMs => f.write_str("pinms"),
+        }
+    }
+}
+
+impl EstimatorSpec {
+    /// Whether it queries pin grids.
+    pub fn needs_pins(self) -> bool {
+        matches!(self, Self::Pins | Self::PinMs)
+    }
+
+    /// Whether it reads the density (every estimator but `pins`).
+    pub fn needs_density(self) -> bool {
+        self != Self::Pins
+    }
+
+    /// Whether it tracks over majorants.
+    pub fn needs_majorants(self) -> bool {
+        !matches!(self, Self::Pins | Self::RayMarching { .. })
+    }
+
+    /// The CPU estimator over a density (`field`, with `majorants` built on demand) for every
+    /// kind but the pin ones, whose grids the caller places ([`EstimatorSpec::needs_pins`]):
+    /// for `pinms` this is its ratio-tracking part. `Ok(None)` for `pins`.
+    pub fn build_density_estimator<E: From<RenderError>>(
+        self,
+        field: &dyn Fn() -> Result<Arc<dyn DensityField>, E>,
+        majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
+    ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
+        Ok(Some(match self {
+            Self::Pins => return Ok(None),
+            Self::RayMarching { rel_step } => Arc::new(RayMarching::new(field()?, rel_step)?),
+            Self::DeltaTracking => Arc::new(DeltaTracking::new(field()?, majorants()?)),
+            Self::RatioTracking | Self::PinMs => {
+                Arc::new(RatioTracking::new(field()?, majorants()?))
+            }
+            Self::Urm { lookups } => CombKind::Urm.build(field()?, majorants()?, lookups)?,
+            Self::Jackknife { lookups } => {
+                CombKind::Jackknife.build(field()?, majorants()?, lookups)?
+            }
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip_and_bad_ones_say_why() {
+        for name in [
+            "rm@0.015",
+            "delta",
+            "ratio",
+            "urm",
+            "urm@8",
+            "jackknife",
+            "jackknife@3",
+            "pins",
+            "pinms",
+        ] {
+            let spec: EstimatorSpec = name.parse().unwrap();
+            assert_eq!(spec.to_string(), name);
+        }
+        for (bad, why) in [
+            ("rm@0", "[1e-5, 1]"),
+            ("rm@x", "'x'"),
+            ("urm@0", "lookups"),
+            ("tracking", "unknown estimator"),
+        ] {
+            let e = bad.parse::<EstimatorSpec>().unwrap_err();
+            assert!(e.contains(why), "{bad}: {e}");
+        }
+        assert!(EstimatorSpec::PinMs.needs_pins() && EstimatorSpec::PinMs.needs_density());
+        assert!(!EstimatorSpec::Pins.needs_density());
+        assert!(!EstimatorSpec::RayMarching { rel_step: 0.1 }.needs_majorants());
+    }
+}

@@ -1,0 +1,212 @@
+//! `pinrender render` from a pin file alone (no `--volume`), and the check that `--pins`
+//! belong to `--volume` (the source identity a bake records).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+use pin_format::Metadata;
+use pinbake::source::{DensitySource, ProceduralSpec, SourceIdentity};
+
+const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
+const COSINE: &str = "procedural:cosine:seed=5,freq=4,density=6";
+
+fn source(scale: f64) -> Box<dyn DensitySource> {
+    let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
+    p.density *= scale;
+    p.build().unwrap()
+}
+
+/// Bakes the cosine field scaled by `scale` as `pinbake bake` does (identity in the metadata
+/// unless `identity` is false; `embed` density voxels per axis, if any).
+fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>, identity: bool) -> PathBuf {
+    let src = source(scale);
+    let extra = if identity {
+        SourceIdentity::of(src.as_ref(), scale).to_extra()
+    } else {
+        Vec::new()
+    };
+    let opts = pinbake::BakeOptions {
+        cells: [8; 3],
+        density_scale: scale,
+        embed_density: embed.map(|n| [n; 3]),
+        majorant: Some([8; 3]),
+        metadata: Metadata {
+            extra,
+            ..Metadata::default()
+        },
+        ..pinbake::BakeOptions::default()
+    };
+    let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
+    let path = dir.join(name);
+    grid.write_atomic(&path).unwrap();
+    path
+}
+
+fn render(args: &[&str]) -> Output {
+    Command::new(BIN)
+        .arg("render")
+        .args(["--width", "24", "--height", "24", "--threads", "1"])
+        .args(args)
+        .env("XDG_RUNTIME_DIR", std::env::temp_dir())
+        .stdin(Stdio::null())
+        .output()
+        .expect("run pinrender")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn expect(o: &Output, code: i32, needle: &str) {
+    let e = stderr(o);
+    assert_eq!(o.status.code(), Some(code), "{e}");
+    if code != 0 {
+        assert_eq!(e.trim_end().lines().count(), 1, "one line: {e}");
+    }
+    assert!(e.contains(needle), "expected '{needle}' in: {e}");
+}
+
+/// `mean_error` of a render against `reference` (printed on stdout).
+fn mean_error(o: &Output) -> f64 {
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", stderr(o));
+    out.split_whitespace()
+        .skip_while(|w| *w != "mean_error")
+        .nth(1)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no mean_error in {out}"))
+}
+
+#[test]
+fn every_estimator_renders_from_the_pin_file_alone_and_agrees_with_the_volume() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pins = bake(d, "c.pin", 1.0, Some(32), true);
+    let p = pins.to_str().unwrap();
+    // The volume's camera frames the source box; the pin file's frames its (cropped) grid
+    // box: one explicit camera for both.
+    let cam = [
+        "--camera-origin",
+        "0.5,0.6,2.6",
+        "--camera-target",
+        "0.5,0.5,0.5",
+    ];
+    let reference = d.join("ref.exr");
+    let r = reference.to_str().unwrap();
+    let mut args = vec!["--volume", COSINE, "--estimator", "ratio", "--spp", "64"];
+    args.extend(cam);
+    args.extend(["--out", r]);
+    expect(&render(&args), 0, "rendered");
+    // The pin estimators carry the pin model's bias; the source-free trackers only the f16
+    // copy's at 32^3. At 64 spp on 24^2 pixels the image mean's noise is ~1e-3.
+    for (est, bound) in [
+        ("ratio", 0.01),
+        ("delta", 0.01),
+        ("rm@0.01", 0.01),
+        ("pinms", 0.03),
+        ("pins", 0.06),
+    ] {
+        let out = d.join(format!("{est}.exr"));
+        let mut args = vec!["--pins", p, "--estimator", est, "--spp", "64"];
+        args.extend(cam);
+        args.extend(["--out", out.to_str().unwrap(), "--reference", r]);
+        let e = mean_error(&render(&args));
+        assert!(
+            e.abs() < bound,
+            "{est}: mean error {e} against the volume's render"
+        );
+    }
+    // The mutation the comparison must catch: pins of twice the density.
+    let dense = bake(d, "dense.pin", 2.0, Some(32), true);
+    let out = d.join("dense.exr");
+    let mut args = vec!["--pins", dense.to_str().unwrap(), "--estimator", "ratio"];
+    args.extend(["--spp", "64"]);
+    args.extend(cam);
+    args.extend(["--out", out.to_str().unwrap(), "--reference", r]);
+    let e = mean_error(&render(&args));
+    assert!(e.abs() > 0.05, "twice the density went unnoticed: {e}");
+}
+
+#[test]
+fn missing_density_mismatched_and_old_pins() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("o.exr");
+    let o = out.to_str().unwrap();
+    let bare = bake(d, "bare.pin", 1.0, None, true);
+    let b = bare.to_str().unwrap();
+    // Pins need nothing else; the trackers need the embedded density.
+    expect(
+        &render(&["--pins", b, "--estimator", "pins", "--spp", "1", "--out", o]),
+        0,
+        "rendered",
+    );
+    for est in ["pinms", "ratio", "delta", "rm@0.05"] {
+        let r = render(&["--pins", b, "--estimator", est, "--out", o]);
+        expect(&r, 1, "no embedded density");
+        assert!(stderr(&r).contains("bare.pin"));
+    }
+    // Volume flags without a volume are usage errors.
+    expect(
+        &render(&["--pins", b, "--density-scale", "2", "--out", o]),
+        2,
+        "--density-scale",
+    );
+    // Pins of another density scale (another content too), then of another field.
+    let scaled = bake(d, "scaled.pin", 2.0, None, true);
+    let s = scaled.to_str().unwrap();
+    let args = [
+        "--volume",
+        COSINE,
+        "--pins",
+        s,
+        "--estimator",
+        "pins",
+        "--spp",
+        "1",
+    ];
+    let r = render(&[&args[..], &["--out", o]].concat());
+    expect(&r, 1, "density scale 2.0 vs 1.0");
+    assert!(stderr(&r).contains("scaled.pin") && stderr(&r).contains(COSINE));
+    assert!(stderr(&r).contains("--allow-mismatched-pins"));
+    let r = render(&[&args[..], &["--allow-mismatched-pins", "--out", o]].concat());
+    expect(&r, 0, "rendering anyway");
+    let box_args = [
+        "--volume",
+        "procedural:box",
+        "--pins",
+        b,
+        "--estimator",
+        "pinms",
+    ];
+    expect(
+        &render(&[&box_args[..], &["--out", o]].concat()),
+        1,
+        "density content",
+    );
+    // The matching volume passes silently; a file without identity passes with a warning.
+    let args = [
+        "--volume",
+        COSINE,
+        "--pins",
+        b,
+        "--estimator",
+        "pins",
+        "--spp",
+        "1",
+    ];
+    let r = render(&[&args[..], &["--out", o]].concat());
+    expect(&r, 0, "rendered");
+    assert!(!stderr(&r).contains("warning"), "{}", stderr(&r));
+    let old = bake(d, "old.pin", 2.0, None, false);
+    let args = [
+        "--volume",
+        COSINE,
+        "--pins",
+        old.to_str().unwrap(),
+        "--estimator",
+        "pins",
+    ];
+    let r = render(&[&args[..], &["--spp", "1", "--out", o]].concat());
+    expect(&r, 0, "records no source identity");
+}
