@@ -61,6 +61,9 @@ configs=(
     "oct16@${EQUAL_CELLS}-mid-j0.5|--dirs octahedral:16 --cells $EQUAL_CELLS|0.5|0.5|32|middle"
     "oct16@${EQUAL_CELLS}-c8-j0|--dirs octahedral:16 --cells $EQUAL_CELLS|0|0|8|start"
     "oct16@${EQUAL_CELLS}-c4-j0.5|--dirs octahedral:16 --cells $EQUAL_CELLS|0.5|0.5|4|start"
+    # What `pinbake bake` chooses by itself (docs/evaluation.md, "Bias against bytes").
+    "chosen||1|1|32|start"
+    "chosen-mid||1|1|32|middle"
 )
 for c in "${configs[@]}"; do
     IFS='|' read -r cname bake sj dj stride point <<<"$c"

@@ -14,6 +14,7 @@
 pub use glam;
 
 pub mod bake;
+pub mod choose;
 #[cfg(feature = "cli")]
 pub mod cli_args;
 pub mod files;

@@ -354,32 +354,71 @@ fn a_worker_never_spawns_a_worker() {
 }
 
 /// Issue 14: without `--cells` a bake never uses more spatial cells than the volume has voxels
-/// along an axis (20 at most), and the default direction set is octahedral:16.
+/// along an axis, the directions are an octahedral set, and `--json` says what was chosen and
+/// why.
 #[test]
 fn default_bake_fits_the_voxels() {
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("water.pin");
     let input = data("water_esp_31x34x33_float32.raw");
-    let o = pinbake(&[
-        "bake",
-        input.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--json",
-        "--clamp-negative",
-        "--no-crop",
-        "--step",
-        "0.1",
-        "--majorant",
-        "0",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    assert_eq!(v["dims"], serde_json::json!([20, 20, 20]));
-    assert_eq!(
-        v["directions"],
-        serde_json::json!({"kind": "octahedral", "n": 16})
+    let bake = |name: &str, extra: &[&str]| -> serde_json::Value {
+        let out = dir.path().join(name);
+        let mut args = vec![
+            "bake",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+            "--clamp-negative",
+            "--no-crop",
+            "--step",
+            "0.1",
+            "--majorant",
+            "0",
+        ];
+        args.extend_from_slice(extra);
+        let o = pinbake(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let dims = |v: &serde_json::Value| -> Vec<u64> {
+        v["dims"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|d| d.as_u64().unwrap())
+            .collect()
+    };
+    // The default: everything chosen, within the voxels, reported.
+    let v = bake("water.pin", &[]);
+    assert!(
+        dims(&v).iter().zip([31, 34, 33]).all(|(d, n)| *d <= n),
+        "{v}"
     );
+    assert_eq!(v["directions"]["kind"], "octahedral");
+    let c = &v["choice"];
+    assert_eq!(c["cells"], v["dims"]);
+    assert_eq!(c["directions"], v["directions"]);
+    assert_eq!(c["pins_per_entry"], 1);
+    assert_eq!(c["target_error"], 0.05);
+    assert_eq!(c["target_met"], true);
+    assert!(c["predicted_error"].as_f64().unwrap() <= 0.05);
+    assert_eq!(c["bytes"], v["file_bytes"]);
+    for p in ["cells", "directions", "pins_per_entry"] {
+        assert!(
+            c["reason"][p].as_str().is_some_and(|r| !r.is_empty()),
+            "{p}"
+        );
+    }
+    assert_eq!(c["volume"]["voxels"], serde_json::json!([31, 34, 33]));
+    // A target nothing reaches: the most accurate bake, whose cells are capped by the voxels
+    // (directions given, to keep the test fast).
+    let v = bake(
+        "fine.pin",
+        &["--target-error", "0.001", "--dirs", "octahedral:2"],
+    );
+    assert_eq!(dims(&v), [31, 34, 33]);
+    assert_eq!(v["choice"]["target_met"], false);
+    assert_eq!(v["choice"]["reason"]["directions"], "given (--dirs)");
     // An explicit --cells is taken as given, finer than the voxels or not.
     let out = dir.path().join("water40.pin");
     let o = pinbake(&[
@@ -397,6 +436,116 @@ fn default_bake_fits_the_voxels() {
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["dims"], serde_json::json!([40, 2, 3]));
+    assert_eq!(v["choice"]["reason"]["cells"], "given (--cells)");
+    assert_eq!(v["choice"]["reason"]["directions"], "given (--dirs)");
+}
+
+/// A raw f32 grid of `n^3` voxels over the unit cube: a Gaussian blob, with cosine detail of
+/// `f` cycles per box when `f > 0`.
+fn write_blob(path: &Path, n: usize, f: f64) {
+    let mut bytes = Vec::with_capacity(n * n * n * 4);
+    for i in 0..n * n * n {
+        let p = [i % n, (i / n) % n, i / (n * n)].map(|c| (c as f64 + 0.5) / n as f64);
+        let r2: f64 = p.iter().map(|x| (x - 0.5) * (x - 0.5)).sum();
+        let detail = 1.0
+            + if f > 0.0 {
+                0.9 * (std::f64::consts::TAU * f * p[0]).cos()
+                    * (std::f64::consts::TAU * f * p[1]).cos()
+            } else {
+                0.0
+            };
+        let v = (20.0 * (-r2 / 0.045).exp() * detail) as f32;
+        bytes.extend_from_slice(&v.to_le_bytes());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// `--target-error`: a smaller target never gives a smaller file, a smooth volume gets fewer
+/// cells than a detailed one at the same target, and bad values are usage errors (exit 2).
+#[test]
+fn target_error_chooses_monotone_bakes() {
+    let dir = tempfile::tempdir().unwrap();
+    let smooth = dir.path().join("smooth_16x16x16_f32.raw");
+    let detailed = dir.path().join("detailed_16x16x16_f32.raw");
+    write_blob(&smooth, 16, 0.0);
+    write_blob(&detailed, 16, 4.0);
+    let bake = |input: &Path, target: &str| -> serde_json::Value {
+        let out = dir.path().join("t.pin");
+        let o = pinbake(&[
+            "bake",
+            input.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--json",
+            "--spacing",
+            "0.0625",
+            "--step",
+            "0.1",
+            "--majorant",
+            "0",
+            "--target-error",
+            target,
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let cells = |v: &serde_json::Value| -> u64 {
+        v["dims"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|d| d.as_u64().unwrap())
+            .product()
+    };
+    let mut last = 0;
+    let mut fewer = 0;
+    for target in ["0.2", "0.1", "0.07", "0.05", "0.035", "0.025"] {
+        let v = bake(&detailed, target);
+        let bytes = v["file_bytes"].as_u64().unwrap();
+        assert!(bytes >= last, "target {target}: {bytes} < {last}");
+        assert!(cells(&v) <= 16 * 16 * 16);
+        last = bytes;
+        // At a coarse target both may get the same smallest bake; never the smooth one more.
+        let s = bake(&smooth, target);
+        assert!(
+            cells(&s) <= cells(&v) && s["file_bytes"].as_u64() <= v["file_bytes"].as_u64(),
+            "target {target}: smooth {} vs detailed {}",
+            s["choice"],
+            v["choice"]
+        );
+        fewer += usize::from(cells(&s) < cells(&v));
+    }
+    assert!(
+        fewer >= 2,
+        "the smooth volume got fewer cells at {fewer} targets"
+    );
+    for bad in [
+        &["--target-error", "0"][..],
+        &["--target-error", "1.5"],
+        &["--target-error", "x"],
+    ] {
+        let mut args = vec!["bake", "x.raw", "-o", "y.pin"];
+        args.extend_from_slice(bad);
+        let o = pinbake(&args);
+        assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", stderr(&o));
+    }
+    // With every parameter given there is nothing left to choose.
+    let o = pinbake(&[
+        "bake",
+        smooth.to_str().unwrap(),
+        "-o",
+        dir.path().join("n.pin").to_str().unwrap(),
+        "--cells",
+        "4",
+        "--dirs",
+        "octahedral:4",
+        "--pins-per-entry",
+        "1",
+        "--target-error",
+        "0.05",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--target-error"), "{}", stderr(&o));
 }
 
 /// `pinbake bench --json`: every row carries the fields scripts read (issue 15), with sane

@@ -253,6 +253,8 @@ fn eval_rejects_bad_input() {
         &["eval", "--quick", "--budgets", "-1"][..],
         &["eval", "--quick", "--budgets", "nan"][..],
         &["eval", "--quick", "--scenes", "teapot"][..],
+        // The production-scale scene is for the full run only (CI runs --quick).
+        &["eval", "--quick", "--scenes", "cloud"][..],
         &["eval", "--quick", "--threads", "0"][..],
     ] {
         let out = Command::new(env!("CARGO_BIN_EXE_pinrender"))

@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::{Directions, Metadata};
+use pinbake::choose::Choice;
 use pinbake::cli_args::VolumeArgs;
 use pinbake::source::{self, DensitySource, SourceSpec};
 use pinbake::{BakeOptions, Tile};
@@ -39,18 +40,26 @@ pub struct BakeArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
 
-    /// Spatial cells: N or X,Y,Z (default: 20 per axis, but no more than the volume has voxels
-    /// along that axis).
+    /// Spatial cells: N or X,Y,Z (default: chosen from the volume, never more than it has
+    /// voxels along an axis; see --target-error).
     #[arg(long, value_parser = parse_u32x3, help_heading = "Grid")]
     pub cells: Option<[u32; 3]>,
-    /// Direction cells: octahedral:N or polar:PHIxTHETA (the thesis used polar:16x4, which is
-    /// biased near +-z; see docs/sampling.md).
-    #[arg(long, default_value = DEFAULT_DIRS, value_parser = parse_dirs, help_heading = "Grid")]
-    pub dirs: Directions,
-    /// Pins stored per (cell, direction) entry.
-    #[arg(long, default_value_t = 1, help_heading = "Grid",
+    /// Direction cells: octahedral:N or polar:PHIxTHETA (default: an octahedral set chosen
+    /// from the volume; the thesis used polar:16x4, which is biased near +-z; see
+    /// docs/sampling.md).
+    #[arg(long, value_parser = parse_dirs, help_heading = "Grid")]
+    pub dirs: Option<Directions>,
+    /// Pins stored per (cell, direction) entry (default: chosen, 1).
+    #[arg(long, help_heading = "Grid",
           value_parser = clap::value_parser!(u32).range(1..=i64::from(pin_format::MAX_PINS_PER_ENTRY)))]
-    pub pins_per_entry: u32,
+    pub pins_per_entry: Option<u32>,
+    /// The smallest bake whose predicted 8x8-block error of pins alone is at most E (a
+    /// fraction, e.g. 0.05), for the parameters not given. Without it: 0.05, but never below
+    /// 20 cells along the longest axis (or the voxels) and octahedral:16, since the model is
+    /// fitted on the eval scenes only (docs/evaluation.md, "Bias against bytes"). --json
+    /// reports the choice.
+    #[arg(long, value_name = "E", value_parser = parse_target_error, help_heading = "Grid")]
+    pub target_error: Option<f64>,
     /// Ray-marching step relative to the longest box edge, in [1e-5, 1].
     #[arg(long, default_value_t = 0.01, value_parser = pinbake::limits::parse_step, help_heading = "Grid")]
     pub step: f64,
@@ -94,11 +103,17 @@ pub struct BakeArgs {
     pub quiet: bool,
 }
 
-/// `--dirs` unless told otherwise: `pinbake::bake::DEFAULT_DIRECTIONS` (a test checks).
-pub const DEFAULT_DIRS: &str = "octahedral:16";
-
-/// Spatial cells per axis unless `--cells` is given (capped by the volume's voxels).
+/// Spatial cells per axis the memory check assumes before the volume is open.
 pub const DEFAULT_MAX_CELLS: u32 = pinbake::bake::DEFAULT_MAX_CELLS;
+
+/// `--target-error`: a finite fraction in (0, 1].
+fn parse_target_error(s: &str) -> Result<f64, String> {
+    let e: f64 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    if !(e.is_finite() && e > 0.0 && e <= 1.0) {
+        return Err(format!("{s}: must be a fraction in (0, 1], e.g. 0.05"));
+    }
+    Ok(e)
+}
 
 pub use pinbake::cli_args::parse_u32x3;
 
@@ -182,10 +197,27 @@ fn hash_file(path: &Path) -> Result<String> {
     Ok(format!("{:032x}", h.digest128()))
 }
 
+/// The bake's cells, directions and pins per entry: the ones given, the rest chosen from the
+/// volume (`pinbake::choose`).
+pub fn choose_from_args(args: &BakeArgs, source: &dyn DensitySource) -> Result<Choice> {
+    let stats = pinbake::choose::analyse(source, !args.no_crop)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
+    let fixed = pinbake::choose::Fixed {
+        cells: args.cells,
+        directions: args.dirs,
+        pins_per_entry: args.pins_per_entry,
+    };
+    Ok(match args.target_error {
+        Some(e) => pinbake::choose::choose(&stats, fixed, e),
+        None => pinbake::choose::choose_default(&stats, fixed),
+    })
+}
+
 pub fn options_from_args(
     args: &BakeArgs,
     source: &dyn DensitySource,
     spec: &SourceSpec,
+    choice: &Choice,
 ) -> Result<BakeOptions> {
     let (name, hash) = match spec {
         SourceSpec::Procedural(p) => (format!("procedural:{p}"), String::new()),
@@ -199,12 +231,8 @@ pub fn options_from_args(
     let bake_unix_time = std::env::var("SOURCE_DATE_EPOCH")
         .ok()
         .and_then(|s| s.parse().ok());
-    let (kind, res) = args.dirs.to_desc();
-    let cells = match args.cells {
-        Some(c) => c,
-        None => pinbake::bake::default_cells(source, !args.no_crop, DEFAULT_MAX_CELLS)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?,
-    };
+    let (kind, res) = choice.directions.to_desc();
+    let cells = choice.cells;
     let metadata = Metadata {
         tool: "pinbake".into(),
         tool_version: env!("CARGO_PKG_VERSION").into(),
@@ -229,8 +257,8 @@ pub fn options_from_args(
     };
     Ok(BakeOptions {
         cells,
-        directions: args.dirs,
-        pins_per_entry: args.pins_per_entry,
+        directions: choice.directions,
+        pins_per_entry: choice.pins_per_entry,
         step: args.step,
         seed: args.seed,
         crop: !args.no_crop,
@@ -266,6 +294,15 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
 pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     // Ranges of single flags are checked by their parsers (exit 2); this is what needs the
     // input or several flags.
+    if args.target_error.is_some()
+        && args.cells.is_some()
+        && args.dirs.is_some()
+        && args.pins_per_entry.is_some()
+    {
+        super::usage!(
+            "--target-error has nothing to choose: --cells, --dirs and --pins-per-entry are all given"
+        );
+    }
     let spec = source_spec(args)?;
     let input_path: Option<&Path> = match &spec {
         SourceSpec::Procedural(_) => None,
@@ -277,8 +314,8 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     let probe = BakeOptions {
         // Before the source is open: the default's upper bound.
         cells: args.cells.unwrap_or([DEFAULT_MAX_CELLS; 3]),
-        directions: args.dirs,
-        pins_per_entry: args.pins_per_entry,
+        directions: args.dirs.unwrap_or(pinbake::bake::DEFAULT_DIRECTIONS),
+        pins_per_entry: args.pins_per_entry.unwrap_or(1),
         majorant: majorant_dims(args.majorant),
         embed_density: args.embed_density,
         ..BakeOptions::default()
@@ -304,7 +341,13 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     let pending = pinbake::files::PendingPin::create(&args.output)
         .with_context(|| format!("{}", args.output.display()))?;
     let source = source::open_source(&spec)?;
-    let opts = options_from_args(args, source.as_ref(), &spec)?;
+    let choice = choose_from_args(args, source.as_ref())?;
+    let opts = options_from_args(args, source.as_ref(), &spec, &choice)?;
+    // The check above assumed the default's size; a chosen bake may be larger.
+    budget.check(
+        &format!("baking {}", args.input.display()),
+        pinbake::bake::estimate_output_bytes(&opts).saturating_add(input_bytes),
+    )?;
 
     let shape_cells: u64 = match opts.tile {
         None => opts.cells.iter().map(|&c| u64::from(c)).product(),
@@ -352,6 +395,7 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     v["bake_seconds"] = serde_json::json!(stats.seconds);
     v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
     v["output"] = serde_json::json!(args.output.display().to_string());
+    v["choice"] = choice_json(&choice, file_bytes);
     if !args.json {
         eprintln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
@@ -368,19 +412,36 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     Ok(v)
 }
 
+/// `--json`'s `choice` object: what was chosen, why, and what the model predicts.
+fn choice_json(c: &Choice, file_bytes: u64) -> serde_json::Value {
+    serde_json::json!({
+        "cells": c.cells,
+        "directions": super::inspect::directions_json(c.directions),
+        "pins_per_entry": c.pins_per_entry,
+        "predicted_error": c.predicted_error,
+        "target_error": c.target_error,
+        "target_met": c.target_met,
+        "predicted_pin_bytes": c.predicted_pin_bytes,
+        "bytes": file_bytes,
+        "reason": {
+            "cells": c.reason_cells,
+            "directions": c.reason_directions,
+            "pins_per_entry": c.reason_pins_per_entry,
+        },
+        "volume": c.stats,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn default_dirs_name_the_library_default() {
-        assert_eq!(
-            parse_dirs(DEFAULT_DIRS).unwrap(),
-            pinbake::bake::DEFAULT_DIRECTIONS
-        );
-        assert_eq!(
-            pinbake::BakeOptions::default().directions,
-            pinbake::bake::DEFAULT_DIRECTIONS
-        );
+    fn target_error_is_a_fraction() {
+        assert_eq!(parse_target_error("0.05"), Ok(0.05));
+        assert_eq!(parse_target_error("1"), Ok(1.0));
+        for bad in ["0", "-0.1", "1.5", "nan", "inf", "x"] {
+            assert!(parse_target_error(bad).is_err(), "{bad}");
+        }
     }
 }

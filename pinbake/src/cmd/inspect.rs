@@ -47,7 +47,7 @@ fn tmin_stats(pins: &[PinEntry], total_pins: u64) -> TminStats {
     s
 }
 
-fn directions_json(d: Directions) -> Value {
+pub(crate) fn directions_json(d: Directions) -> Value {
     match d {
         Directions::Polar { n_phi, n_theta } => {
             json!({"kind": "polar", "n_phi": n_phi, "n_theta": n_theta})

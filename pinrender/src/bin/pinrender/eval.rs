@@ -30,6 +30,7 @@
 //! is the reference's own noise, reported per scene, and a time-to-error target below twice
 //! that noise prints "n/a (reference noise)" instead of a speedup that would measure noise.
 
+mod cloud;
 mod plot;
 mod report;
 mod scenes;
@@ -276,11 +277,20 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     let scene_names: Vec<String> = match &a.scenes {
         Some(v) => v.iter().map(|s| s.trim().to_string()).collect(),
-        None => scenes::SCENES.iter().map(|s| s.to_string()).collect(),
+        None => scenes::SCENES
+            .iter()
+            .filter(|s| !(a.quick && scenes::FULL_ONLY.contains(s)))
+            .map(|s| s.to_string())
+            .collect(),
     };
     for s in &scene_names {
         if !scenes::SCENES.contains(&s.as_str()) {
             crate::usage!("unknown scene '{s}' (known: {})", scenes::SCENES.join(", "));
+        }
+        if a.quick && scenes::FULL_ONLY.contains(&s.as_str()) {
+            crate::usage!(
+                "scene '{s}' is production scale and runs in the full eval only, not with --quick"
+            );
         }
     }
     // An output directory only: a file, device or FIFO there is refused, not written into.
@@ -539,11 +549,23 @@ const LOOKUP: SamplerOptions = crate::render_cmd::DEFAULT_LOOKUP;
 
 /// Bakes the scene's pins and installs a pin estimator per instance.
 fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
-    let opts = pinbake::BakeOptions {
-        cells: [es.bake_cells; 3],
+    let (cells, directions) = if es.choose_bake {
+        // What `pinbake bake` chooses for the volume by default.
+        let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
+        let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
+        eprintln!(
+            "  pins chosen: {:?} cells x {:?} (variation {:.1}, predicted block error {:.3})",
+            c.cells, c.directions, stats.variation, c.predicted_error
+        );
+        (c.cells, c.directions)
+    } else {
         // The scenes' cells were sized for 64 directions; keep their bytes (the CLI default
         // is octahedral:16 at fewer cells, docs/evaluation.md).
-        directions: pinrt::Directions::Octahedral { n: 8 },
+        ([es.bake_cells; 3], pinrt::Directions::Octahedral { n: 8 })
+    };
+    let opts = pinbake::BakeOptions {
+        cells,
+        directions,
         seed: a.seed,
         threads: a.threads,
         ..pinbake::BakeOptions::default()
@@ -565,14 +587,14 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
         inst.pins = Some(Arc::new(PinsEstimator::from_sampler(sampler)));
     }
     eprintln!(
-        "  pins: {}^3 cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",
-        es.bake_cells,
+        "  pins: {:?} cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",
+        opts.cells,
         opts.directions.count(),
         stats.pins,
         size as f64 / 1e6
     );
     Ok(BakeInfo {
-        cells: es.bake_cells,
+        cells: opts.cells[0],
         directions: opts.directions.count(),
         pins: stats.pins,
         bytes: size,

@@ -5,6 +5,7 @@
 //! the evaluation scenes), `shaders` (pin.wgsl in SPIR-V, GLSL, HLSL and MSL). Exit codes: 0 success, 1 bad input, 2 usage error.
 
 mod bench;
+mod bias_plot;
 mod data;
 mod eval;
 mod render_cmd;
@@ -34,6 +35,8 @@ enum Command {
     Render(Box<render_cmd::RenderArgs>),
     /// Error against run time of every estimator on the evaluation scenes (CSV, plots, report).
     Eval(Box<eval::EvalArgs>),
+    /// Plot scripts/bias_sweep.sh's CSV: pins' block error against pin bytes (PNG).
+    PlotBias(bias_plot::PlotBiasArgs),
     /// Write shaders/pin.wgsl as SPIR-V, GLSL 450, HLSL and MSL (naga) into a directory.
     Shaders(shaders::ShadersArgs),
 }
@@ -54,6 +57,7 @@ fn main() -> ExitCode {
         Command::Render(a) => render_cmd::run(*a),
         Command::Eval(a) => eval::run(*a),
         Command::Shaders(a) => shaders::run(a),
+        Command::PlotBias(a) => bias_plot::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

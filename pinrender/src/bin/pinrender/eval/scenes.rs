@@ -106,6 +106,9 @@ pub struct EvalScene {
     /// The field the pins are baked from (the base volume for instanced scenes).
     pub bake_source: Arc<dyn DensitySource>,
     pub bake_cells: u32,
+    /// Bake with the cells and directions `pinbake bake` chooses for the volume (its default)
+    /// instead of `bake_cells`^3 x octahedral:8.
+    pub choose_bake: bool,
     pub whole_volume: Option<WholeVolumeBox>,
     pub reference: RefKind,
     pub ref_spp: u32,
@@ -118,7 +121,19 @@ pub struct EvalScene {
     pub pin_grid: Option<&'static PinGrid>,
 }
 
-pub const SCENES: [&str; 6] = ["smoke", "hydrogen", "cosine", "box", "box-ss", "instances"];
+pub const SCENES: [&str; 7] = [
+    "smoke",
+    "hydrogen",
+    "cosine",
+    "box",
+    "box-ss",
+    "instances",
+    "cloud",
+];
+
+/// Scenes of the full run only, never of `--quick` (which CI runs): the production-scale cloud
+/// needs ~1 GiB and minutes to generate, bake and reference.
+pub const FULL_ONLY: [&str; 1] = ["cloud"];
 
 const SMOKE_DENSITY_SCALE: f64 = 2.0;
 const HYDROGEN_DENSITY_SCALE: f64 = 0.6;
@@ -161,6 +176,7 @@ pub fn build(name: &str, sizes: &Sizes) -> Result<EvalScene> {
         "box" => homogeneous_box(sizes, false),
         "box-ss" => homogeneous_box(sizes, true),
         "instances" => instances(sizes),
+        "cloud" => cloud(sizes),
         other => bail!("unknown scene '{other}' (known: {})", SCENES.join(", ")),
     }
 }
@@ -271,6 +287,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         instances: vec![inst],
         bake_source: src,
         bake_cells,
+        choose_bake: false,
         whole_volume: None,
         reference: RefKind::Tracker,
         ref_spp: sizes.ref_spp * 3,
@@ -320,6 +337,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         instances: vec![inst],
         bake_source: src,
         bake_cells,
+        choose_bake: false,
         whole_volume: None,
         reference: RefKind::Tracker,
         ref_spp: sizes.ref_spp * 8,
@@ -371,6 +389,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
         instances: vec![inst],
         bake_source: src,
         bake_cells,
+        choose_bake: false,
         whole_volume: None,
         reference: RefKind::ClosedForm,
         ref_spp: sizes.ref_spp * 2,
@@ -459,6 +478,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
         instances: vec![inst],
         bake_source: src,
         bake_cells,
+        choose_bake: false,
         whole_volume: Some(WholeVolumeBox::new(
             lo.to_array(),
             hi.to_array(),
@@ -614,12 +634,62 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
         instances: insts,
         bake_source: base,
         bake_cells,
+        choose_bake: false,
         whole_volume: None,
         reference: RefKind::Tracker,
         // Skipping missed media made the reference tracker ~2x faster: twice the samples
         // of before (384 at the default size) in about the same time.
         ref_spp: (sizes.ref_spp * 3).max(1),
         estimators: estimators(&[], true),
+        cache: cache_for(lo, hi, sizes),
+        gpu_density,
+        pin_grid: None,
+    })
+}
+
+/// The production-scale scene (issue 14 part 5): a fractal cloud of `CLOUD_VOXELS`^3 f32
+/// voxels generated at run time (`eval/cloud.rs`), pins baked as `pinbake bake` chooses.
+fn cloud(sizes: &Sizes) -> Result<EvalScene> {
+    use super::cloud::{CLOUD_DENSITY, CLOUD_VOXELS};
+    let t = std::time::Instant::now();
+    let opened = Opened::Dense(Arc::new(super::cloud::cloud(CLOUD_VOXELS)?));
+    eprintln!(
+        "  cloud: {CLOUD_VOXELS}^3 voxels generated in {:.1} s",
+        t.elapsed().as_secs_f64()
+    );
+    let src = opened.source();
+    let gpu_density = opened.gpu_density()?;
+    let (lo, hi) = bounds_of(&*src);
+    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    // Finer bricks than the other scenes: the cloud has large empty regions between lobes.
+    let inst = single_instance(field, 32, None)?;
+    let size = sizes.image;
+    let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
+    let (sun, env) = lights(1.0);
+    // The trackers, pins and PinMS (issue 14 part 5), and rm@0.015 for the time-to-error
+    // column; the other estimators would add minutes at this size and say nothing new.
+    let ests: Vec<String> = ["rm@0.015", "delta", "ratio", "pins", "pinms"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    Ok(EvalScene {
+        name: "cloud",
+        about: format!(
+            "production scale: a fractal cloud voxelised at run time to {CLOUD_VOXELS}^3 f32 voxels ({} MiB, larger than the CPU caches) in the unit cube, peak extinction {CLOUD_DENSITY}, {size}x{size} px, {} bounces, pins as `pinbake bake` chooses them",
+            (u64::from(CLOUD_VOXELS).pow(3) * 4) >> 20,
+            sizes.max_bounces
+        ),
+        key: format!("cloud|n={CLOUD_VOXELS}|density={CLOUD_DENSITY}|maj=32"),
+        scene: base_scene(camera, sun, env),
+        max_bounces: sizes.max_bounces,
+        instances: vec![inst],
+        bake_source: src,
+        bake_cells: 0,
+        choose_bake: true,
+        whole_volume: None,
+        reference: RefKind::Tracker,
+        ref_spp: sizes.ref_spp,
+        estimators: ests,
         cache: cache_for(lo, hi, sizes),
         gpu_density,
         pin_grid: None,
