@@ -813,3 +813,52 @@ mod tests {
         assert!(worst < 4.5, "worst z {worst}");
     }
 }
+
+/// Where a bake's source came from, as its file records it: the front ends (the CLI, the
+/// Python binding) fill this in and [`bake_metadata`] does the rest, so two front ends given
+/// the same inputs write the same bytes.
+#[derive(Clone, Debug)]
+pub struct Provenance {
+    /// File name (not path) of the source, or its procedural description.
+    pub source_name: String,
+    /// Hex xxh3-128 of the source file's bytes (empty for procedural and in-memory sources).
+    pub source_hash: String,
+    pub seed: u64,
+    pub step: f64,
+    pub density_scale: f64,
+    pub crop: bool,
+}
+
+/// The metadata a bake of `source` with `cells` and `directions` writes: the provenance, the
+/// tool, the bake's layout and the source's identity (what `pinrender` checks `--pins` against
+/// its `--volume` with). A timestamp is recorded only when `SOURCE_DATE_EPOCH` pins one (the
+/// reproducible-builds convention), so bakes are byte-identical by default.
+pub fn bake_metadata(
+    source: &dyn DensitySource,
+    prov: Provenance,
+    cells: [u32; 3],
+    directions: Directions,
+) -> Metadata {
+    let (kind, res) = directions.to_desc();
+    let mut extra = vec![
+        ("cells".into(), format!("{cells:?}")),
+        ("crop".into(), prov.crop.to_string()),
+        ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
+    ];
+    extra.extend(crate::source::SourceIdentity::of(source, prov.density_scale).to_extra());
+    extra.sort();
+    Metadata {
+        tool: "pinbake".into(),
+        tool_version: env!("CARGO_PKG_VERSION").into(),
+        source_name: prov.source_name,
+        source_hash: prov.source_hash,
+        source_description: source.describe(),
+        seed: prov.seed,
+        step_size: prov.step,
+        density_scale: prov.density_scale,
+        bake_unix_time: std::env::var("SOURCE_DATE_EPOCH")
+            .ok()
+            .and_then(|s| s.parse().ok()),
+        extra,
+    }
+}

@@ -11,7 +11,7 @@ use std::time::Instant;
 use numpy::{
     PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
 };
-use pin_format::{Directions, GridShape, Metadata, OwnedPinGrid};
+use pin_format::{Directions, GridShape, OwnedPinGrid};
 use pinbake::source::{
     self, DenseGrid, DensitySource, Endian, ProceduralSpec, RawOptions, RawType, SourceSpec,
     VdbOptions,
@@ -360,7 +360,7 @@ fn file_name(p: &Path) -> String {
 #[pyfunction]
 #[pyo3(signature = (
     input, output, *, data=None, spacing=None, origin=None, cells=None,
-    directions=None, pins_per_entry=1, step=0.01, seed=0, crop=true,
+    directions=None, pins_per_entry=None, step=0.01, seed=0, crop=true,
     center_pins=false, majorant=[16, 16, 16], embed_density=None, density_scale=1.0,
     threads=None, grid=None, levelset_to_fog=false, dims=None, voxel_type=None,
     endian="little", clamp_negative=false, nan_as_zero=false, vdb_worker=None
@@ -375,7 +375,7 @@ fn bake(
     origin: Option<[f64; 3]>,
     cells: Option<[u32; 3]>,
     directions: Option<&str>,
-    pins_per_entry: u32,
+    pins_per_entry: Option<u32>,
     step: f64,
     seed: u64,
     crop: bool,
@@ -398,7 +398,7 @@ fn bake(
             "density_scale {density_scale} must be finite and >= 0"
         )));
     }
-    if pins_per_entry == 0 || pins_per_entry > pin_format::MAX_PINS_PER_ENTRY {
+    if pins_per_entry.is_some_and(|k| k == 0 || k > pin_format::MAX_PINS_PER_ENTRY) {
         return Err(value_err(format!(
             "pins_per_entry must be in 1..={}",
             pin_format::MAX_PINS_PER_ENTRY
@@ -407,11 +407,8 @@ fn bake(
     if !(step > 0.0 && step <= 1.0) {
         return Err(value_err(format!("step {step} must be in (0, 1]")));
     }
-    // pinbake bake's defaults: the measured-best direction set, cells capped by the voxels.
-    let dirs = match directions {
-        Some(d) => parse_dirs(d)?,
-        None => pinbake::bake::DEFAULT_DIRECTIONS,
-    };
+    // Parameters left out are chosen from the volume below, as `pinbake bake` does.
+    let dirs = directions.map(parse_dirs).transpose()?;
     let spacing = spacing.unwrap_or([1.0; 3]);
     let origin = origin.unwrap_or([0.0; 3]);
 
@@ -495,36 +492,37 @@ fn bake(
         (src, file_name(&path), hash_file(&path)?)
     };
 
-    let cells = match cells {
-        Some(c) => c,
-        None => {
-            pinbake::bake::default_cells(source.as_ref(), crop, pinbake::bake::DEFAULT_MAX_CELLS)
-                .map_err(|e| pin_err(format!("{input}: {e}")))?
-        }
-    };
-    let (kind, res) = dirs.to_desc();
-    let metadata = Metadata {
-        tool: "pinbake".into(),
-        tool_version: env!("CARGO_PKG_VERSION").into(),
-        source_name: name,
-        source_hash: hash,
-        source_description: source.describe(),
-        seed,
-        step_size: step,
-        density_scale,
-        bake_unix_time: std::env::var("SOURCE_DATE_EPOCH")
-            .ok()
-            .and_then(|s| s.parse().ok()),
-        extra: vec![
-            ("cells".into(), format!("{cells:?}")),
-            ("crop".into(), crop.to_string()),
-            ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
-        ],
-    };
+    // What `pinbake bake` does with the same arguments: the parameters not given are chosen
+    // from the volume, and the metadata is written by the same library function.
+    let choice = py
+        .detach(|| -> Result<pinbake::choose::Choice, pinbake::BakeError> {
+            let stats = pinbake::choose::analyse(source.as_ref(), crop)?;
+            let fixed = pinbake::choose::Fixed {
+                cells,
+                directions: dirs,
+                pins_per_entry,
+            };
+            Ok(pinbake::choose::choose_default(&stats, fixed))
+        })
+        .map_err(|e| pin_err(format!("{input}: {e}")))?;
+    let cells = choice.cells;
+    let metadata = pinbake::bake::bake_metadata(
+        source.as_ref(),
+        pinbake::bake::Provenance {
+            source_name: name,
+            source_hash: hash,
+            seed,
+            step,
+            density_scale,
+            crop,
+        },
+        cells,
+        choice.directions,
+    );
     let opts = BakeOptions {
         cells,
-        directions: dirs,
-        pins_per_entry,
+        directions: choice.directions,
+        pins_per_entry: choice.pins_per_entry,
         step,
         seed,
         crop,

@@ -256,7 +256,8 @@ def test_info_and_verify(smoke):
     grid = PinGrid(smoke)
     info = grid.info
     assert info["dims"] == [12, 12, 12]
-    assert info["directions"] == {"kind": "octahedral", "n": 16}  # pinbake's default
+    # Chosen from the volume as `pinbake bake` chooses (the byte-for-byte test compares them).
+    assert info["directions"]["kind"] == "octahedral"
     assert info["mapped"] is True and info["file_bytes"] == smoke.stat().st_size
     grid.verify()
     copy = PinGrid.from_bytes(smoke.read_bytes())

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use pin_format::{Directions, Metadata};
+use pin_format::Directions;
 use pinbake::choose::Choice;
 use pinbake::cli_args::VolumeArgs;
 use pinbake::source::{self, DensitySource, SourceSpec};
@@ -227,34 +227,20 @@ pub fn options_from_args(
         SourceSpec::Vdb(path) => (file_name(path), hash_file(path)?),
         SourceSpec::Raw(path, _) => (file_name(path), hash_file(path)?),
     };
-    // Reproducible-builds convention: a timestamp only when the pipeline pins one.
-    let bake_unix_time = std::env::var("SOURCE_DATE_EPOCH")
-        .ok()
-        .and_then(|s| s.parse().ok());
-    let (kind, res) = choice.directions.to_desc();
     let cells = choice.cells;
-    let metadata = Metadata {
-        tool: "pinbake".into(),
-        tool_version: env!("CARGO_PKG_VERSION").into(),
-        source_name: name,
-        source_hash: hash,
-        source_description: source.describe(),
-        seed: args.seed,
-        step_size: args.step,
-        density_scale: args.volume.density_scale,
-        bake_unix_time,
-        extra: {
-            let mut extra = vec![
-                ("cells".into(), format!("{cells:?}")),
-                ("crop".into(), (!args.no_crop).to_string()),
-                ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
-            ];
-            // What `pinrender` checks `--pins` against its `--volume` with.
-            extra.extend(source::SourceIdentity::of(source, args.volume.density_scale).to_extra());
-            extra.sort();
-            extra
+    let metadata = pinbake::bake::bake_metadata(
+        source,
+        pinbake::bake::Provenance {
+            source_name: name,
+            source_hash: hash,
+            seed: args.seed,
+            step: args.step,
+            density_scale: args.volume.density_scale,
+            crop: !args.no_crop,
         },
-    };
+        cells,
+        choice.directions,
+    );
     Ok(BakeOptions {
         cells,
         directions: choice.directions,

@@ -80,7 +80,7 @@ def bake(
     origin: Union[float, Sequence[float], None] = None,
     cells: Union[int, Sequence[int], None] = None,
     directions: Optional[str] = None,
-    pins_per_entry: int = 1,
+    pins_per_entry: Optional[int] = None,
     step: float = 0.01,
     seed: int = 0,
     crop: bool = True,
@@ -109,9 +109,9 @@ def bake(
     ``"procedural:SPEC"``.
 
     The other options are ``pinbake bake``'s flags, with its defaults: ``cells`` (N or
-    (X, Y, Z); default 20 per axis but no more than the volume's voxels along it),
-    ``directions`` (``octahedral:N`` or ``polar:PHIxTHETA``; default ``octahedral:16``),
-    ``pins_per_entry``, ``step``
+    (X, Y, Z)), ``directions`` (``octahedral:N`` or ``polar:PHIxTHETA``) and
+    ``pins_per_entry``, each chosen from the volume when left out as ``pinbake bake`` does
+    (``docs/evaluation.md``, "Bias against bytes"), ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
     ``center_pins``, ``majorant`` (0 leaves it out), ``embed_density``, ``density_scale``
     and ``threads``. A bake is deterministic: the same input and options give the same bytes
