@@ -221,8 +221,10 @@ pub struct SceneResult {
 
 #[derive(Clone, Debug)]
 pub struct BakeInfo {
-    pub cells: u32,
+    pub cells: [u32; 3],
     pub directions: u32,
+    /// The direction set, as `pinbake bake --dirs` writes it.
+    pub direction_set: String,
     pub pins: u64,
     pub bytes: usize,
     pub seconds: f64,
@@ -549,7 +551,9 @@ const LOOKUP: SamplerOptions = crate::render_cmd::DEFAULT_LOOKUP;
 
 /// Bakes the scene's pins and installs a pin estimator per instance.
 fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
-    let (cells, directions) = if es.choose_bake {
+    // The full eval bakes what `pinbake bake` chooses by default (the product's default is
+    // what the figures are about); `--quick` keeps the scenes' small fixed bakes, for time.
+    let (cells, directions) = if es.choose_bake || !a.quick {
         // What `pinbake bake` chooses for the volume by default.
         let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
         let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
@@ -594,8 +598,12 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
         size as f64 / 1e6
     );
     Ok(BakeInfo {
-        cells: opts.cells[0],
+        cells: opts.cells,
         directions: opts.directions.count(),
+        direction_set: match opts.directions {
+            pinrt::Directions::Octahedral { n } => format!("octahedral:{n}"),
+            pinrt::Directions::Polar { n_phi, n_theta } => format!("polar:{n_phi}x{n_theta}"),
+        },
         pins: stats.pins,
         bytes: size,
         seconds,

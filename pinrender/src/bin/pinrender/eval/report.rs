@@ -137,13 +137,16 @@ pub fn write_csv(path: &Path, results: &[SceneResult]) -> Result<()> {
 }
 
 pub fn write_bake_csv(path: &Path, results: &[SceneResult]) -> Result<()> {
-    let mut s = String::from("scene,cells,directions,pins,bytes,seconds\n");
+    // `cells` was one count per axis when every eval bake was a cube; it is `XxYxZ` now that
+    // the full eval bakes what `pinbake bake` chooses. `direction_set` was added.
+    let mut s = String::from("scene,cells,directions,pins,bytes,seconds,direction_set\n");
     for r in results {
         if let Some(b) = &r.bake {
+            let [x, y, z] = b.cells;
             let _ = writeln!(
                 s,
-                "{},{},{},{},{},{:.4}",
-                r.name, b.cells, b.directions, b.pins, b.bytes, b.seconds
+                "{},{x}x{y}x{z},{},{},{},{:.4},{}",
+                r.name, b.directions, b.pins, b.bytes, b.seconds, b.direction_set
             );
         }
     }
@@ -337,9 +340,12 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
         if let Some(b) = &r.bake {
             let _ = writeln!(
                 s,
-                "Pin bake (offline, not in the times below): {}^3 cells x {} directions, {} pins, \
-                 {:.2} MB, {:.2} s.",
-                b.cells,
+                "Pin bake (offline, not in the times below): {}x{}x{} cells x {} ({} directions), \
+                 {} pins, {:.2} MB, {:.2} s.",
+                b.cells[0],
+                b.cells[1],
+                b.cells[2],
+                b.direction_set,
                 b.directions,
                 b.pins,
                 b.bytes as f64 / 1e6,

@@ -107,7 +107,7 @@ pub struct EvalScene {
     pub bake_source: Arc<dyn DensitySource>,
     pub bake_cells: u32,
     /// Bake with the cells and directions `pinbake bake` chooses for the volume (its default)
-    /// instead of `bake_cells`^3 x octahedral:8.
+    /// even in `--quick` runs, which otherwise bake `bake_cells`^3 x octahedral:8 for time.
     pub choose_bake: bool,
     pub whole_volume: Option<WholeVolumeBox>,
     pub reference: RefKind,
@@ -275,7 +275,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     Ok(EvalScene {
         name: "smoke",
         about: format!(
-            "OpenVDB sample `openvdb_smoke1.vdb` (half-float density, voxel 0.476, box {:.1} x {:.1} x {:.1}), density scale {SMOKE_DENSITY_SCALE}, {size}x{size} px, {} bounces, pins {bake_cells}^3 cells x 64 octahedral:8 directions",
+            "OpenVDB sample `openvdb_smoke1.vdb` (half-float density, voxel 0.476, box {:.1} x {:.1} x {:.1}), density scale {SMOKE_DENSITY_SCALE}, {size}x{size} px, {} bounces",
             (hi - lo).x,
             (hi - lo).y,
             (hi - lo).z,
@@ -327,7 +327,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     Ok(EvalScene {
         name: "hydrogen",
         about: format!(
-            "hydrogen atom, raw u8 128^3 in the unit cube, density scale {HYDROGEN_DENSITY_SCALE} (extinction up to {:.0}), {size}x{size} px, {} bounces, pins {bake_cells}^3 cells x 64 octahedral:8 directions",
+            "hydrogen atom, raw u8 128^3 in the unit cube, density scale {HYDROGEN_DENSITY_SCALE} (extinction up to {:.0}), {size}x{size} px, {} bounces",
             250.0 * HYDROGEN_DENSITY_SCALE,
             sizes.max_bounces
         ),
@@ -380,7 +380,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     Ok(EvalScene {
         name: "cosine",
         about: format!(
-            "unit cube of cosine noise `{COSINE_SPEC}` (16 cycles across the box: the thesis' hard case for ray marching), {size}x{size} px, {} bounces, pins {bake_cells}^3 cells x 64 octahedral:8 directions",
+            "unit cube of cosine noise `{COSINE_SPEC}` (16 cycles across the box: the thesis' hard case for ray marching), {size}x{size} px, {} bounces",
             sizes.max_bounces
         ),
         key: format!("cosine|{COSINE_SPEC}"),
@@ -469,7 +469,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
     Ok(EvalScene {
         name,
         about: format!(
-            "homogeneous box {:?} with extinction {BOX_SIGMA}, {about}; {size}x{size} px, {bounces} bounce(s), pins {bake_cells}^3 cells x 64 octahedral:8 directions",
+            "homogeneous box {:?} with extinction {BOX_SIGMA}, {about}; {size}x{size} px, {bounces} bounce(s)",
             BOX_MAX
         ),
         key: format!("{name}|box={BOX_MAX:?}|sigma={BOX_SIGMA}|env={env:?}"),
@@ -622,7 +622,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
     Ok(EvalScene {
         name: "instances",
         about: format!(
-            "{n} overlapping instances (4x4x4 jittered lattice, spacing {spacing}) of one noise blob ({BLOB_VOXELS}^3 voxels, unit box, peak extinction ~{:.0}), each its own medium with its own majorant grid / pin sampler placed by a translation; {size}x{size} px, {} bounces, one pin grid of {bake_cells}^3 cells x 64 octahedral:8 directions shared by all instances",
+            "{n} overlapping instances (4x4x4 jittered lattice, spacing {spacing}) of one noise blob ({BLOB_VOXELS}^3 voxels, unit box, peak extinction ~{:.0}), each its own medium with its own majorant grid / pin sampler placed by a translation; {size}x{size} px, {} bounces, one pin grid shared by all instances",
             2.0 * BLOB_DENSITY,
             sizes.max_bounces
         ),
