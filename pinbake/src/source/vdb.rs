@@ -49,7 +49,9 @@ use std::time::{Duration, Instant};
 
 use glam::{DMat3, DVec3, IVec3};
 
-use super::{Aabb, DensityScale, DensitySource, Mip, MipAllocError, SourceError, one_line};
+use super::{
+    Aabb, DenseGrid, DensityScale, DensitySource, Mip, MipAllocError, SourceError, one_line,
+};
 
 /// The hidden subcommand the `pinbake` binary dispatches to [`worker_main`].
 pub const WORKER_SUBCOMMAND: &str = "__vdb-worker";
@@ -1572,6 +1574,75 @@ impl VdbSource {
         m
     }
 
+    /// The grid as a [`DenseGrid`] with the same values and the same trilinear field, for a
+    /// bake that marches it with [`DenseGrid::march_runs`] instead of walking the tree per
+    /// sample; `None` for a rotated or sheared map (its voxels are not boxes of the bake
+    /// frame), an empty grid, or a copy of more than `max_bytes` bytes (or one that cannot be
+    /// allocated).
+    ///
+    /// The copy holds every voxel centre the trilinear field reaches, one beyond the stored
+    /// ones on each side: those are zero, so the dense grid's clamp-to-edge outer half voxel
+    /// reads zero where this source does, and its box covers [`DensitySource::bounds`]. A
+    /// mirrored axis (negative scale) is stored reversed, so that the copy's index grows with
+    /// world position. Values at voxel centres are bit-identical; between them the two
+    /// samplers interpolate the same corners with the same f32 weights formula, but compute
+    /// the continuous index with different f64 roundings (`(p - t) / s` against
+    /// `p / s - o / s - 0.5`), so a sample can differ by a few ulps (docs/performance.md).
+    pub fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        let (scale, _) = self.diag?;
+        if !self.index_min.cmple(self.index_max).all() {
+            return None;
+        }
+        let (lo, hi) = (self.index_min - 1, self.index_max + 1);
+        let n = (hi.as_i64vec3() - lo.as_i64vec3()) + 1;
+        if n.max_element() > i64::from(u32::MAX) {
+            return None;
+        }
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        if count.checked_mul(4)? > max_bytes {
+            return None;
+        }
+        let count = usize::try_from(count).ok()?;
+        let mut data: Vec<f32> = Vec::new();
+        data.try_reserve_exact(count).ok()?;
+        data.resize(count, 0.0);
+        let (nx, ny) = (n.x as usize, n.y as usize);
+        // Copy index j along an axis is index `lo + j`, or `hi - j` where the map mirrors it.
+        let at = |a: usize, j: usize| {
+            if scale[a] > 0.0 {
+                lo[a] + j as i32
+            } else {
+                hi[a] - j as i32
+            }
+        };
+        {
+            use rayon::prelude::*;
+            data.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slab)| {
+                let iz = at(2, z);
+                for (y, row) in slab.chunks_mut(nx).enumerate() {
+                    let iy = at(1, y);
+                    for (x, v) in row.iter_mut().enumerate() {
+                        *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+                    }
+                }
+            });
+        }
+        let corner = (lo.as_dvec3() - 0.5) * scale;
+        let far = (hi.as_dvec3() + 0.5) * scale;
+        let origin = corner.min(far) + self.translation;
+        let dims = [n.x as u32, n.y as u32, n.z as u32];
+        DenseGrid::new(
+            dims,
+            data,
+            scale.abs(),
+            origin,
+            format!("dense copy of {}", self.label),
+        )
+        .ok()
+    }
+
     /// Inclusive index box of the non-zero voxels.
     pub fn index_bounds(&self) -> (IVec3, IVec3) {
         (self.index_min, self.index_max)
@@ -1711,6 +1782,10 @@ impl DensitySource for VdbSource {
         // Axis-aligned grids keep baking in world space, as they always have.
         let (frame, local_to_world) = GridFrame::new(self)?;
         Some((Box::new(frame), local_to_world))
+    }
+
+    fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        VdbSource::dense_copy(self, max_bytes)
     }
 
     fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
