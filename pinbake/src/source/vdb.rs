@@ -1088,6 +1088,19 @@ pub struct VdbSource {
     bounds: Aabb,
     global_max: f32,
     label: String,
+    /// A dense copy of the active box that the samplers read instead of the tree
+    /// ([`VdbSource::with_dense_cache`]).
+    cache: Option<DenseCache>,
+}
+
+/// Every voxel of the index box `[lo, lo + dims)` (the active box and a border of one zero
+/// voxel), x fastest: what [`VdbSource::sample_index`] reads in place of the tree.
+struct DenseCache {
+    lo: IVec3,
+    dims: IVec3,
+    stride_y: usize,
+    stride_z: usize,
+    data: Vec<f32>,
 }
 
 impl std::fmt::Debug for VdbSource {
@@ -1474,6 +1487,7 @@ impl VdbSource {
             bounds,
             global_max,
             label,
+            cache: None,
         })
     }
 
@@ -1604,31 +1618,9 @@ impl VdbSource {
         if count.checked_mul(4)? > max_bytes {
             return None;
         }
-        let count = usize::try_from(count).ok()?;
-        let mut data: Vec<f32> = Vec::new();
-        data.try_reserve_exact(count).ok()?;
-        data.resize(count, 0.0);
-        let (nx, ny) = (n.x as usize, n.y as usize);
         // Copy index j along an axis is index `lo + j`, or `hi - j` where the map mirrors it.
-        let at = |a: usize, j: usize| {
-            if scale[a] > 0.0 {
-                lo[a] + j as i32
-            } else {
-                hi[a] - j as i32
-            }
-        };
-        {
-            use rayon::prelude::*;
-            data.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slab)| {
-                let iz = at(2, z);
-                for (y, row) in slab.chunks_mut(nx).enumerate() {
-                    let iy = at(1, y);
-                    for (x, v) in row.iter_mut().enumerate() {
-                        *v = self.voxel(IVec3::new(at(0, x), iy, iz));
-                    }
-                }
-            });
-        }
+        let mirrored = [0, 1, 2].map(|a| scale[a] < 0.0);
+        let data = self.dense_values(lo, n, count, mirrored)?;
         let corner = (lo.as_dvec3() - 0.5) * scale;
         let far = (hi.as_dvec3() + 0.5) * scale;
         let origin = corner.min(far) + self.translation;
@@ -1641,6 +1633,81 @@ impl VdbSource {
             format!("dense copy of {}", self.label),
         )
         .ok()
+    }
+
+    /// The voxels of the index box at `lo` with `n` voxels per axis (`count` in all), x
+    /// fastest; an axis with `mirrored` set runs from the box's top down. `None` if the
+    /// memory cannot be had.
+    fn dense_values(
+        &self,
+        lo: IVec3,
+        n: glam::I64Vec3,
+        count: u64,
+        mirrored: [bool; 3],
+    ) -> Option<Vec<f32>> {
+        use rayon::prelude::*;
+        let count = usize::try_from(count).ok()?;
+        let mut data: Vec<f32> = Vec::new();
+        data.try_reserve_exact(count).ok()?;
+        data.resize(count, 0.0);
+        let (nx, ny) = (n.x as usize, n.y as usize);
+        let top = lo + (n - 1).as_ivec3();
+        let at = |a: usize, j: usize| {
+            if mirrored[a] {
+                top[a] - j as i32
+            } else {
+                lo[a] + j as i32
+            }
+        };
+        data.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slab)| {
+            let iz = at(2, z);
+            for (y, row) in slab.chunks_mut(nx).enumerate() {
+                let iy = at(1, y);
+                for (x, v) in row.iter_mut().enumerate() {
+                    *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+                }
+            }
+        });
+        Some(data)
+    }
+
+    /// This grid with a dense copy of its active box (plus a border of one zero voxel) that
+    /// every sampler reads instead of the tree, when the copy takes at most `max_bytes`
+    /// (unchanged otherwise, and for an empty grid). The samples are bit-identical with or
+    /// without it: the same index arithmetic, corners and interpolation, only the corner
+    /// loads come from one array instead of hash lookups. For renderers, whose trackers
+    /// sample the density one point at a time (the bake marches [`Self::dense_copy`]).
+    pub fn with_dense_cache(mut self, max_bytes: u64) -> Self {
+        if !self.index_min.cmple(self.index_max).all() {
+            return self;
+        }
+        let lo = self.index_min - 1;
+        let n = (self.index_max.as_i64vec3() - lo.as_i64vec3()) + 2;
+        let Some(count) = (n.x as u64)
+            .checked_mul(n.y as u64)
+            .and_then(|c| c.checked_mul(n.z as u64))
+            .filter(|c| c.saturating_mul(4) <= max_bytes)
+        else {
+            return self;
+        };
+        if n.max_element() > i64::from(i32::MAX) {
+            return self;
+        }
+        if let Some(data) = self.dense_values(lo, n, count, [false; 3]) {
+            self.cache = Some(DenseCache {
+                lo,
+                dims: n.as_ivec3(),
+                stride_y: n.x as usize,
+                stride_z: (n.x * n.y) as usize,
+                data,
+            });
+        }
+        self
+    }
+
+    /// True when [`Self::with_dense_cache`] made a copy.
+    pub fn has_dense_cache(&self) -> bool {
+        self.cache.is_some()
     }
 
     /// Inclusive index box of the non-zero voxels.
@@ -1681,7 +1748,29 @@ impl VdbSource {
         let i = f.as_ivec3();
         let t = (u - f).as_vec3();
         let l = i & 7;
-        let c: [f32; 8] = if l.x < 7 && l.y < 7 && l.z < 7 {
+        let c: [f32; 8] = if let Some(cache) = &self.cache {
+            // The cell's lower corner relative to the copy; a cell not wholly inside it has
+            // only zero voxels (the border and beyond), as the tree would say.
+            let r = i.as_i64vec3() - cache.lo.as_i64vec3();
+            if r.cmplt(glam::I64Vec3::ZERO).any()
+                || r.cmpge((cache.dims - 1).as_i64vec3()).any()
+            {
+                return 0.0;
+            }
+            let (sy, sz) = (cache.stride_y, cache.stride_z);
+            let b = r.x as usize + r.y as usize * sy + r.z as usize * sz;
+            let d = &cache.data[b..=b + 1 + sy + sz];
+            [
+                d[0],
+                d[1],
+                d[sy],
+                d[sy + 1],
+                d[sz],
+                d[sz + 1],
+                d[sz + sy],
+                d[sz + sy + 1],
+            ]
+        } else if l.x < 7 && l.y < 7 && l.z < 7 {
             // All eight corners in one block: one hash lookup.
             match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
                 Some(Block::Dense(li)) => {
