@@ -2214,6 +2214,45 @@ mod tests {
         }
     }
 
+    /// The smoke with its map mirrored on x and z (negative scales): the dense copy stores
+    /// those axes reversed and still holds the tree's field (a few f32 ulps of the largest
+    /// value, from the index arithmetic), and the dense cache gives the tree's bits.
+    #[test]
+    fn dense_copy_and_cache_of_a_mirrored_grid() {
+        let p = data("openvdb_smoke1.vdb");
+        let size = std::fs::metadata(&p).unwrap().len();
+        let mirrored = || {
+            let mut buf = Vec::new();
+            worker_run(&p, None, false, &mut buf).unwrap();
+            let mut st = parse_stream(&buf[..], size).unwrap();
+            st.xf[0] = -st.xf[0];
+            st.xf[10] = -0.5 * st.xf[10];
+            st.xf[3] = 4.0;
+            VdbSource::from_stream(&p, st, DensityScale::ONE).unwrap()
+        };
+        let tree = mirrored();
+        assert!(tree.is_axis_aligned());
+        let copy = tree.dense_copy(u64::MAX).unwrap();
+        let cached = mirrored().with_dense_cache(u64::MAX);
+        assert!(cached.has_dense_cache());
+        let (lo, hi) = tree.index_bounds();
+        let m = (hi - lo + 1).as_dvec3() - 1.0;
+        let mut rng = crate::rng::CounterRng::new(3, 0, 0);
+        let mut nonzero = 0;
+        for _ in 0..50_000 {
+            let f = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let w = tree.index_to_world(lo.as_dvec3() - 1.0 + f * (m + 2.0));
+            let (a, b) = (copy.extinction(w), tree.extinction(w));
+            assert!(
+                (a - b).abs() <= 4.0 * f32::EPSILON * copy.max_value(),
+                "{w}: copy {a}, tree {b}"
+            );
+            assert_eq!(cached.extinction(w).to_bits(), b.to_bits(), "{w}");
+            nonzero += usize::from(b > 0.0);
+        }
+        assert!(nonzero > 5_000, "{nonzero}");
+    }
+
     #[test]
     fn selection_rules() {
         let f = "Tree_float_5_4_3";
