@@ -601,7 +601,9 @@ fn smoke_prefiltered_level_keeps_mass_but_blurs() {
 #[test]
 fn smoke_dense_copy_is_the_same_field() {
     let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
-    let copy = smoke.dense_copy(u64::MAX).expect("an axis-aligned grid has a copy");
+    let copy = smoke
+        .dense_copy(u64::MAX)
+        .expect("an axis-aligned grid has a copy");
     let (lo, hi) = smoke.index_bounds();
     let n = (hi - lo + 3).as_uvec3();
     assert_eq!(copy.dims(), n.to_array(), "one zero voxel beyond each side");
@@ -609,7 +611,10 @@ fn smoke_dense_copy_is_the_same_field() {
     assert!(smoke.dense_copy(bytes - 1).is_none());
     assert!(smoke.dense_copy(bytes).is_some());
     let (b, c) = (smoke.bounds(), copy.bounds());
-    assert!(c.min.cmple(b.min).all() && c.max.cmpge(b.max).all(), "{b:?} in {c:?}");
+    assert!(
+        c.min.cmple(b.min).all() && c.max.cmpge(b.max).all(),
+        "{b:?} in {c:?}"
+    );
 
     let mut rng = pinbake::rng::CounterRng::new(5, 0, 0);
     let mut centres = 0;
@@ -632,7 +637,10 @@ fn smoke_dense_copy_is_the_same_field() {
             "index {i}: copy {a}, tree {b}"
         );
     }
-    assert!(centres > 10_000, "too few occupied voxels sampled: {centres}");
+    assert!(
+        centres > 10_000,
+        "too few occupied voxels sampled: {centres}"
+    );
 
     // The bake's integration error (256 fixed pins against the 16x supersampled tree) is
     // the same marching the copy as marching the tree.

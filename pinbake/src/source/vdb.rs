@@ -1659,15 +1659,17 @@ impl VdbSource {
                 lo[a] + j as i32
             }
         };
-        data.par_chunks_mut(nx * ny).enumerate().for_each(|(z, slab)| {
-            let iz = at(2, z);
-            for (y, row) in slab.chunks_mut(nx).enumerate() {
-                let iy = at(1, y);
-                for (x, v) in row.iter_mut().enumerate() {
-                    *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+        data.par_chunks_mut(nx * ny)
+            .enumerate()
+            .for_each(|(z, slab)| {
+                let iz = at(2, z);
+                for (y, row) in slab.chunks_mut(nx).enumerate() {
+                    let iy = at(1, y);
+                    for (x, v) in row.iter_mut().enumerate() {
+                        *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+                    }
                 }
-            }
-        });
+            });
         Some(data)
     }
 
@@ -1752,9 +1754,7 @@ impl VdbSource {
             // The cell's lower corner relative to the copy; a cell not wholly inside it has
             // only zero voxels (the border and beyond), as the tree would say.
             let r = i.as_i64vec3() - cache.lo.as_i64vec3();
-            if r.cmplt(glam::I64Vec3::ZERO).any()
-                || r.cmpge((cache.dims - 1).as_i64vec3()).any()
-            {
+            if r.cmplt(glam::I64Vec3::ZERO).any() || r.cmpge((cache.dims - 1).as_i64vec3()).any() {
                 return 0.0;
             }
             let (sy, sz) = (cache.stride_y, cache.stride_z);
