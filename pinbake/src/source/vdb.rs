@@ -2226,7 +2226,7 @@ mod tests {
             worker_run(&p, None, false, &mut buf).unwrap();
             let mut st = parse_stream(&buf[..], size).unwrap();
             st.xf[0] = -st.xf[0];
-            st.xf[10] = -0.5 * st.xf[10];
+            st.xf[10] *= -0.5;
             st.xf[3] = 4.0;
             VdbSource::from_stream(&p, st, DensityScale::ONE).unwrap()
         };
