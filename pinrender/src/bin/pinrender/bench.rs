@@ -504,14 +504,21 @@ pub fn run(args: BenchArgs) -> Result<()> {
         let err = r["mean_abs_error"]
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
+        // The GPU's combined `both` row has no batched CPU counterpart.
+        let ratio = base / q;
+        let ratio = if ratio.is_finite() {
+            format!("{ratio:.1}")
+        } else {
+            "-".into()
+        };
         println!(
-            "{:<12} {:<12} {:<14} {:<5} {:>14.0} {:>10.1} {:>10}",
+            "{:<12} {:<12} {:<14} {:<5} {:>14.0} {:>10} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
             r["query"].as_str().unwrap_or(""),
             r["backend"].as_str().unwrap_or(""),
             q,
-            base / q,
+            ratio,
             err
         );
     }
