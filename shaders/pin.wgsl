@@ -431,7 +431,19 @@ fn empty_result(status: u32) -> QueryResult {
     return QueryResult(bitcast<f32>(inf_bits), 1.0, 0u, NO_ENTRY, 0u, NO_INTERVAL, status, rng_state);
 }
 
+// What a dispatch computes (the CPU's `Mode`): both estimates (`main`, the contract's
+// reference), the transmittance only (`main_transmittance`: no draws 5-6, distance +inf, no
+// hit) or the distance only (`main_distance`: transmittance 1, the chain stops at the first
+// collision). Each gives the integers and floats of the CPU's query of the same mode.
+const MODE_BOTH: u32 = 0u;
+const MODE_TRANSMITTANCE: u32 = 1u;
+const MODE_DISTANCE: u32 = 2u;
+
 fn query(ray: Ray) -> QueryResult {
+    return query_mode(ray, MODE_BOTH);
+}
+
+fn query_mode(ray: Ray, mode: u32) -> QueryResult {
     let o = xf_point(ray.origin);
     let d = xf_vector(ray.dir);
     let finite = is_finite_bits(o.x) && is_finite_bits(o.y) && is_finite_bits(o.z)
@@ -455,17 +467,20 @@ fn query(ray: Ray) -> QueryResult {
     if (stride == 0u || stride > 32u) {
         stride = 32u;
     }
+    let want_t = mode != MODE_DISTANCE;
     var piece = seg.a / stride;
-    var r = piece_query(o, d, piece_of(seg, piece, stride), false);
+    var r = piece_query(o, d, piece_of(seg, piece, stride), mode == MODE_TRANSMITTANCE, want_t);
     // Like the CPU's `query` (Mode::Both): after a collision the remaining pieces still
-    // multiply into the transmittance, without draws 5-6.
+    // multiply into the transmittance, without draws 5-6. A distance query stops at its
+    // collision.
     loop {
         let cur = piece_of(seg, piece, stride);
-        if (cur.b >= seg.b) {
+        if (cur.b >= seg.b || (mode == MODE_DISTANCE && r.hit != 0u)) {
             break;
         }
         piece = piece + 1u;
-        let n = piece_query(o, d, piece_of(seg, piece, stride), r.hit != 0u);
+        let skip_d = mode == MODE_TRANSMITTANCE || (mode == MODE_BOTH && r.hit != 0u);
+        let n = piece_query(o, d, piece_of(seg, piece, stride), skip_d, want_t);
         r.transmittance = r.transmittance * n.transmittance;
         r.popcount = r.popcount + n.popcount;
         if (r.hit == 0u && n.hit != 0u) {
@@ -508,8 +523,9 @@ fn piece_of(full: Segment, j: u32, stride: u32) -> Segment {
 }
 
 // One lookup over the piece `seg` (draws 1-6); `transmittance_only` skips draws 5-6 (a
-// collision was already sampled in an earlier piece).
-fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: bool) -> QueryResult {
+// transmittance query, or a collision was already sampled in an earlier piece);
+// `want_transmittance` false leaves the transmittance 1 (a distance query).
+fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: bool, want_transmittance: bool) -> QueryResult {
     // Draws 1-3: pin number, spatial jitter, directional jitter.
     let ppe = G.grid.y;
     let k = ((rng_next() >> 8u) * ppe) >> 24u;
@@ -591,7 +607,10 @@ fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: boo
         }
     }
     let popcount = countOneBits(mask & part);
-    var r = QueryResult(bitcast<f32>(inf_bits), pow_int(t_min, popcount), 0u, entry_id, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    var r = QueryResult(bitcast<f32>(inf_bits), 1.0, 0u, entry_id, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    if (want_transmittance) {
+        r.transmittance = pow_int(t_min, popcount);
+    }
 
     if (transmittance_only) {
         r.rng_state = rng_state;
@@ -627,8 +646,8 @@ fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: boo
     return r;
 }
 
-@compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+// One query of `mode` for invocation `gid` (shared by the three entry points).
+fn run_query(gid: vec3<u32>, mode: u32) {
     let i = gid.x + gid.y * P.run.w;
     if (i >= P.run.z) {
         return;
@@ -637,5 +656,20 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
     G = P;
     G_PIN_BASE = 0u;
     G_INDEX_BASE = 0u;
-    results[i] = query(rays[i]);
+    results[i] = query_mode(rays[i], mode);
+}
+
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) gid: vec3<u32>) {
+    run_query(gid, MODE_BOTH);
+}
+
+@compute @workgroup_size(64)
+fn main_transmittance(@builtin(global_invocation_id) gid: vec3<u32>) {
+    run_query(gid, MODE_TRANSMITTANCE);
+}
+
+@compute @workgroup_size(64)
+fn main_distance(@builtin(global_invocation_id) gid: vec3<u32>) {
+    run_query(gid, MODE_DISTANCE);
 }

@@ -58,7 +58,18 @@ pub struct BakeOptions {
     /// Recorded in the metadata; the source's density scale is already applied to values.
     pub density_scale: f64,
     pub metadata: Metadata,
+    /// The largest dense copy, in bytes, the bake may make of a sparse source (an
+    /// axis-aligned OpenVDB grid, [`DensitySource::dense_copy`]) to march it at the dense
+    /// grid's speed; 0 samples the sparse structure. The copy's samples agree with the
+    /// sparse ones to a few f32 ulps, not bit for bit (docs/performance.md), so this decides
+    /// bytes too.
+    pub dense_copy_bytes: u64,
 }
+
+/// [`BakeOptions::dense_copy_bytes`] by default: 1 GiB, a 645^3 active box. A fixed figure
+/// rather than a share of this machine's memory, so that the bytes of a library bake do not
+/// depend on where it runs; `pinbake bake` passes what its `--max-memory` leaves.
+pub const DEFAULT_DENSE_COPY_BYTES: u64 = 1 << 30;
 
 impl Default for BakeOptions {
     fn default() -> Self {
@@ -76,6 +87,7 @@ impl Default for BakeOptions {
             threads: None,
             density_scale: 1.0,
             metadata: Metadata::default(),
+            dense_copy_bytes: DEFAULT_DENSE_COPY_BYTES,
         }
     }
 }
@@ -307,7 +319,14 @@ fn bake_in_pool(
     };
     let shape = GridShape::new(&desc, tile.as_ref()).map_err(BakeError::Format)?;
     let placement = Placement::over(&bbox, opts.step);
-    let field = Field::of(source);
+    // A sparse source that fits the budget is copied once into a dense grid and marched on
+    // its voxels: a tree walk per sample costs several times a dense load (the smoke's
+    // default bake: docs/performance.md).
+    let copy = match source.as_dense_grid() {
+        Some(_) => None,
+        None => source.dense_copy(opts.dense_copy_bytes),
+    };
+    let field = copy.as_ref().map_or(Field::of(source), Field::Grid);
     let layout = PinLayout {
         dims: opts.cells,
         directions: opts.directions,

@@ -590,3 +590,153 @@ fn smoke_prefiltered_level_keeps_mass_but_blurs() {
         integration_error_of(Field::Mip(&mip), &smoke, &placement, 256, 16, 1)
     );
 }
+
+// ------------------------------------------------------------------------------------------
+// The dense copy a bake marches instead of the sparse tree.
+
+/// The smoke's dense copy holds the same field as the tree: every voxel value bit for bit,
+/// and everywhere the same corners and weights up to the f64 rounding of the continuous
+/// index (the two compute it in a different order): a few f32 ulps of the largest value.
+/// Its box covers the source's, and a budget below its size refuses it.
+#[test]
+fn smoke_dense_copy_is_the_same_field() {
+    let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
+    let copy = smoke
+        .dense_copy(u64::MAX)
+        .expect("an axis-aligned grid has a copy");
+    let (lo, hi) = smoke.index_bounds();
+    let n = (hi - lo + 3).as_uvec3();
+    assert_eq!(copy.dims(), n.to_array(), "one zero voxel beyond each side");
+    let bytes = u64::from(n.x) * u64::from(n.y) * u64::from(n.z) * 4;
+    assert!(smoke.dense_copy(bytes - 1).is_none());
+    assert!(smoke.dense_copy(bytes).is_some());
+    let (b, c) = (smoke.bounds(), copy.bounds());
+    assert!(
+        c.min.cmple(b.min).all() && c.max.cmpge(b.max).all(),
+        "{b:?} in {c:?}"
+    );
+
+    let mut rng = pinbake::rng::CounterRng::new(5, 0, 0);
+    let mut centres = 0;
+    for _ in 0..200_000 {
+        let f = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+        let i = (lo - 1).as_dvec3() + f * (hi - lo + 2).as_dvec3();
+        let v = IVec3::new(i.x.round() as i32, i.y.round() as i32, i.z.round() as i32);
+        // The stored values are the tree's, bit for bit (no mirrored axis here).
+        let j = (v - (lo - 1)).as_uvec3();
+        assert_eq!(
+            copy.voxel(j.x, j.y, j.z).map(f32::to_bits),
+            Some(smoke.voxel(v).to_bits()),
+            "voxel {v}"
+        );
+        centres += usize::from(smoke.voxel(v) > 0.0);
+        let p = smoke.index_to_world(i);
+        let (a, b) = (copy.extinction(p), smoke.extinction(p));
+        assert!(
+            (a - b).abs() <= 4.0 * f32::EPSILON * copy.max_value(),
+            "index {i}: copy {a}, tree {b}"
+        );
+    }
+    assert!(
+        centres > 10_000,
+        "too few occupied voxels sampled: {centres}"
+    );
+
+    // The bake's integration error (256 fixed pins against the 16x supersampled tree) is
+    // the same marching the copy as marching the tree.
+    use pinbake::pin::{Field, Placement, integration_error_of};
+    let (bbox, _) = pinbake::bake::bake_box(&smoke, true).unwrap();
+    let placement = Placement::over(&bbox, 0.01);
+    let tree = integration_error_of(Field::of(&smoke), &smoke, &placement, 256, 16, 1);
+    let dense = integration_error_of(Field::Grid(&copy), &smoke, &placement, 256, 16, 1);
+    println!("smoke integration error: tree {tree:?}, dense copy {dense:?}");
+    let (a, b) = (dense.mean_abs_transmittance, tree.mean_abs_transmittance);
+    assert!((a - b).abs() <= 1e-3 * b, "{dense:?} vs {tree:?}");
+}
+
+/// A bake marches the dense copy (`BakeOptions::dense_copy_bytes`) to about the same bytes as
+/// the tree: the copy's f32 index steps (`DenseGrid::march_runs`) move each sample by ~1e-7
+/// voxel, so a pin's optical depths differ in the last digits: most entries' `t_min` moves
+/// by a few f32 ulps, and a mask bit flips only where its draw falls in the sliver between
+/// the two ratios. Measured: the printed counts (`--nocapture`), docs/performance.md.
+#[test]
+fn smoke_bake_through_the_dense_copy_matches_the_tree() {
+    use pin_format::Directions;
+    let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
+    let opts = pinbake::BakeOptions {
+        cells: [8, 12, 8],
+        directions: Directions::Octahedral { n: 8 },
+        threads: Some(2),
+        ..pinbake::BakeOptions::default()
+    };
+    let (dense, _) = pinbake::bake(&smoke, &opts, &|_| {}).unwrap();
+    let tree_opts = pinbake::BakeOptions {
+        dense_copy_bytes: 0,
+        ..opts.clone()
+    };
+    let (tree, _) = pinbake::bake(&smoke, &tree_opts, &|_| {}).unwrap();
+    assert_eq!(dense.cell_index, tree.cell_index);
+    assert_eq!(dense.pins.len(), tree.pins.len());
+    // t_min = exp(-tau_max): the difference of the logs is the optical depths' difference.
+    let (mut entries, mut bits, mut worst) = (0usize, 0u32, 0.0f64);
+    for (a, b) in dense.pins.iter().zip(&tree.pins) {
+        if a != b {
+            entries += 1;
+        }
+        bits += (a.mask ^ b.mask).count_ones();
+        let (ta, tb) = (-f64::from(a.t_min).ln(), -f64::from(b.t_min).ln());
+        worst = worst.max((ta - tb).abs() / (1.0 + tb));
+    }
+    let n = dense.pins.len();
+    println!(
+        "smoke, {n} pins: {entries} entries differ, {bits} of {} mask bits, largest \
+         |tau_max difference| / (1 + tau_max) {worst:e}",
+        n * 32
+    );
+    assert!(worst < 3e-5, "tau_max moved by {worst:e}");
+    assert!(bits as usize * 10_000 < n * 32, "{bits} mask bits differ");
+}
+
+/// The renderer's dense cache changes where the corners come from, not a bit of any sample:
+/// point samples and batched lines through the smoke, inside, on and outside the box, give
+/// the same bits with and without it; a budget below its size leaves the tree.
+#[test]
+fn smoke_dense_cache_samples_the_same_bits() {
+    let tree = open_vdb("openvdb_smoke1.vdb", None).unwrap();
+    let (lo, hi) = tree.index_bounds();
+    let n = (hi - lo + 3).as_uvec3();
+    let bytes = u64::from(n.x) * u64::from(n.y) * u64::from(n.z) * 4;
+    let refused = open_vdb("openvdb_smoke1.vdb", None)
+        .unwrap()
+        .with_dense_cache(bytes - 1);
+    assert!(!refused.has_dense_cache());
+    let cached = open_vdb("openvdb_smoke1.vdb", None)
+        .unwrap()
+        .with_dense_cache(bytes);
+    assert!(cached.has_dense_cache());
+    let b = tree.bounds();
+    let mut rng = pinbake::rng::CounterRng::new(9, 0, 0);
+    let mut nonzero = 0;
+    let (mut a, mut c) = ([0.0f32; 64], [0.0f32; 64]);
+    for k in 0..100_000 {
+        // Points over a box 10% larger than the source's, and every 16th one on a voxel
+        // centre or a box face.
+        let f = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) * 1.2 - 0.1;
+        let mut p = b.min + f * b.extent();
+        if k % 16 == 0 {
+            p = tree.index_to_world(tree.world_to_index(p).round());
+        } else if k % 16 == 1 {
+            p.x = b.max.x;
+        }
+        let (x, y) = (tree.extinction(p), cached.extinction(p));
+        assert_eq!(x.to_bits(), y.to_bits(), "{p}: tree {x}, cached {y}");
+        nonzero += usize::from(x > 0.0);
+        if k % 100 == 0 {
+            let step = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64()) - 0.5;
+            tree.extinction_along(p, step, 64, &mut a);
+            cached.extinction_along(p, step, 64, &mut c);
+            assert_eq!(a.map(f32::to_bits), c.map(f32::to_bits), "line from {p}");
+        }
+    }
+    assert!(nonzero > 10_000, "too few samples in the smoke: {nonzero}");
+}

@@ -27,13 +27,44 @@ pub const ULP_BOUND: u32 = 0;
 /// Threads per workgroup in `pin.wgsl`.
 pub const WORKGROUP_SIZE: u32 = 64;
 
-/// An adapter, device and the compiled query pipeline.
+/// What a dispatch computes: one entry point of `pin.wgsl` each, with the results of the
+/// CPU query of the same kind ([`crate::Sampler::query`], [`crate::Sampler::transmittance`],
+/// [`crate::Sampler::sample_distance`]), integers and final generator included.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum QueryMode {
+    /// Distance and transmittance from one lookup (`main`).
+    Both,
+    /// The transmittance only (`main_transmittance`): no sample-mask draws; distance `+inf`,
+    /// no hit.
+    Transmittance,
+    /// The distance only (`main_distance`): transmittance 1, a chain stops at its collision.
+    Distance,
+}
+
+impl QueryMode {
+    /// The entry point of `pin.wgsl` that answers this mode.
+    pub fn entry_point(self) -> &'static str {
+        match self {
+            QueryMode::Both => "main",
+            QueryMode::Transmittance => "main_transmittance",
+            QueryMode::Distance => "main_distance",
+        }
+    }
+
+    const ALL: [QueryMode; 3] = [
+        QueryMode::Both,
+        QueryMode::Transmittance,
+        QueryMode::Distance,
+    ];
+}
+
+/// An adapter, device and the compiled query pipelines (one per [`QueryMode`]).
 pub struct GpuContext {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub adapter_info: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
-    pipeline: wgpu::ComputePipeline,
+    pipelines: [wgpu::ComputePipeline; 3],
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -94,13 +125,15 @@ impl GpuContext {
             label: Some("pin.wgsl"),
             source: wgpu::ShaderSource::Wgsl(crate::PIN_WGSL.into()),
         });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("pin queries"),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
+        let pipelines = QueryMode::ALL.map(|mode| {
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(mode.entry_point()),
+                layout: None,
+                module: &module,
+                entry_point: Some(mode.entry_point()),
+                compilation_options: Default::default(),
+                cache: None,
+            })
         });
         if let Some(e) = scope.pop().await {
             return Err(gpu_err("compiling shaders/pin.wgsl", e));
@@ -110,7 +143,7 @@ impl GpuContext {
             queue,
             adapter_info,
             limits,
-            pipeline,
+            pipelines,
         })
     }
 
@@ -223,7 +256,7 @@ pub fn check_binding(limit: u64, what: &str, len: usize) -> Result<()> {
 pub struct GpuPinGrid {
     device: wgpu::Device,
     queue: wgpu::Queue,
-    pipeline: wgpu::ComputePipeline,
+    pipelines: [wgpu::ComputePipeline; 3],
     limits: wgpu::Limits,
     pins: wgpu::Buffer,
     index: wgpu::Buffer,
@@ -279,7 +312,7 @@ impl GpuPinGrid {
         Ok(Self {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
-            pipeline: ctx.pipeline.clone(),
+            pipelines: ctx.pipelines.clone(),
             limits: ctx.limits.clone(),
             pins,
             index,
@@ -296,17 +329,36 @@ impl GpuPinGrid {
         seed: u32,
         first_index: u32,
     ) -> Result<Vec<GpuResult>> {
+        self.run_queries_mode(rays, seed, first_index, QueryMode::Both)
+    }
+
+    /// [`Self::run_queries`] for one kind of query: the transmittance-only and distance-only
+    /// dispatches skip the other estimate's work, as the CPU's single-purpose queries do.
+    pub fn run_queries_mode(
+        &self,
+        rays: &[GpuRay],
+        seed: u32,
+        first_index: u32,
+        mode: QueryMode,
+    ) -> Result<Vec<GpuResult>> {
         let mut out = Vec::with_capacity(rays.len());
         let per_binding = binding_limit(&self.limits) / 32;
         let chunk = (per_binding as usize).clamp(WORKGROUP_SIZE as usize, 1 << 22);
         for (c, part) in rays.chunks(chunk).enumerate() {
             let first = first_index.wrapping_add((c * chunk) as u32);
-            out.extend(pollster::block_on(self.run_chunk(part, seed, first))?);
+            out.extend(pollster::block_on(self.run_chunk(part, seed, first, mode))?);
         }
         Ok(out)
     }
 
-    async fn run_chunk(&self, rays: &[GpuRay], seed: u32, first: u32) -> Result<Vec<GpuResult>> {
+    async fn run_chunk(
+        &self,
+        rays: &[GpuRay],
+        seed: u32,
+        first: u32,
+        mode: QueryMode,
+    ) -> Result<Vec<GpuResult>> {
+        let pipeline = &self.pipelines[mode as usize];
         let n = rays.len() as u32;
         let groups = n.div_ceil(WORKGROUP_SIZE);
         let max_x = self.limits.max_compute_workgroups_per_dimension.max(1);
@@ -339,7 +391,7 @@ impl GpuPinGrid {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let layout = self.pipeline.get_bind_group_layout(0);
+        let layout = pipeline.get_bind_group_layout(0);
         let bind = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("pin queries"),
             layout: &layout,
@@ -374,7 +426,7 @@ impl GpuPinGrid {
                 label: Some("pin queries"),
                 timestamp_writes: None,
             });
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(pipeline);
             pass.set_bind_group(0, &bind, &[]);
             pass.dispatch_workgroups(gx, gy, 1);
         }
@@ -616,6 +668,25 @@ mod tests {
         for r in &got {
             assert!(r.transmittance.is_finite() && (0.0..=1.0).contains(&r.transmittance));
             assert!(r.hit == 0 || r.distance.is_finite());
+        }
+        // The single-purpose dispatches against the CPU's queries of the same kind.
+        for mode in [QueryMode::Transmittance, QueryMode::Distance] {
+            let got = gpu.run_queries_mode(&rays, seed, first, mode).unwrap();
+            let mut want = vec![QueryResult::empty_for_tests(); rays.len()];
+            sampler.query_batch_mode(&rays, seed, first, mode, &mut want);
+            let a = Agreement::compare(&want, &got);
+            assert_eq!(a.integer_mismatches, 0, "[{name}] {mode:?}: {a:?}");
+            assert!(
+                a.transmittance_max_ulp <= ULP_BOUND && a.distance_max_ulp <= ULP_BOUND,
+                "[{name}] {mode:?}: floats beyond {ULP_BOUND} ulp: {a:?}"
+            );
+            let hits = got.iter().filter(|r| r.hit == 1).count();
+            let dimmed = got.iter().filter(|r| r.transmittance < 1.0).count();
+            match mode {
+                // Neither estimate leaks into the other's dispatch.
+                QueryMode::Transmittance => assert!(hits == 0 && dimmed > 0, "{hits} {dimmed}"),
+                _ => assert!(dimmed == 0 && hits > 0, "{hits} {dimmed}"),
+            }
         }
     }
 

@@ -860,6 +860,26 @@ impl<'g> Sampler<'g> {
         self.batch(rays, seed, first_index, Mode::Both, |i, r| out[i] = r);
     }
 
+    /// Full results of many rays for one kind of query, seeded like
+    /// [`Self::query_batch`]: the reference of the GPU's single-purpose dispatches.
+    #[cfg(all(test, feature = "gpu"))]
+    pub(crate) fn query_batch_mode(
+        &self,
+        rays: &[RayQuery],
+        seed: u32,
+        first_index: u32,
+        mode: crate::gpu::QueryMode,
+        out: &mut [QueryResult],
+    ) {
+        use crate::gpu::QueryMode;
+        let mode = match mode {
+            QueryMode::Both => Mode::Both,
+            QueryMode::Transmittance => Mode::Transmittance,
+            QueryMode::Distance => Mode::Distance,
+        };
+        self.batch(rays, seed, first_index, mode, |i, r| out[i] = r);
+    }
+
     /// Transmittance of many rays, ray `i` with its own generator `rngs[i]`, which is
     /// advanced exactly as [`Self::transmittance`] advances it: the results and the
     /// generators afterwards equal those of one single query per ray. For callers that own

@@ -65,6 +65,9 @@ const float TWO_32_ = 4294967300.0;
 const uint PCG_MUL = 747796405u;
 const uint PCG_INC = 2891336453u;
 const uint PCG_OUT_MUL = 277803737u;
+const uint MODE_BOTH = 0u;
+const uint MODE_TRANSMITTANCE = 1u;
+const uint MODE_DISTANCE = 2u;
 
 layout(std140, binding = 0) uniform Params_block_0Compute { Params _group_0_binding_0_cs; };
 
@@ -614,7 +617,7 @@ QueryResult empty_result(uint status) {
     return QueryResult(uintBitsToFloat(_e2), 1.0, 0u, NO_ENTRY, 0u, NO_INTERVAL, status, _e9);
 }
 
-QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only) {
+QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only, bool want_transmittance) {
     bool local_10 = false;
     vec3 sxi = vec3(0.0, 0.0, 0.0);
     bool local_11 = false;
@@ -637,39 +640,39 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
     float hi_1 = 0.0;
     float t_2 = 0.0;
     uint ppe = G.grid.y;
-    uint _e8 = rng_next();
-    uint k_1 = (((_e8 >> 8u) * ppe) >> 24u);
-    float _e17 = G.jitter.x;
-    if ((_e17 > 0.0)) {
-        float _e25 = G.jitter.x;
-        bool _e26 = is_finite_bits(_e25);
-        local_10 = _e26;
+    uint _e9 = rng_next();
+    uint k_1 = (((_e9 >> 8u) * ppe) >> 24u);
+    float _e18 = G.jitter.x;
+    if ((_e18 > 0.0)) {
+        float _e26 = G.jitter.x;
+        bool _e27 = is_finite_bits(_e26);
+        local_10 = _e27;
     } else {
         local_10 = false;
     }
     bool sj = local_10;
     if (sj) {
-        float _e35 = rng_f32_();
-        sxi.x = _e35;
-        float _e37 = rng_f32_();
-        sxi.y = _e37;
-        float _e39 = rng_f32_();
-        sxi.z = _e39;
+        float _e36 = rng_f32_();
+        sxi.x = _e36;
+        float _e38 = rng_f32_();
+        sxi.y = _e38;
+        float _e40 = rng_f32_();
+        sxi.z = _e40;
     }
-    float _e43 = G.jitter.y;
-    if ((_e43 > 0.0)) {
-        float _e51 = G.jitter.y;
-        bool _e52 = is_finite_bits(_e51);
-        local_11 = _e52;
+    float _e44 = G.jitter.y;
+    if ((_e44 > 0.0)) {
+        float _e52 = G.jitter.y;
+        bool _e53 = is_finite_bits(_e52);
+        local_11 = _e53;
     } else {
         local_11 = false;
     }
     bool dj = local_11;
     if (dj) {
-        float _e59 = rng_f32_();
-        dxi0_ = _e59;
         float _e60 = rng_f32_();
-        dxi1_ = _e60;
+        dxi0_ = _e60;
+        float _e61 = rng_f32_();
+        dxi1_ = _e61;
     }
     bool reversed = (d_2.z < 0.0);
     dl = d_2;
@@ -677,142 +680,145 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
         dl = -(d_2);
     }
     t0_1 = seg.t0_;
-    float _e71 = G.jitter.w;
-    if ((_e71 != 0.0)) {
+    float _e72 = G.jitter.w;
+    if ((_e72 != 0.0)) {
         t0_1 = (0.5 * (seg.t0_ + seg.t1_));
     }
-    float _e81 = t0_1;
-    float _e86 = t0_1;
-    float _e91 = t0_1;
-    vec3 p_2 = vec3((o_1.x + (d_2.x * _e81)), (o_1.y + (d_2.y * _e86)), (o_1.z + (d_2.z * _e91)));
-    uint _e99 = G.dims.x;
-    uint _e106 = G.dims.y;
-    uint _e113 = G.dims.z;
-    c_1 = vec3((p_2.x * float(_e99)), (p_2.y * float(_e106)), (p_2.z * float(_e113)));
+    float _e82 = t0_1;
+    float _e87 = t0_1;
+    float _e92 = t0_1;
+    vec3 p_2 = vec3((o_1.x + (d_2.x * _e82)), (o_1.y + (d_2.y * _e87)), (o_1.z + (d_2.z * _e92)));
+    uint _e100 = G.dims.x;
+    uint _e107 = G.dims.y;
+    uint _e114 = G.dims.z;
+    c_1 = vec3((p_2.x * float(_e100)), (p_2.y * float(_e107)), (p_2.z * float(_e114)));
     if (sj) {
-        float _e120 = c_1.x;
-        float _e122 = sxi.x;
-        float _e128 = G.jitter.x;
-        c_1.x = (_e120 + ((_e122 - 0.5) * _e128));
-        float _e133 = c_1.y;
-        float _e135 = sxi.y;
-        float _e141 = G.jitter.x;
-        c_1.y = (_e133 + ((_e135 - 0.5) * _e141));
-        float _e146 = c_1.z;
-        float _e148 = sxi.z;
-        float _e154 = G.jitter.x;
-        c_1.z = (_e146 + ((_e148 - 0.5) * _e154));
+        float _e121 = c_1.x;
+        float _e123 = sxi.x;
+        float _e129 = G.jitter.x;
+        c_1.x = (_e121 + ((_e123 - 0.5) * _e129));
+        float _e134 = c_1.y;
+        float _e136 = sxi.y;
+        float _e142 = G.jitter.x;
+        c_1.y = (_e134 + ((_e136 - 0.5) * _e142));
+        float _e147 = c_1.z;
+        float _e149 = sxi.z;
+        float _e155 = G.jitter.x;
+        c_1.z = (_e147 + ((_e149 - 0.5) * _e155));
     }
-    float _e158 = c_1.x;
-    uint _e162 = G.dims.x;
-    uint _e163 = bin(_e158, _e162);
-    float _e165 = c_1.y;
-    uint _e169 = G.dims.y;
-    uint _e170 = bin(_e165, _e169);
-    float _e172 = c_1.z;
-    uint _e176 = G.dims.z;
-    uint _e177 = bin(_e172, _e176);
-    vec3 _e178 = dl;
-    float _e182 = G.jitter.y;
-    float _e183 = dxi0_;
-    float _e184 = dxi1_;
-    uint _e185 = direction_cell(_e178, dj, _e182, _e183, _e184);
-    uint _e195 = G.dims.w;
-    if ((_e177 >= _e195)) {
-        uint _e202 = G.grid.x;
-        local_12 = (_e177 < _e202);
+    float _e159 = c_1.x;
+    uint _e163 = G.dims.x;
+    uint _e164 = bin(_e159, _e163);
+    float _e166 = c_1.y;
+    uint _e170 = G.dims.y;
+    uint _e171 = bin(_e166, _e170);
+    float _e173 = c_1.z;
+    uint _e177 = G.dims.z;
+    uint _e178 = bin(_e173, _e177);
+    vec3 _e179 = dl;
+    float _e183 = G.jitter.y;
+    float _e184 = dxi0_;
+    float _e185 = dxi1_;
+    uint _e186 = direction_cell(_e179, dj, _e183, _e184, _e185);
+    uint _e196 = G.dims.w;
+    if ((_e178 >= _e196)) {
+        uint _e203 = G.grid.x;
+        local_12 = (_e178 < _e203);
     } else {
         local_12 = false;
     }
-    bool _e205 = local_12;
-    if (_e205) {
-        uint _e209 = G.dims.x;
-        uint _e213 = G.dims.y;
-        uint _e217 = G.dims.w;
-        uint local_26 = (_e163 + (_e209 * (_e170 + (_e213 * (_e177 - _e217)))));
-        block = local_26;
-        uint _e229 = G.dirs.w;
-        if ((_e229 != 0u)) {
-            uint _e234 = G_INDEX_BASE;
-            uint _e237 = _group_0_binding_2_cs[(_e234 + local_26)];
-            block = _e237;
-            uint _e238 = block;
-            if ((_e238 != EMPTY_CELL)) {
-                uint _e243 = block;
-                uint _e247 = G.grid.w;
-                local_13 = (_e243 < _e247);
+    bool _e206 = local_12;
+    if (_e206) {
+        uint _e210 = G.dims.x;
+        uint _e214 = G.dims.y;
+        uint _e218 = G.dims.w;
+        uint local_30 = (_e164 + (_e210 * (_e171 + (_e214 * (_e178 - _e218)))));
+        block = local_30;
+        uint _e230 = G.dirs.w;
+        if ((_e230 != 0u)) {
+            uint _e235 = G_INDEX_BASE;
+            uint _e238 = _group_0_binding_2_cs[(_e235 + local_30)];
+            block = _e238;
+            uint _e239 = block;
+            if ((_e239 != EMPTY_CELL)) {
+                uint _e244 = block;
+                uint _e248 = G.grid.w;
+                local_13 = (_e244 < _e248);
             } else {
                 local_13 = false;
             }
-            bool _e250 = local_13;
-            present = _e250;
+            bool _e251 = local_13;
+            present = _e251;
         }
-        uint within = ((_e185 * ppe) + k_1);
-        bool _e253 = present;
-        if (_e253) {
-            uint _e259 = G.grid.z;
-            local_14 = (within < _e259);
+        uint within = ((_e186 * ppe) + k_1);
+        bool _e254 = present;
+        if (_e254) {
+            uint _e260 = G.grid.z;
+            local_14 = (within < _e260);
         } else {
             local_14 = false;
         }
-        bool _e262 = local_14;
-        if (_e262) {
-            uint _e263 = block;
-            uint _e267 = G.grid.z;
-            entry_id = ((_e263 * _e267) + within);
-            uint _e272 = G_PIN_BASE;
-            uint _e273 = entry_id;
-            uvec2 e = _group_0_binding_1_cs[(_e272 + _e273)];
+        bool _e263 = local_14;
+        if (_e263) {
+            uint _e264 = block;
+            uint _e268 = G.grid.z;
+            entry_id = ((_e264 * _e268) + within);
+            uint _e273 = G_PIN_BASE;
+            uint _e274 = entry_id;
+            uvec2 e = _group_0_binding_1_cs[(_e273 + _e274)];
             mask = e.x;
             t_min = uintBitsToFloat(e.y);
         }
     }
-    float _e280 = rng_f32_();
     float _e281 = rng_f32_();
-    float _e282 = t_min;
-    float _e283 = sanitize_t_min(_e282);
-    t_min = _e283;
+    float _e282 = rng_f32_();
+    float _e283 = t_min;
+    float _e284 = sanitize_t_min(_e283);
+    t_min = _e284;
     if (reversed) {
-        uint _e284 = mask;
-        mask = bitfieldReverse(_e284);
+        uint _e285 = mask;
+        mask = bitfieldReverse(_e285);
     }
-    uint _e288 = interval_range(seg.a, seg.b);
-    part = _e288;
+    uint _e289 = interval_range(seg.a, seg.b);
+    part = _e289;
     if ((seg.a == seg.b)) {
-        if (!((_e280 < (seg.s1_ - seg.s0_)))) {
+        if (!((_e281 < (seg.s1_ - seg.s0_)))) {
             part = 0u;
         }
     } else {
-        if (!((_e280 < (float((seg.a + 1u)) - seg.s0_)))) {
-            uint _e307 = part;
-            uint _e309 = interval_bit(seg.a);
-            part = (_e307 & ~(_e309));
+        if (!((_e281 < (float((seg.a + 1u)) - seg.s0_)))) {
+            uint _e308 = part;
+            uint _e310 = interval_bit(seg.a);
+            part = (_e308 & ~(_e310));
         }
-        if (!((_e281 < (seg.s1_ - float(seg.b))))) {
-            uint _e318 = part;
-            uint _e320 = interval_bit(seg.b);
-            part = (_e318 & ~(_e320));
+        if (!((_e282 < (seg.s1_ - float(seg.b))))) {
+            uint _e319 = part;
+            uint _e321 = interval_bit(seg.b);
+            part = (_e319 & ~(_e321));
         }
     }
-    uint _e323 = mask;
-    uint _e324 = part;
-    uint popcount = uint(bitCount((_e323 & _e324)));
-    uint _e328 = inf_bits;
-    float _e330 = t_min;
-    float _e331 = pow_int(_e330, popcount);
-    uint _e333 = entry_id;
-    r_1 = QueryResult(uintBitsToFloat(_e328), _e331, 0u, _e333, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    uint _e324 = mask;
+    uint _e325 = part;
+    uint popcount = uint(bitCount((_e324 & _e325)));
+    uint _e329 = inf_bits;
+    uint _e332 = entry_id;
+    r_1 = QueryResult(uintBitsToFloat(_e329), 1.0, 0u, _e332, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    if (want_transmittance) {
+        float _e340 = t_min;
+        float _e341 = pow_int(_e340, popcount);
+        r_1.transmittance = _e341;
+    }
     if (transmittance_only) {
-        uint _e341 = rng_state;
-        r_1.rng_state = _e341;
-        QueryResult _e342 = r_1;
-        return _e342;
+        uint _e344 = rng_state;
+        r_1.rng_state = _e344;
+        QueryResult _e345 = r_1;
+        return _e345;
     }
-    float _e343 = t_min;
-    uint _e344 = exact_sample_mask(_e343);
-    uint _e345 = mask;
-    uint _e346 = part;
-    uint m = ((_e345 & _e346) & _e344);
+    float _e346 = t_min;
+    uint _e347 = exact_sample_mask(_e346);
+    uint _e348 = mask;
+    uint _e349 = part;
+    uint m = ((_e348 & _e349) & _e347);
     if ((m != 0u)) {
         uint j_3 = uint(31 - findMSB(m));
         lo_1 = float(j_3);
@@ -823,29 +829,29 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
         if ((j_3 == seg.b)) {
             hi_1 = seg.s1_;
         }
-        float _e364 = rng_f32_();
-        float _e365 = lo_1;
-        float _e366 = hi_1;
-        float _e367 = lo_1;
-        float s_2 = (_e365 + (_e364 * (_e366 - _e367)));
+        float _e367 = rng_f32_();
+        float _e368 = lo_1;
+        float _e369 = hi_1;
+        float _e370 = lo_1;
+        float s_2 = (_e368 + (_e367 * (_e369 - _e370)));
         t_2 = (seg.t_enter + (s_2 * seg.interval_len));
-        float _e376 = t_2;
-        if (!((_e376 > seg.t0_))) {
+        float _e379 = t_2;
+        if (!((_e379 > seg.t0_))) {
             t_2 = seg.t0_;
         }
-        float _e381 = t_2;
-        if (!((_e381 < seg.t1_))) {
+        float _e384 = t_2;
+        if (!((_e384 < seg.t1_))) {
             t_2 = seg.t1_;
         }
-        float _e387 = t_2;
-        r_1.distance_ = _e387;
+        float _e390 = t_2;
+        r_1.distance_ = _e390;
         r_1.hit = 1u;
         r_1.interval = j_3;
     }
-    uint _e393 = rng_state;
-    r_1.rng_state = _e393;
-    QueryResult _e394 = r_1;
-    return _e394;
+    uint _e396 = rng_state;
+    r_1.rng_state = _e396;
+    QueryResult _e397 = r_1;
+    return _e397;
 }
 
 Segment piece_of(Segment full, uint j_2, uint stride) {
@@ -884,7 +890,7 @@ Segment piece_of(Segment full, uint j_2, uint stride) {
     return _e47;
 }
 
-QueryResult query(Ray ray) {
+QueryResult query_mode(Ray ray, uint mode) {
     bool local_15 = false;
     bool local_16 = false;
     bool local_17 = false;
@@ -899,40 +905,44 @@ QueryResult query(Ray ray) {
     uint piece = 0u;
     QueryResult r_2 = QueryResult(0.0, 0.0, 0u, 0u, 0u, 0u, 0u, 0u);
     bool local_25 = false;
-    vec3 _e2 = xf_point(ray.origin);
-    vec3 _e4 = xf_vector(ray.dir);
-    bool _e6 = is_finite_bits(_e2.x);
-    if (_e6) {
-        bool _e10 = is_finite_bits(_e2.y);
-        local_15 = _e10;
+    bool local_26 = false;
+    bool local_27 = false;
+    bool local_28 = false;
+    bool local_29 = false;
+    vec3 _e3 = xf_point(ray.origin);
+    vec3 _e5 = xf_vector(ray.dir);
+    bool _e7 = is_finite_bits(_e3.x);
+    if (_e7) {
+        bool _e11 = is_finite_bits(_e3.y);
+        local_15 = _e11;
     } else {
         local_15 = false;
     }
-    bool _e12 = local_15;
-    if (_e12) {
-        bool _e16 = is_finite_bits(_e2.z);
-        local_16 = _e16;
+    bool _e13 = local_15;
+    if (_e13) {
+        bool _e17 = is_finite_bits(_e3.z);
+        local_16 = _e17;
     } else {
         local_16 = false;
     }
-    bool _e18 = local_16;
-    if (_e18) {
-        bool _e22 = is_finite_bits(_e4.x);
-        local_17 = _e22;
+    bool _e19 = local_16;
+    if (_e19) {
+        bool _e23 = is_finite_bits(_e5.x);
+        local_17 = _e23;
     } else {
         local_17 = false;
     }
-    bool _e24 = local_17;
-    if (_e24) {
-        bool _e28 = is_finite_bits(_e4.y);
-        local_18 = _e28;
+    bool _e25 = local_17;
+    if (_e25) {
+        bool _e29 = is_finite_bits(_e5.y);
+        local_18 = _e29;
     } else {
         local_18 = false;
     }
-    bool _e30 = local_18;
-    if (_e30) {
-        bool _e34 = is_finite_bits(_e4.z);
-        local_19 = _e34;
+    bool _e31 = local_18;
+    if (_e31) {
+        bool _e35 = is_finite_bits(_e5.z);
+        local_19 = _e35;
     } else {
         local_19 = false;
     }
@@ -943,116 +953,152 @@ QueryResult query(Ray ray) {
     } else {
         local_20 = true;
     }
-    bool _e48 = local_20;
-    if (!(_e48)) {
-        if ((_e4.x == 0.0)) {
-            local_22 = (_e4.y == 0.0);
+    bool _e49 = local_20;
+    if (!(_e49)) {
+        if ((_e5.x == 0.0)) {
+            local_22 = (_e5.y == 0.0);
         } else {
             local_22 = false;
         }
-        bool _e61 = local_22;
-        if (_e61) {
-            local_23 = (_e4.z == 0.0);
+        bool _e62 = local_22;
+        if (_e62) {
+            local_23 = (_e5.z == 0.0);
         } else {
             local_23 = false;
         }
-        bool _e68 = local_23;
-        local_21 = _e68;
+        bool _e69 = local_23;
+        local_21 = _e69;
     } else {
         local_21 = true;
     }
-    bool _e70 = local_21;
-    if (_e70) {
-        QueryResult _e72 = empty_result(STATUS_INVALID);
-        return _e72;
+    bool _e71 = local_21;
+    if (_e71) {
+        QueryResult _e73 = empty_result(STATUS_INVALID);
+        return _e73;
     }
-    Chord _e73 = unit_cube_chord(_e2, _e4);
-    if (!(_e73.ok)) {
-        QueryResult _e77 = empty_result(STATUS_MISS);
-        return _e77;
+    Chord _e74 = unit_cube_chord(_e3, _e5);
+    if (!(_e74.ok)) {
+        QueryResult _e78 = empty_result(STATUS_MISS);
+        return _e78;
     }
-    Segment _e79 = make_segment(_e73, ray.t_max);
-    if (!(_e79.ok)) {
-        QueryResult _e83 = empty_result(STATUS_MISS);
-        return _e83;
+    Segment _e80 = make_segment(_e74, ray.t_max);
+    if (!(_e80.ok)) {
+        QueryResult _e84 = empty_result(STATUS_MISS);
+        return _e84;
     }
-    float _e87 = G.jitter.z;
-    stride_1 = uint(_e87);
-    uint _e90 = stride_1;
-    if (!((_e90 == 0u))) {
-        uint _e96 = stride_1;
-        local_24 = (_e96 > 32u);
+    float _e88 = G.jitter.z;
+    stride_1 = uint(_e88);
+    uint _e91 = stride_1;
+    if (!((_e91 == 0u))) {
+        uint _e97 = stride_1;
+        local_24 = (_e97 > 32u);
     } else {
         local_24 = true;
     }
-    bool _e100 = local_24;
-    if (_e100) {
+    bool _e101 = local_24;
+    if (_e101) {
         stride_1 = 32u;
     }
-    uint _e103 = stride_1;
-    piece = (_e79.a / _e103);
-    uint _e106 = piece;
-    uint _e107 = stride_1;
-    Segment _e108 = piece_of(_e79, _e106, _e107);
-    QueryResult _e110 = piece_query(_e2, _e4, _e108, false);
-    r_2 = _e110;
+    bool want_t = (mode != MODE_DISTANCE);
+    uint _e106 = stride_1;
+    piece = (_e80.a / _e106);
+    uint _e109 = piece;
+    uint _e110 = stride_1;
+    Segment _e111 = piece_of(_e80, _e109, _e110);
+    QueryResult _e114 = piece_query(_e3, _e5, _e111, (mode == MODE_TRANSMITTANCE), want_t);
+    r_2 = _e114;
     while(true) {
-        uint _e112 = piece;
-        uint _e113 = stride_1;
-        Segment _e114 = piece_of(_e79, _e112, _e113);
-        if ((_e114.b >= _e79.b)) {
+        uint _e116 = piece;
+        uint _e117 = stride_1;
+        Segment _e118 = piece_of(_e80, _e116, _e117);
+        if (!((_e118.b >= _e80.b))) {
+            if ((mode == MODE_DISTANCE)) {
+                uint _e130 = r_2.hit;
+                local_26 = (_e130 != 0u);
+            } else {
+                local_26 = false;
+            }
+            bool _e134 = local_26;
+            local_25 = _e134;
+        } else {
+            local_25 = true;
+        }
+        bool _e136 = local_25;
+        if (_e136) {
             break;
         }
-        uint _e118 = piece;
-        piece = (_e118 + 1u);
-        uint _e121 = piece;
-        uint _e122 = stride_1;
-        Segment _e123 = piece_of(_e79, _e121, _e122);
-        uint _e125 = r_2.hit;
-        QueryResult _e128 = piece_query(_e2, _e4, _e123, (_e125 != 0u));
-        float _e131 = r_2.transmittance;
-        r_2.transmittance = (_e131 * _e128.transmittance);
-        uint _e136 = r_2.popcount;
-        r_2.popcount = (_e136 + _e128.popcount);
-        uint _e140 = r_2.hit;
-        if ((_e140 == 0u)) {
-            local_25 = (_e128.hit != 0u);
+        uint _e137 = piece;
+        piece = (_e137 + 1u);
+        if (!((mode == MODE_TRANSMITTANCE))) {
+            if ((mode == MODE_BOTH)) {
+                uint _e150 = r_2.hit;
+                local_28 = (_e150 != 0u);
+            } else {
+                local_28 = false;
+            }
+            bool _e154 = local_28;
+            local_27 = _e154;
         } else {
-            local_25 = false;
+            local_27 = true;
         }
-        bool _e149 = local_25;
-        if (_e149) {
+        bool skip_d = local_27;
+        uint _e157 = piece;
+        uint _e158 = stride_1;
+        Segment _e159 = piece_of(_e80, _e157, _e158);
+        QueryResult _e160 = piece_query(_e3, _e5, _e159, skip_d, want_t);
+        float _e163 = r_2.transmittance;
+        r_2.transmittance = (_e163 * _e160.transmittance);
+        uint _e168 = r_2.popcount;
+        r_2.popcount = (_e168 + _e160.popcount);
+        uint _e172 = r_2.hit;
+        if ((_e172 == 0u)) {
+            local_29 = (_e160.hit != 0u);
+        } else {
+            local_29 = false;
+        }
+        bool _e181 = local_29;
+        if (_e181) {
             r_2.hit = 1u;
-            r_2.distance_ = _e128.distance_;
-            r_2.interval = _e128.interval;
+            r_2.distance_ = _e160.distance_;
+            r_2.interval = _e160.interval;
         }
     }
-    uint _e158 = rng_state;
-    r_2.rng_state = _e158;
-    QueryResult _e159 = r_2;
-    return _e159;
+    uint _e190 = rng_state;
+    r_2.rng_state = _e190;
+    QueryResult _e191 = r_2;
+    return _e191;
+}
+
+QueryResult query(Ray ray_1) {
+    QueryResult _e2 = query_mode(ray_1, MODE_BOTH);
+    return _e2;
+}
+
+void run_query(uvec3 gid_3, uint mode_1) {
+    uint _e7 = _group_0_binding_0_cs.run.w;
+    uint i_1 = (gid_3.x + (gid_3.y * _e7));
+    uint _e13 = _group_0_binding_0_cs.run.z;
+    if ((i_1 >= _e13)) {
+        return;
+    }
+    uint _e19 = _group_0_binding_0_cs.run.x;
+    uint _e20 = pcg_hash(_e19);
+    uint _e24 = _group_0_binding_0_cs.run.y;
+    uint _e27 = pcg_hash((_e20 ^ (_e24 + i_1)));
+    rng_state = _e27;
+    Params _e30 = _group_0_binding_0_cs;
+    G = _e30;
+    G_PIN_BASE = 0u;
+    G_INDEX_BASE = 0u;
+    Ray _e39 = _group_0_binding_3_cs[i_1];
+    QueryResult _e40 = query_mode(_e39, mode_1);
+    _group_0_binding_4_cs[i_1] = _e40;
+    return;
 }
 
 void main() {
     uvec3 gid = gl_GlobalInvocationID;
-    uint _e6 = _group_0_binding_0_cs.run.w;
-    uint i_1 = (gid.x + (gid.y * _e6));
-    uint _e12 = _group_0_binding_0_cs.run.z;
-    if ((i_1 >= _e12)) {
-        return;
-    }
-    uint _e18 = _group_0_binding_0_cs.run.x;
-    uint _e19 = pcg_hash(_e18);
-    uint _e23 = _group_0_binding_0_cs.run.y;
-    uint _e26 = pcg_hash((_e19 ^ (_e23 + i_1)));
-    rng_state = _e26;
-    Params _e29 = _group_0_binding_0_cs;
-    G = _e29;
-    G_PIN_BASE = 0u;
-    G_INDEX_BASE = 0u;
-    Ray _e38 = _group_0_binding_3_cs[i_1];
-    QueryResult _e39 = query(_e38);
-    _group_0_binding_4_cs[i_1] = _e39;
+    run_query(gid, MODE_BOTH);
     return;
 }
 

@@ -255,6 +255,8 @@ pub fn options_from_args(
         threads: args.threads,
         density_scale: args.volume.density_scale,
         metadata,
+        // `bake_one` lowers it to what `--max-memory` leaves.
+        dense_copy_bytes: pinbake::bake::DEFAULT_DENSE_COPY_BYTES,
     })
 }
 
@@ -328,12 +330,12 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
         .with_context(|| format!("{}", args.output.display()))?;
     let source = source::open_source(&spec)?;
     let choice = choose_from_args(args, source.as_ref())?;
-    let opts = options_from_args(args, source.as_ref(), &spec, &choice)?;
+    let mut opts = options_from_args(args, source.as_ref(), &spec, &choice)?;
     // The check above assumed the default's size; a chosen bake may be larger.
-    budget.check(
-        &format!("baking {}", args.input.display()),
-        pinbake::bake::estimate_output_bytes(&opts).saturating_add(input_bytes),
-    )?;
+    let need = pinbake::bake::estimate_output_bytes(&opts).saturating_add(input_bytes);
+    budget.check(&format!("baking {}", args.input.display()), need)?;
+    // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
+    opts.dense_copy_bytes = budget.limit.saturating_sub(need);
 
     let shape_cells: u64 = match opts.tile {
         None => opts.cells.iter().map(|&c| u64::from(c)).product(),

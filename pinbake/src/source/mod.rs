@@ -102,6 +102,15 @@ pub trait DensitySource: Send + Sync {
         None
     }
 
+    /// A dense copy of a sparse grid with the same values and trilinear field, at most
+    /// `max_bytes` bytes, for a bake that marches it ([`DenseGrid::march_runs`]) instead of
+    /// looking every sample up in the sparse structure. `None` (the default): no copy; dense
+    /// grids answer [`Self::as_dense_grid`] instead, analytic fields have no voxels.
+    fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        let _ = max_bytes;
+        None
+    }
+
     /// A box-filtered dense level ([`Mip`]) with voxels of about `step` world units, for a
     /// bake that marches at that step. `Ok(None)` (the default) means "sample the source
     /// itself": analytic fields, grids whose voxels already match the step, and grids whose

@@ -49,7 +49,9 @@ use std::time::{Duration, Instant};
 
 use glam::{DMat3, DVec3, IVec3};
 
-use super::{Aabb, DensityScale, DensitySource, Mip, MipAllocError, SourceError, one_line};
+use super::{
+    Aabb, DenseGrid, DensityScale, DensitySource, Mip, MipAllocError, SourceError, one_line,
+};
 
 /// The hidden subcommand the `pinbake` binary dispatches to [`worker_main`].
 pub const WORKER_SUBCOMMAND: &str = "__vdb-worker";
@@ -1086,6 +1088,19 @@ pub struct VdbSource {
     bounds: Aabb,
     global_max: f32,
     label: String,
+    /// A dense copy of the active box that the samplers read instead of the tree
+    /// ([`VdbSource::with_dense_cache`]).
+    cache: Option<DenseCache>,
+}
+
+/// Every voxel of the index box `[lo, lo + dims)` (the active box and a border of one zero
+/// voxel), x fastest: what [`VdbSource::sample_index`] reads in place of the tree.
+struct DenseCache {
+    lo: IVec3,
+    dims: IVec3,
+    stride_y: usize,
+    stride_z: usize,
+    data: Vec<f32>,
 }
 
 impl std::fmt::Debug for VdbSource {
@@ -1472,6 +1487,7 @@ impl VdbSource {
             bounds,
             global_max,
             label,
+            cache: None,
         })
     }
 
@@ -1572,6 +1588,130 @@ impl VdbSource {
         m
     }
 
+    /// The grid as a [`DenseGrid`] with the same values and the same trilinear field, for a
+    /// bake that marches it with [`DenseGrid::march_runs`] instead of walking the tree per
+    /// sample; `None` for a rotated or sheared map (its voxels are not boxes of the bake
+    /// frame), an empty grid, or a copy of more than `max_bytes` bytes (or one that cannot be
+    /// allocated).
+    ///
+    /// The copy holds every voxel centre the trilinear field reaches, one beyond the stored
+    /// ones on each side: those are zero, so the dense grid's clamp-to-edge outer half voxel
+    /// reads zero where this source does, and its box covers [`DensitySource::bounds`]. A
+    /// mirrored axis (negative scale) is stored reversed, so that the copy's index grows with
+    /// world position. Values at voxel centres are bit-identical; between them the two
+    /// samplers interpolate the same corners with the same f32 weights formula, but compute
+    /// the continuous index with different f64 roundings (`(p - t) / s` against
+    /// `p / s - o / s - 0.5`), so a sample can differ by a few ulps (docs/performance.md).
+    pub fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        let (scale, _) = self.diag?;
+        if !self.index_min.cmple(self.index_max).all() {
+            return None;
+        }
+        let (lo, hi) = (self.index_min - 1, self.index_max + 1);
+        let n = (hi.as_i64vec3() - lo.as_i64vec3()) + 1;
+        if n.max_element() > i64::from(u32::MAX) {
+            return None;
+        }
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        if count.checked_mul(4)? > max_bytes {
+            return None;
+        }
+        // Copy index j along an axis is index `lo + j`, or `hi - j` where the map mirrors it.
+        let mirrored = [0, 1, 2].map(|a| scale[a] < 0.0);
+        let data = self.dense_values(lo, n, count, mirrored)?;
+        let corner = (lo.as_dvec3() - 0.5) * scale;
+        let far = (hi.as_dvec3() + 0.5) * scale;
+        let origin = corner.min(far) + self.translation;
+        let dims = [n.x as u32, n.y as u32, n.z as u32];
+        DenseGrid::new(
+            dims,
+            data,
+            scale.abs(),
+            origin,
+            format!("dense copy of {}", self.label),
+        )
+        .ok()
+    }
+
+    /// The voxels of the index box at `lo` with `n` voxels per axis (`count` in all), x
+    /// fastest; an axis with `mirrored` set runs from the box's top down. `None` if the
+    /// memory cannot be had.
+    fn dense_values(
+        &self,
+        lo: IVec3,
+        n: glam::I64Vec3,
+        count: u64,
+        mirrored: [bool; 3],
+    ) -> Option<Vec<f32>> {
+        use rayon::prelude::*;
+        let count = usize::try_from(count).ok()?;
+        let mut data: Vec<f32> = Vec::new();
+        data.try_reserve_exact(count).ok()?;
+        data.resize(count, 0.0);
+        let (nx, ny) = (n.x as usize, n.y as usize);
+        let top = lo + (n - 1).as_ivec3();
+        let at = |a: usize, j: usize| {
+            if mirrored[a] {
+                top[a] - j as i32
+            } else {
+                lo[a] + j as i32
+            }
+        };
+        data.par_chunks_mut(nx * ny)
+            .enumerate()
+            .for_each(|(z, slab)| {
+                let iz = at(2, z);
+                for (y, row) in slab.chunks_mut(nx).enumerate() {
+                    let iy = at(1, y);
+                    for (x, v) in row.iter_mut().enumerate() {
+                        *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+                    }
+                }
+            });
+        Some(data)
+    }
+
+    /// This grid with a dense copy of its active box (plus a border of one zero voxel) that
+    /// every sampler reads instead of the tree, when the copy takes at most `max_bytes`
+    /// (unchanged otherwise, and for an empty grid). The samples are bit-identical with or
+    /// without it: the same index arithmetic, corners and interpolation, only the corner
+    /// loads come from one array instead of hash lookups. For renderers, whose trackers
+    /// sample the density one point at a time (the bake marches [`Self::dense_copy`]).
+    pub fn with_dense_cache(mut self, max_bytes: u64) -> Self {
+        if !self.index_min.cmple(self.index_max).all() {
+            return self;
+        }
+        let lo = self.index_min - 1;
+        let n = (self.index_max.as_i64vec3() - lo.as_i64vec3()) + 2;
+        let Some(count) = (n.x as u64)
+            .checked_mul(n.y as u64)
+            .and_then(|c| c.checked_mul(n.z as u64))
+            .filter(|c| c.saturating_mul(4) <= max_bytes)
+        else {
+            return self;
+        };
+        if n.max_element() > i64::from(i32::MAX) {
+            return self;
+        }
+        if let Some(data) = self.dense_values(lo, n, count, [false; 3]) {
+            self.cache = Some(DenseCache {
+                lo,
+                dims: n.as_ivec3(),
+                stride_y: n.x as usize,
+                stride_z: (n.x * n.y) as usize,
+                data,
+            });
+        }
+        self
+    }
+
+    /// True when [`Self::with_dense_cache`] made a copy.
+    pub fn has_dense_cache(&self) -> bool {
+        self.cache.is_some()
+    }
+
     /// Inclusive index box of the non-zero voxels.
     pub fn index_bounds(&self) -> (IVec3, IVec3) {
         (self.index_min, self.index_max)
@@ -1610,7 +1750,27 @@ impl VdbSource {
         let i = f.as_ivec3();
         let t = (u - f).as_vec3();
         let l = i & 7;
-        let c: [f32; 8] = if l.x < 7 && l.y < 7 && l.z < 7 {
+        let c: [f32; 8] = if let Some(cache) = &self.cache {
+            // The cell's lower corner relative to the copy; a cell not wholly inside it has
+            // only zero voxels (the border and beyond), as the tree would say.
+            let r = i.as_i64vec3() - cache.lo.as_i64vec3();
+            if r.cmplt(glam::I64Vec3::ZERO).any() || r.cmpge((cache.dims - 1).as_i64vec3()).any() {
+                return 0.0;
+            }
+            let (sy, sz) = (cache.stride_y, cache.stride_z);
+            let b = r.x as usize + r.y as usize * sy + r.z as usize * sz;
+            let d = &cache.data[b..=b + 1 + sy + sz];
+            [
+                d[0],
+                d[1],
+                d[sy],
+                d[sy + 1],
+                d[sz],
+                d[sz + 1],
+                d[sz + sy],
+                d[sz + sy + 1],
+            ]
+        } else if l.x < 7 && l.y < 7 && l.z < 7 {
             // All eight corners in one block: one hash lookup.
             match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
                 Some(Block::Dense(li)) => {
@@ -1711,6 +1871,10 @@ impl DensitySource for VdbSource {
         // Axis-aligned grids keep baking in world space, as they always have.
         let (frame, local_to_world) = GridFrame::new(self)?;
         Some((Box::new(frame), local_to_world))
+    }
+
+    fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        VdbSource::dense_copy(self, max_bytes)
     }
 
     fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
@@ -2048,6 +2212,45 @@ mod tests {
             grid_type: ty.into(),
             class: String::new(),
         }
+    }
+
+    /// The smoke with its map mirrored on x and z (negative scales): the dense copy stores
+    /// those axes reversed and still holds the tree's field (a few f32 ulps of the largest
+    /// value, from the index arithmetic), and the dense cache gives the tree's bits.
+    #[test]
+    fn dense_copy_and_cache_of_a_mirrored_grid() {
+        let p = data("openvdb_smoke1.vdb");
+        let size = std::fs::metadata(&p).unwrap().len();
+        let mirrored = || {
+            let mut buf = Vec::new();
+            worker_run(&p, None, false, &mut buf).unwrap();
+            let mut st = parse_stream(&buf[..], size).unwrap();
+            st.xf[0] = -st.xf[0];
+            st.xf[10] *= -0.5;
+            st.xf[3] = 4.0;
+            VdbSource::from_stream(&p, st, DensityScale::ONE).unwrap()
+        };
+        let tree = mirrored();
+        assert!(tree.is_axis_aligned());
+        let copy = tree.dense_copy(u64::MAX).unwrap();
+        let cached = mirrored().with_dense_cache(u64::MAX);
+        assert!(cached.has_dense_cache());
+        let (lo, hi) = tree.index_bounds();
+        let m = (hi - lo + 1).as_dvec3() - 1.0;
+        let mut rng = crate::rng::CounterRng::new(3, 0, 0);
+        let mut nonzero = 0;
+        for _ in 0..50_000 {
+            let f = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let w = tree.index_to_world(lo.as_dvec3() - 1.0 + f * (m + 2.0));
+            let (a, b) = (copy.extinction(w), tree.extinction(w));
+            assert!(
+                (a - b).abs() <= 4.0 * f32::EPSILON * copy.max_value(),
+                "{w}: copy {a}, tree {b}"
+            );
+            assert_eq!(cached.extinction(w).to_bits(), b.to_bits(), "{w}");
+            nonzero += usize::from(b > 0.0);
+        }
+        assert!(nonzero > 5_000, "{nonzero}");
     }
 
     #[test]

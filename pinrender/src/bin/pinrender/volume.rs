@@ -158,9 +158,15 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
             std::env::current_exe().context("locating pinrender")
         })?;
     Ok(match spec {
-        SourceSpec::Vdb(path, opts) => {
-            Opened::Vdb(Arc::new(source::VdbSource::open(&path, &opts)?))
-        }
+        // The trackers sample the density point by point; a dense copy of the active box
+        // answers them without the tree's hash lookups, with the same bits (the images do
+        // not change), when it takes at most 1 GiB and a quarter of the memory budget.
+        SourceSpec::Vdb(path, opts) => Opened::Vdb(Arc::new(
+            source::VdbSource::open(&path, &opts)?.with_dense_cache(
+                pinbake::bake::DEFAULT_DENSE_COPY_BYTES
+                    .min(pinbake::files::default_memory_limit() / 4),
+            ),
+        )),
         SourceSpec::Raw(path, opts) => {
             Opened::Dense(Arc::new(source::raw::read_raw(&path, &opts)?))
         }
