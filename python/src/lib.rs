@@ -519,7 +519,7 @@ fn bake(
         cells,
         choice.directions,
     );
-    let opts = BakeOptions {
+    let mut opts = BakeOptions {
         cells,
         directions: choice.directions,
         pins_per_entry: choice.pins_per_entry,
@@ -533,7 +533,13 @@ fn bake(
         threads,
         density_scale,
         metadata,
+        dense_copy_bytes: 0,
     };
+    // What `pinbake bake` allows by default (its default memory budget less the output and the
+    // input file), so the two copy the same VDBs densely and write the same bytes.
+    let input_bytes = std::fs::metadata(input).map_or(0, |m| m.len());
+    opts.dense_copy_bytes = pinbake::files::default_memory_limit()
+        .saturating_sub(pinbake::bake::estimate_output_bytes(&opts).saturating_add(input_bytes));
     let started = Instant::now();
     let summary = py.detach(|| -> PyResult<Value> {
         let (grid, stats) = pinbake::bake(source.as_ref(), &opts, &|_| {})

@@ -66,8 +66,11 @@ impl Image {
                 let p = self.rgb[y * w + x];
                 (p[0], p[1], p[2])
             });
+            // Sequential compression: exr's parallel writer stores the chunks in the order its
+            // threads finish them, so the same image gave different bytes from run to run.
             exr::prelude::Image::from_channels((w, h), channels)
                 .write()
+                .non_parallel()
                 .to_buffered(out)
                 .map_err(|e| RenderError::Exr(e.to_string()))
         })
@@ -297,6 +300,32 @@ mod tests {
         assert_eq!(back, img);
         // No temporary files left behind.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// The same image gives the same EXR bytes every time. With exr's parallel writer the
+    /// chunk order followed its threads (run-to-run differences in rendered files); a picture of
+    /// many chunks written several times exposes that (the mutation: drop `.non_parallel()`).
+    #[test]
+    fn exr_bytes_are_deterministic() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = Image::new(96, 512).unwrap();
+        let mut x = 0x9e37_79b9_u32;
+        for p in img.rgb.iter_mut() {
+            for c in p.iter_mut() {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                *c = (x >> 8) as f32 / (1u32 << 24) as f32;
+            }
+        }
+        let first = dir.path().join("0.exr");
+        img.write_exr(&first).unwrap();
+        let want = std::fs::read(&first).unwrap();
+        for i in 1..8 {
+            let path = dir.path().join(format!("{i}.exr"));
+            img.write_exr(&path).unwrap();
+            assert!(std::fs::read(&path).unwrap() == want, "write {i} differs");
+        }
     }
 
     #[test]
