@@ -9,3 +9,5 @@
 #[cfg(feature = "gpu")]
 pub mod gpu_render;
 pub mod render;
+#[cfg(feature = "cli")]
+pub mod volume;

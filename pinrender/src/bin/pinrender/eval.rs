@@ -45,13 +45,13 @@ use pinrender::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::render::cache::{render_with_cache, train_cache};
 use pinrender::render::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrender::render::{
-    Budget, DEFAULT_WAVEFRONT_BATCH, Image, Medium, RatioTracking, RenderOutput, RenderSettings,
-    Scene, TransportEstimator, relative_mse, render, render_wavefront, rmse, splitmix64,
+    Budget, DEFAULT_WAVEFRONT_BATCH, Image, Medium, PinsEstimator, RatioTracking, RenderOutput,
+    RenderSettings, Scene, TransportEstimator, relative_mse, render, render_wavefront, rmse,
+    splitmix64,
 };
 use pinrt::gpu::GpuContext;
-use pinrt::{PinGrid, Sampler, SamplerOptions};
+use pinrt::{PinGrid, SamplerOptions};
 
-use crate::volume::{PinsEstimator, leak_grid};
 use scenes::{EvalScene, RefKind, Sizes};
 
 /// Bump when anything that changes reference images changes (renderer, scenes).
@@ -575,16 +575,15 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     let bytes = grid.to_bytes()?;
     let seconds = t.elapsed().as_secs_f64();
     let size = bytes.len();
-    let grid: &'static PinGrid = leak_grid(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
-    es.pin_grid = Some(grid);
+    let grid = Arc::new(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
+    es.pin_grid = Some(grid.clone());
     let lookup = LOOKUP;
     let l2w = grid.desc().local_to_world;
     for inst in &mut es.instances {
         let m = scenes::translated(&l2w, inst.offset);
-        let sampler = Sampler::with_local_to_world(grid, &m)
-            .map_err(|e| anyhow!("{e}"))?
-            .with_options(lookup);
-        inst.pins = Some(Arc::new(PinsEstimator::from_sampler(sampler)));
+        inst.pins = Some(Arc::new(
+            PinsEstimator::new(grid.clone(), Some(&m), lookup).map_err(|e| anyhow!("{e}"))?,
+        ));
     }
     eprintln!(
         "  pins: {:?} cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",

@@ -12,13 +12,13 @@ use pinrender::gpu_render::{
 };
 use pinrender::render::{
     Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image, MajorantGrid,
-    Medium, RenderSettings, Scene, Sun, TransportEstimator, VoxelGrid, block_bias, render,
-    render_wavefront,
+    Medium, PinsEstimator, RenderSettings, Scene, Sun, TransportEstimator, VoxelGrid, block_bias,
+    render, render_wavefront,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
 
-use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
+use crate::volume::{self, SourceField, VolumeArgs};
 use pinbake::limits::parse_f64x3;
 
 #[derive(Args, Debug)]
@@ -311,12 +311,10 @@ pub fn run(a: RenderArgs) -> Result<()> {
         }
     };
     let pins_estimator = || -> Result<Arc<dyn TransportEstimator>> {
-        let grid = medium.pins.expect("opened for the pin estimators");
-        let sampler = grid
-            .sampler()
-            .map_err(|e| anyhow!("{e}"))?
-            .with_options(a.lookup());
-        Ok(Arc::new(PinsEstimator::from_sampler(sampler)))
+        let grid = medium.pins.clone().expect("opened for the pin estimators");
+        Ok(Arc::new(
+            PinsEstimator::new(grid, None, a.lookup()).map_err(|e| anyhow!("{e}"))?,
+        ))
     };
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
@@ -393,7 +391,7 @@ struct OpenedMedium {
     field: Option<Arc<dyn DensityField>>,
     /// The file's majorants (a pin file alone); `None`: built from the field.
     majorants: Option<Arc<MajorantGrid>>,
-    pins: Option<&'static pinrt::PinGrid>,
+    pins: Option<Arc<pinrt::PinGrid>>,
     /// The source volume, for its GPU copy.
     opened: Option<volume::Opened>,
     /// A pin file's embedded density, for its GPU copy.
@@ -428,7 +426,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
                 a.allow_mismatched_pins,
             )?;
         }
-        Some(volume::leak_grid(grid))
+        Some(Arc::new(grid))
     } else {
         None
     };
@@ -443,8 +441,8 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
 }
 
 fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
-    let grid = volume::leak_grid(volume::load_pins(path)?);
-    let m = volume::pin_file_medium(path, grid)?;
+    let grid = Arc::new(volume::load_pins(path)?);
+    let m = volume::pin_file_medium(path, &grid)?;
     // The placed grid's world box (rotations included) frames the camera.
     let bounds = grid
         .sampler()
@@ -519,7 +517,11 @@ fn render_gpu(
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
     let est: GpuEstimator = a.estimator;
-    let grid = if est.uses_pins() { medium.pins } else { None };
+    let grid = if est.uses_pins() {
+        medium.pins.as_deref()
+    } else {
+        None
+    };
     let majorants = if est.uses_majorants() {
         Some(majorants()?)
     } else {

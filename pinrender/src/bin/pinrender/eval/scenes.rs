@@ -118,7 +118,7 @@ pub struct EvalScene {
     /// its offset, as the CPU fields are placed).
     pub gpu_density: GpuDensity,
     /// The baked pin grid (after the bake), shared by the CPU `pins` and the GPU.
-    pub pin_grid: Option<&'static PinGrid>,
+    pub pin_grid: Option<Arc<PinGrid>>,
 }
 
 pub const SCENES: [&str; 7] = [
@@ -750,13 +750,13 @@ pub fn translated(local_to_world: &[f64; 12], offset: [f64; 3]) -> [f64; 12] {
 /// The scene's media for the GPU renderer: the baked pin grid (if any) and the density, both
 /// placed per instance exactly as the CPU estimators place them, with the CPU's majorant
 /// grids; `lookup` is the pins' lookup jitter.
-pub fn gpu_media(es: &EvalScene, lookup: SamplerOptions) -> Result<GpuMedia<'static>> {
-    let grids: Vec<&'static PinGrid> = es.pin_grid.into_iter().collect();
+pub fn gpu_media(es: &EvalScene, lookup: SamplerOptions) -> Result<GpuMedia<'_>> {
+    let grids: Vec<&PinGrid> = es.pin_grid.as_deref().into_iter().collect();
     let media = es
         .instances
         .iter()
         .map(|inst| GpuMedium {
-            pins: es.pin_grid.map(|g| GpuPins {
+            pins: es.pin_grid.as_ref().map(|g| GpuPins {
                 grid: 0,
                 local_to_world: Some(translated(&g.desc().local_to_world, inst.offset)),
                 options: lookup,
