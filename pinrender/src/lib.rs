@@ -8,4 +8,7 @@
 
 #[cfg(feature = "gpu")]
 pub mod gpu_render;
+pub mod medium;
 pub mod render;
+#[cfg(feature = "cli")]
+pub mod volume;

@@ -1,18 +1,13 @@
-//! The GPU renderer's copies of the densities (`pinrender`'s `volume::Opened::gpu_density`)
+//! The GPU renderer's copies of the densities (`pinrender::volume::Opened::gpu_density`)
 //! against their pinbake sources: a raw grid, a sparse VDB (densified with a zero border),
 //! cosine noise and a homogeneous box.
-
-// The binary's module, compiled into this test (binaries export nothing to link against).
-#[allow(dead_code)]
-#[path = "../src/bin/pinrender/volume.rs"]
-mod volume;
 
 use std::path::Path;
 use std::sync::Arc;
 
 use glam::DVec3;
 use pinbake::source::{VdbOptions, VdbSource};
-use volume::{Opened, VolumeArgs, open_volume_typed};
+use pinrender::volume::{Opened, VolumeArgs, open_volume_typed};
 
 fn data(name: &str) -> String {
     format!("{}/../data/{name}", env!("CARGO_MANIFEST_DIR"))

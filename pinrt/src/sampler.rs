@@ -326,6 +326,18 @@ impl<'g> Sampler<'g> {
         })
     }
 
+    /// A sampler placing the grid by `xf`, a transform already made for it
+    /// ([`Self::transform`] of another sampler over the same grid, or [`UnitTransform::new`]
+    /// of its description). No validation and no matrix inversion, so that an owner of the
+    /// grid (an `Arc<PinGrid>`) can make a sampler per query at the cost of a few copies.
+    pub fn with_transform(grid: &'g PinGrid, xf: UnitTransform) -> Self {
+        Self {
+            view: GridView::new(grid),
+            xf,
+            opts: SamplerOptions::default(),
+        }
+    }
+
     /// Sets the lookup options.
     pub fn with_options(mut self, opts: SamplerOptions) -> Self {
         self.opts = opts;

@@ -1,10 +1,11 @@
 //! CPU/GPU agreement of the path tracer, determinism, input checks, timing.
 use super::*;
 use crate::render::{
-    Budget, MajorantGrid, Medium, Pcg32, RenderSettings, TransportEstimator, VoxelGrid, render,
+    Budget, MajorantGrid, Medium, PinsEstimator, RenderSettings, TransportEstimator, VoxelGrid,
+    render,
 };
 use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
-use pinrt::{Ray, Rng, Sampler};
+use pinrt::Rng;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -15,30 +16,6 @@ fn context() -> GpuContext {
              (this test fails rather than skips so that a missing driver is noticed)"
         )
     })
-}
-
-/// The pin estimator for the CPU renderer: each query is seeded from two draws of the
-/// path generator, `Rng::for_query(a, b)`, as the GPU seeds its queries.
-struct PinsEstimator {
-    sampler: Sampler<'static>,
-}
-
-impl TransportEstimator for PinsEstimator {
-    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
-        let (a, b) = (rng.next_u32(), rng.next_u32());
-        let ray = Ray::new(o.to_array(), d.to_array());
-        self.sampler
-            .sample_distance(&ray, t_max, &mut Rng::for_query(a, b))
-    }
-    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
-        let (a, b) = (rng.next_u32(), rng.next_u32());
-        let ray = Ray::new(o.to_array(), d.to_array());
-        self.sampler
-            .transmittance(&ray, t_max, &mut Rng::for_query(a, b))
-    }
-    fn name(&self) -> String {
-        "pins".into()
-    }
 }
 
 /// A blob-shaped pin grid over the world box `[-1, 1]^3`: denser pins towards the centre
@@ -86,11 +63,8 @@ fn blob_grid(cells: u32, directions: Directions, ppe: u32, strength: f32) -> Own
     }
 }
 
-fn load(owned: &OwnedPinGrid) -> &'static PinGrid {
-    // Leaked: the CPU estimator needs a 'static sampler; a test grid is small.
-    Box::leak(Box::new(
-        PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap(),
-    ))
+fn load(owned: &OwnedPinGrid) -> Arc<PinGrid> {
+    Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap())
 }
 
 fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
@@ -115,15 +89,14 @@ fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
 }
 
 fn cpu_render(
-    grid: &'static PinGrid,
+    grid: &Arc<PinGrid>,
     scene: &GpuScene,
     spp: u32,
     seed: u64,
     threads: Option<usize>,
 ) -> (Image, f64) {
-    let est: Arc<dyn TransportEstimator> = Arc::new(PinsEstimator {
-        sampler: grid.sampler().unwrap(),
-    });
+    let est: Arc<dyn TransportEstimator> =
+        Arc::new(PinsEstimator::new(grid.clone(), None, SamplerOptions::default()).unwrap());
     let settings = RenderSettings {
         max_bounces: scene.max_bounces,
         seed,
@@ -182,7 +155,7 @@ fn stats(images: &[Image]) -> Stats {
 fn compare(
     name: &str,
     renderer: &GpuRenderer,
-    grid: &'static PinGrid,
+    grid: &Arc<PinGrid>,
     scene: &GpuScene,
     replicates: u64,
     spp: u32,
@@ -283,7 +256,7 @@ fn compare_with(
 fn albedo_zero_matches_cpu_transmittance() {
     let ctx = context();
     let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
-    let grid = load(&owned);
+    let grid = &load(&owned);
     let renderer = GpuRenderer::new(&ctx, grid).unwrap();
     let sc = scene(32, 0.0, 0.0, 4);
     // 32 replicates x 2 spp = 64 spp per side.
@@ -307,7 +280,7 @@ fn albedo_zero_matches_cpu_transmittance() {
 fn scattering_matches_cpu() {
     let ctx = context();
     let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
-    let grid = load(&owned);
+    let grid = &load(&owned);
     let renderer = GpuRenderer::new(&ctx, grid).unwrap();
     // Sun + environment, forward scattering, 4 bounces.
     let sc = scene(32, 0.9, 0.6, 4);
@@ -352,7 +325,7 @@ fn scattering_matches_cpu() {
 fn deterministic_and_checked() {
     let ctx = context();
     let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
-    let grid = load(&owned);
+    let grid = &load(&owned);
     let renderer = GpuRenderer::new(&ctx, grid).unwrap();
     let sc = scene(32, 0.9, 0.3, 4);
     let a = renderer.render(&sc, GpuEstimator::Pins, 5, 42).unwrap();
@@ -418,7 +391,7 @@ fn deterministic_and_checked() {
 fn measure() {
     let ctx = context();
     let owned = blob_grid(16, Directions::Octahedral { n: 8 }, 1, 0.25);
-    let grid = load(&owned);
+    let grid = &load(&owned);
     eprintln!(
         "adapter: {}; grid 16^3 x octahedral 8x8 x 1 pin = {} bytes",
         ctx.describe(),
@@ -522,7 +495,7 @@ fn blob_voxels(n: u32, sigma: f32) -> Vec<f32> {
 
 /// Both sides of a multi-medium scene: the CPU media per estimator name and the GPU media.
 struct MultiScene {
-    grid: &'static PinGrid,
+    grid: Arc<PinGrid>,
     fields: Vec<Arc<VoxelGrid>>,
     majorants: Vec<Arc<MajorantGrid>>,
     samplers: Vec<Arc<dyn TransportEstimator>>,
@@ -536,7 +509,7 @@ impl MultiScene {
         let spacing = [2.0 / n as f64; 3];
         let base = VoxelGrid::new([n; 3], [-1.0; 3], spacing, values.clone()).unwrap();
         let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
-        let grid = load(&owned);
+        let grid = &load(&owned);
         let mut fields = Vec::new();
         let mut majorants = Vec::new();
         let mut samplers: Vec<Arc<dyn TransportEstimator>> = Vec::new();
@@ -546,12 +519,12 @@ impl MultiScene {
             majorants.push(Arc::new(MajorantGrid::from_field(&*f, [4, 4, 4]).unwrap()));
             fields.push(f);
             let m = translated_identity(off);
-            samplers.push(Arc::new(PinsEstimator {
-                sampler: Sampler::with_local_to_world(grid, &m).unwrap(),
-            }));
+            samplers.push(Arc::new(
+                PinsEstimator::new(grid.clone(), Some(&m), SamplerOptions::default()).unwrap(),
+            ));
         }
         MultiScene {
-            grid,
+            grid: grid.clone(),
             fields,
             majorants,
             samplers,
@@ -589,9 +562,9 @@ impl MultiScene {
             .collect()
     }
 
-    fn gpu_media(&self) -> GpuMedia<'static> {
+    fn gpu_media(&self) -> GpuMedia<'_> {
         GpuMedia {
-            grids: vec![self.grid],
+            grids: vec![&*self.grid],
             densities: vec![GpuDensity::from_voxel_grid(self.base.clone()).unwrap()],
             media: (0..OFFSETS.len())
                 .map(|k| GpuMedium {
@@ -781,7 +754,7 @@ fn cosine_density_matches_cpu() {
 fn media_and_estimators_are_checked() {
     let ctx = context();
     let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
-    let grid = load(&owned);
+    let grid = &load(&owned);
     let sc = scene(8, 0.5, 0.0, 2);
     // Pins only: every density estimator is refused with the medium named.
     let pins_only = GpuRenderer::new(&ctx, grid).unwrap();

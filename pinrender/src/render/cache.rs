@@ -41,10 +41,10 @@
 //! terminates when the *cell* is converged enough, the criterion this project asked for.
 
 use super::RenderError;
-use super::phase::{hg_phase, sample_hg};
 use super::rng::{Pcg32, splitmix64};
 use super::tracer::{
-    Ctx, RenderOutput, RenderSettings, Scene, Which, accumulate, check_settings, in_pool,
+    Ctx, NoHook, PathVertex, RenderOutput, RenderSettings, Scene, VertexHook, Which, accumulate,
+    check_settings, in_pool,
 };
 use glam::Vec3;
 use rayon::prelude::*;
@@ -393,102 +393,57 @@ enum Mode<'a> {
     Lookup(&'a RadianceCache, &'a Keyer, &'a CacheSettings),
 }
 
-/// The tracer's vertex loop (same estimator as `Ctx::trace` from the first vertex on)
-/// starting at vertex `x` (depth 1) reached along `dir`, with throughput `beta` and path
-/// length `path_len`. Returns the radiance scored from this vertex on.
-#[allow(clippy::too_many_arguments)]
-fn walk(
-    ctx: &Ctx<'_>,
-    mut x: Vec3,
-    mut dir: Vec3,
-    mut beta: f32,
-    mut path_len: f64,
-    first: Which,
-    rng: &mut Pcg32,
-    mut mode: Mode<'_>,
-) -> Vec3 {
-    let mut l = Vec3::ZERO;
-    let mut depth = 1u32;
-    loop {
-        match &mut mode {
+impl VertexHook for Mode<'_> {
+    fn at_vertex(&mut self, v: &PathVertex, l: Vec3, rng: &mut Pcg32) -> Option<Vec3> {
+        match self {
             Mode::Plain(Some(rec)) => rec.push(Vertex {
-                x,
-                dir,
-                path_len,
-                beta,
+                x: v.x,
+                dir: v.dir,
+                path_len: v.path_len,
+                beta: v.beta,
                 l_before: l,
             }),
-            Mode::Lookup(cache, keyer, cs) if depth >= 2 => {
+            Mode::Lookup(cache, keyer, cs) if v.depth >= 2 => {
                 let jitter = cs
                     .jitter
                     .then(|| [rng.next_f64(), rng.next_f64(), rng.next_f64()]);
                 if let Some(c) = keyer
-                    .key(x, dir, path_len, jitter)
+                    .key(v.x, v.dir, v.path_len, jitter)
                     .and_then(|k| cache.get(&k))
                 {
                     let m = c.mean_y();
                     if c.n >= cs.min_samples && c.std_err_y() <= cs.max_rel_std_err as f64 * m.abs()
                     {
                         let mean = c.mean();
-                        return l + Vec3::new(mean[0] as f32, mean[1] as f32, mean[2] as f32)
-                            * beta;
+                        return Some(
+                            Vec3::new(mean[0] as f32, mean[1] as f32, mean[2] as f32) * v.beta,
+                        );
                     }
                 }
             }
             _ => {}
         }
-        let shadow = if depth == 1 { first } else { Which::Secondary };
-        if let Some((sun_dir, sun_rad)) = ctx.sun {
-            let ph = hg_phase(ctx.g, dir.dot(sun_dir));
-            if ph > 0.0 {
-                let tr = ctx.transmittance(shadow, x, sun_dir, rng);
-                l += sun_rad * (beta * ph * tr);
-            }
-        }
-        let w = sample_hg(dir, ctx.g, rng.next_f32(), rng.next_f32());
-        if let Some(env) = ctx.env {
-            l += env * (beta * ctx.transmittance(shadow, x, w, rng));
-        }
-        if depth >= ctx.max_bounces {
-            break;
-        }
-        let Some(t) = ctx.distance(Which::Secondary, x, w, rng) else {
-            break;
-        };
-        x += w * t;
-        path_len += t as f64;
-        dir = w;
-        beta *= ctx.albedo;
-        depth += 1;
+        None
     }
-    l
 }
 
-/// A camera path: the tracer's estimator with the given cache mode.
-fn camera_path(ctx: &Ctx<'_>, o: Vec3, d: Vec3, rng: &mut Pcg32, mode: Mode<'_>) -> Vec3 {
-    let mut l = Vec3::ZERO;
-    let d = d.normalize_or_zero();
-    if !o.is_finite() || d == Vec3::ZERO {
-        return l;
-    }
-    if let Some(env) = ctx.env {
-        l += env * ctx.transmittance(Which::Primary, o, d, rng);
-    }
-    if ctx.albedo <= 0.0 || ctx.max_bounces == 0 {
-        return l;
-    }
-    let Some(t) = ctx.distance(Which::Primary, o, d, rng) else {
+/// A camera path: the tracer's camera segment and path loop with the given cache mode. The
+/// vertices' radiance is summed apart from the camera segment's (`l_before` of a recorded
+/// vertex counts from the first vertex).
+fn camera_path(ctx: &Ctx<'_>, o: Vec3, d: Vec3, rng: &mut Pcg32, mut mode: Mode<'_>) -> Vec3 {
+    let (l, hit) = ctx.camera_segment(o, d, rng);
+    let Some((x, d, t)) = hit else {
         return l;
     };
-    l + walk(
-        ctx,
-        o + d * t,
+    l + ctx.walk(
+        Vec3::ZERO,
+        x,
         d,
         ctx.albedo,
         t as f64,
         Which::Primary,
         rng,
-        mode,
+        &mut mode,
     )
 }
 
@@ -507,15 +462,15 @@ pub fn vertex_radiance(
     if !x.is_finite() || dir == Vec3::ZERO || max_bounces == 0 {
         return [0.0; 3];
     }
-    let l = walk(
-        &ctx,
+    let l = ctx.walk(
+        Vec3::ZERO,
         x,
         dir,
         1.0,
         0.0,
         Which::Secondary,
         rng,
-        Mode::Plain(None),
+        &mut NoHook,
     );
     if l.is_finite() {
         l.to_array()

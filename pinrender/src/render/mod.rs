@@ -98,6 +98,7 @@ mod field;
 mod image;
 mod majorant;
 pub mod phase;
+mod pins;
 mod rng;
 mod spec;
 mod tracer;
@@ -117,6 +118,7 @@ pub use estimator::{
 pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
+pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
 pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};

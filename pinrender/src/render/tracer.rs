@@ -390,30 +390,80 @@ impl Ctx<'_> {
     /// only through next-event estimation, `phase * T * radiance`. Scattering weights the
     /// throughput by the albedo (no roulette); `max_bounces` vertices at most.
     fn trace(&self, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Vec3 {
+        let (l, hit) = self.camera_segment(o, d, rng);
+        match hit {
+            None => l,
+            Some((x, d, t)) => self.walk(
+                l,
+                x,
+                d,
+                self.albedo,
+                t as f64,
+                Which::Primary,
+                rng,
+                &mut NoHook,
+            ),
+        }
+    }
+
+    /// The camera segment of a path: the environment seen through it, and the first
+    /// scattering vertex `(x, d, t)` along the normalised direction `d` (`None`: the path
+    /// ends here).
+    pub(crate) fn camera_segment(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        rng: &mut Pcg32,
+    ) -> (Vec3, Option<(Vec3, Vec3, f32)>) {
         let mut l = Vec3::ZERO;
         let d = d.normalize_or_zero();
         if !o.is_finite() || d == Vec3::ZERO {
-            return l;
+            return (l, None);
         }
         if let Some(env) = self.env {
             l += env * self.transmittance(Which::Primary, o, d, rng);
         }
         if self.albedo <= 0.0 || self.max_bounces == 0 {
-            return l;
+            return (l, None);
         }
         let Some(t) = self.distance(Which::Primary, o, d, rng) else {
-            return l;
+            return (l, None);
         };
-        let mut x = o + d * t;
-        let mut dir = d;
-        let mut beta = self.albedo;
+        (l, Some((o + d * t, d, t)))
+    }
+
+    /// The path loop, the one every path of this module runs: from vertex `x` (depth 1)
+    /// reached along `dir` with throughput `beta` after `path_len` world units, adding to
+    /// `l` what each vertex scores. `first` is the estimator of the first vertex's shadow
+    /// and environment rays (primary from the camera, secondary for a vertex's postfix).
+    /// `hook` sees each vertex before its estimators run and may end the path there (the
+    /// radiance cache).
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(crate) fn walk<H: VertexHook>(
+        &self,
+        mut l: Vec3,
+        mut x: Vec3,
+        mut dir: Vec3,
+        mut beta: f32,
+        mut path_len: f64,
+        first: Which,
+        rng: &mut Pcg32,
+        hook: &mut H,
+    ) -> Vec3 {
         let mut depth = 1u32;
         loop {
-            let shadow = if depth == 1 {
-                Which::Primary
-            } else {
-                Which::Secondary
+            let v = PathVertex {
+                depth,
+                x,
+                dir,
+                path_len,
+                beta,
             };
+            if let Some(rest) = hook.at_vertex(&v, l, rng) {
+                return l + rest;
+            }
+            let shadow = if depth == 1 { first } else { Which::Secondary };
             if let Some((sun_dir, sun_rad)) = self.sun {
                 let ph = hg_phase(self.g, dir.dot(sun_dir));
                 if ph > 0.0 {
@@ -432,11 +482,42 @@ impl Ctx<'_> {
                 break;
             };
             x += w * t;
+            path_len += t as f64;
             dir = w;
             beta *= self.albedo;
             depth += 1;
         }
         l
+    }
+}
+
+/// A scattering vertex of [`Ctx::walk`], before its estimators run.
+pub(crate) struct PathVertex {
+    /// 1 for the first scattering vertex.
+    pub depth: u32,
+    pub x: Vec3,
+    /// The direction the path arrived along.
+    pub dir: Vec3,
+    /// World units travelled from the walk's start (the camera, for camera paths).
+    pub path_len: f64,
+    pub beta: f32,
+}
+
+/// What a path does at each vertex besides scoring it (the radiance cache records vertices
+/// for training, or ends the path in a converged cell).
+pub(crate) trait VertexHook {
+    /// `l`: what the walk has scored so far. `Some(r)`: end the path, the walk returning
+    /// `l + r`.
+    fn at_vertex(&mut self, v: &PathVertex, l: Vec3, rng: &mut Pcg32) -> Option<Vec3>;
+}
+
+/// The plain path: no hook (compiled away).
+pub(crate) struct NoHook;
+
+impl VertexHook for NoHook {
+    #[inline(always)]
+    fn at_vertex(&mut self, _: &PathVertex, _: Vec3, _: &mut Pcg32) -> Option<Vec3> {
+        None
     }
 }
 

@@ -439,77 +439,18 @@ pub fn render_wavefront(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{Camera, FnField, MajorantGrid, Medium, RatioTracking, Sun, render};
+    use crate::render::{
+        Camera, FnField, MajorantGrid, Medium, PinsEstimator, RatioTracking, Sun, render,
+    };
     use pin_format::Directions;
+    use pinrt::PinGrid;
     use pinrt::testing::random_grid;
-    use pinrt::{PinGrid, Ray, RayQuery, Rng, Sampler};
     use std::sync::Arc;
-
-    /// Pins as the renderer's estimator, with the batch methods through
-    /// `Sampler::*_batch_rngs` (as `pinrender`'s estimator has them).
-    struct Pins {
-        sampler: Sampler<'static>,
-    }
-
-    fn seeds(rays: &[[Vec3; 2]], t_max: f32, rngs: &mut [Pcg32]) -> (Vec<RayQuery>, Vec<Rng>) {
-        let q = rays
-            .iter()
-            .map(|r| RayQuery::new(r[0].to_array(), r[1].to_array(), t_max))
-            .collect();
-        let g = rngs
-            .iter_mut()
-            .map(|g| Rng::for_query(g.next_u32(), g.next_u32()))
-            .collect();
-        (q, g)
-    }
-
-    impl TransportEstimator for Pins {
-        fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
-            let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
-            self.sampler
-                .sample_distance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
-        }
-        fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
-            let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
-            self.sampler
-                .transmittance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
-        }
-        fn transmittance_batch(
-            &self,
-            rays: &[[Vec3; 2]],
-            t_max: f32,
-            rngs: &mut [Pcg32],
-            out: &mut [f32],
-        ) {
-            let (q, mut r) = seeds(rays, t_max, rngs);
-            self.sampler.transmittance_batch_rngs(&q, &mut r, out);
-        }
-        fn sample_distance_batch(
-            &self,
-            rays: &[[Vec3; 2]],
-            t_max: f32,
-            rngs: &mut [Pcg32],
-            out: &mut [Option<f32>],
-        ) {
-            let (q, mut r) = seeds(rays, t_max, rngs);
-            self.sampler.sample_distance_batch_rngs(&q, &mut r, out);
-        }
-        fn name(&self) -> String {
-            "pins".into()
-        }
-        fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-            self.sampler.world_bounds()
-        }
-    }
 
     fn pins() -> Arc<dyn TransportEstimator> {
         let owned = random_grid(Directions::THESIS_DEFAULT, [6, 5, 4], 2, true, 41);
-        let grid: &'static PinGrid = Box::leak(Box::new(
-            PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap(),
-        ));
-        Arc::new(Pins {
-            sampler: grid.sampler().unwrap(),
-        })
+        let grid = Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap());
+        Arc::new(PinsEstimator::new(grid, None, pinrt::SamplerOptions::default()).unwrap())
     }
 
     fn scene(media: Vec<Medium>) -> Scene {

@@ -42,6 +42,7 @@ use std::time::Instant;
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
 use pinrender::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
+use pinrender::medium::PlacedPins;
 use pinrender::render::cache::{render_with_cache, train_cache};
 use pinrender::render::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrender::render::{
@@ -49,9 +50,8 @@ use pinrender::render::{
     Scene, TransportEstimator, relative_mse, render, render_wavefront, rmse, splitmix64,
 };
 use pinrt::gpu::GpuContext;
-use pinrt::{PinGrid, Sampler, SamplerOptions};
+use pinrt::{PinGrid, SamplerOptions};
 
-use crate::volume::{PinsEstimator, leak_grid};
 use scenes::{EvalScene, RefKind, Sizes};
 
 /// Bump when anything that changes reference images changes (renderer, scenes).
@@ -511,13 +511,14 @@ fn reference_half(es: &EvalScene, a: &EvalArgs, seed: u64, spp: u32) -> Result<I
             let media = es
                 .instances
                 .iter()
-                .map(|i| {
-                    Medium::single(Arc::new(RatioTracking::new(
-                        i.field.clone(),
-                        i.majorants.clone(),
-                    )) as Arc<dyn TransportEstimator>)
+                .map(|i| -> Result<Medium> {
+                    let f = i.field().map_err(|e| anyhow!("{e}"))?;
+                    let m = i.majorants().map_err(|e| anyhow!("{e}"))?;
+                    Ok(Medium::single(
+                        Arc::new(RatioTracking::new(f, m)) as Arc<dyn TransportEstimator>
+                    ))
                 })
-                .collect();
+                .collect::<Result<_>>()?;
             render(&scene_with(es, media), &st)
         }
         RefKind::ClosedForm => {
@@ -579,16 +580,14 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
     let bytes = grid.to_bytes()?;
     let seconds = t.elapsed().as_secs_f64();
     let size = bytes.len();
-    let grid: &'static PinGrid = leak_grid(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
-    es.pin_grid = Some(grid);
-    let lookup = LOOKUP;
+    let grid = Arc::new(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
     let l2w = grid.desc().local_to_world;
     for inst in &mut es.instances {
-        let m = scenes::translated(&l2w, inst.offset);
-        let sampler = Sampler::with_local_to_world(grid, &m)
-            .map_err(|e| anyhow!("{e}"))?
-            .with_options(lookup);
-        inst.pins = Some(Arc::new(PinsEstimator::from_sampler(sampler)));
+        // Each instance's pins placed by its density's translation.
+        inst.pins = Some(PlacedPins {
+            grid: grid.clone(),
+            local_to_world: Some(scenes::translated(&l2w, inst.translation)),
+        });
     }
     eprintln!(
         "  pins: {:?} cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",

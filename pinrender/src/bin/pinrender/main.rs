@@ -10,7 +10,10 @@ mod data;
 mod eval;
 mod render_cmd;
 mod shaders;
-mod volume;
+
+// The volume adapters live in the library (its tests link against them); the subcommands
+// reach them as `crate::volume`.
+use pinrender::volume;
 
 use std::process::ExitCode;
 

@@ -7,19 +7,17 @@ use anyhow::{Result, anyhow, bail};
 use clap::Args;
 use std::time::Instant;
 
-use pinrender::gpu_render::{
-    GpuDensity, GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity, GpuRenderer, GpuScene,
-};
+use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::render::{
     Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image, MajorantGrid,
-    Medium, RenderSettings, Scene, Sun, TransportEstimator, VoxelGrid, block_bias, render,
-    render_wavefront,
+    RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
 
-use crate::volume::{self, PinsEstimator, SourceField, VolumeArgs};
+use crate::volume::{self, SourceField, VolumeArgs};
 use pinbake::limits::parse_f64x3;
+use pinrender::medium::{MediumDesc, PlacedPins};
 
 #[derive(Args, Debug)]
 #[command(after_help = "\
@@ -291,33 +289,15 @@ pub fn run(a: RenderArgs) -> Result<()> {
         glam::DVec3::from(medium.bounds.0),
         glam::DVec3::from(medium.bounds.1),
     );
-    let field = || -> Result<Arc<dyn DensityField>> {
-        medium.field.clone().ok_or_else(|| {
-            anyhow!(
-                "{}: no embedded density, which the {} estimator needs (bake with \
-                 `pinbake bake --embed-density N`, or render with --volume)",
-                input.display(),
-                a.estimator
-            )
-        })
-    };
-    let majorants = || -> Result<Arc<MajorantGrid>> {
-        match &medium.majorants {
-            Some(m) => Ok(m.clone()),
-            None => Ok(Arc::new(
-                MajorantGrid::from_field(&*field()?, [a.majorant_bricks; 3])
-                    .map_err(|e| anyhow!("{e}"))?,
-            )),
-        }
-    };
-    let pins_estimator = || -> Result<Arc<dyn TransportEstimator>> {
-        let grid = medium.pins.expect("opened for the pin estimators");
-        let sampler = grid
-            .sampler()
-            .map_err(|e| anyhow!("{e}"))?
-            .with_options(a.lookup());
-        Ok(Arc::new(PinsEstimator::from_sampler(sampler)))
-    };
+    if a.estimator.needs_density() && medium.field.is_none() {
+        bail!(
+            "{}: no embedded density, which the {} estimator needs (bake with \
+             `pinbake bake --embed-density N`, or render with --volume)",
+            input.display(),
+            a.estimator
+        );
+    }
+    let desc = medium.desc(&a)?;
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
     let target = a.camera_target.unwrap_or(centre.to_array());
@@ -345,16 +325,12 @@ pub fn run(a: RenderArgs) -> Result<()> {
         media: Vec::new(),
     };
     if a.backend == "gpu" {
-        let image = render_gpu(&a, &medium, &field, &majorants, &scene)?;
+        let image = render_gpu(&a, &desc, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
-    let density = a.estimator.build_density_estimator(&field, &majorants)?;
-    let medium = match (density, a.estimator.needs_pins()) {
-        // pinms: ratio tracking for primary rays, pins after the first scattering event.
-        (Some(primary), true) => Medium::new(primary, pins_estimator()?),
-        (Some(only), false) => Medium::single(only),
-        (None, _) => Medium::single(pins_estimator()?),
-    };
+    let medium = desc
+        .cpu_medium(a.estimator, a.lookup())
+        .map_err(|e| anyhow!("{e}"))?;
     let scene = Scene {
         media: vec![medium],
         ..scene
@@ -393,7 +369,7 @@ struct OpenedMedium {
     field: Option<Arc<dyn DensityField>>,
     /// The file's majorants (a pin file alone); `None`: built from the field.
     majorants: Option<Arc<MajorantGrid>>,
-    pins: Option<&'static pinrt::PinGrid>,
+    pins: Option<Arc<pinrt::PinGrid>>,
     /// The source volume, for its GPU copy.
     opened: Option<volume::Opened>,
     /// A pin file's embedded density, for its GPU copy.
@@ -401,6 +377,28 @@ struct OpenedMedium {
 }
 
 impl OpenedMedium {
+    /// The render's medium description: what the CPU estimators and the GPU packing read
+    /// (the GPU copy of the density only for a GPU render of an estimator that reads it).
+    fn desc(&self, a: &RenderArgs) -> Result<MediumDesc> {
+        let gpu = a.backend == "gpu" && a.estimator.needs_density();
+        Ok(MediumDesc {
+            field: self.field.clone(),
+            majorants: self.majorants.clone(),
+            majorant_bricks: a.majorant_bricks,
+            analytic: None,
+            pins: self.pins.clone().map(|grid| PlacedPins {
+                grid,
+                local_to_world: None,
+            }),
+            gpu_density: if gpu {
+                Some(Arc::new(self.gpu_density()?))
+            } else {
+                None
+            },
+            translation: [0.0; 3],
+        })
+    }
+
     fn gpu_density(&self) -> Result<GpuDensity> {
         match (&self.opened, &self.voxels) {
             (Some(o), _) => o.gpu_density(),
@@ -428,7 +426,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
                 a.allow_mismatched_pins,
             )?;
         }
-        Some(volume::leak_grid(grid))
+        Some(Arc::new(grid))
     } else {
         None
     };
@@ -443,8 +441,8 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
 }
 
 fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
-    let grid = volume::leak_grid(volume::load_pins(path)?);
-    let m = volume::pin_file_medium(path, grid)?;
+    let grid = Arc::new(volume::load_pins(path)?);
+    let m = volume::pin_file_medium(path, &grid)?;
     // The placed grid's world box (rotations included) frames the camera.
     let bounds = grid
         .sampler()
@@ -511,43 +509,10 @@ fn write(
 
 /// The same render on the GPU path tracer: returns the image, its spp and the seconds spent
 /// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
-fn render_gpu(
-    a: &RenderArgs,
-    medium: &OpenedMedium,
-    field: &dyn Fn() -> Result<Arc<dyn DensityField>>,
-    majorants: &dyn Fn() -> Result<Arc<MajorantGrid>>,
-    scene: &Scene,
-) -> Result<(Image, u32, f64)> {
+fn render_gpu(a: &RenderArgs, desc: &MediumDesc, scene: &Scene) -> Result<(Image, u32, f64)> {
     let est: GpuEstimator = a.estimator;
-    let grid = if est.uses_pins() { medium.pins } else { None };
-    let majorants = if est.uses_majorants() {
-        Some(majorants()?)
-    } else {
-        None
-    };
-    // `field` names the pin file that lacks a density.
-    let density = if est.needs_density() {
-        field()?;
-        Some(medium.gpu_density()?)
-    } else {
-        None
-    };
-    let media = GpuMedia {
-        grids: grid.into_iter().collect(),
-        densities: density.into_iter().collect(),
-        media: vec![GpuMedium {
-            pins: grid.map(|_| GpuPins {
-                grid: 0,
-                local_to_world: None,
-                options: a.lookup(),
-            }),
-            density: est.needs_density().then_some(GpuPlacedDensity {
-                density: 0,
-                translation: [0.0; 3],
-                majorants,
-            }),
-        }],
-    };
+    let media = pinrender::medium::gpu_media(std::slice::from_ref(desc), Some(est), a.lookup())
+        .map_err(|e| anyhow!("{e}"))?;
     let ctx = GpuContext::new().map_err(|e| anyhow!("{e}"))?;
     let renderer = GpuRenderer::with_media(&ctx, &media).map_err(|e| anyhow!("{e}"))?;
     let gs = GpuScene::from_scene(scene, a.max_bounces);

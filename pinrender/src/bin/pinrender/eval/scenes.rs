@@ -13,8 +13,9 @@ use pinrender::render::{
     MajorantGrid, Medium, Scene, Sun, TransportEstimator, splitmix64,
 };
 
-use pinrender::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
-use pinrt::{PinGrid, SamplerOptions};
+use pinrender::gpu_render::{GpuDensity, GpuMedia};
+use pinrender::medium::MediumDesc;
+use pinrt::SamplerOptions;
 
 use crate::volume::{Opened, SourceField, VolumeArgs};
 
@@ -81,17 +82,6 @@ impl RefKind {
     }
 }
 
-/// One medium instance of a scene.
-pub struct Instance {
-    pub field: Arc<dyn DensityField>,
-    pub majorants: Arc<MajorantGrid>,
-    pub analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
-    /// World offset of the instance (its pin sampler's translation).
-    pub offset: [f64; 3],
-    /// Filled after the bake.
-    pub pins: Option<Arc<dyn TransportEstimator>>,
-}
-
 /// An evaluation scene.
 pub struct EvalScene {
     pub name: &'static str,
@@ -102,7 +92,9 @@ pub struct EvalScene {
     /// Camera, lights, material; `media` is empty (filled per estimator).
     pub scene: Scene,
     pub max_bounces: u32,
-    pub instances: Vec<Instance>,
+    /// Each medium instance, described once for the CPU estimators and the GPU packing;
+    /// their pins are placed after the bake.
+    pub instances: Vec<MediumDesc>,
     /// The field the pins are baked from (the base volume for instanced scenes).
     pub bake_source: Arc<dyn DensitySource>,
     pub bake_cells: u32,
@@ -114,11 +106,6 @@ pub struct EvalScene {
     pub ref_spp: u32,
     pub estimators: Vec<String>,
     pub cache: CacheSettings,
-    /// The GPU renderer's copy of the bake source's density (every instance places it by
-    /// its offset, as the CPU fields are placed).
-    pub gpu_density: GpuDensity,
-    /// The baked pin grid (after the bake), shared by the CPU `pins` and the GPU.
-    pub pin_grid: Option<&'static PinGrid>,
 }
 
 pub const SCENES: [&str; 7] = [
@@ -232,19 +219,24 @@ fn cache_for(lo: DVec3, hi: DVec3, sizes: &Sizes) -> CacheSettings {
     }
 }
 
+/// The one medium of a single-volume scene: `field` for the CPU, its GPU copy in the same
+/// frame, majorants of `bricks`^3.
 fn single_instance(
     field: Arc<dyn DensityField>,
     bricks: u32,
     analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
-) -> Result<Instance> {
+    gpu_density: Arc<GpuDensity>,
+) -> Result<MediumDesc> {
     let majorants =
         Arc::new(MajorantGrid::from_field(&*field, [bricks; 3]).map_err(|e| anyhow!("{e}"))?);
-    Ok(Instance {
-        field,
-        majorants,
+    Ok(MediumDesc {
+        field: Some(field),
+        majorants: Some(majorants),
+        majorant_bricks: bricks,
         analytic,
-        offset: [0.0; 3],
         pins: None,
+        gpu_density: Some(gpu_density),
+        translation: [0.0; 3],
     })
 }
 
@@ -264,10 +256,10 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         &volume_args(SMOKE_DENSITY_SCALE),
     )?;
     let src = opened.source();
-    let gpu_density = opened.gpu_density()?;
+    let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
-    let inst = single_instance(field, 16, None)?;
+    let inst = single_instance(field, 16, None, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.4, 0.15, 1.0), 40.0, 0.95);
     let (sun, env) = lights((hi - lo).length());
@@ -293,8 +285,6 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 3,
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_density,
-        pin_grid: None,
     })
 }
 
@@ -316,10 +306,10 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     };
     let opened = Opened::Dense(Arc::new(source::raw::read_raw(path, options)?));
     let src = opened.source();
-    let gpu_density = opened.gpu_density()?;
+    let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
-    let inst = single_instance(field, 16, None)?;
+    let inst = single_instance(field, 16, None, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.35, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
@@ -343,8 +333,6 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 8,
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_density,
-        pin_grid: None,
     })
 }
 
@@ -368,11 +356,11 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     let spec: ProceduralSpec = COSINE_SPEC.parse().map_err(|e| anyhow!("{e}"))?;
     let noise = Arc::new(spec.build_noise()?);
     let src: Arc<dyn DensitySource> = noise.clone();
-    let gpu_density = Opened::Noise(noise.clone()).gpu_density()?;
+    let gpu_density = Arc::new(Opened::Noise(noise.clone()).gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
-    let inst = single_instance(field, 16, Some(analytic))?;
+    let inst = single_instance(field, 16, Some(analytic), gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.6, 0.45, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
@@ -395,8 +383,6 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * 2,
         estimators: estimators(&["cosine-closed-form"], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_density,
-        pin_grid: None,
     })
 }
 
@@ -420,14 +406,14 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
     let (lo, hi) = (DVec3::ZERO, DVec3::from_array(BOX_MAX));
     let pb = source::HomogeneousBox::new(Aabb::new(lo, hi), BOX_SIGMA as f32)?;
     let src: Arc<dyn DensitySource> = Arc::new(pb.clone());
-    let gpu_density = Opened::Box(pb.clone()).gpu_density()?;
+    let gpu_density = Arc::new(Opened::Box(pb.clone()).gpu_density()?);
     let field: Arc<dyn DensityField> = Arc::new(HomogeneousBox {
         min: lo.to_array(),
         max: hi.to_array(),
         sigma_t: BOX_SIGMA as f32,
     });
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(BoxAnalytic(pb));
-    let inst = single_instance(field, 1, Some(analytic))?;
+    let inst = single_instance(field, 1, Some(analytic), gpu_density)?;
     // The box scenes are cheap: a larger image.
     let size = sizes.image + sizes.image / 2;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.55, 0.5, 1.0), 40.0, 0.8);
@@ -488,8 +474,6 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp * if single { 1 } else { 8 },
         estimators: ests,
         cache: cache_for(lo, hi, sizes),
-        gpu_density,
-        pin_grid: None,
     })
 }
 
@@ -573,7 +557,7 @@ fn blob() -> Result<DenseGrid> {
 
 fn instances(sizes: &Sizes) -> Result<EvalScene> {
     let blob = Opened::Dense(Arc::new(blob()?));
-    let gpu_density = blob.gpu_density()?;
+    let gpu_density = Arc::new(blob.gpu_density()?);
     let base = blob.source();
     let base_field: Arc<dyn DensityField> = Arc::new(SourceField(base.clone()));
     let k = INSTANCES_PER_AXIS;
@@ -597,12 +581,14 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
                 let majorants = Arc::new(
                     MajorantGrid::from_field(&*field, [4; 3]).map_err(|e| anyhow!("{e}"))?,
                 );
-                insts.push(Instance {
-                    field,
-                    majorants,
+                insts.push(MediumDesc {
+                    field: Some(field),
+                    majorants: Some(majorants),
+                    majorant_bricks: 4,
                     analytic: None,
-                    offset: off.to_array(),
                     pins: None,
+                    gpu_density: Some(gpu_density.clone()),
+                    translation: off.to_array(),
                 });
             }
         }
@@ -642,8 +628,6 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: (sizes.ref_spp * 3).max(1),
         estimators: estimators(&[], true),
         cache: cache_for(lo, hi, sizes),
-        gpu_density,
-        pin_grid: None,
     })
 }
 
@@ -658,11 +642,11 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
         t.elapsed().as_secs_f64()
     );
     let src = opened.source();
-    let gpu_density = opened.gpu_density()?;
+    let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
     // Finer bricks than the other scenes: the cloud has large empty regions between lobes.
-    let inst = single_instance(field, 32, None)?;
+    let inst = single_instance(field, 32, None, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
@@ -691,18 +675,16 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
         ref_spp: sizes.ref_spp,
         estimators: ests,
         cache: cache_for(lo, hi, sizes),
-        gpu_density,
-        pin_grid: None,
     })
 }
 
-/// One instance's estimator by name.
-pub fn estimator(inst: &Instance, name: &str) -> Result<Arc<dyn TransportEstimator>> {
+/// One instance's estimator by name: the closed forms here, every other through the
+/// renderer's one parser and the instance's description.
+pub fn estimator(inst: &MediumDesc, name: &str) -> Result<Arc<dyn TransportEstimator>> {
     Ok(match name {
         "pins" => inst
-            .pins
-            .clone()
-            .ok_or_else(|| anyhow!("pins are not baked for this scene"))?,
+            .pins_estimator(super::LOOKUP)
+            .map_err(|_| anyhow!("pins are not baked for this scene"))?,
         "cosine-closed-form" | "box-closed-form" => {
             let a = inst
                 .analytic
@@ -711,11 +693,9 @@ pub fn estimator(inst: &Instance, name: &str) -> Result<Arc<dyn TransportEstimat
             Arc::new(ClosedFormTracker::new(a).map_err(|e| anyhow!("{e}"))?)
         }
         other => {
-            // The estimators over a density: the renderer's one parser and builder.
             let spec: EstimatorSpec = other.parse().map_err(|e: String| anyhow!("{e}"))?;
-            let field = || Ok::<_, anyhow::Error>(inst.field.clone());
-            let majorants = || Ok::<_, anyhow::Error>(inst.majorants.clone());
-            spec.build_density_estimator(&field, &majorants)?
+            spec.build_density_estimator(&|| inst.field(), &|| inst.majorants())
+                .map_err(|e| anyhow!("{e}"))?
                 .ok_or_else(|| anyhow!("estimator {other}: not over a density"))?
         }
     })
@@ -747,30 +727,9 @@ pub fn translated(local_to_world: &[f64; 12], offset: [f64; 3]) -> [f64; 12] {
     m
 }
 
-/// The scene's media for the GPU renderer: the baked pin grid (if any) and the density, both
-/// placed per instance exactly as the CPU estimators place them, with the CPU's majorant
-/// grids; `lookup` is the pins' lookup jitter.
-pub fn gpu_media(es: &EvalScene, lookup: SamplerOptions) -> Result<GpuMedia<'static>> {
-    let grids: Vec<&'static PinGrid> = es.pin_grid.into_iter().collect();
-    let media = es
-        .instances
-        .iter()
-        .map(|inst| GpuMedium {
-            pins: es.pin_grid.map(|g| GpuPins {
-                grid: 0,
-                local_to_world: Some(translated(&g.desc().local_to_world, inst.offset)),
-                options: lookup,
-            }),
-            density: Some(GpuPlacedDensity {
-                density: 0,
-                translation: inst.offset,
-                majorants: Some(inst.majorants.clone()),
-            }),
-        })
-        .collect();
-    Ok(GpuMedia {
-        grids,
-        densities: vec![es.gpu_density.clone()],
-        media,
-    })
+/// The scene's media for the GPU renderer, from the same descriptions as the CPU's: the
+/// baked pin grid (if any) and the density, placed per instance exactly as the CPU
+/// estimators place them, with the CPU's majorant grids; `lookup` is the pins' lookup jitter.
+pub fn gpu_media(es: &EvalScene, lookup: SamplerOptions) -> Result<GpuMedia<'_>> {
+    pinrender::medium::gpu_media(&es.instances, None, lookup).map_err(|e| anyhow!("{e}"))
 }

@@ -1,18 +1,19 @@
-//! Loading volumes through pinbake's sources and adapting them to the renderer, plus the
-//! pin-grid estimator adapter.
+//! Loading volumes through pinbake's sources and adapting them to the renderer (feature
+//! `cli`): the `pinrender` binary's half that its tests link against. Errors are `anyhow`,
+//! as in `pinbake::cli_args`: every caller reports them to a user and exits.
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
+use crate::gpu_render::{CosineWave, GpuDensity};
+use crate::render::{DensityField, MajorantGrid, VoxelGrid};
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{self, DensitySource, SourceSpec};
-use pinrender::gpu_render::{CosineWave, GpuDensity};
-use pinrender::render::{DensityField, MajorantGrid, Pcg32, TransportEstimator, VoxelGrid};
-use pinrt::{PinGrid, Ray, RayQuery, Rng, Sampler};
+use pinrt::PinGrid;
 
 /// The volume and how to read it (the flags shared with `pinbake bake`).
 #[derive(Args, Debug, Clone, Default)]
@@ -132,7 +133,7 @@ impl Opened {
                     })
                     .collect(),
             ),
-            Opened::Box(bx) => GpuDensity::homogeneous(&pinrender::render::HomogeneousBox {
+            Opened::Box(bx) => GpuDensity::homogeneous(&crate::render::HomogeneousBox {
                 min: lo,
                 max: hi,
                 sigma_t: bx.density(),
@@ -209,82 +210,6 @@ pub fn majorants(field: &SourceField, bricks: u32) -> Result<Arc<MajorantGrid>> 
     Ok(Arc::new(
         MajorantGrid::from_field(field, [bricks; 3]).map_err(|e| anyhow!("{e}"))?,
     ))
-}
-
-/// A pin grid as a renderer estimator. The grid is leaked: a binary renders with it until exit.
-pub struct PinsEstimator {
-    sampler: Sampler<'static>,
-    /// The placed grid's world box (the renderer skips the estimator for rays that miss it).
-    bounds: Option<([f64; 3], [f64; 3])>,
-}
-
-impl PinsEstimator {
-    /// An estimator over an already placed sampler (instances, lookup options).
-    pub fn from_sampler(sampler: Sampler<'static>) -> Self {
-        Self {
-            bounds: sampler.world_bounds(),
-            sampler,
-        }
-    }
-}
-
-/// Leaks a pin grid so samplers over it live until the process exits (a binary renders with
-/// its grids until then).
-pub fn leak_grid(grid: PinGrid) -> &'static PinGrid {
-    Box::leak(Box::new(grid))
-}
-
-/// The batch form of the single queries' seeding: each ray's pin generator from two draws of
-/// its path generator, in the order `sample_distance` and `transmittance` draw them.
-fn pin_queries(rays: &[[Vec3; 2]], t_max: f32, rngs: &mut [Pcg32]) -> (Vec<RayQuery>, Vec<Rng>) {
-    let q = rays
-        .iter()
-        .map(|r| RayQuery::new(r[0].to_array(), r[1].to_array(), t_max))
-        .collect();
-    let g = rngs
-        .iter_mut()
-        .map(|rng| Rng::for_query(rng.next_u32(), rng.next_u32()))
-        .collect();
-    (q, g)
-}
-
-impl TransportEstimator for PinsEstimator {
-    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
-        let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
-        self.sampler
-            .sample_distance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
-    }
-    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
-        let mut r = Rng::for_query(rng.next_u32(), rng.next_u32());
-        self.sampler
-            .transmittance(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r)
-    }
-    fn transmittance_batch(
-        &self,
-        rays: &[[Vec3; 2]],
-        t_max: f32,
-        rngs: &mut [Pcg32],
-        out: &mut [f32],
-    ) {
-        let (q, mut r) = pin_queries(rays, t_max, rngs);
-        self.sampler.transmittance_batch_rngs(&q, &mut r, out);
-    }
-    fn sample_distance_batch(
-        &self,
-        rays: &[[Vec3; 2]],
-        t_max: f32,
-        rngs: &mut [Pcg32],
-        out: &mut [Option<f32>],
-    ) {
-        let (q, mut r) = pin_queries(rays, t_max, rngs);
-        self.sampler.sample_distance_batch_rngs(&q, &mut r, out);
-    }
-    fn name(&self) -> String {
-        "pins".into()
-    }
-    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        self.bounds
-    }
 }
 
 /// Opens `--pins FILE` as a whole grid: a tile of a farm bake is refused (it covers only its

@@ -1,0 +1,290 @@
+//! One medium instance as data: its density (what the CPU estimators read, and its GPU copy),
+//! its majorants, its pins and their placement. The CPU estimators
+//! ([`MediumDesc::cpu_medium`]) and the GPU packing ([`gpu_media`]) both derive from it, so
+//! `pinrender render` and the eval's scenes describe a medium once for both renderers.
+
+use std::sync::Arc;
+
+use pinrt::{PinGrid, SamplerOptions};
+
+#[cfg(feature = "gpu")]
+use crate::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
+use crate::render::{
+    AnalyticOpticalDepth, DensityField, EstimatorSpec, MajorantGrid, Medium, PinsEstimator,
+    RenderError, TransportEstimator,
+};
+
+/// A pin grid placed in the world.
+#[derive(Clone)]
+pub struct PlacedPins {
+    pub grid: Arc<PinGrid>,
+    /// Row-major 3x4 local-to-world; `None`: the file's own.
+    pub local_to_world: Option<[f64; 12]>,
+}
+
+/// One medium instance. Instances of one scene may share their grids and GPU densities
+/// (`Arc`s): the GPU packing uploads each shared one once.
+#[derive(Clone, Default)]
+pub struct MediumDesc {
+    /// The extinction the CPU estimators read, in the world (placement applied); `None`: a
+    /// pin file without embedded density.
+    pub field: Option<Arc<dyn DensityField>>,
+    /// World-space majorants over `field`; `None`: built from `field` with
+    /// `majorant_bricks` per axis when an estimator tracks.
+    pub majorants: Option<Arc<MajorantGrid>>,
+    pub majorant_bricks: u32,
+    /// The closed form of `field`'s optical depth (exact references), if it has one.
+    pub analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
+    pub pins: Option<PlacedPins>,
+    /// The GPU's copy of the density in its own frame, placed by `translation`
+    /// (`field(p) = gpu_density(p - translation)`); `None` where no GPU render needs it.
+    #[cfg(feature = "gpu")]
+    pub gpu_density: Option<Arc<GpuDensity>>,
+    pub translation: [f64; 3],
+}
+
+fn missing(what: &'static str, why: &str) -> RenderError {
+    RenderError::Invalid {
+        what,
+        why: why.to_string(),
+    }
+}
+
+impl MediumDesc {
+    /// The density field, or an error naming what is missing.
+    pub fn field(&self) -> Result<Arc<dyn DensityField>, RenderError> {
+        self.field
+            .clone()
+            .ok_or_else(|| missing("medium", "no density field"))
+    }
+
+    /// The majorants: the description's, else built from the field.
+    pub fn majorants(&self) -> Result<Arc<MajorantGrid>, RenderError> {
+        match &self.majorants {
+            Some(m) => Ok(m.clone()),
+            None => Ok(Arc::new(MajorantGrid::from_field(
+                &*self.field()?,
+                [self.majorant_bricks; 3],
+            )?)),
+        }
+    }
+
+    /// The pins as an estimator with lookup options `lookup`.
+    pub fn pins_estimator(
+        &self,
+        lookup: SamplerOptions,
+    ) -> Result<Arc<dyn TransportEstimator>, RenderError> {
+        let p = self
+            .pins
+            .as_ref()
+            .ok_or_else(|| missing("medium", "no pin grid"))?;
+        Ok(Arc::new(PinsEstimator::new(
+            p.grid.clone(),
+            p.local_to_world.as_ref(),
+            lookup,
+        )?))
+    }
+
+    /// The CPU renderer's medium for `spec`: the estimator over the density, the pins, or
+    /// PinMS (the density's ratio tracking for primary rays, pins after the first scattering).
+    pub fn cpu_medium(
+        &self,
+        spec: EstimatorSpec,
+        lookup: SamplerOptions,
+    ) -> Result<Medium, RenderError> {
+        let density = spec.build_density_estimator(&|| self.field(), &|| self.majorants())?;
+        Ok(match (density, spec.needs_pins()) {
+            (Some(primary), true) => Medium::new(primary, self.pins_estimator(lookup)?),
+            (Some(only), false) => Medium::single(only),
+            (None, _) => Medium::single(self.pins_estimator(lookup)?),
+        })
+    }
+}
+
+/// The GPU renderer's media for `media`: every pin grid and density they share uploaded
+/// once, each instance placed as its CPU estimators are. `spec`: only what that estimator
+/// reads (a render); `None`: everything the media have (the eval renders several
+/// estimators with one upload).
+#[cfg(feature = "gpu")]
+pub fn gpu_media<'a>(
+    media: &'a [MediumDesc],
+    spec: Option<EstimatorSpec>,
+    lookup: SamplerOptions,
+) -> Result<GpuMedia<'a>, RenderError> {
+    let (pins, density, majorants) = match spec {
+        Some(s) => (s.uses_pins(), s.needs_density(), s.uses_majorants()),
+        None => (true, true, true),
+    };
+    let mut out = GpuMedia::default();
+    let mut grids: Vec<&'a Arc<PinGrid>> = Vec::new();
+    let mut densities: Vec<&'a Arc<GpuDensity>> = Vec::new();
+    for m in media {
+        let gpu_pins = match (&m.pins, pins) {
+            (Some(p), true) => {
+                let grid = grids
+                    .iter()
+                    .position(|g| Arc::ptr_eq(g, &p.grid))
+                    .unwrap_or_else(|| {
+                        grids.push(&p.grid);
+                        out.grids.push(&*p.grid);
+                        grids.len() - 1
+                    });
+                Some(GpuPins {
+                    grid,
+                    local_to_world: p.local_to_world,
+                    options: lookup,
+                })
+            }
+            _ => None,
+        };
+        let placed = match (&m.gpu_density, density) {
+            (Some(d), true) => {
+                let index = densities
+                    .iter()
+                    .position(|x| Arc::ptr_eq(x, d))
+                    .unwrap_or_else(|| {
+                        densities.push(d);
+                        out.densities.push((**d).clone());
+                        densities.len() - 1
+                    });
+                Some(GpuPlacedDensity {
+                    density: index,
+                    translation: m.translation,
+                    majorants: if majorants {
+                        Some(m.majorants()?)
+                    } else {
+                        None
+                    },
+                })
+            }
+            _ => None,
+        };
+        out.media.push(GpuMedium {
+            pins: gpu_pins,
+            density: placed,
+        });
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::VoxelGrid;
+    use pin_format::Directions;
+    use pinrt::testing::random_grid;
+
+    fn grid() -> Arc<PinGrid> {
+        let owned = random_grid(Directions::THESIS_DEFAULT, [3, 3, 3], 1, false, 5);
+        Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap())
+    }
+
+    /// Two instances sharing one grid and one density, one with its own grid.
+    fn media() -> (Vec<MediumDesc>, Arc<PinGrid>) {
+        let shared = grid();
+        let voxels = VoxelGrid::new([2; 3], [0.0; 3], [0.5; 3], vec![1.0; 8]).unwrap();
+        #[cfg(feature = "gpu")]
+        let density = Arc::new(GpuDensity::from_voxel_grid(voxels.clone()).unwrap());
+        let field: Arc<dyn DensityField> = Arc::new(voxels);
+        let desc = |pins: Arc<PinGrid>, t: f64| MediumDesc {
+            field: Some(field.clone()),
+            majorant_bricks: 2,
+            pins: Some(PlacedPins {
+                grid: pins,
+                local_to_world: Some([1.0, 0.0, 0.0, t, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]),
+            }),
+            #[cfg(feature = "gpu")]
+            gpu_density: Some(density.clone()),
+            translation: [t, 0.0, 0.0],
+            ..MediumDesc::default()
+        };
+        let own = grid();
+        (
+            vec![
+                desc(shared.clone(), 0.0),
+                desc(own, 2.0),
+                desc(shared.clone(), 4.0),
+            ],
+            shared,
+        )
+    }
+
+    /// Shared grids and densities are uploaded once, each instance keeps its placement, and
+    /// an estimator's media carry only what it reads.
+    #[cfg(feature = "gpu")]
+    #[test]
+    fn gpu_packing_shares_and_places() {
+        let (descs, shared) = media();
+        let all = gpu_media(&descs, None, SamplerOptions::default()).unwrap();
+        assert_eq!(all.grids.len(), 2);
+        assert!(std::ptr::eq(all.grids[0], &*shared));
+        assert_eq!(all.densities.len(), 1);
+        let pins: Vec<usize> = all
+            .media
+            .iter()
+            .map(|m| m.pins.as_ref().unwrap().grid)
+            .collect();
+        assert_eq!(pins, [0, 1, 0]);
+        let t: Vec<f64> = all
+            .media
+            .iter()
+            .map(|m| m.density.as_ref().unwrap().translation[0])
+            .collect();
+        assert_eq!(t, [0.0, 2.0, 4.0]);
+        assert!(all.media.iter().all(|m| {
+            m.density.as_ref().unwrap().majorants.is_some()
+                && m.pins.as_ref().unwrap().local_to_world.unwrap()[3]
+                    == m.density.as_ref().unwrap().translation[0]
+        }));
+        let ratio = gpu_media(
+            &descs,
+            Some(EstimatorSpec::RatioTracking),
+            SamplerOptions::default(),
+        )
+        .unwrap();
+        assert!(ratio.grids.is_empty() && ratio.media.iter().all(|m| m.pins.is_none()));
+        let pins = gpu_media(&descs, Some(EstimatorSpec::Pins), SamplerOptions::default()).unwrap();
+        assert!(pins.densities.is_empty() && pins.media.iter().all(|m| m.density.is_none()));
+        let march = EstimatorSpec::RayMarching { rel_step: 0.1 };
+        let march = gpu_media(&descs, Some(march), SamplerOptions::default()).unwrap();
+        assert!(
+            march
+                .media
+                .iter()
+                .all(|m| m.density.as_ref().unwrap().majorants.is_none())
+        );
+    }
+
+    /// The CPU medium: PinMS pairs the density's tracker with the pins; a description
+    /// without pins or density is an error, not a panic.
+    #[test]
+    fn cpu_medium_follows_the_spec() {
+        let (descs, _) = media();
+        let opts = SamplerOptions::default();
+        let m = descs[1].cpu_medium(EstimatorSpec::PinMs, opts).unwrap();
+        assert_eq!(m.secondary.name(), "pins");
+        assert_ne!(m.primary.name(), "pins");
+        // Placed by the description: the pins' box moved with the instance.
+        assert!((m.secondary.bounds().unwrap().0[0] - 2.0).abs() < 1e-3);
+        let no_pins = MediumDesc {
+            pins: None,
+            ..descs[0].clone()
+        };
+        assert!(no_pins.cpu_medium(EstimatorSpec::Pins, opts).is_err());
+        assert!(
+            no_pins
+                .cpu_medium(EstimatorSpec::DeltaTracking, opts)
+                .is_ok()
+        );
+        let no_field = MediumDesc {
+            field: None,
+            ..descs[0].clone()
+        };
+        assert!(
+            no_field
+                .cpu_medium(EstimatorSpec::RatioTracking, opts)
+                .is_err()
+        );
+        assert!(no_field.cpu_medium(EstimatorSpec::Pins, opts).is_ok());
+    }
+}
