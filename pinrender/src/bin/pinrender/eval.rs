@@ -547,7 +547,7 @@ fn reference_half(es: &EvalScene, a: &EvalArgs, seed: u64, spp: u32) -> Result<I
 }
 
 /// The pins' lookup options, CPU and GPU: `pinrender render`'s defaults (one cell of jitter
-/// as in the thesis' evaluation, and the chained lookups measured in docs/evaluation.md).
+/// as in the thesis' evaluation, looked up at the segment's middle; docs/evaluation.md).
 const LOOKUP: SamplerOptions = crate::render_cmd::DEFAULT_LOOKUP;
 
 /// Bakes the scene's pins and installs a pin estimator per instance.

@@ -315,8 +315,9 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
          rendered once and cached (`out/eval/cache/`); relative MSE is \
          `mean((x - ref)^2 / (ref^2 + 0.01))`. Pin bakes are an offline asset step: their time \
          is listed per scene and is *not* included in the render times. {} bounces (1 for \
-         box-ss), albedo 0.95, isotropic phase, pins looked up with a one-cell spatial and \
-         directional jitter (as in the thesis' evaluation).",
+         box-ss), albedo 0.95, isotropic phase, pins looked up as `pinrender render` looks \
+         them up by default: at the middle of the query segment, with one cell of spatial and \
+         directional jitter.",
         meta.sizes.max_bounces
     );
     let _ = writeln!(s);
