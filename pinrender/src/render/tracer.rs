@@ -598,10 +598,21 @@ where
         }
     };
     let spp = in_pool(settings, || run(&mut sums))?;
+    Ok(average_sums(scene, &sums, spp, start))
+}
+
+/// The image of `spp` samples per pixel from their per-pixel sums, with the time since `start`:
+/// the end of [`render`] and of the wavefront loop.
+pub(crate) fn average_sums(
+    scene: &Scene,
+    sums: &[[f64; 3]],
+    spp: u32,
+    start: Instant,
+) -> RenderOutput {
     let seconds = start.elapsed().as_secs_f64();
     let inv = 1.0 / spp as f64;
     let rgb = sums.iter().map(|s| s.map(|c| (c * inv) as f32)).collect();
-    Ok(RenderOutput {
+    RenderOutput {
         image: Image {
             width: scene.camera.width,
             height: scene.camera.height,
@@ -609,7 +620,7 @@ where
         },
         spp,
         seconds,
-    })
+    }
 }
 
 /// The budget and thread checks of [`render`].

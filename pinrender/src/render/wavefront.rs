@@ -20,12 +20,12 @@ use rayon::prelude::*;
 use std::time::{Duration, Instant};
 
 use super::RenderError;
+use super::TransportEstimator;
 use super::phase::{hg_phase, sample_hg};
 use super::rng::Pcg32;
 use super::tracer::{
-    Budget, Ctx, RenderOutput, RenderSettings, Scene, Which, check_settings, in_pool,
+    Budget, Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
 };
-use super::{Image, TransportEstimator};
 
 /// Where a path is in `Ctx::trace`.
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
@@ -422,18 +422,7 @@ pub fn render_wavefront(
         }
     };
     let spp = in_pool(settings, || run(&mut sums))?;
-    let seconds = start.elapsed().as_secs_f64();
-    let inv = 1.0 / spp as f64;
-    let rgb = sums.iter().map(|s| s.map(|c| (c * inv) as f32)).collect();
-    Ok(RenderOutput {
-        image: Image {
-            width: scene.camera.width,
-            height: scene.camera.height,
-            rgb,
-        },
-        spp,
-        seconds,
-    })
+    Ok(average_sums(scene, &sums, spp, start))
 }
 
 #[cfg(test)]
