@@ -354,26 +354,42 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
     })
 }
 
-/// Loads `--pins FILE`, or bakes the volume in memory with the default settings (cells: as
-/// given, else `pinbake::bake::DEFAULT_MAX_CELLS` per axis capped by the voxels).
+/// Loads `--pins FILE`, or bakes the volume in memory as `pinbake bake` would by default: the
+/// cells (unless given), directions and pins per entry chosen from the volume
+/// (`pinbake::choose::choose_default`), so a render without `--pins` sees the same bake as a
+/// render of `pinbake bake`'s file.
 pub fn pins_for(
     pins: Option<&Path>,
     source: &dyn DensitySource,
     cells: Option<u32>,
     seed: u64,
+    budget: &pinbake::files::MemoryBudget,
 ) -> Result<PinGrid> {
     if let Some(p) = pins {
         return load_pins(p);
     }
-    let cells = match cells {
-        Some(c) => [c; 3],
-        None => pinbake::bake::default_cells(source, true, pinbake::bake::DEFAULT_MAX_CELLS)?,
+    let defaults = pinbake::BakeOptions::default();
+    let stats = pinbake::choose::analyse(source, defaults.crop)?;
+    let fixed = pinbake::choose::Fixed {
+        cells: cells.map(|c| [c; 3]),
+        ..pinbake::choose::Fixed::default()
     };
+    let choice = pinbake::choose::choose_default(&stats, fixed);
     let opts = pinbake::BakeOptions {
-        cells,
+        cells: choice.cells,
+        directions: choice.directions,
+        pins_per_entry: choice.pins_per_entry,
         seed,
-        ..pinbake::BakeOptions::default()
+        ..defaults
     };
+    // The bake, its serialised bytes and the loaded copy.
+    budget.check(
+        &format!(
+            "baking {:?} pin cells x {:?} in memory",
+            opts.cells, opts.directions
+        ),
+        pinbake::bake::estimate_output_bytes(&opts).saturating_mul(2),
+    )?;
     let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
     PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
 }

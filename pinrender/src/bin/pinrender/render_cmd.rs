@@ -100,8 +100,9 @@ pub struct RenderArgs {
     /// Majorant bricks per axis for the trackers (1..=1024).
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub majorant_bricks: u32,
-    /// Spatial cells per axis when baking pins in memory (1..=4096; default: 20, but no more
-    /// than the volume has voxels along an axis).
+    /// Spatial cells per axis when baking pins in memory (1..=4096; default: chosen from the
+    /// volume as `pinbake bake` chooses them, at least 20 on the longest axis, never more than
+    /// the voxels).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub pin_cells: Option<u32>,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
@@ -415,7 +416,13 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     let source = opened.source();
     let b = source.bounds();
     let pins = if a.estimator.needs_pins() {
-        let grid = volume::pins_for(a.pins.as_deref(), source.as_ref(), a.pin_cells, a.seed)?;
+        let grid = volume::pins_for(
+            a.pins.as_deref(),
+            source.as_ref(),
+            a.pin_cells,
+            a.seed,
+            &pinbake::files::MemoryBudget::new(a.max_memory),
+        )?;
         if let Some(p) = &a.pins {
             volume::check_pins_match(
                 p,
