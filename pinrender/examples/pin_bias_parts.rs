@@ -19,7 +19,7 @@
 //! the bias floor comes from").
 //!
 //! `cargo run --release -p pinrender --features cli --example pin_bias_parts -- \
-//!     --volume data/openvdb_smoke1.vdb --density-scale 2`
+//!     --volume data/openvdb_smoke1.vdb --density-scale 2 [--jitter-pins] [--jitter S]`
 
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -58,9 +58,9 @@ struct Args {
     /// Camera distance from the box centre, in box diagonals.
     #[arg(long, default_value_t = 1.2)]
     distance: f64,
-    /// Bake without pin jitter (cell and direction-cell centres).
+    /// Bake the thesis' jittered pins instead of the default pins through cell centres.
     #[arg(long)]
-    no_pin_jitter: bool,
+    jitter_pins: bool,
 }
 
 const MODELS: [&str; 6] = ["exact", "a", "b", "c", "d", "c_nominal"];
@@ -266,7 +266,7 @@ fn main() -> Result<()> {
         cells: choice.cells,
         directions: choice.directions,
         pins_per_entry: choice.pins_per_entry,
-        jitter_pins: !args.no_pin_jitter,
+        jitter_pins: args.jitter_pins,
         ..Default::default()
     };
     let (owned, _) = pinbake::bake(&*src, &opts, &|_| {})?;
