@@ -13,6 +13,10 @@
 //!   and direction-cell centre: what a runtime knows without the baker's generator), but the
 //!   baked pin's transmittances (only the mapping uses the nominal line).
 //!
+//! A third family, `single`, measures where a collision lands inside its interval: single
+//! scattering toward the sun along the camera ray with exact transmittances, the collision
+//! drawn exactly (`exact`) and as the pins place it (`d`: the same interval, then uniform).
+//!
 //! a, b, c and c_nominal average over `--draws` lookups (pin choice and lookup jitter drawn as
 //! the sampler draws them). Output: per view and ray family, the mean error and the RMS over
 //! 8x8-pixel blocks of the block mean's relative error, in percent (docs/evaluation.md, "Where
@@ -334,7 +338,7 @@ fn main() -> Result<()> {
         let up = right.cross(fwd);
         let half = (0.5 / args.distance).atan().tan();
         let n = args.size;
-        let rows: Vec<[[f64; 6]; 2]> = (0..n * n)
+        let rows: Vec<[[f64; 6]; 3]> = (0..n * n)
             .into_par_iter()
             .map(|px| {
                 let (x, y) = (px % n, px / n);
@@ -352,11 +356,16 @@ fn main() -> Result<()> {
                 } else {
                     [1.0; 6]
                 };
-                [primary, shadow]
+                let (ss, placed) = single_scatter(&ctx, cam, d, sun, px as u32);
+                let nan = f64::NAN;
+                [primary, shadow, [ss, nan, nan, nan, placed, nan]]
             })
             .collect();
-        for (fi, family) in ["camera", "shadow"].iter().enumerate() {
+        for (fi, family) in ["camera", "shadow", "single"].iter().enumerate() {
             for (m, model) in MODELS.iter().enumerate().skip(1) {
+                if rows[0][fi][m].is_nan() {
+                    continue;
+                }
                 let (mean, block, abs) = errors(&rows, n, fi, m);
                 println!("{vname},{family},{model},{mean:.2},{block:.2},{abs:.4}");
                 let e = totals.entry((family, model)).or_default();
@@ -388,6 +397,83 @@ fn desc_directions(grid: &PinGrid) -> pinrt::Directions {
     grid.shape().directions
 }
 
+/// Single scattering toward the sun along the camera ray `o + t d`, with exact transmittance
+/// toward the sun: `(1 - T) E[T_sun(x)]` with the collision `x` drawn (a) from the exact
+/// distance distribution and (b) as the pins place it: the interval from the exact interval
+/// transmittances of the ray's own 32 intervals (model `d`), then uniformly inside it
+/// (`docs/sampling.md` section 5). Both from the same 16 stratified uniforms. `(b) - (a)` is
+/// the placement of collisions inside their intervals alone.
+fn single_scatter(ctx: &Ctx<'_>, o: DVec3, d: DVec3, sun: DVec3, seed: u32) -> (f64, f64) {
+    const M: usize = 16;
+    let ou = (o - ctx.box_min) / ctx.extent;
+    let du = d / ctx.extent;
+    let Some((te, tx)) = unit_cube_chord(ou, du) else {
+        return (0.0, 0.0);
+    };
+    let ta = te.max(0.0);
+    if !(tx > ta) {
+        return (0.0, 0.0);
+    }
+    // Cumulative optical depth at the fine samples' boundaries.
+    let n = ((tx - ta) * d.length() / ctx.fine).ceil().max(1.0) as usize;
+    let h = (tx - ta) / n as f64;
+    let mut cum = vec![0.0f64; n + 1];
+    for i in 0..n {
+        let t = ta + (i as f64 + 0.5) * h;
+        cum[i + 1] = cum[i] + f64::from(ctx.src.extinction(o + d * t)) * h * d.length();
+    }
+    let total = cum[n];
+    if total < 1e-6 {
+        return (0.0, 0.0);
+    }
+    let t_at = |tau: f64| -> f64 {
+        let i = cum.partition_point(|&c| c < tau).clamp(1, n);
+        let (c0, c1) = (cum[i - 1], cum[i]);
+        let f = if c1 > c0 { (tau - c0) / (c1 - c0) } else { 0.5 };
+        ta + (i as f64 - 1.0 + f.clamp(0.0, 1.0)) * h
+    };
+    let tau_at = |t: f64| -> f64 {
+        let x = ((t - ta) / h).clamp(0.0, n as f64);
+        let i = (x.floor() as usize).min(n - 1);
+        cum[i] + (cum[i + 1] - cum[i]) * (x - i as f64)
+    };
+    let sun_t = |t: f64| -> f64 {
+        let x = o + d * t;
+        let xu = (x - ctx.box_min) / ctx.extent;
+        match unit_cube_chord(xu, sun / ctx.extent) {
+            Some((_, s1)) if s1 > 0.0 => (-ctx.depth(x, sun, 0.0, s1)).exp(),
+            _ => 1.0,
+        }
+    };
+    let absorbed = 1.0 - (-total).exp();
+    // The pins' intervals: 32 equal parts of the whole chord.
+    let len = (tx - te) / 32.0;
+    let taus: Vec<f64> = (0..32)
+        .map(|i| tau_at(te + (i + 1) as f64 * len) - tau_at(te + i as f64 * len))
+        .collect();
+    let mut rng = Rng::for_query(seed, 0x55);
+    let (mut exact, mut placed) = (0.0, 0.0);
+    for k in 0..M {
+        let u = (k as f64 + f64::from(rng.next_f32())) / M as f64 * absorbed;
+        // Exact: the optical depth at which the collision happens.
+        exact += sun_t(t_at(-(1.0 - u).ln()));
+        // Pins: the interval whose cumulative collision probability passes u, then uniform.
+        let mut before = 1.0;
+        let mut j = 31;
+        for (i, &tau) in taus.iter().enumerate() {
+            let after = before * (-tau).exp();
+            if 1.0 - after >= u {
+                j = i;
+                break;
+            }
+            before = after;
+        }
+        let t = te + (j as f64 + f64::from(rng.next_f32())) * len;
+        placed += sun_t(t.max(ta));
+    }
+    (absorbed * exact / M as f64, absorbed * placed / M as f64)
+}
+
 /// Ray parameter where the optical depth along `o + t d` from the box entry reaches `target`.
 fn scatter_point(ctx: &Ctx<'_>, o: DVec3, d: DVec3, target: f64) -> f64 {
     let ou = (o - ctx.box_min) / ctx.extent;
@@ -413,7 +499,7 @@ fn scatter_point(ctx: &Ctx<'_>, o: DVec3, d: DVec3, target: f64) -> f64 {
 /// of model `m` against `exact` in family `fi`. Blocks without medium (exact mean above 0.99)
 /// are left out of both RMS, and opaque blocks (exact mean below 0.02, where a relative error
 /// of a transmittance says nothing about an image) out of the relative one.
-fn errors(rows: &[[[f64; 6]; 2]], n: usize, fi: usize, m: usize) -> (f64, f64, f64) {
+fn errors(rows: &[[[f64; 6]; 3]], n: usize, fi: usize, m: usize) -> (f64, f64, f64) {
     let mean = |k: usize| rows.iter().map(|r| r[fi][k]).sum::<f64>() / rows.len() as f64;
     let me = 100.0 * (mean(m) - mean(0)) / mean(0);
     let (mut r2, mut rc, mut a2, mut ac) = (0.0, 0usize, 0.0, 0usize);
