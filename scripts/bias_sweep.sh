@@ -64,6 +64,9 @@ configs+=(
     # What `pinbake bake` chooses by itself (cells and directions from the volume): the
     # default target and a tighter one, to check the model's prediction against a render.
     "default||1"
+    # The default bake with the thesis' jittered pins (the default before docs/sampling.md
+    # section 13).
+    "default-jittered|--jitter-pins|1"
     "target0.03|--target-error 0.03|1"
 )
 

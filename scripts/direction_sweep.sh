@@ -64,6 +64,10 @@ configs=(
     # What `pinbake bake` chooses by itself (docs/evaluation.md, "Bias against bytes").
     "chosen||1|1|32|start"
     "chosen-mid||1|1|32|middle"
+    # Pins through cell and direction-cell centres (docs/sampling.md section 13).
+    "chosen-centre-mid|--center-pins|1|1|32|middle"
+    "chosen-centre-mid-j0.5|--center-pins|0.5|0.5|32|middle"
+    "chosen-centre-mid-j0|--center-pins|0|0|32|middle"
 )
 for c in "${configs[@]}"; do
     IFS='|' read -r cname bake sj dj stride point <<<"$c"

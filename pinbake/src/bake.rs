@@ -46,7 +46,10 @@ pub struct BakeOptions {
     pub seed: u64,
     /// Shrink the box to the region of non-zero density.
     pub crop: bool,
-    /// Random point and direction inside each cell per pin (else the cell centres).
+    /// Random point and direction inside each cell per pin (the thesis' bake). Off by default:
+    /// pins run through the cell centre and the direction cell's centre, so that the
+    /// runtime's one-cell lookup jitter interpolates between pins instead of blurring a second
+    /// time (docs/sampling.md section 13).
     pub jitter_pins: bool,
     pub tile: Option<Tile>,
     /// Bricks of the majorant grid per axis; `None` leaves the section out.
@@ -80,7 +83,7 @@ impl Default for BakeOptions {
             step: 0.01,
             seed: 0,
             crop: true,
-            jitter_pins: true,
+            jitter_pins: false,
             tile: None,
             majorant: Some([16; 3]),
             embed_density: None,
@@ -595,51 +598,74 @@ mod tests {
     fn homogeneous_box_matches_closed_form() {
         // Every interval of a chord through a homogeneous box has tau = sigma * world length,
         // and the midpoint rule is exact for a constant integrand.
+        // Both pin placements: the default (cell centres) and the thesis' jittered pins.
         let src = homogeneous(3.0);
-        let opts = BakeOptions {
-            majorant: None,
-            ..small_opts()
-        };
-        let (grid, _) = bake(&src, &opts, &|_| {}).unwrap();
-        let layout = PinLayout {
-            dims: opts.cells,
-            directions: opts.directions,
-            pins_per_entry: opts.pins_per_entry,
-            jitter: true,
-            seed: opts.seed,
-        };
-        let extent = DVec3::new(2.0, 0.5, 1.0);
-        let bytes = grid.to_bytes().unwrap();
-        let file = PinFile::parse(&bytes).unwrap();
-        let mut checked = 0;
-        for z in 0..5 {
-            for y in 0..3 {
-                for x in 0..4 {
-                    let cell = [x, y, z];
-                    for dir in 0..9 {
-                        for k in 0..2 {
-                            let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
-                            let (p, w) = layout.line(cell, dir, &mut rng);
-                            let (s0, s1) = unit_cube_chord(p, w).unwrap();
-                            let len = (s1 - s0) / 32.0 * (w * extent).length();
-                            let want = (-3.0 * len).exp() as f32;
-                            let e = file.entry(cell, dir, k);
-                            assert!(
-                                (e.t_min - want).abs() <= 2e-6 * want.max(1e-30),
-                                "{cell:?} {dir} {k}: {} vs {want}",
-                                e.t_min
-                            );
-                            // Equal intervals: every ratio is 1, so every bit is set.
-                            if want < 1.0 {
-                                assert_eq!(e.mask, u32::MAX);
+        for jitter_pins in [false, true] {
+            let opts = BakeOptions {
+                majorant: None,
+                jitter_pins,
+                ..small_opts()
+            };
+            let (grid, _) = bake(&src, &opts, &|_| {}).unwrap();
+            let layout = PinLayout {
+                dims: opts.cells,
+                directions: opts.directions,
+                pins_per_entry: opts.pins_per_entry,
+                jitter: jitter_pins,
+                seed: opts.seed,
+            };
+            let extent = DVec3::new(2.0, 0.5, 1.0);
+            let bytes = grid.to_bytes().unwrap();
+            let file = PinFile::parse(&bytes).unwrap();
+            assert_eq!(
+                file.desc().flags & GRID_FLAG_JITTERED_PINS != 0,
+                jitter_pins,
+                "the flag records the placement"
+            );
+            let mut checked = 0;
+            for z in 0..5 {
+                for y in 0..3 {
+                    for x in 0..4 {
+                        let cell = [x, y, z];
+                        for dir in 0..9 {
+                            for k in 0..2 {
+                                let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                                let (p, w) = layout.line(cell, dir, &mut rng);
+                                if !jitter_pins {
+                                    let centre = DVec3::new(
+                                        (f64::from(x) + 0.5) / 4.0,
+                                        (f64::from(y) + 0.5) / 3.0,
+                                        (f64::from(z) + 0.5) / 5.0,
+                                    );
+                                    assert_eq!(p, centre);
+                                    assert_eq!(
+                                        w,
+                                        DVec3::from(
+                                            opts.directions.direction_in_cell(dir, 0.5, 0.5)
+                                        )
+                                    );
+                                }
+                                let (s0, s1) = unit_cube_chord(p, w).unwrap();
+                                let len = (s1 - s0) / 32.0 * (w * extent).length();
+                                let want = (-3.0 * len).exp() as f32;
+                                let e = file.entry(cell, dir, k);
+                                assert!(
+                                    (e.t_min - want).abs() <= 2e-6 * want.max(1e-30),
+                                    "{cell:?} {dir} {k}: {} vs {want}",
+                                    e.t_min
+                                );
+                                // Equal intervals: every ratio is 1, so every bit is set.
+                                if want < 1.0 {
+                                    assert_eq!(e.mask, u32::MAX);
+                                }
+                                checked += 1;
                             }
-                            checked += 1;
                         }
                     }
                 }
             }
+            assert_eq!(checked, 4 * 3 * 5 * 9 * 2);
         }
-        assert_eq!(checked, 4 * 3 * 5 * 9 * 2);
     }
 
     #[test]

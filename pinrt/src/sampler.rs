@@ -645,7 +645,7 @@ impl<'g> Sampler<'g> {
     }
 
     /// The expected transmittance of one unjittered lookup over its piece `p.seg`.
-    fn piece_expectation(&self, p: &Prepared) -> f64 {
+    pub(crate) fn piece_expectation(&self, p: &Prepared) -> f64 {
         let ppe = u64::from(self.view.shape.pins_per_entry.max(1));
         let first_pin = p.within - p.within % ppe;
         let seg = &p.seg;

@@ -1145,3 +1145,112 @@ fn pieces_tile_the_segment() {
 fn interval_range_bits(a: u32, b: u32) -> u32 {
     crate::mask::interval_range(a, b)
 }
+
+/// `docs/sampling.md` section 13: with one cell of spatial and directional jitter, a lookup's
+/// expectation is the trilinear (space) times bilinear (octahedral square) interpolation of
+/// the unjittered expectations of the neighbouring cells, with each cell's pin at its centre:
+/// the interpolation weights of pins baked through cell centres (`pinbake`'s default).
+#[test]
+fn one_cell_of_jitter_interpolates_between_cell_centres() {
+    let grid = PinGrid::from_bytes(
+        random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 29)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let draws = 8192u32;
+    for middle in [false, true] {
+        let s = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
+            spatial_jitter: 1.0,
+            directional_jitter: 1.0,
+            midpoint_lookup: middle,
+            ..Default::default()
+        });
+        let plain = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
+            midpoint_lookup: middle,
+            ..Default::default()
+        });
+        let mut rng = Rng::new(43);
+        let (mut caught_nearest, mut caught_corner) = (false, false);
+        for i in 0..40 {
+            let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+            let d = [
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+                rng.next_f32() - 0.5,
+            ];
+            let ray = Ray::new(o, d);
+            let t_max = 0.2 + 2.0 * rng.next_f32();
+            let want = interpolated(&plain, &ray, t_max, 0.5);
+            let got = s.mean_transmittance(&ray, t_max, draws, i);
+            // A [0, 1] variable with mean E has variance at most E (1 - E).
+            let bound = 5.0 * (want * (1.0 - want) / f64::from(draws)).sqrt() + 1e-6;
+            assert!(
+                (got - want).abs() <= bound,
+                "middle {middle}, ray {i}: mean {got} vs interpolated {want} (bound {bound})"
+            );
+            // Mutations: the nearest cell alone, and weights for pins at the cells' corners.
+            let nearest = plain.expected_transmittance(&ray, t_max).unwrap();
+            caught_nearest |= (got - nearest).abs() > bound;
+            caught_corner |= (got - interpolated(&plain, &ray, t_max, 0.0)).abs() > bound;
+        }
+        assert!(caught_nearest, "the bound cannot tell jitter from none");
+        assert!(caught_corner, "the bound cannot tell where the pins sit");
+    }
+}
+
+/// The interpolation of [`one_cell_of_jitter_interpolates_between_cell_centres`]: `centre` is
+/// where a cell's pin sits inside it, in cells (0.5: its centre).
+fn interpolated(plain: &Sampler<'_>, ray: &Ray, t_max: f32, centre: f32) -> f64 {
+    use crate::sampler::{NO_CELL, Prepared};
+    let p: Prepared = plain.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
+    if p.status != status::OK {
+        return 1.0;
+    }
+    let v = plain.view();
+    let t = if plain.options().midpoint_lookup {
+        0.5 * (p.seg.t0 + p.seg.t1)
+    } else {
+        p.seg.t0
+    };
+    let x = [0, 1, 2].map(|a| p.o[a] + p.d[a] * t);
+    // The two cells around coordinate `c` (in cells) and their linear weights, clamped to
+    // the grid as the lookup clamps.
+    let axis = |c: f32, n: u32| -> [(u32, f64); 2] {
+        let c = c - centre;
+        let j0 = c.floor();
+        let f = f64::from(c - j0);
+        let clamp = |j: f32| (j.max(0.0) as u32).min(n - 1);
+        [(clamp(j0), 1.0 - f), (clamp(j0 + 1.0), f)]
+    };
+    let [sx, sy, sz] = [0, 1, 2].map(|a| axis(x[a] * v.dims_f[a], v.shape.dims[a]));
+    let dl = if p.reversed {
+        [-p.d[0], -p.d[1], -p.d[2]]
+    } else {
+        p.d
+    };
+    let Directions::Octahedral { n } = v.shape.directions else {
+        unreachable!("an octahedral grid")
+    };
+    let (u, w) = pin_format::octahedral_uv(dl);
+    let (du, dv) = (axis(u * n as f32, n), axis(w * n as f32, n));
+    let ppe = u64::from(v.shape.pins_per_entry);
+    let mut e = 0.0;
+    for (cx, wx) in sx {
+        for (cy, wy) in sy {
+            for (cz, wz) in sz {
+                for (cu, wu) in du {
+                    for (cv, wv) in dv {
+                        let q = Prepared {
+                            local: v.local_cell([cx, cy, cz]).unwrap_or(NO_CELL),
+                            within: u64::from(cv * n + cu) * ppe,
+                            ..p
+                        };
+                        e += wx * wy * wz * wu * wv * plain.piece_expectation(&q);
+                    }
+                }
+            }
+        }
+    }
+    e
+}

@@ -361,7 +361,7 @@ fn file_name(p: &Path) -> String {
 #[pyo3(signature = (
     input, output, *, data=None, spacing=None, origin=None, cells=None,
     directions=None, pins_per_entry=None, step=0.01, seed=0, crop=true,
-    center_pins=false, majorant=[16, 16, 16], embed_density=None, density_scale=1.0,
+    center_pins=true, majorant=[16, 16, 16], embed_density=None, density_scale=1.0,
     threads=None, grid=None, levelset_to_fog=false, dims=None, voxel_type=None,
     endian="little", clamp_negative=false, nan_as_zero=false, vdb_worker=None
 ))]

@@ -407,7 +407,7 @@ fn near_axis_rays_match_ray_marching() {
 /// `near_axis_rays_match_ray_marching`: the same rays, lookups every `stride` intervals, at
 /// the start or the middle of each piece, no jitter. The claim: the pin's line stays within
 /// `stride / 32` of a chord of the lookup point, so the bias of the worst axis falls with the
-/// stride. Asserted on octahedral:8's diagonal (0.24 with one lookup, the largest bias of the
+/// stride. Asserted on octahedral:8's diagonal (0.13 with one lookup, the largest bias of the
 /// table above); the one-lookup row is the mutation that shows the test can fail.
 #[test]
 fn chained_lookups_cut_the_bias() {
@@ -452,9 +452,11 @@ fn chained_lookups_cut_the_bias() {
         }
     }
     t.print();
-    // Standard error of each bias < 0.003 (see above).
+    // Standard error of each bias < 0.003 (see above). One lookup's diagonal is +0.24 with
+    // the thesis' jittered pins and +0.126 with the default pins through cell centres
+    // (docs/sampling.md section 13).
     assert!(
-        diag[&(32, false)] > 0.15,
+        diag[&(32, false)] > 0.10,
         "one lookup: {}",
         diag[&(32, false)]
     );

@@ -69,9 +69,14 @@ pub struct BakeArgs {
     /// Keep the source's full box instead of cropping to the non-empty region.
     #[arg(long, help_heading = "Grid")]
     pub no_crop: bool,
-    /// Pins through cell centres instead of random points and directions in each cell.
-    #[arg(long, help_heading = "Grid")]
+    /// Pins through cell centres and direction-cell centres (the default; docs/sampling.md
+    /// section 13).
+    #[arg(long, help_heading = "Grid", conflicts_with = "jitter_pins")]
     pub center_pins: bool,
+    /// Pins through random points and directions inside their cells (the thesis' bake; more
+    /// bias with the runtime's lookup jitter, docs/evaluation.md).
+    #[arg(long, help_heading = "Grid")]
+    pub jitter_pins: bool,
     /// Majorant bricks per axis (N or X,Y,Z); 0 leaves the majorant grid out.
     #[arg(long, default_value = "16", value_parser = parse_u32x3_or_zero, help_heading = "Grid")]
     pub majorant: [u32; 3],
@@ -248,7 +253,7 @@ pub fn options_from_args(
         step: args.step,
         seed: args.seed,
         crop: !args.no_crop,
-        jitter_pins: !args.center_pins,
+        jitter_pins: args.jitter_pins,
         tile: args.tile,
         majorant: majorant_dims(args.majorant),
         embed_density: args.embed_density,

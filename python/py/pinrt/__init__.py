@@ -84,7 +84,7 @@ def bake(
     step: float = 0.01,
     seed: int = 0,
     crop: bool = True,
-    center_pins: bool = False,
+    center_pins: bool = True,
     majorant: Union[int, Sequence[int]] = 16,
     embed_density: Union[int, Sequence[int], None] = None,
     density_scale: float = 1.0,
@@ -113,7 +113,7 @@ def bake(
     ``pins_per_entry``, each chosen from the volume when left out as ``pinbake bake`` does
     (``docs/evaluation.md``, "Bias against bytes"), ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
-    ``center_pins``, ``majorant`` (0 leaves it out), ``embed_density``, ``density_scale``
+    ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density``, ``density_scale``
     and ``threads``. A bake is deterministic: the same input and options give the same bytes
     as the ``pinbake`` command.
     """
