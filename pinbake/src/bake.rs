@@ -361,16 +361,18 @@ fn bake_in_pool(
     match (field, sweep) {
         // A dense grid by layers of the grid: the samples of many pins in one slab at a time
         // hit the caches, where pin after pin each sample waited on memory (crate::sweep).
-        (Field::Grid(grid), Some(sweep)) => crate::sweep::bake_grid(
-            grid,
-            &placement,
-            &layout,
-            (nx, ny, shape.z_begin),
-            block_len,
-            &mut dense,
-            sweep,
-            progress,
-        ),
+        (Field::Grid(grid), Some(sweep)) if size_of_val(grid.data()) >= sweep.min_grid_bytes => {
+            crate::sweep::bake_grid(
+                grid,
+                &placement,
+                &layout,
+                (nx, ny, shape.z_begin),
+                block_len,
+                &mut dense,
+                sweep,
+                progress,
+            )
+        }
         // One task per x-row of cells, direction-major inside: consecutive pins are then
         // nearly parallel lines a cell apart. The slots (and so the bytes) are the same in any
         // order.
