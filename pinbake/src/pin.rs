@@ -106,7 +106,7 @@ pub const GRID_WHOLE_PIN_STEPS: usize = 256;
 /// Where the midpoint rule samples one pin's chord: `steps` samples per interval, sample `j`
 /// of interval `i` at unit-cube parameter `s0 + ds * i + h * (j + 0.5)`, each weighing
 /// `weight` world units. One definition for every way of marching a pin (per pin here, by
-/// layers in [`crate::sweep`]), so that they take the same samples.
+/// layers in `sweep.rs`), so that they take the same samples.
 #[derive(Clone, Copy, Debug)]
 pub struct ChordSamples {
     pub s0: f64,
