@@ -19,6 +19,7 @@ use rayon::prelude::*;
 use crate::pin::{Field, Placement, field_optical_depths, make_entry};
 use crate::rng::CounterRng;
 use crate::source::{Aabb, DensitySource};
+use crate::sweep::Sweep;
 
 /// One slab of a tiled bake: tile `index` of `count`, split along z.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -250,6 +251,17 @@ pub fn bake(
     opts: &BakeOptions,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    bake_with_sweep(source, opts, Some(Sweep::default()), progress)
+}
+
+/// [`bake`], marching a dense grid by layers cut as `sweep` says, or pin by pin with `None`
+/// (the order the layered sweep must reproduce to the bit; tests compare the two).
+pub(crate) fn bake_with_sweep(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    sweep: Option<Sweep>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
     if !(opts.step > 0.0 && opts.step.is_finite()) {
         return Err(BakeError::Options(format!(
             "step {} must be positive",
@@ -264,10 +276,10 @@ pub fn bake(
         b.build().map_err(|e| BakeError::Threads(e.to_string()))?
     };
     match source.bake_frame() {
-        None => pool.install(|| bake_in_pool(source, opts, progress)),
+        None => pool.install(|| bake_in_pool(source, opts, sweep, progress)),
         Some((local, local_to_world)) => {
             let (mut grid, stats) =
-                pool.install(|| bake_in_pool(local.as_ref(), opts, progress))?;
+                pool.install(|| bake_in_pool(local.as_ref(), opts, sweep, progress))?;
             grid.desc.local_to_world = local_to_world;
             Ok((grid, stats))
         }
@@ -277,6 +289,7 @@ pub fn bake(
 fn bake_in_pool(
     source: &dyn DensitySource,
     opts: &BakeOptions,
+    sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
     let started = Instant::now();
@@ -346,30 +359,46 @@ fn bake_in_pool(
         covered.saturating_mul(block_len),
         PinEntry::EMPTY,
     )?;
-    // One task per x-row of cells, direction-major inside: consecutive pins are then nearly
-    // parallel lines a cell apart, which read mostly the same cache lines of the field. The
-    // slots (and so the bytes) are the same in any order.
     let dirs = opts.directions.count();
     let ppe = opts.pins_per_entry;
-    dense
-        .par_chunks_mut(block_len * nx)
-        .enumerate()
-        .for_each(|(row, blocks)| {
-            let (y, z) = ((row % ny) as u32, (row / ny) as u32 + shape.z_begin);
-            for dir in 0..dirs {
-                for k in 0..ppe {
-                    let slot = (dir * ppe + k) as usize;
-                    for (x, block) in blocks.chunks_mut(block_len).enumerate() {
-                        let cell = [x as u32, y, z];
-                        let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
-                        let (p, w) = layout.line(cell, dir, &mut rng);
-                        let taus = field_optical_depths(field, &placement, p, w);
-                        block[slot] = make_entry(&taus, &mut rng);
+    match (field, sweep) {
+        // A dense grid by layers of the grid: the samples of many pins in one slab at a time
+        // hit the caches, where pin after pin each sample waited on memory (crate::sweep).
+        (Field::Grid(grid), Some(sweep)) if size_of_val(grid.data()) >= sweep.min_grid_bytes => {
+            crate::sweep::bake_grid(
+                grid,
+                &placement,
+                &layout,
+                (nx, ny, shape.z_begin),
+                block_len,
+                &mut dense,
+                sweep,
+                progress,
+            )
+        }
+        // One task per x-row of cells, direction-major inside: consecutive pins are then
+        // nearly parallel lines a cell apart. The slots (and so the bytes) are the same in any
+        // order.
+        _ => dense
+            .par_chunks_mut(block_len * nx)
+            .enumerate()
+            .for_each(|(row, blocks)| {
+                let (y, z) = ((row % ny) as u32, (row / ny) as u32 + shape.z_begin);
+                for dir in 0..dirs {
+                    for k in 0..ppe {
+                        let slot = (dir * ppe + k) as usize;
+                        for (x, block) in blocks.chunks_mut(block_len).enumerate() {
+                            let cell = [x as u32, y, z];
+                            let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                            let (p, w) = layout.line(cell, dir, &mut rng);
+                            let taus = field_optical_depths(field, &placement, p, w);
+                            block[slot] = make_entry(&taus, &mut rng);
+                        }
                     }
                 }
-            }
-            progress((block_len * nx) as u64);
-        });
+                progress((block_len * nx) as u64);
+            }),
+    }
 
     // Compact: empty cells keep only their index entry.
     let mut index = try_filled("the cell index", covered, 0u32)?;

@@ -23,6 +23,7 @@ pub mod merge;
 pub mod pin;
 pub mod rng;
 pub mod source;
+mod sweep;
 
 pub use bake::{BakeError, BakeOptions, BakeStats, Tile, bake};
 pub use merge::{MergeError, merge_tiles};

@@ -98,6 +98,52 @@ pub fn interval_optical_depths(
     field_optical_depths(Field::Source(source), placement, p, w)
 }
 
+/// The most samples per interval for which a dense grid is marched one whole pin at a time
+/// (from one f64 base per interval); longer intervals take a fresh base every this many
+/// samples, which sums in another order.
+pub const GRID_WHOLE_PIN_STEPS: usize = 256;
+
+/// Where the midpoint rule samples one pin's chord: `steps` samples per interval, sample `j`
+/// of interval `i` at unit-cube parameter `s0 + ds * i + h * (j + 0.5)`, each weighing
+/// `weight` world units. One definition for every way of marching a pin (per pin here, by
+/// layers in `sweep.rs`), so that they take the same samples.
+#[derive(Clone, Copy, Debug)]
+pub struct ChordSamples {
+    pub s0: f64,
+    /// Parameter length of one interval.
+    pub ds: f64,
+    pub steps: usize,
+    /// Parameter length of one sample.
+    pub h: f64,
+    pub weight: f64,
+    /// The pin's point in world space.
+    pub origin: DVec3,
+    /// World displacement per unit of parameter.
+    pub world_dir: DVec3,
+}
+
+/// The samples of the chord of `p + s w` (unit-cube coordinates) at `placement.step`, or
+/// `None` when the chord misses the cube or has zero length (all optical depths zero).
+pub fn chord_samples(placement: &Placement, p: DVec3, w: DVec3) -> Option<ChordSamples> {
+    let (s0, s1) = unit_cube_chord(p, w)?;
+    let ds = (s1 - s0) / INTERVALS as f64;
+    let world_dir = w * placement.extent;
+    let interval_len = ds * world_dir.length();
+    if !(interval_len > 0.0) {
+        return None;
+    }
+    let steps = (interval_len / placement.step).ceil().clamp(1.0, 1e6) as usize;
+    Some(ChordSamples {
+        s0,
+        ds,
+        steps,
+        h: ds / steps as f64,
+        weight: interval_len / steps as f64,
+        origin: placement.to_world(p),
+        world_dir,
+    })
+}
+
 /// [`interval_optical_depths`] over either field: the same sample points and weights; a
 /// [`Field::Mip`] steps its index in f32 from one f64 transform per interval instead of
 /// transforming every sample.
@@ -108,23 +154,22 @@ pub fn field_optical_depths(
     w: DVec3,
 ) -> [f64; INTERVALS] {
     let mut taus = [0.0f64; INTERVALS];
-    let Some((s0, s1)) = unit_cube_chord(p, w) else {
+    let Some(ChordSamples {
+        s0,
+        ds,
+        steps,
+        h,
+        weight,
+        origin,
+        world_dir,
+    }) = chord_samples(placement, p, w)
+    else {
         return taus;
     };
-    let ds = (s1 - s0) / INTERVALS as f64;
-    let world_dir = w * placement.extent;
-    let interval_len = ds * world_dir.length();
-    if !(interval_len > 0.0) {
-        return taus;
-    }
-    let steps = (interval_len / placement.step).ceil().clamp(1.0, 1e6) as usize;
-    let h = ds / steps as f64;
-    let weight = interval_len / steps as f64;
-    let origin = placement.to_world(p);
     let world_step = world_dir * h;
     // Sample points are evenly spaced along the whole chord, so sources can step
     // incrementally (`extinction_along`); a fixed chunk keeps the working set on the stack.
-    const CHUNK: usize = 256;
+    const CHUNK: usize = GRID_WHOLE_PIN_STEPS;
     match field {
         Field::Source(source) => {
             let mut buf = [0.0f32; CHUNK];

@@ -247,18 +247,7 @@ impl DenseGrid {
     /// are summed in f64 in sample order, so the result is deterministic.
     pub fn march_runs(&self, u0: &[[f32; 3]], du: [f32; 3], n: usize, sums: &mut [f64]) {
         const BLOCK: usize = 128;
-        let [nx, ny, nz] = self.dims.map(|d| d as usize);
-        // The lower corner of the cell is clamped to `dims - 2` and the fraction then reaches
-        // 1 at the last centre, so the `+ 1` neighbour always exists; a one-voxel axis has no
-        // neighbour and steps by 0.
-        let hi = [nx, ny, nz].map(|d| d.saturating_sub(2) as f32);
-        let top = [nx, ny, nz].map(|d| (d - 1) as f32);
-        let (sx, sy, sz) = (
-            usize::from(nx > 1),
-            if ny > 1 { self.stride_y } else { 0 },
-            if nz > 1 { self.stride_z } else { 0 },
-        );
-        let d = &self.data;
+        let cells = self.cells();
         let mut base = [0usize; BLOCK];
         let mut frac = [[0.0f32; 3]; BLOCK];
         if n == 0 {
@@ -279,35 +268,11 @@ impl DenseGrid {
                     (r1, j1) = (r1 + 1, 0);
                 }
                 let u = u0[r];
-                // `max` first so that NaN becomes 0 (f32::max returns the non-NaN operand).
-                let cx = (u[0] + t * du[0]).max(0.0).min(top[0]);
-                let cy = (u[1] + t * du[1]).max(0.0).min(top[1]);
-                let cz = (u[2] + t * du[2]).max(0.0).min(top[2]);
-                // Non-negative after the clamp, so `as usize` is floor (`f32::floor` is a
-                // libm call on baseline x86-64, a third of the time here).
-                let (ix, iy, iz) = (
-                    cx.min(hi[0]) as usize,
-                    cy.min(hi[1]) as usize,
-                    cz.min(hi[2]) as usize,
-                );
-                *f = [cx - ix as f32, cy - iy as f32, cz - iz as f32];
-                *b = ix + iy * self.stride_y + iz * self.stride_z;
-                prefetch(d, *b);
-                prefetch(d, *b + sy);
-                prefetch(d, *b + sz);
-                prefetch(d, *b + sy + sz);
+                (*b, *f) = cells.locate([u[0] + t * du[0], u[1] + t * du[1], u[2] + t * du[2]]);
+                cells.prefetch(*b);
             }
             for (b, f) in base.iter().zip(frac.iter()).take(len) {
-                let [fx, fy, fz] = *f;
-                // One slice bounds check covers the eight loads.
-                let c = &d[*b..=*b + sx + sy + sz];
-                let c00 = c[0] + (c[sx] - c[0]) * fx;
-                let c10 = c[sy] + (c[sy + sx] - c[sy]) * fx;
-                let c01 = c[sz] + (c[sz + sx] - c[sz]) * fx;
-                let c11 = c[sz + sy] + (c[sz + sy + sx] - c[sz + sy]) * fx;
-                let c0 = c00 + (c10 - c00) * fy;
-                let c1 = c01 + (c11 - c01) * fy;
-                sums[r2] += f64::from((c0 + (c1 - c0) * fz).max(0.0));
+                sums[r2] += f64::from(cells.interpolate(*b, *f));
                 j2 += 1;
                 if j2 == n {
                     (r2, j2) = (r2 + 1, 0);
@@ -315,6 +280,90 @@ impl DenseGrid {
             }
             m0 += len;
         }
+    }
+
+    /// The grid's trilinear lookup by continuous index, for marching loops.
+    pub(crate) fn cells(&self) -> Cells<'_> {
+        let [nx, ny, nz] = self.dims.map(|d| d as usize);
+        Cells {
+            data: &self.data,
+            hi: [nx, ny, nz].map(|d| d.saturating_sub(2) as f32),
+            top: [nx, ny, nz].map(|d| (d - 1) as f32),
+            stride: [self.stride_y, self.stride_z],
+            step: [
+                usize::from(nx > 1),
+                if ny > 1 { self.stride_y } else { 0 },
+                if nz > 1 { self.stride_z } else { 0 },
+            ],
+        }
+    }
+}
+
+/// A dense grid's trilinear lookup by continuous index (voxel centres at integers), split
+/// into locating a sample's cell, prefetching it and interpolating it, so that a marching
+/// loop can locate and prefetch a block of samples before it reads any: the loads of a whole
+/// block then overlap instead of waiting on memory one sample at a time.
+#[derive(Clone, Copy)]
+pub(crate) struct Cells<'a> {
+    data: &'a [f32],
+    /// The lower corner of a cell is clamped to `dims - 2` and the fraction then reaches 1 at
+    /// the last centre, so the `+ 1` neighbour always exists...
+    hi: [f32; 3],
+    /// ...and the index itself to `[0, dims - 1]` (clamp-to-edge in the outer half voxel).
+    top: [f32; 3],
+    stride: [usize; 2],
+    /// Offsets of the `+ 1` neighbour along x, y, z: 0 on a one-voxel axis, which has none.
+    step: [usize; 3],
+}
+
+impl Cells<'_> {
+    /// The linear index of the lower corner of the cell holding continuous index `c` and the
+    /// fractions within it. Indices outside the grid (the caller's runs should not leave it)
+    /// clamp to its edge, NaN to 0.
+    #[inline(always)]
+    pub(crate) fn locate(&self, c: [f32; 3]) -> (usize, [f32; 3]) {
+        // `max` first so that NaN becomes 0 (f32::max returns the non-NaN operand).
+        let cx = c[0].max(0.0).min(self.top[0]);
+        let cy = c[1].max(0.0).min(self.top[1]);
+        let cz = c[2].max(0.0).min(self.top[2]);
+        // Non-negative after the clamp, so `as usize` is floor (`f32::floor` is a libm call
+        // on baseline x86-64, a third of the time here).
+        let (ix, iy, iz) = (
+            cx.min(self.hi[0]) as usize,
+            cy.min(self.hi[1]) as usize,
+            cz.min(self.hi[2]) as usize,
+        );
+        (
+            ix + iy * self.stride[0] + iz * self.stride[1],
+            [cx - ix as f32, cy - iy as f32, cz - iz as f32],
+        )
+    }
+
+    /// Asks for the four cache lines the cell at `b` reads (x neighbours share a line or the
+    /// next one, which the hardware fetches with it).
+    #[inline(always)]
+    pub(crate) fn prefetch(&self, b: usize) {
+        let [_, sy, sz] = self.step;
+        prefetch(self.data, b);
+        prefetch(self.data, b + sy);
+        prefetch(self.data, b + sz);
+        prefetch(self.data, b + sy + sz);
+    }
+
+    /// The trilinear value of the cell at `b` with fractions `f`, never negative.
+    #[inline(always)]
+    pub(crate) fn interpolate(&self, b: usize, f: [f32; 3]) -> f32 {
+        let [sx, sy, sz] = self.step;
+        let [fx, fy, fz] = f;
+        // One slice bounds check covers the eight loads.
+        let c = &self.data[b..=b + sx + sy + sz];
+        let c00 = c[0] + (c[sx] - c[0]) * fx;
+        let c10 = c[sy] + (c[sy + sx] - c[sy]) * fx;
+        let c01 = c[sz] + (c[sz + sx] - c[sz]) * fx;
+        let c11 = c[sz + sy] + (c[sz + sy + sx] - c[sz + sy]) * fx;
+        let c0 = c00 + (c10 - c00) * fy;
+        let c1 = c01 + (c11 - c01) * fy;
+        (c0 + (c1 - c0) * fz).max(0.0)
     }
 }
 
