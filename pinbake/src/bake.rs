@@ -207,6 +207,22 @@ pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
         .saturating_add(vol(opts.embed_density, 2))
 }
 
+/// Working memory a bake may hold beside its source and [`estimate_output_bytes`]: the layered
+/// march's per-pin state for large dense grids (a fixed bound, ~110 MB at most).
+pub fn estimate_working_bytes(opts: &BakeOptions) -> u64 {
+    let cells: u64 = match opts.tile {
+        None => opts.cells.iter().map(|&c| u64::from(c)).product(),
+        Some(t) => {
+            let (a, b) = t.layers(opts.cells[2]);
+            u64::from(opts.cells[0]) * u64::from(opts.cells[1]) * u64::from(b.saturating_sub(a))
+        }
+    };
+    let pins = cells
+        .saturating_mul(u64::from(opts.directions.count()))
+        .saturating_mul(u64::from(opts.pins_per_entry));
+    crate::sweep::working_set_bytes(pins)
+}
+
 /// Deterministic per-pin geometry in unit-cube coordinates.
 #[derive(Clone, Copy, Debug)]
 pub struct PinLayout {
@@ -621,6 +637,22 @@ mod tests {
         assert_eq!(default_cells(&g, false, 32).unwrap(), [31, 32, 32]);
         // An analytic field has no voxels.
         assert_eq!(default_cells(&homogeneous(1.0), true, 32).unwrap(), [32; 3]);
+    }
+
+    #[test]
+    fn working_bytes_grow_with_the_pins_up_to_one_batch() {
+        let small = small_opts();
+        let pins = 4 * 3 * 5 * u64::from(small.directions.count()) * 2;
+        let per_pin = estimate_working_bytes(&small) / pins;
+        assert!(per_pin > 48 && estimate_working_bytes(&small) == pins * per_pin);
+        // The default bake has 20^3 x 256 pins, more than a batch: the bound stops growing.
+        let big = BakeOptions::default();
+        let huge = BakeOptions {
+            cells: [64; 3],
+            ..BakeOptions::default()
+        };
+        assert_eq!(estimate_working_bytes(&big), estimate_working_bytes(&huge));
+        assert!(estimate_working_bytes(&huge) < 200 << 20);
     }
 
     #[test]

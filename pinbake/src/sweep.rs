@@ -61,6 +61,14 @@ impl Default for Sweep {
     }
 }
 
+/// Bytes the layered march holds beside the grid and the output for a bake of `pins` pins
+/// whose grid is at least [`Sweep::min_grid_bytes`]: one batch's per-pin state.
+pub(crate) fn working_set_bytes(pins: u64) -> u64 {
+    let per_pin = (std::mem::size_of::<Head>() + std::mem::size_of::<Lane>()) as u64;
+    pins.min(Sweep::default().batch_pins as u64)
+        .saturating_mul(per_pin)
+}
+
 /// What marching one pin touches at every sample, apart from the rest of its state
 /// ([`Lane`]) so that a layer's pass over a batch streams 48 bytes per pin, not 400.
 #[derive(Clone, Copy, Debug, Default)]

@@ -336,8 +336,11 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     let source = source::open_source(&spec)?;
     let choice = choose_from_args(args, source.as_ref())?;
     let mut opts = options_from_args(args, source.as_ref(), &spec, &choice)?;
-    // The check above assumed the default's size; a chosen bake may be larger.
-    let need = pinbake::bake::estimate_output_bytes(&opts).saturating_add(input_bytes);
+    // The check above assumed the default's size; a chosen bake may be larger, and a large
+    // dense grid is marched by layers with a batch of per-pin state beside it.
+    let need = pinbake::bake::estimate_output_bytes(&opts)
+        .saturating_add(input_bytes)
+        .saturating_add(pinbake::bake::estimate_working_bytes(&opts));
     budget.check(&format!("baking {}", args.input.display()), need)?;
     // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
     opts.dense_copy_bytes = budget.limit.saturating_sub(need);
