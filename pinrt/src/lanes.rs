@@ -417,8 +417,7 @@ fn lanes_body(
             let local = if cz >= shape.z_begin && cz < shape.z_end {
                 u64::from(cx)
                     + u64::from(shape.dims[0])
-                        * (u64::from(cy)
-                            + u64::from(shape.dims[1]) * u64::from(cz - shape.z_begin))
+                        * (u64::from(cy) + u64::from(shape.dims[1]) * u64::from(cz - shape.z_begin))
             } else {
                 NO_CELL
             };

@@ -835,8 +835,7 @@ impl<'g> Sampler<'g> {
             let (cur, nxt) = (c & 1, (c + 1) & 1);
             let more = c + 1 < steps;
             if more {
-                n[nxt] =
-                    self.set_up_step(rays, c + 1, &seeds, seed_hash, &mut rng, &mut prep[nxt]);
+                n[nxt] = self.set_up_step(rays, c + 1, &seeds, seed_hash, &mut rng, &mut prep[nxt]);
                 self.prefetch_index(&prep[nxt], n[nxt]);
             }
             let pins = self.view.pins;
