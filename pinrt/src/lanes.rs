@@ -247,7 +247,10 @@ fn lanes_body(
             // `1 / +-0` is an infinity, as the scalar code's explicit case: parallel.
             let inv = 1.0 / da;
             let parallel = !is_finite_bits(inv);
-            outside |= parallel & !((oa >= 0.0) & (oa <= 1.0));
+            // `&` rather than `contains`' `&&`: no branch in the vector loop.
+            #[allow(clippy::manual_range_contains)]
+            let inside = (oa >= 0.0) & (oa <= 1.0);
+            outside |= parallel & !inside;
             let t0 = -oa * inv;
             let t1 = (1.0 - oa) * inv;
             let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
