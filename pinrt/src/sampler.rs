@@ -753,6 +753,11 @@ impl<'g> Sampler<'g> {
         let base = c * BATCH;
         let chunk = &rays[base..(base + BATCH).min(rays.len())];
         let n = chunk.len();
+        // The rays two steps on (1 KB, 16 lines): a caller's large ray array streams from
+        // memory, and its misses otherwise stall the set-up's first loop.
+        for q in rays.iter().skip(base + 2 * BATCH).take(BATCH).step_by(2) {
+            prefetch(q);
+        }
         // The next step's rays (1 KB, 16 lines): a caller's ray array streams from memory,
         // and its misses otherwise stall the set-up's first loop.
         if let Some(next) = rays.get(base + BATCH..) {
