@@ -1,8 +1,10 @@
 //! CPU query throughput on a ~26 MB grid (37^3 cells x 16x4 polar directions x 1 pin, the
 //! calibration of docs/background.md section 4) with random rays: single queries vs prefetching batches.
 //!
-//! `cargo run --release -p pinrt --features testing --example bench_queries [rays] [cells]`
+//! `cargo run --release -p pinrt --features testing --example bench_queries [rays] [cells] [only]`
 //!
+//! `only` runs just the rows whose name contains it (e.g. `"transmittance, batched (32)"`), so
+//! that `perf record` of the example profiles one kind of query.
 //! `cells` (default 37) sets the grid's cells per axis: 80 gives a 262 MB grid, far larger
 //! than a last-level cache. Times are the thread's CPU time per query (`CLOCK_THREAD_CPUTIME_ID`),
 //! so that a machine shared with other work still gives comparable figures; wall time is
@@ -60,7 +62,11 @@ fn main() {
     let rays = rays(n, 7);
     println!("grid: {cells}^3 x 64 directions, {mb:.1} MB of pins, mapped; {n} random rays");
 
+    let only = std::env::args().nth(3).unwrap_or_default();
     let time = |name: &str, f: &mut dyn FnMut() -> f64| {
+        if !name.contains(only.as_str()) {
+            return;
+        }
         f(); // warm up (page the grid in)
         let t = Instant::now();
         let c = thread_cpu_s();
@@ -123,6 +129,9 @@ fn main() {
         let c = |x: f64| ((x * res as f64) as usize).min(res - 1);
         vol[c(p.x) + res * (c(p.y) + res * c(p.z))]
     };
+    if !"ray march 256^3, step 0.015".contains(only.as_str()) {
+        return;
+    }
     let m = n.min(200_000);
     let c = thread_cpu_s();
     let mut acc = 0.0;

@@ -18,7 +18,7 @@
 
 use pin_format::{Directions, PinEntry};
 
-use crate::chord::{Segment, UnitTransform, bin};
+use crate::chord::{Segment, UnitTransform};
 use crate::lookup::{DirJitter, GridView, direction_cell};
 use crate::mask::{is_finite_bits, pow_int, sanitize_t_min};
 use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output, unit_f32};
@@ -41,12 +41,103 @@ pub(crate) fn prepare_lanes(
     indexed: Option<(u32, u32)>,
     out: &mut [Prepared; BATCH],
 ) {
+    prepare_lanes_isa(Isa::best(), view, xf, opts, rays, rng, indexed, out);
+}
+
+/// The instruction sets the lane loops are compiled for; the best one present is chosen at
+/// run time (the tests run every one the CPU has).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// The target's baseline (SSE2 on x86-64): 4 f32 lanes.
+    Baseline,
+    /// 8 f32 lanes, per-lane variable shifts for the generator's output permutation.
     #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked on the line above.
-        unsafe { prepare_avx2(view, xf, opts, rays, rng, indexed, out) };
-        return;
+    Avx2,
+    /// 16 f32 lanes, mask registers for the selects, a direct f32 -> u32 conversion
+    /// (AVX2 emulates it): 3-4 ns less per batched query than AVX2 on an AMD EPYC.
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+impl Isa {
+    /// Every variant this CPU can run, baseline first.
+    #[cfg(test)]
+    pub(crate) fn available() -> Vec<Isa> {
+        let mut v = vec![Isa::Baseline];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                v.push(Isa::Avx2);
+            }
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+            {
+                v.push(Isa::Avx512);
+            }
+        }
+        v
     }
+
+    /// The widest variant this CPU can run (std caches the CPU's features: a few loads).
+    #[inline]
+    pub(crate) fn best() -> Isa {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+                && std::arch::is_x86_feature_detected!("avx512bw")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+            {
+                return Isa::Avx512;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Isa::Avx2;
+            }
+        }
+        Isa::Baseline
+    }
+}
+
+/// [`prepare_lanes`] compiled for `isa`, which must be one of [`Isa::available`].
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub(crate) fn prepare_lanes_isa(
+    isa: Isa,
+    view: &GridView<'_>,
+    xf: &UnitTransform,
+    opts: &SamplerOptions,
+    rays: &[RayQuery],
+    rng: &mut [Rng; BATCH],
+    indexed: Option<(u32, u32)>,
+    out: &mut [Prepared; BATCH],
+) {
+    match isa {
+        Isa::Baseline => lanes_body(view, xf, opts, rays, rng, indexed, out),
+        // SAFETY: `isa` comes from `Isa::best` or `Isa::available`, which checked that the
+        // CPU has these features.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { prepare_avx2(view, xf, opts, rays, rng, indexed, out) },
+        // SAFETY: as above.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { prepare_avx512(view, xf, opts, rays, rng, indexed, out) },
+    }
+}
+
+/// [`lanes_body`] compiled for AVX-512 ([`Isa::Avx512`]). Rust never contracts `a * b + c`
+/// into a fused multiply-add, so the FMA this target implies changes no rounding.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
+fn prepare_avx512(
+    view: &GridView<'_>,
+    xf: &UnitTransform,
+    opts: &SamplerOptions,
+    rays: &[RayQuery],
+    rng: &mut [Rng; BATCH],
+    indexed: Option<(u32, u32)>,
+    out: &mut [Prepared; BATCH],
+) {
     lanes_body(view, xf, opts, rays, rng, indexed, out);
 }
 
@@ -66,6 +157,26 @@ fn prepare_avx2(
     lanes_body(view, xf, opts, rays, rng, indexed, out);
 }
 
+/// `(n - 1) as f32` for [`bin_lane`]: exact, since `n <= MAX_DIM = 2^20` for a grid's cells
+/// (validated by the format crate) and `n = 32` for intervals.
+#[inline(always)]
+fn bin_limit(n: u32) -> f32 {
+    debug_assert!((1..=1 << 24).contains(&n));
+    (n - 1) as f32
+}
+
+/// [`bin`] for `n <= 2^24`, `hi = (n - 1) as f32`: the same cell for every `x` (NaN and
+/// negatives to 0, beyond `n - 1` to `n - 1`), clamped in f32 first so that the conversion
+/// is a plain truncation. Rust's saturating `x as u32` costs a compare-and-blend sequence
+/// per lane, and was a quarter of the set-up's time.
+#[inline(always)]
+fn bin_lane(x: f32, hi: f32) -> u32 {
+    let y = if x > 0.0 { x } else { 0.0 };
+    let y = if y < hi { y } else { hi };
+    // SAFETY: `y` is in `[0, hi]` with `hi < 2^24`: not NaN, and its truncation fits an i32.
+    unsafe { y.to_int_unchecked::<i32>() as u32 }
+}
+
 /// A placeholder segment for lanes whose query does not resolve (never read back).
 const EMPTY: Segment = Segment {
     t_enter: 0.0,
@@ -78,6 +189,10 @@ const EMPTY: Segment = Segment {
     b: 0,
 };
 
+/// The set-up as a sequence of stages, each one loop over all [`BATCH`] lanes of plain
+/// arrays, so that each loop is short and branch-free enough for the compiler to widen to
+/// full vector registers (one long loop was partly left as scalar code). Lanes past
+/// `rays.len()` get a zero direction: invalid, never read back.
 #[inline(always)]
 fn lanes_body(
     view: &GridView<'_>,
@@ -89,13 +204,86 @@ fn lanes_body(
     out: &mut [Prepared; BATCH],
 ) {
     let n = rays.len().min(BATCH);
-    // Lanes past the end get a zero direction: invalid, never read back.
-    let mut rq = [RayQuery::default(); BATCH];
-    rq[..n].copy_from_slice(&rays[..n]);
+    let stride = opts.stride();
+    // With one lookup per query the piece is the whole segment: no piece arithmetic.
+    let chained = stride < 32;
+    let spatial = opts.spatial_on();
+    let directional = opts.directional_on();
+    let midpoint = opts.midpoint_lookup;
+    let shape = &view.shape;
+    let ppe = shape.pins_per_entry;
 
-    let mut st = [0u32; BATCH];
-    let mut state = [0u32; BATCH];
-    let mut t_enter = [0f32; BATCH];
+    // The rays, structure-of-arrays.
+    let mut raw = [[0f32; BATCH]; 6];
+    let mut t_max = [0f32; BATCH];
+    for (i, q) in rays[..n].iter().enumerate() {
+        raw[0][i] = q.origin[0];
+        raw[1][i] = q.origin[1];
+        raw[2][i] = q.origin[2];
+        raw[3][i] = q.dir[0];
+        raw[4][i] = q.dir[1];
+        raw[5][i] = q.dir[2];
+        t_max[i] = q.t_max;
+    }
+    if let Some((seed_hash, first)) = indexed {
+        for (i, r) in rng.iter_mut().enumerate() {
+            r.state = pcg_hash(seed_hash ^ first.wrapping_add(i as u32));
+        }
+    }
+
+    // World to unit cube (`UnitTransform::point`, `vector`) and validity.
+    let mut o = [[0f32; BATCH]; 3];
+    let mut d = [[0f32; BATCH]; 3];
+    let mut valid = [false; BATCH];
+    for i in 0..BATCH {
+        let po = xf.point([raw[0][i], raw[1][i], raw[2][i]]);
+        let pd = xf.vector([raw[3][i], raw[4][i], raw[5][i]]);
+        let finite = is_finite_bits(po[0])
+            & is_finite_bits(po[1])
+            & is_finite_bits(po[2])
+            & is_finite_bits(pd[0])
+            & is_finite_bits(pd[1])
+            & is_finite_bits(pd[2]);
+        let nan_tmax = (t_max[i].to_bits() & 0x7fff_ffff) > 0x7f80_0000;
+        let zero = (pd[0] == 0.0) & (pd[1] == 0.0) & (pd[2] == 0.0);
+        valid[i] = finite & !nan_tmax & !zero;
+        for ax in 0..3 {
+            o[ax][i] = po[ax];
+            d[ax][i] = pd[ax];
+        }
+    }
+
+    // `chord::unit_cube_chord` with its early exits as flags.
+    let mut lo = [0f32; BATCH];
+    let mut hi = [0f32; BATCH];
+    let mut chord = [false; BATCH];
+    for i in 0..BATCH {
+        let mut l = -f32::MAX;
+        let mut h = f32::MAX;
+        let mut constrained = false;
+        let mut outside = false;
+        for ax in 0..3 {
+            let (oa, da) = (o[ax][i], d[ax][i]);
+            // `1 / +-0` is an infinity, as the scalar code's explicit case: parallel.
+            let inv = 1.0 / da;
+            let parallel = !is_finite_bits(inv);
+            // `&` rather than `contains`' `&&`: no branch in the vector loop.
+            #[allow(clippy::manual_range_contains)]
+            let inside = (oa >= 0.0) & (oa <= 1.0);
+            outside |= parallel & !inside;
+            let t0 = -oa * inv;
+            let t1 = (1.0 - oa) * inv;
+            let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
+            l = if !parallel & (near > l) { near } else { l };
+            h = if !parallel & (far < h) { far } else { h };
+            constrained |= !parallel;
+        }
+        lo[i] = l;
+        hi[i] = h;
+        chord[i] = !outside & constrained & (l < h) & is_finite_bits(l) & is_finite_bits(h);
+    }
+
+    // `chord::segment`.
     let mut ilen = [0f32; BATCH];
     let mut t0s = [0f32; BATCH];
     let mut t1s = [0f32; BATCH];
@@ -103,182 +291,133 @@ fn lanes_body(
     let mut s1s = [0f32; BATCH];
     let mut a_s = [0u32; BATCH];
     let mut b_s = [0u32; BATCH];
-    let mut rev = [false; BATCH];
-    let mut dl = [[0f32; BATCH]; 3];
-    let mut os = [[0f32; BATCH]; 3];
-    let mut ds = [[0f32; BATCH]; 3];
-    let mut pieces = [0u32; BATCH];
-    let mut psegs = [EMPTY; BATCH];
-    let mut dxi = [[0f32; BATCH]; 2];
-    let stride = opts.stride();
-    let spatial = opts.spatial_on();
-    let directional = opts.directional_on();
-    let midpoint = opts.midpoint_lookup;
-    let mut cells = [[0u32; BATCH]; 3];
-    let shape = &view.shape;
-    let ppe = shape.pins_per_entry;
-    if let Some((seed_hash, first)) = indexed {
-        for (i, r) in rng.iter_mut().enumerate() {
-            r.state = pcg_hash(seed_hash ^ first.wrapping_add(i as u32));
-        }
-    }
-
-    // Transform, validity, slab test, segment, spatial cell, the pin draw.
+    let mut ok = [false; BATCH];
     for i in 0..BATCH {
-        let q = &rq[i];
-        let o = xf.point(q.origin);
-        let d = xf.vector(q.dir);
-        let finite = is_finite_bits(o[0])
-            & is_finite_bits(o[1])
-            & is_finite_bits(o[2])
-            & is_finite_bits(d[0])
-            & is_finite_bits(d[1])
-            & is_finite_bits(d[2]);
-        let nan_tmax = (q.t_max.to_bits() & 0x7fff_ffff) > 0x7f80_0000;
-        let zero = (d[0] == 0.0) & (d[1] == 0.0) & (d[2] == 0.0);
-        let valid = finite & !nan_tmax & !zero;
-
-        // `chord::unit_cube_chord` with its early exits as flags.
-        let mut lo = -f32::MAX;
-        let mut hi = f32::MAX;
-        let mut constrained = false;
-        let mut outside = false;
-        for a in 0..3 {
-            let inv = if d[a] == 0.0 {
-                f32::INFINITY
-            } else {
-                1.0 / d[a]
-            };
-            let parallel = !is_finite_bits(inv);
-            outside |= parallel & !((o[a] >= 0.0) & (o[a] <= 1.0));
-            let t0 = -o[a] * inv;
-            let t1 = (1.0 - o[a]) * inv;
-            let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
-            lo = if !parallel & (near > lo) { near } else { lo };
-            hi = if !parallel & (far < hi) { far } else { hi };
-            constrained |= !parallel;
-        }
-        let chord = !outside & constrained & (lo < hi) & is_finite_bits(lo) & is_finite_bits(hi);
-
-        // `chord::segment`.
-        let t0 = if lo > 0.0 { lo } else { 0.0 };
-        let t1 = if q.t_max < hi { q.t_max } else { hi };
-        let c = hi - lo;
+        let (l, h) = (lo[i], hi[i]);
+        let t0 = if l > 0.0 { l } else { 0.0 };
+        let t1 = if t_max[i] < h { t_max[i] } else { h };
+        let c = h - l;
         let k = 32.0 / c;
         let seg_ok = (t0 < t1) & is_finite_bits(c) & is_finite_bits(k);
-        let s0 = if t0 == lo {
+        let s0 = if t0 == l {
             0.0
         } else {
-            let s = (t0 - lo) * k;
+            let s = (t0 - l) * k;
             if s < 32.0 { s } else { 32.0 }
         };
-        let s1 = if t1 == hi {
+        let s1 = if t1 == h {
             32.0
         } else {
-            let s = (t1 - lo) * k;
+            let s = (t1 - l) * k;
             if s < 32.0 { s } else { 32.0 }
         };
-        let a = bin(s0, 32);
-        let fl = bin(s1, 32);
+        let a = bin_lane(s0, 31.0);
+        let fl = bin_lane(s1, 31.0);
         let b = if (fl as f32 == s1) & (fl > 0) {
             fl.wrapping_sub(1)
         } else {
             fl
         };
         let b = if b < a { a } else { b };
-
-        let ok = valid & chord & seg_ok;
-        st[i] = if !valid {
-            status::INVALID
-        } else if ok {
-            status::OK
-        } else {
-            status::MISS
-        };
-
-        // `Sampler::lookup` of the segment's first piece (the whole segment unless
-        // chained).
-        let full = Segment {
-            t_enter: lo,
-            interval_len: c * 0.03125,
-            t0,
-            t1,
-            s0,
-            s1,
-            a,
-            b,
-        };
-        let piece = a / stride;
-        let seg = piece_of(&full, piece, stride);
-
-        // The draws: the pin number (`Rng::below_256`), then the spatial jitter's three and
-        // the directional jitter's two uniforms when they are on; only a resolved query draws.
-        let s0_state = rng[i].state;
-        let mut s = s0_state;
-        let mut draw = || {
-            s = s.wrapping_mul(PCG_MUL).wrapping_add(PCG_INC);
-            pcg_output(s)
-        };
-        let kdraw = ((draw() >> 8) * ppe) >> 24;
-        let mut sxi = [0f32; 3];
-        if spatial {
-            for x in &mut sxi {
-                *x = unit_f32(draw());
-            }
-        }
-        if directional {
-            dxi[0][i] = unit_f32(draw());
-            dxi[1][i] = unit_f32(draw());
-        }
-        state[i] = if ok { s } else { s0_state };
-
-        let reversed = d[2] < 0.0;
-        for ax in 0..3 {
-            dl[ax][i] = if reversed { -d[ax] } else { d[ax] };
-        }
-        let t = if midpoint {
-            0.5 * (seg.t0 + seg.t1)
-        } else {
-            seg.t0
-        };
-        let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
-        // `lookup::spatial_cell`, then `GridShape::local_cell`.
-        let mut cf = [
-            p[0] * view.dims_f[0],
-            p[1] * view.dims_f[1],
-            p[2] * view.dims_f[2],
-        ];
-        if spatial {
-            for ax in 0..3 {
-                cf[ax] += (sxi[ax] - 0.5) * opts.spatial_jitter;
-            }
-        }
-        let cx = bin(cf[0], shape.dims[0]);
-        let cy = bin(cf[1], shape.dims[1]);
-        let cz = bin(cf[2], shape.dims[2]);
-        // The 64-bit linear index is formed in the assembly loop below: 64-bit lanes here
-        // would halve the vector width of the whole loop.
-        cells[0][i] = cx;
-        cells[1][i] = cy;
-        cells[2][i] = cz;
-
-        for ax in 0..3 {
-            os[ax][i] = o[ax];
-            ds[ax][i] = d[ax];
-        }
-        pieces[i] = piece;
-        psegs[i] = seg;
-        t_enter[i] = lo;
-        ilen[i] = full.interval_len;
+        ok[i] = valid[i] & chord[i] & seg_ok;
+        ilen[i] = c * 0.03125;
         t0s[i] = t0;
         t1s[i] = t1;
         s0s[i] = s0;
         s1s[i] = s1;
         a_s[i] = a;
         b_s[i] = b;
+    }
+    let full = |i: usize| Segment {
+        t_enter: lo[i],
+        interval_len: ilen[i],
+        t0: t0s[i],
+        t1: t1s[i],
+        s0: s0s[i],
+        s1: s1s[i],
+        a: a_s[i],
+        b: b_s[i],
+    };
+
+    // The draws: the pin number (`Rng::below_256`), then the spatial jitter's three and
+    // the directional jitter's two uniforms when they are on; only a resolved query draws.
+    let mut s = [0u32; BATCH];
+    let mut kdraw = [0u32; BATCH];
+    let step = |x: u32| x.wrapping_mul(PCG_MUL).wrapping_add(PCG_INC);
+    for i in 0..BATCH {
+        let x = step(rng[i].state);
+        kdraw[i] = ((pcg_output(x) >> 8) * ppe) >> 24;
+        s[i] = x;
+    }
+    let mut sxi = [[0f32; BATCH]; 3];
+    if spatial {
+        for i in 0..BATCH {
+            for xi in &mut sxi {
+                s[i] = step(s[i]);
+                xi[i] = unit_f32(pcg_output(s[i]));
+            }
+        }
+    }
+    let mut dxi = [[0f32; BATCH]; 2];
+    if directional {
+        for i in 0..BATCH {
+            for xi in &mut dxi {
+                s[i] = step(s[i]);
+                xi[i] = unit_f32(pcg_output(s[i]));
+            }
+        }
+    }
+
+    // The first piece of a chain (`a / stride`, then `piece_of`); rare, so per lane.
+    let mut pieces = [0u32; BATCH];
+    let mut psegs = [EMPTY; BATCH];
+    let mut pt = [[0f32; BATCH]; 2];
+    if chained {
+        for i in 0..BATCH {
+            pieces[i] = a_s[i] / stride;
+            psegs[i] = piece_of(&full(i), pieces[i], stride);
+            pt[0][i] = psegs[i].t0;
+            pt[1][i] = psegs[i].t1;
+        }
+    }
+    let (lt0, lt1) = if chained {
+        (&pt[0], &pt[1])
+    } else {
+        (&t0s, &t1s)
+    };
+
+    // `Sampler::lookup`'s point, then `lookup::spatial_cell`.
+    let dims_hi = shape.dims.map(bin_limit);
+    let mut cells = [[0u32; BATCH]; 3];
+    for i in 0..BATCH {
+        let t = if midpoint {
+            0.5 * (lt0[i] + lt1[i])
+        } else {
+            lt0[i]
+        };
+        let mut cf = [0f32; 3];
+        for ax in 0..3 {
+            cf[ax] = (o[ax][i] + d[ax][i] * t) * view.dims_f[ax];
+        }
+        if spatial {
+            for ax in 0..3 {
+                cf[ax] += (sxi[ax][i] - 0.5) * opts.spatial_jitter;
+            }
+        }
+        for ax in 0..3 {
+            cells[ax][i] = bin_lane(cf[ax], dims_hi[ax]);
+        }
+    }
+
+    // The direction, turned into the upper hemisphere.
+    let mut dl = [[0f32; BATCH]; 3];
+    let mut rev = [false; BATCH];
+    for i in 0..BATCH {
+        let reversed = d[2][i] < 0.0;
+        for ax in 0..3 {
+            dl[ax][i] = if reversed { -d[ax][i] } else { d[ax][i] };
+        }
         rev[i] = reversed;
-        // Only the pin number is kept until the direction cell is known.
-        st[i] |= kdraw << 8;
     }
 
     // Direction cells: one loop per layout so that each is straight-line code.
@@ -295,41 +434,36 @@ fn lanes_body(
     }
 
     for i in 0..n {
-        // `GridShape::local_cell`.
-        let (cx, cy, cz) = (cells[0][i], cells[1][i], cells[2][i]);
-        let local = if cz >= shape.z_begin && cz < shape.z_end {
-            u64::from(cx)
-                + u64::from(shape.dims[0])
-                    * (u64::from(cy) + u64::from(shape.dims[1]) * u64::from(cz - shape.z_begin))
-        } else {
-            NO_CELL
-        };
-        let code = st[i] & 0xff;
-        let kdraw = st[i] >> 8;
-        out[i] = if code == status::OK {
+        out[i] = if ok[i] {
+            // `GridShape::local_cell`, in 64 bits here only: 64-bit lanes in the loops
+            // above would halve their vector width.
+            let (cx, cy, cz) = (cells[0][i], cells[1][i], cells[2][i]);
+            let local = if cz >= shape.z_begin && cz < shape.z_end {
+                u64::from(cx)
+                    + u64::from(shape.dims[0])
+                        * (u64::from(cy) + u64::from(shape.dims[1]) * u64::from(cz - shape.z_begin))
+            } else {
+                NO_CELL
+            };
             Prepared {
                 status: status::OK,
-                rng: Rng::new(state[i]),
-                seg: psegs[i],
-                full: Segment {
-                    t_enter: t_enter[i],
-                    interval_len: ilen[i],
-                    t0: t0s[i],
-                    t1: t1s[i],
-                    s0: s0s[i],
-                    s1: s1s[i],
-                    a: a_s[i],
-                    b: b_s[i],
-                },
+                rng: Rng::new(s[i]),
+                seg: if chained { psegs[i] } else { full(i) },
+                full: full(i),
                 reversed: rev[i],
                 local,
-                within: u64::from(dcell[i]) * u64::from(ppe) + u64::from(kdraw),
-                o: [os[0][i], os[1][i], os[2][i]],
-                d: [ds[0][i], ds[1][i], ds[2][i]],
+                within: u64::from(dcell[i]) * u64::from(ppe) + u64::from(kdraw[i]),
+                o: [o[0][i], o[1][i], o[2][i]],
+                d: [d[0][i], d[1][i], d[2][i]],
                 piece: pieces[i],
             }
         } else {
-            Prepared::empty(code, Rng::new(state[i]))
+            let code = if valid[i] {
+                status::MISS
+            } else {
+                status::INVALID
+            };
+            Prepared::empty(code, rng[i])
         };
     }
 }
@@ -384,12 +518,32 @@ pub(crate) fn resolve_heads(
     entries: &[PinEntry; BATCH],
     out: &mut [Head; BATCH],
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2, checked on the line above.
-        unsafe { heads_avx2(prep, entries, out) };
-        return;
+    resolve_heads_isa(Isa::best(), prep, entries, out);
+}
+
+/// [`resolve_heads`] compiled for `isa`, which must be one of [`Isa::available`].
+#[inline]
+pub(crate) fn resolve_heads_isa(
+    isa: Isa,
+    prep: &[Prepared; BATCH],
+    entries: &[PinEntry; BATCH],
+    out: &mut [Head; BATCH],
+) {
+    match isa {
+        Isa::Baseline => heads_body(prep, entries, out),
+        // SAFETY: `isa` comes from `Isa::best` or `Isa::available`, which checked that the
+        // CPU has these features.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { heads_avx2(prep, entries, out) },
+        // SAFETY: as above.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { heads_avx512(prep, entries, out) },
     }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx512bw,avx512dq")]
+fn heads_avx512(prep: &[Prepared; BATCH], entries: &[PinEntry; BATCH], out: &mut [Head; BATCH]) {
     heads_body(prep, entries, out);
 }
 
@@ -428,6 +582,7 @@ fn heads_body(prep: &[Prepared; BATCH], entries: &[PinEntry; BATCH], out: &mut [
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::chord::bin;
     use crate::rng::Rng;
     use crate::testing::random_grid;
     use crate::{PinGrid, QueryResult, Sampler, SamplerOptions};
@@ -527,13 +682,18 @@ mod tests {
     }
 
     /// The lane set-up equals the scalar `prepare`, field for field, on ordinary and
-    /// hostile rays, for both seedings, every direction layout and every option set.
+    /// hostile rays, for both seedings, every direction layout, every option set and every
+    /// instruction set the CPU has; so does the lane start of the resolve.
     #[test]
     fn lanes_equal_scalar_prepare() {
-        for (owned, opts) in grids()
-            .into_iter()
-            .flat_map(|g| option_sets().into_iter().map(move |o| (g.clone(), o)))
-        {
+        let isas = Isa::available();
+        assert!(isas.contains(&Isa::best()));
+        for (owned, opts, isa) in grids().into_iter().flat_map(|g| {
+            option_sets().into_iter().flat_map(move |o| {
+                let g = g.clone();
+                Isa::available().into_iter().map(move |i| (g.clone(), o, i))
+            })
+        }) {
             let bytes = owned.to_bytes().unwrap();
             let g = PinGrid::from_bytes(bytes).unwrap();
             let s = g.sampler().unwrap().with_options(opts);
@@ -544,7 +704,8 @@ mod tests {
                 let mut rng = [Rng::new(0); BATCH];
                 let mut out = [Prepared::empty(status::MISS, Rng::new(0)); BATCH];
                 let first = (c * 1000) as u32;
-                prepare_lanes(
+                prepare_lanes_isa(
+                    isa,
                     s.view(),
                     s.transform(),
                     s.options(),
@@ -560,8 +721,36 @@ mod tests {
                         q.t_max,
                         Rng::for_query(9, first + i as u32),
                     );
-                    assert_eq!(out[i], want, "{shape:?} {opts:?} ray {q:?}");
+                    assert_eq!(out[i], want, "{isa:?} {shape:?} {opts:?} ray {q:?}");
                     resolved += usize::from(want.status == status::OK);
+                }
+                // The resolve's start against random entries, with and without the
+                // reversal and with `t_min` outside [0, 1].
+                let mut er = Rng::new(c as u32);
+                let entries: [PinEntry; BATCH] = std::array::from_fn(|_| PinEntry {
+                    mask: er.next_u32(),
+                    t_min: er.next_f32() * 1.2 - 0.1,
+                });
+                let mut heads = [Head::default(); BATCH];
+                resolve_heads_isa(isa, &out, &entries, &mut heads);
+                for i in 0..chunk.len() {
+                    if out[i].status != status::OK {
+                        continue;
+                    }
+                    let mut r = out[i].rng;
+                    let want = crate::sampler::resolve_entry(
+                        entries[i],
+                        out[i].reversed,
+                        &out[i].seg,
+                        &mut r,
+                        false,
+                    );
+                    let h = heads[i];
+                    assert_eq!(
+                        (h.state, h.popcount, h.transmittance.to_bits()),
+                        (r.state, want.popcount, want.transmittance.to_bits()),
+                        "{isa:?} heads"
+                    );
                 }
                 // Given generators.
                 let mut given = [Rng::new(0); BATCH];
@@ -569,7 +758,8 @@ mod tests {
                     *r = Rng::new(i as u32 * 7919 + c as u32);
                 }
                 let start = given;
-                prepare_lanes(
+                prepare_lanes_isa(
+                    isa,
                     s.view(),
                     s.transform(),
                     s.options(),
@@ -584,6 +774,53 @@ mod tests {
             }
             assert!(resolved > 100, "{resolved} resolved queries");
         }
+    }
+
+    /// `bin_lane` gives `bin`'s cell for every kind of float and every size the lanes use.
+    #[test]
+    fn bin_lane_equals_bin() {
+        let mut r = Rng::new(31);
+        let sizes = [1u32, 2, 3, 7, 32, 37, 4096, 1 << 16, pin_format::MAX_DIM];
+        let special = [
+            0.0f32,
+            -0.0,
+            f32::NAN,
+            -f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::MIN_POSITIVE,
+            1e-45,
+            -1e-45,
+            0.999_999_94,
+            1.0,
+            30.999_998,
+            31.0,
+            31.000_002,
+            32.0,
+            4095.9998,
+            1_048_575.0,
+            1_048_575.9,
+            1_048_576.0,
+            16_777_216.0,
+            4.3e9,
+            f32::MAX,
+            -1.0,
+        ];
+        for &n in &sizes {
+            let hi = bin_limit(n);
+            for &x in &special {
+                assert_eq!(bin_lane(x, hi), bin(x, n), "x {x} n {n}");
+            }
+            for _ in 0..200_000 {
+                // Random bit patterns (every exponent) and values near the cells.
+                let x = f32::from_bits(r.next_u32());
+                assert_eq!(bin_lane(x, hi), bin(x, n), "x {x:e} n {n}");
+                let y = r.next_f32() * (n as f32 + 2.0) - 1.0;
+                assert_eq!(bin_lane(y, hi), bin(y, n), "y {y} n {n}");
+            }
+        }
+        // The test can fail: a limit one too small moves the last cell.
+        assert_ne!(bin_lane(31.5, 30.0), bin(31.5, 32));
     }
 
     /// A deliberate slip in the lane code (a different rounding of the segment start) is
