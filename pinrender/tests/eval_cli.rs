@@ -484,7 +484,7 @@ fn render_compares_with_a_reference() {
 }
 
 /// `pinrender bench --json` on a tiny CPU run: every row carries `volume, method, query,
-/// backend, queries_per_s`; every transmittance row its mean absolute error against the
+/// backend, queries_per_s, cpu_queries_per_s`; every transmittance row its mean absolute error against the
 /// converged march; the strongest no-bake estimators (`urm`, `jackknife`) and the trackers
 /// (`ratio`, `delta`, transmittance and distance) sit beside pins (single and batched) and
 /// ray marching on the same rays.
@@ -514,6 +514,8 @@ fn bench_json_rows_have_rates_and_errors() {
         }
         assert_eq!(r["backend"], "cpu", "--no-gpu: {r}");
         assert!(r["queries_per_s"].as_f64().unwrap() > 0.0, "{r}");
+        // CPU rows also carry their rate over the thread's CPU time, which the ratios use.
+        assert!(r["cpu_queries_per_s"].as_f64().unwrap() > 0.0, "{r}");
         if r["query"] == "transmittance" {
             let e = r["mean_abs_error"].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&e), "{r}");

@@ -5,6 +5,10 @@
 //! the same random rays, CPU single thread and wgpu. Transmittance rows also
 //! carry their mean absolute error against a converged per-ray reference (ray marching at
 //! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays.
+//!
+//! CPU rows are timed by wall time (`queries_per_s`) and by the thread's CPU time
+//! (`cpu_queries_per_s`); the printed ratios use the CPU rates, which a shared machine does
+//! not skew row by row.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -33,7 +37,8 @@ pub struct BenchArgs {
     /// Random rays per measurement (ray marching uses a quarter of them; 1..=10^8).
     #[arg(long, default_value_t = 200_000, value_parser = parse_rays)]
     pub rays: usize,
-    /// Spatial cells per axis when baking (x 16x4 polar directions, as in the thesis; 1..=4096).
+    /// Spatial cells per axis when baking (the thesis' 37; with the default direction set of
+    /// `pinbake bake`, octahedral:16, and pins through cell centres; 1..=4096).
     #[arg(long, default_value_t = 37, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub cells: u32,
     /// Refuse a configuration that needs more than this many bytes of memory (K/M/G/T
@@ -44,8 +49,10 @@ pub struct BenchArgs {
     #[arg(long)]
     pub no_gpu: bool,
     /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
-    /// mean_abs_error?, error_rays?}, ...]} (the error fields on transmittance rows; query
-    /// is "transmittance", "distance", or "both" for the GPU's combined dispatch).
+    /// cpu_queries_per_s?, mean_abs_error?, error_rays?}, ...]} (queries_per_s over wall
+    /// time; cpu_queries_per_s over the thread's CPU time, on CPU rows; the error fields on
+    /// transmittance rows; query is "transmittance", "distance", or "both" for the GPU's
+    /// combined dispatch).
     #[arg(long)]
     pub json: bool,
     /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
@@ -134,24 +141,32 @@ fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<Pin
         "bench-{safe_name}-{cells}-v{}.pin",
         env!("CARGO_PKG_VERSION")
     ));
+    // What the cached file must have been baked with: the library's defaults at `cells`.
+    // Directions and pin placement are part of it, so a file of an earlier default (another
+    // direction set, jittered pins) is baked again rather than measured.
+    let opts = pinbake::BakeOptions {
+        cells: [cells; 3],
+        ..pinbake::BakeOptions::default()
+    };
+    let jittered = |g: &PinGrid| g.desc().flags & pin_format::layout::GRID_FLAG_JITTERED_PINS != 0;
     if pinbake::files::check_input(&path).is_ok()
         && let Ok(g) = PinGrid::open(&path)
         && g.verify().is_ok()
         && g.desc().dims == [cells; 3]
-        && g.desc().seed == 0
+        && (g.desc().direction_kind, g.desc().direction_res) == opts.directions.to_desc()
+        && g.desc().pins_per_entry == opts.pins_per_entry
+        && jittered(&g) == opts.jitter_pins
+        && g.desc().seed == opts.seed
         && g.desc().source_box_min == source.bounds().min.to_array()
         && g.desc().source_box_max == source.bounds().max.to_array()
     {
         return Ok(g);
     }
     eprintln!(
-        "pinrender bench: baking {name} ({cells}^3 x 16x4 pins) once into {}",
+        "pinrender bench: baking {name} ({cells}^3 cells x {} directions) once into {}",
+        opts.directions.count(),
         path.display()
     );
-    let opts = pinbake::BakeOptions {
-        cells: [cells; 3],
-        ..pinbake::BakeOptions::default()
-    };
     let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
     pinbake::files::write_pin_atomic(&grid, &pinbake::files::check_output(&path, &[])?)?;
     PinGrid::open(&path).map_err(|e| anyhow!("{e}"))
@@ -181,8 +196,74 @@ fn random_rays(source: &dyn DensitySource, n: usize) -> Vec<RayQuery> {
         .collect()
 }
 
-fn row(volume: &str, method: &str, query: &str, backend: &str, qps: f64) -> Value {
-    json!({"volume": volume, "method": method, "query": query, "backend": backend, "queries_per_s": qps})
+/// CPU time of the calling thread (`CLOCK_THREAD_CPUTIME_ID`), in seconds: what a
+/// single-thread row costs, whatever else runs on the machine.
+fn thread_cpu_s() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec and the clock id is a constant Linux knows.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc != 0 {
+        return f64::NAN;
+    }
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+/// A row's rate, queries per second of wall time and of the thread's CPU time. On a shared
+/// machine the wall rate of a row depends on what else ran during that row's window, so
+/// ratios between rows are taken from the CPU rates (the CPU rows run on this one thread).
+#[derive(Clone, Copy, Debug)]
+struct Rate {
+    wall: f64,
+    /// `None` on the GPU, whose work is not this thread's.
+    cpu: Option<f64>,
+}
+
+/// Wall and thread CPU time since [`Clock::start`].
+struct Clock {
+    wall: Instant,
+    cpu: f64,
+}
+
+impl Clock {
+    fn start() -> Self {
+        Self {
+            wall: Instant::now(),
+            cpu: thread_cpu_s(),
+        }
+    }
+
+    fn wall_s(&self) -> f64 {
+        self.wall.elapsed().as_secs_f64()
+    }
+
+    /// The rate of `queries` queries answered since the start.
+    fn rate(&self, queries: usize) -> Rate {
+        let wall = self.wall_s();
+        let cpu = thread_cpu_s() - self.cpu;
+        Rate {
+            wall: queries as f64 / wall,
+            cpu: (cpu > 0.0 && cpu.is_finite()).then(|| queries as f64 / cpu),
+        }
+    }
+}
+
+fn row(volume: &str, method: &str, query: &str, backend: &str, rate: Rate) -> Value {
+    let mut r = json!({"volume": volume, "method": method, "query": query, "backend": backend, "queries_per_s": rate.wall});
+    if let Some(cpu) = rate.cpu {
+        r["cpu_queries_per_s"] = json!(cpu);
+    }
+    r
+}
+
+/// A GPU row: timed end to end in wall time.
+fn gpu_rate(qps: f64) -> Rate {
+    Rate {
+        wall: qps,
+        cpu: None,
+    }
 }
 
 /// A transmittance row with its mean absolute error against `reference` (per ray, the first
@@ -191,7 +272,7 @@ fn row_err(
     volume: &str,
     method: &str,
     backend: &str,
-    qps: f64,
+    rate: Rate,
     estimates: &[f64],
     reference: &[f64],
 ) -> Value {
@@ -202,7 +283,7 @@ fn row_err(
         .map(|(e, r)| (e - r).abs())
         .sum::<f64>()
         / n.max(1) as f64;
-    let mut r = row(volume, method, "transmittance", backend, qps);
+    let mut r = row(volume, method, "transmittance", backend, rate);
     r["mean_abs_error"] = json!(mae);
     r["error_rays"] = json!(n);
     r
@@ -213,15 +294,14 @@ const MIN_BATCHED_S: f64 = 0.1;
 
 /// Queries per second of `pass(0)`, `pass(1)`, ... (each `queries` queries), repeated
 /// until [`MIN_BATCHED_S`] of wall time: total queries over total time.
-fn repeated_rate(queries: usize, mut pass: impl FnMut(u32)) -> f64 {
-    let t = Instant::now();
-    let mut passes = 0u32;
+fn repeated_rate(queries: usize, mut pass: impl FnMut(u32)) -> Rate {
+    let t = Clock::start();
+    let mut passes = 0usize;
     loop {
-        pass(passes);
+        pass(passes as u32);
         passes += 1;
-        let s = t.elapsed().as_secs_f64();
-        if s >= MIN_BATCHED_S {
-            return queries as f64 * f64::from(passes) / s;
+        if t.wall_s() >= MIN_BATCHED_S {
+            return t.rate(queries * passes);
         }
     }
 }
@@ -266,19 +346,19 @@ fn bench_volume(
     let mut est_batched = Vec::new();
     sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
     let mut rng = Rng::for_query(2, 0);
-    let t = Instant::now();
+    let t = Clock::start();
     for (o, r) in t_out.iter_mut().zip(&rays) {
         *o = sampler.transmittance(&r.ray(), r.t_max, &mut rng);
     }
-    let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+    let qps = t.rate(rays.len());
     let est: Vec<f64> = t_out.iter().map(|&t| f64::from(t)).collect();
     rows.push(row_err(name, "pins", "cpu", qps, &est, &reference));
     let mut rng = Rng::for_query(3, 0);
-    let t = Instant::now();
+    let t = Clock::start();
     for (o, r) in d_out.iter_mut().zip(&rays) {
         *o = sampler.sample_distance(&r.ray(), r.t_max, &mut rng);
     }
-    let qps = rays.len() as f64 / t.elapsed().as_secs_f64();
+    let qps = t.rate(rays.len());
     std::hint::black_box(&d_out);
     rows.push(row(name, "pins", "distance", "cpu", qps));
     // One batched pass over 200,000 rays takes ~10 ms, short enough for one preemption of
@@ -306,7 +386,7 @@ fn bench_volume(
 
     let n_rm = (rays.len() / 4).max(1);
     for step in [0.015, 0.005] {
-        let t = Instant::now();
+        let t = Clock::start();
         let mut est = Vec::with_capacity(n_rm);
         for r in &rays[..n_rm] {
             let (o, d) = ray_od(r);
@@ -319,10 +399,10 @@ fn bench_volume(
                 step,
             ));
         }
-        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        let qps = t.rate(n_rm);
         let method = format!("rm@{step}");
         rows.push(row_err(name, &method, "cpu", qps, &est, &reference));
-        let t = Instant::now();
+        let t = Clock::start();
         let mut hits = 0usize;
         for (i, r) in rays[..n_rm].iter().enumerate() {
             let mut rng = Rng::for_query(4, i as u32);
@@ -332,13 +412,7 @@ fn bench_volume(
                 .is_some() as usize;
         }
         std::hint::black_box(hits);
-        rows.push(row(
-            name,
-            &method,
-            "distance",
-            "cpu",
-            n_rm as f64 / t.elapsed().as_secs_f64(),
-        ));
+        rows.push(row(name, &method, "distance", "cpu", t.rate(n_rm)));
     }
 
     // The comb estimators at their default lookups, on the same rays as ray marching, as
@@ -360,7 +434,7 @@ fn bench_volume(
         ),
     ] {
         let mut rng = Pcg32::new(7, method.len() as u64);
-        let t = Instant::now();
+        let t = Clock::start();
         let est: Vec<f64> = rays[..n_rm]
             .iter()
             .map(|r| {
@@ -368,9 +442,9 @@ fn bench_volume(
                 f64::from(tracker.transmittance(o, d, f32::INFINITY, &mut rng))
             })
             .collect();
-        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        let qps = t.rate(n_rm);
         rows.push(row_err(name, method, "cpu", qps, &est, &reference));
-        let t = Instant::now();
+        let t = Clock::start();
         let hits = rays[..n_rm]
             .iter()
             .filter(|r| {
@@ -381,7 +455,7 @@ fn bench_volume(
             })
             .count();
         std::hint::black_box(hits);
-        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        let qps = t.rate(n_rm);
         rows.push(row(name, method, "distance", "cpu", qps));
     }
     for kind in [CombKind::Urm, CombKind::Jackknife] {
@@ -389,7 +463,7 @@ fn bench_volume(
             .build(field.clone(), majorants.clone(), kind.default_lookups())
             .map_err(|e| anyhow!("{e}"))?;
         let mut rng = Pcg32::new(6, kind as u64);
-        let t = Instant::now();
+        let t = Clock::start();
         let est: Vec<f64> = rays[..n_rm]
             .iter()
             .map(|r| {
@@ -397,7 +471,7 @@ fn bench_volume(
                 f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng))
             })
             .collect();
-        let qps = n_rm as f64 / t.elapsed().as_secs_f64();
+        let qps = t.rate(n_rm);
         let method = match kind {
             CombKind::Urm => "urm",
             CombKind::Jackknife => "jackknife",
@@ -436,7 +510,7 @@ fn bench_volume(
                 }
             }
         }
-        let qps = |k: usize| rays.len() as f64 / best[k];
+        let qps = |k: usize| gpu_rate(rays.len() as f64 / best[k]);
         rows.push(row_err(
             name,
             "pins",
@@ -525,14 +599,31 @@ pub fn run(args: BenchArgs) -> Result<()> {
                     && b["backend"] == "cpu"
                     && b["method"] == "pins-batched"
             })
-            .and_then(|b| b["queries_per_s"].as_f64())
+            .and_then(|b| b["cpu_queries_per_s"].as_f64())
             .unwrap_or(f64::NAN);
         let q = r["queries_per_s"].as_f64().unwrap_or(f64::NAN);
+        // Ratios of CPU rows from thread CPU time (see `Rate`); a GPU row against the
+        // batched CPU row's wall rate.
+        let (base, q_ratio) = match r["cpu_queries_per_s"].as_f64() {
+            Some(c) => (base, c),
+            None => (
+                rows.iter()
+                    .find(|b| {
+                        b["volume"] == r["volume"]
+                            && b["query"] == r["query"]
+                            && b["backend"] == "cpu"
+                            && b["method"] == "pins-batched"
+                    })
+                    .and_then(|b| b["queries_per_s"].as_f64())
+                    .unwrap_or(f64::NAN),
+                q,
+            ),
+        };
         let err = r["mean_abs_error"]
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
         // The GPU's combined `both` row has no batched CPU counterpart.
-        let ratio = base / q;
+        let ratio = base / q_ratio;
         let ratio = if ratio.is_finite() {
             format!("{ratio:.1}")
         } else {
