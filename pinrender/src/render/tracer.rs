@@ -320,6 +320,12 @@ impl Ctx<'_> {
     /// asks the estimator itself.
     pub(crate) fn single_medium_asked(&self, which: Which, o: Vec3, d: Vec3) -> bool {
         debug_assert_eq!(self.media.len(), 1);
+        // Every scattering vertex lies in the medium's box: no slab test for its rays. (A
+        // finite `o` strictly inside; `RaySlabs::new` still refuses a bad `d`, and then the
+        // estimator is asked too.)
+        if self.boxes[which as usize].strictly_inside(0, o) {
+            return true;
+        }
         let Some(ray) = RaySlabs::new(o, d) else {
             return true;
         };
