@@ -253,7 +253,9 @@ impl<'a> Dda<'a> {
             // Brick coordinate of the entry point; clamped because the entry point of a ray
             // from outside lies on a face, possibly a rounding error beyond it.
             let g = (p[a] - grid.lo[a]) * grid.scale[a];
-            let b = (g.floor() as i64).clamp(0, n as i64 - 1) as i32;
+            // `as` truncates towards zero and saturates (NaN: 0): after the clamp that is
+            // `floor` (below 0 both give 0), without the libm call.
+            let b = (g as i64).clamp(0, n as i64 - 1) as i32;
             it.brick[a] = b;
             it.lin += b as isize * stride[a];
             let dg = d[a] * grid.scale[a]; // bricks per unit t
