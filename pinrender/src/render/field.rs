@@ -220,8 +220,9 @@ pub struct VoxelGrid {
     spacing: [f64; 3],
     values: Vec<f32>,
     max: [f64; 3],
-    /// `values` as the trackers read them ([`DensityField::dense_view`]).
-    map: Option<DenseMap>,
+    /// `values` as the trackers read them ([`DensityField::dense_view`]); boxed, so that
+    /// the grid stays small where it is moved around by value.
+    map: Option<Box<DenseMap>>,
 }
 
 impl VoxelGrid {
@@ -262,7 +263,7 @@ impl VoxelGrid {
             .map(|v| if v > 0.0 { v.min(f32::MAX) } else { 0.0 })
             .collect();
         Ok(VoxelGrid {
-            map: DenseMap::new(values.len(), dims, origin, spacing),
+            map: DenseMap::new(values.len(), dims, origin, spacing).map(Box::new),
             dims: d,
             origin,
             spacing,
@@ -373,7 +374,7 @@ impl DensityField for VoxelGrid {
     }
 
     fn dense_view(&self) -> Option<DenseView<'_>> {
-        DenseView::new(&self.values, self.map?)
+        DenseView::new(&self.values, *self.map.as_deref()?)
     }
 }
 
