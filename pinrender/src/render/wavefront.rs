@@ -16,15 +16,15 @@
 //! where one medium answers every query.
 
 use glam::Vec3;
-use rayon::prelude::*;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::RenderError;
 use super::TransportEstimator;
 use super::phase::{hg_phase, sample_hg};
 use super::rng::Pcg32;
 use super::tracer::{
-    Budget, Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
+    Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
+    run_budget,
 };
 
 /// Where a path is in `Ctx::trace`.
@@ -415,30 +415,9 @@ pub fn render_wavefront(
         }
     };
     let mut sums = vec![[0f64; 3]; w * h];
-    let run = |sums: &mut Vec<[f64; 3]>| -> u32 {
-        match settings.budget {
-            Budget::Spp(spp) => {
-                sums.par_chunks_mut(w)
-                    .enumerate()
-                    .for_each(|(y, acc)| row(y, acc, 0..spp));
-                spp
-            }
-            Budget::Seconds(secs) => {
-                let budget = Duration::from_secs_f64(secs.min(1e9));
-                let mut pass = 0u32;
-                loop {
-                    sums.par_chunks_mut(w)
-                        .enumerate()
-                        .for_each(|(y, acc)| row(y, acc, pass..pass + 1));
-                    pass += 1;
-                    if start.elapsed() >= budget || pass == u32::MAX {
-                        break pass;
-                    }
-                }
-            }
-        }
-    };
-    let spp = in_pool(settings, || run(&mut sums))?;
+    let spp = in_pool(settings, || {
+        run_budget(settings.budget, start, w, &mut sums, row)
+    })?;
     Ok(average_sums(scene, &sums, spp, start))
 }
 
@@ -446,7 +425,7 @@ pub fn render_wavefront(
 mod tests {
     use super::*;
     use crate::render::{
-        Camera, FnField, MajorantGrid, Medium, PinsEstimator, RatioTracking, Sun, render,
+        Budget, Camera, FnField, MajorantGrid, Medium, PinsEstimator, RatioTracking, Sun, render,
     };
     use pin_format::Directions;
     use pinrt::PinGrid;
