@@ -4,10 +4,10 @@
 
 use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use crate::gpu_render::{CosineWave, GpuDensity};
-use crate::render::{DensityField, MajorantGrid, VoxelGrid};
+use crate::render::{DenseMap, DenseView, DensityField, MajorantGrid, VoxelGrid};
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::{DVec3, Vec3};
@@ -187,21 +187,73 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
 }
 
 /// A pinbake source seen as the renderer's density field.
-pub struct SourceField(pub Arc<dyn DensitySource>);
+pub struct SourceField {
+    source: Arc<dyn DensitySource>,
+    /// A sparse grid's dense copy for the trackers' [`DensityField::dense_view`], made on
+    /// first use (a pins-only render never asks); `None` inside when the source has no copy
+    /// (analytic, rotated, or over the memory cap).
+    copy: OnceLock<Option<source::DenseGrid>>,
+    /// The map of the raw grid or of `copy`, made once.
+    map: OnceLock<Option<DenseMap>>,
+}
+
+impl SourceField {
+    pub fn new(source: Arc<dyn DensitySource>) -> Self {
+        SourceField {
+            source,
+            copy: OnceLock::new(),
+            map: OnceLock::new(),
+        }
+    }
+
+    /// The source.
+    pub fn source(&self) -> &Arc<dyn DensitySource> {
+        &self.source
+    }
+}
+
+/// The dense grid's convention is `DenseView`'s: voxel `i`'s centre at `origin + (i + 0.5)
+/// spacing`, trilinear, clamped to the edge voxels inside the box.
+fn map_of(g: &source::DenseGrid) -> Option<DenseMap> {
+    DenseMap::new(
+        g.data().len(),
+        g.dims(),
+        g.origin().to_array(),
+        g.spacing().to_array(),
+    )
+}
 
 impl DensityField for SourceField {
     fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        let b = self.0.bounds();
+        let b = self.source.bounds();
         (b.min.to_array(), b.max.to_array())
     }
     fn extinction(&self, p: Vec3) -> f32 {
-        self.0.extinction(p.as_dvec3())
+        self.source.extinction(p.as_dvec3())
     }
     fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
         Some(
-            self.0
+            self.source
                 .max_extinction_in(source::Aabb::new(DVec3::from(lo), DVec3::from(hi))),
         )
+    }
+    /// A raw grid as it is; a VDB through its dense copy, whose one-voxel zero border makes
+    /// the clamped array zero wherever the tree is (the copy's trilinear field is the tree's:
+    /// `pinbake`'s `dense_copy`), at most the size the VDB's own cache may take.
+    fn dense_view(&self) -> Option<DenseView<'_>> {
+        let grid = match self.source.as_dense_grid() {
+            Some(g) => g,
+            None => self
+                .copy
+                .get_or_init(|| {
+                    self.source.dense_copy(
+                        pinbake::bake::DEFAULT_DENSE_COPY_BYTES
+                            .min(pinbake::files::default_memory_limit() / 4),
+                    )
+                })
+                .as_ref()?,
+        };
+        DenseView::new(grid.data(), (*self.map.get_or_init(|| map_of(grid)))?)
     }
 }
 

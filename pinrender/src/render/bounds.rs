@@ -134,6 +134,15 @@ impl MediaBoxes {
         n
     }
 
+    /// Whether `o` lies strictly inside box `i`: then [`MediaBoxes::entries`] enters it at 0
+    /// for every direction and every `t_max >= 0` (no slab can put the entry after 0 or the
+    /// exit before it), so a caller may skip the slab test. False for NaN.
+    #[inline]
+    pub(crate) fn strictly_inside(&self, i: usize, o: Vec3) -> bool {
+        let o = o.to_array();
+        (0..3).all(|a| self.lo[a][i] < o[a] && o[a] < self.hi[a][i])
+    }
+
     /// [`MediaBoxes::entries`] of box `i` alone (for tests).
     #[cfg(test)]
     pub(crate) fn entry(&self, i: usize, ray: &RaySlabs, t_max: f32) -> Option<f32> {
@@ -184,6 +193,35 @@ mod tests {
 
     fn close(a: Option<f32>, b: f32) -> bool {
         a.is_some_and(|a| (a - b).abs() <= 1e-4)
+    }
+
+    /// The shortcut of the wavefront loop: a point strictly inside is entered at 0 by every
+    /// ray from it (random directions, axis-parallel ones, signed zeros); points on or
+    /// beyond the padded faces, and NaN, are not "strictly inside".
+    #[test]
+    fn strictly_inside_means_entered_at_zero() {
+        let b = unit();
+        let mut rng = crate::render::Pcg32::new(8, 1);
+        let mut checked = 0;
+        for _ in 0..20_000 {
+            let o = [0, 1, 2].map(|_| -0.1 + 1.2 * rng.next_f32());
+            let mut d = [0, 1, 2].map(|_| rng.next_f32() - 0.5);
+            if rng.next_f32() < 0.3 {
+                d[(rng.next_u32() % 3) as usize] = if rng.next_f32() < 0.5 { 0.0 } else { -0.0 };
+            }
+            if b.strictly_inside(0, Vec3::from_array(o)) {
+                checked += 1;
+                for t_max in [0.0, 0.5, f32::INFINITY] {
+                    assert_eq!(entry(&b, o, d, t_max), Some(0.0), "{o:?} {d:?}");
+                }
+            }
+        }
+        assert!(checked > 10_000);
+        let (lo, hi) = padded(Some(([0.0; 3], [1.0; 3]))).unwrap();
+        assert!(!b.strictly_inside(0, Vec3::new(lo[0], 0.5, 0.5)));
+        assert!(!b.strictly_inside(0, Vec3::new(0.5, hi[1], 0.5)));
+        assert!(!b.strictly_inside(0, Vec3::new(0.5, 0.5, f32::NAN)));
+        assert!(b.strictly_inside(0, Vec3::splat(0.5)));
     }
 
     #[test]

@@ -150,7 +150,7 @@ impl MajorantGrid {
         self.values.iter().fold(0.0, |m, &v| m.max(v))
     }
 
-    #[inline]
+    #[cfg(test)]
     fn value(&self, b: [i32; 3]) -> f32 {
         let d = self.dims;
         self.values[b[0] as usize + d[0] as usize * (b[1] as usize + d[1] as usize * b[2] as usize)]
@@ -202,13 +202,20 @@ pub(crate) fn clip_box(
 }
 
 /// 3D DDA over the bricks (Amanatides-Woo), in f64.
+///
+/// The per-axis state is indexed only by constants in [`Iterator::next`] (one arm per
+/// axis), so that the compiler can keep it in registers when a tracker's loop inlines the
+/// iterator, and the brick's value is read through a running linear index.
 pub struct Dda<'a> {
-    grid: &'a MajorantGrid,
+    values: &'a [f32],
     brick: [i32; 3],
     step: [i32; 3],
     limit: [i32; 3],
     next_t: [f64; 3],
     delta_t: [f64; 3],
+    /// `brick`'s index into `values`, and its change per step along each axis.
+    lin: isize,
+    lin_step: [isize; 3],
     t: f64,
     t_end: f64,
     done: bool,
@@ -217,12 +224,14 @@ pub struct Dda<'a> {
 impl<'a> Dda<'a> {
     fn new(grid: &'a MajorantGrid, o: DVec3, d: DVec3, t_min: f64, t_max: f64) -> Self {
         let mut it = Dda {
-            grid,
+            values: &grid.values,
             brick: [0; 3],
             step: [0; 3],
             limit: [0; 3],
             next_t: [f64::INFINITY; 3],
             delta_t: [f64::INFINITY; 3],
+            lin: 0,
+            lin_step: [0; 3],
             t: 0.0,
             t_end: 0.0,
             done: true,
@@ -234,13 +243,21 @@ impl<'a> Dda<'a> {
         it.t_end = t1;
         it.done = false;
         let p = o + d * t0;
+        let stride = [
+            1isize,
+            grid.dims[0] as isize,
+            grid.dims[0] as isize * grid.dims[1] as isize,
+        ];
         for a in 0..3 {
             let n = grid.dims[a] as i32;
             // Brick coordinate of the entry point; clamped because the entry point of a ray
             // from outside lies on a face, possibly a rounding error beyond it.
             let g = (p[a] - grid.lo[a]) * grid.scale[a];
-            let b = (g.floor() as i64).clamp(0, n as i64 - 1) as i32;
+            // `as` truncates towards zero and saturates (NaN: 0): after the clamp that is
+            // `floor` (below 0 both give 0), without the libm call.
+            let b = (g as i64).clamp(0, n as i64 - 1) as i32;
             it.brick[a] = b;
+            it.lin += b as isize * stride[a];
             let dg = d[a] * grid.scale[a]; // bricks per unit t
             if dg > 0.0 {
                 // max(0): the clamped brick may start after g (rounding); never step back.
@@ -254,50 +271,58 @@ impl<'a> Dda<'a> {
                 it.step[a] = -1;
                 it.limit[a] = -1;
             }
+            it.lin_step[a] = it.step[a] as isize * stride[a];
             // dg == 0 (either sign of zero): never crosses on this axis; next_t stays inf.
         }
         it
+    }
+
+    /// The segment that ends at the next crossing of axis `A`, then the step across it.
+    #[inline(always)]
+    fn cross<const A: usize>(&mut self) -> Segment {
+        let t1 = self.next_t[A].min(self.t_end);
+        let seg = Segment {
+            t0: self.t,
+            t1,
+            majorant: self.values[self.lin as usize],
+            brick: self.brick.map(|v| v as u32),
+        };
+        if self.next_t[A] >= self.t_end {
+            self.done = true;
+        } else {
+            self.brick[A] += self.step[A];
+            self.lin += self.lin_step[A];
+            if self.brick[A] == self.limit[A] {
+                self.done = true;
+            }
+            self.next_t[A] += self.delta_t[A];
+            self.t = t1;
+        }
+        seg
     }
 }
 
 impl Iterator for Dda<'_> {
     type Item = Segment;
 
-    #[inline]
+    #[inline(always)]
     fn next(&mut self) -> Option<Segment> {
         if self.done {
             return None;
         }
         // Axis of the nearest crossing.
-        let a = if self.next_t[0] < self.next_t[1] {
-            if self.next_t[0] < self.next_t[2] {
-                0
+        let [x, y, z] = self.next_t;
+        Some(if x < y {
+            if x < z {
+                self.cross::<0>()
             } else {
-                2
+                self.cross::<2>()
             }
-        } else if self.next_t[1] < self.next_t[2] {
-            1
+        } else if y < z {
+            self.cross::<1>()
         } else {
-            2
-        };
-        let t1 = self.next_t[a].min(self.t_end);
-        let seg = Segment {
-            t0: self.t,
-            t1,
-            majorant: self.grid.value(self.brick),
-            brick: self.brick.map(|v| v as u32),
-        };
-        if self.next_t[a] >= self.t_end {
-            self.done = true;
-        } else {
-            self.brick[a] += self.step[a];
-            if self.brick[a] == self.limit[a] {
-                self.done = true;
-            }
-            self.next_t[a] += self.delta_t[a];
-            self.t = t1;
-        }
-        Some(seg)
+            self.cross::<2>()
+        })
     }
 }
 

@@ -115,7 +115,7 @@ pub use estimator::{
     MAX_TRACKING_STEPS, RatioTracking, RayMarching, TransportEstimator, URM_DEFAULT_LOOKUPS,
     UnbiasedRayMarching,
 };
-pub use field::{DensityField, FnField, HomogeneousBox, VoxelGrid};
+pub use field::{DenseMap, DenseView, DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use pins::PinsEstimator;

@@ -52,17 +52,32 @@ impl PinsEstimator {
 }
 
 /// The batch form of the single queries' seeding: each ray's pin generator from two draws of
-/// its path generator, in the order `sample_distance` and `transmittance` draw them.
-fn pin_queries(rays: &[[Vec3; 2]], t_max: f32, rngs: &mut [Pcg32]) -> (Vec<RayQuery>, Vec<Rng>) {
-    let q = rays
-        .iter()
-        .map(|r| RayQuery::new(r[0].to_array(), r[1].to_array(), t_max))
-        .collect();
-    let g = rngs
-        .iter_mut()
-        .map(|rng| Rng::for_query(rng.next_u32(), rng.next_u32()))
-        .collect();
-    (q, g)
+/// its path generator, in the order `sample_distance` and `transmittance` draw them. The
+/// queries and generators go into `scratch`'s buffers (kept per thread: the wavefront loop
+/// asks a batch every round).
+fn pin_queries(
+    rays: &[[Vec3; 2]],
+    t_max: f32,
+    rngs: &mut [Pcg32],
+    scratch: &mut (Vec<RayQuery>, Vec<Rng>),
+) {
+    let (q, g) = scratch;
+    q.clear();
+    q.extend(
+        rays.iter()
+            .map(|r| RayQuery::new(r[0].to_array(), r[1].to_array(), t_max)),
+    );
+    g.clear();
+    g.extend(
+        rngs.iter_mut()
+            .map(|rng| Rng::for_query(rng.next_u32(), rng.next_u32())),
+    );
+}
+
+thread_local! {
+    /// [`pin_queries`]' buffers.
+    static QUERIES: std::cell::RefCell<(Vec<RayQuery>, Vec<Rng>)> =
+        const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
 }
 
 impl TransportEstimator for PinsEstimator {
@@ -84,8 +99,10 @@ impl TransportEstimator for PinsEstimator {
         rngs: &mut [Pcg32],
         out: &mut [f32],
     ) {
-        let (q, mut r) = pin_queries(rays, t_max, rngs);
-        self.sampler().transmittance_batch_rngs(&q, &mut r, out);
+        QUERIES.with_borrow_mut(|s| {
+            pin_queries(rays, t_max, rngs, s);
+            self.sampler().transmittance_batch_rngs(&s.0, &mut s.1, out);
+        });
     }
     fn sample_distance_batch(
         &self,
@@ -94,8 +111,11 @@ impl TransportEstimator for PinsEstimator {
         rngs: &mut [Pcg32],
         out: &mut [Option<f32>],
     ) {
-        let (q, mut r) = pin_queries(rays, t_max, rngs);
-        self.sampler().sample_distance_batch_rngs(&q, &mut r, out);
+        QUERIES.with_borrow_mut(|s| {
+            pin_queries(rays, t_max, rngs, s);
+            self.sampler()
+                .sample_distance_batch_rngs(&s.0, &mut s.1, out);
+        });
     }
     fn name(&self) -> String {
         "pins".into()

@@ -320,6 +320,12 @@ impl Ctx<'_> {
     /// asks the estimator itself.
     pub(crate) fn single_medium_asked(&self, which: Which, o: Vec3, d: Vec3) -> bool {
         debug_assert_eq!(self.media.len(), 1);
+        // Every scattering vertex lies in the medium's box: no slab test for its rays. (A
+        // finite `o` strictly inside; `RaySlabs::new` still refuses a bad `d`, and then the
+        // estimator is asked too.)
+        if self.boxes[which as usize].strictly_inside(0, o) {
+            return true;
+        }
         let Some(ray) = RaySlabs::new(o, d) else {
             return true;
         };
@@ -562,43 +568,56 @@ where
         let c = trace(o, d, &mut rng);
         if c.is_finite() { c } else { Vec3::ZERO }
     };
-    let add = |acc: &mut [f64; 3], c: Vec3| {
-        acc[0] += c.x as f64;
-        acc[1] += c.y as f64;
-        acc[2] += c.z as f64;
-    };
-    let mut sums = vec![[0f64; 3]; w * h];
-    let run = |sums: &mut Vec<[f64; 3]>| -> u32 {
-        match settings.budget {
-            Budget::Spp(spp) => {
-                sums.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-                    for (x, acc) in row.iter_mut().enumerate() {
-                        for s in 0..spp {
-                            add(acc, sample(x, y, s));
-                        }
-                    }
-                });
-                spp
-            }
-            Budget::Seconds(secs) => {
-                let budget = Duration::from_secs_f64(secs.min(1e9));
-                let mut pass = 0u32;
-                loop {
-                    sums.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-                        for (x, acc) in row.iter_mut().enumerate() {
-                            add(acc, sample(x, y, pass));
-                        }
-                    });
-                    pass += 1;
-                    if start.elapsed() >= budget || pass == u32::MAX {
-                        break pass;
-                    }
-                }
+    let row = |y: usize, acc: &mut [[f64; 3]], samples: std::ops::Range<u32>| {
+        for (x, a) in acc.iter_mut().enumerate() {
+            for s in samples.clone() {
+                let c = sample(x, y, s);
+                a[0] += c.x as f64;
+                a[1] += c.y as f64;
+                a[2] += c.z as f64;
             }
         }
     };
-    let spp = in_pool(settings, || run(&mut sums))?;
+    let mut sums = vec![[0f64; 3]; w * h];
+    let spp = in_pool(settings, || {
+        run_budget(settings.budget, start, w, &mut sums, row)
+    })?;
     Ok(average_sums(scene, &sums, spp, start))
+}
+
+/// The sample loop of [`render`] and the wavefront loop: `row(y, sums of row y, samples)`
+/// adds samples `samples` of every pixel of image row `y` to their sums, in sample order,
+/// rows in parallel. `Spp(n)` asks each row once for `0..n`; `Seconds` asks pass after pass
+/// (`pass..pass + 1`) until the time since `start` is spent. Returns the samples per pixel
+/// reached. Both loops share it so that their budgets and determinism cannot drift apart.
+pub(crate) fn run_budget(
+    budget: Budget,
+    start: Instant,
+    width: usize,
+    sums: &mut [[f64; 3]],
+    row: impl Fn(usize, &mut [[f64; 3]], std::ops::Range<u32>) + Sync,
+) -> u32 {
+    match budget {
+        Budget::Spp(spp) => {
+            sums.par_chunks_mut(width)
+                .enumerate()
+                .for_each(|(y, acc)| row(y, acc, 0..spp));
+            spp
+        }
+        Budget::Seconds(secs) => {
+            let budget = Duration::from_secs_f64(secs.min(1e9));
+            let mut pass = 0u32;
+            loop {
+                sums.par_chunks_mut(width)
+                    .enumerate()
+                    .for_each(|(y, acc)| row(y, acc, pass..pass + 1));
+                pass += 1;
+                if start.elapsed() >= budget || pass == u32::MAX {
+                    break pass;
+                }
+            }
+        }
+    }
 }
 
 /// The image of `spp` samples per pixel from their per-pixel sums, with the time since `start`:

@@ -16,15 +16,15 @@
 //! where one medium answers every query.
 
 use glam::Vec3;
-use rayon::prelude::*;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use super::RenderError;
 use super::TransportEstimator;
 use super::phase::{hg_phase, sample_hg};
 use super::rng::Pcg32;
 use super::tracer::{
-    Budget, Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
+    Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
+    run_budget,
 };
 
 /// Where a path is in `Ctx::trace`.
@@ -227,15 +227,23 @@ impl Ctx<'_> {
     }
 
     /// Advances every path of `paths` to its end, answering each round's queries per
-    /// (query kind, estimator role) through the batch methods.
+    /// (query kind, estimator role) through the batch methods. Only the paths still running
+    /// are visited, and each round sorts their queries into the four batches in one pass.
     fn trace_tile(&self, paths: &mut [Path], scratch: &mut Scratch) {
+        scratch.live.clear();
+        scratch.live.extend(0..paths.len());
         loop {
             scratch.clear();
-            for (i, p) in paths.iter_mut().enumerate() {
-                if let Some(q) = self.advance(p) {
+            let mut kept = 0;
+            for k in 0..scratch.live.len() {
+                let i = scratch.live[k];
+                if let Some(q) = self.advance(&mut paths[i]) {
                     scratch.waiting.push((i, q));
+                    scratch.live[kept] = i;
+                    kept += 1;
                 }
             }
+            scratch.live.truncate(kept);
             if scratch.waiting.is_empty() {
                 return;
             }
@@ -255,59 +263,50 @@ impl Ctx<'_> {
                 }
                 continue;
             }
+            for &(i, q) in &scratch.waiting {
+                // The box test of `Ctx::transmittance` / `Ctx::distance`: a ray that misses
+                // the medium's box is answered without a query (no draws).
+                if !self.single_medium_asked(q.which, q.o, q.d) {
+                    self.answer(&mut paths[i], 1.0, None);
+                    continue;
+                }
+                let b = &mut scratch.batches[batch_of(q.kind, q.which)];
+                b.ids.push(i);
+                b.rays.push([q.o, q.d]);
+                b.rngs.push(paths[i].rng.clone());
+            }
             for kind in [Kind::Transmittance, Kind::Distance] {
                 for which in [Which::Primary, Which::Secondary] {
-                    scratch.ids.clear();
-                    scratch.rays.clear();
-                    scratch.rngs.clear();
-                    for &(i, q) in &scratch.waiting {
-                        if q.kind != kind || q.which != which {
-                            continue;
-                        }
-                        // The box test of `Ctx::transmittance` / `Ctx::distance`: a ray that
-                        // misses the medium's box is answered without a query (no draws).
-                        if !self.single_medium_asked(which, q.o, q.d) {
-                            self.answer(&mut paths[i], 1.0, None);
-                            continue;
-                        }
-                        scratch.ids.push(i);
-                        scratch.rays.push([q.o, q.d]);
-                        scratch.rngs.push(paths[i].rng.clone());
-                    }
-                    if scratch.ids.is_empty() {
+                    let b = &mut scratch.batches[batch_of(kind, which)];
+                    if b.ids.is_empty() {
                         continue;
                     }
                     let est = self.estimator(which);
-                    let n = scratch.ids.len();
+                    let n = b.ids.len();
                     match kind {
                         Kind::Transmittance => {
-                            scratch.t.clear();
-                            scratch.t.resize(n, 1.0);
-                            est.transmittance_batch(
-                                &scratch.rays,
-                                f32::INFINITY,
-                                &mut scratch.rngs,
-                                &mut scratch.t,
-                            );
+                            b.t.clear();
+                            b.t.resize(n, 1.0);
+                            est.transmittance_batch(&b.rays, f32::INFINITY, &mut b.rngs, &mut b.t);
                             for k in 0..n {
-                                let p = &mut paths[scratch.ids[k]];
-                                p.rng = scratch.rngs[k].clone();
-                                self.answer(p, scratch.t[k], None);
+                                let p = &mut paths[b.ids[k]];
+                                p.rng = b.rngs[k].clone();
+                                self.answer(p, b.t[k], None);
                             }
                         }
                         Kind::Distance => {
-                            scratch.d.clear();
-                            scratch.d.resize(n, None);
+                            b.d.clear();
+                            b.d.resize(n, None);
                             est.sample_distance_batch(
-                                &scratch.rays,
+                                &b.rays,
                                 f32::INFINITY,
-                                &mut scratch.rngs,
-                                &mut scratch.d,
+                                &mut b.rngs,
+                                &mut b.d,
                             );
                             for k in 0..n {
-                                let p = &mut paths[scratch.ids[k]];
-                                p.rng = scratch.rngs[k].clone();
-                                self.answer(p, 1.0, scratch.d[k]);
+                                let p = &mut paths[b.ids[k]];
+                                p.rng = b.rngs[k].clone();
+                                self.answer(p, 1.0, b.d[k]);
                             }
                         }
                     }
@@ -317,10 +316,15 @@ impl Ctx<'_> {
     }
 }
 
-/// Buffers reused across the rounds of a tile.
+/// The batch of a (query kind, estimator role) in [`Scratch::batches`].
+#[inline]
+fn batch_of(kind: Kind, which: Which) -> usize {
+    2 * (kind == Kind::Distance) as usize + which as usize
+}
+
+/// One round's queries of one (kind, role), in path order.
 #[derive(Default)]
-struct Scratch {
-    waiting: Vec<(usize, Query)>,
+struct Batch {
     ids: Vec<usize>,
     rays: Vec<[Vec3; 2]>,
     rngs: Vec<Pcg32>,
@@ -328,9 +332,23 @@ struct Scratch {
     d: Vec<Option<f32>>,
 }
 
+/// Buffers reused across the rounds of a tile.
+#[derive(Default)]
+struct Scratch {
+    /// The paths not yet done, in path order.
+    live: Vec<usize>,
+    waiting: Vec<(usize, Query)>,
+    batches: [Batch; 4],
+}
+
 impl Scratch {
     fn clear(&mut self) {
         self.waiting.clear();
+        for b in &mut self.batches {
+            b.ids.clear();
+            b.rays.clear();
+            b.rngs.clear();
+        }
     }
 }
 
@@ -374,16 +392,15 @@ pub fn render_wavefront(
             .flat_map(|x| samples.clone().map(move |s| (x, s)))
             .collect();
         let mut colors = vec![Vec3::ZERO; ids.len()];
+        let mut paths: Vec<Path> = Vec::with_capacity(batch.min(ids.len()));
         for (tile, out) in ids.chunks(batch).zip(colors.chunks_mut(batch)) {
-            let mut paths: Vec<Path> = tile
-                .iter()
-                .map(|&(x, s)| {
-                    let mut rng = Pcg32::for_sample(seed, (y * w + x) as u64, s as u64);
-                    let (jx, jy) = (rng.next_f32(), rng.next_f32());
-                    let (o, d) = frame.ray(x as f32 + jx, y as f32 + jy);
-                    ctx.start_path(o, d, rng)
-                })
-                .collect();
+            paths.clear();
+            paths.extend(tile.iter().map(|&(x, s)| {
+                let mut rng = Pcg32::for_sample(seed, (y * w + x) as u64, s as u64);
+                let (jx, jy) = (rng.next_f32(), rng.next_f32());
+                let (o, d) = frame.ray(x as f32 + jx, y as f32 + jy);
+                ctx.start_path(o, d, rng)
+            }));
             ctx.trace_tile(&mut paths, &mut scratch);
             for (c, p) in out.iter_mut().zip(&paths) {
                 *c = if p.l.is_finite() { p.l } else { Vec3::ZERO };
@@ -398,30 +415,9 @@ pub fn render_wavefront(
         }
     };
     let mut sums = vec![[0f64; 3]; w * h];
-    let run = |sums: &mut Vec<[f64; 3]>| -> u32 {
-        match settings.budget {
-            Budget::Spp(spp) => {
-                sums.par_chunks_mut(w)
-                    .enumerate()
-                    .for_each(|(y, acc)| row(y, acc, 0..spp));
-                spp
-            }
-            Budget::Seconds(secs) => {
-                let budget = Duration::from_secs_f64(secs.min(1e9));
-                let mut pass = 0u32;
-                loop {
-                    sums.par_chunks_mut(w)
-                        .enumerate()
-                        .for_each(|(y, acc)| row(y, acc, pass..pass + 1));
-                    pass += 1;
-                    if start.elapsed() >= budget || pass == u32::MAX {
-                        break pass;
-                    }
-                }
-            }
-        }
-    };
-    let spp = in_pool(settings, || run(&mut sums))?;
+    let spp = in_pool(settings, || {
+        run_budget(settings.budget, start, w, &mut sums, row)
+    })?;
     Ok(average_sums(scene, &sums, spp, start))
 }
 
@@ -429,7 +425,7 @@ pub fn render_wavefront(
 mod tests {
     use super::*;
     use crate::render::{
-        Camera, FnField, MajorantGrid, Medium, PinsEstimator, RatioTracking, Sun, render,
+        Budget, Camera, FnField, MajorantGrid, Medium, PinsEstimator, RatioTracking, Sun, render,
     };
     use pin_format::Directions;
     use pinrt::PinGrid;

@@ -418,7 +418,7 @@ fn bench_volume(
     // The comb estimators at their default lookups, on the same rays as ray marching, as
     // the path tracer builds them: combs and their majorant-depth rule over a majorant grid
     // of the source (built once, not timed).
-    let field = Arc::new(SourceField(source_arc.clone()));
+    let field = Arc::new(SourceField::new(source_arc.clone()));
     let majorants = volume::majorants(&field, MAJORANT_BRICKS)?;
     // The trackers production renderers use, over the same majorant grid and rays: ratio
     // tracking (transmittance; its distances are delta tracking's) and delta tracking.

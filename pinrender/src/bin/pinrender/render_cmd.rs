@@ -439,7 +439,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     };
     Ok(OpenedMedium {
         bounds: (b.min.to_array(), b.max.to_array()),
-        field: Some(Arc::new(SourceField(source))),
+        field: Some(Arc::new(SourceField::new(source))),
         majorants: None,
         pins,
         opened: Some(opened),

@@ -258,7 +258,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
     let inst = single_instance(field, 16, None, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.4, 0.15, 1.0), 40.0, 0.95);
@@ -308,7 +308,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
     let inst = single_instance(field, 16, None, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.35, 1.0), 40.0, 0.8);
@@ -358,7 +358,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     let src: Arc<dyn DensitySource> = noise.clone();
     let gpu_density = Arc::new(Opened::Noise(noise.clone()).gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
     let inst = single_instance(field, 16, Some(analytic), gpu_density)?;
     let size = sizes.image;
@@ -559,7 +559,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
     let blob = Opened::Dense(Arc::new(blob()?));
     let gpu_density = Arc::new(blob.gpu_density()?);
     let base = blob.source();
-    let base_field: Arc<dyn DensityField> = Arc::new(SourceField(base.clone()));
+    let base_field: Arc<dyn DensityField> = Arc::new(SourceField::new(base.clone()));
     let k = INSTANCES_PER_AXIS;
     let spacing = 0.55;
     let mut seed = 0x1257_u64;
@@ -644,7 +644,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField(src.clone()));
+    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
     // Finer bricks than the other scenes: the cloud has large empty regions between lobes.
     let inst = single_instance(field, 32, None, gpu_density)?;
     let size = sizes.image;
