@@ -7,15 +7,19 @@
 #
 # Writes WORKDIR/bias.csv with the header
 #   scene,config,cells,dirs,directions,pins_per_entry,jitter,bytes,density_f16_bytes,
-#   ratio,mean_error,block8_rms_error,variation
+#   ratio,mean_error,block8_rms_error,variation,model_variation
 # (ratio = bytes / density_f16_bytes; density_f16_bytes = the scene's voxels x 2, or 64^3 x 2
 # for the analytic scenes, which have no voxels; variation = the volume statistic g that
-# `pinbake bake --json` reports as choice.volume.variation, the input of the bias model in
-# pinbake/src/choose.rs; config `noise-floor` is ratio tracking at the pins' spp, an unbiased
+# `pinbake bake --json` reports as choice.volume.variation; model_variation = its
+# choice.volume.model_variation, the input of the bias model in pinbake/src/choose.rs;
+# config `noise-floor` is ratio tracking at the pins' spp, an unbiased
 # estimator's error against the same reference) and, with PLOT=1 (default), the plot
 # WORKDIR/bias.png via `pinrender plot-bias`.
 #
-# Usage: bias_sweep.sh WORKDIR [SCENE...]   (scenes: smoke hydrogen cosine box; default all)
+# Usage: bias_sweep.sh WORKDIR [SCENE...]   (scenes: smoke hydrogen cosine box, the default,
+# and torus water blob sphere, volumes outside the eval: torus from scripts/torus_volume.py;
+# water is data/water_esp_31x34x33_float32.raw with its negative values set to 0; blob is the
+# two-Gaussian grid of docs/evaluation.md; the three are read from VOLDIR, default WORKDIR)
 # Environment: SIZE (64), REF_SPP (2048), PIN_SPP (256), THREADS (2), CONFIGS (space-separated
 # config names; default all), PLOT (1).
 #
@@ -31,10 +35,11 @@ scenes=("$@")
 here=$(cd "$(dirname "$0")" && pwd)
 data="$here/../data"
 bin=${BIN:-${CARGO_TARGET_DIR:-$here/../target}/release}
+voldir=${VOLDIR:-$work}
 SIZE=${SIZE:-64} REF_SPP=${REF_SPP:-2048} PIN_SPP=${PIN_SPP:-256} THREADS=${THREADS:-2}
 mkdir -p "$work"
 csv="$work/bias.csv"
-[ -f "$csv" ] || echo "scene,config,cells,dirs,directions,pins_per_entry,jitter,bytes,density_f16_bytes,ratio,mean_error,block8_rms_error,variation" >"$csv"
+[ -f "$csv" ] || echo "scene,config,cells,dirs,directions,pins_per_entry,jitter,bytes,density_f16_bytes,ratio,mean_error,block8_rms_error,variation,model_variation" >"$csv"
 
 # name|volume args|box min|box max|camera direction|fill|density voxels (for the f16 bytes)
 scene_def() {
@@ -43,6 +48,12 @@ scene_def() {
     hydrogen) echo "$data/hydrogen_atom_128x128x128_uint8.raw --spacing 0.0078125 --density-scale 0.6|0,0,0|1,1,1|0.5,0.35,1|0.8|128x128x128" ;;
     cosine) echo "procedural:cosine:seed=7,freq=16,waves=8,density=4|0,0,0|1,1,1|0.6,0.45,1|0.8|64x64x64" ;;
     box) echo "procedural:box:density=4|0,0,0|1,1,1|0.55,0.5,1|0.8|64x64x64" ;;
+    # Volumes outside the eval (docs/evaluation.md, "Direction sets and lookup jitter"), for
+    # the bias model's fit and its held-out check; torus, water and blob are read from VOLDIR.
+    torus) echo "$voldir/torus_48x40x44_float32.raw --spacing 0.025|0,0,0|1.2,1,1.1|0.5,0.35,1|0.8|48x40x44" ;;
+    water) echo "$voldir/water_31x34x33_float32.raw --spacing 0.03125|0,0,0|0.96875,1.0625,1.03125|0.5,0.35,1|0.8|31x34x33" ;;
+    blob) echo "$voldir/blob_40x44x36_float32.raw --spacing 0.025|0,0,0|1,1.1,0.9|0.5,0.35,1|0.8|40x44x36" ;;
+    sphere) echo "$data/gaffer_sphere_density.vdb --density-scale 20|-1.2,1,-1.2|1.2,3,1.2|0.5,0.35,1|0.8|12x10x12" ;;
     *) echo "unknown scene $1" >&2; exit 2 ;;
     esac
 }
@@ -85,8 +96,10 @@ for s in "${scenes[@]}"; do
     common=(--width "$SIZE" --height "$SIZE" --camera-origin="$origin" --camera-target="$target"
         --fov 40 --sun-dir=-0.5,0.8,0.35 --sun-radiance 3 --env-radiance 0.3 --albedo 0.95
         --max-bounces 8 --threads "$THREADS")
-    variation=$("$bin/pinbake" bake "${volargs[@]}" --cells 1 --dirs octahedral:1 --majorant 0 \
-        -q --json -o "$work/probe.pin" | grep -o '"variation":[0-9.e+-]*' | cut -d: -f2)
+    probe=$("$bin/pinbake" bake "${volargs[@]}" --cells 1 --dirs octahedral:1 --majorant 0 \
+        -q --json -o "$work/probe.pin")
+    variation=$(grep -o '"variation":[0-9.e+-]*' <<<"$probe" | cut -d: -f2)
+    mvar=$(grep -o '"model_variation":[0-9.e+-]*' <<<"$probe" | cut -d: -f2)
     rm -f "$work/probe.pin"
     ref="$work/$s.ref.exr"
     if [ ! -f "$ref" ]; then
@@ -101,7 +114,7 @@ for s in "${scenes[@]}"; do
         line=$("$bin/pinrender" render --volume "${volargs[@]}" "${common[@]}" --estimator ratio \
             --spp "$PIN_SPP" --seed 2 --reference "$ref" --out "$work/pins.exr" 2>/dev/null)
         read -r _ mean _ block _ <<<"$line"
-        echo "$s,noise-floor,,,,,,0,$dens_bytes,0,$mean,$block,$variation" | tee -a "$csv"
+        echo "$s,noise-floor,,,,,,0,$dens_bytes,0,$mean,$block,$variation,$mvar" | tee -a "$csv"
     fi
     for c in "${configs[@]}"; do
         IFS='|' read -r cname bake jit <<<"$c"
@@ -131,7 +144,7 @@ for s in "${scenes[@]}"; do
         ndirs=$(awk -v d="$dirs" 'BEGIN { split(d, a, ":"); split(a[2], b, "x");
             print (a[1] == "polar") ? b[1] * b[2] : b[1] * b[1] }')
         ratio=$(awk -v a="$bytes" -v b="$dens_bytes" 'BEGIN { printf "%.4f", a / b }')
-        echo "$s,$cname,$cells,$dirs,$ndirs,$ppe,$jit,$bytes,$dens_bytes,$ratio,$mean,$block,$variation" | tee -a "$csv"
+        echo "$s,$cname,$cells,$dirs,$ndirs,$ppe,$jit,$bytes,$dens_bytes,$ratio,$mean,$block,$variation,$mvar" | tee -a "$csv"
         rm -f "$work/pins.exr" "$work/pins.png"
     done
 done

@@ -399,9 +399,9 @@ fn default_bake_fits_the_voxels() {
     assert_eq!(c["cells"], v["dims"]);
     assert_eq!(c["directions"], v["directions"]);
     assert_eq!(c["pins_per_entry"], 1);
-    assert_eq!(c["target_error"], 0.05);
+    assert_eq!(c["target_error"], pinbake::choose::DEFAULT_TARGET_ERROR);
     assert_eq!(c["target_met"], true);
-    assert!(c["predicted_error"].as_f64().unwrap() <= 0.05);
+    assert!(c["predicted_error"].as_f64().unwrap() <= pinbake::choose::DEFAULT_TARGET_ERROR);
     assert_eq!(c["bytes"], v["file_bytes"]);
     for p in ["cells", "directions", "pins_per_entry"] {
         assert!(
@@ -460,8 +460,8 @@ fn write_blob(path: &Path, n: usize, f: f64) {
     std::fs::write(path, bytes).unwrap();
 }
 
-/// `--target-error`: a smaller target never gives a smaller file, a smooth volume gets fewer
-/// cells than a detailed one at the same target, and bad values are usage errors (exit 2).
+/// `--target-error`: a smaller target never gives a smaller file, a smooth volume never gets a
+/// larger file than a detailed one at the same target, and bad values are usage errors (exit 2).
 #[test]
 fn target_error_chooses_monotone_bakes() {
     let dir = tempfile::tempdir().unwrap();
@@ -505,19 +505,25 @@ fn target_error_chooses_monotone_bakes() {
         assert!(bytes >= last, "target {target}: {bytes} < {last}");
         assert!(cells(&v) <= 16 * 16 * 16);
         last = bytes;
-        // At a coarse target both may get the same smallest bake; never the smooth one more.
+        // At a coarse target both may get the same smallest bake; never the smooth one more
+        // bytes. (Not more cells either would be too strong: the model may buy the detailed
+        // volume's accuracy with directions rather than cells.)
         let s = bake(&smooth, target);
+        let (sb, vb) = (
+            s["file_bytes"].as_u64().unwrap(),
+            v["file_bytes"].as_u64().unwrap(),
+        );
         assert!(
-            cells(&s) <= cells(&v) && s["file_bytes"].as_u64() <= v["file_bytes"].as_u64(),
+            sb <= vb,
             "target {target}: smooth {} vs detailed {}",
             s["choice"],
             v["choice"]
         );
-        fewer += usize::from(cells(&s) < cells(&v));
+        fewer += usize::from(sb < vb);
     }
     assert!(
         fewer >= 2,
-        "the smooth volume got fewer cells at {fewer} targets"
+        "the smooth volume got a smaller file at {fewer} targets"
     );
     for bad in [
         &["--target-error", "0"][..],

@@ -54,10 +54,10 @@ pub struct BakeArgs {
           value_parser = clap::value_parser!(u32).range(1..=i64::from(pin_format::MAX_PINS_PER_ENTRY)))]
     pub pins_per_entry: Option<u32>,
     /// The smallest bake whose predicted 8x8-block error of pins alone is at most E (a
-    /// fraction, e.g. 0.05), for the parameters not given. Without it: 0.05, but never below
+    /// fraction, e.g. 0.05), for the parameters not given. Without it: 0.06, but never below
     /// 20 cells along the longest axis (or the voxels) and octahedral:16, since the model is
-    /// fitted on the eval scenes only (docs/evaluation.md, "Bias against bytes"). --json
-    /// reports the choice.
+    /// fitted on one view per volume and other views measured up to 3.6x more
+    /// (docs/evaluation.md, "Bias against bytes"). --json reports the choice.
     #[arg(long, value_name = "E", value_parser = parse_target_error, help_heading = "Grid")]
     pub target_error: Option<f64>,
     /// Ray-marching step relative to the longest box edge, in [1e-5, 1].

@@ -559,8 +559,8 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
         let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
         let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
         eprintln!(
-            "  pins chosen: {:?} cells x {:?} (variation {:.1}, predicted block error {:.3})",
-            c.cells, c.directions, stats.variation, c.predicted_error
+            "  pins chosen: {:?} cells x {:?} (model variation {:.1}, predicted block error {:.3})",
+            c.cells, c.directions, stats.model_variation, c.predicted_error
         );
         (c.cells, c.directions)
     } else {
