@@ -222,10 +222,13 @@ fn eval_quick_end_to_end() {
     assert!(!md.contains("GPU: not measured** (no GPU"));
     assert!(md.contains("WGSL"));
 
-    // --no-gpu: no gpu rows, and the report says so.
+    // --no-gpu: no gpu rows, and the report says so. With --clock cpu, the budgets count
+    // CPU time per worker thread and the report names that clock.
     let out2 = dir.path().join("eval-nogpu");
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
-        .args(["eval", "--quick", "--no-gpu", "--scenes", "box", "--out"])
+        .args([
+            "eval", "--quick", "--no-gpu", "--clock", "cpu", "--scenes", "box", "--out",
+        ])
         .arg(&out2)
         .args(TINY)
         .status()
@@ -235,6 +238,8 @@ fn eval_quick_end_to_end() {
     assert!(!csv.contains(",gpu,"), "{csv}");
     let md = std::fs::read_to_string(out2.join("summary.md")).unwrap();
     assert!(md.contains("GPU: not measured** (`--no-gpu`)"), "{md}");
+    assert!(md.contains("CPU time per worker thread"), "{md}");
+    assert!(!md.contains("s of wall time per estimator"), "{md}");
 
     // A second run reuses the cached references and still succeeds.
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
@@ -256,6 +261,7 @@ fn eval_rejects_bad_input() {
         // The production-scale scene is for the full run only (CI runs --quick).
         &["eval", "--quick", "--scenes", "cloud"][..],
         &["eval", "--quick", "--threads", "0"][..],
+        &["eval", "--quick", "--clock", "sundial"][..],
     ] {
         let out = Command::new(env!("CARGO_BIN_EXE_pinrender"))
             .args(args)

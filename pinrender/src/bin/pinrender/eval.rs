@@ -105,6 +105,12 @@ pub struct EvalArgs {
     /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
     #[arg(long)]
     pub docs: Option<PathBuf>,
+    /// What a CPU row's time budget counts: `wall` seconds, or `cpu`: the process's CPU
+    /// seconds divided by the worker threads, which on an idle machine is the wall time and
+    /// on a shared one charges each estimator only for the CPU it got. `(gpu)` rows always
+    /// count wall time (a hardware GPU's work is not this process's CPU time).
+    #[arg(long, value_enum, default_value_t = Clock::Wall)]
+    pub clock: Clock,
     /// Do not measure the GPU path tracer (the `(gpu)` rows).
     #[arg(long)]
     pub no_gpu: bool,
@@ -115,6 +121,66 @@ pub struct EvalArgs {
     /// found from the executable or the working directory).
     #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,
+}
+
+/// The time source of the budgets (`--clock`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Clock {
+    Wall,
+    Cpu,
+}
+
+/// A stopwatch on [`Clock`]: `Cpu` reads the process's user + system time
+/// (`getrusage(RUSAGE_SELF)`, every thread) and divides it by the worker threads.
+struct Stopwatch {
+    clock: Clock,
+    threads: f64,
+    wall: Instant,
+    cpu: f64,
+}
+
+fn process_cpu_s() -> f64 {
+    // SAFETY: an all-zero rusage is a valid value of the plain C struct, and getrusage only
+    // writes into the struct it is given.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `ru` is a valid, writable rusage and RUSAGE_SELF is a constant Linux knows.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) } != 0 {
+        return f64::NAN;
+    }
+    let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    tv(ru.ru_utime) + tv(ru.ru_stime)
+}
+
+impl Stopwatch {
+    fn start(clock: Clock, threads: usize) -> Self {
+        Self {
+            clock,
+            threads: threads.max(1) as f64,
+            wall: Instant::now(),
+            cpu: process_cpu_s(),
+        }
+    }
+
+    fn seconds(&self) -> f64 {
+        let wall = self.wall.elapsed().as_secs_f64();
+        match self.clock {
+            Clock::Wall => wall,
+            Clock::Cpu => {
+                let cpu = (process_cpu_s() - self.cpu) / self.threads;
+                // Without getrusage there is only the wall clock.
+                if cpu.is_finite() { cpu } else { wall }
+            }
+        }
+    }
+}
+
+/// Worker threads of the CPU rows (`--threads`, else every core).
+fn worker_threads(a: &EvalArgs) -> usize {
+    a.threads.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    })
 }
 
 /// The GPU for the `(gpu)` rows.
@@ -749,10 +815,10 @@ fn measure(
     let mut elapsed = 0.0f64;
     // Set-up that counts towards the time: the radiance cache's training pass.
     let cache = if est == "pinms+cache" {
-        let t = Instant::now();
+        let t = Stopwatch::start(a.clock, worker_threads(a));
         let st = settings(es, pass_seed(a.seed, u32::MAX), Budget::Spp(1), a.threads);
         let c = train_cache(&scene, &st, &es.cache).map_err(|e| anyhow!("cache training: {e}"))?;
-        elapsed += t.elapsed().as_secs_f64();
+        elapsed += t.seconds();
         Some(c)
     } else {
         None
@@ -833,8 +899,14 @@ fn progressive(
     };
     let mut rows = Vec::new();
     let mut next = 0usize;
+    // GPU rows count wall time whatever `--clock` says.
+    let clock = if backend == "cpu" {
+        a.clock
+    } else {
+        Clock::Wall
+    };
     while next < budgets.len() {
-        let t = Instant::now();
+        let t = Stopwatch::start(clock, worker_threads(a));
         let (image, out_spp) = pass(pass_seed(a.seed, spp))?;
         if image.rgb.len() != n {
             bail!("a pass returned {} pixels, expected {n}", image.rgb.len());
@@ -845,7 +917,7 @@ fn progressive(
             }
         }
         spp = spp.saturating_add(out_spp);
-        elapsed += t.elapsed().as_secs_f64();
+        elapsed += t.seconds();
         if elapsed >= budgets[next] || spp == u32::MAX {
             let img = mean(&sum, spp);
             let e = rmse(&img, reference).map_err(|e| anyhow!("{e}"))?;

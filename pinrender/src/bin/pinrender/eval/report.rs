@@ -35,6 +35,8 @@ pub struct RunMeta {
     pub budgets: Vec<f64>,
     pub quick: bool,
     pub threads: String,
+    /// What the CPU rows' budgets count: "wall time" or "CPU time per worker thread".
+    pub clock: &'static str,
     pub cpu: String,
     pub total_seconds: f64,
     pub sizes: Sizes,
@@ -70,6 +72,12 @@ impl RunMeta {
             threads: match a.threads {
                 Some(t) => format!("{t} threads"),
                 None => format!("{cores} threads (all cores)"),
+            },
+            clock: match a.clock {
+                super::Clock::Wall => "wall time",
+                super::Clock::Cpu => {
+                    "CPU time per worker thread (`--clock cpu`; `(gpu)` rows: wall time)"
+                }
             },
             cpu,
             total_seconds,
@@ -290,13 +298,14 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "Machine: {}, {}; total run time {:.0} s{}. Budgets: {} s of wall time per estimator \
+        "Machine: {}, {}; total run time {:.0} s{}. Budgets: {} s of {} per estimator \
          (CPU path tracer, `pinrender::render`, unless marked `(gpu)`). {}",
         meta.cpu,
         meta.threads,
         meta.total_seconds,
         if meta.quick { " (`--quick`)" } else { "" },
         budgets.join(", "),
+        meta.clock,
         meta.gpu
     );
     let _ = writeln!(s);
@@ -383,7 +392,7 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
     format!(
         "This report measures how quickly each way of computing light transport through a \
          volume (an *estimator*) approaches a converged reference image, on {} scene{} ({}). \
-         Every estimator renders the same image for fixed amounts of wall time ({} s), and \
+         Every estimator renders the same image for fixed amounts of {} ({} s), and \
          lower error (RMSE against the reference) at equal time is better; `pins` and \
          `pinms` answer transmittance from a pin grid that was baked once beforehand, the \
          others need nothing precomputed. `{ERRORS_PNG}` plots error against time for every \
@@ -392,6 +401,7 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
         names.len(),
         if names.len() == 1 { "" } else { "s" },
         names.join(", "),
+        meta.clock,
         meta.budgets
             .iter()
             .map(|b| format!("{b}"))
