@@ -832,6 +832,52 @@ mod tests {
     }
 
     #[test]
+    fn runs_in_lanes_are_the_runs_one_by_one_to_the_bit() {
+        // Groups of 8 runs (and a remainder of 3) on grids with detail at every voxel and
+        // with one-voxel axes; starts inside, on the faces, far outside and NaN; more samples
+        // than one block of the lanes. Where AVX2 is absent both sides are the same code.
+        let mut seed = 7u64;
+        let mut next = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for dims in [[23u32, 17, 29], [9, 1, 4], [1, 1, 1], [2, 2, 2]] {
+            let n_vox = (dims[0] * dims[1] * dims[2]) as usize;
+            let data: Vec<f32> = (0..n_vox)
+                .map(|i| ((i * 7919) % 97) as f32 / 13.0)
+                .collect();
+            let g = DenseGrid::new(dims, data, DVec3::ONE, DVec3::ZERO, "t").unwrap();
+            let top = dims.map(|d| d as f32);
+            let mut u0: Vec<[f32; 3]> = (0..19)
+                .map(|_| [next() * top[0], next() * top[1], next() * top[2]])
+                .collect();
+            u0.extend([
+                [0.0, 0.0, 0.0],
+                top,
+                [-3.0, top[1] + 5.0, 0.5],
+                [f32::NAN, 1.0, 1.0],
+                [1e30, -1e30, f32::NAN],
+            ]);
+            for du in [
+                [0.013f32, -0.021, 0.37],
+                [0.0, 0.0, 0.0],
+                [-0.5, 0.25, 1e-7],
+            ] {
+                for n in [1, 16, 17, 57] {
+                    let mut lanes = vec![0.25f64; u0.len()];
+                    let mut one = lanes.clone();
+                    g.march_runs(&u0, du, n, &mut lanes);
+                    g.march_runs_one_by_one(&u0, du, n, &mut one);
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&lanes), bits(&one), "{dims:?} {du:?} {n}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn batched_matches_single() {
         let g = ramp([5, 6, 7]);
         let mut out = vec![0.0; 40];
