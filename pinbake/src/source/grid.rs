@@ -278,13 +278,13 @@ impl DenseGrid {
     /// value to one f64 sum, a chain of dependent adds, where here each lane has its own.
     /// The values are the same: lane `r` takes the points `u0[r] + j * du` in the order
     /// `j = 0, 1, ..`, rounded the same way, and adds them to `sums[r]` in that order.
+    #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn march_run_lanes(&self, u0: &[[f32; 3]], du: [f32; 3], n: usize, sums: &mut [f64]) {
         // Samples of each lane located and prefetched before any is read, as one by one.
         const K: usize = 16;
         const L: usize = RUN_LANES;
         let cells = self.cells();
-        #[cfg(target_arch = "x86_64")]
         let vector = LocateX8::new(&cells);
         for (g, s) in u0.chunks_exact(L).zip(sums.chunks_exact_mut(L)) {
             let b: [[f32; L]; 3] = std::array::from_fn(|a| std::array::from_fn(|l| g[l][a]));
@@ -296,7 +296,6 @@ impl DenseGrid {
                 let mut frac = [[[0.0f32; 3]; L]; K];
                 for (jj, (bs, fs)) in base.iter_mut().zip(frac.iter_mut()).take(k).enumerate() {
                     let t = (j0 + jj) as f32;
-                    #[cfg(target_arch = "x86_64")]
                     if let Some(v) = vector {
                         // SAFETY: `vector` is only set where AVX2 is present.
                         unsafe { v.locate(&b, t, du, bs, fs) };
@@ -305,6 +304,7 @@ impl DenseGrid {
                         }
                         continue;
                     }
+                    // A grid of more than 2^31 voxels: the same arithmetic, lane by lane.
                     for l in 0..L {
                         let u = [
                             b[0][l] + t * du[0],
@@ -382,6 +382,7 @@ impl DenseGrid {
 }
 
 /// Runs [`DenseGrid::march_runs`] marches side by side (8 f32 lanes of AVX2).
+#[cfg(target_arch = "x86_64")]
 const RUN_LANES: usize = 8;
 
 /// [`Cells::locate`] for 8 samples in AVX2 registers, where the grid's linear indices fit
