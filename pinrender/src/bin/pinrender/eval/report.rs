@@ -35,8 +35,8 @@ pub struct RunMeta {
     pub budgets: Vec<f64>,
     pub quick: bool,
     pub threads: String,
-    /// What the CPU rows' budgets count: "wall time" or "CPU time per worker thread".
-    pub clock: &'static str,
+    /// What the CPU rows' budgets count (`--clock`).
+    pub clock: super::Clock,
     pub cpu: String,
     pub total_seconds: f64,
     pub sizes: Sizes,
@@ -73,12 +73,7 @@ impl RunMeta {
                 Some(t) => format!("{t} threads"),
                 None => format!("{cores} threads (all cores)"),
             },
-            clock: match a.clock {
-                super::Clock::Wall => "wall time",
-                super::Clock::Cpu => {
-                    "CPU time per worker thread (`--clock cpu`; `(gpu)` rows: wall time)"
-                }
-            },
+            clock: a.clock,
             cpu,
             total_seconds,
             sizes: *sizes,
@@ -305,7 +300,11 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
         meta.total_seconds,
         if meta.quick { " (`--quick`)" } else { "" },
         budgets.join(", "),
-        meta.clock,
+        match meta.clock {
+            super::Clock::Wall => "wall time",
+            super::Clock::Cpu =>
+                "CPU time per worker thread (`--clock cpu`; `(gpu)` rows: wall time)",
+        },
         meta.gpu
     );
     let _ = writeln!(s);
@@ -392,7 +391,7 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
     format!(
         "This report measures how quickly each way of computing light transport through a \
          volume (an *estimator*) approaches a converged reference image, on {} scene{} ({}). \
-         Every estimator renders the same image for fixed amounts of {} ({} s), and \
+         Every estimator renders the same image for fixed amounts of {} ({} s){}, and \
          lower error (RMSE against the reference) at equal time is better; `pins` and \
          `pinms` answer transmittance from a pin grid that was baked once beforehand, the \
          others need nothing precomputed. `{ERRORS_PNG}` plots error against time for every \
@@ -401,12 +400,19 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
         names.len(),
         if names.len() == 1 { "" } else { "s" },
         names.join(", "),
-        meta.clock,
+        match meta.clock {
+            super::Clock::Wall => "wall time",
+            super::Clock::Cpu => "CPU time per worker thread",
+        },
         meta.budgets
             .iter()
             .map(|b| format!("{b}"))
             .collect::<Vec<_>>()
             .join(", "),
+        match meta.clock {
+            super::Clock::Wall => "",
+            super::Clock::Cpu => " (`--clock cpu`; the `(gpu)` rows count wall time)",
+        },
         if meta.quick {
             " This is the quick run (64 px images, sub-second budgets): its figures show the \
              shape of the curves, not final numbers; `pinrender eval` without `--quick` makes \
