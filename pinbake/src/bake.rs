@@ -207,9 +207,9 @@ pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
         .saturating_add(vol(opts.embed_density, 2))
 }
 
-/// Working memory a bake may hold beside its source and [`estimate_output_bytes`]: the layered
-/// march's per-pin state for large dense grids (a fixed bound, ~110 MB at most).
-pub fn estimate_working_bytes(opts: &BakeOptions) -> u64 {
+/// Pins a bake computes: every direction and pin of every cell of its tile (of the whole grid
+/// without one).
+pub fn pin_count(opts: &BakeOptions) -> u64 {
     let cells: u64 = match opts.tile {
         None => opts.cells.iter().map(|&c| u64::from(c)).product(),
         Some(t) => {
@@ -217,10 +217,15 @@ pub fn estimate_working_bytes(opts: &BakeOptions) -> u64 {
             u64::from(opts.cells[0]) * u64::from(opts.cells[1]) * u64::from(b.saturating_sub(a))
         }
     };
-    let pins = cells
+    cells
         .saturating_mul(u64::from(opts.directions.count()))
-        .saturating_mul(u64::from(opts.pins_per_entry));
-    crate::sweep::working_set_bytes(pins)
+        .saturating_mul(u64::from(opts.pins_per_entry))
+}
+
+/// Working memory a bake may hold beside its source and [`estimate_output_bytes`]: the layered
+/// march's per-pin state for large dense grids (a fixed bound, ~110 MB at most).
+pub fn estimate_working_bytes(opts: &BakeOptions) -> u64 {
+    crate::sweep::working_set_bytes(pin_count(opts))
 }
 
 /// Deterministic per-pin geometry in unit-cube coordinates.

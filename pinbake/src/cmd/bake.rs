@@ -345,14 +345,7 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
     opts.dense_copy_bytes = budget.limit.saturating_sub(need);
 
-    let shape_cells: u64 = match opts.tile {
-        None => opts.cells.iter().map(|&c| u64::from(c)).product(),
-        Some(t) => {
-            let (a, b) = t.layers(opts.cells[2]);
-            u64::from(opts.cells[0]) * u64::from(opts.cells[1]) * u64::from(b.saturating_sub(a))
-        }
-    };
-    let total = shape_cells * u64::from(opts.directions.count()) * u64::from(opts.pins_per_entry);
+    let total = pinbake::bake::pin_count(&opts);
     let bar = if !args.quiet && std::io::stderr().is_terminal() {
         let bar = ProgressBar::new(total);
         bar.set_style(
