@@ -196,21 +196,6 @@ fn random_rays(source: &dyn DensitySource, n: usize) -> Vec<RayQuery> {
         .collect()
 }
 
-/// CPU time of the calling thread (`CLOCK_THREAD_CPUTIME_ID`), in seconds: what a
-/// single-thread row costs, whatever else runs on the machine.
-fn thread_cpu_s() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec and the clock id is a constant Linux knows.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc != 0 {
-        return f64::NAN;
-    }
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
 /// A row's rate, queries per second of wall time and of the thread's CPU time. On a shared
 /// machine the wall rate of a row depends on what else ran during that row's window, so
 /// ratios between rows are taken from the CPU rates (the CPU rows run on this one thread).
@@ -231,7 +216,7 @@ impl Clock {
     fn start() -> Self {
         Self {
             wall: Instant::now(),
-            cpu: thread_cpu_s(),
+            cpu: crate::cpu_time::thread_s(),
         }
     }
 
@@ -242,7 +227,7 @@ impl Clock {
     /// The rate of `queries` queries answered since the start.
     fn rate(&self, queries: usize) -> Rate {
         let wall = self.wall_s();
-        let cpu = thread_cpu_s() - self.cpu;
+        let cpu = crate::cpu_time::thread_s() - self.cpu;
         Rate {
             wall: queries as f64 / wall,
             cpu: (cpu > 0.0 && cpu.is_finite()).then(|| queries as f64 / cpu),

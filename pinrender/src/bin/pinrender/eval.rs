@@ -139,25 +139,13 @@ struct Stopwatch {
     cpu: f64,
 }
 
-fn process_cpu_s() -> f64 {
-    // SAFETY: an all-zero rusage is a valid value of the plain C struct, and getrusage only
-    // writes into the struct it is given.
-    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `ru` is a valid, writable rusage and RUSAGE_SELF is a constant Linux knows.
-    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) } != 0 {
-        return f64::NAN;
-    }
-    let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    tv(ru.ru_utime) + tv(ru.ru_stime)
-}
-
 impl Stopwatch {
     fn start(clock: Clock, threads: usize) -> Self {
         Self {
             clock,
             threads: threads.max(1) as f64,
             wall: Instant::now(),
-            cpu: process_cpu_s(),
+            cpu: crate::cpu_time::process_s(),
         }
     }
 
@@ -166,7 +154,7 @@ impl Stopwatch {
         match self.clock {
             Clock::Wall => wall,
             Clock::Cpu => {
-                let cpu = (process_cpu_s() - self.cpu) / self.threads;
+                let cpu = (crate::cpu_time::process_s() - self.cpu) / self.threads;
                 // Without getrusage there is only the wall clock.
                 if cpu.is_finite() { cpu } else { wall }
             }

@@ -6,6 +6,7 @@
 
 mod bench;
 mod bias_plot;
+mod cpu_time;
 mod data;
 mod eval;
 mod render_cmd;
