@@ -526,17 +526,32 @@ fn bench_json_rows_have_rates_and_errors() {
             let e = r["mean_abs_error"].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&e), "{r}");
         }
+        // Pin rows name the bake they measured and its size.
+        if r["method"].as_str().unwrap().starts_with("pins") {
+            assert!(r["bake"].as_str().unwrap().contains(" x "), "{r}");
+            assert!(r["pin_bytes"].as_u64().unwrap() > 0, "{r}");
+        }
         methods.insert(format!(
             "{}/{}",
             r["method"].as_str().unwrap(),
             r["query"].as_str().unwrap()
         ));
     }
+    let bake_of = |method: &str| {
+        rows.iter()
+            .find(|r| r["method"] == method)
+            .map(|r| r["bake"].clone())
+            .unwrap()
+    };
+    assert_eq!(bake_of("pins-batched"), "4x4x4 x octahedral:16");
+    assert_eq!(bake_of("pins"), bake_of("pins-batched"));
     for m in [
         "pins/transmittance",
         "pins/distance",
         "pins-batched/transmittance",
         "pins-batched/distance",
+        "pins-default-batched/transmittance",
+        "pins-default-batched/distance",
         "ratio/transmittance",
         "ratio/distance",
         "delta/transmittance",

@@ -1,5 +1,7 @@
 //! `pinrender bench`: queries per second of pins (`pins`: one query at a time;
-//! `pins-batched`: the prefetching batch API) vs ray marching the source density at
+//! `pins-batched`: the prefetching batch API, both on a `--cells`^3 bake;
+//! `pins-default-batched`: the batch API on the bake `pinbake bake` chooses for the volume,
+//! the file a user gets) vs ray marching the source density at
 //! relative steps 0.015 and 0.005, ratio and delta tracking over a majorant grid (`ratio`,
 //! `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
 //! the same random rays, CPU single thread and wgpu. Transmittance rows also
@@ -49,10 +51,10 @@ pub struct BenchArgs {
     #[arg(long)]
     pub no_gpu: bool,
     /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
-    /// cpu_queries_per_s?, mean_abs_error?, error_rays?}, ...]} (queries_per_s over wall
-    /// time; cpu_queries_per_s over the thread's CPU time, on CPU rows; the error fields on
-    /// transmittance rows; query is "transmittance", "distance", or "both" for the GPU's
-    /// combined dispatch).
+    /// cpu_queries_per_s?, mean_abs_error?, error_rays?, bake?, pin_bytes?}, ...]}
+    /// (queries_per_s over wall time; cpu_queries_per_s over the thread's CPU time, on CPU
+    /// rows; the error fields on transmittance rows; bake and pin_bytes on pin rows; query
+    /// is "transmittance", "distance", or "both" for the GPU's combined dispatch).
     #[arg(long)]
     pub json: bool,
     /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
@@ -123,9 +125,20 @@ fn cache_dir() -> Result<PathBuf> {
     Ok(dir)
 }
 
+/// The two bakes a volume is measured with when no `--pins` is given.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum BenchBake {
+    /// `--cells`^3 cells (the thesis' 37) with the library's default direction set: the
+    /// `pins` and `pins-batched` rows.
+    Cells(u32),
+    /// What `pinbake bake` writes for the volume without options (cells and directions
+    /// chosen from the volume): the `pins-default-batched` rows, the file a user gets.
+    Default,
+}
+
 /// Bakes (or reuses a cached bake of) the pins for a benchmark volume. A cached file is used
 /// only when it is a regular file of ours that verifies and was baked from the same settings.
-fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<PinGrid> {
+fn cached_pins(name: &str, source: &dyn DensitySource, bake: BenchBake) -> Result<PinGrid> {
     let dir = cache_dir()?;
     let safe_name: String = name
         .chars()
@@ -137,22 +150,42 @@ fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<Pin
             }
         })
         .collect();
+    // What the cached file must have been baked with: the library's defaults at `cells`, or
+    // the chooser's choice for the volume. Directions and pin placement are part of it, so a
+    // file of an earlier default (another direction set, jittered pins) is baked again
+    // rather than measured.
+    let (tag, opts) = match bake {
+        BenchBake::Cells(cells) => (
+            cells.to_string(),
+            pinbake::BakeOptions {
+                cells: [cells; 3],
+                ..pinbake::BakeOptions::default()
+            },
+        ),
+        BenchBake::Default => {
+            let defaults = pinbake::BakeOptions::default();
+            let stats = pinbake::choose::analyse(source, defaults.crop)?;
+            let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
+            (
+                "default".to_string(),
+                pinbake::BakeOptions {
+                    cells: c.cells,
+                    directions: c.directions,
+                    pins_per_entry: c.pins_per_entry,
+                    ..defaults
+                },
+            )
+        }
+    };
     let path = dir.join(format!(
-        "bench-{safe_name}-{cells}-v{}.pin",
+        "bench-{safe_name}-{tag}-v{}.pin",
         env!("CARGO_PKG_VERSION")
     ));
-    // What the cached file must have been baked with: the library's defaults at `cells`.
-    // Directions and pin placement are part of it, so a file of an earlier default (another
-    // direction set, jittered pins) is baked again rather than measured.
-    let opts = pinbake::BakeOptions {
-        cells: [cells; 3],
-        ..pinbake::BakeOptions::default()
-    };
     let jittered = |g: &PinGrid| g.desc().flags & pin_format::layout::GRID_FLAG_JITTERED_PINS != 0;
     if pinbake::files::check_input(&path).is_ok()
         && let Ok(g) = PinGrid::open(&path)
         && g.verify().is_ok()
-        && g.desc().dims == [cells; 3]
+        && g.desc().dims == opts.cells
         && (g.desc().direction_kind, g.desc().direction_res) == opts.directions.to_desc()
         && g.desc().pins_per_entry == opts.pins_per_entry
         && jittered(&g) == opts.jitter_pins
@@ -163,7 +196,8 @@ fn cached_pins(name: &str, source: &dyn DensitySource, cells: u32) -> Result<Pin
         return Ok(g);
     }
     eprintln!(
-        "pinrender bench: baking {name} ({cells}^3 cells x {} directions) once into {}",
+        "pinrender bench: baking {name} ({:?} cells x {} directions) once into {}",
+        opts.cells,
         opts.directions.count(),
         path.display()
     );
@@ -274,6 +308,22 @@ fn row_err(
     r
 }
 
+/// Adds what a pin row was measured on: `bake` ("37x37x37 x octahedral:16") and
+/// `pin_bytes` (the grid's size, which decides whether its queries hit the caches).
+fn describe_bake(grid: &PinGrid, rows: &mut [Value]) {
+    let d = grid.desc();
+    let dirs = match pinrt::Directions::from_desc(d.direction_kind, d.direction_res) {
+        Ok(pinrt::Directions::Octahedral { n }) => format!("octahedral:{n}"),
+        Ok(pinrt::Directions::Polar { n_phi, n_theta }) => format!("polar:{n_phi}x{n_theta}"),
+        Err(_) => "?".to_string(),
+    };
+    let bake = format!("{}x{}x{} x {dirs}", d.dims[0], d.dims[1], d.dims[2]);
+    for r in rows {
+        r["bake"] = json!(bake);
+        r["pin_bytes"] = json!(grid.bytes().len());
+    }
+}
+
 /// Wall time the `pins-batched` rows repeat their passes for, at least.
 const MIN_BATCHED_S: f64 = 0.1;
 
@@ -296,6 +346,7 @@ fn bench_volume(
     source_arc: &Arc<dyn DensitySource>,
     grid: &PinGrid,
     args: &BenchArgs,
+    default_grid: Option<&PinGrid>,
     gpu: Option<&pinrt::gpu::GpuContext>,
     rows: &mut Vec<Value>,
 ) -> Result<()> {
@@ -349,25 +400,31 @@ fn bench_volume(
     // One batched pass over 200,000 rays takes ~10 ms, short enough for one preemption of
     // a loaded machine to halve its rate; so passes repeat (with fresh seeds) until
     // `MIN_BATCHED_S`, and the rate is the mean over all of them (not the best pass).
-    let qps = repeated_rate(rays.len(), |pass| {
-        sampler.transmittance_batch(&rays, 2 + 2 * pass, 0, &mut t_out);
-        if pass == 0 {
-            est_batched = t_out.iter().map(|&t| f64::from(t)).collect();
-        }
-    });
-    rows.push(row_err(
-        name,
-        "pins-batched",
-        "cpu",
-        qps,
-        &est_batched,
-        &reference,
-    ));
-    let qps = repeated_rate(rays.len(), |pass| {
-        sampler.sample_distance_batch(&rays, 3 + 2 * pass, 0, &mut d_out);
-    });
-    std::hint::black_box(&d_out);
-    rows.push(row(name, "pins-batched", "distance", "cpu", qps));
+    let first = rows.len() - 2;
+    let mut batched = |method: &str, grid: &PinGrid, rows: &mut Vec<Value>| -> Result<()> {
+        let sampler = grid.sampler()?;
+        let first = rows.len();
+        sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
+        let qps = repeated_rate(rays.len(), |pass| {
+            sampler.transmittance_batch(&rays, 2 + 2 * pass, 0, &mut t_out);
+            if pass == 0 {
+                est_batched = t_out.iter().map(|&t| f64::from(t)).collect();
+            }
+        });
+        rows.push(row_err(name, method, "cpu", qps, &est_batched, &reference));
+        let qps = repeated_rate(rays.len(), |pass| {
+            sampler.sample_distance_batch(&rays, 3 + 2 * pass, 0, &mut d_out);
+        });
+        std::hint::black_box(&d_out);
+        rows.push(row(name, method, "distance", "cpu", qps));
+        describe_bake(grid, &mut rows[first..]);
+        Ok(())
+    };
+    batched("pins-batched", grid, rows)?;
+    describe_bake(grid, &mut rows[first..]);
+    if let Some(g) = default_grid {
+        batched("pins-default-batched", g, rows)?;
+    }
 
     let n_rm = (rays.len() / 4).max(1);
     for step in [0.015, 0.005] {
@@ -560,9 +617,21 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 pinbake::files::check_input(p)?;
                 PinGrid::open(p).map_err(|e| anyhow!("{e}"))?
             }
-            None => cached_pins(name, source.as_ref(), args.cells)?,
+            None => cached_pins(name, source.as_ref(), BenchBake::Cells(args.cells))?,
         };
-        bench_volume(name, source, &grid, &args, gpu.as_ref(), &mut rows)?;
+        let default_grid = match &args.pins {
+            Some(_) => None,
+            None => Some(cached_pins(name, source.as_ref(), BenchBake::Default)?),
+        };
+        bench_volume(
+            name,
+            source,
+            &grid,
+            &args,
+            default_grid.as_ref(),
+            gpu.as_ref(),
+            &mut rows,
+        )?;
     }
     if args.json {
         println!("{}", json!({"results": rows}));
@@ -572,56 +641,48 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("gpu: {}", ctx.describe());
     }
     println!(
-        "{:<12} {:<12} {:<14} {:<5} {:>14} {:>10} {:>10}",
-        "volume", "method", "query", "on", "queries/s", "batched/x", "mean|err|"
+        "{:<12} {:<20} {:<14} {:<5} {:>14} {:>10} {:>10} {:>10}",
+        "volume", "method", "query", "on", "queries/s", "batched/x", "default/x", "mean|err|"
     );
-    for r in &rows {
-        let base = rows
-            .iter()
+    // The CPU rate of `method`'s row for the same volume and query (thread CPU time on CPU
+    // rows, see `Rate`; a GPU row is compared by wall rate).
+    let rate_of = |r: &Value, method: &str, field: &str| {
+        rows.iter()
             .find(|b| {
                 b["volume"] == r["volume"]
                     && b["query"] == r["query"]
                     && b["backend"] == "cpu"
-                    && b["method"] == "pins-batched"
+                    && b["method"] == method
             })
-            .and_then(|b| b["cpu_queries_per_s"].as_f64())
-            .unwrap_or(f64::NAN);
+            .and_then(|b| b[field].as_f64())
+            .unwrap_or(f64::NAN)
+    };
+    let ratio_text = |x: f64| {
+        if x.is_finite() {
+            format!("{x:.1}")
+        } else {
+            "-".into()
+        }
+    };
+    for r in &rows {
         let q = r["queries_per_s"].as_f64().unwrap_or(f64::NAN);
-        // Ratios of CPU rows from thread CPU time (see `Rate`); a GPU row against the
-        // batched CPU row's wall rate.
-        let (base, q_ratio) = match r["cpu_queries_per_s"].as_f64() {
-            Some(c) => (base, c),
-            None => (
-                rows.iter()
-                    .find(|b| {
-                        b["volume"] == r["volume"]
-                            && b["query"] == r["query"]
-                            && b["backend"] == "cpu"
-                            && b["method"] == "pins-batched"
-                    })
-                    .and_then(|b| b["queries_per_s"].as_f64())
-                    .unwrap_or(f64::NAN),
-                q,
-            ),
+        let (field, own) = match r["cpu_queries_per_s"].as_f64() {
+            Some(c) => ("cpu_queries_per_s", c),
+            None => ("queries_per_s", q),
         };
         let err = r["mean_abs_error"]
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
         // The GPU's combined `both` row has no batched CPU counterpart.
-        let ratio = base / q_ratio;
-        let ratio = if ratio.is_finite() {
-            format!("{ratio:.1}")
-        } else {
-            "-".into()
-        };
         println!(
-            "{:<12} {:<12} {:<14} {:<5} {:>14.0} {:>10} {:>10}",
+            "{:<12} {:<20} {:<14} {:<5} {:>14.0} {:>10} {:>10} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
             r["query"].as_str().unwrap_or(""),
             r["backend"].as_str().unwrap_or(""),
             q,
-            ratio,
+            ratio_text(rate_of(r, "pins-batched", field) / own),
+            ratio_text(rate_of(r, "pins-default-batched", field) / own),
             err
         );
     }
