@@ -65,9 +65,19 @@ struct Args {
     /// Bake the thesis' jittered pins instead of the default pins through cell centres.
     #[arg(long)]
     jitter_pins: bool,
+    /// Collisions per pixel of the `scatter` family (Monte Carlo with the runtime's sampler).
+    #[arg(long, default_value_t = 32)]
+    scatter_samples: u32,
+    /// Also the models a-d for the shadow rays of `scatter`'s exact collisions (slow).
+    #[arg(long)]
+    scatter_parts: bool,
 }
 
 const MODELS: [&str; 6] = ["exact", "a", "b", "c", "d", "c_nominal"];
+/// The `scatter` family: which of the two queries of single scattering the pins answer
+/// (`pins`: both, as `pinrender render --estimator pins` does; `pin_distance`: the collision
+/// along the camera ray only; `pin_shadow`: the transmittance toward the sun only).
+const SCATTER_MODELS: [&str; 6] = ["exact", "pins", "pin_distance", "pin_shadow", "", ""];
 
 struct Ctx<'a> {
     src: &'a dyn DensitySource,
@@ -315,6 +325,13 @@ fn main() -> Result<()> {
         taus: Mutex::new(HashMap::new()),
     };
     check_against_sampler(&ctx, &grid)?;
+    // The renderer's own sampler, with `pinrender render`'s lookup, for the `scatter` family.
+    let sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
+        spatial_jitter: ctx.jitter,
+        directional_jitter: ctx.jitter,
+        midpoint_lookup: ctx.middle,
+        ..Default::default()
+    });
     let centre = box_min + extent * 0.5;
     let diag = extent.length();
     let sun = DVec3::new(0.3, 1.0, 0.2).normalize();
@@ -338,7 +355,7 @@ fn main() -> Result<()> {
         let up = right.cross(fwd);
         let half = (0.5 / args.distance).atan().tan();
         let n = args.size;
-        let rows: Vec<[[f64; 6]; 3]> = (0..n * n)
+        let rows: Vec<[[f64; 6]; 5]> = (0..n * n)
             .into_par_iter()
             .map(|px| {
                 let (x, y) = (px % n, px / n);
@@ -358,11 +375,28 @@ fn main() -> Result<()> {
                 };
                 let (ss, placed) = single_scatter(&ctx, cam, d, sun, px as u32);
                 let nan = f64::NAN;
-                [primary, shadow, [ss, nan, nan, nan, placed, nan]]
+                let (sc, sp) = scatter(
+                    &ctx,
+                    &sampler,
+                    cam,
+                    d,
+                    sun,
+                    px as u32,
+                    args.scatter_samples,
+                    args.scatter_parts,
+                );
+                [
+                    primary,
+                    shadow,
+                    [ss, nan, nan, nan, placed, nan],
+                    [sc[0], sc[1], sc[2], sc[3], nan, nan],
+                    if args.scatter_parts { sp } else { [nan; 6] },
+                ]
             })
             .collect();
-        for (fi, family) in ["camera", "shadow", "single"].iter().enumerate() {
-            for (m, model) in MODELS.iter().enumerate().skip(1) {
+        for (fi, family) in ["camera", "shadow", "single", "scatter", "scatter_shadow"].iter().enumerate() {
+            let names = if fi == 3 { &SCATTER_MODELS } else { &MODELS };
+            for (m, model) in names.iter().enumerate().skip(1) {
                 if rows[0][fi][m].is_nan() {
                     continue;
                 }
@@ -474,6 +508,84 @@ fn single_scatter(ctx: &Ctx<'_>, o: DVec3, d: DVec3, sun: DVec3, seed: u32) -> (
     (absorbed * exact / M as f64, absorbed * placed / M as f64)
 }
 
+/// Single scattering toward the sun along the camera ray `o + t d`, the collision and the
+/// shadow ray's transmittance each either exact or from the runtime's sampler (`pinrender
+/// render`'s lookup): `[exact, pins for both, pins for the collision only, pins for the
+/// shadow ray only]`, each `E[1{collision} T_sun(x)]` over `m` samples. The exact collisions
+/// are stratified; the pins' collisions are the sampler's own draws.
+fn scatter(
+    ctx: &Ctx<'_>,
+    sampler: &pinrt::Sampler<'_>,
+    o: DVec3,
+    d: DVec3,
+    sun: DVec3,
+    seed: u32,
+    m: u32,
+    with_parts: bool,
+) -> ([f64; 4], [f64; 6]) {
+    let f3 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+    let ou = (o - ctx.box_min) / ctx.extent;
+    let du = d / ctx.extent;
+    let Some((te, tx)) = unit_cube_chord(ou, du) else {
+        return ([0.0; 4], [0.0; 6]);
+    };
+    let ta = te.max(0.0);
+    if !(tx > ta) {
+        return ([0.0; 4], [0.0; 6]);
+    }
+    let n = ((tx - ta) * d.length() / ctx.fine).ceil().max(1.0) as usize;
+    let h = (tx - ta) / n as f64;
+    let mut cum = vec![0.0f64; n + 1];
+    for i in 0..n {
+        let t = ta + (i as f64 + 0.5) * h;
+        cum[i + 1] = cum[i] + f64::from(ctx.src.extinction(o + d * t)) * h * d.length();
+    }
+    let total = cum[n];
+    let t_at = |tau: f64| -> f64 {
+        let i = cum.partition_point(|&c| c < tau).clamp(1, n);
+        let (c0, c1) = (cum[i - 1], cum[i]);
+        let f = if c1 > c0 { (tau - c0) / (c1 - c0) } else { 0.5 };
+        ta + (i as f64 - 1.0 + f.clamp(0.0, 1.0)) * h
+    };
+    let sun_exact = |x: DVec3| -> f64 {
+        let xu = (x - ctx.box_min) / ctx.extent;
+        match unit_cube_chord(xu, sun / ctx.extent) {
+            Some((_, s1)) if s1 > 0.0 => (-ctx.depth(x, sun, 0.0, s1)).exp(),
+            _ => 1.0,
+        }
+    };
+    let mut rng = Rng::for_query(seed, 0x5ca7);
+    let absorbed = 1.0 - (-total).exp();
+    let mut sum = [0.0f64; 4];
+    let mut parts = [0.0f64; 6];
+    let cam = pinrt::Ray::new(f3(o), f3(d));
+    for k in 0..m {
+        if total > 1e-6 {
+            let u = (f64::from(k) + f64::from(rng.next_f32())) / f64::from(m) * absorbed;
+            let x = o + d * t_at(-(1.0 - u).ln());
+            sum[0] += absorbed * sun_exact(x);
+            let ray = pinrt::Ray::new(f3(x), f3(sun));
+            sum[3] += absorbed * f64::from(sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+            if with_parts {
+                let mm = ctx.models(x, sun, f64::INFINITY, seed.wrapping_mul(977).wrapping_add(k));
+                for (p, v) in parts.iter_mut().zip(mm) {
+                    *p += absorbed * v;
+                }
+            }
+        }
+        if let Some(t) = sampler.sample_distance(&cam, f32::INFINITY, &mut rng) {
+            let x = o + d * f64::from(t);
+            sum[2] += sun_exact(x);
+            let ray = pinrt::Ray::new(f3(x), f3(sun));
+            sum[1] += f64::from(sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+        }
+    }
+    (
+        sum.map(|s| s / f64::from(m)),
+        parts.map(|s| s / f64::from(m)),
+    )
+}
+
 /// Ray parameter where the optical depth along `o + t d` from the box entry reaches `target`.
 fn scatter_point(ctx: &Ctx<'_>, o: DVec3, d: DVec3, target: f64) -> f64 {
     let ou = (o - ctx.box_min) / ctx.extent;
@@ -499,7 +611,7 @@ fn scatter_point(ctx: &Ctx<'_>, o: DVec3, d: DVec3, target: f64) -> f64 {
 /// of model `m` against `exact` in family `fi`. Blocks without medium (exact mean above 0.99)
 /// are left out of both RMS, and opaque blocks (exact mean below 0.02, where a relative error
 /// of a transmittance says nothing about an image) out of the relative one.
-fn errors(rows: &[[[f64; 6]; 3]], n: usize, fi: usize, m: usize) -> (f64, f64, f64) {
+fn errors(rows: &[[[f64; 6]; 5]], n: usize, fi: usize, m: usize) -> (f64, f64, f64) {
     let mean = |k: usize| rows.iter().map(|r| r[fi][k]).sum::<f64>() / rows.len() as f64;
     let me = 100.0 * (mean(m) - mean(0)) / mean(0);
     let (mut r2, mut rc, mut a2, mut ac) = (0.0, 0usize, 0.0, 0usize);
