@@ -71,6 +71,21 @@ struct Args {
     /// Also the models a-d for the shadow rays of `scatter`'s exact collisions (slow).
     #[arg(long)]
     scatter_parts: bool,
+    /// `scatter`: look shadow rays up at their start (the collision) instead of `--start`'s.
+    #[arg(long)]
+    shadow_start: bool,
+    /// `scatter`: chain stride of the shadow rays' lookups (0: one lookup).
+    #[arg(long, default_value_t = 0)]
+    shadow_stride: u32,
+    /// `scatter`: directional jitter of the shadow rays' lookups (default `--jitter`).
+    #[arg(long)]
+    shadow_dir_jitter: Option<f32>,
+    /// `scatter`: spatial jitter of the shadow rays' lookups (default `--jitter`).
+    #[arg(long)]
+    shadow_spatial_jitter: Option<f32>,
+    /// `scatter`: chain stride of the camera rays' lookups (0: one lookup).
+    #[arg(long, default_value_t = 0)]
+    camera_stride: u32,
 }
 
 const MODELS: [&str; 6] = ["exact", "a", "b", "c", "d", "c_nominal"];
@@ -326,11 +341,23 @@ fn main() -> Result<()> {
     };
     check_against_sampler(&ctx, &grid)?;
     // The renderer's own sampler, with `pinrender render`'s lookup, for the `scatter` family.
-    let sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
+    let lookup = pinrt::SamplerOptions {
         spatial_jitter: ctx.jitter,
         directional_jitter: ctx.jitter,
         midpoint_lookup: ctx.middle,
         ..Default::default()
+    };
+    let sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
+        chain_stride: args.camera_stride,
+        ..lookup
+    });
+    // Shadow rays start inside the medium: optionally another lookup for them.
+    let shadow_sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
+        midpoint_lookup: ctx.middle && !args.shadow_start,
+        chain_stride: args.shadow_stride,
+        directional_jitter: args.shadow_dir_jitter.unwrap_or(ctx.jitter),
+        spatial_jitter: args.shadow_spatial_jitter.unwrap_or(ctx.jitter),
+        ..lookup
     });
     let centre = box_min + extent * 0.5;
     let diag = extent.length();
@@ -378,6 +405,7 @@ fn main() -> Result<()> {
                 let (sc, sp) = scatter(
                     &ctx,
                     &sampler,
+                    &shadow_sampler,
                     cam,
                     d,
                     sun,
@@ -516,6 +544,7 @@ fn single_scatter(ctx: &Ctx<'_>, o: DVec3, d: DVec3, sun: DVec3, seed: u32) -> (
 fn scatter(
     ctx: &Ctx<'_>,
     sampler: &pinrt::Sampler<'_>,
+    shadow_sampler: &pinrt::Sampler<'_>,
     o: DVec3,
     d: DVec3,
     sun: DVec3,
@@ -565,7 +594,7 @@ fn scatter(
             let x = o + d * t_at(-(1.0 - u).ln());
             sum[0] += absorbed * sun_exact(x);
             let ray = pinrt::Ray::new(f3(x), f3(sun));
-            sum[3] += absorbed * f64::from(sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+            sum[3] += absorbed * f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
             if with_parts {
                 let mm = ctx.models(x, sun, f64::INFINITY, seed.wrapping_mul(977).wrapping_add(k));
                 for (p, v) in parts.iter_mut().zip(mm) {
@@ -577,7 +606,7 @@ fn scatter(
             let x = o + d * f64::from(t);
             sum[2] += sun_exact(x);
             let ray = pinrt::Ray::new(f3(x), f3(sun));
-            sum[1] += f64::from(sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+            sum[1] += f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
         }
     }
     (

@@ -921,6 +921,7 @@ fn chain(chain_stride: u32, midpoint_lookup: bool, jitter: f32) -> SamplerOption
         directional_jitter: jitter,
         chain_stride,
         midpoint_lookup,
+        start_inside: false,
     }
 }
 
