@@ -72,6 +72,7 @@ configs=(
     "chosen-centre-mid-j0|--center-pins|0|0|32|middle"
     # Rays from inside the box at their start (docs/sampling.md section 14; the default).
     "chosen-centre-mid-inside|--center-pins|1|1|32|middle|true"
+    "chosen-centre-mid-inside-j0.5|--center-pins|0.5|0.5|32|middle|true"
 )
 for c in "${configs[@]}"; do
     IFS='|' read -r cname bake sj dj stride point inside <<<"$c"

@@ -17,6 +17,14 @@
 //! scattering toward the sun along the camera ray with exact transmittances, the collision
 //! drawn exactly (`exact`) and as the pins place it (`d`: the same interval, then uniform).
 //!
+//! A fourth family, `scatter`, is single scattering toward the sun along the camera ray as
+//! `pinrender render --estimator pins` computes it, with the runtime's own sampler answering
+//! the collision (`pin_distance`), the shadow ray from it (`pin_shadow`) or both (`pins`),
+//! the rest exact (Monte Carlo, `--scatter-samples` per pixel); `scatter_shadow` gives models
+//! a-d for those shadow rays (`--scatter-parts`). `--start-inside` turns on the runtime's
+//! `start_inside` (docs/sampling.md section 14); the `--shadow-*` and `--camera-stride`
+//! options try other lookups for the two kinds of query.
+//!
 //! a, b, c and c_nominal average over `--draws` lookups (pin choice and lookup jitter drawn as
 //! the sampler draws them). Output: per view and ray family, the mean error and the RMS over
 //! 8x8-pixel blocks of the block mean's relative error, in percent (docs/evaluation.md, "Where
@@ -83,6 +91,10 @@ struct Args {
     /// `scatter`: spatial jitter of the shadow rays' lookups (default `--jitter`).
     #[arg(long)]
     shadow_spatial_jitter: Option<f32>,
+    /// `scatter`: the runtime's `start_inside` (a ray from inside the box looked up at its
+    /// start without spatial jitter; `pinrender render`'s default) for both samplers.
+    #[arg(long)]
+    start_inside: bool,
     /// `scatter`: chain stride of the camera rays' lookups (0: one lookup).
     #[arg(long, default_value_t = 0)]
     camera_stride: u32,
@@ -346,6 +358,10 @@ fn main() -> Result<()> {
         directional_jitter: ctx.jitter,
         midpoint_lookup: ctx.middle,
         ..Default::default()
+    };
+    let lookup = pinrt::SamplerOptions {
+        start_inside: args.start_inside,
+        ..lookup
     };
     let sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
         chain_stride: args.camera_stride,
