@@ -375,6 +375,12 @@ fn main() -> Result<()> {
         spatial_jitter: args.shadow_spatial_jitter.unwrap_or(ctx.jitter),
         ..lookup
     });
+    let setup = Scatter {
+        camera: &sampler,
+        shadow: &shadow_sampler,
+        samples: args.scatter_samples,
+        parts: args.scatter_parts,
+    };
     let centre = box_min + extent * 0.5;
     let diag = extent.length();
     let sun = DVec3::new(0.3, 1.0, 0.2).normalize();
@@ -418,17 +424,7 @@ fn main() -> Result<()> {
                 };
                 let (ss, placed) = single_scatter(&ctx, cam, d, sun, px as u32);
                 let nan = f64::NAN;
-                let (sc, sp) = scatter(
-                    &ctx,
-                    &sampler,
-                    &shadow_sampler,
-                    cam,
-                    d,
-                    sun,
-                    px as u32,
-                    args.scatter_samples,
-                    args.scatter_parts,
-                );
+                let (sc, sp) = scatter(&ctx, &setup, cam, d, sun, px as u32);
                 [
                     primary,
                     shadow,
@@ -438,7 +434,10 @@ fn main() -> Result<()> {
                 ]
             })
             .collect();
-        for (fi, family) in ["camera", "shadow", "single", "scatter", "scatter_shadow"].iter().enumerate() {
+        for (fi, family) in ["camera", "shadow", "single", "scatter", "scatter_shadow"]
+            .iter()
+            .enumerate()
+        {
             let names = if fi == 3 { &SCATTER_MODELS } else { &MODELS };
             for (m, model) in names.iter().enumerate().skip(1) {
                 if rows[0][fi][m].is_nan() {
@@ -552,6 +551,16 @@ fn single_scatter(ctx: &Ctx<'_>, o: DVec3, d: DVec3, sun: DVec3, seed: u32) -> (
     (absorbed * exact / M as f64, absorbed * placed / M as f64)
 }
 
+/// The `scatter` family's samplers (camera rays, shadow rays) and samples per pixel; `parts`:
+/// also models a-d for the shadow rays.
+#[derive(Clone, Copy)]
+struct Scatter<'a> {
+    camera: &'a pinrt::Sampler<'a>,
+    shadow: &'a pinrt::Sampler<'a>,
+    samples: u32,
+    parts: bool,
+}
+
 /// Single scattering toward the sun along the camera ray `o + t d`, the collision and the
 /// shadow ray's transmittance each either exact or from the runtime's sampler (`pinrender
 /// render`'s lookup): `[exact, pins for both, pins for the collision only, pins for the
@@ -559,15 +568,18 @@ fn single_scatter(ctx: &Ctx<'_>, o: DVec3, d: DVec3, sun: DVec3, seed: u32) -> (
 /// are stratified; the pins' collisions are the sampler's own draws.
 fn scatter(
     ctx: &Ctx<'_>,
-    sampler: &pinrt::Sampler<'_>,
-    shadow_sampler: &pinrt::Sampler<'_>,
+    q: &Scatter<'_>,
     o: DVec3,
     d: DVec3,
     sun: DVec3,
     seed: u32,
-    m: u32,
-    with_parts: bool,
 ) -> ([f64; 4], [f64; 6]) {
+    let Scatter {
+        camera: sampler,
+        shadow: shadow_sampler,
+        samples: m,
+        parts: with_parts,
+    } = *q;
     let f3 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
     let ou = (o - ctx.box_min) / ctx.extent;
     let du = d / ctx.extent;
@@ -610,9 +622,15 @@ fn scatter(
             let x = o + d * t_at(-(1.0 - u).ln());
             sum[0] += absorbed * sun_exact(x);
             let ray = pinrt::Ray::new(f3(x), f3(sun));
-            sum[3] += absorbed * f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+            sum[3] +=
+                absorbed * f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
             if with_parts {
-                let mm = ctx.models(x, sun, f64::INFINITY, seed.wrapping_mul(977).wrapping_add(k));
+                let mm = ctx.models(
+                    x,
+                    sun,
+                    f64::INFINITY,
+                    seed.wrapping_mul(977).wrapping_add(k),
+                );
                 for (p, v) in parts.iter_mut().zip(mm) {
                     *p += absorbed * v;
                 }

@@ -189,7 +189,9 @@ impl Params {
                 on(options.directional_jitter),
                 // Small integers, exact in f32.
                 options.stride() as f32,
-                f32::from(u8::from(options.midpoint_lookup) | (u8::from(options.start_inside) << 1)),
+                f32::from(
+                    u8::from(options.midpoint_lookup) | (u8::from(options.start_inside) << 1),
+                ),
             ],
             dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
             grid: [s.z_end, s.pins_per_entry, block_len, stored],

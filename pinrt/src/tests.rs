@@ -1254,8 +1254,14 @@ fn start_inside_reads_the_start_cell() {
         caught_middle |= (got - interpolated(&middle, &ray, t_max, 0.5)).abs() > bound;
         caught_spatial |= (got - interpolated(&start, &ray, t_max, 0.5)).abs() > bound;
     }
-    assert!(caught_middle, "the bound cannot tell the start from the middle");
-    assert!(caught_spatial, "the bound cannot tell the spatial jitter from none");
+    assert!(
+        caught_middle,
+        "the bound cannot tell the start from the middle"
+    );
+    assert!(
+        caught_spatial,
+        "the bound cannot tell the spatial jitter from none"
+    );
 
     // Rays from outside the box: the same results, field for field, as without the option.
     let plain = Sampler::new(&grid).unwrap().with_options(render);
@@ -1266,7 +1272,15 @@ fn start_inside_reads_the_start_cell() {
             let inside = o.iter().all(|&x| (0.0..=1.0).contains(&x));
             let o = if inside { [-0.5, o[1], o[2]] } else { o };
             let d = [0, 1, 2].map(|a| target[a] - o[a]);
-            RayQuery::new(o, d, if rng.next_f32() < 0.5 { f32::INFINITY } else { 2.0 })
+            RayQuery::new(
+                o,
+                d,
+                if rng.next_f32() < 0.5 {
+                    f32::INFINITY
+                } else {
+                    2.0
+                },
+            )
         })
         .collect();
     let mut a = vec![QueryResult::empty_for_tests(); rays.len()];
@@ -1285,7 +1299,13 @@ fn interpolated(plain: &Sampler<'_>, ray: &Ray, t_max: f32, centre: f32) -> f64 
 
 /// [`interpolated`], with the trilinear interpolation in space (`spatial`) or the cell of the
 /// lookup point alone.
-fn interpolated_with(plain: &Sampler<'_>, ray: &Ray, t_max: f32, centre: f32, spatial: bool) -> f64 {
+fn interpolated_with(
+    plain: &Sampler<'_>,
+    ray: &Ray,
+    t_max: f32,
+    centre: f32,
+    spatial: bool,
+) -> f64 {
     use crate::sampler::{NO_CELL, Prepared};
     let p: Prepared = plain.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
     if p.status != status::OK {
