@@ -21,7 +21,11 @@
 //! `pinrender render --estimator pins` computes it, with the runtime's own sampler answering
 //! the collision (`pin_distance`), the shadow ray from it (`pin_shadow`) or both (`pins`),
 //! the rest exact (Monte Carlo, `--scatter-samples` per pixel); `scatter_shadow` gives models
-//! a-d for those shadow rays (`--scatter-parts`). `--start-inside` turns on the runtime's
+//! a-d for those shadow rays (`--scatter-parts`). `collision_query_line` and
+//! `collision_pin_line` redo `pin_distance` with the lookup written out here (middle, the
+//! `--jitter`) and place the collision once on the query's line (as the runtime does) and
+//! once on the answering pin's own line (through its cell's and direction cell's centres)
+//! at the same fraction of its chord. `--start-inside` turns on the runtime's
 //! `start_inside` (docs/sampling.md section 14); the `--shadow-*` and `--camera-stride`
 //! options try other lookups for the two kinds of query.
 //!
@@ -104,7 +108,14 @@ const MODELS: [&str; 6] = ["exact", "a", "b", "c", "d", "c_nominal"];
 /// The `scatter` family: which of the two queries of single scattering the pins answer
 /// (`pins`: both, as `pinrender render --estimator pins` does; `pin_distance`: the collision
 /// along the camera ray only; `pin_shadow`: the transmittance toward the sun only).
-const SCATTER_MODELS: [&str; 6] = ["exact", "pins", "pin_distance", "pin_shadow", "", ""];
+const SCATTER_MODELS: [&str; 6] = [
+    "exact",
+    "pins",
+    "pin_distance",
+    "pin_shadow",
+    "collision_query_line",
+    "collision_pin_line",
+];
 
 struct Ctx<'a> {
     src: &'a dyn DensitySource,
@@ -429,7 +440,7 @@ fn main() -> Result<()> {
                     primary,
                     shadow,
                     [ss, nan, nan, nan, placed, nan],
-                    [sc[0], sc[1], sc[2], sc[3], nan, nan],
+                    [sc[0], sc[1], sc[2], sc[3], sc[4], sc[5]],
                     if args.scatter_parts { sp } else { [nan; 6] },
                 ]
             })
@@ -573,7 +584,7 @@ fn scatter(
     d: DVec3,
     sun: DVec3,
     seed: u32,
-) -> ([f64; 4], [f64; 6]) {
+) -> ([f64; 6], [f64; 6]) {
     let Scatter {
         camera: sampler,
         shadow: shadow_sampler,
@@ -584,11 +595,11 @@ fn scatter(
     let ou = (o - ctx.box_min) / ctx.extent;
     let du = d / ctx.extent;
     let Some((te, tx)) = unit_cube_chord(ou, du) else {
-        return ([0.0; 4], [0.0; 6]);
+        return ([0.0; 6], [0.0; 6]);
     };
     let ta = te.max(0.0);
     if !(tx > ta) {
-        return ([0.0; 4], [0.0; 6]);
+        return ([0.0; 6], [0.0; 6]);
     }
     let n = ((tx - ta) * d.length() / ctx.fine).ceil().max(1.0) as usize;
     let h = (tx - ta) / n as f64;
@@ -613,7 +624,7 @@ fn scatter(
     };
     let mut rng = Rng::for_query(seed, 0x5ca7);
     let absorbed = 1.0 - (-total).exp();
-    let mut sum = [0.0f64; 4];
+    let mut sum = [0.0f64; 6];
     let mut parts = [0.0f64; 6];
     let cam = pinrt::Ray::new(f3(o), f3(d));
     for k in 0..m {
@@ -642,6 +653,65 @@ fn scatter(
             let ray = pinrt::Ray::new(f3(x), f3(sun));
             sum[1] += f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
         }
+    }
+    // The collision of one lookup (the render's: middle, one cell of jitter), placed on the
+    // query's line (as the runtime does) and on the pin's own line (nominal: through the
+    // cell and direction-cell centres) at the same fraction of its chord; exact shadow ray.
+    let du32 = du.as_vec3().to_array();
+    let reversed = du32[2] < 0.0;
+    let dl = if reversed {
+        [-du32[0], -du32[1], -du32[2]]
+    } else {
+        du32
+    };
+    let nominal = PinLayout {
+        jitter: false,
+        ..ctx.layout
+    };
+    let (tm, len) = ((ta + tx) * 0.5, (tx - te) / 32.0);
+    for _ in 0..m {
+        let k = rng.below_256(ctx.view.shape.pins_per_entry);
+        let sj = (ctx.jitter, [rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        let dj = DirJitter {
+            strength: ctx.jitter,
+            xi: [rng.next_f32(), rng.next_f32()],
+        };
+        let pm = ou + du * tm;
+        let cell = spatial_cell(pm.as_vec3().to_array(), &ctx.view, Some(sj));
+        let dcell = direction_cell(&ctx.view.shape.directions, dl, Some(dj));
+        let entry = ctx
+            .view
+            .entry_index(cell, dcell, k)
+            .and_then(|i| ctx.view.pins.get(i as usize).copied())
+            .unwrap_or(PinEntry::EMPTY);
+        let t_min = f64::from(sanitize_t_min(entry.t_min));
+        let mask = if reversed {
+            entry.mask.reverse_bits()
+        } else {
+            entry.mask
+        };
+        let s0 = (ta - te) / len;
+        let mut hit = None;
+        for i in 0..32usize {
+            if mask & (1u32 << (31 - i)) == 0 || (i as f64 + 1.0) <= s0 {
+                continue;
+            }
+            if f64::from(rng.next_f32()) < 1.0 - t_min {
+                hit = Some(i as f64 + f64::from(rng.next_f32()));
+                break;
+            }
+        }
+        let Some(sc) = hit else { continue };
+        let sc = sc.max(s0);
+        sum[4] += sun_exact(o + d * (te + sc * len));
+        let mut nrng = nominal.rng(0, 0, 0);
+        let (pp, w) = nominal.line(cell, dcell, &mut nrng);
+        let Some((c0, c1)) = unit_cube_chord(pp, w) else {
+            continue;
+        };
+        let f = if reversed { 1.0 - sc / 32.0 } else { sc / 32.0 };
+        let xu = pp + w * (c0 + (c1 - c0) * f);
+        sum[5] += sun_exact(ctx.box_min + xu * ctx.extent);
     }
     (
         sum.map(|s| s / f64::from(m)),
