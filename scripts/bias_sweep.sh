@@ -58,7 +58,7 @@ scene_def() {
     esac
 }
 
-# config name|bake flags|jitter (spatial = directional, in cells)
+# config name|bake flags|jitter (spatial = directional, in cells)|other render flags
 configs=()
 for c in 8 12 16 24; do
     for n in 4 8 16; do
@@ -78,6 +78,9 @@ configs+=(
     # The default bake with the thesis' jittered pins (the default before docs/sampling.md
     # section 13).
     "default-jittered|--jitter-pins|1"
+    # The default bake with rays from inside the box looked up like the others (the render
+    # default before docs/sampling.md section 14).
+    "default-noinside||1|--start-inside false"
     "target0.03|--target-error 0.03|1"
 )
 
@@ -117,7 +120,7 @@ for s in "${scenes[@]}"; do
         echo "$s,noise-floor,,,,,,0,$dens_bytes,0,$mean,$block,$variation,$mvar" | tee -a "$csv"
     fi
     for c in "${configs[@]}"; do
-        IFS='|' read -r cname bake jit <<<"$c"
+        IFS='|' read -r cname bake jit extra <<<"$c"
         if [ -n "${CONFIGS:-}" ] && [[ " $CONFIGS " != *" $cname "* ]]; then
             continue
         fi
@@ -125,13 +128,15 @@ for s in "${scenes[@]}"; do
             continue
         fi
         read -r -a bakeargs <<<"$bake"
+        read -r -a extraargs <<<"${extra:-}"
         pin="$work/$s.$(echo "$bake" | tr -c 'a-z0-9' _).pin"
         [ -f "$pin" ] || "$bin/pinbake" bake "${volargs[@]}" "${bakeargs[@]}" --threads "$THREADS" \
             -q -o "$pin" >/dev/null
         bytes=$(stat -c %s "$pin")
         line=$("$bin/pinrender" render --volume "${volargs[@]}" "${common[@]}" --estimator pins \
             --pins "$pin" --spp "$PIN_SPP" --seed 2 --spatial-jitter "$jit" \
-            --directional-jitter "$jit" --reference "$ref" --out "$work/pins.exr" 2>/dev/null)
+            --directional-jitter "$jit" "${extraargs[@]}" --reference "$ref" \
+            --out "$work/pins.exr" 2>/dev/null)
         read -r _ mean _ block _ <<<"$line"
         cells=$(awk '{ for (i = 1; i <= NF; i++) if ($i == "--cells") print $(i + 1) }' <<<"$bake")
         dirs=$(awk '{ for (i = 1; i <= NF; i++) if ($i == "--dirs") print $(i + 1) }' <<<"$bake")

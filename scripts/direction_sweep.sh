@@ -4,7 +4,9 @@
 # lookup jitter and lookup chaining. Prints one CSV row per (bake, lookup options, view):
 #   volume,config,bytes,spatial_jitter,directional_jitter,view,mean_error,block8_rms_error
 # (the chain stride and lookup point are in the config name: `-cS` a stride of S intervals,
-# `-mid` lookups at the middle of each piece; without them one lookup at the segment start).
+# `-mid` lookups at the middle of each piece; without them one lookup at the segment start;
+# `-inside` rays that start inside the box looked up at their start without spatial jitter,
+# `pinrender render --start-inside true`, docs/sampling.md section 14; without it false).
 # Usage: direction_sweep.sh NAME WORKDIR CX,CY,CZ DISTANCE -- VOLUME-ARGS...
 # (VOLUME-ARGS: what `pinbake bake` and `pinrender render --volume` both accept, e.g.
 #  `FILE.raw --spacing 0.025`; the first one is the input.)
@@ -68,9 +70,12 @@ configs=(
     "chosen-centre-mid|--center-pins|1|1|32|middle"
     "chosen-centre-mid-j0.5|--center-pins|0.5|0.5|32|middle"
     "chosen-centre-mid-j0|--center-pins|0|0|32|middle"
+    # Rays from inside the box at their start (docs/sampling.md section 14; the default).
+    "chosen-centre-mid-inside|--center-pins|1|1|32|middle|true"
+    "chosen-centre-mid-inside-j0.5|--center-pins|0.5|0.5|32|middle|true"
 )
 for c in "${configs[@]}"; do
-    IFS='|' read -r cname bake sj dj stride point <<<"$c"
+    IFS='|' read -r cname bake sj dj stride point inside <<<"$c"
     if [ -n "${CONFIGS:-}" ] && [[ " $CONFIGS " != *" $cname "* ]]; then
         continue
     fi
@@ -83,6 +88,7 @@ for c in "${configs[@]}"; do
             --camera-origin "$(cam "${v#*:}")" --estimator pins --pins "$pin" --spp "$PIN_SPP" \
             --seed 2 --spatial-jitter "$sj" --directional-jitter "$dj" \
             --chain-stride "${stride:-32}" --lookup-point "${point:-start}" \
+            --start-inside "${inside:-false}" \
             --reference "$work/ref_${v%%:*}.exr" --out "$work/pins.exr" 2>/dev/null)
         read -r _ mean _ block _ <<<"$line"
         echo "$name,$cname,$bytes,$sj,$dj,${v%%:*},$mean,$block"

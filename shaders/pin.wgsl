@@ -21,7 +21,8 @@ struct Params {
     row1: vec4<f32>,
     row2: vec4<f32>,
     // Spatial strength, directional strength (0 = off), chain stride (intervals per lookup,
-    // 1..=32; 0 reads as 32), midpoint lookup (1) or segment start (0).
+    // 1..=32; 0 reads as 32), lookup point: bit 0 midpoint (1) or segment start (0), bit 1
+    // `start_inside`.
     jitter: vec4<f32>,
     // dims x, y, z, z_begin
     dims: vec4<u32>,
@@ -549,13 +550,17 @@ fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: boo
     if (reversed) {
         dl = -d;
     }
+    // Lookup point: bit 0 of G.jitter.w the middle, bit 1 `start_inside` (a piece starting
+    // inside the box is looked up at its start without spatial jitter).
+    let mode = u32(G.jitter.w);
+    let inside = (mode & 2u) != 0u && seg.s0 > 0.0;
     var t0 = seg.t0;
-    if (G.jitter.w != 0.0) {
+    if ((mode & 1u) != 0u && !inside) {
         t0 = 0.5 * (seg.t0 + seg.t1);
     }
     let p = vec3<f32>(o.x + d.x * t0, o.y + d.y * t0, o.z + d.z * t0);
     var c = vec3<f32>(p.x * f32(G.dims.x), p.y * f32(G.dims.y), p.z * f32(G.dims.z));
-    if (sj) {
+    if (sj && !inside) {
         c.x = c.x + (sxi.x - 0.5) * G.jitter.x;
         c.y = c.y + (sxi.y - 0.5) * G.jitter.x;
         c.z = c.z + (sxi.z - 0.5) * G.jitter.x;

@@ -202,7 +202,9 @@ typedef struct PinrtGpuParams {
   float rows[3][4];
   /**
    * Spatial and directional lookup jitter in cells (0 = off), chain stride in intervals (0:
-   * one lookup), lookup point (0: segment start, 1: middle; `docs/sampling.md` section 12).
+   * one lookup), lookup point (0: segment start, 1: middle; `docs/sampling.md` section 12;
+   * plus 2: a piece that starts inside the box at its start without spatial jitter,
+   * section 14).
    */
   float jitter[4];
   /**

@@ -151,7 +151,9 @@ pub struct PinrtGpuParams {
     /// World -> unit cube: row i = (A_i0, A_i1, A_i2, b_i).
     pub rows: [[f32; 4]; 3],
     /// Spatial and directional lookup jitter in cells (0 = off), chain stride in intervals (0:
-    /// one lookup), lookup point (0: segment start, 1: middle; `docs/sampling.md` section 12).
+    /// one lookup), lookup point (0: segment start, 1: middle; `docs/sampling.md` section 12;
+    /// plus 2: a piece that starts inside the box at its start without spatial jitter,
+    /// section 14).
     pub jitter: [f32; 4],
     /// Cells x, y, z, z_begin.
     pub dims: [u32; 4],

@@ -17,6 +17,18 @@
 //! scattering toward the sun along the camera ray with exact transmittances, the collision
 //! drawn exactly (`exact`) and as the pins place it (`d`: the same interval, then uniform).
 //!
+//! A fourth family, `scatter`, is single scattering toward the sun along the camera ray as
+//! `pinrender render --estimator pins` computes it, with the runtime's own sampler answering
+//! the collision (`pin_distance`), the shadow ray from it (`pin_shadow`) or both (`pins`),
+//! the rest exact (Monte Carlo, `--scatter-samples` per pixel); `scatter_shadow` gives models
+//! a-d for those shadow rays (`--scatter-parts`). `collision_query_line` and
+//! `collision_pin_line` redo `pin_distance` with the lookup written out here (middle, the
+//! `--jitter`) and place the collision once on the query's line (as the runtime does) and
+//! once on the answering pin's own line (through its cell's and direction cell's centres)
+//! at the same fraction of its chord. `--start-inside` turns on the runtime's
+//! `start_inside` (docs/sampling.md section 14); the `--shadow-*` and `--camera-stride`
+//! options try other lookups for the two kinds of query.
+//!
 //! a, b, c and c_nominal average over `--draws` lookups (pin choice and lookup jitter drawn as
 //! the sampler draws them). Output: per view and ray family, the mean error and the RMS over
 //! 8x8-pixel blocks of the block mean's relative error, in percent (docs/evaluation.md, "Where
@@ -65,9 +77,45 @@ struct Args {
     /// Bake the thesis' jittered pins instead of the default pins through cell centres.
     #[arg(long)]
     jitter_pins: bool,
+    /// Collisions per pixel of the `scatter` family (Monte Carlo with the runtime's sampler).
+    #[arg(long, default_value_t = 32)]
+    scatter_samples: u32,
+    /// Also the models a-d for the shadow rays of `scatter`'s exact collisions (slow).
+    #[arg(long)]
+    scatter_parts: bool,
+    /// `scatter`: look shadow rays up at their start (the collision) instead of `--start`'s.
+    #[arg(long)]
+    shadow_start: bool,
+    /// `scatter`: chain stride of the shadow rays' lookups (0: one lookup).
+    #[arg(long, default_value_t = 0)]
+    shadow_stride: u32,
+    /// `scatter`: directional jitter of the shadow rays' lookups (default `--jitter`).
+    #[arg(long)]
+    shadow_dir_jitter: Option<f32>,
+    /// `scatter`: spatial jitter of the shadow rays' lookups (default `--jitter`).
+    #[arg(long)]
+    shadow_spatial_jitter: Option<f32>,
+    /// `scatter`: the runtime's `start_inside` (a ray from inside the box looked up at its
+    /// start without spatial jitter; `pinrender render`'s default) for both samplers.
+    #[arg(long)]
+    start_inside: bool,
+    /// `scatter`: chain stride of the camera rays' lookups (0: one lookup).
+    #[arg(long, default_value_t = 0)]
+    camera_stride: u32,
 }
 
 const MODELS: [&str; 6] = ["exact", "a", "b", "c", "d", "c_nominal"];
+/// The `scatter` family: which of the two queries of single scattering the pins answer
+/// (`pins`: both, as `pinrender render --estimator pins` does; `pin_distance`: the collision
+/// along the camera ray only; `pin_shadow`: the transmittance toward the sun only).
+const SCATTER_MODELS: [&str; 6] = [
+    "exact",
+    "pins",
+    "pin_distance",
+    "pin_shadow",
+    "collision_query_line",
+    "collision_pin_line",
+];
 
 struct Ctx<'a> {
     src: &'a dyn DensitySource,
@@ -315,6 +363,35 @@ fn main() -> Result<()> {
         taus: Mutex::new(HashMap::new()),
     };
     check_against_sampler(&ctx, &grid)?;
+    // The renderer's own sampler, with `pinrender render`'s lookup, for the `scatter` family.
+    let lookup = pinrt::SamplerOptions {
+        spatial_jitter: ctx.jitter,
+        directional_jitter: ctx.jitter,
+        midpoint_lookup: ctx.middle,
+        ..Default::default()
+    };
+    let lookup = pinrt::SamplerOptions {
+        start_inside: args.start_inside,
+        ..lookup
+    };
+    let sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
+        chain_stride: args.camera_stride,
+        ..lookup
+    });
+    // Shadow rays start inside the medium: optionally another lookup for them.
+    let shadow_sampler = pinrt::Sampler::new(&grid)?.with_options(pinrt::SamplerOptions {
+        midpoint_lookup: ctx.middle && !args.shadow_start,
+        chain_stride: args.shadow_stride,
+        directional_jitter: args.shadow_dir_jitter.unwrap_or(ctx.jitter),
+        spatial_jitter: args.shadow_spatial_jitter.unwrap_or(ctx.jitter),
+        ..lookup
+    });
+    let setup = Scatter {
+        camera: &sampler,
+        shadow: &shadow_sampler,
+        samples: args.scatter_samples,
+        parts: args.scatter_parts,
+    };
     let centre = box_min + extent * 0.5;
     let diag = extent.length();
     let sun = DVec3::new(0.3, 1.0, 0.2).normalize();
@@ -338,7 +415,7 @@ fn main() -> Result<()> {
         let up = right.cross(fwd);
         let half = (0.5 / args.distance).atan().tan();
         let n = args.size;
-        let rows: Vec<[[f64; 6]; 3]> = (0..n * n)
+        let rows: Vec<[[f64; 6]; 5]> = (0..n * n)
             .into_par_iter()
             .map(|px| {
                 let (x, y) = (px % n, px / n);
@@ -358,11 +435,22 @@ fn main() -> Result<()> {
                 };
                 let (ss, placed) = single_scatter(&ctx, cam, d, sun, px as u32);
                 let nan = f64::NAN;
-                [primary, shadow, [ss, nan, nan, nan, placed, nan]]
+                let (sc, sp) = scatter(&ctx, &setup, cam, d, sun, px as u32);
+                [
+                    primary,
+                    shadow,
+                    [ss, nan, nan, nan, placed, nan],
+                    [sc[0], sc[1], sc[2], sc[3], sc[4], sc[5]],
+                    if args.scatter_parts { sp } else { [nan; 6] },
+                ]
             })
             .collect();
-        for (fi, family) in ["camera", "shadow", "single"].iter().enumerate() {
-            for (m, model) in MODELS.iter().enumerate().skip(1) {
+        for (fi, family) in ["camera", "shadow", "single", "scatter", "scatter_shadow"]
+            .iter()
+            .enumerate()
+        {
+            let names = if fi == 3 { &SCATTER_MODELS } else { &MODELS };
+            for (m, model) in names.iter().enumerate().skip(1) {
                 if rows[0][fi][m].is_nan() {
                     continue;
                 }
@@ -474,6 +562,163 @@ fn single_scatter(ctx: &Ctx<'_>, o: DVec3, d: DVec3, sun: DVec3, seed: u32) -> (
     (absorbed * exact / M as f64, absorbed * placed / M as f64)
 }
 
+/// The `scatter` family's samplers (camera rays, shadow rays) and samples per pixel; `parts`:
+/// also models a-d for the shadow rays.
+#[derive(Clone, Copy)]
+struct Scatter<'a> {
+    camera: &'a pinrt::Sampler<'a>,
+    shadow: &'a pinrt::Sampler<'a>,
+    samples: u32,
+    parts: bool,
+}
+
+/// Single scattering toward the sun along the camera ray `o + t d`, the collision and the
+/// shadow ray's transmittance each either exact or from the runtime's sampler (`pinrender
+/// render`'s lookup): `[exact, pins for both, pins for the collision only, pins for the
+/// shadow ray only]`, each `E[1{collision} T_sun(x)]` over `m` samples. The exact collisions
+/// are stratified; the pins' collisions are the sampler's own draws.
+fn scatter(
+    ctx: &Ctx<'_>,
+    q: &Scatter<'_>,
+    o: DVec3,
+    d: DVec3,
+    sun: DVec3,
+    seed: u32,
+) -> ([f64; 6], [f64; 6]) {
+    let Scatter {
+        camera: sampler,
+        shadow: shadow_sampler,
+        samples: m,
+        parts: with_parts,
+    } = *q;
+    let f3 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+    let ou = (o - ctx.box_min) / ctx.extent;
+    let du = d / ctx.extent;
+    let Some((te, tx)) = unit_cube_chord(ou, du) else {
+        return ([0.0; 6], [0.0; 6]);
+    };
+    let ta = te.max(0.0);
+    if !(tx > ta) {
+        return ([0.0; 6], [0.0; 6]);
+    }
+    let n = ((tx - ta) * d.length() / ctx.fine).ceil().max(1.0) as usize;
+    let h = (tx - ta) / n as f64;
+    let mut cum = vec![0.0f64; n + 1];
+    for i in 0..n {
+        let t = ta + (i as f64 + 0.5) * h;
+        cum[i + 1] = cum[i] + f64::from(ctx.src.extinction(o + d * t)) * h * d.length();
+    }
+    let total = cum[n];
+    let t_at = |tau: f64| -> f64 {
+        let i = cum.partition_point(|&c| c < tau).clamp(1, n);
+        let (c0, c1) = (cum[i - 1], cum[i]);
+        let f = if c1 > c0 { (tau - c0) / (c1 - c0) } else { 0.5 };
+        ta + (i as f64 - 1.0 + f.clamp(0.0, 1.0)) * h
+    };
+    let sun_exact = |x: DVec3| -> f64 {
+        let xu = (x - ctx.box_min) / ctx.extent;
+        match unit_cube_chord(xu, sun / ctx.extent) {
+            Some((_, s1)) if s1 > 0.0 => (-ctx.depth(x, sun, 0.0, s1)).exp(),
+            _ => 1.0,
+        }
+    };
+    let mut rng = Rng::for_query(seed, 0x5ca7);
+    let absorbed = 1.0 - (-total).exp();
+    let mut sum = [0.0f64; 6];
+    let mut parts = [0.0f64; 6];
+    let cam = pinrt::Ray::new(f3(o), f3(d));
+    for k in 0..m {
+        if total > 1e-6 {
+            let u = (f64::from(k) + f64::from(rng.next_f32())) / f64::from(m) * absorbed;
+            let x = o + d * t_at(-(1.0 - u).ln());
+            sum[0] += absorbed * sun_exact(x);
+            let ray = pinrt::Ray::new(f3(x), f3(sun));
+            sum[3] +=
+                absorbed * f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+            if with_parts {
+                let mm = ctx.models(
+                    x,
+                    sun,
+                    f64::INFINITY,
+                    seed.wrapping_mul(977).wrapping_add(k),
+                );
+                for (p, v) in parts.iter_mut().zip(mm) {
+                    *p += absorbed * v;
+                }
+            }
+        }
+        if let Some(t) = sampler.sample_distance(&cam, f32::INFINITY, &mut rng) {
+            let x = o + d * f64::from(t);
+            sum[2] += sun_exact(x);
+            let ray = pinrt::Ray::new(f3(x), f3(sun));
+            sum[1] += f64::from(shadow_sampler.transmittance(&ray, f32::INFINITY, &mut rng));
+        }
+    }
+    // The collision of one lookup (the render's: middle, one cell of jitter), placed on the
+    // query's line (as the runtime does) and on the pin's own line (nominal: through the
+    // cell and direction-cell centres) at the same fraction of its chord; exact shadow ray.
+    let du32 = du.as_vec3().to_array();
+    let reversed = du32[2] < 0.0;
+    let dl = if reversed {
+        [-du32[0], -du32[1], -du32[2]]
+    } else {
+        du32
+    };
+    let nominal = PinLayout {
+        jitter: false,
+        ..ctx.layout
+    };
+    let (tm, len) = ((ta + tx) * 0.5, (tx - te) / 32.0);
+    for _ in 0..m {
+        let k = rng.below_256(ctx.view.shape.pins_per_entry);
+        let sj = (ctx.jitter, [rng.next_f32(), rng.next_f32(), rng.next_f32()]);
+        let dj = DirJitter {
+            strength: ctx.jitter,
+            xi: [rng.next_f32(), rng.next_f32()],
+        };
+        let pm = ou + du * tm;
+        let cell = spatial_cell(pm.as_vec3().to_array(), &ctx.view, Some(sj));
+        let dcell = direction_cell(&ctx.view.shape.directions, dl, Some(dj));
+        let entry = ctx
+            .view
+            .entry_index(cell, dcell, k)
+            .and_then(|i| ctx.view.pins.get(i as usize).copied())
+            .unwrap_or(PinEntry::EMPTY);
+        let t_min = f64::from(sanitize_t_min(entry.t_min));
+        let mask = if reversed {
+            entry.mask.reverse_bits()
+        } else {
+            entry.mask
+        };
+        let s0 = (ta - te) / len;
+        let mut hit = None;
+        for i in 0..32usize {
+            if mask & (1u32 << (31 - i)) == 0 || (i as f64 + 1.0) <= s0 {
+                continue;
+            }
+            if f64::from(rng.next_f32()) < 1.0 - t_min {
+                hit = Some(i as f64 + f64::from(rng.next_f32()));
+                break;
+            }
+        }
+        let Some(sc) = hit else { continue };
+        let sc = sc.max(s0);
+        sum[4] += sun_exact(o + d * (te + sc * len));
+        let mut nrng = nominal.rng(0, 0, 0);
+        let (pp, w) = nominal.line(cell, dcell, &mut nrng);
+        let Some((c0, c1)) = unit_cube_chord(pp, w) else {
+            continue;
+        };
+        let f = if reversed { 1.0 - sc / 32.0 } else { sc / 32.0 };
+        let xu = pp + w * (c0 + (c1 - c0) * f);
+        sum[5] += sun_exact(ctx.box_min + xu * ctx.extent);
+    }
+    (
+        sum.map(|s| s / f64::from(m)),
+        parts.map(|s| s / f64::from(m)),
+    )
+}
+
 /// Ray parameter where the optical depth along `o + t d` from the box entry reaches `target`.
 fn scatter_point(ctx: &Ctx<'_>, o: DVec3, d: DVec3, target: f64) -> f64 {
     let ou = (o - ctx.box_min) / ctx.extent;
@@ -499,7 +744,7 @@ fn scatter_point(ctx: &Ctx<'_>, o: DVec3, d: DVec3, target: f64) -> f64 {
 /// of model `m` against `exact` in family `fi`. Blocks without medium (exact mean above 0.99)
 /// are left out of both RMS, and opaque blocks (exact mean below 0.02, where a relative error
 /// of a transmittance says nothing about an image) out of the relative one.
-fn errors(rows: &[[[f64; 6]; 3]], n: usize, fi: usize, m: usize) -> (f64, f64, f64) {
+fn errors(rows: &[[[f64; 6]; 5]], n: usize, fi: usize, m: usize) -> (f64, f64, f64) {
     let mean = |k: usize| rows.iter().map(|r| r[fi][k]).sum::<f64>() / rows.len() as f64;
     let me = 100.0 * (mean(m) - mean(0)) / mean(0);
     let (mut r2, mut rc, mut a2, mut ac) = (0.0, 0usize, 0.0, 0usize);

@@ -387,7 +387,8 @@ fn render_backends_agree() {
 }
 
 /// `pinrender render --reference` prints the mean and 8x8-block errors against a reference
-/// image; the lookup options (jitter, chain stride, lookup point) are accepted and checked.
+/// image; the lookup options (jitter, chain stride, lookup point, start inside) are accepted
+/// and checked.
 #[test]
 fn render_compares_with_a_reference() {
     let dir = tempfile::tempdir().unwrap();
@@ -467,13 +468,29 @@ fn render_compares_with_a_reference() {
         std::fs::read(dir.path().join("chained.exr")).unwrap(),
         std::fs::read(dir.path().join("pins.exr")).unwrap()
     );
-    // A bad strength, stride or lookup point is a usage error; a missing reference fails
-    // before rendering.
+    // Rays from inside the box looked up like the others (docs/sampling.md section 14): the
+    // scattered and shadow rays read other pins than the default's.
+    let default = |out: &str, extra: &[&str]| {
+        let mut a = vec!["--estimator", "pins", "--seed", "3"];
+        a.extend_from_slice(extra);
+        let o = run(&a, out);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        std::fs::read(dir.path().join(out)).unwrap()
+    };
+    let on = default("inside.exr", &[]);
+    assert_eq!(on, default("inside_true.exr", &["--start-inside", "true"]));
+    assert_ne!(
+        on,
+        default("inside_false.exr", &["--start-inside", "false"])
+    );
+    // A bad strength, stride, lookup point or rule is a usage error; a missing reference
+    // fails before rendering.
     for bad in [
         ["--spatial-jitter", "-1"],
         ["--chain-stride", "0"],
         ["--chain-stride", "33"],
         ["--lookup-point", "end"],
+        ["--start-inside", "maybe"],
     ] {
         let o = run(&["--estimator", "pins", bad[0], bad[1]], "bad.exr");
         assert_eq!(o.status.code(), Some(2), "{bad:?}");

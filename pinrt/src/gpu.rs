@@ -189,7 +189,9 @@ impl Params {
                 on(options.directional_jitter),
                 // Small integers, exact in f32.
                 options.stride() as f32,
-                if options.midpoint_lookup { 1.0 } else { 0.0 },
+                f32::from(
+                    u8::from(options.midpoint_lookup) | (u8::from(options.start_inside) << 1),
+                ),
             ],
             dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
             grid: [s.z_end, s.pins_per_entry, block_len, stored],
@@ -738,6 +740,24 @@ mod tests {
             &ctx,
             &polar,
             chained(32, true, true),
+        );
+        // `start_inside` (docs/sampling.md section 14): `pinrender render`'s defaults, and
+        // chained, where every piece after the first starts inside the box.
+        let inside = |o: SamplerOptions| SamplerOptions {
+            start_inside: true,
+            ..o
+        };
+        check(
+            "octahedral dense jittered middle start inside",
+            &ctx,
+            &oct,
+            inside(chained(32, true, true)),
+        );
+        check(
+            "polar sparse jittered chained 5 middle start inside",
+            &ctx,
+            &polar,
+            inside(chained(5, true, true)),
         );
     }
 

@@ -210,6 +210,7 @@ fn lanes_body(
     let spatial = opts.spatial_on();
     let directional = opts.directional_on();
     let midpoint = opts.midpoint_lookup;
+    let start_inside = opts.start_inside;
     let shape = &view.shape;
     let ppe = shape.pins_per_entry;
 
@@ -389,8 +390,15 @@ fn lanes_body(
     // `Sampler::lookup`'s point, then `lookup::spatial_cell`.
     let dims_hi = shape.dims.map(bin_limit);
     let mut cells = [[0u32; BATCH]; 3];
+    // `start_inside`: a piece that starts inside the box, at its start without spatial jitter.
+    let ls0 = if chained {
+        std::array::from_fn::<f32, BATCH, _>(|i| psegs[i].s0)
+    } else {
+        s0s
+    };
     for i in 0..BATCH {
-        let t = if midpoint {
+        let inside = start_inside && ls0[i] > 0.0;
+        let t = if midpoint && !inside {
             0.5 * (lt0[i] + lt1[i])
         } else {
             lt0[i]
@@ -399,7 +407,7 @@ fn lanes_body(
         for ax in 0..3 {
             cf[ax] = (o[ax][i] + d[ax][i] * t) * view.dims_f[ax];
         }
-        if spatial {
+        if spatial && !inside {
             for ax in 0..3 {
                 cf[ax] += (sxi[ax][i] - 0.5) * opts.spatial_jitter;
             }
@@ -660,8 +668,8 @@ mod tests {
         ]
     }
 
-    /// Lookup options the lanes serve: none, the render defaults (jitter 1/1, midpoint),
-    /// chains with and without jitter, each jitter alone.
+    /// Lookup options the lanes serve: none, the render defaults (jitter 1/1, midpoint, start
+    /// inside the box), chains with and without jitter, each jitter alone.
     fn option_sets() -> Vec<SamplerOptions> {
         let o =
             |spatial_jitter, directional_jitter, chain_stride, midpoint_lookup| SamplerOptions {
@@ -669,10 +677,19 @@ mod tests {
                 directional_jitter,
                 chain_stride,
                 midpoint_lookup,
+                start_inside: false,
             };
+        let inside = |o: SamplerOptions| SamplerOptions {
+            start_inside: true,
+            ..o
+        };
         vec![
             SamplerOptions::default(),
             o(1.0, 1.0, 32, true),
+            // `pinrender render`'s defaults, and `start_inside` chained and at the start.
+            inside(o(1.0, 1.0, 32, true)),
+            inside(o(0.7, 0.4, 5, true)),
+            inside(o(1.0, 0.0, 32, false)),
             o(0.0, 0.0, 32, true),
             o(0.0, 0.0, 5, true),
             o(0.7, 0.4, 8, false),

@@ -30,7 +30,8 @@
 //!
 //! With a stride `S < 32` the segment is cut at the chord's interval boundaries `S, 2S, ...`
 //! and each piece is one lookup as above (draws 1-6 in that order, piece after piece, at the
-//! piece's start or, with `midpoint_lookup`, its middle). Transmittance multiplies the pieces;
+//! piece's start or, with `midpoint_lookup`, its middle; with `start_inside` a piece that
+//! starts inside the box at its start without spatial jitter). Transmittance multiplies the pieces;
 //! distance sampling stops at the first piece with a collision; `query` continues after a
 //! collision with draws 1-4 only, for the transmittance. So `query`'s distance is
 //! `sample_distance`'s, but its transmittance equals `transmittance`'s only with one piece.
@@ -167,6 +168,12 @@ pub struct SamplerOptions {
     pub chain_stride: u32,
     /// Look each piece up at its midpoint instead of its start (section 12).
     pub midpoint_lookup: bool,
+    /// A piece that starts inside the box (`s0 > 0`: the ray leaves a point in the medium,
+    /// such as a shadow ray from a collision) is looked up at its start and without spatial
+    /// jitter, whatever `midpoint_lookup` says (section 14). The jitter's draws are still
+    /// made, so the draw order does not change. With chaining every piece after the first
+    /// starts inside the box.
+    pub start_inside: bool,
 }
 
 impl SamplerOptions {
@@ -424,13 +431,14 @@ impl<'g> Sampler<'g> {
         };
         let reversed = d[2] < 0.0;
         let dl = if reversed { [-d[0], -d[1], -d[2]] } else { d };
-        let t = if self.opts.midpoint_lookup {
+        let inside = self.opts.start_inside && seg.s0 > 0.0;
+        let t = if self.opts.midpoint_lookup && !inside {
             0.5 * (seg.t0 + seg.t1)
         } else {
             seg.t0
         };
         let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
-        let cell = spatial_cell(p, v, sj);
+        let cell = spatial_cell(p, v, if inside { None } else { sj });
         let dcell = direction_cell(&v.shape.directions, dl, dj);
         Prepared {
             status: status::OK,

@@ -921,6 +921,7 @@ fn chain(chain_stride: u32, midpoint_lookup: bool, jitter: f32) -> SamplerOption
         directional_jitter: jitter,
         chain_stride,
         midpoint_lookup,
+        start_inside: false,
     }
 }
 
@@ -1199,9 +1200,112 @@ fn one_cell_of_jitter_interpolates_between_cell_centres() {
     }
 }
 
+/// `docs/sampling.md` section 14: with `start_inside`, a ray that starts inside the box is
+/// looked up at its start without spatial jitter, so its expectation is the bilinear
+/// direction interpolation of the start cell's entries alone, whatever the lookup point and
+/// the spatial jitter say; a ray that starts outside the box is answered bit for bit as
+/// without the option.
+#[test]
+fn start_inside_reads_the_start_cell() {
+    let grid = PinGrid::from_bytes(
+        random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 31)
+            .to_bytes()
+            .unwrap(),
+    )
+    .unwrap();
+    let render = SamplerOptions {
+        spatial_jitter: 1.0,
+        directional_jitter: 1.0,
+        midpoint_lookup: true,
+        ..Default::default()
+    };
+    let s = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
+        start_inside: true,
+        ..render
+    });
+    let at = |midpoint_lookup| {
+        Sampler::new(&grid).unwrap().with_options(SamplerOptions {
+            midpoint_lookup,
+            ..Default::default()
+        })
+    };
+    let (start, middle) = (at(false), at(true));
+    let draws = 8192u32;
+    let mut rng = Rng::new(47);
+    let (mut caught_middle, mut caught_spatial) = (false, false);
+    for i in 0..40 {
+        let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+        let d = [
+            rng.next_f32() - 0.5,
+            rng.next_f32() - 0.5,
+            rng.next_f32() - 0.5,
+        ];
+        let ray = Ray::new(o, d);
+        let t_max = 0.2 + 2.0 * rng.next_f32();
+        let want = interpolated_with(&start, &ray, t_max, 0.5, false);
+        let got = s.mean_transmittance(&ray, t_max, draws, i);
+        let bound = 5.0 * (want * (1.0 - want) / f64::from(draws)).sqrt() + 1e-6;
+        assert!(
+            (got - want).abs() <= bound,
+            "ray {i}: mean {got} vs the start cell's {want} (bound {bound})"
+        );
+        // Mutations: the rule off (the middle, trilinear), and the start with the spatial
+        // jitter kept (trilinear around the start).
+        caught_middle |= (got - interpolated(&middle, &ray, t_max, 0.5)).abs() > bound;
+        caught_spatial |= (got - interpolated(&start, &ray, t_max, 0.5)).abs() > bound;
+    }
+    assert!(
+        caught_middle,
+        "the bound cannot tell the start from the middle"
+    );
+    assert!(
+        caught_spatial,
+        "the bound cannot tell the spatial jitter from none"
+    );
+
+    // Rays from outside the box: the same results, field for field, as without the option.
+    let plain = Sampler::new(&grid).unwrap().with_options(render);
+    let rays: Vec<RayQuery> = (0..2000)
+        .map(|_| {
+            let o = [0, 1, 2].map(|_| rng.next_f32() * 4.0 - 1.5);
+            let target = [0, 1, 2].map(|_| rng.next_f32());
+            let inside = o.iter().all(|&x| (0.0..=1.0).contains(&x));
+            let o = if inside { [-0.5, o[1], o[2]] } else { o };
+            let d = [0, 1, 2].map(|a| target[a] - o[a]);
+            RayQuery::new(
+                o,
+                d,
+                if rng.next_f32() < 0.5 {
+                    f32::INFINITY
+                } else {
+                    2.0
+                },
+            )
+        })
+        .collect();
+    let mut a = vec![QueryResult::empty_for_tests(); rays.len()];
+    let mut b = a.clone();
+    s.query_batch(&rays, 5, 0, &mut a);
+    plain.query_batch(&rays, 5, 0, &mut b);
+    assert_eq!(fingerprint(&a), fingerprint(&b));
+    assert!(a.iter().filter(|r| r.hit != 0).count() > 100);
+}
+
 /// The interpolation of [`one_cell_of_jitter_interpolates_between_cell_centres`]: `centre` is
 /// where a cell's pin sits inside it, in cells (0.5: its centre).
 fn interpolated(plain: &Sampler<'_>, ray: &Ray, t_max: f32, centre: f32) -> f64 {
+    interpolated_with(plain, ray, t_max, centre, true)
+}
+
+/// [`interpolated`], with the trilinear interpolation in space (`spatial`) or the cell of the
+/// lookup point alone.
+fn interpolated_with(
+    plain: &Sampler<'_>,
+    ray: &Ray,
+    t_max: f32,
+    centre: f32,
+    spatial: bool,
+) -> f64 {
     use crate::sampler::{NO_CELL, Prepared};
     let p: Prepared = plain.prepare(ray.origin, ray.dir, t_max, Rng::new(0));
     if p.status != status::OK {
@@ -1223,7 +1327,18 @@ fn interpolated(plain: &Sampler<'_>, ray: &Ray, t_max: f32, centre: f32) -> f64 
         let clamp = |j: f32| (j.max(0.0) as u32).min(n - 1);
         [(clamp(j0), 1.0 - f), (clamp(j0 + 1.0), f)]
     };
-    let [sx, sy, sz] = [0, 1, 2].map(|a| axis(x[a] * v.dims_f[a], v.shape.dims[a]));
+    // Without spatial interpolation: the lookup's own cell (`lookup::bin`), weight 1.
+    let own = |c: f32, n: u32| -> [(u32, f64); 2] {
+        let j = (c.floor().max(0.0) as u32).min(n - 1);
+        [(j, 1.0), (j, 0.0)]
+    };
+    let [sx, sy, sz] = [0, 1, 2].map(|a| {
+        if spatial {
+            axis(x[a] * v.dims_f[a], v.shape.dims[a])
+        } else {
+            own(x[a] * v.dims_f[a], v.shape.dims[a])
+        }
+    });
     let dl = if p.reversed {
         [-p.d[0], -p.d[1], -p.d[2]]
     } else {

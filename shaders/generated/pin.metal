@@ -696,16 +696,19 @@ QueryResult piece_query(
     float dxi0_ = 0.0;
     float dxi1_ = 0.0;
     metal::float3 dl = {};
+    bool local_12 = {};
     float t0_1 = {};
+    bool local_13 = {};
     metal::float3 c_1 = {};
+    bool local_14 = {};
     uint entry_id = NO_ENTRY;
     uint mask = 0u;
     float t_min = 1.0;
-    bool local_12 = {};
+    bool local_15 = {};
     uint block = {};
     bool present = true;
-    bool local_13 = {};
-    bool local_14 = {};
+    bool local_16 = {};
+    bool local_17 = {};
     uint part = {};
     QueryResult r_1 = {};
     float lo_1 = {};
@@ -751,146 +754,165 @@ QueryResult piece_query(
     if (reversed) {
         dl = -(d_2);
     }
-    t0_1 = seg.t0_;
-    float _e72 = G.jitter.w;
-    if (_e72 != 0.0) {
-        t0_1 = 0.5 * (seg.t0_ + seg.t1_);
-    }
-    float _e82 = t0_1;
-    float _e87 = t0_1;
-    float _e92 = t0_1;
-    metal::float3 p_2 = metal::float3(o_1.x + (d_2.x * _e82), o_1.y + (d_2.y * _e87), o_1.z + (d_2.z * _e92));
-    uint _e100 = G.dims.x;
-    uint _e107 = G.dims.y;
-    uint _e114 = G.dims.z;
-    c_1 = metal::float3(p_2.x * static_cast<float>(_e100), p_2.y * static_cast<float>(_e107), p_2.z * static_cast<float>(_e114));
-    if (sj) {
-        float _e121 = c_1.x;
-        float _e123 = sxi.x;
-        float _e129 = G.jitter.x;
-        c_1.x = _e121 + ((_e123 - 0.5) * _e129);
-        float _e134 = c_1.y;
-        float _e136 = sxi.y;
-        float _e142 = G.jitter.x;
-        c_1.y = _e134 + ((_e136 - 0.5) * _e142);
-        float _e147 = c_1.z;
-        float _e149 = sxi.z;
-        float _e155 = G.jitter.x;
-        c_1.z = _e147 + ((_e149 - 0.5) * _e155);
-    }
-    float _e159 = c_1.x;
-    uint _e163 = G.dims.x;
-    uint _e164 = bin(_e159, _e163);
-    float _e166 = c_1.y;
-    uint _e170 = G.dims.y;
-    uint _e171 = bin(_e166, _e170);
-    float _e173 = c_1.z;
-    uint _e177 = G.dims.z;
-    uint _e178 = bin(_e173, _e177);
-    metal::float3 _e179 = dl;
-    float _e183 = G.jitter.y;
-    float _e184 = dxi0_;
-    float _e185 = dxi1_;
-    uint _e186 = direction_cell(_e179, dj, _e183, _e184, _e185, G);
-    uint _e196 = G.dims.w;
-    if (_e178 >= _e196) {
-        uint _e203 = G.grid.x;
-        local_12 = _e178 < _e203;
+    float _e70 = G.jitter.w;
+    uint mode_2 = naga_f2u32(_e70);
+    if ((mode_2 & 2u) != 0u) {
+        local_12 = seg.s0_ > 0.0;
     } else {
         local_12 = false;
     }
-    bool _e206 = local_12;
-    if (_e206) {
-        uint _e210 = G.dims.x;
-        uint _e214 = G.dims.y;
-        uint _e218 = G.dims.w;
-        uint local_30 = _e164 + (_e210 * (_e171 + (_e214 * (_e178 - _e218))));
-        block = local_30;
-        uint _e230 = G.dirs.w;
-        if (_e230 != 0u) {
-            uint _e235 = G_INDEX_BASE;
-            uint _e238 = cell_index[_e235 + local_30];
-            block = _e238;
-            uint _e239 = block;
-            if (_e239 != EMPTY_CELL) {
-                uint _e244 = block;
-                uint _e248 = G.grid.w;
-                local_13 = _e244 < _e248;
+    bool inside = local_12;
+    t0_1 = seg.t0_;
+    if ((mode_2 & 1u) != 0u) {
+        local_13 = !(inside);
+    } else {
+        local_13 = false;
+    }
+    bool _e93 = local_13;
+    if (_e93) {
+        t0_1 = 0.5 * (seg.t0_ + seg.t1_);
+    }
+    float _e101 = t0_1;
+    float _e106 = t0_1;
+    float _e111 = t0_1;
+    metal::float3 p_2 = metal::float3(o_1.x + (d_2.x * _e101), o_1.y + (d_2.y * _e106), o_1.z + (d_2.z * _e111));
+    uint _e119 = G.dims.x;
+    uint _e126 = G.dims.y;
+    uint _e133 = G.dims.z;
+    c_1 = metal::float3(p_2.x * static_cast<float>(_e119), p_2.y * static_cast<float>(_e126), p_2.z * static_cast<float>(_e133));
+    if (sj) {
+        local_14 = !(inside);
+    } else {
+        local_14 = false;
+    }
+    bool _e142 = local_14;
+    if (_e142) {
+        float _e145 = c_1.x;
+        float _e147 = sxi.x;
+        float _e153 = G.jitter.x;
+        c_1.x = _e145 + ((_e147 - 0.5) * _e153);
+        float _e158 = c_1.y;
+        float _e160 = sxi.y;
+        float _e166 = G.jitter.x;
+        c_1.y = _e158 + ((_e160 - 0.5) * _e166);
+        float _e171 = c_1.z;
+        float _e173 = sxi.z;
+        float _e179 = G.jitter.x;
+        c_1.z = _e171 + ((_e173 - 0.5) * _e179);
+    }
+    float _e183 = c_1.x;
+    uint _e187 = G.dims.x;
+    uint _e188 = bin(_e183, _e187);
+    float _e190 = c_1.y;
+    uint _e194 = G.dims.y;
+    uint _e195 = bin(_e190, _e194);
+    float _e197 = c_1.z;
+    uint _e201 = G.dims.z;
+    uint _e202 = bin(_e197, _e201);
+    metal::float3 _e203 = dl;
+    float _e207 = G.jitter.y;
+    float _e208 = dxi0_;
+    float _e209 = dxi1_;
+    uint _e210 = direction_cell(_e203, dj, _e207, _e208, _e209, G);
+    uint _e220 = G.dims.w;
+    if (_e202 >= _e220) {
+        uint _e227 = G.grid.x;
+        local_15 = _e202 < _e227;
+    } else {
+        local_15 = false;
+    }
+    bool _e230 = local_15;
+    if (_e230) {
+        uint _e234 = G.dims.x;
+        uint _e238 = G.dims.y;
+        uint _e242 = G.dims.w;
+        uint local_33 = _e188 + (_e234 * (_e195 + (_e238 * (_e202 - _e242))));
+        block = local_33;
+        uint _e254 = G.dirs.w;
+        if (_e254 != 0u) {
+            uint _e259 = G_INDEX_BASE;
+            uint _e262 = cell_index[_e259 + local_33];
+            block = _e262;
+            uint _e263 = block;
+            if (_e263 != EMPTY_CELL) {
+                uint _e268 = block;
+                uint _e272 = G.grid.w;
+                local_16 = _e268 < _e272;
             } else {
-                local_13 = false;
+                local_16 = false;
             }
-            bool _e251 = local_13;
-            present = _e251;
+            bool _e275 = local_16;
+            present = _e275;
         }
-        uint within = (_e186 * ppe) + k_1;
-        bool _e254 = present;
-        if (_e254) {
-            uint _e260 = G.grid.z;
-            local_14 = within < _e260;
+        uint within = (_e210 * ppe) + k_1;
+        bool _e278 = present;
+        if (_e278) {
+            uint _e284 = G.grid.z;
+            local_17 = within < _e284;
         } else {
-            local_14 = false;
+            local_17 = false;
         }
-        bool _e263 = local_14;
-        if (_e263) {
-            uint _e264 = block;
-            uint _e268 = G.grid.z;
-            entry_id = (_e264 * _e268) + within;
-            uint _e273 = G_PIN_BASE;
-            uint _e274 = entry_id;
-            metal::uint2 e = pins[_e273 + _e274];
+        bool _e287 = local_17;
+        if (_e287) {
+            uint _e288 = block;
+            uint _e292 = G.grid.z;
+            entry_id = (_e288 * _e292) + within;
+            uint _e297 = G_PIN_BASE;
+            uint _e298 = entry_id;
+            metal::uint2 e = pins[_e297 + _e298];
             mask = e.x;
             t_min = as_type<float>(e.y);
         }
     }
-    float _e281 = rng_f32_(rng_state);
-    float _e282 = rng_f32_(rng_state);
-    float _e283 = t_min;
-    float _e284 = sanitize_t_min(_e283);
-    t_min = _e284;
+    float _e305 = rng_f32_(rng_state);
+    float _e306 = rng_f32_(rng_state);
+    float _e307 = t_min;
+    float _e308 = sanitize_t_min(_e307);
+    t_min = _e308;
     if (reversed) {
-        uint _e285 = mask;
-        mask = metal::reverse_bits(_e285);
+        uint _e309 = mask;
+        mask = metal::reverse_bits(_e309);
     }
-    uint _e289 = interval_range(seg.a, seg.b);
-    part = _e289;
+    uint _e313 = interval_range(seg.a, seg.b);
+    part = _e313;
     if (seg.a == seg.b) {
-        if (!((_e281 < (seg.s1_ - seg.s0_)))) {
+        if (!((_e305 < (seg.s1_ - seg.s0_)))) {
             part = 0u;
         }
     } else {
-        if (!((_e281 < (static_cast<float>(seg.a + 1u) - seg.s0_)))) {
-            uint _e308 = part;
-            uint _e310 = interval_bit(seg.a);
-            part = _e308 & ~(_e310);
+        if (!((_e305 < (static_cast<float>(seg.a + 1u) - seg.s0_)))) {
+            uint _e332 = part;
+            uint _e334 = interval_bit(seg.a);
+            part = _e332 & ~(_e334);
         }
-        if (!((_e282 < (seg.s1_ - static_cast<float>(seg.b))))) {
-            uint _e319 = part;
-            uint _e321 = interval_bit(seg.b);
-            part = _e319 & ~(_e321);
+        if (!((_e306 < (seg.s1_ - static_cast<float>(seg.b))))) {
+            uint _e343 = part;
+            uint _e345 = interval_bit(seg.b);
+            part = _e343 & ~(_e345);
         }
     }
-    uint _e324 = mask;
-    uint _e325 = part;
-    uint popcount = metal::popcount(_e324 & _e325);
-    uint _e329 = inf_bits;
-    uint _e332 = entry_id;
-    r_1 = QueryResult {as_type<float>(_e329), 1.0, 0u, _e332, popcount, NO_INTERVAL, STATUS_OK, 0u};
-    if (want_transmittance) {
-        float _e340 = t_min;
-        float _e341 = pow_int(_e340, popcount);
-        r_1.transmittance = _e341;
-    }
-    if (transmittance_only) {
-        uint _e344 = rng_state;
-        r_1.rng_state = _e344;
-        QueryResult _e345 = r_1;
-        return _e345;
-    }
-    float _e346 = t_min;
-    uint _e347 = exact_sample_mask(_e346, rng_state);
     uint _e348 = mask;
     uint _e349 = part;
-    uint m = (_e348 & _e349) & _e347;
+    uint popcount = metal::popcount(_e348 & _e349);
+    uint _e353 = inf_bits;
+    uint _e356 = entry_id;
+    r_1 = QueryResult {as_type<float>(_e353), 1.0, 0u, _e356, popcount, NO_INTERVAL, STATUS_OK, 0u};
+    if (want_transmittance) {
+        float _e364 = t_min;
+        float _e365 = pow_int(_e364, popcount);
+        r_1.transmittance = _e365;
+    }
+    if (transmittance_only) {
+        uint _e368 = rng_state;
+        r_1.rng_state = _e368;
+        QueryResult _e369 = r_1;
+        return _e369;
+    }
+    float _e370 = t_min;
+    uint _e371 = exact_sample_mask(_e370, rng_state);
+    uint _e372 = mask;
+    uint _e373 = part;
+    uint m = (_e372 & _e373) & _e371;
     if (m != 0u) {
         uint j_3 = metal::clz(m);
         lo_1 = static_cast<float>(j_3);
@@ -901,29 +923,29 @@ QueryResult piece_query(
         if (j_3 == seg.b) {
             hi_1 = seg.s1_;
         }
-        float _e367 = rng_f32_(rng_state);
-        float _e368 = lo_1;
-        float _e369 = hi_1;
-        float _e370 = lo_1;
-        float s_2 = _e368 + (_e367 * (_e369 - _e370));
+        float _e391 = rng_f32_(rng_state);
+        float _e392 = lo_1;
+        float _e393 = hi_1;
+        float _e394 = lo_1;
+        float s_2 = _e392 + (_e391 * (_e393 - _e394));
         t_2 = seg.t_enter + (s_2 * seg.interval_len);
-        float _e379 = t_2;
-        if (!((_e379 > seg.t0_))) {
+        float _e403 = t_2;
+        if (!((_e403 > seg.t0_))) {
             t_2 = seg.t0_;
         }
-        float _e384 = t_2;
-        if (!((_e384 < seg.t1_))) {
+        float _e408 = t_2;
+        if (!((_e408 < seg.t1_))) {
             t_2 = seg.t1_;
         }
-        float _e390 = t_2;
-        r_1.distance = _e390;
+        float _e414 = t_2;
+        r_1.distance = _e414;
         r_1.hit = 1u;
         r_1.interval = j_3;
     }
-    uint _e396 = rng_state;
-    r_1.rng_state = _e396;
-    QueryResult _e397 = r_1;
-    return _e397;
+    uint _e420 = rng_state;
+    r_1.rng_state = _e420;
+    QueryResult _e421 = r_1;
+    return _e421;
 }
 
 Segment piece_of(
@@ -982,87 +1004,87 @@ QueryResult query_mode(
     thread uint& rng_state,
     constant _mslBufferSizes& _buffer_sizes
 ) {
-    bool local_15 = {};
-    bool local_16 = {};
-    bool local_17 = {};
     bool local_18 = {};
     bool local_19 = {};
     bool local_20 = {};
     bool local_21 = {};
     bool local_22 = {};
     bool local_23 = {};
-    uint stride_1 = {};
     bool local_24 = {};
-    uint piece = {};
-    QueryResult r_2 = {};
     bool local_25 = {};
     bool local_26 = {};
+    uint stride_1 = {};
     bool local_27 = {};
+    uint piece = {};
+    QueryResult r_2 = {};
     bool local_28 = {};
     bool local_29 = {};
+    bool local_30 = {};
+    bool local_31 = {};
+    bool local_32 = {};
     metal::float3 _e3 = xf_point(ray.origin, G);
     metal::float3 _e5 = xf_vector(ray.dir, G);
     bool _e7 = is_finite_bits(_e3.x);
     if (_e7) {
         bool _e11 = is_finite_bits(_e3.y);
-        local_15 = _e11;
-    } else {
-        local_15 = false;
-    }
-    bool _e13 = local_15;
-    if (_e13) {
-        bool _e17 = is_finite_bits(_e3.z);
-        local_16 = _e17;
-    } else {
-        local_16 = false;
-    }
-    bool _e19 = local_16;
-    if (_e19) {
-        bool _e23 = is_finite_bits(_e5.x);
-        local_17 = _e23;
-    } else {
-        local_17 = false;
-    }
-    bool _e25 = local_17;
-    if (_e25) {
-        bool _e29 = is_finite_bits(_e5.y);
-        local_18 = _e29;
+        local_18 = _e11;
     } else {
         local_18 = false;
     }
-    bool _e31 = local_18;
-    if (_e31) {
-        bool _e35 = is_finite_bits(_e5.z);
-        local_19 = _e35;
+    bool _e13 = local_18;
+    if (_e13) {
+        bool _e17 = is_finite_bits(_e3.z);
+        local_19 = _e17;
     } else {
         local_19 = false;
     }
-    bool finite = local_19;
+    bool _e19 = local_19;
+    if (_e19) {
+        bool _e23 = is_finite_bits(_e5.x);
+        local_20 = _e23;
+    } else {
+        local_20 = false;
+    }
+    bool _e25 = local_20;
+    if (_e25) {
+        bool _e29 = is_finite_bits(_e5.y);
+        local_21 = _e29;
+    } else {
+        local_21 = false;
+    }
+    bool _e31 = local_21;
+    if (_e31) {
+        bool _e35 = is_finite_bits(_e5.z);
+        local_22 = _e35;
+    } else {
+        local_22 = false;
+    }
+    bool finite = local_22;
     bool nan_tmax = (as_type<uint>(ray.t_max) & 2147483647u) > 2139095040u;
     if (!(!(finite))) {
-        local_20 = nan_tmax;
+        local_23 = nan_tmax;
     } else {
-        local_20 = true;
+        local_23 = true;
     }
-    bool _e49 = local_20;
+    bool _e49 = local_23;
     if (!(_e49)) {
         if (_e5.x == 0.0) {
-            local_22 = _e5.y == 0.0;
+            local_25 = _e5.y == 0.0;
         } else {
-            local_22 = false;
+            local_25 = false;
         }
-        bool _e62 = local_22;
+        bool _e62 = local_25;
         if (_e62) {
-            local_23 = _e5.z == 0.0;
+            local_26 = _e5.z == 0.0;
         } else {
-            local_23 = false;
+            local_26 = false;
         }
-        bool _e69 = local_23;
-        local_21 = _e69;
+        bool _e69 = local_26;
+        local_24 = _e69;
     } else {
-        local_21 = true;
+        local_24 = true;
     }
-    bool _e71 = local_21;
+    bool _e71 = local_24;
     if (_e71) {
         QueryResult _e73 = empty_result(STATUS_INVALID, inf_bits, rng_state);
         return _e73;
@@ -1082,11 +1104,11 @@ QueryResult query_mode(
     uint _e91 = stride_1;
     if (!((_e91 == 0u))) {
         uint _e97 = stride_1;
-        local_24 = _e97 > 32u;
+        local_27 = _e97 > 32u;
     } else {
-        local_24 = true;
+        local_27 = true;
     }
-    bool _e101 = local_24;
+    bool _e101 = local_27;
     if (_e101) {
         stride_1 = 32u;
     }
@@ -1108,16 +1130,16 @@ QueryResult query_mode(
         if (!((_e118.b >= _e80.b))) {
             if (mode == MODE_DISTANCE) {
                 uint _e130 = r_2.hit;
-                local_26 = _e130 != 0u;
+                local_29 = _e130 != 0u;
             } else {
-                local_26 = false;
+                local_29 = false;
             }
-            bool _e134 = local_26;
-            local_25 = _e134;
+            bool _e134 = local_29;
+            local_28 = _e134;
         } else {
-            local_25 = true;
+            local_28 = true;
         }
-        bool _e136 = local_25;
+        bool _e136 = local_28;
         if (_e136) {
             break;
         }
@@ -1126,16 +1148,16 @@ QueryResult query_mode(
         if (!((mode == MODE_TRANSMITTANCE))) {
             if (mode == MODE_BOTH) {
                 uint _e150 = r_2.hit;
-                local_28 = _e150 != 0u;
+                local_31 = _e150 != 0u;
             } else {
-                local_28 = false;
+                local_31 = false;
             }
-            bool _e154 = local_28;
-            local_27 = _e154;
+            bool _e154 = local_31;
+            local_30 = _e154;
         } else {
-            local_27 = true;
+            local_30 = true;
         }
-        bool skip_d = local_27;
+        bool skip_d = local_30;
         uint _e157 = piece;
         uint _e158 = stride_1;
         Segment _e159 = piece_of(_e80, _e157, _e158);
@@ -1146,11 +1168,11 @@ QueryResult query_mode(
         r_2.popcount = _e168 + _e160.popcount;
         uint _e172 = r_2.hit;
         if (_e172 == 0u) {
-            local_29 = _e160.hit != 0u;
+            local_32 = _e160.hit != 0u;
         } else {
-            local_29 = false;
+            local_32 = false;
         }
-        bool _e181 = local_29;
+        bool _e181 = local_32;
         if (_e181) {
             r_2.hit = 1u;
             r_2.distance = _e160.distance;

@@ -135,6 +135,11 @@ pub struct RenderArgs {
     /// Pins: where each lookup reads its cell: `start` or `middle` of its piece of the ray.
     #[arg(long, default_value = if DEFAULT_LOOKUP.midpoint_lookup { "middle" } else { "start" }, value_parser = ["start", "middle"])]
     pub lookup_point: String,
+    /// Pins: look a ray that starts inside the volume's box (a shadow or scattered ray from a
+    /// collision) up at its start and without spatial jitter, whatever --lookup-point says
+    /// (docs/sampling.md section 14): `true` or `false`.
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.start_inside, action = clap::ArgAction::Set)]
+    pub start_inside: bool,
     /// Compare with this converged image (EXR of the same size) and print the mean error and
     /// the 8x8-block rms error (relative; see `docs/evaluation.md`).
     #[arg(long)]
@@ -144,12 +149,14 @@ pub struct RenderArgs {
 /// The lookup options `pinrender render` (and `pinrender eval`'s pins) use unless told
 /// otherwise: one cell of jitter (`docs/sampling.md` section 11) and one lookup per query at
 /// the middle of the segment, which beat chained lookups at their cost on the renders of
-/// `docs/evaluation.md` ("Chained lookups and the lookup point").
+/// `docs/evaluation.md` ("Chained lookups and the lookup point"); a ray that starts inside
+/// the box at its start without spatial jitter (`docs/sampling.md` section 14).
 pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions {
     spatial_jitter: 1.0,
     directional_jitter: 1.0,
     chain_stride: 32,
     midpoint_lookup: true,
+    start_inside: true,
 };
 
 fn parse_jitter(s: &str) -> Result<f32, String> {
@@ -167,6 +174,7 @@ impl RenderArgs {
             directional_jitter: self.directional_jitter,
             chain_stride: self.chain_stride,
             midpoint_lookup: self.lookup_point == "middle",
+            start_inside: self.start_inside,
         }
     }
 }
