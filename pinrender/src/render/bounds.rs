@@ -152,6 +152,28 @@ impl MediaBoxes {
     }
 }
 
+/// The boxes of `entry[..n]` ([`MediaBoxes::entries`]) that the ray meets, by entry, into
+/// `order[..k]`; returns `k`. An insertion sort (a handful of boxes), stable: ties keep the
+/// media order. The order in which the tracer's nearest-collision search asks the media.
+#[inline]
+pub(crate) fn met_by_entry(entry: &[f32; CHUNK], n: usize, order: &mut [u8; CHUNK]) -> usize {
+    let mut k = 0usize;
+    for i in 0..n {
+        let e = entry[i];
+        if e == MISS {
+            continue;
+        }
+        let mut j = k;
+        while j > 0 && entry[order[j - 1] as usize] > e {
+            order[j] = order[j - 1];
+            j -= 1;
+        }
+        order[j] = i as u8;
+        k += 1;
+    }
+    k
+}
+
 /// A ray prepared for many box tests: origin and per-axis reciprocal direction (`+-inf` on
 /// a parallel axis).
 #[derive(Clone, Copy, Debug)]

@@ -39,6 +39,12 @@ pub trait TransportEstimator: Send + Sync {
         None
     }
 
+    /// This estimator as a placed pin grid, if it is one: the wavefront loop answers the
+    /// queries of several media that share one grid (instances) in one batch through it.
+    fn as_pins(&self) -> Option<&super::PinsEstimator> {
+        None
+    }
+
     /// Transmittance estimates of many rays `rays[i] = [o, d]` over `[0, t_max]`, ray `i`
     /// drawing from `rngs[i]`: what [`Self::transmittance`] returns for each ray and its
     /// generator, and the generators left as it leaves them (the wavefront renderer relies

@@ -1,7 +1,7 @@
 //! The volumetric path tracer: camera, lights, media instances, the render loop.
 
 use super::RenderError;
-use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs};
+use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
 use super::estimator::TransportEstimator;
 use super::image::Image;
 use super::phase::{hg_phase, sample_hg};
@@ -199,7 +199,7 @@ pub(crate) struct Ctx<'a> {
     pub(crate) media: &'a [Medium],
     /// `boxes[Which as usize]`: the world boxes of the media's primary / secondary
     /// estimators (see [`super::bounds`]).
-    boxes: [MediaBoxes; 2],
+    pub(crate) boxes: [MediaBoxes; 2],
     pub(crate) sun: Option<(Vec3, Vec3)>,
     pub(crate) env: Option<Vec3>,
     pub(crate) albedo: f32,
@@ -274,7 +274,7 @@ impl Scene {
 }
 
 impl Ctx<'_> {
-    fn est(m: &Medium, which: Which) -> &dyn TransportEstimator {
+    pub(crate) fn est(m: &Medium, which: Which) -> &dyn TransportEstimator {
         match which {
             Which::Primary => &*m.primary,
             Which::Secondary => &*m.secondary,
@@ -363,21 +363,7 @@ impl Ctx<'_> {
         let mut order = [0u8; CHUNK];
         for start in (0..media.len()).step_by(CHUNK) {
             let n = boxes.entries(start, &ray, best, &mut entry);
-            // Indices of the boxes met, by entry (insertion sort: a handful of them).
-            let mut k = 0usize;
-            for i in 0..n {
-                let e = entry[i];
-                if e == MISS {
-                    continue;
-                }
-                let mut j = k;
-                while j > 0 && entry[order[j - 1] as usize] > e {
-                    order[j] = order[j - 1];
-                    j -= 1;
-                }
-                order[j] = i as u8;
-                k += 1;
-            }
+            let k = met_by_entry(&entry, n, &mut order);
             for &i in &order[..k] {
                 if entry[i as usize] > best {
                     break;
