@@ -2,8 +2,9 @@
 
 use std::sync::Arc;
 
+use bytemuck::Zeroable;
 use glam::Vec3;
-use pinrt::{PinGrid, Ray, RayQuery, Rng, Sampler, SamplerOptions, UnitTransform};
+use pinrt::{PinGrid, QueryResult, Ray, RayQuery, Rng, Sampler, SamplerOptions, UnitTransform};
 
 use super::{Pcg32, RenderError, TransportEstimator};
 
@@ -75,6 +76,9 @@ thread_local! {
     /// [`pin_queries`]' buffers.
     static QUERIES: std::cell::RefCell<(Vec<RayQuery>, Vec<Rng>)> =
         const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+    /// The results of a batch of both queries.
+    static RESULTS: std::cell::RefCell<Vec<QueryResult>> =
+        const { std::cell::RefCell::new(Vec::new()) };
 }
 
 impl TransportEstimator for PinsEstimator {
@@ -112,6 +116,40 @@ impl TransportEstimator for PinsEstimator {
             pin_queries(rays, t_max, rngs, s);
             self.sampler()
                 .sample_distance_batch_rngs(&s.0, &mut s.1, out);
+        });
+    }
+    /// One lookup for both ([`Sampler::query`]): the transmittance of the participating
+    /// intervals and a collision among them, from one pin and one set of draws.
+    fn transmittance_and_distance(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        let mut r = query_rng(rng);
+        let q = self
+            .sampler()
+            .query(&Ray::new(o.to_array(), d.to_array()), t_max, &mut r);
+        (q.transmittance, q.collision())
+    }
+    fn transmittance_and_distance_batch(
+        &self,
+        rays: &[[Vec3; 2]],
+        t_max: f32,
+        rngs: &mut [Pcg32],
+        out: &mut [(f32, Option<f32>)],
+    ) {
+        QUERIES.with_borrow_mut(|s| {
+            pin_queries(rays, t_max, rngs, s);
+            RESULTS.with_borrow_mut(|res| {
+                res.clear();
+                res.resize(rays.len(), QueryResult::zeroed());
+                self.sampler().query_batch_rngs(&s.0, &mut s.1, res);
+                for (o, q) in out.iter_mut().zip(res.iter()) {
+                    *o = (q.transmittance, q.collision());
+                }
+            });
         });
     }
     fn name(&self) -> String {
@@ -397,6 +435,64 @@ mod tests {
         }
         // Not only misses: most rays meet a grid, many collide.
         assert!(met > 200 && hits > 100, "{met} met, {hits} hits");
+    }
+
+    /// Both queries of one ray from one lookup: single and batched, the answer is the
+    /// sampler's `query` (one pin generator from two path draws), whose transmittance and
+    /// collision are, without chained lookups, those of the separate queries seeded alike.
+    #[test]
+    fn both_queries_from_one_lookup() {
+        let owned = random_grid(
+            pin_format::Directions::THESIS_DEFAULT,
+            [4, 3, 5],
+            2,
+            true,
+            8,
+        );
+        let grid = Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap());
+        for opts in [
+            SamplerOptions::default(),
+            SamplerOptions {
+                spatial_jitter: 1.0,
+                directional_jitter: 1.0,
+                chain_stride: 32,
+                midpoint_lookup: true,
+            },
+        ] {
+            let est = PinsEstimator::new(grid.clone(), None, opts).unwrap();
+            let mut g = Pcg32::new(5, 6);
+            let mut rays = Vec::new();
+            for _ in 0..300 {
+                let mut p = || Vec3::new(g.next_f32(), g.next_f32(), g.next_f32());
+                let o = p() * 3.0 - 1.0;
+                let d = (p() - o).normalize_or(Vec3::Z);
+                rays.push([o, d]);
+            }
+            let mut rngs: Vec<Pcg32> = (0..rays.len() as u64).map(|i| Pcg32::new(i, 2)).collect();
+            let mut batch = vec![(0.0, None); rays.len()];
+            est.transmittance_and_distance_batch(&rays, f32::INFINITY, &mut rngs, &mut batch);
+            let (mut met, mut hits) = (0, 0);
+            for (i, r) in rays.iter().enumerate() {
+                let mut p = Pcg32::new(i as u64, 2);
+                let (mut a, mut b) = (p.clone(), p.clone());
+                let (t, hit) = est.transmittance_and_distance(r[0], r[1], f32::INFINITY, &mut p);
+                assert_eq!(
+                    (t.to_bits(), hit),
+                    (batch[i].0.to_bits(), batch[i].1),
+                    "{i}"
+                );
+                assert_eq!(p.next_u32(), rngs[i].next_u32());
+                assert_eq!(
+                    t.to_bits(),
+                    est.transmittance(r[0], r[1], f32::INFINITY, &mut a)
+                        .to_bits()
+                );
+                assert_eq!(hit, est.sample_distance(r[0], r[1], f32::INFINITY, &mut b));
+                met += usize::from(t != 1.0);
+                hits += usize::from(hit.is_some());
+            }
+            assert!(met > 50 && hits > 20, "{met} met, {hits} hits");
+        }
     }
 
     /// The estimator answers exactly as a sampler borrowed from the grid with the same

@@ -205,6 +205,9 @@ pub(crate) struct Ctx<'a> {
     pub(crate) albedo: f32,
     pub(crate) g: f32,
     pub(crate) max_bounces: u32,
+    /// One medium whose primary and secondary estimators are the same object: a query
+    /// pair along one ray may mix the two roles ([`Ctx::paired`]).
+    same_roles: bool,
 }
 
 impl Scene {
@@ -257,6 +260,10 @@ impl Scene {
             },
             g: self.g,
             max_bounces,
+            same_roles: match &self.media[..] {
+                [m] => std::ptr::addr_eq(Arc::as_ptr(&m.primary), Arc::as_ptr(&m.secondary)),
+                _ => false,
+            },
         }
     }
 
@@ -332,6 +339,32 @@ impl Ctx<'_> {
         let mut entry = [MISS; CHUNK];
         self.boxes[which as usize].entries(0, &ray, f32::INFINITY, &mut entry);
         entry[0] != MISS
+    }
+
+    /// Whether a transmittance query of role `t_role` and a distance query of role `d_role`
+    /// along one ray go to [`Ctx::transmittance_and_distance`]: with one medium, whose
+    /// estimator for both roles is the same. (With several media the product and the
+    /// nearest-collision search ask different media over different segments.)
+    #[inline]
+    pub(crate) fn paired(&self, t_role: Which, d_role: Which) -> bool {
+        self.media.len() == 1 && (t_role == d_role || self.same_roles)
+    }
+
+    /// The one medium's [`TransportEstimator::transmittance_and_distance`] for the ray
+    /// `o + t d` (a [`Ctx::paired`] pair of roles), after the box test of
+    /// `transmittance` and `distance`: a ray that misses the box draws nothing.
+    #[inline]
+    pub(crate) fn transmittance_and_distance(
+        &self,
+        t_role: Which,
+        o: Vec3,
+        d: Vec3,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        if !self.single_medium_asked(t_role, o, d) {
+            return (1.0, None);
+        }
+        Self::est(&self.media[0], t_role).transmittance_and_distance(o, d, f32::INFINITY, rng)
     }
 
     /// Nearest collision over the instances. Each later instance only searches up to the
@@ -412,10 +445,16 @@ impl Ctx<'_> {
         if !o.is_finite() || d == Vec3::ZERO {
             return (l, None);
         }
+        let scatters = !(self.albedo <= 0.0 || self.max_bounces == 0);
         if let Some(env) = self.env {
+            if scatters && self.paired(Which::Primary, Which::Primary) {
+                let (tr, hit) = self.transmittance_and_distance(Which::Primary, o, d, rng);
+                l += env * tr;
+                return (l, hit.map(|t| (o + d * t, d, t)));
+            }
             l += env * self.transmittance(Which::Primary, o, d, rng);
         }
-        if self.albedo <= 0.0 || self.max_bounces == 0 {
+        if !scatters {
             return (l, None);
         }
         let Some(t) = self.distance(Which::Primary, o, d, rng) else {
@@ -464,13 +503,24 @@ impl Ctx<'_> {
                 }
             }
             let w = sample_hg(dir, self.g, rng.next_f32(), rng.next_f32());
-            if let Some(env) = self.env {
-                l += env * (beta * self.transmittance(shadow, x, w, rng));
-            }
-            if depth >= self.max_bounces {
-                break;
-            }
-            let Some(t) = self.distance(Which::Secondary, x, w, rng) else {
+            let last = depth >= self.max_bounces;
+            let hit = match self.env {
+                Some(env) if !last && self.paired(shadow, Which::Secondary) => {
+                    let (tr, hit) = self.transmittance_and_distance(shadow, x, w, rng);
+                    l += env * (beta * tr);
+                    hit
+                }
+                env => {
+                    if let Some(env) = env {
+                        l += env * (beta * self.transmittance(shadow, x, w, rng));
+                    }
+                    if last {
+                        break;
+                    }
+                    self.distance(Which::Secondary, x, w, rng)
+                }
+            };
+            let Some(t) = hit else {
                 break;
             };
             x += w * t;

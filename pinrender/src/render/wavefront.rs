@@ -49,6 +49,9 @@ enum Stage {
 enum Kind {
     Transmittance,
     Distance,
+    /// Both along one ray ([`Ctx::transmittance_and_distance`]): the camera ray, or a
+    /// vertex's environment ray that the path continues along.
+    Both,
 }
 
 /// One path of the tile.
@@ -113,8 +116,14 @@ impl Ctx<'_> {
             match p.stage {
                 Stage::CameraT => {
                     if self.env.is_some() {
+                        let scatters = !(self.albedo <= 0.0 || self.max_bounces == 0);
+                        let both = scatters && self.paired(Which::Primary, Which::Primary);
                         return Some(Query {
-                            kind: Kind::Transmittance,
+                            kind: if both {
+                                Kind::Both
+                            } else {
+                                Kind::Transmittance
+                            },
                             which: Which::Primary,
                             o: p.x,
                             d: p.dir,
@@ -152,9 +161,16 @@ impl Ctx<'_> {
                 }
                 Stage::Env => {
                     if self.env.is_some() {
+                        let which = Self::shadow_role(p.depth);
+                        let both =
+                            p.depth < self.max_bounces && self.paired(which, Which::Secondary);
                         return Some(Query {
-                            kind: Kind::Transmittance,
-                            which: Self::shadow_role(p.depth),
+                            kind: if both {
+                                Kind::Both
+                            } else {
+                                Kind::Transmittance
+                            },
+                            which,
                             o: p.x,
                             d: p.w,
                         });
@@ -176,6 +192,13 @@ impl Ctx<'_> {
                 Stage::Done => return None,
             }
         }
+    }
+
+    /// Takes the answer of a [`Kind::Both`] query: the transmittance's, which moves the
+    /// path on to the distance query's stage, then the distance's.
+    fn answer_both(&self, p: &mut Path, t: f32, hit: Option<f32>) {
+        self.answer(p, t, None);
+        self.answer(p, 1.0, hit);
     }
 
     /// Takes the answer of the query `advance` returned.
@@ -265,7 +288,7 @@ impl Ctx<'_> {
                 b.rays.push([q.o, q.d]);
                 b.rngs.push(paths[i].rng.clone());
             }
-            for kind in [Kind::Transmittance, Kind::Distance] {
+            for kind in [Kind::Transmittance, Kind::Distance, Kind::Both] {
                 for which in [Which::Primary, Which::Secondary] {
                     let b = &mut scratch.batches[batch_of(kind, which)];
                     if b.ids.is_empty() {
@@ -297,6 +320,22 @@ impl Ctx<'_> {
                                 let p = &mut paths[b.ids[k]];
                                 p.rng = b.rngs[k].clone();
                                 self.answer(p, 1.0, b.d[k]);
+                            }
+                        }
+                        Kind::Both => {
+                            b.td.clear();
+                            b.td.resize(n, (1.0, None));
+                            est.transmittance_and_distance_batch(
+                                &b.rays,
+                                f32::INFINITY,
+                                &mut b.rngs,
+                                &mut b.td,
+                            );
+                            for k in 0..n {
+                                let p = &mut paths[b.ids[k]];
+                                p.rng = b.rngs[k].clone();
+                                let (t, hit) = b.td[k];
+                                self.answer_both(p, t, hit);
                             }
                         }
                     }
@@ -331,6 +370,11 @@ impl Ctx<'_> {
                 (Kind::Distance, false) => {
                     let hit = self.distance(q.which, q.o, q.d, &mut p.rng);
                     self.answer(p, 1.0, hit);
+                }
+                (Kind::Both, _) => {
+                    // Only with one medium (`Ctx::paired`), which never comes here.
+                    let (t, hit) = self.transmittance_and_distance(q.which, q.o, q.d, &mut p.rng);
+                    self.answer_both(p, t, hit);
                 }
                 (Kind::Transmittance, true) => {
                     let r = &mut m.roles[role];
@@ -547,7 +591,7 @@ struct MediaScratch {
 /// The batch of a (query kind, estimator role) in [`Scratch::batches`].
 #[inline]
 fn batch_of(kind: Kind, which: Which) -> usize {
-    2 * (kind == Kind::Distance) as usize + which as usize
+    2 * kind as usize + which as usize
 }
 
 /// One round's queries of one (kind, role), in path order.
@@ -558,6 +602,7 @@ struct Batch {
     rngs: Vec<Pcg32>,
     t: Vec<f32>,
     d: Vec<Option<f32>>,
+    td: Vec<(f32, Option<f32>)>,
 }
 
 /// Buffers reused across the rounds of a tile.
@@ -566,7 +611,7 @@ struct Scratch {
     /// The paths not yet done, in path order.
     live: Vec<usize>,
     waiting: Vec<(usize, Query)>,
-    batches: [Batch; 4],
+    batches: [Batch; 6],
     media: MediaScratch,
 }
 
