@@ -11,9 +11,18 @@
 //! paths share a round cannot change a path's numbers. Per-pixel sums run in sample order, as
 //! in `render`. The tests compare whole images for several batch sizes against `render`.
 //!
-//! Scenes with more than one medium are traced the same way, but their queries go through
-//! `Ctx`'s per-ray product and nearest-collision search (one query at a time): batching pays
-//! where one medium answers every query.
+//! Scenes with more than one medium are traced the same way. Where the media of an estimator
+//! role are instances of one pin grid ([`SharedPins`]), each query is split into one query
+//! per medium asked, in the order and with the path draws of `Ctx::transmittance` (every
+//! medium met, all in one batch) and `Ctx::distance` (one medium per path and sub-round,
+//! since each asks only up to the nearest collision so far), and the queries of all paths
+//! and media go through one batch. Other multi-medium queries go through `Ctx`'s product and
+//! nearest-collision search one at a time.
+//!
+//! Where a path needs a transmittance and a distance along the same ray (the camera ray; a
+//! vertex's environment ray, which the path then continues along) and one estimator answers
+//! both, the two are one query ([`Kind::Both`], `Ctx::transmittance_and_distance`), as in
+//! `Ctx::trace`.
 
 use glam::Vec3;
 use std::time::Instant;
@@ -253,7 +262,7 @@ impl Ctx<'_> {
 
     /// Advances every path of `paths` to its end, answering each round's queries per
     /// (query kind, estimator role) through the batch methods. Only the paths still running
-    /// are visited, and each round sorts their queries into the four batches in one pass.
+    /// are visited, and each round sorts their queries into the six batches in one pass.
     fn trace_tile(&self, paths: &mut [Path], scratch: &mut Scratch, shared: &Shared<'_>) {
         scratch.live.clear();
         scratch.live.extend(0..paths.len());
