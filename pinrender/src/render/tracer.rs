@@ -336,9 +336,7 @@ impl Ctx<'_> {
         let Some(ray) = RaySlabs::new(o, d) else {
             return true;
         };
-        let mut entry = [MISS; CHUNK];
-        self.boxes[which as usize].entries(0, &ray, f32::INFINITY, &mut entry);
-        entry[0] != MISS
+        self.boxes[which as usize].entry_of(0, &ray, f32::INFINITY) != MISS
     }
 
     /// Whether a transmittance query of role `t_role` and a distance query of role `d_role`
