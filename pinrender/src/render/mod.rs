@@ -53,6 +53,16 @@
 //! unbiased for unbiased transmittance estimates and exact distance sampling; see
 //! `tracer.rs`.
 //!
+//! The camera ray's `T` and first collision, and a vertex's `T(w)` and the collision of its
+//! continuation along `w`, are two queries along one ray. With one medium whose estimator
+//! serves both, they are asked together
+//! ([`TransportEstimator::transmittance_and_distance`]): pins answer both from one lookup,
+//! ratio tracking from one majorant walk (delta tracking's acceptance draws on the same
+//! tentative collisions). Each keeps its distribution, so the sum a path scores keeps its
+//! expectation; the two are correlated, which lowered the per-pixel variance of a cosine
+//! medium's ratio-tracking render by about 30% (the GPU's separate queries had 1.40 times
+//! the CPU's).
+//!
 //! ## Plugging in pins / PinMS
 //!
 //! Each [`Medium`] has two estimators: `primary` for camera rays and for the shadow rays of

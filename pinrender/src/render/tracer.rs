@@ -1,7 +1,7 @@
 //! The volumetric path tracer: camera, lights, media instances, the render loop.
 
 use super::RenderError;
-use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs};
+use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
 use super::estimator::TransportEstimator;
 use super::image::Image;
 use super::phase::{hg_phase, sample_hg};
@@ -199,12 +199,15 @@ pub(crate) struct Ctx<'a> {
     pub(crate) media: &'a [Medium],
     /// `boxes[Which as usize]`: the world boxes of the media's primary / secondary
     /// estimators (see [`super::bounds`]).
-    boxes: [MediaBoxes; 2],
+    pub(crate) boxes: [MediaBoxes; 2],
     pub(crate) sun: Option<(Vec3, Vec3)>,
     pub(crate) env: Option<Vec3>,
     pub(crate) albedo: f32,
     pub(crate) g: f32,
     pub(crate) max_bounces: u32,
+    /// One medium whose primary and secondary estimators are the same object: a query
+    /// pair along one ray may mix the two roles ([`Ctx::paired`]).
+    same_roles: bool,
 }
 
 impl Scene {
@@ -257,6 +260,10 @@ impl Scene {
             },
             g: self.g,
             max_bounces,
+            same_roles: match &self.media[..] {
+                [m] => std::ptr::addr_eq(Arc::as_ptr(&m.primary), Arc::as_ptr(&m.secondary)),
+                _ => false,
+            },
         }
     }
 
@@ -274,7 +281,7 @@ impl Scene {
 }
 
 impl Ctx<'_> {
-    fn est(m: &Medium, which: Which) -> &dyn TransportEstimator {
+    pub(crate) fn est(m: &Medium, which: Which) -> &dyn TransportEstimator {
         match which {
             Which::Primary => &*m.primary,
             Which::Secondary => &*m.secondary,
@@ -329,9 +336,33 @@ impl Ctx<'_> {
         let Some(ray) = RaySlabs::new(o, d) else {
             return true;
         };
-        let mut entry = [MISS; CHUNK];
-        self.boxes[which as usize].entries(0, &ray, f32::INFINITY, &mut entry);
-        entry[0] != MISS
+        self.boxes[which as usize].entry_of(0, &ray, f32::INFINITY) != MISS
+    }
+
+    /// Whether a transmittance query of role `t_role` and a distance query of role `d_role`
+    /// along one ray go to [`Ctx::transmittance_and_distance`]: with one medium, whose
+    /// estimator for both roles is the same. (With several media the product and the
+    /// nearest-collision search ask different media over different segments.)
+    #[inline]
+    pub(crate) fn paired(&self, t_role: Which, d_role: Which) -> bool {
+        self.media.len() == 1 && (t_role == d_role || self.same_roles)
+    }
+
+    /// The one medium's [`TransportEstimator::transmittance_and_distance`] for the ray
+    /// `o + t d` (a [`Ctx::paired`] pair of roles), after the box test of
+    /// `transmittance` and `distance`: a ray that misses the box draws nothing.
+    #[inline]
+    pub(crate) fn transmittance_and_distance(
+        &self,
+        t_role: Which,
+        o: Vec3,
+        d: Vec3,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        if !self.single_medium_asked(t_role, o, d) {
+            return (1.0, None);
+        }
+        Self::est(&self.media[0], t_role).transmittance_and_distance(o, d, f32::INFINITY, rng)
     }
 
     /// Nearest collision over the instances. Each later instance only searches up to the
@@ -363,21 +394,7 @@ impl Ctx<'_> {
         let mut order = [0u8; CHUNK];
         for start in (0..media.len()).step_by(CHUNK) {
             let n = boxes.entries(start, &ray, best, &mut entry);
-            // Indices of the boxes met, by entry (insertion sort: a handful of them).
-            let mut k = 0usize;
-            for i in 0..n {
-                let e = entry[i];
-                if e == MISS {
-                    continue;
-                }
-                let mut j = k;
-                while j > 0 && entry[order[j - 1] as usize] > e {
-                    order[j] = order[j - 1];
-                    j -= 1;
-                }
-                order[j] = i as u8;
-                k += 1;
-            }
+            let k = met_by_entry(&entry, n, &mut order);
             for &i in &order[..k] {
                 if entry[i as usize] > best {
                     break;
@@ -426,10 +443,16 @@ impl Ctx<'_> {
         if !o.is_finite() || d == Vec3::ZERO {
             return (l, None);
         }
+        let scatters = !(self.albedo <= 0.0 || self.max_bounces == 0);
         if let Some(env) = self.env {
+            if scatters && self.paired(Which::Primary, Which::Primary) {
+                let (tr, hit) = self.transmittance_and_distance(Which::Primary, o, d, rng);
+                l += env * tr;
+                return (l, hit.map(|t| (o + d * t, d, t)));
+            }
             l += env * self.transmittance(Which::Primary, o, d, rng);
         }
-        if self.albedo <= 0.0 || self.max_bounces == 0 {
+        if !scatters {
             return (l, None);
         }
         let Some(t) = self.distance(Which::Primary, o, d, rng) else {
@@ -478,13 +501,24 @@ impl Ctx<'_> {
                 }
             }
             let w = sample_hg(dir, self.g, rng.next_f32(), rng.next_f32());
-            if let Some(env) = self.env {
-                l += env * (beta * self.transmittance(shadow, x, w, rng));
-            }
-            if depth >= self.max_bounces {
-                break;
-            }
-            let Some(t) = self.distance(Which::Secondary, x, w, rng) else {
+            let last = depth >= self.max_bounces;
+            let hit = match self.env {
+                Some(env) if !last && self.paired(shadow, Which::Secondary) => {
+                    let (tr, hit) = self.transmittance_and_distance(shadow, x, w, rng);
+                    l += env * (beta * tr);
+                    hit
+                }
+                env => {
+                    if let Some(env) = env {
+                        l += env * (beta * self.transmittance(shadow, x, w, rng));
+                    }
+                    if last {
+                        break;
+                    }
+                    self.distance(Which::Secondary, x, w, rng)
+                }
+            };
+            let Some(t) = hit else {
                 break;
             };
             x += w * t;

@@ -11,16 +11,27 @@
 //! paths share a round cannot change a path's numbers. Per-pixel sums run in sample order, as
 //! in `render`. The tests compare whole images for several batch sizes against `render`.
 //!
-//! Scenes with more than one medium are traced the same way, but their queries go through
-//! `Ctx`'s per-ray product and nearest-collision search (one query at a time): batching pays
-//! where one medium answers every query.
+//! Scenes with more than one medium are traced the same way. Where the media of an estimator
+//! role are instances of one pin grid ([`SharedPins`]), each query is split into one query
+//! per medium asked, in the order and with the path draws of `Ctx::transmittance` (every
+//! medium met, all in one batch) and `Ctx::distance` (one medium per path and sub-round,
+//! since each asks only up to the nearest collision so far), and the queries of all paths
+//! and media go through one batch. Other multi-medium queries go through `Ctx`'s product and
+//! nearest-collision search one at a time.
+//!
+//! Where a path needs a transmittance and a distance along the same ray (the camera ray; a
+//! vertex's environment ray, which the path then continues along) and one estimator answers
+//! both, the two are one query ([`Kind::Both`], `Ctx::transmittance_and_distance`), as in
+//! `Ctx::trace`.
 
 use glam::Vec3;
 use std::time::Instant;
 
 use super::RenderError;
 use super::TransportEstimator;
+use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
 use super::phase::{hg_phase, sample_hg};
+use super::pins::{MemberQuery, SharedPins, SharedScratch, query_rng};
 use super::rng::Pcg32;
 use super::tracer::{
     Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
@@ -47,6 +58,9 @@ enum Stage {
 enum Kind {
     Transmittance,
     Distance,
+    /// Both along one ray ([`Ctx::transmittance_and_distance`]): the camera ray, or a
+    /// vertex's environment ray that the path continues along.
+    Both,
 }
 
 /// One path of the tile.
@@ -111,8 +125,14 @@ impl Ctx<'_> {
             match p.stage {
                 Stage::CameraT => {
                     if self.env.is_some() {
+                        let scatters = !(self.albedo <= 0.0 || self.max_bounces == 0);
+                        let both = scatters && self.paired(Which::Primary, Which::Primary);
                         return Some(Query {
-                            kind: Kind::Transmittance,
+                            kind: if both {
+                                Kind::Both
+                            } else {
+                                Kind::Transmittance
+                            },
                             which: Which::Primary,
                             o: p.x,
                             d: p.dir,
@@ -150,9 +170,16 @@ impl Ctx<'_> {
                 }
                 Stage::Env => {
                     if self.env.is_some() {
+                        let which = Self::shadow_role(p.depth);
+                        let both =
+                            p.depth < self.max_bounces && self.paired(which, Which::Secondary);
                         return Some(Query {
-                            kind: Kind::Transmittance,
-                            which: Self::shadow_role(p.depth),
+                            kind: if both {
+                                Kind::Both
+                            } else {
+                                Kind::Transmittance
+                            },
+                            which,
                             o: p.x,
                             d: p.w,
                         });
@@ -174,6 +201,13 @@ impl Ctx<'_> {
                 Stage::Done => return None,
             }
         }
+    }
+
+    /// Takes the answer of a [`Kind::Both`] query: the transmittance's, which moves the
+    /// path on to the distance query's stage, then the distance's.
+    fn answer_both(&self, p: &mut Path, t: f32, hit: Option<f32>) {
+        self.answer(p, t, None);
+        self.answer(p, 1.0, hit);
     }
 
     /// Takes the answer of the query `advance` returned.
@@ -228,8 +262,8 @@ impl Ctx<'_> {
 
     /// Advances every path of `paths` to its end, answering each round's queries per
     /// (query kind, estimator role) through the batch methods. Only the paths still running
-    /// are visited, and each round sorts their queries into the four batches in one pass.
-    fn trace_tile(&self, paths: &mut [Path], scratch: &mut Scratch) {
+    /// are visited, and each round sorts their queries into the six batches in one pass.
+    fn trace_tile(&self, paths: &mut [Path], scratch: &mut Scratch, shared: &Shared<'_>) {
         scratch.live.clear();
         scratch.live.extend(0..paths.len());
         loop {
@@ -248,19 +282,7 @@ impl Ctx<'_> {
                 return;
             }
             if self.media.len() != 1 {
-                for &(i, q) in &scratch.waiting {
-                    let p = &mut paths[i];
-                    match q.kind {
-                        Kind::Transmittance => {
-                            let t = self.transmittance(q.which, q.o, q.d, &mut p.rng);
-                            self.answer(p, t, None);
-                        }
-                        Kind::Distance => {
-                            let hit = self.distance(q.which, q.o, q.d, &mut p.rng);
-                            self.answer(p, 1.0, hit);
-                        }
-                    }
-                }
+                self.answer_media(paths, scratch, shared);
                 continue;
             }
             for &(i, q) in &scratch.waiting {
@@ -275,7 +297,7 @@ impl Ctx<'_> {
                 b.rays.push([q.o, q.d]);
                 b.rngs.push(paths[i].rng.clone());
             }
-            for kind in [Kind::Transmittance, Kind::Distance] {
+            for kind in [Kind::Transmittance, Kind::Distance, Kind::Both] {
                 for which in [Which::Primary, Which::Secondary] {
                     let b = &mut scratch.batches[batch_of(kind, which)];
                     if b.ids.is_empty() {
@@ -309,6 +331,22 @@ impl Ctx<'_> {
                                 self.answer(p, 1.0, b.d[k]);
                             }
                         }
+                        Kind::Both => {
+                            b.td.clear();
+                            b.td.resize(n, (1.0, None));
+                            est.transmittance_and_distance_batch(
+                                &b.rays,
+                                f32::INFINITY,
+                                &mut b.rngs,
+                                &mut b.td,
+                            );
+                            for k in 0..n {
+                                let p = &mut paths[b.ids[k]];
+                                p.rng = b.rngs[k].clone();
+                                let (t, hit) = b.td[k];
+                                self.answer_both(p, t, hit);
+                            }
+                        }
                     }
                 }
             }
@@ -316,10 +354,253 @@ impl Ctx<'_> {
     }
 }
 
+/// Per estimator role, the media's pin estimators when they share one grid and options
+/// (instances): their queries are batched across paths and media.
+type Shared<'a> = [Option<SharedPins<'a>>; 2];
+
+impl Ctx<'_> {
+    /// A round's queries of a scene with several media. A role whose media share one pin
+    /// grid ([`Shared`]) has its queries split into one query per medium asked, in the
+    /// order and with the path draws of [`Ctx::transmittance`] and [`Ctx::distance`], and
+    /// answered in batches; every other query goes through those two, one at a time.
+    fn answer_media(&self, paths: &mut [Path], scratch: &mut Scratch, shared: &Shared<'_>) {
+        let m = &mut scratch.media;
+        for r in &mut m.roles {
+            r.clear();
+        }
+        for &(i, q) in &scratch.waiting {
+            let p = &mut paths[i];
+            let role = q.which as usize;
+            match (q.kind, shared[role].is_some()) {
+                (Kind::Transmittance, false) => {
+                    let t = self.transmittance(q.which, q.o, q.d, &mut p.rng);
+                    self.answer(p, t, None);
+                }
+                (Kind::Distance, false) => {
+                    let hit = self.distance(q.which, q.o, q.d, &mut p.rng);
+                    self.answer(p, 1.0, hit);
+                }
+                (Kind::Both, _) => {
+                    // Only with one medium (`Ctx::paired`), which never comes here.
+                    let (t, hit) = self.transmittance_and_distance(q.which, q.o, q.d, &mut p.rng);
+                    self.answer_both(p, t, hit);
+                }
+                (Kind::Transmittance, true) => {
+                    let r = &mut m.roles[role];
+                    let first = r.t_queries.len();
+                    // `Ctx::transmittance`: every medium whose box the ray meets, in media
+                    // order, each drawing its pin generator from the path. The product may
+                    // stop early (at 0): the generator after each medium is kept, and the
+                    // path takes the one where the product stopped.
+                    let mut ask = |member: usize| {
+                        r.t_queries.push(MemberQuery {
+                            member: member as u32,
+                            o: q.o,
+                            d: q.d,
+                            t_max: f32::INFINITY,
+                            rng: query_rng(&mut p.rng),
+                        });
+                        r.t_after.push(p.rng.clone());
+                    };
+                    let boxes = &self.boxes[role];
+                    match RaySlabs::new(q.o, q.d) {
+                        None => (0..self.media.len()).for_each(&mut ask),
+                        Some(ray) => {
+                            let mut entry = [MISS; CHUNK];
+                            for start in (0..self.media.len()).step_by(CHUNK) {
+                                let n = boxes.entries(start, &ray, f32::INFINITY, &mut entry);
+                                for (j, e) in entry[..n].iter().enumerate() {
+                                    if *e != MISS {
+                                        ask(start + j);
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    r.t_paths.push((i, first..r.t_queries.len()));
+                }
+                (Kind::Distance, true) => {
+                    let mut s = Search::new(i, q.o, q.d);
+                    match s.next(&self.boxes[role], self.media.len()) {
+                        None => self.answer(p, 1.0, None),
+                        Some(member) => {
+                            s.asking = member as u32;
+                            m.roles[role].searches.push(s);
+                        }
+                    }
+                }
+            }
+        }
+        for (role, r) in m.roles.iter_mut().enumerate() {
+            let Some(sp) = &shared[role] else {
+                continue;
+            };
+            r.t_out.clear();
+            r.t_out.resize(r.t_queries.len(), 1.0);
+            sp.transmittance_batch(&r.t_queries, &mut m.pins, &mut r.t_out);
+            // Every path is answered, also one whose ray met no medium (an empty range).
+            for (i, range) in r.t_paths.drain(..) {
+                let p = &mut paths[i];
+                let mut t = 1.0f32;
+                for k in range {
+                    t *= r.t_out[k];
+                    if t == 0.0 {
+                        p.rng = r.t_after[k].clone();
+                        break;
+                    }
+                }
+                self.answer(p, t, None);
+            }
+            // `Ctx::distance`, one medium per path and sub-round: each asks up to the
+            // nearest collision so far, so a path's next query waits for its last answer.
+            while !r.searches.is_empty() {
+                r.d_queries.clear();
+                for s in &r.searches {
+                    r.d_queries.push(MemberQuery {
+                        member: s.asking,
+                        o: s.o,
+                        d: s.d,
+                        t_max: s.best,
+                        rng: query_rng(&mut paths[s.path].rng),
+                    });
+                }
+                r.d_out.clear();
+                r.d_out.resize(r.d_queries.len(), None);
+                sp.sample_distance_batch(&r.d_queries, &mut m.pins, &mut r.d_out);
+                let mut kept = 0;
+                for k in 0..r.searches.len() {
+                    let mut s = r.searches[k];
+                    if let Some(t) = r.d_out[k]
+                        && t < s.best
+                    {
+                        s.best = t;
+                    }
+                    match s.next(&self.boxes[role], self.media.len()) {
+                        Some(member) => {
+                            s.asking = member as u32;
+                            r.searches[kept] = s;
+                            kept += 1;
+                        }
+                        None => {
+                            let hit = (s.best < f32::INFINITY).then_some(s.best);
+                            self.answer(&mut paths[s.path], 1.0, hit);
+                        }
+                    }
+                }
+                r.searches.truncate(kept);
+            }
+        }
+    }
+}
+
+/// A path's nearest-collision search over several media in the steps of
+/// [`Ctx::distance`]: the media whose box the ray meets, per chunk of [`CHUNK`] media in the
+/// order of their box entries (tested against the nearest collision so far when the chunk
+/// starts), until a box starts beyond that collision; every medium in media order for a ray
+/// the box test cannot reason about.
+#[derive(Clone, Copy)]
+struct Search {
+    path: usize,
+    o: Vec3,
+    d: Vec3,
+    ray: Option<RaySlabs>,
+    /// The nearest collision so far.
+    best: f32,
+    /// The medium being asked.
+    asking: u32,
+    /// The first medium of the next chunk.
+    next_start: usize,
+    /// The current chunk: its first medium, box entries, the boxes met by entry
+    /// (`order[..met]`), and the next of them to ask.
+    start: usize,
+    entry: [f32; CHUNK],
+    order: [u8; CHUNK],
+    met: usize,
+    pos: usize,
+}
+
+impl Search {
+    fn new(path: usize, o: Vec3, d: Vec3) -> Self {
+        Search {
+            path,
+            o,
+            d,
+            ray: RaySlabs::new(o, d),
+            best: f32::INFINITY,
+            asking: 0,
+            next_start: 0,
+            start: 0,
+            entry: [MISS; CHUNK],
+            order: [0; CHUNK],
+            met: 0,
+            pos: 0,
+        }
+    }
+
+    /// The next medium to ask, or `None` when the search is over.
+    fn next(&mut self, boxes: &MediaBoxes, media: usize) -> Option<usize> {
+        let Some(ray) = &self.ray else {
+            let m = self.pos;
+            self.pos += 1;
+            return (m < media).then_some(m);
+        };
+        loop {
+            if self.pos < self.met {
+                let i = self.order[self.pos] as usize;
+                // `Ctx::distance` leaves the chunk at the first box beyond the nearest
+                // collision.
+                if !(self.entry[i] > self.best) {
+                    self.pos += 1;
+                    return Some(self.start + i);
+                }
+            }
+            if self.next_start >= media {
+                return None;
+            }
+            self.start = self.next_start;
+            self.next_start += CHUNK;
+            let n = boxes.entries(self.start, ray, self.best, &mut self.entry);
+            self.met = met_by_entry(&self.entry, n, &mut self.order);
+            self.pos = 0;
+        }
+    }
+}
+
+/// One role's share of a round in [`Ctx::answer_media`].
+#[derive(Default)]
+struct RoleQueries {
+    /// Transmittance: one query per (path, medium met), the path's generator after each,
+    /// each path's range of them, the answers.
+    t_queries: Vec<MemberQuery>,
+    t_after: Vec<Pcg32>,
+    t_paths: Vec<(usize, std::ops::Range<usize>)>,
+    t_out: Vec<f32>,
+    /// Distance: the searches still running, one query each per sub-round, the answers.
+    searches: Vec<Search>,
+    d_queries: Vec<MemberQuery>,
+    d_out: Vec<Option<f32>>,
+}
+
+impl RoleQueries {
+    fn clear(&mut self) {
+        self.t_queries.clear();
+        self.t_after.clear();
+        self.t_paths.clear();
+        self.searches.clear();
+    }
+}
+
+/// [`Ctx::answer_media`]'s buffers.
+#[derive(Default)]
+struct MediaScratch {
+    roles: [RoleQueries; 2],
+    pins: SharedScratch,
+}
+
 /// The batch of a (query kind, estimator role) in [`Scratch::batches`].
 #[inline]
 fn batch_of(kind: Kind, which: Which) -> usize {
-    2 * (kind == Kind::Distance) as usize + which as usize
+    2 * kind as usize + which as usize
 }
 
 /// One round's queries of one (kind, role), in path order.
@@ -330,6 +611,7 @@ struct Batch {
     rngs: Vec<Pcg32>,
     t: Vec<f32>,
     d: Vec<Option<f32>>,
+    td: Vec<(f32, Option<f32>)>,
 }
 
 /// Buffers reused across the rounds of a tile.
@@ -338,7 +620,8 @@ struct Scratch {
     /// The paths not yet done, in path order.
     live: Vec<usize>,
     waiting: Vec<(usize, Query)>,
-    batches: [Batch; 4],
+    batches: [Batch; 6],
+    media: MediaScratch,
 }
 
 impl Scratch {
@@ -381,6 +664,8 @@ pub fn render_wavefront(
     }
     let start = Instant::now();
     let ctx = scene.ctx(settings.max_bounces);
+    let shared: Shared<'_> = [Which::Primary, Which::Secondary]
+        .map(|which| SharedPins::new(scene.media.iter().map(|m| Ctx::est(m, which))));
     let frame = scene.camera.frame()?;
     let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     let seed = settings.seed;
@@ -401,7 +686,7 @@ pub fn render_wavefront(
                 let (o, d) = frame.ray(x as f32 + jx, y as f32 + jy);
                 ctx.start_path(o, d, rng)
             }));
-            ctx.trace_tile(&mut paths, &mut scratch);
+            ctx.trace_tile(&mut paths, &mut scratch, &shared);
             for (c, p) in out.iter_mut().zip(&paths) {
                 *c = if p.l.is_finite() { p.l } else { Vec3::ZERO };
             }
@@ -501,6 +786,109 @@ mod tests {
                 let got = render_wavefront(&sc, &st, batch).unwrap();
                 assert_eq!(got.spp, 3);
                 assert_eq!(bits(&got), bits(&want), "batch {batch}");
+            }
+        }
+    }
+
+    /// `n` instances of one pin grid, each placed by its own translation (a jittered
+    /// lattice around the camera's target), with lookup options `opts`.
+    fn instances(n: usize, opts: pinrt::SamplerOptions) -> Vec<Arc<dyn TransportEstimator>> {
+        let owned = random_grid(Directions::THESIS_DEFAULT, [6, 5, 4], 2, true, 43);
+        let grid = Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap());
+        let l2w = grid.desc().local_to_world;
+        let mut g = Pcg32::new(5, 9);
+        (0..n)
+            .map(|i| {
+                let mut m = l2w;
+                let cell = [i % 4, (i / 4) % 4, i / 16].map(|c| c as f64 * 0.3 - 0.45);
+                for (a, c) in cell.iter().enumerate() {
+                    m[4 * a + 3] += c + 0.1 * g.next_f32() as f64;
+                }
+                Arc::new(PinsEstimator::new(grid.clone(), Some(&m), opts).unwrap())
+                    as Arc<dyn TransportEstimator>
+            })
+            .collect()
+    }
+
+    /// Instances that share one pin grid are answered in batches across paths and media
+    /// (`Ctx::answer_media`): for pins everywhere and for PinMS, with and without lookup
+    /// jitter, with more media than one chunk of box tests (70 > `CHUNK`), and next to a
+    /// medium with another grid (no sharing: one query at a time), the image equals
+    /// `render`'s bit for bit at every batch size.
+    #[test]
+    fn shared_instances_equal_render_for_every_batch_size() {
+        let field = Arc::new(FnField {
+            min: [-0.5; 3],
+            max: [1.5; 3],
+            f: |p: Vec3| 1.0 + p.x * p.x,
+        });
+        let maj = Arc::new(MajorantGrid::from_field(&*field, [4; 3]).unwrap());
+        let ratio: Arc<dyn TransportEstimator> = Arc::new(RatioTracking::new(field, maj));
+        let jitter = pinrt::SamplerOptions {
+            spatial_jitter: 1.0,
+            directional_jitter: 1.0,
+            chain_stride: 32,
+            midpoint_lookup: true,
+        };
+        let chained = pinrt::SamplerOptions {
+            chain_stride: 8,
+            ..jitter
+        };
+        let cases: Vec<(&str, Vec<Medium>)> = vec![
+            (
+                "pins, 9 instances",
+                instances(9, Default::default())
+                    .into_iter()
+                    .map(Medium::single)
+                    .collect(),
+            ),
+            (
+                "pins, 70 instances, jitter",
+                instances(70, jitter)
+                    .into_iter()
+                    .map(Medium::single)
+                    .collect(),
+            ),
+            (
+                "pinms, 12 instances, chained",
+                instances(12, chained)
+                    .into_iter()
+                    .map(|p| Medium::new(ratio.clone(), p))
+                    .collect(),
+            ),
+            ("pins, 6 instances and another grid", {
+                let mut m: Vec<Medium> = instances(6, jitter)
+                    .into_iter()
+                    .map(Medium::single)
+                    .collect();
+                m.insert(2, Medium::single(pins()));
+                m
+            }),
+        ];
+        for (name, media) in cases {
+            let sc = scene(media);
+            let shared = [Which::Primary, Which::Secondary]
+                .map(|w| SharedPins::new(sc.media.iter().map(|m| Ctx::est(m, w))).is_some());
+            let want_shared = !name.contains("another");
+            assert_eq!(shared[1], want_shared, "{name}");
+            assert_eq!(
+                shared[0],
+                want_shared && !name.starts_with("pinms"),
+                "{name}"
+            );
+            let st = settings(Budget::Spp(2));
+            let want = render(&sc, &st).unwrap();
+            let lit = want
+                .image
+                .rgb
+                .iter()
+                .flatten()
+                .filter(|&&c| c > 0.0)
+                .count();
+            assert!(lit > 100, "{name}: {lit} lit channels");
+            for batch in [1, 3, 32, 1000] {
+                let got = render_wavefront(&sc, &st, batch).unwrap();
+                assert_eq!(bits(&got), bits(&want), "{name}, batch {batch}");
             }
         }
     }
