@@ -345,6 +345,7 @@ mod tests {
             directional_jitter: 1.0,
             chain_stride: 32,
             midpoint_lookup: true,
+            start_inside: true,
         };
         let l2w = grid.desc().local_to_world;
         let mut placed = Vec::new();
@@ -457,6 +458,7 @@ mod tests {
                 directional_jitter: 1.0,
                 chain_stride: 32,
                 midpoint_lookup: true,
+                start_inside: true,
             },
         ] {
             let est = PinsEstimator::new(grid.clone(), None, opts).unwrap();

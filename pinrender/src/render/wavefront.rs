@@ -829,6 +829,7 @@ mod tests {
             directional_jitter: 1.0,
             chain_stride: 32,
             midpoint_lookup: true,
+            start_inside: true,
         };
         let chained = pinrt::SamplerOptions {
             chain_stride: 8,
