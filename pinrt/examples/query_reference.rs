@@ -1,7 +1,10 @@
 //! Reference values for the bindings' tests (the Python package's pytest suite): runs the Rust
 //! sampler's batch queries on rays read from a file and writes the results.
 //!
-//! `query_reference GRID.pin RAYS.bin SEED OUT.bin`
+//! `query_reference GRID.pin RAYS.bin SEED OUT.bin [SJ,DJ,STRIDE,start|middle,INSIDE]`
+//!
+//! The optional last argument sets the lookup (`SamplerOptions`: spatial and directional
+//! jitter, chain stride, lookup point, start inside as 0 or 1); without it the defaults.
 //!
 //! `RAYS.bin` holds N 32-byte `RayQuery` records (origin xyz, t_max, dir xyz, pad; f32/u32
 //! little-endian). `OUT.bin` receives N transmittances then N distances (f32, `inf` where no
@@ -10,11 +13,41 @@
 use std::process::ExitCode;
 use std::time::Instant;
 
-use pinrt::{PinGrid, RayQuery};
+use pinrt::{PinGrid, RayQuery, SamplerOptions};
+
+/// `SJ,DJ,STRIDE,start|middle,INSIDE`.
+fn parse_options(s: &str) -> Result<SamplerOptions, String> {
+    let bad = || format!("options '{s}': expected SJ,DJ,STRIDE,start|middle,0|1");
+    let [sj, dj, stride, point, inside] = s.split(',').collect::<Vec<_>>()[..] else {
+        return Err(bad());
+    };
+    Ok(SamplerOptions {
+        spatial_jitter: sj.parse().map_err(|_| bad())?,
+        directional_jitter: dj.parse().map_err(|_| bad())?,
+        chain_stride: stride.parse().map_err(|_| bad())?,
+        midpoint_lookup: match point {
+            "start" => false,
+            "middle" => true,
+            _ => return Err(bad()),
+        },
+        start_inside: match inside {
+            "0" => false,
+            "1" => true,
+            _ => return Err(bad()),
+        },
+    })
+}
 
 fn run(args: &[String]) -> Result<(), String> {
-    let [grid, rays, seed, out] = args else {
-        return Err("usage: query_reference GRID.pin RAYS.bin SEED OUT.bin".into());
+    let (grid, rays, seed, out, opts) = match args {
+        [grid, rays, seed, out] => (grid, rays, seed, out, SamplerOptions::default()),
+        [grid, rays, seed, out, opts] => (grid, rays, seed, out, parse_options(opts)?),
+        _ => {
+            return Err(
+                "usage: query_reference GRID.pin RAYS.bin SEED OUT.bin [SJ,DJ,STRIDE,start|middle,INSIDE]"
+                    .into(),
+            );
+        }
     };
     let seed: u32 = seed.parse().map_err(|e| format!("SEED '{seed}': {e}"))?;
     let bytes = std::fs::read(rays).map_err(|e| format!("{rays}: {e}"))?;
@@ -30,7 +63,10 @@ fn run(args: &[String]) -> Result<(), String> {
         .map(bytemuck::pod_read_unaligned)
         .collect();
     let grid = PinGrid::open(grid).map_err(|e| e.to_string())?;
-    let s = grid.sampler().map_err(|e| e.to_string())?;
+    let s = grid
+        .sampler()
+        .map_err(|e| e.to_string())?
+        .with_options(opts);
     let n = rays.len();
     let mut t = vec![0f32; n];
     let mut d = vec![None; n];

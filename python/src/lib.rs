@@ -63,6 +63,34 @@ fn ray_queries(o: &[f32], d: &[f32], t: &[f32]) -> Vec<RayQuery> {
         .collect()
 }
 
+/// The lookup options beside the jitter (`pinrt::SamplerOptions`, docs/sampling.md sections
+/// 12 and 14).
+#[derive(Clone, Copy)]
+struct Lookup {
+    chain_stride: u32,
+    middle: bool,
+    start_inside: bool,
+}
+
+impl Lookup {
+    fn parse(chain_stride: u32, lookup_point: &str, start_inside: bool) -> PyResult<Self> {
+        let middle = match lookup_point {
+            "start" => false,
+            "middle" => true,
+            other => {
+                return Err(value_err(format!(
+                    "lookup_point is '{other}'; it must be 'start' or 'middle'"
+                )));
+            }
+        };
+        Ok(Self {
+            chain_stride,
+            middle,
+            start_inside,
+        })
+    }
+}
+
 #[derive(Clone, Copy)]
 enum Query {
     Transmittance,
@@ -81,6 +109,7 @@ impl PinGrid {
         first_index: u32,
         spatial_jitter: f32,
         directional_jitter: f32,
+        lookup: Lookup,
         kind: Query,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let o = rows3(&origins, "origins")?;
@@ -117,7 +146,9 @@ impl PinGrid {
                 .with_options(SamplerOptions {
                     spatial_jitter,
                     directional_jitter,
-                    ..SamplerOptions::default()
+                    chain_stride: lookup.chain_stride,
+                    midpoint_lookup: lookup.middle,
+                    start_inside: lookup.start_inside,
                 });
             let mut out = vec![0f32; n];
             match kind {
@@ -185,7 +216,7 @@ impl PinGrid {
         Ok(v.to_string())
     }
 
-    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter))]
+    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter, chain_stride, lookup_point, start_inside))]
     #[allow(clippy::too_many_arguments)]
     fn transmittance<'py>(
         &self,
@@ -197,7 +228,11 @@ impl PinGrid {
         first_index: u32,
         spatial_jitter: f32,
         directional_jitter: f32,
+        chain_stride: u32,
+        lookup_point: &str,
+        start_inside: bool,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let lookup = Lookup::parse(chain_stride, lookup_point, start_inside)?;
         self.run(
             py,
             origins,
@@ -207,11 +242,12 @@ impl PinGrid {
             first_index,
             spatial_jitter,
             directional_jitter,
+            lookup,
             Query::Transmittance,
         )
     }
 
-    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter))]
+    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter, chain_stride, lookup_point, start_inside))]
     #[allow(clippy::too_many_arguments)]
     fn sample_distance<'py>(
         &self,
@@ -223,7 +259,11 @@ impl PinGrid {
         first_index: u32,
         spatial_jitter: f32,
         directional_jitter: f32,
+        chain_stride: u32,
+        lookup_point: &str,
+        start_inside: bool,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
+        let lookup = Lookup::parse(chain_stride, lookup_point, start_inside)?;
         self.run(
             py,
             origins,
@@ -233,6 +273,7 @@ impl PinGrid {
             first_index,
             spatial_jitter,
             directional_jitter,
+            lookup,
             Query::Distance,
         )
     }

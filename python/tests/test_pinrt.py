@@ -60,15 +60,17 @@ def random_rays(grid: PinGrid, n: int, seed: int):
     return o.astype(np.float32), d.astype(np.float32), t.astype(np.float32)
 
 
-def rust_reference(pin: Path, o, d, t, seed: int, tmp: Path):
-    """The Rust sampler's transmittances and distances for the same rays, and its output."""
+def rust_reference(pin: Path, o, d, t, seed: int, tmp: Path, options: str | None = None):
+    """The Rust sampler's transmittances and distances for the same rays, and its output
+    (``options``: query_reference's ``SJ,DJ,STRIDE,start|middle,INSIDE``)."""
     n = len(o)
     rays = np.zeros((n, 8), dtype=np.float32)
     rays[:, 0:3], rays[:, 3], rays[:, 4:7] = o, t, d
     rays_file, out_file = tmp / "rays.bin", tmp / "out.bin"
     rays.astype("<f4").tofile(rays_file)
     run = subprocess.run(
-        [exe("PINRT_REFERENCE_EXE"), str(pin), str(rays_file), str(seed), str(out_file)],
+        [exe("PINRT_REFERENCE_EXE"), str(pin), str(rays_file), str(seed), str(out_file)]
+        + ([options] if options else []),
         capture_output=True, text=True, check=True,
     )
     values = np.fromfile(out_file, dtype="<f4")
@@ -123,6 +125,42 @@ def test_seeds_and_first_index_follow_the_batch_contract(smoke):
     a = grid.sample_distance(o.astype(np.float64)[::1], np.asfortranarray(d), np.inf, seed=3)
     b = grid.sample_distance(o, d, np.full(len(o), np.inf, np.float32), seed=3)
     np.testing.assert_array_equal(a, b)
+
+
+def test_lookup_options_equal_the_rust_sampler_bit_for_bit(smoke, tmp_path):
+    """pinrender render's lookup (jitter 1/1, middle, start inside) and a chained one, on rays
+    of which half start inside the grid's box (where ``start_inside`` acts)."""
+    grid = PinGrid(smoke)
+    n = 20000
+    o, d, t = random_rays(grid, n, 4)
+    box = grid.info["world_box"]
+    lo, hi = np.array(box["min"]), np.array(box["max"])
+    inside = np.random.default_rng(5).uniform(0.1, 0.9, (n // 2, 3))
+    o[: n // 2] = (lo + (hi - lo) * inside).astype(np.float32)
+    render = dict(spatial_jitter=1.0, directional_jitter=1.0, lookup_point="middle",
+                  start_inside=True)
+    plain = grid.transmittance(o, d, t, seed=SEED)
+    for kwargs, options in [
+        (render, "1,1,0,middle,1"),
+        (dict(spatial_jitter=0.5, chain_stride=4), "0.5,0,4,start,0"),
+    ]:
+        want_t, want_d, _ = rust_reference(smoke, o, d, t, SEED, tmp_path, options)
+        got_t = grid.transmittance(o, d, t, seed=SEED, **kwargs)
+        got_d = grid.sample_distance(o, d, t, seed=SEED, **kwargs)
+        np.testing.assert_array_equal(got_t.view(np.uint32), want_t.view(np.uint32))
+        np.testing.assert_array_equal(got_d.view(np.uint32), want_d.view(np.uint32))
+        # The options reach the sampler: the answers are not the default lookup's.
+        assert not np.array_equal(got_t, plain)
+    # start_inside changes only rays that start inside the box.
+    base = dict(spatial_jitter=1.0, directional_jitter=1.0, lookup_point="middle")
+    a = grid.transmittance(o, d, t, seed=SEED, **base)
+    b = grid.transmittance(o, d, t, seed=SEED, start_inside=True, **base)
+    outside = np.any((o < lo) | (o > hi), axis=1)
+    assert 1000 < outside.sum() < n // 2
+    np.testing.assert_array_equal(a[outside], b[outside])
+    assert not np.array_equal(a[~outside], b[~outside])
+    with pytest.raises(ValueError, match="lookup_point"):
+        grid.transmittance(o, d, t, lookup_point="end")
 
 
 def count_until(event: threading.Event) -> int:

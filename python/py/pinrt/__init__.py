@@ -215,12 +215,26 @@ class PinGrid:
         first_index: int = 0,
         spatial_jitter: float = 0.0,
         directional_jitter: float = 0.0,
+        chain_stride: int = 0,
+        lookup_point: str = "start",
+        start_inside: bool = False,
     ) -> "np.ndarray":
         """Transmittance estimates over ``[0, t_max]`` of N rays (``t_max`` a number or N
         numbers; ``inf`` runs to the grid box's exit). Directions need not be unit length:
-        distances are in units of the ray parameter. Returns float32 of shape (N,)."""
+        distances are in units of the ray parameter. Returns float32 of shape (N,).
+
+        The lookup options are ``pinrt::SamplerOptions``'s (docs/sampling.md sections 12-14):
+        ``spatial_jitter`` and ``directional_jitter`` in cells, ``chain_stride`` in intervals
+        (0: one lookup per query), ``lookup_point`` ``"start"`` or ``"middle"`` of the segment,
+        ``start_inside`` (a ray starting inside the box is looked up at its start, without
+        spatial jitter). The defaults are the library's (the thesis' lookup); ``pinrender
+        render`` uses ``spatial_jitter=1, directional_jitter=1, lookup_point="middle",
+        start_inside=True``."""
         o, d, t = _rays(origins, directions, t_max)
-        return self._g.transmittance(o, d, t, seed, first_index, spatial_jitter, directional_jitter)
+        return self._g.transmittance(
+            o, d, t, seed, first_index, spatial_jitter, directional_jitter,
+            chain_stride, lookup_point, start_inside,
+        )
 
     def sample_distance(
         self,
@@ -232,8 +246,15 @@ class PinGrid:
         first_index: int = 0,
         spatial_jitter: float = 0.0,
         directional_jitter: float = 0.0,
+        chain_stride: int = 0,
+        lookup_point: str = "start",
+        start_inside: bool = False,
     ) -> "np.ndarray":
         """Sampled free-flight distances in ``[0, t_max]`` of N rays, ``inf`` where a ray
-        passes without a collision. Returns float32 of shape (N,)."""
+        passes without a collision. Returns float32 of shape (N,). The lookup options are
+        ``transmittance``'s."""
         o, d, t = _rays(origins, directions, t_max)
-        return self._g.sample_distance(o, d, t, seed, first_index, spatial_jitter, directional_jitter)
+        return self._g.sample_distance(
+            o, d, t, seed, first_index, spatial_jitter, directional_jitter,
+            chain_stride, lookup_point, start_inside,
+        )

@@ -22,6 +22,9 @@ class PinGrid:
         first_index: int,
         spatial_jitter: float,
         directional_jitter: float,
+        chain_stride: int,
+        lookup_point: str,
+        start_inside: bool,
     ) -> npt.NDArray[np.float32]: ...
     def sample_distance(
         self,
@@ -32,6 +35,9 @@ class PinGrid:
         first_index: int,
         spatial_jitter: float,
         directional_jitter: float,
+        chain_stride: int,
+        lookup_point: str,
+        start_inside: bool,
     ) -> npt.NDArray[np.float32]: ...
 
 def bake(
