@@ -366,7 +366,23 @@ enum PinrtStatus pinrt_gpu_buffers(const struct PinrtGrid *grid, struct PinrtGpu
 /**
  * The one-line message of the last failed call on this thread, or "" if the last call
  * succeeded. The pointer stays valid until the next `pinrt_*` call on this thread.
+ * Sets how `grid` answers the batch calls and fills `pinrt_gpu_params` from now on, beside
+ * the jitter of each call's `PinrtQueryOptions` (`docs/sampling.md` sections 12-14):
+ * `chain_stride` intervals per lookup (0 or 32 and above: one lookup per query),
+ * `midpoint_lookup` 1 to look each piece up at its middle instead of its start,
+ * `start_inside` 1 to look a piece that starts inside the box up at its start without
+ * spatial jitter. A newly opened grid has 0, 0, 0 (the thesis' lookup); `pinrender render`
+ * uses 0, 1, 1 with both jitters 1. `midpoint_lookup` and `start_inside` other than 0 or 1
+ * are `PINRT_INVALID_ARGUMENT`.
+ *
+ * # Safety
+ * `grid` is NULL or an open grid, not used by another thread during the call.
  */
+enum PinrtStatus pinrt_set_lookup(struct PinrtGrid *grid,
+                                  uint32_t chain_stride,
+                                  uint32_t midpoint_lookup,
+                                  uint32_t start_inside);
+
 const char *pinrt_last_error(void);
 
 /**

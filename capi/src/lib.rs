@@ -48,6 +48,18 @@ pub enum PinrtStatus {
 /// `pinrt_close`.
 pub struct PinrtGrid {
     grid: PinGrid,
+    /// The lookup options beside the jitter, set by `pinrt_set_lookup` (default: one lookup
+    /// per query at the segment start, as the thesis).
+    lookup: Lookup,
+}
+
+/// `pinrt_set_lookup`'s options (`pinrt::SamplerOptions` without the jitter, which each batch
+/// call's `PinrtQueryOptions` carries).
+#[derive(Clone, Copy, Debug, Default)]
+struct Lookup {
+    chain_stride: u32,
+    midpoint_lookup: bool,
+    start_inside: bool,
 }
 
 /// One query: a world-space ray and the end of its segment (32 bytes, the layout of the GPU
@@ -294,7 +306,10 @@ unsafe fn grid_ref<'a>(grid: *const PinrtGrid) -> Result<&'a PinrtGrid, Fail> {
 }
 
 fn publish(grid: PinGrid, out: *mut *mut PinrtGrid) {
-    let boxed = Box::new(PinrtGrid { grid });
+    let boxed = Box::new(PinrtGrid {
+        grid,
+        lookup: Lookup::default(),
+    });
     // SAFETY: `out` was checked non-null and aligned by the caller of `publish`.
     unsafe { out.write(Box::into_raw(boxed)) };
 }
@@ -445,9 +460,17 @@ unsafe fn sampler<'g>(
     g: &'g PinrtGrid,
     opts: *const PinrtQueryOptions,
 ) -> Result<Sampler<'g>, Fail> {
+    let l = g.lookup;
+    let with_lookup = |spatial_jitter, directional_jitter| SamplerOptions {
+        spatial_jitter,
+        directional_jitter,
+        chain_stride: l.chain_stride,
+        midpoint_lookup: l.midpoint_lookup,
+        start_inside: l.start_inside,
+    };
     // SAFETY: caller's contract.
     let Some(o) = (unsafe { opts.as_ref() }) else {
-        return Ok(g.grid.sampler()?);
+        return Ok(g.grid.sampler()?.with_options(with_lookup(0.0, 0.0)));
     };
     let s = if o.local_to_world.is_null() {
         g.grid.sampler()?
@@ -473,12 +496,9 @@ unsafe fn sampler<'g>(
             ));
         }
     }
-    // The C options predate chained lookups: one lookup per query, at the segment start.
-    Ok(s.with_options(SamplerOptions {
-        spatial_jitter: o.spatial_jitter,
-        directional_jitter: o.directional_jitter,
-        ..SamplerOptions::default()
-    }))
+    // The rest of the lookup is the grid's (`pinrt_set_lookup`; `PinrtQueryOptions` predates
+    // chained lookups, and a field added to it would break the ABI).
+    Ok(s.with_options(with_lookup(o.spatial_jitter, o.directional_jitter)))
 }
 
 /// Shared body of the batch calls: checks the arguments and hands typed slices to `run`.
@@ -627,7 +647,17 @@ pub unsafe extern "C" fn pinrt_gpu_params(
         let o = s.options();
         let params = PinrtGpuParams {
             rows: s.transform().rows,
-            jitter: [o.spatial_jitter, o.directional_jitter, 0.0, 0.0],
+            // As `pinrt::gpu::Params`: stride and the lookup bits, small integers exact in f32.
+            jitter: [
+                o.spatial_jitter,
+                o.directional_jitter,
+                if o.chain_stride == 0 {
+                    0.0
+                } else {
+                    o.stride() as f32
+                },
+                f32::from(u8::from(o.midpoint_lookup) | (u8::from(o.start_inside) << 1)),
+            ],
             dims: [shape.dims[0], shape.dims[1], shape.dims[2], shape.z_begin],
             grid: [shape.z_end, shape.pins_per_entry, block_len, stored],
             dirs: [
@@ -673,6 +703,44 @@ pub unsafe extern "C" fn pinrt_gpu_buffers(
 
 /// The one-line message of the last failed call on this thread, or "" if the last call
 /// succeeded. The pointer stays valid until the next `pinrt_*` call on this thread.
+/// Sets how `grid` answers the batch calls and fills `pinrt_gpu_params` from now on, beside
+/// the jitter of each call's `PinrtQueryOptions` (`docs/sampling.md` sections 12-14):
+/// `chain_stride` intervals per lookup (0 or 32 and above: one lookup per query),
+/// `midpoint_lookup` 1 to look each piece up at its middle instead of its start,
+/// `start_inside` 1 to look a piece that starts inside the box up at its start without
+/// spatial jitter. A newly opened grid has 0, 0, 0 (the thesis' lookup); `pinrender render`
+/// uses 0, 1, 1 with both jitters 1. `midpoint_lookup` and `start_inside` other than 0 or 1
+/// are `PINRT_INVALID_ARGUMENT`.
+///
+/// # Safety
+/// `grid` is NULL or an open grid, not used by another thread during the call.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinrt_set_lookup(
+    grid: *mut PinrtGrid,
+    chain_stride: u32,
+    midpoint_lookup: u32,
+    start_inside: u32,
+) -> PinrtStatus {
+    guard("pinrt_set_lookup", || {
+        // SAFETY: the caller's contract: NULL or an open grid used by no other thread.
+        let g = unsafe { grid.as_mut() }.ok_or_else(|| null("grid"))?;
+        let flag = |name: &str, v: u32| match v {
+            0 => Ok(false),
+            1 => Ok(true),
+            _ => Err(Fail(
+                PinrtStatus::InvalidArgument,
+                format!("{name} is {v}; it must be 0 or 1"),
+            )),
+        };
+        g.lookup = Lookup {
+            chain_stride,
+            midpoint_lookup: flag("midpoint_lookup", midpoint_lookup)?,
+            start_inside: flag("start_inside", start_inside)?,
+        };
+        Ok(())
+    })
+}
+
 #[unsafe(no_mangle)]
 pub extern "C" fn pinrt_last_error() -> *const c_char {
     catch_unwind(|| LAST_ERROR.with(|e| e.borrow().as_ptr()))

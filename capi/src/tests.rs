@@ -121,6 +121,99 @@ fn batches_equal_the_rust_sampler_bit_for_bit() {
 }
 
 #[test]
+fn set_lookup_reaches_the_batches_and_the_gpu_params() {
+    let bytes = grid_bytes(false);
+    let g = open_mem(&bytes);
+    let reference = PinGrid::from_bytes(bytes.clone()).unwrap();
+    // Rays from around the box and, for `start_inside`, from points inside it.
+    let mut rs = rays(600);
+    let mut rng = Rng::for_query(7, 3);
+    for r in rs.iter_mut().step_by(2) {
+        r.origin = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+    }
+    let rq: Vec<RayQuery> = bytemuck::cast_slice(&rs).to_vec();
+    let opts = PinrtQueryOptions {
+        spatial_jitter: 1.0,
+        directional_jitter: 1.0,
+        local_to_world: ptr::null(),
+    };
+    let n = rs.len();
+    let answers = |g: *const PinrtGrid| {
+        let mut t = vec![0f32; n];
+        let mut q = vec![PinrtResult::default(); n];
+        // SAFETY: buffers sized `n`.
+        unsafe {
+            assert_eq!(
+                pinrt_transmittance(g, &opts, rs.as_ptr(), n, 9, 0, t.as_mut_ptr()),
+                PinrtStatus::Ok
+            );
+            assert_eq!(
+                pinrt_query(g, &opts, rs.as_ptr(), n, 9, 0, q.as_mut_ptr()),
+                PinrtStatus::Ok
+            );
+        }
+        (t, q)
+    };
+    let (plain_t, _) = answers(g);
+    for (stride, middle, inside) in [(0, 1, 1), (4, 0, 1), (7, 1, 0)] {
+        // SAFETY: an open grid, used by this thread only.
+        assert_eq!(
+            unsafe { pinrt_set_lookup(g, stride, middle, inside) },
+            PinrtStatus::Ok
+        );
+        let s = reference.sampler().unwrap().with_options(SamplerOptions {
+            spatial_jitter: 1.0,
+            directional_jitter: 1.0,
+            chain_stride: stride,
+            midpoint_lookup: middle == 1,
+            start_inside: inside == 1,
+        });
+        let mut want_t = vec![0f32; n];
+        let mut want_q = vec![QueryResult::zeroed(); n];
+        s.transmittance_batch(&rq, 9, 0, &mut want_t);
+        s.query_batch(&rq, 9, 0, &mut want_q);
+        let (t, q) = answers(g);
+        for i in 0..n {
+            assert_eq!(
+                t[i].to_bits(),
+                want_t[i].to_bits(),
+                "{stride} {middle} {inside}: ray {i}"
+            );
+            assert_eq!(bytemuck::bytes_of(&q[i]), bytemuck::bytes_of(&want_q[i]));
+        }
+        // The lookup reached the sampler: not the default lookup's answers.
+        assert_ne!(t, plain_t, "{stride} {middle} {inside}");
+        let mut p = PinrtGpuParams::default();
+        // SAFETY: valid grid, options and out pointer.
+        assert_eq!(
+            unsafe { pinrt_gpu_params(g, &opts, &mut p) },
+            PinrtStatus::Ok
+        );
+        let bits = (middle | (inside << 1)) as f32;
+        let z = if stride == 0 { 0.0 } else { stride as f32 };
+        assert_eq!(p.jitter, [1.0, 1.0, z, bits]);
+    }
+    // Flags other than 0 and 1, and a null grid, are refused with a message.
+    // SAFETY: an open grid, then null.
+    unsafe {
+        assert_eq!(pinrt_set_lookup(g, 0, 2, 0), PinrtStatus::InvalidArgument);
+        assert!(
+            last_error().contains("midpoint_lookup is 2"),
+            "{}",
+            last_error()
+        );
+        assert_eq!(pinrt_set_lookup(g, 0, 0, 7), PinrtStatus::InvalidArgument);
+        assert!(
+            last_error().contains("start_inside is 7"),
+            "{}",
+            last_error()
+        );
+        assert_ne!(pinrt_set_lookup(ptr::null_mut(), 0, 0, 0), PinrtStatus::Ok);
+        pinrt_close(g);
+    }
+}
+
+#[test]
 fn options_jitter_and_placement_reach_the_sampler() {
     let bytes = grid_bytes(false);
     let g = open_mem(&bytes);
