@@ -886,8 +886,7 @@ fn expected_transmittance_is_the_mean_of_the_estimates() {
         let t_max = 0.05 + rng.next_f32();
         let want = s.expected_transmittance(&ray, t_max).unwrap();
         let got = s.mean_transmittance(&ray, t_max, draws, i);
-        let sigma = (want * (1.0 - want) / f64::from(draws)).sqrt();
-        let bound = 5.0 * sigma + 1e-6;
+        let bound = five_sigma(want, draws);
         assert!(
             (got - want).abs() <= bound,
             "ray {i}: mean {got} vs expected {want} (bound {bound})"
@@ -1054,18 +1053,10 @@ fn chained_mean_is_the_product_of_the_pieces() {
         let mut rng = Rng::new(41);
         let (mut caught_t, mut caught_d) = (false, false);
         for i in 0..40 {
-            let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
-            let d = [
-                rng.next_f32() - 0.5,
-                rng.next_f32() - 0.5,
-                rng.next_f32() - 0.5,
-            ];
-            let ray = Ray::new(o, d);
-            let t_max = 0.2 + 2.0 * rng.next_f32();
+            let (ray, t_max) = ray_from_inside_unit_box(&mut rng);
             let want = s.expected_transmittance(&ray, t_max).unwrap();
             let got = s.mean_transmittance(&ray, t_max, draws, i);
-            let sigma = (want * (1.0 - want) / f64::from(draws)).sqrt();
-            let bound = 5.0 * sigma + 1e-6;
+            let bound = five_sigma(want, draws);
             assert!(
                 (got - want).abs() <= bound,
                 "{opts:?} ray {i}: mean {got} vs expected {want} (bound {bound})"
@@ -1073,7 +1064,7 @@ fn chained_mean_is_the_product_of_the_pieces() {
             let wrong = one.expected_transmittance(&ray, t_max).unwrap();
             caught_t |= (got - wrong).abs() > bound;
 
-            let rays = vec![RayQuery::new(o, d, t_max); draws as usize];
+            let rays = vec![RayQuery::new(ray.origin, ray.dir, t_max); draws as usize];
             let mut dist = vec![None; rays.len()];
             s.sample_distance_batch(&rays, 5, i * draws, &mut dist);
             let miss = dist.iter().filter(|x| x.is_none()).count() as f64 / f64::from(draws);
@@ -1082,10 +1073,12 @@ fn chained_mean_is_the_product_of_the_pieces() {
                 "{opts:?} ray {i}: P(no collision) {miss} vs {want} (bound {bound})"
             );
             // The first piece alone: the segment cut at its end.
-            let seg =
-                crate::chord::unit_cube_chord(s.transform().point(o), s.transform().vector(d))
-                    .and_then(|c| segment(c, t_max))
-                    .unwrap();
+            let seg = crate::chord::unit_cube_chord(
+                s.transform().point(ray.origin),
+                s.transform().vector(ray.dir),
+            )
+            .and_then(|c| segment(c, t_max))
+            .unwrap();
             let first = crate::sampler::piece_of(&seg, seg.a / opts.stride(), opts.stride());
             let first_only = s.expected_transmittance(&ray, first.t1).unwrap();
             caught_d |= (miss - first_only).abs() > bound;
@@ -1174,18 +1167,10 @@ fn one_cell_of_jitter_interpolates_between_cell_centres() {
         let mut rng = Rng::new(43);
         let (mut caught_nearest, mut caught_corner) = (false, false);
         for i in 0..40 {
-            let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
-            let d = [
-                rng.next_f32() - 0.5,
-                rng.next_f32() - 0.5,
-                rng.next_f32() - 0.5,
-            ];
-            let ray = Ray::new(o, d);
-            let t_max = 0.2 + 2.0 * rng.next_f32();
+            let (ray, t_max) = ray_from_inside_unit_box(&mut rng);
             let want = interpolated(&plain, &ray, t_max, 0.5);
             let got = s.mean_transmittance(&ray, t_max, draws, i);
-            // A [0, 1] variable with mean E has variance at most E (1 - E).
-            let bound = 5.0 * (want * (1.0 - want) / f64::from(draws)).sqrt() + 1e-6;
+            let bound = five_sigma(want, draws);
             assert!(
                 (got - want).abs() <= bound,
                 "middle {middle}, ray {i}: mean {got} vs interpolated {want} (bound {bound})"
@@ -1234,17 +1219,10 @@ fn start_inside_reads_the_start_cell() {
     let mut rng = Rng::new(47);
     let (mut caught_middle, mut caught_spatial) = (false, false);
     for i in 0..40 {
-        let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
-        let d = [
-            rng.next_f32() - 0.5,
-            rng.next_f32() - 0.5,
-            rng.next_f32() - 0.5,
-        ];
-        let ray = Ray::new(o, d);
-        let t_max = 0.2 + 2.0 * rng.next_f32();
+        let (ray, t_max) = ray_from_inside_unit_box(&mut rng);
         let want = interpolated_with(&start, &ray, t_max, 0.5, false);
         let got = s.mean_transmittance(&ray, t_max, draws, i);
-        let bound = 5.0 * (want * (1.0 - want) / f64::from(draws)).sqrt() + 1e-6;
+        let bound = five_sigma(want, draws);
         assert!(
             (got - want).abs() <= bound,
             "ray {i}: mean {got} vs the start cell's {want} (bound {bound})"
@@ -1289,6 +1267,24 @@ fn start_inside_reads_the_start_cell() {
     plain.query_batch(&rays, 5, 0, &mut b);
     assert_eq!(fingerprint(&a), fingerprint(&b));
     assert!(a.iter().filter(|r| r.hit != 0).count() > 100);
+}
+
+/// A ray of the statistical tests below: from a uniform point of the unit box in a random
+/// direction (not normalised), to a segment end in `[0.2, 2.2)`.
+fn ray_from_inside_unit_box(rng: &mut Rng) -> (Ray, f32) {
+    let o = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+    let d = [
+        rng.next_f32() - 0.5,
+        rng.next_f32() - 0.5,
+        rng.next_f32() - 0.5,
+    ];
+    (Ray::new(o, d), 0.2 + 2.0 * rng.next_f32())
+}
+
+/// Five standard errors of the mean of `draws` values in `[0, 1]` with mean `want` (such a
+/// variable has variance at most `want (1 - want)`), plus a rounding allowance.
+fn five_sigma(want: f64, draws: u32) -> f64 {
+    5.0 * (want * (1.0 - want) / f64::from(draws)).sqrt() + 1e-6
 }
 
 /// The interpolation of [`one_cell_of_jitter_interpolates_between_cell_centres`]: `centre` is
