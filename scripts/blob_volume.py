@@ -6,10 +6,9 @@ Pure Python, no dependencies.
 
 Usage: scripts/blob_volume.py OUT_DIR   (writes OUT_DIR/blob_40x44x36_float32.raw)
 """
-import array
 import math
-import os
-import sys
+
+from raw_volume import write_raw
 
 NX, NY, NZ = 40, 44, 36
 BUMPS = [((0.45, 0.5, 0.5), 80.0, 0.12), ((0.68, 0.38, 0.6), 60.0, 0.06)]
@@ -24,19 +23,7 @@ def density(x, y, z):
 
 
 def main():
-    if len(sys.argv) != 2:
-        sys.exit(__doc__)
-    out = array.array("f")
-    for k in range(NZ):
-        for j in range(NY):
-            for i in range(NX):
-                out.append(density((i + 0.5) / NX, (j + 0.5) / NY, (k + 0.5) / NZ))
-    if sys.byteorder != "little":
-        out.byteswap()
-    path = os.path.join(sys.argv[1], f"blob_{NX}x{NY}x{NZ}_float32.raw")
-    with open(path, "wb") as f:
-        out.tofile(f)
-    print(path)
+    write_raw(__doc__, "blob", (NX, NY, NZ), density)
 
 
 if __name__ == "__main__":

@@ -6,10 +6,9 @@ off-centre Gaussian knot (peak 60, sigma 0.07). Pure Python, no dependencies.
 
 Usage: scripts/torus_volume.py OUT_DIR   (writes OUT_DIR/torus_48x40x44_float32.raw)
 """
-import array
 import math
-import os
-import sys
+
+from raw_volume import write_raw
 
 NX, NY, NZ = 48, 40, 44
 
@@ -27,19 +26,7 @@ def density(x, y, z):
 
 
 def main():
-    if len(sys.argv) != 2:
-        sys.exit(__doc__)
-    out = array.array("f")
-    for k in range(NZ):
-        for j in range(NY):
-            for i in range(NX):
-                out.append(density((i + 0.5) / NX, (j + 0.5) / NY, (k + 0.5) / NZ))
-    if sys.byteorder != "little":
-        out.byteswap()
-    path = os.path.join(sys.argv[1], f"torus_{NX}x{NY}x{NZ}_float32.raw")
-    with open(path, "wb") as f:
-        f.write(out.tobytes())
-    print(path)
+    write_raw(__doc__, "torus", (NX, NY, NZ), density)
 
 
 if __name__ == "__main__":
