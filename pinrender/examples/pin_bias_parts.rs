@@ -52,6 +52,28 @@ use pinrt::mask::sanitize_t_min;
 use pinrt::{PinEntry, PinGrid, Rng};
 use rayon::prelude::*;
 
+/// Pin `k` of the entry `(cell, dcell)` as the sampler reads it: its sanitised `t_min` and
+/// its mask, bit-reversed for a query running against the hemisphere (`reversed`); an empty
+/// entry where the grid stores none.
+fn oriented_entry(
+    view: &GridView<'_>,
+    cell: [u32; 3],
+    dcell: u32,
+    k: u32,
+    reversed: bool,
+) -> (f64, u32) {
+    let entry = view
+        .entry_index(cell, dcell, k)
+        .and_then(|i| view.pins.get(i as usize).copied())
+        .unwrap_or(PinEntry::EMPTY);
+    let mask = if reversed {
+        entry.mask.reverse_bits()
+    } else {
+        entry.mask
+    };
+    (f64::from(sanitize_t_min(entry.t_min)), mask)
+}
+
 #[derive(Parser)]
 struct Args {
     #[command(flatten)]
@@ -234,17 +256,7 @@ impl Ctx<'_> {
             let cell = spatial_cell(p, &self.view, sj);
             let dcell = direction_cell(&dirs, dl, dj);
             // a: the baked entry, closed form over the partial ends (Sampler::piece_expectation).
-            let entry = self
-                .view
-                .entry_index(cell, dcell, k)
-                .and_then(|i| self.view.pins.get(i as usize).copied())
-                .unwrap_or(PinEntry::EMPTY);
-            let t_min = f64::from(sanitize_t_min(entry.t_min));
-            let mask = if reversed {
-                entry.mask.reverse_bits()
-            } else {
-                entry.mask
-            };
+            let (t_min, mask) = oriented_entry(&self.view, cell, dcell, k, reversed);
             sa += (0..INTERVALS)
                 .map(|i| {
                     if mask & (1u32 << (31 - i)) != 0 {
@@ -679,17 +691,7 @@ fn scatter(
         let pm = ou + du * tm;
         let cell = spatial_cell(pm.as_vec3().to_array(), &ctx.view, Some(sj));
         let dcell = direction_cell(&ctx.view.shape.directions, dl, Some(dj));
-        let entry = ctx
-            .view
-            .entry_index(cell, dcell, k)
-            .and_then(|i| ctx.view.pins.get(i as usize).copied())
-            .unwrap_or(PinEntry::EMPTY);
-        let t_min = f64::from(sanitize_t_min(entry.t_min));
-        let mask = if reversed {
-            entry.mask.reverse_bits()
-        } else {
-            entry.mask
-        };
+        let (t_min, mask) = oriented_entry(&ctx.view, cell, dcell, k, reversed);
         let s0 = (ta - te) / len;
         let mut hit = None;
         for i in 0..32usize {
