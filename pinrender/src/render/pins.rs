@@ -327,19 +327,18 @@ mod tests {
     use super::*;
     use pinrt::testing::random_grid;
 
+    /// A random sparse grid of the thesis' directions, 2 pins per entry, loaded from its bytes.
+    fn sparse_grid(dims: [u32; 3], seed: u32) -> Arc<PinGrid> {
+        let owned = random_grid(pin_format::Directions::THESIS_DEFAULT, dims, 2, true, seed);
+        Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap())
+    }
+
     /// A shared batch answers every query as its member's own sampler does (same results,
     /// same generator states), for translated and scaled members, random rays and rays
     /// whose unit-cube form has negative zeros (answered one at a time).
     #[test]
     fn shared_batch_answers_as_each_member() {
-        let owned = random_grid(
-            pin_format::Directions::THESIS_DEFAULT,
-            [5, 4, 6],
-            2,
-            true,
-            11,
-        );
-        let grid = Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap());
+        let grid = sparse_grid([5, 4, 6], 11);
         let opts = SamplerOptions {
             spatial_jitter: 1.0,
             directional_jitter: 1.0,
@@ -443,14 +442,7 @@ mod tests {
     /// collision are, without chained lookups, those of the separate queries seeded alike.
     #[test]
     fn both_queries_from_one_lookup() {
-        let owned = random_grid(
-            pin_format::Directions::THESIS_DEFAULT,
-            [4, 3, 5],
-            2,
-            true,
-            8,
-        );
-        let grid = Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap());
+        let grid = sparse_grid([4, 3, 5], 8);
         for opts in [
             SamplerOptions::default(),
             SamplerOptions {
@@ -501,14 +493,7 @@ mod tests {
     /// placement and options, single and batched, and draws the same path numbers.
     #[test]
     fn answers_as_the_borrowed_sampler() {
-        let owned = random_grid(
-            pin_format::Directions::THESIS_DEFAULT,
-            [4, 3, 5],
-            2,
-            true,
-            7,
-        );
-        let grid = Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap());
+        let grid = sparse_grid([4, 3, 5], 7);
         let opts = SamplerOptions {
             spatial_jitter: 1.0,
             ..SamplerOptions::default()
