@@ -2,6 +2,15 @@
 
 use std::process::ExitCode;
 
+/// Installs the binaries' signal handlers first thing in `main`: an interrupt, or a reader
+/// that closes standard output early (`pinbake inspect --json | head -c 100`), ends the
+/// process quietly and unlinks the partial output file, instead of a panic at the next
+/// `println!` (see [`crate::files::signals`]). The binaries write to no other pipe (the VDB
+/// worker's parent only reads from its child), so no other write raises SIGPIPE.
+pub fn end_quietly_on_closed_stdout() {
+    crate::files::signals::install();
+}
+
 /// Parses the command line; a usage error becomes one line on stderr and exit code 2 (clap's
 /// own report spans several lines), while `--help` and `--version` print as usual.
 pub fn parse_cli<C: clap::Parser>(

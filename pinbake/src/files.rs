@@ -370,7 +370,11 @@ pub mod signals {
     pub fn install() {
         #[cfg(unix)]
         if !INSTALLED.swap(true, Ordering::SeqCst) {
-            for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP] {
+            // SIGPIPE: a reader that closed our stdout early (`... --json | head -c 100`).
+            // Rust's runtime ignores it, so the next `println!` would panic ("failed
+            // printing to stdout"); handled here, the process ends at that write, quietly,
+            // as other Unix filters do, and takes its partial file with it.
+            for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP, libc::SIGPIPE] {
                 // SAFETY: a zeroed sigaction is valid; the handler only makes
                 // async-signal-safe calls.
                 unsafe {

@@ -22,6 +22,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     }
+    pinbake::cli_args::end_quietly_on_closed_stdout();
     let cli = match pinbake::cli_args::parse_cli::<cmd::Cli>("pinbake", args) {
         Ok(c) => c,
         Err(code) => return code,

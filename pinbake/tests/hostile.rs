@@ -737,3 +737,56 @@ fn messages_are_one_line_and_compact() {
     expect("1e308", &r, 1, "1e308");
     assert!(r.stderr.len() < 300, "{}", r.stderr);
 }
+
+/// Runs the binary with its standard output on a pipe whose reader is already gone (a
+/// `... --json | head -c 1` that stopped reading): the status and stderr.
+fn run_into_closed_pipe(args: &[&str]) -> (std::process::ExitStatus, String) {
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = Command::new(BIN)
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    (
+        out.status,
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+#[test]
+fn a_closed_stdout_ends_the_process_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    valid_pin(d);
+    let pin = d.join("valid.pin");
+    let (status, stderr) = run_into_closed_pipe(&["inspect", "--json", pin.to_str().unwrap()]);
+    // Killed by SIGPIPE at the write, as other Unix filters are; before, `println!` panicked
+    // ("failed printing to stdout", exit 101).
+    assert_eq!(status.signal(), Some(libc::SIGPIPE), "{status:?}: {stderr}");
+    assert!(stderr.is_empty(), "{stderr}");
+    // A bake that prints its summary after publishing the file: the file is whole.
+    let out = d.join("o.pin");
+    let mut args = vec![
+        "bake",
+        "procedural:box",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+    ];
+    args.extend(FAST);
+    let (status, stderr) = run_into_closed_pipe(&args);
+    assert_eq!(status.signal(), Some(libc::SIGPIPE), "{status:?}: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let r = run(&["verify", out.to_str().unwrap()]);
+    assert_eq!(r.code, Some(0), "{}", r.stderr);
+    // No temporary file left beside it.
+    let names: Vec<_> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(names.len(), 2, "{names:?}");
+}

@@ -427,6 +427,7 @@ fn render_compares_with_a_reference() {
         line.starts_with("mean_error +0.0000 block8_rms_error 0.0000"),
         "{line}"
     );
+    assert!(line.trim_end().ends_with("rmse 0.000000"), "{line}");
     // Pins with jitter: some error, printed as one line of numbers.
     let o = run(
         &[
@@ -447,6 +448,10 @@ fn render_compares_with_a_reference() {
     assert_eq!(f[0], "mean_error");
     let block: f64 = f[3].parse().unwrap();
     assert!(block > 0.0 && block.is_finite(), "{line}");
+    // The per-pixel RMSE (radiance), last.
+    assert_eq!(f[8], "rmse", "{line}");
+    let rmse: f64 = f[9].parse().unwrap();
+    assert!(rmse > 0.0 && rmse.is_finite(), "{line}");
     // Chained lookups from the segment start: another image, still one line of numbers.
     let o = run(
         &[

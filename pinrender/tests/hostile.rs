@@ -534,3 +534,41 @@ fn pins_that_cannot_serve_the_render_are_refused() {
     );
     assert!(!out.exists());
 }
+
+/// A render whose summary line goes to a pipe that nobody reads any more (`pinrender render
+/// ... --reference R | head -c 1` after `head` exited): the process ends quietly at that
+/// write, killed by SIGPIPE as other Unix filters are, with its image already written;
+/// before, `println!` panicked ("failed printing to stdout", exit 101).
+#[test]
+fn a_closed_stdout_ends_the_process_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let reference = d.join("ref.exr");
+    let args = render_args(&reference);
+    let r = run(&strs(&args), d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    let out = d.join("o.exr");
+    let mut args = render_args(&out);
+    args.extend(["--reference".to_string(), reference.display().to_string()]);
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let o = Command::new(BIN)
+        .args(&args)
+        .env("XDG_CACHE_HOME", d)
+        .env("XDG_RUNTIME_DIR", d)
+        .stdin(Stdio::null())
+        .stdout(writer)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(
+        o.status.signal(),
+        Some(libc::SIGPIPE),
+        "{:?}: {stderr}",
+        o.status
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(out.exists() && out.with_extension("png").exists());
+}

@@ -52,6 +52,7 @@ fn main() -> ExitCode {
     if args.get(1).is_some_and(|a| a == "__vdb-worker") {
         return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
     }
+    pinbake::cli_args::end_quietly_on_closed_stdout();
     let cli = match pinbake::cli_args::parse_cli::<Cli>("pinrender", args) {
         Ok(c) => c,
         Err(code) => return code,

@@ -10,7 +10,7 @@ use std::time::Instant;
 use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::render::{
     Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image, MajorantGrid,
-    RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
+    RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -140,8 +140,9 @@ pub struct RenderArgs {
     /// (docs/sampling.md section 14): `true` or `false`.
     #[arg(long, default_value_t = DEFAULT_LOOKUP.start_inside, action = clap::ArgAction::Set)]
     pub start_inside: bool,
-    /// Compare with this converged image (EXR of the same size) and print the mean error and
-    /// the 8x8-block rms error (relative; see `docs/evaluation.md`).
+    /// Compare with this converged image (EXR of the same size) and print one line on stdout:
+    /// `mean_error M block8_rms_error B spp N seconds S rmse R` (M and B relative, see
+    /// `docs/evaluation.md`; R the per-pixel RMSE in radiance, as `pinrender eval` reports).
     #[arg(long)]
     pub reference: Option<PathBuf>,
 }
@@ -513,9 +514,11 @@ fn write(
     if let (Some(r), Some(path)) = (reference, &a.reference) {
         let (mean, block) =
             block_bias(image, r, 8).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-        // stdout, one line, for scripts; the render summary above goes to stderr.
+        let rmse = rmse(image, r).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        // stdout, one line, for scripts; the render summary above goes to stderr. New fields
+        // go at the end (scripts read the first ones by position).
         println!(
-            "mean_error {:+.4} block8_rms_error {:.4} spp {spp} seconds {seconds:.2}",
+            "mean_error {:+.4} block8_rms_error {:.4} spp {spp} seconds {seconds:.2} rmse {rmse:.6}",
             mean, block
         );
     }
