@@ -701,15 +701,28 @@ pub unsafe extern "C" fn pinrt_gpu_buffers(
     })
 }
 
-/// The one-line message of the last failed call on this thread, or "" if the last call
-/// succeeded. The pointer stays valid until the next `pinrt_*` call on this thread.
+/// The lookup `pinrender render` uses, the least biased this library offers
+/// (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-14): set both jitters of
+/// `PinrtQueryOptions` to these and call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
+/// PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)`.
+pub const PINRT_RENDER_SPATIAL_JITTER: f32 = 1.0;
+/// See `PINRT_RENDER_SPATIAL_JITTER`.
+pub const PINRT_RENDER_DIRECTIONAL_JITTER: f32 = 1.0;
+/// See `PINRT_RENDER_SPATIAL_JITTER` (32: one lookup per query).
+pub const PINRT_RENDER_CHAIN_STRIDE: u32 = 32;
+/// See `PINRT_RENDER_SPATIAL_JITTER`.
+pub const PINRT_RENDER_MIDPOINT_LOOKUP: u32 = 1;
+/// See `PINRT_RENDER_SPATIAL_JITTER`.
+pub const PINRT_RENDER_START_INSIDE: u32 = 1;
+
 /// Sets how `grid` answers the batch calls and fills `pinrt_gpu_params` from now on, beside
 /// the jitter of each call's `PinrtQueryOptions` (`docs/sampling.md` sections 12-14):
 /// `chain_stride` intervals per lookup (0 or 32 and above: one lookup per query),
 /// `midpoint_lookup` 1 to look each piece up at its middle instead of its start,
 /// `start_inside` 1 to look a piece that starts inside the box up at its start without
 /// spatial jitter. A newly opened grid has 0, 0, 0 (the thesis' lookup); `pinrender render`
-/// uses 0, 1, 1 with both jitters 1. `midpoint_lookup` and `start_inside` other than 0 or 1
+/// uses the `PINRT_RENDER_*` values (one lookup, middle, start inside, both jitters 1).
+/// `midpoint_lookup` and `start_inside` other than 0 or 1
 /// are `PINRT_INVALID_ARGUMENT`.
 ///
 /// # Safety
@@ -741,6 +754,8 @@ pub unsafe extern "C" fn pinrt_set_lookup(
     })
 }
 
+/// The one-line message of the last failed call on this thread, or "" if the last call
+/// succeeded. The pointer stays valid until the next `pinrt_*` call on this thread.
 #[unsafe(no_mangle)]
 pub extern "C" fn pinrt_last_error() -> *const c_char {
     catch_unwind(|| LAST_ERROR.with(|e| e.borrow().as_ptr()))

@@ -516,3 +516,16 @@ fn gpu_params_and_buffers_describe_the_grid_as_the_sampler_sees_it() {
         unsafe { pinrt_close(g) };
     }
 }
+
+#[test]
+fn render_lookup_constants_are_the_rust_samplers() {
+    // The `PINRT_RENDER_*` defines are `pinrt::SamplerOptions::RENDER`, field for field: a C
+    // caller who sets them gets `pinrender render`'s lookup (the batches' bit-exactness for
+    // any lookup is `set_lookup_reaches_the_batches_and_the_gpu_params`).
+    let r = SamplerOptions::RENDER;
+    assert_eq!(PINRT_RENDER_SPATIAL_JITTER, r.spatial_jitter);
+    assert_eq!(PINRT_RENDER_DIRECTIONAL_JITTER, r.directional_jitter);
+    assert_eq!(PINRT_RENDER_CHAIN_STRIDE, r.chain_stride);
+    assert_eq!(PINRT_RENDER_MIDPOINT_LOOKUP == 1, r.midpoint_lookup);
+    assert_eq!(PINRT_RENDER_START_INSIDE == 1, r.start_inside);
+}

@@ -55,6 +55,11 @@
 //! on real volumes, and at which file size, is measured in `docs/evaluation.md`. Renderers
 //! average millions of estimates per image, which is the use the model is built for.
 //!
+//! For rendering, query with [`SamplerOptions::RENDER`] (`sampler.with_options(
+//! SamplerOptions::RENDER)`): the lookup `pinrender render` uses, measured the least biased
+//! on volumes nobody tuned for. `SamplerOptions::default()` is the thesis' lookup, kept as
+//! the default so that existing callers get the same bits.
+//!
 //! ## Performance
 //!
 //! A single query is dominated by one cache miss for its entry. The batch methods

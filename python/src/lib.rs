@@ -609,9 +609,26 @@ fn vdb_worker(args: Vec<String>) -> i32 {
     pinbake::source::vdb::worker_main(&args)
 }
 
+/// `pinrt::SamplerOptions::RENDER` (the lookup `pinrender render` uses) as the queries'
+/// keyword arguments, so that Python cannot drift from the Rust constant.
+fn render_lookup<'py>(py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
+    let r = SamplerOptions::RENDER;
+    let d = pyo3::types::PyDict::new(py);
+    d.set_item("spatial_jitter", r.spatial_jitter)?;
+    d.set_item("directional_jitter", r.directional_jitter)?;
+    d.set_item("chain_stride", r.chain_stride)?;
+    d.set_item(
+        "lookup_point",
+        if r.midpoint_lookup { "middle" } else { "start" },
+    )?;
+    d.set_item("start_inside", r.start_inside)?;
+    Ok(d)
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PinGrid>()?;
+    m.add("RENDER_LOOKUP", render_lookup(m.py())?)?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
     m.add_function(wrap_pyfunction!(vdb_worker, m)?)?;
     m.add("PinError", m.py().get_type::<PinError>())?;

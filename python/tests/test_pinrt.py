@@ -137,8 +137,11 @@ def test_lookup_options_equal_the_rust_sampler_bit_for_bit(smoke, tmp_path):
     lo, hi = np.array(box["min"]), np.array(box["max"])
     inside = np.random.default_rng(5).uniform(0.1, 0.9, (n // 2, 3))
     o[: n // 2] = (lo + (hi - lo) * inside).astype(np.float32)
-    render = dict(spatial_jitter=1.0, directional_jitter=1.0, lookup_point="middle",
-                  start_inside=True)
+    render = dict(spatial_jitter=1.0, directional_jitter=1.0, chain_stride=32,
+                  lookup_point="middle", start_inside=True)
+    # The exported preset is the Rust constant pinrender render uses (read from it).
+    assert pinrt.RENDER_LOOKUP == render
+    render = pinrt.RENDER_LOOKUP
     plain = grid.transmittance(o, d, t, seed=SEED)
     for kwargs, options in [
         (render, "1,1,0,middle,1"),
@@ -311,6 +314,9 @@ def test_stub_matches_the_compiled_module():
     tree = ast.parse(stub.read_text())
     declared = {
         n.name for n in tree.body if isinstance(n, (ast.ClassDef, ast.FunctionDef))
+    } | {
+        n.target.id for n in tree.body
+        if isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name)
     }
     public = {n for n in dir(pinrt._native) if not n.startswith("_")}
     assert declared == public

@@ -1,11 +1,13 @@
 # Typed stub of the compiled module (python/src/lib.rs). The public API is pinrt/__init__.py.
 from os import PathLike
-from typing import Optional, Tuple, Union
+from typing import Any, Dict, Optional, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
 
 class PinError(Exception): ...
+
+RENDER_LOOKUP: Dict[str, Any]
 
 class PinGrid:
     def __init__(self, path: Union[str, PathLike[str]]) -> None: ...

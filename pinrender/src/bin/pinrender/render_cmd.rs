@@ -148,17 +148,8 @@ pub struct RenderArgs {
 }
 
 /// The lookup options `pinrender render` (and `pinrender eval`'s pins) use unless told
-/// otherwise: one cell of jitter (`docs/sampling.md` section 11) and one lookup per query at
-/// the middle of the segment, which beat chained lookups at their cost on the renders of
-/// `docs/evaluation.md` ("Chained lookups and the lookup point"); a ray that starts inside
-/// the box at its start without spatial jitter (`docs/sampling.md` section 14).
-pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions {
-    spatial_jitter: 1.0,
-    directional_jitter: 1.0,
-    chain_stride: 32,
-    midpoint_lookup: true,
-    start_inside: true,
-};
+/// otherwise: the library's [`SamplerOptions::RENDER`] (its documentation says why each).
+pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions::RENDER;
 
 fn parse_jitter(s: &str) -> Result<f32, String> {
     let v: f32 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
