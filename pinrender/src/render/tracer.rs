@@ -178,12 +178,16 @@ impl Camera {
 }
 
 impl Frame {
-    /// Ray through image position `(px, py)` in pixels from the top-left corner.
+    /// Ray through image position `(px, py)` in pixels from the top-left corner. The
+    /// direction is NOT normalised: every caller starts a path with it, and a path's start
+    /// normalises its direction once (`camera_segment`, the wavefront loop's `start_path`).
+    /// Normalising here as well cost a second square root and division on the path's
+    /// critical path, 6% of a pins render (`docs/performance.md`).
     #[inline]
     pub(crate) fn ray(&self, px: f32, py: f32) -> (Vec3, Vec3) {
         let sx = (2.0 * px / self.w - 1.0) * self.tan_half * self.aspect;
         let sy = (1.0 - 2.0 * py / self.h) * self.tan_half;
-        (self.o, (self.f + self.r * sx + self.u * sy).normalize())
+        (self.o, self.f + self.r * sx + self.u * sy)
     }
 }
 
