@@ -538,6 +538,17 @@ fn sizes_beyond_memory_fail_before_allocating() {
         "2G",
     ]);
     expect("bench --voxels 4096", &r, 1, "memory budget");
+    // 64^3 voxels (1 MiB) and a 37^3 x 16x4 bake (52 MB of output) fit in 60M; the layered
+    // march's working set (~110 MB, which the check used to leave out) does not.
+    let r = run(&[
+        "bench",
+        "--grid-only",
+        "--voxels",
+        "64",
+        "--max-memory",
+        "60M",
+    ]);
+    expect("bench working set", &r, 1, "memory budget");
     assert_eq!(partials(dir.path()), Vec::<String>::new());
 }
 

@@ -54,14 +54,19 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
     let voxels = u64::from(n).pow(3);
     let probe = BakeOptions {
         cells: [args.cells; 3],
+        directions: Directions::THESIS_DEFAULT,
         majorant: None,
         ..BakeOptions::default()
     };
+    // The voxels, the output of the bake the bench runs (16x4 directions: the check used to
+    // size it for the default octahedral:16, 4x too large) and the layered march's working
+    // set (which it left out: up to ~110 MB).
     pinbake::files::MemoryBudget::new(args.max_memory).check(
         "the benchmark volume and bake",
         voxels
             .saturating_mul(4)
-            .saturating_add(pinbake::bake::estimate_output_bytes(&probe)),
+            .saturating_add(pinbake::bake::estimate_output_bytes(&probe))
+            .saturating_add(pinbake::bake::estimate_working_bytes(&probe)),
     )?;
     let t0 = Instant::now();
     let h = 1.0 / f64::from(n);
