@@ -11,6 +11,22 @@ pub fn end_quietly_on_closed_stdout() {
     crate::files::signals::install();
 }
 
+/// The error of [`outln!`](crate::outln): standard output could not be written.
+#[derive(Debug, thiserror::Error)]
+#[error("standard output: {0}")]
+pub struct StdoutError(pub std::io::Error);
+
+/// `println!` for the binaries' results, returning [`StdoutError`] where `println!` panics:
+/// a full disk behind a redirection (`> /dev/full`) or any other write error. (A reader that
+/// closed a pipe ends the process by SIGPIPE first: [`end_quietly_on_closed_stdout`].)
+#[macro_export]
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*).map_err($crate::cli_args::StdoutError)
+    }};
+}
+
 /// Parses the command line; a usage error becomes one line on stderr and exit code 2 (clap's
 /// own report spans several lines), while `--help` and `--version` print as usual.
 pub fn parse_cli<C: clap::Parser>(

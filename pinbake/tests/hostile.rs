@@ -767,6 +767,39 @@ fn run_into_closed_pipe(args: &[&str]) -> (std::process::ExitStatus, String) {
     )
 }
 
+/// `> /dev/full`: the summary cannot be written. One error line naming standard output,
+/// exit 1; before, `println!` panicked (exit 101).
+#[test]
+fn a_full_stdout_is_an_error_line() {
+    let dir = tempfile::tempdir().unwrap();
+    valid_pin(dir.path());
+    let pin = dir.path().join("valid.pin");
+    for args in [
+        vec!["inspect", "--json", pin.to_str().unwrap()],
+        vec!["inspect", pin.to_str().unwrap()],
+        vec!["verify", pin.to_str().unwrap()],
+    ] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let out = Command::new(BIN)
+            .args(&args)
+            .stdin(Stdio::null())
+            .stdout(full)
+            .stderr(Stdio::piped())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        assert!(
+            stderr.starts_with("pinbake: error: standard output: No space left on device"),
+            "{args:?}: {stderr}"
+        );
+    }
+}
+
 #[test]
 fn a_closed_stdout_ends_the_process_quietly() {
     use std::os::unix::process::ExitStatusExt;

@@ -572,3 +572,37 @@ fn a_closed_stdout_ends_the_process_quietly() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert!(out.exists() && out.with_extension("png").exists());
 }
+
+/// `> /dev/full`: the `--reference` line cannot be written. One error line naming standard
+/// output, exit 1 (the image is written before it); before, `println!` panicked (exit 101).
+#[test]
+fn a_full_stdout_is_an_error_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let reference = d.join("ref.exr");
+    let r = run(&strs(&render_args(&reference)), d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    let mut args = render_args(&d.join("o.exr"));
+    args.extend(["--reference".to_string(), reference.display().to_string()]);
+    let full = std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap();
+    let o = Command::new(BIN)
+        .args(&args)
+        .env("XDG_CACHE_HOME", d)
+        .env("XDG_RUNTIME_DIR", d)
+        .stdin(Stdio::null())
+        .stdout(full)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    let last = stderr.lines().last().unwrap_or("");
+    assert!(
+        last.starts_with("pinrender: error: standard output: No space left on device"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}

@@ -277,7 +277,7 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     }
     let summary = bake_one(&args)?;
     if args.json {
-        println!("{summary}");
+        pinbake::outln!("{summary}")?;
     }
     Ok(ExitCode::SUCCESS)
 }

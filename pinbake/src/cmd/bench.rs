@@ -137,19 +137,24 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
         }
     }
     if args.json {
-        println!("{}", json!({"voxelise_s": voxelise_s, "results": rows}));
+        pinbake::outln!("{}", json!({"voxelise_s": voxelise_s, "results": rows}))?;
     } else {
-        println!(
+        pinbake::outln!(
             "pinbake bench: {c}^3 cells x 16x4 directions = {} pins, step 0.01 (voxelising {n}^3 took {voxelise_s:.1} s)",
             u64::from(args.cells).pow(3) * 64,
             c = args.cells
-        );
-        println!(
+        )?;
+        pinbake::outln!(
             "{:<22} {:>8} {:>10} {:>14} {:>12} {:>12}",
-            "source", "threads", "wall s", "pins/s", "peak RSS MB", "T error"
-        );
+            "source",
+            "threads",
+            "wall s",
+            "pins/s",
+            "peak RSS MB",
+            "T error"
+        )?;
         for r in &rows {
-            println!(
+            pinbake::outln!(
                 "{:<22} {:>8} {:>10.2} {:>14.0} {:>12.0} {:>12.2e}",
                 r["source"].as_str().unwrap_or(""),
                 r["threads"],
@@ -157,7 +162,7 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 r["pins_per_s"].as_f64().unwrap_or(0.0),
                 r["peak_rss_bytes"].as_f64().unwrap_or(f64::NAN) / 1e6,
                 r["integration_error"].as_f64().unwrap_or(f64::NAN)
-            );
+            )?;
         }
     }
     Ok(ExitCode::SUCCESS)

@@ -238,10 +238,10 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
     }
     let ok = frames.len() - failed;
     if args.json {
-        println!(
+        pinbake::outln!(
             "{}",
             serde_json::json!({ "frames": results, "ok": ok, "failed": failed })
-        );
+        )?;
     } else {
         eprintln!(
             "baked {ok} of {} frames of {}{}",

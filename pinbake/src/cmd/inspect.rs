@@ -144,12 +144,12 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         });
     }
     if as_json {
-        println!("{v}");
+        pinbake::outln!("{v}")?;
         return Ok(ExitCode::SUCCESS);
     }
-    println!("{}", path.display());
-    println!("  format        {}", v["version"].as_str().unwrap_or("?"));
-    println!(
+    pinbake::outln!("{}", path.display())?;
+    pinbake::outln!("  format        {}", v["version"].as_str().unwrap_or("?"))?;
+    pinbake::outln!(
         "  grid          {} x {} x {} cells, {} directions ({}), {} pin(s) per entry",
         file.desc().dims[0],
         file.desc().dims[1],
@@ -157,8 +157,8 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         file.shape().directions.count(),
         directions_json(file.shape().directions),
         file.desc().pins_per_entry
-    );
-    println!(
+    )?;
+    pinbake::outln!(
         "  box           {:?} .. {:?}{}",
         file.desc().box_min,
         file.desc().box_max,
@@ -167,37 +167,39 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         } else {
             ""
         }
-    );
-    println!(
+    )?;
+    pinbake::outln!(
         "  cells         {} covered, {} stored, {} empty ({:.1}% sparse)",
         v["covered_cells"],
         v["stored_cells"],
         v["empty_cells"],
         v["sparse_fraction"].as_f64().unwrap_or(0.0) * 100.0
-    );
-    println!("  pins          {} stored", v["pins"]);
-    println!(
+    )?;
+    pinbake::outln!("  pins          {} stored", v["pins"])?;
+    pinbake::outln!(
         "  t_min         min {:.6}  max {:.6}  mean {:.6}",
         v["t_min"]["min"].as_f64().unwrap_or(f64::NAN),
         v["t_min"]["max"].as_f64().unwrap_or(f64::NAN),
         v["t_min"]["mean"].as_f64().unwrap_or(f64::NAN)
-    );
-    println!(
+    )?;
+    pinbake::outln!(
         "  t_min histogram (10 bins over [0,1]): {}",
         v["t_min"]["histogram"]
-    );
-    println!("  sections");
+    )?;
+    pinbake::outln!("  sections")?;
     for s in file.sections() {
         let name = SectionKind::from_u32(s.kind)
             .map(|k| k.name().to_string())
             .unwrap_or_else(|| format!("unknown({})", s.kind));
-        println!(
+        pinbake::outln!(
             "    {name:<12} offset {:>12}  length {:>12}  xxh3 {:016x}",
-            s.offset, s.length, s.checksum
-        );
+            s.offset,
+            s.length,
+            s.checksum
+        )?;
     }
     if let Some(m) = metadata {
-        println!(
+        pinbake::outln!(
             "  source        {} ({}) hash {}",
             m.source_name,
             m.source_description,
@@ -206,12 +208,16 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
             } else {
                 &m.source_hash
             }
-        );
-        println!(
+        )?;
+        pinbake::outln!(
             "  baked by      {} {}, seed {}, step {}, density scale {}",
-            m.tool, m.tool_version, m.seed, m.step_size, m.density_scale
-        );
+            m.tool,
+            m.tool_version,
+            m.seed,
+            m.step_size,
+            m.density_scale
+        )?;
     }
-    println!("  file          {} bytes", bytes.len());
+    pinbake::outln!("  file          {} bytes", bytes.len())?;
     Ok(ExitCode::SUCCESS)
 }

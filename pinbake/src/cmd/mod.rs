@@ -86,7 +86,7 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
                 parsed
                     .verify()
                     .with_context(|| format!("{}", file.display()))?;
-                println!("{}: ok", file.display());
+                pinbake::outln!("{}: ok", file.display())?;
             }
             Ok(ExitCode::SUCCESS)
         }

@@ -634,16 +634,23 @@ pub fn run(args: BenchArgs) -> Result<()> {
         )?;
     }
     if args.json {
-        println!("{}", json!({"results": rows}));
+        pinbake::outln!("{}", json!({"results": rows}))?;
         return Ok(());
     }
     if let Some(ctx) = &gpu {
-        println!("gpu: {}", ctx.describe());
+        pinbake::outln!("gpu: {}", ctx.describe())?;
     }
-    println!(
+    pinbake::outln!(
         "{:<12} {:<20} {:<14} {:<5} {:>14} {:>10} {:>10} {:>10}",
-        "volume", "method", "query", "on", "queries/s", "batched/x", "default/x", "mean|err|"
-    );
+        "volume",
+        "method",
+        "query",
+        "on",
+        "queries/s",
+        "batched/x",
+        "default/x",
+        "mean|err|"
+    )?;
     // The CPU rate of `method`'s row for the same volume and query (thread CPU time on CPU
     // rows, see `Rate`; a GPU row is compared by wall rate).
     let rate_of = |r: &Value, method: &str, field: &str| {
@@ -674,7 +681,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
         // The GPU's combined `both` row has no batched CPU counterpart.
-        println!(
+        pinbake::outln!(
             "{:<12} {:<20} {:<14} {:<5} {:>14.0} {:>10} {:>10} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),
@@ -684,7 +691,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             ratio_text(rate_of(r, "pins-batched", field) / own),
             ratio_text(rate_of(r, "pins-default-batched", field) / own),
             err
-        );
+        )?;
     }
     Ok(())
 }

@@ -508,10 +508,11 @@ fn write(
         let rmse = rmse(image, r).map_err(|e| anyhow!("{}: {e}", path.display()))?;
         // stdout, one line, for scripts; the render summary above goes to stderr. New fields
         // go at the end (scripts read the first ones by position).
-        println!(
+        pinbake::outln!(
             "mean_error {:+.4} block8_rms_error {:.4} spp {spp} seconds {seconds:.2} rmse {rmse:.6}",
-            mean, block
-        );
+            mean,
+            block
+        )?;
     }
     Ok(())
 }
