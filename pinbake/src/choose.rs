@@ -337,6 +337,11 @@ pub struct Choice {
     pub target_met: bool,
     /// Pin, index and header bytes the choice expects (dense: every cell stored).
     pub predicted_pin_bytes: u64,
+    /// The cells were chosen (not given) and are one per voxel on every axis: the rule
+    /// "never more cells than voxels" allows no finer spatial grid. On volumes that small the
+    /// measured block error exceeds the prediction (`docs/evaluation.md`, "The sphere: capped
+    /// by its voxels"); `reason_cells` says so and how to go finer.
+    pub capped_by_voxels: bool,
     /// One sentence per parameter.
     pub reason_cells: String,
     pub reason_directions: String,
@@ -447,12 +452,25 @@ fn choose_above(
              reaches {target}: the lowest predicted error"
         )
     };
+    let capped_by_voxels = fixed.cells.is_none()
+        && stats
+            .voxels
+            .is_some_and(|v| (0..3).all(|a| cells[a] >= v[a].max(1)));
     let reason_cells = match fixed.cells {
         Some(_) => "given (--cells)".to_string(),
         None => format!(
             "{goal}; model variation {:.3} (mean {:.3} + sparse-feature rms {:.3}) over \
-             {voxels}; never more cells than voxels",
-            stats.model_variation, stats.variation, stats.variation_rms
+             {voxels}; never more cells than voxels{}",
+            stats.model_variation,
+            stats.variation,
+            stats.variation_rms,
+            if capped_by_voxels {
+                ": one cell per voxel here, and on volumes this small the measured block \
+                 error exceeds the prediction (docs/evaluation.md, \"The sphere: capped by \
+                 its voxels\"); --cells above the voxels lowers it"
+            } else {
+                ""
+            }
         ),
     };
     let reason_directions = match fixed.directions {
@@ -475,6 +493,7 @@ fn choose_above(
         predicted_error: error,
         target_error: target,
         target_met,
+        capped_by_voxels,
         predicted_pin_bytes: bytes,
         reason_cells,
         reason_directions,
@@ -684,6 +703,26 @@ mod tests {
         let c = choose(&s, Fixed::default(), 1e-6);
         assert!(!c.target_met);
         assert_eq!(c.cells, [5, 7, 3]);
+        // Capped, and the reason says how to go finer; not when the cells are given, nor
+        // when the choice stops below the voxels.
+        assert!(c.capped_by_voxels);
+        assert!(
+            c.reason_cells.contains("--cells above the voxels"),
+            "{}",
+            c.reason_cells
+        );
+        let given = Fixed {
+            cells: Some([5, 7, 3]),
+            ..Fixed::default()
+        };
+        assert!(!choose(&s, given, 1e-6).capped_by_voxels);
+        let coarse = choose(&s, Fixed::default(), 0.5);
+        assert!(
+            coarse.cells != [5, 7, 3] && !coarse.capped_by_voxels,
+            "{:?}",
+            coarse.cells
+        );
+        assert!(!coarse.reason_cells.contains("--cells above"));
         assert_eq!(
             c.directions,
             Directions::Octahedral {

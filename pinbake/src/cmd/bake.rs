@@ -410,6 +410,7 @@ fn choice_json(c: &Choice, file_bytes: u64) -> serde_json::Value {
         "predicted_error": c.predicted_error,
         "target_error": c.target_error,
         "target_met": c.target_met,
+        "capped_by_voxels": c.capped_by_voxels,
         "predicted_pin_bytes": c.predicted_pin_bytes,
         "bytes": file_bytes,
         "reason": {
