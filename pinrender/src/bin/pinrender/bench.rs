@@ -582,9 +582,12 @@ pub fn run(args: BenchArgs) -> Result<()> {
             cells: [args.cells; 3],
             ..pinbake::BakeOptions::default()
         };
+        // The bake's output and its layered march's working set (up to ~110 MB, which the
+        // check used to leave out).
         budget.check(
             &format!("baking {}^3 pin cells", args.cells),
-            pinbake::bake::estimate_output_bytes(&probe),
+            pinbake::bake::estimate_output_bytes(&probe)
+                .saturating_add(pinbake::bake::estimate_working_bytes(&probe)),
         )?;
     }
     let mut volumes: Vec<(String, Arc<dyn DensitySource>)> = Vec::new();
