@@ -539,6 +539,27 @@ fn pins_that_cannot_serve_the_render_are_refused() {
     assert!(!out.exists());
 }
 
+/// A tiny render with `--reference` (a reference rendered first into `d`) whose standard
+/// output is `stdout`: the output, and the image path it writes.
+fn reference_render_into(d: &Path, stdout: impl Into<Stdio>) -> (Output, PathBuf) {
+    let reference = d.join("ref.exr");
+    let r = run(&strs(&render_args(&reference)), d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    let out = d.join("o.exr");
+    let mut args = render_args(&out);
+    args.extend(["--reference".to_string(), reference.display().to_string()]);
+    let o = Command::new(BIN)
+        .args(&args)
+        .env("XDG_CACHE_HOME", d)
+        .env("XDG_RUNTIME_DIR", d)
+        .stdin(Stdio::null())
+        .stdout(stdout)
+        .stderr(Stdio::piped())
+        .output()
+        .unwrap();
+    (o, out)
+}
+
 /// A render whose summary line goes to a pipe that nobody reads any more (`pinrender render
 /// ... --reference R | head -c 1` after `head` exited): the process ends quietly at that
 /// write, killed by SIGPIPE as other Unix filters are, with its image already written;
@@ -547,25 +568,9 @@ fn pins_that_cannot_serve_the_render_are_refused() {
 fn a_closed_stdout_ends_the_process_quietly() {
     use std::os::unix::process::ExitStatusExt;
     let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let reference = d.join("ref.exr");
-    let args = render_args(&reference);
-    let r = run(&strs(&args), d);
-    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
-    let out = d.join("o.exr");
-    let mut args = render_args(&out);
-    args.extend(["--reference".to_string(), reference.display().to_string()]);
     let (reader, writer) = std::io::pipe().unwrap();
     drop(reader);
-    let o = Command::new(BIN)
-        .args(&args)
-        .env("XDG_CACHE_HOME", d)
-        .env("XDG_RUNTIME_DIR", d)
-        .stdin(Stdio::null())
-        .stdout(writer)
-        .stderr(Stdio::piped())
-        .output()
-        .unwrap();
+    let (o, out) = reference_render_into(dir.path(), writer);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(
         o.status.signal(),
@@ -582,25 +587,11 @@ fn a_closed_stdout_ends_the_process_quietly() {
 #[test]
 fn a_full_stdout_is_an_error_line() {
     let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    let reference = d.join("ref.exr");
-    let r = run(&strs(&render_args(&reference)), d);
-    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
-    let mut args = render_args(&d.join("o.exr"));
-    args.extend(["--reference".to_string(), reference.display().to_string()]);
     let full = std::fs::OpenOptions::new()
         .write(true)
         .open("/dev/full")
         .unwrap();
-    let o = Command::new(BIN)
-        .args(&args)
-        .env("XDG_CACHE_HOME", d)
-        .env("XDG_RUNTIME_DIR", d)
-        .stdin(Stdio::null())
-        .stdout(full)
-        .stderr(Stdio::piped())
-        .output()
-        .unwrap();
+    let (o, _) = reference_render_into(dir.path(), full);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
     let last = stderr.lines().last().unwrap_or("");
