@@ -14,6 +14,20 @@ fn grid_of(entry: PinEntry) -> PinGrid {
     PinGrid::from_bytes(single_entry_grid(entry).to_bytes().unwrap()).unwrap()
 }
 
+/// [`random_grid`] serialised and read back: what a loaded file gives the sampler.
+fn loaded_random_grid(
+    directions: Directions,
+    dims: [u32; 3],
+    pins_per_entry: u32,
+    sparse: bool,
+    seed: u32,
+) -> PinGrid {
+    let bytes = random_grid(directions, dims, pins_per_entry, sparse, seed)
+        .to_bytes()
+        .unwrap();
+    PinGrid::from_bytes(bytes).unwrap()
+}
+
 fn full_chord() -> Segment {
     segment(
         Chord {
@@ -129,18 +143,8 @@ fn damaged_t_min_reads_sanitised() {
 
 #[test]
 fn dz_zero_plane_plus_and_minus_zero_agree() {
-    let g = PinGrid::from_bytes(
-        random_grid(Directions::THESIS_DEFAULT, [3, 3, 3], 2, false, 3)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
-    let go = PinGrid::from_bytes(
-        random_grid(Directions::Octahedral { n: 6 }, [3, 3, 3], 2, true, 4)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let g = loaded_random_grid(Directions::THESIS_DEFAULT, [3, 3, 3], 2, false, 3);
+    let go = loaded_random_grid(Directions::Octahedral { n: 6 }, [3, 3, 3], 2, true, 4);
     for grid in [&g, &go] {
         let s = grid.sampler().unwrap();
         let mut r0 = Rng::new(0);
@@ -586,12 +590,7 @@ fn batch_equals_single_and_query_parts() {
         (Directions::THESIS_DEFAULT, true),
         (Directions::Octahedral { n: 5 }, false),
     ] {
-        let g = PinGrid::from_bytes(
-            random_grid(dirs, [5, 4, 3], 3, sparse, 17)
-                .to_bytes()
-                .unwrap(),
-        )
-        .unwrap();
+        let g = loaded_random_grid(dirs, [5, 4, 3], 3, sparse, 17);
         for opts in [
             SamplerOptions::default(),
             SamplerOptions {
@@ -865,12 +864,7 @@ fn world_bounds_contain_every_hit() {
 /// `t_max` would give), must fall outside the bound for some ray.
 #[test]
 fn expected_transmittance_is_the_mean_of_the_estimates() {
-    let grid = PinGrid::from_bytes(
-        random_grid(Directions::THESIS_DEFAULT, [3, 4, 2], 3, false, 17)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let grid = loaded_random_grid(Directions::THESIS_DEFAULT, [3, 4, 2], 3, false, 17);
     let s = Sampler::new(&grid).unwrap();
     let mut rng = Rng::new(99);
     let draws = 8192u32;
@@ -949,12 +943,7 @@ fn fingerprint(results: &[QueryResult]) -> u64 {
 /// 37f2b2c) on these rays and grids, without and with jitter.
 #[test]
 fn one_lookup_per_chord_reproduces_the_unchained_sampler() {
-    let g = PinGrid::from_bytes(
-        random_grid(Directions::Octahedral { n: 5 }, [5, 4, 3], 3, true, 17)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let g = loaded_random_grid(Directions::Octahedral { n: 5 }, [5, 4, 3], 3, true, 17);
     let rays = random_rays(4000, 5);
     let run = |opts: SamplerOptions| {
         let mut out = vec![QueryResult::empty_for_tests(); rays.len()];
@@ -984,12 +973,7 @@ fn one_lookup_per_chord_reproduces_the_unchained_sampler() {
 /// so the later pieces see other numbers (both estimates are unbiased).
 #[test]
 fn chained_batch_equals_single() {
-    let g = PinGrid::from_bytes(
-        random_grid(Directions::THESIS_DEFAULT, [5, 4, 3], 3, true, 17)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let g = loaded_random_grid(Directions::THESIS_DEFAULT, [5, 4, 3], 3, true, 17);
     for opts in [
         chain(4, false, 1.0),
         chain(7, true, 0.0),
@@ -1040,12 +1024,7 @@ fn chained_batch_equals_single() {
 /// must each fall outside the bound for some ray.
 #[test]
 fn chained_mean_is_the_product_of_the_pieces() {
-    let grid = PinGrid::from_bytes(
-        random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 23)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let grid = loaded_random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 23);
     let draws = 8192u32;
     for opts in [chain(8, false, 0.0), chain(5, true, 0.0)] {
         let s = Sampler::new(&grid).unwrap().with_options(opts);
@@ -1146,12 +1125,7 @@ fn interval_range_bits(a: u32, b: u32) -> u32 {
 /// the interpolation weights of pins baked through cell centres (`pinbake`'s default).
 #[test]
 fn one_cell_of_jitter_interpolates_between_cell_centres() {
-    let grid = PinGrid::from_bytes(
-        random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 29)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let grid = loaded_random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 29);
     let draws = 8192u32;
     for middle in [false, true] {
         let s = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
@@ -1192,12 +1166,7 @@ fn one_cell_of_jitter_interpolates_between_cell_centres() {
 /// without the option.
 #[test]
 fn start_inside_reads_the_start_cell() {
-    let grid = PinGrid::from_bytes(
-        random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 31)
-            .to_bytes()
-            .unwrap(),
-    )
-    .unwrap();
+    let grid = loaded_random_grid(Directions::Octahedral { n: 4 }, [4, 3, 5], 2, false, 31);
     let render = SamplerOptions {
         spatial_jitter: 1.0,
         directional_jitter: 1.0,
