@@ -52,21 +52,22 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
     let noise = spec.build_noise()?;
     let n = args.voxels;
     let voxels = u64::from(n).pow(3);
-    let probe = BakeOptions {
+    // The bake every row runs (the thesis' 16x4 directions), its thread count aside.
+    let bench_bake = BakeOptions {
         cells: [args.cells; 3],
         directions: Directions::THESIS_DEFAULT,
         majorant: None,
         ..BakeOptions::default()
     };
-    // The voxels, the output of the bake the bench runs (16x4 directions: the check used to
-    // size it for the default octahedral:16, 4x too large) and the layered march's working
-    // set (which it left out: up to ~110 MB).
+    // The voxels, that bake's output (the check used to size it for the default
+    // octahedral:16, 4x too large) and its layered march's working set (which it left out:
+    // up to ~110 MB).
     pinbake::files::MemoryBudget::new(args.max_memory).check(
         "the benchmark volume and bake",
         voxels
             .saturating_mul(4)
-            .saturating_add(pinbake::bake::estimate_output_bytes(&probe))
-            .saturating_add(pinbake::bake::estimate_working_bytes(&probe)),
+            .saturating_add(pinbake::bake::estimate_output_bytes(&bench_bake))
+            .saturating_add(pinbake::bake::estimate_working_bytes(&bench_bake)),
     )?;
     let t0 = Instant::now();
     let h = 1.0 / f64::from(n);
@@ -95,11 +96,8 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
         }
         for &threads in &args.threads {
             let opts = BakeOptions {
-                cells: [args.cells; 3],
-                directions: Directions::THESIS_DEFAULT,
                 threads: Some(threads),
-                majorant: None,
-                ..BakeOptions::default()
+                ..bench_bake.clone()
             };
             let cpu0 = cpu_seconds();
             let t = Instant::now();
