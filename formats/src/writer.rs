@@ -149,13 +149,13 @@ pub(crate) fn header_checksum(h: &FileHeader) -> u64 {
     checksum(&bytemuck::bytes_of(h)[..56])
 }
 
+/// Length of the random part of a temp file name (tempfile's default, set explicitly below).
+const TEMP_RAND_LEN: usize = 6;
+
 /// Removes `PREFIX*.partial` files in `dir` that no live writer holds: temp files of writes
 /// to the same target that were killed before they could clean up (SIGKILL, power loss).
 /// A writer holds an exclusive lock on its temp file from creation to rename, so a file whose
 /// lock can be taken belongs to nobody. Failures are ignored: this is tidying, not the write.
-/// Length of the random part of a temp file name (tempfile's default, set explicitly below).
-const TEMP_RAND_LEN: usize = 6;
-
 fn remove_stale_partials(dir: &Path, prefix: &str) {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return;
@@ -199,6 +199,20 @@ pub struct AtomicPinFile {
 
 impl AtomicPinFile {
     pub fn create(target: impl AsRef<Path>) -> Result<Self> {
+        Self::create_announced(target, |_| {})
+    }
+
+    /// As [`create`](Self::create), telling `announce` the temp file's path *before* the
+    /// file exists: `announce(Some(path))` just before each attempt to create it, and
+    /// `announce(None)` when that attempt failed (the name was taken: the path is not ours).
+    ///
+    /// This is for a signal handler that unlinks the temp file: registered only after the
+    /// creation, a signal between the two would leave the file behind. Registered before,
+    /// a file that exists is always one the handler knows.
+    pub fn create_announced(
+        target: impl AsRef<Path>,
+        mut announce: impl FnMut(Option<&Path>),
+    ) -> Result<Self> {
         let target = target.as_ref().to_path_buf();
         let dir = match target.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
@@ -214,12 +228,18 @@ impl AtomicPinFile {
             .prefix(&prefix)
             .suffix(".partial")
             .rand_bytes(TEMP_RAND_LEN);
-        // tempfile creates 0600 files; a pin file is an asset others read, so ask for what
-        // `File::create` would give (0666, narrowed by the umask on creation).
-        #[cfg(unix)]
-        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
         remove_stale_partials(&dir, &prefix);
-        let temp = builder.tempfile_in(&dir)?;
+        let temp = builder.make_in(&dir, |path| {
+            announce(Some(path));
+            // What tempfile's own `tempfile_in` opens (read, write, create_new), but with
+            // the mode `File::create` would give (0666, narrowed by the umask): a pin file
+            // is an asset others read, where tempfile creates 0600 files.
+            let mut o = std::fs::OpenOptions::new();
+            o.read(true).write(true).create_new(true);
+            #[cfg(unix)]
+            std::os::unix::fs::OpenOptionsExt::mode(&mut o, 0o666);
+            o.open(path).inspect_err(|_| announce(None))
+        })?;
         let (file, temp) = temp.into_parts();
         // The lock marks the temp file as live for `remove_stale_partials` of other writers;
         // the kernel drops it when the process dies, however it dies. A filesystem without

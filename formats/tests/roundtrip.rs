@@ -196,6 +196,29 @@ fn overwrite_replaces_atomically_and_drop_leaves_target_alone() {
     assert_eq!(std::fs::read(&path).unwrap(), b.to_bytes().unwrap());
 }
 
+/// A signal handler registered through `create_announced` knows the temp file's path before
+/// the file exists, so no moment has the file on disk and the handler unaware of it.
+#[test]
+fn temp_path_is_announced_before_the_file_exists() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("a.pin");
+    let mut announced = Vec::new();
+    let w = AtomicPinFile::create_announced(&path, |p| {
+        if let Some(p) = p {
+            assert!(!p.exists(), "announced after creation");
+        }
+        announced.push(p.map(|p| p.to_path_buf()));
+    })
+    .unwrap();
+    assert_eq!(announced, vec![Some(w.temp_path().to_path_buf())]);
+    assert!(w.temp_path().exists());
+    // A directory that cannot hold the file: the failed attempt is withdrawn.
+    let mut events = Vec::new();
+    let missing = dir.path().join("no").join("a.pin");
+    assert!(AtomicPinFile::create_announced(&missing, |p| events.push(p.is_some())).is_err());
+    assert_eq!(events, vec![true, false]);
+}
+
 /// Temp files a SIGKILL left behind are swept by the next write to the same target; a live
 /// writer's (locked) temp file and other targets' temp files are not.
 #[test]

@@ -309,8 +309,16 @@ pub struct PendingPin {
 
 impl PendingPin {
     pub fn create(target: &Path) -> Result<Self, pin_format::FormatError> {
-        let file = pin_format::AtomicPinFile::create(target)?;
-        let _signals = signals::register(file.temp_path());
+        // Registered before the file exists (see `AtomicPinFile::create_announced`): a
+        // signal that arrives once the file is there always finds its path.
+        let mut registration = None;
+        let file = pin_format::AtomicPinFile::create_announced(target, |path| {
+            // The old registration goes first: its drop clears the slot the new one fills.
+            drop(registration.take());
+            registration = path.map(signals::register);
+        })?;
+        // Always announced; registering late is the fallback that cannot fail.
+        let _signals = registration.unwrap_or_else(|| signals::register(file.temp_path()));
         Ok(Self { file, _signals })
     }
 
