@@ -59,7 +59,7 @@ pub fn parse_cli<C: clap::Parser>(
                 })
                 .collect();
             let line = line.join(" ");
-            eprintln!(
+            crate::errln!(
                 "{tool}: error: {}",
                 line.strip_prefix("error: ").unwrap_or(&line)
             );

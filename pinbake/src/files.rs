@@ -72,6 +72,17 @@ pub fn error_line(e: &(dyn std::error::Error + 'static)) -> String {
     msg.replace(['\n', '\r'], " ")
 }
 
+/// `eprintln!` for the binaries' messages, without its panic: a standard error that cannot
+/// take the write (`2> /dev/full`) loses the message, and the exit code still says what
+/// happened (`eprintln!` panicked there, exit 101, on every error path).
+#[macro_export]
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr().lock(), $($arg)*);
+    }};
+}
+
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FileError + '_ {
     move |err| FileError::Io {
         path: path.to_path_buf(),

@@ -18,7 +18,9 @@ fn main() -> ExitCode {
         return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
         #[cfg(not(feature = "vdb"))]
         {
-            eprintln!("pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)");
+            pinbake::errln!(
+                "pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)"
+            );
             return ExitCode::from(2);
         }
     }
@@ -30,7 +32,7 @@ fn main() -> ExitCode {
     match cmd::run(cli) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("pinbake: error: {}", pinbake::files::error_line(e.as_ref()));
+            pinbake::errln!("pinbake: error: {}", pinbake::files::error_line(e.as_ref()));
             if e.downcast_ref::<cmd::UsageError>().is_some() {
                 ExitCode::from(2)
             } else {

@@ -767,6 +767,43 @@ fn run_into_closed_pipe(args: &[&str]) -> (std::process::ExitStatus, String) {
     )
 }
 
+/// `2> /dev/full`: the error line cannot be written, so the exit code is all that is left to
+/// say what happened: 1 for a bad file, 2 for a bad flag, 0 when nothing went wrong. Before,
+/// `eprintln!` panicked on every error path (exit 101).
+#[test]
+fn a_full_stderr_keeps_the_exit_code() {
+    let dir = tempfile::tempdir().unwrap();
+    valid_pin(dir.path());
+    let pin = dir.path().join("valid.pin");
+    let missing = dir.path().join("missing.pin");
+    let out = dir.path().join("o.pin");
+    let mut bake = vec!["bake", "procedural:box", "-o", out.to_str().unwrap()];
+    bake.extend(FAST);
+    for (args, code) in [
+        (vec!["inspect", missing.to_str().unwrap()], 1),
+        (vec!["verify", missing.to_str().unwrap()], 1),
+        (vec!["bake", "procedural:box", "--bogus-flag"], 2),
+        (vec!["bake", "procedural:nothing", "-o", "x.pin"], 1),
+        (vec!["inspect", pin.to_str().unwrap()], 0),
+        (bake, 0),
+    ] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let status = Command::new(BIN)
+            .args(&args)
+            .current_dir(dir.path())
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(full)
+            .status()
+            .unwrap();
+        assert_eq!(status.code(), Some(code), "{args:?}: {status:?}");
+    }
+    assert!(out.exists());
+}
+
 /// `> /dev/full`: the summary cannot be written. One error line naming standard output,
 /// exit 1; before, `println!` panicked (exit 101).
 #[test]

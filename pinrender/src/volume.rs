@@ -306,7 +306,7 @@ pub fn check_pins_match(
         .map_err(|e| anyhow!("{}: {e}", pins.display()))?
         .and_then(|m| source::SourceIdentity::from_extra(&m.extra));
     let Some(recorded) = recorded else {
-        eprintln!(
+        pinbake::errln!(
             "pinrender: warning: {} records no source identity (an older bake); not checked \
              against {}",
             pins.display(),
@@ -326,7 +326,7 @@ pub fn check_pins_match(
         differences.join("; ")
     );
     if allow {
-        eprintln!("pinrender: warning: {what}; rendering anyway (--allow-mismatched-pins)");
+        pinbake::errln!("pinrender: warning: {what}; rendering anyway (--allow-mismatched-pins)");
         return Ok(());
     }
     anyhow::bail!("{what}; rebake the pins, or pass --allow-mismatched-pins")

@@ -584,6 +584,42 @@ fn a_closed_stdout_ends_the_process_quietly() {
 
 /// `> /dev/full`: the `--reference` line cannot be written. One error line naming standard
 /// output, exit 1 (the image is written before it); before, `println!` panicked (exit 101).
+/// `2> /dev/full`: the error line is lost, the exit code is not (1 for a bad file, 2 for a
+/// bad flag); before, `eprintln!` panicked (exit 101).
+#[test]
+fn a_full_stderr_keeps_the_exit_code() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("missing.vdb");
+    let out = dir.path().join("x.exr");
+    for (args, code) in [
+        (
+            vec![
+                "render",
+                "--volume",
+                missing.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            1,
+        ),
+        (vec!["render", "--bogus-flag"], 2),
+    ] {
+        let full = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .unwrap();
+        let status = Command::new(BIN)
+            .args(&args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(full)
+            .status()
+            .unwrap();
+        assert_eq!(status.code(), Some(code), "{args:?}: {status:?}");
+    }
+    assert!(!out.exists());
+}
+
 #[test]
 fn a_full_stdout_is_an_error_line() {
     let dir = tempfile::tempdir().unwrap();

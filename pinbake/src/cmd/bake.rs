@@ -386,7 +386,7 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
     v["output"] = serde_json::json!(args.output.display().to_string());
     v["choice"] = choice_json(&choice, file_bytes);
     if !args.json {
-        eprintln!(
+        pinbake::errln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
             args.input.display(),
             args.output.display(),

@@ -225,7 +225,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
             Err(e) => {
                 failed += 1;
                 let msg = pinbake::files::error_line(e.as_ref());
-                eprintln!("pinbake: error: frame {frame}: {msg}");
+                pinbake::errln!("pinbake: error: frame {frame}: {msg}");
                 results.push(serde_json::json!({
                     "frame": frame,
                     "input": one.input.display().to_string(),
@@ -243,7 +243,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
             serde_json::json!({ "frames": results, "ok": ok, "failed": failed })
         )?;
     } else {
-        eprintln!(
+        pinbake::errln!(
             "baked {ok} of {} frames of {}{}",
             frames.len(),
             args.input.display(),

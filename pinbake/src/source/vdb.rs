@@ -126,13 +126,13 @@ pub fn default_memory_limit(file_size: u64) -> u64 {
 pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
     // The file may be any path; the selector and mode come from our own command line.
     let [file, selector, mode] = args else {
-        eprintln!(
+        crate::errln!(
             "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
         );
         return 2;
     };
     let (Some(selector), Some(mode)) = (selector.to_str(), mode.to_str()) else {
-        eprintln!(
+        crate::errln!(
             "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
         );
         return 2;
@@ -158,7 +158,7 @@ pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
     }) {
         Ok(()) => 0,
         Err(e) => {
-            eprintln!("{}", one_line(&e));
+            crate::errln!("{}", one_line(&e));
             2
         }
     }

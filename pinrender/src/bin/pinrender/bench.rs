@@ -195,7 +195,7 @@ fn cached_pins(name: &str, source: &dyn DensitySource, bake: BenchBake) -> Resul
     {
         return Ok(g);
     }
-    eprintln!(
+    pinbake::errln!(
         "pinrender bench: baking {name} ({:?} cells x {} directions) once into {}",
         opts.cells,
         opts.directions.count(),
@@ -601,7 +601,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         if smoke.exists() {
             volumes.push(("smoke".into(), volume::open_volume(&smoke, &args.volume)?));
         } else {
-            eprintln!(
+            pinbake::errln!(
                 "pinrender bench: {} not found, skipping the smoke",
                 smoke.display()
             );

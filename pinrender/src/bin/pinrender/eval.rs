@@ -200,9 +200,9 @@ impl Gpu {
                 let describe = ctx.describe();
                 let software = ctx.adapter_info.device_type == wgpu::DeviceType::Cpu
                     || ctx.adapter_info.name.contains("llvmpipe");
-                eprintln!("GPU: {describe} (context in {seconds:.2} s)");
+                pinbake::errln!("GPU: {describe} (context in {seconds:.2} s)");
                 if software {
-                    eprintln!(
+                    pinbake::errln!(
                         "GPU: note: a software adapter (Vulkan on the CPU): the '(gpu)' \
                          timings measure the WGSL code path on CPU threads, not a GPU"
                     );
@@ -215,7 +215,7 @@ impl Gpu {
                 }
             }
             Err(e) => {
-                eprintln!(
+                pinbake::errln!(
                     "warning: GPU: no adapter, the '(gpu)' rows are skipped ({e}); \
                      pass --no-gpu to silence this"
                 );
@@ -365,7 +365,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();
     for name in &scene_names {
-        eprintln!("== scene {name}");
+        pinbake::errln!("== scene {name}");
         let r = eval_scene(name, &a, &sizes, &budgets, &gpu)
             .with_context(|| format!("scene {name}"))?;
         results.push(r);
@@ -386,7 +386,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if let Some(docs) = &a.docs {
         report::write_docs(docs, &a.out, &results, &meta)?;
     }
-    eprintln!("eval done in {total:.1} s -> {}", summary.display());
+    pinbake::errln!("eval done in {total:.1} s -> {}", summary.display());
     Ok(())
 }
 
@@ -520,7 +520,7 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, f64, Option<f64>)> 
         && img.width == cam.width
         && img.height == cam.height
     {
-        eprintln!("  reference: cached {}", path.display());
+        pinbake::errln!("  reference: cached {}", path.display());
         return Ok((img, noise, None));
     }
     let t = Instant::now();
@@ -543,7 +543,7 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, f64, Option<f64>)> 
             .collect(),
     };
     let secs = t.elapsed().as_secs_f64();
-    eprintln!(
+    pinbake::errln!(
         "  reference: {} spp in {secs:.1} s ({}), noise RMSE {noise:.2e}",
         2 * half_spp,
         es.reference.label()
@@ -612,9 +612,12 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
         // What `pinbake bake` chooses for the volume by default.
         let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
         let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
-        eprintln!(
+        pinbake::errln!(
             "  pins chosen: {:?} cells x {:?} (model variation {:.1}, predicted block error {:.3})",
-            c.cells, c.directions, stats.model_variation, c.predicted_error
+            c.cells,
+            c.directions,
+            stats.model_variation,
+            c.predicted_error
         );
         (c.cells, c.directions)
     } else {
@@ -643,7 +646,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
             local_to_world: Some(scenes::translated(&l2w, inst.translation)),
         });
     }
-    eprintln!(
+    pinbake::errln!(
         "  pins: {:?} cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",
         opts.cells,
         opts.directions.count(),
@@ -704,9 +707,12 @@ fn eval_scene(
             return Ok(());
         };
         let label = r.label();
-        eprintln!(
+        pinbake::errln!(
             "  {label:<20} {:>5} spp in {:>6.2} s  rmse {:.5}  relmse {:.5}",
-            r.spp, r.seconds, r.rmse, r.rel_mse
+            r.spp,
+            r.seconds,
+            r.rmse,
+            r.rel_mse
         );
         img.write_exr(dir.join(format!("{}.exr", file_name(&label))))
             .map_err(|e| anyhow!("{e}"))?;
@@ -763,7 +769,7 @@ fn eval_scene(
         }
     });
     if let Some(n) = &gpu_note {
-        eprintln!("  {n}");
+        pinbake::errln!("  {n}");
     }
     Ok(SceneResult {
         name: es.name.to_string(),

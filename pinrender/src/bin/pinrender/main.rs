@@ -67,7 +67,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!(
+            pinbake::errln!(
                 "pinrender: error: {}",
                 pinbake::files::error_line(e.as_ref())
             );

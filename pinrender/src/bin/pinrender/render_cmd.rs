@@ -488,7 +488,7 @@ fn write(
     image
         .write_png(&png, a.exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
-    eprintln!(
+    pinbake::errln!(
         "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {}",
         input.display(),
         a.estimator,
