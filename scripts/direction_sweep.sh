@@ -6,7 +6,9 @@
 # (the chain stride and lookup point are in the config name: `-cS` a stride of S intervals,
 # `-mid` lookups at the middle of each piece; without them one lookup at the segment start;
 # `-inside` rays that start inside the box looked up at their start without spatial jitter,
-# `pinrender render --start-inside true`, docs/sampling.md section 14; without it false).
+# `pinrender render --start-inside true`, docs/sampling.md section 14; without it false;
+# `-nearS` the nearest-line lookup over S cells, `--nearest-line S`, section 15; without it
+# 0, the lookup before it).
 # Usage: direction_sweep.sh NAME WORKDIR CX,CY,CZ DISTANCE -- VOLUME-ARGS...
 # (VOLUME-ARGS: what `pinbake bake` and `pinrender render --volume` both accept, e.g.
 #  `FILE.raw --spacing 0.025`; the first one is the input.)
@@ -73,9 +75,11 @@ configs=(
     # Rays from inside the box at their start (docs/sampling.md section 14; the default).
     "chosen-centre-mid-inside|--center-pins|1|1|32|middle|true"
     "chosen-centre-mid-inside-j0.5|--center-pins|0.5|0.5|32|middle|true"
+    # The nearest-line lookup (docs/sampling.md section 15; the default, S = 8).
+    "chosen-centre-mid-inside-near8|--center-pins|1|1|32|middle|true|8"
 )
 for c in "${configs[@]}"; do
-    IFS='|' read -r cname bake sj dj stride point inside <<<"$c"
+    IFS='|' read -r cname bake sj dj stride point inside nearest <<<"$c"
     if [ -n "${CONFIGS:-}" ] && [[ " $CONFIGS " != *" $cname "* ]]; then
         continue
     fi
@@ -88,7 +92,7 @@ for c in "${configs[@]}"; do
             --camera-origin "$(cam "${v#*:}")" --estimator pins --pins "$pin" --spp "$PIN_SPP" \
             --seed 2 --spatial-jitter "$sj" --directional-jitter "$dj" \
             --chain-stride "${stride:-32}" --lookup-point "${point:-start}" \
-            --start-inside "${inside:-false}" \
+            --start-inside "${inside:-false}" --nearest-line "${nearest:-0}" \
             --reference "$work/ref_${v%%:*}.exr" --out "$work/pins.exr" 2>/dev/null)
         read -r _ mean _ block _ <<<"$line"
         echo "$name,$cname,$bytes,$sj,$dj,${v%%:*},$mean,$block"

@@ -21,8 +21,8 @@ struct Params {
     row1: vec4<f32>,
     row2: vec4<f32>,
     // Spatial strength, directional strength (0 = off), chain stride (intervals per lookup,
-    // 1..=32; 0 reads as 32), lookup point: bit 0 midpoint (1) or segment start (0), bit 1
-    // `start_inside`.
+    // 1..=32; 0 reads as 32), lookup mode: bit 0 midpoint (1) or segment start (0), bit 1
+    // `start_inside`, bits 2 and up the nearest-line lookup's steps (0: off).
     jitter: vec4<f32>,
     // dims x, y, z, z_begin
     dims: vec4<u32>,
@@ -71,6 +71,8 @@ const STATUS_INVALID: u32 = 2u;
 const NO_ENTRY: u32 = 0xffffffffu;
 const NO_INTERVAL: u32 = 32u;
 const EMPTY_CELL: u32 = 0xffffffffu;
+// pinrt::lookup::MAX_NEAREST_LINE_STEPS.
+const MAX_NEAREST_LINE_STEPS: u32 = 64u;
 
 // f32 constants as exact hexadecimal literals (decimal ones could round twice via
 // AbstractFloat; naga cannot const-evaluate bitcast).
@@ -408,6 +410,82 @@ fn direction_cell(d: vec3<f32>, jitter: bool, strength: f32, xi0: f32, xi1: f32)
     return bin(cv, n) * n + bin(cu, n);
 }
 
+// The centre direction of octahedral direction cell `dcell`, not normalised
+// (pinrt::lookup::octahedral_cell_axis).
+fn octahedral_cell_axis(n: u32, dcell: u32) -> vec3<f32> {
+    let nf = f32(n);
+    let df = f32(dcell);
+    let row = floor((df + 0.5) / nf);
+    let col = df - row * nf;
+    let u = (col + 0.5) / nf;
+    let v = (row + 0.5) / nf;
+    let px = u + v - 1.0;
+    let py = u - v;
+    let z = 1.0 - abs(px) - abs(py);
+    var zc = 0.0;
+    if (z > 0.0) {
+        zc = z;
+    }
+    return vec3<f32>(px, py, zc);
+}
+
+// |w|^2 times the squared distance of cell k's centre line (along w) from the point c, in
+// cell units.
+fn nearest_line_score(k: vec3<u32>, c: vec3<f32>, w: vec3<f32>, ww: f32) -> f32 {
+    let rx = f32(k.x) + 0.5 - c.x;
+    let ry = f32(k.y) + 0.5 - c.y;
+    let rz = f32(k.z) + 0.5 - c.z;
+    let rr = rx * rx + ry * ry + rz * rz;
+    let rw = rx * w.x + ry * w.y + rz * w.z;
+    return rr * ww - rw * rw;
+}
+
+// The nearest-line lookup (pinrt::lookup::nearest_line_cell): of the cells the line through c
+// (cell units) along the direction cell's axis crosses within `steps` one-cell steps each
+// side, the one whose centre line passes nearest c; the home cell first, then +1, -1, +2, ...
+fn nearest_line_cell(c: vec3<f32>, dcell: u32, steps: u32) -> vec3<u32> {
+    let home = vec3<u32>(bin(c.x, G.dims.x), bin(c.y, G.dims.y), bin(c.z, G.dims.z));
+    if (G.dirs.x != 1u || steps == 0u) {
+        return home;
+    }
+    let a = octahedral_cell_axis(G.dirs.y, dcell);
+    let dims = vec3<f32>(f32(G.dims.x), f32(G.dims.y), f32(G.dims.z));
+    let w = vec3<f32>(a.x * dims.x, a.y * dims.y, a.z * dims.z);
+    let ww = w.x * w.x + w.y * w.y + w.z * w.z;
+    let ax = abs(w.x);
+    let ay = abs(w.y);
+    let az = abs(w.z);
+    var m = ay;
+    if (ax > ay) {
+        m = ax;
+    }
+    if (az > m) {
+        m = az;
+    }
+    let h = 1.0 / m;
+    var best = home;
+    var best_score = nearest_line_score(home, c, w, ww);
+    let n = min(steps, MAX_NEAREST_LINE_STEPS);
+    for (var step = 1u; step <= n; step = step + 1u) {
+        let along = f32(step) * h;
+        for (var side = 0u; side < 2u; side = side + 1u) {
+            var lam = along;
+            if (side == 1u) {
+                lam = -along;
+            }
+            let q = vec3<f32>(c.x + lam * w.x, c.y + lam * w.y, c.z + lam * w.z);
+            // A point beyond the grid names the border cell, as the lookup clamps.
+            let k = vec3<u32>(bin(q.x, G.dims.x), bin(q.y, G.dims.y), bin(q.z, G.dims.z));
+            let sc = nearest_line_score(k, c, w, ww);
+            if (sc < best_score) {
+                best = k;
+                best_score = sc;
+            }
+        }
+    }
+    return best;
+}
+
 // ---------------------------------------------------------------------------------------------
 // The query (pinrt::sampler)
 // ---------------------------------------------------------------------------------------------
@@ -560,15 +638,24 @@ fn piece_query(o: vec3<f32>, d: vec3<f32>, seg: Segment, transmittance_only: boo
     }
     let p = vec3<f32>(o.x + d.x * t0, o.y + d.y * t0, o.z + d.z * t0);
     var c = vec3<f32>(p.x * f32(G.dims.x), p.y * f32(G.dims.y), p.z * f32(G.dims.z));
-    if (sj && !inside) {
-        c.x = c.x + (sxi.x - 0.5) * G.jitter.x;
-        c.y = c.y + (sxi.y - 0.5) * G.jitter.x;
-        c.z = c.z + (sxi.z - 0.5) * G.jitter.x;
-    }
-    let cx = bin(c.x, G.dims.x);
-    let cy = bin(c.y, G.dims.y);
-    let cz = bin(c.z, G.dims.z);
     let dcell = direction_cell(dl, dj, G.jitter.y, dxi0, dxi1);
+    // Bits 2 and up of the lookup mode: the nearest-line lookup's steps (0: off), which
+    // replaces the spatial jitter.
+    let near = mode >> 2u;
+    var cell = vec3<u32>(0u, 0u, 0u);
+    if (near > 0u) {
+        cell = nearest_line_cell(c, dcell, near);
+    } else {
+        if (sj && !inside) {
+            c.x = c.x + (sxi.x - 0.5) * G.jitter.x;
+            c.y = c.y + (sxi.y - 0.5) * G.jitter.x;
+            c.z = c.z + (sxi.z - 0.5) * G.jitter.x;
+        }
+        cell = vec3<u32>(bin(c.x, G.dims.x), bin(c.y, G.dims.y), bin(c.z, G.dims.z));
+    }
+    let cx = cell.x;
+    let cy = cell.y;
+    let cz = cell.z;
 
     // Address: covered slab, sparse index, block.
     var entry_id = NO_ENTRY;

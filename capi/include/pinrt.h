@@ -9,9 +9,10 @@
 
 /**
  * The lookup `pinrender render` uses, the least biased this library offers
- * (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-14): set both jitters of
- * `PinrtQueryOptions` to these and call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
- * PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)`.
+ * (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-15): set both jitters of
+ * `PinrtQueryOptions` to these, call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
+ * PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)` and
+ * `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`.
  */
 #define PINRT_RENDER_SPATIAL_JITTER 1.0
 
@@ -34,6 +35,16 @@
  * See `PINRT_RENDER_SPATIAL_JITTER`.
  */
 #define PINRT_RENDER_START_INSIDE 1
+
+/**
+ * See `PINRT_RENDER_SPATIAL_JITTER` (`pinrt_set_nearest_line`).
+ */
+#define PINRT_RENDER_NEAREST_LINE 8
+
+/**
+ * The most steps `pinrt_set_nearest_line` takes.
+ */
+#define PINRT_MAX_NEAREST_LINE 64
 
 /**
  * Result codes of every fallible call.
@@ -409,6 +420,21 @@ enum PinrtStatus pinrt_set_lookup(struct PinrtGrid *grid,
                                   uint32_t chain_stride,
                                   uint32_t midpoint_lookup,
                                   uint32_t start_inside);
+
+/**
+ * Sets the nearest-line lookup of `grid` for the batch calls and `pinrt_gpu_params` from now
+ * on (`docs/sampling.md` section 15): each lookup reads, instead of the cell that holds its
+ * point, the cell whose pin line passes nearest the point, searching `steps` one-cell steps
+ * on each side along the direction cell's axis; the spatial jitter of `PinrtQueryOptions` is
+ * then not applied. 0 (a newly opened grid's): off; `pinrender render` uses
+ * `PINRT_RENDER_NEAREST_LINE`. Octahedral direction sets only: a polar grid reads the cell
+ * that holds the point. `steps` above `PINRT_MAX_NEAREST_LINE` is `PINRT_INVALID_ARGUMENT`.
+ * `pinrt_set_lookup` leaves this setting as it is.
+ *
+ * # Safety
+ * `grid` is NULL or an open grid, not used by another thread during the call.
+ */
+enum PinrtStatus pinrt_set_nearest_line(struct PinrtGrid *grid, uint32_t steps);
 
 /**
  * The one-line message of the last failed call on this thread, or "" if the last call

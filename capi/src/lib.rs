@@ -60,6 +60,7 @@ struct Lookup {
     chain_stride: u32,
     midpoint_lookup: bool,
     start_inside: bool,
+    nearest_line: u32,
 }
 
 /// One query: a world-space ray and the end of its segment (32 bytes, the layout of the GPU
@@ -467,6 +468,7 @@ unsafe fn sampler<'g>(
         chain_stride: l.chain_stride,
         midpoint_lookup: l.midpoint_lookup,
         start_inside: l.start_inside,
+        nearest_line: l.nearest_line,
     };
     // SAFETY: caller's contract.
     let Some(o) = (unsafe { opts.as_ref() }) else {
@@ -656,7 +658,7 @@ pub unsafe extern "C" fn pinrt_gpu_params(
                 } else {
                     o.stride() as f32
                 },
-                f32::from(u8::from(o.midpoint_lookup) | (u8::from(o.start_inside) << 1)),
+                o.lookup_mode(),
             ],
             dims: [shape.dims[0], shape.dims[1], shape.dims[2], shape.z_begin],
             grid: [shape.z_end, shape.pins_per_entry, block_len, stored],
@@ -702,9 +704,10 @@ pub unsafe extern "C" fn pinrt_gpu_buffers(
 }
 
 /// The lookup `pinrender render` uses, the least biased this library offers
-/// (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-14): set both jitters of
-/// `PinrtQueryOptions` to these and call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
-/// PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)`.
+/// (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-15): set both jitters of
+/// `PinrtQueryOptions` to these, call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
+/// PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)` and
+/// `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`.
 pub const PINRT_RENDER_SPATIAL_JITTER: f32 = 1.0;
 /// See `PINRT_RENDER_SPATIAL_JITTER`.
 pub const PINRT_RENDER_DIRECTIONAL_JITTER: f32 = 1.0;
@@ -714,6 +717,10 @@ pub const PINRT_RENDER_CHAIN_STRIDE: u32 = 32;
 pub const PINRT_RENDER_MIDPOINT_LOOKUP: u32 = 1;
 /// See `PINRT_RENDER_SPATIAL_JITTER`.
 pub const PINRT_RENDER_START_INSIDE: u32 = 1;
+/// See `PINRT_RENDER_SPATIAL_JITTER` (`pinrt_set_nearest_line`).
+pub const PINRT_RENDER_NEAREST_LINE: u32 = 8;
+/// The most steps `pinrt_set_nearest_line` takes.
+pub const PINRT_MAX_NEAREST_LINE: u32 = 64;
 
 /// Sets how `grid` answers the batch calls and fills `pinrt_gpu_params` from now on, beside
 /// the jitter of each call's `PinrtQueryOptions` (`docs/sampling.md` sections 12-14):
@@ -749,7 +756,35 @@ pub unsafe extern "C" fn pinrt_set_lookup(
             chain_stride,
             midpoint_lookup: flag("midpoint_lookup", midpoint_lookup)?,
             start_inside: flag("start_inside", start_inside)?,
+            nearest_line: g.lookup.nearest_line,
         };
+        Ok(())
+    })
+}
+
+/// Sets the nearest-line lookup of `grid` for the batch calls and `pinrt_gpu_params` from now
+/// on (`docs/sampling.md` section 15): each lookup reads, instead of the cell that holds its
+/// point, the cell whose pin line passes nearest the point, searching `steps` one-cell steps
+/// on each side along the direction cell's axis; the spatial jitter of `PinrtQueryOptions` is
+/// then not applied. 0 (a newly opened grid's): off; `pinrender render` uses
+/// `PINRT_RENDER_NEAREST_LINE`. Octahedral direction sets only: a polar grid reads the cell
+/// that holds the point. `steps` above `PINRT_MAX_NEAREST_LINE` is `PINRT_INVALID_ARGUMENT`.
+/// `pinrt_set_lookup` leaves this setting as it is.
+///
+/// # Safety
+/// `grid` is NULL or an open grid, not used by another thread during the call.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinrt_set_nearest_line(grid: *mut PinrtGrid, steps: u32) -> PinrtStatus {
+    guard("pinrt_set_nearest_line", || {
+        // SAFETY: the caller's contract: NULL or an open grid used by no other thread.
+        let g = unsafe { grid.as_mut() }.ok_or_else(|| null("grid"))?;
+        if steps > PINRT_MAX_NEAREST_LINE {
+            return Err(Fail(
+                PinrtStatus::InvalidArgument,
+                format!("steps is {steps}; it must be at most {PINRT_MAX_NEAREST_LINE}"),
+            ));
+        }
+        g.lookup.nearest_line = steps;
         Ok(())
     })
 }

@@ -155,18 +155,25 @@ fn set_lookup_reaches_the_batches_and_the_gpu_params() {
         (t, q)
     };
     let (plain_t, _) = answers(g);
-    for (stride, middle, inside) in [(0, 1, 1), (4, 0, 1), (7, 1, 0)] {
+    for (stride, middle, inside, nearest) in [
+        (0, 1, 1, 0),
+        (4, 0, 1, 0),
+        (7, 1, 0, 0),
+        (0, 1, 1, PINRT_RENDER_NEAREST_LINE),
+        (4, 0, 1, 3),
+    ] {
         // SAFETY: an open grid, used by this thread only.
-        assert_eq!(
-            unsafe { pinrt_set_lookup(g, stride, middle, inside) },
-            PinrtStatus::Ok
-        );
+        unsafe {
+            assert_eq!(pinrt_set_lookup(g, stride, middle, inside), PinrtStatus::Ok);
+            assert_eq!(pinrt_set_nearest_line(g, nearest), PinrtStatus::Ok);
+        }
         let s = reference.sampler().unwrap().with_options(SamplerOptions {
             spatial_jitter: 1.0,
             directional_jitter: 1.0,
             chain_stride: stride,
             midpoint_lookup: middle == 1,
             start_inside: inside == 1,
+            nearest_line: nearest,
         });
         let mut want_t = vec![0f32; n];
         let mut want_q = vec![QueryResult::zeroed(); n];
@@ -189,7 +196,7 @@ fn set_lookup_reaches_the_batches_and_the_gpu_params() {
             unsafe { pinrt_gpu_params(g, &opts, &mut p) },
             PinrtStatus::Ok
         );
-        let bits = (middle | (inside << 1)) as f32;
+        let bits = (middle | (inside << 1) | (nearest << 2)) as f32;
         let z = if stride == 0 { 0.0 } else { stride as f32 };
         assert_eq!(p.jitter, [1.0, 1.0, z, bits]);
     }
@@ -209,6 +216,12 @@ fn set_lookup_reaches_the_batches_and_the_gpu_params() {
             last_error()
         );
         assert_ne!(pinrt_set_lookup(ptr::null_mut(), 0, 0, 0), PinrtStatus::Ok);
+        assert_eq!(
+            pinrt_set_nearest_line(g, PINRT_MAX_NEAREST_LINE + 1),
+            PinrtStatus::InvalidArgument
+        );
+        assert!(last_error().contains("steps is 65"), "{}", last_error());
+        assert_ne!(pinrt_set_nearest_line(ptr::null_mut(), 1), PinrtStatus::Ok);
         pinrt_close(g);
     }
 }
@@ -528,4 +541,9 @@ fn render_lookup_constants_are_the_rust_samplers() {
     assert_eq!(PINRT_RENDER_CHAIN_STRIDE, r.chain_stride);
     assert_eq!(PINRT_RENDER_MIDPOINT_LOOKUP == 1, r.midpoint_lookup);
     assert_eq!(PINRT_RENDER_START_INSIDE == 1, r.start_inside);
+    assert_eq!(PINRT_RENDER_NEAREST_LINE, r.nearest_line);
+    assert_eq!(
+        PINRT_MAX_NEAREST_LINE,
+        pinrt::lookup::MAX_NEAREST_LINE_STEPS
+    );
 }

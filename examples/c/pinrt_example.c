@@ -167,6 +167,8 @@ int main(int argc, char **argv) {
   st = pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE, PINRT_RENDER_MIDPOINT_LOOKUP,
                         PINRT_RENDER_START_INSIDE);
   if (st != PINRT_STATUS_OK) return fail("pinrt_set_lookup", st);
+  st = pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE);
+  if (st != PINRT_STATUS_OK) return fail("pinrt_set_nearest_line", st);
   st = pinrt_transmittance(grid, &render, rays, n, seed, 0, check);
   if (st != PINRT_STATUS_OK) return fail("pinrt_transmittance (render lookup)", st);
   double render_mean = 0.0;

@@ -15,12 +15,21 @@ use std::time::Instant;
 
 use pinrt::{PinGrid, RayQuery, SamplerOptions};
 
-/// `SJ,DJ,STRIDE,start|middle,INSIDE`.
+/// `SJ,DJ,STRIDE,start|middle,INSIDE[,NEAREST]`.
 fn parse_options(s: &str) -> Result<SamplerOptions, String> {
-    let bad = || format!("options '{s}': expected SJ,DJ,STRIDE,start|middle,0|1");
-    let [sj, dj, stride, point, inside] = s.split(',').collect::<Vec<_>>()[..] else {
+    let bad = || format!("options '{s}': expected SJ,DJ,STRIDE,start|middle,0|1[,NEAREST]");
+    let fields = s.split(',').collect::<Vec<_>>();
+    let (&[sj, dj, stride, point, inside], nearest) = (
+        &fields[..fields.len().min(5)],
+        fields
+            .get(5)
+            .map_or(Ok(0), |v| v.parse().map_err(|_| bad())),
+    ) else {
         return Err(bad());
     };
+    if fields.len() > 6 {
+        return Err(bad());
+    }
     Ok(SamplerOptions {
         spatial_jitter: sj.parse().map_err(|_| bad())?,
         directional_jitter: dj.parse().map_err(|_| bad())?,
@@ -35,6 +44,7 @@ fn parse_options(s: &str) -> Result<SamplerOptions, String> {
             "1" => true,
             _ => return Err(bad()),
         },
+        nearest_line: nearest?,
     })
 }
 

@@ -189,9 +189,7 @@ impl Params {
                 on(options.directional_jitter),
                 // Small integers, exact in f32.
                 options.stride() as f32,
-                f32::from(
-                    u8::from(options.midpoint_lookup) | (u8::from(options.start_inside) << 1),
-                ),
+                options.lookup_mode(),
             ],
             dims: [s.dims[0], s.dims[1], s.dims[2], s.z_begin],
             grid: [s.z_end, s.pins_per_entry, block_len, stored],
@@ -758,6 +756,36 @@ mod tests {
             &ctx,
             &polar,
             inside(chained(5, true, true)),
+        );
+        // The nearest-line lookup (section 15): the render's lookup, a sparse octahedral
+        // grid, chained at the start, and a polar set, which reads the home cell.
+        let oct_sparse = random_grid(Directions::Octahedral { n: 6 }, [9, 7, 8], 2, true, 4);
+        check(
+            "octahedral dense render lookup",
+            &ctx,
+            &oct,
+            SamplerOptions::RENDER,
+        );
+        check(
+            "octahedral sparse render lookup",
+            &ctx,
+            &oct_sparse,
+            SamplerOptions::RENDER,
+        );
+        check(
+            "octahedral sparse nearest 3 chained 4 start inside",
+            &ctx,
+            &oct_sparse,
+            SamplerOptions {
+                nearest_line: 3,
+                ..inside(chained(4, false, true))
+            },
+        );
+        check(
+            "polar sparse render lookup",
+            &ctx,
+            &polar,
+            SamplerOptions::RENDER,
         );
     }
 

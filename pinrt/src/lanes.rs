@@ -390,6 +390,8 @@ fn lanes_body(
     // `Sampler::lookup`'s point, then `lookup::spatial_cell`.
     let dims_hi = shape.dims.map(bin_limit);
     let mut cells = [[0u32; BATCH]; 3];
+    // The lookup points in cell units before the jitter, for the nearest-line lookup.
+    let mut points = [[0f32; BATCH]; 3];
     // `start_inside`: a piece that starts inside the box, at its start without spatial jitter.
     let ls0 = if chained {
         std::array::from_fn::<f32, BATCH, _>(|i| psegs[i].s0)
@@ -406,6 +408,7 @@ fn lanes_body(
         let mut cf = [0f32; 3];
         for ax in 0..3 {
             cf[ax] = (o[ax][i] + d[ax][i] * t) * view.dims_f[ax];
+            points[ax][i] = cf[ax];
         }
         if spatial && !inside {
             for ax in 0..3 {
@@ -436,9 +439,13 @@ fn lanes_body(
             direction_cells(&dirs, &dl, directional.then_some((opts, &dxi)), &mut dcell);
         }
         Directions::Octahedral { n } => {
-            let dirs = Directions::Octahedral { n };
-            direction_cells(&dirs, &dl, directional.then_some((opts, &dxi)), &mut dcell);
+            octahedral_cells(n, &dl, directional.then_some((opts, &dxi)), &mut dcell);
         }
+    }
+
+    // The nearest-line lookup replaces the cells.
+    if opts.nearest_line > 0 {
+        nearest_line_cells(view, &points, &dcell, opts.nearest_line, &mut cells);
     }
 
     for i in 0..n {
@@ -473,6 +480,118 @@ fn lanes_body(
             };
             Prepared::empty(code, rng[i])
         };
+    }
+}
+
+/// `lookup::nearest_line_cell` for every lane, written as straight loops over local lane
+/// arrays so that they vectorise; the same operations and the same order of candidates as the scalar search, so
+/// the same cells (`lanes_equal_scalar_prepare`).
+#[inline(always)]
+fn nearest_line_cells(
+    view: &GridView<'_>,
+    points: &[[f32; BATCH]; 3],
+    dcell: &[u32; BATCH],
+    steps: u32,
+    cells: &mut [[u32; BATCH]; 3],
+) {
+    // The home cells (`chord::bin`, through `bin_lane`).
+    let dims_hi = view.shape.dims.map(bin_limit);
+    for ax in 0..3 {
+        for i in 0..BATCH {
+            cells[ax][i] = bin_lane(points[ax][i], dims_hi[ax]);
+        }
+    }
+    let Directions::Octahedral { n } = view.shape.directions else {
+        return;
+    };
+    let [px, py, pz] = *points;
+    let [dx, dy, dz] = view.dims_f;
+    let mut wx = [0f32; BATCH];
+    let mut wy = [0f32; BATCH];
+    let mut wz = [0f32; BATCH];
+    for i in 0..BATCH {
+        let a = crate::lookup::octahedral_cell_axis(n, dcell[i]);
+        wx[i] = a[0] * dx;
+        wy[i] = a[1] * dy;
+        wz[i] = a[2] * dz;
+    }
+    let mut ww = [0f32; BATCH];
+    let mut h = [0f32; BATCH];
+    for i in 0..BATCH {
+        ww[i] = wx[i] * wx[i] + wy[i] * wy[i] + wz[i] * wz[i];
+        let (x, y, z) = (wx[i].abs(), wy[i].abs(), wz[i].abs());
+        let m = if x > y { x } else { y };
+        let m = if z > m { z } else { m };
+        h[i] = 1.0 / m;
+    }
+    let [mut bx, mut by, mut bz] = *cells;
+    let mut best = [0f32; BATCH];
+    for i in 0..BATCH {
+        let rx = bx[i] as f32 + 0.5 - px[i];
+        let ry = by[i] as f32 + 0.5 - py[i];
+        let rz = bz[i] as f32 + 0.5 - pz[i];
+        let rr = rx * rx + ry * ry + rz * rz;
+        let rw = rx * wx[i] + ry * wy[i] + rz * wz[i];
+        best[i] = rr * ww[i] - rw * rw;
+    }
+    for step in 1..=steps.min(crate::lookup::MAX_NEAREST_LINE_STEPS) {
+        let sf = step as f32;
+        for negative in [false, true] {
+            for i in 0..BATCH {
+                let along = sf * h[i];
+                let lam = if negative { -along } else { along };
+                let qx = px[i] + lam * wx[i];
+                let qy = py[i] + lam * wy[i];
+                let qz = pz[i] + lam * wz[i];
+                // `chord::bin` through `bin_lane`, as the scalar search clamps.
+                let kx = bin_lane(qx, dims_hi[0]);
+                let ky = bin_lane(qy, dims_hi[1]);
+                let kz = bin_lane(qz, dims_hi[2]);
+                let rx = kx as f32 + 0.5 - px[i];
+                let ry = ky as f32 + 0.5 - py[i];
+                let rz = kz as f32 + 0.5 - pz[i];
+                let rr = rx * rx + ry * ry + rz * rz;
+                let rw = rx * wx[i] + ry * wy[i] + rz * wz[i];
+                let sc = rr * ww[i] - rw * rw;
+                let take = sc < best[i];
+                best[i] = if take { sc } else { best[i] };
+                bx[i] = if take { kx } else { bx[i] };
+                by[i] = if take { ky } else { by[i] };
+                bz[i] = if take { kz } else { bz[i] };
+            }
+        }
+    }
+    *cells = [bx, by, bz];
+}
+
+/// `lookup::direction_cell` for an octahedral layout in every lane, operation for
+/// operation, with `bin_lane` for `chord::bin`: the saturating `as u32` of the scalar
+/// binning kept this loop scalar.
+#[inline(always)]
+fn octahedral_cells(
+    n: u32,
+    dl: &[[f32; BATCH]; 3],
+    jitter: Option<(&SamplerOptions, &[[f32; BATCH]; 2])>,
+    out: &mut [u32; BATCH],
+) {
+    let nf = n as f32;
+    let hi = bin_limit(n);
+    let mut cu = [0f32; BATCH];
+    let mut cv = [0f32; BATCH];
+    for i in 0..BATCH {
+        let (u, v) = pin_format::octahedral_uv([dl[0][i], dl[1][i], dl[2][i]]);
+        cu[i] = u * nf;
+        cv[i] = v * nf;
+    }
+    if let Some((opts, xi)) = jitter {
+        let strength = opts.directional_jitter;
+        for i in 0..BATCH {
+            cu[i] += (xi[0][i] - 0.5) * strength;
+            cv[i] += (xi[1][i] - 0.5) * strength;
+        }
+    }
+    for i in 0..BATCH {
+        out[i] = bin_lane(cv[i], hi) * n + bin_lane(cu[i], hi);
     }
 }
 
@@ -678,6 +797,7 @@ mod tests {
                 chain_stride,
                 midpoint_lookup,
                 start_inside: false,
+                nearest_line: 0,
             };
         let inside = |o: SamplerOptions| SamplerOptions {
             start_inside: true,
@@ -695,6 +815,16 @@ mod tests {
             o(0.7, 0.4, 8, false),
             o(1.0, 0.0, 1, true),
             o(0.0, 2.5, 32, false),
+            // The nearest-line lookup: the render's, chained, and at the start.
+            SamplerOptions::RENDER,
+            SamplerOptions {
+                nearest_line: 3,
+                ..inside(o(0.7, 0.4, 5, true))
+            },
+            SamplerOptions {
+                nearest_line: 64,
+                ..o(0.0, 1.0, 32, false)
+            },
         ]
     }
 

@@ -43,7 +43,7 @@ use pin_format::PinEntry;
 use crate::chord::{Segment, UnitTransform, segment, unit_cube_chord};
 use crate::error::Result;
 use crate::loader::PinGrid;
-use crate::lookup::{DirJitter, GridView, direction_cell, spatial_cell};
+use crate::lookup::{DirJitter, GridView, direction_cell, nearest_line_cell, spatial_cell};
 use crate::mask::{
     exact_sample_mask, interval_bit, interval_range, is_finite_bits, pow_int, sanitize_t_min,
 };
@@ -175,6 +175,14 @@ pub struct SamplerOptions {
     /// made, so the draw order does not change. With chaining every piece after the first
     /// starts inside the box.
     pub start_inside: bool,
+    /// The nearest-line lookup (`docs/sampling.md` section 15): instead of the cell that
+    /// holds the lookup point, read the cell whose pin line passes nearest it, searching this
+    /// many one-cell steps each side along the direction cell's axis (at most
+    /// [`crate::lookup::MAX_NEAREST_LINE_STEPS`]). The spatial jitter is then not applied (its
+    /// draws are still made). 0: off. Octahedral direction sets only (polar ones read the
+    /// cell that holds the point); meant for pins through their cells' centres, the default
+    /// bake.
+    pub nearest_line: u32,
 }
 
 impl SamplerOptions {
@@ -191,7 +199,17 @@ impl SamplerOptions {
         chain_stride: 32,
         midpoint_lookup: true,
         start_inside: true,
+        nearest_line: 8,
     };
+
+    /// The shaders' lookup mode (`Params.jitter.w` in `shaders/pin.wgsl`, `docs/gpu.md`): bit 0
+    /// `midpoint_lookup`, bit 1 `start_inside`, bits 2 and up `nearest_line` (clamped to
+    /// [`crate::lookup::MAX_NEAREST_LINE_STEPS`]); a small integer, exact in f32.
+    pub fn lookup_mode(&self) -> f32 {
+        let steps = self.nearest_line.min(crate::lookup::MAX_NEAREST_LINE_STEPS);
+        (u32::from(self.midpoint_lookup) | (u32::from(self.start_inside) << 1) | (steps << 2))
+            as f32
+    }
 
     /// Intervals per lookup, in `1..=32`.
     pub fn stride(&self) -> u32 {
@@ -454,8 +472,13 @@ impl<'g> Sampler<'g> {
             seg.t0
         };
         let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
-        let cell = spatial_cell(p, v, if inside { None } else { sj });
         let dcell = direction_cell(&v.shape.directions, dl, dj);
+        let cell = if self.opts.nearest_line > 0 {
+            let c = [p[0] * v.dims_f[0], p[1] * v.dims_f[1], p[2] * v.dims_f[2]];
+            nearest_line_cell(c, v, dcell, self.opts.nearest_line)
+        } else {
+            spatial_cell(p, v, if inside { None } else { sj })
+        };
         Prepared {
             status: status::OK,
             rng,

@@ -915,6 +915,7 @@ fn chain(chain_stride: u32, midpoint_lookup: bool, jitter: f32) -> SamplerOption
         chain_stride,
         midpoint_lookup,
         start_inside: false,
+        nearest_line: 0,
     }
 }
 

@@ -70,10 +70,22 @@ struct Lookup {
     chain_stride: u32,
     middle: bool,
     start_inside: bool,
+    nearest_line: u32,
 }
 
 impl Lookup {
-    fn parse(chain_stride: u32, lookup_point: &str, start_inside: bool) -> PyResult<Self> {
+    fn parse(
+        chain_stride: u32,
+        lookup_point: &str,
+        start_inside: bool,
+        nearest_line: u32,
+    ) -> PyResult<Self> {
+        let max = pinrt::lookup::MAX_NEAREST_LINE_STEPS;
+        if nearest_line > max {
+            return Err(value_err(format!(
+                "nearest_line is {nearest_line}; it must be at most {max}"
+            )));
+        }
         let middle = match lookup_point {
             "start" => false,
             "middle" => true,
@@ -87,6 +99,7 @@ impl Lookup {
             chain_stride,
             middle,
             start_inside,
+            nearest_line,
         })
     }
 }
@@ -149,6 +162,7 @@ impl PinGrid {
                     chain_stride: lookup.chain_stride,
                     midpoint_lookup: lookup.middle,
                     start_inside: lookup.start_inside,
+                    nearest_line: lookup.nearest_line,
                 });
             let mut out = vec![0f32; n];
             match kind {
@@ -216,7 +230,7 @@ impl PinGrid {
         Ok(v.to_string())
     }
 
-    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter, chain_stride, lookup_point, start_inside))]
+    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter, chain_stride, lookup_point, start_inside, nearest_line = 0))]
     #[allow(clippy::too_many_arguments)]
     fn transmittance<'py>(
         &self,
@@ -231,8 +245,9 @@ impl PinGrid {
         chain_stride: u32,
         lookup_point: &str,
         start_inside: bool,
+        nearest_line: u32,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
-        let lookup = Lookup::parse(chain_stride, lookup_point, start_inside)?;
+        let lookup = Lookup::parse(chain_stride, lookup_point, start_inside, nearest_line)?;
         self.run(
             py,
             origins,
@@ -247,7 +262,7 @@ impl PinGrid {
         )
     }
 
-    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter, chain_stride, lookup_point, start_inside))]
+    #[pyo3(signature = (origins, directions, t_max, seed, first_index, spatial_jitter, directional_jitter, chain_stride, lookup_point, start_inside, nearest_line = 0))]
     #[allow(clippy::too_many_arguments)]
     fn sample_distance<'py>(
         &self,
@@ -262,8 +277,9 @@ impl PinGrid {
         chain_stride: u32,
         lookup_point: &str,
         start_inside: bool,
+        nearest_line: u32,
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
-        let lookup = Lookup::parse(chain_stride, lookup_point, start_inside)?;
+        let lookup = Lookup::parse(chain_stride, lookup_point, start_inside, nearest_line)?;
         self.run(
             py,
             origins,
@@ -622,6 +638,7 @@ fn render_lookup<'py>(py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDic
         if r.midpoint_lookup { "middle" } else { "start" },
     )?;
     d.set_item("start_inside", r.start_inside)?;
+    d.set_item("nearest_line", r.nearest_line)?;
     Ok(d)
 }
 

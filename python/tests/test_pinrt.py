@@ -62,7 +62,7 @@ def random_rays(grid: PinGrid, n: int, seed: int):
 
 def rust_reference(pin: Path, o, d, t, seed: int, tmp: Path, options: str | None = None):
     """The Rust sampler's transmittances and distances for the same rays, and its output
-    (``options``: query_reference's ``SJ,DJ,STRIDE,start|middle,INSIDE``)."""
+    (``options``: query_reference's ``SJ,DJ,STRIDE,start|middle,INSIDE[,NEAREST]``)."""
     n = len(o)
     rays = np.zeros((n, 8), dtype=np.float32)
     rays[:, 0:3], rays[:, 3], rays[:, 4:7] = o, t, d
@@ -138,14 +138,15 @@ def test_lookup_options_equal_the_rust_sampler_bit_for_bit(smoke, tmp_path):
     inside = np.random.default_rng(5).uniform(0.1, 0.9, (n // 2, 3))
     o[: n // 2] = (lo + (hi - lo) * inside).astype(np.float32)
     render = dict(spatial_jitter=1.0, directional_jitter=1.0, chain_stride=32,
-                  lookup_point="middle", start_inside=True)
+                  lookup_point="middle", start_inside=True, nearest_line=8)
     # The exported preset is the Rust constant pinrender render uses (read from it).
     assert pinrt.RENDER_LOOKUP == render
     render = pinrt.RENDER_LOOKUP
     plain = grid.transmittance(o, d, t, seed=SEED)
     for kwargs, options in [
-        (render, "1,1,0,middle,1"),
+        (render, "1,1,0,middle,1,8"),
         (dict(spatial_jitter=0.5, chain_stride=4), "0.5,0,4,start,0"),
+        (dict(directional_jitter=1.0, chain_stride=8, nearest_line=3), "0,1,8,start,0,3"),
     ]:
         want_t, want_d, _ = rust_reference(smoke, o, d, t, SEED, tmp_path, options)
         got_t = grid.transmittance(o, d, t, seed=SEED, **kwargs)
@@ -164,6 +165,12 @@ def test_lookup_options_equal_the_rust_sampler_bit_for_bit(smoke, tmp_path):
     assert not np.array_equal(a[~outside], b[~outside])
     with pytest.raises(ValueError, match="lookup_point"):
         grid.transmittance(o, d, t, lookup_point="end")
+    with pytest.raises(ValueError, match="nearest_line is 65"):
+        grid.transmittance(o, d, t, nearest_line=65)
+    # The nearest-line search reaches the sampler (the smoke's grid is octahedral).
+    assert grid.info["directions"]["kind"] == "octahedral"
+    near = grid.transmittance(o, d, t, seed=SEED, **dict(render, nearest_line=0))
+    assert not np.array_equal(near, grid.transmittance(o, d, t, seed=SEED, **render))
 
 
 def count_until(event: threading.Event) -> int:

@@ -51,6 +51,7 @@ const uint STATUS_INVALID = 2u;
 const uint NO_ENTRY = 4294967295u;
 const uint NO_INTERVAL = 32u;
 const uint EMPTY_CELL = 4294967295u;
+const uint MAX_NEAREST_LINE_STEPS = 64u;
 const float C0_ = 0.999866;
 const float C1_ = -0.3302995;
 const float C2_ = 0.180141;
@@ -405,11 +406,11 @@ Segment make_segment(Chord ch, float t_max) {
         Segment _e25 = s;
         return _e25;
     }
-    float c_2 = (tx - te);
-    float k = (32.0 / c_2);
-    bool _e29 = is_finite_bits(c_2);
+    float c_4 = (tx - te);
+    float k_1 = (32.0 / c_4);
+    bool _e29 = is_finite_bits(c_4);
     if (!(!(_e29))) {
-        bool _e34 = is_finite_bits(k);
+        bool _e34 = is_finite_bits(k_1);
         local_8 = !(_e34);
     } else {
         local_8 = true;
@@ -422,7 +423,7 @@ Segment make_segment(Chord ch, float t_max) {
     float _e41 = t0_;
     if ((_e41 != te)) {
         float _e43 = t0_;
-        s0_ = ((_e43 - te) * k);
+        s0_ = ((_e43 - te) * k_1);
         float _e46 = s0_;
         if (!((_e46 < 32.0))) {
             s0_ = 32.0;
@@ -431,7 +432,7 @@ Segment make_segment(Chord ch, float t_max) {
     float _e53 = t1_;
     if ((_e53 != tx)) {
         float _e55 = t1_;
-        s1_ = ((_e55 - te) * k);
+        s1_ = ((_e55 - te) * k_1);
         float _e58 = s1_;
         if (!((_e58 < 32.0))) {
             s1_ = 32.0;
@@ -458,7 +459,7 @@ Segment make_segment(Chord ch, float t_max) {
     }
     s.ok = true;
     s.t_enter = te;
-    s.interval_len = (c_2 * 0.03125);
+    s.interval_len = (c_4 * 0.03125);
     float _e90 = t0_;
     s.t0_ = _e90;
     float _e92 = t1_;
@@ -542,16 +543,16 @@ uint direction_cell(vec3 d_1, bool jitter, float strength, float xi0_, float xi1
             ct = (_e44 + ((xi0_ - 0.5) * strength));
             float _e49 = cp;
             cp = (_e49 + ((xi1_ - 0.5) * strength));
-            float n_3 = float(n_phi);
+            float n_4 = float(n_phi);
             float _e55 = cp;
             if ((_e55 < 0.0)) {
                 float _e58 = cp;
-                cp = (_e58 + n_3);
+                cp = (_e58 + n_4);
             } else {
                 float _e60 = cp;
-                if ((_e60 >= n_3)) {
+                if ((_e60 >= n_4)) {
                     float _e62 = cp;
-                    cp = (_e62 - n_3);
+                    cp = (_e62 - n_4);
                 }
             }
         }
@@ -561,14 +562,14 @@ uint direction_cell(vec3 d_1, bool jitter, float strength, float xi0_, float xi1
         uint _e68 = bin(_e67, n_phi);
         return ((_e65 * n_phi) + _e68);
     }
-    uint n_4 = G.dirs.y;
+    uint n_5 = G.dirs.y;
     float sum = ((abs(d_1.x) + abs(d_1.y)) + d_1.z);
     float px = (d_1.x / sum);
     float py = (d_1.y / sum);
     float u = (((px + py) + 1.0) * 0.5);
     float v_1 = (((px - py) + 1.0) * 0.5);
-    cu = (u * float(n_4));
-    cv = (v_1 * float(n_4));
+    cu = (u * float(n_5));
+    cv = (v_1 * float(n_5));
     if (jitter) {
         float _e101 = cu;
         cu = (_e101 + ((xi0_ - 0.5) * strength));
@@ -576,10 +577,146 @@ uint direction_cell(vec3 d_1, bool jitter, float strength, float xi0_, float xi1
         cv = (_e106 + ((xi1_ - 0.5) * strength));
     }
     float _e111 = cv;
-    uint _e112 = bin(_e111, n_4);
+    uint _e112 = bin(_e111, n_5);
     float _e114 = cu;
-    uint _e115 = bin(_e114, n_4);
-    return ((_e112 * n_4) + _e115);
+    uint _e115 = bin(_e114, n_5);
+    return ((_e112 * n_5) + _e115);
+}
+
+vec3 octahedral_cell_axis(uint n_3, uint dcell) {
+    float zc = 0.0;
+    float nf = float(n_3);
+    float df = float(dcell);
+    float row = floor(((df + 0.5) / nf));
+    float col = (df - (row * nf));
+    float u_1 = ((col + 0.5) / nf);
+    float v_2 = ((row + 0.5) / nf);
+    float px_1 = ((u_1 + v_2) - 1.0);
+    float py_1 = (u_1 - v_2);
+    float z_1 = ((1.0 - abs(px_1)) - abs(py_1));
+    if ((z_1 > 0.0)) {
+        zc = z_1;
+    }
+    float _e29 = zc;
+    return vec3(px_1, py_1, _e29);
+}
+
+float nearest_line_score(uvec3 k, vec3 c_1, vec3 w, float ww) {
+    float rx = ((float(k.x) + 0.5) - c_1.x);
+    float ry = ((float(k.y) + 0.5) - c_1.y);
+    float rz = ((float(k.z) + 0.5) - c_1.z);
+    float rr = (((rx * rx) + (ry * ry)) + (rz * rz));
+    float rw = (((rx * w.x) + (ry * w.y)) + (rz * w.z));
+    return ((rr * ww) - (rw * rw));
+}
+
+uvec3 nearest_line_cell(vec3 c_2, uint dcell_1, uint steps) {
+    bool local_10 = false;
+    float m = 0.0;
+    uvec3 best = uvec3(0u);
+    float best_score = 0.0;
+    uint step_ = 1u;
+    uint side = 0u;
+    float lam = 0.0;
+    uint _e7 = G.dims.x;
+    uint _e8 = bin(c_2.x, _e7);
+    uint _e13 = G.dims.y;
+    uint _e14 = bin(c_2.y, _e13);
+    uint _e19 = G.dims.z;
+    uint _e20 = bin(c_2.z, _e19);
+    uvec3 home = uvec3(_e8, _e14, _e20);
+    uint _e25 = G.dirs.x;
+    if (!((_e25 != 1u))) {
+        local_10 = (steps == 0u);
+    } else {
+        local_10 = true;
+    }
+    bool _e34 = local_10;
+    if (_e34) {
+        return home;
+    }
+    uint _e38 = G.dirs.y;
+    vec3 _e39 = octahedral_cell_axis(_e38, dcell_1);
+    uint _e43 = G.dims.x;
+    uint _e48 = G.dims.y;
+    uint _e53 = G.dims.z;
+    vec3 dims = vec3(float(_e43), float(_e48), float(_e53));
+    vec3 w_1 = vec3((_e39.x * dims.x), (_e39.y * dims.y), (_e39.z * dims.z));
+    float ww_1 = (((w_1.x * w_1.x) + (w_1.y * w_1.y)) + (w_1.z * w_1.z));
+    float ax_1 = abs(w_1.x);
+    float ay_1 = abs(w_1.y);
+    float az = abs(w_1.z);
+    m = ay_1;
+    if ((ax_1 > ay_1)) {
+        m = ax_1;
+    }
+    float _e85 = m;
+    if ((az > _e85)) {
+        m = az;
+    }
+    float _e87 = m;
+    float h = (1.0 / _e87);
+    best = home;
+    float _e91 = nearest_line_score(home, c_2, w_1, ww_1);
+    best_score = _e91;
+    uint n_6 = min(steps, MAX_NEAREST_LINE_STEPS);
+    bool loop_init_2 = true;
+    while(true) {
+        if (!loop_init_2) {
+            uint _e153 = step_;
+            step_ = (_e153 + 1u);
+        }
+        loop_init_2 = false;
+        uint _e97 = step_;
+        if ((_e97 <= n_6)) {
+        } else {
+            break;
+        }
+        {
+            uint _e99 = step_;
+            float along = (float(_e99) * h);
+            side = 0u;
+            bool loop_init_3 = true;
+            while(true) {
+                if (!loop_init_3) {
+                    uint _e150 = side;
+                    side = (_e150 + 1u);
+                }
+                loop_init_3 = false;
+                uint _e104 = side;
+                if ((_e104 < 2u)) {
+                } else {
+                    break;
+                }
+                {
+                    lam = along;
+                    uint _e108 = side;
+                    if ((_e108 == 1u)) {
+                        lam = -(along);
+                    }
+                    float _e113 = lam;
+                    float _e118 = lam;
+                    float _e123 = lam;
+                    vec3 q_1 = vec3((c_2.x + (_e113 * w_1.x)), (c_2.y + (_e118 * w_1.y)), (c_2.z + (_e123 * w_1.z)));
+                    uint _e132 = G.dims.x;
+                    uint _e133 = bin(q_1.x, _e132);
+                    uint _e138 = G.dims.y;
+                    uint _e139 = bin(q_1.y, _e138);
+                    uint _e144 = G.dims.z;
+                    uint _e145 = bin(q_1.z, _e144);
+                    uvec3 k_2 = uvec3(_e133, _e139, _e145);
+                    float _e147 = nearest_line_score(k_2, c_2, w_1, ww_1);
+                    float _e148 = best_score;
+                    if ((_e147 < _e148)) {
+                        best = k_2;
+                        best_score = _e147;
+                    }
+                }
+            }
+        }
+    }
+    uvec3 _e156 = best;
+    return _e156;
 }
 
 vec3 xf_point(vec3 p) {
@@ -618,25 +755,26 @@ QueryResult empty_result(uint status) {
 }
 
 QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only, bool want_transmittance) {
-    bool local_10 = false;
-    vec3 sxi = vec3(0.0, 0.0, 0.0);
     bool local_11 = false;
+    vec3 sxi = vec3(0.0, 0.0, 0.0);
+    bool local_12 = false;
     float dxi0_ = 0.0;
     float dxi1_ = 0.0;
     vec3 dl = vec3(0.0);
-    bool local_12 = false;
-    float t0_1 = 0.0;
     bool local_13 = false;
-    vec3 c_1 = vec3(0.0);
+    float t0_1 = 0.0;
     bool local_14 = false;
+    vec3 c_3 = vec3(0.0);
+    uvec3 cell = uvec3(0u, 0u, 0u);
+    bool local_15 = false;
     uint entry_id = NO_ENTRY;
     uint mask = 0u;
     float t_min = 1.0;
-    bool local_15 = false;
+    bool local_16 = false;
     uint block = 0u;
     bool present = true;
-    bool local_16 = false;
     bool local_17 = false;
+    bool local_18 = false;
     uint part = 0u;
     QueryResult r_1 = QueryResult(0.0, 0.0, 0u, 0u, 0u, 0u, 0u, 0u);
     float lo_1 = 0.0;
@@ -644,16 +782,16 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
     float t_2 = 0.0;
     uint ppe = G.grid.y;
     uint _e9 = rng_next();
-    uint k_1 = (((_e9 >> 8u) * ppe) >> 24u);
+    uint k_3 = (((_e9 >> 8u) * ppe) >> 24u);
     float _e18 = G.jitter.x;
     if ((_e18 > 0.0)) {
         float _e26 = G.jitter.x;
         bool _e27 = is_finite_bits(_e26);
-        local_10 = _e27;
+        local_11 = _e27;
     } else {
-        local_10 = false;
+        local_11 = false;
     }
-    bool sj = local_10;
+    bool sj = local_11;
     if (sj) {
         float _e36 = rng_f32_();
         sxi.x = _e36;
@@ -666,11 +804,11 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
     if ((_e44 > 0.0)) {
         float _e52 = G.jitter.y;
         bool _e53 = is_finite_bits(_e52);
-        local_11 = _e53;
+        local_12 = _e53;
     } else {
-        local_11 = false;
+        local_12 = false;
     }
-    bool dj = local_11;
+    bool dj = local_12;
     if (dj) {
         float _e60 = rng_f32_();
         dxi0_ = _e60;
@@ -685,18 +823,18 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
     float _e70 = G.jitter.w;
     uint mode_2 = uint(_e70);
     if (((mode_2 & 2u) != 0u)) {
-        local_12 = (seg.s0_ > 0.0);
-    } else {
-        local_12 = false;
-    }
-    bool inside = local_12;
-    t0_1 = seg.t0_;
-    if (((mode_2 & 1u) != 0u)) {
-        local_13 = !(inside);
+        local_13 = (seg.s0_ > 0.0);
     } else {
         local_13 = false;
     }
-    bool _e93 = local_13;
+    bool inside = local_13;
+    t0_1 = seg.t0_;
+    if (((mode_2 & 1u) != 0u)) {
+        local_14 = !(inside);
+    } else {
+        local_14 = false;
+    }
+    bool _e93 = local_14;
     if (_e93) {
         t0_1 = (0.5 * (seg.t0_ + seg.t1_));
     }
@@ -707,142 +845,153 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
     uint _e119 = G.dims.x;
     uint _e126 = G.dims.y;
     uint _e133 = G.dims.z;
-    c_1 = vec3((p_2.x * float(_e119)), (p_2.y * float(_e126)), (p_2.z * float(_e133)));
-    if (sj) {
-        local_14 = !(inside);
+    c_3 = vec3((p_2.x * float(_e119)), (p_2.y * float(_e126)), (p_2.z * float(_e133)));
+    vec3 _e138 = dl;
+    float _e142 = G.jitter.y;
+    float _e143 = dxi0_;
+    float _e144 = dxi1_;
+    uint _e145 = direction_cell(_e138, dj, _e142, _e143, _e144);
+    uint near = (mode_2 >> 2u);
+    if ((near > 0u)) {
+        vec3 _e155 = c_3;
+        uvec3 _e156 = nearest_line_cell(_e155, _e145, near);
+        cell = _e156;
     } else {
-        local_14 = false;
-    }
-    bool _e142 = local_14;
-    if (_e142) {
-        float _e145 = c_1.x;
-        float _e147 = sxi.x;
-        float _e153 = G.jitter.x;
-        c_1.x = (_e145 + ((_e147 - 0.5) * _e153));
-        float _e158 = c_1.y;
-        float _e160 = sxi.y;
-        float _e166 = G.jitter.x;
-        c_1.y = (_e158 + ((_e160 - 0.5) * _e166));
-        float _e171 = c_1.z;
-        float _e173 = sxi.z;
-        float _e179 = G.jitter.x;
-        c_1.z = (_e171 + ((_e173 - 0.5) * _e179));
-    }
-    float _e183 = c_1.x;
-    uint _e187 = G.dims.x;
-    uint _e188 = bin(_e183, _e187);
-    float _e190 = c_1.y;
-    uint _e194 = G.dims.y;
-    uint _e195 = bin(_e190, _e194);
-    float _e197 = c_1.z;
-    uint _e201 = G.dims.z;
-    uint _e202 = bin(_e197, _e201);
-    vec3 _e203 = dl;
-    float _e207 = G.jitter.y;
-    float _e208 = dxi0_;
-    float _e209 = dxi1_;
-    uint _e210 = direction_cell(_e203, dj, _e207, _e208, _e209);
-    uint _e220 = G.dims.w;
-    if ((_e202 >= _e220)) {
-        uint _e227 = G.grid.x;
-        local_15 = (_e202 < _e227);
-    } else {
-        local_15 = false;
-    }
-    bool _e230 = local_15;
-    if (_e230) {
-        uint _e234 = G.dims.x;
-        uint _e238 = G.dims.y;
-        uint _e242 = G.dims.w;
-        uint local_33 = (_e188 + (_e234 * (_e195 + (_e238 * (_e202 - _e242)))));
-        block = local_33;
-        uint _e254 = G.dirs.w;
-        if ((_e254 != 0u)) {
-            uint _e259 = G_INDEX_BASE;
-            uint _e262 = _group_0_binding_2_cs[(_e259 + local_33)];
-            block = _e262;
-            uint _e263 = block;
-            if ((_e263 != EMPTY_CELL)) {
-                uint _e268 = block;
-                uint _e272 = G.grid.w;
-                local_16 = (_e268 < _e272);
-            } else {
-                local_16 = false;
-            }
-            bool _e275 = local_16;
-            present = _e275;
-        }
-        uint within = ((_e210 * ppe) + k_1);
-        bool _e278 = present;
-        if (_e278) {
-            uint _e284 = G.grid.z;
-            local_17 = (within < _e284);
+        if (sj) {
+            local_15 = !(inside);
         } else {
-            local_17 = false;
+            local_15 = false;
         }
-        bool _e287 = local_17;
-        if (_e287) {
-            uint _e288 = block;
-            uint _e292 = G.grid.z;
-            entry_id = ((_e288 * _e292) + within);
-            uint _e297 = G_PIN_BASE;
-            uint _e298 = entry_id;
-            uvec2 e = _group_0_binding_1_cs[(_e297 + _e298)];
+        bool _e161 = local_15;
+        if (_e161) {
+            float _e164 = c_3.x;
+            float _e166 = sxi.x;
+            float _e172 = G.jitter.x;
+            c_3.x = (_e164 + ((_e166 - 0.5) * _e172));
+            float _e177 = c_3.y;
+            float _e179 = sxi.y;
+            float _e185 = G.jitter.x;
+            c_3.y = (_e177 + ((_e179 - 0.5) * _e185));
+            float _e190 = c_3.z;
+            float _e192 = sxi.z;
+            float _e198 = G.jitter.x;
+            c_3.z = (_e190 + ((_e192 - 0.5) * _e198));
+        }
+        float _e202 = c_3.x;
+        uint _e206 = G.dims.x;
+        uint _e207 = bin(_e202, _e206);
+        float _e209 = c_3.y;
+        uint _e213 = G.dims.y;
+        uint _e214 = bin(_e209, _e213);
+        float _e216 = c_3.z;
+        uint _e220 = G.dims.z;
+        uint _e221 = bin(_e216, _e220);
+        cell = uvec3(_e207, _e214, _e221);
+    }
+    uint cx = cell.x;
+    uint cy = cell.y;
+    uint cz = cell.z;
+    uint _e238 = G.dims.w;
+    if ((cz >= _e238)) {
+        uint _e245 = G.grid.x;
+        local_16 = (cz < _e245);
+    } else {
+        local_16 = false;
+    }
+    bool _e248 = local_16;
+    if (_e248) {
+        uint _e252 = G.dims.x;
+        uint _e256 = G.dims.y;
+        uint _e260 = G.dims.w;
+        uint local_34 = (cx + (_e252 * (cy + (_e256 * (cz - _e260)))));
+        block = local_34;
+        uint _e272 = G.dirs.w;
+        if ((_e272 != 0u)) {
+            uint _e277 = G_INDEX_BASE;
+            uint _e280 = _group_0_binding_2_cs[(_e277 + local_34)];
+            block = _e280;
+            uint _e281 = block;
+            if ((_e281 != EMPTY_CELL)) {
+                uint _e286 = block;
+                uint _e290 = G.grid.w;
+                local_17 = (_e286 < _e290);
+            } else {
+                local_17 = false;
+            }
+            bool _e293 = local_17;
+            present = _e293;
+        }
+        uint within = ((_e145 * ppe) + k_3);
+        bool _e296 = present;
+        if (_e296) {
+            uint _e302 = G.grid.z;
+            local_18 = (within < _e302);
+        } else {
+            local_18 = false;
+        }
+        bool _e305 = local_18;
+        if (_e305) {
+            uint _e306 = block;
+            uint _e310 = G.grid.z;
+            entry_id = ((_e306 * _e310) + within);
+            uint _e315 = G_PIN_BASE;
+            uint _e316 = entry_id;
+            uvec2 e = _group_0_binding_1_cs[(_e315 + _e316)];
             mask = e.x;
             t_min = uintBitsToFloat(e.y);
         }
     }
-    float _e305 = rng_f32_();
-    float _e306 = rng_f32_();
-    float _e307 = t_min;
-    float _e308 = sanitize_t_min(_e307);
-    t_min = _e308;
+    float _e323 = rng_f32_();
+    float _e324 = rng_f32_();
+    float _e325 = t_min;
+    float _e326 = sanitize_t_min(_e325);
+    t_min = _e326;
     if (reversed) {
-        uint _e309 = mask;
-        mask = bitfieldReverse(_e309);
+        uint _e327 = mask;
+        mask = bitfieldReverse(_e327);
     }
-    uint _e313 = interval_range(seg.a, seg.b);
-    part = _e313;
+    uint _e331 = interval_range(seg.a, seg.b);
+    part = _e331;
     if ((seg.a == seg.b)) {
-        if (!((_e305 < (seg.s1_ - seg.s0_)))) {
+        if (!((_e323 < (seg.s1_ - seg.s0_)))) {
             part = 0u;
         }
     } else {
-        if (!((_e305 < (float((seg.a + 1u)) - seg.s0_)))) {
-            uint _e332 = part;
-            uint _e334 = interval_bit(seg.a);
-            part = (_e332 & ~(_e334));
+        if (!((_e323 < (float((seg.a + 1u)) - seg.s0_)))) {
+            uint _e350 = part;
+            uint _e352 = interval_bit(seg.a);
+            part = (_e350 & ~(_e352));
         }
-        if (!((_e306 < (seg.s1_ - float(seg.b))))) {
-            uint _e343 = part;
-            uint _e345 = interval_bit(seg.b);
-            part = (_e343 & ~(_e345));
+        if (!((_e324 < (seg.s1_ - float(seg.b))))) {
+            uint _e361 = part;
+            uint _e363 = interval_bit(seg.b);
+            part = (_e361 & ~(_e363));
         }
     }
-    uint _e348 = mask;
-    uint _e349 = part;
-    uint popcount = uint(bitCount((_e348 & _e349)));
-    uint _e353 = inf_bits;
-    uint _e356 = entry_id;
-    r_1 = QueryResult(uintBitsToFloat(_e353), 1.0, 0u, _e356, popcount, NO_INTERVAL, STATUS_OK, 0u);
+    uint _e366 = mask;
+    uint _e367 = part;
+    uint popcount = uint(bitCount((_e366 & _e367)));
+    uint _e371 = inf_bits;
+    uint _e374 = entry_id;
+    r_1 = QueryResult(uintBitsToFloat(_e371), 1.0, 0u, _e374, popcount, NO_INTERVAL, STATUS_OK, 0u);
     if (want_transmittance) {
-        float _e364 = t_min;
-        float _e365 = pow_int(_e364, popcount);
-        r_1.transmittance = _e365;
+        float _e382 = t_min;
+        float _e383 = pow_int(_e382, popcount);
+        r_1.transmittance = _e383;
     }
     if (transmittance_only) {
-        uint _e368 = rng_state;
-        r_1.rng_state = _e368;
-        QueryResult _e369 = r_1;
-        return _e369;
+        uint _e386 = rng_state;
+        r_1.rng_state = _e386;
+        QueryResult _e387 = r_1;
+        return _e387;
     }
-    float _e370 = t_min;
-    uint _e371 = exact_sample_mask(_e370);
-    uint _e372 = mask;
-    uint _e373 = part;
-    uint m = ((_e372 & _e373) & _e371);
-    if ((m != 0u)) {
-        uint j_3 = uint(31 - findMSB(m));
+    float _e388 = t_min;
+    uint _e389 = exact_sample_mask(_e388);
+    uint _e390 = mask;
+    uint _e391 = part;
+    uint m_1 = ((_e390 & _e391) & _e389);
+    if ((m_1 != 0u)) {
+        uint j_3 = uint(31 - findMSB(m_1));
         lo_1 = float(j_3);
         if ((j_3 == seg.a)) {
             lo_1 = seg.s0_;
@@ -851,29 +1000,29 @@ QueryResult piece_query(vec3 o_1, vec3 d_2, Segment seg, bool transmittance_only
         if ((j_3 == seg.b)) {
             hi_1 = seg.s1_;
         }
-        float _e391 = rng_f32_();
-        float _e392 = lo_1;
-        float _e393 = hi_1;
-        float _e394 = lo_1;
-        float s_2 = (_e392 + (_e391 * (_e393 - _e394)));
+        float _e409 = rng_f32_();
+        float _e410 = lo_1;
+        float _e411 = hi_1;
+        float _e412 = lo_1;
+        float s_2 = (_e410 + (_e409 * (_e411 - _e412)));
         t_2 = (seg.t_enter + (s_2 * seg.interval_len));
-        float _e403 = t_2;
-        if (!((_e403 > seg.t0_))) {
+        float _e421 = t_2;
+        if (!((_e421 > seg.t0_))) {
             t_2 = seg.t0_;
         }
-        float _e408 = t_2;
-        if (!((_e408 < seg.t1_))) {
+        float _e426 = t_2;
+        if (!((_e426 < seg.t1_))) {
             t_2 = seg.t1_;
         }
-        float _e414 = t_2;
-        r_1.distance_ = _e414;
+        float _e432 = t_2;
+        r_1.distance_ = _e432;
         r_1.hit = 1u;
         r_1.interval = j_3;
     }
-    uint _e420 = rng_state;
-    r_1.rng_state = _e420;
-    QueryResult _e421 = r_1;
-    return _e421;
+    uint _e438 = rng_state;
+    r_1.rng_state = _e438;
+    QueryResult _e439 = r_1;
+    return _e439;
 }
 
 Segment piece_of(Segment full, uint j_2, uint stride) {
@@ -913,7 +1062,6 @@ Segment piece_of(Segment full, uint j_2, uint stride) {
 }
 
 QueryResult query_mode(Ray ray, uint mode) {
-    bool local_18 = false;
     bool local_19 = false;
     bool local_20 = false;
     bool local_21 = false;
@@ -922,78 +1070,79 @@ QueryResult query_mode(Ray ray, uint mode) {
     bool local_24 = false;
     bool local_25 = false;
     bool local_26 = false;
-    uint stride_1 = 0u;
     bool local_27 = false;
+    uint stride_1 = 0u;
+    bool local_28 = false;
     uint piece = 0u;
     QueryResult r_2 = QueryResult(0.0, 0.0, 0u, 0u, 0u, 0u, 0u, 0u);
-    bool local_28 = false;
     bool local_29 = false;
     bool local_30 = false;
     bool local_31 = false;
     bool local_32 = false;
+    bool local_33 = false;
     vec3 _e3 = xf_point(ray.origin);
     vec3 _e5 = xf_vector(ray.dir);
     bool _e7 = is_finite_bits(_e3.x);
     if (_e7) {
         bool _e11 = is_finite_bits(_e3.y);
-        local_18 = _e11;
-    } else {
-        local_18 = false;
-    }
-    bool _e13 = local_18;
-    if (_e13) {
-        bool _e17 = is_finite_bits(_e3.z);
-        local_19 = _e17;
+        local_19 = _e11;
     } else {
         local_19 = false;
     }
-    bool _e19 = local_19;
-    if (_e19) {
-        bool _e23 = is_finite_bits(_e5.x);
-        local_20 = _e23;
+    bool _e13 = local_19;
+    if (_e13) {
+        bool _e17 = is_finite_bits(_e3.z);
+        local_20 = _e17;
     } else {
         local_20 = false;
     }
-    bool _e25 = local_20;
-    if (_e25) {
-        bool _e29 = is_finite_bits(_e5.y);
-        local_21 = _e29;
+    bool _e19 = local_20;
+    if (_e19) {
+        bool _e23 = is_finite_bits(_e5.x);
+        local_21 = _e23;
     } else {
         local_21 = false;
     }
-    bool _e31 = local_21;
-    if (_e31) {
-        bool _e35 = is_finite_bits(_e5.z);
-        local_22 = _e35;
+    bool _e25 = local_21;
+    if (_e25) {
+        bool _e29 = is_finite_bits(_e5.y);
+        local_22 = _e29;
     } else {
         local_22 = false;
     }
-    bool finite = local_22;
+    bool _e31 = local_22;
+    if (_e31) {
+        bool _e35 = is_finite_bits(_e5.z);
+        local_23 = _e35;
+    } else {
+        local_23 = false;
+    }
+    bool finite = local_23;
     bool nan_tmax = ((floatBitsToUint(ray.t_max) & 2147483647u) > 2139095040u);
     if (!(!(finite))) {
-        local_23 = nan_tmax;
-    } else {
-        local_23 = true;
-    }
-    bool _e49 = local_23;
-    if (!(_e49)) {
-        if ((_e5.x == 0.0)) {
-            local_25 = (_e5.y == 0.0);
-        } else {
-            local_25 = false;
-        }
-        bool _e62 = local_25;
-        if (_e62) {
-            local_26 = (_e5.z == 0.0);
-        } else {
-            local_26 = false;
-        }
-        bool _e69 = local_26;
-        local_24 = _e69;
+        local_24 = nan_tmax;
     } else {
         local_24 = true;
     }
-    bool _e71 = local_24;
+    bool _e49 = local_24;
+    if (!(_e49)) {
+        if ((_e5.x == 0.0)) {
+            local_26 = (_e5.y == 0.0);
+        } else {
+            local_26 = false;
+        }
+        bool _e62 = local_26;
+        if (_e62) {
+            local_27 = (_e5.z == 0.0);
+        } else {
+            local_27 = false;
+        }
+        bool _e69 = local_27;
+        local_25 = _e69;
+    } else {
+        local_25 = true;
+    }
+    bool _e71 = local_25;
     if (_e71) {
         QueryResult _e73 = empty_result(STATUS_INVALID);
         return _e73;
@@ -1013,11 +1162,11 @@ QueryResult query_mode(Ray ray, uint mode) {
     uint _e91 = stride_1;
     if (!((_e91 == 0u))) {
         uint _e97 = stride_1;
-        local_27 = (_e97 > 32u);
+        local_28 = (_e97 > 32u);
     } else {
-        local_27 = true;
+        local_28 = true;
     }
-    bool _e101 = local_27;
+    bool _e101 = local_28;
     if (_e101) {
         stride_1 = 32u;
     }
@@ -1036,16 +1185,16 @@ QueryResult query_mode(Ray ray, uint mode) {
         if (!((_e118.b >= _e80.b))) {
             if ((mode == MODE_DISTANCE)) {
                 uint _e130 = r_2.hit;
-                local_29 = (_e130 != 0u);
+                local_30 = (_e130 != 0u);
             } else {
-                local_29 = false;
+                local_30 = false;
             }
-            bool _e134 = local_29;
-            local_28 = _e134;
+            bool _e134 = local_30;
+            local_29 = _e134;
         } else {
-            local_28 = true;
+            local_29 = true;
         }
-        bool _e136 = local_28;
+        bool _e136 = local_29;
         if (_e136) {
             break;
         }
@@ -1054,16 +1203,16 @@ QueryResult query_mode(Ray ray, uint mode) {
         if (!((mode == MODE_TRANSMITTANCE))) {
             if ((mode == MODE_BOTH)) {
                 uint _e150 = r_2.hit;
-                local_31 = (_e150 != 0u);
+                local_32 = (_e150 != 0u);
             } else {
-                local_31 = false;
+                local_32 = false;
             }
-            bool _e154 = local_31;
-            local_30 = _e154;
+            bool _e154 = local_32;
+            local_31 = _e154;
         } else {
-            local_30 = true;
+            local_31 = true;
         }
-        bool skip_d = local_30;
+        bool skip_d = local_31;
         uint _e157 = piece;
         uint _e158 = stride_1;
         Segment _e159 = piece_of(_e80, _e157, _e158);
@@ -1074,11 +1223,11 @@ QueryResult query_mode(Ray ray, uint mode) {
         r_2.popcount = (_e168 + _e160.popcount);
         uint _e172 = r_2.hit;
         if ((_e172 == 0u)) {
-            local_32 = (_e160.hit != 0u);
+            local_33 = (_e160.hit != 0u);
         } else {
-            local_32 = false;
+            local_33 = false;
         }
-        bool _e181 = local_32;
+        bool _e181 = local_33;
         if (_e181) {
             r_2.hit = 1u;
             r_2.distance_ = _e160.distance_;

@@ -345,6 +345,7 @@ mod tests {
             chain_stride: 32,
             midpoint_lookup: true,
             start_inside: true,
+            nearest_line: 8,
         };
         let l2w = grid.desc().local_to_world;
         let mut placed = Vec::new();
@@ -451,7 +452,9 @@ mod tests {
                 chain_stride: 32,
                 midpoint_lookup: true,
                 start_inside: true,
+                nearest_line: 0,
             },
+            SamplerOptions::RENDER,
         ] {
             let est = PinsEstimator::new(grid.clone(), None, opts).unwrap();
             let mut g = Pcg32::new(5, 6);

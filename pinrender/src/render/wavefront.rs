@@ -830,6 +830,7 @@ mod tests {
             chain_stride: 32,
             midpoint_lookup: true,
             start_inside: true,
+            nearest_line: 0,
         };
         let chained = pinrt::SamplerOptions {
             chain_stride: 8,
@@ -846,6 +847,13 @@ mod tests {
             (
                 "pins, 70 instances, jitter",
                 instances(70, jitter)
+                    .into_iter()
+                    .map(Medium::single)
+                    .collect(),
+            ),
+            (
+                "pins, 20 instances, the render's lookup",
+                instances(20, pinrt::SamplerOptions::RENDER)
                     .into_iter()
                     .map(Medium::single)
                     .collect(),

@@ -39,7 +39,7 @@ if TYPE_CHECKING:  # NumPy is imported lazily: the OpenVDB worker must not load 
 __all__ = ["PinError", "PinGrid", "RENDER_LOOKUP", "bake"]
 
 #: The lookup ``pinrender render`` uses, measured the least biased on volumes nobody tuned
-#: for (``pinrt::SamplerOptions::RENDER``; docs/sampling.md sections 11-14): pass it to the
+#: for (``pinrt::SamplerOptions::RENDER``; docs/sampling.md sections 11-15): pass it to the
 #: queries, ``grid.transmittance(o, d, t, **pinrt.RENDER_LOOKUP)``. The queries' own
 #: defaults stay the thesis' lookup (no jitter, one lookup at the segment start), whose
 #: answers existing callers rely on.
@@ -225,22 +225,26 @@ class PinGrid:
         chain_stride: int = 0,
         lookup_point: str = "start",
         start_inside: bool = False,
+        nearest_line: int = 0,
     ) -> "np.ndarray":
         """Transmittance estimates over ``[0, t_max]`` of N rays (``t_max`` a number or N
         numbers; ``inf`` runs to the grid box's exit). Directions need not be unit length:
         distances are in units of the ray parameter. Returns float32 of shape (N,).
 
-        The lookup options are ``pinrt::SamplerOptions``'s (docs/sampling.md sections 12-14):
+        The lookup options are ``pinrt::SamplerOptions``'s (docs/sampling.md sections 12-15):
         ``spatial_jitter`` and ``directional_jitter`` in cells, ``chain_stride`` in intervals
         (0: one lookup per query), ``lookup_point`` ``"start"`` or ``"middle"`` of the segment,
         ``start_inside`` (a ray starting inside the box is looked up at its start, without
-        spatial jitter). The defaults are the library's (the thesis' lookup); ``pinrender
-        render`` uses ``**RENDER_LOOKUP`` (``spatial_jitter=1, directional_jitter=1,
-        lookup_point="middle", start_inside=True``), the least biased."""
+        spatial jitter), ``nearest_line`` (0-64: read the cell whose pin line passes nearest
+        the lookup point, searching that many one-cell steps each side; replaces the spatial
+        jitter; octahedral grids). The defaults are the library's (the thesis' lookup);
+        ``pinrender render`` uses ``**RENDER_LOOKUP`` (``spatial_jitter=1,
+        directional_jitter=1, lookup_point="middle", start_inside=True, nearest_line=8``),
+        the least biased."""
         o, d, t = _rays(origins, directions, t_max)
         return self._g.transmittance(
             o, d, t, seed, first_index, spatial_jitter, directional_jitter,
-            chain_stride, lookup_point, start_inside,
+            chain_stride, lookup_point, start_inside, nearest_line,
         )
 
     def sample_distance(
@@ -256,6 +260,7 @@ class PinGrid:
         chain_stride: int = 0,
         lookup_point: str = "start",
         start_inside: bool = False,
+        nearest_line: int = 0,
     ) -> "np.ndarray":
         """Sampled free-flight distances in ``[0, t_max]`` of N rays, ``inf`` where a ray
         passes without a collision. Returns float32 of shape (N,). The lookup options are
@@ -263,5 +268,5 @@ class PinGrid:
         o, d, t = _rays(origins, directions, t_max)
         return self._g.sample_distance(
             o, d, t, seed, first_index, spatial_jitter, directional_jitter,
-            chain_stride, lookup_point, start_inside,
+            chain_stride, lookup_point, start_inside, nearest_line,
         )

@@ -27,6 +27,7 @@ class PinGrid:
         chain_stride: int,
         lookup_point: str,
         start_inside: bool,
+        nearest_line: int = ...,
     ) -> npt.NDArray[np.float32]: ...
     def sample_distance(
         self,
@@ -40,6 +41,7 @@ class PinGrid:
         chain_stride: int,
         lookup_point: str,
         start_inside: bool,
+        nearest_line: int = ...,
     ) -> npt.NDArray[np.float32]: ...
 
 def bake(

@@ -140,6 +140,11 @@ pub struct RenderArgs {
     /// (docs/sampling.md section 14): `true` or `false`.
     #[arg(long, default_value_t = DEFAULT_LOOKUP.start_inside, action = clap::ArgAction::Set)]
     pub start_inside: bool,
+    /// Pins: read the cell whose pin line passes nearest the lookup point, searching this many
+    /// one-cell steps each side along the direction's axis, instead of the cell that holds
+    /// the point; replaces the spatial jitter (docs/sampling.md section 15). 0: off; 0..=64.
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.nearest_line, value_parser = clap::value_parser!(u32).range(0..=64))]
+    pub nearest_line: u32,
     /// Compare with this converged image (EXR of the same size) and print one line on stdout:
     /// `mean_error M block8_rms_error B spp N seconds S rmse R` (M and B relative, see
     /// `docs/evaluation.md`; R the per-pixel RMSE in radiance, as `pinrender eval` reports).
@@ -167,6 +172,7 @@ impl RenderArgs {
             chain_stride: self.chain_stride,
             midpoint_lookup: self.lookup_point == "middle",
             start_inside: self.start_inside,
+            nearest_line: self.nearest_line,
         }
     }
 }
