@@ -574,6 +574,8 @@ fn bench_json_rows_have_rates_and_errors() {
         "pins-batched/distance",
         "pins-default-batched/transmittance",
         "pins-default-batched/distance",
+        "pins-render-batched/transmittance",
+        "pins-render-batched/distance",
         "ratio/transmittance",
         "ratio/distance",
         "delta/transmittance",

@@ -1,7 +1,9 @@
 //! `pinrender bench`: queries per second of pins (`pins`: one query at a time;
 //! `pins-batched`: the prefetching batch API, both on a `--cells`^3 bake;
 //! `pins-default-batched`: the batch API on the bake `pinbake bake` chooses for the volume,
-//! the file a user gets) vs ray marching the source density at
+//! the file a user gets; `pins-render-batched`: that bake with the lookup `pinrender render`
+//! uses, `SamplerOptions::RENDER`: jitter, middle lookup, the nearest-line search) vs ray
+//! marching the source density at
 //! relative steps 0.015 and 0.005, ratio and delta tracking over a majorant grid (`ratio`,
 //! `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
 //! the same random rays, CPU single thread and wgpu. Transmittance rows also
@@ -23,7 +25,7 @@ use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrender::render::{CombKind, DeltaTracking, Pcg32, RatioTracking, TransportEstimator};
 use pinrt::march::{self, MarchBox};
-use pinrt::{PinGrid, RayQuery, Rng};
+use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
 use serde_json::{Value, json};
 
 use crate::volume::{self, SourceField, VolumeArgs};
@@ -401,8 +403,12 @@ fn bench_volume(
     // a loaded machine to halve its rate; so passes repeat (with fresh seeds) until
     // `MIN_BATCHED_S`, and the rate is the mean over all of them (not the best pass).
     let first = rows.len() - 2;
-    let mut batched = |method: &str, grid: &PinGrid, rows: &mut Vec<Value>| -> Result<()> {
-        let sampler = grid.sampler()?;
+    let mut batched = |method: &str,
+                       grid: &PinGrid,
+                       lookup: SamplerOptions,
+                       rows: &mut Vec<Value>|
+     -> Result<()> {
+        let sampler = grid.sampler()?.with_options(lookup);
         let first = rows.len();
         sampler.transmittance_batch(&rays, 1, 0, &mut t_out);
         let qps = repeated_rate(rays.len(), |pass| {
@@ -420,10 +426,12 @@ fn bench_volume(
         describe_bake(grid, &mut rows[first..]);
         Ok(())
     };
-    batched("pins-batched", grid, rows)?;
+    batched("pins-batched", grid, SamplerOptions::default(), rows)?;
     describe_bake(grid, &mut rows[first..]);
     if let Some(g) = default_grid {
-        batched("pins-default-batched", g, rows)?;
+        batched("pins-default-batched", g, SamplerOptions::default(), rows)?;
+        // What a render pays per query, and how near its answers are.
+        batched("pins-render-batched", g, SamplerOptions::RENDER, rows)?;
     }
 
     let n_rm = (rays.len() / 4).max(1);

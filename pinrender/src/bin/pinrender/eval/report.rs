@@ -324,8 +324,9 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
          `mean((x - ref)^2 / (ref^2 + 0.01))`. Pin bakes are an offline asset step: their time \
          is listed per scene and is *not* included in the render times. {} bounces (1 for \
          box-ss), albedo 0.95, isotropic phase, pins looked up as `pinrender render` looks \
-         them up by default: at the middle of the query segment, with one cell of spatial and \
-         directional jitter.",
+         them up by default (`SamplerOptions::RENDER`): at the middle of the query segment (a \
+         ray from inside the medium at its start), one cell of directional jitter, the cell \
+         whose pin line passes nearest the lookup point (`docs/sampling.md` section 15).",
         meta.sizes.max_bounces
     );
     let _ = writeln!(s);
