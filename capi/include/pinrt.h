@@ -409,7 +409,8 @@ enum PinrtStatus pinrt_gpu_buffers(const struct PinrtGrid *grid, struct PinrtGpu
  * `midpoint_lookup` 1 to look each piece up at its middle instead of its start,
  * `start_inside` 1 to look a piece that starts inside the box up at its start without
  * spatial jitter. A newly opened grid has 0, 0, 0 (the thesis' lookup); `pinrender render`
- * uses the `PINRT_RENDER_*` values (one lookup, middle, start inside, both jitters 1).
+ * uses the `PINRT_RENDER_*` values (one lookup, middle, start inside, both jitters 1, and
+ * `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`).
  * `midpoint_lookup` and `start_inside` other than 0 or 1
  * are `PINRT_INVALID_ARGUMENT`.
  *
