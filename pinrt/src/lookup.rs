@@ -161,16 +161,17 @@ pub fn octahedral_cell_axis(n: u32, dcell: u32) -> [f32; 3] {
     [px, py, if z > 0.0 { z } else { 0.0 }]
 }
 
-/// The nearest-line lookup (`docs/sampling.md` section 15): of the cells that the line
-/// through the lookup point along the direction cell's axis crosses within `steps` one-cell
-/// steps on each side, the one whose own pin line (through the cell's centre, along the same
-/// axis) passes nearest the lookup point. `c` is the lookup point in continuous cell
-/// coordinates (`p * dims`). Distances are compared in cell units as
-/// `|r|^2 |w|^2 - (r . w)^2` (`|w|^2` times the squared distance, no square root or
-/// division per candidate); the home cell (`floor(c)`) comes first and then steps `+1, -1,
-/// +2, -2, ...`, and a candidate replaces the best only when strictly nearer. A candidate
-/// point beyond the grid names the border cell (clamped as the lookup clamps). Polar direction sets, whose axes need trigonometry that
-/// the GPU would not reproduce to the bit, and `steps = 0` read the home cell.
+/// The nearest-line lookup (`docs/sampling.md` section 15). On the line through the lookup
+/// point along the direction cell's axis, take the points one cell apart (along the axis's
+/// longest component), up to `steps` on each side; of the cells holding them, return the one
+/// whose own pin line (through the cell's centre, along the same axis) passes nearest the
+/// lookup point. `c` is the lookup point in continuous cell coordinates (`p * dims`).
+/// Distances are compared in cell units as `|r|^2 |w|^2 - (r . w)^2` (`|w|^2` times the
+/// squared distance: no square root or division per candidate); the home cell (`floor(c)`)
+/// comes first and then steps `+1, -1, +2, -2, ...`, and a candidate replaces the best only
+/// when strictly nearer. A point beyond the grid names the border cell (clamped as the lookup
+/// clamps). Polar direction sets, whose axes need trigonometry that the GPU would not
+/// reproduce to the bit, and `steps = 0` read the home cell.
 #[inline(always)]
 pub fn nearest_line_cell(c: [f32; 3], view: &GridView<'_>, dcell: u32, steps: u32) -> [u32; 3] {
     let dims = view.shape.dims;
