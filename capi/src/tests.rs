@@ -120,6 +120,68 @@ fn batches_equal_the_rust_sampler_bit_for_bit() {
     }
 }
 
+/// `pinrt_set_nearest_line` on an octahedral grid (the polar grid of the test below reads the
+/// home cell whatever the steps): with `pinrt_set_lookup(32, 1, 1)` and both jitters 1 the
+/// batch answers are `SamplerOptions::RENDER`'s bit for bit, and not those of steps 0.
+#[test]
+fn set_nearest_line_reaches_the_batches() {
+    let bytes = random_grid(Directions::Octahedral { n: 6 }, [7, 6, 8], 2, true, 12)
+        .to_bytes()
+        .unwrap();
+    let g = open_mem(&bytes);
+    let reference = PinGrid::from_bytes(bytes.clone()).unwrap();
+    let mut rs = rays(600);
+    let mut rng = Rng::for_query(8, 3);
+    for r in rs.iter_mut().step_by(2) {
+        r.origin = [rng.next_f32(), rng.next_f32(), rng.next_f32()];
+    }
+    let rq: Vec<RayQuery> = bytemuck::cast_slice(&rs).to_vec();
+    let n = rs.len();
+    let opts = PinrtQueryOptions {
+        spatial_jitter: PINRT_RENDER_SPATIAL_JITTER,
+        directional_jitter: PINRT_RENDER_DIRECTIONAL_JITTER,
+        local_to_world: ptr::null(),
+    };
+    let answers = |steps: u32| {
+        let mut t = vec![0f32; n];
+        // SAFETY: an open grid used by this thread only; buffers sized `n`.
+        unsafe {
+            assert_eq!(
+                pinrt_set_lookup(
+                    g,
+                    PINRT_RENDER_CHAIN_STRIDE,
+                    PINRT_RENDER_MIDPOINT_LOOKUP,
+                    PINRT_RENDER_START_INSIDE
+                ),
+                PinrtStatus::Ok
+            );
+            assert_eq!(pinrt_set_nearest_line(g, steps), PinrtStatus::Ok);
+            assert_eq!(
+                pinrt_transmittance(g, &opts, rs.as_ptr(), n, 9, 0, t.as_mut_ptr()),
+                PinrtStatus::Ok
+            );
+        }
+        t
+    };
+    let near = answers(PINRT_RENDER_NEAREST_LINE);
+    let mut want = vec![0f32; n];
+    reference
+        .sampler()
+        .unwrap()
+        .with_options(SamplerOptions::RENDER)
+        .transmittance_batch(&rq, 9, 0, &mut want);
+    for i in 0..n {
+        assert_eq!(near[i].to_bits(), want[i].to_bits(), "ray {i}");
+    }
+    assert_ne!(
+        near,
+        answers(0),
+        "the nearest-line setting did not reach the sampler"
+    );
+    // SAFETY: opened above, closed once.
+    unsafe { pinrt_close(g) };
+}
+
 #[test]
 fn set_lookup_reaches_the_batches_and_the_gpu_params() {
     let bytes = grid_bytes(false);
