@@ -787,10 +787,7 @@ fn a_full_stderr_keeps_the_exit_code() {
         (vec!["inspect", pin.to_str().unwrap()], 0),
         (bake, 0),
     ] {
-        let full = std::fs::OpenOptions::new()
-            .write(true)
-            .open("/dev/full")
-            .unwrap();
+        let full = dev_full();
         let status = Command::new(BIN)
             .args(&args)
             .current_dir(dir.path())
@@ -816,10 +813,7 @@ fn a_full_stdout_is_an_error_line() {
         vec!["inspect", pin.to_str().unwrap()],
         vec!["verify", pin.to_str().unwrap()],
     ] {
-        let full = std::fs::OpenOptions::new()
-            .write(true)
-            .open("/dev/full")
-            .unwrap();
+        let full = dev_full();
         let out = Command::new(BIN)
             .args(&args)
             .stdin(Stdio::null())
@@ -870,4 +864,12 @@ fn a_closed_stdout_ends_the_process_quietly() {
         .map(|e| e.unwrap().file_name())
         .collect();
     assert_eq!(names.len(), 2, "{names:?}");
+}
+
+/// `/dev/full` opened for writing: every write fails with "No space left on device".
+fn dev_full() -> std::fs::File {
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap()
 }

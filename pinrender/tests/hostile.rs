@@ -604,10 +604,7 @@ fn a_full_stderr_keeps_the_exit_code() {
         ),
         (vec!["render", "--bogus-flag"], 2),
     ] {
-        let full = std::fs::OpenOptions::new()
-            .write(true)
-            .open("/dev/full")
-            .unwrap();
+        let full = dev_full();
         let status = Command::new(BIN)
             .args(&args)
             .stdin(Stdio::null())
@@ -623,10 +620,7 @@ fn a_full_stderr_keeps_the_exit_code() {
 #[test]
 fn a_full_stdout_is_an_error_line() {
     let dir = tempfile::tempdir().unwrap();
-    let full = std::fs::OpenOptions::new()
-        .write(true)
-        .open("/dev/full")
-        .unwrap();
+    let full = dev_full();
     let (o, _) = reference_render_into(dir.path(), full);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
@@ -636,4 +630,12 @@ fn a_full_stdout_is_an_error_line() {
         "{stderr}"
     );
     assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+/// `/dev/full` opened for writing: every write fails with "No space left on device".
+fn dev_full() -> std::fs::File {
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open("/dev/full")
+        .unwrap()
 }

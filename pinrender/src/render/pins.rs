@@ -339,14 +339,8 @@ mod tests {
     #[test]
     fn shared_batch_answers_as_each_member() {
         let grid = sparse_grid([5, 4, 6], 11);
-        let opts = SamplerOptions {
-            spatial_jitter: 1.0,
-            directional_jitter: 1.0,
-            chain_stride: 32,
-            midpoint_lookup: true,
-            start_inside: true,
-            nearest_line: 8,
-        };
+        // The render's lookup: jitter, middle, start inside, the nearest-line search.
+        let opts = SamplerOptions::RENDER;
         let l2w = grid.desc().local_to_world;
         let mut placed = Vec::new();
         for k in 0..4 {
