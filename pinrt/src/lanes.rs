@@ -410,7 +410,9 @@ fn lanes_body(
             cf[ax] = (o[ax][i] + d[ax][i] * t) * view.dims_f[ax];
             points[ax][i] = cf[ax];
         }
-        if spatial && !inside {
+        // The nearest-line lookup replaces the spatial jitter (its draws are made above):
+        // the cells are then its home cells.
+        if spatial && !inside && opts.nearest_line == 0 {
             for ax in 0..3 {
                 cf[ax] += (sxi[ax][i] - 0.5) * opts.spatial_jitter;
             }
@@ -484,8 +486,9 @@ fn lanes_body(
 }
 
 /// `lookup::nearest_line_cell` for every lane, written as straight loops over local lane
-/// arrays so that they vectorise; the same operations and the same order of candidates as the scalar search, so
-/// the same cells (`lanes_equal_scalar_prepare`).
+/// arrays so that they vectorise; the same operations and the same order of candidates as
+/// the scalar search, so the same cells (`lanes_equal_scalar_prepare`). `cells` holds the
+/// home cells (the points binned without jitter) on entry and the chosen ones on return.
 #[inline(always)]
 fn nearest_line_cells(
     view: &GridView<'_>,
@@ -494,13 +497,7 @@ fn nearest_line_cells(
     steps: u32,
     cells: &mut [[u32; BATCH]; 3],
 ) {
-    // The home cells (`chord::bin`, through `bin_lane`).
     let dims_hi = view.shape.dims.map(bin_limit);
-    for ax in 0..3 {
-        for i in 0..BATCH {
-            cells[ax][i] = bin_lane(points[ax][i], dims_hi[ax]);
-        }
-    }
     let Directions::Octahedral { n } = view.shape.directions else {
         return;
     };
