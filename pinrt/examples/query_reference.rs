@@ -18,18 +18,14 @@ use pinrt::{PinGrid, RayQuery, SamplerOptions};
 /// `SJ,DJ,STRIDE,start|middle,INSIDE[,NEAREST]`.
 fn parse_options(s: &str) -> Result<SamplerOptions, String> {
     let bad = || format!("options '{s}': expected SJ,DJ,STRIDE,start|middle,0|1[,NEAREST]");
+    // Five fields, or six with the nearest-line steps last.
     let fields = s.split(',').collect::<Vec<_>>();
-    let (&[sj, dj, stride, point, inside], nearest) = (
-        &fields[..fields.len().min(5)],
-        fields
-            .get(5)
-            .map_or(Ok(0), |v| v.parse().map_err(|_| bad())),
-    ) else {
+    let (&[sj, dj, stride, point, inside], nearest) = (match fields[..] {
+        [ref base @ .., n] if fields.len() == 6 => (base, n),
+        ref base => (base, "0"),
+    }) else {
         return Err(bad());
     };
-    if fields.len() > 6 {
-        return Err(bad());
-    }
     Ok(SamplerOptions {
         spatial_jitter: sj.parse().map_err(|_| bad())?,
         directional_jitter: dj.parse().map_err(|_| bad())?,
@@ -44,7 +40,7 @@ fn parse_options(s: &str) -> Result<SamplerOptions, String> {
             "1" => true,
             _ => return Err(bad()),
         },
-        nearest_line: nearest?,
+        nearest_line: nearest.parse().map_err(|_| bad())?,
     })
 }
 
