@@ -19,7 +19,7 @@
 use pin_format::{Directions, PinEntry};
 
 use crate::chord::{Segment, UnitTransform};
-use crate::lookup::{DirJitter, GridView, direction_cell};
+use crate::lookup::{DirJitter, GridView, direction_cell, line_frame, line_score};
 use crate::mask::{is_finite_bits, pow_int, sanitize_t_min};
 use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output, unit_f32};
 use crate::sampler::{
@@ -502,34 +502,22 @@ fn nearest_line_cells(
         return;
     };
     let [px, py, pz] = *points;
-    let [dx, dy, dz] = view.dims_f;
     let mut wx = [0f32; BATCH];
     let mut wy = [0f32; BATCH];
     let mut wz = [0f32; BATCH];
-    for i in 0..BATCH {
-        let a = crate::lookup::octahedral_cell_axis(n, dcell[i]);
-        wx[i] = a[0] * dx;
-        wy[i] = a[1] * dy;
-        wz[i] = a[2] * dz;
-    }
     let mut ww = [0f32; BATCH];
     let mut h = [0f32; BATCH];
     for i in 0..BATCH {
-        ww[i] = wx[i] * wx[i] + wy[i] * wy[i] + wz[i] * wz[i];
-        let (x, y, z) = (wx[i].abs(), wy[i].abs(), wz[i].abs());
-        let m = if x > y { x } else { y };
-        let m = if z > m { z } else { m };
-        h[i] = 1.0 / m;
+        let (w, w2, step) = line_frame(n, dcell[i], view.dims_f);
+        [wx[i], wy[i], wz[i]] = w;
+        ww[i] = w2;
+        h[i] = step;
     }
     let [mut bx, mut by, mut bz] = *cells;
     let mut best = [0f32; BATCH];
     for i in 0..BATCH {
-        let rx = bx[i] as f32 + 0.5 - px[i];
-        let ry = by[i] as f32 + 0.5 - py[i];
-        let rz = bz[i] as f32 + 0.5 - pz[i];
-        let rr = rx * rx + ry * ry + rz * rz;
-        let rw = rx * wx[i] + ry * wy[i] + rz * wz[i];
-        best[i] = rr * ww[i] - rw * rw;
+        let w = [wx[i], wy[i], wz[i]];
+        best[i] = line_score([bx[i], by[i], bz[i]], [px[i], py[i], pz[i]], w, ww[i]);
     }
     for step in 1..=steps.min(crate::lookup::MAX_NEAREST_LINE_STEPS) {
         let sf = step as f32;
@@ -544,12 +532,8 @@ fn nearest_line_cells(
                 let kx = bin_lane(qx, dims_hi[0]);
                 let ky = bin_lane(qy, dims_hi[1]);
                 let kz = bin_lane(qz, dims_hi[2]);
-                let rx = kx as f32 + 0.5 - px[i];
-                let ry = ky as f32 + 0.5 - py[i];
-                let rz = kz as f32 + 0.5 - pz[i];
-                let rr = rx * rx + ry * ry + rz * rz;
-                let rw = rx * wx[i] + ry * wy[i] + rz * wz[i];
-                let sc = rr * ww[i] - rw * rw;
+                let w = [wx[i], wy[i], wz[i]];
+                let sc = line_score([kx, ky, kz], [px[i], py[i], pz[i]], w, ww[i]);
                 let take = sc < best[i];
                 best[i] = if take { sc } else { best[i] };
                 bx[i] = if take { kx } else { bx[i] };

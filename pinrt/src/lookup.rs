@@ -161,6 +161,36 @@ pub fn octahedral_cell_axis(n: u32, dcell: u32) -> [f32; 3] {
     [px, py, if z > 0.0 { z } else { 0.0 }]
 }
 
+/// The search's frame for direction cell `dcell` of an `n x n` octahedral square: the cell's
+/// axis in cell units `w` ([`octahedral_cell_axis`] times `dims_f`), `|w|^2`, and the step
+/// `h` that moves one cell along `w`'s longest component. One definition for the scalar
+/// search and the lanes' (`lanes::nearest_line_cells`), so both compute the same bits.
+#[inline(always)]
+pub(crate) fn line_frame(n: u32, dcell: u32, dims_f: [f32; 3]) -> ([f32; 3], f32, f32) {
+    let a = octahedral_cell_axis(n, dcell);
+    let w = [a[0] * dims_f[0], a[1] * dims_f[1], a[2] * dims_f[2]];
+    let ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+    let (ax, ay, az) = (w[0].abs(), w[1].abs(), w[2].abs());
+    let m = if ax > ay { ax } else { ay };
+    let m = if az > m { az } else { m };
+    (w, ww, 1.0 / m)
+}
+
+/// The search's score of cell `k` for the lookup point `c`: `|w|^2` times the squared
+/// distance from `c` to the cell's centre line along `w`, as `|r|^2 |w|^2 - (r . w)^2` with
+/// `r = k + 0.5 - c` (no square root or division).
+#[inline(always)]
+pub(crate) fn line_score(k: [u32; 3], c: [f32; 3], w: [f32; 3], ww: f32) -> f32 {
+    let r = [
+        k[0] as f32 + 0.5 - c[0],
+        k[1] as f32 + 0.5 - c[1],
+        k[2] as f32 + 0.5 - c[2],
+    ];
+    let rr = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+    let rw = r[0] * w[0] + r[1] * w[1] + r[2] * w[2];
+    rr * ww - rw * rw
+}
+
 /// The nearest-line lookup (`docs/sampling.md` section 15). On the line through the lookup
 /// point along the direction cell's axis, take the points one cell apart (along the axis's
 /// longest component), up to `steps` on each side; of the cells holding them, return the one
@@ -182,28 +212,8 @@ pub fn nearest_line_cell(c: [f32; 3], view: &GridView<'_>, dcell: u32, steps: u3
     if steps == 0 {
         return home;
     }
-    let a = octahedral_cell_axis(n, dcell);
-    let w = [
-        a[0] * view.dims_f[0],
-        a[1] * view.dims_f[1],
-        a[2] * view.dims_f[2],
-    ];
-    let ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
-    let (ax, ay, az) = (w[0].abs(), w[1].abs(), w[2].abs());
-    let m = if ax > ay { ax } else { ay };
-    let m = if az > m { az } else { m };
-    // One cell along the axis's longest component per step.
-    let h = 1.0 / m;
-    let score = |k: [u32; 3]| {
-        let r = [
-            k[0] as f32 + 0.5 - c[0],
-            k[1] as f32 + 0.5 - c[1],
-            k[2] as f32 + 0.5 - c[2],
-        ];
-        let rr = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-        let rw = r[0] * w[0] + r[1] * w[1] + r[2] * w[2];
-        rr * ww - rw * rw
-    };
+    let (w, ww, h) = line_frame(n, dcell, view.dims_f);
+    let score = |k: [u32; 3]| line_score(k, c, w, ww);
     let mut best = home;
     let mut best_score = score(home);
     for step in 1..=steps.min(MAX_NEAREST_LINE_STEPS) {
