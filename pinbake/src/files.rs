@@ -150,52 +150,109 @@ fn try_alloc(v: &mut Vec<u8>, len: u64, path: &Path) -> Result<(), FileError> {
     })
 }
 
-/// Checks an output path and returns the path to write to.
-///
-/// Accepted: a path that does not exist yet, or an existing regular file that is none of
-/// `inputs` (same device and inode; hard links and symlinks count as the same file). A
-/// symlink to a regular file is resolved, so the write replaces the file it points to and
-/// the link stays. Refused: directories, devices, FIFOs, sockets, symlinks to them and
-/// dangling symlinks. Missing inputs are ignored (they fail on their own).
-pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<PathBuf, FileError> {
-    let link = match std::fs::symlink_metadata(output) {
-        Ok(m) => m,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(output.to_path_buf()),
-        Err(e) => return Err(io(output)(e)),
-    };
-    let target = match std::fs::metadata(output) {
-        Ok(m) => m,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound && link.is_symlink() => {
-            return Err(FileError::DanglingSymlink(output.to_path_buf()));
+/// The files a command reads, identified once by device and inode, so that an output is
+/// compared with any number of them in constant time: a sequence compares every frame's
+/// output with every frame's input (frame 1's output may name frame 10's input).
+#[derive(Debug, Default)]
+pub struct InputSet {
+    files: std::collections::HashMap<(u64, u64), PathBuf>,
+}
+
+/// Bytes one [`InputSet`] entry may take beyond its path (key, hash slot, `PathBuf`), for
+/// callers that count the set against a [`MemoryBudget`].
+pub const INPUT_SET_ENTRY_BYTES: u64 = 96;
+
+impl InputSet {
+    /// The set of `inputs` (see [`InputSet::add`]).
+    pub fn of(inputs: &[&Path]) -> Result<Self, FileError> {
+        let mut set = Self::default();
+        for input in inputs {
+            set.add(input)?;
         }
-        Err(e) => return Err(io(output)(e)),
-    };
-    require_regular(output, &target)?;
-    for input in inputs {
-        if let Ok(m) = std::fs::metadata(input)
-            && same_file(&m, &target)
-        {
+        Ok(set)
+    }
+
+    /// Adds `path` if it exists (a missing input fails on its own when it is read). Returns
+    /// whether it exists. The entry is allocated fallibly.
+    pub fn add(&mut self, path: &Path) -> Result<bool, FileError> {
+        let m = match std::fs::metadata(path) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+            // Unreadable for another reason (permissions): it cannot be compared, and the
+            // bake that reads it fails with this error itself.
+            Err(_) => return Ok(true),
+        };
+        if let Some(id) = file_id(&m) {
+            self.files.try_reserve(1).map_err(|_| FileError::Memory {
+                what: "the list of input files".into(),
+                need: INPUT_SET_ENTRY_BYTES.saturating_mul(self.files.len() as u64 + 1),
+                limit: 0,
+            })?;
+            self.files.entry(id).or_insert_with(|| path.to_path_buf());
+        }
+        Ok(true)
+    }
+
+    /// The number of distinct existing files.
+    pub fn len(&self) -> usize {
+        self.files.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.files.is_empty()
+    }
+
+    /// Checks an output path against the output rule and returns the path to write to.
+    ///
+    /// Accepted: a path that does not exist yet, or an existing regular file that is none
+    /// of the inputs (same device and inode; hard links and symlinks count as the same
+    /// file). A symlink to a regular file is resolved, so the write replaces the file it
+    /// points to and the link stays. Refused: directories, devices, FIFOs, sockets,
+    /// symlinks to them and dangling symlinks.
+    pub fn check_output(&self, output: &Path) -> Result<PathBuf, FileError> {
+        let link = match std::fs::symlink_metadata(output) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                return Ok(output.to_path_buf());
+            }
+            Err(e) => return Err(io(output)(e)),
+        };
+        let target = match std::fs::metadata(output) {
+            Ok(m) => m,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound && link.is_symlink() => {
+                return Err(FileError::DanglingSymlink(output.to_path_buf()));
+            }
+            Err(e) => return Err(io(output)(e)),
+        };
+        require_regular(output, &target)?;
+        if let Some(input) = file_id(&target).and_then(|id| self.files.get(&id)) {
             return Err(FileError::SameAsInput {
                 output: output.to_path_buf(),
-                input: input.to_path_buf(),
+                input: input.clone(),
             });
         }
+        if link.is_symlink() {
+            return std::fs::canonicalize(output).map_err(io(output));
+        }
+        Ok(output.to_path_buf())
     }
-    if link.is_symlink() {
-        return std::fs::canonicalize(output).map_err(io(output));
-    }
-    Ok(output.to_path_buf())
+}
+
+/// [`InputSet::check_output`] against `inputs`. Missing inputs are ignored (they fail on
+/// their own).
+pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<PathBuf, FileError> {
+    InputSet::of(inputs)?.check_output(output)
 }
 
 #[cfg(unix)]
-fn same_file(a: &Metadata, b: &Metadata) -> bool {
+fn file_id(m: &Metadata) -> Option<(u64, u64)> {
     use std::os::unix::fs::MetadataExt;
-    a.dev() == b.dev() && a.ino() == b.ino()
+    Some((m.dev(), m.ino()))
 }
 
 #[cfg(not(unix))]
-fn same_file(_: &Metadata, _: &Metadata) -> bool {
-    false
+fn file_id(_: &Metadata) -> Option<(u64, u64)> {
+    None
 }
 
 /// Creates `dir` (and its parents) with mode 0700 if missing, then refuses it unless it is
@@ -482,6 +539,32 @@ mod tests {
             // The same FIFO as an input: refused by stat, without blocking on open.
             assert!(matches!(open_input(&fifo), Err(FileError::NotRegular(_))));
         }
+    }
+
+    #[test]
+    fn an_input_set_refuses_every_member_as_output() {
+        let dir = tempfile::tempdir().unwrap();
+        let paths: Vec<PathBuf> = (0..50)
+            .map(|i| dir.path().join(format!("f{i}.raw")))
+            .collect();
+        for p in &paths {
+            std::fs::write(p, b"x").unwrap();
+        }
+        let mut set = InputSet::default();
+        for p in &paths {
+            assert!(set.add(p).unwrap());
+        }
+        assert!(!set.add(&dir.path().join("missing.raw")).unwrap());
+        assert_eq!(set.len(), 50);
+        for p in &paths {
+            assert!(matches!(
+                set.check_output(p),
+                Err(FileError::SameAsInput { .. })
+            ));
+        }
+        let other = dir.path().join("other.pin");
+        std::fs::write(&other, b"y").unwrap();
+        assert_eq!(set.check_output(&other).unwrap(), other);
     }
 
     #[test]

@@ -149,3 +149,103 @@ fn sequence_usage_errors_exit_2() {
         "nothing written"
     );
 }
+
+#[test]
+fn no_frame_overwrites_another_frames_input() {
+    let dir = tempfile::tempdir().unwrap();
+    for f in 1..=10 {
+        write_frame(&dir.path().join(format!("f.{f:04}.raw")), f);
+    }
+    let frame10 = std::fs::read(dir.path().join("f.0010.raw")).unwrap();
+    // Frame 1's output is `f.0010.raw`: frame 10's input.
+    let input = dir.path().join("f.####.raw");
+    let output = dir.path().join("f.00#0.raw");
+    let mut args = vec![
+        "bake",
+        input.to_str().unwrap(),
+        "--frames",
+        "1-10",
+        "-o",
+        output.to_str().unwrap(),
+        "--json",
+    ];
+    args.extend_from_slice(FAST);
+    let o = pinbake(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert_eq!(
+        std::fs::read(dir.path().join("f.0010.raw")).unwrap(),
+        frame10,
+        "frame 10's input is intact"
+    );
+    assert!(
+        err.contains("frame 1:") && err.contains("is the input file"),
+        "{err}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    assert_eq!(v["failed"], 1);
+    assert_eq!(v["frames"][0]["ok"], false);
+}
+
+#[test]
+fn a_frame_range_beyond_i64_is_a_usage_error_under_a_small_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.####.pin");
+    let o = pinbake(&[
+        "bake",
+        "f.####.raw",
+        "--frames=-9223372036854775808-9223372036854775807",
+        "--max-memory",
+        "64M",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("more than 1000000 frames"), "{err}");
+}
+
+/// Peak resident memory of the children this process has waited for, in bytes.
+fn children_peak_rss() -> u64 {
+    // SAFETY: getrusage writes into the zeroed struct it is given.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    assert_eq!(unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut u) }, 0);
+    u.ru_maxrss as u64 * 1024
+}
+
+#[test]
+fn missing_frames_cost_neither_memory_nor_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    for f in [1, 2, 4] {
+        write_frame(&dir.path().join(format!("blob.{f:04}.raw")), f);
+    }
+    let input = dir.path().join("blob.####.raw");
+    let output = dir.path().join("out.####.pin");
+    let mut args = vec![
+        "bake",
+        input.to_str().unwrap(),
+        "--frames",
+        "1-200000",
+        "--max-memory",
+        "100M",
+        "-o",
+        output.to_str().unwrap(),
+        "--json",
+    ];
+    args.extend_from_slice(FAST);
+    let o = pinbake(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    // Frame 3 alone, then frames 5-200000 as one line.
+    assert_eq!(err.trim().lines().count(), 2, "{err}");
+    assert!(err.contains("frames 5 to 200000 (199996 frames"), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    assert_eq!(v["frames"].as_array().unwrap().len(), 200_000);
+    assert_eq!(
+        (v["ok"].as_u64(), v["failed"].as_u64()),
+        (Some(3), Some(199_997))
+    );
+    // The results are streamed: the whole list held in memory took 190 MB.
+    let peak = children_peak_rss();
+    assert!(peak < 64 << 20, "peak RSS {peak} bytes");
+}

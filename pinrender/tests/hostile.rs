@@ -639,3 +639,66 @@ fn dev_full() -> std::fs::File {
         .open("/dev/full")
         .unwrap()
 }
+
+/// The resident-memory high-water mark of a running process, in bytes.
+fn peak_rss(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmHWM:")).unwrap();
+    let kb: u64 = line.split_whitespace().nth(1).unwrap().parse().unwrap();
+    kb * 1024
+}
+
+/// The sample buffers of the batched (pins) loop do not grow with `--spp`: a render of
+/// 2^32 - 1 samples per pixel aborted at once asking for 64 GiB, and `--spp 8192` over 2048
+/// pixels peaked at 466 MB under `--max-memory 100M`. Both now render along in bounded
+/// memory (killed after two seconds of rendering).
+#[test]
+fn sample_buffers_stay_bounded_whatever_the_samples_per_pixel() {
+    let dir = tempfile::tempdir().unwrap();
+    for (spp, width) in [("4294967295", "1"), ("8192", "2048")] {
+        let out = dir.path().join(format!("spp{spp}.png"));
+        let mut child = Command::new(BIN)
+            .args([
+                "render",
+                "--volume",
+                "procedural:cosine",
+                "--estimator",
+                "pins",
+                "--pin-cells",
+                "8",
+                "--spp",
+                spp,
+                "--width",
+                width,
+                "--height",
+                "1",
+                "--max-memory",
+                "100M",
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .stdin(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_secs(3));
+        let still_running = child.try_wait().unwrap().is_none();
+        let peak = if still_running {
+            peak_rss(child.id())
+        } else {
+            0
+        };
+        let _ = child.kill();
+        let o = child.wait_with_output().unwrap();
+        assert!(
+            still_running,
+            "--spp {spp}: ended early: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        assert!(
+            peak < 100 << 20,
+            "--spp {spp} --width {width}: peak RSS {peak} bytes"
+        );
+        assert!(!out.exists(), "no image from a killed render");
+    }
+}

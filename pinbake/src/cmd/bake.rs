@@ -275,18 +275,17 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     if args.frames.is_some() {
         return super::frames::run_sequence(args);
     }
-    let summary = bake_one(&args)?;
+    let inputs = pinbake::files::InputSet::of(&[args.input.as_path()])?;
+    let summary = bake_one(&args, &inputs)?;
     if args.json {
         pinbake::outln!("{summary}")?;
     }
     Ok(ExitCode::SUCCESS)
 }
 
-/// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
-/// human summary goes to stderr here).
-pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
-    // Ranges of single flags are checked by their parsers (exit 2); this is what needs the
-    // input or several flags.
+/// The usage errors of a bake that need several flags or the input's kind (ranges of single
+/// flags are checked by their parsers): exit 2 before any work.
+pub fn check_usage(args: &BakeArgs) -> Result<SourceSpec> {
     if args.target_error.is_some()
         && args.cells.is_some()
         && args.dirs.is_some()
@@ -296,13 +295,20 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
             "--target-error has nothing to choose: --cells, --dirs and --pins-per-entry are all given"
         );
     }
-    let spec = source_spec(args)?;
+    source_spec(args)
+}
+
+/// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
+/// human summary goes to stderr here). `inputs` are the files the output must not be: the
+/// input, or with `--frames` every frame's input.
+pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<serde_json::Value> {
+    let spec = check_usage(args)?;
     let input_path: Option<&Path> = match &spec {
         SourceSpec::Procedural(_) => None,
         _ => Some(args.input.as_path()),
     };
     // Before the bake, not after it: minutes of work for a refused path help nobody.
-    super::check_output(&args.output, input_path.as_slice())?;
+    inputs.check_output(&args.output)?;
     let budget = pinbake::files::MemoryBudget::new(args.max_memory);
     let probe = BakeOptions {
         // Before the source is open: the default's upper bound.
@@ -366,7 +372,7 @@ pub fn bake_one(args: &BakeArgs) -> Result<serde_json::Value> {
         .with_context(|| args.input.display().to_string())?;
     bar.finish_and_clear();
     // Checked again just before the rename: the path may have been replaced during the bake.
-    let target = super::check_output(&args.output, input_path.as_slice())?;
+    let target = inputs.check_output(&args.output)?;
     if target != args.output {
         // A symlink to a regular file: the file it points to is replaced, the link stays.
         drop(pending);

@@ -132,7 +132,9 @@ pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
 pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
-pub use wavefront::{DEFAULT_WAVEFRONT_BATCH, render_wavefront};
+pub use wavefront::{
+    DEFAULT_WAVEFRONT_BATCH, ROW_CHUNK_PATHS, render_wavefront, row_scratch_bytes,
+};
 pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 
 /// Errors of the render module.
@@ -151,4 +153,7 @@ pub enum RenderError {
     Png(String),
     #[error("thread pool: {0}")]
     ThreadPool(String),
+    /// An allocation whose size comes from the settings failed.
+    #[error("{what}: out of memory for {bytes} bytes")]
+    OutOfMemory { what: &'static str, bytes: u64 },
 }

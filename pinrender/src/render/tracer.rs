@@ -616,11 +616,24 @@ where
             }
         }
     };
-    let mut sums = vec![[0f64; 3]; w * h];
+    let mut sums = pixel_sums(w * h)?;
     let spp = in_pool(settings, || {
         run_budget(settings.budget, start, w, &mut sums, row)
     })?;
     Ok(average_sums(scene, &sums, spp, start))
+}
+
+/// The per-pixel sums of an image of `pixels` pixels, zeroed, allocated fallibly (the size
+/// comes from the camera settings).
+pub(crate) fn pixel_sums(pixels: usize) -> Result<Vec<[f64; 3]>, RenderError> {
+    let mut sums = Vec::new();
+    sums.try_reserve_exact(pixels)
+        .map_err(|_| RenderError::OutOfMemory {
+            what: "the image's per-pixel sums",
+            bytes: (pixels as u64).saturating_mul(24),
+        })?;
+    sums.resize(pixels, [0f64; 3]);
+    Ok(sums)
 }
 
 /// The sample loop of [`render`] and the wavefront loop: `row(y, sums of row y, samples)`

@@ -35,7 +35,7 @@ use super::pins::{MemberQuery, SharedPins, SharedScratch, query_rng};
 use super::rng::Pcg32;
 use super::tracer::{
     Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
-    run_budget,
+    pixel_sums, run_budget,
 };
 
 /// Where a path is in `Ctx::trace`.
@@ -639,6 +639,19 @@ impl Scratch {
 /// round for the batch API's 32-ray steps to fill after the paths thin out.
 pub const DEFAULT_WAVEFRONT_BATCH: usize = 256;
 
+/// The most paths one image row holds at once in [`render_wavefront`] (more when the row is
+/// wider: one sample of every pixel).
+pub const ROW_CHUNK_PATHS: usize = 1 << 16;
+
+/// Bytes one worker thread of [`render_wavefront`] holds for an image row `width` pixels
+/// wide: the ids, colours and paths of one chunk, whatever the samples per pixel (for
+/// memory budgets).
+pub fn row_scratch_bytes(width: usize, batch: usize) -> u64 {
+    let paths = ROW_CHUNK_PATHS.max(width) as u64;
+    let per_path = (std::mem::size_of::<(usize, u32)>() + std::mem::size_of::<Vec3>()) as u64;
+    paths * per_path + (batch.min(ROW_CHUNK_PATHS.max(width)) * std::mem::size_of::<Path>()) as u64
+}
+
 /// [`super::render`] with the paths of each image row traced in tiles of `batch` paths
 /// (`batch >= 1`) whose queries are answered in batches. The image, spp and determinism are
 /// those of `render` (same seed: the same bits). A radiance cache in `settings` is refused:
@@ -669,37 +682,48 @@ pub fn render_wavefront(
     let frame = scene.camera.frame()?;
     let (w, h) = (scene.camera.width as usize, scene.camera.height as usize);
     let seed = settings.seed;
-    // One row's samples `(x, s)` for `s` in `samples`, summed per pixel in sample order.
+    // One row's samples `(x, s)` for `s` in `samples`, summed per pixel in sample order. The
+    // samples go in chunks of at most `ROW_CHUNK_PATHS` paths (at least one per pixel), so
+    // the row's buffers do not grow with the samples per pixel (`--spp 4294967295` asked for
+    // 100 GB at once); per pixel the sums still run in sample order, so the bits are the same.
+    let per_chunk = (ROW_CHUNK_PATHS / w.max(1)).max(1) as u32;
     let row = |y: usize, acc: &mut [[f64; 3]], samples: std::ops::Range<u32>| {
         let mut scratch = Scratch::default();
-        let per_pixel = samples.len();
-        let ids: Vec<(usize, u32)> = (0..w)
-            .flat_map(|x| samples.clone().map(move |s| (x, s)))
-            .collect();
-        let mut colors = vec![Vec3::ZERO; ids.len()];
-        let mut paths: Vec<Path> = Vec::with_capacity(batch.min(ids.len()));
-        for (tile, out) in ids.chunks(batch).zip(colors.chunks_mut(batch)) {
-            paths.clear();
-            paths.extend(tile.iter().map(|&(x, s)| {
-                let mut rng = Pcg32::for_sample(seed, (y * w + x) as u64, s as u64);
-                let (jx, jy) = (rng.next_f32(), rng.next_f32());
-                let (o, d) = frame.ray(x as f32 + jx, y as f32 + jy);
-                ctx.start_path(o, d, rng)
-            }));
-            ctx.trace_tile(&mut paths, &mut scratch, &shared);
-            for (c, p) in out.iter_mut().zip(&paths) {
-                *c = if p.l.is_finite() { p.l } else { Vec3::ZERO };
+        let mut ids: Vec<(usize, u32)> = Vec::new();
+        let mut colors: Vec<Vec3> = Vec::new();
+        let mut paths: Vec<Path> = Vec::new();
+        let mut chunk_start = samples.start;
+        while chunk_start < samples.end {
+            let chunk = chunk_start..chunk_start.saturating_add(per_chunk).min(samples.end);
+            chunk_start = chunk.end;
+            let per_pixel = chunk.len();
+            ids.clear();
+            ids.extend((0..w).flat_map(|x| chunk.clone().map(move |s| (x, s))));
+            colors.clear();
+            colors.resize(ids.len(), Vec3::ZERO);
+            for (tile, out) in ids.chunks(batch).zip(colors.chunks_mut(batch)) {
+                paths.clear();
+                paths.extend(tile.iter().map(|&(x, s)| {
+                    let mut rng = Pcg32::for_sample(seed, (y * w + x) as u64, s as u64);
+                    let (jx, jy) = (rng.next_f32(), rng.next_f32());
+                    let (o, d) = frame.ray(x as f32 + jx, y as f32 + jy);
+                    ctx.start_path(o, d, rng)
+                }));
+                ctx.trace_tile(&mut paths, &mut scratch, &shared);
+                for (c, p) in out.iter_mut().zip(&paths) {
+                    *c = if p.l.is_finite() { p.l } else { Vec3::ZERO };
+                }
             }
-        }
-        for (x, a) in acc.iter_mut().enumerate() {
-            for c in &colors[x * per_pixel..(x + 1) * per_pixel] {
-                a[0] += c.x as f64;
-                a[1] += c.y as f64;
-                a[2] += c.z as f64;
+            for (x, a) in acc.iter_mut().enumerate() {
+                for c in &colors[x * per_pixel..(x + 1) * per_pixel] {
+                    a[0] += c.x as f64;
+                    a[1] += c.y as f64;
+                    a[2] += c.z as f64;
+                }
             }
         }
     };
-    let mut sums = vec![[0f64; 3]; w * h];
+    let mut sums = pixel_sums(w * h)?;
     let spp = in_pool(settings, || {
         run_budget(settings.budget, start, w, &mut sums, row)
     })?;

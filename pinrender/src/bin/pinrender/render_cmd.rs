@@ -252,6 +252,19 @@ pub fn run(a: RenderArgs) -> Result<()> {
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
+    if a.estimator.needs_pins() {
+        // The wavefront loop's rows in flight, one per worker thread: bounded by a chunk of
+        // paths whatever --spp is.
+        let threads = a.threads.unwrap_or_else(rayon::current_num_threads) as u64;
+        let per_row = pinrender::render::row_scratch_bytes(
+            a.width as usize,
+            pinrender::render::DEFAULT_WAVEFRONT_BATCH,
+        );
+        budget.check(
+            &format!("{threads} image rows of {} pixels in flight", a.width),
+            threads.saturating_mul(per_row),
+        )?;
+    }
     if let Ok(m) = std::fs::metadata(&input) {
         // f32 voxels: up to 4x a raw file of bytes (or an embedded f16 density); a VDB's
         // leaves up to 8x its file.
