@@ -75,6 +75,12 @@ typedef enum PinrtStatus {
    * A bug in the library (a caught panic); the message says where.
    */
   PINRT_STATUS_INTERNAL = 5,
+  /**
+   * A buffer whose size comes from the file or the caller could not be allocated (a
+   * copy of `pinrt_open_memory`'s bytes, a file read into memory); the message names
+   * the size.
+   */
+  PINRT_STATUS_OUT_OF_MEMORY = 6,
 } PinrtStatus;
 
 /**

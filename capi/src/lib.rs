@@ -13,8 +13,18 @@
 //!   a successful call clears it.
 //! * No Rust panic crosses the boundary: every entry point runs inside `catch_unwind` and
 //!   turns a panic into `PINRT_STATUS_INTERNAL`.
-//! * Pointers are checked for null (a null pointer with a length of 0 is allowed) and for the
-//!   alignment of their type; lengths are checked against the address space.
+//! * Every pointer argument (grids, options, arrays, out-parameters) is checked for null (a
+//!   null array with a length of 0 is allowed) and for the alignment of its type; lengths
+//!   are checked against the address space, and copies whose size comes from the caller are
+//!   allocated fallibly (`PINRT_STATUS_OUT_OF_MEMORY`).
+//! * Files are opened by `pin_format::input`'s rule, as every reader of the workspace: only
+//!   regular files, opened without blocking (a FIFO is refused, never waited on); messages
+//!   quote paths with control characters, so a message is always one line.
+//! * A grid opened with `pinrt_open` is memory-mapped. If another process truncates or
+//!   rewrites the file in place while it is open, touching a vanished page raises SIGBUS,
+//!   which kills the host process. Replace pin files atomically, by writing a new file and
+//!   renaming it over the old one (as pinbake does): the mapping keeps the old file alive.
+//!   Where that cannot be ruled out, read the file and use `pinrt_open_memory`.
 //! * A `PinrtGrid` is immutable after opening: any number of threads may query one grid at
 //!   once. `pinrt_close` must not race with queries on the same grid.
 
@@ -42,6 +52,10 @@ pub enum PinrtStatus {
     Format = 4,
     /// A bug in the library (a caught panic); the message says where.
     Internal = 5,
+    /// A buffer whose size comes from the file or the caller could not be allocated (a
+    /// copy of `pinrt_open_memory`'s bytes, a file read into memory); the message names
+    /// the size.
+    OutOfMemory = 6,
 }
 
 /// An open pin grid (opaque). Created by `pinrt_open` or `pinrt_open_memory`, released by
@@ -215,7 +229,10 @@ struct Fail(PinrtStatus, String);
 impl From<pinrt::Error> for Fail {
     fn from(e: pinrt::Error) -> Self {
         let code = match &e {
-            pinrt::Error::Io { .. } => PinrtStatus::Io,
+            pinrt::Error::Input(pin_format::input::InputError::OutOfMemory { .. }) => {
+                PinrtStatus::OutOfMemory
+            }
+            pinrt::Error::Input(_) | pinrt::Error::Io { .. } => PinrtStatus::Io,
             pinrt::Error::Format { .. } => PinrtStatus::Format,
             pinrt::Error::BadTransform(_) => PinrtStatus::InvalidArgument,
             _ => PinrtStatus::Internal,
@@ -302,8 +319,19 @@ fn check_ptr<T>(ptr: *const T, len: usize, what: &str) -> Result<(), Fail> {
 /// # Safety
 /// `grid` is null or a pointer returned by `pinrt_open*` and not yet closed.
 unsafe fn grid_ref<'a>(grid: *const PinrtGrid) -> Result<&'a PinrtGrid, Fail> {
-    // SAFETY: the caller's contract; null is caught by `as_ref`.
+    check_ptr(grid, 1, "grid")?;
+    // SAFETY: the caller's contract; non-null and aligned (checked above).
     unsafe { grid.as_ref() }.ok_or_else(|| null("grid"))
+}
+
+/// [`grid_ref`] for the calls that change a grid's lookup settings.
+///
+/// # Safety
+/// `grid` is null or an open grid that no other thread uses during the call.
+unsafe fn grid_mut<'a>(grid: *mut PinrtGrid) -> Result<&'a mut PinrtGrid, Fail> {
+    check_ptr(grid.cast_const(), 1, "grid")?;
+    // SAFETY: the caller's contract; non-null and aligned (checked above).
+    unsafe { grid.as_mut() }.ok_or_else(|| null("grid"))
 }
 
 fn publish(grid: PinGrid, out: *mut *mut PinrtGrid) {
@@ -341,7 +369,8 @@ pub unsafe extern "C" fn pinrt_open(path: *const c_char, out: *mut *mut PinrtGri
         let path = c.to_str().map_err(|_| {
             Fail(
                 PinrtStatus::InvalidArgument,
-                format!("{}: path is not UTF-8", c.to_string_lossy()),
+                // Quoted with escapes: a control character cannot cut the message.
+                format!("{:?}: path is not UTF-8", c),
             )
         })?;
         publish(PinGrid::open(path)?, out);
@@ -366,7 +395,9 @@ pub unsafe extern "C" fn pinrt_open_memory(
         unsafe { out.write(std::ptr::null_mut()) };
         // SAFETY: the caller's contract on `data` and `len`.
         let bytes = unsafe { slice_in(data, len, "data") }?;
-        publish(PinGrid::from_bytes(bytes.to_vec())?, out);
+        // One aligned copy, allocated fallibly: a buffer that cannot be copied is
+        // PINRT_STATUS_OUT_OF_MEMORY, not an abort of the host.
+        publish(PinGrid::from_slice(bytes)?, out);
         Ok(())
     })
 }
@@ -470,7 +501,11 @@ unsafe fn sampler<'g>(
         start_inside: l.start_inside,
         nearest_line: l.nearest_line,
     };
-    // SAFETY: caller's contract.
+    if !opts.is_null() {
+        // Checked like every other pointer: a misaligned options pointer is refused.
+        check_ptr(opts, 1, "opts")?;
+    }
+    // SAFETY: caller's contract; non-null pointers are aligned (checked above).
     let Some(o) = (unsafe { opts.as_ref() }) else {
         return Ok(g.grid.sampler()?.with_options(with_lookup(0.0, 0.0)));
     };
@@ -744,7 +779,7 @@ pub unsafe extern "C" fn pinrt_set_lookup(
 ) -> PinrtStatus {
     guard("pinrt_set_lookup", || {
         // SAFETY: the caller's contract: NULL or an open grid used by no other thread.
-        let g = unsafe { grid.as_mut() }.ok_or_else(|| null("grid"))?;
+        let g = unsafe { grid_mut(grid) }?;
         let flag = |name: &str, v: u32| match v {
             0 => Ok(false),
             1 => Ok(true),
@@ -778,7 +813,7 @@ pub unsafe extern "C" fn pinrt_set_lookup(
 pub unsafe extern "C" fn pinrt_set_nearest_line(grid: *mut PinrtGrid, steps: u32) -> PinrtStatus {
     guard("pinrt_set_nearest_line", || {
         // SAFETY: the caller's contract: NULL or an open grid used by no other thread.
-        let g = unsafe { grid.as_mut() }.ok_or_else(|| null("grid"))?;
+        let g = unsafe { grid_mut(grid) }?;
         if steps > PINRT_MAX_NEAREST_LINE {
             return Err(Fail(
                 PinrtStatus::InvalidArgument,

@@ -15,32 +15,14 @@ use pinbake::source::{DensitySource, VdbOptions, VdbSource};
 use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, RayQuery};
 
+mod common;
+use common::{repo, static_lib};
+
 const SEED: u32 = 7;
 /// Rays for the comparison and the timing (the C side times one call over all of them).
 const RAYS: usize = 1 << 18;
 /// Rays under valgrind, which runs the code about 50 times slower.
 const VALGRIND_RAYS: usize = 2000;
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
-/// `libpinrt_capi.a` of this build: cargo puts it beside (or one level above) this test binary.
-fn static_lib() -> PathBuf {
-    let exe = std::env::current_exe().expect("test executable path");
-    let deps = exe.parent().expect("deps dir").to_path_buf();
-    let candidates = [
-        deps.join("libpinrt_capi.a"),
-        deps.parent()
-            .map(|p| p.join("libpinrt_capi.a"))
-            .unwrap_or_default(),
-    ];
-    candidates
-        .iter()
-        .find(|p| p.is_file())
-        .unwrap_or_else(|| panic!("libpinrt_capi.a not found in {candidates:?}"))
-        .clone()
-}
 
 fn bake_smoke(dir: &Path) -> PathBuf {
     let vdb = repo().join("data/openvdb_smoke1.vdb");

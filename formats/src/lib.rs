@@ -33,6 +33,7 @@ compile_error!("pin files are little-endian and read in place; big-endian hosts 
 mod checksum;
 mod directions;
 mod error;
+pub mod input;
 pub mod layout;
 mod metadata;
 mod owned;

@@ -100,30 +100,33 @@ fn require_regular(path: &Path, m: &Metadata) -> Result<(), FileError> {
     }
 }
 
-/// Checks that `path` names a regular file (symlinks followed) and returns its length.
-/// `stat` never blocks, so a FIFO is refused here before anything opens it.
-pub fn check_input(path: &Path) -> Result<u64, FileError> {
-    let m = std::fs::metadata(path).map_err(io(path))?;
-    require_regular(path, &m)?;
-    Ok(m.len())
+impl From<pin_format::input::InputError> for FileError {
+    fn from(e: pin_format::input::InputError) -> Self {
+        use pin_format::input::InputError as E;
+        match e {
+            E::IsDirectory(p) => FileError::IsDirectory(p),
+            E::NotRegular(p) => FileError::NotRegular(p),
+            E::Io { path, err } => FileError::Io { path, err },
+            E::OutOfMemory { path, bytes } => FileError::Memory {
+                what: format!("reading {}", path.display()),
+                need: bytes,
+                limit: 0,
+            },
+        }
+    }
 }
 
-/// Opens `path` for reading only if it is a regular file. The open is non-blocking, so a
-/// FIFO swapped in after [`check_input`] cannot hang it; the type is checked again on the
-/// open descriptor.
+/// Checks that `path` names a regular file (symlinks followed) and returns its length.
+/// `stat` never blocks, so a FIFO is refused here before anything opens it. The rule is
+/// `pin_format::input`'s, which every reader of the workspace follows.
+pub fn check_input(path: &Path) -> Result<u64, FileError> {
+    Ok(pin_format::input::check_regular(path)?)
+}
+
+/// Opens `path` for reading only if it is a regular file (`pin_format::input::open_regular`:
+/// non-blocking, the type checked again on the open descriptor).
 pub fn open_input(path: &Path) -> Result<(File, u64), FileError> {
-    check_input(path)?;
-    let mut o = std::fs::OpenOptions::new();
-    o.read(true);
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::OpenOptionsExt;
-        o.custom_flags(libc::O_NONBLOCK | libc::O_NOCTTY);
-    }
-    let f = o.open(path).map_err(io(path))?;
-    let m = f.metadata().map_err(io(path))?;
-    require_regular(path, &m)?;
-    Ok((f, m.len()))
+    Ok(pin_format::input::open_regular(path)?)
 }
 
 /// Reads a whole regular file into a buffer whose start is 8-byte aligned (pin files are

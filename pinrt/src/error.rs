@@ -8,15 +8,19 @@ use pin_format::FormatError;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum Error {
-    /// The file could not be opened, mapped or read.
-    #[error("{}: {source}", .path.display())]
+    /// The file is not a regular file, could not be opened or read, or does not fit in
+    /// memory (`pin_format::input`: the one rule every reader follows).
+    #[error(transparent)]
+    Input(pin_format::input::InputError),
+    /// The file could not be mapped.
+    #[error("{}: {source}", pin_format::input::quoted(.path))]
     Io {
         path: PathBuf,
         #[source]
         source: std::io::Error,
     },
     /// The bytes are not a valid pin file (truncated, damaged, unsupported...).
-    #[error("{}: {source}", .path.display())]
+    #[error("{}: {source}", pin_format::input::quoted(.path))]
     Format {
         /// The file, or `<memory>` for [`crate::PinGrid::from_bytes`].
         path: PathBuf,
@@ -24,7 +28,7 @@ pub enum Error {
         source: FormatError,
     },
     /// An optional section (majorant, density) holds values a reader cannot use.
-    #[error("{}: {problem}", .path.display())]
+    #[error("{}: {problem}", pin_format::input::quoted(.path))]
     Section { path: PathBuf, problem: String },
     /// The placement transform cannot be inverted or does not fit f32.
     #[error("bad grid transform: {0}")]

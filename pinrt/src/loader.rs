@@ -11,13 +11,14 @@
 //! inode alive). If you cannot rule out in-place modification (network file systems, files
 //! owned by other tools), use [`PinGrid::read_into_memory`], which copies the file once.
 
-use std::fs::File;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use pin_format::{GridDesc, GridShape, PinEntry, PinFile};
 
 use crate::error::{Error, Result};
+
+/// The name of a grid that has no file, in messages.
+const MEMORY: &str = "<memory>";
 
 enum Storage {
     Mmap(memmap2::Mmap),
@@ -35,10 +36,12 @@ impl Storage {
         }
     }
 
-    fn aligned_copy(bytes: &[u8]) -> Storage {
-        let mut words = vec![0u64; bytes.len().div_ceil(8)];
+    /// An 8-byte aligned copy, allocated fallibly.
+    fn aligned_copy(bytes: &[u8]) -> Result<Storage> {
+        let mut words = pin_format::input::zeroed_words(bytes.len().div_ceil(8), Path::new(MEMORY))
+            .map_err(Error::Input)?;
         bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
-        Storage::Words(words, bytes.len())
+        Ok(Storage::Words(words, bytes.len()))
     }
 }
 
@@ -77,7 +80,7 @@ fn offset_in(outer: &[u8], inner: &[u8]) -> usize {
 
 impl PinGrid {
     fn from_storage(storage: Storage, path: Option<PathBuf>) -> Result<Self> {
-        let name = || path.clone().unwrap_or_else(|| PathBuf::from("<memory>"));
+        let name = || path.clone().unwrap_or_else(|| PathBuf::from(MEMORY));
         let bytes = storage.bytes();
         let file = PinFile::parse(bytes).map_err(|source| Error::Format {
             path: name(),
@@ -106,32 +109,25 @@ impl PinGrid {
     /// See the module docs for the `SIGBUS` hazard of mapped files modified in place.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let io = |source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let file = File::open(path).map_err(io)?;
+        // A regular file only, opened without blocking: a FIFO would block forever.
+        let (file, _) = pin_format::input::open_regular(path).map_err(Error::Input)?;
         // SAFETY: the mapping is read-only; the documented hazard is external truncation or
         // in-place modification of the file while mapped (SIGBUS / changing bytes). Every
         // value read from it is validated or sanitised before use, so changed bytes cannot
         // cause memory unsafety, only wrong answers.
-        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(|source| Error::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
         Self::from_storage(Storage::Mmap(map), Some(path.to_path_buf()))
     }
 
     /// Reads the whole file into an aligned buffer: immune to later changes of the file.
+    /// The buffer is allocated fallibly: a file larger than memory is an error.
     pub fn read_into_memory(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let io = |source| Error::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let mut file = File::open(path).map_err(io)?;
-        let len = file.metadata().map_err(io)?.len() as usize;
-        let mut words = vec![0u64; len.div_ceil(8)];
-        let buf = &mut bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..len];
-        file.read_exact(buf).map_err(io)?;
-        // A file that grew since `metadata` is caught by the size check in the header.
+        let (words, len) = pin_format::input::read_aligned(path).map_err(Error::Input)?;
+        // A file that grew since it was opened is caught by the size check in the header.
         Self::from_storage(Storage::Words(words, len), Some(path.to_path_buf()))
     }
 
@@ -140,9 +136,16 @@ impl PinGrid {
         let storage = if (bytes.as_ptr() as usize).is_multiple_of(8) {
             Storage::Bytes(bytes)
         } else {
-            Storage::aligned_copy(&bytes)
+            Storage::aligned_copy(&bytes)?
         };
         Self::from_storage(storage, None)
+    }
+
+    /// A grid from a borrowed buffer, copied once into an aligned buffer that is allocated
+    /// fallibly (the C ABI's `pinrt_open_memory` and Python's `from_bytes`: the host keeps
+    /// its buffer, and a copy that does not fit is an error, not an abort).
+    pub fn from_slice(bytes: &[u8]) -> Result<Self> {
+        Self::from_storage(Storage::aligned_copy(bytes)?, None)
     }
 
     /// Full check: every section checksum and every value (linear in the file size).
