@@ -182,38 +182,32 @@ impl VolumeArgs {
     ) -> anyhow::Result<crate::source::SourceSpec> {
         use crate::source::{self, ProceduralSpec, RawOptions, SourceSpec};
         let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
-        let is_vdb = procedural.is_none()
-            && input
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
-        let raw_flags = [
-            ("--dims", self.dims.is_some()),
-            ("--type", self.voxel_type.is_some()),
-            ("--endian", self.endian.is_some()),
-            ("--spacing", self.spacing.is_some()),
-            ("--origin", self.origin.is_some()),
-            ("--clamp-negative", self.clamp_negative),
-            ("--nan-as-zero", self.nan_as_zero),
-        ];
-        let vdb_flags = [
-            ("--grid", self.grid.is_some()),
-            ("--levelset-to-fog", self.levelset_to_fog),
-        ];
-        let set = |f: &&(&'static str, bool)| f.1;
-        let (kind, ignored): (&str, Vec<&str>) = if procedural.is_some() {
-            let all = raw_flags.iter().chain(&vdb_flags);
-            ("a procedural", all.filter(set).map(|f| f.0).collect())
-        } else if is_vdb {
-            (
-                "an OpenVDB",
-                raw_flags.iter().filter(set).map(|f| f.0).collect(),
-            )
-        } else {
-            ("a raw", vdb_flags.iter().filter(set).map(|f| f.0).collect())
-        };
-        if let Some(flag) = ignored.first() {
+        let kind = source::InputKind::of(input);
+        let is_vdb = kind == source::InputKind::Vdb;
+        let given: Vec<&str> = [
+            ("dims", self.dims.is_some()),
+            ("voxel_type", self.voxel_type.is_some()),
+            ("endian", self.endian.is_some()),
+            ("spacing", self.spacing.is_some()),
+            ("origin", self.origin.is_some()),
+            ("clamp_negative", self.clamp_negative),
+            ("nan_as_zero", self.nan_as_zero),
+            ("grid", self.grid.is_some()),
+            ("levelset_to_fog", self.levelset_to_fog),
+        ]
+        .into_iter()
+        .filter(|f| f.1)
+        .map(|f| f.0)
+        .collect();
+        if let Some(name) = kind.first_inapplicable(&given) {
+            // The flag's spelling: `voxel_type` is `--type`, the rest as named.
+            let flag = match name {
+                "voxel_type" => "--type".to_string(),
+                n => format!("--{}", n.replace('_', "-")),
+            };
             return Err(usage(format!(
-                "{flag} does not apply to {kind} {noun} ({})",
+                "{flag} does not apply to {} {noun} ({})",
+                kind.article_name(),
                 input.display()
             )));
         }

@@ -4,6 +4,9 @@
 //! procedural fields into one [`source::DensitySource`] interface; [`bake`] ray-marches every
 //! pin of the 5D grid in one pass and produces a canonical [`pin_format::OwnedPinGrid`];
 //! [`merge`] joins the z-slab tiles of a farm bake into the same bytes a single bake writes.
+//! [`plan::bake_to_file`] is the front door for a bake to a file: option ranges, the output
+//! rule, the memory budget, the choice of grid, the bake, the atomic write and the summary,
+//! in one place for the binary, Python and Rust callers.
 //! The `pinbake` binary (feature `cli`) wraps all of it.
 //!
 //! What it is not for: reading pin files at render time (that is `pinrt`, which never needs
@@ -21,9 +24,12 @@ pub mod files;
 pub mod limits;
 pub mod merge;
 pub mod pin;
+pub mod plan;
 pub mod rng;
 pub mod source;
+pub mod summary;
 mod sweep;
 
 pub use bake::{BakeError, BakeOptions, BakeStats, Tile, bake};
 pub use merge::{MergeError, merge_tiles};
+pub use plan::{BakeInput, BakeRequest, Baked, PlanError, bake_to_file};

@@ -74,7 +74,11 @@ pub fn parse_step(s: &str) -> Result<f64, String> {
 /// positions and squared lengths lose all precision or overflow (`--spacing 1e153` made a
 /// pin take 0.5 s instead of microseconds).
 pub fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
-    let v = parse_f64x3(s)?;
+    check_spacing(parse_f64x3(s)?)
+}
+
+/// A voxel size in [1e-9, 1e9] on every axis: see [`parse_spacing`].
+pub fn check_spacing(v: [f64; 3]) -> Result<[f64; 3], String> {
     if v.iter().any(|x| !(1e-9..=1e9).contains(x)) {
         return Err(format!("{} must be in [1e-9, 1e9]", v.map(num).join(",")));
     }
@@ -83,8 +87,12 @@ pub fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
 
 /// `--origin`: within +-1e12, for the same reason.
 pub fn parse_origin(s: &str) -> Result<[f64; 3], String> {
-    let v = parse_f64x3(s)?;
-    if v.iter().any(|x| x.abs() > 1e12) {
+    check_origin(parse_f64x3(s)?)
+}
+
+/// A position within +-1e12 on every axis (finite): see [`parse_origin`].
+pub fn check_origin(v: [f64; 3]) -> Result<[f64; 3], String> {
+    if v.iter().any(|x| !(x.abs() <= 1e12)) {
         return Err(format!("{} must be within +-1e12", v.map(num).join(",")));
     }
     Ok(v)

@@ -11,16 +11,16 @@ use std::time::Instant;
 use numpy::{
     PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
 };
-use pin_format::{Directions, GridShape, OwnedPinGrid};
+use pin_format::Directions;
+use pinbake::files::InputSet;
 use pinbake::source::{
-    self, DenseGrid, DensitySource, Endian, ProceduralSpec, RawOptions, RawType, SourceSpec,
-    VdbOptions,
+    Endian, InputKind, ProceduralSpec, RawOptions, RawType, SourceSpec, VdbOptions,
 };
-use pinbake::{BakeOptions, BakeStats};
+use pinbake::{BakeInput, BakeRequest, PlanError};
 use pinrt::{PinGrid as RtGrid, RayQuery, SamplerOptions};
-use pyo3::exceptions::{PyException, PyValueError};
+use pyo3::exceptions::{PyException, PyMemoryError, PyValueError};
 use pyo3::prelude::*;
-use serde_json::{Value, json};
+use serde_json::json;
 
 pyo3::create_exception!(
     _native,
@@ -31,6 +31,16 @@ pyo3::create_exception!(
 
 fn pin_err(e: impl std::fmt::Display) -> PyErr {
     PinError::new_err(e.to_string().replace(['\n', '\r'], " "))
+}
+
+/// A runtime error: `MemoryError` for a buffer that could not be allocated, `PinError` else.
+fn rt_err(e: pinrt::Error) -> PyErr {
+    match e {
+        pinrt::Error::Input(pin_format::input::InputError::OutOfMemory { .. }) => {
+            PyMemoryError::new_err(e.to_string())
+        }
+        e => pin_err(e),
+    }
 }
 
 fn value_err(msg: impl Into<String>) -> PyErr {
@@ -51,16 +61,31 @@ fn rows3<'a>(a: &'a PyReadonlyArray2<'_, f32>, what: &str) -> PyResult<&'a [f32]
             "{what} must have shape (N, 3), got {shape:?}"
         )));
     }
-    a.as_slice()
-        .map_err(|_| value_err(format!("{what} must be C-contiguous")))
+    c_order(a.is_c_contiguous(), a.as_slice().ok(), what)
 }
 
-fn ray_queries(o: &[f32], d: &[f32], t: &[f32]) -> Vec<RayQuery> {
-    o.chunks_exact(3)
-        .zip(d.chunks_exact(3))
-        .zip(t)
-        .map(|((o, d), &t)| RayQuery::new([o[0], o[1], o[2]], [d[0], d[1], d[2]], t))
-        .collect()
+/// The values of an array in C order: a Fortran-order array would be read in the wrong
+/// order (its memory order), so it is refused, as any non-contiguous one.
+fn c_order<'a>(c_contiguous: bool, values: Option<&'a [f32]>, what: &str) -> PyResult<&'a [f32]> {
+    match values {
+        Some(v) if c_contiguous => Ok(v),
+        _ => Err(value_err(format!("{what} must be C-contiguous"))),
+    }
+}
+
+/// The ray records of a batch, allocated fallibly (`MemoryError` when they do not fit).
+fn ray_queries(o: &[f32], d: &[f32], t: &[f32]) -> PyResult<Vec<RayQuery>> {
+    let mut rays = try_vec(0, RayQuery::new([0.0; 3], [0.0; 3], 0.0), "the ray records")?;
+    rays.try_reserve_exact(t.len()).map_err(|_| {
+        PyMemoryError::new_err(format!("{} rays: out of memory for their records", t.len()))
+    })?;
+    rays.extend(
+        o.chunks_exact(3)
+            .zip(d.chunks_exact(3))
+            .zip(t)
+            .map(|((o, d), &t)| RayQuery::new([o[0], o[1], o[2]], [d[0], d[1], d[2]], t)),
+    );
+    Ok(rays)
 }
 
 /// The lookup options beside the jitter (`pinrt::SamplerOptions`, docs/sampling.md sections
@@ -127,9 +152,7 @@ impl PinGrid {
     ) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let o = rows3(&origins, "origins")?;
         let d = rows3(&directions, "directions")?;
-        let t = t_max
-            .as_slice()
-            .map_err(|_| value_err("t_max must be C-contiguous"))?;
+        let t = c_order(t_max.is_c_contiguous(), t_max.as_slice().ok(), "t_max")?;
         let n = o.len() / 3;
         if d.len() / 3 != n || t.len() != n {
             return Err(value_err(format!(
@@ -152,7 +175,7 @@ impl PinGrid {
         // The GIL is released for the copy into ray records and the queries: other Python
         // threads run meanwhile (the NumPy inputs are borrowed read-only for the duration).
         let out: PyResult<Vec<f32>> = py.detach(|| {
-            let rays = ray_queries(o, d, t);
+            let rays = ray_queries(o, d, t)?;
             let s = grid
                 .sampler()
                 .map_err(pin_err)?
@@ -164,14 +187,23 @@ impl PinGrid {
                     start_inside: lookup.start_inside,
                     nearest_line: lookup.nearest_line,
                 });
-            let mut out = vec![0f32; n];
+            let mut out = try_vec(n, 0f32, "the results")?;
             match kind {
                 Query::Transmittance => s.transmittance_batch(&rays, seed, first_index, &mut out),
                 Query::Distance => {
-                    let mut tmp = vec![None; n];
-                    s.sample_distance_batch(&rays, seed, first_index, &mut tmp);
-                    for (o, v) in out.iter_mut().zip(tmp) {
-                        *o = v.unwrap_or(f32::INFINITY);
+                    // In chunks: the optional distances need no second array of N.
+                    let mut tmp = [None::<f32>; pinrt::BATCH];
+                    for (i, (rc, oc)) in rays
+                        .chunks(pinrt::BATCH)
+                        .zip(out.chunks_mut(pinrt::BATCH))
+                        .enumerate()
+                    {
+                        let first = first_index.wrapping_add((i * pinrt::BATCH) as u32);
+                        let t = &mut tmp[..rc.len()];
+                        s.sample_distance_batch(rc, seed, first, t);
+                        for (o, v) in oc.iter_mut().zip(t.iter()) {
+                            *o = v.unwrap_or(f32::INFINITY);
+                        }
                     }
                 }
             }
@@ -186,7 +218,7 @@ impl PinGrid {
     /// Opens (memory-maps) a pin file.
     #[new]
     fn new(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let grid = py.detach(|| RtGrid::open(&path)).map_err(pin_err)?;
+        let grid = py.detach(|| RtGrid::open(&path)).map_err(rt_err)?;
         Ok(Self { grid })
     }
 
@@ -194,7 +226,7 @@ impl PinGrid {
     #[staticmethod]
     fn from_bytes(data: &[u8]) -> PyResult<Self> {
         Ok(Self {
-            grid: RtGrid::from_bytes(data.to_vec()).map_err(pin_err)?,
+            grid: RtGrid::from_slice(data).map_err(rt_err)?,
         })
     }
 
@@ -210,7 +242,7 @@ impl PinGrid {
         let bounds = self.grid.sampler().map_err(pin_err)?.world_bounds();
         let v = json!({
             "dims": d.dims,
-            "directions": directions_json(s.directions),
+            "directions": pinbake::summary::directions_json(s.directions),
             "pins_per_entry": d.pins_per_entry,
             "pins": self.grid.pins().len(),
             "stored_cells": d.stored_cells,
@@ -295,72 +327,6 @@ impl PinGrid {
     }
 }
 
-fn directions_json(d: Directions) -> Value {
-    match d {
-        Directions::Polar { n_phi, n_theta } => {
-            json!({"kind": "polar", "n_phi": n_phi, "n_theta": n_theta})
-        }
-        Directions::Octahedral { n } => json!({"kind": "octahedral", "n": n}),
-    }
-}
-
-/// The summary object of `pinbake bake --json` (same keys and meanings; written again here
-/// because the CLI's lives in the pinbake binary, not its library).
-fn summary_json(
-    grid: &OwnedPinGrid,
-    file_bytes: u64,
-    stats: &BakeStats,
-    seconds: f64,
-    output: &Path,
-) -> PyResult<Value> {
-    let desc = &grid.desc;
-    let shape = GridShape::new(desc, grid.tile.as_ref()).map_err(pin_err)?;
-    let total = shape.covered_cells * shape.block_len;
-    let (mut min, mut max, mut sum) = (f64::INFINITY, f64::NEG_INFINITY, 0.0);
-    let mut histogram = [0u64; 10];
-    let mut add = |t: f64, n: u64| {
-        min = min.min(t);
-        max = max.max(t);
-        sum += t * n as f64;
-        histogram[((t * 10.0) as usize).min(9)] += n;
-    };
-    for p in &grid.pins {
-        add(f64::from(p.t_min), 1);
-    }
-    // Pins of empty (unstored) cells count as t_min = 1, as in the CLI.
-    let empty_pins = total.saturating_sub(grid.pins.len() as u64);
-    if empty_pins > 0 || grid.pins.is_empty() {
-        add(1.0, empty_pins);
-    }
-    let mean = if total > 0 { sum / total as f64 } else { 1.0 };
-    let empty = shape.covered_cells - desc.stored_cells;
-    let whole = shape.z_begin == 0 && shape.z_end == desc.dims[2];
-    Ok(json!({
-        "dims": desc.dims,
-        "directions": directions_json(shape.directions),
-        "pins_per_entry": desc.pins_per_entry,
-        "pins": grid.pins.len(),
-        "covered_cells": shape.covered_cells,
-        "stored_cells": desc.stored_cells,
-        "empty_cells": empty,
-        "sparse_fraction": if shape.covered_cells > 0 { empty as f64 / shape.covered_cells as f64 } else { 0.0 },
-        "file_bytes": file_bytes,
-        "t_min": {"min": min, "max": max, "mean": mean, "histogram": histogram},
-        "box": {"min": desc.box_min, "max": desc.box_max},
-        "source_box": {"min": desc.source_box_min, "max": desc.source_box_max},
-        "cropped": desc.flags & pin_format::layout::GRID_FLAG_CROPPED != 0,
-        "step_size": desc.step_size,
-        "density_scale": desc.density_scale,
-        "seed": desc.seed,
-        "tile": if whole { Value::Null } else { json!([shape.z_begin, shape.z_end]) },
-        "source": grid.metadata.as_ref().map(|m| m.source_name.clone()),
-        "seconds": seconds,
-        "bake_seconds": stats.seconds,
-        "pins_per_s": stats.pins_per_s,
-        "output": output.display().to_string(),
-    }))
-}
-
 fn parse_dirs(s: &str) -> PyResult<Directions> {
     let bad = |m: String| value_err(format!("directions '{s}': {m}"));
     let (kind, res) = s
@@ -388,39 +354,41 @@ fn parse_dirs(s: &str) -> PyResult<Directions> {
     Directions::from_desc(k, r).map_err(|e| bad(e.to_string()))
 }
 
-/// Hex xxh3-128 of a file (the metadata's source hash, as the CLI records it).
-fn hash_file(path: &Path) -> PyResult<String> {
-    use std::io::Read;
-    let io = |e: std::io::Error| pin_err(format!("{}: {e}", path.display()));
-    let mut f = std::fs::File::open(path).map_err(io)?;
-    let mut h = xxhash_rust::xxh3::Xxh3::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f.read(&mut buf).map_err(io)?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
+/// A [`pinbake::PlanError`] as the Python exception it stands for: `ValueError` for an
+/// option out of range, `MemoryError` for a refused budget or allocation, `PinError` else.
+fn plan_err(e: PlanError) -> PyErr {
+    let msg = pinbake::files::error_line(&e);
+    match e {
+        PlanError::Usage(_) => value_err(msg),
+        e if e.is_memory() => PyMemoryError::new_err(msg),
+        _ => PinError::new_err(msg),
     }
-    Ok(format!("{:032x}", h.digest128()))
 }
 
-fn file_name(p: &Path) -> String {
-    p.file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default()
+/// A fallibly allocated copy of `n` values (`MemoryError` when it does not fit).
+fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| {
+        PyMemoryError::new_err(format!(
+            "{what}: out of memory for {} bytes",
+            (n as u64).saturating_mul(std::mem::size_of::<T>() as u64)
+        ))
+    })?;
+    v.resize(n, fill);
+    Ok(v)
 }
 
 /// Bakes `input` (a file path, `procedural:SPEC`, or `<array>` with `data`) into `output` and
-/// returns the JSON summary. Options as `pinbake bake`'s flags; the Python layer documents
-/// them.
+/// returns the JSON summary, through `pinbake::plan::bake_to_file`: the ranges, the output
+/// rule, the memory budget, the choice and the summary of `pinbake bake`, by the same code.
+/// Options as `pinbake bake`'s flags; the Python layer documents them.
 #[pyfunction]
 #[pyo3(signature = (
     input, output, *, data=None, spacing=None, origin=None, cells=None,
-    directions=None, pins_per_entry=None, step=0.01, seed=0, crop=true,
+    directions=None, pins_per_entry=None, target_error=None, step=0.01, seed=0, crop=true,
     center_pins=true, majorant=[16, 16, 16], embed_density=None, density_scale=1.0,
-    threads=None, grid=None, levelset_to_fog=false, dims=None, voxel_type=None,
-    endian="little", clamp_negative=false, nan_as_zero=false, vdb_worker=None
+    threads=None, max_memory=None, grid=None, levelset_to_fog=false, dims=None,
+    voxel_type=None, endian=None, clamp_negative=false, nan_as_zero=false, vdb_worker=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn bake(
@@ -433,6 +401,7 @@ fn bake(
     cells: Option<[u32; 3]>,
     directions: Option<&str>,
     pins_per_entry: Option<u32>,
+    target_error: Option<f64>,
     step: f64,
     seed: u64,
     crop: bool,
@@ -441,74 +410,100 @@ fn bake(
     embed_density: Option<[u32; 3]>,
     density_scale: f64,
     threads: Option<usize>,
+    max_memory: Option<u64>,
     grid: Option<String>,
     levelset_to_fog: bool,
     dims: Option<[u32; 3]>,
     voxel_type: Option<&str>,
-    endian: &str,
+    endian: Option<&str>,
     clamp_negative: bool,
     nan_as_zero: bool,
     vdb_worker: Option<PathBuf>,
 ) -> PyResult<String> {
-    if !(density_scale.is_finite() && density_scale >= 0.0) {
+    let req = BakeRequest {
+        cells,
+        directions: directions.map(parse_dirs).transpose()?,
+        pins_per_entry,
+        target_error,
+        step,
+        seed,
+        crop,
+        jitter_pins: !center_pins,
+        tile: None,
+        majorant: (majorant != [0; 3]).then_some(majorant),
+        embed_density,
+        threads,
+        density_scale,
+        max_memory: max_memory.map(|m| m.max(1)),
+    };
+    req.validate().map_err(plan_err)?;
+    // Options meant for another kind of input are refused, as on the command line.
+    let kind = if data.is_some() {
+        InputKind::Array
+    } else {
+        InputKind::of(Path::new(input))
+    };
+    let given: Vec<&str> = [
+        ("dims", dims.is_some()),
+        ("voxel_type", voxel_type.is_some()),
+        ("endian", endian.is_some()),
+        ("spacing", spacing.is_some()),
+        ("origin", origin.is_some()),
+        ("clamp_negative", clamp_negative),
+        ("nan_as_zero", nan_as_zero),
+        ("grid", grid.is_some()),
+        ("levelset_to_fog", levelset_to_fog),
+    ]
+    .into_iter()
+    .filter(|f| f.1)
+    .map(|f| f.0)
+    .collect();
+    if let Some(name) = kind.first_inapplicable(&given) {
         return Err(value_err(format!(
-            "density_scale {density_scale} must be finite and >= 0"
+            "{name} does not apply to {} input ({input})",
+            kind.article_name()
         )));
     }
-    if pins_per_entry.is_some_and(|k| k == 0 || k > pin_format::MAX_PINS_PER_ENTRY) {
-        return Err(value_err(format!(
-            "pins_per_entry must be in 1..={}",
-            pin_format::MAX_PINS_PER_ENTRY
-        )));
-    }
-    if !(step > 0.0 && step <= 1.0) {
-        return Err(value_err(format!("step {step} must be in (0, 1]")));
-    }
-    // Parameters left out are chosen from the volume below, as `pinbake bake` does.
-    let dirs = directions.map(parse_dirs).transpose()?;
     let spacing = spacing.unwrap_or([1.0; 3]);
     let origin = origin.unwrap_or([0.0; 3]);
 
-    // The source, and what the metadata records about it (as the CLI does).
-    let (source, name, hash): (Box<dyn DensitySource>, String, String) = if let Some(arr) = data {
+    let source = if let Some(arr) = data {
         // The Python layer passes a C-contiguous (z, y, x) view: x fastest, as DenseGrid
-        // stores voxels.
+        // stores voxels. Another memory order would be read wrongly, so it is refused.
+        if !arr.is_c_contiguous() {
+            return Err(value_err("data must be C-contiguous"));
+        }
         let shape = arr.shape();
-        let values = arr
+        let src = arr
             .as_slice()
-            .map_err(|_| value_err("data must be C-contiguous"))?
-            .iter()
-            .map(|&v| v * density_scale as f32)
-            .collect::<Vec<f32>>();
-        let d = [shape[2], shape[1], shape[0]].map(|x| x as u32);
-        let g = DenseGrid::new(
-            d,
+            .map_err(|_| value_err("data must be C-contiguous"))?;
+        let mut values = try_vec(0, 0f32, "the volume array's copy")?;
+        values.try_reserve_exact(src.len()).map_err(|_| {
+            PyMemoryError::new_err(format!(
+                "the volume array's copy: out of memory for {} bytes",
+                src.len() as u64 * 4
+            ))
+        })?;
+        values.extend_from_slice(src);
+        let d = [shape[2], shape[1], shape[0]].map(|x| u32::try_from(x).unwrap_or(u32::MAX));
+        BakeInput::Array {
+            dims: d,
             values,
-            spacing.into(),
-            origin.into(),
-            format!("NumPy array {}x{}x{}", d[0], d[1], d[2]),
-        )
-        .map_err(|e| pin_err(format!("array: {e}")))?;
-        (Box::new(g), "<array>".into(), String::new())
+            spacing,
+            origin,
+        }
     } else if let Some(rest) = input.strip_prefix("procedural:") {
         let mut spec: ProceduralSpec = rest.parse().map_err(pin_err)?;
         spec.density *= density_scale;
-        let name = format!("procedural:{spec}");
-        let src = py
-            .detach(|| source::open_source(&SourceSpec::Procedural(spec)))
-            .map_err(pin_err)?;
-        (src, name, String::new())
+        BakeInput::Source(SourceSpec::Procedural(spec))
     } else {
         let path = PathBuf::from(input);
-        let is_vdb = path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
-        let spec = if is_vdb {
+        if kind == InputKind::Vdb {
             let worker = vdb_worker.ok_or_else(|| {
                 value_err("reading OpenVDB needs the pinrt-vdb-worker script (vdb_worker=)")
             })?;
-            SourceSpec::Vdb(
-                path.clone(),
+            BakeInput::Source(SourceSpec::Vdb(
+                path,
                 VdbOptions {
                     grid,
                     levelset_to_fog,
@@ -516,7 +511,7 @@ fn bake(
                     worker_exe: worker,
                     ..VdbOptions::default()
                 },
-            )
+            ))
         } else {
             let voxel_type = match voxel_type {
                 None => None,
@@ -526,13 +521,13 @@ fn bake(
                     ))
                 })?),
             };
-            let endian = match endian.to_ascii_lowercase().as_str() {
+            let endian = match endian.unwrap_or("little").to_ascii_lowercase().as_str() {
                 "little" | "le" => Endian::Little,
                 "big" | "be" => Endian::Big,
                 other => return Err(value_err(format!("endian '{other}' is not little or big"))),
             };
-            SourceSpec::Raw(
-                path.clone(),
+            BakeInput::Source(SourceSpec::Raw(
+                path,
                 RawOptions {
                     dims,
                     voxel_type,
@@ -543,78 +538,16 @@ fn bake(
                     nan_as_zero,
                     density_scale,
                 },
-            )
-        };
-        let src = py.detach(|| source::open_source(&spec)).map_err(pin_err)?;
-        (src, file_name(&path), hash_file(&path)?)
+            ))
+        }
     };
-
-    // What `pinbake bake` does with the same arguments: the parameters not given are chosen
-    // from the volume, and the metadata is written by the same library function.
-    let choice = py
-        .detach(|| -> Result<pinbake::choose::Choice, pinbake::BakeError> {
-            let stats = pinbake::choose::analyse(source.as_ref(), crop)?;
-            let fixed = pinbake::choose::Fixed {
-                cells,
-                directions: dirs,
-                pins_per_entry,
-            };
-            Ok(pinbake::choose::choose_default(&stats, fixed))
-        })
-        .map_err(|e| pin_err(format!("{input}: {e}")))?;
-    let cells = choice.cells;
-    let metadata = pinbake::bake::bake_metadata(
-        source.as_ref(),
-        pinbake::bake::Provenance {
-            source_name: name,
-            source_hash: hash,
-            seed,
-            step,
-            density_scale,
-            crop,
-        },
-        cells,
-        choice.directions,
-    );
-    let mut opts = BakeOptions {
-        cells,
-        directions: choice.directions,
-        pins_per_entry: choice.pins_per_entry,
-        step,
-        seed,
-        crop,
-        jitter_pins: !center_pins,
-        tile: None,
-        majorant: (majorant != [0; 3]).then_some(majorant),
-        embed_density,
-        threads,
-        density_scale,
-        metadata,
-        dense_copy_bytes: 0,
-    };
-    // What `pinbake bake` allows by default (its default memory budget less the output and the
-    // input file), so the two copy the same VDBs densely and write the same bytes.
-    let input_bytes = std::fs::metadata(input).map_or(0, |m| m.len());
-    opts.dense_copy_bytes = pinbake::files::default_memory_limit()
-        .saturating_sub(pinbake::bake::estimate_output_bytes(&opts).saturating_add(input_bytes));
     let started = Instant::now();
-    let summary = py.detach(|| -> PyResult<Value> {
-        let (grid, stats) = pinbake::bake(source.as_ref(), &opts, &|_| {})
-            .map_err(|e| pin_err(format!("{input}: {e}")))?;
-        grid.write_atomic(&output)
-            .map_err(|e| pin_err(format!("{}: {e}", output.display())))?;
-        let bytes = std::fs::metadata(&output)
-            .map_err(|e| pin_err(format!("{}: {e}", output.display())))?
-            .len();
-        summary_json(
-            &grid,
-            bytes,
-            &stats,
-            started.elapsed().as_secs_f64(),
-            &output,
-        )
-    })?;
-    Ok(summary.to_string())
+    let baked = py
+        .detach(|| pinbake::plan::bake_to_file(source, &output, &req, &InputSet::default(), &()))
+        .map_err(plan_err)?;
+    let mut v = baked.summary();
+    v["seconds"] = serde_json::json!(started.elapsed().as_secs_f64());
+    Ok(v.to_string())
 }
 
 /// The isolated OpenVDB reader (`pinrt-vdb-worker __vdb-worker FILE SELECTOR MODE`): `args`

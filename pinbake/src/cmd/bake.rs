@@ -1,7 +1,7 @@
 //! `pinbake bake`.
 
 use std::io::IsTerminal;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -9,10 +9,9 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::Directions;
-use pinbake::choose::Choice;
 use pinbake::cli_args::VolumeArgs;
-use pinbake::source::{self, DensitySource, SourceSpec};
-use pinbake::{BakeOptions, Tile};
+use pinbake::source::SourceSpec;
+use pinbake::{BakeInput, BakeRequest, PlanError, Tile};
 
 #[derive(Args, Debug, Clone)]
 #[command(after_help = "\
@@ -108,9 +107,6 @@ pub struct BakeArgs {
     pub quiet: bool,
 }
 
-/// Spatial cells per axis the memory check assumes before the volume is open.
-pub const DEFAULT_MAX_CELLS: u32 = pinbake::bake::DEFAULT_MAX_CELLS;
-
 /// `--target-error`: a finite fraction in (0, 1].
 fn parse_target_error(s: &str) -> Result<f64, String> {
     let e: f64 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
@@ -184,72 +180,13 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
     })
 }
 
-/// Hex xxh3-128 of a file, streamed so a large volume is not read twice into memory.
-fn hash_file(path: &Path) -> Result<String> {
-    use std::io::Read;
-    let (mut f, _) = pinbake::files::open_input(path)?;
-    let mut h = xxhash_rust::xxh3::Xxh3::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f
-            .read(&mut buf)
-            .with_context(|| format!("{}", path.display()))?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-    }
-    Ok(format!("{:032x}", h.digest128()))
-}
-
-/// The bake's cells, directions and pins per entry: the ones given, the rest chosen from the
-/// volume (`pinbake::choose`).
-pub fn choose_from_args(args: &BakeArgs, source: &dyn DensitySource) -> Result<Choice> {
-    let stats = pinbake::choose::analyse(source, !args.no_crop)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
-    let fixed = pinbake::choose::Fixed {
+/// The request `args` makes of [`pinbake::plan`].
+pub fn request(args: &BakeArgs) -> BakeRequest {
+    BakeRequest {
         cells: args.cells,
         directions: args.dirs,
         pins_per_entry: args.pins_per_entry,
-    };
-    Ok(match args.target_error {
-        Some(e) => pinbake::choose::choose(&stats, fixed, e),
-        None => pinbake::choose::choose_default(&stats, fixed),
-    })
-}
-
-pub fn options_from_args(
-    args: &BakeArgs,
-    source: &dyn DensitySource,
-    spec: &SourceSpec,
-    choice: &Choice,
-) -> Result<BakeOptions> {
-    let (name, hash) = match spec {
-        SourceSpec::Procedural(p) => (format!("procedural:{p}"), String::new()),
-        #[cfg(feature = "vdb")]
-        SourceSpec::Vdb(path, _) => (file_name(path), hash_file(path)?),
-        #[cfg(not(feature = "vdb"))]
-        SourceSpec::Vdb(path) => (file_name(path), hash_file(path)?),
-        SourceSpec::Raw(path, _) => (file_name(path), hash_file(path)?),
-    };
-    let cells = choice.cells;
-    let metadata = pinbake::bake::bake_metadata(
-        source,
-        pinbake::bake::Provenance {
-            source_name: name,
-            source_hash: hash,
-            seed: args.seed,
-            step: args.step,
-            density_scale: args.volume.density_scale,
-            crop: !args.no_crop,
-        },
-        cells,
-        choice.directions,
-    );
-    Ok(BakeOptions {
-        cells,
-        directions: choice.directions,
-        pins_per_entry: choice.pins_per_entry,
+        target_error: args.target_error,
         step: args.step,
         seed: args.seed,
         crop: !args.no_crop,
@@ -259,16 +196,8 @@ pub fn options_from_args(
         embed_density: args.embed_density,
         threads: args.threads,
         density_scale: args.volume.density_scale,
-        metadata,
-        // `bake_one` lowers it to what `--max-memory` leaves.
-        dense_copy_bytes: pinbake::bake::DEFAULT_DENSE_COPY_BYTES,
-    })
-}
-
-fn file_name(p: &Path) -> String {
-    p.file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default()
+        max_memory: args.max_memory,
+    }
 }
 
 pub fn run(args: BakeArgs) -> Result<ExitCode> {
@@ -286,73 +215,29 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
 /// The usage errors of a bake that need several flags or the input's kind (ranges of single
 /// flags are checked by their parsers): exit 2 before any work.
 pub fn check_usage(args: &BakeArgs) -> Result<SourceSpec> {
-    if args.target_error.is_some()
-        && args.cells.is_some()
-        && args.dirs.is_some()
-        && args.pins_per_entry.is_some()
-    {
-        super::usage!(
-            "--target-error has nothing to choose: --cells, --dirs and --pins-per-entry are all given"
-        );
-    }
+    request(args).validate().map_err(plan_error)?;
     source_spec(args)
 }
 
-/// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
-/// human summary goes to stderr here). `inputs` are the files the output must not be: the
-/// input, or with `--frames` every frame's input.
-pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<serde_json::Value> {
-    let spec = check_usage(args)?;
-    let input_path: Option<&Path> = match &spec {
-        SourceSpec::Procedural(_) => None,
-        _ => Some(args.input.as_path()),
-    };
-    // Before the bake, not after it: minutes of work for a refused path help nobody.
-    inputs.check_output(&args.output)?;
-    let budget = pinbake::files::MemoryBudget::new(args.max_memory);
-    let probe = BakeOptions {
-        // Before the source is open: the default's upper bound.
-        cells: args.cells.unwrap_or([DEFAULT_MAX_CELLS; 3]),
-        directions: args.dirs.unwrap_or(pinbake::bake::DEFAULT_DIRECTIONS),
-        pins_per_entry: args.pins_per_entry.unwrap_or(1),
-        majorant: majorant_dims(args.majorant),
-        embed_density: args.embed_density,
-        ..BakeOptions::default()
-    };
-    let input_bytes = match input_path {
-        None => 0,
-        // f32 voxels in memory: up to 4x the file for 8-bit input; a VDB's leaves and
-        // the worker's copy up to 8x its compressed file.
-        Some(p) => {
-            let len = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-            let factor = if matches!(spec, SourceSpec::Raw(..)) {
-                4
-            } else {
-                8
-            };
-            len.saturating_mul(factor)
-        }
-    };
-    let need = pinbake::bake::estimate_output_bytes(&probe).saturating_add(input_bytes);
-    budget.check(&format!("baking {}", args.input.display()), need)?;
-    // The temp file beside the target exists from here on, registered for removal on
-    // SIGINT/SIGTERM; a stale one of an earlier killed bake is swept away by its creation.
-    let pending = pinbake::files::PendingPin::create(&args.output)
-        .with_context(|| format!("{}", args.output.display()))?;
-    let source = source::open_source(&spec)?;
-    let choice = choose_from_args(args, source.as_ref())?;
-    let mut opts = options_from_args(args, source.as_ref(), &spec, &choice)?;
-    // The check above assumed the default's size; a chosen bake may be larger, and a large
-    // dense grid is marched by layers with a batch of per-pin state beside it.
-    let need = pinbake::bake::estimate_output_bytes(&opts)
-        .saturating_add(input_bytes)
-        .saturating_add(pinbake::bake::estimate_working_bytes(&opts));
-    budget.check(&format!("baking {}", args.input.display()), need)?;
-    // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
-    opts.dense_copy_bytes = budget.limit.saturating_sub(need);
+/// A [`PlanError`] for the binary: usage errors exit 2.
+fn plan_error(e: PlanError) -> anyhow::Error {
+    match e {
+        PlanError::Usage(m) => anyhow::Error::new(super::UsageError(m)),
+        e => anyhow::Error::new(e),
+    }
+}
 
-    let total = pinbake::bake::pin_count(&opts);
-    let bar = if !args.quiet && std::io::stderr().is_terminal() {
+/// The progress bar of a bake on a terminal (none when piped or with `--quiet`).
+struct Bar {
+    enabled: bool,
+    bar: std::sync::OnceLock<ProgressBar>,
+}
+
+impl pinbake::plan::Progress for Bar {
+    fn start(&self, total: u64) {
+        if !self.enabled {
+            return;
+        }
         let bar = ProgressBar::new(total);
         bar.set_style(
             ProgressStyle::with_template(
@@ -362,36 +247,42 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
             .progress_chars("=> "),
         );
         bar.enable_steady_tick(Duration::from_millis(200));
-        bar
-    } else {
-        ProgressBar::hidden()
-    };
-    let started = Instant::now();
-    let progress = |n: u64| bar.inc(n);
-    let (grid, stats) = pinbake::bake(source.as_ref(), &opts, &progress)
-        .with_context(|| args.input.display().to_string())?;
-    bar.finish_and_clear();
-    // Checked again just before the rename: the path may have been replaced during the bake.
-    let target = inputs.check_output(&args.output)?;
-    if target != args.output {
-        // A symlink to a regular file: the file it points to is replaced, the link stays.
-        drop(pending);
-        pinbake::files::write_pin_atomic(&grid, &target)
-    } else {
-        pending.write(&grid)
+        let _ = self.bar.set(bar);
     }
-    .with_context(|| format!("{}", args.output.display()))?;
-    let file_bytes = std::fs::metadata(&target)
-        .with_context(|| format!("{}", args.output.display()))?
-        .len();
+
+    fn advance(&self, n: u64) {
+        if let Some(b) = self.bar.get() {
+            b.inc(n);
+        }
+    }
+}
+
+/// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
+/// human summary goes to stderr here). `inputs` are the files the output must not be: with
+/// `--frames` every frame's input (the frame's own is added by the plan).
+pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<serde_json::Value> {
+    let spec = check_usage(args)?;
+    let started = Instant::now();
+    let bar = Bar {
+        enabled: !args.quiet && std::io::stderr().is_terminal(),
+        bar: std::sync::OnceLock::new(),
+    };
+    let baked = pinbake::plan::bake_to_file(
+        BakeInput::Source(spec),
+        &args.output,
+        &request(args),
+        inputs,
+        &bar,
+    )
+    .map_err(plan_error)?;
+    if let Some(b) = bar.bar.get() {
+        b.finish_and_clear();
+    }
     let seconds = started.elapsed().as_secs_f64();
-    let mut v = super::inspect::summary_json(&grid, file_bytes, Some(&stats));
+    let mut v = baked.summary();
     v["seconds"] = serde_json::json!(seconds);
-    v["bake_seconds"] = serde_json::json!(stats.seconds);
-    v["pins_per_s"] = serde_json::json!(stats.pins_per_s);
-    v["output"] = serde_json::json!(args.output.display().to_string());
-    v["choice"] = choice_json(&choice, file_bytes);
     if !args.json {
+        let stats = &baked.stats;
         pinbake::errln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
             args.input.display(),
@@ -399,33 +290,12 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
             stats.covered_cells,
             stats.empty_cells,
             stats.pins,
-            file_bytes,
+            baked.file_bytes,
             seconds,
             stats.pins_per_s / 1e6
         );
     }
     Ok(v)
-}
-
-/// `--json`'s `choice` object: what was chosen, why, and what the model predicts.
-fn choice_json(c: &Choice, file_bytes: u64) -> serde_json::Value {
-    serde_json::json!({
-        "cells": c.cells,
-        "directions": super::inspect::directions_json(c.directions),
-        "pins_per_entry": c.pins_per_entry,
-        "predicted_error": c.predicted_error,
-        "target_error": c.target_error,
-        "target_met": c.target_met,
-        "capped_by_voxels": c.capped_by_voxels,
-        "predicted_pin_bytes": c.predicted_pin_bytes,
-        "bytes": file_bytes,
-        "reason": {
-            "cells": c.reason_cells,
-            "directions": c.reason_directions,
-            "pins_per_entry": c.reason_pins_per_entry,
-        },
-        "volume": c.stats,
-    })
 }
 
 #[cfg(test)]

@@ -1,106 +1,12 @@
-//! `pinbake inspect` and the JSON summary shared with `bake --json`.
+//! `pinbake inspect` (its JSON summary is `pinbake::summary`'s, shared with `bake --json`).
 
 use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::{Context, Result};
-use pin_format::{Directions, GridShape, OwnedPinGrid, PinEntry, PinFile, SectionKind};
+use pin_format::{PinFile, SectionKind};
+use pinbake::summary::{directions_json, summary};
 use serde_json::{Value, json};
-
-use pinbake::BakeStats;
-
-/// t_min statistics over every pin of the covered cells; pins of empty cells count as 1.
-struct TminStats {
-    min: f64,
-    max: f64,
-    mean: f64,
-    /// Ten bins over [0, 1]; the last bin includes 1.
-    histogram: [u64; 10],
-}
-
-fn tmin_stats(pins: &[PinEntry], total_pins: u64) -> TminStats {
-    let mut s = TminStats {
-        min: f64::INFINITY,
-        max: f64::NEG_INFINITY,
-        mean: 0.0,
-        histogram: [0; 10],
-    };
-    let mut sum = 0.0;
-    let mut add = |t: f64, n: u64| {
-        s.min = s.min.min(t);
-        s.max = s.max.max(t);
-        sum += t * n as f64;
-        s.histogram[((t * 10.0) as usize).min(9)] += n;
-    };
-    for p in pins {
-        add(f64::from(p.t_min), 1);
-    }
-    let empty = total_pins.saturating_sub(pins.len() as u64);
-    if empty > 0 || pins.is_empty() {
-        add(1.0, empty);
-    }
-    s.mean = if total_pins > 0 {
-        sum / total_pins as f64
-    } else {
-        1.0
-    };
-    s
-}
-
-pub(crate) fn directions_json(d: Directions) -> Value {
-    match d {
-        Directions::Polar { n_phi, n_theta } => {
-            json!({"kind": "polar", "n_phi": n_phi, "n_theta": n_theta})
-        }
-        Directions::Octahedral { n } => json!({"kind": "octahedral", "n": n}),
-    }
-}
-
-/// The JSON object scripts rely on (see the README and `--help`).
-pub fn summary_json(grid: &OwnedPinGrid, file_bytes: u64, stats: Option<&BakeStats>) -> Value {
-    let shape = GridShape::new(&grid.desc, grid.tile.as_ref()).expect("validated grid");
-    summary(
-        &grid.desc,
-        &shape,
-        &grid.pins,
-        file_bytes,
-        grid.metadata.as_ref().map(|m| m.source_name.clone()),
-        stats,
-    )
-}
-
-fn summary(
-    desc: &pin_format::GridDesc,
-    shape: &GridShape,
-    pins: &[PinEntry],
-    file_bytes: u64,
-    source: Option<String>,
-    _stats: Option<&BakeStats>,
-) -> Value {
-    let total_pins = shape.covered_cells * shape.block_len;
-    let t = tmin_stats(pins, total_pins);
-    let empty = shape.covered_cells - desc.stored_cells;
-    json!({
-        "dims": desc.dims,
-        "directions": directions_json(shape.directions),
-        "pins_per_entry": desc.pins_per_entry,
-        "pins": pins.len(),
-        "covered_cells": shape.covered_cells,
-        "stored_cells": desc.stored_cells,
-        "empty_cells": empty,
-        "sparse_fraction": if shape.covered_cells > 0 { empty as f64 / shape.covered_cells as f64 } else { 0.0 },
-        "file_bytes": file_bytes,
-        "t_min": {"min": t.min, "max": t.max, "mean": t.mean, "histogram": t.histogram},
-        "box": {"min": desc.box_min, "max": desc.box_max},
-        "source_box": {"min": desc.source_box_min, "max": desc.source_box_max},
-        "cropped": desc.flags & pin_format::layout::GRID_FLAG_CROPPED != 0,
-        "step_size": desc.step_size,
-        "density_scale": desc.density_scale,
-        "seed": desc.seed,
-        "tile": if shape.z_begin == 0 && shape.z_end == desc.dims[2] { Value::Null } else { json!([shape.z_begin, shape.z_end]) },
-        "source": source,
-    })
-}
 
 pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
     let bytes = super::read_file(path, &pinbake::files::MemoryBudget::new(None))?;
@@ -115,7 +21,6 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         file.pins(),
         bytes.len() as u64,
         metadata.as_ref().map(|m| m.source_name.clone()),
-        None,
     );
     let sections: Vec<Value> = file
         .sections()

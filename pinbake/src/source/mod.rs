@@ -253,6 +253,72 @@ impl fmt::Display for DensityScale {
     }
 }
 
+/// The kinds of input a bake reads, for the rule of which source options apply to which.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputKind {
+    Procedural,
+    Vdb,
+    Raw,
+    /// Voxels in memory (Python's NumPy arrays): placed by spacing and origin only.
+    Array,
+}
+
+impl InputKind {
+    /// The kind a path or `procedural:SPEC` names (`.vdb` by its extension, any other path
+    /// raw).
+    pub fn of(input: &std::path::Path) -> Self {
+        if input.to_str().is_some_and(|s| s.starts_with("procedural:")) {
+            InputKind::Procedural
+        } else if input
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"))
+        {
+            InputKind::Vdb
+        } else {
+            InputKind::Raw
+        }
+    }
+
+    /// Its name in messages ("a raw input").
+    pub fn article_name(self) -> &'static str {
+        match self {
+            InputKind::Procedural => "a procedural",
+            InputKind::Vdb => "an OpenVDB",
+            InputKind::Raw => "a raw",
+            InputKind::Array => "an array",
+        }
+    }
+
+    /// Whether the source option `name` (snake case: `dims`, `voxel_type`, `endian`,
+    /// `spacing`, `origin`, `clamp_negative`, `nan_as_zero`, `grid`, `levelset_to_fog`)
+    /// means anything for this kind. A given option that does not is refused by every entry
+    /// point (exit 2, `ValueError`): ignoring it would bake something other than what the
+    /// user asked for.
+    pub fn accepts(self, name: &str) -> bool {
+        const RAW: [&str; 7] = [
+            "dims",
+            "voxel_type",
+            "endian",
+            "spacing",
+            "origin",
+            "clamp_negative",
+            "nan_as_zero",
+        ];
+        const VDB: [&str; 2] = ["grid", "levelset_to_fog"];
+        match self {
+            InputKind::Procedural => false,
+            InputKind::Vdb => VDB.contains(&name),
+            InputKind::Raw => RAW.contains(&name),
+            InputKind::Array => matches!(name, "spacing" | "origin"),
+        }
+    }
+
+    /// The first of `given` (option names, see [`InputKind::accepts`]) that does not apply.
+    pub fn first_inapplicable<'a>(self, given: &[&'a str]) -> Option<&'a str> {
+        given.iter().copied().find(|n| !self.accepts(n))
+    }
+}
+
 /// What to open: the input half of a bake command line.
 #[derive(Clone, Debug)]
 pub enum SourceSpec {

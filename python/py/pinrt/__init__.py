@@ -11,7 +11,10 @@ The compiled core is the same Rust code as the ``pinbake`` command and the ``pin
   numbers equal the Rust sampler's (and the C ABI's, and the GPU shader's) bit for bit.
 
 Failures raise :class:`PinError` with the library's one-line message (naming the file);
-malformed arguments raise ``ValueError``.
+malformed arguments raise ``ValueError`` (non-numeric arrays, ``t_max=None``, options out of
+range or not applying to the input); a buffer that cannot be allocated, or a bake over the
+memory budget, raises ``MemoryError``. ``pinrt._native`` is the compiled layer under this
+module: it accepts only C-contiguous float32 arrays and refuses others; call this module.
 
 A single transmittance estimate is ``t_min ** n`` for a whole number ``n``: it is right on
 average, not per call. Average many estimates (different seeds or query indices) when one
@@ -88,6 +91,7 @@ def bake(
     cells: Union[int, Sequence[int], None] = None,
     directions: Optional[str] = None,
     pins_per_entry: Optional[int] = None,
+    target_error: Optional[float] = None,
     step: float = 0.01,
     seed: int = 0,
     crop: bool = True,
@@ -96,11 +100,12 @@ def bake(
     embed_density: Union[int, Sequence[int], None] = None,
     density_scale: float = 1.0,
     threads: Optional[int] = None,
+    max_memory: Optional[int] = None,
     grid: Optional[str] = None,
     levelset_to_fog: bool = False,
     dims: Union[int, Sequence[int], None] = None,
     voxel_type: Optional[str] = None,
-    endian: str = "little",
+    endian: Optional[str] = None,
     clamp_negative: bool = False,
     nan_as_zero: bool = False,
 ) -> Dict[str, Any]:
@@ -118,16 +123,28 @@ def bake(
     The other options are ``pinbake bake``'s flags, with its defaults: ``cells`` (N or
     (X, Y, Z)), ``directions`` (``octahedral:N`` or ``polar:PHIxTHETA``) and
     ``pins_per_entry``, each chosen from the volume when left out as ``pinbake bake`` does
-    (``docs/evaluation.md``, "Bias against bytes"), ``step``
+    (``docs/evaluation.md``, "Bias against bytes"; ``target_error`` is ``--target-error``),
+    ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
     ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density``, ``density_scale``
-    and ``threads``. A bake is deterministic: the same input and options give the same bytes
-    as the ``pinbake`` command.
+    ``threads`` and ``max_memory`` (bytes; ``--max-memory``, default half of the physical
+    memory). A bake is deterministic: the same input and options give the same bytes as the
+    ``pinbake`` command.
+
+    The bake runs through the same Rust code as ``pinbake bake`` (``pinbake::plan``), with
+    its rules: ``output`` must be a new path or a regular file that is not the input (a
+    symlink to a file replaces the file and keeps the link; directories, devices, FIFOs and
+    dangling symlinks are refused) and is written atomically; options outside their ranges
+    (``step`` in [1e-5, 1], ``spacing`` in [1e-9, 1e9], ``origin`` within 1e12, ...) and
+    options that do not apply to the input (``dims`` for an array, ``grid`` for a raw file)
+    raise ``ValueError``; a bake over the memory budget, or a copy that cannot be allocated,
+    raises ``MemoryError``; a bad input raises :class:`PinError`.
     """
     kwargs: Dict[str, Any] = dict(
         cells=None if cells is None else _triple("cells", cells),
         directions=directions,
         pins_per_entry=pins_per_entry,
+        target_error=target_error,
         step=step,
         seed=seed,
         crop=crop,
@@ -136,21 +153,21 @@ def bake(
         embed_density=None if embed_density is None else _triple("embed_density", embed_density),
         density_scale=density_scale,
         threads=threads,
+        max_memory=max_memory,
         spacing=_floats3("spacing", spacing),
         origin=_floats3("origin", origin),
+        # Passed for every input: the options that do not apply to it are refused there.
+        grid=grid,
+        levelset_to_fog=levelset_to_fog,
+        dims=None if dims is None else _triple("dims", dims),
+        voxel_type=voxel_type,
+        endian=endian,
+        clamp_negative=clamp_negative,
+        nan_as_zero=nan_as_zero,
     )
     out = os.fspath(output)
     if isinstance(array_or_path, (str, os.PathLike)):
         path = os.fspath(array_or_path)
-        kwargs.update(
-            grid=grid,
-            levelset_to_fog=levelset_to_fog,
-            dims=None if dims is None else _triple("dims", dims),
-            voxel_type=voxel_type,
-            endian=endian,
-            clamp_negative=clamp_negative,
-            nan_as_zero=nan_as_zero,
-        )
         if path.lower().endswith(".vdb"):
             worker = _worker_path()
             if worker is None:
@@ -170,18 +187,31 @@ def bake(
     return json.loads(_native.bake("<array>", out, data=data, **kwargs))
 
 
+def _numeric(name: str, value: "npt.ArrayLike") -> "np.ndarray":
+    """``value`` as an array of integers or floats: datetimes, strings, booleans, objects and
+    structured records are refused instead of being converted silently."""
+    import numpy as np
+
+    if value is None:
+        raise ValueError(f"{name} is None; pass numbers (t_max=math.inf runs to the box's exit)")
+    a = np.asarray(value)
+    if a.dtype.kind not in "iuf":
+        raise ValueError(f"{name} must hold integers or floats, got dtype {a.dtype}")
+    return a
+
+
 def _rays(
     origins: "npt.ArrayLike", directions: "npt.ArrayLike", t_max: "npt.ArrayLike"
 ) -> Tuple["np.ndarray", "np.ndarray", "np.ndarray"]:
     import numpy as np
 
-    o = np.ascontiguousarray(origins, dtype=np.float32)
-    d = np.ascontiguousarray(directions, dtype=np.float32)
+    o = np.ascontiguousarray(_numeric("origins", origins), dtype=np.float32)
+    d = np.ascontiguousarray(_numeric("directions", directions), dtype=np.float32)
     if o.ndim != 2 or o.shape[1] != 3:
         raise ValueError(f"origins must have shape (N, 3), got {o.shape}")
     if d.shape != o.shape:
         raise ValueError(f"directions must have the shape of origins {o.shape}, got {d.shape}")
-    t = np.asarray(t_max, dtype=np.float32)
+    t = np.asarray(_numeric("t_max", t_max), dtype=np.float32)
     if t.ndim > 1 or (t.ndim == 1 and t.shape[0] != o.shape[0]):
         raise ValueError(f"t_max must be a number or shape ({o.shape[0]},), got {t.shape}")
     t = np.ascontiguousarray(np.broadcast_to(t, (o.shape[0],)))
@@ -190,7 +220,14 @@ def _rays(
 
 class PinGrid:
     """An open pin grid. ``PinGrid(path)`` memory-maps the file (O(1), no copy);
-    :meth:`from_bytes` copies a file's bytes. Safe to query from many threads at once."""
+    :meth:`from_bytes` copies a file's bytes. Safe to query from many threads at once.
+
+    Only regular files are opened (a FIFO or a device raises :class:`PinError` at once, it
+    is never waited on). A mapped file must not be truncated or rewritten in place while it
+    is open: touching a vanished page raises SIGBUS, which kills the interpreter. Replace pin
+    files atomically (write a new file, then rename it over the old one, as ``pinbake`` and
+    :func:`bake` do): the mapping keeps the old file alive. Where that cannot be ruled out,
+    use ``PinGrid.from_bytes(open(path, "rb").read())``."""
 
     __slots__ = ("_g",)
 

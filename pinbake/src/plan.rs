@@ -1,0 +1,538 @@
+//! `pinbake::plan`: the one front door for a bake that ends in a file.
+//!
+//! A [`BakeRequest`] says what the caller wants (the flags of `pinbake bake`, with its
+//! defaults); [`bake_to_file`] does everything a bake owes its user, in one place, for
+//! every entry point (the `pinbake` binary, Python's `pinrt.bake`, pipelines in Rust):
+//!
+//! 1. the documented ranges of every option ([`BakeRequest::validate`]; a value outside
+//!    them is [`PlanError::Usage`], exit 2 on the command line, `ValueError` in Python);
+//! 2. the output rule: a new path or a regular file that is none of the inputs (an
+//!    [`InputSet`], which for a sequence holds every frame's input), checked before the
+//!    work and again just before the rename;
+//! 3. the memory budget (`max_memory`, default half of the physical memory) before the
+//!    source is opened and again once the bake's size is chosen;
+//! 4. the choice of cells, directions and pins per entry from the volume
+//!    ([`crate::choose`]) for those not given, the metadata and the options;
+//! 5. the bake, the atomic write (a temp file beside the target, removed on SIGINT/SIGTERM)
+//!    and the summary object of `pinbake bake --json` ([`Baked::summary`]).
+//!
+//! What it is not for: baking into memory without a file (`crate::bake` with options from
+//! [`choose`]), or the command-line parsing (the `pinbake` binary).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use pin_format::{Directions, OwnedPinGrid};
+use serde_json::{Value, json};
+
+use crate::bake::{BakeError, BakeOptions, BakeStats, Provenance, Tile};
+use crate::choose::Choice;
+use crate::files::{FileError, InputSet, MemoryBudget, PendingPin};
+use crate::source::{self, DenseGrid, DensitySource, SourceError, SourceSpec};
+
+/// What to bake from.
+pub enum BakeInput {
+    /// A file or procedural field (`source::open_source`).
+    Source(SourceSpec),
+    /// Voxels in memory: `values` x-fastest over `dims`, placed by `spacing` and `origin`
+    /// (the raw-grid convention), before the request's density scale.
+    Array {
+        dims: [u32; 3],
+        values: Vec<f32>,
+        spacing: [f64; 3],
+        origin: [f64; 3],
+    },
+}
+
+impl BakeInput {
+    /// The input's name in messages.
+    fn name(&self) -> String {
+        match self {
+            BakeInput::Source(SourceSpec::Procedural(p)) => format!("procedural:{p}"),
+            BakeInput::Source(spec) => spec_path(spec)
+                .map(|p| p.display().to_string())
+                .unwrap_or_default(),
+            BakeInput::Array { dims, .. } => {
+                format!("array {}x{}x{}", dims[0], dims[1], dims[2])
+            }
+        }
+    }
+
+    /// The file read, if any.
+    pub fn path(&self) -> Option<&Path> {
+        match self {
+            BakeInput::Source(spec) => spec_path(spec),
+            BakeInput::Array { .. } => None,
+        }
+    }
+}
+
+fn spec_path(spec: &SourceSpec) -> Option<&Path> {
+    match spec {
+        SourceSpec::Procedural(_) => None,
+        #[cfg(feature = "vdb")]
+        SourceSpec::Vdb(p, _) => Some(p),
+        #[cfg(not(feature = "vdb"))]
+        SourceSpec::Vdb(p) => Some(p),
+        SourceSpec::Raw(p, _) => Some(p),
+    }
+}
+
+/// The options of a bake, as `pinbake bake`'s flags; `Default` is its defaults.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BakeRequest {
+    /// Spatial cells (chosen from the volume when `None`).
+    pub cells: Option<[u32; 3]>,
+    /// Direction cells (chosen when `None`).
+    pub directions: Option<Directions>,
+    /// Pins per (cell, direction) entry (chosen when `None`).
+    pub pins_per_entry: Option<u32>,
+    /// The predicted 8x8-block error to choose for, a fraction in (0, 1] (the default rule
+    /// when `None`).
+    pub target_error: Option<f64>,
+    /// Ray-marching step relative to the longest box edge, in [1e-5, 1].
+    pub step: f64,
+    pub seed: u64,
+    /// Crop the box to the non-empty region.
+    pub crop: bool,
+    /// Pins through random points of their cells (the thesis' bake) instead of the centres.
+    pub jitter_pins: bool,
+    pub tile: Option<Tile>,
+    /// Majorant bricks per axis, 1..=4096 each; `None` leaves the section out.
+    pub majorant: Option<[u32; 3]>,
+    /// An embedded f16 density of this many voxels, 1..=4096 per axis.
+    pub embed_density: Option<[u32; 3]>,
+    /// Worker threads, 1..=[`crate::limits::max_threads`] (all cores when `None`).
+    pub threads: Option<usize>,
+    /// Density multiplier, finite and >= 0 (recorded in the metadata; a source spec carries
+    /// its own copy, which it applies).
+    pub density_scale: f64,
+    /// The memory budget in bytes (half of the physical memory when `None`).
+    pub max_memory: Option<u64>,
+}
+
+impl Default for BakeRequest {
+    fn default() -> Self {
+        let d = BakeOptions::default();
+        Self {
+            cells: None,
+            directions: None,
+            pins_per_entry: None,
+            target_error: None,
+            step: d.step,
+            seed: d.seed,
+            crop: d.crop,
+            jitter_pins: d.jitter_pins,
+            tile: None,
+            majorant: d.majorant,
+            embed_density: None,
+            threads: None,
+            density_scale: d.density_scale,
+            max_memory: None,
+        }
+    }
+}
+
+/// Why a bake was refused or failed. Messages are one line and name the file.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    /// An option outside its range, or options that contradict each other.
+    #[error("{0}")]
+    Usage(String),
+    #[error(transparent)]
+    File(#[from] FileError),
+    #[error(transparent)]
+    Source(#[from] SourceError),
+    /// The voxels of a [`BakeInput::Array`] are not a density (negative, not finite).
+    #[error("array: {0}")]
+    Array(SourceError),
+    #[error("{input}: {source}")]
+    Bake { input: String, source: BakeError },
+    #[error("{}: {source}", pin_format::input::quoted(.path))]
+    Write {
+        path: PathBuf,
+        source: pin_format::FormatError,
+    },
+}
+
+impl PlanError {
+    /// Whether the error is a refused memory budget or a failed allocation (Python raises
+    /// `MemoryError` for these).
+    pub fn is_memory(&self) -> bool {
+        matches!(
+            self,
+            PlanError::File(FileError::Memory { .. })
+                | PlanError::Bake {
+                    source: BakeError::Memory { .. } | BakeError::Alloc { .. },
+                    ..
+                }
+        )
+    }
+}
+
+fn usage(msg: String) -> PlanError {
+    PlanError::Usage(msg)
+}
+
+impl BakeRequest {
+    /// The documented range of every option (`docs/stability.md`, "Hostile use"): the same
+    /// bounds the command line's parsers apply, so a library or Python caller cannot start
+    /// a bake the command line would refuse (a step of 1e-12 ran for hours).
+    pub fn validate(&self) -> Result<(), PlanError> {
+        use crate::limits;
+        limits::check_rel_step(self.step).map_err(|e| usage(format!("step: {e}")))?;
+        if !(self.density_scale.is_finite() && self.density_scale >= 0.0) {
+            return Err(usage(format!(
+                "density_scale: {} must be finite and >= 0",
+                limits::num(self.density_scale)
+            )));
+        }
+        if let Some(e) = self.target_error
+            && !(e.is_finite() && e > 0.0 && e <= 1.0)
+        {
+            return Err(usage(format!(
+                "target_error: {} must be a fraction in (0, 1]",
+                limits::num(e)
+            )));
+        }
+        let max = pin_format::MAX_PINS_PER_ENTRY;
+        if let Some(k) = self.pins_per_entry
+            && !(1..=max).contains(&k)
+        {
+            return Err(usage(format!("pins_per_entry: {k} is not in 1..={max}")));
+        }
+        if let Some(t) = self.threads
+            && !(1..=limits::max_threads()).contains(&t)
+        {
+            return Err(usage(format!(
+                "threads: {t} is not in 1..={} (64 per core, at most 4096)",
+                limits::max_threads()
+            )));
+        }
+        if let Some(c) = self.cells
+            && c.contains(&0)
+        {
+            return Err(usage(format!(
+                "cells: {c:?}: every count must be at least 1"
+            )));
+        }
+        for (name, v) in [
+            ("majorant", self.majorant),
+            ("embed_density", self.embed_density),
+        ] {
+            if let Some(d) = v
+                && d.iter().any(|&n| !(1..=4096).contains(&n))
+            {
+                return Err(usage(format!(
+                    "{name}: {d:?}: each axis must be in 1..=4096"
+                )));
+            }
+        }
+        if let Some(d) = self.directions {
+            let (k, r) = d.to_desc();
+            Directions::from_desc(k, r).map_err(|e| usage(format!("directions: {e}")))?;
+        }
+        if let Some(t) = self.tile
+            && (t.count == 0 || t.index >= t.count)
+        {
+            return Err(usage(format!(
+                "tile: index {} must be in 0..{}",
+                t.index, t.count
+            )));
+        }
+        if self.target_error.is_some()
+            && self.cells.is_some()
+            && self.directions.is_some()
+            && self.pins_per_entry.is_some()
+        {
+            return Err(usage(
+                "--target-error has nothing to choose: --cells, --dirs and --pins-per-entry are all given"
+                    .into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// Checks the placement of an in-memory or raw grid: the ranges of `--spacing` and
+/// `--origin` ([`crate::limits::check_spacing`], [`crate::limits::check_origin`]).
+fn validate_input(input: &BakeInput) -> Result<(), PlanError> {
+    let placement = match input {
+        BakeInput::Array {
+            dims,
+            values,
+            spacing,
+            origin,
+        } => {
+            let n = dims.iter().map(|&d| d as u64).product::<u64>();
+            if dims.contains(&0) || n != values.len() as u64 {
+                return Err(usage(format!(
+                    "array: {} values do not fill {}x{}x{} voxels",
+                    values.len(),
+                    dims[0],
+                    dims[1],
+                    dims[2]
+                )));
+            }
+            Some((*spacing, *origin))
+        }
+        BakeInput::Source(SourceSpec::Raw(_, o)) => Some((o.spacing, o.origin)),
+        BakeInput::Source(_) => None,
+    };
+    if let Some((spacing, origin)) = placement {
+        crate::limits::check_spacing(spacing).map_err(|e| usage(format!("spacing: {e}")))?;
+        crate::limits::check_origin(origin).map_err(|e| usage(format!("origin: {e}")))?;
+    }
+    Ok(())
+}
+
+/// What a bake reports while it runs: the pin count once it is known, then progress.
+pub trait Progress: Sync {
+    fn start(&self, _total_pins: u64) {}
+    fn advance(&self, _pins: u64) {}
+}
+
+/// No progress report.
+impl Progress for () {}
+
+/// A finished bake to a file.
+pub struct Baked {
+    pub grid: OwnedPinGrid,
+    pub stats: BakeStats,
+    pub choice: Choice,
+    /// The path written: the output, or the file an output symlink points to.
+    pub written: PathBuf,
+    /// The output as the caller named it.
+    pub output: PathBuf,
+    pub file_bytes: u64,
+    /// Wall time from the start of the bake (after the source was opened and the bake
+    /// chosen) to the end of the write.
+    pub seconds: f64,
+}
+
+impl Baked {
+    /// The summary object of `pinbake bake --json` (`crate::summary` plus the bake's times,
+    /// its output and its `choice`).
+    pub fn summary(&self) -> Value {
+        let mut v = crate::summary::summary_json(&self.grid, self.file_bytes);
+        v["seconds"] = json!(self.seconds);
+        v["bake_seconds"] = json!(self.stats.seconds);
+        v["pins_per_s"] = json!(self.stats.pins_per_s);
+        v["output"] = json!(self.output.display().to_string());
+        v["choice"] = crate::summary::choice_json(&self.choice, self.file_bytes);
+        v
+    }
+}
+
+/// Hex xxh3-128 of a file, streamed (a large volume is not read twice into memory): the
+/// metadata's source hash.
+pub fn hash_file(path: &Path) -> Result<String, FileError> {
+    use std::io::Read;
+    let (mut f, _) = crate::files::open_input(path)?;
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f.read(&mut buf).map_err(|err| FileError::Io {
+            path: path.to_path_buf(),
+            err,
+        })?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(format!("{:032x}", h.digest128()))
+}
+
+/// The cells, directions and pins per entry of a bake of `source`: those `req` gives, the
+/// rest chosen from the volume ([`crate::choose`]).
+pub fn choose(source: &dyn DensitySource, req: &BakeRequest) -> Result<Choice, BakeError> {
+    let stats = crate::choose::analyse(source, req.crop)?;
+    let fixed = crate::choose::Fixed {
+        cells: req.cells,
+        directions: req.directions,
+        pins_per_entry: req.pins_per_entry,
+    };
+    Ok(match req.target_error {
+        Some(e) => crate::choose::choose(&stats, fixed, e),
+        None => crate::choose::choose_default(&stats, fixed),
+    })
+}
+
+/// The bake options of `choice` for `req`, with `metadata` (from [`crate::bake::bake_metadata`]
+/// or default).
+pub fn options(req: &BakeRequest, choice: &Choice, metadata: pin_format::Metadata) -> BakeOptions {
+    BakeOptions {
+        cells: choice.cells,
+        directions: choice.directions,
+        pins_per_entry: choice.pins_per_entry,
+        step: req.step,
+        seed: req.seed,
+        crop: req.crop,
+        jitter_pins: req.jitter_pins,
+        tile: req.tile,
+        majorant: req.majorant,
+        embed_density: req.embed_density,
+        threads: req.threads,
+        density_scale: req.density_scale,
+        metadata,
+        dense_copy_bytes: crate::bake::DEFAULT_DENSE_COPY_BYTES,
+    }
+}
+
+/// Bakes `input` into the file `output` under every rule of the module docs. `inputs` are
+/// the files `output` must not be; the input itself is added to them here.
+pub fn bake_to_file(
+    input: BakeInput,
+    output: &Path,
+    req: &BakeRequest,
+    inputs: &InputSet,
+    progress: &dyn Progress,
+) -> Result<Baked, PlanError> {
+    req.validate()?;
+    validate_input(&input)?;
+    let name = input.name();
+    let own = match input.path() {
+        Some(p) => InputSet::of(&[p])?,
+        None => InputSet::default(),
+    };
+    // Before the bake, not after it: minutes of work for a refused path help nobody.
+    inputs.check_output(output)?;
+    own.check_output(output)?;
+    let budget = MemoryBudget::new(req.max_memory);
+    let probe = BakeOptions {
+        // Before the source is open: the default's upper bound.
+        cells: req.cells.unwrap_or([crate::bake::DEFAULT_MAX_CELLS; 3]),
+        directions: req.directions.unwrap_or(crate::bake::DEFAULT_DIRECTIONS),
+        pins_per_entry: req.pins_per_entry.unwrap_or(1),
+        majorant: req.majorant,
+        embed_density: req.embed_density,
+        ..BakeOptions::default()
+    };
+    let input_bytes = match &input {
+        // f32 voxels in memory: up to 4x the file for 8-bit input; a VDB's leaves and the
+        // worker's copy up to 8x its compressed file.
+        BakeInput::Source(spec) => match spec_path(spec) {
+            None => 0,
+            Some(p) => {
+                let len = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
+                let factor = if matches!(spec, SourceSpec::Raw(..)) {
+                    4
+                } else {
+                    8
+                };
+                len.saturating_mul(factor)
+            }
+        },
+        // Already in memory; the grid takes it over without a copy.
+        BakeInput::Array { .. } => 0,
+    };
+    let what = format!("baking {name}");
+    let need = crate::bake::estimate_output_bytes(&probe).saturating_add(input_bytes);
+    budget.check(&what, need)?;
+    // The temp file beside the target exists from here on, registered for removal on
+    // SIGINT/SIGTERM; a stale one of an earlier killed bake is swept away by its creation.
+    let pending = PendingPin::create(output).map_err(|source| PlanError::Write {
+        path: output.to_path_buf(),
+        source,
+    })?;
+    let bake_err = |source| PlanError::Bake {
+        input: name.clone(),
+        source,
+    };
+    let (source, provenance_name, hash): (Box<dyn DensitySource>, String, String) = match input {
+        BakeInput::Source(spec) => {
+            let (n, h) = match &spec {
+                SourceSpec::Procedural(p) => (format!("procedural:{p}"), String::new()),
+                other => {
+                    let p = spec_path(other).unwrap_or(Path::new(""));
+                    (file_name(p), hash_file(p)?)
+                }
+            };
+            (source::open_source(&spec)?, n, h)
+        }
+        BakeInput::Array {
+            dims,
+            mut values,
+            spacing,
+            origin,
+        } => {
+            let scale = req.density_scale as f32;
+            if scale != 1.0 {
+                values.iter_mut().for_each(|v| *v *= scale);
+            }
+            let g = DenseGrid::new(
+                dims,
+                values,
+                spacing.into(),
+                origin.into(),
+                format!("NumPy array {}x{}x{}", dims[0], dims[1], dims[2]),
+            )
+            .map_err(PlanError::Array)?;
+            (Box::new(g), "<array>".into(), String::new())
+        }
+    };
+    let choice = choose(source.as_ref(), req).map_err(bake_err)?;
+    let metadata = crate::bake::bake_metadata(
+        source.as_ref(),
+        Provenance {
+            source_name: provenance_name,
+            source_hash: hash,
+            seed: req.seed,
+            step: req.step,
+            density_scale: req.density_scale,
+            crop: req.crop,
+        },
+        choice.cells,
+        choice.directions,
+    );
+    let mut opts = options(req, &choice, metadata);
+    // The check above assumed the default's size; a chosen bake may be larger, and a large
+    // dense grid is marched by layers with a batch of per-pin state beside it.
+    let need = crate::bake::estimate_output_bytes(&opts)
+        .saturating_add(input_bytes)
+        .saturating_add(crate::bake::estimate_working_bytes(&opts));
+    budget.check(&what, need)?;
+    // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
+    opts.dense_copy_bytes = budget.limit.saturating_sub(need);
+
+    progress.start(crate::bake::pin_count(&opts));
+    let started = Instant::now();
+    let advance = |n: u64| progress.advance(n);
+    let (grid, stats) = crate::bake(source.as_ref(), &opts, &advance).map_err(bake_err)?;
+    // Checked again just before the rename: the path may have been replaced during the bake.
+    let target = inputs.check_output(output)?;
+    own.check_output(output)?;
+    let write_err = |source| PlanError::Write {
+        path: output.to_path_buf(),
+        source,
+    };
+    if target != output {
+        // A symlink to a regular file: the file it points to is replaced, the link stays.
+        drop(pending);
+        crate::files::write_pin_atomic(&grid, &target).map_err(write_err)?;
+    } else {
+        pending.write(&grid).map_err(write_err)?;
+    }
+    let file_bytes = std::fs::metadata(&target)
+        .map_err(|err| FileError::Io {
+            path: output.to_path_buf(),
+            err,
+        })?
+        .len();
+    Ok(Baked {
+        grid,
+        stats,
+        choice,
+        written: target,
+        output: output.to_path_buf(),
+        file_bytes,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
