@@ -877,6 +877,28 @@ impl<F: DensityField + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
             None => 0.0,
         }
     }
+    /// Ratio tracking's one walk (`Tracker::ratio_and_delta`), not the residual one: where
+    /// the path tracer asks both along one ray, the path scores `env T` and then continues
+    /// from the collision, and ratio tracking's transmittance from the same tentative
+    /// collisions as the collision is correlated with it (near `1 - collided` in a dense
+    /// medium), which cancels most of the variance of the sum; the residual estimate,
+    /// independent of the collision, lowered the transmittance's variance but raised the
+    /// sum's.
+    fn transmittance_and_distance(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        match prepare(o, d, t_max) {
+            Some(r) => {
+                let (t, hit) = self.tracker.ratio_and_delta(&r, rng);
+                (t, hit.map(|h| r.to_t(h, t_max)))
+            }
+            None => (1.0, None),
+        }
+    }
     fn name(&self) -> String {
         let control = self.control.map_or("given", ResidualControl::name);
         format!(

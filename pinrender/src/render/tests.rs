@@ -1301,3 +1301,23 @@ fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
         assert!(z.iter().all(|&z| z < 5.0), "{}: {z:?}", est.name());
     }
 }
+
+/// Where both queries run along one ray, residual ratio tracking answers with ratio
+/// tracking's one walk (transmittance correlated with the collision), draw for draw.
+#[test]
+fn residual_pairs_are_ratio_trackings_one_walk() {
+    let g: Arc<dyn DensityField> = Arc::new(contrast_grid());
+    let maj = Arc::new(MajorantGrid::from_field(&*g, [4, 3, 3]).unwrap());
+    let ratio = RatioTracking::new(g.clone(), maj.clone());
+    for est in residual_both(g, &maj) {
+        let (mut a, mut b) = (Pcg32::new(4, 1), Pcg32::new(4, 1));
+        for (o, d, t_max, _) in cube_rays(|_, _, _| 0.0) {
+            for _ in 0..200 {
+                assert_eq!(
+                    est.transmittance_and_distance(o, d, t_max, &mut a),
+                    ratio.transmittance_and_distance(o, d, t_max, &mut b)
+                );
+            }
+        }
+    }
+}
