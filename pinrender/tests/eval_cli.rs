@@ -514,8 +514,9 @@ fn render_compares_with_a_reference() {
 /// `pinrender bench --json` on a tiny CPU run: every row carries `volume, method, query,
 /// backend, queries_per_s, cpu_queries_per_s`; every transmittance row its mean absolute error against the
 /// converged march; the strongest no-bake estimators (`urm`, `jackknife`) and the trackers
-/// (`ratio`, `delta`, transmittance and distance) sit beside pins (single and batched) and
-/// ray marching on the same rays.
+/// (`ratio`, `residual`, `residual@min`, `delta`, transmittance and distance) sit beside pins
+/// (single and batched) and ray marching on the same rays; the ratio-tracking family's
+/// transmittance rows carry their variance per lookup.
 #[test]
 fn bench_json_rows_have_rates_and_errors() {
     let o = Command::new(env!("CARGO_BIN_EXE_pinrender"))
@@ -548,6 +549,19 @@ fn bench_json_rows_have_rates_and_errors() {
             let e = r["mean_abs_error"].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&e), "{r}");
         }
+        let method = r["method"].as_str().unwrap();
+        if ["ratio", "residual", "residual@min"].contains(&method) && r["query"] == "transmittance"
+        {
+            for key in [
+                "per_ray_variance",
+                "lookups_per_query",
+                "variance_x_lookups",
+            ] {
+                let v = r[key].as_f64().unwrap();
+                assert!(v.is_finite() && v >= 0.0, "{key} in {r}");
+            }
+            assert!(r["variance_rays"].as_u64().unwrap() > 0, "{r}");
+        }
         // Pin rows name the bake they measured and its size.
         if r["method"].as_str().unwrap().starts_with("pins") {
             assert!(r["bake"].as_str().unwrap().contains(" x "), "{r}");
@@ -578,6 +592,10 @@ fn bench_json_rows_have_rates_and_errors() {
         "pins-render-batched/distance",
         "ratio/transmittance",
         "ratio/distance",
+        "residual/transmittance",
+        "residual/distance",
+        "residual@min/transmittance",
+        "residual@min/distance",
         "delta/transmittance",
         "delta/distance",
         "rm@0.015/transmittance",

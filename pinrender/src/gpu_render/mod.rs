@@ -200,7 +200,8 @@ struct RtParams {
 }
 
 /// The transport estimator of a GPU render: the renderer's one [`EstimatorSpec`] (the CPU's
-/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`).
+/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`; `residual` is
+/// CPU only, which [`GpuEstimator::parse`] and a render say).
 ///
 /// [`EstimatorSpec`]: crate::render::EstimatorSpec
 pub type GpuEstimator = crate::render::EstimatorSpec;
@@ -215,11 +216,11 @@ const EST_JACKKNIFE: u32 = 5;
 
 impl GpuEstimator {
     /// Parses the names the CLI and the evaluation use ([`EstimatorSpec`]'s `FromStr`;
-    /// `None` for a bad name or parameter).
+    /// `None` for a bad name or parameter, or an estimator the GPU does not have).
     ///
     /// [`EstimatorSpec`]: crate::render::EstimatorSpec
     pub fn parse(name: &str) -> Option<Self> {
-        name.parse().ok()
+        name.parse().ok().filter(|e: &Self| e.kinds().is_ok())
     }
 
     /// The name [`GpuEstimator::parse`] reads.
@@ -227,9 +228,10 @@ impl GpuEstimator {
         self.to_string()
     }
 
-    /// (primary, secondary) codes.
-    fn kinds(self) -> (u32, u32) {
-        match self {
+    /// (primary, secondary) codes; an error for an estimator that `render.wgsl` does not
+    /// have.
+    fn kinds(self) -> Result<(u32, u32), RenderError> {
+        Ok(match self {
             Self::RayMarching { .. } => (EST_MARCH, EST_MARCH),
             Self::DeltaTracking => (EST_DELTA, EST_DELTA),
             Self::RatioTracking => (EST_RATIO, EST_RATIO),
@@ -237,7 +239,13 @@ impl GpuEstimator {
             Self::Jackknife { .. } => (EST_JACKKNIFE, EST_JACKKNIFE),
             Self::Pins => (EST_PINS, EST_PINS),
             Self::PinMs => (EST_RATIO, EST_PINS),
-        }
+            Self::ResidualRatioTracking { .. } => {
+                return Err(RenderError::Invalid {
+                    what: "estimator",
+                    why: format!("{self} runs on the CPU path tracer only (--backend cpu)"),
+                });
+            }
+        })
     }
 
     /// `RP.material.z`: the march step, or a comb's spacing, relative to the longest edge.
@@ -261,20 +269,15 @@ impl GpuEstimator {
 
     /// What every medium must have for this estimator.
     fn needs(self) -> media::Caps {
-        let (p, s) = self.kinds();
-        let any = |code: u32| p == code || s == code;
         media::Caps {
-            pins: any(EST_PINS),
-            density: any(EST_MARCH)
-                || any(EST_DELTA)
-                || any(EST_RATIO)
-                || any(EST_URM)
-                || any(EST_JACKKNIFE),
-            majorants: any(EST_DELTA) || any(EST_RATIO) || any(EST_URM) || any(EST_JACKKNIFE),
+            pins: self.needs_pins(),
+            density: self.needs_density(),
+            majorants: self.needs_majorants(),
         }
     }
 
     fn validate(self) -> Result<(), RenderError> {
+        self.kinds()?;
         if let Self::RayMarching { rel_step } = self
             && !(rel_step > 0.0 && rel_step <= 1.0)
         {
@@ -609,8 +612,9 @@ impl GpuRenderer {
         let media = u32::try_from(self.caps.len())
             .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
         let params = scene.params(seed, estimator, media);
+        let kinds = estimator.kinds()?;
         Ok(pollster::block_on(async {
-            let pipeline = self.pipeline(estimator.kinds()).await?;
+            let pipeline = self.pipeline(kinds).await?;
             self.run(&pipeline, &params, gx, gy, spp, accum_size, w, h)
                 .await
         })?)

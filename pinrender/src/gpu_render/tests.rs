@@ -576,6 +576,9 @@ impl MultiScene {
                         Medium::single(Arc::new(crate::render::DeltaTracking::new(f, maj)))
                     }
                     GpuEstimator::RatioTracking => Medium::single(ratio),
+                    GpuEstimator::ResidualRatioTracking { control } => Medium::single(Arc::new(
+                        crate::render::ResidualRatioTracking::new(f, maj, control).unwrap(),
+                    )),
                     GpuEstimator::Pins => Medium::single(self.samplers[k].clone()),
                     GpuEstimator::PinMs => Medium::new(ratio, self.samplers[k].clone()),
                     GpuEstimator::Urm { lookups } => {

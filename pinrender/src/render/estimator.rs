@@ -2,7 +2,7 @@
 
 use super::RenderError;
 use super::field::{DenseView, DensityField};
-use super::majorant::{MajorantGrid, check_box, clip_box};
+use super::majorant::{MajorantGrid, Segment, check_box, clip_box};
 use super::rng::Pcg32;
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
@@ -361,12 +361,27 @@ impl<F: DensityField + ?Sized> Tracker<F> {
         rng: &mut Pcg32,
         visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
     ) -> Walk<R> {
+        let segments = self.majorants.segments(r.o, r.d, 0.0, r.t_max);
+        self.walk_segments(segments, r, rng, visit)
+    }
+
+    /// [`Tracker::walk`] over other segments of the ray than its own majorant grid's, in
+    /// order along the ray, each segment's `majorant` the rate of its tentative collisions
+    /// (residual ratio tracking walks the residual majorants of a grid of the same bricks).
+    #[inline]
+    fn walk_segments<R>(
+        &self,
+        segments: impl Iterator<Item = Segment>,
+        r: &Prepared,
+        rng: &mut Pcg32,
+        visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
+    ) -> Walk<R> {
         if self.dense
             && let Some(view) = self.field.dense_view()
         {
-            return self.walk_with(r, rng, DenseLookup::new(view, r), visit);
+            return self.walk_with(segments, r, rng, DenseLookup::new(view, r), visit);
         }
-        self.walk_with(r, rng, PointLookup(&*self.field), visit)
+        self.walk_with(segments, r, rng, PointLookup(&*self.field), visit)
     }
 
     /// The majorant-stepping loop: exponential steps at each brick segment's majorant (a
@@ -378,6 +393,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
     #[inline(always)]
     fn walk_with<R, L: Lookup>(
         &self,
+        segments: impl Iterator<Item = Segment>,
         r: &Prepared,
         rng: &mut Pcg32,
         mut lookup: L,
@@ -388,7 +404,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
         // boundaries (equivalent to resampling there, by memorylessness, but one logarithm
         // per tentative collision instead of one per brick).
         let mut tau = rng.next_exp();
-        for seg in self.majorants.segments(r.o, r.d, 0.0, r.t_max) {
+        for seg in segments {
             if !(seg.majorant > 0.0) {
                 continue;
             }
@@ -594,6 +610,305 @@ impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
     /// The majorant grid's box: tracking is clipped to it.
     fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
         Some(self.0.majorants.bounds())
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Residual ratio tracking (transmittance), delta tracking (distances)
+// ---------------------------------------------------------------------------------------
+
+/// The control extinction per brick of [`ResidualRatioTracking`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ResidualControl {
+    /// The least extinction in the brick ([`DensityField::min_extinction`], exact for voxel
+    /// grids: the least of the voxels that the trilinear field reads there), so that the
+    /// residual is never negative; fields without an exact minimum take the least of a
+    /// lattice of points spanning the brick.
+    Min,
+    /// The mean extinction over the brick (midpoint lattice of 8^3 points), the control that
+    /// minimises the integral of the squared residual over the brick; the residual majorant
+    /// then bounds the residual on both sides (`max(majorant - control, control - min)`).
+    Mean,
+}
+
+impl ResidualControl {
+    /// The name `residual@NAME` parses.
+    pub fn name(self) -> &'static str {
+        match self {
+            ResidualControl::Min => "min",
+            ResidualControl::Mean => "mean",
+        }
+    }
+}
+
+/// Residual ratio tracking (Novák, Selle and Jarosz 2014) for transmittance, delta
+/// tracking over the full majorants for distances.
+///
+/// Each brick of the majorant grid has a constant control extinction `c` and a residual
+/// majorant `m_r`. Writing `sigma = c + (sigma - c)`, `exp(-tau) = exp(-int c) exp(-int
+/// (sigma - c))`: the first factor is exact (a sum over the bricks the ray crosses, in the
+/// one majorant walk), and the second is ratio tracking of the residual `sigma - c` against
+/// `m_r`: the product of `1 - (sigma - c) / m_r` over tentative collisions at rate `m_r`.
+/// For a Poisson process of rate `m_r`, `E[prod (1 - f(t_i) / m_r)] = exp(-int f)` for any
+/// bounded `f` of either sign, so the estimator is unbiased for any control; its relative
+/// variance is `exp(int (sigma - c)^2 / m_r) - 1` (same expectation formula for the
+/// squared product) at `int m_r` lookups, which is what the control shrinks. Bricks whose
+/// residual majorant is 0 (homogeneous or empty) cost no lookups at all.
+///
+/// Russian roulette acts on the whole weight `exp(-int_0^t c) x residual weight` below 0.1,
+/// as ratio tracking's does on its weight, so that a query stops once a dense control has
+/// made the transmittance small, not only once the residual has.
+pub struct ResidualRatioTracking<F: ?Sized = dyn DensityField> {
+    /// The field and the full majorants (delta tracking for distances).
+    tracker: Tracker<F>,
+    /// The residual majorants, over the same bricks as the tracker's grid.
+    residual: MajorantGrid,
+    /// The control extinction per brick, laid out as the grids' values.
+    controls: Vec<f32>,
+    /// What the controls are (for the name); `None` when given by the caller.
+    control: Option<ResidualControl>,
+}
+
+/// The control and residual majorant of every brick of `majorants` over `field`.
+fn residual_controls<F: DensityField + ?Sized>(
+    field: &F,
+    majorants: &MajorantGrid,
+    control: ResidualControl,
+) -> (Vec<f32>, Vec<f32>) {
+    let dims = majorants.dims();
+    let n = majorants.values().len();
+    let (mut controls, mut residual) = (Vec::with_capacity(n), Vec::with_capacity(n));
+    let mut k = 0;
+    for z in 0..dims[2] {
+        for y in 0..dims[1] {
+            for x in 0..dims[0] {
+                let maj = majorants.values()[k];
+                k += 1;
+                let (lo, hi) = majorants.brick_bounds([x, y, z]);
+                // A point `f` (per axis, in [0, 1]) of the brick, as an f32 world point.
+                let at = |f: [f64; 3]| {
+                    let p = [0, 1, 2].map(|a| (lo[a] + (hi[a] - lo[a]) * f[a]) as f32);
+                    clean(field.extinction(Vec3::from_array(p)))
+                };
+                let least = field.min_extinction(lo, hi).map_or_else(
+                    || {
+                        const K: u32 = 5;
+                        (0..K * K * K)
+                            .map(|c| {
+                                let i = [c % K, (c / K) % K, c / (K * K)];
+                                at(i.map(|v| v as f64 / (K - 1) as f64))
+                            })
+                            .fold(f64::INFINITY, f64::min)
+                    },
+                    clean,
+                );
+                let c = match control {
+                    ResidualControl::Min => least,
+                    ResidualControl::Mean => {
+                        const K: u32 = 8;
+                        let sum: f64 = (0..K * K * K)
+                            .map(|c| {
+                                let i = [c % K, (c / K) % K, c / (K * K)];
+                                at(i.map(|v| (v as f64 + 0.5) / K as f64))
+                            })
+                            .sum();
+                        sum / (K * K * K) as f64
+                    }
+                };
+                // Never above the brick's majorant (ratio tracking skips a brick of majorant
+                // 0, so this one does too), and finite: an opaque brick's control is
+                // f32::MAX, whose depth over any length gives transmittance 0.
+                let c = (c.min(maj as f64) as f32).min(f32::MAX);
+                let below = (c as f64 - least.min(c as f64)) as f32;
+                controls.push(c);
+                residual.push((maj - c).max(below).max(0.0));
+            }
+        }
+    }
+    (controls, residual)
+}
+
+impl<F: DensityField + ?Sized> ResidualRatioTracking<F> {
+    /// Controls of kind `control` per brick of `majorants`, computed here from the field
+    /// alone (a load-time pass over the bricks).
+    pub fn new(
+        field: Arc<F>,
+        majorants: Arc<MajorantGrid>,
+        control: ResidualControl,
+    ) -> Result<Self, RenderError> {
+        let (controls, residual) = residual_controls(&*field, &majorants, control);
+        let mut est = Self::with_controls(field, majorants, controls, residual)?;
+        est.control = Some(control);
+        Ok(est)
+    }
+
+    /// Given controls and residual majorants per brick of `majorants` (its layout; finite
+    /// and `>= 0`). Any controls give an unbiased estimator; they only set its variance.
+    pub fn with_controls(
+        field: Arc<F>,
+        majorants: Arc<MajorantGrid>,
+        controls: Vec<f32>,
+        residual: Vec<f32>,
+    ) -> Result<Self, RenderError> {
+        let (lo, hi) = majorants.bounds();
+        if controls.len() != majorants.values().len()
+            || controls.iter().any(|c| !(c.is_finite() && *c >= 0.0))
+        {
+            return Err(RenderError::Invalid {
+                what: "residual controls",
+                why: format!(
+                    "need {} finite values >= 0, one per majorant brick",
+                    majorants.values().len()
+                ),
+            });
+        }
+        let residual = MajorantGrid::from_parts(lo, hi, majorants.dims(), residual)?;
+        Ok(ResidualRatioTracking {
+            tracker: Tracker::new(field, majorants),
+            residual,
+            controls,
+            control: None,
+        })
+    }
+
+    /// The controls and residual majorants per brick (the grids' layout).
+    pub fn controls(&self) -> (&[f32], &[f32]) {
+        (&self.controls, self.residual.values())
+    }
+
+    #[inline(always)]
+    fn control_of(&self, brick: [u32; 3]) -> f64 {
+        let d = self.residual.dims();
+        let i = brick[0] as usize
+            + d[0] as usize * (brick[1] as usize + d[1] as usize * brick[2] as usize);
+        self.controls[i] as f64
+    }
+
+    /// The control's optical depth over the ray's segment, alone.
+    fn control_depth(&self, r: &Prepared) -> f64 {
+        self.residual
+            .segments(r.o, r.d, 0.0, r.t_max)
+            .map(|seg| self.control_of(seg.brick) * (seg.t1 - seg.t0).max(0.0))
+            .sum()
+    }
+
+    /// One walk over the residual majorants: `(control depth, residual weight)` whose
+    /// product `exp(-depth) weight` is the estimate, or `None` when the walk ended in
+    /// transmittance 0 (roulette, or an opaque extinction).
+    #[inline]
+    pub(crate) fn residual_walk(&self, r: &Prepared, rng: &mut Pcg32) -> Option<(f64, f64)> {
+        // The segment being walked: its control, and `tau_c(t) = offset + control t` inside
+        // it; `depth` is the control depth to the end of the segments pulled so far. Cells:
+        // the segment stream sets them and the tentative collisions read them.
+        let control = std::cell::Cell::new(0.0f64);
+        let offset = std::cell::Cell::new(0.0f64);
+        let depth = std::cell::Cell::new(0.0f64);
+        let segments = self
+            .residual
+            .segments(r.o, r.d, 0.0, r.t_max)
+            .inspect(|seg| {
+                let c = self.control_of(seg.brick);
+                let before = depth.get();
+                control.set(c);
+                offset.set(before - c * seg.t0);
+                depth.set(before + c * (seg.t1 - seg.t0).max(0.0));
+            });
+        let mut tr = 1.0f64;
+        let walk = self
+            .tracker
+            .walk_segments(segments, r, rng, |t, sigma, _, inv, rng| {
+                let c = control.get();
+                residual_step(&mut tr, sigma - c, inv, offset.get() + c * t, rng)
+            });
+        match walk {
+            Walk::Stopped(()) => None,
+            Walk::Passed => Some((depth.get(), tr)),
+            // The walk stopped before the end: the rest of the control depth by itself.
+            Walk::StepLimit => Some((self.control_depth(r), tr)),
+        }
+    }
+}
+
+/// One tentative collision of residual ratio tracking: the weight `tr` times `1 - residual
+/// / residual majorant` (`residual` may be negative, with a control above the extinction;
+/// that keeps the expectation, so it is not clamped); `Some(())` ends the query with
+/// transmittance 0 (an opaque extinction, or Russian roulette, which below a whole weight
+/// `|exp(-control_depth) tr|` of 0.1 keeps the weight with probability `whole / 0.1` and
+/// divides it by that).
+#[inline(always)]
+fn residual_step(
+    tr: &mut f64,
+    residual: f64,
+    inv: f64,
+    control_depth: f64,
+    rng: &mut Pcg32,
+) -> Option<()> {
+    const RR: f64 = 0.1;
+    *tr *= 1.0 - residual * inv;
+    if *tr == 0.0 || !tr.is_finite() {
+        return Some(());
+    }
+    let whole = tr.abs() * (-control_depth).exp();
+    if whole < RR {
+        let p = whole / RR;
+        if rng.next_f64() >= p {
+            return Some(());
+        }
+        *tr /= p;
+    }
+    None
+}
+
+impl<F: DensityField + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        let r = prepare(o, d, t_max)?;
+        self.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        let Some(r) = prepare(o, d, t_max) else {
+            return 1.0;
+        };
+        match self.residual_walk(&r, rng) {
+            Some((depth, tr)) => {
+                let t = (-depth).exp() * tr;
+                // 0 x inf (a roulette survivor's huge weight past an opaque control) is 0.
+                if t.is_finite() { t as f32 } else { 0.0 }
+            }
+            None => 0.0,
+        }
+    }
+    /// Ratio tracking's one walk (`Tracker::ratio_and_delta`), not the residual one: where
+    /// the path tracer asks both along one ray, the path scores `env T` and then continues
+    /// from the collision, and ratio tracking's transmittance from the same tentative
+    /// collisions as the collision is correlated with it (near `1 - collided` in a dense
+    /// medium), which cancels most of the variance of the sum; the residual estimate,
+    /// independent of the collision, lowered the transmittance's variance but raised the
+    /// sum's.
+    fn transmittance_and_distance(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        match prepare(o, d, t_max) {
+            Some(r) => {
+                let (t, hit) = self.tracker.ratio_and_delta(&r, rng);
+                (t, hit.map(|h| r.to_t(h, t_max)))
+            }
+            None => (1.0, None),
+        }
+    }
+    fn name(&self) -> String {
+        let control = self.control.map_or("given", ResidualControl::name);
+        format!(
+            "residual-ratio-tracking@{control}({})",
+            self.tracker.dims_label()
+        )
+    }
+    /// The majorant grid's box: tracking is clipped to it.
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some(self.tracker.majorants.bounds())
     }
 }
 

@@ -24,6 +24,18 @@ pub trait DensityField: Send + Sync {
         let _ = (lo, hi);
         None
     }
+    /// An exact lower bound of the extinction over the closed box `[lo, hi]`, if the field
+    /// can give one cheaply (residual ratio tracking's control; see
+    /// [`crate::render::ResidualRatioTracking`]). The default: 0 where the box reaches
+    /// outside [`Self::bounds`] (the extinction is 0 there), else through the
+    /// [`Self::dense_view`] if there is one ([`DenseView::min_over`]), else `None`.
+    fn min_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        let (flo, fhi) = self.bounds();
+        if !(0..3).all(|a| lo[a] >= flo[a] && hi[a] <= fhi[a]) {
+            return Some(0.0);
+        }
+        self.dense_view().map(|v| v.min_over(lo, hi))
+    }
     /// The field as a dense voxel array, when it is one: inside [`Self::bounds`],
     /// `extinction(p)` must equal [`DenseView::at`] of [`DenseView::index`]`(p)` up to the
     /// rounding of the index to f32. The trackers then step through the array in f32 index
@@ -129,6 +141,37 @@ impl<'a> DenseView<'a> {
         (i[0] + i[1] * m.stride[0] + i[2] * m.stride[1], f)
     }
 
+    /// The minimum of [`Self::at`] over the world box `[lo, hi]`: the trilinear value at any
+    /// point is a convex combination of the (up to 8) voxels around the point, so the least
+    /// of the voxels whose centre cells touch the box is exact (as
+    /// [`VoxelGrid::max_extinction`] is for the maximum). Only the voxels of the box's own
+    /// cells would miss the neighbours that the interpolation near its faces reads, and
+    /// could exceed the field there. Negative and NaN values count as 0, as [`Self::at`]
+    /// reads them.
+    pub fn min_over(&self, lo: [f64; 3], hi: [f64; 3]) -> f32 {
+        let m = &self.map;
+        let (u0, u1) = (self.index(lo), self.index(hi));
+        let mut r0 = [0usize; 3];
+        let mut r1 = [0usize; 3];
+        for a in 0..3 {
+            let top = m.top[a] as f64;
+            // `max` before `min`: a NaN bound reads as index 0, as in `cell`.
+            let (a0, a1) = (u0[a].max(0.0).min(top), u1[a].max(0.0).min(top));
+            r0[a] = a0 as usize;
+            r1[a] = (a1 as usize + 1).min(m.top[a] as usize);
+        }
+        let mut least = f32::INFINITY;
+        for z in r0[2]..=r1[2] {
+            for y in r0[1]..=r1[1] {
+                let row = y * m.stride[0] + z * m.stride[1];
+                for &v in &self.data[row + r0[0]..=row + r1[0]] {
+                    least = least.min(if v > 0.0 { v } else { 0.0 });
+                }
+            }
+        }
+        least
+    }
+
     /// The trilinear value at continuous index `u`, clamped to the grid (NaN reads as index
     /// 0). No libm `floor`: after the clamp the index is non-negative, so `as usize`
     /// truncates to the floor.
@@ -185,6 +228,11 @@ impl DensityField for HomogeneousBox {
         } else {
             0.0
         })
+    }
+    /// `sigma_t` where `[lo, hi]` lies inside the box, 0 where it reaches outside.
+    fn min_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        let inside = (0..3).all(|a| lo[a] >= self.min[a] && hi[a] <= self.max[a]);
+        Some(if inside { self.sigma_t.max(0.0) } else { 0.0 })
     }
 }
 

@@ -96,20 +96,11 @@ impl MajorantGrid {
         if n == 0 || n > (1 << 30) {
             return Err(invalid(format!("dims {dims:?}: need 1 ..= 2^30 bricks")));
         }
-        let size = [0, 1, 2].map(|a| (hi[a] - lo[a]) / dims[a] as f64);
         let mut values = Vec::with_capacity(n as usize);
         for z in 0..dims[2] {
             for y in 0..dims[1] {
                 for x in 0..dims[0] {
-                    let i = [x, y, z];
-                    let blo = [0, 1, 2].map(|a| lo[a] + i[a] as f64 * size[a]);
-                    let bhi = [0, 1, 2].map(|a| {
-                        if i[a] + 1 == dims[a] {
-                            hi[a]
-                        } else {
-                            lo[a] + (i[a] + 1) as f64 * size[a]
-                        }
-                    });
+                    let (blo, bhi) = brick_box(&lo, &hi, dims, [x, y, z]);
                     let m = match field.max_extinction(blo, bhi) {
                         Some(m) => m,
                         None => {
@@ -140,6 +131,11 @@ impl MajorantGrid {
     pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
         (self.lo, self.hi)
     }
+    /// The closed world box of brick `i` (the last brick on an axis ends exactly at the
+    /// grid's face).
+    pub fn brick_bounds(&self, i: [u32; 3]) -> ([f64; 3], [f64; 3]) {
+        brick_box(&self.lo, &self.hi, self.dims, i)
+    }
     pub fn dims(&self) -> [u32; 3] {
         self.dims
     }
@@ -162,6 +158,20 @@ impl MajorantGrid {
     pub fn segments(&self, o: DVec3, d: DVec3, t_min: f64, t_max: f64) -> Dda<'_> {
         Dda::new(self, o, d, t_min, t_max)
     }
+}
+
+/// Brick `i` of `dims` bricks tiling `[lo, hi]`.
+fn brick_box(lo: &[f64; 3], hi: &[f64; 3], dims: [u32; 3], i: [u32; 3]) -> ([f64; 3], [f64; 3]) {
+    let size = [0, 1, 2].map(|a| (hi[a] - lo[a]) / dims[a] as f64);
+    let blo = [0, 1, 2].map(|a| lo[a] + i[a] as f64 * size[a]);
+    let bhi = [0, 1, 2].map(|a| {
+        if i[a] + 1 == dims[a] {
+            hi[a]
+        } else {
+            lo[a] + (i[a] + 1) as f64 * size[a]
+        }
+    });
+    (blo, bhi)
 }
 
 /// Slab clip of `o + t d`, `t` in `[t0, t1]`, against the closed box `[lo, hi]`. Axes with

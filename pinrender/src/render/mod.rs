@@ -122,15 +122,15 @@ pub use cache::{CacheSettings, RadianceCache};
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
     CombKind, DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
-    MAX_TRACKING_STEPS, RatioTracking, RayMarching, TransportEstimator, URM_DEFAULT_LOOKUPS,
-    UnbiasedRayMarching,
+    MAX_TRACKING_STEPS, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
+    TransportEstimator, URM_DEFAULT_LOOKUPS, UnbiasedRayMarching,
 };
 pub use field::{DenseMap, DenseView, DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
-pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP};
+pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP, RESIDUAL_DEFAULT_CONTROL};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
 pub use wavefront::{
     DEFAULT_WAVEFRONT_BATCH, ROW_CHUNK_PATHS, render_wavefront, row_scratch_bytes,

@@ -1,11 +1,14 @@
 //! [`EstimatorSpec`]: the one description of a transport estimator, parsed once from the
-//! names the CLI and the evaluation use (`rm@STEP`, `delta`, `ratio`, `urm[@N]`,
-//! `jackknife[@N]`, `pins`, `pinms`), shared by the CPU estimators and the GPU path tracer
+//! names the CLI and the evaluation use (`rm@STEP`, `delta`, `ratio`, `residual[@CONTROL]`,
+//! `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`), shared by the CPU estimators and the GPU path tracer
 //! (`gpu_render::GpuEstimator` is this type).
 
 use std::sync::Arc;
 
-use super::estimator::{CombKind, DeltaTracking, RatioTracking, RayMarching, TransportEstimator};
+use super::estimator::{
+    CombKind, DeltaTracking, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
+    TransportEstimator,
+};
 use super::{DensityField, MajorantGrid, RenderError};
 
 /// Smallest relative ray-marching step (smaller steps ran for minutes per pixel).
@@ -22,6 +25,10 @@ pub enum EstimatorSpec {
     /// Ratio tracking for transmittance, delta tracking for distances. Needs a density and
     /// majorants.
     RatioTracking,
+    /// Residual ratio tracking for transmittance (a control extinction per majorant brick,
+    /// exact, times ratio tracking of the residual), delta tracking for distances. Needs a
+    /// density and majorants.
+    ResidualRatioTracking { control: ResidualControl },
     /// Unbiased ray marching (combs of `lookups` per longest edge of the majorant box) for
     /// transmittance, delta tracking for distances. Needs a density and majorants.
     Urm { lookups: u32 },
@@ -36,7 +43,11 @@ pub enum EstimatorSpec {
 }
 
 /// The names [`EstimatorSpec`] reads, for messages.
-pub const ESTIMATOR_SYNTAX: &str = "rm@STEP, delta, ratio, urm[@N], jackknife[@N], pins, pinms";
+pub const ESTIMATOR_SYNTAX: &str =
+    "rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms";
+
+/// The control `residual` means without `@CONTROL`.
+pub const RESIDUAL_DEFAULT_CONTROL: ResidualControl = ResidualControl::Mean;
 
 impl std::str::FromStr for EstimatorSpec {
     type Err = String;
@@ -52,6 +63,15 @@ impl std::str::FromStr for EstimatorSpec {
         Ok(match name {
             "delta" => Self::DeltaTracking,
             "ratio" => Self::RatioTracking,
+            "residual" => Self::ResidualRatioTracking {
+                control: RESIDUAL_DEFAULT_CONTROL,
+            },
+            "residual@min" => Self::ResidualRatioTracking {
+                control: ResidualControl::Min,
+            },
+            "residual@mean" => Self::ResidualRatioTracking {
+                control: ResidualControl::Mean,
+            },
             "pins" => Self::Pins,
             "pinms" => Self::PinMs,
             s => {
@@ -76,6 +96,10 @@ impl std::fmt::Display for EstimatorSpec {
             Self::RayMarching { rel_step } => write!(f, "rm@{rel_step}"),
             Self::DeltaTracking => f.write_str("delta"),
             Self::RatioTracking => f.write_str("ratio"),
+            Self::ResidualRatioTracking { control } if control == RESIDUAL_DEFAULT_CONTROL => {
+                f.write_str("residual")
+            }
+            Self::ResidualRatioTracking { control } => write!(f, "residual@{}", control.name()),
             Self::Urm { lookups } if lookups == super::URM_DEFAULT_LOOKUPS => f.write_str("urm"),
             Self::Jackknife { lookups } if lookups == super::JACKKNIFE_DEFAULT_LOOKUPS => {
                 f.write_str("jackknife")
@@ -119,6 +143,9 @@ impl EstimatorSpec {
             Self::RatioTracking | Self::PinMs => {
                 Arc::new(RatioTracking::new(field()?, majorants()?))
             }
+            Self::ResidualRatioTracking { control } => {
+                Arc::new(ResidualRatioTracking::new(field()?, majorants()?, control)?)
+            }
             Self::Urm { lookups } => CombKind::Urm.build(field()?, majorants()?, lookups)?,
             Self::Jackknife { lookups } => {
                 CombKind::Jackknife.build(field()?, majorants()?, lookups)?
@@ -137,6 +164,8 @@ mod tests {
             "rm@0.015",
             "delta",
             "ratio",
+            "residual",
+            "residual@min",
             "urm",
             "urm@8",
             "jackknife",
@@ -152,6 +181,7 @@ mod tests {
             ("rm@x", "'x'"),
             ("urm@0", "lookups"),
             ("tracking", "unknown estimator"),
+            ("residual@max", "unknown estimator"),
         ] {
             let e = bad.parse::<EstimatorSpec>().unwrap_err();
             assert!(e.contains(why), "{bad}: {e}");

@@ -4,11 +4,13 @@
 //! the file a user gets; `pins-render-batched`: that bake with the lookup `pinrender render`
 //! uses, `SamplerOptions::RENDER`: jitter, middle lookup, the nearest-line search) vs ray
 //! marching the source density at
-//! relative steps 0.015 and 0.005, ratio and delta tracking over a majorant grid (`ratio`,
-//! `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
+//! relative steps 0.015 and 0.005, ratio, residual ratio and delta tracking over a majorant
+//! grid (`ratio`, `residual` with the mean control, `residual@min`, `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
 //! the same random rays, CPU single thread and wgpu. Transmittance rows also
 //! carry their mean absolute error against a converged per-ray reference (ray marching at
-//! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays.
+//! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays. The `ratio`, `residual` and
+//! `residual@min` transmittance rows also carry their variance per lookup on the first
+//! [`VARIANCE_RAYS`] rays (`per_ray_variance`, `lookups_per_query`, `variance_x_lookups`).
 //!
 //! CPU rows are timed by wall time (`queries_per_s`) and by the thread's CPU time
 //! (`cpu_queries_per_s`); the printed ratios use the CPU rates, which a shared machine does
@@ -16,6 +18,7 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{Result, anyhow};
@@ -23,7 +26,10 @@ use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
-use pinrender::render::{CombKind, DeltaTracking, Pcg32, RatioTracking, TransportEstimator};
+use pinrender::render::{
+    CombKind, DeltaTracking, DensityField, MajorantGrid, Pcg32, RatioTracking, ResidualControl,
+    ResidualRatioTracking, TransportEstimator,
+};
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
 use serde_json::{Value, json};
@@ -53,9 +59,11 @@ pub struct BenchArgs {
     #[arg(long)]
     pub no_gpu: bool,
     /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
-    /// cpu_queries_per_s?, mean_abs_error?, error_rays?, bake?, pin_bytes?}, ...]}
+    /// cpu_queries_per_s?, mean_abs_error?, error_rays?, per_ray_variance?,
+    /// lookups_per_query?, variance_x_lookups?, variance_rays?, bake?, pin_bytes?}, ...]}
     /// (queries_per_s over wall time; cpu_queries_per_s over the thread's CPU time, on CPU
-    /// rows; the error fields on transmittance rows; bake and pin_bytes on pin rows; query
+    /// rows; the error fields on transmittance rows; the variance fields on the ratio and
+    /// residual transmittance rows; bake and pin_bytes on pin rows; query
     /// is "transmittance", "distance", or "both" for the GPU's combined dispatch).
     #[arg(long)]
     pub json: bool,
@@ -73,6 +81,61 @@ pub const REFERENCE_STEP: f64 = 0.00025;
 pub const MAJORANT_BRICKS: u32 = 16;
 /// Rays (the first ones of each volume) over which the mean absolute errors are taken.
 pub const ERROR_RAYS: usize = 2000;
+/// Rays (the first ones of each volume) and estimates per ray of the variance-per-lookup
+/// measurement of the ratio-tracking rows.
+pub const VARIANCE_RAYS: usize = 1000;
+pub const VARIANCE_REPEATS: u64 = 64;
+
+/// A field that counts its lookups. It has no dense view, so a tracker over it asks
+/// `extinction` at every tentative collision: its count is the tracker's lookups.
+struct Counted {
+    inner: Arc<dyn DensityField>,
+    lookups: AtomicU64,
+}
+
+impl DensityField for Counted {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        self.inner.bounds()
+    }
+    fn extinction(&self, p: Vec3) -> f32 {
+        self.lookups.fetch_add(1, Ordering::Relaxed);
+        self.inner.extinction(p)
+    }
+}
+
+/// Per-ray variance and lookups of a transmittance estimator over `rays`: for each ray
+/// `VARIANCE_REPEATS` estimates (fixed seeds), the mean of the rays' sample variances, and
+/// the lookups per query that `counted` saw. `variance_x_lookups` is their product, the
+/// variance of one lookup's worth of estimate: lower is better at equal lookups.
+fn variance_per_lookup(
+    est: &dyn TransportEstimator,
+    counted: &Counted,
+    rays: &[RayQuery],
+    row: &mut Value,
+) {
+    let before = counted.lookups.load(Ordering::Relaxed);
+    let mut var_sum = 0.0;
+    for (i, r) in rays.iter().enumerate() {
+        let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+        let mut rng = Pcg32::new(31, i as u64);
+        let (mut s, mut s2) = (0.0, 0.0);
+        for _ in 0..VARIANCE_REPEATS {
+            let t = f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng));
+            s += t;
+            s2 += t * t;
+        }
+        let n = VARIANCE_REPEATS as f64;
+        let m = s / n;
+        var_sum += (s2 / n - m * m).max(0.0) * n / (n - 1.0);
+    }
+    let queries = rays.len() as u64 * VARIANCE_REPEATS;
+    let lookups = (counted.lookups.load(Ordering::Relaxed) - before) as f64 / queries as f64;
+    let var = var_sum / rays.len().max(1) as f64;
+    row["per_ray_variance"] = json!(var);
+    row["lookups_per_query"] = json!(lookups);
+    row["variance_x_lookups"] = json!(var * lookups);
+    row["variance_rays"] = json!(rays.len());
+}
 
 /// The 256^3 voxelised cosine noise of the benchmark (no file needed).
 fn noise_volume() -> Result<Arc<dyn DensitySource>> {
@@ -471,13 +534,31 @@ fn bench_volume(
     let field = Arc::new(SourceField::new(source_arc.clone()));
     let majorants = volume::majorants(&field, MAJORANT_BRICKS)?;
     // The trackers production renderers use, over the same majorant grid and rays: ratio
-    // tracking (transmittance; its distances are delta tracking's) and delta tracking.
+    // tracking (transmittance; its distances are delta tracking's), residual ratio tracking
+    // with either control (controls computed once, not timed) and delta tracking.
+    let residual = |control| -> Result<Arc<ResidualRatioTracking>> {
+        Ok(Arc::new(
+            ResidualRatioTracking::new(
+                field.clone() as Arc<dyn DensityField>,
+                majorants.clone(),
+                control,
+            )
+            .map_err(|e| anyhow!("{e}"))?,
+        ))
+    };
+    let (residual_mean, residual_min) = (
+        residual(ResidualControl::Mean)?,
+        residual(ResidualControl::Min)?,
+    );
+    let trackers_first = rows.len();
     for (method, tracker) in [
         (
             "ratio",
             Arc::new(RatioTracking::new(field.clone(), majorants.clone()))
                 as Arc<dyn TransportEstimator>,
         ),
+        ("residual", residual_mean.clone()),
+        ("residual@min", residual_min.clone()),
         (
             "delta",
             Arc::new(DeltaTracking::new(field.clone(), majorants.clone())),
@@ -507,6 +588,45 @@ fn bench_volume(
         std::hint::black_box(hits);
         let qps = t.rate(n_rm);
         rows.push(row(name, method, "distance", "cpu", qps));
+    }
+    // Variance per lookup of the ratio-tracking family on the same rays: each over a field
+    // that counts its lookups, residual ratio tracking with the controls computed above.
+    let counted = Counted {
+        inner: field.clone(),
+        lookups: AtomicU64::new(0),
+    };
+    let counted = Arc::new(counted);
+    let var_rays = &rays[..rays.len().min(VARIANCE_RAYS)];
+    let with_controls = |est: &ResidualRatioTracking,
+                         maj: &Arc<MajorantGrid>|
+     -> Result<Arc<dyn TransportEstimator>> {
+        let (controls, residual) = est.controls();
+        Ok(Arc::new(
+            ResidualRatioTracking::with_controls(
+                counted.clone() as Arc<dyn DensityField>,
+                maj.clone(),
+                controls.to_vec(),
+                residual.to_vec(),
+            )
+            .map_err(|e| anyhow!("{e}"))?,
+        ))
+    };
+    for (method, est) in [
+        (
+            "ratio",
+            Arc::new(RatioTracking::new(
+                counted.clone() as Arc<dyn DensityField>,
+                majorants.clone(),
+            )) as Arc<dyn TransportEstimator>,
+        ),
+        ("residual", with_controls(&residual_mean, &majorants)?),
+        ("residual@min", with_controls(&residual_min, &majorants)?),
+    ] {
+        let row = rows[trackers_first..]
+            .iter_mut()
+            .find(|r| r["method"] == method && r["query"] == "transmittance")
+            .ok_or_else(|| anyhow!("no {method} row"))?;
+        variance_per_lookup(est.as_ref(), &counted, var_rays, row);
     }
     for kind in [CombKind::Urm, CombKind::Jackknife] {
         let est = kind

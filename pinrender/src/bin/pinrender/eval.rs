@@ -63,7 +63,9 @@ Scenes: smoke (OpenVDB smoke), hydrogen (raw u8 128^3), cosine (high-frequency c
 closed-form reference), box (homogeneous box, closed-form reference), box-ss (its single
 scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
-Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), urm[@N]
+Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), residual
+(residual ratio tracking: a control extinction per majorant brick, the mean, or the minimum
+with residual@min, times ratio tracking of the residual; CPU only), urm[@N]
 (unbiased ray marching), jackknife[@N] (jackknife transmittance; both: combs of N lookups per
 longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
 tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
@@ -436,7 +438,7 @@ fn check_estimator_name(e: &str) -> Result<()> {
     match e.parse::<pinrender::render::EstimatorSpec>() {
         Ok(_) => Ok(()),
         Err(why) if why.starts_with("unknown estimator") => crate::usage!(
-            "--estimators: unknown estimator '{e}' (known: rm@STEP, urm[@N], jackknife[@N], {})",
+            "--estimators: unknown estimator '{e}' (known: rm@STEP, urm[@N], jackknife[@N], residual[@min|@mean], {})",
             ESTIMATOR_NAMES.join(", ")
         ),
         Err(why) => crate::usage!("--estimators {e}: {why}"),

@@ -139,6 +139,7 @@ fn estimators(extra: &[&str], cache: bool) -> Vec<String> {
         "rm@0.005",
         "delta",
         "ratio",
+        "residual",
         "urm",
         "jackknife",
         "pins",
@@ -431,6 +432,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
                 "rm@0.005",
                 "delta",
                 "ratio",
+                "residual",
                 "urm",
                 "jackknife",
                 "pins",
@@ -652,7 +654,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let (sun, env) = lights(1.0);
     // The trackers, pins and PinMS (issue 14 part 5), and rm@0.015 for the time-to-error
     // column; the other estimators would add minutes at this size and say nothing new.
-    let ests: Vec<String> = ["rm@0.015", "delta", "ratio", "pins", "pinms"]
+    let ests: Vec<String> = ["rm@0.015", "delta", "ratio", "residual", "pins", "pinms"]
         .iter()
         .map(|s| s.to_string())
         .collect();
