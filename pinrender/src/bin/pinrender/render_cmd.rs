@@ -58,7 +58,8 @@ pub struct RenderArgs {
     /// (another volume, density scale, transform or box).
     #[arg(long)]
     pub allow_mismatched_pins: bool,
-    /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, urm[@N], jackknife[@N], pins or pinms.
+    /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
+    /// pins or pinms.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
     pub estimator: EstimatorSpec,
     /// Image width in pixels (1..=16384).
