@@ -347,9 +347,17 @@ fn check_out<T>(out: *mut T) -> Result<(), Fail> {
     check_ptr(out.cast_const(), 1, "out")
 }
 
-/// Opens a pin file by memory-mapping it: O(number of sections), no copy of the pins. The file
-/// must not be truncated or rewritten in place while it is open (files written by pinbake are
-/// replaced by rename, which is safe); see `docs/architecture.md`.
+/// Opens a pin file by memory-mapping it: O(number of sections), no copy of the pins.
+///
+/// Only a regular file is opened: a directory is `PINRT_STATUS_IO` "is a directory", a FIFO,
+/// device or socket `PINRT_STATUS_IO` "not a regular file", at once (the open never blocks).
+///
+/// The file must not be truncated or rewritten in place while it is open: touching a page
+/// that vanished raises SIGBUS, which kills the host process (no library can turn it into an
+/// error). Replace pin files atomically instead, by writing a new file and renaming it over
+/// the old one, as pinbake does: the mapping keeps the old file alive, and the next
+/// `pinrt_open` sees the new one. Where in-place changes cannot be ruled out (network file
+/// systems, files owned by other tools), read the file and use `pinrt_open_memory`.
 ///
 /// On success `*out` receives the grid; on failure `*out` is set to NULL.
 ///

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 use std::time::Instant;
 
-use pinbake::source::vdb::{WORKER_SUBCOMMAND, worker_main};
+use pinbake::source::vdb::serve_vdb_worker_if_asked;
 use pinbake::source::{DensitySource, VdbOptions, VdbSource};
 use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, RayQuery};
@@ -188,8 +188,8 @@ fn valgrind(exe: &Path, pin: &Path, dir: &Path) {
 
 fn main() -> ExitCode {
     let os_args: Vec<std::ffi::OsString> = std::env::args_os().collect();
-    if os_args.get(1).is_some_and(|a| a == WORKER_SUBCOMMAND) {
-        return ExitCode::from(worker_main(&os_args[2..]).clamp(0, 255) as u8);
+    if let Some(code) = serve_vdb_worker_if_asked(&os_args) {
+        return code;
     }
     let args: Vec<String> = os_args
         .iter()

@@ -53,3 +53,8 @@ pub use owned::{OwnedPinGrid, grid_desc};
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};
 pub use writer::{AtomicPinFile, PinFileWriter};
+
+/// The smallest ray-marching step, relative to the longest box edge, that a bake records or a
+/// renderer marches: below it a pin or a ray takes 10^5+ steps per edge (one bound for
+/// `pinbake` and `pinrender`).
+pub const MIN_REL_STEP: f64 = 1e-5;

@@ -53,9 +53,10 @@ pub fn parse_density_scale(s: &str) -> Result<f64, String> {
     parse_nonneg(s)
 }
 
-/// Smallest relative ray-marching step: below it a pin or a ray takes 10^5+ steps per box
-/// edge and a bake or render runs for hours (`--step 1e-12` ran for minutes on 4^3 cells).
-pub const MIN_REL_STEP: f64 = 1e-5;
+/// Smallest relative ray-marching step (`pin_format::MIN_REL_STEP`, shared with the renderer):
+/// below it a pin or a ray takes 10^5+ steps per box edge and a bake or render runs for hours
+/// (`--step 1e-12` ran for minutes on 4^3 cells).
+pub use pin_format::MIN_REL_STEP;
 
 /// A relative step (fraction of the longest box edge) in [`MIN_REL_STEP`], 1].
 pub fn check_rel_step(v: f64) -> Result<f64, String> {

@@ -13,16 +13,17 @@ fn main() -> ExitCode {
     let args: Vec<OsString> = std::env::args_os().collect();
     // Hidden subcommand: the isolated OpenVDB reader (see `pinbake::source::vdb`). It runs
     // before any CLI setup so that the worker does nothing but read the file.
-    if args.get(1).is_some_and(|a| a == "__vdb-worker") {
-        #[cfg(feature = "vdb")]
-        return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
-        #[cfg(not(feature = "vdb"))]
-        {
-            pinbake::errln!(
-                "pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)"
-            );
-            return ExitCode::from(2);
-        }
+    #[cfg(feature = "vdb")]
+    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
+        return code;
+    }
+    #[cfg(not(feature = "vdb"))]
+    if args
+        .get(1)
+        .is_some_and(|a| a == pinbake::source::VDB_WORKER_SUBCOMMAND)
+    {
+        pinbake::errln!("pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)");
+        return ExitCode::from(2);
     }
     pinbake::cli_args::end_quietly_on_closed_stdout();
     let cli = match pinbake::cli_args::parse_cli::<cmd::Cli>("pinbake", args) {

@@ -305,12 +305,22 @@ impl Ctx<'_> {
     }
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
     // OpenVDB files are read in a child process that re-runs this executable.
     let raw: Vec<std::ffi::OsString> = std::env::args_os().collect();
-    if raw.get(1).is_some_and(|a| a == "__vdb-worker") {
-        std::process::exit(pinbake::source::vdb::worker_main(&raw[2..]));
+    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&raw) {
+        return code;
     }
+    match run() {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("pin_bias_parts: error: {e:#}");
+            std::process::ExitCode::from(1)
+        }
+    }
+}
+
+fn run() -> Result<()> {
     let args = Args::parse();
     let input = args
         .volume

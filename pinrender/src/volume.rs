@@ -407,9 +407,9 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
 }
 
 /// Loads `--pins FILE`, or bakes the volume in memory as `pinbake bake` would by default: the
-/// cells (unless given), directions and pins per entry chosen from the volume
-/// (`pinbake::choose::choose_default`), so a render without `--pins` sees the same bake as a
-/// render of `pinbake bake`'s file.
+/// cells (unless given), directions and pins per entry chosen from the volume by the same
+/// `pinbake::plan` calls as `pinbake bake`, so a render without `--pins` sees the same bake as
+/// a render of `pinbake bake`'s file.
 pub fn pins_for(
     pins: Option<&Path>,
     source: &dyn DensitySource,
@@ -420,20 +420,13 @@ pub fn pins_for(
     if let Some(p) = pins {
         return load_pins(p);
     }
-    let defaults = pinbake::BakeOptions::default();
-    let stats = pinbake::choose::analyse(source, defaults.crop)?;
-    let fixed = pinbake::choose::Fixed {
+    let req = pinbake::BakeRequest {
         cells: cells.map(|c| [c; 3]),
-        ..pinbake::choose::Fixed::default()
-    };
-    let choice = pinbake::choose::choose_default(&stats, fixed);
-    let opts = pinbake::BakeOptions {
-        cells: choice.cells,
-        directions: choice.directions,
-        pins_per_entry: choice.pins_per_entry,
         seed,
-        ..defaults
+        ..pinbake::BakeRequest::default()
     };
+    let choice = pinbake::plan::choose(source, &req)?;
+    let opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
     // The bake, its serialised bytes and the loaded copy.
     budget.check(
         &format!(

@@ -29,6 +29,10 @@ pub mod raw;
 #[cfg(feature = "vdb")]
 pub mod vdb;
 
+/// The hidden subcommand that runs an executable as the isolated OpenVDB reader
+/// (`vdb::serve_vdb_worker_if_asked`); named here so builds without `vdb` can refuse it.
+pub const VDB_WORKER_SUBCOMMAND: &str = "__vdb-worker";
+
 pub use grid::DenseGrid;
 pub use identity::SourceIdentity;
 pub use mip::{Mip, MipAllocError};

@@ -54,7 +54,18 @@ use super::{
 };
 
 /// The hidden subcommand the `pinbake` binary dispatches to [`worker_main`].
-pub const WORKER_SUBCOMMAND: &str = "__vdb-worker";
+pub const WORKER_SUBCOMMAND: &str = super::VDB_WORKER_SUBCOMMAND;
+
+/// The first thing every executable that opens a VDB does (the worker is this executable run
+/// again with [`WORKER_SUBCOMMAND`]): with `args` (all of `args_os`, the program name first)
+/// naming the subcommand, it serves the read and returns the exit code; otherwise `None`.
+pub fn serve_vdb_worker_if_asked(args: &[std::ffi::OsString]) -> Option<std::process::ExitCode> {
+    if args.get(1).is_some_and(|a| a == WORKER_SUBCOMMAND) {
+        let code = worker_main(&args[2..]).clamp(0, 255) as u8;
+        return Some(std::process::ExitCode::from(code));
+    }
+    None
+}
 
 const STREAM_MAGIC: &[u8; 8] = b"PBVDBW01";
 const STREAM_END: &[u8; 8] = b"PBVDBEND";

@@ -11,8 +11,9 @@ use super::estimator::{
 };
 use super::{DensityField, MajorantGrid, RenderError};
 
-/// Smallest relative ray-marching step (smaller steps ran for minutes per pixel).
-pub const MIN_REL_STEP: f64 = 1e-5;
+/// Smallest relative ray-marching step, one bound for the baker and the renderer
+/// (`pin_format::MIN_REL_STEP`; smaller steps ran for minutes per pixel).
+pub use pin_format::MIN_REL_STEP;
 
 /// A transport estimator by kind and parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]

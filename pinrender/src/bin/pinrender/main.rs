@@ -49,8 +49,8 @@ fn main() -> ExitCode {
     // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
     let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
     // The isolated OpenVDB reader re-executes this binary (see `pinbake::source::vdb`).
-    if args.get(1).is_some_and(|a| a == "__vdb-worker") {
-        return ExitCode::from(pinbake::source::vdb::worker_main(&args[2..]).clamp(0, 255) as u8);
+    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
+        return code;
     }
     pinbake::cli_args::end_quietly_on_closed_stdout();
     let cli = match pinbake::cli_args::parse_cli::<Cli>("pinrender", args) {
