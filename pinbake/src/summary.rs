@@ -86,8 +86,12 @@ pub fn summary(
         "sparse_fraction": if shape.covered_cells > 0 { empty as f64 / shape.covered_cells as f64 } else { 0.0 },
         "file_bytes": file_bytes,
         "t_min": {"min": t.min, "max": t.max, "mean": t.mean, "histogram": t.histogram},
-        "box": {"min": desc.box_min, "max": desc.box_max},
-        "source_box": {"min": desc.source_box_min, "max": desc.source_box_max},
+        // `box` and `source_box` are in the volume's local frame (`local_to_world` places
+        // them); `world_box` is the box as placed, axis-aligned around it when rotated.
+        "box": {"min": desc.box_min, "max": desc.box_max, "frame": "local"},
+        "source_box": {"min": desc.source_box_min, "max": desc.source_box_max, "frame": "local"},
+        "world_box": world_box(desc),
+        "local_to_world": desc.local_to_world,
         "cropped": desc.flags & pin_format::layout::GRID_FLAG_CROPPED != 0,
         "step_size": desc.step_size,
         "density_scale": desc.density_scale,
@@ -95,6 +99,28 @@ pub fn summary(
         "tile": if shape.z_begin == 0 && shape.z_end == desc.dims[2] { Value::Null } else { json!([shape.z_begin, shape.z_end]) },
         "source": source,
     })
+}
+
+/// The grid box placed by the row-major 3x4 `local_to_world`: the axis-aligned box around
+/// its eight transformed corners, in f64 (`{"min", "max", "frame": "world"}`).
+pub fn world_box(desc: &pin_format::GridDesc) -> Value {
+    let m = &desc.local_to_world;
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for corner in 0..8 {
+        let p = [0, 1, 2].map(|a| {
+            if corner >> a & 1 == 0 {
+                desc.box_min[a]
+            } else {
+                desc.box_max[a]
+            }
+        });
+        for r in 0..3 {
+            let w = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
+            lo[r] = lo[r].min(w);
+            hi[r] = hi[r].max(w);
+        }
+    }
+    json!({"min": lo, "max": hi, "frame": "world"})
 }
 
 /// The `choice` object of a bake's summary: what was chosen, why, and what the model
@@ -117,4 +143,26 @@ pub fn choice_json(c: &Choice, file_bytes: u64) -> Value {
         },
         "volume": c.stats,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_world_box_is_the_placed_local_box() {
+        let mut desc: pin_format::GridDesc = bytemuck::Zeroable::zeroed();
+        desc.box_min = [0.0, 0.0, 0.0];
+        desc.box_max = [2.0, 1.0, 3.0];
+        // A quarter turn about z (x -> y, y -> -x), then a shift by (10, 20, 30).
+        desc.local_to_world = [
+            0.0, -1.0, 0.0, 10.0, //
+            1.0, 0.0, 0.0, 20.0, //
+            0.0, 0.0, 1.0, 30.0,
+        ];
+        let w = world_box(&desc);
+        assert_eq!(w["min"], json!([9.0, 20.0, 30.0]));
+        assert_eq!(w["max"], json!([10.0, 22.0, 33.0]));
+        assert_eq!(w["frame"], "world");
+    }
 }

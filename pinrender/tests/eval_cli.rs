@@ -605,3 +605,29 @@ fn bench_json_rows_have_rates_and_errors() {
         assert!(methods.contains(m), "{m} missing from {methods:?}");
     }
 }
+
+/// `pinrender estimators --json` is a contract scripts read: every estimator with its name,
+/// whether it reads a pin file, and whether it is unbiased.
+#[test]
+fn the_estimator_catalogue_is_json_with_the_contract_fields() {
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_pinrender"))
+        .args(["estimators", "--json"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let rows = v["estimators"].as_array().unwrap();
+    let get = |name: &str| rows.iter().find(|r| r["name"] == name).cloned().unwrap();
+    for r in rows {
+        assert!(
+            r["name"].is_string() && r["needs_bake"].is_boolean() && r["unbiased"].is_boolean()
+        );
+    }
+    assert_eq!(get("pins")["needs_bake"], true);
+    assert_eq!(get("pinms")["needs_bake"], true);
+    assert_eq!(get("pinms")["unbiased"], false);
+    assert_eq!(get("ratio")["needs_bake"], false);
+    assert_eq!(get("ratio")["unbiased"], true);
+    assert_eq!(get("residual")["unbiased"], true);
+    assert_eq!(get("rm@STEP")["unbiased"], false);
+}

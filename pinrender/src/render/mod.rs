@@ -130,7 +130,10 @@ pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_ma
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
-pub use spec::{ESTIMATOR_SYNTAX, EstimatorSpec, MIN_REL_STEP, RESIDUAL_DEFAULT_CONTROL};
+pub use spec::{
+    ESTIMATOR_SYNTAX, ESTIMATORS, EstimatorInfo, EstimatorSpec, MIN_REL_STEP,
+    RESIDUAL_DEFAULT_CONTROL,
+};
 pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
 pub use wavefront::{
     DEFAULT_WAVEFRONT_BATCH, ROW_CHUNK_PATHS, render_wavefront, row_scratch_bytes,

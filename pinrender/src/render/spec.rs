@@ -113,7 +113,94 @@ impl std::fmt::Display for EstimatorSpec {
     }
 }
 
+/// One row of the estimator catalogue (`pinrender estimators --json`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EstimatorInfo {
+    /// The name `--estimator` takes (`rm@STEP` stands for any step).
+    pub name: &'static str,
+    /// An instance of it (the default step or lookups for a parametrised family).
+    pub spec: EstimatorSpec,
+    /// What it does, in one line.
+    pub summary: &'static str,
+}
+
+/// Every estimator the renderers run, by the name `--estimator` takes: the one list that
+/// `pinrender estimators` prints and scripts read.
+pub const ESTIMATORS: &[EstimatorInfo] = &[
+    EstimatorInfo {
+        name: "rm@STEP",
+        spec: EstimatorSpec::RayMarching { rel_step: 0.015 },
+        summary: "ray marching, midpoint rule, STEP of the longest box edge",
+    },
+    EstimatorInfo {
+        name: "delta",
+        spec: EstimatorSpec::DeltaTracking,
+        summary: "delta tracking for transmittance and distances",
+    },
+    EstimatorInfo {
+        name: "ratio",
+        spec: EstimatorSpec::RatioTracking,
+        summary: "ratio tracking for transmittance, delta tracking for distances",
+    },
+    EstimatorInfo {
+        name: "residual",
+        spec: EstimatorSpec::ResidualRatioTracking {
+            control: RESIDUAL_DEFAULT_CONTROL,
+        },
+        summary: "residual ratio tracking: a per-brick control extinction (the brick's mean) taken out exactly",
+    },
+    EstimatorInfo {
+        name: "residual@min",
+        spec: EstimatorSpec::ResidualRatioTracking {
+            control: ResidualControl::Min,
+        },
+        summary: "residual ratio tracking with the brick's minimum as the control",
+    },
+    EstimatorInfo {
+        name: "urm",
+        spec: EstimatorSpec::Urm {
+            lookups: super::URM_DEFAULT_LOOKUPS,
+        },
+        summary: "unbiased ray marching (power-series correction of jittered combs)",
+    },
+    EstimatorInfo {
+        name: "jackknife",
+        spec: EstimatorSpec::Jackknife {
+            lookups: super::JACKKNIFE_DEFAULT_LOOKUPS,
+        },
+        summary: "jackknife transmittance from two combs (biased by the combs' departure from normality)",
+    },
+    EstimatorInfo {
+        name: "pins",
+        spec: EstimatorSpec::Pins,
+        summary: "the pin grid for every query",
+    },
+    EstimatorInfo {
+        name: "pinms",
+        spec: EstimatorSpec::PinMs,
+        summary: "ratio tracking to the first scattering vertex, pins after it",
+    },
+];
+
 impl EstimatorSpec {
+    /// Whether its expected value is the exact answer of the medium it reads (no bias floor):
+    /// the trackers and unbiased ray marching. Ray marching, the jackknife and the pin
+    /// estimators are biased.
+    pub fn is_unbiased(self) -> bool {
+        matches!(
+            self,
+            Self::DeltaTracking
+                | Self::RatioTracking
+                | Self::ResidualRatioTracking { .. }
+                | Self::Urm { .. }
+        )
+    }
+
+    /// Whether the GPU path tracer runs it.
+    pub fn runs_on_gpu(self) -> bool {
+        !matches!(self, Self::ResidualRatioTracking { .. })
+    }
+
     /// Whether it queries pin grids.
     pub fn needs_pins(self) -> bool {
         matches!(self, Self::Pins | Self::PinMs)
@@ -158,6 +245,27 @@ impl EstimatorSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_catalogue_names_parse_to_their_specs() {
+        for e in ESTIMATORS {
+            if e.name == "rm@STEP" {
+                assert_eq!("rm@0.015".parse::<EstimatorSpec>(), Ok(e.spec));
+            } else {
+                assert_eq!(e.name.parse::<EstimatorSpec>(), Ok(e.spec), "{}", e.name);
+            }
+            // Only the estimators that read pins have a floor of their own besides rm and
+            // the jackknife.
+            if e.spec.needs_pins() {
+                assert!(!e.spec.is_unbiased());
+            }
+        }
+        assert!(
+            ESTIMATORS
+                .iter()
+                .any(|e| e.name == "ratio" && e.spec.is_unbiased())
+        );
+    }
 
     #[test]
     fn names_round_trip_and_bad_ones_say_why() {

@@ -43,6 +43,58 @@ enum Command {
     PlotBias(bias_plot::PlotBiasArgs),
     /// Write shaders/pin.wgsl as SPIR-V, GLSL 450, HLSL and MSL (naga) into a directory.
     Shaders(shaders::ShadersArgs),
+    /// List every estimator: its --estimator name, whether it reads a pin file (needs_bake),
+    /// whether it is unbiased, and whether the GPU path tracer runs it.
+    Estimators {
+        /// One JSON object: {"estimators": [{"name", "needs_bake", "unbiased", "gpu",
+        /// "summary"}]}.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+/// `pinrender estimators`: the catalogue of `pinrender::render::ESTIMATORS`.
+fn list_estimators(json: bool) -> anyhow::Result<()> {
+    use pinrender::render::ESTIMATORS;
+    if json {
+        let rows: Vec<serde_json::Value> = ESTIMATORS
+            .iter()
+            .map(|e| {
+                serde_json::json!({
+                    "name": e.name,
+                    "needs_bake": e.spec.needs_pins(),
+                    "unbiased": e.spec.is_unbiased(),
+                    "gpu": e.spec.runs_on_gpu(),
+                    "summary": e.summary,
+                })
+            })
+            .collect();
+        pinbake::outln!("{}", serde_json::json!({ "estimators": rows }))?;
+        return Ok(());
+    }
+    for e in ESTIMATORS {
+        pinbake::outln!(
+            "{:<13} {:<10} {:<8} {:<8} {}",
+            e.name,
+            if e.spec.needs_pins() {
+                "bake"
+            } else {
+                "no bake"
+            },
+            if e.spec.is_unbiased() {
+                "unbiased"
+            } else {
+                "biased"
+            },
+            if e.spec.runs_on_gpu() {
+                "cpu+gpu"
+            } else {
+                "cpu"
+            },
+            e.summary
+        )?;
+    }
+    Ok(())
 }
 
 fn main() -> ExitCode {
@@ -60,6 +112,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bench(a) => bench::run(*a),
         Command::Render(a) => render_cmd::run(*a),
+        Command::Estimators { json } => list_estimators(json),
         Command::Eval(a) => eval::run(*a),
         Command::Shaders(a) => shaders::run(a),
         Command::PlotBias(a) => bias_plot::run(a),
