@@ -1,7 +1,8 @@
 //! An owned, in-memory pin grid: what producers fill in and what tests compare.
 //!
-//! Large producers (the baker) stream through [`crate::PinFileWriter`] directly instead; this
-//! type is for small grids, tools that rewrite files, and round-trip tests.
+//! The baker fills one and writes it with [`OwnedPinGrid::write_into`] (through
+//! [`crate::AtomicPinFile`]'s [`crate::PinFileWriter`]); tools that rewrite files and the
+//! round-trip tests use it too.
 
 use std::io::{Cursor, Seek, Write};
 use std::path::Path;

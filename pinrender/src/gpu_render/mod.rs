@@ -1,4 +1,4 @@
-//! The reference path tracer on the GPU (features `gpu` + `render`).
+//! The reference path tracer on the GPU (feature `gpu`).
 //!
 //! [`GpuRenderer`] runs the estimator of [`crate::render`] (`tracer.rs`) in WGSL
 //! (`shaders/render.wgsl` appended to `shaders/pin.wgsl`) over a scene's media
