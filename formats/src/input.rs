@@ -31,10 +31,12 @@ pub enum InputError {
 }
 
 /// `path` for a one-line message: as it is when it is UTF-8 without control characters,
-/// otherwise in double quotes with Rust's escapes (`"a\nb.pin"`).
+/// otherwise (and when empty) in double quotes with Rust's escapes (`"a\nb.pin"`, `""`).
 pub fn quoted(path: &Path) -> String {
     match path.to_str() {
-        Some(s) if !s.chars().any(char::is_control) && !s.starts_with('"') => s.to_owned(),
+        Some(s) if !s.is_empty() && !s.chars().any(char::is_control) && !s.starts_with('"') => {
+            s.to_owned()
+        }
         _ => format!("{:?}", path.as_os_str()),
     }
 }
@@ -144,6 +146,7 @@ mod tests {
     fn control_characters_cannot_cut_a_message() {
         assert_eq!(quoted(Path::new("a/b.pin")), "a/b.pin");
         assert_eq!(quoted(Path::new("a\nb.pin")), "\"a\\nb.pin\"");
+        assert_eq!(quoted(Path::new("")), "\"\"");
         let e = InputError::IsDirectory(PathBuf::from("x\r\ny"));
         assert_eq!(e.to_string().lines().count(), 1);
     }

@@ -259,7 +259,10 @@ impl CosineNoise {
         check_density(p.density, 2.0)?;
         let bad = |m: String| Err(SourceError::InvalidOption(m));
         if !(p.freq.is_finite() && p.freq > 0.0 && p.freq <= 1e6) {
-            return bad(format!("cosine freq must be in (0, 1e6], got {}", p.freq));
+            return bad(format!(
+                "cosine freq must be in (0, 1e6], got {}",
+                crate::limits::num(p.freq)
+            ));
         }
         if !(1..=1024).contains(&p.waves) {
             return bad(format!("cosine waves must be in 1..=1024, got {}", p.waves));
@@ -274,7 +277,10 @@ impl CosineNoise {
             ));
         }
         if !(p.gain.is_finite() && p.gain > 0.0 && p.gain <= 16.0) {
-            return bad(format!("gain must be in (0, 16], got {}", p.gain));
+            return bad(format!(
+                "gain must be in (0, 16], got {}",
+                crate::limits::num(p.gain)
+            ));
         }
         let top_freq = p.freq * p.lacunarity.powi(p.octaves as i32 - 1);
         if !(top_freq.is_finite() && top_freq <= 1e6) {
