@@ -1,0 +1,322 @@
+//! OpenVDB float, half and double grids, read through vdb-rs in an isolated child process.
+//!
+//! # Why a child process
+//!
+//! vdb-rs 0.6 reads every valid file we have, but on damaged input it panics in many places
+//! and can abort the whole process on huge allocations (which `catch_unwind` cannot stop). A bad
+//! file must be an error, never a dead baker, so the parse runs in `pinbake __vdb-worker` under
+//! an address-space limit (64 MiB + 64 x the file size, at most 16 GiB) and a wall-clock
+//! timeout, with `catch_unwind` inside as well. The worker checks what vdb-rs does not (the
+//! magic, the file version, the grid's transform type, the `file_bbox_*` metadata against
+//! absurd or inverted boxes) before handing the file to vdb-rs, then streams a compact binary
+//! description to stdout: the grid list, the chosen grid's transform, and its non-empty leaf
+//! nodes (origin + 512 values) and constant tiles. The parent re-validates every count and
+//! value in that stream and builds a sparse table, never a dense grid.
+//!
+//! # Placement and sampling
+//!
+//! Voxel centres sit at integer index coordinates; world = M index + t for every linear map
+//! OpenVDB writes (`UniformScaleMap`, `ScaleMap`, `UniformScaleTranslateMap`,
+//! `ScaleTranslateMap`, `TranslationMap`, `AffineMap`, `UnitaryMap`; the frustum map is an
+//! "unsupported encoding"). Axis-aligned maps keep the per-axis arithmetic and bake in world
+//! space; a rotated or sheared grid bakes in its own frame and the pin file records the
+//! placement (see [`DensitySource::bake_frame`] and `GridFrame`). Sampling is trilinear
+//! between voxel centres. Fog volumes: inactive voxels and tiles are 0 whatever value they
+//! hold (an inactive value is not density), active values below 0 are clamped to 0.
+//!
+//! # Grid selection
+//!
+//! `VdbOptions::grid`: an exact name; `name#k` for the k-th of repeated names (OpenVDB stores
+//! them as `name\x1ek`); a repeated name on its own is an error listing the choices. Without a
+//! name: `density`, else the only float grid, else an error listing the grids (sorted).
+//!
+//! # Level sets
+//!
+//! Refused unless `levelset_to_fog`, which maps the interior (negative distance) to density 1.
+//! vdb-rs loses the background value and the sign of inactive values, so the worker rebuilds
+//! the inside/outside classification with OpenVDB's signed flood fill over leaves and internal
+//! nodes; root tiles (kept by our vdb-rs patch) are inside when negative. See docs/vdb.md for
+//! every vdb-rs problem this module works around and the patches in vendor/vdb-rs.
+//!
+//! Not for: vector, integer or point grids; multi-grid compositing; writing VDB files.
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use glam::{DMat3, DVec3, IVec3};
+
+use super::{
+    Aabb, DenseGrid, DensityScale, DensitySource, Mip, MipAllocError, SourceError, one_line,
+};
+
+/// The hidden subcommand the `pinbake` binary dispatches to [`worker_main`].
+pub const WORKER_SUBCOMMAND: &str = super::VDB_WORKER_SUBCOMMAND;
+
+/// The first thing every executable that opens a VDB does (the worker is this executable run
+/// again with [`WORKER_SUBCOMMAND`]): with `args` (all of `args_os`, the program name first)
+/// naming the subcommand, it serves the read and returns the exit code; otherwise `None`.
+pub fn serve_vdb_worker_if_asked(args: &[std::ffi::OsString]) -> Option<std::process::ExitCode> {
+    if args.get(1).is_some_and(|a| a == WORKER_SUBCOMMAND) {
+        let code = worker_main(&args[2..]).clamp(0, 255) as u8;
+        return Some(std::process::ExitCode::from(code));
+    }
+    None
+}
+
+/// Largest accepted extent of a grid, per axis, in voxels (OpenImageIO uses the same).
+pub const MAX_AXIS_VOXELS: i64 = 1 << 20;
+const MIB: u64 = 1 << 20;
+
+/// How to open a VDB file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VdbOptions {
+    /// Grid to read (see the module docs); `None` picks `density` or the only float grid.
+    pub grid: Option<String>,
+    /// Accept a level set and bake its interior (negative distance) as density 1.
+    pub levelset_to_fog: bool,
+    /// Multiplier applied to every value (finite, `>= 0`).
+    pub density_scale: f64,
+    /// Executable that understands `__vdb-worker` (normally the `pinbake` binary itself).
+    pub worker_exe: PathBuf,
+    /// Address-space limit of the worker in bytes; `None`: 64 MiB + 64 x file size, <= 16 GiB.
+    pub memory_limit: Option<u64>,
+    /// Wall-clock limit of the worker.
+    pub timeout: Duration,
+}
+
+impl Default for VdbOptions {
+    fn default() -> Self {
+        Self {
+            grid: None,
+            levelset_to_fog: false,
+            density_scale: 1.0,
+            worker_exe: std::env::current_exe().unwrap_or_else(|_| PathBuf::from("pinbake")),
+            memory_limit: None,
+            timeout: Duration::from_secs(60),
+        }
+    }
+}
+
+impl VdbOptions {
+    /// Options with defaults and the given worker executable.
+    pub fn with_worker(worker_exe: impl Into<PathBuf>) -> Self {
+        Self {
+            worker_exe: worker_exe.into(),
+            ..Self::default()
+        }
+    }
+}
+
+/// The default memory limit of the worker for a file of `file_size` bytes.
+pub fn default_memory_limit(file_size: u64) -> u64 {
+    (64 * MIB)
+        .saturating_add(file_size.saturating_mul(64))
+        .min(16 << 30)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Child side
+// ---------------------------------------------------------------------------------------------
+
+mod reader;
+mod source;
+mod spawn;
+mod wire;
+
+use reader::*;
+use spawn::*;
+use wire::*;
+
+pub use reader::worker_main;
+pub use source::VdbSource;
+pub use spawn::WORKER_ENV;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn data(name: &str) -> PathBuf {
+        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../data")).join(name)
+    }
+
+    /// Runs the worker logic in-process (valid files only: the isolation is tested in
+    /// tests/sources.rs with the real binary).
+    fn in_process(file: &str, sel: Option<&str>, to_fog: bool) -> Result<VdbSource, String> {
+        let p = data(file);
+        let mut buf = Vec::new();
+        worker_run(&p, sel, to_fog, &mut buf)?;
+        let size = std::fs::metadata(&p).unwrap().len();
+        let st = parse_stream(&buf[..], size)?;
+        VdbSource::from_stream(&p, st, DensityScale::ONE)
+    }
+
+    fn gi(name: &str, ty: &str) -> GridInfo {
+        GridInfo {
+            name: name.into(),
+            grid_type: ty.into(),
+            class: String::new(),
+        }
+    }
+
+    /// The smoke with its map mirrored on x and z (negative scales): the dense copy stores
+    /// those axes reversed and still holds the tree's field (a few f32 ulps of the largest
+    /// value, from the index arithmetic), and the dense cache gives the tree's bits.
+    #[test]
+    fn dense_copy_and_cache_of_a_mirrored_grid() {
+        let p = data("openvdb_smoke1.vdb");
+        let size = std::fs::metadata(&p).unwrap().len();
+        let mirrored = || {
+            let mut buf = Vec::new();
+            worker_run(&p, None, false, &mut buf).unwrap();
+            let mut st = parse_stream(&buf[..], size).unwrap();
+            st.xf[0] = -st.xf[0];
+            st.xf[10] *= -0.5;
+            st.xf[3] = 4.0;
+            VdbSource::from_stream(&p, st, DensityScale::ONE).unwrap()
+        };
+        let tree = mirrored();
+        assert!(tree.is_axis_aligned());
+        let copy = tree.dense_copy(u64::MAX).unwrap();
+        let cached = mirrored().with_dense_cache(u64::MAX);
+        assert!(cached.has_dense_cache());
+        let (lo, hi) = tree.index_bounds();
+        let m = (hi - lo + 1).as_dvec3() - 1.0;
+        let mut rng = crate::rng::CounterRng::new(3, 0, 0);
+        let mut nonzero = 0;
+        for _ in 0..50_000 {
+            let f = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let w = tree.index_to_world(lo.as_dvec3() - 1.0 + f * (m + 2.0));
+            let (a, b) = (copy.extinction(w), tree.extinction(w));
+            assert!(
+                (a - b).abs() <= 4.0 * f32::EPSILON * copy.max_value(),
+                "{w}: copy {a}, tree {b}"
+            );
+            assert_eq!(cached.extinction(w).to_bits(), b.to_bits(), "{w}");
+            nonzero += usize::from(b > 0.0);
+        }
+        assert!(nonzero > 5_000, "{nonzero}");
+    }
+
+    #[test]
+    fn selection_rules() {
+        let f = "Tree_float_5_4_3";
+        let three = [
+            gi("density\u{1e}0", f),
+            gi("density\u{1e}1", f),
+            gi("density\u{1e}2", f),
+        ];
+        assert_eq!(select_grid(&three, Some("density#1")), Ok(1));
+        let e = select_grid(&three, Some("density")).unwrap_err();
+        assert!(e.contains("density#0, density#1, density#2"), "{e}");
+        assert!(select_grid(&three, None).is_err());
+        let e = select_grid(&three, Some("temp")).unwrap_err();
+        assert!(e.contains("no grid named 'temp'"), "{e}");
+        let mixed = [gi("Cd", "Tree_vec3s_5_4_3"), gi("heat", f)];
+        assert_eq!(select_grid(&mixed, None), Ok(1));
+        let two = [gi("a", f), gi("b", f)];
+        let e = select_grid(&two, None).unwrap_err();
+        assert!(e.contains("a, b"), "{e}");
+        let with_density = [gi("a", f), gi("density", f)];
+        assert_eq!(select_grid(&with_density, None), Ok(1));
+        assert!(select_grid(&[], None).is_err());
+    }
+
+    #[test]
+    fn bbox_checks_follow_oiio() {
+        let v = glam024::IVec3::new;
+        assert!(check_bbox("g", Some(v(0, 0, 0)), Some(v(10, 10, 10))).is_ok());
+        assert!(check_bbox("g", None, None).is_ok());
+        let e = check_bbox("g", Some(v(100, 100, 100)), Some(v(-100, -100, -100))).unwrap_err();
+        assert!(e.contains("inverted"), "{e}");
+        let e = check_bbox(
+            "g",
+            Some(v(i32::MIN, i32::MIN, i32::MIN)),
+            Some(v(i32::MAX, i32::MAX, i32::MAX)),
+        )
+        .unwrap_err();
+        assert!(e.contains("out-of-range"), "{e}");
+        // A huge but sparse box is valid.
+        assert!(check_bbox("g", Some(v(0, 0, 0)), Some(v(200000, 200000, 200000))).is_ok());
+        let e = check_bbox("g", Some(v(0, 0, 0)), Some(v(2000000, 0, 0))).unwrap_err();
+        assert!(e.contains("bounding box"), "{e}");
+    }
+
+    #[test]
+    fn stream_limits_are_enforced() {
+        // Garbage, truncated and oversized streams are errors, never allocations.
+        assert!(parse_stream(&b"nonsense"[..], 100).is_err());
+        let mut s = STREAM_MAGIC.to_vec();
+        s.extend_from_slice(&u32::MAX.to_le_bytes());
+        assert!(parse_stream(&s[..], 100).is_err());
+        let mut s = STREAM_MAGIC.to_vec();
+        s.extend_from_slice(&1u32.to_le_bytes());
+        s.extend_from_slice(&u32::MAX.to_le_bytes());
+        assert!(
+            parse_stream(&s[..], 100)
+                .err()
+                .unwrap()
+                .contains("byte name")
+        );
+        // A valid stream from a real file, truncated anywhere, is an error.
+        let p = data("gaffer_sphere_density.vdb");
+        let mut buf = Vec::new();
+        worker_run(&p, None, false, &mut buf).unwrap();
+        for cut in [0, 7, 20, buf.len() / 2, buf.len() - 1] {
+            assert!(parse_stream(&buf[..cut], 1 << 20).is_err(), "cut {cut}");
+        }
+        // A stream claiming more leaves than the file can hold is rejected.
+        let e = parse_stream(&buf[..], 10).err().unwrap();
+        assert!(e.contains("leaves"), "{e}");
+        let mut extra = buf.clone();
+        extra.push(0);
+        assert!(parse_stream(&extra[..], 1 << 20).is_err());
+    }
+
+    #[test]
+    fn in_process_reads_and_samples() {
+        let s = in_process("oiio_sphere_density.vdb", None, false).unwrap();
+        let (lo, hi) = s.index_bounds();
+        assert!(lo.cmpge(IVec3::splat(-12)).all() && hi.cmple(IVec3::splat(12)).all());
+        assert!(s.extinction(DVec3::ZERO) > 0.0);
+        assert_eq!(s.extinction(DVec3::splat(5.0)), 0.0);
+        // Voxel centres reproduce voxel values exactly.
+        for i in -12..=12 {
+            let c = IVec3::new(i, 0, 0);
+            let v = s.voxel(c);
+            assert!((s.extinction(s.index_to_world(c.as_dvec3())) - v).abs() <= 1e-5 * v.max(1.0));
+        }
+        let e = in_process("openvdb_sphere_levelset.vdb", None, false).unwrap_err();
+        assert!(
+            e.contains("level set") && e.contains("--levelset-to-fog"),
+            "{e}"
+        );
+        let fog = in_process("openvdb_sphere_levelset.vdb", None, true).unwrap();
+        // The sphere's centre is deep inside (a tile region), the corner outside.
+        assert_eq!(fog.extinction(DVec3::ZERO), 1.0);
+        assert_eq!(fog.extinction(DVec3::splat(2.9)), 0.0);
+    }
+
+    #[test]
+    fn flood_fill_in_a_leaf() {
+        let mut vals = [0f32; 512];
+        let mut words = [0u64; 8];
+        // A plane of active voxels at z = 3 with negative values: voxels after it along z
+        // inherit "inside" only until the next active voxel.
+        for x in 0..8 {
+            for y in 0..8 {
+                let i = (x << 6) | (y << 3) | 3;
+                words[i / 64] |= 1 << (i % 64);
+                vals[i] = -1.0;
+                let j = (x << 6) | (y << 3) | 6;
+                words[j / 64] |= 1 << (j % 64);
+                vals[j] = 1.0;
+            }
+        }
+        let ins = leaf_inside(&vals, Mask(&words));
+        assert!(ins[3] && ins[4] && ins[5] && !ins[6] && !ins[7]);
+    }
+}

@@ -1,0 +1,888 @@
+//! The parent side: `VdbSource`, the sparse 8^3-block grid the stream becomes, its dense
+//! copy, and its `DensitySource` sampling and marching.
+
+use super::*;
+
+/// A block of 8^3 voxels: a leaf's values or a constant tile.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Block {
+    Dense(u32),
+    Const(f32),
+}
+
+/// Fast hasher for packed integer keys (the std SipHash is ~4x slower here and the keys are
+/// not attacker-chosen in a way that matters: a slow file only slows its own bake).
+#[derive(Default)]
+pub(super) struct KeyHasher(pub(super) u64);
+
+impl Hasher for KeyHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.write_u64(u64::from(*b));
+        }
+    }
+    fn write_u64(&mut self, k: u64) {
+        let h = (self.0 ^ k ^ (k >> 29)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        self.0 = h ^ (h >> 32);
+    }
+}
+
+pub(super) type KeyMap<V> = HashMap<u64, V, BuildHasherDefault<KeyHasher>>;
+
+/// Packs a block key relative to `base`; `None` when outside the packable range (and
+/// therefore absent: every stored key is packable).
+#[inline(always)]
+pub(super) fn pack(k: IVec3, base: IVec3) -> Option<u64> {
+    let r = k.as_i64vec3() - base.as_i64vec3();
+    const LIM: i64 = 1 << 21;
+    if r.x < 0 || r.y < 0 || r.z < 0 || r.x >= LIM || r.y >= LIM || r.z >= LIM {
+        return None;
+    }
+    Some((r.x as u64) | ((r.y as u64) << 21) | ((r.z as u64) << 42))
+}
+
+/// An OpenVDB grid held sparsely: 8^3 blocks keyed by position, trilinear between voxel
+/// centres at integer index coordinates.
+pub struct VdbSource {
+    pub(super) blocks: KeyMap<Block>,
+    pub(super) block_base: IVec3,
+    /// 128^3 constant tiles keyed by `index >> 7`.
+    pub(super) big: KeyMap<f32>,
+    pub(super) big_base: IVec3,
+    /// 4096^3 constant root tiles keyed by `index >> 12`.
+    pub(super) huge: KeyMap<f32>,
+    pub(super) huge_base: IVec3,
+    /// Leaf values, OpenVDB order (`x * 64 + y * 8 + z`).
+    pub(super) leaves: Vec<[f32; 512]>,
+    pub(super) leaf_max: Vec<f32>,
+    /// Index to world: `world = lin * index + translation`.
+    pub(super) lin: DMat3,
+    pub(super) inv_lin: DMat3,
+    pub(super) translation: DVec3,
+    /// `(scale, 1 / scale)` of an axis-aligned map, which keeps the per-axis arithmetic (and
+    /// so the bits) of the scale-and-translate maps this reader started with.
+    pub(super) diag: Option<(DVec3, DVec3)>,
+    /// `lin` and `translation` as the pin format's row-major 3x4 `local_to_world`.
+    pub(super) xf: [f64; 12],
+    /// Index box (inclusive voxel coordinates) of the non-zero voxels.
+    pub(super) index_min: IVec3,
+    pub(super) index_max: IVec3,
+    pub(super) bounds: Aabb,
+    pub(super) global_max: f32,
+    pub(super) label: String,
+    /// A dense copy of the active box that the samplers read instead of the tree
+    /// ([`VdbSource::with_dense_cache`]).
+    pub(super) cache: Option<DenseCache>,
+}
+
+/// Every voxel of the index box `[lo, lo + dims)` (the active box and a border of one zero
+/// voxel), x fastest: what [`VdbSource::sample_index`] reads in place of the tree.
+pub(super) struct DenseCache {
+    pub(super) lo: IVec3,
+    pub(super) dims: IVec3,
+    pub(super) stride_y: usize,
+    pub(super) stride_z: usize,
+    pub(super) data: Vec<f32>,
+}
+
+impl std::fmt::Debug for VdbSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.label)
+    }
+}
+
+impl VdbSource {
+    /// Opens `path` with the isolated worker; see the module docs. Every failure, including a
+    /// crash, timeout or memory exhaustion of the worker, is a one-line [`SourceError::Vdb`].
+    pub fn open(path: &Path, opt: &VdbOptions) -> Result<Self, SourceError> {
+        let fail = |m: String| SourceError::Vdb {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        let scale = DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
+        // A FIFO, device or directory is refused before the worker could block on it or
+        // read it without end.
+        let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
+        let limit = opt
+            .memory_limit
+            .unwrap_or_else(|| default_memory_limit(file_size));
+        let stream = run_worker(path, opt, file_size, limit).map_err(fail)?;
+        Self::from_stream(path, stream, scale).map_err(fail)
+    }
+
+    pub(super) fn from_stream(
+        path: &Path,
+        st: Stream,
+        scale: DensityScale,
+    ) -> Result<Self, String> {
+        let grid = st.grids[st.chosen].display();
+        let x = st.xf;
+        let lin = DMat3::from_cols_array(&[x[0], x[4], x[8], x[1], x[5], x[9], x[2], x[6], x[10]]);
+        let translation = DVec3::new(x[3], x[7], x[11]);
+        let inv_lin = lin.inverse();
+        if !(x.iter().all(|v| v.is_finite())
+            && lin.determinant() != 0.0
+            && inv_lin.is_finite()
+            && inv_lin.determinant() != 0.0)
+        {
+            return Err(format!(
+                "grid '{grid}' has a degenerate transform (index to world {:?})",
+                st.xf
+            ));
+        }
+        let off_diagonal = [x[1], x[2], x[4], x[6], x[8], x[9]];
+        let diag = off_diagonal.iter().all(|v| *v == 0.0).then(|| {
+            let s = DVec3::new(x[0], x[5], x[10]);
+            (s, s.recip())
+        });
+        let mut blocks: KeyMap<Block> = KeyMap::default();
+        let mut big: KeyMap<f32> = KeyMap::default();
+        let mut huge: KeyMap<f32> = KeyMap::default();
+        let mut leaves = Vec::new();
+        let mut leaf_max = Vec::new();
+        let mut lo = IVec3::MAX;
+        let mut hi = IVec3::MIN;
+        let mut global_max = 0.0f32;
+        let check = |v: f32, at: IVec3| -> Result<f32, String> {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("worker sent value {v} at ({at}) (corrupt stream)"));
+            }
+            scale.apply(v as f64).ok_or_else(|| {
+                format!(
+                    "grid '{grid}' value {v} at voxel ({},{},{}) times density scale {scale} overflows f32",
+                    at.x, at.y, at.z
+                )
+            })
+        };
+        // Keys are collected first so they can be packed relative to their minimum.
+        let mut entries: Vec<(IVec3, Block)> = Vec::with_capacity(st.leaves.len() + st.tiles.len());
+        let mut big_entries: Vec<(IVec3, f32)> = Vec::new();
+        let mut huge_entries: Vec<(IVec3, f32)> = Vec::new();
+        for (o, vals) in &st.leaves {
+            let o = IVec3::from_array(*o);
+            if (o & 7) != IVec3::ZERO {
+                return Err(format!("worker sent a misaligned leaf at {o}"));
+            }
+            let mut scaled = [0f32; 512];
+            let mut m = 0.0f32;
+            for (k, v) in vals.iter().enumerate() {
+                let l = local(k, 3);
+                let at = o + IVec3::from_array(l);
+                let s = check(*v, at)?;
+                if s != 0.0 {
+                    lo = lo.min(at);
+                    hi = hi.max(at);
+                }
+                m = m.max(s);
+                scaled[k] = s;
+            }
+            if m == 0.0 {
+                continue;
+            }
+            global_max = global_max.max(m);
+            entries.push((o >> 3, Block::Dense(leaves.len() as u32)));
+            leaves.push(scaled);
+            leaf_max.push(m);
+        }
+        for (o, level, v) in &st.tiles {
+            let o = IVec3::from_array(*o);
+            let s = check(*v, o)?;
+            if s == 0.0 {
+                continue;
+            }
+            global_max = global_max.max(s);
+            let size = match level {
+                1 => 8,
+                2 => 128,
+                3 => 4096,
+                _ => return Err("worker sent a tile of unknown size".into()),
+            };
+            if (o & (size - 1)) != IVec3::ZERO {
+                return Err(format!("worker sent a misaligned tile at {o}"));
+            }
+            lo = lo.min(o);
+            hi = hi.max(o + (size - 1));
+            match size {
+                8 => entries.push((o >> 3, Block::Const(s))),
+                128 => big_entries.push((o >> 7, s)),
+                _ => huge_entries.push((o >> 12, s)),
+            }
+        }
+        if leaves.is_empty()
+            && entries.is_empty()
+            && big_entries.is_empty()
+            && huge_entries.is_empty()
+        {
+            return Err(format!(
+                "grid '{grid}' has {} active voxels but all are zero{}",
+                st.active,
+                if scale.get() == 0.0 {
+                    " (density scale 0)"
+                } else {
+                    ""
+                }
+            ));
+        }
+        let span = (hi.as_i64vec3() - lo.as_i64vec3()).max_element() + 1;
+        if span > MAX_AXIS_VOXELS {
+            return Err(format!(
+                "grid '{grid}' spans {span} voxels along an axis; at most {MAX_AXIS_VOXELS} are supported. Possible corrupt input?"
+            ));
+        }
+        let block_base = lo >> 3;
+        for (k, b) in entries {
+            let key = pack(k, block_base).ok_or("block key out of range")?;
+            if blocks.insert(key, b).is_some() {
+                return Err(format!("worker sent two blocks at {}", k * 8));
+            }
+        }
+        let big_base = lo >> 7;
+        for (k, v) in big_entries {
+            let key = pack(k, big_base).ok_or("tile key out of range")?;
+            if big.insert(key, v).is_some() {
+                return Err(format!("worker sent two tiles at {}", k * 128));
+            }
+        }
+        let huge_base = lo >> 12;
+        for (k, v) in huge_entries {
+            let key = pack(k, huge_base).ok_or("tile key out of range")?;
+            if huge.insert(key, v).is_some() {
+                return Err(format!("worker sent two root tiles at {}", k * 4096));
+            }
+        }
+
+        // Trilinear support reaches one voxel beyond the outermost non-zero centre.
+        let to_world = |i: DVec3| match diag {
+            Some((s, _)) => i * s + translation,
+            None => lin * i + translation,
+        };
+        let (ilo, ihi) = ((lo - 1).as_dvec3(), (hi + 1).as_dvec3());
+        let mut bounds = Aabb::new(DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let i = DVec3::select(
+                glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0),
+                ihi,
+                ilo,
+            );
+            let w = to_world(i);
+            bounds = Aabb::new(bounds.min.min(w), bounds.max.max(w));
+        }
+        // A transform with an absurd translation or scale (found by fuzzing: a translation
+        // of -1.7e277) maps the grid to a box that f64 cannot resolve: its extent rounds to
+        // zero or overflows. Nothing downstream can place pins in such a box.
+        if !bounds.is_valid() || !bounds.extent().is_finite() {
+            return Err(format!(
+                "grid '{grid}' has an unusable index-to-world transform ({:?}): its world box is empty or not finite",
+                st.xf
+            ));
+        }
+        let name = path
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let mut label = format!(
+            "vdb {} grid '{grid}' ({}{}), {} leaves, {} tiles, voxel size {}",
+            one_line(&name),
+            st.kind.name(),
+            if st.level_set {
+                ", level set to fog"
+            } else {
+                ""
+            },
+            leaves.len(),
+            blocks.len() - leaves.len() + big.len() + huge.len(),
+            match diag {
+                Some((s, _)) => s.to_string(),
+                None => format!("{:?} (affine)", st.xf),
+            },
+        );
+        if st.negatives > 0 {
+            label.push_str(&format!(", {} negative values clamped to 0", st.negatives));
+        }
+        Ok(Self {
+            blocks,
+            block_base,
+            big,
+            big_base,
+            huge,
+            huge_base,
+            leaves,
+            leaf_max,
+            lin,
+            inv_lin,
+            translation,
+            diag,
+            xf: st.xf,
+            index_min: lo,
+            index_max: hi,
+            bounds,
+            global_max,
+            label,
+            cache: None,
+        })
+    }
+
+    /// World position of index-space point `i` (voxel centres are at integers).
+    pub fn index_to_world(&self, i: DVec3) -> DVec3 {
+        match self.diag {
+            Some((s, _)) => i * s + self.translation,
+            None => self.lin * i + self.translation,
+        }
+    }
+
+    /// Index-space position of world point `p`.
+    #[inline]
+    pub fn world_to_index(&self, p: DVec3) -> DVec3 {
+        match self.diag {
+            Some((_, inv)) => (p - self.translation) * inv,
+            None => self.inv_lin * (p - self.translation),
+        }
+    }
+
+    /// The index-to-world map as a row-major 3x4 matrix (the pin format's `local_to_world`).
+    pub fn index_to_world_matrix(&self) -> [f64; 12] {
+        self.xf
+    }
+
+    /// True when the map only scales and translates each axis (no rotation or shear): the
+    /// index box is then a world-space box.
+    pub fn is_axis_aligned(&self) -> bool {
+        self.diag.is_some()
+    }
+
+    /// Largest value that trilinear sampling can return in the index-space box `[a, b]`.
+    pub(super) fn max_in_index_box(&self, a: DVec3, b: DVec3) -> f32 {
+        // Voxels within one voxel of the region influence it.
+        let ilo = (a.floor() - 1.0).max(self.index_min.as_dvec3()).as_ivec3();
+        let ihi = (b.ceil() + 1.0).min(self.index_max.as_dvec3()).as_ivec3();
+        if !ilo.cmple(ihi).all() {
+            return 0.0;
+        }
+        let (klo, khi): (IVec3, IVec3) = (ilo >> 3, ihi >> 3);
+        let n_keys = (khi.as_i64vec3() - klo.as_i64vec3()) + 1;
+        let n_keys = n_keys.x * n_keys.y * n_keys.z;
+        let block_max = |b: &Block| match *b {
+            Block::Dense(l) => self.leaf_max[l as usize],
+            Block::Const(v) => v,
+        };
+        let mut m = 0.0f32;
+        if n_keys as usize <= self.blocks.len() {
+            for z in klo.z..=khi.z {
+                for y in klo.y..=khi.y {
+                    for x in klo.x..=khi.x {
+                        if let Some(b) = pack(IVec3::new(x, y, z), self.block_base)
+                            .and_then(|k| self.blocks.get(&k))
+                        {
+                            m = m.max(block_max(b));
+                        }
+                    }
+                }
+            }
+        } else {
+            let lim = (1u64 << 21) - 1;
+            for (k, b) in &self.blocks {
+                let key = IVec3::new(
+                    (k & lim) as i32,
+                    ((k >> 21) & lim) as i32,
+                    ((k >> 42) & lim) as i32,
+                ) + self.block_base;
+                if key.cmpge(klo).all() && key.cmple(khi).all() {
+                    m = m.max(block_max(b));
+                }
+            }
+        }
+        if m < self.global_max {
+            let (blo, bhi): (IVec3, IVec3) = (ilo >> 7, ihi >> 7);
+            let lim = (1u64 << 21) - 1;
+            for (k, v) in &self.big {
+                let key = IVec3::new(
+                    (k & lim) as i32,
+                    ((k >> 21) & lim) as i32,
+                    ((k >> 42) & lim) as i32,
+                ) + self.big_base;
+                if key.cmpge(blo).all() && key.cmple(bhi).all() {
+                    m = m.max(*v);
+                }
+            }
+            let (hlo, hhi): (IVec3, IVec3) = (ilo >> 12, ihi >> 12);
+            for (k, v) in &self.huge {
+                let key = IVec3::new(
+                    (k & lim) as i32,
+                    ((k >> 21) & lim) as i32,
+                    ((k >> 42) & lim) as i32,
+                ) + self.huge_base;
+                if key.cmpge(hlo).all() && key.cmple(hhi).all() {
+                    m = m.max(*v);
+                }
+            }
+        }
+        m
+    }
+
+    /// The grid as a [`DenseGrid`] with the same values and the same trilinear field, for a
+    /// bake that marches it with [`DenseGrid::march_runs`] instead of walking the tree per
+    /// sample; `None` for a rotated or sheared map (its voxels are not boxes of the bake
+    /// frame), an empty grid, or a copy of more than `max_bytes` bytes (or one that cannot be
+    /// allocated).
+    ///
+    /// The copy holds every voxel centre the trilinear field reaches, one beyond the stored
+    /// ones on each side: those are zero, so the dense grid's clamp-to-edge outer half voxel
+    /// reads zero where this source does, and its box covers [`DensitySource::bounds`]. A
+    /// mirrored axis (negative scale) is stored reversed, so that the copy's index grows with
+    /// world position. Values at voxel centres are bit-identical; between them the two
+    /// samplers interpolate the same corners with the same f32 weights formula, but compute
+    /// the continuous index with different f64 roundings (`(p - t) / s` against
+    /// `p / s - o / s - 0.5`), so a sample can differ by a few ulps (docs/performance.md).
+    pub fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        let (scale, _) = self.diag?;
+        if !self.index_min.cmple(self.index_max).all() {
+            return None;
+        }
+        let (lo, hi) = (self.index_min - 1, self.index_max + 1);
+        let n = (hi.as_i64vec3() - lo.as_i64vec3()) + 1;
+        if n.max_element() > i64::from(u32::MAX) {
+            return None;
+        }
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        if count.checked_mul(4)? > max_bytes {
+            return None;
+        }
+        // Copy index j along an axis is index `lo + j`, or `hi - j` where the map mirrors it.
+        let mirrored = [0, 1, 2].map(|a| scale[a] < 0.0);
+        let data = self.dense_values(lo, n, count, mirrored)?;
+        let corner = (lo.as_dvec3() - 0.5) * scale;
+        let far = (hi.as_dvec3() + 0.5) * scale;
+        let origin = corner.min(far) + self.translation;
+        let dims = [n.x as u32, n.y as u32, n.z as u32];
+        DenseGrid::new(
+            dims,
+            data,
+            scale.abs(),
+            origin,
+            format!("dense copy of {}", self.label),
+        )
+        .ok()
+    }
+
+    /// The voxels of the index box at `lo` with `n` voxels per axis (`count` in all), x
+    /// fastest; an axis with `mirrored` set runs from the box's top down. `None` if the
+    /// memory cannot be had.
+    pub(super) fn dense_values(
+        &self,
+        lo: IVec3,
+        n: glam::I64Vec3,
+        count: u64,
+        mirrored: [bool; 3],
+    ) -> Option<Vec<f32>> {
+        use rayon::prelude::*;
+        let count = usize::try_from(count).ok()?;
+        let mut data: Vec<f32> = Vec::new();
+        data.try_reserve_exact(count).ok()?;
+        data.resize(count, 0.0);
+        let (nx, ny) = (n.x as usize, n.y as usize);
+        let top = lo + (n - 1).as_ivec3();
+        let at = |a: usize, j: usize| {
+            if mirrored[a] {
+                top[a] - j as i32
+            } else {
+                lo[a] + j as i32
+            }
+        };
+        data.par_chunks_mut(nx * ny)
+            .enumerate()
+            .for_each(|(z, slab)| {
+                let iz = at(2, z);
+                for (y, row) in slab.chunks_mut(nx).enumerate() {
+                    let iy = at(1, y);
+                    for (x, v) in row.iter_mut().enumerate() {
+                        *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+                    }
+                }
+            });
+        Some(data)
+    }
+
+    /// This grid with a dense copy of its active box (plus a border of one zero voxel) that
+    /// every sampler reads instead of the tree, when the copy takes at most `max_bytes`
+    /// (unchanged otherwise, and for an empty grid). The samples are bit-identical with or
+    /// without it: the same index arithmetic, corners and interpolation, only the corner
+    /// loads come from one array instead of hash lookups. For renderers, whose trackers
+    /// sample the density one point at a time (the bake marches [`Self::dense_copy`]).
+    pub fn with_dense_cache(mut self, max_bytes: u64) -> Self {
+        if !self.index_min.cmple(self.index_max).all() {
+            return self;
+        }
+        let lo = self.index_min - 1;
+        let n = (self.index_max.as_i64vec3() - lo.as_i64vec3()) + 2;
+        let Some(count) = (n.x as u64)
+            .checked_mul(n.y as u64)
+            .and_then(|c| c.checked_mul(n.z as u64))
+            .filter(|c| c.saturating_mul(4) <= max_bytes)
+        else {
+            return self;
+        };
+        if n.max_element() > i64::from(i32::MAX) {
+            return self;
+        }
+        if let Some(data) = self.dense_values(lo, n, count, [false; 3]) {
+            self.cache = Some(DenseCache {
+                lo,
+                dims: n.as_ivec3(),
+                stride_y: n.x as usize,
+                stride_z: (n.x * n.y) as usize,
+                data,
+            });
+        }
+        self
+    }
+
+    /// True when [`Self::with_dense_cache`] made a copy.
+    pub fn has_dense_cache(&self) -> bool {
+        self.cache.is_some()
+    }
+
+    /// Inclusive index box of the non-zero voxels.
+    pub fn index_bounds(&self) -> (IVec3, IVec3) {
+        (self.index_min, self.index_max)
+    }
+
+    /// Value of one voxel (0 where nothing is stored).
+    #[inline]
+    pub fn voxel(&self, i: IVec3) -> f32 {
+        if let Some(k) = pack(i >> 3, self.block_base)
+            && let Some(b) = self.blocks.get(&k)
+        {
+            return match *b {
+                Block::Dense(l) => {
+                    let l8 = i & 7;
+                    self.leaves[l as usize][((l8.x << 6) | (l8.y << 3) | l8.z) as usize]
+                }
+                Block::Const(v) => v,
+            };
+        }
+        if !self.big.is_empty()
+            && let Some(v) = pack(i >> 7, self.big_base).and_then(|k| self.big.get(&k))
+        {
+            return *v;
+        }
+        if self.huge.is_empty() {
+            return 0.0;
+        }
+        pack(i >> 12, self.huge_base)
+            .and_then(|k| self.huge.get(&k).copied())
+            .unwrap_or(0.0)
+    }
+
+    #[inline]
+    pub(super) fn sample_index(&self, u: DVec3) -> f32 {
+        let f = u.floor();
+        let i = f.as_ivec3();
+        let t = (u - f).as_vec3();
+        let l = i & 7;
+        let c: [f32; 8] = if let Some(cache) = &self.cache {
+            // The cell's lower corner relative to the copy; a cell not wholly inside it has
+            // only zero voxels (the border and beyond), as the tree would say.
+            let r = i.as_i64vec3() - cache.lo.as_i64vec3();
+            if r.cmplt(glam::I64Vec3::ZERO).any() || r.cmpge((cache.dims - 1).as_i64vec3()).any() {
+                return 0.0;
+            }
+            let (sy, sz) = (cache.stride_y, cache.stride_z);
+            let b = r.x as usize + r.y as usize * sy + r.z as usize * sz;
+            let d = &cache.data[b..=b + 1 + sy + sz];
+            [
+                d[0],
+                d[1],
+                d[sy],
+                d[sy + 1],
+                d[sz],
+                d[sz + 1],
+                d[sz + sy],
+                d[sz + sy + 1],
+            ]
+        } else if l.x < 7 && l.y < 7 && l.z < 7 {
+            // All eight corners in one block: one hash lookup.
+            match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
+                Some(Block::Dense(li)) => {
+                    let leaf = &self.leaves[*li as usize];
+                    let b = ((l.x << 6) | (l.y << 3) | l.z) as usize;
+                    [
+                        leaf[b],
+                        leaf[b + 64],
+                        leaf[b + 8],
+                        leaf[b + 72],
+                        leaf[b + 1],
+                        leaf[b + 65],
+                        leaf[b + 9],
+                        leaf[b + 73],
+                    ]
+                }
+                Some(Block::Const(v)) => [*v; 8],
+                None if self.big.is_empty() && self.huge.is_empty() => return 0.0,
+                None => self.corners(i),
+            }
+        } else {
+            self.corners(i)
+        };
+        let c00 = c[0] + (c[1] - c[0]) * t.x;
+        let c10 = c[2] + (c[3] - c[2]) * t.x;
+        let c01 = c[4] + (c[5] - c[4]) * t.x;
+        let c11 = c[6] + (c[7] - c[6]) * t.x;
+        let c0 = c00 + (c10 - c00) * t.y;
+        let c1 = c01 + (c11 - c01) * t.y;
+        (c0 + (c1 - c0) * t.z).max(0.0)
+    }
+
+    /// Corner values in the order (x, then y, then z varying fastest-to-slowest).
+    pub(super) fn corners(&self, i: IVec3) -> [f32; 8] {
+        let mut c = [0f32; 8];
+        for (n, v) in c.iter_mut().enumerate() {
+            let d = IVec3::new((n & 1) as i32, ((n >> 1) & 1) as i32, ((n >> 2) & 1) as i32);
+            *v = self.voxel(i + d);
+        }
+        c
+    }
+}
+
+impl DensitySource for VdbSource {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    #[inline]
+    fn extinction(&self, p: DVec3) -> f32 {
+        // The box test also keeps the index conversion in i32 range and rejects NaN.
+        if !(p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()) {
+            return 0.0;
+        }
+        self.sample_index(self.world_to_index(p))
+    }
+
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
+    }
+
+    fn voxel_size(&self) -> Option<DVec3> {
+        // The world length of one index step per axis; a negative scale mirrors the grid and
+        // the voxel is as large either way.
+        Some(match self.diag {
+            Some((s, _)) => s.abs(),
+            None => DVec3::new(
+                self.lin.x_axis.length(),
+                self.lin.y_axis.length(),
+                self.lin.z_axis.length(),
+            ),
+        })
+    }
+
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
+        if !lo.cmple(hi).all() {
+            return 0.0;
+        }
+        // The index box around the region's corners (for an axis-aligned map, the images of
+        // `lo` and `hi`).
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let i = self.world_to_index(p);
+            a = a.min(i);
+            b = b.max(i);
+        }
+        self.max_in_index_box(a, b)
+    }
+
+    fn describe(&self) -> String {
+        self.label.clone()
+    }
+
+    fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
+        // Axis-aligned grids keep baking in world space, as they always have.
+        let (frame, local_to_world) = GridFrame::new(self)?;
+        Some((Box::new(frame), local_to_world))
+    }
+
+    fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        VdbSource::dense_copy(self, max_bytes)
+    }
+
+    fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
+        // Axis-aligned maps only: a rotated or sheared grid's voxels are not boxes of the bake
+        // frame, and it keeps point sampling.
+        let Some((scale, _)) = self.diag else {
+            return Ok(None);
+        };
+        // The fine grid is every voxel centre the trilinear field reaches (one beyond the
+        // stored ones, where it falls to zero), each the centre of a unit index cell.
+        let (lo, hi) = (self.index_min - 1, self.index_max + 1);
+        let n = (hi - lo + 1).as_i64vec3();
+        if n.cmple(glam::I64Vec3::ZERO).any() || n.max_element() > i64::from(u32::MAX) {
+            return Ok(None);
+        }
+        let fine = [n.x as u32, n.y as u32, n.z as u32];
+        let extent = n.as_dvec3() * scale.abs();
+        // The dense level (and the pass that reads every fine voxel) must stay about the size
+        // of what the sparse grid stores: a few leaves under a huge tile box keep point
+        // sampling instead of a dense copy of the box.
+        let stored = (self.leaves.len() as u64 * 512).max(1 << 24);
+        let coarse: u64 = Mip::coarse_dims(fine, extent, step)
+            .iter()
+            .map(|&c| c as u64)
+            .product();
+        let fine_count = n.x as u64 * n.y as u64 * n.z as u64;
+        if coarse > stored || fine_count > 8 * stored {
+            return Ok(None);
+        }
+        // Fine index j along an axis is index `lo + j`, or `hi - j` where the map mirrors
+        // that axis (so that j grows with world position, as the mip's voxels do).
+        let at = |a: usize, j: usize| {
+            if scale[a] > 0.0 {
+                lo[a] + j as i32
+            } else {
+                hi[a] - j as i32
+            }
+        };
+        let corner = DVec3::new(
+            (lo.x as f64 - 0.5) * scale.x,
+            (lo.y as f64 - 0.5) * scale.y,
+            (lo.z as f64 - 0.5) * scale.z,
+        );
+        let far = DVec3::new(
+            (hi.x as f64 + 0.5) * scale.x,
+            (hi.y as f64 + 0.5) * scale.y,
+            (hi.z as f64 + 0.5) * scale.z,
+        );
+        let origin = corner.min(far) + self.translation;
+        let fill = |y: usize, z: usize, row: &mut [f32]| {
+            let (iy, iz) = (at(1, y), at(2, z));
+            for (x, v) in row.iter_mut().enumerate() {
+                *v = self.voxel(IVec3::new(at(0, x), iy, iz));
+            }
+        };
+        Mip::build(fine, origin, extent, step, &fill)
+    }
+
+    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
+        for (i, o) in out.iter_mut().take(n).enumerate() {
+            let p = origin + step * i as f64;
+            *o = if p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all() {
+                self.sample_index(self.world_to_index(p))
+            } else {
+                0.0
+            };
+        }
+    }
+}
+
+/// A rotated or sheared grid in its own frame, which is where the baker works on it: the
+/// index axes, turned into world units. With `index_to_world = Q R + t` (QR decomposition of
+/// the linear part: `Q` orthonormal, `R` upper triangular), local = `R index`, and the rigid
+/// `[Q | t]` places the result. Index space itself would not do: pins store optical depth,
+/// and a non-uniform scale or shear makes a unit of index length a direction-dependent world
+/// length; a rigid placement keeps lengths, so local extinction is world extinction.
+///
+/// For a rotation times a per-axis scale, `R` is that scale and the pin box is exactly the
+/// grid's index box scaled; for a shear it is the box around the sheared index box.
+pub(super) struct GridFrame<'a> {
+    pub(super) grid: &'a VdbSource,
+    /// Local to index (`R^-1`).
+    pub(super) to_index: DMat3,
+    /// The local box: `R` applied to the index box.
+    pub(super) bounds: Aabb,
+}
+
+impl<'a> GridFrame<'a> {
+    /// The frame and its `local_to_world` (row-major 3x4), or `None` when the map is
+    /// axis-aligned or degenerate.
+    pub(super) fn new(grid: &'a VdbSource) -> Option<(Self, [f64; 12])> {
+        if grid.diag.is_some() {
+            return None;
+        }
+        // Gram-Schmidt on the columns of the linear part (the image of each index axis).
+        let m = grid.lin;
+        let q0 = m.x_axis.normalize();
+        let q1 = (m.y_axis - q0 * q0.dot(m.y_axis)).normalize();
+        let q2 = (m.z_axis - q0 * q0.dot(m.z_axis) - q1 * q1.dot(m.z_axis)).normalize();
+        let q = DMat3::from_cols(q0, q1, q2);
+        let r = q.transpose() * m;
+        let to_index = r.inverse();
+        if !(q.is_finite() && to_index.is_finite()) {
+            return None;
+        }
+        let (lo, hi) = (
+            (grid.index_min - 1).as_dvec3(),
+            (grid.index_max + 1).as_dvec3(),
+        );
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let i = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let l = r * i;
+            a = a.min(l);
+            b = b.max(l);
+        }
+        let t = grid.translation;
+        let xf = [
+            q.x_axis.x, q.y_axis.x, q.z_axis.x, t.x, q.x_axis.y, q.y_axis.y, q.z_axis.y, t.y,
+            q.x_axis.z, q.y_axis.z, q.z_axis.z, t.z,
+        ];
+        Some((
+            Self {
+                grid,
+                to_index,
+                bounds: Aabb::new(a, b),
+            },
+            xf,
+        ))
+    }
+
+    pub(super) fn index_inside(&self, u: DVec3) -> bool {
+        let g = self.grid;
+        u.cmpge((g.index_min - 1).as_dvec3()).all() && u.cmple((g.index_max + 1).as_dvec3()).all()
+    }
+}
+
+impl DensitySource for GridFrame<'_> {
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    fn extinction(&self, p: DVec3) -> f32 {
+        if !(p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all()) {
+            return 0.0;
+        }
+        let u = self.to_index * p;
+        if !self.index_inside(u) {
+            return 0.0;
+        }
+        self.grid.sample_index(u)
+    }
+
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
+    }
+
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
+        if !lo.cmple(hi).all() {
+            return 0.0;
+        }
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let u = self.to_index * p;
+            a = a.min(u);
+            b = b.max(u);
+        }
+        self.grid.max_in_index_box(a, b)
+    }
+
+    fn describe(&self) -> String {
+        format!("{}, baked in the grid's own frame", self.grid.label)
+    }
+}

@@ -1,0 +1,143 @@
+//! Starting the worker: the executable, its environment and memory limit, and turning its
+//! exit into one line.
+
+use super::*;
+
+/// Set in the worker's environment. A process that has it and is asked to start a worker is
+/// itself a "worker" that did not understand `__vdb-worker` (e.g. a test harness given as
+/// `worker_exe`, which would run its tests, open the VDB again and spawn itself without end);
+/// it refuses instead of recursing.
+pub const WORKER_ENV: &str = "PINBAKE_VDB_WORKER";
+
+/// Spawns the worker with limits, parses its stream and turns every failure mode into text.
+pub(super) fn run_worker(
+    path: &Path,
+    opt: &VdbOptions,
+    file_size: u64,
+    limit: u64,
+) -> Result<Stream, String> {
+    if std::env::var_os(WORKER_ENV).is_some() {
+        return Err(format!(
+            "refusing to start a VDB reader from inside a VDB reader process: '{}' does not \
+             handle `{WORKER_SUBCOMMAND}` (set VdbOptions::worker_exe to pinbake or pinrender)",
+            opt.worker_exe.display()
+        ));
+    }
+    let mut cmd = Command::new(&opt.worker_exe);
+    cmd.env(WORKER_ENV, "1")
+        .arg(WORKER_SUBCOMMAND)
+        .arg(path)
+        .arg(opt.grid.as_deref().unwrap_or(""))
+        .arg(if opt.levelset_to_fog {
+            "levelset-to-fog"
+        } else {
+            "fog"
+        })
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: the closure runs between fork and exec and only calls setrlimit, which is
+        // async-signal-safe; it touches no locks and allocates nothing.
+        unsafe {
+            cmd.pre_exec(move || {
+                let lim = libc::rlimit {
+                    rlim_cur: limit as libc::rlim_t,
+                    rlim_max: limit as libc::rlim_t,
+                };
+                let none = libc::rlimit {
+                    rlim_cur: 0,
+                    rlim_max: 0,
+                };
+                // A crash of the worker on a hostile file should not leave a core dump behind.
+                libc::setrlimit(libc::RLIMIT_CORE, &none);
+                if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0
+                    || libc::setrlimit(libc::RLIMIT_DATA, &lim) != 0
+                {
+                    return Err(std::io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+    let mut child = cmd.spawn().map_err(|e| {
+        format!(
+            "cannot start the VDB reader '{}': {e}",
+            opt.worker_exe.display()
+        )
+    })?;
+    let stdout = child.stdout.take().ok_or("worker has no stdout")?;
+    let stderr = child.stderr.take().ok_or("worker has no stderr")?;
+    let parser = std::thread::spawn(move || {
+        let mut r = BufReader::with_capacity(1 << 16, stdout);
+        let res = parse_stream(&mut r, file_size);
+        // Drain so that the child never blocks on a full pipe after we stopped reading.
+        let _ = std::io::copy(&mut r, &mut std::io::sink());
+        res
+    });
+    let err_reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stderr.take(64 * 1024).read_to_end(&mut buf);
+        String::from_utf8_lossy(&buf).into_owned()
+    });
+    let deadline = Instant::now() + opt.timeout;
+    let mut timed_out = false;
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(s)) => break s,
+            Ok(None) => {}
+            Err(e) => return Err(format!("waiting for the VDB reader failed: {e}")),
+        }
+        if Instant::now() >= deadline {
+            timed_out = true;
+            let _ = child.kill();
+            break child
+                .wait()
+                .map_err(|e| format!("waiting for the VDB reader failed: {e}"))?;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let parsed = parser
+        .join()
+        .unwrap_or_else(|_| Err("worker stream parser panicked".into()));
+    let stderr_text = err_reader.join().unwrap_or_default();
+    let last_line = stderr_text
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .map(one_line);
+    if timed_out {
+        return Err(format!(
+            "VDB reader timed out after {} s",
+            opt.timeout.as_secs_f64()
+        ));
+    }
+    if status.success() {
+        return parsed;
+    }
+    if stderr_text.contains("memory allocation of") {
+        // The default limit is 64 MiB + 64 x the file size; every stored node carries its
+        // masks uncompressed, so a valid file stays below it (docs/vdb.md).
+        return Err(if opt.memory_limit.is_some() {
+            format!(
+                "VDB reader needs more than {} MiB of memory (the limit it was given)",
+                limit / MIB
+            )
+        } else {
+            format!(
+                "VDB reader needs more than {} MiB of memory, more than a valid file of {file_size} bytes needs (docs/vdb.md): the file is probably corrupt",
+                limit / MIB
+            )
+        });
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::ExitStatusExt;
+        if let Some(sig) = status.signal() {
+            return Err(format!("VDB reader crashed (signal {sig})"));
+        }
+    }
+    Err(last_line.unwrap_or_else(|| format!("VDB reader failed ({status})")))
+}

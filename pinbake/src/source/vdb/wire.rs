@@ -1,0 +1,321 @@
+//! The worker-to-parent stream: its tags and limits, the grid descriptions it carries, the
+//! writer helpers the worker uses and the parent's bounded parser (`parse_stream`).
+
+use super::*;
+
+pub(super) const STREAM_MAGIC: &[u8; 8] = b"PBVDBW01";
+pub(super) const STREAM_END: &[u8; 8] = b"PBVDBEND";
+pub(super) const TAG_END: u8 = 0;
+pub(super) const TAG_LEAF: u8 = 1;
+pub(super) const TAG_TILE: u8 = 2;
+pub(super) const MAX_NAME: usize = 1024;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum ValueKind {
+    Float = 0,
+    FloatSavedAsHalf = 1,
+    Half = 2,
+    Double = 3,
+}
+
+impl ValueKind {
+    pub(super) fn from_u8(v: u8) -> Option<Self> {
+        Some(match v {
+            0 => Self::Float,
+            1 => Self::FloatSavedAsHalf,
+            2 => Self::Half,
+            3 => Self::Double,
+            _ => return None,
+        })
+    }
+    pub(super) fn name(self) -> &'static str {
+        match self {
+            Self::Float => "float",
+            Self::FloatSavedAsHalf => "float saved as half",
+            Self::Half => "half",
+            Self::Double => "double",
+        }
+    }
+}
+
+/// The part of a grid descriptor the worker needs, independent of vdb-rs types.
+#[derive(Clone, Debug)]
+pub(super) struct GridInfo {
+    /// Descriptor name as stored (repeated names carry `\x1e<n>`).
+    pub(super) name: String,
+    pub(super) grid_type: String,
+    pub(super) class: String,
+}
+
+impl GridInfo {
+    pub(super) fn display(&self) -> String {
+        display_name(&self.name)
+    }
+    pub(super) fn value_kind(&self, half_meta: bool) -> Option<ValueKind> {
+        let t = self.grid_type.as_str();
+        if t == "Tree_float_5_4_3_HalfFloat" || (t == "Tree_float_5_4_3" && half_meta) {
+            Some(ValueKind::FloatSavedAsHalf)
+        } else if t == "Tree_float_5_4_3" {
+            Some(ValueKind::Float)
+        } else if t == "Tree_half_5_4_3" {
+            Some(ValueKind::Half)
+        } else if t == "Tree_double_5_4_3" || t == "Tree_double_5_4_3_HalfFloat" {
+            Some(ValueKind::Double)
+        } else {
+            None
+        }
+    }
+    pub(super) fn is_scalar_float(&self) -> bool {
+        self.value_kind(false).is_some()
+    }
+}
+
+/// `density\x1e1` is shown (and selected) as `density#1`.
+pub(super) fn display_name(name: &str) -> String {
+    one_line(name)
+}
+
+/// Picks the grid per the rules in the module docs. `grids` must be sorted by name.
+pub(super) fn select_grid(grids: &[GridInfo], selector: Option<&str>) -> Result<usize, String> {
+    let list = || {
+        grids
+            .iter()
+            .map(|g| g.display())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let by_name = |sel: &str| -> Result<Option<usize>, String> {
+        if let Some(i) = grids.iter().position(|g| g.name == sel) {
+            return Ok(Some(i));
+        }
+        if let Some((base, k)) = sel.rsplit_once('#') {
+            let want = format!("{base}\u{1e}{k}");
+            if let Some(i) = grids.iter().position(|g| g.name == want) {
+                return Ok(Some(i));
+            }
+        }
+        let same: Vec<usize> = (0..grids.len())
+            .filter(|&i| grids[i].name.split('\u{1e}').next() == Some(sel))
+            .collect();
+        match same.len() {
+            0 => Ok(None),
+            1 => Ok(Some(same[0])),
+            n => Err(format!(
+                "{n} grids are named '{}'; pick one with --grid: {}",
+                one_line(sel),
+                same.iter()
+                    .map(|&i| grids[i].display())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )),
+        }
+    };
+    if grids.is_empty() {
+        return Err("contains no grids".into());
+    }
+    match selector {
+        Some(sel) => by_name(sel)?
+            .ok_or_else(|| format!("has no grid named '{}'; grids: {}", one_line(sel), list())),
+        None => {
+            if let Some(i) = by_name("density")? {
+                return Ok(i);
+            }
+            let floats: Vec<usize> = (0..grids.len())
+                .filter(|&i| grids[i].is_scalar_float())
+                .collect();
+            match floats.len() {
+                1 => Ok(floats[0]),
+                0 => Err(format!("has no float grid; grids: {}", list())),
+                _ => Err(format!(
+                    "has no grid named 'density' and several float grids; pick one with --grid: {}",
+                    list()
+                )),
+            }
+        }
+    }
+}
+
+pub(super) fn wr(e: std::io::Error) -> String {
+    format!("writing to the parent failed: {e}")
+}
+pub(super) fn put_u8(o: &mut impl Write, v: u8) -> Result<(), String> {
+    o.write_all(&[v]).map_err(wr)
+}
+pub(super) fn put_u32(o: &mut impl Write, v: u32) -> Result<(), String> {
+    o.write_all(&v.to_le_bytes()).map_err(wr)
+}
+pub(super) fn put_u64(o: &mut impl Write, v: u64) -> Result<(), String> {
+    o.write_all(&v.to_le_bytes()).map_err(wr)
+}
+pub(super) fn put_f64(o: &mut impl Write, v: f64) -> Result<(), String> {
+    o.write_all(&v.to_le_bytes()).map_err(wr)
+}
+pub(super) fn put_ivec(o: &mut impl Write, v: [i32; 3]) -> Result<(), String> {
+    for c in v {
+        o.write_all(&c.to_le_bytes()).map_err(wr)?;
+    }
+    Ok(())
+}
+pub(super) fn put_str(o: &mut impl Write, s: &str) -> Result<(), String> {
+    let mut end = s.len().min(MAX_NAME);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    put_u32(o, end as u32)?;
+    o.write_all(&s.as_bytes()[..end]).map_err(wr)
+}
+
+/// The parsed worker stream, before densities are scaled.
+pub(super) struct Stream {
+    pub(super) grids: Vec<GridInfo>,
+    pub(super) chosen: usize,
+    pub(super) kind: ValueKind,
+    pub(super) level_set: bool,
+    /// Index to world, row-major 3x4.
+    pub(super) xf: [f64; 12],
+    pub(super) leaves: Vec<([i32; 3], [f32; 512])>,
+    pub(super) tiles: Vec<([i32; 3], u8, f32)>,
+    pub(super) active: u64,
+    pub(super) negatives: u64,
+}
+
+pub(super) struct StreamReader<R: Read> {
+    pub(super) r: R,
+}
+
+impl<R: Read> StreamReader<R> {
+    pub(super) fn fill(&mut self, buf: &mut [u8]) -> Result<(), String> {
+        self.r
+            .read_exact(buf)
+            .map_err(|_| "worker stream ended early".to_string())
+    }
+    pub(super) fn u8(&mut self) -> Result<u8, String> {
+        let mut b = [0u8; 1];
+        self.fill(&mut b)?;
+        Ok(b[0])
+    }
+    pub(super) fn u32(&mut self) -> Result<u32, String> {
+        let mut b = [0u8; 4];
+        self.fill(&mut b)?;
+        Ok(u32::from_le_bytes(b))
+    }
+    pub(super) fn u64(&mut self) -> Result<u64, String> {
+        let mut b = [0u8; 8];
+        self.fill(&mut b)?;
+        Ok(u64::from_le_bytes(b))
+    }
+    pub(super) fn f64(&mut self) -> Result<f64, String> {
+        Ok(f64::from_bits(self.u64()?))
+    }
+    pub(super) fn ivec(&mut self) -> Result<[i32; 3], String> {
+        let mut v = [0i32; 3];
+        for c in &mut v {
+            *c = self.u32()? as i32;
+        }
+        Ok(v)
+    }
+    pub(super) fn string(&mut self) -> Result<String, String> {
+        let n = self.u32()? as usize;
+        if n > MAX_NAME {
+            return Err(format!("worker stream has a {n}-byte name"));
+        }
+        let mut b = vec![0u8; n];
+        self.fill(&mut b)?;
+        Ok(String::from_utf8_lossy(&b).into_owned())
+    }
+}
+
+/// Parses the worker's stream. Counts are checked against limits derived from the file size:
+/// a leaf costs at least 128 bytes in a VDB file (two 64-byte masks), a tile at least two mask
+/// bits, so a stream claiming more is corrupt whatever the child says.
+pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, String> {
+    let mut s = StreamReader { r };
+    let mut magic = [0u8; 8];
+    s.fill(&mut magic)?;
+    if &magic != STREAM_MAGIC {
+        return Err("worker stream has a bad magic".into());
+    }
+    let n = s.u32()? as u64;
+    if n == 0 || n > 4096.max(file_size / 16) {
+        return Err(format!("worker stream lists {n} grids"));
+    }
+    let mut grids = Vec::with_capacity(n.min(4096) as usize);
+    for _ in 0..n {
+        grids.push(GridInfo {
+            name: s.string()?,
+            grid_type: s.string()?,
+            class: s.string()?,
+        });
+    }
+    let chosen = s.u32()? as usize;
+    if chosen >= grids.len() {
+        return Err("worker stream chose a grid out of range".into());
+    }
+    let kind = ValueKind::from_u8(s.u8()?).ok_or("worker stream has a bad value kind")?;
+    let level_set = match s.u8()? {
+        0 => false,
+        1 => true,
+        _ => return Err("worker stream has a bad grid class".into()),
+    };
+    let mut xf = [0f64; 12];
+    for v in &mut xf {
+        *v = s.f64()?;
+    }
+    let max_leaves = file_size / 64 + 1;
+    let max_tiles = file_size.saturating_mul(4) + 64;
+    let mut leaves = Vec::new();
+    let mut tiles = Vec::new();
+    loop {
+        match s.u8()? {
+            TAG_END => break,
+            TAG_LEAF => {
+                if leaves.len() as u64 >= max_leaves {
+                    return Err(format!(
+                        "worker stream has more than {max_leaves} leaves for a {file_size}-byte file"
+                    ));
+                }
+                let o = s.ivec()?;
+                let mut bytes = [0u8; 2048];
+                s.fill(&mut bytes)?;
+                let mut vals = [0f32; 512];
+                for (v, b) in vals.iter_mut().zip(bytes.chunks_exact(4)) {
+                    *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                }
+                leaves.push((o, vals));
+            }
+            TAG_TILE => {
+                if tiles.len() as u64 >= max_tiles {
+                    return Err(format!(
+                        "worker stream has more than {max_tiles} tiles for a {file_size}-byte file"
+                    ));
+                }
+                let o = s.ivec()?;
+                let level = s.u8()?;
+                let mut b = [0u8; 4];
+                s.fill(&mut b)?;
+                tiles.push((o, level, f32::from_le_bytes(b)));
+            }
+            t => return Err(format!("worker stream has a bad record tag {t}")),
+        }
+    }
+    let active = s.u64()?;
+    let negatives = s.u64()?;
+    s.fill(&mut magic)?;
+    if &magic != STREAM_END {
+        return Err("worker stream has a bad trailer".into());
+    }
+    if s.r.read(&mut [0u8; 1]).map_err(|e| e.to_string())? != 0 {
+        return Err("worker stream has trailing bytes".into());
+    }
+    Ok(Stream {
+        grids,
+        chosen,
+        kind,
+        level_set,
+        xf,
+        leaves,
+        tiles,
+        active,
+        negatives,
+    })
+}
