@@ -110,6 +110,7 @@ mod majorant;
 pub mod phase;
 mod pins;
 mod rng;
+mod settings;
 mod spec;
 mod tracer;
 mod wavefront;
@@ -118,7 +119,7 @@ pub mod whole_volume;
 #[cfg(test)]
 mod tests;
 
-pub use cache::{CacheSettings, RadianceCache};
+pub use cache::RadianceCache;
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
     CombKind, DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
@@ -130,11 +131,12 @@ pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_ma
 pub use majorant::{Dda, MajorantGrid, Segment};
 pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
+pub use settings::{Budget, CacheSettings, MAX_CAPACITY_LOG2, RenderSettings};
 pub use spec::{
     ESTIMATOR_SYNTAX, ESTIMATORS, EstimatorInfo, EstimatorSpec, MIN_REL_STEP,
     RESIDUAL_DEFAULT_CONTROL,
 };
-pub use tracer::{Budget, Camera, Medium, RenderOutput, RenderSettings, Scene, Sun, render};
+pub use tracer::{Camera, Medium, RenderOutput, Scene, Sun};
 pub use wavefront::{
     DEFAULT_WAVEFRONT_BATCH, ROW_CHUNK_PATHS, render_wavefront, row_scratch_bytes,
 };
@@ -159,4 +161,23 @@ pub enum RenderError {
     /// An allocation whose size comes from the settings failed.
     #[error("{what}: out of memory for {bytes} bytes")]
     OutOfMemory { what: &'static str, bytes: u64 },
+}
+
+/// The one entry point of the CPU path tracer: the radiance cache's sample loop when
+/// `settings.cache` asks for it (`cache.rs`), the plain loop of `tracer.rs` otherwise. The fork
+/// lives here, so the tracer does not know the cache.
+/// Render `scene`. Sample `s` of pixel `(x, y)` uses `Pcg32::for_sample(seed, y * width + x,
+/// s)` (two draws for the jitter inside the pixel, then the path), and per-pixel sums run
+/// in sample order, so the image is the same for any thread count and a time-budget render
+/// that reached `n` spp equals an `Spp(n)` render. Non-finite samples (possible only with
+/// a misbehaving plug-in estimator) are dropped.
+pub fn render(scene: &Scene, settings: &RenderSettings) -> Result<RenderOutput, RenderError> {
+    scene.validate()?;
+    if let Some(cache) = &settings.cache {
+        return cache::render_cached(scene, settings, cache);
+    }
+    let ctx = scene.ctx(settings.max_bounces);
+    tracer::accumulate(scene, settings, std::time::Instant::now(), |o, d, rng| {
+        ctx.trace(o, d, rng)
+    })
 }

@@ -6,6 +6,7 @@ use super::estimator::TransportEstimator;
 use super::image::Image;
 use super::phase::{hg_phase, sample_hg};
 use super::rng::Pcg32;
+use super::settings::{Budget, RenderSettings};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -70,30 +71,6 @@ pub struct Scene {
     /// Henyey-Greenstein asymmetry in `(-1, 1)`.
     pub g: f32,
     pub media: Vec<Medium>,
-}
-
-/// When to stop.
-#[derive(Clone, Copy, Debug)]
-pub enum Budget {
-    /// Exactly this many samples per pixel (>= 1).
-    Spp(u32),
-    /// Passes of 1 spp over the image until this much wall time is spent (checked after each
-    /// pass; at least one pass runs, so the time can be overrun by one pass).
-    Seconds(f64),
-}
-
-#[derive(Clone, Debug)]
-pub struct RenderSettings {
-    /// Maximum number of scattering events of a path (0: transmitted environment only,
-    /// 1: single scattering).
-    pub max_bounces: u32,
-    pub seed: u64,
-    pub budget: Budget,
-    /// Worker threads (a private rayon pool); `None` uses rayon's global pool.
-    pub threads: Option<usize>,
-    /// Path-space radiance cache for multiple scattering (see [`super::cache`]); `None`
-    /// renders exactly as without it.
-    pub cache: Option<super::cache::CacheSettings>,
 }
 
 /// A finished render.
@@ -416,7 +393,7 @@ impl Ctx<'_> {
     /// since `E[T] = P(escape)` already paid for that. The sun is a delta light: it is seen
     /// only through next-event estimation, `phase * T * radiance`. Scattering weights the
     /// throughput by the albedo (no roulette); `max_bounces` vertices at most.
-    fn trace(&self, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Vec3 {
+    pub(crate) fn trace(&self, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Vec3 {
         let (l, hit) = self.camera_segment(o, d, rng);
         match hit {
             None => l,
@@ -563,22 +540,6 @@ impl VertexHook for NoHook {
     fn at_vertex(&mut self, _: &PathVertex, _: Vec3, _: &mut Pcg32) -> Option<Vec3> {
         None
     }
-}
-
-/// Render `scene`. Sample `s` of pixel `(x, y)` uses `Pcg32::for_sample(seed, y * width + x,
-/// s)` (two draws for the jitter inside the pixel, then the path), and per-pixel sums run
-/// in sample order, so the image is the same for any thread count and a time-budget render
-/// that reached `n` spp equals an `Spp(n)` render. Non-finite samples (possible only with
-/// a misbehaving plug-in estimator) are dropped.
-pub fn render(scene: &Scene, settings: &RenderSettings) -> Result<RenderOutput, RenderError> {
-    scene.validate()?;
-    if let Some(cache) = &settings.cache {
-        return super::cache::render_cached(scene, settings, cache);
-    }
-    let ctx = scene.ctx(settings.max_bounces);
-    accumulate(scene, settings, Instant::now(), |o, d, rng| {
-        ctx.trace(o, d, rng)
-    })
 }
 
 /// Checks the settings and runs the sample loop of [`render`] with `trace(o, d, rng)` as

@@ -33,9 +33,9 @@ use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
 use super::phase::{hg_phase, sample_hg};
 use super::pins::{MemberQuery, SharedPins, SharedScratch, query_rng};
 use super::rng::Pcg32;
+use super::settings::RenderSettings;
 use super::tracer::{
-    Ctx, RenderOutput, RenderSettings, Scene, Which, average_sums, check_settings, in_pool,
-    pixel_sums, run_budget,
+    Ctx, RenderOutput, Scene, Which, average_sums, check_settings, in_pool, pixel_sums, run_budget,
 };
 
 /// Where a path is in `Ctx::trace`.

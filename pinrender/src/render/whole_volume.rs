@@ -38,7 +38,8 @@
 
 use super::phase::{hg_phase, sample_hg};
 use super::rng::Pcg32;
-use super::tracer::{Budget, RenderOutput, RenderSettings, Scene, accumulate};
+use super::settings::{Budget, RenderSettings};
+use super::tracer::{RenderOutput, Scene, accumulate};
 use super::{RenderError, majorant::check_box, majorant::clip_box};
 use glam::{DVec3, Vec3};
 use std::time::Instant;

@@ -6,7 +6,7 @@ use anyhow::{Context, Result, anyhow, bail};
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::CosineParams;
 use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, ProceduralSpec};
-use pinrender::render::cache::CacheSettings;
+use pinrender::render::CacheSettings;
 use pinrender::render::whole_volume::WholeVolumeBox;
 use pinrender::render::{
     AnalyticOpticalDepth, Camera, ClosedFormTracker, DensityField, EstimatorSpec, HomogeneousBox,
