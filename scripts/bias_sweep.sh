@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 14 part 2: the pin model's bias against the pin file's bytes on the eval scenes.
+# The pin model's bias against the pin file's bytes on the eval scenes.
 # For each scene: a ratio-tracking reference, then pins-only renders (every ray) of bakes that
 # vary the spatial cells, the direction set (kind and count), the pins per entry and the
 # lookup jitter. Bias is what `pinrender render --reference` prints: the mean relative error

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 14: pins-only renders of one volume from four view directions (+z, -z, +x, diagonal)
+# Pins-only renders of one volume from four view directions (+z, -z, +x, diagonal)
 # against a ratio-tracking reference, for several direction sets at equal bytes and for the
 # lookup jitter and lookup chaining. Prints one CSV row per (bake, lookup options, view):
 #   volume,config,bytes,spatial_jitter,directional_jitter,view,mean_error,block8_rms_error

@@ -166,7 +166,7 @@ pub const DEFAULT_MAX_CELLS: u32 = 20;
 
 /// Spatial cells per axis when the user names none: `max` per axis, but never more cells than
 /// the bake box spans voxels along that axis (finer cells than voxels store the same
-/// interpolated density many times over and only add bytes; issue 14). Analytic sources have
+/// interpolated density many times over and only add bytes; `docs/evaluation.md`, "Bias against bytes"). Analytic sources have
 /// no voxels and get `max`.
 pub fn default_cells(
     source: &dyn DensitySource,

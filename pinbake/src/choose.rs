@@ -1,4 +1,4 @@
-//! Choosing a bake for a volume (issue 14 part 4): spatial cells, direction cells and pins per
+//! Choosing a bake for a volume: spatial cells, direction cells and pins per
 //! entry from what the volume holds, so that a user who names none of them gets a bake sized
 //! to the volume instead of one fixed size for every volume.
 //!

@@ -353,7 +353,7 @@ fn a_worker_never_spawns_a_worker() {
     assert_clean_failure(&o, "refusing to start a VDB reader", &out);
 }
 
-/// Issue 14: without `--cells` a bake never uses more spatial cells than the volume has voxels
+/// Without `--cells` a bake never uses more spatial cells than the volume has voxels
 /// along an axis, the directions are an octahedral set, and `--json` says what was chosen and
 /// why.
 #[test]
@@ -554,7 +554,7 @@ fn target_error_chooses_monotone_bakes() {
     assert!(stderr(&o).contains("--target-error"), "{}", stderr(&o));
 }
 
-/// `pinbake bench --json`: every row carries the fields scripts read (issue 15), with sane
+/// `pinbake bench --json`: every row carries the fields scripts read, with sane
 /// values, on a tiny configuration.
 #[test]
 fn bench_json_rows_carry_time_memory_and_integration_error() {

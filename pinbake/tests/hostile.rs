@@ -5,7 +5,7 @@
 //! ru_maxrss, which includes the isolated VDB worker) and wall time. Prints the table that
 //! `docs/stability.md` quotes (`-- --nocapture`).
 //!
-//! Then hostile and careless use (issue 12, `docs/stability.md` "Hostile use"): outputs that
+//! Then hostile and careless use (`docs/stability.md` "Hostile use"): outputs that
 //! are devices, FIFOs, symlinks to them or the input itself; special files as input;
 //! non-UTF-8 arguments; sizes beyond memory; out-of-range values (exit 2); signals during a
 //! bake. Each checks the exit code, a one-line stderr, bounded time and memory, and that
@@ -258,7 +258,7 @@ fn hostile_inputs_fail_in_one_line_with_bounded_memory_and_time() {
 }
 
 // ---------------------------------------------------------------------------------------
-// Hostile and careless use (issue 12).
+// Hostile and careless use.
 
 /// Small, fast bake settings.
 const FAST: [&str; 6] = ["--cells", "4", "--dirs", "octahedral:2", "--step", "0.05"];

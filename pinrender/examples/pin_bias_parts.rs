@@ -1,4 +1,4 @@
-//! Issue 14: where the pin model's bias floor comes from. Bakes a volume with `pinbake bake`'s
+//! Where the pin model's bias floor comes from. Bakes a volume with `pinbake bake`'s
 //! default choice, then for camera rays (to the box exit) and shadow rays (from a scattering
 //! point toward the sun) of four views compares, per ray, the EXPECTED transmittance of five
 //! models against the exact optical depth along the query ray:

@@ -1,4 +1,4 @@
-//! Hostile and careless use of the `pinrender` binary (issue 12, `docs/stability.md` "Hostile
+//! Hostile and careless use of the `pinrender` binary (`docs/stability.md` "Hostile
 //! use"): outputs that are devices, FIFOs, symlinks to them or an input; special files as
 //! input; non-UTF-8 arguments; sizes beyond memory; out-of-range values (exit 2, before any
 //! rendering); the private bench cache; silently ignored flags. Each case checks the exit

@@ -1,4 +1,4 @@
-//! Issue 14: does the direction a pin is baked along agree with the cell a query looks up, for
+//! Does the direction a pin is baked along agree with the cell a query looks up, for
 //! every direction cell, near the poles, at the equator and across the `d.z < 0` reversal? And
 //! does a near-axis ray's pin transmittance match ray marching on a simple peaked volume?
 //!
@@ -350,7 +350,7 @@ fn bake_blob(dirs: Directions) -> PinGrid {
     PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap()
 }
 
-/// The test that would have caught issue 14: pins against ray marching on near-axis rays
+/// The test that catches a direction mapped the wrong way: pins against ray marching on near-axis rays
 /// through a peaked blob (16^3 cells, no lookup jitter). The bias of the mean transmittance
 /// (400 rays x 64 draws; standard error below 0.5 / sqrt(400 * 64) ~ 0.003, truth ~0.25)
 /// must stay under 0.06 near +-z and +-x for the default direction set (octahedral:16: 0.035

@@ -230,7 +230,7 @@ pub fn relative_mse(a: &Image, reference: &Image) -> Result<f64, RenderError> {
     Ok(s / (3 * n) as f64)
 }
 
-/// The bias of an image against a converged `reference`, as issue 14 measures it, on the
+/// The bias of an image against a converged `reference`, as `docs/evaluation.md` measures it, on the
 /// channel mean of each pixel: `(mean error, block rms error)`.
 ///
 /// * mean error: `(mean(a) - mean(ref)) / mean(ref)` over the whole image;

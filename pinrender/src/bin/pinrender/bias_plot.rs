@@ -1,4 +1,4 @@
-//! `pinrender plot-bias`: the plot of `scripts/bias_sweep.sh`'s CSV (issue 14 part 2): the
+//! `pinrender plot-bias`: the plot of `scripts/bias_sweep.sh`'s CSV: the
 //! 8x8-block error of pins alone against the pin file's size relative to the f16 density, one
 //! colour per scene, one line per octahedral direction set through its cell counts, other
 //! bakes (polar, several pins per entry, other jitter) as crosses, the bakes `pinbake bake`

@@ -1,4 +1,4 @@
-//! The production-scale eval scene (issue 14 part 5): a fractal cloud voxelised at run time to
+//! The production-scale eval scene: a fractal cloud voxelised at run time to
 //! `CLOUD_VOXELS^3` f32 voxels (512^3 = 512 MiB, far beyond any CPU cache, so a tracker pays a
 //! memory miss per density fetch), deterministic and never stored in git.
 //!

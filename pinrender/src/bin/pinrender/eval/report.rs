@@ -21,11 +21,8 @@ pub const ERRORS_CSV_HEADER: &str = "scene,estimator,backend,seconds,rmse,relmse
 /// resolved by the reference: the column says so instead of printing a speedup of noise.
 pub const REFERENCE_NOISE_FACTOR: f64 = 2.0;
 
-/// Markers of docs/evaluation.md: everything from the first one found on is kept as is.
-pub const DOC_MARKERS: [&str; 2] = [
-    "<!-- companion papers -->",
-    "<!-- The lead's report table goes above this line. -->",
-];
+/// The marker of docs/evaluation.md: everything from it on is kept as is.
+pub const DOC_MARKER: &str = "<!-- companion papers -->";
 const DISCUSSION_BEGIN: &str = "<!-- discussion -->";
 const DISCUSSION_END: &str = "<!-- /discussion -->";
 
@@ -458,20 +455,14 @@ pub fn write_docs(docs: &Path, out: &Path, results: &[SceneResult], meta: &RunMe
     }
     let path = docs.join("evaluation.md");
     let old = std::fs::read_to_string(&path).unwrap_or_default();
-    let tail = DOC_MARKERS
-        .iter()
-        .filter_map(|m| old.find(m))
-        .min()
+    let tail = old
+        .find(DOC_MARKER)
         .map(|i| old[i..].to_string())
         .unwrap_or_else(|| {
             // No marker: keep whatever the file had below a fresh marker.
-            format!("{}\n\n{}", DOC_MARKERS[0], old)
+            format!("{DOC_MARKER}\n\n{old}")
         });
-    let head = old
-        .find(DOC_MARKERS[0])
-        .or_else(|| old.find(DOC_MARKERS[1]))
-        .map(|i| &old[..i])
-        .unwrap_or("");
+    let head = old.find(DOC_MARKER).map(|i| &old[..i]).unwrap_or("");
     let discussion = match (head.find(DISCUSSION_BEGIN), head.find(DISCUSSION_END)) {
         (Some(a), Some(b)) if a < b => head[a..b + DISCUSSION_END.len()].to_string(),
         _ => format!(

@@ -633,7 +633,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
     })
 }
 
-/// The production-scale scene (issue 14 part 5): a fractal cloud of `CLOUD_VOXELS`^3 f32
+/// The production-scale scene: a fractal cloud of `CLOUD_VOXELS`^3 f32
 /// voxels generated at run time (`eval/cloud.rs`), pins baked as `pinbake bake` chooses.
 fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     use super::cloud::{CLOUD_DENSITY, CLOUD_VOXELS};
@@ -652,7 +652,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
-    // The trackers, pins and PinMS (issue 14 part 5), and rm@0.015 for the time-to-error
+    // The trackers, pins and PinMS, and rm@0.015 for the time-to-error
     // column; the other estimators would add minutes at this size and say nothing new.
     let ests: Vec<String> = ["rm@0.015", "delta", "ratio", "residual", "pins", "pinms"]
         .iter()
