@@ -16,7 +16,7 @@ use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, RayQuery};
 
 mod common;
-use common::{repo, static_lib};
+use common::{compile_c, repo};
 
 const SEED: u32 = 7;
 /// Rays for the comparison and the timing (the C side times one call over all of them).
@@ -42,27 +42,12 @@ fn bake_smoke(dir: &Path) -> PathBuf {
 }
 
 fn compile(dir: &Path) -> PathBuf {
-    let exe = dir.join("pinrt_example");
-    let st = Command::new("cc")
-        .args([
-            "-std=c11",
-            "-O2",
-            "-Wall",
-            "-Wextra",
-            "-Werror",
-            "-g",
-            "-D_POSIX_C_SOURCE=200809L",
-        ])
-        .arg("-I")
-        .arg(repo().join("capi/include"))
-        .arg(repo().join("examples/c/pinrt_example.c"))
-        .arg(static_lib())
-        .args(["-lpthread", "-ldl", "-lm", "-o"])
-        .arg(&exe)
-        .status()
-        .expect("the system C compiler `cc` is required (apt package gcc or clang)");
-    assert!(st.success(), "cc failed on examples/c/pinrt_example.c");
-    exe
+    compile_c(
+        "examples/c/pinrt_example.c",
+        &["-O2", "-g", "-D_POSIX_C_SOURCE=200809L"],
+        dir,
+        "pinrt_example",
+    )
 }
 
 fn f32s(bytes: &[u8]) -> Vec<f32> {

@@ -11,7 +11,7 @@ use pinbake::source::{DensitySource, ProceduralSpec, SourceSpec, open_source};
 use pinbake::{BakeOptions, bake};
 
 mod common;
-use common::{repo, static_lib};
+use common::compile_c;
 
 #[test]
 fn the_c_abi_keeps_the_hostile_use_contract() {
@@ -26,25 +26,12 @@ fn the_c_abi_keeps_the_hostile_use_contract() {
     let pin = dir.path().join("box.pin");
     grid.write_atomic(&pin).unwrap();
 
-    let exe = dir.path().join("hostile");
-    let st = Command::new("cc")
-        .args([
-            "-std=c11",
-            "-O1",
-            "-Wall",
-            "-Wextra",
-            "-Werror",
-            "-D_DEFAULT_SOURCE",
-        ])
-        .arg("-I")
-        .arg(repo().join("capi/include"))
-        .arg(repo().join("capi/tests/c/hostile.c"))
-        .arg(static_lib())
-        .args(["-lpthread", "-ldl", "-lm", "-o"])
-        .arg(&exe)
-        .status()
-        .expect("the system C compiler `cc` is required");
-    assert!(st.success(), "cc failed on capi/tests/c/hostile.c");
+    let exe = compile_c(
+        "capi/tests/c/hostile.c",
+        &["-O1", "-D_DEFAULT_SOURCE"],
+        dir.path(),
+        "hostile",
+    );
     let work = dir.path().join("work");
     std::fs::create_dir(&work).unwrap();
     let out = Command::new(&exe).arg(&pin).arg(&work).output().unwrap();
