@@ -41,7 +41,9 @@ pub fn quoted(path: &Path) -> String {
     }
 }
 
-fn require_regular(path: &Path, m: &std::fs::Metadata) -> Result<(), InputError> {
+/// Refuses `m` unless it describes a regular file: "is a directory" or "not a regular file"
+/// naming `path` (the baker's output rule uses it too).
+pub fn require_regular(path: &Path, m: &std::fs::Metadata) -> Result<(), InputError> {
     if m.is_dir() {
         Err(InputError::IsDirectory(path.to_path_buf()))
     } else if !m.is_file() {

@@ -184,21 +184,17 @@ impl VolumeArgs {
         let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
         let kind = source::InputKind::of(input);
         let is_vdb = kind == source::InputKind::Vdb;
-        let given: Vec<&str> = [
-            ("dims", self.dims.is_some()),
-            ("voxel_type", self.voxel_type.is_some()),
-            ("endian", self.endian.is_some()),
-            ("spacing", self.spacing.is_some()),
-            ("origin", self.origin.is_some()),
-            ("clamp_negative", self.clamp_negative),
-            ("nan_as_zero", self.nan_as_zero),
-            ("grid", self.grid.is_some()),
-            ("levelset_to_fog", self.levelset_to_fog),
-        ]
-        .into_iter()
-        .filter(|f| f.1)
-        .map(|f| f.0)
-        .collect();
+        let given = source::GivenSourceOptions {
+            dims: self.dims.is_some(),
+            voxel_type: self.voxel_type.is_some(),
+            endian: self.endian.is_some(),
+            spacing: self.spacing.is_some(),
+            origin: self.origin.is_some(),
+            clamp_negative: self.clamp_negative,
+            nan_as_zero: self.nan_as_zero,
+            grid: self.grid.is_some(),
+            levelset_to_fog: self.levelset_to_fog,
+        };
         if let Some(name) = kind.first_inapplicable(&given) {
             // The flag's spelling: `voxel_type` is `--type`, the rest as named.
             let flag = match name {

@@ -90,16 +90,6 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FileError + '_ {
     }
 }
 
-fn require_regular(path: &Path, m: &Metadata) -> Result<(), FileError> {
-    if m.is_dir() {
-        Err(FileError::IsDirectory(path.to_path_buf()))
-    } else if !m.is_file() {
-        Err(FileError::NotRegular(path.to_path_buf()))
-    } else {
-        Ok(())
-    }
-}
-
 impl From<pin_format::input::InputError> for FileError {
     fn from(e: pin_format::input::InputError) -> Self {
         use pin_format::input::InputError as E;
@@ -213,32 +203,39 @@ impl InputSet {
     /// points to and the link stays. Refused: directories, devices, FIFOs, sockets,
     /// symlinks to them and dangling symlinks.
     pub fn check_output(&self, output: &Path) -> Result<PathBuf, FileError> {
-        let link = match std::fs::symlink_metadata(output) {
-            Ok(m) => m,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-                return Ok(output.to_path_buf());
-            }
-            Err(e) => return Err(io(output)(e)),
-        };
-        let target = match std::fs::metadata(output) {
-            Ok(m) => m,
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound && link.is_symlink() => {
-                return Err(FileError::DanglingSymlink(output.to_path_buf()));
-            }
-            Err(e) => return Err(io(output)(e)),
-        };
-        require_regular(output, &target)?;
-        if let Some(input) = file_id(&target).and_then(|id| self.files.get(&id)) {
-            return Err(FileError::SameAsInput {
-                output: output.to_path_buf(),
-                input: input.clone(),
-            });
-        }
-        if link.is_symlink() {
-            return std::fs::canonicalize(output).map_err(io(output));
-        }
-        Ok(output.to_path_buf())
+        check_output_among(output, &[self])
     }
+}
+
+/// [`InputSet::check_output`] against the union of `sets`, with the output looked at once
+/// (a bake compares it with the caller's inputs and with its own).
+pub fn check_output_among(output: &Path, sets: &[&InputSet]) -> Result<PathBuf, FileError> {
+    let link = match std::fs::symlink_metadata(output) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Ok(output.to_path_buf());
+        }
+        Err(e) => return Err(io(output)(e)),
+    };
+    let target = match std::fs::metadata(output) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound && link.is_symlink() => {
+            return Err(FileError::DanglingSymlink(output.to_path_buf()));
+        }
+        Err(e) => return Err(io(output)(e)),
+    };
+    pin_format::input::require_regular(output, &target)?;
+    let id = file_id(&target);
+    if let Some(input) = id.and_then(|id| sets.iter().find_map(|s| s.files.get(&id))) {
+        return Err(FileError::SameAsInput {
+            output: output.to_path_buf(),
+            input: input.clone(),
+        });
+    }
+    if link.is_symlink() {
+        return std::fs::canonicalize(output).map_err(io(output));
+    }
+    Ok(output.to_path_buf())
 }
 
 /// [`InputSet::check_output`] against `inputs`. Missing inputs are ignored (they fail on

@@ -313,14 +313,14 @@ pub struct Baked {
 impl Baked {
     /// The summary object of `pinbake bake --json` (`crate::summary` plus the bake's times,
     /// its output and its `choice`).
-    pub fn summary(&self) -> Value {
-        let mut v = crate::summary::summary_json(&self.grid, self.file_bytes);
+    pub fn summary(&self) -> Result<Value, pin_format::FormatError> {
+        let mut v = crate::summary::summary_json(&self.grid, self.file_bytes)?;
         v["seconds"] = json!(self.seconds);
         v["bake_seconds"] = json!(self.stats.seconds);
         v["pins_per_s"] = json!(self.stats.pins_per_s);
         v["output"] = json!(self.output.display().to_string());
         v["choice"] = crate::summary::choice_json(&self.choice, self.file_bytes);
-        v
+        Ok(v)
     }
 }
 
@@ -397,8 +397,7 @@ pub fn bake_to_file(
         None => InputSet::default(),
     };
     // Before the bake, not after it: minutes of work for a refused path help nobody.
-    inputs.check_output(output)?;
-    own.check_output(output)?;
+    crate::files::check_output_among(output, &[inputs, &own])?;
     let budget = MemoryBudget::new(req.max_memory);
     let probe = BakeOptions {
         // Before the source is open: the default's upper bound.
@@ -501,8 +500,7 @@ pub fn bake_to_file(
     let advance = |n: u64| progress.advance(n);
     let (grid, stats) = crate::bake(source.as_ref(), &opts, &advance).map_err(bake_err)?;
     // Checked again just before the rename: the path may have been replaced during the bake.
-    let target = inputs.check_output(output)?;
-    own.check_output(output)?;
+    let target = crate::files::check_output_among(output, &[inputs, &own])?;
     let write_err = |source| PlanError::Write {
         path: output.to_path_buf(),
         source,

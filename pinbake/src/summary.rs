@@ -53,16 +53,20 @@ pub fn directions_json(d: Directions) -> Value {
     }
 }
 
-/// The JSON object scripts rely on (see the README and `--help`).
-pub fn summary_json(grid: &OwnedPinGrid, file_bytes: u64) -> Value {
-    let shape = GridShape::new(&grid.desc, grid.tile.as_ref()).expect("validated grid");
-    summary(
+/// The JSON object scripts rely on (see the README and `--help`). An error if the grid's
+/// description does not hold together (a grid built by hand, not by the baker).
+pub fn summary_json(
+    grid: &OwnedPinGrid,
+    file_bytes: u64,
+) -> Result<Value, pin_format::FormatError> {
+    let shape = GridShape::new(&grid.desc, grid.tile.as_ref())?;
+    Ok(summary(
         &grid.desc,
         &shape,
         &grid.pins,
         file_bytes,
         grid.metadata.as_ref().map(|m| m.source_name.clone()),
-    )
+    ))
 }
 
 pub fn summary(

@@ -14,7 +14,8 @@ use numpy::{
 use pin_format::Directions;
 use pinbake::files::InputSet;
 use pinbake::source::{
-    Endian, InputKind, ProceduralSpec, RawOptions, RawType, SourceSpec, VdbOptions,
+    Endian, GivenSourceOptions, InputKind, ProceduralSpec, RawOptions, RawType, SourceSpec,
+    VdbOptions,
 };
 use pinbake::{BakeInput, BakeRequest, PlanError};
 use pinrt::{PinGrid as RtGrid, RayQuery, SamplerOptions};
@@ -75,10 +76,7 @@ fn c_order<'a>(c_contiguous: bool, values: Option<&'a [f32]>, what: &str) -> PyR
 
 /// The ray records of a batch, allocated fallibly (`MemoryError` when they do not fit).
 fn ray_queries(o: &[f32], d: &[f32], t: &[f32]) -> PyResult<Vec<RayQuery>> {
-    let mut rays = try_vec(0, RayQuery::new([0.0; 3], [0.0; 3], 0.0), "the ray records")?;
-    rays.try_reserve_exact(t.len()).map_err(|_| {
-        PyMemoryError::new_err(format!("{} rays: out of memory for their records", t.len()))
-    })?;
+    let mut rays = try_with_capacity(t.len(), "the ray records")?;
     rays.extend(
         o.chunks_exact(3)
             .zip(d.chunks_exact(3))
@@ -365,8 +363,9 @@ fn plan_err(e: PlanError) -> PyErr {
     }
 }
 
-/// A fallibly allocated copy of `n` values (`MemoryError` when it does not fit).
-fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
+/// An empty vector with room for `n` values, allocated fallibly (`MemoryError` naming `what`
+/// and the bytes when it does not fit).
+fn try_with_capacity<T>(n: usize, what: &str) -> PyResult<Vec<T>> {
     let mut v = Vec::new();
     v.try_reserve_exact(n).map_err(|_| {
         PyMemoryError::new_err(format!(
@@ -374,6 +373,12 @@ fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
             (n as u64).saturating_mul(std::mem::size_of::<T>() as u64)
         ))
     })?;
+    Ok(v)
+}
+
+/// `n` copies of `fill`, allocated fallibly (see [`try_with_capacity`]).
+fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
+    let mut v = try_with_capacity(n, what)?;
     v.resize(n, fill);
     Ok(v)
 }
@@ -443,21 +448,17 @@ fn bake(
     } else {
         InputKind::of(Path::new(input))
     };
-    let given: Vec<&str> = [
-        ("dims", dims.is_some()),
-        ("voxel_type", voxel_type.is_some()),
-        ("endian", endian.is_some()),
-        ("spacing", spacing.is_some()),
-        ("origin", origin.is_some()),
-        ("clamp_negative", clamp_negative),
-        ("nan_as_zero", nan_as_zero),
-        ("grid", grid.is_some()),
-        ("levelset_to_fog", levelset_to_fog),
-    ]
-    .into_iter()
-    .filter(|f| f.1)
-    .map(|f| f.0)
-    .collect();
+    let given = GivenSourceOptions {
+        dims: dims.is_some(),
+        voxel_type: voxel_type.is_some(),
+        endian: endian.is_some(),
+        spacing: spacing.is_some(),
+        origin: origin.is_some(),
+        clamp_negative,
+        nan_as_zero,
+        grid: grid.is_some(),
+        levelset_to_fog,
+    };
     if let Some(name) = kind.first_inapplicable(&given) {
         return Err(value_err(format!(
             "{name} does not apply to {} input ({input})",
@@ -477,13 +478,7 @@ fn bake(
         let src = arr
             .as_slice()
             .map_err(|_| value_err("data must be C-contiguous"))?;
-        let mut values = try_vec(0, 0f32, "the volume array's copy")?;
-        values.try_reserve_exact(src.len()).map_err(|_| {
-            PyMemoryError::new_err(format!(
-                "the volume array's copy: out of memory for {} bytes",
-                src.len() as u64 * 4
-            ))
-        })?;
+        let mut values = try_with_capacity(src.len(), "the volume array's copy")?;
         values.extend_from_slice(src);
         let d = [shape[2], shape[1], shape[0]].map(|x| u32::try_from(x).unwrap_or(u32::MAX));
         BakeInput::Array {
@@ -545,7 +540,9 @@ fn bake(
     let baked = py
         .detach(|| pinbake::plan::bake_to_file(source, &output, &req, &InputSet::default(), &()))
         .map_err(plan_err)?;
-    let mut v = baked.summary();
+    let mut v = baked
+        .summary()
+        .map_err(|e| pin_err(format!("{}: {e}", output.display())))?;
     v["seconds"] = serde_json::json!(started.elapsed().as_secs_f64());
     Ok(v.to_string())
 }

@@ -279,7 +279,9 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
         b.finish_and_clear();
     }
     let seconds = started.elapsed().as_secs_f64();
-    let mut v = baked.summary();
+    let mut v = baked
+        .summary()
+        .with_context(|| args.output.display().to_string())?;
     v["seconds"] = serde_json::json!(seconds);
     if !args.json {
         let stats = &baked.stats;

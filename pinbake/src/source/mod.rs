@@ -317,9 +317,45 @@ impl InputKind {
         }
     }
 
-    /// The first of `given` (option names, see [`InputKind::accepts`]) that does not apply.
-    pub fn first_inapplicable<'a>(self, given: &[&'a str]) -> Option<&'a str> {
-        given.iter().copied().find(|n| !self.accepts(n))
+    /// The first option `given` that does not apply to this kind (its name, see
+    /// [`InputKind::accepts`]).
+    pub fn first_inapplicable(self, given: &GivenSourceOptions) -> Option<&'static str> {
+        given.names().find(|n| !self.accepts(n))
+    }
+}
+
+/// Which source options a caller gave (differ from their defaults): what
+/// [`InputKind::first_inapplicable`] checks, for the command line and Python alike.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GivenSourceOptions {
+    pub dims: bool,
+    pub voxel_type: bool,
+    pub endian: bool,
+    pub spacing: bool,
+    pub origin: bool,
+    pub clamp_negative: bool,
+    pub nan_as_zero: bool,
+    pub grid: bool,
+    pub levelset_to_fog: bool,
+}
+
+impl GivenSourceOptions {
+    /// The names of the options given, raw ones first, then the VDB ones.
+    pub fn names(self) -> impl Iterator<Item = &'static str> {
+        [
+            ("dims", self.dims),
+            ("voxel_type", self.voxel_type),
+            ("endian", self.endian),
+            ("spacing", self.spacing),
+            ("origin", self.origin),
+            ("clamp_negative", self.clamp_negative),
+            ("nan_as_zero", self.nan_as_zero),
+            ("grid", self.grid),
+            ("levelset_to_fog", self.levelset_to_fog),
+        ]
+        .into_iter()
+        .filter(|f| f.1)
+        .map(|f| f.0)
     }
 }
 
