@@ -39,6 +39,7 @@ mod metadata;
 mod owned;
 mod reader;
 mod shape;
+pub mod text;
 mod writer;
 
 pub use checksum::checksum;

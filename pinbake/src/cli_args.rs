@@ -1,71 +1,36 @@
-//! Command-line plumbing shared by the `pinbake` and `pinrender` binaries (feature `cli`).
+//! The baker's flags as `clap` arguments (feature `cli`): how to read a volume
+//! ([`SourceArgs`], shared by `pinbake bake` and `pinrender` so that the two tools accept the
+//! same volumes the same way) and the value parsers of the baker's ranges
+//! ([`crate::limits`]). The tools' generic kit (output lines, exit codes, size parsers,
+//! signals) is the `pin-cli` crate.
 
-use std::process::ExitCode;
+use pin_cli::parse::{parse_f64x3, parse_nonneg};
 
-/// Installs the binaries' signal handlers first thing in `main`: an interrupt, or a reader
-/// that closes standard output early (`pinbake inspect --json | head -c 100`), ends the
-/// process quietly and unlinks the partial output file, instead of a panic at the next
-/// `println!` (see [`crate::files::signals`]). The binaries write to no other pipe (the VDB
-/// worker's parent only reads from its child), so no other write raises SIGPIPE.
-pub fn end_quietly_on_closed_stdout() {
-    crate::files::signals::install();
+/// `--step`: see [`crate::limits::check_rel_step`].
+pub fn parse_step(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    crate::limits::check_rel_step(v)
 }
 
-/// The error of [`outln!`](crate::outln): standard output could not be written.
-#[derive(Debug, thiserror::Error)]
-#[error("standard output: {0}")]
-pub struct StdoutError(pub std::io::Error);
-
-/// `println!` for the binaries' results, returning [`StdoutError`] where `println!` panics:
-/// a full disk behind a redirection (`> /dev/full`) or any other write error. (A reader that
-/// closed a pipe ends the process by SIGPIPE first: [`end_quietly_on_closed_stdout`].)
-#[macro_export]
-macro_rules! outln {
-    ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        writeln!(std::io::stdout().lock(), $($arg)*).map_err($crate::cli_args::StdoutError)
-    }};
+/// `--spacing`: see [`crate::limits::check_spacing`].
+pub fn parse_spacing(s: &str) -> Result<[f64; 3], String> {
+    crate::limits::check_spacing(parse_f64x3(s)?)
 }
 
-/// Parses the command line; a usage error becomes one line on stderr and exit code 2 (clap's
-/// own report spans several lines), while `--help` and `--version` print as usual.
-pub fn parse_cli<C: clap::Parser>(
-    tool: &str,
-    args: Vec<std::ffi::OsString>,
-) -> Result<C, ExitCode> {
-    use clap::error::ErrorKind;
-    match C::try_parse_from(args) {
-        Ok(c) => Ok(c),
-        Err(e)
-            if matches!(
-                e.kind(),
-                ErrorKind::DisplayHelp
-                    | ErrorKind::DisplayVersion
-                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
-            ) =>
-        {
-            let _ = e.print();
-            Err(ExitCode::from(if e.use_stderr() { 2 } else { 0 }))
-        }
-        Err(e) => {
-            let text = e.render().to_string();
-            let line: Vec<&str> = text
-                .lines()
-                .map(str::trim)
-                .filter(|l| {
-                    !(l.is_empty()
-                        || l.starts_with("Usage:")
-                        || l.starts_with("For more information"))
-                })
-                .collect();
-            let line = line.join(" ");
-            crate::errln!(
-                "{tool}: error: {}",
-                line.strip_prefix("error: ").unwrap_or(&line)
-            );
-            Err(ExitCode::from(2))
-        }
-    }
+/// `--origin`: see [`crate::limits::check_origin`].
+pub fn parse_origin(s: &str) -> Result<[f64; 3], String> {
+    crate::limits::check_origin(parse_f64x3(s)?)
+}
+
+/// `--density-scale`: finite and >= 0.
+pub fn parse_density_scale(s: &str) -> Result<f64, String> {
+    parse_nonneg(s)
+}
+
+/// `--threads N`: see [`crate::limits::check_threads`].
+pub fn parse_threads(s: &str) -> Result<usize, String> {
+    let n: usize = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+    crate::limits::check_threads(n)
 }
 
 /// The flags that say how to read a volume, shared by `pinbake bake` and `pinrender` through
@@ -73,7 +38,7 @@ pub fn parse_cli<C: clap::Parser>(
 /// itself is each tool's own argument: a positional INPUT for the baker, `--volume` for the
 /// renderer).
 #[derive(clap::Args, Debug, Clone)]
-pub struct VolumeArgs {
+pub struct SourceArgs {
     /// VDB: grid to read (`density#1` picks the second grid named density).
     #[arg(long, help_heading = "OpenVDB input")]
     pub grid: Option<String>,
@@ -82,7 +47,7 @@ pub struct VolumeArgs {
     pub levelset_to_fog: bool,
 
     /// Raw: voxel counts X,Y,Z (x fastest in the file).
-    #[arg(long, value_parser = parse_u32x3, help_heading = "Raw input")]
+    #[arg(long, value_parser = pin_cli::parse::parse_u32x3, help_heading = "Raw input")]
     pub dims: Option<[u32; 3]>,
     /// Raw: voxel type: u8, u16, f16, f32, f64.
     #[arg(long = "type", help_heading = "Raw input")]
@@ -92,10 +57,10 @@ pub struct VolumeArgs {
     pub endian: Option<String>,
     /// Raw: world size of a voxel, one value or X,Y,Z, each in [1e-9, 1e9]; the grid occupies
     /// [origin, origin + dims * spacing].
-    #[arg(long, value_parser = crate::limits::parse_spacing, help_heading = "Raw input")]
+    #[arg(long, value_parser = parse_spacing, help_heading = "Raw input")]
     pub spacing: Option<[f64; 3]>,
     /// Raw: world position of the grid box's minimum corner X,Y,Z, each within +-1e12.
-    #[arg(long, value_parser = crate::limits::parse_origin, help_heading = "Raw input")]
+    #[arg(long, value_parser = parse_origin, help_heading = "Raw input")]
     pub origin: Option<[f64; 3]>,
     /// Raw: treat negative values as 0 instead of failing.
     #[arg(long, help_heading = "Raw input")]
@@ -105,11 +70,11 @@ pub struct VolumeArgs {
     pub nan_as_zero: bool,
 
     /// Multiply every density by this (extinction = density x scale); finite, >= 0.
-    #[arg(long, default_value_t = 1.0, value_parser = crate::limits::parse_density_scale)]
+    #[arg(long, default_value_t = 1.0, value_parser = parse_density_scale)]
     pub density_scale: f64,
 }
 
-impl Default for VolumeArgs {
+impl Default for SourceArgs {
     /// No flags given (what clap produces for an empty command line).
     fn default() -> Self {
         Self {
@@ -127,28 +92,11 @@ impl Default for VolumeArgs {
     }
 }
 
-/// `N` or `X,Y,Z` (also `XxYxZ`) counts, each at least 1.
-pub fn parse_u32x3(s: &str) -> Result<[u32; 3], String> {
-    let v: Vec<u32> = s
-        .split([',', 'x'])
-        .map(|p| p.trim().parse::<u32>().map_err(|e| format!("'{p}': {e}")))
-        .collect::<Result<_, _>>()?;
-    let out = match v.as_slice() {
-        [n] => [*n; 3],
-        [x, y, z] => [*x, *y, *z],
-        _ => return Err("expected N or X,Y,Z".into()),
-    };
-    if out.contains(&0) {
-        return Err("every count must be at least 1".into());
-    }
-    Ok(out)
-}
-
 fn usage(msg: String) -> anyhow::Error {
-    anyhow::Error::new(crate::files::UsageError(msg))
+    anyhow::Error::new(pin_cli::UsageError(msg))
 }
 
-impl VolumeArgs {
+impl SourceArgs {
     /// The flags given (differing from their defaults), by name: what a command that reads
     /// no volume this time refuses.
     pub fn given(&self) -> Vec<&'static str> {
@@ -278,33 +226,35 @@ mod tests {
     }
 
     #[test]
-    fn counts_reject_zero_and_accept_both_separators() {
-        assert_eq!(parse_u32x3("4").unwrap(), [4; 3]);
-        assert_eq!(parse_u32x3("2,3,4").unwrap(), [2, 3, 4]);
-        assert_eq!(parse_u32x3("2x3x4").unwrap(), [2, 3, 4]);
-        assert!(parse_u32x3("0").is_err());
-        assert!(parse_u32x3("2,0,4").is_err());
-        assert!(parse_u32x3("2,3").is_err());
+    fn the_bakers_ranges_as_parsers() {
+        assert!(parse_step("0").is_err());
+        assert!(parse_step("nan").is_err());
+        assert_eq!(parse_step("0.01"), Ok(0.01));
+        assert!(parse_density_scale("-1").is_err());
+        assert!(parse_spacing("1e153").unwrap_err().contains("1e153"));
+        assert_eq!(parse_origin("1,2,3"), Ok([1.0, 2.0, 3.0]));
+        assert!(parse_threads("0").is_err());
+        assert_eq!(parse_threads(" 1"), Ok(1));
     }
 
     #[test]
     fn flags_of_another_kind_of_input_are_usage_errors_naming_the_noun() {
-        let a = VolumeArgs {
+        let a = SourceArgs {
             dims: Some([4; 3]),
-            ..VolumeArgs::default()
+            ..SourceArgs::default()
         };
         let e = a
             .source_spec("procedural:box".as_ref(), "volume", no_worker)
             .unwrap_err();
-        assert!(e.downcast_ref::<crate::files::UsageError>().is_some());
+        assert!(e.downcast_ref::<pin_cli::UsageError>().is_some());
         assert!(
             e.to_string()
                 .starts_with("--dims does not apply to a procedural volume"),
             "{e}"
         );
-        let a = VolumeArgs {
+        let a = SourceArgs {
             grid: Some("density".into()),
-            ..VolumeArgs::default()
+            ..SourceArgs::default()
         };
         let e = a
             .source_spec("x.raw".as_ref(), "input", no_worker)
@@ -318,12 +268,12 @@ mod tests {
 
     #[test]
     fn procedural_density_takes_the_scale() {
-        let a = VolumeArgs {
+        let a = SourceArgs {
             density_scale: 2.5,
-            ..VolumeArgs::default()
+            ..SourceArgs::default()
         };
-        let plain = VolumeArgs::default();
-        let get = |a: &VolumeArgs| match a
+        let plain = SourceArgs::default();
+        let get = |a: &SourceArgs| match a
             .source_spec("procedural:box".as_ref(), "input", no_worker)
             .unwrap()
         {

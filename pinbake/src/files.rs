@@ -1,7 +1,8 @@
 //! Files and memory under hostile or careless use (see `docs/stability.md`, "Hostile use").
 //!
-//! The command-line tools of this workspace (`pinbake`, `pinrender`) go through these checks
-//! for every path and every size that comes from a user:
+//! Every surface of the baker (its library front door `crate::plan`, the command-line tools
+//! `pinbake` and `pinrender`, the Python extension) goes through these checks for every path
+//! and every size that comes from a user:
 //!
 //! * inputs must be regular files ([`check_input`], [`read_input`]): a FIFO would block
 //!   forever, `/dev/zero` would be read until memory runs out, a directory has no bytes;
@@ -10,9 +11,10 @@
 //!   and writing over the input destroys it before it has been read;
 //! * every allocation whose size comes from input or flags is first compared with a memory
 //!   budget ([`MemoryBudget`], default: half of the physical memory) and then made fallibly;
-//! * the temporary `.NAME.*.partial` file of an atomic write is unlinked on SIGINT, SIGTERM
-//!   and SIGHUP ([`write_pin_atomic`]); those a SIGKILL leaves behind are removed by the next
-//!   write to the same target (`pin_format::AtomicPinFile::create`).
+//! * the temporary `.NAME.*.partial` file of an atomic write is announced to a hook
+//!   ([`watch_partial_files`]) that the binaries point at their signal handlers, so that
+//!   SIGINT, SIGTERM and SIGHUP unlink it; those a SIGKILL leaves behind are removed by the
+//!   next write to the same target (`pin_format::AtomicPinFile::create`).
 
 use std::fs::{File, Metadata};
 use std::io::Read;
@@ -45,42 +47,6 @@ pub enum FileError {
     Io { path: PathBuf, err: std::io::Error },
     #[error("{what} needs {} bytes, more than the memory budget of {} bytes (--max-memory)", .need, .limit)]
     Memory { what: String, need: u64, limit: u64 },
-}
-
-/// A value out of its documented range, or flags that contradict each other: the binaries
-/// exit with code 2 for it (1 is for bad input files).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct UsageError(pub String);
-
-/// An error and its causes on one line, each cause once: errors that put their source's
-/// text into their own message (`"{path}: {source}"`) and also return it from `source()`
-/// would otherwise print the OS error twice.
-pub fn error_line(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut msg = String::new();
-    let mut cause = Some(e);
-    while let Some(c) = cause {
-        let text = c.to_string();
-        if !msg.contains(&text) {
-            if !msg.is_empty() {
-                msg.push_str(": ");
-            }
-            msg.push_str(&text);
-        }
-        cause = c.source();
-    }
-    msg.replace(['\n', '\r'], " ")
-}
-
-/// `eprintln!` for the binaries' messages, without its panic: a standard error that cannot
-/// take the write (`2> /dev/full`) loses the message, and the exit code still says what
-/// happened (`eprintln!` panicked there, exit 101, on every error path).
-#[macro_export]
-macro_rules! errln {
-    ($($arg:tt)*) => {{
-        use std::io::Write as _;
-        let _ = writeln!(std::io::stderr().lock(), $($arg)*);
-    }};
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FileError + '_ {
@@ -340,26 +306,8 @@ pub fn physical_memory() -> Option<u64> {
     }
 }
 
-/// Parses a byte size with an optional K/M/G/T suffix (powers of 1024): `300M`, `1.5G`.
-pub fn parse_bytes(s: &str) -> Result<u64, String> {
-    let s = s.trim();
-    let (num, mult) = match s.chars().last() {
-        Some('K' | 'k') => (&s[..s.len() - 1], 1u64 << 10),
-        Some('M' | 'm') => (&s[..s.len() - 1], 1 << 20),
-        Some('G' | 'g') => (&s[..s.len() - 1], 1 << 30),
-        Some('T' | 't') => (&s[..s.len() - 1], 1 << 40),
-        _ => (s, 1),
-    };
-    let n: f64 = num.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
-    let bytes = n * mult as f64;
-    if !(bytes.is_finite() && bytes >= 1.0 && bytes < 2f64.powi(63)) {
-        return Err(format!("'{s}' is not a size between 1 byte and 8 EiB"));
-    }
-    Ok(bytes as u64)
-}
-
-/// Writes `grid` atomically to `target` (temp file beside it, fsync, rename) with the temp
-/// file registered for removal on SIGINT/SIGTERM/SIGHUP while it exists.
+/// Writes `grid` atomically to `target` (temp file beside it, fsync, rename), with the temp
+/// file announced to the [`watch_partial_files`] hook while it exists.
 pub fn write_pin_atomic(
     grid: &pin_format::OwnedPinGrid,
     target: &Path,
@@ -367,27 +315,57 @@ pub fn write_pin_atomic(
     PendingPin::create(target)?.write(grid)
 }
 
-/// A pin file whose temp file is created (and registered for removal on signals) before
+/// Where the partial files of atomic writes are announced: `Some(path)` before the file is
+/// created, `None` once it is gone (renamed into place or removed).
+pub type PartialFileHook = fn(Option<&Path>);
+
+static PARTIAL_FILE_HOOK: std::sync::OnceLock<PartialFileHook> = std::sync::OnceLock::new();
+
+/// Sets the hook (once per process; a later call is ignored) that hears of every partial
+/// `.NAME.*.partial` file this library writes. The binaries point it at
+/// `pin_cli::signals::track`, so that an interrupt unlinks the file. A library sets no signal
+/// handlers of its own: that would take Ctrl-C away from its host (Python's
+/// `KeyboardInterrupt`); without a hook, a file left by a killed process is removed by the
+/// next write to the same target (`pin_format::AtomicPinFile::create`).
+pub fn watch_partial_files(hook: PartialFileHook) {
+    let _ = PARTIAL_FILE_HOOK.set(hook);
+}
+
+fn announce_partial(path: Option<&Path>) {
+    if let Some(hook) = PARTIAL_FILE_HOOK.get() {
+        hook(path);
+    }
+}
+
+/// Announces `None` when the partial file is gone.
+struct Announced;
+
+impl Drop for Announced {
+    fn drop(&mut self) {
+        announce_partial(None);
+    }
+}
+
+/// A pin file whose temp file is created (and announced to [`watch_partial_files`]) before
 /// the work that produces the grid: a long bake holds its `.NAME.*.partial` from the start,
 /// so an interrupted bake is cleaned up the same way as an interrupted write.
 pub struct PendingPin {
+    // Declared first so that it drops first: the announcement that the file is gone comes
+    // after the file is removed (or renamed), never before.
     file: pin_format::AtomicPinFile,
-    _signals: signals::Registration,
+    _announced: Announced,
 }
 
 impl PendingPin {
     pub fn create(target: &Path) -> Result<Self, pin_format::FormatError> {
-        // Registered before the file exists (see `AtomicPinFile::create_announced`): a
-        // signal that arrives once the file is there always finds its path.
-        let mut registration = None;
-        let file = pin_format::AtomicPinFile::create_announced(target, |path| {
-            // The old registration goes first: its drop clears the slot the new one fills.
-            drop(registration.take());
-            registration = path.map(signals::register);
-        })?;
-        // Always announced; registering late is the fallback that cannot fail.
-        let _signals = registration.unwrap_or_else(|| signals::register(file.temp_path()));
-        Ok(Self { file, _signals })
+        // Announced before the file exists (see `AtomicPinFile::create_announced`): a signal
+        // that arrives once the file is there always finds its path.
+        let announced = Announced;
+        let file = pin_format::AtomicPinFile::create_announced(target, announce_partial)?;
+        Ok(Self {
+            file,
+            _announced: announced,
+        })
     }
 
     /// The temporary file's path.
@@ -398,86 +376,6 @@ impl PendingPin {
     pub fn write(mut self, grid: &pin_format::OwnedPinGrid) -> Result<(), pin_format::FormatError> {
         grid.write_into(self.file.writer())?;
         self.file.commit()
-    }
-}
-
-/// Unlinking the registered temporary file when the process is interrupted.
-///
-/// A signal handler may only call async-signal-safe functions: it reads one pointer to a
-/// NUL-terminated path (registered before the file is written to), calls `unlink`, and
-/// re-raises the signal with the default action so the exit status still says "killed by
-/// SIGINT". Registered paths are leaked on purpose: freeing one while a handler on another
-/// thread reads it would be a use-after-free, and a process registers a handful at most.
-pub mod signals {
-    use std::path::Path;
-    #[cfg(unix)]
-    use std::sync::atomic::{AtomicBool, AtomicPtr, Ordering};
-
-    #[cfg(unix)]
-    static PARTIAL: AtomicPtr<libc::c_char> = AtomicPtr::new(std::ptr::null_mut());
-    #[cfg(unix)]
-    static INSTALLED: AtomicBool = AtomicBool::new(false);
-
-    /// Unregisters on drop.
-    pub struct Registration(());
-
-    impl Drop for Registration {
-        fn drop(&mut self) {
-            #[cfg(unix)]
-            PARTIAL.store(std::ptr::null_mut(), Ordering::SeqCst);
-        }
-    }
-
-    #[cfg(unix)]
-    extern "C" fn on_signal(sig: libc::c_int) {
-        let p = PARTIAL.load(Ordering::SeqCst);
-        // SAFETY: unlink and raise are async-signal-safe; `p` is null or a leaked C string.
-        unsafe {
-            if !p.is_null() {
-                libc::unlink(p);
-            }
-            // SA_RESETHAND restored the default action on entry; the re-raised signal is
-            // delivered when the handler returns.
-            libc::raise(sig);
-        }
-    }
-
-    /// Installs the handlers (once per process).
-    pub fn install() {
-        #[cfg(unix)]
-        if !INSTALLED.swap(true, Ordering::SeqCst) {
-            // SIGPIPE: a reader that closed our stdout early (`... --json | head -c 100`).
-            // Rust's runtime ignores it, so the next `println!` would panic ("failed
-            // printing to stdout"); handled here, the process ends at that write, quietly,
-            // as other Unix filters do, and takes its partial file with it.
-            for sig in [libc::SIGINT, libc::SIGTERM, libc::SIGHUP, libc::SIGPIPE] {
-                // SAFETY: a zeroed sigaction is valid; the handler only makes
-                // async-signal-safe calls.
-                unsafe {
-                    let mut sa: libc::sigaction = std::mem::zeroed();
-                    sa.sa_sigaction = on_signal as extern "C" fn(libc::c_int) as libc::sighandler_t;
-                    sa.sa_flags = libc::SA_RESETHAND;
-                    libc::sigemptyset(&mut sa.sa_mask);
-                    libc::sigaction(sig, &sa, std::ptr::null_mut());
-                }
-            }
-        }
-    }
-
-    /// Registers `path` as the file to unlink on a signal (replacing any earlier one) and
-    /// installs the handlers.
-    pub fn register(path: &Path) -> Registration {
-        #[cfg(unix)]
-        {
-            use std::os::unix::ffi::OsStrExt;
-            install();
-            if let Ok(c) = std::ffi::CString::new(path.as_os_str().as_bytes()) {
-                PARTIAL.store(c.into_raw(), Ordering::SeqCst);
-            }
-        }
-        #[cfg(not(unix))]
-        let _ = path;
-        Registration(())
     }
 }
 
@@ -606,6 +504,7 @@ mod tests {
             path: "b.pin".into(),
             source: std::io::Error::from(std::io::ErrorKind::NotFound),
         };
+        use pin_format::text::error_line;
         assert_eq!(error_line(&e), "a.pin: entity not found");
         assert_eq!(error_line(&t), "b.pin: entity not found");
     }
@@ -630,13 +529,7 @@ mod tests {
     }
 
     #[test]
-    fn byte_sizes() {
-        assert_eq!(parse_bytes("300M").unwrap(), 300 << 20);
-        assert_eq!(parse_bytes("1.5k").unwrap(), 1536);
-        assert_eq!(parse_bytes("2T").unwrap(), 2 << 40);
-        for bad in ["", "0", "-1G", "nanG", "infK", "1e30G", "x"] {
-            assert!(parse_bytes(bad).is_err(), "{bad}");
-        }
+    fn physical_memory_is_known() {
         assert!(physical_memory().is_some_and(|m| m > 1 << 20));
     }
 }

@@ -22,23 +22,10 @@ fn main() -> ExitCode {
         .get(1)
         .is_some_and(|a| a == pinbake::source::VDB_WORKER_SUBCOMMAND)
     {
-        pinbake::errln!("pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)");
+        pin_cli::errln!("pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)");
         return ExitCode::from(2);
     }
-    pinbake::cli_args::end_quietly_on_closed_stdout();
-    let cli = match pinbake::cli_args::parse_cli::<cmd::Cli>("pinbake", args) {
-        Ok(c) => c,
-        Err(code) => return code,
-    };
-    match cmd::run(cli) {
-        Ok(code) => code,
-        Err(e) => {
-            pinbake::errln!("pinbake: error: {}", pinbake::files::error_line(e.as_ref()));
-            if e.downcast_ref::<cmd::UsageError>().is_some() {
-                ExitCode::from(2)
-            } else {
-                ExitCode::from(1)
-            }
-        }
-    }
+    // Partial output files are unlinked on SIGINT, SIGTERM and SIGHUP.
+    pinbake::files::watch_partial_files(pin_cli::signals::track);
+    pin_cli::run_main("pinbake", args, cmd::run)
 }

@@ -184,7 +184,7 @@ impl BakeRequest {
         if !(self.density_scale.is_finite() && self.density_scale >= 0.0) {
             return Err(usage(format!(
                 "density_scale: {} must be finite and >= 0",
-                limits::num(self.density_scale)
+                pin_format::text::num(self.density_scale)
             )));
         }
         if let Some(e) = self.target_error
@@ -192,7 +192,7 @@ impl BakeRequest {
         {
             return Err(usage(format!(
                 "target_error: {} must be a fraction in (0, 1]",
-                limits::num(e)
+                pin_format::text::num(e)
             )));
         }
         let max = pin_format::MAX_PINS_PER_ENTRY;
@@ -201,13 +201,8 @@ impl BakeRequest {
         {
             return Err(usage(format!("pins_per_entry: {k} is not in 1..={max}")));
         }
-        if let Some(t) = self.threads
-            && !(1..=limits::max_threads()).contains(&t)
-        {
-            return Err(usage(format!(
-                "threads: {t} is not in 1..={} (64 per core, at most 4096)",
-                limits::max_threads()
-            )));
+        if let Some(t) = self.threads {
+            limits::check_threads(t).map_err(|e| usage(format!("threads: {e}")))?;
         }
         if let Some(c) = self.cells
             && c.contains(&0)

@@ -22,7 +22,7 @@ pub struct VolumeArgs {
     #[arg(long)]
     pub volume: Option<PathBuf>,
     #[command(flatten)]
-    pub read: pinbake::cli_args::VolumeArgs,
+    pub read: pinbake::cli_args::SourceArgs,
 }
 
 impl VolumeArgs {
@@ -30,7 +30,7 @@ impl VolumeArgs {
     pub fn scaled(density_scale: f64) -> Self {
         Self {
             volume: None,
-            read: pinbake::cli_args::VolumeArgs {
+            read: pinbake::cli_args::SourceArgs {
                 density_scale,
                 ..Default::default()
             },
@@ -151,7 +151,7 @@ impl Opened {
 /// [`open_volume`] with the concrete source type kept.
 ///
 /// Flags for another kind of input (`--grid` on a raw file, `--dims` on a VDB) are usage
-/// errors, and a path must name a regular file ([`pinbake::cli_args::VolumeArgs::source_spec`]).
+/// errors, and a path must name a regular file ([`pinbake::cli_args::SourceArgs::source_spec`]).
 pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Opened> {
     let spec = a
         .read
@@ -306,7 +306,7 @@ pub fn check_pins_match(
         .map_err(|e| anyhow!("{}: {e}", pins.display()))?
         .and_then(|m| source::SourceIdentity::from_extra(&m.extra));
     let Some(recorded) = recorded else {
-        pinbake::errln!(
+        pin_cli::errln!(
             "pinrender: warning: {} records no source identity (an older bake); not checked \
              against {}",
             pins.display(),
@@ -326,7 +326,7 @@ pub fn check_pins_match(
         differences.join("; ")
     );
     if allow {
-        pinbake::errln!("pinrender: warning: {what}; rendering anyway (--allow-mismatched-pins)");
+        pin_cli::errln!("pinrender: warning: {what}; rendering anyway (--allow-mismatched-pins)");
         return Ok(());
     }
     anyhow::bail!("{what}; rebake the pins, or pass --allow-mismatched-pins")

@@ -355,7 +355,7 @@ fn parse_dirs(s: &str) -> PyResult<Directions> {
 /// A [`pinbake::PlanError`] as the Python exception it stands for: `ValueError` for an
 /// option out of range, `MemoryError` for a refused budget or allocation, `PinError` else.
 fn plan_err(e: PlanError) -> PyErr {
-    let msg = pinbake::files::error_line(&e);
+    let msg = pin_format::text::error_line(&e);
     match e {
         PlanError::Usage(_) => value_err(msg),
         e if e.is_memory() => PyMemoryError::new_err(msg),

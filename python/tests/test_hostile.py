@@ -194,3 +194,25 @@ except MemoryError as e:
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "MemoryError" in r.stdout, r.stdout + r.stderr
+
+
+def test_a_bake_leaves_ctrl_c_to_python(tmp_path):
+    # A bake writes through a partial file; the library must not install signal handlers to
+    # clean it up (the command-line tools do), or Ctrl-C would kill the interpreter instead of
+    # raising KeyboardInterrupt. Run in a child so that a failure cannot end this test run.
+    code = (
+        "import os, signal, numpy as np, pinrt\n"
+        "x = np.linspace(-1, 1, 8, dtype=np.float32)\n"
+        "pinrt.bake(np.exp(-4 * (x[:, None, None] ** 2 + x[None, :, None] ** 2"
+        " + x[None, None, :] ** 2)), os.environ['OUT'], cells=4, directions='octahedral:2',"
+        " step=0.05)\n"
+        "try:\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted')\n"
+    )
+    env = dict(os.environ, OUT=str(tmp_path / "a.pin"))
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, (r.returncode, r.stderr)
+    assert r.stdout.strip() == "interrupted"
+    assert (tmp_path / "a.pin").is_file()

@@ -9,7 +9,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::Directions;
-use pinbake::cli_args::VolumeArgs;
+use pinbake::cli_args::SourceArgs;
 use pinbake::source::SourceSpec;
 use pinbake::{BakeInput, BakeRequest, PlanError, Tile};
 
@@ -37,7 +37,7 @@ pub struct BakeArgs {
 
     /// How to read the input (the same flags as `pinrender --volume`).
     #[command(flatten)]
-    pub volume: VolumeArgs,
+    pub volume: SourceArgs,
 
     /// Spatial cells: N or X,Y,Z (default: chosen from the volume, never more than it has
     /// voxels along an axis; see --target-error).
@@ -60,7 +60,7 @@ pub struct BakeArgs {
     #[arg(long, value_name = "E", value_parser = parse_target_error, help_heading = "Grid")]
     pub target_error: Option<f64>,
     /// Ray-marching step relative to the longest box edge, in [1e-5, 1].
-    #[arg(long, default_value_t = 0.01, value_parser = pinbake::limits::parse_step, help_heading = "Grid")]
+    #[arg(long, default_value_t = 0.01, value_parser = pinbake::cli_args::parse_step, help_heading = "Grid")]
     pub step: f64,
     /// Seed of the pins' random lines and mask bits.
     #[arg(long, default_value_t = 0, help_heading = "Grid")]
@@ -88,11 +88,11 @@ pub struct BakeArgs {
     #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
     pub tile: Option<Tile>,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
-    #[arg(long, value_parser = pinbake::limits::parse_threads, help_heading = "Execution")]
+    #[arg(long, value_parser = pinbake::cli_args::parse_threads, help_heading = "Execution")]
     pub threads: Option<usize>,
     /// Refuse to start a bake that would need more than this many bytes of memory (K/M/G/T
     /// suffixes; default: half of the physical memory).
-    #[arg(long, value_parser = pinbake::files::parse_bytes, help_heading = "Execution")]
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes, help_heading = "Execution")]
     pub max_memory: Option<u64>,
     /// Bake an animated sequence: INPUT and --output each hold one frame field (`####` or
     /// `%04d`); FRAMES is A-B, A-BxSTEP, single frames, or a comma list of those. A frame that
@@ -116,7 +116,7 @@ fn parse_target_error(s: &str) -> Result<f64, String> {
     Ok(e)
 }
 
-pub use pinbake::cli_args::parse_u32x3;
+pub use pin_cli::parse::parse_u32x3;
 
 /// Majorant and embedded-density grids: 1..=4096 voxels per axis (the format's limit).
 fn parse_u32x3_max4096(s: &str) -> Result<[u32; 3], String> {
@@ -207,7 +207,7 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
     let inputs = pinbake::files::InputSet::of(&[args.input.as_path()])?;
     let summary = bake_one(&args, &inputs)?;
     if args.json {
-        pinbake::outln!("{summary}")?;
+        pin_cli::outln!("{summary}")?;
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -285,7 +285,7 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
     v["seconds"] = serde_json::json!(seconds);
     if !args.json {
         let stats = &baked.stats;
-        pinbake::errln!(
+        pin_cli::errln!(
             "baked {} -> {}: {} cells ({} empty), {} pins stored, {} bytes, {:.2} s ({:.3} Mpins/s)",
             args.input.display(),
             args.output.display(),

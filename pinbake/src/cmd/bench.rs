@@ -32,11 +32,11 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub voxels: u32,
     /// Thread counts to run, comma separated.
-    #[arg(long, default_value = "1,2", value_delimiter = ',', value_parser = pinbake::limits::parse_threads)]
+    #[arg(long, default_value = "1,2", value_delimiter = ',', value_parser = pinbake::cli_args::parse_threads)]
     pub threads: Vec<usize>,
     /// Refuse a configuration that needs more than this many bytes of memory (K/M/G/T
     /// suffixes; default: half of the physical memory).
-    #[arg(long, value_parser = pinbake::files::parse_bytes)]
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
     pub max_memory: Option<u64>,
     /// Only the voxelised grid (skip the slower analytic-noise rows).
     #[arg(long)]
@@ -135,14 +135,14 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
         }
     }
     if args.json {
-        pinbake::outln!("{}", json!({"voxelise_s": voxelise_s, "results": rows}))?;
+        pin_cli::outln!("{}", json!({"voxelise_s": voxelise_s, "results": rows}))?;
     } else {
-        pinbake::outln!(
+        pin_cli::outln!(
             "pinbake bench: {c}^3 cells x 16x4 directions = {} pins, step 0.01 (voxelising {n}^3 took {voxelise_s:.1} s)",
             u64::from(args.cells).pow(3) * 64,
             c = args.cells
         )?;
-        pinbake::outln!(
+        pin_cli::outln!(
             "{:<22} {:>8} {:>10} {:>14} {:>12} {:>12}",
             "source",
             "threads",
@@ -152,7 +152,7 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             "T error"
         )?;
         for r in &rows {
-            pinbake::outln!(
+            pin_cli::outln!(
                 "{:<22} {:>8} {:>10.2} {:>14.0} {:>12.0} {:>12.2e}",
                 r["source"].as_str().unwrap_or(""),
                 r["threads"],

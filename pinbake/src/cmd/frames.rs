@@ -280,7 +280,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
     // A flag that does not fit the input fits no frame: a usage error, before any output.
     if let Some(&first) = frames.first() {
         match super::bake::check_usage(&frame_args(first)) {
-            Err(e) if e.downcast_ref::<pinbake::files::UsageError>().is_some() => return Err(e),
+            Err(e) if e.downcast_ref::<pin_cli::UsageError>().is_some() => return Err(e),
             _ => {}
         }
     }
@@ -312,9 +312,9 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
     let flush_missing = |run: &mut Option<(i64, i64, usize, String)>| {
         if let Some((first, last, n, name)) = run.take() {
             if n == 1 {
-                pinbake::errln!("pinbake: error: frame {first}: {name}: no such file");
+                pin_cli::errln!("pinbake: error: frame {first}: {name}: no such file");
             } else {
-                pinbake::errln!(
+                pin_cli::errln!(
                     "pinbake: error: frames {first} to {last} ({n} frames of the list): no such \
                      input file ({name} and {} more)",
                     n - 1
@@ -327,7 +327,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
         one.max_memory = Some(frame_budget);
         let result = if exists {
             flush_missing(&mut missing_run);
-            super::bake::bake_one(&one, &inputs).map_err(|e| pinbake::files::error_line(e.as_ref()))
+            super::bake::bake_one(&one, &inputs).map_err(|e| pin_cli::error_line(e.as_ref()))
         } else {
             let name = one.input.display().to_string();
             match &mut missing_run {
@@ -342,7 +342,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
         if let Err(msg) = &result {
             failed += 1;
             if exists {
-                pinbake::errln!("pinbake: error: frame {frame}: {msg}");
+                pin_cli::errln!("pinbake: error: frame {frame}: {msg}");
             }
         }
         if let Some(j) = &mut json {
@@ -353,7 +353,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
     let ok = frames.len() - failed;
     match json {
         Some(j) => j.finish(ok, failed)?,
-        None => pinbake::errln!(
+        None => pin_cli::errln!(
             "baked {ok} of {} frames of {}{}",
             frames.len(),
             args.input.display(),
@@ -398,13 +398,13 @@ impl JsonStream {
         } else {
             ","
         };
-        write!(std::io::stdout().lock(), "{lead}{v}").map_err(pinbake::cli_args::StdoutError)?;
+        write!(std::io::stdout().lock(), "{lead}{v}").map_err(pin_cli::StdoutError)?;
         Ok(())
     }
 
     fn finish(self, ok: usize, failed: usize) -> anyhow::Result<()> {
         let lead = if self.first { "{\"frames\": [" } else { "" };
-        pinbake::outln!("{lead}], \"ok\": {ok}, \"failed\": {failed}}}")?;
+        pin_cli::outln!("{lead}], \"ok\": {ok}, \"failed\": {failed}}}")?;
         Ok(())
     }
 }

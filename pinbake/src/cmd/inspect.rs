@@ -49,12 +49,12 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         });
     }
     if as_json {
-        pinbake::outln!("{v}")?;
+        pin_cli::outln!("{v}")?;
         return Ok(ExitCode::SUCCESS);
     }
-    pinbake::outln!("{}", path.display())?;
-    pinbake::outln!("  format        {}", v["version"].as_str().unwrap_or("?"))?;
-    pinbake::outln!(
+    pin_cli::outln!("{}", path.display())?;
+    pin_cli::outln!("  format        {}", v["version"].as_str().unwrap_or("?"))?;
+    pin_cli::outln!(
         "  grid          {} x {} x {} cells, {} directions ({}), {} pin(s) per entry",
         file.desc().dims[0],
         file.desc().dims[1],
@@ -63,7 +63,7 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         directions_json(file.shape().directions),
         file.desc().pins_per_entry
     )?;
-    pinbake::outln!(
+    pin_cli::outln!(
         "  box           {:?} .. {:?}{}",
         file.desc().box_min,
         file.desc().box_max,
@@ -73,30 +73,30 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
             ""
         }
     )?;
-    pinbake::outln!(
+    pin_cli::outln!(
         "  cells         {} covered, {} stored, {} empty ({:.1}% sparse)",
         v["covered_cells"],
         v["stored_cells"],
         v["empty_cells"],
         v["sparse_fraction"].as_f64().unwrap_or(0.0) * 100.0
     )?;
-    pinbake::outln!("  pins          {} stored", v["pins"])?;
-    pinbake::outln!(
+    pin_cli::outln!("  pins          {} stored", v["pins"])?;
+    pin_cli::outln!(
         "  t_min         min {:.6}  max {:.6}  mean {:.6}",
         v["t_min"]["min"].as_f64().unwrap_or(f64::NAN),
         v["t_min"]["max"].as_f64().unwrap_or(f64::NAN),
         v["t_min"]["mean"].as_f64().unwrap_or(f64::NAN)
     )?;
-    pinbake::outln!(
+    pin_cli::outln!(
         "  t_min histogram (10 bins over [0,1]): {}",
         v["t_min"]["histogram"]
     )?;
-    pinbake::outln!("  sections")?;
+    pin_cli::outln!("  sections")?;
     for s in file.sections() {
         let name = SectionKind::from_u32(s.kind)
             .map(|k| k.name().to_string())
             .unwrap_or_else(|| format!("unknown({})", s.kind));
-        pinbake::outln!(
+        pin_cli::outln!(
             "    {name:<12} offset {:>12}  length {:>12}  xxh3 {:016x}",
             s.offset,
             s.length,
@@ -104,7 +104,7 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         )?;
     }
     if let Some(m) = metadata {
-        pinbake::outln!(
+        pin_cli::outln!(
             "  source        {} ({}) hash {}",
             m.source_name,
             m.source_description,
@@ -114,7 +114,7 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
                 &m.source_hash
             }
         )?;
-        pinbake::outln!(
+        pin_cli::outln!(
             "  baked by      {} {}, seed {}, step {}, density scale {}",
             m.tool,
             m.tool_version,
@@ -123,6 +123,6 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
             m.density_scale
         )?;
     }
-    pinbake::outln!("  file          {} bytes", bytes.len())?;
+    pin_cli::outln!("  file          {} bytes", bytes.len())?;
     Ok(ExitCode::SUCCESS)
 }

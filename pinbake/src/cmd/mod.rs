@@ -66,7 +66,7 @@ pub enum Command {
         output: PathBuf,
         /// Refuse tiles whose total size exceeds this many bytes (K/M/G/T suffixes; default:
         /// half of the physical memory).
-        #[arg(long, value_parser = pinbake::files::parse_bytes)]
+        #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
         max_memory: Option<u64>,
     },
     /// Bake the thesis' largest configuration and print pins/s for 1 and 2 threads.
@@ -86,7 +86,7 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
                 parsed
                     .verify()
                     .with_context(|| format!("{}", file.display()))?;
-                pinbake::outln!("{}: ok", file.display())?;
+                pin_cli::outln!("{}: ok", file.display())?;
             }
             Ok(ExitCode::SUCCESS)
         }
@@ -139,12 +139,7 @@ pub fn check_output(output: &std::path::Path, inputs: &[&std::path::Path]) -> Re
     Ok(pinbake::files::check_output(output, inputs)?)
 }
 
-pub use pinbake::files::UsageError;
+pub use pin_cli::UsageError;
 
 /// Returns a [`UsageError`] from the enclosing function.
-macro_rules! usage {
-    ($($t:tt)*) => {
-        return Err(anyhow::Error::new($crate::cmd::UsageError(format!($($t)*))))
-    };
-}
-pub(crate) use usage;
+pub(crate) use pin_cli::usage;

@@ -261,7 +261,7 @@ impl CosineNoise {
         if !(p.freq.is_finite() && p.freq > 0.0 && p.freq <= 1e6) {
             return bad(format!(
                 "cosine freq must be in (0, 1e6], got {}",
-                crate::limits::num(p.freq)
+                pin_format::text::num(p.freq)
             ));
         }
         if !(1..=1024).contains(&p.waves) {
@@ -279,7 +279,7 @@ impl CosineNoise {
         if !(p.gain.is_finite() && p.gain > 0.0 && p.gain <= 16.0) {
             return bad(format!(
                 "gain must be in (0, 16], got {}",
-                crate::limits::num(p.gain)
+                pin_format::text::num(p.gain)
             ));
         }
         let top_freq = p.freq * p.lacunarity.powi(p.octaves as i32 - 1);
@@ -631,7 +631,7 @@ impl fmt::Display for ProceduralSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         // `num`: short values as before, long ones (1e308) in scientific notation; both
         // parse back to the same f64.
-        use crate::limits::num;
+        use pin_format::text::num;
         write!(
             f,
             "{}:density={},extent={}",

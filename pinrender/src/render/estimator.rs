@@ -2,7 +2,7 @@
 
 use super::RenderError;
 use super::field::{DenseView, DensityField};
-use super::majorant::{MajorantGrid, Segment, check_box, clip_box};
+use super::majorant::{MajorantGrid, MajorantSegment, check_box, clip_box};
 use super::rng::Pcg32;
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
@@ -371,7 +371,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
     #[inline]
     fn walk_segments<R>(
         &self,
-        segments: impl Iterator<Item = Segment>,
+        segments: impl Iterator<Item = MajorantSegment>,
         r: &Prepared,
         rng: &mut Pcg32,
         visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
@@ -393,7 +393,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
     #[inline(always)]
     fn walk_with<R, L: Lookup>(
         &self,
-        segments: impl Iterator<Item = Segment>,
+        segments: impl Iterator<Item = MajorantSegment>,
         r: &Prepared,
         rng: &mut Pcg32,
         mut lookup: L,

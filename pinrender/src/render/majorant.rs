@@ -18,7 +18,7 @@ pub struct MajorantGrid {
 
 /// One piece of a ray inside one brick: `[t0, t1]` (world distance along a unit direction).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Segment {
+pub struct MajorantSegment {
     pub t0: f64,
     pub t1: f64,
     pub majorant: f32,
@@ -289,9 +289,9 @@ impl<'a> Dda<'a> {
 
     /// The segment that ends at the next crossing of axis `A`, then the step across it.
     #[inline(always)]
-    fn cross<const A: usize>(&mut self) -> Segment {
+    fn cross<const A: usize>(&mut self) -> MajorantSegment {
         let t1 = self.next_t[A].min(self.t_end);
-        let seg = Segment {
+        let seg = MajorantSegment {
             t0: self.t,
             t1,
             majorant: self.values[self.lin as usize],
@@ -313,10 +313,10 @@ impl<'a> Dda<'a> {
 }
 
 impl Iterator for Dda<'_> {
-    type Item = Segment;
+    type Item = MajorantSegment;
 
     #[inline(always)]
-    fn next(&mut self) -> Option<Segment> {
+    fn next(&mut self) -> Option<MajorantSegment> {
         if self.done {
             return None;
         }
@@ -353,7 +353,7 @@ mod tests {
     /// segments must tile the clipped chord.
     fn check_ray(g: &MajorantGrid, o: DVec3, d: DVec3, t_max: f64) {
         let d = d.normalize();
-        let segs: Vec<Segment> = g.segments(o, d, 0.0, t_max).collect();
+        let segs: Vec<MajorantSegment> = g.segments(o, d, 0.0, t_max).collect();
         let chord = clip_box(o, d, &g.lo, &g.hi, 0.0, t_max);
         let Some((c0, c1)) = chord else {
             assert!(segs.is_empty(), "miss but segments {segs:?}");

@@ -128,7 +128,7 @@ pub use estimator::{
 };
 pub use field::{DenseMap, DenseView, DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
-pub use majorant::{Dda, MajorantGrid, Segment};
+pub use majorant::{Dda, MajorantGrid, MajorantSegment};
 pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
 pub use settings::{Budget, CacheSettings, MAX_CAPACITY_LOG2, RenderSettings};

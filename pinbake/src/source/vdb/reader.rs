@@ -12,15 +12,15 @@ use super::*;
 pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
     // The file may be any path; the selector and mode come from our own command line.
     let [file, selector, mode] = args else {
-        crate::errln!(
+        tell_parent(&format!(
             "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
-        );
+        ));
         return 2;
     };
     let (Some(selector), Some(mode)) = (selector.to_str(), mode.to_str()) else {
-        crate::errln!(
+        tell_parent(&format!(
             "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
-        );
+        ));
         return 2;
     };
     std::panic::set_hook(Box::new(|_| {}));
@@ -44,10 +44,16 @@ pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
     }) {
         Ok(()) => 0,
         Err(e) => {
-            crate::errln!("{}", one_line(&e));
+            tell_parent(&one_line(&e));
             2
         }
     }
+}
+
+/// One line on stderr, which the parent reads as the worker's error; a stderr that cannot
+/// take it loses the line, and the exit code still says what happened.
+fn tell_parent(line: &str) {
+    let _ = writeln!(std::io::stderr().lock(), "{line}");
 }
 
 pub(super) fn panic_text(p: &(dyn std::any::Any + Send)) -> String {

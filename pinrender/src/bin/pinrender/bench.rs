@@ -53,7 +53,7 @@ pub struct BenchArgs {
     pub cells: u32,
     /// Refuse a configuration that needs more than this many bytes of memory (K/M/G/T
     /// suffixes; default: half of the physical memory).
-    #[arg(long, value_parser = pinbake::files::parse_bytes)]
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
     pub max_memory: Option<u64>,
     /// Skip the wgpu measurements.
     #[arg(long)]
@@ -260,7 +260,7 @@ fn cached_pins(name: &str, source: &dyn DensitySource, bake: BenchBake) -> Resul
     {
         return Ok(g);
     }
-    pinbake::errln!(
+    pin_cli::errln!(
         "pinrender bench: baking {name} ({:?} cells x {} directions) once into {}",
         opts.cells,
         opts.directions.count(),
@@ -729,7 +729,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         if smoke.exists() {
             volumes.push(("smoke".into(), volume::open_volume(&smoke, &args.volume)?));
         } else {
-            pinbake::errln!(
+            pin_cli::errln!(
                 "pinrender bench: {} not found, skipping the smoke",
                 smoke.display()
             );
@@ -765,13 +765,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
         )?;
     }
     if args.json {
-        pinbake::outln!("{}", json!({"results": rows}))?;
+        pin_cli::outln!("{}", json!({"results": rows}))?;
         return Ok(());
     }
     if let Some(ctx) = &gpu {
-        pinbake::outln!("gpu: {}", ctx.describe())?;
+        pin_cli::outln!("gpu: {}", ctx.describe())?;
     }
-    pinbake::outln!(
+    pin_cli::outln!(
         "{:<12} {:<20} {:<14} {:<5} {:>14} {:>10} {:>10} {:>10}",
         "volume",
         "method",
@@ -812,7 +812,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             .as_f64()
             .map_or(String::new(), |e| format!("{e:.2e}"));
         // The GPU's combined `both` row has no batched CPU counterpart.
-        pinbake::outln!(
+        pin_cli::outln!(
             "{:<12} {:<20} {:<14} {:<5} {:>14.0} {:>10} {:>10} {:>10}",
             r["volume"].as_str().unwrap_or(""),
             r["method"].as_str().unwrap_or(""),

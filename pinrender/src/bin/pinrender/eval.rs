@@ -102,7 +102,7 @@ pub struct EvalArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
-    #[arg(long, value_parser = pinbake::limits::parse_threads)]
+    #[arg(long, value_parser = pinbake::cli_args::parse_threads)]
     pub threads: Option<usize>,
     /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
     #[arg(long)]
@@ -202,9 +202,9 @@ impl Gpu {
                 let describe = ctx.describe();
                 let software = ctx.adapter_info.device_type == wgpu::DeviceType::Cpu
                     || ctx.adapter_info.name.contains("llvmpipe");
-                pinbake::errln!("GPU: {describe} (context in {seconds:.2} s)");
+                pin_cli::errln!("GPU: {describe} (context in {seconds:.2} s)");
                 if software {
-                    pinbake::errln!(
+                    pin_cli::errln!(
                         "GPU: note: a software adapter (Vulkan on the CPU): the '(gpu)' \
                          timings measure the WGSL code path on CPU threads, not a GPU"
                     );
@@ -217,7 +217,7 @@ impl Gpu {
                 }
             }
             Err(e) => {
-                pinbake::errln!(
+                pin_cli::errln!(
                     "warning: GPU: no adapter, the '(gpu)' rows are skipped ({e}); \
                      pass --no-gpu to silence this"
                 );
@@ -367,7 +367,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();
     for name in &scene_names {
-        pinbake::errln!("== scene {name}");
+        pin_cli::errln!("== scene {name}");
         let r = eval_scene(name, &a, &sizes, &budgets, &gpu)
             .with_context(|| format!("scene {name}"))?;
         results.push(r);
@@ -388,7 +388,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if let Some(docs) = &a.docs {
         report::write_docs(docs, &a.out, &results, &meta)?;
     }
-    pinbake::errln!("eval done in {total:.1} s -> {}", summary.display());
+    pin_cli::errln!("eval done in {total:.1} s -> {}", summary.display());
     Ok(())
 }
 
@@ -522,7 +522,7 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, f64, Option<f64>)> 
         && img.width == cam.width
         && img.height == cam.height
     {
-        pinbake::errln!("  reference: cached {}", path.display());
+        pin_cli::errln!("  reference: cached {}", path.display());
         return Ok((img, noise, None));
     }
     let t = Instant::now();
@@ -545,7 +545,7 @@ fn reference(es: &EvalScene, a: &EvalArgs) -> Result<(Image, f64, Option<f64>)> 
             .collect(),
     };
     let secs = t.elapsed().as_secs_f64();
-    pinbake::errln!(
+    pin_cli::errln!(
         "  reference: {} spp in {secs:.1} s ({}), noise RMSE {noise:.2e}",
         2 * half_spp,
         es.reference.label()
@@ -614,7 +614,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
         // What `pinbake bake` chooses for the volume by default.
         let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
         let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
-        pinbake::errln!(
+        pin_cli::errln!(
             "  pins chosen: {:?} cells x {:?} (model variation {:.1}, predicted block error {:.3})",
             c.cells,
             c.directions,
@@ -648,7 +648,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
             local_to_world: Some(scenes::translated(&l2w, inst.translation)),
         });
     }
-    pinbake::errln!(
+    pin_cli::errln!(
         "  pins: {:?} cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",
         opts.cells,
         opts.directions.count(),
@@ -709,7 +709,7 @@ fn eval_scene(
             return Ok(());
         };
         let label = r.label();
-        pinbake::errln!(
+        pin_cli::errln!(
             "  {label:<20} {:>5} spp in {:>6.2} s  rmse {:.5}  relmse {:.5}",
             r.spp,
             r.seconds,
@@ -771,7 +771,7 @@ fn eval_scene(
         }
     });
     if let Some(n) = &gpu_note {
-        pinbake::errln!("  {n}");
+        pin_cli::errln!("  {n}");
     }
     Ok(SceneResult {
         name: es.name.to_string(),

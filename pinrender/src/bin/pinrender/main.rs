@@ -69,11 +69,11 @@ fn list_estimators(json: bool) -> anyhow::Result<()> {
                 })
             })
             .collect();
-        pinbake::outln!("{}", serde_json::json!({ "estimators": rows }))?;
+        pin_cli::outln!("{}", serde_json::json!({ "estimators": rows }))?;
         return Ok(());
     }
     for e in ESTIMATORS {
-        pinbake::outln!(
+        pin_cli::outln!(
             "{:<13} {:<10} {:<8} {:<8} {}",
             e.name,
             if e.spec.needs_pins() {
@@ -104,39 +104,20 @@ fn main() -> ExitCode {
     if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
         return code;
     }
-    pinbake::cli_args::end_quietly_on_closed_stdout();
-    let cli = match pinbake::cli_args::parse_cli::<Cli>("pinrender", args) {
-        Ok(c) => c,
-        Err(code) => return code,
-    };
-    let result = match cli.command {
-        Command::Bench(a) => bench::run(*a),
-        Command::Render(a) => render_cmd::run(*a),
-        Command::Estimators { json } => list_estimators(json),
-        Command::Eval(a) => eval::run(*a),
-        Command::Shaders(a) => shaders::run(a),
-        Command::PlotBias(a) => bias_plot::run(a),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            pinbake::errln!(
-                "pinrender: error: {}",
-                pinbake::files::error_line(e.as_ref())
-            );
-            if e.downcast_ref::<pinbake::files::UsageError>().is_some() {
-                ExitCode::from(2)
-            } else {
-                ExitCode::from(1)
-            }
+    // Partial output files (`bench --save-pins`) are unlinked on SIGINT, SIGTERM and SIGHUP.
+    pinbake::files::watch_partial_files(pin_cli::signals::track);
+    pin_cli::run_main("pinrender", args, |cli: Cli| {
+        match cli.command {
+            Command::Bench(a) => bench::run(*a),
+            Command::Render(a) => render_cmd::run(*a),
+            Command::Estimators { json } => list_estimators(json),
+            Command::Eval(a) => eval::run(*a),
+            Command::Shaders(a) => shaders::run(a),
+            Command::PlotBias(a) => bias_plot::run(a),
         }
-    }
+        .map(|()| ExitCode::SUCCESS)
+    })
 }
 
-/// Returns a [`pinbake::files::UsageError`] (exit code 2) from the enclosing function.
-macro_rules! usage {
-    ($($t:tt)*) => {
-        return Err(anyhow::Error::new(pinbake::files::UsageError(format!($($t)*))))
-    };
-}
-pub(crate) use usage;
+/// Returns a [`pin_cli::UsageError`] (exit code 2) from the enclosing function.
+pub(crate) use pin_cli::usage;

@@ -16,7 +16,7 @@ use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
 
 use crate::volume::{self, SourceField, VolumeArgs};
-use pinbake::limits::parse_f64x3;
+use pin_cli::parse::parse_f64x3;
 use pinrender::medium::{MediumDesc, PlacedPins};
 
 #[derive(Args, Debug)]
@@ -81,18 +81,18 @@ pub struct RenderArgs {
     #[arg(long, value_parser = parse_f64x3)]
     pub camera_target: Option<[f64; 3]>,
     /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0, value_parser = pinbake::limits::parse_finite)]
+    #[arg(long, default_value_t = 40.0, value_parser = pin_cli::parse::parse_finite)]
     pub fov: f64,
     /// Direction from the scene towards the sun.
     #[arg(long, value_parser = parse_f64x3, default_value = "0.3,1,0.2")]
     pub sun_dir: [f64; 3],
-    #[arg(long, default_value_t = 3.0, value_parser = pinbake::limits::parse_nonneg)]
+    #[arg(long, default_value_t = 3.0, value_parser = pin_cli::parse::parse_nonneg)]
     pub sun_radiance: f64,
-    #[arg(long, default_value_t = 0.3, value_parser = pinbake::limits::parse_nonneg)]
+    #[arg(long, default_value_t = 0.3, value_parser = pin_cli::parse::parse_nonneg)]
     pub env_radiance: f64,
-    #[arg(long, default_value_t = 0.9, value_parser = pinbake::limits::parse_nonneg)]
+    #[arg(long, default_value_t = 0.9, value_parser = pin_cli::parse::parse_nonneg)]
     pub albedo: f64,
-    #[arg(long, default_value_t = 0.0, value_parser = pinbake::limits::parse_finite)]
+    #[arg(long, default_value_t = 0.0, value_parser = pin_cli::parse::parse_finite)]
     pub g: f64,
     #[arg(long, default_value_t = 8)]
     pub max_bounces: u32,
@@ -107,7 +107,7 @@ pub struct RenderArgs {
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
     pub pin_cells: Option<u32>,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
-    #[arg(long, value_parser = pinbake::limits::parse_threads)]
+    #[arg(long, value_parser = pinbake::cli_args::parse_threads)]
     pub threads: Option<usize>,
     /// Exposure for the PNG (finite, > 0).
     #[arg(long, default_value_t = 1.0, value_parser = parse_exposure)]
@@ -118,7 +118,7 @@ pub struct RenderArgs {
     pub out: PathBuf,
     /// Refuse a render that would need more than this many bytes of memory (K/M/G/T
     /// suffixes; default: half of the physical memory).
-    #[arg(long, value_parser = pinbake::files::parse_bytes)]
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
     pub max_memory: Option<u64>,
     /// cpu (rayon path tracer) or gpu (the WGSL path tracer through wgpu).
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
@@ -184,17 +184,17 @@ fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
-    let v = pinbake::limits::parse_finite(s)?;
+    let v = pin_cli::parse::parse_finite(s)?;
     if !(v > 0.0 && v <= 1e5) {
-        return Err(format!("{} must be in (0, 1e5]", pinbake::limits::num(v)));
+        return Err(format!("{} must be in (0, 1e5]", pin_cli::num(v)));
     }
     Ok(v)
 }
 
 fn parse_exposure(s: &str) -> Result<f32, String> {
-    let v = pinbake::limits::parse_finite(s)?;
+    let v = pin_cli::parse::parse_finite(s)?;
     if !(v > 0.0 && v <= f64::from(f32::MAX)) {
-        return Err(format!("{} must be > 0", pinbake::limits::num(v)));
+        return Err(format!("{} must be > 0", pin_cli::num(v)));
     }
     Ok(v as f32)
 }
@@ -508,7 +508,7 @@ fn write(
     image
         .write_png(&png, a.exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
-    pinbake::errln!(
+    pin_cli::errln!(
         "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {}",
         input.display(),
         a.estimator,
@@ -528,7 +528,7 @@ fn write(
         let rmse = rmse(image, r).map_err(|e| anyhow!("{}: {e}", path.display()))?;
         // stdout, one line, for scripts; the render summary above goes to stderr. New fields
         // go at the end (scripts read the first ones by position).
-        pinbake::outln!(
+        pin_cli::outln!(
             "mean_error {:+.4} block8_rms_error {:.4} spp {spp} seconds {seconds:.2} rmse {rmse:.6}",
             mean,
             block

@@ -154,7 +154,7 @@ pub fn run(args: ShadersArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("{}", args.out.display()))?;
     for (name, bytes) in translate(pinrt::PIN_WGSL)? {
         write(&args.out, name, &bytes)?;
-        pinbake::outln!("{}", args.out.join(name).display())?;
+        pin_cli::outln!("{}", args.out.join(name).display())?;
     }
     Ok(())
 }

@@ -639,7 +639,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     use super::cloud::{CLOUD_DENSITY, CLOUD_VOXELS};
     let t = std::time::Instant::now();
     let opened = Opened::Dense(Arc::new(super::cloud::cloud(CLOUD_VOXELS)?));
-    pinbake::errln!(
+    pin_cli::errln!(
         "  cloud: {CLOUD_VOXELS}^3 voxels generated in {:.1} s",
         t.elapsed().as_secs_f64()
     );
