@@ -16,8 +16,8 @@ use pin_format::{
 };
 use rayon::prelude::*;
 
+pub use crate::pin::PinLayout;
 use crate::pin::{Field, Placement, field_optical_depths, make_entry};
-use crate::rng::CounterRng;
 use crate::source::{Aabb, DensitySource};
 use crate::sweep::Sweep;
 
@@ -226,44 +226,6 @@ pub fn pin_count(opts: &BakeOptions) -> u64 {
 /// march's per-pin state for large dense grids (a fixed bound, ~110 MB at most).
 pub fn estimate_working_bytes(opts: &BakeOptions) -> u64 {
     crate::sweep::working_set_bytes(pin_count(opts))
-}
-
-/// Deterministic per-pin geometry in unit-cube coordinates.
-#[derive(Clone, Copy, Debug)]
-pub struct PinLayout {
-    pub dims: [u32; 3],
-    pub directions: Directions,
-    pub pins_per_entry: u32,
-    pub jitter: bool,
-    pub seed: u64,
-}
-
-impl PinLayout {
-    /// The RNG stream of pin `(cell, dir, k)`; draws: 3 position, 2 direction, 32 mask bits.
-    pub fn rng(&self, cell_linear: u64, dir: u32, k: u32) -> CounterRng {
-        let slot = u64::from(dir) * u64::from(self.pins_per_entry) + u64::from(k);
-        CounterRng::new(self.seed, cell_linear, slot)
-    }
-
-    /// The pin's point and unit direction (z >= 0) in unit-cube coordinates.
-    pub fn line(&self, cell: [u32; 3], dir: u32, rng: &mut CounterRng) -> (DVec3, DVec3) {
-        let j = |rng: &mut CounterRng| if self.jitter { rng.next_f64() } else { 0.5 };
-        let (jx, jy, jz) = (j(rng), j(rng), j(rng));
-        let p = DVec3::new(
-            (f64::from(cell[0]) + jx) / f64::from(self.dims[0]),
-            (f64::from(cell[1]) + jy) / f64::from(self.dims[1]),
-            (f64::from(cell[2]) + jz) / f64::from(self.dims[2]),
-        );
-        let (a, b) = (j(rng), j(rng));
-        let w = DVec3::from(self.directions.direction_in_cell(dir, a, b));
-        (p, w)
-    }
-
-    pub fn cell_linear(&self, cell: [u32; 3]) -> u64 {
-        u64::from(cell[0])
-            + u64::from(self.dims[0])
-                * (u64::from(cell[1]) + u64::from(self.dims[1]) * u64::from(cell[2]))
-    }
 }
 
 /// Bakes `source` with `opts`. `progress` is called with the number of pins just finished.
@@ -595,6 +557,7 @@ fn unflatten(i: usize, dims: [u32; 3]) -> [u32; 3] {
 mod tests {
     use super::*;
     use crate::pin::{interval_optical_depths, unit_cube_chord};
+    use crate::rng::CounterRng;
     use crate::source::procedural::HomogeneousBox;
     use pin_format::PinFile;
 

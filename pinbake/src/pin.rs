@@ -2,10 +2,48 @@
 //! (mask, t_min) entry. This is the whole per-pin computation of a bake, in one pass.
 
 use glam::DVec3;
-use pin_format::PinEntry;
+use pin_format::{Directions, PinEntry};
 
 use crate::rng::CounterRng;
 use crate::source::{DenseGrid, DensitySource, Mip};
+
+/// Deterministic per-pin geometry in unit-cube coordinates.
+#[derive(Clone, Copy, Debug)]
+pub struct PinLayout {
+    pub dims: [u32; 3],
+    pub directions: Directions,
+    pub pins_per_entry: u32,
+    pub jitter: bool,
+    pub seed: u64,
+}
+
+impl PinLayout {
+    /// The RNG stream of pin `(cell, dir, k)`; draws: 3 position, 2 direction, 32 mask bits.
+    pub fn rng(&self, cell_linear: u64, dir: u32, k: u32) -> CounterRng {
+        let slot = u64::from(dir) * u64::from(self.pins_per_entry) + u64::from(k);
+        CounterRng::new(self.seed, cell_linear, slot)
+    }
+
+    /// The pin's point and unit direction (z >= 0) in unit-cube coordinates.
+    pub fn line(&self, cell: [u32; 3], dir: u32, rng: &mut CounterRng) -> (DVec3, DVec3) {
+        let j = |rng: &mut CounterRng| if self.jitter { rng.next_f64() } else { 0.5 };
+        let (jx, jy, jz) = (j(rng), j(rng), j(rng));
+        let p = DVec3::new(
+            (f64::from(cell[0]) + jx) / f64::from(self.dims[0]),
+            (f64::from(cell[1]) + jy) / f64::from(self.dims[1]),
+            (f64::from(cell[2]) + jz) / f64::from(self.dims[2]),
+        );
+        let (a, b) = (j(rng), j(rng));
+        let w = DVec3::from(self.directions.direction_in_cell(dir, a, b));
+        (p, w)
+    }
+
+    pub fn cell_linear(&self, cell: [u32; 3]) -> u64 {
+        u64::from(cell[0])
+            + u64::from(self.dims[0])
+                * (u64::from(cell[1]) + u64::from(self.dims[1]) * u64::from(cell[2]))
+    }
+}
 
 /// Intervals per pin.
 pub const INTERVALS: usize = 32;

@@ -431,6 +431,15 @@ const ESTIMATOR_NAMES: [&str; 8] = [
     "whole-volume",
 ];
 
+/// Whether an eval entry reads the pin grid: an estimator whose spec needs pins, alone or
+/// with the radiance cache (`pinms+cache`).
+fn reads_pins(e: &str) -> bool {
+    e.strip_suffix("+cache")
+        .unwrap_or(e)
+        .parse::<pinrender::render::EstimatorSpec>()
+        .is_ok_and(|s| s.needs_pins())
+}
+
 fn check_estimator_name(e: &str) -> Result<()> {
     if ESTIMATOR_NAMES.contains(&e) {
         return Ok(());
@@ -687,9 +696,7 @@ fn eval_scene(
         .filter(|e| wanted(e))
         .cloned()
         .collect();
-    let needs_pins = ests
-        .iter()
-        .any(|e| e.starts_with("pins") || e.starts_with("pinms"));
+    let needs_pins = ests.iter().any(|e| reads_pins(e));
     let bake = if needs_pins {
         Some(bake_pins(&mut es, a)?)
     } else {
@@ -831,7 +838,7 @@ fn measure(
             }
             (_, Some(c)) => render_with_cache(&scene, &st, &es.cache, c, Instant::now()),
             // Pin queries answered in batches: the same image as `render`, sooner.
-            ("pins" | "pinms", _) => render_wavefront(&scene, &st, DEFAULT_WAVEFRONT_BATCH),
+            (e, _) if reads_pins(e) => render_wavefront(&scene, &st, DEFAULT_WAVEFRONT_BATCH),
             _ => render(&scene, &st),
         };
         out.map_err(|e| anyhow!("{e}"))
