@@ -8,11 +8,9 @@
 //! a pin the grid's z index never decreases. A batch of pins is therefore marched layer by
 //! layer of the grid ([`Sweep::layer`] voxels of z at a time, a contiguous slab of the grid):
 //! each pin takes its next samples until it leaves the layer, so the whole batch's samples
-//! in one layer read only that slab. Measured at 512^3 (docs/performance.md) this took
-//! 20-30 % less CPU than the per-pin march while both prefetched into the L1; since both
-//! prefetch into the L2 they take the same CPU on one thread (9.47 against 9.49 CPU-s).
-//! Layers of 64 voxels measured 4.62-5.72 s wall on 2 threads (median 4.85 of 7 runs)
-//! against 4.70-5.52 with 32 (median 4.99 of 7; 16: 6.2 s), on a quiet machine.
+//! in one layer read only that slab. The figures (the CPU against the per-pin march, and the
+//! layer depth of [`Sweep::default`] against thinner layers) are in docs/performance.md,
+//! "Marching by layers of the grid", with the commands that measure them.
 //!
 //! The bytes do not change: each pin's samples are the points, values and f64 sums of
 //! [`crate::pin::field_optical_depths`] (its whole-pin path: one f64 base per interval, f32
