@@ -39,6 +39,7 @@ mod metadata;
 mod owned;
 mod reader;
 mod shape;
+#[cfg(feature = "writer")]
 mod writer;
 
 pub use checksum::checksum;
@@ -52,6 +53,7 @@ pub use metadata::{MAX_METADATA_BYTES, Metadata};
 pub use owned::{OwnedPinGrid, grid_desc};
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};
+#[cfg(feature = "writer")]
 pub use writer::{AtomicPinFile, PinFileWriter};
 
 /// The smallest ray-marching step, relative to the longest box edge, that a bake records or a

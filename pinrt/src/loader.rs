@@ -223,7 +223,8 @@ impl PinGrid {
             .unwrap_or(PinEntry::EMPTY)
     }
 
-    /// A sampler with default options and the file's own placement.
+    /// A sampler with the default lookup ([`crate::SamplerOptions::RENDER`]) and the file's
+    /// own placement.
     pub fn sampler(&self) -> Result<crate::Sampler<'_>> {
         crate::Sampler::new(self)
     }
