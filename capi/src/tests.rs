@@ -607,7 +607,10 @@ fn gpu_params_and_buffers_describe_the_grid_as_the_sampler_sees_it() {
         }
         let s = pinrt::Sampler::with_local_to_world(&reference, &l2w).unwrap();
         assert_eq!(p.rows, s.transform().rows);
-        assert_eq!(p.jitter, [0.25, 0.0, 0.0, 0.0]);
+        // The options' jitter and a newly opened grid's lookup, the default one: one lookup
+        // per query (stride 32) and `SamplerOptions::RENDER`'s lookup mode bits.
+        let r = SamplerOptions::RENDER;
+        assert_eq!(p.jitter, [0.25, 0.0, r.stride() as f32, r.lookup_mode()]);
         assert_eq!(p.dims, [5, 4, 3, 0]);
         let stored = reference.desc().stored_cells as u32;
         assert_eq!(p.grid, [3, 2, 128, stored]);

@@ -1,5 +1,6 @@
-//! The pin grid file format, version 1: the on-disk layout, a streaming atomic writer, a
-//! zero-copy reader over `&[u8]`, and validation.
+//! The pin grid file format, version 1: the on-disk layout, a streaming atomic writer
+//! (feature `writer`, default; readers such as pinrt build without it and without its
+//! tempfile dependency), a zero-copy reader over `&[u8]`, and validation.
 //!
 //! What it is for: anything that produces or consumes `.pin` files. A pin file holds a 5D grid
 //! (3D cells x hemisphere directions) of precomputed transmittance "pins": a 32-bit ratio mask
