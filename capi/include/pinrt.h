@@ -8,11 +8,12 @@
 #include <stdint.h>
 
 /**
- * The lookup `pinrender render` uses, the least biased this library offers
- * (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-15): set both jitters of
- * `PinrtQueryOptions` to these, call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
- * PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)` and
- * `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`.
+ * The default lookup, the one `pinrender render` uses and the least biased this library
+ * offers (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-15). A newly
+ * opened grid has it, and NULL `PinrtQueryOptions` give its jitter; a caller's
+ * `PinrtQueryOptions` sets both jitters to these to keep it. `pinrt_set_lookup(grid,
+ * PINRT_RENDER_CHAIN_STRIDE, PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)` and
+ * `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)` restore the rest.
  */
 #define PINRT_RENDER_SPATIAL_JITTER 1.0
 
@@ -40,6 +41,40 @@
  * See `PINRT_RENDER_SPATIAL_JITTER` (`pinrt_set_nearest_line`).
  */
 #define PINRT_RENDER_NEAREST_LINE 8
+
+/**
+ * The thesis' lookup (`pinrt::SamplerOptions::THESIS`: no jitter, one lookup per query at
+ * the segment start, the cell that holds that point): set both jitters of
+ * `PinrtQueryOptions` to these, call `pinrt_set_lookup(grid, PINRT_THESIS_CHAIN_STRIDE,
+ * PINRT_THESIS_MIDPOINT_LOOKUP, PINRT_THESIS_START_INSIDE)` and
+ * `pinrt_set_nearest_line(grid, PINRT_THESIS_NEAREST_LINE)`.
+ */
+#define PINRT_THESIS_SPATIAL_JITTER 0.0
+
+/**
+ * See `PINRT_THESIS_SPATIAL_JITTER`.
+ */
+#define PINRT_THESIS_DIRECTIONAL_JITTER 0.0
+
+/**
+ * See `PINRT_THESIS_SPATIAL_JITTER` (0: one lookup per query).
+ */
+#define PINRT_THESIS_CHAIN_STRIDE 0
+
+/**
+ * See `PINRT_THESIS_SPATIAL_JITTER`.
+ */
+#define PINRT_THESIS_MIDPOINT_LOOKUP 0
+
+/**
+ * See `PINRT_THESIS_SPATIAL_JITTER`.
+ */
+#define PINRT_THESIS_START_INSIDE 0
+
+/**
+ * See `PINRT_THESIS_SPATIAL_JITTER`.
+ */
+#define PINRT_THESIS_NEAREST_LINE 0
 
 /**
  * The most steps `pinrt_set_nearest_line` takes.
@@ -164,8 +199,10 @@ typedef struct PinrtDesc {
 } PinrtDesc;
 
 /**
- * Lookup options and placement for one batch call. Pass NULL for the defaults (no jitter,
- * the file's own `local_to_world`).
+ * Lookup options and placement for one batch call. Pass NULL for the defaults (the default
+ * lookup's jitter, `PINRT_RENDER_SPATIAL_JITTER` and `PINRT_RENDER_DIRECTIONAL_JITTER`, and
+ * the file's own `local_to_world`); a caller's struct sets both jitters itself (0 and 0 for
+ * the thesis' lookup, `PINRT_THESIS_*`).
  */
 typedef struct PinrtQueryOptions {
   /**
@@ -422,9 +459,9 @@ enum PinrtStatus pinrt_gpu_buffers(const struct PinrtGrid *grid, struct PinrtGpu
  * `chain_stride` intervals per lookup (0 or 32 and above: one lookup per query),
  * `midpoint_lookup` 1 to look each piece up at its middle instead of its start,
  * `start_inside` 1 to look a piece that starts inside the box up at its start without
- * spatial jitter. A newly opened grid has 0, 0, 0 (the thesis' lookup); `pinrender render`
- * uses the `PINRT_RENDER_*` values (one lookup, middle, start inside, both jitters 1, and
- * `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`).
+ * spatial jitter. A newly opened grid has the default lookup's `PINRT_RENDER_*` values
+ * (one lookup, middle, start inside; with both jitters 1 and
+ * `PINRT_RENDER_NEAREST_LINE`); the thesis' lookup is 0, 0, 0 (`PINRT_THESIS_*`).
  * `midpoint_lookup` and `start_inside` other than 0 or 1
  * are `PINRT_INVALID_ARGUMENT`.
  *
@@ -441,8 +478,8 @@ enum PinrtStatus pinrt_set_lookup(struct PinrtGrid *grid,
  * on (`docs/sampling.md` section 15): each lookup reads, instead of the cell that holds its
  * point, the cell whose pin line passes nearest the point, searching `steps` one-cell steps
  * on each side along the direction cell's axis; the spatial jitter of `PinrtQueryOptions` is
- * then not applied. 0 (a newly opened grid's): off; `pinrender render` uses
- * `PINRT_RENDER_NEAREST_LINE`. Octahedral direction sets only: a polar grid reads the cell
+ * then not applied. 0: off (the thesis' lookup); a newly opened grid has the default
+ * lookup's `PINRT_RENDER_NEAREST_LINE`. Octahedral direction sets only: a polar grid reads the cell
  * that holds the point. `steps` above `PINRT_MAX_NEAREST_LINE` is `PINRT_INVALID_ARGUMENT`.
  * `pinrt_set_lookup` leaves this setting as it is.
  *

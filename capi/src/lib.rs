@@ -25,6 +25,9 @@
 //!   which kills the host process. Replace pin files atomically, by writing a new file and
 //!   renaming it over the old one (as pinbake does): the mapping keeps the old file alive.
 //!   Where that cannot be ruled out, read the file and use `pinrt_open_memory`.
+//! * The default lookup is `pinrt::SamplerOptions::RENDER`, the Rust default
+//!   (`PINRT_RENDER_*`): a newly opened grid has it and NULL options give its jitter. The
+//!   thesis' lookup is `PINRT_THESIS_*`.
 //! * A `PinrtGrid` is immutable after opening: any number of threads may query one grid at
 //!   once. `pinrt_close` must not race with queries on the same grid.
 
@@ -62,19 +65,32 @@ pub enum PinrtStatus {
 /// `pinrt_close`.
 pub struct PinrtGrid {
     grid: PinGrid,
-    /// The lookup options beside the jitter, set by `pinrt_set_lookup` (default: one lookup
-    /// per query at the segment start, as the thesis).
+    /// The lookup options beside the jitter, set by `pinrt_set_lookup` and
+    /// `pinrt_set_nearest_line` (a newly opened grid has the default lookup's,
+    /// `pinrt::SamplerOptions::RENDER`).
     lookup: Lookup,
 }
 
 /// `pinrt_set_lookup`'s options (`pinrt::SamplerOptions` without the jitter, which each batch
 /// call's `PinrtQueryOptions` carries).
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 struct Lookup {
     chain_stride: u32,
     midpoint_lookup: bool,
     start_inside: bool,
     nearest_line: u32,
+}
+
+impl Lookup {
+    /// The part of `opts` that the grid holds.
+    fn of(opts: SamplerOptions) -> Self {
+        Self {
+            chain_stride: opts.chain_stride,
+            midpoint_lookup: opts.midpoint_lookup,
+            start_inside: opts.start_inside,
+            nearest_line: opts.nearest_line,
+        }
+    }
 }
 
 /// One query: a world-space ray and the end of its segment (32 bytes, the layout of the GPU
@@ -112,8 +128,10 @@ pub struct PinrtResult {
     pub rng_state: u32,
 }
 
-/// Lookup options and placement for one batch call. Pass NULL for the defaults (no jitter,
-/// the file's own `local_to_world`).
+/// Lookup options and placement for one batch call. Pass NULL for the defaults (the default
+/// lookup's jitter, `PINRT_RENDER_SPATIAL_JITTER` and `PINRT_RENDER_DIRECTIONAL_JITTER`, and
+/// the file's own `local_to_world`); a caller's struct sets both jitters itself (0 and 0 for
+/// the thesis' lookup, `PINRT_THESIS_*`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 pub struct PinrtQueryOptions {
@@ -337,7 +355,7 @@ unsafe fn grid_mut<'a>(grid: *mut PinrtGrid) -> Result<&'a mut PinrtGrid, Fail> 
 fn publish(grid: PinGrid, out: *mut *mut PinrtGrid) {
     let boxed = Box::new(PinrtGrid {
         grid,
-        lookup: Lookup::default(),
+        lookup: Lookup::of(SamplerOptions::default()),
     });
     // SAFETY: `out` was checked non-null and aligned by the caller of `publish`.
     unsafe { out.write(Box::into_raw(boxed)) };
@@ -515,7 +533,11 @@ unsafe fn sampler<'g>(
     }
     // SAFETY: caller's contract; non-null pointers are aligned (checked above).
     let Some(o) = (unsafe { opts.as_ref() }) else {
-        return Ok(g.grid.sampler()?.with_options(with_lookup(0.0, 0.0)));
+        let d = SamplerOptions::default();
+        return Ok(g
+            .grid
+            .sampler()?
+            .with_options(with_lookup(d.spatial_jitter, d.directional_jitter)));
     };
     let s = if o.local_to_world.is_null() {
         g.grid.sampler()?
@@ -746,11 +768,12 @@ pub unsafe extern "C" fn pinrt_gpu_buffers(
     })
 }
 
-/// The lookup `pinrender render` uses, the least biased this library offers
-/// (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-15): set both jitters of
-/// `PinrtQueryOptions` to these, call `pinrt_set_lookup(grid, PINRT_RENDER_CHAIN_STRIDE,
-/// PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)` and
-/// `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`.
+/// The default lookup, the one `pinrender render` uses and the least biased this library
+/// offers (`pinrt::SamplerOptions::RENDER`, `docs/sampling.md` sections 11-15). A newly
+/// opened grid has it, and NULL `PinrtQueryOptions` give its jitter; a caller's
+/// `PinrtQueryOptions` sets both jitters to these to keep it. `pinrt_set_lookup(grid,
+/// PINRT_RENDER_CHAIN_STRIDE, PINRT_RENDER_MIDPOINT_LOOKUP, PINRT_RENDER_START_INSIDE)` and
+/// `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)` restore the rest.
 pub const PINRT_RENDER_SPATIAL_JITTER: f32 = 1.0;
 /// See `PINRT_RENDER_SPATIAL_JITTER`.
 pub const PINRT_RENDER_DIRECTIONAL_JITTER: f32 = 1.0;
@@ -762,6 +785,22 @@ pub const PINRT_RENDER_MIDPOINT_LOOKUP: u32 = 1;
 pub const PINRT_RENDER_START_INSIDE: u32 = 1;
 /// See `PINRT_RENDER_SPATIAL_JITTER` (`pinrt_set_nearest_line`).
 pub const PINRT_RENDER_NEAREST_LINE: u32 = 8;
+/// The thesis' lookup (`pinrt::SamplerOptions::THESIS`: no jitter, one lookup per query at
+/// the segment start, the cell that holds that point): set both jitters of
+/// `PinrtQueryOptions` to these, call `pinrt_set_lookup(grid, PINRT_THESIS_CHAIN_STRIDE,
+/// PINRT_THESIS_MIDPOINT_LOOKUP, PINRT_THESIS_START_INSIDE)` and
+/// `pinrt_set_nearest_line(grid, PINRT_THESIS_NEAREST_LINE)`.
+pub const PINRT_THESIS_SPATIAL_JITTER: f32 = 0.0;
+/// See `PINRT_THESIS_SPATIAL_JITTER`.
+pub const PINRT_THESIS_DIRECTIONAL_JITTER: f32 = 0.0;
+/// See `PINRT_THESIS_SPATIAL_JITTER` (0: one lookup per query).
+pub const PINRT_THESIS_CHAIN_STRIDE: u32 = 0;
+/// See `PINRT_THESIS_SPATIAL_JITTER`.
+pub const PINRT_THESIS_MIDPOINT_LOOKUP: u32 = 0;
+/// See `PINRT_THESIS_SPATIAL_JITTER`.
+pub const PINRT_THESIS_START_INSIDE: u32 = 0;
+/// See `PINRT_THESIS_SPATIAL_JITTER`.
+pub const PINRT_THESIS_NEAREST_LINE: u32 = 0;
 /// The most steps `pinrt_set_nearest_line` takes.
 pub const PINRT_MAX_NEAREST_LINE: u32 = 64;
 
@@ -770,9 +809,9 @@ pub const PINRT_MAX_NEAREST_LINE: u32 = 64;
 /// `chain_stride` intervals per lookup (0 or 32 and above: one lookup per query),
 /// `midpoint_lookup` 1 to look each piece up at its middle instead of its start,
 /// `start_inside` 1 to look a piece that starts inside the box up at its start without
-/// spatial jitter. A newly opened grid has 0, 0, 0 (the thesis' lookup); `pinrender render`
-/// uses the `PINRT_RENDER_*` values (one lookup, middle, start inside, both jitters 1, and
-/// `pinrt_set_nearest_line(grid, PINRT_RENDER_NEAREST_LINE)`).
+/// spatial jitter. A newly opened grid has the default lookup's `PINRT_RENDER_*` values
+/// (one lookup, middle, start inside; with both jitters 1 and
+/// `PINRT_RENDER_NEAREST_LINE`); the thesis' lookup is 0, 0, 0 (`PINRT_THESIS_*`).
 /// `midpoint_lookup` and `start_inside` other than 0 or 1
 /// are `PINRT_INVALID_ARGUMENT`.
 ///
@@ -810,8 +849,8 @@ pub unsafe extern "C" fn pinrt_set_lookup(
 /// on (`docs/sampling.md` section 15): each lookup reads, instead of the cell that holds its
 /// point, the cell whose pin line passes nearest the point, searching `steps` one-cell steps
 /// on each side along the direction cell's axis; the spatial jitter of `PinrtQueryOptions` is
-/// then not applied. 0 (a newly opened grid's): off; `pinrender render` uses
-/// `PINRT_RENDER_NEAREST_LINE`. Octahedral direction sets only: a polar grid reads the cell
+/// then not applied. 0: off (the thesis' lookup); a newly opened grid has the default
+/// lookup's `PINRT_RENDER_NEAREST_LINE`. Octahedral direction sets only: a polar grid reads the cell
 /// that holds the point. `steps` above `PINRT_MAX_NEAREST_LINE` is `PINRT_INVALID_ARGUMENT`.
 /// `pinrt_set_lookup` leaves this setting as it is.
 ///

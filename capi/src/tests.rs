@@ -216,6 +216,41 @@ fn set_lookup_reaches_the_batches_and_the_gpu_params() {
         }
         (t, q)
     };
+    // A newly opened grid has the default lookup, `SamplerOptions::RENDER`, and so do NULL
+    // options.
+    let mut p = PinrtGpuParams::default();
+    // SAFETY: valid grid and out pointer; NULL options.
+    assert_eq!(
+        unsafe { pinrt_gpu_params(g, ptr::null(), &mut p) },
+        PinrtStatus::Ok
+    );
+    let r = SamplerOptions::RENDER;
+    assert_eq!(
+        p.jitter,
+        [
+            r.spatial_jitter,
+            r.directional_jitter,
+            r.stride() as f32,
+            r.lookup_mode()
+        ]
+    );
+    // The thesis' lookup, against which every setting below must change the answers.
+    // SAFETY: an open grid, used by this thread only.
+    unsafe {
+        assert_eq!(
+            pinrt_set_lookup(
+                g,
+                PINRT_THESIS_CHAIN_STRIDE,
+                PINRT_THESIS_MIDPOINT_LOOKUP,
+                PINRT_THESIS_START_INSIDE
+            ),
+            PinrtStatus::Ok
+        );
+        assert_eq!(
+            pinrt_set_nearest_line(g, PINRT_THESIS_NEAREST_LINE),
+            PinrtStatus::Ok
+        );
+    }
     let (plain_t, _) = answers(g);
     for (stride, middle, inside, nearest) in [
         (0, 1, 1, 0),
@@ -250,7 +285,7 @@ fn set_lookup_reaches_the_batches_and_the_gpu_params() {
             );
             assert_eq!(bytemuck::bytes_of(&q[i]), bytemuck::bytes_of(&want_q[i]));
         }
-        // The lookup reached the sampler: not the default lookup's answers.
+        // The lookup reached the sampler: not the thesis lookup's answers.
         assert_ne!(t, plain_t, "{stride} {middle} {inside}");
         let mut p = PinrtGpuParams::default();
         // SAFETY: valid grid, options and out pointer.
@@ -572,7 +607,10 @@ fn gpu_params_and_buffers_describe_the_grid_as_the_sampler_sees_it() {
         }
         let s = pinrt::Sampler::with_local_to_world(&reference, &l2w).unwrap();
         assert_eq!(p.rows, s.transform().rows);
-        assert_eq!(p.jitter, [0.25, 0.0, 0.0, 0.0]);
+        // The options' jitter and a newly opened grid's lookup, the default one: one lookup
+        // per query (stride 32) and `SamplerOptions::RENDER`'s lookup mode bits.
+        let r = SamplerOptions::RENDER;
+        assert_eq!(p.jitter, [0.25, 0.0, r.stride() as f32, r.lookup_mode()]);
         assert_eq!(p.dims, [5, 4, 3, 0]);
         let stored = reference.desc().stored_cells as u32;
         assert_eq!(p.grid, [3, 2, 128, stored]);
@@ -604,8 +642,13 @@ fn render_lookup_constants_are_the_rust_samplers() {
     assert_eq!(PINRT_RENDER_MIDPOINT_LOOKUP == 1, r.midpoint_lookup);
     assert_eq!(PINRT_RENDER_START_INSIDE == 1, r.start_inside);
     assert_eq!(PINRT_RENDER_NEAREST_LINE, r.nearest_line);
-    assert_eq!(
-        PINRT_MAX_NEAREST_LINE,
-        pinrt::lookup::MAX_NEAREST_LINE_STEPS
-    );
+    assert_eq!(PINRT_MAX_NEAREST_LINE, pinrt::MAX_NEAREST_LINE_STEPS);
+    // The `PINRT_THESIS_*` defines are `pinrt::SamplerOptions::THESIS`, field for field.
+    let t = SamplerOptions::THESIS;
+    assert_eq!(PINRT_THESIS_SPATIAL_JITTER, t.spatial_jitter);
+    assert_eq!(PINRT_THESIS_DIRECTIONAL_JITTER, t.directional_jitter);
+    assert_eq!(PINRT_THESIS_CHAIN_STRIDE, t.chain_stride);
+    assert_eq!(PINRT_THESIS_MIDPOINT_LOOKUP == 1, t.midpoint_lookup);
+    assert_eq!(PINRT_THESIS_START_INSIDE == 1, t.start_inside);
+    assert_eq!(PINRT_THESIS_NEAREST_LINE, t.nearest_line);
 }

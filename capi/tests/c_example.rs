@@ -117,13 +117,18 @@ fn compare_with_rust(exe: &Path, pin: &Path, dir: &Path) {
         hits > RAYS / 10 && hits < RAYS,
         "{hits} collisions of {RAYS}"
     );
-    // The C side's `PINRT_RENDER_*` lookup is the Rust sampler's `SamplerOptions::RENDER`.
-    let mut render = vec![0f32; RAYS];
-    grid.sampler()
-        .expect("sampler")
-        .with_options(pinrt::SamplerOptions::RENDER)
-        .transmittance_batch(&rays, SEED, 0, &mut render);
-    let render_mean = render.iter().map(|&t| f64::from(t)).sum::<f64>() / RAYS as f64;
+    // The C side's `PINRT_RENDER_*` and `PINRT_THESIS_*` lookups are the Rust sampler's
+    // `SamplerOptions::RENDER` and `THESIS`; the default (NULL options) is the render one.
+    let mean_of = |opts: pinrt::SamplerOptions| {
+        let mut t = vec![0f32; RAYS];
+        grid.sampler()
+            .expect("sampler")
+            .with_options(opts)
+            .transmittance_batch(&rays, SEED, 0, &mut t);
+        t.iter().map(|&t| f64::from(t)).sum::<f64>() / RAYS as f64
+    };
+    let render_mean = mean_of(pinrt::SamplerOptions::RENDER);
+    let thesis_mean = mean_of(pinrt::SamplerOptions::THESIS);
     let plain_mean = trans.iter().map(|&t| f64::from(t)).sum::<f64>() / RAYS as f64;
     assert!(
         stdout.contains(&format!(
@@ -131,7 +136,14 @@ fn compare_with_rust(exe: &Path, pin: &Path, dir: &Path) {
         )),
         "the C side's render lookup is not the Rust sampler's ({render_mean:.6})"
     );
-    assert_ne!(format!("{render_mean:.6}"), format!("{plain_mean:.6}"));
+    assert!(
+        stdout.contains(&format!(
+            "thesis lookup: mean transmittance {thesis_mean:.6}\n"
+        )),
+        "the C side's thesis lookup is not the Rust sampler's ({thesis_mean:.6})"
+    );
+    assert_eq!(format!("{render_mean:.6}"), format!("{plain_mean:.6}"));
+    assert_ne!(format!("{render_mean:.6}"), format!("{thesis_mean:.6}"));
     let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
     println!(
         "Rust queries/s transmittance {:.0} distance {:.0}",

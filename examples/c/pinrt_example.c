@@ -159,8 +159,24 @@ int main(int argc, char **argv) {
   printf("queries/s transmittance %.0f distance %.0f\n", (double)n / (t1 - t0),
          (double)n / (t2 - t1));
 
-  /* pinrender render's lookup, the least biased the library offers (PINRT_RENDER_*): the rest
-     of the lookup is set once per grid, the jitters go with each call. */
+  /* The calls above use the default lookup (pinrender render's, the least biased the library
+     offers). The thesis' lookup (PINRT_THESIS_*), then the default one set by name
+     (PINRT_RENDER_*): the rest of the lookup is set once per grid, the jitters go with each
+     call. */
+  const PinrtQueryOptions thesis = {.spatial_jitter = PINRT_THESIS_SPATIAL_JITTER,
+                                    .directional_jitter = PINRT_THESIS_DIRECTIONAL_JITTER,
+                                    .local_to_world = NULL};
+  st = pinrt_set_lookup(grid, PINRT_THESIS_CHAIN_STRIDE, PINRT_THESIS_MIDPOINT_LOOKUP,
+                        PINRT_THESIS_START_INSIDE);
+  if (st != PINRT_STATUS_OK) return fail("pinrt_set_lookup", st);
+  st = pinrt_set_nearest_line(grid, PINRT_THESIS_NEAREST_LINE);
+  if (st != PINRT_STATUS_OK) return fail("pinrt_set_nearest_line", st);
+  st = pinrt_transmittance(grid, &thesis, rays, n, seed, 0, check);
+  if (st != PINRT_STATUS_OK) return fail("pinrt_transmittance (thesis lookup)", st);
+  double thesis_mean = 0.0;
+  for (size_t i = 0; i < n; i++) thesis_mean += check[i];
+  printf("thesis lookup: mean transmittance %.6f\n", thesis_mean / (double)n);
+
   const PinrtQueryOptions render = {.spatial_jitter = PINRT_RENDER_SPATIAL_JITTER,
                                     .directional_jitter = PINRT_RENDER_DIRECTIONAL_JITTER,
                                     .local_to_world = NULL};

@@ -4,8 +4,16 @@
 //! well-specified, widely available hash a C reader can link. It detects damage, it does not
 //! authenticate: anyone can recompute it.
 
+use crate::layout::FileHeader;
+
+#[cfg(feature = "writer")]
 pub use xxhash_rust::xxh3::Xxh3 as StreamingChecksum;
 
 pub fn checksum(bytes: &[u8]) -> u64 {
     xxhash_rust::xxh3::xxh3_64(bytes)
+}
+
+/// Checksum over the header bytes that precede the checksum field itself.
+pub(crate) fn header_checksum(h: &FileHeader) -> u64 {
+    checksum(&bytemuck::bytes_of(h)[..56])
 }

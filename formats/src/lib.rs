@@ -1,5 +1,6 @@
-//! The pin grid file format, version 1: the on-disk layout, a streaming atomic writer, a
-//! zero-copy reader over `&[u8]`, and validation.
+//! The pin grid file format, version 1: the on-disk layout, a streaming atomic writer
+//! (feature `writer`, default; readers such as pinrt build without it and without its
+//! tempfile dependency), a zero-copy reader over `&[u8]`, and validation.
 //!
 //! What it is for: anything that produces or consumes `.pin` files. A pin file holds a 5D grid
 //! (3D cells x hemisphere directions) of precomputed transmittance "pins": a 32-bit ratio mask
@@ -40,6 +41,7 @@ mod owned;
 mod reader;
 mod shape;
 pub mod text;
+#[cfg(feature = "writer")]
 mod writer;
 
 pub use checksum::checksum;
@@ -53,6 +55,7 @@ pub use metadata::{MAX_METADATA_BYTES, Metadata};
 pub use owned::{OwnedPinGrid, grid_desc};
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};
+#[cfg(feature = "writer")]
 pub use writer::{AtomicPinFile, PinFileWriter};
 
 /// The smallest ray-marching step, relative to the longest box edge, that a bake records or a

@@ -4,7 +4,9 @@
 //! [`crate::AtomicPinFile`]'s [`crate::PinFileWriter`]); tools that rewrite files and the
 //! round-trip tests use it too.
 
+#[cfg(feature = "writer")]
 use std::io::{Cursor, Seek, Write};
+#[cfg(feature = "writer")]
 use std::path::Path;
 
 use crate::error::{FormatError, Result};
@@ -12,6 +14,7 @@ use crate::layout::*;
 use crate::metadata::Metadata;
 use crate::reader::PinFile;
 use crate::shape::GridShape;
+#[cfg(feature = "writer")]
 use crate::writer::{AtomicPinFile, PinFileWriter};
 
 /// A whole pin grid in memory, sections optional as in the file.
@@ -75,6 +78,7 @@ impl OwnedPinGrid {
     }
 
     /// Streams the grid into `w` in the canonical section order.
+    #[cfg(feature = "writer")]
     pub fn write_into<W: Write + Seek>(&self, w: &mut PinFileWriter<W>) -> Result<()> {
         self.validate()?;
         w.add_section(
@@ -121,6 +125,8 @@ impl OwnedPinGrid {
         Ok(())
     }
 
+    /// The whole file in memory.
+    #[cfg(feature = "writer")]
     pub fn to_bytes(&self) -> Result<Vec<u8>> {
         let mut w = PinFileWriter::new(Cursor::new(Vec::new()))?;
         self.write_into(&mut w)?;
@@ -128,6 +134,7 @@ impl OwnedPinGrid {
     }
 
     /// Writes atomically: a temp file beside `path`, fsync, rename.
+    #[cfg(feature = "writer")]
     pub fn write_atomic(&self, path: impl AsRef<Path>) -> Result<()> {
         let mut f = AtomicPinFile::create(path)?;
         self.write_into(f.writer())?;

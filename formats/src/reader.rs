@@ -8,11 +8,11 @@
 use bytemuck::Pod;
 
 use crate::checksum::checksum;
+use crate::checksum::header_checksum;
 use crate::error::{FormatError, Result};
 use crate::layout::*;
 use crate::metadata::{MAX_METADATA_BYTES, Metadata};
 use crate::shape::GridShape;
-use crate::writer::header_checksum;
 
 /// The majorant grid: max extinction per brick over the grid box.
 #[derive(Clone, Copy, Debug)]

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use bytemuck::Zeroable;
 
-use crate::checksum::{StreamingChecksum, checksum};
+use crate::checksum::{StreamingChecksum, checksum, header_checksum};
 use crate::error::{FormatError, Result};
 use crate::layout::{
     FileHeader, MAGIC, MAX_SECTIONS, SECTION_ALIGN, SectionEntry, VERSION_MAJOR, VERSION_MINOR,
@@ -142,11 +142,6 @@ impl<W: Write + Seek> PinFileWriter<W> {
         self.out.flush()?;
         Ok(self.out)
     }
-}
-
-/// Checksum over the header bytes that precede the checksum field itself.
-pub(crate) fn header_checksum(h: &FileHeader) -> u64 {
-    checksum(&bytemuck::bytes_of(h)[..56])
 }
 
 /// Length of the random part of a temp file name (tempfile's default, set explicitly below).

@@ -390,7 +390,7 @@ fn run() -> Result<()> {
         spatial_jitter: ctx.jitter,
         directional_jitter: ctx.jitter,
         midpoint_lookup: ctx.middle,
-        ..Default::default()
+        ..pinrt::SamplerOptions::THESIS
     };
     let lookup = pinrt::SamplerOptions {
         start_inside: args.start_inside,
@@ -794,7 +794,7 @@ fn check_against_sampler(ctx: &Ctx<'_>, grid: &PinGrid) -> Result<()> {
         spatial_jitter: ctx.jitter,
         directional_jitter: ctx.jitter,
         midpoint_lookup: ctx.middle,
-        ..Default::default()
+        ..pinrt::SamplerOptions::THESIS
     };
     let sampler = pinrt::Sampler::new(grid)?.with_options(opts);
     let check = Ctx {

@@ -74,7 +74,7 @@ fn main() {
                 directional_jitter: 1.0,
                 chain_stride: stride,
                 midpoint_lookup: middle,
-                ..Default::default()
+                ..SamplerOptions::THESIS
             });
         let time = |f: &mut dyn FnMut() -> f64| {
             f(); // warm up

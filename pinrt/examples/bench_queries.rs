@@ -14,7 +14,7 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use pinrt::testing::random_grid;
-use pinrt::{Directions, PinGrid, RayQuery, Rng};
+use pinrt::{Directions, PinGrid, RayQuery, Rng, SamplerOptions};
 
 /// CPU time of the calling thread, seconds.
 fn thread_cpu_s() -> f64 {
@@ -58,7 +58,11 @@ fn main() {
     owned.write_atomic(&path).expect("write grid");
     let grid = PinGrid::open(&path).expect("open grid");
     let mb = grid.pins_bytes().len() as f64 / 1e6;
-    let s = grid.sampler().expect("sampler");
+    // The thesis' lookup: the calibration's model, one cell read per query without jitter.
+    let s = grid
+        .sampler()
+        .expect("sampler")
+        .with_options(SamplerOptions::THESIS);
     let rays = rays(n, 7);
     println!("grid: {cells}^3 x 64 directions, {mb:.1} MB of pins, mapped; {n} random rays");
 
@@ -108,7 +112,10 @@ fn main() {
     // Compute floor: the same queries on a 4 KB grid that stays in L1.
     let small = random_grid(Directions::THESIS_DEFAULT, [2, 2, 2], 1, false, 1);
     let small = PinGrid::from_bytes(small.to_bytes().expect("bytes")).expect("grid");
-    let ss = small.sampler().expect("sampler");
+    let ss = small
+        .sampler()
+        .expect("sampler")
+        .with_options(SamplerOptions::THESIS);
     time("transmittance, batched, 4 KB grid", &mut || {
         ss.transmittance_batch(&rays, 3, 0, &mut out_t);
         black_box(out_t.iter().map(|&x| f64::from(x)).sum())

@@ -4,8 +4,8 @@
 //!
 //! `cargo run --release -p pinrt --example mask_bias [masks per row]`
 
+use pinrt::Rng;
 use pinrt::mask::{exact_sample_mask, thesis_mask_probability, thesis_sample_mask};
-use pinrt::rng::Rng;
 
 fn main() {
     let n: u64 = std::env::args()

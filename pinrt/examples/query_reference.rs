@@ -4,7 +4,8 @@
 //! `query_reference GRID.pin RAYS.bin SEED OUT.bin [SJ,DJ,STRIDE,start|middle,INSIDE]`
 //!
 //! The optional last argument sets the lookup (`SamplerOptions`: spatial and directional
-//! jitter, chain stride, lookup point, start inside as 0 or 1); without it the defaults.
+//! jitter, chain stride, lookup point, start inside as 0 or 1); without it the default lookup
+//! (`SamplerOptions::RENDER`).
 //!
 //! `RAYS.bin` holds N 32-byte `RayQuery` records (origin xyz, t_max, dir xyz, pad; f32/u32
 //! little-endian). `OUT.bin` receives N transmittances then N distances (f32, `inf` where no

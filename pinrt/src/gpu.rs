@@ -18,6 +18,8 @@ use wgpu::util::DeviceExt;
 use crate::chord::UnitTransform;
 use crate::error::{Error, Result};
 use crate::loader::PinGrid;
+// The query mode lives with the query types; re-exported so that `gpu::QueryMode` stays.
+pub use crate::sampler::QueryMode;
 use crate::sampler::{GpuRay, GpuResult, SamplerOptions};
 
 /// The stated CPU/GPU float agreement in ulp (docs/gpu.md), measured on Mesa lavapipe: the
@@ -26,37 +28,6 @@ pub const ULP_BOUND: u32 = 0;
 
 /// Threads per workgroup in `pin.wgsl`.
 pub const WORKGROUP_SIZE: u32 = 64;
-
-/// What a dispatch computes: one entry point of `pin.wgsl` each, with the results of the
-/// CPU query of the same kind ([`crate::Sampler::query`], [`crate::Sampler::transmittance`],
-/// [`crate::Sampler::sample_distance`]), integers and final generator included.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum QueryMode {
-    /// Distance and transmittance from one lookup (`main`).
-    Both,
-    /// The transmittance only (`main_transmittance`): no sample-mask draws; distance `+inf`,
-    /// no hit.
-    Transmittance,
-    /// The distance only (`main_distance`): transmittance 1, a chain stops at its collision.
-    Distance,
-}
-
-impl QueryMode {
-    /// The entry point of `pin.wgsl` that answers this mode.
-    pub fn entry_point(self) -> &'static str {
-        match self {
-            QueryMode::Both => "main",
-            QueryMode::Transmittance => "main_transmittance",
-            QueryMode::Distance => "main_distance",
-        }
-    }
-
-    const ALL: [QueryMode; 3] = [
-        QueryMode::Both,
-        QueryMode::Transmittance,
-        QueryMode::Distance,
-    ];
-}
 
 /// An adapter, device and the compiled query pipelines (one per [`QueryMode`]).
 pub struct GpuContext {
@@ -273,7 +244,8 @@ impl std::fmt::Debug for GpuPinGrid {
 }
 
 impl GpuPinGrid {
-    /// Uploads with the file's placement and default options.
+    /// Uploads with the file's placement and the default lookup ([`SamplerOptions::RENDER`],
+    /// as [`crate::Sampler::new`]).
     pub fn upload(ctx: &GpuContext, grid: &PinGrid) -> Result<Self> {
         Self::upload_with(ctx, grid, None, SamplerOptions::default())
     }
@@ -698,10 +670,10 @@ mod tests {
         let jitter = SamplerOptions {
             spatial_jitter: 1.0,
             directional_jitter: 1.0,
-            ..SamplerOptions::default()
+            ..SamplerOptions::THESIS
         };
-        check("polar sparse", &ctx, &polar, SamplerOptions::default());
-        check("octahedral dense", &ctx, &oct, SamplerOptions::default());
+        check("polar sparse", &ctx, &polar, SamplerOptions::THESIS);
+        check("octahedral dense", &ctx, &oct, SamplerOptions::THESIS);
         check("polar sparse jittered", &ctx, &polar, jitter);
         check("octahedral dense jittered", &ctx, &oct, jitter);
         // Chained lookups: a divisor of 32, a stride that leaves a short last piece, one
@@ -712,7 +684,7 @@ mod tests {
             ..if jittered {
                 jitter
             } else {
-                SamplerOptions::default()
+                SamplerOptions::THESIS
             }
         };
         check(

@@ -20,7 +20,9 @@ impl<'g> Instances<'g> {
         Self::default()
     }
 
-    /// Adds a grid placed by its file transform or by `local_to_world` (row-major 3x4).
+    /// Adds a grid placed by its file transform or by `local_to_world` (row-major 3x4), with
+    /// the default lookup ([`crate::SamplerOptions::RENDER`]; [`Self::push`] takes a sampler
+    /// with other options).
     pub fn add(&mut self, grid: &'g PinGrid, local_to_world: Option<&[f64; 12]>) -> Result<()> {
         let s = match local_to_world {
             None => Sampler::new(grid)?,

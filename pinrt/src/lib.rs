@@ -19,11 +19,13 @@
 //!    stored in f32 ([`UnitTransform`]). `d_u` is not renormalised: the ray parameter `t` is
 //!    the same in every space (world distance for unit `d`).
 //! 2. **Chord.** Slab intersection with `[0, 1]^3` gives `[t_enter, t_exit]`
-//!    ([`chord::unit_cube_chord`]); no chord (miss, corner graze) means transmittance 1 and no
+//!    (`chord::unit_cube_chord`); no chord (miss, corner graze) means transmittance 1 and no
 //!    collision.
 //! 3. **Lookup.** Direction cell of `d_u` (of `-d_u` with the mask bits reversed when
-//!    `d_u.z < 0`; `-0.0` counts as `>= 0`), spatial cell of the segment start clamped into
-//!    the grid, pin `k` uniform among the entry's pins. Optional jitter ([`SamplerOptions`]).
+//!    `d_u.z < 0`; `-0.0` counts as `>= 0`), spatial cell of the lookup point (the segment
+//!    start in the thesis' lookup, its middle in the default one) clamped into the grid, pin
+//!    `k` uniform among the entry's pins. Jitter, the lookup point and the nearest-line
+//!    search are options ([`SamplerOptions`]).
 //! 4. **Intervals.** The chord is cut into 32 equal intervals; after the reversal bit 31 is
 //!    the interval nearest `t_enter`. The segment is `[max(0, t_enter), min(t_max, t_exit)]`.
 //! 5. **Partial intervals.** An interval the segment covers by a fraction `f < 1` takes part
@@ -32,15 +34,15 @@
 //!    uniform point in the covered part of that interval. Hence
 //!    `P(no collision) = E[transmittance] = prod_full t_i * prod_partial (1 - f (1 - t_i))`.
 //! 6. **Sample mask `H`.** Each bit independently set with probability `Q / 2^32`,
-//!    `Q = round((1 - t_min) 2^32)`, exactly, by a bit-sliced comparison ([`mask`]); bias at
-//!    most 2^-32 per bit. The thesis' 5-round version is in [`mask::thesis_sample_mask`].
+//!    `Q = round((1 - t_min) 2^32)`, exactly, by a bit-sliced comparison (`mask.rs`); bias at
+//!    most 2^-32 per bit. The thesis' 5-round version is `mask::thesis_sample_mask`.
 //! 7. **Numerics.** `t_min = 1` gives `T = 1`; `0^0 = 1`; no shift by 32; invalid input (NaN
 //!    or infinite origin or direction, zero direction, NaN `t_max`) gives `T = 1`, no
 //!    collision and [`status::INVALID`]; `t_max = 0` or a segment behind the origin gives
 //!    `T = 1` and [`status::MISS`]. Never NaN out.
 //!
-//! The random draws of a query follow a fixed order ([`sampler`] docs) with the 32-bit
-//! generator in [`rng`], so the GPU reproduces the CPU bit for bit (`docs/gpu.md`).
+//! The random draws of a query follow a fixed order (`docs/sampling.md` section 7) with the
+//! 32-bit generator [`Rng`], so the GPU reproduces the CPU bit for bit (`docs/gpu.md`).
 //!
 //! ## Accuracy: one estimate is not the transmittance
 //!
@@ -55,10 +57,13 @@
 //! on real volumes, and at which file size, is measured in `docs/evaluation.md`. Renderers
 //! average millions of estimates per image, which is the use the model is built for.
 //!
-//! For rendering, query with [`SamplerOptions::RENDER`] (`sampler.with_options(
-//! SamplerOptions::RENDER)`): the lookup `pinrender render` uses, measured the least biased
-//! on volumes nobody tuned for. `SamplerOptions::default()` is the thesis' lookup, kept as
-//! the default so that existing callers get the same bits.
+//! The default lookup ([`SamplerOptions::default`], what [`PinGrid::sampler`] and
+//! `gpu::GpuPinGrid::upload` use) is [`SamplerOptions::RENDER`]: one cell of jitter, the
+//! middle of the segment, rays from inside the medium looked up at their start, and the
+//! nearest-line search, measured the least biased on volumes nobody tuned for. The thesis'
+//! lookup (no jitter, the segment start) is [`SamplerOptions::THESIS`]
+//! (`sampler.with_options(SamplerOptions::THESIS)`); [`Sampler::expected_transmittance`] has
+//! a closed form only for unjittered lookups such as that one.
 //!
 //! ## Performance
 //!
@@ -124,20 +129,26 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+// The public surface is the root: the types below, `gpu`, `march` and `status`. The modules
+// behind it are private, except three that the statistical tests in `tests/` and the bias
+// examples (`pinrt/examples/mask_bias.rs`, `pinrender/examples/pin_bias_parts.rs`) need in
+// order to test the model's pieces one at a time (the chord and segment, the spatial and
+// direction cells, the sample mask): they are public but hidden from the docs, not an API.
+#[doc(hidden)]
 pub mod chord;
 mod error;
 #[cfg(feature = "gpu")]
 pub mod gpu;
-pub mod instances;
-mod lanes;
-pub mod loader;
+mod instances;
+mod loader;
+#[doc(hidden)]
 pub mod lookup;
-#[cfg(any(test, feature = "testing"))]
 pub mod march;
+#[doc(hidden)]
 pub mod mask;
-pub mod rng;
-pub mod sampler;
-pub mod sections;
+mod rng;
+mod sampler;
+mod sections;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
 #[cfg(test)]
@@ -147,10 +158,11 @@ pub use chord::UnitTransform;
 pub use error::{Error, Result};
 pub use instances::Instances;
 pub use loader::PinGrid;
+pub use lookup::MAX_NEAREST_LINE_STEPS;
 pub use rng::Rng;
 pub use sampler::{
-    BATCH, GpuRay, GpuResult, NO_ENTRY, NO_INTERVAL, QueryResult, Ray, RayQuery, Sampler,
-    SamplerOptions, status,
+    BATCH, GpuRay, GpuResult, NO_ENTRY, NO_INTERVAL, QueryMode, QueryResult, Ray, RayQuery,
+    Sampler, SamplerOptions, status,
 };
 pub use sections::{Density, Majorants};
 

@@ -48,6 +48,12 @@ impl Storage {
 /// A loaded, structurally validated pin grid that owns (or maps) its bytes.
 ///
 /// `PinGrid` is `Send + Sync`: any number of threads may sample one grid concurrently.
+///
+/// **Memory mapping and its one hazard.** [`PinGrid::open`] maps the file: if another process
+/// truncates or rewrites the file *in place* while it is mapped, touching a vanished page
+/// raises `SIGBUS` and kills the process. Files replaced by rename (as `pin_format`'s atomic
+/// writer does) are safe. Where in-place modification cannot be ruled out, use
+/// [`PinGrid::read_into_memory`], which copies the file once.
 pub struct PinGrid {
     storage: Storage,
     path: Option<PathBuf>,
@@ -223,7 +229,8 @@ impl PinGrid {
             .unwrap_or(PinEntry::EMPTY)
     }
 
-    /// A sampler with default options and the file's own placement.
+    /// A sampler with the default lookup ([`crate::SamplerOptions::RENDER`]) and the file's
+    /// own placement.
     pub fn sampler(&self) -> Result<crate::Sampler<'_>> {
         crate::Sampler::new(self)
     }

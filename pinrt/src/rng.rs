@@ -40,6 +40,8 @@ pub fn unit_f32(x: u32) -> f32 {
 }
 
 /// The generator: one `u32` of state, `Copy` so a query can carry it between batch phases.
+/// A 32-bit PCG-style generator that `shaders/pin.wgsl` reproduces exactly (its definition
+/// and the per-query seeding are in `docs/sampling.md` section 7).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Rng {
     /// The raw state (exposed so results can report it and GPU/CPU runs can be compared).

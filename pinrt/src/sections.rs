@@ -14,7 +14,9 @@ use crate::error::{Error, Result};
 use crate::loader::PinGrid;
 
 /// The majorant section: a conservative upper bound of the extinction per brick; the bricks
-/// tile the grid box uniformly, `x` fastest.
+/// tile the grid box uniformly, `x` fastest. Like [`Density`], a view of the grid's bytes,
+/// validated when made (dimensions against the bytes present, every value finite and
+/// `>= 0`), in the grid's local box.
 #[derive(Clone, Copy, Debug)]
 pub struct Majorants<'g> {
     dims: [u32; 3],

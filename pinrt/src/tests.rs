@@ -170,7 +170,8 @@ fn reversal_for_negative_z() {
         mask: 0x8000_0000,
         t_min: 0.5,
     });
-    let s = g.sampler().unwrap();
+    // The thesis' lookup: the interval bits are those of the ray's own chord.
+    let s = g.sampler().unwrap().with_options(SamplerOptions::THESIS);
     let mut rng = Rng::new(5);
     // Downwards from above, top half only (z from 1 to 0.5): never reaches the bit.
     let down = Ray::new([0.5, 0.5, 2.0], [0.0, 0.0, -1.0]);
@@ -592,11 +593,11 @@ fn batch_equals_single_and_query_parts() {
     ] {
         let g = loaded_random_grid(dirs, [5, 4, 3], 3, sparse, 17);
         for opts in [
-            SamplerOptions::default(),
+            SamplerOptions::THESIS,
             SamplerOptions {
                 spatial_jitter: 1.0,
                 directional_jitter: 0.5,
-                ..SamplerOptions::default()
+                ..SamplerOptions::THESIS
             },
         ] {
             let s = g.sampler().unwrap().with_options(opts);
@@ -639,12 +640,13 @@ fn batch_equals_single_and_query_parts() {
 
 #[test]
 fn lookup_matches_pin_file_entry() {
-    // Without jitter, the entry read is PinFile::entry(cell of the segment start, index_of, k).
+    // With the thesis' lookup (no jitter, the segment start), the entry read is
+    // PinFile::entry(cell of the segment start, index_of, k).
     let owned = random_grid(Directions::THESIS_DEFAULT, [4, 3, 5], 2, true, 23);
     let bytes = owned.to_bytes().unwrap();
     let file = pin_format::PinFile::parse(&bytes).unwrap();
     let g = PinGrid::from_bytes(bytes.clone()).unwrap();
-    let s = g.sampler().unwrap();
+    let s = g.sampler().unwrap().with_options(SamplerOptions::THESIS);
     let rays = random_rays(5000, 6);
     for (i, q) in rays.iter().enumerate() {
         let mut rng = Rng::for_query(3, i as u32);
@@ -865,7 +867,10 @@ fn world_bounds_contain_every_hit() {
 #[test]
 fn expected_transmittance_is_the_mean_of_the_estimates() {
     let grid = loaded_random_grid(Directions::THESIS_DEFAULT, [3, 4, 2], 3, false, 17);
-    let s = Sampler::new(&grid).unwrap();
+    // The closed form needs an unjittered lookup.
+    let s = Sampler::new(&grid)
+        .unwrap()
+        .with_options(SamplerOptions::THESIS);
     let mut rng = Rng::new(99);
     let draws = 8192u32;
     let mut mutation_caught = false;
@@ -897,7 +902,7 @@ fn expected_transmittance_is_the_mean_of_the_estimates() {
     let jittered = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
         spatial_jitter: 1.0,
         directional_jitter: 0.0,
-        ..SamplerOptions::default()
+        ..SamplerOptions::THESIS
     });
     let ray = Ray::new([0.5; 3], [0.0, 0.0, 1.0]);
     assert_eq!(jittered.expected_transmittance(&ray, 1.0), None);
@@ -1029,7 +1034,9 @@ fn chained_mean_is_the_product_of_the_pieces() {
     let draws = 8192u32;
     for opts in [chain(8, false, 0.0), chain(5, true, 0.0)] {
         let s = Sampler::new(&grid).unwrap().with_options(opts);
-        let one = Sampler::new(&grid).unwrap();
+        let one = Sampler::new(&grid)
+            .unwrap()
+            .with_options(SamplerOptions::THESIS);
         let mut rng = Rng::new(41);
         let (mut caught_t, mut caught_d) = (false, false);
         for i in 0..40 {
@@ -1133,11 +1140,11 @@ fn one_cell_of_jitter_interpolates_between_cell_centres() {
             spatial_jitter: 1.0,
             directional_jitter: 1.0,
             midpoint_lookup: middle,
-            ..Default::default()
+            ..SamplerOptions::THESIS
         });
         let plain = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
             midpoint_lookup: middle,
-            ..Default::default()
+            ..SamplerOptions::THESIS
         });
         let mut rng = Rng::new(43);
         let (mut caught_nearest, mut caught_corner) = (false, false);
@@ -1172,7 +1179,7 @@ fn start_inside_reads_the_start_cell() {
         spatial_jitter: 1.0,
         directional_jitter: 1.0,
         midpoint_lookup: true,
-        ..Default::default()
+        ..SamplerOptions::THESIS
     };
     let s = Sampler::new(&grid).unwrap().with_options(SamplerOptions {
         start_inside: true,
@@ -1181,7 +1188,7 @@ fn start_inside_reads_the_start_cell() {
     let at = |midpoint_lookup| {
         Sampler::new(&grid).unwrap().with_options(SamplerOptions {
             midpoint_lookup,
-            ..Default::default()
+            ..SamplerOptions::THESIS
         })
     };
     let (start, middle) = (at(false), at(true));
@@ -1334,4 +1341,30 @@ fn interpolated_with(
         }
     }
     e
+}
+
+/// The default lookup is the render lookup, for the options and for every sampler made
+/// without options; the thesis' lookup is the one without jitter, at the segment start.
+#[test]
+fn the_default_lookup_is_the_render_lookup() {
+    assert_eq!(SamplerOptions::default(), SamplerOptions::RENDER);
+    let grid = loaded_random_grid(Directions::THESIS_DEFAULT, [3, 4, 2], 2, true, 5);
+    assert_eq!(*grid.sampler().unwrap().options(), SamplerOptions::RENDER);
+    let l2w = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let placed = Sampler::with_local_to_world(&grid, &l2w).unwrap();
+    assert_eq!(*placed.options(), SamplerOptions::RENDER);
+    let copied = Sampler::with_transform(&grid, *placed.transform());
+    assert_eq!(*copied.options(), SamplerOptions::RENDER);
+    let t = SamplerOptions::THESIS;
+    assert!(!t.spatial_on() && !t.directional_on());
+    assert_eq!((t.stride(), t.lookup_mode()), (32, 0.0));
+    // The two lookups answer differently on a random grid (so a default that silently fell
+    // back to the thesis' lookup would be caught by the query tests, not only here).
+    let thesis = grid.sampler().unwrap().with_options(t);
+    let render = grid.sampler().unwrap();
+    let rays = random_rays(2000, 8);
+    let (mut a, mut b) = (vec![0.0f32; rays.len()], vec![0.0f32; rays.len()]);
+    thesis.transmittance_batch(&rays, 1, 0, &mut a);
+    render.transmittance_batch(&rays, 1, 0, &mut b);
+    assert!(a.iter().zip(&b).any(|(x, y)| x != y));
 }

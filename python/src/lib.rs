@@ -103,7 +103,7 @@ impl Lookup {
         start_inside: bool,
         nearest_line: u32,
     ) -> PyResult<Self> {
-        let max = pinrt::lookup::MAX_NEAREST_LINE_STEPS;
+        let max = pinrt::MAX_NEAREST_LINE_STEPS;
         if nearest_line > max {
             return Err(value_err(format!(
                 "nearest_line is {nearest_line}; it must be at most {max}"
@@ -555,10 +555,12 @@ fn vdb_worker(args: Vec<String>) -> i32 {
     pinbake::source::vdb::worker_main(&args)
 }
 
-/// `pinrt::SamplerOptions::RENDER` (the lookup `pinrender render` uses) as the queries'
-/// keyword arguments, so that Python cannot drift from the Rust constant.
-fn render_lookup<'py>(py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
-    let r = SamplerOptions::RENDER;
+/// A lookup (`pinrt::SamplerOptions::RENDER`, the default, or `THESIS`) as the queries'
+/// keyword arguments, so that Python cannot drift from the Rust constants.
+fn lookup_kwargs<'py>(
+    py: Python<'py>,
+    r: SamplerOptions,
+) -> PyResult<Bound<'py, pyo3::types::PyDict>> {
     let d = pyo3::types::PyDict::new(py);
     d.set_item("spatial_jitter", r.spatial_jitter)?;
     d.set_item("directional_jitter", r.directional_jitter)?;
@@ -575,7 +577,14 @@ fn render_lookup<'py>(py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyDic
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PinGrid>()?;
-    m.add("RENDER_LOOKUP", render_lookup(m.py())?)?;
+    m.add(
+        "RENDER_LOOKUP",
+        lookup_kwargs(m.py(), SamplerOptions::RENDER)?,
+    )?;
+    m.add(
+        "THESIS_LOOKUP",
+        lookup_kwargs(m.py(), SamplerOptions::THESIS)?,
+    )?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
     m.add_function(wrap_pyfunction!(vdb_worker, m)?)?;
     m.add("PinError", m.py().get_type::<PinError>())?;

@@ -8,6 +8,7 @@ scripts/python-test.sh builds the wheel and the two reference executables and se
 from __future__ import annotations
 
 import ast
+import inspect
 import os
 import subprocess
 import threading
@@ -119,8 +120,11 @@ def test_seeds_and_first_index_follow_the_batch_contract(smoke):
     np.testing.assert_array_equal(tail, whole[600:])
     assert not np.array_equal(grid.transmittance(o, d, t, seed=6), whole)
     # Jitter changes the lookups, so it must change some numbers.
-    jittered = grid.transmittance(o, d, t, seed=5, spatial_jitter=1.0, directional_jitter=1.0)
-    assert not np.array_equal(jittered, whole)
+    thesis = grid.transmittance(o, d, t, seed=5, **pinrt.THESIS_LOOKUP)
+    jittered = grid.transmittance(
+        o, d, t, seed=5, **dict(pinrt.THESIS_LOOKUP, spatial_jitter=1.0, directional_jitter=1.0)
+    )
+    assert not np.array_equal(jittered, thesis)
     # A scalar t_max broadcasts; float64 and non-contiguous inputs are converted.
     a = grid.sample_distance(o.astype(np.float64)[::1], np.asfortranarray(d), np.inf, seed=3)
     b = grid.sample_distance(o, d, np.full(len(o), np.inf, np.float32), seed=3)
@@ -142,23 +146,26 @@ def test_lookup_options_equal_the_rust_sampler_bit_for_bit(smoke, tmp_path):
     # The exported preset is the Rust constant pinrender render uses (read from it).
     assert pinrt.RENDER_LOOKUP == render
     render = pinrt.RENDER_LOOKUP
-    plain = grid.transmittance(o, d, t, seed=SEED)
+    thesis = pinrt.THESIS_LOOKUP
+    assert thesis == dict(spatial_jitter=0.0, directional_jitter=0.0, chain_stride=0,
+                          lookup_point="start", start_inside=False, nearest_line=0)
+    plain = grid.transmittance(o, d, t, seed=SEED, **thesis)
     for kwargs, options in [
         (render, "1,1,0,middle,1,8"),
-        (dict(spatial_jitter=0.5, chain_stride=4), "0.5,0,4,start,0"),
-        (dict(directional_jitter=1.0, chain_stride=8, nearest_line=3), "0,1,8,start,0,3"),
+        (dict(thesis, spatial_jitter=0.5, chain_stride=4), "0.5,0,4,start,0"),
+        (dict(thesis, directional_jitter=1.0, chain_stride=8, nearest_line=3), "0,1,8,start,0,3"),
     ]:
         want_t, want_d, _ = rust_reference(smoke, o, d, t, SEED, tmp_path, options)
         got_t = grid.transmittance(o, d, t, seed=SEED, **kwargs)
         got_d = grid.sample_distance(o, d, t, seed=SEED, **kwargs)
         np.testing.assert_array_equal(got_t.view(np.uint32), want_t.view(np.uint32))
         np.testing.assert_array_equal(got_d.view(np.uint32), want_d.view(np.uint32))
-        # The options reach the sampler: the answers are not the default lookup's.
+        # The options reach the sampler: the answers are not the thesis lookup's.
         assert not np.array_equal(got_t, plain)
     # start_inside changes only rays that start inside the box.
-    base = dict(spatial_jitter=1.0, directional_jitter=1.0, lookup_point="middle")
+    base = dict(thesis, spatial_jitter=1.0, directional_jitter=1.0, lookup_point="middle")
     a = grid.transmittance(o, d, t, seed=SEED, **base)
-    b = grid.transmittance(o, d, t, seed=SEED, start_inside=True, **base)
+    b = grid.transmittance(o, d, t, seed=SEED, **dict(base, start_inside=True))
     outside = np.any((o < lo) | (o > hi), axis=1)
     assert 1000 < outside.sum() < n // 2
     np.testing.assert_array_equal(a[outside], b[outside])
@@ -171,6 +178,25 @@ def test_lookup_options_equal_the_rust_sampler_bit_for_bit(smoke, tmp_path):
     assert grid.info["directions"]["kind"] == "octahedral"
     near = grid.transmittance(o, d, t, seed=SEED, **dict(render, nearest_line=0))
     assert not np.array_equal(near, grid.transmittance(o, d, t, seed=SEED, **render))
+
+
+def test_query_defaults_are_the_render_lookup(smoke):
+    """The queries' keyword defaults are ``RENDER_LOOKUP`` (``pinrt::SamplerOptions::RENDER``,
+    the library's default), for both queries, and answer as that lookup does."""
+    for query in (PinGrid.transmittance, PinGrid.sample_distance):
+        params = inspect.signature(query).parameters
+        defaults = {k: params[k].default for k in pinrt.RENDER_LOOKUP}
+        assert defaults == pinrt.RENDER_LOOKUP, query.__name__
+    grid = PinGrid(smoke)
+    o, d, t = random_rays(grid, 5000, 6)
+    np.testing.assert_array_equal(
+        grid.sample_distance(o, d, t, seed=3),
+        grid.sample_distance(o, d, t, seed=3, **pinrt.RENDER_LOOKUP),
+    )
+    assert not np.array_equal(
+        grid.transmittance(o, d, t, seed=3),
+        grid.transmittance(o, d, t, seed=3, **pinrt.THESIS_LOOKUP),
+    )
 
 
 def count_until(event: threading.Event) -> int:

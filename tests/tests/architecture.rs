@@ -175,3 +175,40 @@ fn a_missing_module_or_dependency_is_caught() {
     assert!(!sec.contains("Next"));
     assert!(section(doc, "y").is_none());
 }
+
+/// The runtime's claim in the map: `cargo tree -p pinrt -e normal` (default features and
+/// none) shows no writer dependencies, because pinrt reads pin-format without its `writer`
+/// feature.
+#[test]
+fn the_runtime_links_no_writer() {
+    for features in [&[][..], &["--no-default-features"][..]] {
+        let out = std::process::Command::new(env!("CARGO"))
+            .args([
+                "tree",
+                "-p",
+                "pinrt",
+                "-e",
+                "normal",
+                "--prefix",
+                "none",
+                "--offline",
+            ])
+            .args(features)
+            .current_dir(repo())
+            .output()
+            .expect("cargo tree runs");
+        assert!(
+            out.status.success(),
+            "cargo tree: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let tree = String::from_utf8_lossy(&out.stdout);
+        for writer_dep in ["tempfile ", "rustix ", "getrandom ", "fastrand "] {
+            assert!(
+                !tree.lines().any(|l| l.starts_with(writer_dep)),
+                "pinrt {features:?} links {writer_dep}:\n{tree}"
+            );
+        }
+        assert!(tree.lines().any(|l| l.starts_with("pin-format ")), "{tree}");
+    }
+}

@@ -126,7 +126,8 @@ fn queries_along_a_pin_read_that_pin_in_both_directions() {
         };
         let (owned, _) = bake(&src, &opts, &|_| {}).unwrap();
         let grid = PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
-        let sampler = grid.sampler().unwrap();
+        // The thesis' lookup: the cell of the query's start point, no jitter.
+        let sampler = grid.sampler().unwrap().with_options(SamplerOptions::THESIS);
         let view = GridView::new(&grid);
         let layout = PinLayout {
             dims: opts.cells,
@@ -378,7 +379,7 @@ fn near_axis_rays_match_ray_marching() {
     for dirs in [Directions::THESIS_DEFAULT, default_dirs] {
         let grid = bake_blob(dirs);
         for (name, axis) in axes {
-            let (bias, truth) = near_axis_bias(&grid, axis, SamplerOptions::default());
+            let (bias, truth) = near_axis_bias(&grid, axis, SamplerOptions::THESIS);
             t.row(vec![
                 format!("{dirs:?}"),
                 name.into(),
@@ -432,7 +433,7 @@ fn chained_lookups_cut_the_bias() {
             let opts = SamplerOptions {
                 chain_stride: stride,
                 midpoint_lookup: middle,
-                ..SamplerOptions::default()
+                ..SamplerOptions::THESIS
             };
             let b: Vec<f64> = [DVec3::Z, DVec3::X, DVec3::new(1.0, 1.0, 1.0)]
                 .iter()

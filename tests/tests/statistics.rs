@@ -129,7 +129,12 @@ fn transmittance_is_unbiased_through_baked_files() {
         ("cosine noise, density 3", &noise as &dyn DensitySource),
     ] {
         let grid = bake_grid(src, 11);
-        let s = grid.sampler().unwrap();
+        // The thesis' lookup: every draw of a ray reads the same cell, so the model of the
+        // entry read is one expectation per ray.
+        let s = grid
+            .sampler()
+            .unwrap()
+            .with_options(pinrt::SamplerOptions::THESIS);
         for (ri, (rname, q)) in test_rays().into_iter().enumerate() {
             let (mut sum, mut sum2) = (0.0f64, 0.0f64);
             let mut model = f64::NAN;

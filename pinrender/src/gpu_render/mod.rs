@@ -361,8 +361,9 @@ fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
 }
 
 impl GpuRenderer {
-    /// Uploads `grid` (placed by the file's `local_to_world`, no lookup jitter) as the only
-    /// medium, for [`GpuEstimator::Pins`], and compiles the path tracer.
+    /// Uploads `grid` (placed by the file's `local_to_world`, with the default lookup,
+    /// [`SamplerOptions::RENDER`]) as the only medium, for [`GpuEstimator::Pins`], and
+    /// compiles the path tracer.
     pub fn new(ctx: &GpuContext, grid: &PinGrid) -> pinrt::Result<Self> {
         Self::with_options(ctx, grid, None, SamplerOptions::default())
     }

@@ -439,7 +439,7 @@ mod tests {
     fn both_queries_from_one_lookup() {
         let grid = sparse_grid([4, 3, 5], 8);
         for opts in [
-            SamplerOptions::default(),
+            SamplerOptions::THESIS,
             SamplerOptions {
                 spatial_jitter: 1.0,
                 directional_jitter: 1.0,
@@ -493,7 +493,7 @@ mod tests {
         let grid = sparse_grid([4, 3, 5], 7);
         let opts = SamplerOptions {
             spatial_jitter: 1.0,
-            ..SamplerOptions::default()
+            ..SamplerOptions::THESIS
         };
         let mut m = grid.desc().local_to_world;
         m[3] += 0.25;

@@ -863,7 +863,7 @@ mod tests {
         let cases: Vec<(&str, Vec<Medium>)> = vec![
             (
                 "pins, 9 instances",
-                instances(9, Default::default())
+                instances(9, pinrt::SamplerOptions::THESIS)
                     .into_iter()
                     .map(Medium::single)
                     .collect(),

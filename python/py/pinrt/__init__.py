@@ -39,14 +39,15 @@ if TYPE_CHECKING:  # NumPy is imported lazily: the OpenVDB worker must not load 
     import numpy as np
     import numpy.typing as npt
 
-__all__ = ["PinError", "PinGrid", "RENDER_LOOKUP", "bake"]
+__all__ = ["PinError", "PinGrid", "RENDER_LOOKUP", "THESIS_LOOKUP", "bake"]
 
-#: The lookup ``pinrender render`` uses, measured the least biased on volumes nobody tuned
-#: for (``pinrt::SamplerOptions::RENDER``; docs/sampling.md sections 11-15): pass it to the
-#: queries, ``grid.transmittance(o, d, t, **pinrt.RENDER_LOOKUP)``. The queries' own
-#: defaults stay the thesis' lookup (no jitter, one lookup at the segment start), whose
-#: answers existing callers rely on.
+#: The default lookup of the queries, the one ``pinrender render`` uses, measured the least
+#: biased on volumes nobody tuned for (``pinrt::SamplerOptions::RENDER``; docs/sampling.md
+#: sections 11-15). The queries' keyword defaults are these values.
 RENDER_LOOKUP: Dict[str, Any] = dict(_native.RENDER_LOOKUP)
+#: The thesis' lookup (``pinrt::SamplerOptions::THESIS``: no jitter, one lookup at the
+#: segment start): ``grid.transmittance(o, d, t, **pinrt.THESIS_LOOKUP)``.
+THESIS_LOOKUP: Dict[str, Any] = dict(_native.THESIS_LOOKUP)
 __version__ = "0.1.0"
 
 _WORKER = "pinrt-vdb-worker"
@@ -257,12 +258,12 @@ class PinGrid:
         *,
         seed: int = 0,
         first_index: int = 0,
-        spatial_jitter: float = 0.0,
-        directional_jitter: float = 0.0,
-        chain_stride: int = 0,
-        lookup_point: str = "start",
-        start_inside: bool = False,
-        nearest_line: int = 0,
+        spatial_jitter: float = 1.0,
+        directional_jitter: float = 1.0,
+        chain_stride: int = 32,
+        lookup_point: str = "middle",
+        start_inside: bool = True,
+        nearest_line: int = 8,
     ) -> "np.ndarray":
         """Transmittance estimates over ``[0, t_max]`` of N rays (``t_max`` a number or N
         numbers; ``inf`` runs to the grid box's exit). Directions need not be unit length:
@@ -274,10 +275,9 @@ class PinGrid:
         ``start_inside`` (a ray starting inside the box is looked up at its start, without
         spatial jitter), ``nearest_line`` (0-64: read the cell whose pin line passes nearest
         the lookup point, searching that many one-cell steps each side; replaces the spatial
-        jitter; octahedral grids). The defaults are the library's (the thesis' lookup);
-        ``pinrender render`` uses ``**RENDER_LOOKUP`` (``spatial_jitter=1,
-        directional_jitter=1, lookup_point="middle", start_inside=True, nearest_line=8``),
-        the least biased."""
+        jitter; octahedral grids). The defaults are the library's default lookup,
+        ``RENDER_LOOKUP`` (``pinrender render``'s, the least biased); the thesis' lookup is
+        ``**THESIS_LOOKUP`` (no jitter, one lookup at the segment start)."""
         o, d, t = _rays(origins, directions, t_max)
         return self._g.transmittance(
             o, d, t, seed, first_index, spatial_jitter, directional_jitter,
@@ -292,12 +292,12 @@ class PinGrid:
         *,
         seed: int = 0,
         first_index: int = 0,
-        spatial_jitter: float = 0.0,
-        directional_jitter: float = 0.0,
-        chain_stride: int = 0,
-        lookup_point: str = "start",
-        start_inside: bool = False,
-        nearest_line: int = 0,
+        spatial_jitter: float = 1.0,
+        directional_jitter: float = 1.0,
+        chain_stride: int = 32,
+        lookup_point: str = "middle",
+        start_inside: bool = True,
+        nearest_line: int = 8,
     ) -> "np.ndarray":
         """Sampled free-flight distances in ``[0, t_max]`` of N rays, ``inf`` where a ray
         passes without a collision. Returns float32 of shape (N,). The lookup options are

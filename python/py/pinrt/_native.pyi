@@ -8,6 +8,7 @@ import numpy.typing as npt
 class PinError(Exception): ...
 
 RENDER_LOOKUP: Dict[str, Any]
+THESIS_LOOKUP: Dict[str, Any]
 
 class PinGrid:
     def __init__(self, path: Union[str, PathLike[str]]) -> None: ...

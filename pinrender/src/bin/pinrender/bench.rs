@@ -1,8 +1,10 @@
 //! `pinrender bench`: queries per second of pins (`pins`: one query at a time;
 //! `pins-batched`: the prefetching batch API, both on a `--cells`^3 bake;
 //! `pins-default-batched`: the batch API on the bake `pinbake bake` chooses for the volume,
-//! the file a user gets; `pins-render-batched`: that bake with the lookup `pinrender render`
-//! uses, `SamplerOptions::RENDER`: jitter, middle lookup, the nearest-line search) vs ray
+//! the file a user gets; these three with the thesis' lookup, `SamplerOptions::THESIS`;
+//! `pins-render-batched`: the bake `pinbake bake` chooses with the default lookup, the one
+//! `pinrender render` uses, `SamplerOptions::RENDER`: jitter, middle lookup, the
+//! nearest-line search) vs ray
 //! marching the source density at
 //! relative steps 0.015 and 0.005, ratio, residual ratio and delta tracking over a majorant
 //! grid (`ratio`, `residual` with the mean control, `residual@min`, `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
@@ -417,7 +419,7 @@ fn bench_volume(
 ) -> Result<()> {
     let source: &dyn DensitySource = source_arc.as_ref();
     let rays = random_rays(source, args.rays);
-    let sampler = grid.sampler()?;
+    let sampler = grid.sampler()?.with_options(SamplerOptions::THESIS);
     let b = source.bounds();
     let mbox = MarchBox {
         min: b.min,
@@ -489,10 +491,11 @@ fn bench_volume(
         describe_bake(grid, &mut rows[first..]);
         Ok(())
     };
-    batched("pins-batched", grid, SamplerOptions::default(), rows)?;
+    // The thesis' lookup on both bakes, against which `pins-render-batched` is compared.
+    batched("pins-batched", grid, SamplerOptions::THESIS, rows)?;
     describe_bake(grid, &mut rows[first..]);
     if let Some(g) = default_grid {
-        batched("pins-default-batched", g, SamplerOptions::default(), rows)?;
+        batched("pins-default-batched", g, SamplerOptions::THESIS, rows)?;
         // What a render pays per query, and how near its answers are.
         batched("pins-render-batched", g, SamplerOptions::RENDER, rows)?;
     }
@@ -651,7 +654,7 @@ fn bench_volume(
 
     if let Some(ctx) = gpu {
         use pinrt::gpu::QueryMode;
-        let g = pinrt::gpu::GpuPinGrid::upload(ctx, grid)?;
+        let g = pinrt::gpu::GpuPinGrid::upload_with(ctx, grid, None, SamplerOptions::THESIS)?;
         // Timed per kind of query, as on the CPU: the transmittance-only and distance-only
         // entry points (each skips the other's work), then the combined dispatch that
         // answers both from one lookup (`both`). Each call is timed end to end (upload of

@@ -1,4 +1,4 @@
-//! The set-up of one batch step (`prepare` of [`crate::sampler`]) computed for all
+//! The set-up of one batch step (the scalar `Sampler::prepare`) computed for all
 //! [`BATCH`] lanes at once, structure-of-arrays, for every lookup option: jitter, the lookup
 //! point and the first piece of a chained lookup (`Sampler::next_piece` sets up the later
 //! pieces one ray at a time).
@@ -8,13 +8,19 @@
 //! generator's seeding and first draw). Written per ray it branches at every early exit and
 //! the compiler cannot use vector registers. Here every lane runs the same straight-line
 //! code and the early exits become selects, so each loop compiles to SIMD instructions
-//! (8 lanes with AVX2, chosen at run time; 4 with the SSE2 baseline).
+//! (16 f32 lanes with AVX-512, 8 with AVX2, 4 with the SSE2 baseline; the widest the CPU
+//! has is chosen at run time by [`Isa::best`], and every loop is compiled once per
+//! instruction set).
 //!
 //! The result is bit for bit the scalar `prepare`: the same f32 operations in the same order
 //! (vector `+ - * / sqrt` round exactly like scalar ones, and Rust never fuses a multiply
 //! and an add), and the same selects. The only difference is that values a scalar early exit
-//! never computes are computed and then thrown away. `sampler::tests` checks the equality on
-//! random and hostile rays.
+//! never computes are computed and then thrown away. The tests below check the equality on
+//! random and hostile rays for every instruction set the CPU has.
+//!
+//! The same holds for the start of the resolve ([`resolve_heads`]): the two partial-interval
+//! draws, the participating set, its popcount and `t_min^n`, as `resolve::resolve` computes
+//! them.
 
 use pin_format::{Directions, PinEntry};
 
@@ -22,9 +28,14 @@ use crate::chord::{Segment, UnitTransform};
 use crate::lookup::{DirJitter, GridView, direction_cell, line_frame, line_score};
 use crate::mask::{is_finite_bits, pow_int, sanitize_t_min};
 use crate::rng::{PCG_INC, PCG_MUL, Rng, pcg_hash, pcg_output, unit_f32};
-use crate::sampler::{
-    BATCH, NO_CELL, Prepared, RayQuery, SamplerOptions, participating, piece_of, status,
-};
+
+use super::options::SamplerOptions;
+use super::prepared::{NO_CELL, Prepared, piece_of};
+use super::query::{RayQuery, status};
+use super::resolve::{Head, participating};
+
+/// Rays per batch step: enough misses in flight to cover DRAM latency, few enough to stay in L1.
+pub const BATCH: usize = 32;
 
 /// Fills `out[..rays.len()]` with what `Sampler::prepare` returns for `rays[i]` and
 /// generator `rng[i]`, for a sampler with options `opts`. `rays.len() <= BATCH`.
@@ -604,19 +615,7 @@ fn direction_cells(
     }
 }
 
-/// What the lane part of the resolve leaves for each ray: the generator after the two
-/// partial-interval draws, the participating set of the mask and the transmittance.
-#[derive(Clone, Copy, Debug, Default)]
-pub(crate) struct Head {
-    pub(crate) state: u32,
-    pub(crate) t_min: f32,
-    /// `mask & participating`.
-    pub(crate) set: u32,
-    pub(crate) popcount: u32,
-    pub(crate) transmittance: f32,
-}
-
-/// The start of `sampler::resolve` for all lanes: the two partial-interval draws, the
+/// The start of `resolve::resolve` for all lanes: the two partial-interval draws, the
 /// sanitised `t_min`, the (reversed) mask, the participating set, its popcount and
 /// `t_min^popcount`. `entries[i]` is lane `i`'s entry (`PinEntry::EMPTY` when none was
 /// read). Lanes whose query did not resolve compute values nobody reads.
@@ -785,7 +784,7 @@ mod tests {
             ..o
         };
         vec![
-            SamplerOptions::default(),
+            SamplerOptions::THESIS,
             o(1.0, 1.0, 32, true),
             // `pinrender render`'s defaults, and `start_inside` chained and at the start.
             inside(o(1.0, 1.0, 32, true)),
