@@ -689,7 +689,7 @@ fn eval_scene(
         .collect();
     let needs_pins = ests
         .iter()
-        .any(|e| e.starts_with("pins") || e.starts_with("pinms"));
+        .any(|e| e.starts_with("pins") || e.starts_with("pinms") || e.starts_with("pinurm"));
     let bake = if needs_pins {
         Some(bake_pins(&mut es, a)?)
     } else {

@@ -713,7 +713,13 @@ pub fn media(es: &EvalScene, name: &str) -> Result<Vec<Medium>> {
                 "pinms" | "pinms+cache" => {
                     Medium::new(estimator(inst, "ratio")?, estimator(inst, "pins")?)
                 }
-                other => Medium::single(estimator(inst, other)?),
+                other => match other.parse::<EstimatorSpec>() {
+                    // Estimators that read the density and the pins together.
+                    Ok(spec @ EstimatorSpec::PinUrm { .. }) => inst
+                        .cpu_medium(spec, super::LOOKUP)
+                        .map_err(|e| anyhow!("{other}: {e}"))?,
+                    _ => Medium::single(estimator(inst, other)?),
+                },
             })
         })
         .collect()
