@@ -31,8 +31,9 @@ use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrender::render::{
-    CombKind, DeltaTracking, DensityField, MajorantGrid, Pcg32, PinControlledUrm, PinsEstimator,
-    RatioTracking, ResidualControl, ResidualRatioTracking, TransportEstimator,
+    CombKind, DeltaTracking, DensityField, MajorantGrid, PINURM_DEFAULT_PIN_QUERIES, Pcg32,
+    PinControlledUrm, PinsEstimator, RatioTracking, ResidualControl, ResidualRatioTracking,
+    TransportEstimator,
 };
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
@@ -659,16 +660,33 @@ fn bench_volume(
         PinsEstimator::new(control_grid.clone(), None, SamplerOptions::RENDER)
             .map_err(|e| anyhow!("{e}"))?,
     );
-    const PINURM_LOOKUPS: [u32; 3] = [4, 8, 16];
-    let pinurm = |f: Arc<dyn DensityField>, lookups| -> Result<Arc<dyn TransportEstimator>> {
+    // (lookups per edge, pin queries per control): the default control at three comb
+    // densities, and the control from one pin query.
+    const PINURM_ROWS: [(u32, u32); 4] = [
+        (4, PINURM_DEFAULT_PIN_QUERIES),
+        (8, PINURM_DEFAULT_PIN_QUERIES),
+        (16, PINURM_DEFAULT_PIN_QUERIES),
+        (8, 1),
+    ];
+    let pinurm_method = |(lookups, queries): (u32, u32)| {
+        if queries == PINURM_DEFAULT_PIN_QUERIES {
+            format!("pinurm@{lookups}")
+        } else {
+            format!("pinurm@{lookups}/pins={queries}")
+        }
+    };
+    let pinurm = |f: Arc<dyn DensityField>,
+                  (lookups, queries): (u32, u32)|
+     -> Result<Arc<dyn TransportEstimator>> {
         Ok(Arc::new(
             PinControlledUrm::new(f, majorants.clone(), pins.clone(), lookups)
+                .and_then(|e| e.with_pin_queries(queries))
                 .map_err(|e| anyhow!("{e}"))?,
         ))
     };
-    for lookups in PINURM_LOOKUPS {
-        let est = pinurm(field.clone(), lookups)?;
-        let mut rng = Pcg32::new(9, u64::from(lookups));
+    for (k, config) in PINURM_ROWS.into_iter().enumerate() {
+        let est = pinurm(field.clone(), config)?;
+        let mut rng = Pcg32::new(9, k as u64);
         let t = Clock::start();
         let est: Vec<f64> = rays[..n_rm]
             .iter()
@@ -679,7 +697,7 @@ fn bench_volume(
             .collect();
         let qps = t.rate(n_rm);
         // Spelled with its count even at the default, so the rows name their combs.
-        let method = format!("pinurm@{lookups}");
+        let method = pinurm_method(config);
         rows.push(row_err(name, &method, "cpu", qps, &est, &reference));
     }
     // Their variance per density lookup, and urm's, over the counting field.
@@ -693,11 +711,8 @@ fn bench_volume(
             )
             .map_err(|e| anyhow!("{e}"))?,
     )];
-    for lookups in PINURM_LOOKUPS {
-        by_lookups.push((
-            format!("pinurm@{lookups}"),
-            pinurm(counted.clone(), lookups)?,
-        ));
+    for config in PINURM_ROWS {
+        by_lookups.push((pinurm_method(config), pinurm(counted.clone(), config)?));
     }
     for (method, est) in by_lookups {
         let row = rows[trackers_first..]
