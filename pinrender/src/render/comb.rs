@@ -14,7 +14,8 @@
 //!   `tau_c`, then `exp(-tau) = exp(-tau_c) sum_k (tau_c - tau)^k / k!` with every power
 //!   estimated without bias from `K` further independent combs (elementary symmetric means)
 //!   and the order `K` random: the first [`URM_ABR_ORDER`] terms always, higher ones by
-//!   Russian roulette. Unbiased.
+//!   Russian roulette. Unbiased. [`series_transmittance`] is the same series around a
+//!   control that the caller gives (`pinurm` takes it from the pins).
 //! * [`jackknife_transmittance`] (Peters 2025): two independent combs `tau_1`, `tau_2` and
 //!   `exp(-(tau_1 + tau_2) / 2) cos((tau_1 - tau_2) / 2)`, the minimum-variance unbiased
 //!   estimator of `exp(-tau)` when the combs are normally distributed. Biased only by the
@@ -121,8 +122,9 @@ pub(crate) fn urm_with_tail(
 /// combs of `m` lookups over the segment of length `len`, and the order random as in
 /// [`urm_transmittance`]. Unbiased for `exp(-tau)` for any `tau_c` that does not depend on
 /// these combs (`urm`'s own comb, or a pin's answer: `docs/final-frames.md`); how near
-/// `tau_c` is to `tau` sets only the variance. A non-finite or negative `tau_c` gives 0 or
-/// is taken as is; callers pass a finite `tau_c >= 0`.
+/// `tau_c` is to `tau` sets only the variance. A `tau_c` whose `exp(-tau_c)` is 0 or NaN
+/// (infinite, NaN, or above about 745) gives 0; any finite smaller one, negative included,
+/// keeps the estimate unbiased.
 pub fn series_transmittance(
     tau_c: f64,
     len: f64,

@@ -1,4 +1,4 @@
-//! `pinurm`: unbiased ray marching around the pin's answer. A pin lookup gives the control
+//! `pinurm`: unbiased ray marching around the pins' answer. Pin lookups give the control
 //! optical depth of the ray, and the power series of unbiased ray marching
 //! ([`super::comb::series_transmittance`]) corrects `exp(-control)` to the true
 //! transmittance with density lookups. The derivation and the measurements are in
@@ -24,7 +24,7 @@ pub const PINURM_DEFAULT_PIN_QUERIES: u32 = 8;
 /// The pins' answers of one ray are trusted as its control when their optical depths
 /// `-ln t` all lie within this range of each other (and none is opaque); otherwise the
 /// control is a density comb, as `urm`'s. The series needs a control within about one
-/// optical depth of the truth (beyond, its variance grows like `exp(2 |error|)`), and answers
+/// optical depth of the truth (beyond, its variance grows like `exp(error^2)`), and answers
 /// that disagree by more than this say the pins do not resolve the ray.
 pub const PINURM_MAX_PIN_SPREAD: f64 = 1.5;
 
@@ -35,10 +35,12 @@ pub const PINURM_MAX_PIN_QUERIES: u32 = 1024;
 /// ray, for transmittance; delta tracking over the majorants for distances, and ratio
 /// tracking's one walk where the path tracer asks both along one ray.
 ///
-/// `urm` spends one of its (on average 3.42) combs on its control; here a pin lookup, a
-/// single fetch of 8 bytes, takes its place. The series is unbiased for any control that
-/// does not depend on the combs that follow it, so the pins' bias does not reach the
-/// estimate: it only sets how far the control is from the truth, which is the variance.
+/// `urm` spends one of its (on average about 3.4) combs on its control; here the mean of a few
+/// pin queries takes its place, and urm's comb only where those answers disagree
+/// ([`PINURM_MAX_PIN_SPREAD`]). The series is unbiased for any control that does not
+/// depend on the combs that follow it, so the pins' bias does not reach the estimate: it
+/// only sets how far the control is from the truth, which is the variance. Measured, the
+/// pins are a worse control than urm's comb (`docs/final-frames.md`).
 pub struct PinControlledUrm<F: ?Sized = dyn DensityField> {
     tracker: Tracker<F>,
     pins: Arc<PinsEstimator>,
