@@ -210,7 +210,7 @@ pub const ESTIMATORS: &[EstimatorInfo] = &[
         spec: EstimatorSpec::PinUrm {
             lookups: PINURM_DEFAULT_LOOKUPS,
         },
-        summary: "unbiased ray marching around the pin's answer: the pin's optical depth as the control, combs correct it",
+        summary: "unbiased ray marching around the pins' answer: their optical depth as the control, combs correct it",
     },
 ];
 

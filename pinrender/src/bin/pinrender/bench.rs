@@ -6,8 +6,9 @@
 //! marching the source density at
 //! relative steps 0.015 and 0.005, ratio, residual ratio and delta tracking over a majorant
 //! grid (`ratio`, `residual` with the mean control, `residual@min`, `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`),
-//! and unbiased ray marching around the pin's answer (`pinurm@4`, `pinurm@8`, `pinurm@16`:
-//! the default bake with the render's lookup as the control), on
+//! and unbiased ray marching around the pins' answer (`pinurm@4`, `pinurm@8`, `pinurm@16`:
+//! the default bake with the render's lookup as the control; `pinurm@8/pins=1`: the control
+//! from one pin query instead of the mean of eight), on
 //! the same random rays, CPU single thread and wgpu. Transmittance rows also
 //! carry their mean absolute error against a converged per-ray reference (ray marching at
 //! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays. The `ratio`, `residual`,

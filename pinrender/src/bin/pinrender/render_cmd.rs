@@ -40,8 +40,8 @@ Estimators:
               N lookups per longest box edge (default 32); slightly biased
   pins        pins for every ray (uses --pins FILE, or bakes the volume in memory)
   pinms       pins for multiple scattering only; ratio tracking for primary rays and single scattering
-  pinurm[@N]  delta tracking (distances) + unbiased ray marching around the pin's answer
-              (transmittance): the pin's optical depth is the control, combs of N lookups per
+  pinurm[@N]  delta tracking (distances) + unbiased ray marching around the pins' answer
+              (transmittance): the pins' optical depth is the control, combs of N lookups per
               longest box edge (default 8) correct it; unbiased, CPU only
 
 --backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
