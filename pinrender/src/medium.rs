@@ -74,6 +74,12 @@ impl MediumDesc {
         &self,
         lookup: SamplerOptions,
     ) -> Result<Arc<dyn TransportEstimator>, RenderError> {
+        Ok(self.placed_pins(lookup)?)
+    }
+
+    /// The placed pin grid with lookup options `lookup`, as its own type (what `pinurm`
+    /// reads its control from).
+    pub fn placed_pins(&self, lookup: SamplerOptions) -> Result<Arc<PinsEstimator>, RenderError> {
         let p = self
             .pins
             .as_ref()
@@ -85,13 +91,21 @@ impl MediumDesc {
         )?))
     }
 
-    /// The CPU renderer's medium for `spec`: the estimator over the density, the pins, or
-    /// PinMS (the density's ratio tracking for primary rays, pins after the first scattering).
+    /// The CPU renderer's medium for `spec`: the estimator over the density, the pins,
+    /// PinMS (the density's ratio tracking for primary rays, pins after the first
+    /// scattering), or `pinurm` (the density and the pins in one estimator).
     pub fn cpu_medium(
         &self,
         spec: EstimatorSpec,
         lookup: SamplerOptions,
     ) -> Result<Medium, RenderError> {
+        if let Some(both) =
+            spec.build_pin_controlled(&|| self.field(), &|| self.majorants(), &|| {
+                self.placed_pins(lookup)
+            })?
+        {
+            return Ok(Medium::single(both));
+        }
         let density = spec.build_density_estimator(&|| self.field(), &|| self.majorants())?;
         Ok(match (density, spec.needs_pins()) {
             (Some(primary), true) => Medium::new(primary, self.pins_estimator(lookup)?),
@@ -286,5 +300,16 @@ mod tests {
                 .is_err()
         );
         assert!(no_field.cpu_medium(EstimatorSpec::Pins, opts).is_ok());
+        // pinurm reads both: one estimator for every query, and an error without either.
+        let pinurm = EstimatorSpec::PinUrm { lookups: 4 };
+        let m = descs[1].cpu_medium(pinurm, opts).unwrap();
+        assert!(
+            m.primary.name().starts_with("pinurm@4"),
+            "{}",
+            m.primary.name()
+        );
+        assert_eq!(m.primary.name(), m.secondary.name());
+        assert!(no_pins.cpu_medium(pinurm, opts).is_err());
+        assert!(no_field.cpu_medium(pinurm, opts).is_err());
     }
 }

@@ -22,6 +22,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pins",
             "pinms",
             "pinms+cache",
+            "pinurm",
         ],
     ),
     (
@@ -37,6 +38,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pins",
             "pinms",
             "pinms+cache",
+            "pinurm",
         ],
     ),
     (
@@ -52,6 +54,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pins",
             "pinms",
             "pinms+cache",
+            "pinurm",
             "cosine-closed-form",
         ],
     ),
@@ -68,6 +71,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pins",
             "pinms",
             "pinms+cache",
+            "pinurm",
             "box-closed-form",
         ],
     ),
@@ -99,6 +103,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pins",
             "pinms",
             "pinms+cache",
+            "pinurm",
         ],
     ),
 ];
@@ -206,6 +211,11 @@ fn eval_quick_end_to_end() {
     assert!(
         summary.contains("This report measures how quickly each way"),
         "summary.md opens with what the reader is looking at"
+    );
+    // Per scene and budget, the best estimator reading the bake against the best without.
+    assert!(
+        summary.contains("| budget | best reading the bake | RMSE | best without | RMSE |"),
+        "summary.md compares the bake's estimators with the others"
     );
     assert!(out.join("errors.png").is_file());
     assert!(docs.join("eval").join("errors.png").is_file());
@@ -630,4 +640,7 @@ fn the_estimator_catalogue_is_json_with_the_contract_fields() {
     assert_eq!(get("ratio")["unbiased"], true);
     assert_eq!(get("residual")["unbiased"], true);
     assert_eq!(get("rm@STEP")["unbiased"], false);
+    assert_eq!(get("pinurm")["needs_bake"], true);
+    assert_eq!(get("pinurm")["unbiased"], true);
+    assert_eq!(get("pinurm")["gpu"], false);
 }

@@ -200,8 +200,8 @@ struct RtParams {
 }
 
 /// The transport estimator of a GPU render: the renderer's one [`EstimatorSpec`] (the CPU's
-/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`; `residual` is
-/// CPU only, which [`GpuEstimator::parse`] and a render say).
+/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`; `residual` and
+/// `pinurm` are CPU only, which [`GpuEstimator::parse`] and a render say).
 ///
 /// [`EstimatorSpec`]: crate::render::EstimatorSpec
 pub type GpuEstimator = crate::render::EstimatorSpec;
@@ -239,7 +239,7 @@ impl GpuEstimator {
             Self::Jackknife { .. } => (EST_JACKKNIFE, EST_JACKKNIFE),
             Self::Pins => (EST_PINS, EST_PINS),
             Self::PinMs => (EST_RATIO, EST_PINS),
-            Self::ResidualRatioTracking { .. } => {
+            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. } => {
                 return Err(RenderError::Invalid {
                     what: "estimator",
                     why: format!("{self} runs on the CPU path tracer only (--backend cpu)"),

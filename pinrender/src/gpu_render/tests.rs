@@ -589,6 +589,8 @@ impl MultiScene {
                             .build(f, maj, lookups)
                             .unwrap(),
                     ),
+                    // CPU only: the GPU renderer refuses it before any medium is built.
+                    GpuEstimator::PinUrm { .. } => panic!("{est} has no GPU twin to compare"),
                 }
             })
             .collect()

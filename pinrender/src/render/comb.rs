@@ -14,7 +14,8 @@
 //!   `tau_c`, then `exp(-tau) = exp(-tau_c) sum_k (tau_c - tau)^k / k!` with every power
 //!   estimated without bias from `K` further independent combs (elementary symmetric means)
 //!   and the order `K` random: the first [`URM_ABR_ORDER`] terms always, higher ones by
-//!   Russian roulette. Unbiased.
+//!   Russian roulette. Unbiased. [`series_transmittance`] is the same series around a
+//!   control that the caller gives (`pinurm` takes it from the pins).
 //! * [`jackknife_transmittance`] (Peters 2025): two independent combs `tau_1`, `tau_2` and
 //!   `exp(-(tau_1 + tau_2) / 2) cos((tau_1 - tau_2) / 2)`, the minimum-variance unbiased
 //!   estimator of `exp(-tau)` when the combs are normally distributed. Biased only by the
@@ -113,6 +114,40 @@ pub(crate) fn urm_with_tail(
     // exactly exp(-tau), so any control works; a good one makes x = tau_c - tau small and
     // the series converge fast.
     let tau_c = comb(len, m, uniform(), sigma);
+    series_with_tail(tau_c, len, m, sigma, uniform, tail)
+}
+
+/// The power-series correction of `urm` around a given control optical depth `tau_c`:
+/// `exp(-tau_c) sum_k (tau_c - tau)^k / k!` with every power estimated from independent
+/// combs of `m` lookups over the segment of length `len`, and the order random as in
+/// [`urm_transmittance`]. Unbiased for `exp(-tau)` for any `tau_c` that does not depend on
+/// these combs (`urm`'s own comb, or a pin's answer: `docs/final-frames.md`); how near
+/// `tau_c` is to `tau` sets only the variance. A `tau_c` whose `exp(-tau_c)` is 0 or NaN
+/// (infinite, NaN, or above about 745) gives 0; any finite smaller one, negative included,
+/// keeps the estimate unbiased.
+pub fn series_transmittance(
+    tau_c: f64,
+    len: f64,
+    m: usize,
+    sigma: &mut impl FnMut(f64) -> f64,
+    uniform: &mut impl FnMut() -> f64,
+) -> f64 {
+    if !(len > 0.0) {
+        return 1.0;
+    }
+    series_with_tail(tau_c, len, m.max(1), sigma, uniform, true)
+}
+
+/// [`series_transmittance`], with the roulette over the higher orders off when `tail` is
+/// false (the truncated, biased series the tests use as a mutation).
+pub(crate) fn series_with_tail(
+    tau_c: f64,
+    len: f64,
+    m: usize,
+    sigma: &mut impl FnMut(f64) -> f64,
+    uniform: &mut impl FnMut() -> f64,
+    tail: bool,
+) -> f64 {
     let base = (-tau_c).exp();
     // An opaque control (infinite, or beyond exp's underflow near tau_c = 745) gives 0
     // rather than 0 * (a series that may overflow) = NaN. Biased only where the combs

@@ -139,11 +139,11 @@ pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<Prepared> {
 impl Prepared {
     /// World distance back to the caller's parameter, strictly inside `[0, t_max]`.
     #[inline]
-    fn to_t(self, t_world: f64, t_max: f32) -> f32 {
+    pub(crate) fn to_t(self, t_world: f64, t_max: f32) -> f32 {
         ((t_world / self.scale) as f32).clamp(0.0, t_max)
     }
     #[inline]
-    fn at(&self, t: f64) -> Vec3 {
+    pub(crate) fn at(&self, t: f64) -> Vec3 {
         (self.o + self.d * t).as_vec3()
     }
 }
@@ -285,9 +285,9 @@ enum Walk<R> {
 }
 
 /// Shared state of the trackers: a field and a majorant grid over (at least) its support.
-struct Tracker<F: ?Sized> {
-    majorants: Arc<MajorantGrid>,
-    field: Arc<F>,
+pub(crate) struct Tracker<F: ?Sized> {
+    pub(crate) majorants: Arc<MajorantGrid>,
+    pub(crate) field: Arc<F>,
     /// The field has a [`DenseView`] and the majorant box lies inside the field's box, so
     /// every tentative collision (inside the majorant box) reads the array directly.
     dense: bool,
@@ -441,7 +441,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
     /// Delta tracking over [`Tracker::walk`]: a tentative collision is accepted with
     /// probability `sigma / majorant` (clamped to 1 where a supplied majorant is too small).
     #[inline]
-    fn delta(&self, r: &Prepared, rng: &mut Pcg32) -> Option<f64> {
+    pub(crate) fn delta(&self, r: &Prepared, rng: &mut Pcg32) -> Option<f64> {
         match self.walk(r, rng, |t, sigma, maj, _, rng| {
             (rng.next_f64() * maj < sigma).then_some(t)
         }) {
@@ -475,7 +475,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
     /// its own tracker's distribution; they are correlated, which a sum of their terms
     /// does not mind (`TransportEstimator::transmittance_and_distance`).
     #[inline]
-    fn ratio_and_delta(&self, r: &Prepared, rng: &mut Pcg32) -> (f32, Option<f64>) {
+    pub(crate) fn ratio_and_delta(&self, r: &Prepared, rng: &mut Pcg32) -> (f32, Option<f64>) {
         let mut tr = 1.0f64;
         let mut ratio: Option<f32> = None;
         let mut hit: Option<f64> = None;
@@ -494,7 +494,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
         }
     }
 
-    fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
+    pub(crate) fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
         // Outside the field's box the extinction is 0 while the clamped array reads its edge
         // voxels, so the array serves only majorant boxes inside the field's box (rays are
         // clipped to the majorant box; a tentative collision may round past its face by an
@@ -510,7 +510,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
         }
     }
 
-    fn dims_label(&self) -> String {
+    pub(crate) fn dims_label(&self) -> String {
         let d = self.majorants.dims();
         format!("{}x{}x{}", d[0], d[1], d[2])
     }

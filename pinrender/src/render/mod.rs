@@ -108,6 +108,7 @@ mod field;
 mod image;
 mod majorant;
 pub mod phase;
+mod pin_control;
 mod pins;
 mod rng;
 mod settings;
@@ -129,6 +130,10 @@ pub use estimator::{
 pub use field::{DenseMap, DenseView, DensityField, FnField, HomogeneousBox, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, MajorantSegment};
+pub use pin_control::{
+    PINURM_DEFAULT_LOOKUPS, PINURM_DEFAULT_PIN_QUERIES, PINURM_MAX_PIN_QUERIES,
+    PINURM_MAX_PIN_SPREAD, PinControlledUrm,
+};
 pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
 pub use settings::{Budget, CacheSettings, MAX_CAPACITY_LOG2, RenderSettings};

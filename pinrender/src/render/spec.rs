@@ -1,6 +1,6 @@
 //! [`EstimatorSpec`]: the one description of a transport estimator, parsed once from the
 //! names the CLI and the evaluation use (`rm@STEP`, `delta`, `ratio`, `residual[@CONTROL]`,
-//! `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`), shared by the CPU estimators and the GPU path tracer
+//! `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`, `pinurm[@N]`), shared by the CPU estimators and the GPU path tracer
 //! (`gpu_render::GpuEstimator` is this type).
 
 use std::sync::Arc;
@@ -9,7 +9,10 @@ use super::estimator::{
     CombKind, DeltaTracking, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
     TransportEstimator,
 };
-use super::{DensityField, MajorantGrid, RenderError};
+use super::{
+    DensityField, MajorantGrid, PINURM_DEFAULT_LOOKUPS, PinControlledUrm, PinsEstimator,
+    RenderError,
+};
 
 /// Smallest relative ray-marching step, one bound for the baker and the renderer
 /// (`pin_format::MIN_REL_STEP`; smaller steps ran for minutes per pixel).
@@ -41,11 +44,15 @@ pub enum EstimatorSpec {
     /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
     /// first scattering event. Needs pins, a density and majorants.
     PinMs,
+    /// Unbiased ray marching around the pin's answer (the pin gives the control optical
+    /// depth, combs of `lookups` per longest edge of the majorant box correct it) for
+    /// transmittance, delta tracking for distances. Needs pins, a density and majorants.
+    PinUrm { lookups: u32 },
 }
 
 /// The names [`EstimatorSpec`] reads, for messages.
 pub const ESTIMATOR_SYNTAX: &str =
-    "rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms";
+    "rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms, pinurm[@N]";
 
 /// The control `residual` means without `@CONTROL`.
 pub const RESIDUAL_DEFAULT_CONTROL: ResidualControl = ResidualControl::Mean;
@@ -55,6 +62,22 @@ impl std::str::FromStr for EstimatorSpec {
 
     /// A known name; an out-of-range `rm@STEP` or comb count is an error naming the range.
     fn from_str(name: &str) -> Result<Self, String> {
+        if let Some(arg) = name.strip_prefix("pinurm") {
+            let lookups = match arg.strip_prefix('@') {
+                None if arg.is_empty() => PINURM_DEFAULT_LOOKUPS,
+                None => return Err(format!("unknown estimator '{name}' ({ESTIMATOR_SYNTAX})")),
+                Some(a) => match a.parse::<u32>() {
+                    Ok(n) if (1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&n) => n,
+                    _ => {
+                        return Err(format!(
+                            "estimator {name}: lookups must be an integer in 1..={}",
+                            super::comb::MAX_COMB_LOOKUPS
+                        ));
+                    }
+                },
+            };
+            return Ok(Self::PinUrm { lookups });
+        }
         if let Some(parsed) = CombKind::parse(name) {
             return Ok(match parsed? {
                 (CombKind::Urm, lookups) => Self::Urm { lookups },
@@ -109,6 +132,8 @@ impl std::fmt::Display for EstimatorSpec {
             Self::Jackknife { lookups } => write!(f, "jackknife@{lookups}"),
             Self::Pins => f.write_str("pins"),
             Self::PinMs => f.write_str("pinms"),
+            Self::PinUrm { lookups } if lookups == PINURM_DEFAULT_LOOKUPS => f.write_str("pinurm"),
+            Self::PinUrm { lookups } => write!(f, "pinurm@{lookups}"),
         }
     }
 }
@@ -180,12 +205,19 @@ pub const ESTIMATORS: &[EstimatorInfo] = &[
         spec: EstimatorSpec::PinMs,
         summary: "ratio tracking to the first scattering vertex, pins after it",
     },
+    EstimatorInfo {
+        name: "pinurm",
+        spec: EstimatorSpec::PinUrm {
+            lookups: PINURM_DEFAULT_LOOKUPS,
+        },
+        summary: "unbiased ray marching around the pins' answer: their optical depth as the control, combs correct it",
+    },
 ];
 
 impl EstimatorSpec {
     /// Whether its expected value is the exact answer of the medium it reads (no bias floor):
-    /// the trackers and unbiased ray marching. Ray marching, the jackknife and the pin
-    /// estimators are biased.
+    /// the trackers, unbiased ray marching and `pinurm` (which reads the pins only for its
+    /// control). Ray marching, the jackknife, `pins` and `pinms` are biased.
     pub fn is_unbiased(self) -> bool {
         matches!(
             self,
@@ -193,17 +225,21 @@ impl EstimatorSpec {
                 | Self::RatioTracking
                 | Self::ResidualRatioTracking { .. }
                 | Self::Urm { .. }
+                | Self::PinUrm { .. }
         )
     }
 
     /// Whether the GPU path tracer runs it.
     pub fn runs_on_gpu(self) -> bool {
-        !matches!(self, Self::ResidualRatioTracking { .. })
+        !matches!(
+            self,
+            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. }
+        )
     }
 
     /// Whether it queries pin grids.
     pub fn needs_pins(self) -> bool {
-        matches!(self, Self::Pins | Self::PinMs)
+        matches!(self, Self::Pins | Self::PinMs | Self::PinUrm { .. })
     }
 
     /// Whether it reads the density (every estimator but `pins`).
@@ -218,14 +254,15 @@ impl EstimatorSpec {
 
     /// The CPU estimator over a density (`field`, with `majorants` built on demand) for every
     /// kind but the pin ones, whose grids the caller places ([`EstimatorSpec::needs_pins`]):
-    /// for `pinms` this is its ratio-tracking part. `Ok(None)` for `pins`.
+    /// for `pinms` this is its ratio-tracking part. `Ok(None)` for `pins` and `pinurm`
+    /// (which reads both: [`EstimatorSpec::build_pin_controlled`]).
     pub fn build_density_estimator<E: From<RenderError>>(
         self,
         field: &dyn Fn() -> Result<Arc<dyn DensityField>, E>,
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
         Ok(Some(match self {
-            Self::Pins => return Ok(None),
+            Self::Pins | Self::PinUrm { .. } => return Ok(None),
             Self::RayMarching { rel_step } => Arc::new(RayMarching::new(field()?, rel_step)?),
             Self::DeltaTracking => Arc::new(DeltaTracking::new(field()?, majorants()?)),
             Self::RatioTracking | Self::PinMs => {
@@ -239,6 +276,25 @@ impl EstimatorSpec {
                 CombKind::Jackknife.build(field()?, majorants()?, lookups)?
             }
         }))
+    }
+
+    /// The CPU estimator of a kind that reads the density and the placed pins together
+    /// (`pinurm`), or `Ok(None)` for every other kind (nothing is built then).
+    pub fn build_pin_controlled<E: From<RenderError>>(
+        self,
+        field: &dyn Fn() -> Result<Arc<dyn DensityField>, E>,
+        majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
+        pins: &dyn Fn() -> Result<Arc<PinsEstimator>, E>,
+    ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
+        Ok(match self {
+            Self::PinUrm { lookups } => Some(Arc::new(PinControlledUrm::new(
+                field()?,
+                majorants()?,
+                pins()?,
+                lookups,
+            )?)),
+            _ => None,
+        })
     }
 }
 
@@ -254,9 +310,9 @@ mod tests {
             } else {
                 assert_eq!(e.name.parse::<EstimatorSpec>(), Ok(e.spec), "{}", e.name);
             }
-            // Only the estimators that read pins have a floor of their own besides rm and
-            // the jackknife.
-            if e.spec.needs_pins() {
+            // The estimators that answer from the pins have a floor of their own besides rm
+            // and the jackknife; `pinurm` reads them only for its control and has none.
+            if matches!(e.spec, EstimatorSpec::Pins | EstimatorSpec::PinMs) {
                 assert!(!e.spec.is_unbiased());
             }
         }
@@ -265,6 +321,11 @@ mod tests {
                 .iter()
                 .any(|e| e.name == "ratio" && e.spec.is_unbiased())
         );
+        let pinurm = EstimatorSpec::PinUrm {
+            lookups: PINURM_DEFAULT_LOOKUPS,
+        };
+        assert!(pinurm.is_unbiased() && pinurm.needs_pins() && pinurm.needs_majorants());
+        assert!(!pinurm.runs_on_gpu());
     }
 
     #[test]
@@ -281,6 +342,8 @@ mod tests {
             "jackknife@3",
             "pins",
             "pinms",
+            "pinurm",
+            "pinurm@4",
         ] {
             let spec: EstimatorSpec = name.parse().unwrap();
             assert_eq!(spec.to_string(), name);
@@ -291,6 +354,8 @@ mod tests {
             ("urm@0", "lookups"),
             ("tracking", "unknown estimator"),
             ("residual@max", "unknown estimator"),
+            ("pinurm@0", "lookups"),
+            ("pinurmx", "unknown estimator"),
         ] {
             let e = bad.parse::<EstimatorSpec>().unwrap_err();
             assert!(e.contains(why), "{bad}: {e}");

@@ -7,12 +7,17 @@
 //! nearest-line search) vs ray
 //! marching the source density at
 //! relative steps 0.015 and 0.005, ratio, residual ratio and delta tracking over a majorant
-//! grid (`ratio`, `residual` with the mean control, `residual@min`, `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`), on
+//! grid (`ratio`, `residual` with the mean control, `residual@min`, `delta`), unbiased ray marching (`urm`) and jackknife transmittance (`jackknife`),
+//! and unbiased ray marching around the pins' answer (`pinurm@4`, `pinurm@8`, `pinurm@16`:
+//! the default bake with the render's lookup as the control; `pinurm@8/pins=1`: the control
+//! from one pin query instead of the mean of eight), on
 //! the same random rays, CPU single thread and wgpu. Transmittance rows also
 //! carry their mean absolute error against a converged per-ray reference (ray marching at
-//! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays. The `ratio`, `residual` and
-//! `residual@min` transmittance rows also carry their variance per lookup on the first
-//! [`VARIANCE_RAYS`] rays (`per_ray_variance`, `lookups_per_query`, `variance_x_lookups`).
+//! step [`REFERENCE_STEP`]) over the first [`ERROR_RAYS`] rays. The `ratio`, `residual`,
+//! `residual@min`, `urm` and `pinurm@N` transmittance rows also carry their variance per
+//! density lookup on the first [`VARIANCE_RAYS`] rays (`per_ray_variance`,
+//! `lookups_per_query`, `variance_x_lookups`; `pinurm` also reads one pin per query, which
+//! its `queries_per_s` counts and `lookups_per_query` does not).
 //!
 //! CPU rows are timed by wall time (`queries_per_s`) and by the thread's CPU time
 //! (`cpu_queries_per_s`); the printed ratios use the CPU rates, which a shared machine does
@@ -29,8 +34,9 @@ use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrender::render::{
-    CombKind, DeltaTracking, DensityField, MajorantGrid, Pcg32, RatioTracking, ResidualControl,
-    ResidualRatioTracking, TransportEstimator,
+    CombKind, DeltaTracking, DensityField, MajorantGrid, PINURM_DEFAULT_PIN_QUERIES, Pcg32,
+    PinControlledUrm, PinsEstimator, RatioTracking, ResidualControl, ResidualRatioTracking,
+    TransportEstimator,
 };
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
@@ -64,8 +70,8 @@ pub struct BenchArgs {
     /// cpu_queries_per_s?, mean_abs_error?, error_rays?, per_ray_variance?,
     /// lookups_per_query?, variance_x_lookups?, variance_rays?, bake?, pin_bytes?}, ...]}
     /// (queries_per_s over wall time; cpu_queries_per_s over the thread's CPU time, on CPU
-    /// rows; the error fields on transmittance rows; the variance fields on the ratio and
-    /// residual transmittance rows; bake and pin_bytes on pin rows; query
+    /// rows; the error fields on transmittance rows; the variance fields on the ratio,
+    /// residual, urm and pinurm transmittance rows; bake and pin_bytes on pin rows; query
     /// is "transmittance", "distance", or "both" for the GPU's combined dispatch).
     #[arg(long)]
     pub json: bool,
@@ -84,7 +90,7 @@ pub const MAJORANT_BRICKS: u32 = 16;
 /// Rays (the first ones of each volume) over which the mean absolute errors are taken.
 pub const ERROR_RAYS: usize = 2000;
 /// Rays (the first ones of each volume) and estimates per ray of the variance-per-lookup
-/// measurement of the ratio-tracking rows.
+/// measurement of the ratio-tracking, `urm` and `pinurm` rows.
 pub const VARIANCE_RAYS: usize = 1000;
 pub const VARIANCE_REPEATS: u64 = 64;
 
@@ -411,9 +417,9 @@ fn repeated_rate(queries: usize, mut pass: impl FnMut(u32)) -> Rate {
 fn bench_volume(
     name: &str,
     source_arc: &Arc<dyn DensitySource>,
-    grid: &PinGrid,
+    grid: &Arc<PinGrid>,
     args: &BenchArgs,
-    default_grid: Option<&PinGrid>,
+    default_grid: Option<&Arc<PinGrid>>,
     gpu: Option<&pinrt::gpu::GpuContext>,
     rows: &mut Vec<Value>,
 ) -> Result<()> {
@@ -651,6 +657,74 @@ fn bench_volume(
         };
         rows.push(row_err(name, method, "cpu", qps, &est, &reference));
     }
+    // Unbiased ray marching around the pin's answer, the pins a user renders with (the
+    // default bake, the render's lookup) as the control, at three comb densities.
+    let control_grid = default_grid.unwrap_or(grid);
+    let pins = Arc::new(
+        PinsEstimator::new(control_grid.clone(), None, SamplerOptions::RENDER)
+            .map_err(|e| anyhow!("{e}"))?,
+    );
+    // (lookups per edge, pin queries per control): the default control at three comb
+    // densities, and the control from one pin query.
+    const PINURM_ROWS: [(u32, u32); 4] = [
+        (4, PINURM_DEFAULT_PIN_QUERIES),
+        (8, PINURM_DEFAULT_PIN_QUERIES),
+        (16, PINURM_DEFAULT_PIN_QUERIES),
+        (8, 1),
+    ];
+    let pinurm_method = |(lookups, queries): (u32, u32)| {
+        if queries == PINURM_DEFAULT_PIN_QUERIES {
+            format!("pinurm@{lookups}")
+        } else {
+            format!("pinurm@{lookups}/pins={queries}")
+        }
+    };
+    let pinurm = |f: Arc<dyn DensityField>,
+                  (lookups, queries): (u32, u32)|
+     -> Result<Arc<dyn TransportEstimator>> {
+        Ok(Arc::new(
+            PinControlledUrm::new(f, majorants.clone(), pins.clone(), lookups)
+                .and_then(|e| e.with_pin_queries(queries))
+                .map_err(|e| anyhow!("{e}"))?,
+        ))
+    };
+    for (k, config) in PINURM_ROWS.into_iter().enumerate() {
+        let est = pinurm(field.clone(), config)?;
+        let mut rng = Pcg32::new(9, k as u64);
+        let t = Clock::start();
+        let est: Vec<f64> = rays[..n_rm]
+            .iter()
+            .map(|r| {
+                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+                f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng))
+            })
+            .collect();
+        let qps = t.rate(n_rm);
+        // Spelled with its count even at the default, so the rows name their combs.
+        let method = pinurm_method(config);
+        rows.push(row_err(name, &method, "cpu", qps, &est, &reference));
+    }
+    // Their variance per density lookup, and urm's, over the counting field.
+    let mut by_lookups: Vec<(String, Arc<dyn TransportEstimator>)> = vec![(
+        "urm".into(),
+        CombKind::Urm
+            .build(
+                counted.clone(),
+                majorants.clone(),
+                CombKind::Urm.default_lookups(),
+            )
+            .map_err(|e| anyhow!("{e}"))?,
+    )];
+    for config in PINURM_ROWS {
+        by_lookups.push((pinurm_method(config), pinurm(counted.clone(), config)?));
+    }
+    for (method, est) in by_lookups {
+        let row = rows[trackers_first..]
+            .iter_mut()
+            .find(|r| r["method"] == method.as_str() && r["query"] == "transmittance")
+            .ok_or_else(|| anyhow!("no {method} row"))?;
+        variance_per_lookup(est.as_ref(), &counted, var_rays, row);
+    }
 
     if let Some(ctx) = gpu {
         use pinrt::gpu::QueryMode;
@@ -746,16 +820,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
     };
     let mut rows = Vec::new();
     for (name, source) in &volumes {
-        let grid = match &args.pins {
+        let grid = Arc::new(match &args.pins {
             Some(p) => {
                 pinbake::files::check_input(p)?;
                 PinGrid::open(p).map_err(|e| anyhow!("{e}"))?
             }
             None => cached_pins(name, source.as_ref(), BenchBake::Cells(args.cells))?,
-        };
+        });
         let default_grid = match &args.pins {
             Some(_) => None,
-            None => Some(cached_pins(name, source.as_ref(), BenchBake::Default)?),
+            None => Some(Arc::new(cached_pins(
+                name,
+                source.as_ref(),
+                BenchBake::Default,
+            )?)),
         };
         bench_volume(
             name,

@@ -69,7 +69,9 @@ with residual@min, times ratio tracking of the residual; CPU only), urm[@N]
 (unbiased ray marching), jackknife[@N] (jackknife transmittance; both: combs of N lookups per
 longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
 tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
-hash-grid radiance cache), cosine-closed-form / box-closed-form (exact transmittance),
+hash-grid radiance cache), pinurm[@N] (unbiased ray marching around the pins' answer: the
+pins give the control optical depth, combs of N lookups correct it; CPU only),
+cosine-closed-form / box-closed-form (exact transmittance),
 whole-volume (box-ss only). rm@STEP, delta, ratio, urm, jackknife, pins and pinms also run on
 the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
@@ -438,6 +440,13 @@ fn reads_pins(e: &str) -> bool {
         .unwrap_or(e)
         .parse::<pinrender::render::EstimatorSpec>()
         .is_ok_and(|s| s.needs_pins())
+}
+
+/// Whether an entry's pin queries go through the batched sampler (`pins`, `pinms`), so
+/// that the wavefront loop gives `render`'s image sooner.
+fn answers_pins_in_batches(e: &str) -> bool {
+    use pinrender::render::EstimatorSpec;
+    matches!(e.parse(), Ok(EstimatorSpec::Pins | EstimatorSpec::PinMs))
 }
 
 fn check_estimator_name(e: &str) -> Result<()> {
@@ -838,7 +847,9 @@ fn measure(
             }
             (_, Some(c)) => render_with_cache(&scene, &st, &es.cache, c, Instant::now()),
             // Pin queries answered in batches: the same image as `render`, sooner.
-            (e, _) if reads_pins(e) => render_wavefront(&scene, &st, DEFAULT_WAVEFRONT_BATCH),
+            (e, _) if answers_pins_in_batches(e) => {
+                render_wavefront(&scene, &st, DEFAULT_WAVEFRONT_BATCH)
+            }
             _ => render(&scene, &st),
         };
         out.map_err(|e| anyhow!("{e}"))

@@ -40,6 +40,9 @@ Estimators:
               N lookups per longest box edge (default 32); slightly biased
   pins        pins for every ray (uses --pins FILE, or bakes the volume in memory)
   pinms       pins for multiple scattering only; ratio tracking for primary rays and single scattering
+  pinurm[@N]  delta tracking (distances) + unbiased ray marching around the pins' answer
+              (transmittance): the pins' optical depth is the control, combs of N lookups per
+              longest box edge (default 8) correct it; unbiased, CPU only
 
 --backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
 one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
@@ -49,7 +52,7 @@ for bit.")]
 pub struct RenderArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
-    /// Pin file for the `pins` and `pinms` estimators (default: bake the volume in memory).
+    /// Pin file for the `pins`, `pinms` and `pinurm` estimators (default: bake the volume in memory).
     /// Without --volume, the medium itself: the estimators that need density use the file's
     /// embedded density (`pinbake bake --embed-density`) and majorant sections.
     #[arg(long)]
@@ -59,7 +62,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
-    /// pins or pinms.
+    /// pins, pinms or pinurm[@N].
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
     pub estimator: EstimatorSpec,
     /// Image width in pixels (1..=16384).
@@ -229,7 +232,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         (Some(_), Some(_)) if !uses_pins => {
             // It used to be ignored silently, so a typo in the estimator went unnoticed.
             crate::usage!(
-                "--pins is used only by the pins and pinms estimators, not by {} (or give \
+                "--pins is used only by the pins, pinms and pinurm estimators, not by {} (or give \
                  --pins without --volume to render the pin file's own medium)",
                 a.estimator
             )

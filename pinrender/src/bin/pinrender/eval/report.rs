@@ -281,6 +281,82 @@ pub fn scene_table(r: &SceneResult) -> String {
     s
 }
 
+/// Whether estimator `est` of an eval row reads the bake (`pins`, `pinms`, `pinms+cache`,
+/// `pinurm`), or `None` for the scenes' exact estimators (the closed forms and whole-volume
+/// sampling), which a real volume does not have and which neither side of the comparison
+/// below counts.
+pub fn reads_bake(est: &str) -> Option<bool> {
+    match est {
+        "cosine-closed-form" | "box-closed-form" | "whole-volume" => None,
+        "pinms+cache" => Some(true),
+        e => e
+            .parse::<pinrender::render::EstimatorSpec>()
+            .ok()
+            .map(|s| s.needs_pins()),
+    }
+}
+
+/// Per budget, the CPU estimator with the lowest RMSE among those that read the bake and
+/// among those that do not, with the ratio of their RMSEs: `(budget, (bake name, rmse),
+/// (no-bake name, rmse))`, budgets in increasing order, a side `None` when the scene ran
+/// none of its kind.
+pub type BakeVsNoBake = (f64, Option<(String, f64)>, Option<(String, f64)>);
+
+pub fn bake_vs_no_bake(r: &SceneResult) -> Vec<BakeVsNoBake> {
+    let mut budgets: Vec<f64> = r
+        .rows
+        .iter()
+        .filter(|x| x.backend == "cpu")
+        .map(|x| x.budget_s)
+        .collect();
+    budgets.sort_by(f64::total_cmp);
+    budgets.dedup();
+    let best = |budget: f64, bake: bool| {
+        r.rows
+            .iter()
+            .filter(|x| {
+                x.backend == "cpu"
+                    && x.budget_s == budget
+                    && x.rmse.is_finite()
+                    && reads_bake(&x.estimator) == Some(bake)
+            })
+            .min_by(|a, b| a.rmse.total_cmp(&b.rmse))
+            .map(|x| (x.estimator.clone(), x.rmse))
+    };
+    budgets
+        .into_iter()
+        .map(|b| (b, best(b, true), best(b, false)))
+        .collect()
+}
+
+/// The markdown table of [`bake_vs_no_bake`], or an empty string when the scene has no row
+/// on one of the two sides.
+pub fn bake_table(r: &SceneResult) -> String {
+    let rows = bake_vs_no_bake(r);
+    if !rows.iter().any(|(_, a, b)| a.is_some() && b.is_some()) {
+        return String::new();
+    }
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| budget | best reading the bake | RMSE | best without | RMSE | RMSE ratio (bake / without) |"
+    );
+    let _ = writeln!(s, "|---:|---|---:|---|---:|---:|");
+    for (budget, bake, plain) in rows {
+        let cell = |x: &Option<(String, f64)>| match x {
+            Some((n, e)) => (n.clone(), format!("{e:.4}")),
+            None => ("-".to_string(), "-".to_string()),
+        };
+        let ((bn, be), (pn, pe)) = (cell(&bake), cell(&plain));
+        let ratio = match (&bake, &plain) {
+            (Some((_, a)), Some((_, b))) if *b > 0.0 => format!("{:.2}", a / b),
+            _ => "-".to_string(),
+        };
+        let _ = writeln!(s, "| {budget} s | {bn} | {be} | {pn} | {pe} | {ratio} |");
+    }
+    s
+}
+
 /// The report body (shared by summary.md and docs/evaluation.md); `link_prefix` goes in front
 /// of image file names.
 pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> String {
@@ -365,6 +441,16 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
         let _ = writeln!(s);
         s.push_str(&scene_table(r));
         let _ = writeln!(s);
+        let versus = bake_table(r);
+        if !versus.is_empty() {
+            let _ = writeln!(
+                s,
+                "At equal CPU time, per budget: the best estimator that reads the bake against                  the best that does not (CPU rows; the closed forms and whole-volume sampling                  left out of both):"
+            );
+            let _ = writeln!(s);
+            s.push_str(&versus);
+            let _ = writeln!(s);
+        }
         let _ = writeln!(
             s,
             "![error vs time, {n}]({p}error_vs_time_{n}.png)",

@@ -144,6 +144,7 @@ fn estimators(extra: &[&str], cache: bool) -> Vec<String> {
         "jackknife",
         "pins",
         "pinms",
+        "pinurm",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -654,10 +655,12 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let (sun, env) = lights(1.0);
     // The trackers, pins and PinMS, and rm@0.015 for the time-to-error
     // column; the other estimators would add minutes at this size and say nothing new.
-    let ests: Vec<String> = ["rm@0.015", "delta", "ratio", "residual", "pins", "pinms"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+    let ests: Vec<String> = [
+        "rm@0.015", "delta", "ratio", "residual", "pins", "pinms", "pinurm",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     Ok(EvalScene {
         name: "cloud",
         about: format!(
@@ -713,7 +716,13 @@ pub fn media(es: &EvalScene, name: &str) -> Result<Vec<Medium>> {
                 "pinms" | "pinms+cache" => {
                     Medium::new(estimator(inst, "ratio")?, estimator(inst, "pins")?)
                 }
-                other => Medium::single(estimator(inst, other)?),
+                other => match other.parse::<EstimatorSpec>() {
+                    // Estimators that read the density and the pins together.
+                    Ok(spec @ EstimatorSpec::PinUrm { .. }) => inst
+                        .cpu_medium(spec, super::LOOKUP)
+                        .map_err(|e| anyhow!("{other}: {e}"))?,
+                    _ => Medium::single(estimator(inst, other)?),
+                },
             })
         })
         .collect()
