@@ -70,6 +70,10 @@ pub fn serve_vdb_worker_if_asked(args: &[std::ffi::OsString]) -> Option<std::pro
 /// Largest accepted extent of a grid, per axis, in voxels (OpenImageIO uses the same).
 pub const MAX_AXIS_VOXELS: i64 = 1 << 20;
 const MIB: u64 = 1 << 20;
+/// The slowest read rate of a valid file that the worker's timeout allows for: a timeout of
+/// at least the file size over this rate, whatever [`VdbOptions::timeout`] says (a 3 GB
+/// cloud takes more than a minute on a loaded 2-core machine).
+pub const MIN_READ_BYTES_PER_S: f64 = 8e6;
 
 /// How to open a VDB file.
 #[derive(Clone, Debug, PartialEq)]
@@ -86,6 +90,11 @@ pub struct VdbOptions {
     pub memory_limit: Option<u64>,
     /// Wall-clock limit of the worker.
     pub timeout: Duration,
+    /// The most bytes the grid's leaf table may take in this process (values and per-leaf
+    /// overhead, [`VdbSource::memory_bytes`]): a grid that needs more is refused with
+    /// [`SourceError::Memory`] as soon as the worker has counted its leaves, before they are
+    /// read. `None`: no limit beyond what the allocator gives.
+    pub max_leaf_bytes: Option<u64>,
 }
 
 impl Default for VdbOptions {
@@ -97,6 +106,7 @@ impl Default for VdbOptions {
             worker_exe: std::env::current_exe().unwrap_or_else(|_| PathBuf::from("pinbake")),
             memory_limit: None,
             timeout: Duration::from_secs(60),
+            max_leaf_bytes: None,
         }
     }
 }
