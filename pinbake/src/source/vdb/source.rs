@@ -59,6 +59,74 @@ impl Leaves {
     }
 }
 
+/// Every 8^3 block of the stored blocks' box, x fastest: the table [`VdbSource::block`]
+/// reads instead of hashing, where it is at most [`BLOCK_INDEX_SLOTS_PER_BLOCK`] slots per
+/// stored block (a compact cloud; a few blocks far apart keep the hash table alone).
+pub(super) struct BlockIndex {
+    lo: IVec3,
+    dims: IVec3,
+    slots: Vec<Option<Block>>,
+}
+
+/// See [`BlockIndex`]: 8 bytes a slot, so at most 32 bytes of index per stored block.
+pub const BLOCK_INDEX_SLOTS_PER_BLOCK: u64 = 4;
+
+impl BlockIndex {
+    /// The index of `entries` (block keys and blocks), or `None` when its box would hold
+    /// more than [`BLOCK_INDEX_SLOTS_PER_BLOCK`] slots per entry or cannot be allocated.
+    pub(super) fn build(entries: &[(IVec3, Block)]) -> Option<Self> {
+        let (mut lo, mut hi) = (IVec3::MAX, IVec3::MIN);
+        for (k, _) in entries {
+            lo = lo.min(*k);
+            hi = hi.max(*k);
+        }
+        if entries.is_empty() {
+            return None;
+        }
+        let n = (hi.as_i64vec3() - lo.as_i64vec3()) + 1;
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        if count > BLOCK_INDEX_SLOTS_PER_BLOCK.saturating_mul(entries.len() as u64) {
+            return None;
+        }
+        let mut slots = Vec::new();
+        slots.try_reserve_exact(usize::try_from(count).ok()?).ok()?;
+        slots.resize(count as usize, None);
+        let mut ix = Self {
+            lo,
+            dims: n.as_ivec3(),
+            slots,
+        };
+        for (k, b) in entries {
+            let at = ix.slot(*k)?;
+            ix.slots[at] = Some(*b);
+        }
+        Some(ix)
+    }
+
+    #[inline(always)]
+    fn slot(&self, k: IVec3) -> Option<usize> {
+        let r = k - self.lo;
+        if r.cmplt(IVec3::ZERO).any() || r.cmpge(self.dims).any() {
+            return None;
+        }
+        Some(
+            r.x as usize
+                + self.dims.x as usize * (r.y as usize + self.dims.y as usize * r.z as usize),
+        )
+    }
+
+    #[inline(always)]
+    pub(super) fn get(&self, k: IVec3) -> Option<Block> {
+        self.slot(k).and_then(|i| self.slots[i])
+    }
+
+    pub(super) fn bytes(&self) -> u64 {
+        (self.slots.len() * size_of::<Option<Block>>()) as u64
+    }
+}
+
 /// A block resolved through the tree: [`VdbSource::block_at`].
 #[derive(Clone, Copy, Debug)]
 pub(super) enum Resolved {
@@ -105,6 +173,8 @@ pub(super) fn pack(k: IVec3, base: IVec3) -> Option<u64> {
 pub struct VdbSource {
     pub(super) blocks: KeyMap<Block>,
     pub(super) block_base: IVec3,
+    /// The blocks as a dense table over their box, where it is small ([`BlockIndex`]).
+    pub(super) index: Option<BlockIndex>,
     /// 128^3 constant tiles keyed by `index >> 7`.
     pub(super) big: KeyMap<f32>,
     pub(super) big_base: IVec3,
@@ -207,7 +277,8 @@ impl VdbSource {
             * 24
             + (self.leaf_max.capacity() * 4) as u64;
         let cache = self.cache.as_ref().map_or(0, |c| (c.data.len() * 4) as u64);
-        values + tables + cache
+        let index = self.index.as_ref().map_or(0, BlockIndex::bytes);
+        values + tables + cache + index
     }
 
     pub(super) fn from_stream(
@@ -386,6 +457,7 @@ impl VdbSource {
             ));
         }
         let block_base = lo >> 3;
+        let index = BlockIndex::build(&entries);
         for (k, b) in entries {
             let key = pack(k, block_base).ok_or("block key out of range")?;
             if blocks.insert(key, b).is_some() {
@@ -458,6 +530,7 @@ impl VdbSource {
         Ok(Self {
             blocks,
             block_base,
+            index,
             big,
             big_base,
             huge,
@@ -527,10 +600,8 @@ impl VdbSource {
             for z in klo.z..=khi.z {
                 for y in klo.y..=khi.y {
                     for x in klo.x..=khi.x {
-                        if let Some(b) = pack(IVec3::new(x, y, z), self.block_base)
-                            .and_then(|k| self.blocks.get(&k))
-                        {
-                            m = m.max(block_max(b));
+                        if let Some(b) = self.block(IVec3::new(x, y, z)) {
+                            m = m.max(block_max(&b));
                         }
                     }
                 }
@@ -719,10 +790,8 @@ impl VdbSource {
     /// Value of one voxel (0 where nothing is stored).
     #[inline]
     pub fn voxel(&self, i: IVec3) -> f32 {
-        if let Some(k) = pack(i >> 3, self.block_base)
-            && let Some(b) = self.blocks.get(&k)
-        {
-            return match *b {
+        if let Some(b) = self.block(i >> 3) {
+            return match b {
                 Block::Dense(l) => {
                     let l8 = i & 7;
                     self.leaves
@@ -771,13 +840,13 @@ impl VdbSource {
                 d[sz + sy + 1],
             ]
         } else if l.x < 7 && l.y < 7 && l.z < 7 {
-            // All eight corners in one block: one hash lookup.
-            match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
+            // All eight corners in one block: one lookup.
+            match self.block(i >> 3) {
                 Some(Block::Dense(li)) => {
                     let b = ((l.x << 6) | (l.y << 3) | l.z) as usize;
-                    self.leaves.cell(*li as usize, b)
+                    self.leaves.cell(li as usize, b)
                 }
-                Some(Block::Const(v)) => [*v; 8],
+                Some(Block::Const(v)) => [v; 8],
                 None if self.big.is_empty() && self.huge.is_empty() => return 0.0,
                 None => self.corners(i),
             }
@@ -828,12 +897,22 @@ impl VdbSource {
         c
     }
 
+    /// The stored 8^3 block `k` (voxel index `>> 3`), if any: one load from the dense block
+    /// index where there is one, else a hash lookup.
+    #[inline(always)]
+    pub(super) fn block(&self, k: IVec3) -> Option<Block> {
+        match &self.index {
+            Some(ix) => ix.get(k),
+            None => pack(k, self.block_base).and_then(|key| self.blocks.get(&key).copied()),
+        }
+    }
+
     /// What covers the 8^3 block `k` (voxel index `>> 3`): a leaf, or a constant (a tile's
     /// value, 0 where nothing is stored).
     #[inline]
     pub(super) fn block_at(&self, k: IVec3) -> Resolved {
-        if let Some(b) = pack(k, self.block_base).and_then(|key| self.blocks.get(&key)) {
-            return match *b {
+        if let Some(b) = self.block(k) {
+            return match b {
                 Block::Dense(l) => Resolved::Leaf(l),
                 Block::Const(v) => Resolved::Const(v),
             };
