@@ -151,6 +151,7 @@ pub use spawn::WORKER_ENV;
 #[cfg(test)]
 mod tests {
     use super::*;
+    use source::Leaves;
 
     fn data(name: &str) -> PathBuf {
         PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../data")).join(name)

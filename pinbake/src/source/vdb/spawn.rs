@@ -102,7 +102,7 @@ pub(super) fn run_worker(
                 .wait()
                 .map_err(|e| format!("waiting for the VDB reader failed: {e}"))?;
         }
-        std::thread::sleep(Duration::from_millis(5).into());
+        std::thread::sleep(Duration::from_millis(5));
     };
     let parsed = parser
         .join()
