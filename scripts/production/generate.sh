@@ -39,7 +39,9 @@ cloud() {
   if [ ! -s "$file" ]; then
     "$exe" "$file.part" "$2" "$3" "$4" 1 "${5:-0}" >"$file.json.part"
     mv "$file.part" "$file"
-    mv "$file.json.part" "$file.json"
+    # The generator names the file it wrote, the temporary one.
+    sed "s#$file.part#$file#" "$file.json.part" >"$file.json"
+    rm "$file.json.part"
   fi
   echo "$file"
 }
