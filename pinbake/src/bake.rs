@@ -207,6 +207,23 @@ pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
         .saturating_add(vol(opts.embed_density, 2))
 }
 
+/// The most bytes a dense copy of a sparse source may take in a bake with `opts`: what
+/// [`BakeOptions::dense_copy_bytes`] allows, and no more voxels than
+/// [`DENSE_COPY_VOXELS_PER_SAMPLE`] per sample the bake takes. Filling the copy costs one
+/// tree lookup per voxel, a sample through the tree a few: a copy larger than that costs
+/// more time to fill than it saves, besides its memory (a default bake of a 263 M-voxel
+/// cloud takes 90 M samples; its copy would be 2.5 GB of f32, 55% zeros).
+pub fn dense_copy_limit(opts: &BakeOptions) -> u64 {
+    // At most 1/step samples per pin: the chord is at most the longest box edge long along
+    // an axis and sqrt(3) of it on a diagonal; 1/step is the typical chord's count.
+    let samples = pin_count(opts) as f64 / opts.step.max(1e-9);
+    let by_cost = (samples * DENSE_COPY_VOXELS_PER_SAMPLE * 4.0).min(u64::MAX as f64) as u64;
+    opts.dense_copy_bytes.min(by_cost)
+}
+
+/// See [`dense_copy_limit`].
+pub const DENSE_COPY_VOXELS_PER_SAMPLE: f64 = 4.0;
+
 /// Pins a bake computes: every direction and pin of every cell of its tile (of the whole grid
 /// without one).
 pub fn pin_count(opts: &BakeOptions) -> u64 {
@@ -323,7 +340,7 @@ fn bake_in_pool(
     // default bake: docs/performance.md).
     let copy = match source.as_dense_grid() {
         Some(_) => None,
-        None => source.dense_copy(opts.dense_copy_bytes),
+        None => source.dense_copy(dense_copy_limit(opts)),
     };
     let field = copy.as_ref().map_or(Field::of(source), Field::Grid);
     let layout = PinLayout {
@@ -621,6 +638,33 @@ mod tests {
         };
         assert_eq!(estimate_working_bytes(&big), estimate_working_bytes(&huge));
         assert!(estimate_working_bytes(&huge) < 200 << 20);
+    }
+
+    /// The dense copy may hold at most 4 voxels per sample the bake takes, and never more
+    /// than the options allow.
+    #[test]
+    fn the_dense_copy_is_capped_by_the_samples() {
+        let opts = BakeOptions {
+            cells: [4, 4, 4],
+            directions: Directions::Octahedral { n: 2 },
+            step: 0.05,
+            ..BakeOptions::default()
+        };
+        let pins = pin_count(&opts);
+        assert_eq!(pins, 64 * 4);
+        let samples = pins as f64 / 0.05;
+        assert_eq!(dense_copy_limit(&opts), (samples * 4.0 * 4.0) as u64);
+        let tight = BakeOptions {
+            dense_copy_bytes: 1000,
+            ..opts.clone()
+        };
+        assert_eq!(dense_copy_limit(&tight), 1000);
+        // A tile takes its own pins' samples only.
+        let tile = BakeOptions {
+            tile: Some(Tile { index: 0, count: 2 }),
+            ..opts
+        };
+        assert_eq!(dense_copy_limit(&tile), (samples / 2.0 * 16.0) as u64);
     }
 
     #[test]

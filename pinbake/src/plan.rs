@@ -162,6 +162,7 @@ impl PlanError {
         matches!(
             self,
             PlanError::File(FileError::Memory { .. })
+                | PlanError::Source(SourceError::Memory { .. })
                 | PlanError::Bake {
                     source: BakeError::Memory { .. } | BakeError::Alloc { .. },
                     ..
@@ -300,6 +301,9 @@ pub struct Baked {
     /// The output as the caller named it.
     pub output: PathBuf,
     pub file_bytes: u64,
+    /// The peak memory this bake was estimated to need ([`memory_estimate`]), which
+    /// `max_memory` was checked against.
+    pub memory_estimate_bytes: u64,
     /// Wall time from the start of the bake (after the source was opened and the bake
     /// chosen) to the end of the write.
     pub seconds: f64,
@@ -314,9 +318,58 @@ impl Baked {
         v["bake_seconds"] = json!(self.stats.seconds);
         v["pins_per_s"] = json!(self.stats.pins_per_s);
         v["output"] = json!(self.output.display().to_string());
+        v["memory_estimate_bytes"] = json!(self.memory_estimate_bytes);
         v["choice"] = crate::summary::choice_json(&self.choice, self.file_bytes);
         Ok(v)
     }
+}
+
+/// What a bake process holds besides its source and its bake: the binary, the thread
+/// pool's stacks, the allocator's arenas (measured: 22 MB peak for a bake of a 1 MB VDB).
+pub const PROCESS_BASE_BYTES: u64 = 24 << 20;
+
+/// The peak memory of a bake of `source` with `opts` (before its dense copy is sized) and
+/// the part of it that is that copy: the process base, what the source holds (exactly, where
+/// it can say: [`DensitySource::footprint`]; else `input_bytes`), and the larger of what its
+/// reader held beside it while opening and what the bake adds (the output, the per-pin
+/// state, and the dense copy that the bake makes when it fits in `limit`).
+pub fn memory_estimate(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    input_bytes: u64,
+    limit: u64,
+) -> (u64, u64) {
+    let (held, opening) = match source.footprint() {
+        Some(f) => (f.held, f.while_opening.saturating_sub(f.held)),
+        None => (input_bytes, 0),
+    };
+    let output = crate::bake::estimate_output_bytes(opts);
+    // The layered march's per-pin state exists only beside a large dense grid.
+    let layered = |grid_bytes: u64| {
+        if grid_bytes >= crate::sweep::Sweep::default().min_grid_bytes as u64 {
+            crate::bake::estimate_working_bytes(opts)
+        } else {
+            0
+        }
+    };
+    let dense = source
+        .as_dense_grid()
+        .map_or(0, |g| size_of_val(g.data()) as u64);
+    let before_copy = PROCESS_BASE_BYTES.saturating_add(held);
+    let bake = output.saturating_add(layered(dense));
+    let without = before_copy.saturating_add(bake.max(opening));
+    let allowed = crate::bake::dense_copy_limit(&BakeOptions {
+        dense_copy_bytes: limit.saturating_sub(without),
+        ..opts.clone()
+    });
+    let copy = source
+        .dense_copy_size()
+        .filter(|&c| c <= allowed)
+        .unwrap_or(0);
+    let bake = output
+        .saturating_add(copy)
+        .saturating_add(layered(dense.max(copy)));
+    (before_copy.saturating_add(bake.max(opening)), copy)
 }
 
 /// Hex xxh3-128 of a file, streamed (a large volume is not read twice into memory): the
@@ -404,26 +457,33 @@ pub fn bake_to_file(
         ..BakeOptions::default()
     };
     let input_bytes = match &input {
-        // f32 voxels in memory: up to 4x the file for 8-bit input; a VDB's leaves and the
-        // worker's copy up to 8x its compressed file.
+        // f32 voxels in memory: up to 4x the file for 8-bit input. A VDB's leaves are not
+        // guessed from its (compressed) size: the worker counts them before they are read,
+        // and the source refuses a table larger than what the budget leaves it (below).
         BakeInput::Source(spec) => match spec_path(spec) {
-            None => 0,
-            Some(p) => {
-                let len = std::fs::metadata(p).map(|m| m.len()).unwrap_or(0);
-                let factor = if matches!(spec, SourceSpec::Raw(..)) {
-                    4
-                } else {
-                    8
-                };
-                len.saturating_mul(factor)
-            }
+            Some(p) if matches!(spec, SourceSpec::Raw(..)) => std::fs::metadata(p)
+                .map(|m| m.len())
+                .unwrap_or(0)
+                .saturating_mul(4),
+            _ => 0,
         },
         // Already in memory; the grid takes it over without a copy.
         BakeInput::Array { .. } => 0,
     };
     let what = format!("baking {name}");
-    let need = crate::bake::estimate_output_bytes(&probe).saturating_add(input_bytes);
+    let need = crate::bake::estimate_output_bytes(&probe)
+        .saturating_add(input_bytes)
+        .saturating_add(PROCESS_BASE_BYTES);
     budget.check(&what, need)?;
+    #[cfg(feature = "vdb")]
+    let input = match input {
+        BakeInput::Source(SourceSpec::Vdb(path, mut o)) => {
+            let left = budget.limit.saturating_sub(need);
+            o.max_leaf_bytes = Some(o.max_leaf_bytes.map_or(left, |m| m.min(left)));
+            BakeInput::Source(SourceSpec::Vdb(path, o))
+        }
+        other => other,
+    };
     // The temp file beside the target exists from here on, registered for removal on
     // SIGINT/SIGTERM; a stale one of an earlier killed bake is swept away by its creation.
     let pending = PendingPin::create(output).map_err(|source| PlanError::Write {
@@ -483,12 +543,10 @@ pub fn bake_to_file(
     let mut opts = options(req, &choice, metadata);
     // The check above assumed the default's size; a chosen bake may be larger, and a large
     // dense grid is marched by layers with a batch of per-pin state beside it.
-    let need = crate::bake::estimate_output_bytes(&opts)
-        .saturating_add(input_bytes)
-        .saturating_add(crate::bake::estimate_working_bytes(&opts));
+    let (need, copy) = memory_estimate(source.as_ref(), &opts, input_bytes, budget.limit);
     budget.check(&what, need)?;
     // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
-    opts.dense_copy_bytes = budget.limit.saturating_sub(need);
+    opts.dense_copy_bytes = budget.limit.saturating_sub(need.saturating_sub(copy));
 
     progress.start(crate::bake::pin_count(&opts));
     let started = Instant::now();
@@ -517,6 +575,7 @@ pub fn bake_to_file(
         grid,
         stats,
         choice,
+        memory_estimate_bytes: need,
         written: target,
         output: output.to_path_buf(),
         file_bytes,

@@ -514,8 +514,9 @@ fn sizes_beyond_memory_fail_before_allocating() {
         (&["--embed-density", "2000"], 1, "memory budget"),
         (&["--embed-density", "1024"], 1, "memory budget"),
         // The estimate counts the f16 grid (2 GiB) plus the default bake's pins, index and
-        // majorant grid (at their upper bound, 20^3 cells x 256 directions): just above 2 GiB.
-        (&["--embed-density", "1024"], 1, "2180300032 bytes"),
+        // majorant grid (at their upper bound, 20^3 cells x 256 directions) and the process
+        // base (24 MiB, `plan::PROCESS_BASE_BYTES`): just above 2 GiB.
+        (&["--embed-density", "1024"], 1, "2205465856 bytes"),
         (&["--majorant", "2000"], 1, "memory budget"),
         (&["--cells", "300", "--majorant", "0"], 1, "memory budget"),
         (&["--embed-density", "5000"], 2, "at most 4096"),

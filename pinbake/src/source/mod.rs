@@ -115,6 +115,19 @@ pub trait DensitySource: Send + Sync {
         None
     }
 
+    /// What the source holds in memory, when it can say exactly (a VDB's leaf table):
+    /// `held` now, and `while_opening` at most while it was opened (with its reader process).
+    /// `None` (the default): the caller estimates from the input's size.
+    fn footprint(&self) -> Option<Footprint> {
+        None
+    }
+
+    /// The bytes [`Self::dense_copy`] would allocate when it makes a copy at all (given
+    /// enough budget), or `None` when it never does; for memory estimates.
+    fn dense_copy_size(&self) -> Option<u64> {
+        None
+    }
+
     /// A box-filtered dense level ([`Mip`]) with voxels of about `step` world units, for a
     /// bake that marches at that step. `Ok(None)` (the default) means "sample the source
     /// itself": analytic fields, grids whose voxels already match the step, and grids whose
@@ -137,6 +150,15 @@ pub trait DensitySource: Send + Sync {
             *o = self.extinction(origin + step * i as f64);
         }
     }
+}
+
+/// The memory a source holds: [`DensitySource::footprint`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Footprint {
+    /// Bytes held once open.
+    pub held: u64,
+    /// Bytes held at most while opening, its reader process included.
+    pub while_opening: u64,
 }
 
 /// Everything that can go wrong while opening a source. Every message is a single line and
@@ -165,6 +187,9 @@ pub enum SourceError {
     /// An option is out of range (density scale, spacing, ...), independent of any file.
     #[error("invalid option: {}", one_line(.0))]
     InvalidOption(String),
+    /// The source would need more memory than the caller's budget allows.
+    #[error("{}: {}", .path.display(), one_line(.message))]
+    Memory { path: PathBuf, message: String },
     /// The source was built in without the cargo feature it needs.
     #[error("{}: {}", .path.display(), one_line(.message))]
     Unsupported { path: PathBuf, message: String },

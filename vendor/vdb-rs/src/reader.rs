@@ -164,6 +164,34 @@ impl<R: Read + Seek> VdbReader<R> {
         Self::read_grid_internal(&self.header, &mut self.reader, gd)
     }
 
+    /// The grid `name` without its leaf values: the transform and the whole tree topology
+    /// (every node's masks, the internal nodes' tile values, the root tiles), each leaf's
+    /// `buffer` left empty, and a [`LeafData`] that reads the leaf values one leaf at a time.
+    /// For a reader that processes a large grid leaf by leaf without holding every value in
+    /// memory at once.
+    pub fn read_grid_topology<ExpectedTy: Pod>(
+        &mut self,
+        name: &str,
+    ) -> Result<(Grid<ExpectedTy>, LeafData<'_, R>), ParseError> {
+        let grid_descriptor = self.grid_descriptors.get(name).cloned();
+        let gd = grid_descriptor.ok_or_else(|| ParseError::InvalidGridName(name.to_owned()))?;
+        let (transform, tree) = Self::read_grid_head(&self.header, &mut self.reader, &gd)?;
+        let leaves = LeafData {
+            reader: &mut self.reader,
+            header: &self.header,
+            gd: gd.clone(),
+            started: false,
+        };
+        Ok((
+            Grid {
+                tree,
+                transform,
+                descriptor: gd,
+            },
+            leaves,
+        ))
+    }
+
     pub fn available_grids(&self) -> Vec<String> {
         self.grid_descriptors.keys().cloned().collect()
     }
@@ -643,6 +671,21 @@ impl<R: Read + Seek> VdbReader<R> {
         reader: &mut R,
         gd: GridDescriptor,
     ) -> Result<Grid<ValueTy>, ParseError> {
+        let (transform, mut tree) = Self::read_grid_head(header, reader, &gd)?;
+        Self::read_tree_data(header, &gd, reader, &mut tree)?;
+        Ok(Grid {
+            tree,
+            transform,
+            descriptor: gd,
+        })
+    }
+
+    /// The transform and the tree topology of `gd` (everything but the leaf values).
+    fn read_grid_head<ValueTy: Pod>(
+        header: &ArchiveHeader,
+        reader: &mut R,
+        gd: &GridDescriptor,
+    ) -> Result<(Map, Tree<ValueTy>), ParseError> {
         gd.seek_to_grid(reader).unwrap();
         // Having to re-do this is ugly, as we already did this while parsing the descriptor
         if header.file_version >= OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION {
@@ -652,14 +695,8 @@ impl<R: Read + Seek> VdbReader<R> {
 
         if header.file_version >= OPENVDB_FILE_VERSION_GRID_INSTANCING {
             let transform = Self::read_transform(reader)?;
-            let mut tree = Self::read_tree_topology(header, &gd, reader)?;
-            Self::read_tree_data(header, &gd, reader, &mut tree)?;
-
-            Ok(Grid {
-                tree,
-                transform,
-                descriptor: gd,
-            })
+            let tree = Self::read_tree_topology(header, gd, reader)?;
+            Ok((transform, tree))
         } else {
             todo!("Old file version not supported {}", header.file_version);
         }
@@ -739,5 +776,44 @@ impl TryFrom<u32> for Compression {
 
     fn try_from(v: u32) -> Result<Compression, ParseError> {
         Self::from_bits(v).ok_or(ParseError::InvalidCompression(v))
+    }
+}
+
+/// The leaf values of a grid read by [`VdbReader::read_grid_topology`], one leaf at a time.
+///
+/// [`LeafData::next_leaf`] must be called for every leaf in the tree's own order: the root
+/// nodes in turn, in each the children of the 32^3 node in `child_mask.iter_ones()` order,
+/// in each of those its leaves in `child_mask.iter_ones()` order (the order the file stores
+/// them in, and the order `read_grid` fills them in).
+pub struct LeafData<'a, R: Read + Seek> {
+    reader: &'a mut R,
+    header: &'a ArchiveHeader,
+    gd: GridDescriptor,
+    started: bool,
+}
+
+impl<R: Read + Seek> LeafData<'_, R> {
+    /// The 512 values of the next leaf, inactive values expanded as `read_grid` does.
+    pub fn next_leaf<T: Pod>(&mut self) -> Result<Vec<T>, ParseError> {
+        if !self.started {
+            self.gd.seek_to_blocks(self.reader)?;
+            self.started = true;
+        }
+        let reader = &mut *self.reader;
+        let linear_dim = (1 << (3 * 3)) as usize;
+        let mut value_mask = bitvec![u64, Lsb0; 0; linear_dim];
+        reader.read_u64_into::<LittleEndian>(value_mask.as_raw_mut_slice())?;
+        if self.header.file_version < OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION {
+            let _origin = read_i_vec3(reader)?;
+            let num_buffers = reader.read_u8()?;
+            assert_eq!(num_buffers, 1);
+        }
+        VdbReader::<R>::read_compressed(
+            reader,
+            self.header,
+            &self.gd,
+            linear_dim,
+            value_mask.as_bitslice(),
+        )
     }
 }

@@ -9,9 +9,12 @@
 //! timeout, with `catch_unwind` inside as well. The worker checks what vdb-rs does not (the
 //! magic, the file version, the grid's transform type, the `file_bbox_*` metadata against
 //! absurd or inverted boxes) before handing the file to vdb-rs, then streams a compact binary
-//! description to stdout: the grid list, the chosen grid's transform, and its non-empty leaf
-//! nodes (origin + 512 values) and constant tiles. The parent re-validates every count and
-//! value in that stream and builds a sparse table, never a dense grid.
+//! description to stdout: the grid list, the chosen grid's transform, the leaf count, and its
+//! non-empty leaf nodes (origin + 512 values, as f16 bits for half data) and constant tiles.
+//! The worker reads the topology first and then one leaf's values at a time, so it never
+//! holds the grid's values. The parent re-validates every count and value in that stream and
+//! builds a sparse table, sized once from the count (and refused against
+//! `VdbOptions::max_leaf_bytes` before a leaf is read), never a dense grid.
 //!
 //! # Placement and sampling
 //!
@@ -70,6 +73,10 @@ pub fn serve_vdb_worker_if_asked(args: &[std::ffi::OsString]) -> Option<std::pro
 /// Largest accepted extent of a grid, per axis, in voxels (OpenImageIO uses the same).
 pub const MAX_AXIS_VOXELS: i64 = 1 << 20;
 const MIB: u64 = 1 << 20;
+/// The slowest read rate of a valid file that the worker's timeout allows for: a timeout of
+/// at least the file size over this rate, whatever [`VdbOptions::timeout`] says (a 3 GB
+/// cloud takes more than a minute on a loaded 2-core machine).
+pub const MIN_READ_BYTES_PER_S: f64 = 8e6;
 
 /// How to open a VDB file.
 #[derive(Clone, Debug, PartialEq)]
@@ -86,6 +93,11 @@ pub struct VdbOptions {
     pub memory_limit: Option<u64>,
     /// Wall-clock limit of the worker.
     pub timeout: Duration,
+    /// The most bytes the grid's leaf table may take in this process (values and per-leaf
+    /// overhead, [`VdbSource::memory_bytes`]): a grid that needs more is refused with
+    /// [`SourceError::Memory`] as soon as the worker has counted its leaves, before they are
+    /// read. `None`: no limit beyond what the allocator gives.
+    pub max_leaf_bytes: Option<u64>,
 }
 
 impl Default for VdbOptions {
@@ -97,6 +109,7 @@ impl Default for VdbOptions {
             worker_exe: std::env::current_exe().unwrap_or_else(|_| PathBuf::from("pinbake")),
             memory_limit: None,
             timeout: Duration::from_secs(60),
+            max_leaf_bytes: None,
         }
     }
 }
@@ -138,6 +151,7 @@ pub use spawn::WORKER_ENV;
 #[cfg(test)]
 mod tests {
     use super::*;
+    use source::Leaves;
 
     fn data(name: &str) -> PathBuf {
         PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../data")).join(name)
@@ -199,6 +213,177 @@ mod tests {
             nonzero += usize::from(b > 0.0);
         }
         assert!(nonzero > 5_000, "{nonzero}");
+    }
+
+    /// A stream of `origins` leaves, each with every voxel set to `value`.
+    fn stream_of(origins: &[[i32; 3]], value: f32) -> Stream {
+        Stream {
+            grids: vec![gi("density", "Tree_float_5_4_3")],
+            chosen: 0,
+            kind: ValueKind::Float,
+            level_set: false,
+            xf: [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            origins: origins.to_vec(),
+            leaves: LeafValues::F32(vec![[value; 512]; origins.len()]),
+            tiles: Vec::new(),
+            active: 512 * origins.len() as u64,
+            negatives: 0,
+        }
+    }
+
+    /// A half grid keeps its leaves as 16-bit patterns (half the bytes of f32) with the
+    /// values a scaled f32 copy would hold, bit for bit.
+    #[test]
+    fn half_leaves_hold_the_scaled_values_at_half_the_bytes() {
+        let p = data("openvdb_smoke1.vdb");
+        let size = std::fs::metadata(&p).unwrap().len();
+        let mut buf = Vec::new();
+        worker_run(&p, None, false, &mut buf).unwrap();
+        let scale = DensityScale::new(0.37).unwrap();
+        let st = parse_stream(&buf[..], size).unwrap();
+        let LeafValues::Half(bits) = &st.leaves else {
+            panic!("the smoke is half: its leaves must travel as f16");
+        };
+        let (first_origin, first_bits) = (IVec3::from_array(st.origins[0]), bits[0]);
+        let s = VdbSource::from_stream(&p, st, scale).unwrap();
+        let Leaves::Half(kept, _) = &s.leaves else {
+            panic!("half leaves must stay f16");
+        };
+        assert!(s.memory_bytes() < kept.len() as u64 * 1100 + (300 << 10));
+        assert!(s.memory_bytes() >= kept.len() as u64 * 1024);
+        let mut nonzero = 0;
+        for (k, b) in first_bits.iter().enumerate() {
+            let want = scale
+                .apply(f64::from(half::f16::from_bits(*b).to_f32()))
+                .unwrap();
+            let at = first_origin + IVec3::from_array(local(k, 3));
+            assert_eq!(s.voxel(at).to_bits(), want.to_bits(), "{at}");
+            nonzero += usize::from(want != 0.0);
+        }
+        assert!(nonzero > 0);
+    }
+
+    /// The worker announces its leaf count first; a table larger than the limit is refused
+    /// before a leaf is read, and a limit it fits in reads the same grid.
+    #[test]
+    fn a_leaf_table_over_the_limit_is_refused_before_it_is_read() {
+        let p = data("openvdb_smoke1.vdb");
+        let size = std::fs::metadata(&p).unwrap().len();
+        let mut buf = Vec::new();
+        worker_run(&p, None, false, &mut buf).unwrap();
+        let full = parse_stream(&buf[..], size).unwrap();
+        let need = leaf_table_bytes(full.origins.len() as u64, LEAF_HALF);
+        match parse_stream_within(&buf[..], size, need - 1) {
+            Err(StreamError::Budget { need: n, limit }) => {
+                assert_eq!((n, limit), (need, need - 1));
+            }
+            Err(e) => panic!("expected a budget refusal, got {e}"),
+            Ok(_) => panic!("expected a budget refusal"),
+        }
+        let fits = parse_stream_within(&buf[..], size, need).unwrap();
+        assert_eq!(fits.origins, full.origins);
+        // The count follows the magic, the grid list, the choice, kind, class and map.
+        let mut off = 8 + 4;
+        for g in &full.grids {
+            off += 12 + g.name.len() + g.grid_type.len() + g.class.len();
+        }
+        off += 4 + 1 + 1 + 96;
+        let announced = u64::from_le_bytes(buf[off..off + 8].try_into().unwrap());
+        assert!(announced >= full.origins.len() as u64);
+        // More leaves than announced is a bad stream.
+        let mut fewer = buf.clone();
+        let short = full.origins.len() as u64 - 1;
+        fewer[off..off + 8].copy_from_slice(&short.to_le_bytes());
+        let e = parse_stream(&fewer[..], size).err().unwrap();
+        assert!(e.contains("more than the"), "{e}");
+    }
+
+    /// No dense copy that would be mostly zeros: two leaves far apart keep the tree, one
+    /// leaf (a full box) is copied.
+    #[test]
+    fn no_dense_copy_of_a_mostly_empty_box() {
+        let p = data("openvdb_smoke1.vdb");
+        let one =
+            VdbSource::from_stream(&p, stream_of(&[[0, 0, 0]], 0.5), DensityScale::ONE).unwrap();
+        assert_eq!(one.stored_voxels(), 512);
+        assert!(one.dense_copy(u64::MAX).is_some());
+        assert_eq!(one.dense_copy_size(), Some(10 * 10 * 10 * 4));
+        let two = VdbSource::from_stream(
+            &p,
+            stream_of(&[[0, 0, 0], [64, 0, 0]], 0.5),
+            DensityScale::ONE,
+        )
+        .unwrap();
+        assert_eq!(two.stored_voxels(), 1024);
+        assert!(two.dense_copy(u64::MAX).is_none());
+        assert_eq!(two.dense_copy_size(), None);
+        // The tree samples both leaves all the same.
+        assert_eq!(two.voxel(IVec3::new(67, 3, 3)), 0.5);
+        assert_eq!(two.voxel(IVec3::new(30, 3, 3)), 0.0);
+    }
+
+    /// Cells on a leaf's faces, edges and corners read their corners across the blocks (the
+    /// lookup per block must equal one lookup per voxel).
+    #[test]
+    fn corners_across_blocks_equal_voxel_lookups() {
+        let p = data("openvdb_smoke1.vdb");
+        let mut st = stream_of(&[[0, 0, 0], [8, 0, 0], [0, 8, 8], [8, 8, 8]], 0.0);
+        if let LeafValues::F32(v) = &mut st.leaves {
+            for (n, leaf) in v.iter_mut().enumerate() {
+                for (k, x) in leaf.iter_mut().enumerate() {
+                    *x = (n * 512 + k) as f32;
+                }
+            }
+        }
+        let s = VdbSource::from_stream(&p, st, DensityScale::ONE).unwrap();
+        for x in -1..16 {
+            for y in -1..16 {
+                for z in -1..16 {
+                    let i = IVec3::new(x, y, z);
+                    let want: [f32; 8] = std::array::from_fn(|n| {
+                        let d = IVec3::new((n & 1) as i32, ((n >> 1) & 1) as i32, (n >> 2) as i32);
+                        s.voxel(i + d)
+                    });
+                    assert_eq!(s.corners(i), want, "{i}");
+                }
+            }
+        }
+    }
+
+    /// The dense block index answers every lookup as the hash table does: the same
+    /// samples, bit for bit, with and without it.
+    #[test]
+    fn the_block_index_samples_as_the_hash_table() {
+        let indexed = in_process("openvdb_smoke1.vdb", None, false).unwrap();
+        assert!(indexed.index.is_some(), "the smoke's blocks are compact");
+        let mut hashed = in_process("openvdb_smoke1.vdb", None, false).unwrap();
+        hashed.index = None;
+        let b = indexed.bounds();
+        let mut rng = crate::rng::CounterRng::new(5, 0, 0);
+        let mut nonzero = 0;
+        for _ in 0..100_000 {
+            let f = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+            let p = b.min + f * b.extent();
+            let (x, y) = (indexed.extinction(p), hashed.extinction(p));
+            assert_eq!(x.to_bits(), y.to_bits(), "{p}");
+            nonzero += usize::from(x > 0.0);
+        }
+        assert!(nonzero > 10_000, "{nonzero}");
+        let whole = Aabb::new(b.min, b.max);
+        assert_eq!(
+            indexed.max_extinction_in(whole),
+            hashed.max_extinction_in(whole)
+        );
+        // Far-apart blocks keep the hash table alone.
+        let p = data("openvdb_smoke1.vdb");
+        let sparse = VdbSource::from_stream(
+            &p,
+            stream_of(&[[0, 0, 0], [800, 0, 0]], 1.0),
+            DensityScale::ONE,
+        )
+        .unwrap();
+        assert!(sparse.index.is_none());
+        assert_eq!(sparse.voxel(IVec3::new(803, 1, 1)), 1.0);
     }
 
     #[test]

@@ -320,22 +320,22 @@ pub(super) fn worker_run(
     let name = info.name.as_str();
     match kind {
         ValueKind::Float | ValueKind::FloatSavedAsHalf => {
-            let g = reader
-                .read_grid::<f32>(name)
+            let (g, mut leaves) = reader
+                .read_grid_topology::<f32>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, version, level_set, &shown, out)
+            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, out)
         }
         ValueKind::Half => {
-            let g = reader
-                .read_grid::<u16>(name)
+            let (g, mut leaves) = reader
+                .read_grid_topology::<u16>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, version, level_set, &shown, out)
+            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, out)
         }
         ValueKind::Double => {
-            let g = reader
-                .read_grid::<f64>(name)
+            let (g, mut leaves) = reader
+                .read_grid_topology::<f64>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, version, level_set, &shown, out)
+            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, out)
         }
     }
 }
@@ -425,9 +425,15 @@ pub(super) fn tile_values<T: Val>(
     Ok(v)
 }
 
-/// Emits the transform, leaves, tiles and the trailer.
-pub(super) fn emit_grid<T: Val>(
+/// Emits the transform, the leaf count and encoding, the leaves, tiles and the trailer.
+///
+/// `g` is the topology only: each leaf's values are read from `leaves` as the walk reaches
+/// it (the file's order) and sent on at once, so the worker holds one leaf's values at a
+/// time, not the grid's (a 1.5 G-voxel cloud would otherwise need 6 GB here).
+pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     g: &vdb_rs::Grid<T>,
+    leaves: &mut vdb_rs::LeafData<'_, R>,
+    kind: ValueKind,
     version: u32,
     level_set: bool,
     shown: &str,
@@ -436,6 +442,20 @@ pub(super) fn emit_grid<T: Val>(
     for v in affine_rows(&g.transform, shown)? {
         put_f64(out, v)?;
     }
+    // The parent sizes its leaf table from this count before the first leaf arrives.
+    let leaf_count: u64 = g
+        .tree
+        .root_nodes
+        .iter()
+        .flat_map(|n5| n5.nodes.values())
+        .map(|n4| n4.nodes.len() as u64)
+        .sum();
+    put_u64(out, leaf_count)?;
+    // Half values travel (and are kept) as their 16 bits: every value of a half grid, a
+    // float grid saved as half and a level set's 0 and 1 is exact in half.
+    let half = level_set || matches!(kind, ValueKind::FloatSavedAsHalf | ValueKind::Half);
+    let encoding = if half { LEAF_HALF } else { LEAF_F32 };
+    put_u8(out, encoding)?;
 
     let mut active: u64 = 0;
     let mut negatives: u64 = 0;
@@ -463,10 +483,11 @@ pub(super) fn emit_grid<T: Val>(
                     .nodes
                     .get(&(i4 as u32))
                     .ok_or("leaf node missing (corrupt file)")?;
-                if leaf.buffer.len() != 512 {
+                let buffer: Vec<T> = leaves.next_leaf().map_err(|e| read_err(shown, e))?;
+                if buffer.len() != 512 {
                     return Err(format!(
                         "leaf has {} values, expected 512 (corrupt file)",
-                        leaf.buffer.len()
+                        buffer.len()
                     ));
                 }
                 let o3 = child_origin(o4, i4, 4, 3)?;
@@ -474,7 +495,7 @@ pub(super) fn emit_grid<T: Val>(
                 active += mask.count_ones(512);
                 let mut any = false;
                 if level_set {
-                    let vals: Vec<f32> = leaf.buffer.iter().map(|v| v.to_f32()).collect();
+                    let vals: Vec<f32> = buffer.iter().map(|v| v.to_f32()).collect();
                     let inside = leaf_inside(&vals, mask);
                     leaf_first_last.insert(i4, (inside[0], inside[511]));
                     for (o, ins) in leaf_buf.iter_mut().zip(inside.iter()) {
@@ -483,11 +504,7 @@ pub(super) fn emit_grid<T: Val>(
                     }
                 } else {
                     for (k, o) in leaf_buf.iter_mut().enumerate() {
-                        let v = if mask.get(k) {
-                            leaf.buffer[k].to_f32()
-                        } else {
-                            0.0
-                        };
+                        let v = if mask.get(k) { buffer[k].to_f32() } else { 0.0 };
                         if !v.is_finite() {
                             let l = local(k, 3);
                             return Err(format!(
@@ -507,8 +524,15 @@ pub(super) fn emit_grid<T: Val>(
                 if any {
                     put_u8(out, TAG_LEAF)?;
                     put_ivec(out, o3)?;
-                    let bytes: &[u8] = bytemuck::cast_slice(&leaf_buf);
-                    out.write_all(bytes).map_err(wr)?;
+                    if half {
+                        let mut bits = [0u16; 512];
+                        for (b, v) in bits.iter_mut().zip(&leaf_buf) {
+                            *b = half::f16::from_f32(*v).to_bits();
+                        }
+                        out.write_all(bytemuck::cast_slice(&bits)).map_err(wr)?;
+                    } else {
+                        out.write_all(bytemuck::cast_slice(&leaf_buf)).map_err(wr)?;
+                    }
                 }
             }
             // Node4 tiles (8^3 each).

@@ -10,6 +10,130 @@ pub(super) enum Block {
     Const(f32),
 }
 
+/// The leaf values as the samplers read them, in the order `Block::Dense` indexes them
+/// (OpenVDB's order inside a leaf: `x * 64 + y * 8 + z`).
+pub(super) enum Leaves {
+    /// Scaled f32 values.
+    F32(Vec<[f32; 512]>),
+    /// f16 bit patterns and the scaled f32 value of every pattern (a 256 KiB table): the
+    /// values a scaled f32 copy would hold, bit for bit, at half its bytes.
+    Half(Vec<[u16; 512]>, Box<[f32]>),
+}
+
+impl Leaves {
+    pub(super) fn len(&self) -> usize {
+        match self {
+            Leaves::F32(v) => v.len(),
+            Leaves::Half(v, _) => v.len(),
+        }
+    }
+
+    pub(super) fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Voxel `k` of leaf `leaf`.
+    #[inline(always)]
+    pub(super) fn get(&self, leaf: usize, k: usize) -> f32 {
+        match self {
+            Leaves::F32(v) => v[leaf][k],
+            Leaves::Half(v, lut) => lut[v[leaf][k] as usize],
+        }
+    }
+
+    /// The eight corners of the cell whose lower corner is voxel `b` of leaf `leaf` (all
+    /// inside the leaf), in the order x, then y, then z varying fastest-to-slowest.
+    #[inline(always)]
+    pub(super) fn cell(&self, leaf: usize, b: usize) -> [f32; 8] {
+        const OFF: [usize; 8] = [0, 64, 8, 72, 1, 65, 9, 73];
+        match self {
+            Leaves::F32(v) => {
+                let l = &v[leaf];
+                OFF.map(|o| l[b + o])
+            }
+            Leaves::Half(v, lut) => {
+                let l = &v[leaf];
+                OFF.map(|o| lut[l[b + o] as usize])
+            }
+        }
+    }
+}
+
+/// Every 8^3 block of the stored blocks' box, x fastest: the table [`VdbSource::block`]
+/// reads instead of hashing, where it is at most [`BLOCK_INDEX_SLOTS_PER_BLOCK`] slots per
+/// stored block (a compact cloud; a few blocks far apart keep the hash table alone).
+pub(super) struct BlockIndex {
+    lo: IVec3,
+    dims: IVec3,
+    slots: Vec<Option<Block>>,
+}
+
+/// See [`BlockIndex`]: 8 bytes a slot, so at most 32 bytes of index per stored block.
+pub const BLOCK_INDEX_SLOTS_PER_BLOCK: u64 = 4;
+
+impl BlockIndex {
+    /// The index of `entries` (block keys and blocks), or `None` when its box would hold
+    /// more than [`BLOCK_INDEX_SLOTS_PER_BLOCK`] slots per entry or cannot be allocated.
+    pub(super) fn build(entries: &[(IVec3, Block)]) -> Option<Self> {
+        let (mut lo, mut hi) = (IVec3::MAX, IVec3::MIN);
+        for (k, _) in entries {
+            lo = lo.min(*k);
+            hi = hi.max(*k);
+        }
+        if entries.is_empty() {
+            return None;
+        }
+        let n = (hi.as_i64vec3() - lo.as_i64vec3()) + 1;
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        if count > BLOCK_INDEX_SLOTS_PER_BLOCK.saturating_mul(entries.len() as u64) {
+            return None;
+        }
+        let mut slots = Vec::new();
+        slots.try_reserve_exact(usize::try_from(count).ok()?).ok()?;
+        slots.resize(count as usize, None);
+        let mut ix = Self {
+            lo,
+            dims: n.as_ivec3(),
+            slots,
+        };
+        for (k, b) in entries {
+            let at = ix.slot(*k)?;
+            ix.slots[at] = Some(*b);
+        }
+        Some(ix)
+    }
+
+    #[inline(always)]
+    fn slot(&self, k: IVec3) -> Option<usize> {
+        let r = k - self.lo;
+        if r.cmplt(IVec3::ZERO).any() || r.cmpge(self.dims).any() {
+            return None;
+        }
+        Some(
+            r.x as usize
+                + self.dims.x as usize * (r.y as usize + self.dims.y as usize * r.z as usize),
+        )
+    }
+
+    #[inline(always)]
+    pub(super) fn get(&self, k: IVec3) -> Option<Block> {
+        self.slot(k).and_then(|i| self.slots[i])
+    }
+
+    pub(super) fn bytes(&self) -> u64 {
+        (self.slots.len() * size_of::<Option<Block>>()) as u64
+    }
+}
+
+/// A block resolved through the tree: [`VdbSource::block_at`].
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Resolved {
+    Leaf(u32),
+    Const(f32),
+}
+
 /// Fast hasher for packed integer keys (the std SipHash is ~4x slower here and the keys are
 /// not attacker-chosen in a way that matters: a slow file only slows its own bake).
 #[derive(Default)]
@@ -49,6 +173,8 @@ pub(super) fn pack(k: IVec3, base: IVec3) -> Option<u64> {
 pub struct VdbSource {
     pub(super) blocks: KeyMap<Block>,
     pub(super) block_base: IVec3,
+    /// The blocks as a dense table over their box, where it is small ([`BlockIndex`]).
+    pub(super) index: Option<BlockIndex>,
     /// 128^3 constant tiles keyed by `index >> 7`.
     pub(super) big: KeyMap<f32>,
     pub(super) big_base: IVec3,
@@ -56,7 +182,7 @@ pub struct VdbSource {
     pub(super) huge: KeyMap<f32>,
     pub(super) huge_base: IVec3,
     /// Leaf values, OpenVDB order (`x * 64 + y * 8 + z`).
-    pub(super) leaves: Vec<[f32; 512]>,
+    pub(super) leaves: Leaves,
     pub(super) leaf_max: Vec<f32>,
     /// Index to world: `world = lin * index + translation`.
     pub(super) lin: DMat3,
@@ -76,7 +202,15 @@ pub struct VdbSource {
     /// A dense copy of the active box that the samplers read instead of the tree
     /// ([`VdbSource::with_dense_cache`]).
     pub(super) cache: Option<DenseCache>,
+    /// What the worker process held at most beside this process's table while the grid
+    /// was read: its tree topology (estimated per leaf, [`WORKER_BYTES_PER_LEAF`]).
+    pub(super) reader_peak_bytes: u64,
 }
+
+/// The worker's memory per leaf of the file: vdb-rs keeps every leaf's node (value mask,
+/// origin, an empty buffer) and its hash-table slot while the values stream through.
+/// Measured: 83 MB for the 539 K leaves of the 263 M-voxel cloud, about 155 bytes each.
+pub const WORKER_BYTES_PER_LEAF: u64 = 160;
 
 /// Every voxel of the index box `[lo, lo + dims)` (the active box and a border of one zero
 /// voxel), x fastest: what [`VdbSource::sample_index`] reads in place of the tree.
@@ -109,8 +243,42 @@ impl VdbSource {
         let limit = opt
             .memory_limit
             .unwrap_or_else(|| default_memory_limit(file_size));
-        let stream = run_worker(path, opt, file_size, limit).map_err(fail)?;
+        // A large valid file takes a while to read: the timeout guards against a reader
+        // that hangs, so it never cuts a read short that runs at a plausible rate.
+        let floor = Duration::from_secs_f64(file_size as f64 / MIN_READ_BYTES_PER_S);
+        let opt = VdbOptions {
+            timeout: opt.timeout.max(floor),
+            ..opt.clone()
+        };
+        let max_leaf_bytes = opt.max_leaf_bytes.unwrap_or(u64::MAX);
+        let stream = match run_worker(path, &opt, file_size, limit, max_leaf_bytes) {
+            Ok(s) => s,
+            Err(e @ StreamError::Budget { .. }) => {
+                return Err(SourceError::Memory {
+                    path: path.to_path_buf(),
+                    message: e.to_string(),
+                });
+            }
+            Err(StreamError::Message(m)) => return Err(fail(m)),
+        };
         Self::from_stream(path, stream, scale).map_err(fail)
+    }
+
+    /// Bytes this grid holds in memory: its leaf values (f16 or f32), the per-leaf maximum,
+    /// the block table and the dense cache if any. What [`VdbOptions::max_leaf_bytes`]
+    /// bounds, and what a bake counts against its memory budget for the source.
+    pub fn memory_bytes(&self) -> u64 {
+        let leaves = self.leaves.len() as u64;
+        let values = match &self.leaves {
+            Leaves::F32(_) => leaves * 2048,
+            Leaves::Half(_, lut) => leaves * 1024 + (lut.len() * 4) as u64,
+        };
+        let tables = (self.blocks.capacity() + self.big.capacity() + self.huge.capacity()) as u64
+            * 24
+            + (self.leaf_max.capacity() * 4) as u64;
+        let cache = self.cache.as_ref().map_or(0, |c| (c.data.len() * 4) as u64);
+        let index = self.index.as_ref().map_or(0, BlockIndex::bytes);
+        values + tables + cache + index
     }
 
     pub(super) fn from_stream(
@@ -141,7 +309,6 @@ impl VdbSource {
         let mut blocks: KeyMap<Block> = KeyMap::default();
         let mut big: KeyMap<f32> = KeyMap::default();
         let mut huge: KeyMap<f32> = KeyMap::default();
-        let mut leaves = Vec::new();
         let mut leaf_max = Vec::new();
         let mut lo = IVec3::MAX;
         let mut hi = IVec3::MIN;
@@ -158,35 +325,92 @@ impl VdbSource {
             })
         };
         // Keys are collected first so they can be packed relative to their minimum.
-        let mut entries: Vec<(IVec3, Block)> = Vec::with_capacity(st.leaves.len() + st.tiles.len());
+        let mut entries: Vec<(IVec3, Block)> =
+            Vec::with_capacity(st.origins.len() + st.tiles.len());
         let mut big_entries: Vec<(IVec3, f32)> = Vec::new();
         let mut huge_entries: Vec<(IVec3, f32)> = Vec::new();
-        for (o, vals) in &st.leaves {
+        // Scaled in place (f32 leaves) or through a table of the 65536 half patterns (half
+        // leaves, which keep their bits: the same values as scaling each one, at half the
+        // bytes); leaves left all zero are dropped by compacting the table in place, so that
+        // no second copy of the leaves ever exists.
+        let origins = st.origins;
+        let origins_len = origins.len();
+        let mut values = st.leaves;
+        let lut: Option<Box<[f32]>> = match &values {
+            LeafValues::Half(_) => Some(
+                (0..=u16::MAX)
+                    .map(|b| {
+                        let v = half::f16::from_bits(b).to_f32();
+                        if v.is_finite() && v >= 0.0 {
+                            scale.apply(v as f64).unwrap_or(f32::NAN)
+                        } else {
+                            f32::NAN
+                        }
+                    })
+                    .collect(),
+            ),
+            LeafValues::F32(_) => None,
+        };
+        let mut kept = 0usize;
+        for (i, o) in origins.iter().enumerate() {
             let o = IVec3::from_array(*o);
             if (o & 7) != IVec3::ZERO {
                 return Err(format!("worker sent a misaligned leaf at {o}"));
             }
-            let mut scaled = [0f32; 512];
             let mut m = 0.0f32;
-            for (k, v) in vals.iter().enumerate() {
-                let l = local(k, 3);
-                let at = o + IVec3::from_array(l);
-                let s = check(*v, at)?;
+            let mut note = |k: usize, s: f32| {
                 if s != 0.0 {
+                    let at = o + IVec3::from_array(local(k, 3));
                     lo = lo.min(at);
                     hi = hi.max(at);
                 }
                 m = m.max(s);
-                scaled[k] = s;
+            };
+            match (&mut values, &lut) {
+                (LeafValues::F32(v), _) => {
+                    for (k, x) in v[i].iter_mut().enumerate() {
+                        let s = check(*x, o + IVec3::from_array(local(k, 3)))?;
+                        note(k, s);
+                        *x = s;
+                    }
+                    v.swap(kept, i);
+                }
+                (LeafValues::Half(v), Some(lut)) => {
+                    for (k, b) in v[i].iter().enumerate() {
+                        let s = lut[*b as usize];
+                        if s.is_nan() {
+                            // The same message as scaling the value itself would give.
+                            let raw = half::f16::from_bits(*b).to_f32();
+                            check(raw, o + IVec3::from_array(local(k, 3)))?;
+                        }
+                        note(k, s);
+                    }
+                    v.swap(kept, i);
+                }
+                (LeafValues::Half(_), None) => unreachable!("half leaves always have a table"),
             }
             if m == 0.0 {
                 continue;
             }
             global_max = global_max.max(m);
-            entries.push((o >> 3, Block::Dense(leaves.len() as u32)));
-            leaves.push(scaled);
+            entries.push((o >> 3, Block::Dense(kept as u32)));
             leaf_max.push(m);
+            kept += 1;
         }
+        drop(origins);
+        let leaves = match (values, lut) {
+            (LeafValues::F32(mut v), _) => {
+                v.truncate(kept);
+                v.shrink_to_fit();
+                Leaves::F32(v)
+            }
+            (LeafValues::Half(mut v), Some(lut)) => {
+                v.truncate(kept);
+                v.shrink_to_fit();
+                Leaves::Half(v, lut)
+            }
+            (LeafValues::Half(_), None) => unreachable!("half leaves always have a table"),
+        };
         for (o, level, v) in &st.tiles {
             let o = IVec3::from_array(*o);
             let s = check(*v, o)?;
@@ -233,6 +457,7 @@ impl VdbSource {
             ));
         }
         let block_base = lo >> 3;
+        let index = BlockIndex::build(&entries);
         for (k, b) in entries {
             let key = pack(k, block_base).ok_or("block key out of range")?;
             if blocks.insert(key, b).is_some() {
@@ -305,6 +530,7 @@ impl VdbSource {
         Ok(Self {
             blocks,
             block_base,
+            index,
             big,
             big_base,
             huge,
@@ -322,6 +548,7 @@ impl VdbSource {
             global_max,
             label,
             cache: None,
+            reader_peak_bytes: (origins_len as u64).saturating_mul(WORKER_BYTES_PER_LEAF),
         })
     }
 
@@ -373,10 +600,8 @@ impl VdbSource {
             for z in klo.z..=khi.z {
                 for y in klo.y..=khi.y {
                     for x in klo.x..=khi.x {
-                        if let Some(b) = pack(IVec3::new(x, y, z), self.block_base)
-                            .and_then(|k| self.blocks.get(&k))
-                        {
-                            m = m.max(block_max(b));
+                        if let Some(b) = self.block(IVec3::new(x, y, z)) {
+                            m = m.max(block_max(&b));
                         }
                     }
                 }
@@ -425,8 +650,10 @@ impl VdbSource {
     /// The grid as a [`DenseGrid`] with the same values and the same trilinear field, for a
     /// bake that marches it with [`DenseGrid::march_runs`] instead of walking the tree per
     /// sample; `None` for a rotated or sheared map (its voxels are not boxes of the bake
-    /// frame), an empty grid, or a copy of more than `max_bytes` bytes (or one that cannot be
-    /// allocated).
+    /// frame), an empty grid, a copy of more than `max_bytes` bytes (or one that cannot be
+    /// allocated), or a copy that would be mostly zeros (more than twice the
+    /// [`Self::stored_voxels`]: a cloud in its box, a few leaves far apart), which the bake
+    /// marches through the tree instead.
     ///
     /// The copy holds every voxel centre the trilinear field reaches, one beyond the stored
     /// ones on each side: those are zero, so the dense grid's clamp-to-edge outer half voxel
@@ -449,7 +676,7 @@ impl VdbSource {
         let count = (n.x as u64)
             .checked_mul(n.y as u64)?
             .checked_mul(n.z as u64)?;
-        if count.checked_mul(4)? > max_bytes {
+        if count.checked_mul(4)? > max_bytes || self.stored_voxels() < count / 2 {
             return None;
         }
         // Copy index j along an axis is index `lo + j`, or `hi - j` where the map mirrors it.
@@ -467,6 +694,15 @@ impl VdbSource {
             format!("dense copy of {}", self.label),
         )
         .ok()
+    }
+
+    /// Voxels the tree stores values for: its leaves' and its constant tiles' (a dense copy
+    /// holding more than twice this would be mostly zeros).
+    pub fn stored_voxels(&self) -> u64 {
+        let consts = self.blocks.len() - self.leaves.len();
+        ((self.leaves.len() + consts) as u64 * 512)
+            .saturating_add((self.big.len() as u64) << 21)
+            .saturating_add((self.huge.len() as u64).saturating_mul(1 << 36))
     }
 
     /// The voxels of the index box at `lo` with `n` voxels per axis (`count` in all), x
@@ -554,13 +790,12 @@ impl VdbSource {
     /// Value of one voxel (0 where nothing is stored).
     #[inline]
     pub fn voxel(&self, i: IVec3) -> f32 {
-        if let Some(k) = pack(i >> 3, self.block_base)
-            && let Some(b) = self.blocks.get(&k)
-        {
-            return match *b {
+        if let Some(b) = self.block(i >> 3) {
+            return match b {
                 Block::Dense(l) => {
                     let l8 = i & 7;
-                    self.leaves[l as usize][((l8.x << 6) | (l8.y << 3) | l8.z) as usize]
+                    self.leaves
+                        .get(l as usize, ((l8.x << 6) | (l8.y << 3) | l8.z) as usize)
                 }
                 Block::Const(v) => v,
             };
@@ -605,23 +840,13 @@ impl VdbSource {
                 d[sz + sy + 1],
             ]
         } else if l.x < 7 && l.y < 7 && l.z < 7 {
-            // All eight corners in one block: one hash lookup.
-            match pack(i >> 3, self.block_base).and_then(|k| self.blocks.get(&k)) {
+            // All eight corners in one block: one lookup.
+            match self.block(i >> 3) {
                 Some(Block::Dense(li)) => {
-                    let leaf = &self.leaves[*li as usize];
                     let b = ((l.x << 6) | (l.y << 3) | l.z) as usize;
-                    [
-                        leaf[b],
-                        leaf[b + 64],
-                        leaf[b + 8],
-                        leaf[b + 72],
-                        leaf[b + 1],
-                        leaf[b + 65],
-                        leaf[b + 9],
-                        leaf[b + 73],
-                    ]
+                    self.leaves.cell(li as usize, b)
                 }
-                Some(Block::Const(v)) => [*v; 8],
+                Some(Block::Const(v)) => [v; 8],
                 None if self.big.is_empty() && self.huge.is_empty() => return 0.0,
                 None => self.corners(i),
             }
@@ -637,14 +862,74 @@ impl VdbSource {
         (c0 + (c1 - c0) * t.z).max(0.0)
     }
 
-    /// Corner values in the order (x, then y, then z varying fastest-to-slowest).
+    /// Corner values in the order (x, then y, then z varying fastest-to-slowest). The
+    /// eight corners lie in one to eight blocks; each block is looked up once (a cell on a
+    /// leaf's face touches two, where eight [`Self::voxel`] calls made eight lookups).
     pub(super) fn corners(&self, i: IVec3) -> [f32; 8] {
+        let l = i & 7;
+        let k = i >> 3;
+        // Along each axis the corners stay in block `k` unless the cell starts on the
+        // block's last voxel.
+        let span = |a: i32| if a == 7 { 2 } else { 1 };
         let mut c = [0f32; 8];
-        for (n, v) in c.iter_mut().enumerate() {
-            let d = IVec3::new((n & 1) as i32, ((n >> 1) & 1) as i32, ((n >> 2) & 1) as i32);
-            *v = self.voxel(i + d);
+        for bz in 0..span(l.z) {
+            for by in 0..span(l.y) {
+                for bx in 0..span(l.x) {
+                    let b = IVec3::new(bx, by, bz);
+                    let block = self.block_at(k + b);
+                    for (n, v) in c.iter_mut().enumerate() {
+                        let d = IVec3::new((n & 1) as i32, ((n >> 1) & 1) as i32, (n >> 2) as i32);
+                        let at = l + d;
+                        if (at >> 3) == b {
+                            *v = match block {
+                                Resolved::Leaf(li) => {
+                                    let a = at & 7;
+                                    self.leaves
+                                        .get(li as usize, ((a.x << 6) | (a.y << 3) | a.z) as usize)
+                                }
+                                Resolved::Const(v) => v,
+                            };
+                        }
+                    }
+                }
+            }
         }
         c
+    }
+
+    /// The stored 8^3 block `k` (voxel index `>> 3`), if any: one load from the dense block
+    /// index where there is one, else a hash lookup.
+    #[inline(always)]
+    pub(super) fn block(&self, k: IVec3) -> Option<Block> {
+        match &self.index {
+            Some(ix) => ix.get(k),
+            None => pack(k, self.block_base).and_then(|key| self.blocks.get(&key).copied()),
+        }
+    }
+
+    /// What covers the 8^3 block `k` (voxel index `>> 3`): a leaf, or a constant (a tile's
+    /// value, 0 where nothing is stored).
+    #[inline]
+    pub(super) fn block_at(&self, k: IVec3) -> Resolved {
+        if let Some(b) = self.block(k) {
+            return match b {
+                Block::Dense(l) => Resolved::Leaf(l),
+                Block::Const(v) => Resolved::Const(v),
+            };
+        }
+        if !self.big.is_empty()
+            && let Some(v) = pack(k >> 4, self.big_base).and_then(|key| self.big.get(&key))
+        {
+            return Resolved::Const(*v);
+        }
+        if self.huge.is_empty() {
+            return Resolved::Const(0.0);
+        }
+        Resolved::Const(
+            pack(k >> 9, self.huge_base)
+                .and_then(|key| self.huge.get(&key).copied())
+                .unwrap_or(0.0),
+        )
     }
 }
 
@@ -709,6 +994,23 @@ impl DensitySource for VdbSource {
 
     fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
         VdbSource::dense_copy(self, max_bytes)
+    }
+
+    fn footprint(&self) -> Option<super::super::Footprint> {
+        let held = self.memory_bytes();
+        Some(super::super::Footprint {
+            held,
+            while_opening: held.saturating_add(self.reader_peak_bytes),
+        })
+    }
+
+    fn dense_copy_size(&self) -> Option<u64> {
+        self.diag?;
+        let n = (self.index_max.as_i64vec3() - self.index_min.as_i64vec3()) + 3;
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        (self.stored_voxels() >= count / 2).then(|| count.saturating_mul(4))
     }
 
     fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {

@@ -15,13 +15,15 @@ pub(super) fn run_worker(
     opt: &VdbOptions,
     file_size: u64,
     limit: u64,
-) -> Result<Stream, String> {
+    max_leaf_bytes: u64,
+) -> Result<Stream, StreamError> {
     if std::env::var_os(WORKER_ENV).is_some() {
         return Err(format!(
             "refusing to start a VDB reader from inside a VDB reader process: '{}' does not \
              handle `{WORKER_SUBCOMMAND}` (set VdbOptions::worker_exe to pinbake or pinrender)",
             opt.worker_exe.display()
-        ));
+        )
+        .into());
     }
     let mut cmd = Command::new(&opt.worker_exe);
     cmd.env(WORKER_ENV, "1")
@@ -72,9 +74,12 @@ pub(super) fn run_worker(
     let stderr = child.stderr.take().ok_or("worker has no stderr")?;
     let parser = std::thread::spawn(move || {
         let mut r = BufReader::with_capacity(1 << 16, stdout);
-        let res = parse_stream(&mut r, file_size);
-        // Drain so that the child never blocks on a full pipe after we stopped reading.
-        let _ = std::io::copy(&mut r, &mut std::io::sink());
+        let res = parse_stream_within(&mut r, file_size, max_leaf_bytes);
+        // Drain so that the child never blocks on a full pipe after we stopped reading;
+        // a refused budget closes the pipe instead, and the child ends at its next write.
+        if !matches!(res, Err(StreamError::Budget { .. })) {
+            let _ = std::io::copy(&mut r, &mut std::io::sink());
+        }
         res
     });
     let err_reader = std::thread::spawn(move || {
@@ -88,7 +93,7 @@ pub(super) fn run_worker(
         match child.try_wait() {
             Ok(Some(s)) => break s,
             Ok(None) => {}
-            Err(e) => return Err(format!("waiting for the VDB reader failed: {e}")),
+            Err(e) => return Err(format!("waiting for the VDB reader failed: {e}").into()),
         }
         if Instant::now() >= deadline {
             timed_out = true;
@@ -102,6 +107,9 @@ pub(super) fn run_worker(
     let parsed = parser
         .join()
         .unwrap_or_else(|_| Err("worker stream parser panicked".into()));
+    if let Err(StreamError::Budget { .. }) = parsed {
+        return parsed;
+    }
     let stderr_text = err_reader.join().unwrap_or_default();
     let last_line = stderr_text
         .lines()
@@ -109,10 +117,7 @@ pub(super) fn run_worker(
         .find(|l| !l.trim().is_empty())
         .map(one_line);
     if timed_out {
-        return Err(format!(
-            "VDB reader timed out after {} s",
-            opt.timeout.as_secs_f64()
-        ));
+        return Err(format!("VDB reader timed out after {} s", opt.timeout.as_secs_f64()).into());
     }
     if status.success() {
         return parsed;
@@ -120,7 +125,7 @@ pub(super) fn run_worker(
     if stderr_text.contains("memory allocation of") {
         // The default limit is 64 MiB + 64 x the file size; every stored node carries its
         // masks uncompressed, so a valid file stays below it (docs/vdb.md).
-        return Err(if opt.memory_limit.is_some() {
+        return Err(StreamError::Message(if opt.memory_limit.is_some() {
             format!(
                 "VDB reader needs more than {} MiB of memory (the limit it was given)",
                 limit / MIB
@@ -130,14 +135,16 @@ pub(super) fn run_worker(
                 "VDB reader needs more than {} MiB of memory, more than a valid file of {file_size} bytes needs (docs/vdb.md): the file is probably corrupt",
                 limit / MIB
             )
-        });
+        }));
     }
     #[cfg(unix)]
     {
         use std::os::unix::process::ExitStatusExt;
         if let Some(sig) = status.signal() {
-            return Err(format!("VDB reader crashed (signal {sig})"));
+            return Err(format!("VDB reader crashed (signal {sig})").into());
         }
     }
-    Err(last_line.unwrap_or_else(|| format!("VDB reader failed ({status})")))
+    Err(last_line
+        .unwrap_or_else(|| format!("VDB reader failed ({status})"))
+        .into())
 }

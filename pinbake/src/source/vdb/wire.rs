@@ -3,12 +3,65 @@
 
 use super::*;
 
-pub(super) const STREAM_MAGIC: &[u8; 8] = b"PBVDBW01";
+pub(super) const STREAM_MAGIC: &[u8; 8] = b"PBVDBW02";
 pub(super) const STREAM_END: &[u8; 8] = b"PBVDBEND";
 pub(super) const TAG_END: u8 = 0;
 pub(super) const TAG_LEAF: u8 = 1;
 pub(super) const TAG_TILE: u8 = 2;
 pub(super) const MAX_NAME: usize = 1024;
+/// Leaf encodings: 512 f32 values, or 512 f16 bit patterns (half grids, floats saved as
+/// half and level sets, whose values are all exact in half).
+pub(super) const LEAF_F32: u8 = 0;
+pub(super) const LEAF_HALF: u8 = 1;
+/// Bytes the parent keeps per leaf beside its values: the origin while parsing, then its
+/// maximum, its hash-table slot and key.
+pub(super) const LEAF_OVERHEAD_BYTES: u64 = 40;
+
+/// Why the parent did not get a grid from the worker.
+#[derive(Debug)]
+pub(super) enum StreamError {
+    /// The worker failed or its stream is bad: one line.
+    Message(String),
+    /// The leaves the worker announced need `need` bytes, more than the `limit` given.
+    Budget { need: u64, limit: u64 },
+}
+
+impl From<String> for StreamError {
+    fn from(m: String) -> Self {
+        StreamError::Message(m)
+    }
+}
+
+impl From<&str> for StreamError {
+    fn from(m: &str) -> Self {
+        StreamError::Message(m.to_string())
+    }
+}
+
+impl std::fmt::Display for StreamError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StreamError::Message(m) => f.write_str(m),
+            StreamError::Budget { need, limit } => write!(
+                f,
+                "the grid's leaves need {need} bytes, more than the {limit} bytes the memory budget leaves for them (--max-memory)"
+            ),
+        }
+    }
+}
+
+/// The leaf values as the parent keeps them, in stream order.
+pub(super) enum LeafValues {
+    F32(Vec<[f32; 512]>),
+    /// f16 bit patterns; the source maps them to scaled f32 through a table.
+    Half(Vec<[u16; 512]>),
+}
+
+/// Bytes the parent needs for `leaves` leaves of `encoding` (values and per-leaf overhead).
+pub(super) fn leaf_table_bytes(leaves: u64, encoding: u8) -> u64 {
+    let values = if encoding == LEAF_HALF { 1024 } else { 2048 };
+    leaves.saturating_mul(values + LEAF_OVERHEAD_BYTES)
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum ValueKind {
@@ -173,7 +226,9 @@ pub(super) struct Stream {
     pub(super) level_set: bool,
     /// Index to world, row-major 3x4.
     pub(super) xf: [f64; 12],
-    pub(super) leaves: Vec<([i32; 3], [f32; 512])>,
+    /// Leaf origins and values, index for index.
+    pub(super) origins: Vec<[i32; 3]>,
+    pub(super) leaves: LeafValues,
     pub(super) tiles: Vec<([i32; 3], u8, f32)>,
     pub(super) active: u64,
     pub(super) negatives: u64,
@@ -225,10 +280,22 @@ impl<R: Read> StreamReader<R> {
     }
 }
 
+/// [`parse_stream_within`] without a memory limit, errors as text.
+#[cfg(test)]
+pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, String> {
+    parse_stream_within(r, file_size, u64::MAX).map_err(|e| e.to_string())
+}
+
 /// Parses the worker's stream. Counts are checked against limits derived from the file size:
 /// a leaf costs at least 128 bytes in a VDB file (two 64-byte masks), a tile at least two mask
-/// bits, so a stream claiming more is corrupt whatever the child says.
-pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, String> {
+/// bits, so a stream claiming more is corrupt whatever the child says. The leaf table is
+/// sized once from the worker's leaf count, and refused ([`StreamError::Budget`]) before
+/// anything is allocated when it needs more than `max_bytes`.
+pub(super) fn parse_stream_within(
+    r: impl Read,
+    file_size: u64,
+    max_bytes: u64,
+) -> Result<Stream, StreamError> {
     let mut s = StreamReader { r };
     let mut magic = [0u8; 8];
     s.fill(&mut magic)?;
@@ -237,7 +304,7 @@ pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, Strin
     }
     let n = s.u32()? as u64;
     if n == 0 || n > 4096.max(file_size / 16) {
-        return Err(format!("worker stream lists {n} grids"));
+        return Err(format!("worker stream lists {n} grids").into());
     }
     let mut grids = Vec::with_capacity(n.min(4096) as usize);
     for _ in 0..n {
@@ -263,31 +330,68 @@ pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, Strin
     }
     let max_leaves = file_size / 64 + 1;
     let max_tiles = file_size.saturating_mul(4) + 64;
-    let mut leaves = Vec::new();
+    let announced = s.u64()?;
+    if announced > max_leaves {
+        return Err(format!(
+            "worker stream has more than {max_leaves} leaves for a {file_size}-byte file"
+        )
+        .into());
+    }
+    let encoding = s.u8()?;
+    if encoding != LEAF_F32 && encoding != LEAF_HALF {
+        return Err("worker stream has a bad leaf encoding".into());
+    }
+    let need = leaf_table_bytes(announced, encoding);
+    if need > max_bytes {
+        return Err(StreamError::Budget {
+            need,
+            limit: max_bytes,
+        });
+    }
+    let n = announced as usize;
+    let alloc_err = || format!("cannot allocate {need} bytes for the grid's {n} leaves");
+    let mut origins: Vec<[i32; 3]> = Vec::new();
+    origins.try_reserve_exact(n).map_err(|_| alloc_err())?;
+    let mut leaves = if encoding == LEAF_HALF {
+        let mut v = Vec::new();
+        v.try_reserve_exact(n).map_err(|_| alloc_err())?;
+        LeafValues::Half(v)
+    } else {
+        let mut v = Vec::new();
+        v.try_reserve_exact(n).map_err(|_| alloc_err())?;
+        LeafValues::F32(v)
+    };
     let mut tiles = Vec::new();
     loop {
         match s.u8()? {
             TAG_END => break,
             TAG_LEAF => {
-                if leaves.len() as u64 >= max_leaves {
-                    return Err(format!(
-                        "worker stream has more than {max_leaves} leaves for a {file_size}-byte file"
-                    ));
+                if origins.len() >= n {
+                    return Err(
+                        format!("worker stream has more than the {n} leaves it announced").into(),
+                    );
                 }
-                let o = s.ivec()?;
-                let mut bytes = [0u8; 2048];
-                s.fill(&mut bytes)?;
-                let mut vals = [0f32; 512];
-                for (v, b) in vals.iter_mut().zip(bytes.chunks_exact(4)) {
-                    *v = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+                origins.push(s.ivec()?);
+                // Read straight into the table's next slot (the host is little-endian).
+                match &mut leaves {
+                    LeafValues::Half(v) => {
+                        v.push([0u16; 512]);
+                        let last = v.last_mut().ok_or("no leaf slot")?;
+                        s.fill(bytemuck::cast_slice_mut(last))?;
+                    }
+                    LeafValues::F32(v) => {
+                        v.push([0f32; 512]);
+                        let last = v.last_mut().ok_or("no leaf slot")?;
+                        s.fill(bytemuck::cast_slice_mut(last))?;
+                    }
                 }
-                leaves.push((o, vals));
             }
             TAG_TILE => {
                 if tiles.len() as u64 >= max_tiles {
                     return Err(format!(
                         "worker stream has more than {max_tiles} tiles for a {file_size}-byte file"
-                    ));
+                    )
+                    .into());
                 }
                 let o = s.ivec()?;
                 let level = s.u8()?;
@@ -295,7 +399,7 @@ pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, Strin
                 s.fill(&mut b)?;
                 tiles.push((o, level, f32::from_le_bytes(b)));
             }
-            t => return Err(format!("worker stream has a bad record tag {t}")),
+            t => return Err(format!("worker stream has a bad record tag {t}").into()),
         }
     }
     let active = s.u64()?;
@@ -313,6 +417,7 @@ pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, Strin
         kind,
         level_set,
         xf,
+        origins,
         leaves,
         tiles,
         active,
