@@ -247,6 +247,7 @@ mod tests {
     use super::*;
     use crate::render::closed_form::tests::CosNoise;
     use crate::render::rng::Pcg32;
+    use crate::render::tests::mean_se;
     use crate::render::{
         AnalyticOpticalDepth, DensityField, HomogeneousBox, JackknifeMarching, MajorantGrid,
         TransportEstimator, UnbiasedRayMarching,
@@ -267,19 +268,6 @@ mod tests {
                 (o, Vec3::new(r * phi.cos(), r * phi.sin(), z))
             })
             .collect()
-    }
-
-    /// Mean and standard error of `n` draws.
-    fn mean_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
-        let (mut s, mut s2) = (0.0, 0.0);
-        for _ in 0..n {
-            let x = f();
-            s += x;
-            s2 += x * x;
-        }
-        let m = s / n as f64;
-        let var = (s2 / n as f64 - m * m).max(0.0) * n as f64 / (n as f64 - 1.0);
-        (m, (var / n as f64).sqrt())
     }
 
     /// The segment of `(o, d)` inside `[lo, hi]` as (start point, length), f64 as the

@@ -494,6 +494,25 @@ impl<F: DensityField + ?Sized> Tracker<F> {
         }
     }
 
+    /// [`Self::ratio_and_delta`] for a query ray: what `transmittance_and_distance` answers
+    /// for every estimator that pairs ratio tracking's transmittance with delta tracking's
+    /// collision (ratio, residual, pinurm).
+    pub(crate) fn ratio_and_delta_query(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        match prepare(o, d, t_max) {
+            Some(r) => {
+                let (t, hit) = self.ratio_and_delta(&r, rng);
+                (t, hit.map(|h| r.to_t(h, t_max)))
+            }
+            None => (1.0, None),
+        }
+    }
+
     pub(crate) fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
         // Outside the field's box the extinction is 0 while the clamped array reads its edge
         // voxels, so the array serves only majorant boxes inside the field's box (rays are
@@ -596,13 +615,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
         t_max: f32,
         rng: &mut Pcg32,
     ) -> (f32, Option<f32>) {
-        match prepare(o, d, t_max) {
-            Some(r) => {
-                let (t, hit) = self.0.ratio_and_delta(&r, rng);
-                (t, hit.map(|h| r.to_t(h, t_max)))
-            }
-            None => (1.0, None),
-        }
+        self.0.ratio_and_delta_query(o, d, t_max, rng)
     }
     fn name(&self) -> String {
         format!("ratio-tracking({})", self.0.dims_label())
@@ -891,13 +904,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
         t_max: f32,
         rng: &mut Pcg32,
     ) -> (f32, Option<f32>) {
-        match prepare(o, d, t_max) {
-            Some(r) => {
-                let (t, hit) = self.tracker.ratio_and_delta(&r, rng);
-                (t, hit.map(|h| r.to_t(h, t_max)))
-            }
-            None => (1.0, None),
-        }
+        self.tracker.ratio_and_delta_query(o, d, t_max, rng)
     }
     fn name(&self) -> String {
         let control = self.control.map_or("given", ResidualControl::name);

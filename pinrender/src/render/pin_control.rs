@@ -188,13 +188,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for PinControlledUrm<F> {
         t_max: f32,
         rng: &mut Pcg32,
     ) -> (f32, Option<f32>) {
-        match prepare(o, d, t_max) {
-            Some(r) => {
-                let (t, hit) = self.tracker.ratio_and_delta(&r, rng);
-                (t, hit.map(|h| r.to_t(h, t_max)))
-            }
-            None => (1.0, None),
-        }
+        self.tracker.ratio_and_delta_query(o, d, t_max, rng)
     }
 
     fn name(&self) -> String {
@@ -216,6 +210,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for PinControlledUrm<F> {
 mod tests {
     use super::*;
     use crate::render::closed_form::tests::CosNoise;
+    use crate::render::tests::mean_se;
     use crate::render::{AnalyticOpticalDepth, HomogeneousBox, RatioTracking, VoxelGrid};
     use glam::DVec3;
     use pin_format::Directions;
@@ -251,19 +246,6 @@ mod tests {
             .collect();
         out.push((Vec3::new(-0.5, 0.45, 0.55), Vec3::X, f32::INFINITY));
         out
-    }
-
-    /// Mean and standard error of `n` draws.
-    fn mean_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
-        let (mut s, mut s2) = (0.0, 0.0);
-        for _ in 0..n {
-            let x = f();
-            s += x;
-            s2 += x * x;
-        }
-        let m = s / n as f64;
-        let var = (s2 / n as f64 - m * m).max(0.0) * n as f64 / (n as f64 - 1.0);
-        (m, (var / n as f64).sqrt())
     }
 
     /// The optical depth of `(o, d)` over `[0, t_max]` inside `[lo, hi]` by `depth(p0, d,

@@ -12,8 +12,8 @@ fn unit_box(sigma: f32) -> Arc<HomogeneousBox> {
     })
 }
 
-/// Mean and standard error of `n` draws.
-fn mean_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
+/// Mean and standard error of `n` draws (shared by the estimators' statistical tests).
+pub(crate) fn mean_se(n: usize, mut f: impl FnMut() -> f64) -> (f64, f64) {
     let (mut s, mut s2) = (0.0, 0.0);
     for _ in 0..n {
         let x = f();
