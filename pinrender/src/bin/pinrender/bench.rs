@@ -342,6 +342,23 @@ impl Clock {
     }
 }
 
+/// Each ray's transmittance to infinity from one estimator, on this thread, and its rate.
+fn timed_transmittance(
+    est: &dyn TransportEstimator,
+    rays: &[RayQuery],
+    rng: &mut Pcg32,
+) -> (Vec<f64>, Rate) {
+    let t = Clock::start();
+    let values = rays
+        .iter()
+        .map(|r| {
+            let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
+            f64::from(est.transmittance(o, d, f32::INFINITY, rng))
+        })
+        .collect();
+    (values, t.rate(rays.len()))
+}
+
 fn row(volume: &str, method: &str, query: &str, backend: &str, rate: Rate) -> Value {
     let mut r = json!({"volume": volume, "method": method, "query": query, "backend": backend, "queries_per_s": rate.wall});
     if let Some(cpu) = rate.cpu {
@@ -574,15 +591,7 @@ fn bench_volume(
         ),
     ] {
         let mut rng = Pcg32::new(7, method.len() as u64);
-        let t = Clock::start();
-        let est: Vec<f64> = rays[..n_rm]
-            .iter()
-            .map(|r| {
-                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
-                f64::from(tracker.transmittance(o, d, f32::INFINITY, &mut rng))
-            })
-            .collect();
-        let qps = t.rate(n_rm);
+        let (est, qps) = timed_transmittance(tracker.as_ref(), &rays[..n_rm], &mut rng);
         rows.push(row_err(name, method, "cpu", qps, &est, &reference));
         let t = Clock::start();
         let hits = rays[..n_rm]
@@ -642,15 +651,7 @@ fn bench_volume(
             .build(field.clone(), majorants.clone(), kind.default_lookups())
             .map_err(|e| anyhow!("{e}"))?;
         let mut rng = Pcg32::new(6, kind as u64);
-        let t = Clock::start();
-        let est: Vec<f64> = rays[..n_rm]
-            .iter()
-            .map(|r| {
-                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
-                f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng))
-            })
-            .collect();
-        let qps = t.rate(n_rm);
+        let (est, qps) = timed_transmittance(est.as_ref(), &rays[..n_rm], &mut rng);
         let method = match kind {
             CombKind::Urm => "urm",
             CombKind::Jackknife => "jackknife",
@@ -691,15 +692,7 @@ fn bench_volume(
     for (k, config) in PINURM_ROWS.into_iter().enumerate() {
         let est = pinurm(field.clone(), config)?;
         let mut rng = Pcg32::new(9, k as u64);
-        let t = Clock::start();
-        let est: Vec<f64> = rays[..n_rm]
-            .iter()
-            .map(|r| {
-                let (o, d) = (Vec3::from(r.origin), Vec3::from(r.dir));
-                f64::from(est.transmittance(o, d, f32::INFINITY, &mut rng))
-            })
-            .collect();
-        let qps = t.rate(n_rm);
+        let (est, qps) = timed_transmittance(est.as_ref(), &rays[..n_rm], &mut rng);
         // Spelled with its count even at the default, so the rows name their combs.
         let method = pinurm_method(config);
         rows.push(row_err(name, &method, "cpu", qps, &est, &reference));
