@@ -933,14 +933,18 @@ pub const JACKKNIFE_DEFAULT_LOOKUPS: u32 = 32;
 
 /// Shared state of the comb estimators: delta tracking for distances, and the comb spacing
 /// `longest edge of the majorant box / lookups`.
-struct Combed<F: ?Sized> {
-    tracker: Tracker<F>,
-    lookups: u32,
-    spacing: f64,
+pub(crate) struct Combed<F: ?Sized> {
+    pub(crate) tracker: Tracker<F>,
+    pub(crate) lookups: u32,
+    pub(crate) spacing: f64,
 }
 
 impl<F: DensityField + ?Sized> Combed<F> {
-    fn new(field: Arc<F>, majorants: Arc<MajorantGrid>, lookups: u32) -> Result<Self, RenderError> {
+    pub(crate) fn new(
+        field: Arc<F>,
+        majorants: Arc<MajorantGrid>,
+        lookups: u32,
+    ) -> Result<Self, RenderError> {
         if !(1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&lookups) {
             return Err(RenderError::Invalid {
                 what: "comb lookups",
@@ -959,6 +963,15 @@ impl<F: DensityField + ?Sized> Combed<F> {
         })
     }
 
+    /// The majorant optical depth along the prepared ray (the combs' lookup rule reads it).
+    pub(crate) fn majorant_depth(&self, r: &Prepared) -> f64 {
+        self.tracker
+            .majorants
+            .segments(r.o, r.d, 0.0, r.t_max)
+            .map(|seg| seg.majorant as f64 * (seg.t1 - seg.t0).max(0.0))
+            .sum()
+    }
+
     /// Transmittance over the ray's segment inside the majorant box (the combs span the
     /// clipped segment; the field is 0 outside that box): `urm` or, with `jackknife`, the
     /// jackknife. Static dispatch: the density lookup is the hot loop.
@@ -972,12 +985,7 @@ impl<F: DensityField + ?Sized> Combed<F> {
             return 1.0;
         };
         let len = t1 - t0;
-        let maj_depth: f64 = self
-            .tracker
-            .majorants
-            .segments(r.o, r.d, 0.0, r.t_max)
-            .map(|seg| seg.majorant as f64 * (seg.t1 - seg.t0).max(0.0))
-            .sum();
+        let maj_depth = self.majorant_depth(&r);
         let m = super::comb::lookups_for(len, self.spacing, maj_depth);
         let field = &self.tracker.field;
         let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s)));

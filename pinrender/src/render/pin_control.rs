@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::estimator::{Prepared, Tracker, clean, prepare};
+use super::estimator::{Combed, Prepared, clean, prepare};
 use super::majorant::clip_box;
 use super::{DensityField, MajorantGrid, Pcg32, PinsEstimator, RenderError, TransportEstimator};
 
@@ -42,10 +42,9 @@ pub const PINURM_MAX_PIN_QUERIES: u32 = 1024;
 /// only sets how far the control is from the truth, which is the variance. Measured, the
 /// pins are a worse control than urm's comb (`docs/final-frames.md`).
 pub struct PinControlledUrm<F: ?Sized = dyn DensityField> {
-    tracker: Tracker<F>,
+    /// The tracker and comb spacing `urm` and `jackknife` share.
+    comb: Combed<F>,
     pins: Arc<PinsEstimator>,
-    lookups: u32,
-    spacing: f64,
     pin_queries: u32,
 }
 
@@ -59,22 +58,9 @@ impl<F: DensityField + ?Sized> PinControlledUrm<F> {
         pins: Arc<PinsEstimator>,
         lookups: u32,
     ) -> Result<Self, RenderError> {
-        if !(1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&lookups) {
-            return Err(RenderError::Invalid {
-                what: "comb lookups",
-                why: format!(
-                    "{lookups} lookups per edge must be in 1..={}",
-                    super::comb::MAX_COMB_LOOKUPS
-                ),
-            });
-        }
-        let (lo, hi) = majorants.bounds();
-        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
         Ok(PinControlledUrm {
-            tracker: Tracker::new(field, majorants),
+            comb: Combed::new(field, majorants, lookups)?,
             pins,
-            lookups,
-            spacing: longest / lookups as f64,
             pin_queries: PINURM_DEFAULT_PIN_QUERIES,
         })
     }
@@ -135,7 +121,7 @@ impl<F: DensityField + ?Sized> PinControlledUrm<F> {
         tail: bool,
         control: Option<&dyn Fn(f64) -> f64>,
     ) -> f64 {
-        let (lo, hi) = self.tracker.majorants.bounds();
+        let (lo, hi) = self.comb.tracker.majorants.bounds();
         let Some((t0, t1)) = clip_box(r.o, r.d, &lo, &hi, 0.0, r.t_max) else {
             return 1.0;
         };
@@ -143,18 +129,13 @@ impl<F: DensityField + ?Sized> PinControlledUrm<F> {
         if !(len > 0.0) {
             return 1.0;
         }
-        let maj_depth: f64 = self
-            .tracker
-            .majorants
-            .segments(r.o, r.d, 0.0, r.t_max)
-            .map(|seg| seg.majorant as f64 * (seg.t1 - seg.t0).max(0.0))
-            .sum();
+        let maj_depth = self.comb.majorant_depth(r);
         let tau_c = match control {
             Some(f) => Some(f(maj_depth)),
             None => self.control(o, d, t_max, maj_depth, rng),
         };
-        let m = super::comb::lookups_for(len, self.spacing, maj_depth);
-        let field = &self.tracker.field;
+        let m = super::comb::lookups_for(len, self.comb.spacing, maj_depth);
+        let field = &self.comb.tracker.field;
         let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s)));
         let mut uniform = || rng.next_f64();
         // Where the pins do not resolve the ray, urm's own control: an independent comb.
@@ -166,7 +147,7 @@ impl<F: DensityField + ?Sized> PinControlledUrm<F> {
 impl<F: DensityField + ?Sized> TransportEstimator for PinControlledUrm<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
-        self.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
+        self.comb.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
     }
 
     fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
@@ -188,21 +169,21 @@ impl<F: DensityField + ?Sized> TransportEstimator for PinControlledUrm<F> {
         t_max: f32,
         rng: &mut Pcg32,
     ) -> (f32, Option<f32>) {
-        self.tracker.ratio_and_delta_query(o, d, t_max, rng)
+        self.comb.tracker.ratio_and_delta_query(o, d, t_max, rng)
     }
 
     fn name(&self) -> String {
         format!(
             "pinurm@{}({}, {} pin queries)",
-            self.lookups,
-            self.tracker.dims_label(),
+            self.comb.lookups,
+            self.comb.tracker.dims_label(),
             self.pin_queries
         )
     }
 
     /// The majorant grid's box: combs and tracking are clipped to it.
     fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        Some(self.tracker.majorants.bounds())
+        Some(self.comb.tracker.majorants.bounds())
     }
 }
 
@@ -496,12 +477,7 @@ mod tests {
             );
             worst_good = worst_good.max(z.abs());
             // The pins' answer alone (where they resolve the ray), against the same truth.
-            let maj_depth: f64 = est
-                .tracker
-                .majorants
-                .segments(r.o, r.d, 0.0, r.t_max)
-                .map(|seg| seg.majorant as f64 * (seg.t1 - seg.t0).max(0.0))
-                .sum();
+            let maj_depth = est.comb.majorant_depth(&r);
             let mut controls = Vec::new();
             for _ in 0..20_000 {
                 asked += 1;
