@@ -228,6 +228,21 @@ pub struct Segment {
     pub b: u32,
 }
 
+impl Segment {
+    /// A segment of no length at the chord start: the placeholder of a query that does not
+    /// resolve (never read back).
+    pub const EMPTY: Segment = Segment {
+        t_enter: 0.0,
+        interval_len: 0.0,
+        t0: 0.0,
+        t1: 0.0,
+        s0: 0.0,
+        s1: 0.0,
+        a: 0,
+        b: 0,
+    };
+}
+
 /// `floor(x)` clamped to `[0, n - 1]`, NaN to 0 (same as `pin_format`'s direction binning).
 #[inline(always)]
 pub fn bin(x: f32, n: u32) -> u32 {

@@ -188,18 +188,6 @@ fn bin_lane(x: f32, hi: f32) -> u32 {
     unsafe { y.to_int_unchecked::<i32>() as u32 }
 }
 
-/// A placeholder segment for lanes whose query does not resolve (never read back).
-const EMPTY: Segment = Segment {
-    t_enter: 0.0,
-    interval_len: 0.0,
-    t0: 0.0,
-    t1: 0.0,
-    s0: 0.0,
-    s1: 0.0,
-    a: 0,
-    b: 0,
-};
-
 /// The set-up as a sequence of stages, each one loop over all [`BATCH`] lanes of plain
 /// arrays, so that each loop is short and branch-free enough for the compiler to widen to
 /// full vector registers (one long loop was partly left as scalar code). Lanes past
@@ -382,7 +370,7 @@ fn lanes_body(
 
     // The first piece of a chain (`a / stride`, then `piece_of`); rare, so per lane.
     let mut pieces = [0u32; BATCH];
-    let mut psegs = [EMPTY; BATCH];
+    let mut psegs = [Segment::EMPTY; BATCH];
     let mut pt = [[0f32; BATCH]; 2];
     if chained {
         for i in 0..BATCH {

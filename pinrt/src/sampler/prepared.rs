@@ -32,13 +32,13 @@ pub(crate) struct Prepared {
 pub(super) const NOT_PREPARED: Prepared = Prepared {
     status: status::MISS,
     rng: Rng { state: 0 },
-    seg: EMPTY_SEGMENT,
+    seg: Segment::EMPTY,
     reversed: false,
     local: NO_CELL,
     within: 0,
     o: [0.0; 3],
     d: [0.0; 3],
-    full: EMPTY_SEGMENT,
+    full: Segment::EMPTY,
     piece: 0,
 };
 
@@ -75,14 +75,3 @@ pub(crate) fn piece_of(full: &Segment, j: u32, stride: u32) -> Segment {
     }
     p
 }
-
-const EMPTY_SEGMENT: Segment = Segment {
-    t_enter: 0.0,
-    interval_len: 0.0,
-    t0: 0.0,
-    t1: 0.0,
-    s0: 0.0,
-    s1: 0.0,
-    a: 0,
-    b: 0,
-};
