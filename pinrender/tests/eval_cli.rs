@@ -270,6 +270,7 @@ fn eval_rejects_bad_input() {
         &["eval", "--quick", "--scenes", "teapot"][..],
         // The production-scale scene is for the full run only (CI runs --quick).
         &["eval", "--quick", "--scenes", "cloud"][..],
+        &["eval", "--quick", "--scenes", "production"][..],
         &["eval", "--quick", "--threads", "0"][..],
         &["eval", "--quick", "--clock", "sundial"][..],
     ] {
@@ -286,6 +287,29 @@ fn eval_rejects_bad_input() {
             out.status
         );
     }
+}
+
+/// A full run that includes the production scene checks its OpenVDB file before any scene
+/// runs: a missing file is one line naming it and how to write it, and nothing is rendered.
+#[test]
+fn eval_refuses_a_missing_production_cloud_before_rendering() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("cloud-half.vdb");
+    let out = Command::new(env!("CARGO_BIN_EXE_pinrender"))
+        .args(["eval", "--scenes", "box,production", "--production"])
+        .arg(&missing)
+        .arg("--out")
+        .arg(dir.path().join("out"))
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains(&*missing.to_string_lossy()) && err.contains("generate.sh half"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(!dir.path().join("out").join("box").exists(), "a scene ran");
 }
 
 fn data(name: &str) -> std::path::PathBuf {

@@ -83,7 +83,9 @@ pub struct EvalArgs {
     /// Tiny images, budgets and references: an end-to-end smoke test in seconds.
     #[arg(long)]
     pub quick: bool,
-    /// Time budgets in seconds, comma separated (default 0.25,0.5,1,2,4; --quick 0.1,0.2,0.4).
+    /// Time budgets in seconds, comma separated (default 0.25,0.5,1,2,4,10,30,60; --quick
+    /// 0.1,0.2,0.4). Each estimator renders once, progressively, and is measured at every
+    /// budget: a run costs its longest budget per estimator, not the sum.
     #[arg(long, value_delimiter = ',')]
     pub budgets: Option<Vec<f64>>,
     /// Only these scenes (comma separated).
@@ -121,10 +123,31 @@ pub struct EvalArgs {
     /// Samples per pixel per GPU render call (each call is one measured pass).
     #[arg(long, default_value_t = 1)]
     pub gpu_batch: u32,
+    /// The production scene's OpenVDB cloud (default: production/cloud-half.vdb in the
+    /// target directory that holds this executable, where `scripts/production/generate.sh
+    /// half` writes it).
+    #[arg(long, value_name = "FILE")]
+    pub production: Option<PathBuf>,
     /// Folder of the sample volumes (default: $PINBAKE_DATA, else the repository's data/
     /// found from the executable or the working directory).
     #[arg(long, value_name = "DIR")]
     pub data: Option<PathBuf>,
+}
+
+/// The full run's budgets in seconds: previews to final frames.
+pub const FULL_BUDGETS: [f64; 8] = [0.25, 0.5, 1.0, 2.0, 4.0, 10.0, 30.0, 60.0];
+
+/// The production scene's VDB: `--production`, else `production/cloud-half.vdb` in the target
+/// directory of this executable (`target/release/pinrender` -> `target/production/`).
+fn production_vdb(a: &EvalArgs) -> Result<std::path::PathBuf> {
+    if let Some(p) = &a.production {
+        return Ok(p.clone());
+    }
+    let exe = std::env::current_exe().context("locating pinrender")?;
+    let target = exe.parent().and_then(|d| d.parent()).context(
+        "pinrender's executable has no target directory above it; pass --production FILE",
+    )?;
+    Ok(target.join("production").join("cloud-half.vdb"))
 }
 
 /// The time source of the budgets (`--clock`).
@@ -317,7 +340,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
         if a.quick {
             vec![0.1, 0.2, 0.4]
         } else {
-            vec![0.25, 0.5, 1.0, 2.0, 4.0]
+            FULL_BUDGETS.to_vec()
         }
     });
     if budgets.is_empty()
@@ -353,6 +376,15 @@ pub fn run(a: EvalArgs) -> Result<()> {
             );
         }
     }
+    // The production scene's file is checked before any scene runs, so that a full run does
+    // not fail after an hour of the other scenes.
+    let production = production_vdb(&a)?;
+    if scene_names.iter().any(|s| s == "production") && !production.is_file() {
+        bail!(
+            "{}: the production scene's cloud is missing: write it with `scripts/production/generate.sh half` (about a minute, 404 MB), pass --production FILE, or leave the scene out with --scenes",
+            production.display()
+        );
+    }
     // An output directory only: a file, device or FIFO there is refused, not written into.
     if let Ok(m) = std::fs::metadata(&a.out)
         && !m.is_dir()
@@ -370,7 +402,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     let mut results = Vec::new();
     for name in &scene_names {
         pin_cli::errln!("== scene {name}");
-        let r = eval_scene(name, &a, &sizes, &budgets, &gpu)
+        let r = eval_scene(name, &a, &sizes, &budgets, &gpu, &production)
             .with_context(|| format!("scene {name}"))?;
         results.push(r);
         // Write what we have after every scene, so an interrupted run leaves usable output.
@@ -692,8 +724,9 @@ fn eval_scene(
     sizes: &Sizes,
     budgets: &[f64],
     gpu: &Gpu,
+    production: &std::path::Path,
 ) -> Result<SceneResult> {
-    let mut es = scenes::build(name, sizes)?;
+    let mut es = scenes::build(name, sizes, production)?;
     let wanted = |e: &str| {
         a.estimators
             .as_ref()
@@ -751,6 +784,10 @@ fn eval_scene(
         Gpu::Ready { .. } if gpu_ests.is_empty() => {
             "GPU: none of the selected estimators runs on the GPU.".to_string()
         }
+        Gpu::Ready { .. } if es.gpu_refusal.is_some() => format!(
+            "**GPU: not measured** (no GPU rows): {}.",
+            es.gpu_refusal.as_deref().unwrap_or_default()
+        ),
         Gpu::Ready { ctx, .. } => 'gpu: {
             let t = Instant::now();
             let media = scenes::gpu_media(&es, LOOKUP)?;
