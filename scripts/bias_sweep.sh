@@ -19,7 +19,9 @@
 # Usage: bias_sweep.sh WORKDIR [SCENE...]   (scenes: smoke hydrogen cosine box, the default,
 # and torus water blob sphere, volumes outside the eval: torus from scripts/torus_volume.py;
 # water is data/water_esp_31x34x33_float32.raw with its negative values set to 0; blob is the
-# two-Gaussian grid of docs/evaluation.md; the three are read from VOLDIR, default WORKDIR)
+# two-Gaussian grid of docs/evaluation.md; the three are read from VOLDIR, default WORKDIR;
+# production, the OpenVDB cloud of `scripts/production/generate.sh half`, read from
+# PRODUCTION_VDB, default target/production/cloud-half.vdb)
 # Environment: SIZE (64), REF_SPP (2048), PIN_SPP (256), THREADS (2), CONFIGS (space-separated
 # config names; default all), PLOT (1).
 #
@@ -36,6 +38,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 data="$here/../data"
 bin=${BIN:-${CARGO_TARGET_DIR:-$here/../target}/release}
 voldir=${VOLDIR:-$work}
+production=${PRODUCTION_VDB:-$bin/../production/cloud-half.vdb}
 SIZE=${SIZE:-64} REF_SPP=${REF_SPP:-2048} PIN_SPP=${PIN_SPP:-256} THREADS=${THREADS:-2}
 mkdir -p "$work"
 csv="$work/bias.csv"
@@ -54,6 +57,9 @@ scene_def() {
     water) echo "$voldir/water_31x34x33_float32.raw --spacing 0.03125|0,0,0|0.96875,1.0625,1.03125|0.5,0.35,1|0.8|31x34x33" ;;
     blob) echo "$voldir/blob_40x44x36_float32.raw --spacing 0.025|0,0,0|1,1.1,0.9|0.5,0.35,1|0.8|40x44x36" ;;
     sphere) echo "$data/gaffer_sphere_density.vdb --density-scale 20|-1.2,1,-1.2|1.2,3,1.2|0.5,0.35,1|0.8|12x10x12" ;;
+    # The production-scale OpenVDB cloud of scripts/production/generate.sh half (voxel
+    # 10/1225, active index box 43..953 x 34..637 x 46..1155), as the eval's production scene.
+    production) echo "$production --density-scale 0.5|0.34694,0.27347,0.37143|7.78367,5.20408,9.43265|0.5,0.3,1|0.8|911x604x1110" ;;
     *) echo "unknown scene $1" >&2; exit 2 ;;
     esac
 }

@@ -600,7 +600,7 @@ mod tests {
     #[test]
     fn default_cells_never_exceed_voxels() {
         use crate::source::DenseGrid;
-        // The case: a 31x34x33 grid with density everywhere.
+        // The case that found it: a 31x34x33 grid with density everywhere.
         let dims = [31u32, 34, 33];
         let n = (dims[0] * dims[1] * dims[2]) as usize;
         let spacing = DVec3::new(0.5, 2.0, 1.0);

@@ -48,8 +48,8 @@ pub const MAX_CHOICE_CELLS: u32 = 64;
 /// Octahedral resolution `n` (n x n direction cells) at most.
 pub const MAX_CHOICE_OCTAHEDRAL: u32 = 32;
 
-/// The block error a default bake aims for when the user names no `--target-error`: issue
-/// 14's goal of 10% over the model's largest under-prediction of a swept bake of a fitted
+/// The block error a default bake aims for when the user names no `--target-error`: the
+/// goal of 10% over the model's largest under-prediction of a swept bake of a fitted
 /// volume (1.65, the torus; docs/evaluation.md, "The bias model that `pinbake bake` uses").
 /// Above the floor this is what keeps the smoke's default at 10x20x10 (0.73x its f16 density);
 /// at 0.05 the model asks for octahedral:18 there (0.92x), where the sweep measured no gain.
@@ -342,6 +342,11 @@ pub struct Choice {
     /// measured block error exceeds the prediction (`docs/evaluation.md`, "The sphere: capped
     /// by its voxels"); `reason_cells` says so and how to go finer.
     pub capped_by_voxels: bool,
+    /// One line for the user when the cells or directions were chosen (not given) and the
+    /// choice cannot resolve the volume's detail as the target asks: no bake in the searched
+    /// range meets it, or the cells are capped by the voxels. `pinbake bake` prints it on
+    /// stderr; `--json` carries it as `choice.warning` (null otherwise).
+    pub warning: Option<String>,
     /// One sentence per parameter.
     pub reason_cells: String,
     pub reason_directions: String,
@@ -473,6 +478,26 @@ fn choose_above(
             }
         ),
     };
+    let chosen = fixed.cells.is_none() || fixed.directions.is_none();
+    let warning = if !chosen {
+        None
+    } else if !target_met {
+        Some(format!(
+            "no bake up to {MAX_CHOICE_CELLS} cells and octahedral:{MAX_CHOICE_OCTAHEDRAL} \
+             resolves this volume's detail to the target block error {target} (the closest \
+             predicts {error:.3}, model variation {:.1}): expect visible pin bias; name finer \
+             --cells/--dirs, or render final frames with an unbiased estimator",
+            stats.model_variation
+        ))
+    } else if capped_by_voxels {
+        Some(format!(
+            "the cells are capped at one per voxel ({voxels}); on volumes this small the \
+             measured block error exceeds the predicted {error:.3}: --cells above the voxels \
+             lowers it"
+        ))
+    } else {
+        None
+    };
     let reason_directions = match fixed.directions {
         Some(_) => "given (--dirs)".to_string(),
         None => format!(
@@ -495,6 +520,7 @@ fn choose_above(
         target_met,
         capped_by_voxels,
         predicted_pin_bytes: bytes,
+        warning,
         reason_cells,
         reason_directions,
         reason_pins_per_entry,
@@ -729,6 +755,39 @@ mod tests {
                 n: MAX_CHOICE_OCTAHEDRAL
             }
         );
+    }
+
+    #[test]
+    fn a_choice_that_cannot_resolve_the_volume_says_so() {
+        // A detailed blob at a target no bake in the range reaches: one line that names the
+        // target and what to do; a reachable target, or given cells and directions, says
+        // nothing.
+        let s = analyse(&blob(32, 6.0), true).unwrap();
+        let c = choose(&s, Fixed::default(), 1e-4);
+        assert!(!c.target_met);
+        let w = c.warning.expect("an unreachable target warns");
+        assert!(w.contains("0.0001") && w.contains("--cells"), "{w}");
+        assert!(!w.contains('\n'), "{w}");
+        assert_eq!(choose(&s, Fixed::default(), 0.5).warning, None);
+        let smooth = analyse(&blob(64, 0.0), true).unwrap();
+        assert_eq!(choose_default(&smooth, Fixed::default()).warning, None);
+        let given = Fixed {
+            cells: Some([8; 3]),
+            directions: Some(Directions::Octahedral { n: 4 }),
+            pins_per_entry: None,
+        };
+        assert_eq!(choose(&s, given, 1e-4).warning, None);
+        // Capped by the voxels: the other reason to warn.
+        let tiny = DenseGrid::new(
+            [5, 7, 3],
+            (0..105).map(|i| (i % 4) as f32).collect(),
+            DVec3::ONE,
+            DVec3::ZERO,
+            "t",
+        )
+        .unwrap();
+        let t = choose(&analyse(&tiny, false).unwrap(), Fixed::default(), 1e-6);
+        assert!(t.capped_by_voxels && t.warning.is_some());
     }
 
     #[test]

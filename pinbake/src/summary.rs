@@ -138,6 +138,7 @@ pub fn choice_json(c: &Choice, file_bytes: u64) -> Value {
         "target_error": c.target_error,
         "target_met": c.target_met,
         "capped_by_voxels": c.capped_by_voxels,
+        "warning": c.warning,
         "predicted_pin_bytes": c.predicted_pin_bytes,
         "bytes": file_bytes,
         "reason": {

@@ -378,7 +378,18 @@ fn default_bake_fits_the_voxels() {
         args.extend_from_slice(extra);
         let o = pinbake(&args);
         assert!(o.status.success(), "{}", stderr(&o));
-        serde_json::from_slice(&o.stdout).unwrap()
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        // The choice's warning is printed on stderr as one line, and only then.
+        let warned: Vec<_> = stderr(&o)
+            .lines()
+            .filter(|l| l.starts_with("pinbake: warning: "))
+            .map(str::to_string)
+            .collect();
+        match v["choice"]["warning"].as_str() {
+            Some(w) => assert!(warned.len() == 1 && warned[0].ends_with(w), "{warned:?}"),
+            None => assert!(warned.is_empty(), "{warned:?}"),
+        }
+        v
     };
     let dims = |v: &serde_json::Value| -> Vec<u64> {
         v["dims"]
@@ -401,6 +412,7 @@ fn default_bake_fits_the_voxels() {
     assert_eq!(c["pins_per_entry"], 1);
     assert_eq!(c["target_error"], pinbake::choose::DEFAULT_TARGET_ERROR);
     assert_eq!(c["target_met"], true);
+    assert_eq!(c["warning"], serde_json::Value::Null);
     assert!(c["predicted_error"].as_f64().unwrap() <= pinbake::choose::DEFAULT_TARGET_ERROR);
     assert_eq!(c["bytes"], v["file_bytes"]);
     for p in ["cells", "directions", "pins_per_entry"] {
@@ -419,6 +431,12 @@ fn default_bake_fits_the_voxels() {
     assert_eq!(dims(&v), [31, 34, 33]);
     assert_eq!(v["choice"]["target_met"], false);
     assert_eq!(v["choice"]["reason"]["directions"], "given (--dirs)");
+    assert!(
+        v["choice"]["warning"]
+            .as_str()
+            .is_some_and(|w| w.contains("0.001")),
+        "{v}"
+    );
     // An explicit --cells is taken as given, finer than the voxels or not.
     let out = dir.path().join("water40.pin");
     let o = pinbake(&[

@@ -268,8 +268,8 @@ fn pin_direction_error_by_region() {
     }
 }
 
-/// A peaked Gaussian blob in a unit cube (extinction up to 8): the kind of volume the issue's
-/// user baked.
+/// A peaked Gaussian blob in a unit cube (extinction up to 8): the kind of volume a user
+/// bakes.
 struct Blob;
 impl DensitySource for Blob {
     fn bounds(&self) -> Aabb {

@@ -279,6 +279,11 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
         b.finish_and_clear();
     }
     let seconds = started.elapsed().as_secs_f64();
+    if let Some(w) = &baked.choice.warning
+        && !args.quiet
+    {
+        pin_cli::errln!("pinbake: warning: {}: {w}", args.input.display());
+    }
     let mut v = baked
         .summary()
         .with_context(|| args.output.display().to_string())?;
