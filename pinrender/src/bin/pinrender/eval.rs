@@ -134,6 +134,9 @@ pub struct EvalArgs {
     pub data: Option<PathBuf>,
 }
 
+/// The longest budget the scenes' reference samples per pixel are sized for.
+const REFERENCE_BUDGET_S: f64 = 4.0;
+
 /// The full run's budgets in seconds: previews to final frames.
 pub const FULL_BUDGETS: [f64; 8] = [0.25, 0.5, 1.0, 2.0, 4.0, 10.0, 30.0, 60.0];
 
@@ -316,7 +319,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     if let Some(d) = &a.data {
         crate::data::set_dir(d.clone());
     }
-    let sizes = {
+    let mut sizes = {
         let mut s = if a.quick {
             Sizes::quick()
         } else {
@@ -352,6 +355,16 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     budgets.sort_by(f64::total_cmp);
     budgets.dedup();
+    // The scenes' reference samples are sized for budgets up to 4 s. Longer budgets bring the
+    // estimators' error down with the square root of their time, so the full run's reference
+    // gets as many more samples as its longest budget is longer, and its own noise stays
+    // below what it measures (a reference as noisy as the estimate compresses every ratio
+    // towards 1). `--ref-spp` is taken as given.
+    if !a.quick && a.ref_spp.is_none() {
+        let longest = budgets.last().copied().unwrap_or(REFERENCE_BUDGET_S);
+        let factor = (longest / REFERENCE_BUDGET_S).ceil().max(1.0) as u32;
+        sizes.ref_spp = sizes.ref_spp.saturating_mul(factor);
+    }
     if a.gpu_batch == 0 {
         crate::usage!("--gpu-batch must be >= 1");
     }
