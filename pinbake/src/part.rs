@@ -147,6 +147,23 @@ impl March<'_> {
     }
 }
 
+/// The optical depths the bake computes from pin `cs`'s `samples` (all of them, in order):
+/// each interval's samples summed in f64 one after the other in chunks of [`CHUNK`] (a
+/// fresh sum per chunk, added to the interval's), times the sample weight. One rule for both
+/// marches of `pin::field_optical_depths`: a whole-pin dense march adds to a sum that starts
+/// at +0.0, which the chunk's sum added to +0.0 equals bit for bit.
+pub(crate) fn optical_depths(samples: &[f32], cs: &ChordSamples) -> [f64; INTERVALS] {
+    let mut taus = [0.0f64; INTERVALS];
+    for (tau, interval) in taus.iter_mut().zip(samples.chunks(cs.steps)) {
+        let mut sum = 0.0f64;
+        for chunk in interval.chunks(CHUNK) {
+            sum += chunk.iter().map(|&v| f64::from(v)).sum::<f64>();
+        }
+        *tau = sum * cs.weight;
+    }
+    taus
+}
+
 /// The samples `[a, b)` of pin `cs` whose position lies in `slab` (z in `[lo, hi)` of the
 /// bake frame), by one rule that every part and the merge apply: the slabs of a bake share
 /// their boundaries bit for bit, so the pieces of one pin tile its samples exactly.
@@ -616,14 +633,7 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
                             all.extend_from_slice(&order[s].1.samples[at[s]..at[s] + n]);
                             at[s] += n;
                         }
-                        let mut taus = [0.0f64; INTERVALS];
-                        for (tau, interval) in taus.iter_mut().zip(all.chunks(cs.steps)) {
-                            let mut sum = 0.0f64;
-                            for chunk in interval.chunks(CHUNK) {
-                                sum += chunk.iter().map(|&v| f64::from(v)).sum::<f64>();
-                            }
-                            *tau = sum * cs.weight;
-                        }
+                        let taus = optical_depths(&all, &cs);
                         block[(dir * ppe + k) as usize] = make_entry(&taus, &mut rng);
                     }
                 }
@@ -638,4 +648,259 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         block_len,
         started,
     )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::bake;
+    use crate::pin::field_optical_depths;
+    use crate::rng::CounterRng;
+    use crate::source::HomogeneousBox;
+
+    /// A field with structure along every axis, sampled through `extinction_along`.
+    struct Waves;
+    impl DensitySource for Waves {
+        fn bounds(&self) -> Aabb {
+            Aabb::new(DVec3::new(-1.0, 0.0, 2.0), DVec3::new(1.0, 0.5, 3.5))
+        }
+        fn extinction(&self, p: DVec3) -> f32 {
+            if !(p.cmpge(self.bounds().min).all() && p.cmple(self.bounds().max).all()) {
+                return 0.0;
+            }
+            // Values over 40 binary orders of magnitude: an f64 sum of them rounds, so a sum
+            // in another order gives other bits (where a narrow range would add exactly).
+            let octave = ((p.y * 40.0).floor() as i32).rem_euclid(9) * 5 - 20;
+            ((2.0 + (7.0 * p.x).sin() * (5.0 * p.y + 1.0).cos() + (9.0 * p.z).sin())
+                * 2f64.powi(octave)) as f32
+        }
+        fn max_extinction_in(&self, _: Aabb) -> f32 {
+            4.0 * 2f32.powi(20)
+        }
+        fn describe(&self) -> String {
+            "waves".into()
+        }
+    }
+
+    fn grid() -> DenseGrid {
+        let dims = [13u32, 9, 17];
+        let n = (dims[0] * dims[1] * dims[2]) as usize;
+        // Over 40 binary orders of magnitude, as `Waves`.
+        let data: Vec<f32> = (0..n)
+            .map(|i| ((i * 7919) % 97) as f32 / 23.0 * 2f32.powi((i % 41) as i32 - 20))
+            .collect();
+        DenseGrid::new(
+            dims,
+            data,
+            DVec3::new(0.2, 0.3, 0.25),
+            DVec3::new(-1.0, 2.0, 0.5),
+            "t",
+        )
+        .unwrap()
+    }
+
+    fn opts() -> BakeOptions {
+        BakeOptions {
+            cells: [4, 3, 5],
+            directions: Directions::Octahedral { n: 3 },
+            pins_per_entry: 2,
+            majorant: Some([2, 3, 4]),
+            seed: 11,
+            ..BakeOptions::default()
+        }
+    }
+
+    /// The parts of `count`, baked in reverse order with `threads`, merged in `order`.
+    fn merged(
+        source: &dyn DensitySource,
+        opts: &BakeOptions,
+        count: u32,
+        threads: usize,
+    ) -> Vec<u8> {
+        let mut parts: Vec<(String, PartData)> = (0..count)
+            .rev()
+            .map(|index| {
+                let o = BakeOptions {
+                    threads: Some(threads),
+                    ..opts.clone()
+                };
+                let d = bake_part(source, &o, Part { index, count }, &|_| {}).unwrap();
+                // Through the file format, as a farm hands them over.
+                let d = crate::part_file::decode(&crate::part_file::encode(&d).unwrap()).unwrap();
+                (format!("p{index}"), d)
+            })
+            .collect();
+        // Any order: rotate by one.
+        parts.rotate_left(1);
+        merge_parts(&parts).unwrap().0.to_bytes().unwrap()
+    }
+
+    /// The merged parts are the monolithic bake's bytes for 1, 2, 3 and 5 parts, for a
+    /// procedural field (`extinction_along`) and a dense grid (its march, whole pins and
+    /// pins of more than one chunk per interval), with jittered pins too, for any thread
+    /// count of the parts.
+    #[test]
+    fn parts_merge_into_the_monolithic_bytes() {
+        let g = grid();
+        let fine = BakeOptions {
+            // More than 256 samples per interval: the chunked march.
+            step: 0.00005,
+            cells: [2, 2, 3],
+            directions: Directions::Octahedral { n: 2 },
+            ..opts()
+        };
+        let jittered = BakeOptions {
+            jitter_pins: true,
+            ..opts()
+        };
+        let cases: [(&dyn DensitySource, BakeOptions); 4] = [
+            (&Waves, opts()),
+            (&g, opts()),
+            (&g, fine),
+            (&Waves, jittered),
+        ];
+        for (i, (source, o)) in cases.iter().enumerate() {
+            let whole = bake(*source, o, &|_| {}).unwrap().0.to_bytes().unwrap();
+            for count in [1, 2, 3, 5] {
+                let threads = 1 + (count as usize % 3);
+                assert!(
+                    merged(*source, o, count, threads) == whole,
+                    "case {i}: {count} parts differ from the monolithic bake"
+                );
+            }
+        }
+    }
+
+    /// A dense grid of 32 MiB and more is baked by layers (`crate::sweep`); its parts merge
+    /// into those bytes too.
+    #[test]
+    fn parts_of_a_layered_bake_merge_into_its_bytes() {
+        let g = grid();
+        let sweep = crate::sweep::Sweep {
+            min_grid_bytes: 0,
+            batch_pins: 64,
+            layer: 3,
+            ..crate::sweep::Sweep::default()
+        };
+        let o = opts();
+        let layered = crate::bake::bake_with_sweep(&g, &o, Some(sweep), &|_| {})
+            .unwrap()
+            .0
+            .to_bytes()
+            .unwrap();
+        assert!(merged(&g, &o, 3, 2) == layered);
+    }
+
+    /// The split itself: for random pins, the pieces of every slab in sample order are the
+    /// pin's samples, and the merge's sum of them has the bits of the bake's optical depths
+    /// (the associativity the byte equality rests on, tested below the masks: a rounding
+    /// difference need not flip a mask bit).
+    #[test]
+    fn pieces_sum_to_the_bits_of_the_bake() {
+        let g = grid();
+        let box_ = g.bounds();
+        let slabs = [
+            [f64::NEG_INFINITY, 1.3],
+            [1.3, 1.31],
+            [1.31, 2.9],
+            [2.9, f64::INFINITY],
+        ];
+        for (field, march, step) in [
+            (
+                crate::pin::Field::Source(&Waves as &dyn DensitySource),
+                March::Source(&Waves),
+                0.01,
+            ),
+            (crate::pin::Field::Grid(&g), March::Grid(&g), 0.01),
+            (crate::pin::Field::Grid(&g), March::Grid(&g), 0.00005),
+        ] {
+            let bounds = match march {
+                March::Source(s) => s.bounds(),
+                March::Grid(_) => box_,
+            };
+            let placement = Placement::over(&bounds, step);
+            let mut buf = [0f32; CHUNK];
+            for n in 0..40 {
+                let mut rng = CounterRng::new(9, 2, n);
+                let p = DVec3::new(rng.next_f64(), rng.next_f64(), rng.next_f64());
+                let w = DVec3::new(rng.next_f64() - 0.5, rng.next_f64() - 0.5, rng.next_f64())
+                    .normalize();
+                let Some(cs) = chord_samples(&placement, p, w) else {
+                    continue;
+                };
+                let total = INTERVALS * cs.steps;
+                let mut whole = Vec::new();
+                march.samples(&cs, 0..total, &mut buf, &mut whole);
+                assert_eq!(whole.len(), total);
+                let mut pieces = Vec::new();
+                let mut next = 0;
+                for s in slabs {
+                    let (a, b) = owned_range(&cs, s);
+                    assert_eq!(a, next, "pin {n}: the pieces tile the samples");
+                    march.samples(&cs, a..b, &mut buf, &mut pieces);
+                    next = b;
+                }
+                assert_eq!(next, total);
+                assert!(pieces == whole, "pin {n}: pieces differ from the whole pin");
+                let want = field_optical_depths(field, &placement, p, w);
+                let got = optical_depths(&pieces, &cs);
+                assert_eq!(
+                    want.map(f64::to_bits),
+                    got.map(f64::to_bits),
+                    "pin {n}, step {step}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn merge_refuses_missing_duplicated_and_mismatched_parts() {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        let part = |index, count, seed| {
+            let o = BakeOptions { seed, ..opts() };
+            (
+                format!("p{index}s{seed}"),
+                bake_part(&src, &o, Part { index, count }, &|_| {}).unwrap(),
+            )
+        };
+        let (a, b, c) = (part(0, 3, 1), part(1, 3, 1), part(2, 3, 1));
+        let err = |parts: &[(String, PartData)]| merge_parts(parts).unwrap_err().to_string();
+        assert!(err(&[a.clone(), c.clone()]).contains("part 1 of 3 is missing"));
+        assert!(err(&[a.clone(), b.clone(), b.clone(), c.clone()]).contains("given twice"));
+        let other_seed = part(1, 3, 2);
+        let e = err(&[a.clone(), other_seed, c.clone()]);
+        assert!(e.contains("p1s2") && e.contains("grid description"), "{e}");
+        let other_count = part(1, 2, 1);
+        assert!(err(&[a.clone(), other_count, c.clone()]).contains("is part of 2"));
+        let mut short = b.clone();
+        short.1.samples.pop();
+        assert!(err(&[a.clone(), short, c.clone()]).contains("samples"));
+        let mut gap = b.clone();
+        gap.1.slab[1] -= 0.125;
+        assert!(err(&[a.clone(), gap, c.clone()]).contains("do not cover"));
+        assert!(matches!(merge_parts(&[]), Err(PartError::Empty)));
+        // The three merge.
+        assert!(merge_parts(&[c, a, b]).is_ok());
+    }
+
+    #[test]
+    fn part_bakes_refuse_what_they_cannot_split() {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        for o in [
+            BakeOptions {
+                embed_density: Some([2, 2, 2]),
+                ..opts()
+            },
+            BakeOptions {
+                tile: Some(crate::Tile { index: 0, count: 2 }),
+                ..opts()
+            },
+        ] {
+            assert!(matches!(
+                bake_part(&src, &o, Part { index: 0, count: 2 }, &|_| {}),
+                Err(BakeError::Options(_))
+            ));
+        }
+        assert!(bake_part(&src, &opts(), Part { index: 2, count: 2 }, &|_| {}).is_err());
+    }
 }

@@ -254,3 +254,62 @@ pub fn write_atomic(target: &Path, bytes: &[u8]) -> std::io::Result<()> {
     }
     result
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::BakeOptions;
+    use crate::source::{Aabb, HomogeneousBox};
+    use glam::DVec3;
+
+    fn sample() -> PartData {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        let opts = BakeOptions {
+            cells: [3, 2, 4],
+            directions: pin_format::Directions::Octahedral { n: 2 },
+            majorant: Some([2, 2, 2]),
+            ..BakeOptions::default()
+        };
+        crate::part::bake_part(&src, &opts, Part { index: 1, count: 3 }, &|_| {}).unwrap()
+    }
+
+    #[test]
+    fn a_part_file_reads_back_what_was_written() {
+        let d = sample();
+        assert!(!d.samples.is_empty());
+        let bytes = encode(&d).unwrap();
+        assert!(is_part_file(&bytes));
+        assert_eq!(decode(&bytes).unwrap(), d);
+    }
+
+    /// Every truncation and every flipped byte is a one-line error, never a panic or a
+    /// part read from damaged bytes.
+    #[test]
+    fn damaged_part_files_are_refused() {
+        let bytes = encode(&sample()).unwrap();
+        for cut in (0..bytes.len()).step_by(7) {
+            let e = decode(&bytes[..cut]).unwrap_err().to_string();
+            assert!(!e.contains('\n'), "{e}");
+        }
+        for at in (0..bytes.len()).step_by(5) {
+            let mut b = bytes.clone();
+            b[at] ^= 0x10;
+            let e = decode(&b).unwrap_err().to_string();
+            assert!(!e.contains('\n'), "{e}");
+        }
+        let mut other = bytes.clone();
+        other[8] = 9;
+        assert!(matches!(decode(&other), Err(PartFileError::Version(9))));
+        assert!(matches!(decode(b"PINFILE!xxxx"), Err(PartFileError::Magic)));
+        // A consistent checksum over a count that claims more than the file holds.
+        let mut long = bytes[..bytes.len() - 8].to_vec();
+        let n = long.len();
+        // The sample count sits before the samples: make it huge.
+        let samples = sample().samples.len();
+        let at = n - samples * 4 - 8;
+        long[at..at + 8].copy_from_slice(&u64::MAX.to_le_bytes());
+        let sum = xxhash_rust::xxh3::xxh3_64(&long);
+        long.extend_from_slice(&sum.to_le_bytes());
+        assert!(matches!(decode(&long), Err(PartFileError::Corrupt(_))));
+    }
+}
