@@ -715,34 +715,40 @@ fn for_each_leaf_origin<T>(g: &vdb_rs::Grid<T>, mut f: impl FnMut([i32; 3])) -> 
     Ok(())
 }
 
-/// The index-z slab `[lo, hi)` of part `p`: the tree's leaf layers (8 voxels each, from the
-/// lowest leaf to the highest) split as evenly as whole layers allow, the first part open
-/// below and the last open above. A function of the topology only, so that every part of
-/// one bake cuts the same boundaries.
+/// The index-z slab `[lo, hi)` of part `p`: whole leaf layers (8 voxels of z each), cut
+/// where the count of leaves below reaches `k / count` of all leaves, so that each part holds
+/// about as many leaves as the others; the first part is open below and the last above. A
+/// function of the topology only, so that every part of one bake cuts the same boundaries.
 fn part_slab<T>(g: &vdb_rs::Grid<T>, p: VdbPart) -> Result<(i64, i64), String> {
-    let (mut zmin, mut zmax) = (i64::MAX, i64::MIN);
-    for_each_leaf_origin(g, |o| {
-        zmin = zmin.min(i64::from(o[2]));
-        zmax = zmax.max(i64::from(o[2]));
-    })?;
-    if zmin > zmax {
-        // No leaves: tiles only, which every part keeps; part 0 takes every sample.
+    let mut layers: std::collections::BTreeMap<i64, u64> = std::collections::BTreeMap::new();
+    for_each_leaf_origin(g, |o| *layers.entry(i64::from(o[2])).or_default() += 1)?;
+    let total: u64 = layers.values().sum();
+    // Cut `k`: the first layer with at least `k * total / count` leaves below it.
+    let cut = |k: u32| {
+        if k == 0 {
+            return i64::MIN;
+        }
+        if k == p.count {
+            return i64::MAX;
+        }
+        let want = u128::from(k) * u128::from(total) / u128::from(p.count);
+        let mut below = 0u128;
+        for (&z, &n) in &layers {
+            if below >= want {
+                return z;
+            }
+            below += u128::from(n);
+        }
+        i64::MAX
+    };
+    if total == 0 {
+        // Tiles only, which every part keeps: part 0 takes every sample.
         return Ok(if p.index == 0 {
             (i64::MIN, i64::MAX)
         } else {
             (i64::MAX, i64::MAX)
         });
     }
-    let layers = (zmax - zmin) / 8 + 1;
-    let cut = |b: u32| {
-        if b == 0 {
-            i64::MIN
-        } else if b == p.count {
-            i64::MAX
-        } else {
-            zmin + 8 * (i64::from(b) * layers / i64::from(p.count))
-        }
-    };
     Ok((cut(p.index), cut(p.index + 1)))
 }
 
