@@ -344,19 +344,40 @@ pub(super) fn worker_run(
             let (g, mut leaves) = reader
                 .read_grid_topology::<f32>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, part, out)
+            emit_grid(
+                &g,
+                &mut leaves,
+                (kind, version, level_set),
+                &shown,
+                part,
+                out,
+            )
         }
         ValueKind::Half => {
             let (g, mut leaves) = reader
                 .read_grid_topology::<u16>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, part, out)
+            emit_grid(
+                &g,
+                &mut leaves,
+                (kind, version, level_set),
+                &shown,
+                part,
+                out,
+            )
         }
         ValueKind::Double => {
             let (g, mut leaves) = reader
                 .read_grid_topology::<f64>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, part, out)
+            emit_grid(
+                &g,
+                &mut leaves,
+                (kind, version, level_set),
+                &shown,
+                part,
+                out,
+            )
         }
     }
 }
@@ -454,9 +475,7 @@ pub(super) fn tile_values<T: Val>(
 pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     g: &vdb_rs::Grid<T>,
     leaves: &mut vdb_rs::LeafData<'_, R>,
-    kind: ValueKind,
-    version: u32,
-    level_set: bool,
+    (kind, version, level_set): (ValueKind, u32, bool),
     shown: &str,
     part: Option<(VdbPart, DensityScale)>,
     out: &mut impl Write,
@@ -798,9 +817,9 @@ impl Skipped {
                 )
             })?;
             if s != 0.0 {
-                for a in 0..3 {
-                    self.lo[a] = self.lo[a].min(at[a]);
-                    self.hi[a] = self.hi[a].max(at[a]);
+                for ((lo, hi), c) in self.lo.iter_mut().zip(&mut self.hi).zip(at) {
+                    *lo = (*lo).min(c);
+                    *hi = (*hi).max(c);
                 }
             }
             m = m.max(s);
