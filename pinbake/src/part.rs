@@ -287,30 +287,11 @@ fn part_in_pool(
     );
     let [nx, ny, nz] = opts.cells;
     let (dirs, ppe) = (opts.directions.count(), opts.pins_per_entry);
-    let rows: Vec<Vec<f32>> = (0..ny as usize * nz as usize)
-        .into_par_iter()
-        .map(|row| {
-            let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
-            let mut out = Vec::new();
-            let mut buf = [0f32; CHUNK];
-            for x in 0..nx {
-                for dir in 0..dirs {
-                    for k in 0..ppe {
-                        let cell = [x, y, z];
-                        let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
-                        let (p, w) = layout.line(cell, dir, &mut rng);
-                        if let Some(cs) = chord_samples(&placement, p, w) {
-                            let (a, b) = owned_range(&cs, slab);
-                            march.samples(&cs, a..b, &mut buf, &mut out);
-                        }
-                    }
-                }
-            }
-            progress(u64::from(nx) * u64::from(dirs) * u64::from(ppe));
-            out
-        })
-        .collect();
-    let total: usize = rows.iter().map(Vec::len).sum();
+    let rows = ny as usize * nz as usize;
+    // The samples are counted first, so that they are one allocation of their exact size
+    // that the rows fill in place (they are most of a part's memory beside the source).
+    let counts = row_counts(&layout, &placement, &[slab]);
+    let total: usize = counts.iter().map(|c| c[0]).sum();
     let mut samples = Vec::new();
     samples
         .try_reserve_exact(total)
@@ -318,9 +299,34 @@ fn part_in_pool(
             what: "the part's samples",
             bytes: total as u64 * 4,
         })?;
-    for r in rows {
-        samples.extend_from_slice(&r);
+    samples.resize(total, 0.0f32);
+    let mut slices: Vec<&mut [f32]> = Vec::with_capacity(rows);
+    let mut rest = samples.as_mut_slice();
+    for c in &counts {
+        let (row, tail) = rest.split_at_mut(c[0]);
+        slices.push(row);
+        rest = tail;
     }
+    slices.into_par_iter().enumerate().for_each(|(row, slice)| {
+        let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
+        let mut out = Vec::with_capacity(slice.len());
+        let mut buf = [0f32; CHUNK];
+        for x in 0..nx {
+            for dir in 0..dirs {
+                for k in 0..ppe {
+                    let cell = [x, y, z];
+                    let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                    let (p, w) = layout.line(cell, dir, &mut rng);
+                    if let Some(cs) = chord_samples(&placement, p, w) {
+                        let (a, b) = owned_range(&cs, slab);
+                        march.samples(&cs, a..b, &mut buf, &mut out);
+                    }
+                }
+            }
+        }
+        slice.copy_from_slice(&out);
+        progress(u64::from(nx) * u64::from(dirs) * u64::from(ppe));
+    });
     let majorant = opts
         .majorant
         .map(|dims| crate::bake::bake_majorant(source, &bbox, dims).map(|(h, v)| (h.dims, v)))
@@ -389,6 +395,36 @@ fn lattice_part(
         }
     }
     (values, owned)
+}
+
+/// For each row of cells (`y + ny * z`), the number of its pins' samples in each of
+/// `slabs`: where each row's samples start in a part's file.
+fn row_counts(layout: &PinLayout, placement: &Placement, slabs: &[[f64; 2]]) -> Vec<Vec<usize>> {
+    let [nx, ny, nz] = layout.dims;
+    let (dirs, ppe) = (layout.directions.count(), layout.pins_per_entry);
+    (0..ny as usize * nz as usize)
+        .into_par_iter()
+        .map(|row| {
+            let mut c = vec![0usize; slabs.len()];
+            let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
+            for x in 0..nx {
+                for dir in 0..dirs {
+                    for k in 0..ppe {
+                        let cell = [x, y, z];
+                        let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                        let (p, w) = layout.line(cell, dir, &mut rng);
+                        if let Some(cs) = chord_samples(placement, p, w) {
+                            for (c, s) in c.iter_mut().zip(slabs) {
+                                let (a, b) = owned_range(&cs, *s);
+                                *c += b - a;
+                            }
+                        }
+                    }
+                }
+            }
+            c
+        })
+        .collect()
 }
 
 /// Joins parts (any order) into the grid a monolithic bake with their options writes, and
@@ -554,25 +590,7 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         (chord_samples(&placement, p, w), rng)
     };
     // Pass 1: each row's sample count per part, for where each row starts in each part.
-    let counts: Vec<Vec<usize>> = (0..rows)
-        .into_par_iter()
-        .map(|row| {
-            let mut c = vec![0usize; slabs.len()];
-            for x in 0..nx {
-                for dir in 0..dirs {
-                    for k in 0..ppe {
-                        if let (Some(cs), _) = pin(row, x, dir, k) {
-                            for (c, s) in c.iter_mut().zip(&slabs) {
-                                let (a, b) = owned_range(&cs, *s);
-                                *c += b - a;
-                            }
-                        }
-                    }
-                }
-            }
-            c
-        })
-        .collect();
+    let counts = row_counts(&layout, &placement, &slabs);
     let mut starts = vec![vec![0usize; slabs.len()]; rows + 1];
     for row in 0..rows {
         for s in 0..slabs.len() {

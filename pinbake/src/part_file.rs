@@ -41,6 +41,8 @@ pub enum PartFileError {
     Corrupt(String),
     #[error("metadata: {0}")]
     Metadata(#[from] pin_format::FormatError),
+    #[error("cannot write the part file: {0}")]
+    Write(String),
 }
 
 /// Whether `bytes` start like a part file (for a merge that takes pin tiles or parts).
@@ -50,12 +52,42 @@ pub fn is_part_file(bytes: &[u8]) -> bool {
 
 /// The file's bytes.
 pub fn encode(d: &PartData) -> Result<Vec<u8>, PartFileError> {
+    let mut b = Vec::new();
+    encode_into(d, &mut b)?;
+    Ok(b)
+}
+
+/// A writer that hashes what it passes on, for the trailing checksum of a streamed file.
+struct Hashing<W: Write> {
+    inner: W,
+    hash: xxhash_rust::xxh3::Xxh3,
+    bytes: u64,
+}
+
+impl<W: Write> Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hash.update(&buf[..n]);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Writes the file to `w` as it goes (the samples are not copied first), returning its
+/// length in bytes.
+pub fn encode_into(d: &PartData, w: &mut impl Write) -> Result<u64, PartFileError> {
     let meta = d.metadata.encode()?;
-    let maj_len = d.majorant.as_ref().map_or(0, |m| m.1.len());
-    let mut b = Vec::with_capacity(
-        256 + meta.len() + maj_len * 4 + d.lattice.len() * 5 + d.samples.len() * 4,
-    );
-    b.extend_from_slice(PART_MAGIC);
+    let mut h = Hashing {
+        inner: w,
+        hash: xxhash_rust::xxh3::Xxh3::new(),
+        bytes: 0,
+    };
+    let io = |e: std::io::Error| PartFileError::Write(e.to_string());
+    let b = &mut h;
+    b.write_all(PART_MAGIC).map_err(io)?;
     for v in [
         PART_VERSION,
         d.part.index,
@@ -66,32 +98,38 @@ pub fn encode(d: &PartData) -> Result<Vec<u8>, PartFileError> {
             0
         },
     ] {
-        b.extend_from_slice(&v.to_le_bytes());
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
     }
     for v in d.slab {
-        b.extend_from_slice(&v.to_le_bytes());
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
     }
     let desc = bytemuck::bytes_of(&d.desc);
-    b.extend_from_slice(&(desc.len() as u32).to_le_bytes());
-    b.extend_from_slice(desc);
-    b.extend_from_slice(&(meta.len() as u32).to_le_bytes());
-    b.extend_from_slice(&meta);
+    b.write_all(&(desc.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    b.write_all(desc).map_err(io)?;
+    b.write_all(&(meta.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    b.write_all(&meta).map_err(io)?;
     let (dims, maj): ([u32; 3], &[f32]) = match &d.majorant {
         Some((dims, v)) => (*dims, v),
         None => ([0; 3], &[]),
     };
     for v in dims {
-        b.extend_from_slice(&v.to_le_bytes());
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
     }
-    b.extend_from_slice(bytemuck::cast_slice(maj));
-    b.extend_from_slice(&(d.lattice.len() as u32).to_le_bytes());
-    b.extend_from_slice(bytemuck::cast_slice(&d.lattice));
-    b.extend_from_slice(&d.lattice_owned);
-    b.extend_from_slice(&(d.samples.len() as u64).to_le_bytes());
-    b.extend_from_slice(bytemuck::cast_slice(&d.samples));
-    let sum = xxhash_rust::xxh3::xxh3_64(&b);
-    b.extend_from_slice(&sum.to_le_bytes());
-    Ok(b)
+    b.write_all(bytemuck::cast_slice(maj)).map_err(io)?;
+    b.write_all(&(d.lattice.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    b.write_all(bytemuck::cast_slice(&d.lattice)).map_err(io)?;
+    b.write_all(&d.lattice_owned).map_err(io)?;
+    b.write_all(&(d.samples.len() as u64).to_le_bytes())
+        .map_err(io)?;
+    for chunk in d.samples.chunks(1 << 16) {
+        b.write_all(bytemuck::cast_slice(chunk)).map_err(io)?;
+    }
+    let sum = h.hash.digest();
+    h.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
+    Ok(h.bytes + 8)
 }
 
 /// Reads the bytes from the front, every length checked against what is left.
@@ -219,10 +257,10 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
     })
 }
 
-/// Writes `bytes` to `target` atomically: a temporary `.NAME.*.partial` beside it (announced
-/// to [`crate::files::watch_partial_files`] while it exists), fsync, rename. A failure leaves
-/// no file behind.
-pub fn write_atomic(target: &Path, bytes: &[u8]) -> std::io::Result<()> {
+/// Writes the part file of `d` to `target` atomically: a temporary `.NAME.*.partial` beside
+/// it (announced to [`crate::files::watch_partial_files`] while it exists), fsync, rename. A
+/// failure leaves no file behind. Returns the file's length.
+pub fn write_atomic(target: &Path, d: &PartData) -> Result<u64, PartFileError> {
     let dir = match target.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
@@ -236,18 +274,22 @@ pub fn write_atomic(target: &Path, bytes: &[u8]) -> std::io::Result<()> {
         .map_or(0, |d| d.subsec_nanos());
     let temp = dir.join(format!(".{name}.{}-{nanos}.partial", std::process::id()));
     let _announced = crate::files::announce_partial_file(&temp);
+    let io = |e: std::io::Error| PartFileError::Write(e.to_string());
     let result = (|| {
-        let mut f = std::fs::OpenOptions::new()
+        let f = std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
-            .open(&temp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&temp, target)?;
+            .open(&temp)
+            .map_err(io)?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
+        let n = encode_into(d, &mut w)?;
+        let f = w.into_inner().map_err(|e| io(e.into_error()))?;
+        f.sync_all().map_err(io)?;
+        std::fs::rename(&temp, target).map_err(io)?;
         if let Ok(d) = std::fs::File::open(dir) {
             let _ = d.sync_all();
         }
-        Ok(())
+        Ok(n)
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&temp);

@@ -727,22 +727,21 @@ pub fn bake_part_to_file(
     let started = Instant::now();
     let advance = |n: u64| progress.advance(n);
     let data = crate::part::bake_part(source.as_ref(), &opts, part, &advance).map_err(bake_err)?;
-    let bytes = crate::part_file::encode(&data).map_err(|e| PlanError::Write {
-        path: output.to_path_buf(),
-        source: pin_format::FormatError::InvalidInput(e.to_string()),
-    })?;
+    // The source is not needed for the write: its memory goes before the file is written.
+    drop(source);
     let target = crate::files::check_output_among(output, &[inputs, &own])?;
-    crate::part_file::write_atomic(&target, &bytes).map_err(|err| FileError::Io {
-        path: output.to_path_buf(),
-        err,
-    })?;
+    let file_bytes =
+        crate::part_file::write_atomic(&target, &data).map_err(|e| PlanError::Write {
+            path: output.to_path_buf(),
+            source: pin_format::FormatError::InvalidInput(e.to_string()),
+        })?;
     Ok(BakedPart {
         part,
         slab: data.slab,
         samples: data.samples.len() as u64,
         choice,
         output: output.to_path_buf(),
-        file_bytes: bytes.len() as u64,
+        file_bytes,
         memory_estimate_bytes: need,
         seconds: started.elapsed().as_secs_f64(),
     })
