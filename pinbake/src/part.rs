@@ -577,12 +577,39 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         desc.flags & GRID_FLAG_JITTERED_PINS != 0,
         desc.seed,
     );
+    // The description comes from a file: its counts, box and step are checked before any
+    // work they size.
+    pin_format::GridShape::new(&desc, None)
+        .map_err(|e| mismatch(first_name, format!("grid description: {e}")))?;
+    crate::limits::check_rel_step(desc.step_size)
+        .map_err(|e| mismatch(first_name, format!("step: {e}")))?;
     let bbox = Aabb::new(DVec3::from(desc.box_min), DVec3::from(desc.box_max));
+    if !bbox.is_valid() {
+        return Err(mismatch(
+            first_name,
+            format!("box {bbox:?} is empty or not finite"),
+        ));
+    }
     let placement = Placement::over(&bbox, desc.step_size);
     let [nx, ny, nz] = desc.dims;
     let (dirs, ppe) = (directions.count(), desc.pins_per_entry);
     let block_len = dirs as usize * ppe as usize;
     let rows = ny as usize * nz as usize;
+    let pins = (rows as u64)
+        .checked_mul(u64::from(nx))
+        .and_then(|v| v.checked_mul(block_len as u64))
+        .filter(|&v| v <= (isize::MAX as u64) / 8)
+        .ok_or_else(|| mismatch(first_name, "grid has more pins than memory can hold".into()))?
+        as usize;
+    // The pins first: a grid too large for memory is refused before the passes over it.
+    let mut dense = Vec::new();
+    dense
+        .try_reserve_exact(pins)
+        .map_err(|_| BakeError::Alloc {
+            what: "the pins",
+            bytes: pins as u64 * 8,
+        })?;
+    dense.resize(pins, PinEntry::EMPTY);
     let pin = |row: usize, x: u32, dir: u32, k: u32| {
         let cell = [x, (row % ny as usize) as u32, (row / ny as usize) as u32];
         let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
@@ -610,14 +637,6 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         }
     }
     // Pass 2: each pin's optical depths as the bake sums them, then its entry.
-    let mut dense = Vec::new();
-    dense
-        .try_reserve_exact(rows * nx as usize * block_len)
-        .map_err(|_| BakeError::Alloc {
-            what: "the pins",
-            bytes: (rows * nx as usize * block_len * 8) as u64,
-        })?;
-    dense.resize(rows * nx as usize * block_len, PinEntry::EMPTY);
     dense
         .par_chunks_mut(nx as usize * block_len)
         .enumerate()
@@ -831,6 +850,11 @@ mod tests {
             ),
             (crate::pin::Field::Grid(&g), March::Grid(&g), 0.01),
             (crate::pin::Field::Grid(&g), March::Grid(&g), 0.00005),
+            (
+                crate::pin::Field::Source(&Waves as &dyn DensitySource),
+                March::Source(&Waves),
+                0.00005,
+            ),
         ] {
             let bounds = match march {
                 March::Source(s) => s.bounds(),
@@ -897,6 +921,17 @@ mod tests {
         gap.1.slab[1] -= 0.125;
         assert!(err(&[a.clone(), gap, c.clone()]).contains("do not cover"));
         assert!(matches!(merge_parts(&[]), Err(PartError::Empty)));
+        // A description that the parts agree on but no bake writes: refused before any work.
+        let hostile = |f: &dyn Fn(&mut GridDesc)| {
+            let mut parts = [a.clone(), b.clone(), c.clone()];
+            for p in &mut parts {
+                f(&mut p.1.desc);
+            }
+            err(&parts)
+        };
+        assert!(hostile(&|d| d.step_size = 1e-300).contains("step"));
+        assert!(hostile(&|d| d.box_max[0] = f64::NAN).contains("box"));
+        assert!(hostile(&|d| d.dims = [0, 3, 5]).contains("grid description"));
         // The three merge.
         assert!(merge_parts(&[c, a, b]).is_ok());
     }
