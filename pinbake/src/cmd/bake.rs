@@ -281,9 +281,6 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
         bar: std::sync::OnceLock::new(),
     };
     if let Some(part) = args.part {
-        if args.frames.is_some() {
-            super::usage!("--part bakes one volume: give no --frames");
-        }
         let baked = pinbake::plan::bake_part_to_file(
             BakeInput::Source(spec),
             &args.output,
