@@ -262,19 +262,8 @@ pub(crate) fn bake_with_sweep(
     sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
-    if !(opts.step > 0.0 && opts.step.is_finite()) {
-        return Err(BakeError::Options(format!(
-            "step {} must be positive",
-            opts.step
-        )));
-    }
-    let pool = {
-        let mut b = rayon::ThreadPoolBuilder::new();
-        if let Some(t) = opts.threads {
-            b = b.num_threads(t.max(1));
-        }
-        b.build().map_err(|e| BakeError::Threads(e.to_string()))?
-    };
+    check_step(opts)?;
+    let pool = thread_pool(opts)?;
     match source.bake_frame() {
         None => pool.install(|| bake_in_pool(source, opts, sweep, progress)),
         Some((local, local_to_world)) => {
@@ -286,13 +275,12 @@ pub(crate) fn bake_with_sweep(
     }
 }
 
-fn bake_in_pool(
+/// The box a bake of `source` with `opts` covers and its grid description, as the file
+/// records it (`stored_cells` and `local_to_world` still to be filled in).
+pub(crate) fn grid_description(
     source: &dyn DensitySource,
     opts: &BakeOptions,
-    sweep: Option<Sweep>,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
-    let started = Instant::now();
+) -> Result<(Aabb, pin_format::GridDesc), BakeError> {
     let (bbox, cropped) = bake_box(source, opts.crop)?;
     let source_box = source.bounds();
     let mut desc = grid_desc(opts.cells, opts.directions, opts.pins_per_entry, 0);
@@ -309,6 +297,37 @@ fn bake_in_pool(
         } else {
             0
         };
+    Ok((bbox, desc))
+}
+
+/// The pool a bake with `opts` runs in.
+pub(crate) fn thread_pool(opts: &BakeOptions) -> Result<rayon::ThreadPool, BakeError> {
+    let mut b = rayon::ThreadPoolBuilder::new();
+    if let Some(t) = opts.threads {
+        b = b.num_threads(t.max(1));
+    }
+    b.build().map_err(|e| BakeError::Threads(e.to_string()))
+}
+
+/// The step must be a positive finite number.
+pub(crate) fn check_step(opts: &BakeOptions) -> Result<(), BakeError> {
+    if !(opts.step > 0.0 && opts.step.is_finite()) {
+        return Err(BakeError::Options(format!(
+            "step {} must be positive",
+            opts.step
+        )));
+    }
+    Ok(())
+}
+
+fn bake_in_pool(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    sweep: Option<Sweep>,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    let started = Instant::now();
+    let (bbox, desc) = grid_description(source, opts)?;
     let tile = match opts.tile {
         None => None,
         Some(t) => {
@@ -400,6 +419,43 @@ fn bake_in_pool(
             }),
     }
 
+    let majorant = opts
+        .majorant
+        .map(|dims| bake_majorant(source, &bbox, dims))
+        .transpose()?;
+    let density = opts
+        .embed_density
+        .map(|dims| bake_density(source, &bbox, dims))
+        .transpose()?;
+
+    finish(
+        desc,
+        tile,
+        dense,
+        (majorant, density),
+        opts.metadata.clone(),
+        block_len,
+        started,
+    )
+}
+
+/// The grid from every pin of the bake (`dense`, `block_len` pins per covered cell, in cell
+/// order): compacted (empty cells keep only their index entry), with its sections, validated,
+/// and its statistics. The last step of a bake and of a merge of parts.
+#[allow(clippy::type_complexity)]
+pub(crate) fn finish(
+    mut desc: pin_format::GridDesc,
+    tile: Option<TileDesc>,
+    dense: Vec<PinEntry>,
+    (majorant, density): (
+        Option<(MajorantHeader, Vec<f32>)>,
+        Option<(DensityHeader, Vec<f16>)>,
+    ),
+    metadata: Metadata,
+    block_len: usize,
+    started: Instant,
+) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    let covered = dense.len() / block_len.max(1);
     // Compact: empty cells keep only their index entry.
     let mut index = try_filled("the cell index", covered, 0u32)?;
     index.clear();
@@ -426,15 +482,6 @@ fn bake_in_pool(
     }
     drop(dense);
     desc.stored_cells = u64::from(stored);
-
-    let majorant = opts
-        .majorant
-        .map(|dims| bake_majorant(source, &bbox, dims))
-        .transpose()?;
-    let density = opts
-        .embed_density
-        .map(|dims| bake_density(source, &bbox, dims))
-        .transpose()?;
 
     let mut stats = BakeStats {
         pins: pins.len() as u64,
@@ -473,7 +520,7 @@ fn bake_in_pool(
         pins,
         majorant,
         density,
-        metadata: Some(opts.metadata.clone()),
+        metadata: Some(metadata),
     };
     grid.validate()?;
     Ok((grid, stats))
@@ -508,7 +555,7 @@ fn check_dims(what: &str, dims: [u32; 3]) -> Result<usize, BakeError> {
     Ok(dims.iter().map(|&d| d as usize).product())
 }
 
-fn bake_majorant(
+pub(crate) fn bake_majorant(
     source: &dyn DensitySource,
     bbox: &Aabb,
     dims: [u32; 3],

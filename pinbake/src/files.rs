@@ -337,6 +337,13 @@ fn announce_partial(path: Option<&Path>) {
     }
 }
 
+/// Announces `path` as a partial file to the [`watch_partial_files`] hook, and its end when
+/// the guard drops: for an atomic write that is not a pin file's.
+pub fn announce_partial_file(path: &Path) -> impl Drop + use<> {
+    announce_partial(Some(path));
+    Announced
+}
+
 /// Announces `None` when the partial file is gone.
 struct Announced;
 

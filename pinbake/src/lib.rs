@@ -23,6 +23,8 @@ pub mod cli_args;
 pub mod files;
 pub mod limits;
 pub mod merge;
+pub mod part;
+pub mod part_file;
 pub mod pin;
 pub mod plan;
 pub mod rng;
@@ -32,4 +34,7 @@ mod sweep;
 
 pub use bake::{BakeError, BakeOptions, BakeStats, Tile, bake};
 pub use merge::{MergeError, merge_tiles};
-pub use plan::{BakeInput, BakeRequest, Baked, PlanError, bake_to_file};
+pub use part::{Part, PartData, PartError, bake_part, merge_parts};
+pub use plan::{
+    BakeInput, BakeRequest, Baked, BakedPart, PlanError, bake_part_to_file, bake_to_file,
+};

@@ -28,6 +28,7 @@ use serde_json::{Value, json};
 use crate::bake::{BakeError, BakeOptions, BakeStats, Provenance, Tile};
 use crate::choose::Choice;
 use crate::files::{FileError, InputSet, MemoryBudget, PendingPin};
+use crate::part::Part;
 use crate::source::{self, DenseGrid, DensitySource, SourceError, SourceSpec};
 
 /// What to bake from.
@@ -428,17 +429,19 @@ pub fn options(req: &BakeRequest, choice: &Choice, metadata: pin_format::Metadat
     }
 }
 
-/// Bakes `input` into the file `output` under every rule of the module docs. `inputs` are
-/// the files `output` must not be; the input itself is added to them here.
-pub fn bake_to_file(
+/// Everything [`bake_to_file`] and [`bake_part_to_file`] do before the bake itself.
+fn prepare(
     input: BakeInput,
     output: &Path,
     req: &BakeRequest,
     inputs: &InputSet,
-    progress: &dyn Progress,
-) -> Result<Baked, PlanError> {
+    part: Option<Part>,
+) -> Result<Prepared, PlanError> {
     req.validate()?;
     validate_input(&input)?;
+    if let Some(p) = part {
+        validate_part(req, p)?;
+    }
     let name = input.name();
     let own = match input.path() {
         Some(p) => InputSet::of(&[p])?,
@@ -480,6 +483,10 @@ pub fn bake_to_file(
         BakeInput::Source(SourceSpec::Vdb(path, mut o)) => {
             let left = budget.limit.saturating_sub(need);
             o.max_leaf_bytes = Some(o.max_leaf_bytes.map_or(left, |m| m.min(left)));
+            o.part = part.map(|p| source::VdbPart {
+                index: p.index,
+                count: p.count,
+            });
             BakeInput::Source(SourceSpec::Vdb(path, o))
         }
         other => other,
@@ -547,7 +554,51 @@ pub fn bake_to_file(
     budget.check(&what, need)?;
     // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
     opts.dense_copy_bytes = budget.limit.saturating_sub(need.saturating_sub(copy));
+    Ok(Prepared {
+        source,
+        opts,
+        choice,
+        need,
+        pending,
+        own,
+        name,
+    })
+}
 
+/// A bake ready to run: the source open, the options chosen and checked against the budget,
+/// the output's temp file created.
+struct Prepared {
+    source: Box<dyn DensitySource>,
+    opts: BakeOptions,
+    choice: Choice,
+    need: u64,
+    pending: PendingPin,
+    own: InputSet,
+    name: String,
+}
+
+/// Bakes `input` into the file `output` under every rule of the module docs. `inputs` are
+/// the files `output` must not be; the input itself is added to them here.
+pub fn bake_to_file(
+    input: BakeInput,
+    output: &Path,
+    req: &BakeRequest,
+    inputs: &InputSet,
+    progress: &dyn Progress,
+) -> Result<Baked, PlanError> {
+    let Prepared {
+        source,
+        opts,
+        choice,
+        need,
+        pending,
+        own,
+        name,
+    } = prepare(input, output, req, inputs, None)?;
+    let bake_err = |source| PlanError::Bake {
+        input: name.clone(),
+        source,
+    };
     progress.start(crate::bake::pin_count(&opts));
     let started = Instant::now();
     let advance = |n: u64| progress.advance(n);
@@ -579,6 +630,119 @@ pub fn bake_to_file(
         written: target,
         output: output.to_path_buf(),
         file_bytes,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// A finished part of a bake split by volume ([`bake_part_to_file`]).
+pub struct BakedPart {
+    pub part: Part,
+    /// The slab of the bake frame's z whose samples the part took.
+    pub slab: [f64; 2],
+    /// Samples written (pins' samples in the slab).
+    pub samples: u64,
+    pub choice: Choice,
+    pub output: PathBuf,
+    pub file_bytes: u64,
+    /// What the budget was checked against, as for a whole bake ([`memory_estimate`]).
+    pub memory_estimate_bytes: u64,
+    /// Wall time from the start of the bake to the end of the write.
+    pub seconds: f64,
+}
+
+impl BakedPart {
+    /// The summary object of `pinbake bake --part I/N --json`.
+    pub fn summary(&self) -> Value {
+        let num = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
+        json!({
+            "part": { "index": self.part.index, "count": self.part.count },
+            "slab_z": [num(self.slab[0]), num(self.slab[1])],
+            "samples": self.samples,
+            "choice": crate::summary::choice_json(&self.choice, self.file_bytes),
+            "output": self.output.display().to_string(),
+            "file_bytes": self.file_bytes,
+            "memory_estimate_bytes": self.memory_estimate_bytes,
+            "seconds": self.seconds,
+        })
+    }
+}
+
+/// The options a part bake needs (docs/farm.md): the cells and directions named, so that no
+/// part chooses them from its slab alone; no tile, no embedded density, no target error.
+fn validate_part(req: &BakeRequest, part: Part) -> Result<(), PlanError> {
+    if part.count == 0 || part.index >= part.count {
+        return Err(usage(format!(
+            "part: index {} must be in 0..{}",
+            part.index, part.count
+        )));
+    }
+    if req.cells.is_none() || req.directions.is_none() {
+        return Err(usage(
+            "--part needs --cells and --dirs: every part must bake the same grid, and a part sees only its slab of the volume to choose from".into(),
+        ));
+    }
+    if req.tile.is_some() {
+        return Err(usage(
+            "--part and --tile split a bake in two ways: give one".into(),
+        ));
+    }
+    if req.target_error.is_some() {
+        return Err(usage(
+            "--part takes no --target-error (name --cells and --dirs)".into(),
+        ));
+    }
+    if req.embed_density.is_some() {
+        return Err(usage("--embed-density is not available with --part".into()));
+    }
+    Ok(())
+}
+
+/// Bakes part `part` of a bake split by volume ([`crate::part`]) into the part file `output`
+/// (atomically), under the rules of [`bake_to_file`]; a VDB is read for that part only.
+/// `pinbake merge` of every part gives the bytes of [`bake_to_file`] with the same request.
+pub fn bake_part_to_file(
+    input: BakeInput,
+    output: &Path,
+    req: &BakeRequest,
+    part: Part,
+    inputs: &InputSet,
+    progress: &dyn Progress,
+) -> Result<BakedPart, PlanError> {
+    let Prepared {
+        source,
+        opts,
+        choice,
+        need,
+        pending,
+        own,
+        name,
+    } = prepare(input, output, req, inputs, Some(part))?;
+    // The part file is not a pin file: its own atomic write replaces the pin's temp file.
+    drop(pending);
+    let bake_err = |source| PlanError::Bake {
+        input: name.clone(),
+        source,
+    };
+    progress.start(crate::bake::pin_count(&opts));
+    let started = Instant::now();
+    let advance = |n: u64| progress.advance(n);
+    let data = crate::part::bake_part(source.as_ref(), &opts, part, &advance).map_err(bake_err)?;
+    // The source is not needed for the write: its memory goes before the file is written.
+    drop(source);
+    let target = crate::files::check_output_among(output, &[inputs, &own])?;
+    let file_bytes =
+        crate::part_file::write_atomic(&target, &data).map_err(|e| PlanError::Write {
+            path: output.to_path_buf(),
+            source: pin_format::FormatError::InvalidInput(e.to_string()),
+        })?;
+    Ok(BakedPart {
+        part,
+        slab: data.slab,
+        samples: data.samples.len() as u64,
+        choice,
+        output: output.to_path_buf(),
+        file_bytes,
+        memory_estimate_bytes: need,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

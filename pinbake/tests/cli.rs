@@ -629,3 +629,131 @@ fn bakes_record_the_source_identity() {
     let scaled = identity("c.pin", &["--density-scale", "3"]);
     assert!(!a.differences(&scaled).is_empty());
 }
+
+/// `--part I/N` bakes merged by `pinbake merge` (any order) are the monolithic bake's bytes
+/// for 1, 2, 3 and 5 parts of a VDB (3 of them as parallel processes, as a farm runs them);
+/// missing, duplicated, mismatched and damaged parts are refused with one line and exit 1,
+/// and no output is left behind.
+#[test]
+fn parts_merge_into_the_monolithic_bytes_and_bad_parts_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = data("openvdb_smoke1.vdb");
+    let input = input.to_str().unwrap();
+    let whole = dir.path().join("whole.pin");
+    bake_ok(input, &whole, &["--seed", "5"]);
+    let want = std::fs::read(&whole).unwrap();
+    let part_path = |n: u32, i: u32| dir.path().join(format!("p{n}_{i}.part"));
+    let part_args = |n: u32, i: u32, seed: &str, out: &Path| {
+        let mut a: Vec<String> = [
+            "bake",
+            input,
+            "-o",
+            out.to_str().unwrap(),
+            "--seed",
+            seed,
+            "--part",
+            &format!("{i}/{n}"),
+            "--json",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        a.extend(FAST.iter().map(|s| s.to_string()));
+        a
+    };
+    let merge = |paths: &[PathBuf], out: &Path| {
+        let mut a = vec!["merge".to_string()];
+        a.extend(paths.iter().map(|p| p.to_str().unwrap().to_string()));
+        a.extend(["-o".into(), out.to_str().unwrap().into(), "--json".into()]);
+        Command::new(BIN).args(&a).output().unwrap()
+    };
+    for n in [1u32, 2, 3, 5] {
+        if n == 3 {
+            let children: Vec<_> = (0..n)
+                .map(|i| {
+                    Command::new(BIN)
+                        .args(part_args(n, i, "5", &part_path(n, i)))
+                        .stdout(Stdio::null())
+                        .spawn()
+                        .unwrap()
+                })
+                .collect();
+            for mut c in children {
+                assert!(c.wait().unwrap().success());
+            }
+        } else {
+            for i in 0..n {
+                let o = Command::new(BIN)
+                    .args(part_args(n, i, "5", &part_path(n, i)))
+                    .output()
+                    .unwrap();
+                assert!(o.status.success(), "{}", stderr(&o));
+                let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+                assert_eq!(v["part"]["index"], i);
+                assert!(v["samples"].as_u64().unwrap() > 0 || n > 1);
+            }
+        }
+        let paths: Vec<PathBuf> = (0..n).rev().map(|i| part_path(n, i)).collect();
+        let out = dir.path().join(format!("merged{n}.pin"));
+        let o = merge(&paths, &out);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["kind"], "parts");
+        assert!(
+            std::fs::read(&out).unwrap() == want,
+            "{n} parts merged == monolithic bake"
+        );
+    }
+
+    // Refusals: one line, exit 1, no output.
+    let bad = dir.path().join("bad.pin");
+    let refused = |paths: &[PathBuf], what: &str| {
+        let o = merge(paths, &bad);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(1), "{what}: {e}");
+        assert_eq!(e.trim_end().lines().count(), 1, "{what}: {e}");
+        assert!(!bad.exists(), "{what}: no output");
+        e
+    };
+    let p3: Vec<PathBuf> = (0..3).map(|i| part_path(3, i)).collect();
+    let e = refused(&p3[..2], "missing");
+    assert!(e.contains("part 2 of 3 is missing"), "{e}");
+    let e = refused(
+        &[p3[0].clone(), p3[1].clone(), p3[1].clone(), p3[2].clone()],
+        "twice",
+    );
+    assert!(e.contains("given twice"), "{e}");
+    let o = Command::new(BIN)
+        .args(part_args(3, 1, "6", &dir.path().join("seed6.part")))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = refused(
+        &[p3[0].clone(), dir.path().join("seed6.part"), p3[2].clone()],
+        "mismatched",
+    );
+    assert!(e.contains("seed6.part") && e.contains("differs"), "{e}");
+    let mut damaged = std::fs::read(&p3[1]).unwrap();
+    let mid = damaged.len() / 2;
+    damaged[mid] ^= 1;
+    let dpath = dir.path().join("damaged.part");
+    std::fs::write(&dpath, &damaged).unwrap();
+    let e = refused(&[p3[0].clone(), dpath.clone(), p3[2].clone()], "damaged");
+    assert!(e.contains("damaged.part") && e.contains("checksum"), "{e}");
+    std::fs::write(&dpath, &damaged[..mid]).unwrap();
+    refused(&[p3[0].clone(), dpath, p3[2].clone()], "truncated");
+    let e = refused(&[p3[0].clone(), whole.clone()], "a pin file among parts");
+    assert!(e.contains("not a part file"), "{e}");
+
+    // A part bake without named cells and directions is a usage error.
+    let o = pinbake(&[
+        "bake",
+        input,
+        "-o",
+        dir.path().join("x.part").to_str().unwrap(),
+        "--part",
+        "0/2",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--cells"), "{}", stderr(&o));
+}

@@ -2,7 +2,8 @@
 //! Debian's `slurm-wlm` and `munge`) runs `docs/farm.md`'s scripts as written there (this test
 //! reads them out of the document, so the document cannot drift from what works):
 //! a 4-tile bake of the hydrogen volume as a job array, the merge as a job that depends on the
-//! array, compared byte for byte with a monolithic bake; and a 3-frame sequence as a job array
+//! array, compared byte for byte with a monolithic bake; the same bake in 4 parts split by
+//! volume (`--part`), merged the same way; and a 3-frame sequence as a job array
 //! over frames, compared with local bakes of the same frames. Where the daemons cannot start,
 //! the test fails with the reason; it never passes without having run the jobs.
 
@@ -210,6 +211,36 @@ fn slurm_farm_reproduces_the_monolithic_bake() {
         std::fs::read(&merged).unwrap(),
         std::fs::read(&mono).unwrap(),
         "the Slurm-merged tiles equal the monolithic bake byte for byte"
+    );
+
+    // Parts: the same bake split by volume, its array and dependent merge as written.
+    for name in ["bake-parts.sh", "submit-parts.sh"] {
+        std::fs::write(work.join(name), farm_script(name)).unwrap();
+    }
+    let split = work.join("split");
+    let merged_parts = work.join("hydrogen-parts.pin");
+    let out = cluster
+        .cmd("bash", &work)
+        .arg("submit-parts.sh")
+        .env("INPUT", &input)
+        .env("BAKE_OPTS", opts)
+        .env("N", "4")
+        .env("PARTS", &split)
+        .env("OUT", &merged_parts)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "submit-parts.sh: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let merge_job = String::from_utf8_lossy(&out.stdout).trim().to_string();
+    let state = cluster.wait(&merge_job, &work);
+    assert_eq!(state, "COMPLETED", "the parts' merge job ({merge_job})");
+    assert_eq!(
+        std::fs::read(&merged_parts).unwrap(),
+        std::fs::read(&mono).unwrap(),
+        "the Slurm-merged parts equal the monolithic bake byte for byte"
     );
 
     // Frames: one array task per frame.

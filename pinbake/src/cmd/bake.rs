@@ -87,6 +87,11 @@ pub struct BakeArgs {
     /// Bake only tile I of N (a slab of z layers); join tiles with `pinbake merge`.
     #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
     pub tile: Option<Tile>,
+    /// Bake only part I of N of a bake split by volume: the pins' samples in z-slab I of the
+    /// volume, into a part file (a VDB is read for that slab only); join the N part files
+    /// with `pinbake merge`. Needs --cells and --dirs.
+    #[arg(long, value_parser = parse_part, help_heading = "Execution", conflicts_with = "tile")]
+    pub part: Option<pinbake::Part>,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
     #[arg(long, value_parser = pinbake::cli_args::parse_threads, help_heading = "Execution")]
     pub threads: Option<usize>,
@@ -170,6 +175,14 @@ fn parse_tile(s: &str) -> Result<Tile, String> {
         return Err(format!("tile index must be in 0..{count}"));
     }
     Ok(Tile { index, count })
+}
+
+fn parse_part(s: &str) -> Result<pinbake::Part, String> {
+    let t = parse_tile(s).map_err(|e| e.replace("tile", "part"))?;
+    Ok(pinbake::Part {
+        index: t.index,
+        count: t.count,
+    })
 }
 
 /// What the input names. Flags meant for another kind of input are usage errors: ignoring
@@ -267,6 +280,36 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
         enabled: !args.quiet && std::io::stderr().is_terminal(),
         bar: std::sync::OnceLock::new(),
     };
+    if let Some(part) = args.part {
+        let baked = pinbake::plan::bake_part_to_file(
+            BakeInput::Source(spec),
+            &args.output,
+            &request(args),
+            part,
+            inputs,
+            &bar,
+        )
+        .map_err(plan_error)?;
+        if let Some(b) = bar.bar.get() {
+            b.finish_and_clear();
+        }
+        let seconds = started.elapsed().as_secs_f64();
+        let mut v = baked.summary();
+        v["seconds"] = serde_json::json!(seconds);
+        if !args.json {
+            pin_cli::errln!(
+                "baked part {}/{} of {} -> {}: {} samples, {} bytes, {:.2} s",
+                part.index,
+                part.count,
+                args.input.display(),
+                args.output.display(),
+                baked.samples,
+                baked.file_bytes,
+                seconds
+            );
+        }
+        return Ok(v);
+    }
     let baked = pinbake::plan::bake_to_file(
         BakeInput::Source(spec),
         &args.output,

@@ -27,7 +27,9 @@ Typical use:
   pinbake verify smoke.pin
 
 Farm bakes: run `pinbake bake ... --tile I/N -o part_I.pin` for I in 0..N anywhere, then
-`pinbake merge part_*.pin -o full.pin` gives the same bytes as a single bake.
+`pinbake merge part_*.pin -o full.pin` gives the same bytes as a single bake. For a volume
+too large for one node, `--part I/N` splits the volume instead (each part reads only its
+slab of a VDB); `pinbake merge` of the part files gives the same bytes too.
 
 Exit codes: 0 success, 1 bad input or failed check, 2 usage error.";
 
@@ -56,9 +58,10 @@ pub enum Command {
         #[arg(required = true)]
         files: Vec<PathBuf>,
     },
-    /// Join the tiles of a `--tile I/N` bake into one file.
+    /// Join the tiles of a `--tile I/N` bake, or the part files of a `--part I/N` bake, into
+    /// one file.
     Merge {
-        /// Tile files, any order.
+        /// Tile files or part files (not both), any order.
         #[arg(required = true)]
         tiles: Vec<PathBuf>,
         /// Output pin file (written atomically; a new path or a regular file, not a tile).
@@ -68,6 +71,10 @@ pub enum Command {
         /// half of the physical memory).
         #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
         max_memory: Option<u64>,
+        /// Print one JSON object (the merged file's summary, as `inspect --json`, with the
+        /// merge's seconds) on stdout.
+        #[arg(long)]
+        json: bool,
     },
     /// Bake the thesis' largest configuration and print pins/s for 1 and 2 threads.
     Bench(BenchArgs),
@@ -94,37 +101,83 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
             tiles,
             output,
             max_memory,
-        } => {
-            let inputs: Vec<&std::path::Path> = tiles.iter().map(PathBuf::as_path).collect();
-            check_output(&output, &inputs)?;
-            // The tiles are held in memory together, and the merged grid once more.
-            let mut total = 0u64;
-            for t in &tiles {
-                total = total.saturating_add(pinbake::files::check_input(t)?);
-            }
-            let budget = MemoryBudget::new(max_memory);
-            budget.check("merging the tiles", total.saturating_mul(2))?;
-            let data: Vec<(String, Vec<u8>)> = tiles
-                .iter()
-                .map(|t| Ok((t.display().to_string(), read_file(t, &budget)?)))
-                .collect::<Result<_>>()?;
-            let parsed = data
-                .iter()
-                .map(|(n, b)| {
-                    pin_format::PinFile::parse(b)
-                        .map(|f| (n.clone(), f))
-                        .with_context(|| n.clone())
-                })
-                .collect::<Result<Vec<_>>>()?;
-            let merged = pinbake::merge_tiles(&parsed)?;
-            // Checked again just before the write: the path may have changed meanwhile.
-            let target = check_output(&output, &inputs)?;
-            pinbake::files::write_pin_atomic(&merged, &target)
-                .with_context(|| format!("{}", output.display()))?;
-            Ok(ExitCode::SUCCESS)
-        }
+            json,
+        } => merge(&tiles, &output, max_memory, json),
         Command::Bench(args) => bench::run(args),
     }
+}
+
+/// `pinbake merge`: tiles or parts, told apart by their first bytes.
+fn merge(
+    tiles: &[PathBuf],
+    output: &std::path::Path,
+    max_memory: Option<u64>,
+    json: bool,
+) -> Result<ExitCode> {
+    let started = std::time::Instant::now();
+    let inputs: Vec<&std::path::Path> = tiles.iter().map(PathBuf::as_path).collect();
+    check_output(output, &inputs)?;
+    // The inputs are held in memory together, and the merged grid once more.
+    let mut total = 0u64;
+    for t in tiles {
+        total = total.saturating_add(pinbake::files::check_input(t)?);
+    }
+    let budget = MemoryBudget::new(max_memory);
+    budget.check("merging the tiles", total.saturating_mul(2))?;
+    let data: Vec<(String, Vec<u8>)> = tiles
+        .iter()
+        .map(|t| Ok((t.display().to_string(), read_file(t, &budget)?)))
+        .collect::<Result<_>>()?;
+    let parts = data
+        .iter()
+        .filter(|(_, b)| pinbake::part_file::is_part_file(b))
+        .count();
+    let merged = if parts == 0 {
+        let parsed = data
+            .iter()
+            .map(|(n, b)| {
+                pin_format::PinFile::parse(b)
+                    .map(|f| (n.clone(), f))
+                    .with_context(|| n.clone())
+            })
+            .collect::<Result<Vec<_>>>()?;
+        pinbake::merge_tiles(&parsed)?
+    } else {
+        if parts != data.len() {
+            let tile = data
+                .iter()
+                .find(|(_, b)| !pinbake::part_file::is_part_file(b))
+                .map_or("", |(n, _)| n.as_str());
+            anyhow::bail!(
+                "{tile}: not a part file; merge either tiles (--tile) or parts (--part), not both"
+            );
+        }
+        let decoded = data
+            .into_iter()
+            .map(|(n, b)| {
+                let d = pinbake::part_file::decode(&b).with_context(|| n.clone())?;
+                Ok((n, d))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        pinbake::merge_parts(&decoded)?.0
+    };
+    // Checked again just before the write: the path may have changed meanwhile.
+    let target = check_output(output, &inputs)?;
+    pinbake::files::write_pin_atomic(&merged, &target)
+        .with_context(|| format!("{}", output.display()))?;
+    if json {
+        let bytes = std::fs::metadata(&target)
+            .with_context(|| format!("{}", output.display()))?
+            .len();
+        let mut v = pinbake::summary::summary_json(&merged, bytes)
+            .with_context(|| format!("{}", output.display()))?;
+        v["merged"] = serde_json::json!(tiles.len());
+        v["kind"] = serde_json::json!(if parts == 0 { "tiles" } else { "parts" });
+        v["output"] = serde_json::json!(output.display().to_string());
+        v["seconds"] = serde_json::json!(started.elapsed().as_secs_f64());
+        pin_cli::outln!("{v}")?;
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Reads a whole regular file (refusing devices, FIFOs and directories, and files larger

@@ -232,6 +232,25 @@ impl DenseGrid {
         d * self.inv_spacing
     }
 
+    /// Samples `js` of the run from `u0` stepping `du`, appended to `out`: the values
+    /// [`Self::march_runs`] adds for that run, bit for bit (sample `j` at `u0 + j * du` in
+    /// f32, as every lane and the one-by-one march compute it). A farm part stores them and
+    /// the merge adds them in the march's order.
+    pub(crate) fn run_samples(
+        &self,
+        u0: [f32; 3],
+        du: [f32; 3],
+        js: std::ops::Range<usize>,
+        out: &mut Vec<f32>,
+    ) {
+        let cells = self.cells();
+        for j in js {
+            let t = j as f32;
+            let (b, f) = cells.locate([u0[0] + t * du[0], u0[1] + t * du[1], u0[2] + t * du[2]]);
+            out.push(cells.interpolate(b, f));
+        }
+    }
+
     /// Sums of the trilinear values over consecutive runs of samples: run `r` is the `n`
     /// continuous indices `u0[r] + j * du`, `j < n`, and its sum lands in `sums[r]`. The
     /// caller knows the runs lie inside the box (the baker's chords do; a point outside is

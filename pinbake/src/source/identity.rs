@@ -35,6 +35,47 @@ pub struct SourceIdentity {
     pub box_max: [f64; 3],
 }
 
+/// The extinction of `source` at the lattice points, z-major, then y, then x (what
+/// [`content_hash`] hashes). A row is sampled in one `extinction_along` call from its first
+/// point, so point `(x, y, z)` is `extinction_along`'s `x`-th sample of row `(y, z)`.
+pub fn lattice_values(source: &dyn DensitySource) -> Vec<f32> {
+    let b = source.bounds();
+    let size = (b.max - b.min) / LATTICE as f64;
+    let mut values = vec![0f32; LATTICE * LATTICE * LATTICE];
+    for (r, row) in values.chunks_mut(LATTICE).enumerate() {
+        let (y, z) = (r % LATTICE, r / LATTICE);
+        source.extinction_along(
+            lattice_row_start(b, y, z),
+            DVec3::new(size.x, 0.0, 0.0),
+            LATTICE,
+            row,
+        );
+    }
+    values
+}
+
+/// The first point of lattice row `(y, z)` of the box `b`; the row steps by `b`'s extent
+/// along x over [`LATTICE`].
+pub fn lattice_row_start(b: super::Aabb, y: usize, z: usize) -> DVec3 {
+    let size = (b.max - b.min) / LATTICE as f64;
+    b.min + size * DVec3::new(0.5, y as f64 + 0.5, z as f64 + 0.5)
+}
+
+/// The content hash of a source with box `b` whose lattice values are `values`
+/// ([`lattice_values`]): hex xxh3-128 of the box and the values' bits.
+pub fn content_hash(b: super::Aabb, values: &[f32]) -> String {
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    for v in [b.min, b.max] {
+        for c in v.to_array() {
+            h.update(&c.to_le_bytes());
+        }
+    }
+    for v in values {
+        h.update(&v.to_bits().to_le_bytes());
+    }
+    format!("{:032x}", h.digest128())
+}
+
 const IDENTITY: [f64; 12] = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
 
 fn join(v: &[f64]) -> String {
@@ -58,25 +99,8 @@ impl SourceIdentity {
     pub fn of(source: &dyn DensitySource, density_scale: f64) -> Self {
         let b = source.bounds();
         let local_to_world = source.bake_frame().map_or(IDENTITY, |(_, m)| m);
-        let mut h = xxhash_rust::xxh3::Xxh3::new();
-        for v in [b.min, b.max] {
-            for c in v.to_array() {
-                h.update(&c.to_le_bytes());
-            }
-        }
-        let size = (b.max - b.min) / LATTICE as f64;
-        let mut row = vec![0f32; LATTICE];
-        for z in 0..LATTICE {
-            for y in 0..LATTICE {
-                let start = b.min + size * DVec3::new(0.5, y as f64 + 0.5, z as f64 + 0.5);
-                source.extinction_along(start, DVec3::new(size.x, 0.0, 0.0), LATTICE, &mut row);
-                for v in &row {
-                    h.update(&v.to_bits().to_le_bytes());
-                }
-            }
-        }
         Self {
-            content: format!("{:032x}", h.digest128()),
+            content: content_hash(b, &lattice_values(source)),
             density_scale,
             local_to_world,
             box_min: b.min.to_array(),

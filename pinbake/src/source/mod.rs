@@ -39,7 +39,7 @@ pub use mip::{Mip, MipAllocError};
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
 #[cfg(feature = "vdb")]
-pub use vdb::{VdbOptions, VdbSource};
+pub use vdb::{VdbOptions, VdbPart, VdbSource};
 
 /// An axis-aligned world-space box, `min <= max` componentwise.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -97,6 +97,15 @@ pub trait DensitySource: Send + Sync {
     /// the grid's own box and the pin file records the placement; `None` (the default) bakes
     /// in world space with an identity placement.
     fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
+        None
+    }
+
+    /// For a source read for one part of a farm bake (`pinbake bake --part I/N`; a VDB's
+    /// `VdbOptions::part`): the z-interval `[lo, hi)` of the frame it is baked in (its own
+    /// [`Self::bake_frame`] view answers for a rotated grid) inside which it holds the whole
+    /// field, and a margin around it; elsewhere it may read zero where the field is not.
+    /// `None` (the default): the source holds the whole field.
+    fn part_slab(&self) -> Option<[f64; 2]> {
         None
     }
 

@@ -98,6 +98,10 @@ pub struct VdbOptions {
     /// [`SourceError::Memory`] as soon as the worker has counted its leaves, before they are
     /// read. `None`: no limit beyond what the allocator gives.
     pub max_leaf_bytes: Option<u64>,
+    /// Read one z-slab of the grid for one part of a farm bake ([`VdbPart`]): the leaves
+    /// outside it are decoded for the grid's statistics but neither sent nor kept, so the
+    /// leaf table holds about `1 / count` of the grid; `None` reads the whole grid.
+    pub part: Option<VdbPart>,
 }
 
 impl Default for VdbOptions {
@@ -110,6 +114,7 @@ impl Default for VdbOptions {
             memory_limit: None,
             timeout: Duration::from_secs(60),
             max_leaf_bytes: None,
+            part: None,
         }
     }
 }
@@ -147,6 +152,7 @@ use wire::*;
 pub use reader::worker_main;
 pub use source::VdbSource;
 pub use spawn::WORKER_ENV;
+pub use wire::VdbPart;
 
 #[cfg(test)]
 mod tests {
@@ -162,7 +168,7 @@ mod tests {
     fn in_process(file: &str, sel: Option<&str>, to_fog: bool) -> Result<VdbSource, String> {
         let p = data(file);
         let mut buf = Vec::new();
-        worker_run(&p, sel, to_fog, &mut buf)?;
+        worker_run(&p, sel, to_fog, None, &mut buf)?;
         let size = std::fs::metadata(&p).unwrap().len();
         let st = parse_stream(&buf[..], size)?;
         VdbSource::from_stream(&p, st, DensityScale::ONE)
@@ -185,7 +191,7 @@ mod tests {
         let size = std::fs::metadata(&p).unwrap().len();
         let mirrored = || {
             let mut buf = Vec::new();
-            worker_run(&p, None, false, &mut buf).unwrap();
+            worker_run(&p, None, false, None, &mut buf).unwrap();
             let mut st = parse_stream(&buf[..], size).unwrap();
             st.xf[0] = -st.xf[0];
             st.xf[10] *= -0.5;
@@ -228,6 +234,86 @@ mod tests {
             tiles: Vec::new(),
             active: 512 * origins.len() as u64,
             negatives: 0,
+            part: None,
+        }
+    }
+
+    /// A part read ([`VdbOptions::part`]) keeps only its slab's leaves and a margin, counts
+    /// the others in its statistics (box, leaf count, description, stored voxels), and the
+    /// parts of a bake merge into the whole grid's bake: for a rotated grid (the smoke, baked
+    /// in its frame), a level set and an axis-aligned grid, with density scales.
+    #[test]
+    fn parts_hold_their_slab_and_merge_into_the_whole_bake() {
+        use crate::bake::{BakeOptions, Provenance, bake_metadata};
+        use crate::part::{Part, bake_part};
+        use pin_format::Directions;
+        for (file, to_fog, scale) in [
+            ("openvdb_smoke1.vdb", false, 1.0),
+            ("openvdb_sphere_levelset.vdb", true, 2.5),
+            ("gaffer_sphere_density.vdb", false, 0.5),
+        ] {
+            let p = data(file);
+            let size = std::fs::metadata(&p).unwrap().len();
+            let ds = DensityScale::new(scale).unwrap();
+            let read = |part: Option<VdbPart>| {
+                let mut buf = Vec::new();
+                worker_run(&p, None, to_fog, part.map(|pt| (pt, ds)), &mut buf).unwrap();
+                let st = parse_stream_within(&buf[..], size, u64::MAX, part.is_some()).unwrap();
+                VdbSource::from_stream(&p, st, ds).unwrap()
+            };
+            let (cells, directions) = ([5, 4, 6], Directions::Octahedral { n: 3 });
+            let opts = |s: &VdbSource| BakeOptions {
+                cells,
+                directions,
+                density_scale: scale,
+                majorant: Some([3, 2, 3]),
+                metadata: bake_metadata(
+                    s,
+                    Provenance {
+                        source_name: file.into(),
+                        source_hash: String::new(),
+                        seed: 0,
+                        step: 0.01,
+                        density_scale: scale,
+                        crop: true,
+                    },
+                    cells,
+                    directions,
+                ),
+                ..BakeOptions::default()
+            };
+            let whole = read(None);
+            let want = crate::bake(&whole, &opts(&whole), &|_| {})
+                .unwrap()
+                .0
+                .to_bytes()
+                .unwrap();
+            for count in [1, 2, 3, 5] {
+                let parts: Vec<_> = (0..count)
+                    .map(|index| {
+                        let s = read(Some(VdbPart { index, count }));
+                        assert_eq!(s.describe(), whole.describe(), "{file}");
+                        assert_eq!(s.bounds(), whole.bounds(), "{file}");
+                        assert_eq!(s.index_bounds(), whole.index_bounds(), "{file}");
+                        assert_eq!(s.stored_voxels(), whole.stored_voxels(), "{file}");
+                        if file == "openvdb_smoke1.vdb" && count == 3 {
+                            assert!(
+                                s.leaves.len() < whole.leaves.len() * 3 / 4,
+                                "{file} part {index}: {} of {} leaves",
+                                s.leaves.len(),
+                                whole.leaves.len()
+                            );
+                        }
+                        let d = bake_part(&s, &opts(&s), Part { index, count }, &|_| {}).unwrap();
+                        (format!("{file} {index}/{count}"), d)
+                    })
+                    .collect();
+                let got = crate::merge_parts(&parts).unwrap().0.to_bytes().unwrap();
+                assert!(
+                    got == want,
+                    "{file}: {count} parts differ from the whole bake"
+                );
+            }
         }
     }
 
@@ -238,7 +324,7 @@ mod tests {
         let p = data("openvdb_smoke1.vdb");
         let size = std::fs::metadata(&p).unwrap().len();
         let mut buf = Vec::new();
-        worker_run(&p, None, false, &mut buf).unwrap();
+        worker_run(&p, None, false, None, &mut buf).unwrap();
         let scale = DensityScale::new(0.37).unwrap();
         let st = parse_stream(&buf[..], size).unwrap();
         let LeafValues::Half(bits) = &st.leaves else {
@@ -270,17 +356,17 @@ mod tests {
         let p = data("openvdb_smoke1.vdb");
         let size = std::fs::metadata(&p).unwrap().len();
         let mut buf = Vec::new();
-        worker_run(&p, None, false, &mut buf).unwrap();
+        worker_run(&p, None, false, None, &mut buf).unwrap();
         let full = parse_stream(&buf[..], size).unwrap();
         let need = leaf_table_bytes(full.origins.len() as u64, LEAF_HALF);
-        match parse_stream_within(&buf[..], size, need - 1) {
+        match parse_stream_within(&buf[..], size, need - 1, false) {
             Err(StreamError::Budget { need: n, limit }) => {
                 assert_eq!((n, limit), (need, need - 1));
             }
             Err(e) => panic!("expected a budget refusal, got {e}"),
             Ok(_) => panic!("expected a budget refusal"),
         }
-        let fits = parse_stream_within(&buf[..], size, need).unwrap();
+        let fits = parse_stream_within(&buf[..], size, need, false).unwrap();
         assert_eq!(fits.origins, full.origins);
         // The count follows the magic, the grid list, the choice, kind, class and map.
         let mut off = 8 + 4;
@@ -449,7 +535,7 @@ mod tests {
         // A valid stream from a real file, truncated anywhere, is an error.
         let p = data("gaffer_sphere_density.vdb");
         let mut buf = Vec::new();
-        worker_run(&p, None, false, &mut buf).unwrap();
+        worker_run(&p, None, false, None, &mut buf).unwrap();
         for cut in [0, 7, 20, buf.len() / 2, buf.len() - 1] {
             assert!(parse_stream(&buf[..cut], 1 << 20).is_err(), "cut {cut}");
         }

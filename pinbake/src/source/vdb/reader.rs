@@ -10,18 +10,38 @@ use super::*;
 /// returns 2. Meant to run in its own process only (see [`VdbSource::open`]); it installs a
 /// silent panic hook.
 pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
-    // The file may be any path; the selector and mode come from our own command line.
-    let [file, selector, mode] = args else {
+    // The file may be any path; the selector, mode and part come from our own command line.
+    let usage = || {
         tell_parent(&format!(
-            "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
+            "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog> [<part I/N> <density-scale>]"
         ));
-        return 2;
+        2
+    };
+    let (file, selector, mode, part) = match args {
+        [file, selector, mode] => (file, selector, mode, None),
+        [file, selector, mode, part, scale] => (file, selector, mode, Some((part, scale))),
+        _ => return usage(),
     };
     let (Some(selector), Some(mode)) = (selector.to_str(), mode.to_str()) else {
-        tell_parent(&format!(
-            "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog>"
-        ));
-        return 2;
+        return usage();
+    };
+    let part = match part {
+        None => None,
+        Some((part, scale)) => {
+            let parsed = (|| {
+                let (i, n) = part.to_str()?.split_once('/')?;
+                let part = VdbPart {
+                    index: i.parse().ok()?,
+                    count: n.parse().ok()?,
+                };
+                let scale = DensityScale::new(scale.to_str()?.parse().ok()?).ok()?;
+                (part.count > 0 && part.index < part.count).then_some((part, scale))
+            })();
+            match parsed {
+                Some(p) => Some(p),
+                None => return usage(),
+            }
+        }
     };
     std::panic::set_hook(Box::new(|_| {}));
     let to_fog = mode == "levelset-to-fog";
@@ -29,7 +49,7 @@ pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
     let stdout = std::io::stdout();
     let mut out = BufWriter::with_capacity(1 << 20, stdout.lock());
     let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-        worker_run(Path::new(file), selector, to_fog, &mut out)
+        worker_run(Path::new(file), selector, to_fog, part, &mut out)
     }));
     let r = match r {
         Ok(r) => r,
@@ -243,6 +263,7 @@ pub(super) fn worker_run(
     path: &Path,
     selector: Option<&str>,
     to_fog: bool,
+    part: Option<(VdbPart, DensityScale)>,
     out: &mut impl Write,
 ) -> Result<(), String> {
     let version = check_header(path)?;
@@ -323,19 +344,40 @@ pub(super) fn worker_run(
             let (g, mut leaves) = reader
                 .read_grid_topology::<f32>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, out)
+            emit_grid(
+                &g,
+                &mut leaves,
+                (kind, version, level_set),
+                &shown,
+                part,
+                out,
+            )
         }
         ValueKind::Half => {
             let (g, mut leaves) = reader
                 .read_grid_topology::<u16>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, out)
+            emit_grid(
+                &g,
+                &mut leaves,
+                (kind, version, level_set),
+                &shown,
+                part,
+                out,
+            )
         }
         ValueKind::Double => {
             let (g, mut leaves) = reader
                 .read_grid_topology::<f64>(name)
                 .map_err(|e| read_err(&shown, e))?;
-            emit_grid(&g, &mut leaves, kind, version, level_set, &shown, out)
+            emit_grid(
+                &g,
+                &mut leaves,
+                (kind, version, level_set),
+                &shown,
+                part,
+                out,
+            )
         }
     }
 }
@@ -433,16 +475,14 @@ pub(super) fn tile_values<T: Val>(
 pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     g: &vdb_rs::Grid<T>,
     leaves: &mut vdb_rs::LeafData<'_, R>,
-    kind: ValueKind,
-    version: u32,
-    level_set: bool,
+    (kind, version, level_set): (ValueKind, u32, bool),
     shown: &str,
+    part: Option<(VdbPart, DensityScale)>,
     out: &mut impl Write,
 ) -> Result<(), String> {
     for v in affine_rows(&g.transform, shown)? {
         put_f64(out, v)?;
     }
-    // The parent sizes its leaf table from this count before the first leaf arrives.
     let leaf_count: u64 = g
         .tree
         .root_nodes
@@ -450,12 +490,41 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
         .flat_map(|n5| n5.nodes.values())
         .map(|n4| n4.nodes.len() as u64)
         .sum();
-    put_u64(out, leaf_count)?;
+    // A part keeps the leaves whose origin lies in its slab widened by one leaf each side
+    // (trilinear samples in the slab reach one voxel past it).
+    let slab = match part {
+        None => None,
+        Some((p, _)) => Some(part_slab(g, p)?),
+    };
+    let keep = |o3: [i32; 3]| {
+        slab.is_none_or(|(lo, hi): (i64, i64)| {
+            let z = i64::from(o3[2]);
+            z >= lo.saturating_sub(8) && z < hi.saturating_add(8)
+        })
+    };
+    // The parent sizes its leaf table from this count before the first leaf arrives.
+    let sent_count = match slab {
+        None => leaf_count,
+        Some(_) => {
+            let mut n = 0u64;
+            for_each_leaf_origin(g, |o3| n += u64::from(keep(o3)))?;
+            n
+        }
+    };
+    put_u64(out, sent_count)?;
     // Half values travel (and are kept) as their 16 bits: every value of a half grid, a
     // float grid saved as half and a level set's 0 and 1 is exact in half.
     let half = level_set || matches!(kind, ValueKind::FloatSavedAsHalf | ValueKind::Half);
     let encoding = if half { LEAF_HALF } else { LEAF_F32 };
     put_u8(out, encoding)?;
+    if let (Some((p, _)), Some((lo, hi))) = (part, slab) {
+        put_u32(out, p.index)?;
+        put_u32(out, p.count)?;
+        put_u64(out, lo as u64)?;
+        put_u64(out, hi as u64)?;
+        put_u64(out, leaf_count)?;
+    }
+    let mut skipped = Skipped::default();
 
     let mut active: u64 = 0;
     let mut negatives: u64 = 0;
@@ -521,7 +590,11 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
                         any |= *o != 0.0;
                     }
                 }
-                if any {
+                if any && !keep(o3) {
+                    if let Some((_, scale)) = part {
+                        skipped.add(&leaf_buf, half, scale, o3, shown)?;
+                    }
+                } else if any {
                     put_u8(out, TAG_LEAF)?;
                     put_ivec(out, o3)?;
                     if half {
@@ -634,7 +707,129 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     put_u8(out, TAG_END)?;
     put_u64(out, active)?;
     put_u64(out, negatives)?;
+    if part.is_some() {
+        put_u64(out, skipped.kept)?;
+        put_ivec(out, skipped.lo)?;
+        put_ivec(out, skipped.hi)?;
+        out.write_all(&skipped.max.to_le_bytes()).map_err(wr)?;
+    }
     out.write_all(STREAM_END).map_err(wr)
+}
+
+/// Calls `f` with the origin of every leaf of `g`, in the file's order.
+fn for_each_leaf_origin<T>(g: &vdb_rs::Grid<T>, mut f: impl FnMut([i32; 3])) -> Result<(), String> {
+    for n5 in &g.tree.root_nodes {
+        let o5 = n5.origin.to_array();
+        for i5 in n5.child_mask.iter_ones() {
+            let n4 = n5
+                .nodes
+                .get(&(i5 as u32))
+                .ok_or("internal node child missing (corrupt file)")?;
+            let o4 = child_origin(o5, i5, 5, 7)?;
+            for i4 in n4.child_mask.iter_ones() {
+                f(child_origin(o4, i4, 4, 3)?);
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The index-z slab `[lo, hi)` of part `p`: whole leaf layers (8 voxels of z each), cut
+/// where the count of leaves below reaches `k / count` of all leaves, so that each part holds
+/// about as many leaves as the others; the first part is open below and the last above. A
+/// function of the topology only, so that every part of one bake cuts the same boundaries.
+fn part_slab<T>(g: &vdb_rs::Grid<T>, p: VdbPart) -> Result<(i64, i64), String> {
+    let mut layers: std::collections::BTreeMap<i64, u64> = std::collections::BTreeMap::new();
+    for_each_leaf_origin(g, |o| *layers.entry(i64::from(o[2])).or_default() += 1)?;
+    let total: u64 = layers.values().sum();
+    // Cut `k`: the first layer with at least `k * total / count` leaves below it.
+    let cut = |k: u32| {
+        if k == 0 {
+            return i64::MIN;
+        }
+        if k == p.count {
+            return i64::MAX;
+        }
+        let want = u128::from(k) * u128::from(total) / u128::from(p.count);
+        let mut below = 0u128;
+        for (&z, &n) in &layers {
+            if below >= want {
+                return z;
+            }
+            below += u128::from(n);
+        }
+        i64::MAX
+    };
+    if total == 0 {
+        // Tiles only, which every part keeps: part 0 takes every sample.
+        return Ok(if p.index == 0 {
+            (i64::MIN, i64::MAX)
+        } else {
+            (i64::MAX, i64::MAX)
+        });
+    }
+    Ok((cut(p.index), cut(p.index + 1)))
+}
+
+/// The statistics of the leaves a part leaves out, as the parent would compute them from
+/// the values it scales ([`PartStream`]).
+struct Skipped {
+    kept: u64,
+    lo: [i32; 3],
+    hi: [i32; 3],
+    max: f32,
+}
+
+impl Default for Skipped {
+    fn default() -> Self {
+        Self {
+            kept: 0,
+            lo: [i32::MAX; 3],
+            hi: [i32::MIN; 3],
+            max: 0.0,
+        }
+    }
+}
+
+impl Skipped {
+    fn add(
+        &mut self,
+        values: &[f32; 512],
+        half: bool,
+        scale: DensityScale,
+        o3: [i32; 3],
+        shown: &str,
+    ) -> Result<(), String> {
+        let mut m = 0.0f32;
+        for (k, &v) in values.iter().enumerate() {
+            // What the parent keeps: the half pattern's value where the leaf travels as half.
+            let v = if half {
+                half::f16::from_f32(v).to_f32()
+            } else {
+                v
+            };
+            let l = local(k, 3);
+            let at = [o3[0] + l[0], o3[1] + l[1], o3[2] + l[2]];
+            let s = scale.apply(f64::from(v)).ok_or_else(|| {
+                format!(
+                    "grid '{shown}' value {v} at voxel ({},{},{}) times density scale {scale} overflows f32",
+                    at[0], at[1], at[2]
+                )
+            })?;
+            if s != 0.0 {
+                for ((lo, hi), c) in self.lo.iter_mut().zip(&mut self.hi).zip(at) {
+                    *lo = (*lo).min(c);
+                    *hi = (*hi).max(c);
+                }
+            }
+            m = m.max(s);
+        }
+        if m != 0.0 {
+            self.kept += 1;
+            self.max = self.max.max(m);
+        }
+        Ok(())
+    }
 }
 
 /// The map as a row-major 3x4 matrix: `world = M[..3] * index + M[3]` row by row.

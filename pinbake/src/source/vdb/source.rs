@@ -205,6 +205,11 @@ pub struct VdbSource {
     /// What the worker process held at most beside this process's table while the grid
     /// was read: its tree topology (estimated per leaf, [`WORKER_BYTES_PER_LEAF`]).
     pub(super) reader_peak_bytes: u64,
+    /// Read for one part of a farm bake: the index-z slab `[lo, hi)` whose samples this
+    /// source holds (with a margin of a leaf each side), and the non-zero leaves of the
+    /// grid it does not hold, which its statistics count all the same.
+    pub(super) part: Option<(i64, i64)>,
+    pub(super) unloaded_leaves: u64,
 }
 
 /// The worker's memory per leaf of the file: vdb-rs keeps every leaf's node (value mask,
@@ -435,7 +440,18 @@ impl VdbSource {
                 _ => huge_entries.push((o >> 12, s)),
             }
         }
+        // A part's statistics are those of the whole grid: the leaves the worker left out
+        // count as a whole read would count them.
+        let unloaded_leaves = st.part.map_or(0, |p| p.skipped_kept);
+        if let Some(p) = st.part
+            && p.skipped_kept > 0
+        {
+            lo = lo.min(IVec3::from_array(p.skipped_lo));
+            hi = hi.max(IVec3::from_array(p.skipped_hi));
+            global_max = global_max.max(p.skipped_max);
+        }
         if leaves.is_empty()
+            && unloaded_leaves == 0
             && entries.is_empty()
             && big_entries.is_empty()
             && huge_entries.is_empty()
@@ -517,7 +533,7 @@ impl VdbSource {
             } else {
                 ""
             },
-            leaves.len(),
+            leaves.len() as u64 + unloaded_leaves,
             blocks.len() - leaves.len() + big.len() + huge.len(),
             match diag {
                 Some((s, _)) => s.to_string(),
@@ -548,7 +564,12 @@ impl VdbSource {
             global_max,
             label,
             cache: None,
-            reader_peak_bytes: (origins_len as u64).saturating_mul(WORKER_BYTES_PER_LEAF),
+            reader_peak_bytes: st
+                .part
+                .map_or(origins_len as u64, |p| p.total_leaves)
+                .saturating_mul(WORKER_BYTES_PER_LEAF),
+            part: st.part.map(|p| p.core),
+            unloaded_leaves,
         })
     }
 
@@ -696,11 +717,22 @@ impl VdbSource {
         .ok()
     }
 
+    /// The index-z slab of a part read ([`VdbOptions::part`]) with infinite open ends.
+    pub(super) fn part_index_slab(&self) -> Option<(f64, f64)> {
+        let f = |z: i64| match z {
+            i64::MIN => f64::NEG_INFINITY,
+            i64::MAX => f64::INFINITY,
+            z => z as f64,
+        };
+        self.part.map(|(a, b)| (f(a), f(b)))
+    }
+
     /// Voxels the tree stores values for: its leaves' and its constant tiles' (a dense copy
     /// holding more than twice this would be mostly zeros).
     pub fn stored_voxels(&self) -> u64 {
         let consts = self.blocks.len() - self.leaves.len();
-        ((self.leaves.len() + consts) as u64 * 512)
+        ((self.leaves.len() + consts) as u64 + self.unloaded_leaves)
+            .saturating_mul(512)
             .saturating_add((self.big.len() as u64) << 21)
             .saturating_add((self.huge.len() as u64).saturating_mul(1 << 36))
     }
@@ -996,6 +1028,17 @@ impl DensitySource for VdbSource {
         VdbSource::dense_copy(self, max_bytes)
     }
 
+    fn part_slab(&self) -> Option<[f64; 2]> {
+        // World z of index z per axis (a rotated grid answers through its GridFrame).
+        let (scale, _) = self.diag?;
+        let (a, b) = self.part_index_slab()?;
+        let (a, b) = (
+            a * scale.z + self.translation.z,
+            b * scale.z + self.translation.z,
+        );
+        Some([a.min(b), a.max(b)])
+    }
+
     fn footprint(&self) -> Option<super::super::Footprint> {
         let held = self.memory_bytes();
         Some(super::super::Footprint {
@@ -1186,5 +1229,15 @@ impl DensitySource for GridFrame<'_> {
 
     fn describe(&self) -> String {
         format!("{}, baked in the grid's own frame", self.grid.label)
+    }
+
+    fn part_slab(&self) -> Option<[f64; 2]> {
+        // Local z is `R index` with `R` upper triangular: index z times its last diagonal
+        // entry (the other two entries of that row are zero up to rounding, which the
+        // leaf of margin absorbs).
+        let (a, b) = self.grid.part_index_slab()?;
+        let r22 = 1.0 / self.to_index.z_axis.z;
+        let (a, b) = (a * r22, b * r22);
+        Some([a.min(b), a.max(b)])
     }
 }

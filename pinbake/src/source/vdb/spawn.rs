@@ -35,6 +35,12 @@ pub(super) fn run_worker(
         } else {
             "fog"
         })
+        .args(opt.part.iter().flat_map(|p| {
+            [
+                format!("{}/{}", p.index, p.count),
+                format!("{:?}", opt.density_scale),
+            ]
+        }))
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
@@ -71,10 +77,11 @@ pub(super) fn run_worker(
         )
     })?;
     let stdout = child.stdout.take().ok_or("worker has no stdout")?;
+    let part = opt.part.is_some();
     let stderr = child.stderr.take().ok_or("worker has no stderr")?;
     let parser = std::thread::spawn(move || {
         let mut r = BufReader::with_capacity(1 << 16, stdout);
-        let res = parse_stream_within(&mut r, file_size, max_leaf_bytes);
+        let res = parse_stream_within(&mut r, file_size, max_leaf_bytes, part);
         // Drain so that the child never blocks on a full pipe after we stopped reading;
         // a refused budget closes the pipe instead, and the child ends at its next write.
         if !matches!(res, Err(StreamError::Budget { .. })) {

@@ -232,6 +232,38 @@ pub(super) struct Stream {
     pub(super) tiles: Vec<([i32; 3], u8, f32)>,
     pub(super) active: u64,
     pub(super) negatives: u64,
+    /// What the worker says about the slab it read, when it read one part of the grid.
+    pub(super) part: Option<PartStream>,
+}
+
+/// One part of a farm bake (`pinbake bake --part I/N`): the worker reads the whole file but
+/// keeps and sends only the leaves of z-slab `index` of `count` (and a margin of one leaf
+/// each side), and summarises the others.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VdbPart {
+    pub index: u32,
+    pub count: u32,
+}
+
+/// The worker's account of a part read ([`VdbPart`]). The slab boundaries are cut from the
+/// topology alone (leaf layers split evenly), so every part of one bake agrees on them; the
+/// summary of the leaves left out is what the parent needs for the statistics a whole read
+/// computes (the non-zero box, the leaf count, the largest value), after the density scale.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct PartStream {
+    pub(super) index: u32,
+    pub(super) count: u32,
+    /// The slab in index z, `[lo, hi)`; `i64::MIN` and `i64::MAX` for the open ends.
+    pub(super) core: (i64, i64),
+    /// Leaves of the whole tree (what the worker's topology held).
+    pub(super) total_leaves: u64,
+    /// Leaves left out that hold a non-zero value after the density scale.
+    pub(super) skipped_kept: u64,
+    /// Index box of their non-zero voxels (inclusive; `lo > hi` when there are none).
+    pub(super) skipped_lo: [i32; 3],
+    pub(super) skipped_hi: [i32; 3],
+    /// Their largest value after the density scale.
+    pub(super) skipped_max: f32,
 }
 
 pub(super) struct StreamReader<R: Read> {
@@ -283,18 +315,20 @@ impl<R: Read> StreamReader<R> {
 /// [`parse_stream_within`] without a memory limit, errors as text.
 #[cfg(test)]
 pub(super) fn parse_stream(r: impl Read, file_size: u64) -> Result<Stream, String> {
-    parse_stream_within(r, file_size, u64::MAX).map_err(|e| e.to_string())
+    parse_stream_within(r, file_size, u64::MAX, false).map_err(|e| e.to_string())
 }
 
 /// Parses the worker's stream. Counts are checked against limits derived from the file size:
 /// a leaf costs at least 128 bytes in a VDB file (two 64-byte masks), a tile at least two mask
 /// bits, so a stream claiming more is corrupt whatever the child says. The leaf table is
 /// sized once from the worker's leaf count, and refused ([`StreamError::Budget`]) before
-/// anything is allocated when it needs more than `max_bytes`.
+/// anything is allocated when it needs more than `max_bytes`. `part`: the worker was asked for
+/// one part ([`VdbPart`]), so the stream carries its [`PartStream`] fields.
 pub(super) fn parse_stream_within(
     r: impl Read,
     file_size: u64,
     max_bytes: u64,
+    part: bool,
 ) -> Result<Stream, StreamError> {
     let mut s = StreamReader { r };
     let mut magic = [0u8; 8];
@@ -341,6 +375,19 @@ pub(super) fn parse_stream_within(
     if encoding != LEAF_F32 && encoding != LEAF_HALF {
         return Err("worker stream has a bad leaf encoding".into());
     }
+    let part_head = if part {
+        let index = s.u32()?;
+        let count = s.u32()?;
+        let lo = s.u64()? as i64;
+        let hi = s.u64()? as i64;
+        let total_leaves = s.u64()?;
+        if count == 0 || index >= count || lo > hi || total_leaves > max_leaves {
+            return Err("worker stream has a bad part record".into());
+        }
+        Some((index, count, (lo, hi), total_leaves))
+    } else {
+        None
+    };
     let need = leaf_table_bytes(announced, encoding);
     if need > max_bytes {
         return Err(StreamError::Budget {
@@ -404,6 +451,30 @@ pub(super) fn parse_stream_within(
     }
     let active = s.u64()?;
     let negatives = s.u64()?;
+    let part = match part_head {
+        None => None,
+        Some((index, count, core, total_leaves)) => {
+            let skipped_kept = s.u64()?;
+            let skipped_lo = s.ivec()?;
+            let skipped_hi = s.ivec()?;
+            let mut b = [0u8; 4];
+            s.fill(&mut b)?;
+            let skipped_max = f32::from_le_bytes(b);
+            if skipped_kept > total_leaves || !(skipped_max.is_finite() && skipped_max >= 0.0) {
+                return Err("worker stream has a bad part summary".into());
+            }
+            Some(PartStream {
+                index,
+                count,
+                core,
+                total_leaves,
+                skipped_kept,
+                skipped_lo,
+                skipped_hi,
+                skipped_max,
+            })
+        }
+    };
     s.fill(&mut magic)?;
     if &magic != STREAM_END {
         return Err("worker stream has a bad trailer".into());
@@ -422,5 +493,6 @@ pub(super) fn parse_stream_within(
         tiles,
         active,
         negatives,
+        part,
     })
 }

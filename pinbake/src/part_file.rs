@@ -1,0 +1,357 @@
+//! The part file of a farm bake split by volume (`pinbake bake --part I/N`,
+//! [`crate::part::PartData`]): what one part hands to `pinbake merge`. Byte layout (all
+//! little-endian; specified in docs/farm.md, "Part files"):
+//!
+//! ```text
+//! magic "PINPART\0" | version u32 | part index u32 | part count u32 | flags u32
+//! slab lo f64 | slab hi f64
+//! grid description: length u32 (= size of GridDesc) | GridDesc bytes (pin_format::layout)
+//! metadata: length u32 | pin_format metadata encoding (content hash empty)
+//! majorant dims 3 x u32 (0 0 0: none) | majorant f32 x (product of dims)
+//! lattice count u32 | lattice f32 x count | lattice owners u8 x count
+//! sample count u64 | samples f32 x count
+//! checksum u64: xxh3-64 of every byte before it
+//! ```
+//!
+//! A reader checks the length, magic, version and checksum before anything else, then every
+//! count against the bytes left (checked arithmetic), so a damaged or truncated file is a
+//! one-line error and never an allocation the file asked for.
+
+use std::io::Write;
+use std::path::Path;
+
+use pin_format::{GridDesc, Metadata};
+
+use crate::part::{Part, PartData};
+
+pub const PART_MAGIC: &[u8; 8] = b"PINPART\0";
+pub const PART_VERSION: u32 = 1;
+/// `flags` bit: the samples are a dense grid's march ([`PartData::grid_march`]).
+pub const PART_FLAG_GRID_MARCH: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum PartFileError {
+    #[error("not a part file (bad magic)")]
+    Magic,
+    #[error("part file version {0} is not supported (this build reads version {PART_VERSION})")]
+    Version(u32),
+    #[error("part file is damaged: checksum mismatch")]
+    Checksum,
+    #[error("part file is damaged: {0}")]
+    Corrupt(String),
+    #[error("metadata: {0}")]
+    Metadata(#[from] pin_format::FormatError),
+    #[error("cannot write the part file: {0}")]
+    Write(String),
+}
+
+/// Whether `bytes` start like a part file (for a merge that takes pin tiles or parts).
+pub fn is_part_file(bytes: &[u8]) -> bool {
+    bytes.starts_with(PART_MAGIC)
+}
+
+/// The file's bytes.
+pub fn encode(d: &PartData) -> Result<Vec<u8>, PartFileError> {
+    let mut b = Vec::new();
+    encode_into(d, &mut b)?;
+    Ok(b)
+}
+
+/// A writer that hashes what it passes on, for the trailing checksum of a streamed file.
+struct Hashing<W: Write> {
+    inner: W,
+    hash: xxhash_rust::xxh3::Xxh3,
+    bytes: u64,
+}
+
+impl<W: Write> Write for Hashing<W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.hash.update(&buf[..n]);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Writes the file to `w` as it goes (the samples are not copied first), returning its
+/// length in bytes.
+pub fn encode_into(d: &PartData, w: &mut impl Write) -> Result<u64, PartFileError> {
+    let meta = d.metadata.encode()?;
+    let mut h = Hashing {
+        inner: w,
+        hash: xxhash_rust::xxh3::Xxh3::new(),
+        bytes: 0,
+    };
+    let io = |e: std::io::Error| PartFileError::Write(e.to_string());
+    let b = &mut h;
+    b.write_all(PART_MAGIC).map_err(io)?;
+    for v in [
+        PART_VERSION,
+        d.part.index,
+        d.part.count,
+        if d.grid_march {
+            PART_FLAG_GRID_MARCH
+        } else {
+            0
+        },
+    ] {
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
+    }
+    for v in d.slab {
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
+    }
+    let desc = bytemuck::bytes_of(&d.desc);
+    b.write_all(&(desc.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    b.write_all(desc).map_err(io)?;
+    b.write_all(&(meta.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    b.write_all(&meta).map_err(io)?;
+    let (dims, maj): ([u32; 3], &[f32]) = match &d.majorant {
+        Some((dims, v)) => (*dims, v),
+        None => ([0; 3], &[]),
+    };
+    for v in dims {
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
+    }
+    b.write_all(bytemuck::cast_slice(maj)).map_err(io)?;
+    b.write_all(&(d.lattice.len() as u32).to_le_bytes())
+        .map_err(io)?;
+    b.write_all(bytemuck::cast_slice(&d.lattice)).map_err(io)?;
+    b.write_all(&d.lattice_owned).map_err(io)?;
+    b.write_all(&(d.samples.len() as u64).to_le_bytes())
+        .map_err(io)?;
+    for chunk in d.samples.chunks(1 << 16) {
+        b.write_all(bytemuck::cast_slice(chunk)).map_err(io)?;
+    }
+    let sum = h.hash.digest();
+    h.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
+    Ok(h.bytes + 8)
+}
+
+/// Reads the bytes from the front, every length checked against what is left.
+struct Cursor<'a>(&'a [u8]);
+
+impl<'a> Cursor<'a> {
+    fn take(&mut self, n: u64, what: &str) -> Result<&'a [u8], PartFileError> {
+        if n > self.0.len() as u64 {
+            return Err(PartFileError::Corrupt(format!(
+                "{what} needs {n} bytes, {} left",
+                self.0.len()
+            )));
+        }
+        let (a, b) = self.0.split_at(n as usize);
+        self.0 = b;
+        Ok(a)
+    }
+    fn u32(&mut self, what: &str) -> Result<u32, PartFileError> {
+        let b = self.take(4, what)?;
+        Ok(u32::from_le_bytes(b.try_into().expect("4 bytes")))
+    }
+    fn u64(&mut self, what: &str) -> Result<u64, PartFileError> {
+        let b = self.take(8, what)?;
+        Ok(u64::from_le_bytes(b.try_into().expect("8 bytes")))
+    }
+    fn f32s(&mut self, n: u64, what: &str) -> Result<Vec<f32>, PartFileError> {
+        let bytes = self.take(
+            n.checked_mul(4)
+                .ok_or_else(|| PartFileError::Corrupt(format!("{what}: count {n} overflows")))?,
+            what,
+        )?;
+        let v: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+            .collect();
+        if let Some(x) = v.iter().find(|x| !(x.is_finite() && **x >= 0.0)) {
+            return Err(PartFileError::Corrupt(format!(
+                "{what} holds {x}, not a density"
+            )));
+        }
+        Ok(v)
+    }
+}
+
+/// Parses a part file.
+pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
+    if !is_part_file(bytes) {
+        return Err(PartFileError::Magic);
+    }
+    if bytes.len() < PART_MAGIC.len() + 4 + 8 {
+        return Err(PartFileError::Corrupt(format!(
+            "{} bytes is too short",
+            bytes.len()
+        )));
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes"));
+    if version != PART_VERSION {
+        return Err(PartFileError::Version(version));
+    }
+    let (body, sum) = bytes.split_at(bytes.len() - 8);
+    if xxhash_rust::xxh3::xxh3_64(body) != u64::from_le_bytes(sum.try_into().expect("8 bytes")) {
+        return Err(PartFileError::Checksum);
+    }
+    let mut c = Cursor(&body[12..]);
+    let index = c.u32("part index")?;
+    let count = c.u32("part count")?;
+    if count == 0 || index >= count {
+        return Err(PartFileError::Corrupt(format!("part {index} of {count}")));
+    }
+    let flags = c.u32("flags")?;
+    if flags & !PART_FLAG_GRID_MARCH != 0 {
+        return Err(PartFileError::Corrupt(format!("unknown flags {flags:#x}")));
+    }
+    let lo = f64::from_bits(c.u64("slab")?);
+    let hi = f64::from_bits(c.u64("slab")?);
+    if lo.is_nan() || hi.is_nan() || lo > hi {
+        return Err(PartFileError::Corrupt(format!("slab {lo} .. {hi}")));
+    }
+    let n = c.u32("grid description length")?;
+    if n as usize != size_of::<GridDesc>() {
+        return Err(PartFileError::Corrupt(format!(
+            "grid description of {n} bytes, not {}",
+            size_of::<GridDesc>()
+        )));
+    }
+    let desc: GridDesc = bytemuck::pod_read_unaligned(c.take(u64::from(n), "grid description")?);
+    let n = c.u32("metadata length")?;
+    let metadata = Metadata::decode(c.take(u64::from(n), "metadata")?)?;
+    let dims = [c.u32("majorant")?, c.u32("majorant")?, c.u32("majorant")?];
+    let majorant = if dims == [0; 3] {
+        None
+    } else {
+        if dims.iter().any(|&d| !(1..=4096).contains(&d)) {
+            return Err(PartFileError::Corrupt(format!("majorant dims {dims:?}")));
+        }
+        let n = dims.iter().map(|&d| u64::from(d)).product();
+        Some((dims, c.f32s(n, "majorant")?))
+    };
+    let n = u64::from(c.u32("lattice count")?);
+    let lattice = c.f32s(n, "lattice")?;
+    let lattice_owned = c.take(n, "lattice owners")?.to_vec();
+    if lattice_owned.iter().any(|&o| o > 1) {
+        return Err(PartFileError::Corrupt(
+            "lattice owner flag not 0 or 1".into(),
+        ));
+    }
+    let n = c.u64("sample count")?;
+    let samples = c.f32s(n, "samples")?;
+    if !c.0.is_empty() {
+        return Err(PartFileError::Corrupt(format!(
+            "{} bytes after the samples",
+            c.0.len()
+        )));
+    }
+    Ok(PartData {
+        part: Part { index, count },
+        desc,
+        metadata,
+        slab: [lo, hi],
+        grid_march: flags & PART_FLAG_GRID_MARCH != 0,
+        majorant,
+        lattice,
+        lattice_owned,
+        samples,
+    })
+}
+
+/// Writes the part file of `d` to `target` atomically: a temporary `.NAME.*.partial` beside
+/// it (announced to [`crate::files::watch_partial_files`] while it exists), fsync, rename. A
+/// failure leaves no file behind. Returns the file's length.
+pub fn write_atomic(target: &Path, d: &PartData) -> Result<u64, PartFileError> {
+    let dir = match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "part".into());
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.subsec_nanos());
+    let temp = dir.join(format!(".{name}.{}-{nanos}.partial", std::process::id()));
+    let _announced = crate::files::announce_partial_file(&temp);
+    let io = |e: std::io::Error| PartFileError::Write(e.to_string());
+    let result = (|| {
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temp)
+            .map_err(io)?;
+        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
+        let n = encode_into(d, &mut w)?;
+        let f = w.into_inner().map_err(|e| io(e.into_error()))?;
+        f.sync_all().map_err(io)?;
+        std::fs::rename(&temp, target).map_err(io)?;
+        if let Ok(d) = std::fs::File::open(dir) {
+            let _ = d.sync_all();
+        }
+        Ok(n)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    result
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bake::BakeOptions;
+    use crate::source::{Aabb, HomogeneousBox};
+    use glam::DVec3;
+
+    fn sample() -> PartData {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        let opts = BakeOptions {
+            cells: [3, 2, 4],
+            directions: pin_format::Directions::Octahedral { n: 2 },
+            majorant: Some([2, 2, 2]),
+            ..BakeOptions::default()
+        };
+        crate::part::bake_part(&src, &opts, Part { index: 1, count: 3 }, &|_| {}).unwrap()
+    }
+
+    #[test]
+    fn a_part_file_reads_back_what_was_written() {
+        let d = sample();
+        assert!(!d.samples.is_empty());
+        let bytes = encode(&d).unwrap();
+        assert!(is_part_file(&bytes));
+        assert_eq!(decode(&bytes).unwrap(), d);
+    }
+
+    /// Every truncation and every flipped byte is a one-line error, never a panic or a
+    /// part read from damaged bytes.
+    #[test]
+    fn damaged_part_files_are_refused() {
+        let bytes = encode(&sample()).unwrap();
+        for cut in (0..bytes.len()).step_by(7) {
+            let e = decode(&bytes[..cut]).unwrap_err().to_string();
+            assert!(!e.contains('\n'), "{e}");
+        }
+        for at in (0..bytes.len()).step_by(5) {
+            let mut b = bytes.clone();
+            b[at] ^= 0x10;
+            let e = decode(&b).unwrap_err().to_string();
+            assert!(!e.contains('\n'), "{e}");
+        }
+        let mut other = bytes.clone();
+        other[8] = 9;
+        assert!(matches!(decode(&other), Err(PartFileError::Version(9))));
+        assert!(matches!(decode(b"PINFILE!xxxx"), Err(PartFileError::Magic)));
+        // A consistent checksum over a count that claims more than the file holds.
+        let mut long = bytes[..bytes.len() - 8].to_vec();
+        let n = long.len();
+        // The sample count sits before the samples: make it huge.
+        let samples = sample().samples.len();
+        let at = n - samples * 4 - 8;
+        long[at..at + 8].copy_from_slice(&u64::MAX.to_le_bytes());
+        let sum = xxhash_rust::xxh3::xxh3_64(&long);
+        long.extend_from_slice(&sum.to_le_bytes());
+        assert!(matches!(decode(&long), Err(PartFileError::Corrupt(_))));
+    }
+}
