@@ -536,7 +536,11 @@ fn cell_box(bbox: &Aabb, dims: [u32; 3], c: [u32; 3]) -> Aabb {
 }
 
 /// `vec![value; n]` that reports a failed allocation instead of aborting the process.
-fn try_filled<T: Clone>(what: &'static str, n: usize, value: T) -> Result<Vec<T>, BakeError> {
+pub(crate) fn try_filled<T: Clone>(
+    what: &'static str,
+    n: usize,
+    value: T,
+) -> Result<Vec<T>, BakeError> {
     let mut v = Vec::new();
     v.try_reserve_exact(n).map_err(|_| BakeError::Alloc {
         what,

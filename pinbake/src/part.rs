@@ -292,14 +292,7 @@ fn part_in_pool(
     // that the rows fill in place (they are most of a part's memory beside the source).
     let counts = row_counts(&layout, &placement, &[slab]);
     let total: usize = counts.iter().map(|c| c[0]).sum();
-    let mut samples = Vec::new();
-    samples
-        .try_reserve_exact(total)
-        .map_err(|_| BakeError::Alloc {
-            what: "the part's samples",
-            bytes: total as u64 * 4,
-        })?;
-    samples.resize(total, 0.0f32);
+    let mut samples = crate::bake::try_filled("the part's samples", total, 0.0f32)?;
     let mut slices: Vec<&mut [f32]> = Vec::with_capacity(rows);
     let mut rest = samples.as_mut_slice();
     for c in &counts {
@@ -602,14 +595,7 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         .ok_or_else(|| mismatch(first_name, "grid has more pins than memory can hold".into()))?
         as usize;
     // The pins first: a grid too large for memory is refused before the passes over it.
-    let mut dense = Vec::new();
-    dense
-        .try_reserve_exact(pins)
-        .map_err(|_| BakeError::Alloc {
-            what: "the pins",
-            bytes: pins as u64 * 8,
-        })?;
-    dense.resize(pins, PinEntry::EMPTY);
+    let mut dense = crate::bake::try_filled("the pins", pins, PinEntry::EMPTY)?;
     let pin = |row: usize, x: u32, dir: u32, k: u32| {
         let cell = [x, (row % ny as usize) as u32, (row / ny as usize) as u32];
         let mut rng = layout.rng(layout.cell_linear(cell), dir, k);

@@ -246,6 +246,15 @@ struct Bar {
     bar: std::sync::OnceLock<ProgressBar>,
 }
 
+impl Bar {
+    /// Clears the bar once the bake is done (nothing when none was shown).
+    fn finish(&self) {
+        if let Some(b) = self.bar.get() {
+            b.finish_and_clear();
+        }
+    }
+}
+
 impl pinbake::plan::Progress for Bar {
     fn start(&self, total: u64) {
         if !self.enabled {
@@ -290,9 +299,7 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
             &bar,
         )
         .map_err(plan_error)?;
-        if let Some(b) = bar.bar.get() {
-            b.finish_and_clear();
-        }
+        bar.finish();
         let seconds = started.elapsed().as_secs_f64();
         let mut v = baked.summary();
         v["seconds"] = serde_json::json!(seconds);
@@ -318,9 +325,7 @@ pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<se
         &bar,
     )
     .map_err(plan_error)?;
-    if let Some(b) = bar.bar.get() {
-        b.finish_and_clear();
-    }
+    bar.finish();
     let seconds = started.elapsed().as_secs_f64();
     if let Some(w) = &baked.choice.warning
         && !args.quiet
