@@ -131,7 +131,7 @@ impl SourceArgs {
         use crate::source::{self, ProceduralSpec, RawOptions, SourceSpec};
         let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
         let kind = source::InputKind::of(input);
-        let is_vdb = kind == source::InputKind::Vdb;
+        let is_vdb = kind.is_vdb_like();
         let given = source::GivenSourceOptions {
             dims: self.dims.is_some(),
             voxel_type: self.voxel_type.is_some(),

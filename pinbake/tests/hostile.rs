@@ -1,5 +1,7 @@
 //! Hostile input through the `pinbake` binary (docs/background.md section 3, docs/stability.md "Hostile use"):
-//! every damaged VDB of `data/oiio_damaged` through `bake`, and generated corrupt
+//! every damaged VDB of `data/oiio_damaged` through `bake`, damaged NanoVDB files (generated
+//! from a valid one: truncated, lying sizes, offsets and counts, bad magic, unknown version
+//! and codec, BLOSC, huge declared grids), and generated corrupt
 //! pin files (truncated, flipped, lying header) through `verify` and `inspect`. Each must
 //! give a one-line error and exit code 1 within generous bounds on peak RSS (wait4's
 //! ru_maxrss, which includes the isolated VDB worker) and wall time. Prints the table that
@@ -11,6 +13,8 @@
 //! bake. Each checks the exit code, a one-line stderr, bounded time and memory, and that
 //! nothing was damaged.
 #![cfg(all(feature = "cli", feature = "vdb"))]
+
+mod nanovdb;
 
 use std::ffi::{OsStr, OsString};
 use std::os::unix::ffi::OsStrExt;
@@ -255,6 +259,228 @@ fn hostile_inputs_fail_in_one_line_with_bounded_memory_and_time() {
     }
     table.extend(rows);
     eprintln!("\n{}", table.join("\n"));
+}
+
+/// A valid NanoVDB file and damaged copies of it, each with a word its error must contain.
+fn damaged_nanovdbs() -> Vec<(&'static str, Vec<u8>, &'static str)> {
+    use nanovdb::{Grid, Type, file_bytes, grid_bytes, grid_offset, leaf};
+    let g = Grid::new(
+        Type::Float,
+        vec![
+            leaf([0, 0, 0], |k| k as f32 * 0.01),
+            leaf([8, 0, 0], |k| 1.0 + k as f32 * 0.01),
+        ],
+    );
+    let valid = file_bytes(&g, 0);
+    let (_, lay) = grid_bytes(&g);
+    let go = grid_offset(&g.name);
+    let set = |at: usize, bytes: &[u8]| {
+        let mut f = valid.clone();
+        f[at..at + bytes.len()].copy_from_slice(bytes);
+        f
+    };
+    let mut cases = vec![
+        ("empty file", Vec::new(), "empty"),
+        ("truncated header", valid[..12].to_vec(), "past the end"),
+        ("truncated metadata", valid[..100].to_vec(), "past the end"),
+        (
+            "truncated grid",
+            valid[..go + 5000].to_vec(),
+            "past the end",
+        ),
+        (
+            "truncated last leaf",
+            valid[..valid.len() - 100].to_vec(),
+            "past the end",
+        ),
+        ("bad magic", set(0, b"NanoVDBX"), "not a NanoVDB file"),
+        (
+            "unknown version",
+            set(8, &((40u32 << 21) | (1 << 10)).to_le_bytes()),
+            "NanoVDB 40.1.0",
+        ),
+        (
+            "unknown codec",
+            set(14, &7u16.to_le_bytes()),
+            "unknown codec 7",
+        ),
+        ("BLOSC codec", set(14, &2u16.to_le_bytes()), "BLOSC"),
+        (
+            "lying grid size",
+            set(16, &(u64::MAX / 2).to_le_bytes()),
+            "stores",
+        ),
+        (
+            "lying stored size",
+            set(16 + 8, &(u64::MAX / 2).to_le_bytes()),
+            "past the end",
+        ),
+        (
+            "lying name size",
+            set(16 + 136, &u32::MAX.to_le_bytes()),
+            "grid name",
+        ),
+        (
+            "huge declared leaf count",
+            set(go + lay.tree + 32, &u32::MAX.to_le_bytes()),
+            "more than its",
+        ),
+        (
+            "lying root offset",
+            set(go + lay.tree + 24, &(u64::MAX - 8).to_le_bytes()),
+            "root",
+        ),
+        (
+            "huge root table",
+            set(go + lay.root + 24, &u32::MAX.to_le_bytes()),
+            "root tile table",
+        ),
+        (
+            "upper child offset outside",
+            set(go + lay.root + 64 + 8, &(1i64 << 40).to_le_bytes()),
+            "child offset",
+        ),
+        (
+            "negative leaf offset",
+            set(go + lay.lower + 1088, &(-(1i64 << 40)).to_le_bytes()),
+            "child offset",
+        ),
+        (
+            "grid type unsupported",
+            {
+                let f = set(16 + 32, &6u32.to_le_bytes());
+                let mut f2 = f.clone();
+                f2[go + 636..go + 640].copy_from_slice(&6u32.to_le_bytes());
+                f2
+            },
+            "type vec3f",
+        ),
+        (
+            "metadata and grid types differ",
+            set(go + 636, &14u32.to_le_bytes()),
+            "corrupt",
+        ),
+        ("grid magic", set(go, b"garbage!"), "bad magic"),
+        (
+            "NaN value",
+            set(go + lay.first_leaf + 96 + 40, &f32::NAN.to_le_bytes()),
+            "value NaN",
+        ),
+    ];
+    // Both leaves of the lower node pointing at the first one: more leaves reached than
+    // the one declared.
+    {
+        let mut f = set(go + lay.tree + 32, &1u32.to_le_bytes());
+        let first = (lay.first_leaf - lay.lower) as i64;
+        f[go + lay.lower + 1088 + 8 * 16..go + lay.lower + 1088 + 8 * 17]
+            .copy_from_slice(&first.to_le_bytes());
+        cases.push(("shared leaf node", f, "more leaf nodes"));
+    }
+    // A second root entry at the same key as the first.
+    {
+        let mut g2 = g.clone();
+        g2.root_tiles = vec![([0, 0, 0], 1.0, true)];
+        cases.push(("repeated root key", file_bytes(&g2, 0), "two root entries"));
+    }
+    // ZIP: a declared grid far beyond what the compressed bytes can expand to, and a
+    // damaged zlib stream.
+    let zip = file_bytes(&g, 1);
+    {
+        let mut f = zip.clone();
+        f[16..24].copy_from_slice(&(1u64 << 50).to_le_bytes());
+        cases.push(("ZIP huge declared grid", f, "more than zlib"));
+        let mut f = zip.clone();
+        let n = f.len();
+        for b in &mut f[go + 8 + 40..n - 8] {
+            *b ^= 0x5a;
+        }
+        cases.push(("ZIP damaged stream", f, "ZIP data"));
+    }
+    // An FpN leaf whose bit-width code is past 16 bits.
+    {
+        let gn = Grid::new(Type::FpN(4), g.leaves.clone());
+        let (_, ln) = grid_bytes(&gn);
+        let mut f = file_bytes(&gn, 0);
+        f[go + ln.first_leaf + 15] = 7 << 5;
+        cases.push(("FpN bit width", f, "bit width"));
+    }
+    cases
+}
+
+#[test]
+fn hostile_nanovdb_files_fail_in_one_line_with_bounded_memory_and_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.pin");
+    let mut rows = vec![
+        "| input | command | exit | peak RSS MiB | s | message |".to_string(),
+        "|---|---|---|---|---|---|".to_string(),
+    ];
+    // The undamaged file bakes.
+    let cases = damaged_nanovdbs();
+    let valid = dir.path().join("valid.nvdb");
+    std::fs::write(
+        &valid,
+        nanovdb::file_bytes(
+            &nanovdb::Grid::new(
+                nanovdb::Type::Float,
+                vec![nanovdb::leaf([0, 0, 0], |k| k as f32 * 0.01)],
+            ),
+            0,
+        ),
+    )
+    .unwrap();
+    let mut args = vec!["bake", valid.to_str().unwrap(), "-o", out.to_str().unwrap()];
+    args.extend(FAST);
+    let r = run(&args);
+    assert_eq!(
+        r.code,
+        Some(0),
+        "the valid NanoVDB file bakes: {}",
+        r.stderr
+    );
+    std::fs::remove_file(&out).unwrap();
+    for (i, (name, bytes, needle)) in cases.iter().enumerate() {
+        let path = dir.path().join(format!("damaged{i}.nvdb"));
+        std::fs::write(&path, bytes).unwrap();
+        let r = run(&[
+            "bake",
+            path.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--cells",
+            "4",
+        ]);
+        check(&format!("nvdb {name} | bake"), &r, &mut rows);
+        assert!(
+            r.stderr.contains(&format!("damaged{i}.nvdb")),
+            "{name}: {}",
+            r.stderr
+        );
+        assert!(
+            r.stderr.contains(needle),
+            "{name}: {:?} lacks {needle:?}",
+            r.stderr
+        );
+        assert!(!out.exists(), "{name}: an output file appeared");
+    }
+    // Named as anything else, a NanoVDB file is told by its magic.
+    let renamed = dir.path().join("cloud.bin");
+    std::fs::copy(&valid, &renamed).unwrap();
+    let mut args = vec![
+        "bake",
+        renamed.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ];
+    args.extend(FAST);
+    let r = run(&args);
+    assert_eq!(
+        r.code,
+        Some(0),
+        "a NanoVDB file without its extension bakes: {}",
+        r.stderr
+    );
+    eprintln!("\n{}", rows.join("\n"));
 }
 
 // ---------------------------------------------------------------------------------------

@@ -493,7 +493,7 @@ fn bake(
         BakeInput::Source(SourceSpec::Procedural(spec))
     } else {
         let path = PathBuf::from(input);
-        if kind == InputKind::Vdb {
+        if kind.is_vdb_like() {
             let worker = vdb_worker.ok_or_else(|| {
                 value_err("reading OpenVDB needs the pinrt-vdb-worker script (vdb_worker=)")
             })?;

@@ -9,6 +9,8 @@
 //! * [`raw`]: the headerless raw reader that produces such a grid;
 //! * [`procedural`]: analytic fields (box, sphere, cosine noise) with closed-form optical depth;
 //! * `vdb` (feature `vdb`): OpenVDB float/half grids, read in an isolated child process.
+//! * `nanovdb` (feature `vdb`): NanoVDB float, half and quantised grids, read in place into
+//!   the same sparse table as `vdb`.
 //!
 //! What does not: ray marching, majorant grids and pin baking (the baker consumes
 //! [`DensitySource`]); file formats for pins (crate `pin-format`).
@@ -24,6 +26,8 @@ use glam::DVec3;
 pub mod grid;
 pub mod identity;
 pub mod mip;
+#[cfg(feature = "vdb")]
+pub mod nanovdb;
 pub mod procedural;
 pub mod raw;
 #[cfg(feature = "vdb")]
@@ -184,6 +188,9 @@ pub enum SourceError {
     /// The path names a directory, device, FIFO or socket, not a regular file.
     #[error("{}: {what}", .path.display())]
     NotAFile { path: PathBuf, what: &'static str },
+    /// A NanoVDB file was rejected.
+    #[error("{}: {}", .path.display(), one_line(.message))]
+    NanoVdb { path: PathBuf, message: String },
     /// A raw volume is malformed or does not match its options.
     #[error("{}: {}", .path.display(), one_line(.message))]
     Raw { path: PathBuf, message: String },
@@ -296,25 +303,33 @@ impl fmt::Display for DensityScale {
 pub enum InputKind {
     Procedural,
     Vdb,
+    /// A NanoVDB file: opened with the OpenVDB options (`SourceSpec::Vdb`).
+    NanoVdb,
     Raw,
     /// Voxels in memory (Python's NumPy arrays): placed by spacing and origin only.
     Array,
 }
 
 impl InputKind {
-    /// The kind a path or `procedural:SPEC` names (`.vdb` by its extension, any other path
-    /// raw).
+    /// The kind a path or `procedural:SPEC` names: `.vdb` by its extension, `.nvdb` by its
+    /// extension or (any other name) by NanoVDB's magic at the start of the file, any
+    /// other path raw.
     pub fn of(input: &std::path::Path) -> Self {
+        let ext = |x: &str| input.extension().is_some_and(|e| e.eq_ignore_ascii_case(x));
         if input.to_str().is_some_and(|s| s.starts_with("procedural:")) {
             InputKind::Procedural
-        } else if input
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("vdb"))
-        {
+        } else if ext("nvdb") || (!ext("vdb") && has_nanovdb_magic(input)) {
+            InputKind::NanoVdb
+        } else if ext("vdb") {
             InputKind::Vdb
         } else {
             InputKind::Raw
         }
+    }
+
+    /// Whether the input is read with the OpenVDB options (OpenVDB or NanoVDB).
+    pub fn is_vdb_like(self) -> bool {
+        matches!(self, InputKind::Vdb | InputKind::NanoVdb)
     }
 
     /// Its name in messages ("a raw input").
@@ -322,6 +337,7 @@ impl InputKind {
         match self {
             InputKind::Procedural => "a procedural",
             InputKind::Vdb => "an OpenVDB",
+            InputKind::NanoVdb => "a NanoVDB",
             InputKind::Raw => "a raw",
             InputKind::Array => "an array",
         }
@@ -345,7 +361,7 @@ impl InputKind {
         const VDB: [&str; 2] = ["grid", "levelset_to_fog"];
         match self {
             InputKind::Procedural => false,
-            InputKind::Vdb => VDB.contains(&name),
+            InputKind::Vdb | InputKind::NanoVdb => VDB.contains(&name),
             InputKind::Raw => RAW.contains(&name),
             InputKind::Array => matches!(name, "spacing" | "origin"),
         }
@@ -393,6 +409,16 @@ impl GivenSourceOptions {
     }
 }
 
+/// Whether the file at `input` starts with NanoVDB's magic (false when it cannot be read).
+pub(crate) fn has_nanovdb_magic(input: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    std::fs::File::open(input)
+        .and_then(|mut f| f.read_exact(&mut head))
+        .is_ok()
+        && head == *b"NanoVDB0"
+}
+
 /// What to open: the input half of a bake command line.
 #[derive(Clone, Debug)]
 pub enum SourceSpec {
@@ -409,6 +435,14 @@ pub enum SourceSpec {
 pub fn open_source(spec: &SourceSpec) -> Result<Box<dyn DensitySource>, SourceError> {
     match spec {
         SourceSpec::Raw(path, options) => Ok(Box::new(raw::read_raw(path, options)?)),
+        // A `.nvdb` name, or NanoVDB's magic whatever the name: the rest go to the OpenVDB
+        // worker.
+        #[cfg(feature = "vdb")]
+        SourceSpec::Vdb(path, options)
+            if InputKind::of(path) == InputKind::NanoVdb || nanovdb::is_nanovdb_file(path) =>
+        {
+            Ok(Box::new(nanovdb::open(path, options)?))
+        }
         #[cfg(feature = "vdb")]
         SourceSpec::Vdb(path, options) => Ok(Box::new(VdbSource::open(path, options)?)),
         #[cfg(not(feature = "vdb"))]

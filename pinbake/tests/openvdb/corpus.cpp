@@ -13,6 +13,7 @@
 #include <openvdb/io/File.h>
 #include <openvdb/tools/LevelSetSphere.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -179,6 +180,19 @@ void dump_values(std::ostream& js, const GridT& g, uint64_t seed) {
         pts.insert(bb.min());
         pts.insert(bb.max());
     }
+    // The range of every value stored in a leaf, active or not: what bounds the quantum
+    // of NanoVDB's quantised leaves (tests/nanovdb_corpus.rs).
+    double lo = 0.0, hi = 0.0;
+    bool any = false;
+    for (auto it = g.tree().cbeginLeaf(); it; ++it) {
+        for (Index i = 0; i < 512; ++i) {
+            double v = double(it->getValue(i));
+            lo = any ? std::min(lo, v) : v;
+            hi = any ? std::max(hi, v) : v;
+            any = true;
+        }
+    }
+    js << "\"leaf_range\":[" << fmt_f(lo) << "," << fmt_f(hi) << "],";
     js << "\"samples\":[";
     bool first = true;
     for (const Coord& c : pts) {

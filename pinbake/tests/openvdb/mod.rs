@@ -94,6 +94,8 @@ pub struct Grid {
     pub active_bbox: ([i32; 3], [i32; 3]),
     pub active_voxels: u64,
     pub scalar: bool,
+    /// The smallest and largest value stored in any leaf, active or not (scalar grids).
+    pub leaf_range: Option<(f64, f64)>,
     /// (voxel, value, active).
     pub samples: Vec<([i32; 3], f64, bool)>,
 }
@@ -156,6 +158,9 @@ pub fn manifest(dir: &Path) -> Vec<File> {
                     ),
                     active_voxels: g["active_voxels"].as_u64().unwrap(),
                     scalar: g["scalar"].as_bool().unwrap(),
+                    leaf_range: g["leaf_range"]
+                        .as_array()
+                        .map(|r| (f64_of(&r[0]), f64_of(&r[1]))),
                     samples: g["samples"]
                         .as_array()
                         .unwrap()

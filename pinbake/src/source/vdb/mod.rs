@@ -153,6 +153,11 @@ pub use reader::worker_main;
 pub use source::VdbSource;
 pub use spawn::WORKER_ENV;
 pub use wire::VdbPart;
+// What the NanoVDB reader builds a `VdbSource` from: the worker's stream, made in-process.
+pub(crate) use wire::{
+    GridInfo, LEAF_F32, LEAF_HALF, LeafValues, Stream, StreamError, ValueKind, leaf_table_bytes,
+    select_grid,
+};
 
 #[cfg(test)]
 mod tests {

@@ -379,6 +379,10 @@ pub(super) fn worker_run(
                 out,
             )
         }
+        ValueKind::Fp4 | ValueKind::Fp8 | ValueKind::Fp16 | ValueKind::FpN => Err(format!(
+            "grid '{shown}': no OpenVDB grid type maps to {}",
+            kind.name()
+        )),
     }
 }
 

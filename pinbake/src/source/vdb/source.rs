@@ -286,7 +286,7 @@ impl VdbSource {
         values + tables + cache + index
     }
 
-    pub(super) fn from_stream(
+    pub(crate) fn from_stream(
         path: &Path,
         st: Stream,
         scale: DensityScale,
@@ -571,6 +571,14 @@ impl VdbSource {
             part: st.part.map(|p| p.core),
             unloaded_leaves,
         })
+    }
+
+    /// Names the reader that built this source at the head of its description ("vdb" for
+    /// the OpenVDB worker, "nanovdb" for the NanoVDB reader).
+    pub(crate) fn set_reader_label(&mut self, reader: &str) {
+        if let Some(rest) = self.label.strip_prefix("vdb ") {
+            self.label = format!("{reader} {rest}");
+        }
     }
 
     /// World position of index-space point `i` (voxel centres are at integers).

@@ -11,15 +11,15 @@ pub(super) const TAG_TILE: u8 = 2;
 pub(super) const MAX_NAME: usize = 1024;
 /// Leaf encodings: 512 f32 values, or 512 f16 bit patterns (half grids, floats saved as
 /// half and level sets, whose values are all exact in half).
-pub(super) const LEAF_F32: u8 = 0;
-pub(super) const LEAF_HALF: u8 = 1;
+pub(crate) const LEAF_F32: u8 = 0;
+pub(crate) const LEAF_HALF: u8 = 1;
 /// Bytes the parent keeps per leaf beside its values: the origin while parsing, then its
 /// maximum, its hash-table slot and key.
 pub(super) const LEAF_OVERHEAD_BYTES: u64 = 40;
 
 /// Why the parent did not get a grid from the worker.
 #[derive(Debug)]
-pub(super) enum StreamError {
+pub(crate) enum StreamError {
     /// The worker failed or its stream is bad: one line.
     Message(String),
     /// The leaves the worker announced need `need` bytes, more than the `limit` given.
@@ -51,24 +51,29 @@ impl std::fmt::Display for StreamError {
 }
 
 /// The leaf values as the parent keeps them, in stream order.
-pub(super) enum LeafValues {
+pub(crate) enum LeafValues {
     F32(Vec<[f32; 512]>),
     /// f16 bit patterns; the source maps them to scaled f32 through a table.
     Half(Vec<[u16; 512]>),
 }
 
 /// Bytes the parent needs for `leaves` leaves of `encoding` (values and per-leaf overhead).
-pub(super) fn leaf_table_bytes(leaves: u64, encoding: u8) -> u64 {
+pub(crate) fn leaf_table_bytes(leaves: u64, encoding: u8) -> u64 {
     let values = if encoding == LEAF_HALF { 1024 } else { 2048 };
     leaves.saturating_mul(values + LEAF_OVERHEAD_BYTES)
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum ValueKind {
+pub(crate) enum ValueKind {
     Float = 0,
     FloatSavedAsHalf = 1,
     Half = 2,
     Double = 3,
+    /// NanoVDB's quantised leaves (never on the worker's wire).
+    Fp4 = 4,
+    Fp8 = 5,
+    Fp16 = 6,
+    FpN = 7,
 }
 
 impl ValueKind {
@@ -87,21 +92,25 @@ impl ValueKind {
             Self::FloatSavedAsHalf => "float saved as half",
             Self::Half => "half",
             Self::Double => "double",
+            Self::Fp4 => "fp4",
+            Self::Fp8 => "fp8",
+            Self::Fp16 => "fp16",
+            Self::FpN => "fpN",
         }
     }
 }
 
 /// The part of a grid descriptor the worker needs, independent of vdb-rs types.
 #[derive(Clone, Debug)]
-pub(super) struct GridInfo {
+pub(crate) struct GridInfo {
     /// Descriptor name as stored (repeated names carry `\x1e<n>`).
-    pub(super) name: String,
-    pub(super) grid_type: String,
-    pub(super) class: String,
+    pub(crate) name: String,
+    pub(crate) grid_type: String,
+    pub(crate) class: String,
 }
 
 impl GridInfo {
-    pub(super) fn display(&self) -> String {
+    pub(crate) fn display(&self) -> String {
         display_name(&self.name)
     }
     pub(super) fn value_kind(&self, half_meta: bool) -> Option<ValueKind> {
@@ -120,16 +129,17 @@ impl GridInfo {
     }
     pub(super) fn is_scalar_float(&self) -> bool {
         self.value_kind(false).is_some()
+            || crate::source::nanovdb::FLOAT_TYPES.contains(&self.grid_type.as_str())
     }
 }
 
 /// `density\x1e1` is shown (and selected) as `density#1`.
-pub(super) fn display_name(name: &str) -> String {
+pub(crate) fn display_name(name: &str) -> String {
     one_line(name)
 }
 
 /// Picks the grid per the rules in the module docs. `grids` must be sorted by name.
-pub(super) fn select_grid(grids: &[GridInfo], selector: Option<&str>) -> Result<usize, String> {
+pub(crate) fn select_grid(grids: &[GridInfo], selector: Option<&str>) -> Result<usize, String> {
     let list = || {
         grids
             .iter()
@@ -219,21 +229,21 @@ pub(super) fn put_str(o: &mut impl Write, s: &str) -> Result<(), String> {
 }
 
 /// The parsed worker stream, before densities are scaled.
-pub(super) struct Stream {
-    pub(super) grids: Vec<GridInfo>,
-    pub(super) chosen: usize,
-    pub(super) kind: ValueKind,
-    pub(super) level_set: bool,
+pub(crate) struct Stream {
+    pub(crate) grids: Vec<GridInfo>,
+    pub(crate) chosen: usize,
+    pub(crate) kind: ValueKind,
+    pub(crate) level_set: bool,
     /// Index to world, row-major 3x4.
-    pub(super) xf: [f64; 12],
+    pub(crate) xf: [f64; 12],
     /// Leaf origins and values, index for index.
-    pub(super) origins: Vec<[i32; 3]>,
-    pub(super) leaves: LeafValues,
-    pub(super) tiles: Vec<([i32; 3], u8, f32)>,
-    pub(super) active: u64,
-    pub(super) negatives: u64,
+    pub(crate) origins: Vec<[i32; 3]>,
+    pub(crate) leaves: LeafValues,
+    pub(crate) tiles: Vec<([i32; 3], u8, f32)>,
+    pub(crate) active: u64,
+    pub(crate) negatives: u64,
     /// What the worker says about the slab it read, when it read one part of the grid.
-    pub(super) part: Option<PartStream>,
+    pub(crate) part: Option<PartStream>,
 }
 
 /// One part of a farm bake (`pinbake bake --part I/N`): the worker reads the whole file but
@@ -250,7 +260,7 @@ pub struct VdbPart {
 /// summary of the leaves left out is what the parent needs for the statistics a whole read
 /// computes (the non-zero box, the leaf count, the largest value), after the density scale.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(super) struct PartStream {
+pub(crate) struct PartStream {
     pub(super) index: u32,
     pub(super) count: u32,
     /// The slab in index z, `[lo, hi)`; `i64::MIN` and `i64::MAX` for the open ends.
