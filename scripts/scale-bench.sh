@@ -5,10 +5,11 @@
 # the largest process if that is higher), the file's bytes, the bake's own memory estimate
 # (what --max-memory is checked against) and the ratios peak / file and estimate / peak.
 #
-#   scripts/scale-bench.sh [--json] [small|half|full|seq|FILE.vdb]...   (default: small half)
+#   scripts/scale-bench.sh [--json] [small|half|half-nvdb|full|seq|FILE]...   (default: small half)
 #
 # The volumes are generated on first use by scripts/production/generate.sh (cached under the
-# target directory, never committed). --json prints one JSON object instead of the table:
+# target directory, never committed); half-nvdb is the half cloud converted once to NanoVDB by
+# nanovdb_convert (float leaves) and cached beside it. --json prints one JSON object instead of the table:
 # {"machine": {...}, "runs": [{"volume", "file_bytes", "wall_s", "peak_rss_bytes",
 # "memory_estimate_bytes", "peak_over_file", "estimate_over_peak", "cells", "frames",
 # "user_s", "system_s"}]}. PINBAKE (default: the release binary of this checkout) and
@@ -37,7 +38,7 @@ runs="$work/runs.jsonl"
 for v in "${volumes[@]}"; do
   frames=""
   case "$v" in
-    small | half | full) input=$("$here/production/generate.sh" "$v" | tail -1) ;;
+    small | half | full | half-nvdb) input=$("$here/production/generate.sh" "$v" | tail -1) ;;
     seq)
       "$here/production/generate.sh" seq >/dev/null
       input="$target/production/seq/cloud.####.vdb"

@@ -10,10 +10,12 @@
 #   seq     seq/cloud.0001.vdb .. seq/cloud.0024.vdb: 24 frames, 440 x 299 x 543, >= 20 M each
 #   nvdb    seq/cloud.0001.nvdb: frame 1 converted by nanovdb_convert (libnanovdb-tools),
 #           skipped with a note when the tool is missing
+#   half-nvdb  cloud-half.nvdb: the half cloud converted by nanovdb_convert (float leaves;
+#           the tool is required)
 #   small   cloud-small.vdb: 124 x 84 x 153 (for tests and quick checks)
 #   custom  NAME NX NY NZ: cloud-NAME.vdb at any size
 #
-# Usage: scripts/production/generate.sh [half|full|seq|nvdb|small|all|custom NAME NX NY NZ]...
+# Usage: scripts/production/generate.sh [half|full|seq|nvdb|half-nvdb|small|all|custom NAME NX NY NZ]...
 # Prints the path of each volume it made or found. Needs: apt-get install -y g++
 # libopenvdb-dev libboost-dev (libnanovdb-tools for nvdb). Memory: about 5 bytes per active
 # voxel while a cloud is written (7.5 GB for the full one), so run it alone.
@@ -52,11 +54,12 @@ seq_frames() {
   done
 }
 
+# nvdb SRC DST [required]: converts SRC to DST with nanovdb_convert unless DST exists.
 nvdb() {
-  local src="$out/seq/cloud.0001.vdb" dst="$out/seq/cloud.0001.nvdb"
-  [ -s "$src" ] || cloud "$src" 440 299 543 1 >/dev/null
+  local src=$1 dst=$2
   if ! command -v nanovdb_convert >/dev/null; then
     echo "generate.sh: nanovdb_convert missing (apt-get install -y libnanovdb-tools); no .nvdb written" >&2
+    [ "${3:-}" = required ] && exit 1
     return 0
   fi
   if [ ! -s "$dst" ]; then
@@ -73,12 +76,19 @@ while [ $# -gt 0 ]; do
     half) cloud "$out/cloud-half.vdb" 992 674 1225 ;;
     full) cloud "$out/cloud-full.vdb" 1790 1216 2210 ;;
     seq) seq_frames ;;
-    nvdb) nvdb ;;
+    nvdb)
+      [ -s "$out/seq/cloud.0001.vdb" ] || cloud "$out/seq/cloud.0001.vdb" 440 299 543 1 >/dev/null
+      nvdb "$out/seq/cloud.0001.vdb" "$out/seq/cloud.0001.nvdb"
+      ;;
+    half-nvdb)
+      cloud "$out/cloud-half.vdb" 992 674 1225 >/dev/null
+      nvdb "$out/cloud-half.vdb" "$out/cloud-half.nvdb" required
+      ;;
     all)
       cloud "$out/cloud-small.vdb" 124 84 153
       cloud "$out/cloud-half.vdb" 992 674 1225
       seq_frames
-      nvdb
+      nvdb "$out/seq/cloud.0001.vdb" "$out/seq/cloud.0001.nvdb"
       cloud "$out/cloud-full.vdb" 1790 1216 2210
       ;;
     custom)
@@ -86,7 +96,7 @@ while [ $# -gt 0 ]; do
       cloud "$out/cloud-$2.vdb" "$3" "$4" "$5"
       shift 4
       ;;
-    *) echo "generate.sh: unknown volume '$1' (half, full, seq, nvdb, small, all, custom)" >&2; exit 2 ;;
+    *) echo "generate.sh: unknown volume '$1' (half, full, seq, nvdb, half-nvdb, small, all, custom)" >&2; exit 2 ;;
   esac
   shift
 done

@@ -29,6 +29,9 @@ pub(super) struct GridHeader {
     pub(super) xf: [f64; 12],
     /// Byte offset of the root node in the buffer.
     pub(super) root: u64,
+    /// Byte offset of the first leaf (the leaves follow one another in NanoVDB's layout),
+    /// as the tree header says; only a hint, every leaf is reached through its parent.
+    pub(super) first_leaf: u64,
     /// Declared counts of leaf, lower and upper nodes.
     pub(super) node_count: [u64; 3],
 }
@@ -87,6 +90,7 @@ pub(super) fn read_header(
         .ok_or_else(|| {
             format!("grid '{shown}' has its root past the end of its buffer (corrupt file)")
         })?;
+    let first_leaf = tree.saturating_add(b.u64(tree, "tree header")?);
     let mut node_count = [0u64; 3];
     for (i, n) in node_count.iter_mut().enumerate() {
         *n = u64::from(b.u32(tree + 32 + 4 * i as u64, "tree header")?);
@@ -111,6 +115,7 @@ pub(super) fn read_header(
         level_set,
         xf,
         root,
+        first_leaf,
         node_count,
     })
 }

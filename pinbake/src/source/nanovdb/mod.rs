@@ -189,7 +189,8 @@ fn read(
         return Err(format!("grid '{shown}': its class differs between the file's metadata and the grid (corrupt file)").into());
     }
     // The leaf table is sized from the declared count before a leaf is read.
-    let encoding = if tree::keeps_half(&h) {
+    let half = tree::keeps_half(&gb, &h);
+    let encoding = if half {
         super::vdb::LEAF_HALF
     } else {
         super::vdb::LEAF_F32
@@ -199,7 +200,7 @@ fn read(
     if need > limit {
         return Err(StreamError::Budget { need, limit });
     }
-    let t = tree::walk(gb, &h, &shown)?;
+    let t = tree::walk(gb, &h, &shown, half)?;
     drop(buffer);
     if t.active == 0 {
         return Err(format!("grid '{shown}' has no active voxels").into());

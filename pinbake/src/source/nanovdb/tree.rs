@@ -33,17 +33,55 @@ struct Walk<'a, 'b> {
     leaf: Leaf,
 }
 
-/// Whether the leaves are kept as f16 bits: half grids, and level sets baked as fog (0 and
-/// 1), as the OpenVDB path keeps them. Every other type is kept as f32.
-pub(super) fn keeps_half(h: &GridHeader) -> bool {
-    h.level_set || h.value == ValueType::Half
+/// Whether the leaves are kept as f16 bits: half grids, level sets baked as fog (0 and 1),
+/// as the OpenVDB path keeps them, and float grids whose every density is a half value (an
+/// OpenVDB float grid saved as half, converted by `nanovdb_convert`: [`float_fits_half`]),
+/// which the OpenVDB path keeps as half too. The same values at half the bytes.
+pub(super) fn keeps_half(b: &Bytes<'_>, h: &GridHeader) -> bool {
+    h.level_set
+        || h.value == ValueType::Half
+        || (h.value == ValueType::Float && float_fits_half(b, h))
 }
 
-/// Walks the tree of the grid whose buffer is `b`. `leaf_capacity` leaves are reserved up
-/// front (the declared count, already checked against the memory budget).
-pub(super) fn walk(b: Bytes<'_>, h: &GridHeader, shown: &str) -> Result<TreeOut, String> {
+/// The density a leaf voxel gives outside level sets (before the checks of the walk).
+fn fog_density(v: f32, active: bool) -> f32 {
+    if active { v.max(0.0) } else { 0.0 }
+}
+
+/// Whether every density of the float leaves in the grid's leaf array (the declared count
+/// from the declared first leaf) is exact in f16. Reads the array in order, once; a leaf
+/// out of bounds answers no. The walk checks every leaf it reaches again, so a file whose
+/// leaves lie elsewhere is refused rather than rounded.
+fn float_fits_half(b: &Bytes<'_>, h: &GridHeader) -> bool {
+    const SIZE: u64 = 2144;
+    (0..h.node_count[0]).all(|i| {
+        let Some(bytes) = h
+            .first_leaf
+            .checked_add(i * SIZE)
+            .and_then(|off| b.slice(off, SIZE, "leaf").ok())
+        else {
+            return false;
+        };
+        let mask = &bytes[16..80];
+        bytes[96..].chunks_exact(4).enumerate().all(|(k, c)| {
+            let active = mask[k >> 3] >> (k & 7) & 1 != 0;
+            let d = fog_density(f32::from_le_bytes([c[0], c[1], c[2], c[3]]), active);
+            !d.is_finite() || half::f16::from_f32(d).to_f32() == d
+        })
+    })
+}
+
+/// Walks the tree of the grid whose buffer is `b`, keeping leaves as f16 when `half` (see
+/// [`keeps_half`]). The declared leaf count is reserved up front (already checked against
+/// the memory budget).
+pub(super) fn walk(
+    b: Bytes<'_>,
+    h: &GridHeader,
+    shown: &str,
+    half: bool,
+) -> Result<TreeOut, String> {
     let n = h.node_count[0] as usize;
-    let leaves = if keeps_half(h) {
+    let leaves = if half {
         let mut v: Vec<[u16; 512]> = Vec::new();
         v.try_reserve_exact(n).map_err(|_| no_memory(shown, n))?;
         LeafValues::Half(v)
@@ -274,7 +312,17 @@ impl Walk<'_, '_> {
             LeafValues::Half(v) => {
                 let mut bits = [0u16; 512];
                 for (b, x) in bits.iter_mut().zip(&vals) {
-                    *b = half::f16::from_f32(*x).to_bits();
+                    let h = half::f16::from_f32(*x);
+                    // Exact for half grids and fog level sets; a float grid is kept as half
+                    // only when its leaf array was found exact, which a leaf reached outside
+                    // that array need not be.
+                    if h.to_f32() != *x {
+                        return Err(format!(
+                            "grid '{}' has a leaf at ({},{},{}) outside its leaf array (corrupt file)",
+                            self.shown, o[0], o[1], o[2]
+                        ));
+                    }
+                    *b = h.to_bits();
                 }
                 v.push(bits);
             }
