@@ -410,8 +410,13 @@ impl GivenSourceOptions {
 }
 
 /// Whether the file at `input` starts with NanoVDB's magic (false when it cannot be read).
+/// Only a regular file is opened: opening a FIFO would block, and a device or directory is
+/// refused later with its own message.
 pub(crate) fn has_nanovdb_magic(input: &Path) -> bool {
     use std::io::Read;
+    if !std::fs::metadata(input).is_ok_and(|m| m.is_file()) {
+        return false;
+    }
     let mut head = [0u8; 8];
     std::fs::File::open(input)
         .and_then(|mut f| f.read_exact(&mut head))
