@@ -1,9 +1,10 @@
 //! `pinbake`: reads a density volume and bakes it into a pin grid file.
 //!
-//! What it is for: asset pipelines. [`source`] turns OpenVDB grids, headerless raw grids and
-//! procedural fields into one [`source::DensitySource`] interface; [`bake`] ray-marches every
-//! pin of the 5D grid in one pass and produces a canonical [`pin_format::OwnedPinGrid`];
-//! [`merge`] joins the z-slab tiles of a farm bake into the same bytes a single bake writes.
+//! What it is for: asset pipelines. [`source`] turns OpenVDB and NanoVDB grids, headerless
+//! raw grids and procedural fields into one [`source::DensitySource`] interface; [`bake`]
+//! ray-marches every pin of the 5D grid in one pass and produces a canonical
+//! [`pin_format::OwnedPinGrid`]; [`merge`] joins the z-slab tiles of a farm bake into the
+//! same bytes a single bake writes.
 //! [`plan::bake_to_file`] is the front door for a bake to a file: option ranges, the output
 //! rule, the memory budget, the choice of grid, the bake, the atomic write and the summary,
 //! in one place for the binary, Python and Rust callers.

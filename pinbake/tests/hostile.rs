@@ -651,6 +651,8 @@ fn special_files_as_input_are_refused_without_reading() {
     mkfifo(&fifo_raw);
     let fifo_vdb = d.join("pipe.vdb");
     mkfifo(&fifo_vdb);
+    let fifo_nvdb = d.join("pipe.nvdb");
+    mkfifo(&fifo_nvdb);
     let out = d.join("out.pin");
     let special: [(&Path, &str); 4] = [
         (Path::new("/dev/zero"), "/dev/zero: not a regular file"),
@@ -672,6 +674,7 @@ fn special_files_as_input_are_refused_without_reading() {
     for (input, extra) in [
         (&fifo_raw, &[][..]),
         (&fifo_vdb, &[][..]),
+        (&fifo_nvdb, &[][..]),
         (
             &PathBuf::from("/dev/zero"),
             &["--dims", "2", "--type", "u8"][..],

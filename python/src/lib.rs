@@ -494,7 +494,9 @@ fn bake(
     } else {
         let path = PathBuf::from(input);
         if kind.is_vdb_like() {
-            let worker = vdb_worker.ok_or_else(|| {
+            // The NanoVDB reader runs in process and never starts the worker.
+            let nano = (kind == InputKind::NanoVdb).then(PathBuf::new);
+            let worker = vdb_worker.or(nano).ok_or_else(|| {
                 value_err("reading OpenVDB needs the pinrt-vdb-worker script (vdb_worker=)")
             })?;
             BakeInput::Source(SourceSpec::Vdb(

@@ -18,8 +18,8 @@ pub use bench::BenchArgs;
 const ABOUT: &str = "Bake volumetric density into pin transmittance grids.";
 
 const LONG_ABOUT: &str = "\
-Bake volumetric density (OpenVDB, headerless raw grids or procedural fields) into a compact
-pin grid file that pinrt samples on the CPU and the GPU.
+Bake volumetric density (OpenVDB, NanoVDB, headerless raw grids or procedural fields) into a
+compact pin grid file that pinrt samples on the CPU and the GPU.
 
 Typical use:
   pinbake bake smoke.vdb -o smoke.pin

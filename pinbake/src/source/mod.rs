@@ -410,8 +410,8 @@ impl GivenSourceOptions {
 }
 
 /// Whether the file at `input` starts with NanoVDB's magic (false when it cannot be read).
-/// Only a regular file is opened: opening a FIFO for reading would wait for a writer, and a
-/// device may never answer (the open's own checks refuse both later, by name).
+/// Only a regular file is opened: opening a FIFO would block, and a device or directory is
+/// refused later with its own message.
 pub(crate) fn has_nanovdb_magic(input: &Path) -> bool {
     use std::io::Read;
     if !std::fs::metadata(input).is_ok_and(|m| m.is_file()) {

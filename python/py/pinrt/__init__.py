@@ -3,7 +3,7 @@
 The compiled core is the same Rust code as the ``pinbake`` command and the ``pinrt`` runtime:
 
 * :func:`bake` bakes a 3-D NumPy float array (with ``spacing`` and ``origin``) or any file
-  ``pinbake bake`` reads (``.vdb``, ``.raw``, ``procedural:SPEC``) into a pin file and returns
+  ``pinbake bake`` reads (``.vdb``, ``.nvdb``, ``.raw``, ``procedural:SPEC``) into a pin file and returns
   the summary that ``pinbake bake --json`` prints, as a dict.
 * :class:`PinGrid` opens a pin file (memory-mapped) and answers batched transmittance and
   free-flight distance queries over (N, 3) arrays of origins and directions, with the GIL

@@ -79,6 +79,28 @@ impl Buffer {
             Buffer::Owned(v) => v,
         }
     }
+
+    /// Drops the mapped pages of grid bytes `off..off + len` from this process's memory once
+    /// the walk is done with them, so that the resident pages of the file stay a window, not
+    /// the whole grid. A later read of them faults the same bytes back in from the file.
+    fn release(&self, off: u64, len: u64) {
+        if let Buffer::Mapped(m, base, glen) = self {
+            let end = off.saturating_add(len).min(*glen);
+            if off < end {
+                // SAFETY: the map is a private, read-only mapping of a file pinbake does not
+                // write: MADV_DONTNEED drops pages that are read back unchanged from the
+                // file, so every slice into the map keeps its contents. Failure only leaves
+                // the pages resident.
+                let _ = unsafe {
+                    m.unchecked_advise_range(
+                        memmap2::UncheckedAdvice::DontNeed,
+                        (base + off) as usize,
+                        (end - off) as usize,
+                    )
+                };
+            }
+        }
+    }
 }
 
 /// Opens the NanoVDB file `path` with the options of the OpenVDB path (`grid`,
@@ -189,7 +211,8 @@ fn read(
         return Err(format!("grid '{shown}': its class differs between the file's metadata and the grid (corrupt file)").into());
     }
     // The leaf table is sized from the declared count before a leaf is read.
-    let half = tree::keeps_half(&gb, &h);
+    let release = |off: u64, len: u64| buffer.release(off, len);
+    let half = tree::keeps_half(&gb, &h, &release);
     let encoding = if half {
         super::vdb::LEAF_HALF
     } else {
@@ -200,7 +223,7 @@ fn read(
     if need > limit {
         return Err(StreamError::Budget { need, limit });
     }
-    let t = tree::walk(gb, &h, &shown, half)?;
+    let t = tree::walk(gb, &h, &shown, half, &release)?;
     drop(buffer);
     if t.active == 0 {
         return Err(format!("grid '{shown}' has no active voxels").into());

@@ -28,6 +28,9 @@ struct Walk<'a, 'b> {
     b: Bytes<'a>,
     h: &'b GridHeader,
     shown: &'b str,
+    release: &'b Release<'b>,
+    /// The byte span of the leaves read since the last lower node was finished.
+    leaf_span: (u64, u64),
     seen: [u64; 3],
     out: TreeOut,
     leaf: Leaf,
@@ -37,11 +40,14 @@ struct Walk<'a, 'b> {
 /// as the OpenVDB path keeps them, and float grids whose every density is a half value (an
 /// OpenVDB float grid saved as half, converted by `nanovdb_convert`: [`float_fits_half`]),
 /// which the OpenVDB path keeps as half too. The same values at half the bytes.
-pub(super) fn keeps_half(b: &Bytes<'_>, h: &GridHeader) -> bool {
+pub(super) fn keeps_half(b: &Bytes<'_>, h: &GridHeader, release: &Release<'_>) -> bool {
     h.level_set
         || h.value == ValueType::Half
-        || (h.value == ValueType::Float && float_fits_half(b, h))
+        || (h.value == ValueType::Float && float_fits_half(b, h, release))
 }
+
+/// Called with byte ranges of the grid that the walk is done with (`Buffer::release`).
+pub(super) type Release<'a> = dyn Fn(u64, u64) + 'a;
 
 /// The density a leaf voxel gives outside level sets (before the checks of the walk).
 fn fog_density(v: f32, active: bool) -> f32 {
@@ -52,9 +58,14 @@ fn fog_density(v: f32, active: bool) -> f32 {
 /// from the declared first leaf) is exact in f16. Reads the array in order, once; a leaf
 /// out of bounds answers no. The walk checks every leaf it reaches again, so a file whose
 /// leaves lie elsewhere is refused rather than rounded.
-fn float_fits_half(b: &Bytes<'_>, h: &GridHeader) -> bool {
+fn float_fits_half(b: &Bytes<'_>, h: &GridHeader, release: &Release<'_>) -> bool {
     const SIZE: u64 = 2144;
+    // Pages are released every 4096 leaves (8.4 MB) as the array is read.
+    const CHUNK: u64 = 4096;
     (0..h.node_count[0]).all(|i| {
+        if i % CHUNK == 0 && i > 0 {
+            release(h.first_leaf + (i - CHUNK) * SIZE, CHUNK * SIZE);
+        }
         let Some(bytes) = h
             .first_leaf
             .checked_add(i * SIZE)
@@ -79,6 +90,7 @@ pub(super) fn walk(
     h: &GridHeader,
     shown: &str,
     half: bool,
+    release: &Release<'_>,
 ) -> Result<TreeOut, String> {
     let n = h.node_count[0] as usize;
     let leaves = if half {
@@ -98,6 +110,8 @@ pub(super) fn walk(
         b,
         h,
         shown,
+        release,
+        leaf_span: (u64::MAX, 0),
         seen: [0; 3],
         out: TreeOut {
             origins,
@@ -259,6 +273,17 @@ impl Walk<'_, '_> {
                 self.out.tiles.push((o, if log2 == 5 { 2 } else { 1 }, d));
             }
         }
+        // The node and (lower nodes) its leaves are done with: NanoVDB lays the leaves of
+        // one lower node out one after another.
+        if log2 == 4 {
+            let (lo, hi) = std::mem::replace(&mut self.leaf_span, (u64::MAX, 0));
+            if lo < hi {
+                (self.release)(lo, hi - lo);
+            }
+            (self.release)(off, LOWER_BYTES);
+        } else {
+            (self.release)(off, UPPER_BYTES);
+        }
         Ok(())
     }
 
@@ -270,6 +295,7 @@ impl Walk<'_, '_> {
             .leaf_size(b.u8(off + LEAF_FLAGS, "leaf flags")?)
             .map_err(in_grid)?;
         let bytes = Bytes::new(b.slice(off, size, "leaf node").map_err(in_grid)?);
+        self.leaf_span = (self.leaf_span.0.min(off), self.leaf_span.1.max(off + size));
         leaf::decode(t, &bytes, &mut self.leaf).map_err(in_grid)?;
         let mut vals = [0f32; 512];
         let mut any = false;

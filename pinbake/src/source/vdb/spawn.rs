@@ -129,7 +129,9 @@ pub(super) fn run_worker(
     if status.success() {
         return parsed;
     }
-    if stderr_text.contains("memory allocation of") {
+    // A limit below what the executable itself maps stops the dynamic loader before main.
+    if stderr_text.contains("memory allocation of") || stderr_text.contains("failed to map segment")
+    {
         // The default limit is 64 MiB + 64 x the file size; every stored node carries its
         // masks uncompressed, so a valid file stays below it (docs/vdb.md).
         return Err(StreamError::Message(if opt.memory_limit.is_some() {
