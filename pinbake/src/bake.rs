@@ -520,6 +520,7 @@ pub(crate) fn finish(
         pins,
         majorant,
         density,
+        sparse_density: None,
         metadata: Some(metadata),
     };
     grid.validate()?;

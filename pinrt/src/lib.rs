@@ -88,6 +88,7 @@
 //!     pins: vec![PinEntry { mask: u32::MAX, t_min: 0.97 }; 8 * 64],
 //!     majorant: None,
 //!     density: None,
+//!     sparse_density: None,
 //!     metadata: None,
 //! };
 //! let dir = tempfile::tempdir()?;

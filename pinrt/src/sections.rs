@@ -244,6 +244,7 @@ mod tests {
                 let encoding = 0; // f16, the only encoding
                 (DensityHeader { dims, encoding }, v)
             }),
+            sparse_density: None,
             metadata: None,
         };
         owned.to_bytes().unwrap()
