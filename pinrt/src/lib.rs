@@ -150,6 +150,7 @@ pub mod mask;
 mod rng;
 mod sampler;
 mod sections;
+mod sparse;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
 #[cfg(test)]
@@ -166,6 +167,7 @@ pub use sampler::{
     Sampler, SamplerOptions, status,
 };
 pub use sections::{Density, Majorants};
+pub use sparse::SparseDensity;
 
 /// The WGSL source of the GPU path (`shaders/pin.wgsl`).
 pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");
