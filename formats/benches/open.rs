@@ -71,6 +71,7 @@ fn write_small(path: &Path) {
             .collect(),
         majorant: None,
         density: None,
+        sparse_density: None,
         metadata: None,
     };
     grid.write_atomic(path).unwrap();

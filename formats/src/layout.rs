@@ -14,6 +14,9 @@ pub const VERSION_MAJOR: u16 = 1;
 /// Readers accept any minor version of their major; newer minors only add sections or append
 /// fields to records whose length is recorded.
 pub const VERSION_MINOR: u16 = 0;
+/// The minor version a file with a [`SectionKind::SparseDensity`] section carries (1.1); files
+/// without one stay 1.0, byte for byte.
+pub const VERSION_MINOR_SPARSE_DENSITY: u16 = 1;
 /// Every section starts at a multiple of this many bytes (one cache line; GPUs bind from it).
 pub const SECTION_ALIGN: u64 = 64;
 /// Bits in one pin mask, one per interval along the chord.
@@ -81,10 +84,13 @@ pub enum SectionKind {
     Metadata = 6,
     /// [`TileDesc`]: this file holds one z-slab of a larger grid.
     Tile = 7,
+    /// [`SparseDensityHeader`], a `u32` per brick (slot or [`EMPTY_BRICK`]), then the
+    /// stored bricks' voxels (format 1.1).
+    SparseDensity = 8,
 }
 
 impl SectionKind {
-    pub const ALL: [SectionKind; 7] = [
+    pub const ALL: [SectionKind; 8] = [
         SectionKind::GridDesc,
         SectionKind::Pins,
         SectionKind::CellIndex,
@@ -92,6 +98,7 @@ impl SectionKind {
         SectionKind::Density,
         SectionKind::Metadata,
         SectionKind::Tile,
+        SectionKind::SparseDensity,
     ];
 
     pub fn from_u32(v: u32) -> Option<Self> {
@@ -107,6 +114,7 @@ impl SectionKind {
             SectionKind::Density => "density",
             SectionKind::Metadata => "metadata",
             SectionKind::Tile => "tile",
+            SectionKind::SparseDensity => "sparse-density",
         }
     }
 }
@@ -197,6 +205,34 @@ pub struct DensityHeader {
     pub encoding: u32,
 }
 
+/// [`DensityHeader::encoding`] / [`SparseDensityHeader::encoding`]: IEEE binary32 voxels
+/// (sparse density only).
+pub const DENSITY_F32: u32 = 1;
+/// Marks a brick with no stored voxels (all zero) in the sparse density's brick index.
+pub const EMPTY_BRICK: u32 = u32::MAX;
+/// Largest brick edge, in voxels, of a sparse density (a brick is at most 64^3 voxels).
+pub const MAX_BRICK: u32 = 64;
+
+/// Prefix of the sparse density section (32 bytes, format 1.1). It is followed by the brick
+/// index, one `u32` per brick of the brick grid (`ceil(dims / brick)` per axis, x fastest):
+/// the brick's slot or [`EMPTY_BRICK`]; then `brick_count` bricks of `brick^3` voxels each
+/// (x fastest inside a brick) in the encoding's element type. Voxel `(x, y, z)` lives in brick
+/// `(x, y, z) / brick` at `(x, y, z) % brick`; voxel centres sit where the dense section's do.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct SparseDensityHeader {
+    /// Voxels along x, y, z over the grid box; each >= 1.
+    pub dims: [u32; 3],
+    /// [`DENSITY_F16`] or [`DENSITY_F32`].
+    pub encoding: u32,
+    /// Brick edge in voxels: a power of two, 1..=[`MAX_BRICK`].
+    pub brick: u32,
+    /// Stored bricks.
+    pub brick_count: u32,
+    /// Reserved, zero.
+    pub reserved: [u32; 2],
+}
+
 /// The tile section (16 bytes): this file covers cell layers `z_begin..z_end`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
@@ -215,4 +251,5 @@ const _: () = {
     assert!(size_of::<MajorantHeader>() == 16);
     assert!(size_of::<DensityHeader>() == 16);
     assert!(size_of::<TileDesc>() == 16);
+    assert!(size_of::<SparseDensityHeader>() == 32);
 };

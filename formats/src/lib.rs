@@ -20,6 +20,7 @@
 //!     pins: vec![PinEntry { mask: 0x8000_0001, t_min: 0.5 }; 4],
 //!     majorant: None,
 //!     density: None,
+//!     sparse_density: None,
 //!     metadata: None,
 //! };
 //! let bytes = grid.to_bytes().unwrap();
@@ -40,6 +41,7 @@ mod metadata;
 mod owned;
 mod reader;
 mod shape;
+mod sparse;
 pub mod text;
 #[cfg(feature = "writer")]
 mod writer;
@@ -49,12 +51,15 @@ pub use directions::{Directions, MAX_DIRECTIONS, atan2_turns, octahedral_uv};
 pub use error::{FormatError, Result};
 pub use layout::{
     DensityHeader, EMPTY_CELL, FileHeader, GridDesc, MajorantHeader, PinEntry, SectionEntry,
-    SectionKind, TileDesc,
+    SectionKind, SparseDensityHeader, TileDesc,
 };
 pub use metadata::{MAX_METADATA_BYTES, Metadata};
 pub use owned::{OwnedPinGrid, grid_desc};
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};
+pub use sparse::{
+    OwnedSparseDensity, OwnedSparseValues, SparseDensityView, SparseValues, brick_dims,
+};
 #[cfg(feature = "writer")]
 pub use writer::{AtomicPinFile, PinFileWriter};
 

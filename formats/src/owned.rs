@@ -14,6 +14,7 @@ use crate::layout::*;
 use crate::metadata::Metadata;
 use crate::reader::PinFile;
 use crate::shape::GridShape;
+use crate::sparse::OwnedSparseDensity;
 #[cfg(feature = "writer")]
 use crate::writer::{AtomicPinFile, PinFileWriter};
 
@@ -27,6 +28,8 @@ pub struct OwnedPinGrid {
     pub pins: Vec<PinEntry>,
     pub majorant: Option<(MajorantHeader, Vec<f32>)>,
     pub density: Option<(DensityHeader, Vec<half::f16>)>,
+    /// The sparse, bricked density (format 1.1; its presence makes the file 1.1).
+    pub sparse_density: Option<OwnedSparseDensity>,
     pub metadata: Option<Metadata>,
 }
 
@@ -74,6 +77,10 @@ impl OwnedPinGrid {
                 return Err(FormatError::InvalidInput("density size mismatch".into()));
             }
         }
+        if let Some(s) = &self.sparse_density {
+            s.view()
+                .map_err(|e| FormatError::InvalidInput(format!("sparse density: {e}")))?;
+        }
         Ok(shape)
     }
 
@@ -117,6 +124,14 @@ impl OwnedPinGrid {
             w.begin_section(SectionKind::Density as u32, 0)?;
             w.write(bytemuck::bytes_of(h))?;
             w.write(bytemuck::cast_slice(v))?;
+            w.end_section()?;
+        }
+        if let Some(s) = &self.sparse_density {
+            w.begin_section(SectionKind::SparseDensity as u32, 0)?;
+            w.write(bytemuck::bytes_of(&s.header))?;
+            for part in s.body_parts() {
+                w.write(part)?;
+            }
             w.end_section()?;
         }
         if let Some(m) = &self.metadata {
@@ -166,6 +181,9 @@ impl OwnedPinGrid {
                     d.values.to_vec(),
                 )
             }),
+            sparse_density: file
+                .sparse_density()
+                .map(|v| OwnedSparseDensity::from_view(&v)),
             metadata: file.metadata().transpose()?,
         })
     }

@@ -13,6 +13,7 @@ use crate::error::{FormatError, Result};
 use crate::layout::*;
 use crate::metadata::{MAX_METADATA_BYTES, Metadata};
 use crate::shape::GridShape;
+use crate::sparse::SparseDensityView;
 
 /// The majorant grid: max extinction per brick over the grid box.
 #[derive(Clone, Copy, Debug)]
@@ -41,6 +42,7 @@ pub struct PinFile<'a> {
     cell_index: Option<&'a [u32]>,
     majorant: Option<MajorantView<'a>>,
     density: Option<DensityView<'a>>,
+    sparse_density: Option<SparseDensityView<'a>>,
     metadata: Option<&'a [u8]>,
 }
 
@@ -159,7 +161,7 @@ impl<'a> PinFile<'a> {
             (0, u64::from(header.header_size)),
             (header.table_offset, table_end),
         ];
-        let mut known: [Option<usize>; 8] = [None; 8];
+        let mut known: [Option<usize>; 16] = [None; 16];
         for (i, s) in sections.iter().enumerate() {
             if s.offset % SECTION_ALIGN != 0 {
                 return Err(section_err(i, s.kind, "offset is not 64-byte aligned"));
@@ -329,6 +331,10 @@ impl<'a> PinFile<'a> {
                 })
             }
         };
+        // Format 1.1: every length checked against the section's size inside.
+        let sparse_density = body(SectionKind::SparseDensity)
+            .map(|(_, b)| SparseDensityView::parse(b))
+            .transpose()?;
         let metadata = match body(SectionKind::Metadata) {
             Some((_, b)) if b.len() > MAX_METADATA_BYTES => {
                 return Err(FormatError::BadMetadata(format!(
@@ -350,6 +356,7 @@ impl<'a> PinFile<'a> {
             cell_index,
             majorant,
             density,
+            sparse_density,
             metadata,
         })
     }
@@ -426,6 +433,15 @@ impl<'a> PinFile<'a> {
                 format!("voxel {i} has density {}", d.values[i]),
             ));
         }
+        if let Some(s) = &self.sparse_density {
+            s.check_entries()?;
+            if let Some((i, v)) = s.first_bad_value() {
+                return Err(FormatError::BadData(
+                    SectionKind::SparseDensity,
+                    format!("stored voxel {i} has density {v}"),
+                ));
+            }
+        }
         if self.metadata.is_some() {
             self.metadata().transpose()?;
         }
@@ -459,6 +475,10 @@ impl<'a> PinFile<'a> {
     }
     pub fn density(&self) -> Option<DensityView<'a>> {
         self.density
+    }
+    /// The sparse, bricked density (format 1.1), lengths checked; entries by `verify`.
+    pub fn sparse_density(&self) -> Option<SparseDensityView<'a>> {
+        self.sparse_density
     }
     pub fn bytes(&self) -> &'a [u8] {
         self.bytes

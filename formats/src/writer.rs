@@ -13,7 +13,8 @@ use bytemuck::Zeroable;
 use crate::checksum::{StreamingChecksum, checksum, header_checksum};
 use crate::error::{FormatError, Result};
 use crate::layout::{
-    FileHeader, MAGIC, MAX_SECTIONS, SECTION_ALIGN, SectionEntry, VERSION_MAJOR, VERSION_MINOR,
+    FileHeader, MAGIC, MAX_SECTIONS, SECTION_ALIGN, SectionEntry, SectionKind, VERSION_MAJOR,
+    VERSION_MINOR, VERSION_MINOR_SPARSE_DENSITY,
 };
 
 struct OpenSection {
@@ -125,7 +126,7 @@ impl<W: Write + Seek> PinFileWriter<W> {
         let mut header = FileHeader {
             magic: MAGIC,
             version_major: VERSION_MAJOR,
-            version_minor: VERSION_MINOR,
+            version_minor: version_minor(&self.sections),
             header_size: size_of::<FileHeader>() as u32,
             section_count: self.sections.len() as u32,
             section_entry_size: size_of::<SectionEntry>() as u32,
@@ -141,6 +142,17 @@ impl<W: Write + Seek> PinFileWriter<W> {
         self.out.seek(SeekFrom::Start(self.pos))?;
         self.out.flush()?;
         Ok(self.out)
+    }
+}
+
+/// The lowest minor version that can describe `sections`: 1.0 unless a 1.1 section is there,
+/// so that files without one stay byte-identical 1.0 files.
+fn version_minor(sections: &[SectionEntry]) -> u16 {
+    let sparse = SectionKind::SparseDensity as u32;
+    if sections.iter().any(|s| s.kind == sparse) {
+        VERSION_MINOR_SPARSE_DENSITY
+    } else {
+        VERSION_MINOR
     }
 }
 

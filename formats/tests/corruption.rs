@@ -42,6 +42,8 @@ fn files() -> Vec<(&'static str, Vec<u8>)> {
         ("golden", golden_grid().to_bytes().unwrap()),
         ("full", full_grid().to_bytes().unwrap()),
         ("dense", dense_grid().to_bytes().unwrap()),
+        ("sparse", sparse_grid().to_bytes().unwrap()),
+        ("sparse-f32", sparse_grid_f32().to_bytes().unwrap()),
     ]
 }
 
@@ -137,6 +139,16 @@ fn flipped_bytes_in_each_region() {
                     // The 16-byte prefix of majorant and density is read by parse; a flip
                     // there breaks the size equation or the encoding.
                     SectionKind::Majorant | SectionKind::Density if rel < 16 => {
+                        let ok_or_data = match PinFile::parse(&d) {
+                            Err(FormatError::BadData(k, _)) => k == kind,
+                            Ok(f) => matches!(f.verify(), Err(FormatError::SectionChecksum { .. })),
+                            Err(_) => false,
+                        };
+                        assert!(ok_or_data, "{} byte {rel}", kind.name());
+                    }
+                    // The sparse density's 32-byte header, likewise; its reserved words are
+                    // read by nobody, so only verify's checksum sees a flip there.
+                    SectionKind::SparseDensity if rel < 32 => {
                         let ok_or_data = match PinFile::parse(&d) {
                             Err(FormatError::BadData(k, _)) => k == kind,
                             Ok(f) => matches!(f.verify(), Err(FormatError::SectionChecksum { .. })),
@@ -775,5 +787,102 @@ fn bad_values_are_caught_by_verify() {
             s.copy_from_slice(bytemuck::bytes_of(&p))
         });
         PinFile::parse(&d).unwrap().verify().unwrap();
+    }
+}
+
+#[test]
+fn lying_sparse_density_header_and_lengths() {
+    let kind = SectionKind::SparseDensity;
+    for grid in [sparse_grid(), sparse_grid_f32()] {
+        let good = grid.to_bytes().unwrap();
+        // Header words: dims, encoding, brick edge, brick count.
+        let lies: [(usize, u32); 10] = [
+            (0, 0),
+            (2, 0),
+            (0, u32::MAX),
+            (1, 100),
+            (3, 2),
+            (3, 7),
+            (4, 3),
+            (4, 128),
+            (
+                5,
+                grid.sparse_density.as_ref().unwrap().header.brick_count + 1,
+            ),
+            (5, u32::MAX),
+        ];
+        for (word, v) in lies {
+            let mut d = good.clone();
+            patch_section(&mut d, kind, |s| {
+                s[word * 4..word * 4 + 4].copy_from_slice(&v.to_le_bytes())
+            });
+            assert_err!(parse_err(&d), FormatError::BadData(k, _) if k == kind);
+        }
+        // A section length shorter than the header, or one that cuts into the bricks.
+        for len in [0u64, 20, 33] {
+            let mut d = good.clone();
+            let i = section_position(&d, kind);
+            patch_table(&mut d, |t| t[i].length = len);
+            assert_err!(parse_err(&d), FormatError::BadData(k, _) if k == kind);
+        }
+    }
+}
+
+#[test]
+fn bad_sparse_index_entries_and_values_are_caught_by_verify() {
+    let kind = SectionKind::SparseDensity;
+    let grid = sparse_grid();
+    let sparse = grid.sparse_density.as_ref().unwrap();
+    let count = sparse.header.brick_count;
+    let first = sparse.index.iter().position(|&s| s != EMPTY_BRICK).unwrap();
+    let last = sparse
+        .index
+        .iter()
+        .rposition(|&s| s != EMPTY_BRICK)
+        .unwrap();
+    let empty = sparse.index.iter().position(|&s| s == EMPTY_BRICK).unwrap();
+    let good = grid.to_bytes().unwrap();
+    assert_eq!(header(&good).version_minor, 1);
+    PinFile::parse(&good).unwrap().verify().unwrap();
+    let entry = |b: usize| 32 + 4 * b;
+    // Out of range, a slot used twice, an empty brick dropped from the count, a NaN voxel.
+    let cases: Vec<(usize, u32, &str)> = vec![
+        (entry(first), count, "slot"),
+        (entry(first), u32::MAX - 1, "slot"),
+        (entry(empty), 0, "slot"),
+        (entry(last), EMPTY_BRICK, "non-empty bricks"),
+    ];
+    for (at, v, want) in cases {
+        let mut d = good.clone();
+        patch_section(&mut d, kind, |s| {
+            s[at..at + 4].copy_from_slice(&v.to_le_bytes())
+        });
+        let f = PinFile::parse(&d).unwrap();
+        // Lookups stay bounded whatever the entry says.
+        let view = f.sparse_density().unwrap();
+        for z in 0..9 {
+            let _ = view.get([4, 2, z]);
+        }
+        let e = f.verify().unwrap_err();
+        assert_err!(&e, FormatError::BadData(k, m) if *k == kind && m.contains(want));
+    }
+    let mut d = good.clone();
+    let values_at = 32 + 4 * sparse.index.len();
+    patch_section(&mut d, kind, |s| {
+        s[values_at..values_at + 2].copy_from_slice(&half::f16::NAN.to_bits().to_le_bytes())
+    });
+    assert_err!(verify_err(&d), FormatError::BadData(k, _) if k == kind);
+}
+
+#[test]
+fn only_a_sparse_density_makes_a_file_1_1() {
+    for g in [golden_grid(), full_grid(), dense_grid()] {
+        assert_eq!(header(&g.to_bytes().unwrap()).version_minor, 0);
+    }
+    for g in [sparse_grid(), sparse_grid_f32()] {
+        let b = g.to_bytes().unwrap();
+        assert_eq!(header(&b).version_minor, 1);
+        let back = OwnedPinGrid::from_file(&PinFile::parse(&b).unwrap()).unwrap();
+        assert_eq!(back, g);
     }
 }

@@ -57,6 +57,9 @@ pub struct BakeOptions {
     pub majorant: Option<[u32; 3]>,
     /// Voxels of the embedded f16 density per axis; `None` leaves the section out.
     pub embed_density: Option<[u32; 3]>,
+    /// The embedded sparse, bricked f16 density (format 1.1) and its voxel dims; `None`
+    /// leaves the section out.
+    pub embed_sparse: Option<crate::sparse_density::SparseDims>,
     /// Worker threads; `None` means rayon's default.
     pub threads: Option<usize>,
     /// Recorded in the metadata; the source's density scale is already applied to values.
@@ -88,6 +91,7 @@ impl Default for BakeOptions {
             tile: None,
             majorant: Some([16; 3]),
             embed_density: None,
+            embed_sparse: None,
             threads: None,
             density_scale: 1.0,
             metadata: Metadata::default(),
@@ -427,8 +431,17 @@ fn bake_in_pool(
         .embed_density
         .map(|dims| bake_density(source, &bbox, dims))
         .transpose()?;
+    let sparse = match opts.embed_sparse {
+        None => None,
+        Some(spec) => {
+            let dims = crate::sparse_density::sparse_dims(source, &bbox, spec)?;
+            Some(crate::sparse_density::bake_sparse_density(
+                source, &bbox, dims,
+            )?)
+        }
+    };
 
-    finish(
+    let (mut grid, stats) = finish(
         desc,
         tile,
         dense,
@@ -436,7 +449,12 @@ fn bake_in_pool(
         opts.metadata.clone(),
         block_len,
         started,
-    )
+    )?;
+    if sparse.is_some() {
+        grid.sparse_density = sparse;
+        grid.validate()?;
+    }
+    Ok((grid, stats))
 }
 
 /// The grid from every pin of the bake (`dense`, `block_len` pins per covered cell, in cell
@@ -520,6 +538,7 @@ pub(crate) fn finish(
         pins,
         majorant,
         density,
+        sparse_density: None,
         metadata: Some(metadata),
     };
     grid.validate()?;

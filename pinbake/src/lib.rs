@@ -30,6 +30,7 @@ pub mod pin;
 pub mod plan;
 pub mod rng;
 pub mod source;
+pub mod sparse_density;
 pub mod summary;
 mod sweep;
 

@@ -117,6 +117,7 @@ pub fn merge_tiles(tiles: &[(String, PinFile<'_>)]) -> Result<OwnedPinGrid, Merg
         pins,
         majorant: None,
         density: None,
+        sparse_density: None,
         metadata: first.metadata().transpose()?,
     };
     let mut grid = grid;

@@ -224,7 +224,7 @@ fn check(part: Part, opts: &BakeOptions) -> Result<(), BakeError> {
     if opts.tile.is_some() {
         return Err(BakeError::Options("a part bake takes no --tile".into()));
     }
-    if opts.embed_density.is_some() {
+    if opts.embed_density.is_some() || opts.embed_sparse.is_some() {
         return Err(BakeError::Options(
             "--embed-density is not available in a part bake (--part)".into(),
         ));

@@ -103,6 +103,8 @@ pub struct BakeRequest {
     pub majorant: Option<[u32; 3]>,
     /// An embedded f16 density of this many voxels, 1..=4096 per axis.
     pub embed_density: Option<[u32; 3]>,
+    /// An embedded sparse, bricked f16 density (format 1.1) with these voxel dims.
+    pub embed_sparse: Option<crate::sparse_density::SparseDims>,
     /// Worker threads, 1..=[`crate::limits::max_threads`] (all cores when `None`).
     pub threads: Option<usize>,
     /// Density multiplier, finite and >= 0 (recorded in the metadata; a source spec carries
@@ -127,6 +129,7 @@ impl Default for BakeRequest {
             tile: None,
             majorant: d.majorant,
             embed_density: None,
+            embed_sparse: None,
             threads: None,
             density_scale: d.density_scale,
             max_memory: None,
@@ -422,6 +425,7 @@ pub fn options(req: &BakeRequest, choice: &Choice, metadata: pin_format::Metadat
         tile: req.tile,
         majorant: req.majorant,
         embed_density: req.embed_density,
+        embed_sparse: req.embed_sparse,
         threads: req.threads,
         density_scale: req.density_scale,
         metadata,
@@ -691,7 +695,7 @@ fn validate_part(req: &BakeRequest, part: Part) -> Result<(), PlanError> {
             "--part takes no --target-error (name --cells and --dirs)".into(),
         ));
     }
-    if req.embed_density.is_some() {
+    if req.embed_density.is_some() || req.embed_sparse.is_some() {
         return Err(usage("--embed-density is not available with --part".into()));
     }
     Ok(())

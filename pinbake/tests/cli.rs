@@ -757,3 +757,109 @@ fn parts_merge_into_the_monolithic_bytes_and_bad_parts_are_refused() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--cells"), "{}", stderr(&o));
 }
+
+/// The section table of a pin file: (kind, offset, length) per entry, from the header's
+/// table offset and count.
+fn sections_of(b: &[u8]) -> Vec<(u32, usize, usize)> {
+    let u32_at = |at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap());
+    let u64_at = |at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap()) as usize;
+    let (count, table) = (u32_at(16) as usize, u64_at(24));
+    (0..count)
+        .map(|i| {
+            let e = table + 32 * i;
+            (u32_at(e), u64_at(e + 8), u64_at(e + 16))
+        })
+        .collect()
+}
+
+/// Rewrites every section, table and header checksum so that a lie reaches the checks
+/// behind them.
+fn reseal_all(b: &mut [u8]) {
+    let table = u64::from_le_bytes(b[24..32].try_into().unwrap()) as usize;
+    for (i, (_, off, len)) in sections_of(b).into_iter().enumerate() {
+        let c = pin_format::checksum(&b[off..off + len]);
+        let at = table + 32 * i + 24;
+        b[at..at + 8].copy_from_slice(&c.to_le_bytes());
+    }
+    let count = u32::from_le_bytes(b[16..20].try_into().unwrap()) as usize;
+    let c = pin_format::checksum(&b[table..table + 32 * count]);
+    b[48..56].copy_from_slice(&c.to_le_bytes());
+    let c = pin_format::checksum(&b[..56]);
+    b[56..64].copy_from_slice(&c.to_le_bytes());
+}
+
+#[test]
+fn sparse_embedded_density_bakes_verifies_and_refuses_a_lying_index() {
+    let dir = tempfile::tempdir().unwrap();
+    let sparse = dir.path().join("sparse.pin");
+    let input = data("openvdb_smoke1.vdb");
+    bake_ok(
+        input.to_str().unwrap(),
+        &sparse,
+        &["--embed-density", "sparse"],
+    );
+    let o = pinbake(&["verify", sparse.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = pinbake(&["inspect", sparse.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["version"], "1.1");
+    let sd = &v["sparse_density"];
+    assert_eq!(sd["brick"], 8);
+    assert_eq!(sd["encoding"], "f16");
+    let bricks: u64 = (0..3)
+        .map(|a| sd["brick_dims"][a].as_u64().unwrap())
+        .product();
+    let stored = sd["brick_count"].as_u64().unwrap();
+    assert!(stored > 0 && stored < bricks, "{stored} of {bricks}");
+    // A capped size, and the dense form, which keeps the file 1.0.
+    let capped = dir.path().join("capped.pin");
+    bake_ok(
+        input.to_str().unwrap(),
+        &capped,
+        &["--embed-density", "sparse:16"],
+    );
+    let o = pinbake(&["inspect", capped.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let dims: Vec<u64> = (0..3)
+        .map(|a| v["sparse_density"]["dims"][a].as_u64().unwrap())
+        .collect();
+    assert_eq!(*dims.iter().max().unwrap(), 16, "{dims:?}");
+    let dense = dir.path().join("dense.pin");
+    bake_ok(input.to_str().unwrap(), &dense, &["--embed-density", "8"]);
+    let o = pinbake(&["inspect", dense.to_str().unwrap(), "--json"]);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["version"], "1.0");
+    assert!(v.get("sparse_density").is_none());
+    for bad in ["sparse:0", "sparse:x", "sparsely", "sparse:1,2"] {
+        let o = pinbake(&[
+            "bake",
+            input.to_str().unwrap(),
+            "-o",
+            "/dev/null",
+            "--embed-density",
+            bad,
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{bad}: {}", stderr(&o));
+    }
+
+    // A brick index entry past the stored bricks, with every checksum resealed: the O(1)
+    // open accepts the structure, verify names the section and the entry.
+    let mut b = std::fs::read(&sparse).unwrap();
+    let (_, off, _) = sections_of(&b).into_iter().find(|s| s.0 == 8).unwrap();
+    let index_at = off + 32;
+    b[index_at..index_at + 4].copy_from_slice(&(stored as u32 + 5).to_le_bytes());
+    reseal_all(&mut b);
+    let lying = dir.path().join("lying.pin");
+    std::fs::write(&lying, &b).unwrap();
+    let o = pinbake(&["verify", lying.to_str().unwrap()]);
+    let out = dir.path().join("none.pin");
+    assert_clean_failure(&o, "sparse-density", &out);
+    assert!(stderr(&o).contains("lying.pin"), "{}", stderr(&o));
+    // A brick count that disagrees with the section length fails the open itself.
+    let mut b = std::fs::read(&sparse).unwrap();
+    b[off + 20..off + 24].copy_from_slice(&(stored as u32 - 1).to_le_bytes());
+    reseal_all(&mut b);
+    std::fs::write(&lying, &b).unwrap();
+    let o = pinbake(&["inspect", lying.to_str().unwrap()]);
+    assert_clean_failure(&o, "sparse-density", &out);
+}

@@ -88,6 +88,7 @@
 //!     pins: vec![PinEntry { mask: u32::MAX, t_min: 0.97 }; 8 * 64],
 //!     majorant: None,
 //!     density: None,
+//!     sparse_density: None,
 //!     metadata: None,
 //! };
 //! let dir = tempfile::tempdir()?;
@@ -149,6 +150,7 @@ pub mod mask;
 mod rng;
 mod sampler;
 mod sections;
+mod sparse;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
 #[cfg(test)]
@@ -165,6 +167,7 @@ pub use sampler::{
     Sampler, SamplerOptions, status,
 };
 pub use sections::{Density, Majorants};
+pub use sparse::SparseDensity;
 
 /// The WGSL source of the GPU path (`shaders/pin.wgsl`).
 pub const PIN_WGSL: &str = include_str!("../../shaders/pin.wgsl");

@@ -157,39 +157,53 @@ impl<'g> Density<'g> {
     /// The field at a local point: trilinear between voxel centres, the edge voxel's value in
     /// the outer half voxel, 0 outside the box (the format's convention).
     pub fn extinction(&self, p: [f64; 3]) -> f32 {
-        if !(0..3).all(|a| p[a] >= self.box_min[a] && p[a] <= self.box_max[a]) {
-            return 0.0;
-        }
-        let spacing = self.spacing();
-        let mut i0 = [0u32; 3];
-        let mut i1 = [0u32; 3];
-        let mut f = [0f64; 3];
-        for a in 0..3 {
-            let n = f64::from(self.dims[a]);
-            let u = ((p[a] - self.box_min[a]) / spacing[a] - 0.5).clamp(0.0, n - 1.0);
-            let fl = u.floor();
-            i0[a] = fl as u32;
-            i1[a] = (i0[a] + 1).min(self.dims[a] - 1);
-            f[a] = u - fl;
-        }
-        let at = |x, y, z| f64::from(self.get([x, y, z]).unwrap_or(0.0));
-        let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
-        let c0 = lerp(
-            lerp(at(i0[0], i0[1], i0[2]), at(i1[0], i0[1], i0[2]), f[0]),
-            lerp(at(i0[0], i1[1], i0[2]), at(i1[0], i1[1], i0[2]), f[0]),
-            f[1],
-        );
-        let c1 = lerp(
-            lerp(at(i0[0], i0[1], i1[2]), at(i1[0], i0[1], i1[2]), f[0]),
-            lerp(at(i0[0], i1[1], i1[2]), at(i1[0], i1[1], i1[2]), f[0]),
-            f[1],
-        );
-        lerp(c0, c1, f[2]) as f32
+        trilinear(self.dims, (self.box_min, self.box_max), p, |v| {
+            self.get(v).unwrap_or(0.0)
+        })
     }
 }
 
+/// The format's voxel field at a local point `p` of `bounds` for `dims` voxels read through
+/// `at`: trilinear between voxel centres, the edge voxel's value in the outer half voxel, 0
+/// outside the box. One function for the dense and the sparse section, so they agree.
+pub(crate) fn trilinear(
+    dims: [u32; 3],
+    (box_min, box_max): ([f64; 3], [f64; 3]),
+    p: [f64; 3],
+    at: impl Fn([u32; 3]) -> f32,
+) -> f32 {
+    if !(0..3).all(|a| p[a] >= box_min[a] && p[a] <= box_max[a]) {
+        return 0.0;
+    }
+    let mut i0 = [0u32; 3];
+    let mut i1 = [0u32; 3];
+    let mut f = [0f64; 3];
+    for a in 0..3 {
+        let n = f64::from(dims[a]);
+        let spacing = (box_max[a] - box_min[a]) / n;
+        let u = ((p[a] - box_min[a]) / spacing - 0.5).clamp(0.0, n - 1.0);
+        let fl = u.floor();
+        i0[a] = fl as u32;
+        i1[a] = (i0[a] + 1).min(dims[a] - 1);
+        f[a] = u - fl;
+    }
+    let at = |x, y, z| f64::from(at([x, y, z]));
+    let lerp = |a: f64, b: f64, t: f64| a + (b - a) * t;
+    let c0 = lerp(
+        lerp(at(i0[0], i0[1], i0[2]), at(i1[0], i0[1], i0[2]), f[0]),
+        lerp(at(i0[0], i1[1], i0[2]), at(i1[0], i1[1], i0[2]), f[0]),
+        f[1],
+    );
+    let c1 = lerp(
+        lerp(at(i0[0], i0[1], i1[2]), at(i1[0], i0[1], i1[2]), f[0]),
+        lerp(at(i0[0], i1[1], i1[2]), at(i1[0], i1[1], i1[2]), f[0]),
+        f[1],
+    );
+    lerp(c0, c1, f[2]) as f32
+}
+
 impl PinGrid {
-    fn section_err(&self, problem: String) -> Error {
+    pub(crate) fn section_err(&self, problem: String) -> Error {
         Error::Section {
             path: self
                 .path()
@@ -244,6 +258,7 @@ mod tests {
                 let encoding = 0; // f16, the only encoding
                 (DensityHeader { dims, encoding }, v)
             }),
+            sparse_density: None,
             metadata: None,
         };
         owned.to_bytes().unwrap()

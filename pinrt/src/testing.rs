@@ -56,6 +56,7 @@ pub fn random_grid(
         pins,
         majorant: None,
         density: None,
+        sparse_density: None,
         metadata: None,
     }
 }
@@ -69,6 +70,7 @@ pub fn single_entry_grid(entry: PinEntry) -> OwnedPinGrid {
         pins: vec![entry],
         majorant: None,
         density: None,
+        sparse_density: None,
         metadata: None,
     }
 }

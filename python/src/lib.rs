@@ -437,6 +437,7 @@ fn bake(
         tile: None,
         majorant: (majorant != [0; 3]).then_some(majorant),
         embed_density,
+        embed_sparse: None,
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),

@@ -960,6 +960,7 @@ fn homogeneous_grid(dirs: Directions, entry: PinEntry) -> PinGrid {
         pins: vec![entry; cells * dirs.count() as usize],
         majorant: None,
         density: None,
+        sparse_density: None,
         metadata: None,
     };
     PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap()

@@ -147,6 +147,7 @@ pub fn build_grid(p: &GridParams) -> OwnedPinGrid {
         pins,
         majorant,
         density,
+        sparse_density: None,
         metadata: p.metadata.clone(),
     }
 }
@@ -227,6 +228,7 @@ pub fn golden_grid() -> OwnedPinGrid {
             vec![3.5],
         )),
         density: None,
+        sparse_density: None,
         metadata: Some(Metadata {
             tool: "pinbake".into(),
             tool_version: "0.1.0".into(),
@@ -383,4 +385,54 @@ pub fn for_each_expected(grid: &OwnedPinGrid, mut f: impl FnMut([u32; 3], u32, u
             }
         }
     }
+}
+
+/// A random sparse density of `dims` voxels in bricks of `brick`: about half the bricks
+/// empty, the stored ones in canonical slot order, f32 voxels if `f32` else f16.
+pub fn sparse_density(dims: [u32; 3], brick: u32, f32: bool, seed: u64) -> OwnedSparseDensity {
+    let mut rng = Rng(seed);
+    let bdims = brick_dims(dims, brick);
+    let n = bdims.iter().product::<u32>() as usize;
+    let mut index = Vec::with_capacity(n);
+    let mut count = 0u32;
+    for _ in 0..n {
+        if rng.below(2) == 0 {
+            index.push(EMPTY_BRICK);
+        } else {
+            index.push(count);
+            count += 1;
+        }
+    }
+    let voxels = count as usize * (brick as usize).pow(3);
+    let vals: Vec<f64> = (0..voxels).map(|_| rng.unit() * 50.0).collect();
+    let values = if f32 {
+        OwnedSparseValues::F32(vals.iter().map(|&v| v as f32).collect())
+    } else {
+        OwnedSparseValues::F16(vals.iter().map(|&v| half::f16::from_f64(v)).collect())
+    };
+    OwnedSparseDensity {
+        header: SparseDensityHeader {
+            dims,
+            encoding: if f32 { DENSITY_F32 } else { DENSITY_F16 },
+            brick,
+            brick_count: count,
+            reserved: [0; 2],
+        },
+        index,
+        values,
+    }
+}
+
+/// [`full_grid`] with a sparse f16 density as well (a format 1.1 file).
+pub fn sparse_grid() -> OwnedPinGrid {
+    let mut g = full_grid();
+    g.sparse_density = Some(sparse_density([5, 3, 9], 2, false, 3));
+    g
+}
+
+/// [`dense_grid`] with a sparse f32 density of one brick grid cell per axis, no dense one.
+pub fn sparse_grid_f32() -> OwnedPinGrid {
+    let mut g = dense_grid();
+    g.sparse_density = Some(sparse_density([9, 4, 4], 4, true, 8));
+    g
 }

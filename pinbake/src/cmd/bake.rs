@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::Directions;
 use pinbake::cli_args::SourceArgs;
 use pinbake::source::SourceSpec;
+use pinbake::sparse_density::{MAX_SPARSE_DIM, SparseDims};
 use pinbake::{BakeInput, BakeRequest, PlanError, Tile};
 
 #[derive(Args, Debug, Clone)]
@@ -79,10 +80,12 @@ pub struct BakeArgs {
     /// Majorant bricks per axis (N or X,Y,Z); 0 leaves the majorant grid out.
     #[arg(long, default_value = "16", value_parser = parse_u32x3_or_zero, help_heading = "Grid")]
     pub majorant: [u32; 3],
-    /// Embed the density as an f16 grid of N or X,Y,Z voxels, at most 4096 per axis (for
-    /// ray-marched primary rays).
-    #[arg(long, value_parser = parse_u32x3_max4096, help_heading = "Grid")]
-    pub embed_density: Option<[u32; 3]>,
+    /// Embed the density: `sparse` (bricked f16 at the source's voxel size, stored only
+    /// where non-zero; a format 1.1 file), `sparse:N` (at most N voxels per axis),
+    /// `sparse:X,Y,Z` (exactly those voxels), or N or X,Y,Z for a dense f16 grid of at most
+    /// 4096 per axis (for tracked and ray-marched rays from the .pin alone).
+    #[arg(long, value_parser = parse_embed_density, help_heading = "Grid")]
+    pub embed_density: Option<EmbedDensity>,
 
     /// Bake only tile I of N (a slab of z layers); join tiles with `pinbake merge`.
     #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
@@ -130,6 +133,40 @@ fn parse_u32x3_max4096(s: &str) -> Result<[u32; 3], String> {
         return Err(format!("{v:?}: at most 4096 per axis"));
     }
     Ok(v)
+}
+
+/// What `--embed-density` asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EmbedDensity {
+    Dense([u32; 3]),
+    Sparse(SparseDims),
+}
+
+/// `--embed-density`: `sparse`, `sparse:N`, `sparse:X,Y,Z`, or dense N / X,Y,Z.
+fn parse_embed_density(s: &str) -> Result<EmbedDensity, String> {
+    let t = s.trim();
+    let Some(rest) = t.strip_prefix("sparse") else {
+        return parse_u32x3_max4096(t).map(EmbedDensity::Dense);
+    };
+    let dims = match rest.strip_prefix(':') {
+        None if rest.is_empty() => SparseDims::Source,
+        None => return Err(format!("'{s}': expected sparse, sparse:N or sparse:X,Y,Z")),
+        Some(d) if !d.contains(',') => {
+            let n: u32 = d.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+            if !(1..=MAX_SPARSE_DIM).contains(&n) {
+                return Err(format!("'{s}': N must be in 1..={MAX_SPARSE_DIM}"));
+            }
+            SparseDims::Max(n)
+        }
+        Some(d) => {
+            let v = parse_u32x3(d)?;
+            if v.iter().any(|&n| !(1..=MAX_SPARSE_DIM).contains(&n)) {
+                return Err(format!("'{s}': each axis must be in 1..={MAX_SPARSE_DIM}"));
+            }
+            SparseDims::Exact(v)
+        }
+    };
+    Ok(EmbedDensity::Sparse(dims))
 }
 
 fn parse_u32x3_or_zero(s: &str) -> Result<[u32; 3], String> {
@@ -206,7 +243,14 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
         jitter_pins: args.jitter_pins,
         tile: args.tile,
         majorant: majorant_dims(args.majorant),
-        embed_density: args.embed_density,
+        embed_density: match args.embed_density {
+            Some(EmbedDensity::Dense(d)) => Some(d),
+            _ => None,
+        },
+        embed_sparse: match args.embed_density {
+            Some(EmbedDensity::Sparse(s)) => Some(s),
+            _ => None,
+        },
         threads: args.threads,
         density_scale: args.volume.density_scale,
         max_memory: args.max_memory,

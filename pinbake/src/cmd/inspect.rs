@@ -40,6 +40,14 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
         file.header().version_major,
         file.header().version_minor
     ));
+    if let Some(sd) = file.sparse_density() {
+        let h = sd.header;
+        v["sparse_density"] = json!({
+            "dims": h.dims, "brick": h.brick, "brick_count": h.brick_count,
+            "brick_dims": sd.brick_dims,
+            "encoding": if h.encoding == pin_format::layout::DENSITY_F32 { "f32" } else { "f16" },
+        });
+    }
     if let Some(m) = &metadata {
         v["metadata"] = json!({
             "tool": m.tool, "tool_version": m.tool_version, "source_name": m.source_name,

@@ -59,6 +59,7 @@ fn blob_grid(cells: u32, directions: Directions, ppe: u32, strength: f32) -> Own
         pins,
         majorant: None,
         density: None,
+        sparse_density: None,
         metadata: None,
     }
 }
