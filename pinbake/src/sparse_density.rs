@@ -161,6 +161,9 @@ impl Geometry {
     }
 }
 
+/// One row of bricks' non-empty bricks: (brick number, voxels), in x order.
+type BrickRow<T> = Vec<(u32, Vec<T>)>;
+
 /// The index and the stored bricks (canonical slot order), each voxel `encode`d from the
 /// source's value at its centre; `None` from `encode` is a value out of the encoding's range.
 fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
@@ -177,7 +180,7 @@ fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
     // One row of bricks (fixed y and z) per task; each returns its non-empty bricks in x
     // order, so the assembly below is the same whatever the thread count.
     let rows = bdims[1] as usize * bdims[2] as usize;
-    let filled: Vec<Result<Vec<(u32, Vec<T>)>, BakeError>> = (0..rows)
+    let filled: Vec<Result<BrickRow<T>, BakeError>> = (0..rows)
         .into_par_iter()
         .map(|row| {
             let (by, bz) = (

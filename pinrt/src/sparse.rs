@@ -120,7 +120,7 @@ mod tests {
     fn both() -> PinGrid {
         let dims = [5u32, 3, 2];
         let value = |x: u32, y: u32, z: u32| {
-            if x >= 2 && x < 4 && y < 2 {
+            if (2..4).contains(&x) && y < 2 {
                 0.0
             } else {
                 (x + 10 * y + 100 * z) as f32 * 0.25
