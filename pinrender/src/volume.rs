@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use crate::gpu_render::{CosineWave, GpuDensity};
-use crate::render::{DenseMap, DenseView, DensityField, MajorantGrid, VoxelGrid};
+use crate::render::{BrickGrid, DenseMap, DenseView, DensityField, MajorantGrid, VoxelGrid};
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::{DVec3, Vec3};
@@ -195,6 +195,10 @@ pub struct SourceField {
     copy: OnceLock<Option<source::DenseGrid>>,
     /// The map of the raw grid or of `copy`, made once.
     map: OnceLock<Option<DenseMap>>,
+    /// A voxel source too large for `copy` bricked instead ([`BrickGrid`]: only the bricks
+    /// the source does not bound by zero), made on first use; `None` inside when there is a
+    /// dense view, no voxels, or the bricks would not fit either.
+    bricks: OnceLock<Option<BrickGrid>>,
 }
 
 impl SourceField {
@@ -203,7 +207,44 @@ impl SourceField {
             source,
             copy: OnceLock::new(),
             map: OnceLock::new(),
+            bricks: OnceLock::new(),
         }
+    }
+
+    /// The bricked copy of a voxel source whose dense copy does not fit: the trackers read
+    /// it instead of the tree. Its voxels are the source's values at its voxel centres (the
+    /// index grid of an axis-aligned VDB, one zero voxel beyond its bounds on every side), so
+    /// its trilinear field is the tree's up to the rounding of the world-to-index map.
+    pub fn bricked(&self) -> Option<&BrickGrid> {
+        self.bricks
+            .get_or_init(|| {
+                if self.dense_view().is_some() {
+                    return None;
+                }
+                let voxel = self.source.voxel_size()?;
+                let b = self.source.bounds();
+                let (lo, hi) = (b.min - voxel * 0.5, b.max + voxel * 0.5);
+                let n = (hi - lo) / voxel;
+                if !(n.is_finite() && n.max_element() < f64::from(1u32 << 20)) {
+                    return None;
+                }
+                let dims = n.round().max(DVec3::ONE).to_array().map(|v| v as u32);
+                let bbox = source::Aabb::new(lo, hi);
+                let limit = pinbake::files::default_memory_limit() / 2;
+                let (index, values) =
+                    pinbake::sparse_density::sparse_f32_bricks(&*self.source, &bbox, dims, limit)?;
+                let spacing = [0, 1, 2].map(|a| (hi[a] - lo[a]) / f64::from(dims[a]));
+                BrickGrid::new(
+                    dims,
+                    lo.to_array(),
+                    spacing,
+                    pinbake::sparse_density::SPARSE_BRICK,
+                    index,
+                    values,
+                )
+                .ok()
+            })
+            .as_ref()
     }
 
     /// The source.
@@ -229,13 +270,29 @@ impl DensityField for SourceField {
         (b.min.to_array(), b.max.to_array())
     }
     fn extinction(&self, p: Vec3) -> f32 {
+        if let Some(g) = self.bricked() {
+            return g.extinction(p);
+        }
         self.source.extinction(p.as_dvec3())
     }
     fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        if let Some(g) = self.bricked() {
+            return g.max_extinction(lo, hi);
+        }
         Some(
             self.source
                 .max_extinction_in(source::Aabb::new(DVec3::from(lo), DVec3::from(hi))),
         )
+    }
+    fn min_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        if let Some(g) = self.bricked() {
+            return g.min_extinction(lo, hi);
+        }
+        let (flo, fhi) = self.bounds();
+        if !(0..3).all(|a| lo[a] >= flo[a] && hi[a] <= fhi[a]) {
+            return Some(0.0);
+        }
+        self.dense_view().map(|v| v.min_over(lo, hi))
     }
     /// A raw grid as it is; a VDB through its dense copy, whose one-voxel zero border makes
     /// the clamped array zero wherever the tree is (the copy's trilinear field is the tree's:
@@ -333,12 +390,27 @@ pub fn check_pins_match(
 }
 
 /// The medium of a pin file rendered alone (no `--volume`): the world box of its placed
-/// grid, and, when the file embeds density, that density as a world-space voxel grid with
-/// majorants from the file's majorant section.
+/// grid, and, when the file embeds density, that density as a world-space field with
+/// majorants from the file's majorant section: the sparse section (format 1.1) as a
+/// [`BrickGrid`], the dense section as a [`VoxelGrid`].
 pub struct PinFileMedium {
     pub bounds: ([f64; 3], [f64; 3]),
+    /// The dense section's grid (also the GPU's copy).
     pub density: Option<Arc<VoxelGrid>>,
+    /// The sparse section's grid: what the CPU trackers read when the file has one.
+    pub bricks: Option<Arc<BrickGrid>>,
     pub majorants: Option<Arc<MajorantGrid>>,
+}
+
+impl PinFileMedium {
+    /// The field the CPU estimators read: the bricked one if the file has it.
+    pub fn field(&self) -> Option<Arc<dyn DensityField>> {
+        match (&self.bricks, &self.density) {
+            (Some(b), _) => Some(b.clone()),
+            (None, Some(d)) => Some(d.clone()),
+            (None, None) => None,
+        }
+    }
 }
 
 /// Reads the medium sections of `grid` (from `path`). The embedded density and the majorants
@@ -348,6 +420,7 @@ pub struct PinFileMedium {
 pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
     let named = |e: pinrt::Error| anyhow!("{e}");
     let density = grid.density().map_err(named)?;
+    let sparse = grid.sparse_density().map_err(named)?;
     let majorants = grid.majorants().map_err(named)?;
     let d = grid.desc();
     let m = d.local_to_world;
@@ -357,25 +430,43 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
         off_diagonal.iter().all(|&v| v == 0.0) && scale.iter().all(|&v| v > 0.0 && v.is_finite());
     let to_world = |p: [f64; 3]| [0, 1, 2].map(|a| scale[a] * p[a] + m[4 * a + 3]);
     let bounds = (to_world(d.box_min), to_world(d.box_max));
-    if density.is_some() && !axis_aligned {
+    if (density.is_some() || sparse.is_some()) && !axis_aligned {
         anyhow::bail!(
             "{}: the grid is rotated or sheared in the world; its embedded density can only be \
              rendered with --volume",
             path.display()
         );
     }
-    let Some(density) = density else {
-        return Ok(PinFileMedium {
-            bounds,
-            density: None,
-            majorants: None,
-        });
+    let spacing_of =
+        |dims: [u32; 3]| [0, 1, 2].map(|a| (bounds.1[a] - bounds.0[a]) / f64::from(dims[a]));
+    let dense = density
+        .map(|density| {
+            VoxelGrid::new(
+                density.dims(),
+                bounds.0,
+                spacing_of(density.dims()),
+                density.to_f32(),
+            )
+            .map(Arc::new)
+            .map_err(|e| anyhow!("{}: embedded density: {e}", path.display()))
+        })
+        .transpose()?;
+    let bricks = sparse
+        .map(|s| {
+            BrickGrid::from_sparse(&s, bounds.0, spacing_of(s.dims()))
+                .map(Arc::new)
+                .map_err(|e| anyhow!("{}: embedded sparse density: {e}", path.display()))
+        })
+        .transpose()?;
+    let mut medium = PinFileMedium {
+        bounds,
+        density: dense,
+        bricks,
+        majorants: None,
     };
-    let spacing = [0, 1, 2].map(|a| (bounds.1[a] - bounds.0[a]) / f64::from(density.dims()[a]));
-    let field = Arc::new(
-        VoxelGrid::new(density.dims(), bounds.0, spacing, density.to_f32())
-            .map_err(|e| anyhow!("{}: embedded density: {e}", path.display()))?,
-    );
+    let Some(field) = medium.field() else {
+        return Ok(medium);
+    };
     // The file's majorants bound the source's extinction; its f16 copy can round above them,
     // so each brick is raised to the copy's exact maximum there (delta tracking needs a
     // bound of the field it tracks).
@@ -399,11 +490,8 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
     }
     let majorants = MajorantGrid::from_parts(bounds.0, bounds.1, dims, raised)
         .map_err(|e| anyhow!("{}: majorants: {e}", path.display()))?;
-    Ok(PinFileMedium {
-        bounds,
-        density: Some(field),
-        majorants: Some(Arc::new(majorants)),
-    })
+    medium.majorants = Some(Arc::new(majorants));
+    Ok(medium)
 }
 
 /// Loads `--pins FILE`, or bakes the volume in memory as `pinbake bake` would by default: the

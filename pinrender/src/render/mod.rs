@@ -100,6 +100,7 @@
 //! samples are dropped.
 
 mod bounds;
+mod bricks;
 pub mod cache;
 pub mod closed_form;
 pub mod comb;
@@ -120,6 +121,7 @@ pub mod whole_volume;
 #[cfg(test)]
 mod tests;
 
+pub use bricks::BrickGrid;
 pub use cache::RadianceCache;
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{

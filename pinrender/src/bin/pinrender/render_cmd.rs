@@ -481,11 +481,15 @@ fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
         .unwrap_or(m.bounds);
     Ok(OpenedMedium {
         bounds,
-        field: m.density.clone().map(|d| d as Arc<dyn DensityField>),
+        field: m.field(),
         majorants: m.majorants,
         pins: Some(grid),
         opened: None,
-        voxels: m.density,
+        // A sparse-only file on the GPU: its dense expansion, within the one binding's
+        // 2^28 voxels.
+        voxels: m
+            .density
+            .or_else(|| m.bricks.and_then(|b| b.to_voxels(1 << 28)).map(Arc::new)),
     })
 }
 

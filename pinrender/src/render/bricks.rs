@@ -1,0 +1,406 @@
+//! A bricked voxel grid: [`VoxelGrid`]'s convention and values, stored only where the medium
+//! is, behind a top-level index of one `u32` per brick (the pin file's sparse density section,
+//! `docs/format.md` 5.6a). What the trackers read when a dense copy would not fit: a 992 x 674
+//! x 1225 cloud is 3.3 GB dense in f32 and about its active voxels' worth bricked.
+//!
+//! Per-brick maxima and minima make [`DensityField::max_extinction`] and
+//! [`DensityField::min_extinction`] cost one entry per brick a box touches instead of a voxel,
+//! for the majorant grid and residual tracking's control.
+
+use glam::Vec3;
+
+use super::RenderError;
+use super::field::{DensityField, VoxelGrid};
+
+/// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
+pub const EMPTY: u32 = u32::MAX;
+
+/// Voxels of `dims` with `spacing` from `origin` (voxel `i`'s centre at `origin + (i + 0.5)
+/// spacing`), trilinear between centres, the edge voxel's value in the outer half voxel, 0
+/// outside the box: [`VoxelGrid`]'s field exactly. Values live in bricks of `brick^3` (x
+/// fastest); empty bricks read 0.
+#[derive(Clone, Debug)]
+pub struct BrickGrid {
+    dims: [u32; 3],
+    origin: [f64; 3],
+    spacing: [f64; 3],
+    max: [f64; 3],
+    /// log2 of the brick edge.
+    shift: u32,
+    brick_dims: [u32; 3],
+    index: Vec<u32>,
+    values: Vec<f32>,
+    /// Per stored slot: the largest and smallest cleaned voxel.
+    slot_max: Vec<f32>,
+    slot_min: Vec<f32>,
+}
+
+impl BrickGrid {
+    /// Validates and takes the parts: every dim `>= 1`, `brick` a power of two in 1..=64,
+    /// one index entry per brick, each [`EMPTY`] or a slot below `values.len() / brick^3`,
+    /// `values` whole bricks; finite origin, positive finite spacing. Values are cleaned as
+    /// [`VoxelGrid::new`] cleans them (NaN and negatives to 0, `+inf` to `f32::MAX`).
+    pub fn new(
+        dims: [u32; 3],
+        origin: [f64; 3],
+        spacing: [f64; 3],
+        brick: u32,
+        index: Vec<u32>,
+        mut values: Vec<f32>,
+    ) -> Result<Self, RenderError> {
+        let invalid = |why: String| RenderError::Invalid {
+            what: "bricked grid",
+            why,
+        };
+        if dims.contains(&0) || !(brick.is_power_of_two() && brick <= 64) {
+            return Err(invalid(format!("dims {dims:?}, brick {brick}")));
+        }
+        if !origin.iter().all(|v| v.is_finite())
+            || !spacing.iter().all(|v| v.is_finite() && *v > 0.0)
+        {
+            return Err(invalid(format!("origin {origin:?} / spacing {spacing:?}")));
+        }
+        let brick_dims = dims.map(|d| d.div_ceil(brick));
+        let bricks = brick_dims
+            .iter()
+            .try_fold(1usize, |acc, &d| acc.checked_mul(d as usize))
+            .ok_or_else(|| invalid(format!("dims {dims:?} overflow")))?;
+        let bv = (brick as usize).pow(3);
+        if index.len() != bricks || !values.len().is_multiple_of(bv) {
+            return Err(invalid(format!(
+                "{} index entries for {bricks} bricks, {} values for bricks of {bv}",
+                index.len(),
+                values.len()
+            )));
+        }
+        let slots = values.len() / bv;
+        if let Some(i) = index
+            .iter()
+            .position(|&s| s != EMPTY && s as usize >= slots)
+        {
+            return Err(invalid(format!(
+                "brick {i} points at slot {} of {slots}",
+                index[i]
+            )));
+        }
+        for v in &mut values {
+            *v = if *v > 0.0 { v.min(f32::MAX) } else { 0.0 };
+        }
+        let (slot_max, slot_min) = values
+            .chunks_exact(bv)
+            .map(|b| {
+                b.iter().fold((0.0f32, f32::INFINITY), |(hi, lo), &v| {
+                    (hi.max(v), lo.min(v))
+                })
+            })
+            .unzip();
+        let max = [0, 1, 2].map(|a| origin[a] + f64::from(dims[a]) * spacing[a]);
+        Ok(Self {
+            dims,
+            origin,
+            spacing,
+            max,
+            shift: brick.trailing_zeros(),
+            brick_dims,
+            index,
+            values,
+            slot_max,
+            slot_min,
+        })
+    }
+
+    /// The pin file's sparse density placed at `origin` with `spacing` (its box mapped to the
+    /// world by a positive scale and a translation), widened to f32 (exact).
+    pub fn from_sparse(
+        s: &pinrt::SparseDensity<'_>,
+        origin: [f64; 3],
+        spacing: [f64; 3],
+    ) -> Result<Self, RenderError> {
+        let v = s.values();
+        let values = (0..v.len()).map(|i| v.get(i).unwrap_or(0.0)).collect();
+        Self::new(
+            s.dims(),
+            origin,
+            spacing,
+            s.brick(),
+            s.index().to_vec(),
+            values,
+        )
+    }
+
+    /// The same field as `grid`, bricked in bricks of `brick` (empty bricks: all zero).
+    pub fn from_voxels(grid: &VoxelGrid, brick: u32) -> Result<Self, RenderError> {
+        let (dims, origin, spacing, data) = grid.parts();
+        let b = brick.max(1);
+        let bd = dims.map(|d| d.div_ceil(b));
+        let bv = (b as usize).pow(3);
+        let mut index = Vec::with_capacity((bd[0] * bd[1] * bd[2]) as usize);
+        let mut values = Vec::new();
+        let at = |x: u32, y: u32, z: u32| {
+            data[x as usize + dims[0] as usize * (y as usize + dims[1] as usize * z as usize)]
+        };
+        let mut brick_buf = vec![0.0f32; bv];
+        for bz in 0..bd[2] {
+            for by in 0..bd[1] {
+                for bx in 0..bd[0] {
+                    brick_buf.fill(0.0);
+                    let mut any = false;
+                    for lz in 0..b {
+                        for ly in 0..b {
+                            for lx in 0..b {
+                                let [x, y, z] = [bx * b + lx, by * b + ly, bz * b + lz];
+                                if x < dims[0] && y < dims[1] && z < dims[2] {
+                                    let v = at(x, y, z);
+                                    brick_buf[(lx + b * (ly + b * lz)) as usize] = v;
+                                    any |= v != 0.0;
+                                }
+                            }
+                        }
+                    }
+                    if any {
+                        index.push((values.len() / bv) as u32);
+                        values.extend_from_slice(&brick_buf);
+                    } else {
+                        index.push(EMPTY);
+                    }
+                }
+            }
+        }
+        Self::new(dims, origin, spacing, b, index, values)
+    }
+
+    /// The same field as a dense [`VoxelGrid`] (for consumers of dense arrays, such as the
+    /// GPU's one-binding copy), when it has at most `max_voxels` voxels.
+    pub fn to_voxels(&self, max_voxels: u64) -> Option<VoxelGrid> {
+        let d = self.dims.map(|v| v as usize);
+        let n = d[0].checked_mul(d[1])?.checked_mul(d[2])?;
+        if n as u64 > max_voxels {
+            return None;
+        }
+        let mut values = Vec::new();
+        values.try_reserve_exact(n).ok()?;
+        for z in 0..d[2] {
+            for y in 0..d[1] {
+                for x in 0..d[0] {
+                    values.push(self.at(x, y, z));
+                }
+            }
+        }
+        VoxelGrid::new(self.dims, self.origin, self.spacing, values).ok()
+    }
+
+    /// Voxels per axis, brick edge, stored bricks.
+    pub fn shape(&self) -> ([u32; 3], u32, usize) {
+        (self.dims, 1 << self.shift, self.slot_max.len())
+    }
+
+    /// Origin and spacing of the voxels.
+    pub fn placement(&self) -> ([f64; 3], [f64; 3]) {
+        (self.origin, self.spacing)
+    }
+
+    /// Brick index (x fastest; slot or [`EMPTY`]) and the stored voxels, slot after slot.
+    pub fn parts(&self) -> (&[u32], &[f32]) {
+        (&self.index, &self.values)
+    }
+
+    #[inline(always)]
+    fn slot(&self, b: [usize; 3]) -> u32 {
+        let [nx, ny, _] = self.brick_dims.map(|v| v as usize);
+        self.index[b[0] + nx * (b[1] + ny * b[2])]
+    }
+
+    /// Voxel `(x, y, z)` (in range).
+    #[inline(always)]
+    fn at(&self, x: usize, y: usize, z: usize) -> f32 {
+        let s = self.shift;
+        let slot = self.slot([x >> s, y >> s, z >> s]);
+        if slot == EMPTY {
+            return 0.0;
+        }
+        let m = (1usize << s) - 1;
+        let local = (x & m) | ((y & m) << s) | ((z & m) << (2 * s));
+        self.values[((slot as usize) << (3 * s)) | local]
+    }
+
+    /// The voxel ranges whose centre cells touch `[lo, hi]` (as [`VoxelGrid`]'s maximum).
+    fn voxel_range(&self, lo: [f64; 3], hi: [f64; 3]) -> ([usize; 3], [usize; 3]) {
+        let mut r0 = [0usize; 3];
+        let mut r1 = [0usize; 3];
+        for a in 0..3 {
+            let n = f64::from(self.dims[a]);
+            let u0 = ((lo[a] - self.origin[a]) / self.spacing[a] - 0.5).clamp(0.0, n - 1.0);
+            let u1 = ((hi[a] - self.origin[a]) / self.spacing[a] - 0.5).clamp(0.0, n - 1.0);
+            r0[a] = u0.floor() as usize;
+            r1[a] = (u1.floor() as usize + 1).min(self.dims[a] as usize - 1);
+        }
+        (r0, r1)
+    }
+
+    /// Folds `f` over the slots of the bricks holding voxels `r0..=r1` (`None` for empty).
+    fn fold_bricks(
+        &self,
+        (r0, r1): ([usize; 3], [usize; 3]),
+        init: f32,
+        f: impl Fn(f32, Option<usize>) -> f32,
+    ) -> f32 {
+        let s = self.shift;
+        let mut acc = init;
+        for bz in r0[2] >> s..=r1[2] >> s {
+            for by in r0[1] >> s..=r1[1] >> s {
+                for bx in r0[0] >> s..=r1[0] >> s {
+                    let slot = self.slot([bx, by, bz]);
+                    acc = f(acc, (slot != EMPTY).then_some(slot as usize));
+                }
+            }
+        }
+        acc
+    }
+}
+
+#[inline]
+fn inside(p: [f64; 3], lo: &[f64; 3], hi: &[f64; 3]) -> bool {
+    (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])
+}
+
+impl DensityField for BrickGrid {
+    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        (self.origin, self.max)
+    }
+
+    /// [`VoxelGrid`]'s arithmetic (f64 index, f64 lerps), so the two agree bit for bit.
+    fn extinction(&self, p: Vec3) -> f32 {
+        let q = [p.x as f64, p.y as f64, p.z as f64];
+        if !inside(q, &self.origin, &self.max) {
+            return 0.0;
+        }
+        let mut i0 = [0usize; 3];
+        let mut i1 = [0usize; 3];
+        let mut f = [0f64; 3];
+        for a in 0..3 {
+            let u = (q[a] - self.origin[a]) / self.spacing[a] - 0.5;
+            let n = f64::from(self.dims[a]);
+            let u = u.clamp(0.0, n - 1.0);
+            let fl = u.floor();
+            i0[a] = fl as usize;
+            i1[a] = (i0[a] + 1).min(self.dims[a] as usize - 1);
+            f[a] = u - fl;
+        }
+        let lerp = |a: f32, b: f32, t: f64| a as f64 + (b as f64 - a as f64) * t;
+        let c00 = lerp(
+            self.at(i0[0], i0[1], i0[2]),
+            self.at(i1[0], i0[1], i0[2]),
+            f[0],
+        );
+        let c10 = lerp(
+            self.at(i0[0], i1[1], i0[2]),
+            self.at(i1[0], i1[1], i0[2]),
+            f[0],
+        );
+        let c01 = lerp(
+            self.at(i0[0], i0[1], i1[2]),
+            self.at(i1[0], i0[1], i1[2]),
+            f[0],
+        );
+        let c11 = lerp(
+            self.at(i0[0], i1[1], i1[2]),
+            self.at(i1[0], i1[1], i1[2]),
+            f[0],
+        );
+        let c0 = c00 + (c10 - c00) * f[1];
+        let c1 = c01 + (c11 - c01) * f[1];
+        (c0 + (c1 - c0) * f[2]) as f32
+    }
+
+    /// The largest brick maximum over the bricks of the voxels whose centre cells touch the
+    /// box: an upper bound (exact to the brick), one lookup per brick.
+    fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        if !(0..3).all(|a| lo[a] <= self.max[a] && hi[a] >= self.origin[a]) {
+            return Some(0.0);
+        }
+        let r = self.voxel_range(lo, hi);
+        Some(self.fold_bricks(r, 0.0, |m, s| s.map_or(m, |s| m.max(self.slot_max[s]))))
+    }
+
+    /// The least brick minimum likewise (0 as soon as an empty brick is touched), or 0 where
+    /// the box reaches outside the grid.
+    fn min_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+        if !(0..3).all(|a| lo[a] >= self.origin[a] && hi[a] <= self.max[a]) {
+            return Some(0.0);
+        }
+        let r = self.voxel_range(lo, hi);
+        Some(self.fold_bricks(r, f32::INFINITY, |m, s| {
+            s.map_or(0.0, |s| m.min(self.slot_min[s]))
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(dims: [u32; 3]) -> VoxelGrid {
+        let n = (dims[0] * dims[1] * dims[2]) as usize;
+        let values = (0..n)
+            .map(|i| {
+                let [x, y, z] = [
+                    i as u32 % dims[0],
+                    (i as u32 / dims[0]) % dims[1],
+                    i as u32 / (dims[0] * dims[1]),
+                ];
+                // Empty bricks and a blob with sharp edges.
+                if x < 9 || (y + z) % 17 < 3 {
+                    0.0
+                } else {
+                    ((x * 7 + y * 3 + z) % 13) as f32 * 0.5
+                }
+            })
+            .collect();
+        VoxelGrid::new(dims, [-1.0, 0.5, 2.0], [0.25, 0.5, 0.125], values).unwrap()
+    }
+
+    #[test]
+    fn bricked_reads_what_the_dense_grid_reads() {
+        let dense = cloud([29, 17, 33]);
+        let bricked = BrickGrid::from_voxels(&dense, 8).unwrap();
+        assert!(bricked.shape().2 < 4 * 3 * 5, "some bricks are empty");
+        assert_eq!(bricked.bounds(), dense.bounds());
+        let (lo, hi) = dense.bounds();
+        let mut rng = crate::render::Pcg32::new(7, 1);
+        for _ in 0..20000 {
+            let p = Vec3::from_array(
+                [0, 1, 2]
+                    .map(|a| (lo[a] - 0.3 + (hi[a] - lo[a] + 0.6) * rng.next_f32() as f64) as f32),
+            );
+            assert_eq!(bricked.extinction(p), dense.extinction(p), "{p}");
+        }
+        for _ in 0..2000 {
+            let a = [0, 1, 2].map(|k| lo[k] + (hi[k] - lo[k]) * rng.next_f32() as f64);
+            let b = [0, 1, 2].map(|k| a[k] + (hi[k] - a[k]) * rng.next_f32() as f64 * 0.3);
+            let exact = dense.max_extinction(a, b).unwrap();
+            let bound = bricked.max_extinction(a, b).unwrap();
+            assert!(bound >= exact, "{a:?} {b:?}");
+            let low = bricked.min_extinction(a, b).unwrap();
+            let dmin = dense.dense_view().unwrap().min_over(a, b);
+            assert!(low <= dmin, "{a:?} {b:?}: {low} > {dmin}");
+        }
+        let back = bricked.to_voxels(1 << 20).unwrap();
+        assert_eq!(back.parts().3, dense.parts().3);
+        assert!(bricked.to_voxels(100).is_none());
+        // The whole box: exact, the largest voxel.
+        let all = dense.parts().3.iter().copied().fold(0.0, f32::max);
+        assert_eq!(bricked.max_extinction(lo, hi), Some(all));
+    }
+
+    #[test]
+    fn refuses_parts_it_cannot_trust() {
+        let ok = |index: Vec<u32>, values: Vec<f32>| {
+            BrickGrid::new([3, 1, 1], [0.0; 3], [1.0; 3], 2, index, values)
+        };
+        assert!(ok(vec![EMPTY, 0], vec![1.0; 8]).is_ok());
+        assert!(ok(vec![EMPTY, 1], vec![1.0; 8]).is_err());
+        assert!(ok(vec![EMPTY], vec![1.0; 8]).is_err());
+        assert!(ok(vec![EMPTY, 0], vec![1.0; 7]).is_err());
+        assert!(BrickGrid::new([3, 1, 1], [0.0; 3], [1.0; 3], 3, vec![0], vec![0.0; 27]).is_err());
+    }
+}
