@@ -274,42 +274,9 @@ impl DensityField for BrickGrid {
         if !inside(q, &self.origin, &self.max) {
             return 0.0;
         }
-        let mut i0 = [0usize; 3];
-        let mut i1 = [0usize; 3];
-        let mut f = [0f64; 3];
-        for a in 0..3 {
-            let u = (q[a] - self.origin[a]) / self.spacing[a] - 0.5;
-            let n = f64::from(self.dims[a]);
-            let u = u.clamp(0.0, n - 1.0);
-            let fl = u.floor();
-            i0[a] = fl as usize;
-            i1[a] = (i0[a] + 1).min(self.dims[a] as usize - 1);
-            f[a] = u - fl;
-        }
-        let lerp = |a: f32, b: f32, t: f64| a as f64 + (b as f64 - a as f64) * t;
-        let c00 = lerp(
-            self.at(i0[0], i0[1], i0[2]),
-            self.at(i1[0], i0[1], i0[2]),
-            f[0],
-        );
-        let c10 = lerp(
-            self.at(i0[0], i1[1], i0[2]),
-            self.at(i1[0], i1[1], i0[2]),
-            f[0],
-        );
-        let c01 = lerp(
-            self.at(i0[0], i0[1], i1[2]),
-            self.at(i1[0], i0[1], i1[2]),
-            f[0],
-        );
-        let c11 = lerp(
-            self.at(i0[0], i1[1], i1[2]),
-            self.at(i1[0], i1[1], i1[2]),
-            f[0],
-        );
-        let c0 = c00 + (c10 - c00) * f[1];
-        let c1 = c01 + (c11 - c01) * f[1];
-        (c0 + (c1 - c0) * f[2]) as f32
+        super::field::trilinear(q, self.origin, self.spacing, self.dims, |x, y, z| {
+            self.at(x, y, z)
+        }) as f32
     }
 
     /// The largest brick maximum over the bricks of the voxels whose centre cells touch the

@@ -338,44 +338,10 @@ impl VoxelGrid {
     /// The trilinear value at `q` (in f64), clamped to the grid: the edge voxel's value in
     /// and beyond the outer half voxel. Callers test the box.
     pub(crate) fn trilinear(&self, q: [f64; 3]) -> f64 {
-        let mut i0 = [0usize; 3];
-        let mut i1 = [0usize; 3];
-        let mut f = [0f64; 3];
-        for a in 0..3 {
-            // Continuous index relative to voxel centres; clamping the integer part gives
-            // the edge voxel's value in the outer half voxel.
-            let u = (q[a] - self.origin[a]) / self.spacing[a] - 0.5;
-            let n = self.dims[a] as f64;
-            let u = u.clamp(0.0, n - 1.0);
-            let fl = u.floor();
-            i0[a] = fl as usize;
-            i1[a] = (i0[a] + 1).min(self.dims[a] - 1);
-            f[a] = u - fl;
-        }
-        let lerp = |a: f32, b: f32, t: f64| a as f64 + (b as f64 - a as f64) * t;
-        let c00 = lerp(
-            self.at(i0[0], i0[1], i0[2]),
-            self.at(i1[0], i0[1], i0[2]),
-            f[0],
-        );
-        let c10 = lerp(
-            self.at(i0[0], i1[1], i0[2]),
-            self.at(i1[0], i1[1], i0[2]),
-            f[0],
-        );
-        let c01 = lerp(
-            self.at(i0[0], i0[1], i1[2]),
-            self.at(i1[0], i0[1], i1[2]),
-            f[0],
-        );
-        let c11 = lerp(
-            self.at(i0[0], i1[1], i1[2]),
-            self.at(i1[0], i1[1], i1[2]),
-            f[0],
-        );
-        let c0 = c00 + (c10 - c00) * f[1];
-        let c1 = c01 + (c11 - c01) * f[1];
-        c0 + (c1 - c0) * f[2]
+        let dims = self.dims.map(|d| d as u32);
+        trilinear(q, self.origin, self.spacing, dims, |x, y, z| {
+            self.at(x, y, z)
+        })
     }
 }
 
@@ -424,6 +390,40 @@ impl DensityField for VoxelGrid {
     fn dense_view(&self) -> Option<DenseView<'_>> {
         DenseView::new(&self.values, *self.map.as_deref()?)
     }
+}
+
+/// The trilinear value at `q` (f64 index, f64 lerps) of a voxel array read through `at`,
+/// clamped to the grid: the edge voxel's value in and beyond the outer half voxel. One
+/// function for [`VoxelGrid`] and the bricked grid, so that the two agree bit for bit.
+#[inline]
+pub(crate) fn trilinear(
+    q: [f64; 3],
+    origin: [f64; 3],
+    spacing: [f64; 3],
+    dims: [u32; 3],
+    at: impl Fn(usize, usize, usize) -> f32,
+) -> f64 {
+    let mut i0 = [0usize; 3];
+    let mut i1 = [0usize; 3];
+    let mut f = [0f64; 3];
+    for a in 0..3 {
+        // Continuous index relative to voxel centres; clamping the integer part gives
+        // the edge voxel's value in the outer half voxel.
+        let u = (q[a] - origin[a]) / spacing[a] - 0.5;
+        let u = u.clamp(0.0, f64::from(dims[a]) - 1.0);
+        let fl = u.floor();
+        i0[a] = fl as usize;
+        i1[a] = (i0[a] + 1).min(dims[a] as usize - 1);
+        f[a] = u - fl;
+    }
+    let lerp = |a: f32, b: f32, t: f64| a as f64 + (b as f64 - a as f64) * t;
+    let c00 = lerp(at(i0[0], i0[1], i0[2]), at(i1[0], i0[1], i0[2]), f[0]);
+    let c10 = lerp(at(i0[0], i1[1], i0[2]), at(i1[0], i1[1], i0[2]), f[0]);
+    let c01 = lerp(at(i0[0], i0[1], i1[2]), at(i1[0], i0[1], i1[2]), f[0]);
+    let c11 = lerp(at(i0[0], i1[1], i1[2]), at(i1[0], i1[1], i1[2]), f[0]);
+    let c0 = c00 + (c10 - c00) * f[1];
+    let c1 = c01 + (c11 - c01) * f[1];
+    c0 + (c1 - c0) * f[2]
 }
 
 #[cfg(test)]
