@@ -10,7 +10,7 @@ use pinrt::{PinGrid, SamplerOptions};
 #[cfg(feature = "gpu")]
 use crate::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
 use crate::render::{
-    AnalyticOpticalDepth, DensityField, EstimatorSpec, MajorantGrid, Medium, PinsEstimator,
+    AnalyticOpticalDepth, DensitySource, EstimatorSpec, MajorantGrid, Medium, PinsEstimator,
     RenderError, TransportEstimator,
 };
 
@@ -28,7 +28,7 @@ pub struct PlacedPins {
 pub struct MediumDesc {
     /// The extinction the CPU estimators read, in the world (placement applied); `None`: a
     /// pin file without embedded density.
-    pub field: Option<Arc<dyn DensityField>>,
+    pub field: Option<Arc<dyn DensitySource>>,
     /// World-space majorants over `field`; `None`: built from `field` with
     /// `majorant_bricks` per axis when an estimator tracks.
     pub majorants: Option<Arc<MajorantGrid>>,
@@ -52,7 +52,7 @@ fn missing(what: &'static str, why: &str) -> RenderError {
 
 impl MediumDesc {
     /// The density field, or an error naming what is missing.
-    pub fn field(&self) -> Result<Arc<dyn DensityField>, RenderError> {
+    pub fn field(&self) -> Result<Arc<dyn DensitySource>, RenderError> {
         self.field
             .clone()
             .ok_or_else(|| missing("medium", "no density field"))
@@ -199,7 +199,7 @@ mod tests {
         let voxels = VoxelGrid::new([2; 3], [0.0; 3], [0.5; 3], vec![1.0; 8]).unwrap();
         #[cfg(feature = "gpu")]
         let density = Arc::new(GpuDensity::from_voxel_grid(voxels.clone()).unwrap());
-        let field: Arc<dyn DensityField> = Arc::new(voxels);
+        let field: Arc<dyn DensitySource> = Arc::new(voxels);
         let desc = |pins: Arc<PinGrid>, t: f64| MediumDesc {
             field: Some(field.clone()),
             majorant_bricks: 2,

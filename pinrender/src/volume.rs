@@ -7,10 +7,10 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use crate::gpu_render::{CosineWave, GpuDensity};
-use crate::render::{BrickGrid, DenseMap, DenseView, DensityField, MajorantGrid, VoxelGrid};
+use crate::render::{BrickGrid, DenseMap, DenseView, MajorantGrid, VoxelGrid};
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
-use glam::{DVec3, Vec3};
+use glam::DVec3;
 use pinbake::source::procedural::ProceduralKind;
 use pinbake::source::{self, DensitySource, SourceSpec};
 use pinrt::PinGrid;
@@ -133,11 +133,7 @@ impl Opened {
                     })
                     .collect(),
             ),
-            Opened::Box(bx) => GpuDensity::homogeneous(&crate::render::HomogeneousBox {
-                min: lo,
-                max: hi,
-                sigma_t: bx.density(),
-            }),
+            Opened::Box(bx) => GpuDensity::homogeneous(bx),
             Opened::Other(s) => anyhow::bail!(
                 "the GPU renderer has no form of '{}' (use a raw or VDB volume, cosine noise or a box)",
                 s.describe()
@@ -186,10 +182,12 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
     })
 }
 
-/// A pinbake source seen as the renderer's density field.
-pub struct SourceField {
+/// A baker's source as the renderer's trackers read it: the same [`DensitySource`], with the
+/// renderer's caches beside it (a sparse grid's dense copy, or its bricks when no dense copy
+/// fits), made on first use.
+pub struct TrackedSource {
     source: Arc<dyn DensitySource>,
-    /// A sparse grid's dense copy for the trackers' [`DensityField::dense_view`], made on
+    /// A sparse grid's dense copy for the trackers' [`DensitySource::dense_view`], made on
     /// first use (a pins-only render never asks); `None` inside when the source has no copy
     /// (analytic, rotated, or over the memory cap).
     copy: OnceLock<Option<source::DenseGrid>>,
@@ -201,9 +199,9 @@ pub struct SourceField {
     bricks: OnceLock<Option<BrickGrid>>,
 }
 
-impl SourceField {
+impl TrackedSource {
     pub fn new(source: Arc<dyn DensitySource>) -> Self {
-        SourceField {
+        TrackedSource {
             source,
             copy: OnceLock::new(),
             map: OnceLock::new(),
@@ -264,35 +262,38 @@ fn map_of(g: &source::DenseGrid) -> Option<DenseMap> {
     )
 }
 
-impl DensityField for SourceField {
-    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        let b = self.source.bounds();
-        (b.min.to_array(), b.max.to_array())
+impl DensitySource for TrackedSource {
+    fn bounds(&self) -> source::Aabb {
+        self.source.bounds()
     }
-    fn extinction(&self, p: Vec3) -> f32 {
+    fn extinction(&self, p: DVec3) -> f32 {
         if let Some(g) = self.bricked() {
             return g.extinction(p);
         }
-        self.source.extinction(p.as_dvec3())
+        self.source.extinction(p)
     }
-    fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+    fn max_extinction_in(&self, region: source::Aabb) -> f32 {
         if let Some(g) = self.bricked() {
-            return g.max_extinction(lo, hi);
+            return g.max_extinction_in(region);
         }
-        Some(
-            self.source
-                .max_extinction_in(source::Aabb::new(DVec3::from(lo), DVec3::from(hi))),
-        )
+        self.source.max_extinction_in(region)
     }
-    fn min_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+    fn min_extinction_in(&self, region: source::Aabb) -> Option<f32> {
         if let Some(g) = self.bricked() {
-            return g.min_extinction(lo, hi);
+            return g.min_extinction_in(region);
         }
-        let (flo, fhi) = self.bounds();
-        if !(0..3).all(|a| lo[a] >= flo[a] && hi[a] <= fhi[a]) {
+        let b = self.bounds();
+        if !(region.min.cmpge(b.min).all() && region.max.cmple(b.max).all()) {
             return Some(0.0);
         }
+        let (lo, hi) = region.to_arrays();
         self.dense_view().map(|v| v.min_over(lo, hi))
+    }
+    fn voxel_size(&self) -> Option<DVec3> {
+        self.source.voxel_size()
+    }
+    fn describe(&self) -> String {
+        self.source.describe()
     }
     /// A raw grid as it is; a VDB through its dense copy, whose one-voxel zero border makes
     /// the clamped array zero wherever the tree is (the copy's trilinear field is the tree's:
@@ -315,7 +316,7 @@ impl DensityField for SourceField {
 }
 
 /// Majorant grid of `bricks^3` over the field's box, from the source's conservative bounds.
-pub fn majorants(field: &SourceField, bricks: u32) -> Result<Arc<MajorantGrid>> {
+pub fn majorants(field: &TrackedSource, bricks: u32) -> Result<Arc<MajorantGrid>> {
     Ok(Arc::new(
         MajorantGrid::from_field(field, [bricks; 3]).map_err(|e| anyhow!("{e}"))?,
     ))
@@ -404,7 +405,7 @@ pub struct PinFileMedium {
 
 impl PinFileMedium {
     /// The field the CPU estimators read: the bricked one if the file has it.
-    pub fn field(&self) -> Option<Arc<dyn DensityField>> {
+    pub fn field(&self) -> Option<Arc<dyn DensitySource>> {
         match (&self.bricks, &self.density) {
             (Some(b), _) => Some(b.clone()),
             (None, Some(d)) => Some(d.clone()),
@@ -482,7 +483,9 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
                 let i = [x, y, z];
                 let lo = [0, 1, 2].map(|a| bounds.0[a] + size[a] * f64::from(i[a]));
                 let hi = [0, 1, 2].map(|a| bounds.0[a] + size[a] * f64::from(i[a] + 1));
-                let exact = field.max_extinction(lo, hi).unwrap_or(f32::MAX);
+                let exact = field
+                    .max_extinction_in(source::Aabb::from_arrays(lo, hi))
+                    .min(f32::MAX);
                 let k = (x + dims[0] * (y + dims[1] * z)) as usize;
                 raised[k] = raised[k].max(exact);
             }

@@ -79,13 +79,13 @@ fn gpu_density_reproduces_the_source() {
     assert!(e.contains("no form"), "{e}");
 }
 
-/// The trackers' dense view of a source (`SourceField`'s `dense_view`: a raw grid as is, a
+/// The trackers' dense view of a source (`TrackedSource`'s `dense_view`: a raw grid as is, a
 /// VDB through its dense copy) gives the source's extinction at random points of its box,
 /// read at the f32 index the trackers step to.
 #[test]
 fn tracker_dense_view_reproduces_the_source() {
-    use pinrender::render::DensityField;
-    use pinrender::volume::SourceField;
+    use pinrender::render::DensitySource;
+    use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");
     let opts = VdbOptions {
         density_scale: 2.0,
@@ -101,9 +101,9 @@ fn tracker_dense_view_reproduces_the_source() {
         .source(),
     ];
     for src in sources {
-        let field = SourceField::new(src.clone());
+        let field = TrackedSource::new(src.clone());
         let view = field.dense_view().expect("a dense view");
-        let (lo, hi) = field.bounds();
+        let (lo, hi) = field.bounds().to_arrays();
         let scale = src.max_extinction_in(src.bounds()) as f64;
         let mut rng = pinrender::render::Pcg32::new(5, 6);
         let (mut worst, mut nonzero) = (0.0f64, 0);

@@ -432,15 +432,10 @@ fn cpu_and_gpu_sample_the_same_distribution() {
 #[test]
 fn trackers_are_unbiased_on_the_homogeneous_box() {
     use pinrender::render::{
-        DeltaTracking, HomogeneousBox as Field, MajorantGrid, Pcg32, RatioTracking,
-        TransportEstimator,
+        DeltaTracking, MajorantGrid, Pcg32, RatioTracking, TransportEstimator,
     };
     use std::sync::Arc;
-    let field = Arc::new(Field {
-        min: [0.0; 3],
-        max: [1.0; 3],
-        sigma_t: 1.5,
-    });
+    let field = Arc::new(HomogeneousBox::new(Aabb::from_arrays([0.0; 3], [1.0; 3]), 1.5).unwrap());
     let tight = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 1.5).unwrap());
     let loose = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 4.0).unwrap());
     let ests: Vec<(&str, Box<dyn TransportEstimator>)> = vec![

@@ -1240,16 +1240,20 @@ fn gpu_sampler_cases() {
 #[test]
 fn tracker_cases() {
     let sigma = 1.5f32;
-    let field = Arc::new(pinrender::render::HomogeneousBox {
-        min: [0.0; 3],
-        max: [1.0; 3],
-        sigma_t: sigma,
-    });
-    let empty = Arc::new(pinrender::render::HomogeneousBox {
-        min: [0.0; 3],
-        max: [1.0; 3],
-        sigma_t: 0.0,
-    });
+    let field = Arc::new(
+        pinrender::render::HomogeneousBox::new(
+            pinrender::render::Aabb::from_arrays([0.0; 3], [1.0; 3]),
+            sigma,
+        )
+        .unwrap(),
+    );
+    let empty = Arc::new(
+        pinrender::render::HomogeneousBox::new(
+            pinrender::render::Aabb::from_arrays([0.0; 3], [1.0; 3]),
+            0.0,
+        )
+        .unwrap(),
+    );
     let maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], sigma).unwrap());
     let maj_loose = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 4.0 * sigma).unwrap());
     let maj0 = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 0.0).unwrap());

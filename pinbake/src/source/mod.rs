@@ -13,7 +13,8 @@
 //!   the same sparse table as `vdb`.
 //!
 //! What does not: ray marching, majorant grids and pin baking (the baker consumes
-//! [`DensitySource`]); file formats for pins (crate `pin-format`).
+//! [`DensitySource`], and so do the renderer's trackers); file formats for pins (crate
+//! `pin-format`).
 //!
 //! [`open_source`] turns a [`SourceSpec`] into a boxed source; every failure is a
 //! [`SourceError`] whose message is one line and names the file where there is one.
@@ -23,6 +24,7 @@ use std::path::{Path, PathBuf};
 
 use glam::DVec3;
 
+pub mod dense_view;
 pub mod grid;
 pub mod identity;
 pub mod mip;
@@ -37,6 +39,7 @@ pub mod vdb;
 /// (`vdb::serve_vdb_worker_if_asked`); named here so builds without `vdb` can refuse it.
 pub const VDB_WORKER_SUBCOMMAND: &str = "__vdb-worker";
 
+pub use dense_view::{DenseMap, DenseView};
 pub use grid::DenseGrid;
 pub use identity::SourceIdentity;
 pub use mip::{Mip, MipAllocError};
@@ -56,6 +59,14 @@ impl Aabb {
     pub fn new(min: DVec3, max: DVec3) -> Self {
         Self { min, max }
     }
+    /// `(min, max)` as arrays, as the renderer's DDA and majorant grids take boxes.
+    pub fn to_arrays(&self) -> ([f64; 3], [f64; 3]) {
+        (self.min.to_array(), self.max.to_array())
+    }
+    /// The box `[lo, hi]` given as arrays.
+    pub fn from_arrays(lo: [f64; 3], hi: [f64; 3]) -> Self {
+        Self::new(DVec3::from(lo), DVec3::from(hi))
+    }
     pub fn extent(&self) -> DVec3 {
         self.max - self.min
     }
@@ -65,10 +76,17 @@ impl Aabb {
     }
 }
 
-/// A scalar extinction field in world space.
+/// A scalar extinction field in world space: the one density interface of the product. The
+/// baker marches it into pins; the renderer's estimators (`pinrender`) march and track it.
 ///
-/// Implementations must be cheap to call from many threads at once and must never return NaN,
-/// infinity or a negative value (sources reject or sanitise such input when they are built).
+/// Implementations must be cheap to call from many threads at once and must never return NaN
+/// or a negative value (sources reject or sanitise such input when they are built; the
+/// renderer's estimators also read NaN and negatives as 0 and `+inf` as opaque, for the
+/// fields its stability tests build).
+///
+/// Points are f64. The renderer's rays, the pin runtime's queries and the WGSL path work in
+/// f32, and the renderer asks at those f32 points widened exactly, so its reference sees the
+/// sample points the others would.
 pub trait DensitySource: Send + Sync {
     /// World-space box that contains every point with non-zero extinction.
     fn bounds(&self) -> Aabb;
@@ -89,11 +107,38 @@ pub trait DensitySource: Send + Sync {
     }
 
     /// Maximum extinction inside `region` (a conservative upper bound is fine). Used for
-    /// majorant grids and empty-space detection.
+    /// majorant grids and empty-space detection. A field that cannot bound itself cheaply
+    /// returns `f32::INFINITY`: the renderer's majorant grid then samples a lattice instead.
     fn max_extinction_in(&self, region: Aabb) -> f32;
 
-    /// A short human-readable description for provenance ("raw u8 128x128x128", ...).
-    fn describe(&self) -> String;
+    /// An exact lower bound of the extinction over `region`, if the field can give one
+    /// cheaply (residual ratio tracking's control in the renderer). The default: 0 where the
+    /// region reaches outside [`Self::bounds`] (the extinction is 0 there), else through the
+    /// [`Self::dense_view`] if there is one ([`DenseView::min_over`]), else `None`.
+    fn min_extinction_in(&self, region: Aabb) -> Option<f32> {
+        let b = self.bounds();
+        if !(region.min.cmpge(b.min).all() && region.max.cmple(b.max).all()) {
+            return Some(0.0);
+        }
+        let (lo, hi) = region.to_arrays();
+        self.dense_view().map(|v| v.min_over(lo, hi))
+    }
+
+    /// The field as a dense voxel array, when it is one: inside [`Self::bounds`],
+    /// `extinction(p)` must equal [`DenseView::at`] of [`DenseView::index`]`(p)` up to the
+    /// rounding of the index to f32. The renderer's trackers then step through the array in
+    /// f32 index space (one world-to-index transform per majorant brick, not per lookup)
+    /// instead of calling `extinction` per tentative collision. `None` (the default): no
+    /// such array.
+    fn dense_view(&self) -> Option<DenseView<'_>> {
+        None
+    }
+
+    /// A short human-readable description for provenance ("raw u8 128x128x128", ...). The
+    /// default says only what it is: every source the baker opens names itself.
+    fn describe(&self) -> String {
+        String::from("density field")
+    }
 
     /// The frame the baker should work in when it is not world space: a view of this source
     /// in its own local coordinates and the row-major 3x4 `local_to_world` that places it.

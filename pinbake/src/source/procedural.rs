@@ -98,6 +98,12 @@ impl DensitySource for HomogeneousBox {
             0.0
         }
     }
+    /// `density` where the region lies inside the box, 0 where it reaches outside.
+    fn min_extinction_in(&self, region: Aabb) -> Option<f32> {
+        let inside =
+            region.min.cmpge(self.bounds.min).all() && region.max.cmple(self.bounds.max).all();
+        Some(if inside { self.density } else { 0.0 })
+    }
     fn describe(&self) -> String {
         format!(
             "procedural box {}..{} density {}",

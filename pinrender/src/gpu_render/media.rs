@@ -13,7 +13,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::render::{DensityField, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid};
+use crate::render::{DensitySource, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid};
 use pinrt::Error;
 use pinrt::PinGrid;
 use pinrt::SamplerOptions;
@@ -47,7 +47,7 @@ pub enum GpuDensityKind {
 
 /// A density field for the GPU estimators: an extinction function and the local box that
 /// holds all of it (extinction is 0 outside `bounds`; ray marching steps are relative to its
-/// longest edge, as on the CPU, where it is [`crate::render::DensityField::bounds`]).
+/// longest edge, as on the CPU, where it is [`crate::render::DensitySource::bounds`]).
 #[derive(Clone, Debug)]
 pub struct GpuDensity {
     pub bounds: ([f64; 3], [f64; 3]),
@@ -87,7 +87,7 @@ impl GpuDensity {
     /// The GPU copy of a CPU [`VoxelGrid`] (same convention, same box). Errors only for a box
     /// that overflows (`origin + dims * spacing` not finite).
     pub fn from_voxel_grid(grid: VoxelGrid) -> Result<Self, RenderError> {
-        let (lo, hi) = grid.bounds();
+        let (lo, hi) = grid.bounds().to_arrays();
         check_box(&lo, &hi)?;
         Ok(GpuDensity {
             bounds: (lo, hi),
@@ -97,11 +97,12 @@ impl GpuDensity {
 
     /// A homogeneous box: one voxel over the box, which the convention makes constant inside.
     pub fn homogeneous(b: &HomogeneousBox) -> Result<Self, RenderError> {
-        check_box(&b.min, &b.max)?;
-        let spacing = [0, 1, 2].map(|a| b.max[a] - b.min[a]);
-        let mut d = Self::voxels([1, 1, 1], b.min, spacing, vec![b.sigma_t])?;
+        let (lo, hi) = b.bounds().to_arrays();
+        check_box(&lo, &hi)?;
+        let spacing = [0, 1, 2].map(|a| hi[a] - lo[a]);
+        let mut d = Self::voxels([1, 1, 1], lo, spacing, vec![b.density()])?;
         // The box exactly, not origin + 1 * spacing (which may round).
-        d.bounds = (b.min, b.max);
+        d.bounds = (lo, hi);
         Ok(d)
     }
 

@@ -3,14 +3,15 @@
 //! `docs/format.md` 5.6a). What the trackers read when a dense copy would not fit: a 992 x 674
 //! x 1225 cloud is 3.3 GB dense in f32 and about its active voxels' worth bricked.
 //!
-//! Per-brick maxima and minima make [`DensityField::max_extinction`] and
-//! [`DensityField::min_extinction`] cost one entry per brick a box touches instead of a voxel,
+//! Per-brick maxima and minima make [`DensitySource::max_extinction_in`] and
+//! [`DensitySource::min_extinction_in`] cost one entry per brick a box touches instead of a voxel,
 //! for the majorant grid and residual tracking's control.
 
-use glam::Vec3;
+use glam::DVec3;
 
 use super::RenderError;
-use super::field::{DensityField, VoxelGrid};
+use super::field::VoxelGrid;
+use super::{Aabb, DensitySource};
 
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;
@@ -263,14 +264,14 @@ fn inside(p: [f64; 3], lo: &[f64; 3], hi: &[f64; 3]) -> bool {
     (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])
 }
 
-impl DensityField for BrickGrid {
-    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        (self.origin, self.max)
+impl DensitySource for BrickGrid {
+    fn bounds(&self) -> Aabb {
+        Aabb::from_arrays(self.origin, self.max)
     }
 
     /// [`VoxelGrid`]'s arithmetic (f64 index, f64 lerps), so the two agree bit for bit.
-    fn extinction(&self, p: Vec3) -> f32 {
-        let q = [p.x as f64, p.y as f64, p.z as f64];
+    fn extinction(&self, p: DVec3) -> f32 {
+        let q = p.to_array();
         if !inside(q, &self.origin, &self.max) {
             return 0.0;
         }
@@ -281,17 +282,19 @@ impl DensityField for BrickGrid {
 
     /// The largest brick maximum over the bricks of the voxels whose centre cells touch the
     /// box: an upper bound (exact to the brick), one lookup per brick.
-    fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let (lo, hi) = region.to_arrays();
         if !(0..3).all(|a| lo[a] <= self.max[a] && hi[a] >= self.origin[a]) {
-            return Some(0.0);
+            return 0.0;
         }
         let r = self.voxel_range(lo, hi);
-        Some(self.fold_bricks(r, 0.0, |m, s| s.map_or(m, |s| m.max(self.slot_max[s]))))
+        self.fold_bricks(r, 0.0, |m, s| s.map_or(m, |s| m.max(self.slot_max[s])))
     }
 
     /// The least brick minimum likewise (0 as soon as an empty brick is touched), or 0 where
     /// the box reaches outside the grid.
-    fn min_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
+    fn min_extinction_in(&self, region: Aabb) -> Option<f32> {
+        let (lo, hi) = region.to_arrays();
         if !(0..3).all(|a| lo[a] >= self.origin[a] && hi[a] <= self.max[a]) {
             return Some(0.0);
         }
@@ -300,11 +303,21 @@ impl DensityField for BrickGrid {
             s.map_or(0.0, |s| m.min(self.slot_min[s]))
         }))
     }
+
+    fn voxel_size(&self) -> Option<DVec3> {
+        Some(DVec3::from(self.spacing))
+    }
+
+    fn describe(&self) -> String {
+        let [x, y, z] = self.dims;
+        format!("bricked grid {x}x{y}x{z}")
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use glam::Vec3;
 
     fn cloud(dims: [u32; 3]) -> VoxelGrid {
         let n = (dims[0] * dims[1] * dims[2]) as usize;
@@ -332,22 +345,26 @@ mod tests {
         let bricked = BrickGrid::from_voxels(&dense, 8).unwrap();
         assert!(bricked.shape().2 < 4 * 3 * 5, "some bricks are empty");
         assert_eq!(bricked.bounds(), dense.bounds());
-        let (lo, hi) = dense.bounds();
+        let (lo, hi) = dense.bounds().to_arrays();
         let mut rng = crate::render::Pcg32::new(7, 1);
         for _ in 0..20000 {
             let p = Vec3::from_array(
                 [0, 1, 2]
                     .map(|a| (lo[a] - 0.3 + (hi[a] - lo[a] + 0.6) * rng.next_f32() as f64) as f32),
             );
-            assert_eq!(bricked.extinction(p), dense.extinction(p), "{p}");
+            assert_eq!(
+                bricked.extinction(p.as_dvec3()),
+                dense.extinction(p.as_dvec3()),
+                "{p}"
+            );
         }
         for _ in 0..2000 {
             let a = [0, 1, 2].map(|k| lo[k] + (hi[k] - lo[k]) * rng.next_f32() as f64);
             let b = [0, 1, 2].map(|k| a[k] + (hi[k] - a[k]) * rng.next_f32() as f64 * 0.3);
-            let exact = dense.max_extinction(a, b).unwrap();
-            let bound = bricked.max_extinction(a, b).unwrap();
+            let exact = dense.max_extinction_in(Aabb::from_arrays(a, b));
+            let bound = bricked.max_extinction_in(Aabb::from_arrays(a, b));
             assert!(bound >= exact, "{a:?} {b:?}");
-            let low = bricked.min_extinction(a, b).unwrap();
+            let low = bricked.min_extinction_in(Aabb::from_arrays(a, b)).unwrap();
             let dmin = dense.dense_view().unwrap().min_over(a, b);
             assert!(low <= dmin, "{a:?} {b:?}: {low} > {dmin}");
         }
@@ -356,7 +373,7 @@ mod tests {
         assert!(bricked.to_voxels(100).is_none());
         // The whole box: exact, the largest voxel.
         let all = dense.parts().3.iter().copied().fold(0.0, f32::max);
-        assert_eq!(bricked.max_extinction(lo, hi), Some(all));
+        assert_eq!(bricked.max_extinction_in(Aabb::from_arrays(lo, hi)), all);
     }
 
     #[test]

@@ -523,11 +523,10 @@ mod tests {
     /// A homogeneous box `[-0.5, 0.6]^3` (centre 0.05: the level-0 cell `[0, 0.1)^3` of a
     /// 0.1 grid is centred on it), multiple scattering, sun and sky.
     fn box_scene(size: u32) -> Scene {
-        let hb = Arc::new(HomogeneousBox {
-            min: [-0.5; 3],
-            max: [0.6; 3],
-            sigma_t: 6.0,
-        });
+        let hb = Arc::new(
+            HomogeneousBox::new(crate::render::Aabb::from_arrays([-0.5; 3], [0.6; 3]), 6.0)
+                .unwrap(),
+        );
         let maj = Arc::new(MajorantGrid::from_field(&*hb, [1, 1, 1]).unwrap());
         Scene {
             camera: Camera {

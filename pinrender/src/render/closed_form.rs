@@ -165,7 +165,7 @@ impl<A: AnalyticOpticalDepth + ?Sized> TransportEstimator for ClosedFormTracker<
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::render::{DeltaTracking, DensityField, MajorantGrid, RatioTracking};
+    use crate::render::{Aabb, DeltaTracking, DensitySource, MajorantGrid, RatioTracking};
     use std::time::Instant;
 
     /// `sin(x) / x`, stable at 0 (the series is exact to f64 below |x| = 1e-4).
@@ -243,12 +243,11 @@ pub(crate) mod tests {
         }
     }
 
-    impl DensityField for CosNoise {
-        fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-            (self.lo, self.hi)
+    impl DensitySource for CosNoise {
+        fn bounds(&self) -> Aabb {
+            Aabb::from_arrays(self.lo, self.hi)
         }
-        fn extinction(&self, p: Vec3) -> f32 {
-            let q = p.as_dvec3();
+        fn extinction(&self, q: DVec3) -> f32 {
             if (0..3).all(|a| q[a] >= self.lo[a] && q[a] <= self.hi[a]) {
                 self.sigma(q) as f32
             } else {
@@ -257,8 +256,8 @@ pub(crate) mod tests {
         }
         /// `sum a_k = 1` bounds the field by `2 density` everywhere (no tighter local bound
         /// is cheap for a sum of plane waves).
-        fn max_extinction(&self, _lo: [f64; 3], _hi: [f64; 3]) -> Option<f32> {
-            Some((2.0 * self.density) as f32 * (1.0 + 1e-6))
+        fn max_extinction_in(&self, _region: Aabb) -> f32 {
+            (2.0 * self.density) as f32 * (1.0 + 1e-6)
         }
     }
 

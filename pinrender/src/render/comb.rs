@@ -249,7 +249,7 @@ mod tests {
     use crate::render::rng::Pcg32;
     use crate::render::tests::mean_se;
     use crate::render::{
-        AnalyticOpticalDepth, DensityField, HomogeneousBox, JackknifeMarching, MajorantGrid,
+        AnalyticOpticalDepth, DensitySource, HomogeneousBox, JackknifeMarching, MajorantGrid,
         TransportEstimator, UnbiasedRayMarching,
     };
     use glam::{DVec3, Vec3};
@@ -282,7 +282,7 @@ mod tests {
     /// `n` estimates through the library's combs over the segment in the unit box, spacing
     /// `1 / lookups`.
     fn urm_z(
-        field: &dyn DensityField,
+        field: &dyn DensitySource,
         exact_tau: &TauFn<'_>,
         lookups: u32,
         n: usize,
@@ -295,7 +295,7 @@ mod tests {
             .map(|(p0, d, len)| {
                 let m = comb_lookups(len, 1.0 / lookups as f64);
                 let mut sigma = |s: f64| {
-                    let v = field.extinction((p0 + d * s).as_vec3());
+                    let v = field.extinction((p0 + d * s).as_vec3().as_dvec3());
                     if v > 0.0 { v as f64 } else { 0.0 }
                 };
                 let (mean, se) = mean_se(n, || {
@@ -312,11 +312,8 @@ mod tests {
         let lo = [0.2, 0.15, 0.25];
         let hi = [0.8, 0.9, 0.7];
         let sigma = 3.0;
-        let field = HomogeneousBox {
-            min: lo,
-            max: hi,
-            sigma_t: sigma as f32,
-        };
+        let field =
+            HomogeneousBox::new(crate::render::Aabb::from_arrays(lo, hi), sigma as f32).unwrap();
         let tau = move |p0: DVec3, d: DVec3, len: f64| {
             crate::render::majorant::clip_box(p0, d, &lo, &hi, 0.0, len)
                 .map_or(0.0, |(a, b)| sigma * (b - a))
@@ -389,11 +386,9 @@ mod tests {
                 "jackknife {m} vs {exact} (se {se})"
             );
         }
-        let flat = Arc::new(HomogeneousBox {
-            min: [0.0; 3],
-            max: [1.0; 3],
-            sigma_t: 2.5,
-        });
+        let flat = Arc::new(
+            HomogeneousBox::new(crate::render::Aabb::from_arrays([0.0; 3], [1.0; 3]), 2.5).unwrap(),
+        );
         let maj = Arc::new(MajorantGrid::from_field(&*flat, [2, 2, 2]).unwrap());
         let urm = UnbiasedRayMarching::new(flat.clone(), maj.clone(), 3).unwrap();
         let jk = JackknifeMarching::new(flat, maj, 3).unwrap();
@@ -463,7 +458,7 @@ mod tests {
     /// Relative bias of the jackknife (or, without the correction, of `exp(-mean)` over the
     /// same lookups), averaged over 16 rays, with its standard error.
     fn jackknife_rel_bias(
-        field: &dyn DensityField,
+        field: &dyn DensitySource,
         tau: &TauFn<'_>,
         lookups: u32,
         correct: bool,
@@ -474,7 +469,7 @@ mod tests {
         for &(o, d) in &rs {
             let (p0, d, len) = segment(o, d, [0.0; 3], [1.0; 3]).unwrap();
             let m = comb_lookups(len, 1.0 / lookups as f64);
-            let mut sigma = |s: f64| field.extinction((p0 + d * s).as_vec3()) as f64;
+            let mut sigma = |s: f64| field.extinction((p0 + d * s).as_vec3().as_dvec3()) as f64;
             let exact = (-tau(p0, d, len)).exp();
             let (mean, se) = mean_se(50_000, || {
                 jackknife_with(len, m, &mut sigma, &mut || rng.next_f64(), correct)
@@ -510,7 +505,7 @@ mod tests {
         let (boxf, box_tau) = homogeneous();
         let cos = CosNoise::new(8, 16.0, 4.0, 3);
         let cos_tau = |p0: DVec3, d: DVec3, len: f64| cos.optical_depth(p0, d, len);
-        let fields: [(&str, &dyn DensityField, &TauFn<'_>); 2] =
+        let fields: [(&str, &dyn DensitySource, &TauFn<'_>); 2] =
             [("box", &boxf, &box_tau), ("cosine", &cos, &cos_tau)];
         for (name, field, tau) in fields {
             let mut at = Vec::new();

@@ -1,9 +1,9 @@
 //! Free-flight distance sampling and transmittance estimation behind one trait.
 
 use super::RenderError;
-use super::field::{DenseView, DensityField};
 use super::majorant::{MajorantGrid, MajorantSegment, check_box, clip_box};
 use super::rng::Pcg32;
+use super::{Aabb, DenseView, DensitySource};
 use glam::{DVec3, Vec3};
 use std::sync::Arc;
 
@@ -174,7 +174,7 @@ pub const MAX_MARCH_STEPS: f64 = (1u64 << 24) as f64;
 /// deterministic. Distance sampling draws a target optical depth `-ln(1 - u)` and inverts
 /// the piecewise-linear accumulated depth (constant extinction inside a step), so a
 /// homogeneous medium is sampled exactly.
-pub struct RayMarching<F: ?Sized = dyn DensityField> {
+pub struct RayMarching<F: ?Sized = dyn DensitySource> {
     field: Arc<F>,
     lo: [f64; 3],
     hi: [f64; 3],
@@ -182,10 +182,10 @@ pub struct RayMarching<F: ?Sized = dyn DensityField> {
     step: f64,
 }
 
-impl<F: DensityField + ?Sized> RayMarching<F> {
+impl<F: DensitySource + ?Sized> RayMarching<F> {
     /// `rel_step` in `(0, 1]` times the longest edge of `field.bounds()` is the step.
     pub fn new(field: Arc<F>, rel_step: f64) -> Result<Self, RenderError> {
-        let (lo, hi) = field.bounds();
+        let (lo, hi) = field.bounds().to_arrays();
         check_box(&lo, &hi).map_err(|why| RenderError::Invalid {
             what: "field bounds",
             why,
@@ -221,7 +221,7 @@ impl<F: DensityField + ?Sized> RayMarching<F> {
             if b <= a {
                 continue;
             }
-            let sigma = clean(self.field.extinction(r.at(0.5 * (a + b))));
+            let sigma = clean(self.field.extinction(r.at(0.5 * (a + b)).as_dvec3()));
             if visit(a, b - a, sigma) {
                 return;
             }
@@ -229,7 +229,7 @@ impl<F: DensityField + ?Sized> RayMarching<F> {
     }
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for RayMarching<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for RayMarching<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         let target = rng.next_exp();
@@ -301,15 +301,15 @@ trait Lookup {
     fn at(&self, r: &Prepared, t: f64) -> f32;
 }
 
-/// Through [`DensityField::extinction`] at the f32 world point.
+/// Through [`DensitySource::extinction`] at the f32 world point.
 struct PointLookup<'a, F: ?Sized>(&'a F);
 
-impl<F: DensityField + ?Sized> Lookup for PointLookup<'_, F> {
+impl<F: DensitySource + ?Sized> Lookup for PointLookup<'_, F> {
     #[inline(always)]
     fn segment(&mut self, _: &Prepared, _: f64) {}
     #[inline(always)]
     fn at(&self, r: &Prepared, t: f64) -> f32 {
-        self.0.extinction(r.at(t))
+        self.0.extinction(r.at(t).as_dvec3())
     }
 }
 
@@ -351,7 +351,7 @@ impl Lookup for DenseLookup<'_> {
     }
 }
 
-impl<F: DensityField + ?Sized> Tracker<F> {
+impl<F: DensitySource + ?Sized> Tracker<F> {
     /// The one majorant-stepping loop under delta and ratio tracking, reading the field
     /// through its dense array where it has one ([`Tracker::dense`]).
     #[inline]
@@ -518,7 +518,7 @@ impl<F: DensityField + ?Sized> Tracker<F> {
         // voxels, so the array serves only majorant boxes inside the field's box (rays are
         // clipped to the majorant box; a tentative collision may round past its face by an
         // ulp, where either value is right).
-        let (flo, fhi) = field.bounds();
+        let (flo, fhi) = field.bounds().to_arrays();
         let (mlo, mhi) = majorants.bounds();
         let dense =
             field.dense_view().is_some() && (0..3).all(|a| mlo[a] >= flo[a] && mhi[a] <= fhi[a]);
@@ -557,26 +557,26 @@ fn ratio_step(tr: &mut f64, sigma: f64, inv: f64, rng: &mut Pcg32) -> Option<f32
 }
 
 /// Delta tracking for both queries (transmittance is the 0/1 indicator of passing).
-pub struct DeltaTracking<F: ?Sized = dyn DensityField>(Tracker<F>);
+pub struct DeltaTracking<F: ?Sized = dyn DensitySource>(Tracker<F>);
 
 /// Ratio tracking for transmittance, delta tracking for distances.
-pub struct RatioTracking<F: ?Sized = dyn DensityField>(Tracker<F>);
+pub struct RatioTracking<F: ?Sized = dyn DensitySource>(Tracker<F>);
 
-impl<F: DensityField + ?Sized> DeltaTracking<F> {
+impl<F: DensitySource + ?Sized> DeltaTracking<F> {
     /// The majorant grid's box bounds the tracking; it should cover the field's support.
     pub fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
         DeltaTracking(Tracker::new(field, majorants))
     }
 }
 
-impl<F: DensityField + ?Sized> RatioTracking<F> {
+impl<F: DensitySource + ?Sized> RatioTracking<F> {
     /// The majorant grid's box bounds the tracking; it should cover the field's support.
     pub fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
         RatioTracking(Tracker::new(field, majorants))
     }
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for DeltaTracking<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for DeltaTracking<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.0.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -596,7 +596,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for DeltaTracking<F> {
     }
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for RatioTracking<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.0.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -633,7 +633,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for RatioTracking<F> {
 /// The control extinction per brick of [`ResidualRatioTracking`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ResidualControl {
-    /// The least extinction in the brick ([`DensityField::min_extinction`], exact for voxel
+    /// The least extinction in the brick ([`DensitySource::min_extinction_in`], exact for voxel
     /// grids: the least of the voxels that the trilinear field reads there), so that the
     /// residual is never negative; fields without an exact minimum take the least of a
     /// lattice of points spanning the brick.
@@ -671,7 +671,7 @@ impl ResidualControl {
 /// Russian roulette acts on the whole weight `exp(-int_0^t c) x residual weight` below 0.1,
 /// as ratio tracking's does on its weight, so that a query stops once a dense control has
 /// made the transmittance small, not only once the residual has.
-pub struct ResidualRatioTracking<F: ?Sized = dyn DensityField> {
+pub struct ResidualRatioTracking<F: ?Sized = dyn DensitySource> {
     /// The field and the full majorants (delta tracking for distances).
     tracker: Tracker<F>,
     /// The residual majorants, over the same bricks as the tracker's grid.
@@ -683,7 +683,7 @@ pub struct ResidualRatioTracking<F: ?Sized = dyn DensityField> {
 }
 
 /// The control and residual majorant of every brick of `majorants` over `field`.
-fn residual_controls<F: DensityField + ?Sized>(
+fn residual_controls<F: DensitySource + ?Sized>(
     field: &F,
     majorants: &MajorantGrid,
     control: ResidualControl,
@@ -701,20 +701,22 @@ fn residual_controls<F: DensityField + ?Sized>(
                 // A point `f` (per axis, in [0, 1]) of the brick, as an f32 world point.
                 let at = |f: [f64; 3]| {
                     let p = [0, 1, 2].map(|a| (lo[a] + (hi[a] - lo[a]) * f[a]) as f32);
-                    clean(field.extinction(Vec3::from_array(p)))
+                    clean(field.extinction(Vec3::from_array(p).as_dvec3()))
                 };
-                let least = field.min_extinction(lo, hi).map_or_else(
-                    || {
-                        const K: u32 = 5;
-                        (0..K * K * K)
-                            .map(|c| {
-                                let i = [c % K, (c / K) % K, c / (K * K)];
-                                at(i.map(|v| v as f64 / (K - 1) as f64))
-                            })
-                            .fold(f64::INFINITY, f64::min)
-                    },
-                    clean,
-                );
+                let least = field
+                    .min_extinction_in(Aabb::from_arrays(lo, hi))
+                    .map_or_else(
+                        || {
+                            const K: u32 = 5;
+                            (0..K * K * K)
+                                .map(|c| {
+                                    let i = [c % K, (c / K) % K, c / (K * K)];
+                                    at(i.map(|v| v as f64 / (K - 1) as f64))
+                                })
+                                .fold(f64::INFINITY, f64::min)
+                        },
+                        clean,
+                    );
                 let c = match control {
                     ResidualControl::Min => least,
                     ResidualControl::Mean => {
@@ -741,7 +743,7 @@ fn residual_controls<F: DensityField + ?Sized>(
     (controls, residual)
 }
 
-impl<F: DensityField + ?Sized> ResidualRatioTracking<F> {
+impl<F: DensitySource + ?Sized> ResidualRatioTracking<F> {
     /// Controls of kind `control` per brick of `majorants`, computed here from the field
     /// alone (a load-time pass over the bricks).
     pub fn new(
@@ -872,7 +874,7 @@ fn residual_step(
     None
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -939,7 +941,7 @@ pub(crate) struct Combed<F: ?Sized> {
     pub(crate) spacing: f64,
 }
 
-impl<F: DensityField + ?Sized> Combed<F> {
+impl<F: DensitySource + ?Sized> Combed<F> {
     pub(crate) fn new(
         field: Arc<F>,
         majorants: Arc<MajorantGrid>,
@@ -988,7 +990,7 @@ impl<F: DensityField + ?Sized> Combed<F> {
         let maj_depth = self.majorant_depth(&r);
         let m = super::comb::lookups_for(len, self.spacing, maj_depth);
         let field = &self.tracker.field;
-        let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s)));
+        let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s).as_dvec3()));
         let mut uniform = || rng.next_f64();
         let t = if jackknife {
             super::comb::jackknife_transmittance(len, m, &mut sigma, &mut uniform)
@@ -1001,13 +1003,13 @@ impl<F: DensityField + ?Sized> Combed<F> {
 
 /// Unbiased ray marching (Kettunen et al. 2021) for transmittance, delta tracking for
 /// distances; see [`super::comb::urm_transmittance`].
-pub struct UnbiasedRayMarching<F: ?Sized = dyn DensityField>(Combed<F>);
+pub struct UnbiasedRayMarching<F: ?Sized = dyn DensitySource>(Combed<F>);
 
 /// Jackknife transmittance (Peters 2025) for transmittance, delta tracking for distances;
 /// see [`super::comb::jackknife_transmittance`].
-pub struct JackknifeMarching<F: ?Sized = dyn DensityField>(Combed<F>);
+pub struct JackknifeMarching<F: ?Sized = dyn DensitySource>(Combed<F>);
 
-impl<F: DensityField + ?Sized> UnbiasedRayMarching<F> {
+impl<F: DensitySource + ?Sized> UnbiasedRayMarching<F> {
     /// Combs of `lookups` per longest edge of the majorant box (`1 ..= 2^20`); the majorant
     /// grid bounds the combs and the tracking and should cover the field's support.
     pub fn new(
@@ -1019,7 +1021,7 @@ impl<F: DensityField + ?Sized> UnbiasedRayMarching<F> {
     }
 }
 
-impl<F: DensityField + ?Sized> JackknifeMarching<F> {
+impl<F: DensitySource + ?Sized> JackknifeMarching<F> {
     /// As [`UnbiasedRayMarching::new`]; each query takes two combs.
     pub fn new(
         field: Arc<F>,
@@ -1030,7 +1032,7 @@ impl<F: DensityField + ?Sized> JackknifeMarching<F> {
     }
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.0.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -1047,7 +1049,7 @@ impl<F: DensityField + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
     }
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for JackknifeMarching<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for JackknifeMarching<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.0.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -1110,7 +1112,7 @@ impl CombKind {
     }
 
     /// The estimator over `field` with combs and delta tracking over `majorants`.
-    pub fn build<F: DensityField + ?Sized + 'static>(
+    pub fn build<F: DensitySource + ?Sized + 'static>(
         self,
         field: Arc<F>,
         majorants: Arc<MajorantGrid>,
@@ -1126,7 +1128,7 @@ impl CombKind {
 #[cfg(test)]
 mod dense_tests {
     use super::*;
-    use crate::render::field::{DenseMap, VoxelGrid};
+    use crate::render::{DenseMap, VoxelGrid};
 
     /// A 7x5x6 grid, a ramp along x with random contrast on top (values 0.2 ..= 3.4).
     fn grid() -> VoxelGrid {
@@ -1143,15 +1145,15 @@ mod dense_tests {
     /// along x: a deliberately wrong lookup, to show that the test below can fail.
     struct Shifted(VoxelGrid);
 
-    impl DensityField for Shifted {
-        fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+    impl DensitySource for Shifted {
+        fn bounds(&self) -> Aabb {
             self.0.bounds()
         }
-        fn extinction(&self, p: Vec3) -> f32 {
+        fn extinction(&self, p: DVec3) -> f32 {
             self.0.extinction(p)
         }
-        fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
-            self.0.max_extinction(lo, hi)
+        fn max_extinction_in(&self, region: Aabb) -> f32 {
+            self.0.max_extinction_in(region)
         }
         fn dense_view(&self) -> Option<DenseView<'_>> {
             let (dims, origin, spacing, values) = self.0.parts();
@@ -1163,13 +1165,13 @@ mod dense_tests {
     /// Optical depth of the unit-direction ray `o + t d`, `t` in `[t0, t1]`, by the midpoint
     /// rule with `n` steps of the field's point extinction (error far below the tests' bounds:
     /// the trilinear field is piecewise smooth and `n` large).
-    fn depth(field: &dyn DensityField, o: Vec3, d: Vec3, t0: f64, t1: f64, n: usize) -> f64 {
+    fn depth(field: &dyn DensitySource, o: Vec3, d: Vec3, t0: f64, t1: f64, n: usize) -> f64 {
         let h = (t1 - t0) / n as f64;
         (0..n)
             .map(|i| {
                 let t = t0 + (i as f64 + 0.5) * h;
                 let p = o.as_dvec3() + d.as_dvec3() * t;
-                field.extinction(p.as_vec3()) as f64 * h
+                field.extinction(p.as_vec3().as_dvec3()) as f64 * h
             })
             .sum()
     }
@@ -1178,12 +1180,12 @@ mod dense_tests {
     fn dense_view_reads_the_field() {
         let g = grid();
         let view = g.dense_view().unwrap();
-        let (lo, hi) = g.bounds();
+        let (lo, hi) = g.bounds().to_arrays();
         let mut rng = Pcg32::new(4, 4);
         for _ in 0..20_000 {
             let p = [0, 1, 2].map(|a| lo[a] + (hi[a] - lo[a]) * rng.next_f64());
             let u = view.index(p).map(|v| v as f32);
-            let want = g.extinction(Vec3::from(p.map(|v| v as f32)));
+            let want = g.extinction(Vec3::from(p.map(|v| v as f32)).as_dvec3());
             let got = view.at(u);
             assert!((got - want).abs() <= 1e-4, "{p:?}: {got} vs {want}");
         }
@@ -1214,7 +1216,7 @@ mod dense_tests {
                 Vec3::new(-1.0, -0.7, 0.4).normalize(),
             ),
         ];
-        let z = |field: Arc<dyn DensityField>, seed: u64| -> Vec<f64> {
+        let z = |field: Arc<dyn DensitySource>, seed: u64| -> Vec<f64> {
             let maj = Arc::new(MajorantGrid::from_field(&*field, [3, 2, 2]).unwrap());
             let ests: [Box<dyn TransportEstimator>; 2] = [
                 Box::new(RatioTracking::new(field.clone(), maj.clone())),
@@ -1223,7 +1225,7 @@ mod dense_tests {
             let mut out = Vec::new();
             for est in &ests {
                 for (k, (o, d)) in rays.iter().enumerate() {
-                    let (lo, hi) = field.bounds();
+                    let (lo, hi) = field.bounds().to_arrays();
                     let (t0, t1) =
                         clip_box(o.as_dvec3(), d.as_dvec3(), &lo, &hi, 0.0, f64::INFINITY).unwrap();
                     let exact = (-depth(&g, *o, *d, t0, t1, 200_000)).exp();
@@ -1259,7 +1261,7 @@ mod dense_tests {
     fn ratio_and_delta_from_one_walk_are_unbiased() {
         let g = Arc::new(grid());
         let maj = Arc::new(MajorantGrid::from_field(&*g, [3, 2, 2]).unwrap());
-        let est = RatioTracking::new(g.clone() as Arc<dyn DensityField>, maj);
+        let est = RatioTracking::new(g.clone() as Arc<dyn DensitySource>, maj);
         let rays = [
             (Vec3::new(-1.0, 0.6, 0.6), Vec3::X, f32::INFINITY),
             (
@@ -1277,7 +1279,7 @@ mod dense_tests {
         let z = |lose_late_hits: bool| -> Vec<f64> {
             let mut out = Vec::new();
             for (k, &(o, d, t_max)) in rays.iter().enumerate() {
-                let (lo, hi) = g.bounds();
+                let (lo, hi) = g.bounds().to_arrays();
                 let (t0, t1) =
                     clip_box(o.as_dvec3(), d.as_dvec3(), &lo, &hi, 0.0, t_max as f64).unwrap();
                 let tau = depth(&*g, o, d, t0, t1, 200_000);

@@ -1,7 +1,7 @@
 //! Coarse majorant grid and its DDA traversal (per-segment majorants, as in pbrt-v4).
 
 use super::RenderError;
-use super::field::DensityField;
+use super::{Aabb, DensitySource};
 use glam::DVec3;
 
 /// Max extinction per brick over a world box; bricks tile the box, `x` fastest, then `y`,
@@ -84,13 +84,13 @@ impl MajorantGrid {
     }
 
     /// Build over the field's bounds with `dims` bricks. Per brick it uses the field's exact
-    /// [`DensityField::max_extinction`] if it has one; otherwise the max over a 5x5x5 lattice
+    /// [`DensitySource::max_extinction_in`] where it is finite; otherwise the max over a 5x5x5 lattice
     /// of points spanning the brick (faces included) times 1.05 (conservative only for fields
     /// smooth at that scale; ratio tracking stays unbiased anyway, delta tracking clamps the
     /// acceptance probability where the bound is violated). Non-finite maxima (an infinite
     /// extinction) are stored as `f32::MAX`.
-    pub fn from_field(field: &dyn DensityField, dims: [u32; 3]) -> Result<Self, RenderError> {
-        let (lo, hi) = field.bounds();
+    pub fn from_field(field: &dyn DensitySource, dims: [u32; 3]) -> Result<Self, RenderError> {
+        let (lo, hi) = field.bounds().to_arrays();
         check_box(&lo, &hi).map_err(invalid)?;
         let n = (dims[0] as u64) * (dims[1] as u64) * (dims[2] as u64);
         if n == 0 || n > (1 << 30) {
@@ -101,9 +101,9 @@ impl MajorantGrid {
             for y in 0..dims[1] {
                 for x in 0..dims[0] {
                     let (blo, bhi) = brick_box(&lo, &hi, dims, [x, y, z]);
-                    let m = match field.max_extinction(blo, bhi) {
-                        Some(m) => m,
-                        None => {
+                    let m = match field.max_extinction_in(Aabb::from_arrays(blo, bhi)) {
+                        m if m.is_finite() => m,
+                        _ => {
                             const K: u32 = 5;
                             let mut m = 0.0f32;
                             for c in 0..K * K * K {
@@ -112,7 +112,7 @@ impl MajorantGrid {
                                     (blo[a] + (bhi[a] - blo[a]) * k[a] as f64 / (K - 1) as f64)
                                         as f32
                                 });
-                                let v = field.extinction(glam::Vec3::from_array(p));
+                                let v = field.extinction(glam::Vec3::from_array(p).as_dvec3());
                                 if v > m {
                                     m = v;
                                 }

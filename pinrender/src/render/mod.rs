@@ -129,13 +129,16 @@ pub use estimator::{
     MAX_TRACKING_STEPS, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
     TransportEstimator, URM_DEFAULT_LOOKUPS, UnbiasedRayMarching,
 };
-pub use field::{DenseMap, DenseView, DensityField, FnField, HomogeneousBox, VoxelGrid};
+pub use field::{FnField, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, MajorantSegment};
 pub use pin_control::{
     PINURM_DEFAULT_LOOKUPS, PINURM_DEFAULT_PIN_QUERIES, PINURM_MAX_PIN_QUERIES,
     PINURM_MAX_PIN_SPREAD, PinControlledUrm,
 };
+/// The one density interface and the dense view, from the baker's sources: the renderer
+/// tracks what the baker bakes.
+pub use pinbake::source::{Aabb, DenseMap, DenseView, DensitySource, HomogeneousBox};
 pub use pins::PinsEstimator;
 pub use rng::{Pcg32, splitmix64};
 pub use settings::{Budget, CacheSettings, MAX_CAPACITY_LOG2, RenderSettings};

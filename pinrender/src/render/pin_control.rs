@@ -10,7 +10,7 @@ use glam::Vec3;
 
 use super::estimator::{Combed, Prepared, clean, prepare};
 use super::majorant::clip_box;
-use super::{DensityField, MajorantGrid, Pcg32, PinsEstimator, RenderError, TransportEstimator};
+use super::{DensitySource, MajorantGrid, Pcg32, PinsEstimator, RenderError, TransportEstimator};
 
 /// Default comb lookups per longest edge of the majorant box for `pinurm` (the majorant
 /// depth rule of [`super::comb::lookups_for`] raises them in dense media).
@@ -41,14 +41,14 @@ pub const PINURM_MAX_PIN_QUERIES: u32 = 1024;
 /// depend on the combs that follow it, so the pins' bias does not reach the estimate: it
 /// only sets how far the control is from the truth, which is the variance. Measured, the
 /// pins are a worse control than urm's comb (`docs/final-frames.md`).
-pub struct PinControlledUrm<F: ?Sized = dyn DensityField> {
+pub struct PinControlledUrm<F: ?Sized = dyn DensitySource> {
     /// The tracker and comb spacing `urm` and `jackknife` share.
     comb: Combed<F>,
     pins: Arc<PinsEstimator>,
     pin_queries: u32,
 }
 
-impl<F: DensityField + ?Sized> PinControlledUrm<F> {
+impl<F: DensitySource + ?Sized> PinControlledUrm<F> {
     /// Combs of `lookups` (`1 ..= 2^20`) per longest edge of `majorants`' box over `field`,
     /// controlled by `pins` (placed over the same medium; any placement is unbiased, a
     /// matching one is what makes the control good).
@@ -136,7 +136,7 @@ impl<F: DensityField + ?Sized> PinControlledUrm<F> {
         };
         let m = super::comb::lookups_for(len, self.comb.spacing, maj_depth);
         let field = &self.comb.tracker.field;
-        let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s)));
+        let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s).as_dvec3()));
         let mut uniform = || rng.next_f64();
         // Where the pins do not resolve the ray, urm's own control: an independent comb.
         let tau_c = tau_c.unwrap_or_else(|| super::comb::comb(len, m, uniform(), &mut sigma));
@@ -144,7 +144,7 @@ impl<F: DensityField + ?Sized> PinControlledUrm<F> {
     }
 }
 
-impl<F: DensityField + ?Sized> TransportEstimator for PinControlledUrm<F> {
+impl<F: DensitySource + ?Sized> TransportEstimator for PinControlledUrm<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.comb.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -289,20 +289,18 @@ mod tests {
     /// and have variance), and the cosine-noise cube, against their closed forms.
     fn closed_form_cases() -> Vec<(&'static str, PinControlledUrm, ExactDepth)> {
         let (lo, hi, sigma) = ([0.2, 0.15, 0.25], [0.8, 0.9, 0.7], 3.0);
-        let boxf = Arc::new(HomogeneousBox {
-            min: lo,
-            max: hi,
-            sigma_t: sigma as f32,
-        });
+        let boxf = Arc::new(
+            HomogeneousBox::new(crate::render::Aabb::from_arrays(lo, hi), sigma as f32).unwrap(),
+        );
         let box_maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], sigma as f32).unwrap());
         let box_est: PinControlledUrm =
-            PinControlledUrm::new(boxf as Arc<dyn DensityField>, box_maj, random_pins(3), 4)
+            PinControlledUrm::new(boxf as Arc<dyn DensitySource>, box_maj, random_pins(3), 4)
                 .unwrap();
         let box_tau = move |ray| clipped_depth(ray, lo, hi, &|_, _, len| sigma * len);
         let cos = Arc::new(CosNoise::new(8, 16.0, 4.0, 3));
         let cos_maj = Arc::new(MajorantGrid::from_field(&*cos, [4, 4, 4]).unwrap());
         let cos_est: PinControlledUrm = PinControlledUrm::new(
-            cos.clone() as Arc<dyn DensityField>,
+            cos.clone() as Arc<dyn DensitySource>,
             cos_maj,
             random_pins(5),
             4,
@@ -373,13 +371,13 @@ mod tests {
         let field = Arc::new(VoxelGrid::new(dims, [0.0; 3], spacing, values).unwrap());
         let maj = Arc::new(MajorantGrid::from_field(&*field, [3, 3, 3]).unwrap());
         let est: PinControlledUrm = PinControlledUrm::new(
-            field.clone() as Arc<dyn DensityField>,
+            field.clone() as Arc<dyn DensitySource>,
             maj.clone(),
             random_pins(9),
             4,
         )
         .unwrap();
-        let ratio = RatioTracking::new(field as Arc<dyn DensityField>, maj);
+        let ratio = RatioTracking::new(field as Arc<dyn DensitySource>, maj);
         let n = 10_000;
         let z = |control: Control, tail: bool| -> Vec<f64> {
             let mut rng = Pcg32::new(64, 3);
@@ -448,8 +446,8 @@ mod tests {
         let field = Arc::new(VoxelGrid::new(dims, [0.0; 3], spacing, values).unwrap());
         let maj = Arc::new(MajorantGrid::from_field(&*field, [4, 4, 4]).unwrap());
         let est: PinControlledUrm =
-            PinControlledUrm::new(field.clone() as Arc<dyn DensityField>, maj, pins, 8).unwrap();
-        let (lo, hi) = field.bounds();
+            PinControlledUrm::new(field.clone() as Arc<dyn DensitySource>, maj, pins, 8).unwrap();
+        let (lo, hi) = field.bounds().to_arrays();
         let exact = |ray: (Vec3, Vec3, f32)| {
             clipped_depth(ray, lo, hi, &|p0, d, len| {
                 let k = 20_000;
@@ -457,7 +455,7 @@ mod tests {
                 (0..k)
                     .map(|i| {
                         let p = p0 + d * ((i as f64 + 0.5) * h);
-                        f64::from(field.extinction(p.as_vec3())) * h
+                        f64::from(field.extinction(p.as_vec3().as_dvec3())) * h
                     })
                     .sum()
             })
@@ -506,14 +504,15 @@ mod tests {
     /// that miss the majorant box; an opaque voxel gives a finite estimate.
     #[test]
     fn pinurm_survives_bad_rays_and_opaque_media() {
-        let field = Arc::new(HomogeneousBox {
+        // An opaque box: the baker's box refuses an infinite density, a closure does not.
+        let field = Arc::new(crate::render::FnField {
             min: [0.0; 3],
             max: [1.0; 3],
-            sigma_t: f32::INFINITY,
+            f: |_| f32::INFINITY,
         });
         let maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], f32::MAX).unwrap());
         let est: PinControlledUrm =
-            PinControlledUrm::new(field as Arc<dyn DensityField>, maj, random_pins(1), 4).unwrap();
+            PinControlledUrm::new(field as Arc<dyn DensitySource>, maj, random_pins(1), 4).unwrap();
         let mut rng = Pcg32::new(1, 1);
         let o = Vec3::new(-1.0, 0.5, 0.5);
         for (o, d, t_max) in [
@@ -532,11 +531,10 @@ mod tests {
         assert!(t.is_finite() && t.abs() <= 1e-6, "{t}");
         assert!(
             PinControlledUrm::new(
-                Arc::new(HomogeneousBox {
-                    min: [0.0; 3],
-                    max: [1.0; 3],
-                    sigma_t: 1.0,
-                }),
+                Arc::new(
+                    HomogeneousBox::new(crate::render::Aabb::from_arrays([0.0; 3], [1.0; 3]), 1.0)
+                        .unwrap()
+                ),
                 Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 1.0).unwrap()),
                 random_pins(1),
                 0,

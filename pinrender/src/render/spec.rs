@@ -10,7 +10,7 @@ use super::estimator::{
     TransportEstimator,
 };
 use super::{
-    DensityField, MajorantGrid, PINURM_DEFAULT_LOOKUPS, PinControlledUrm, PinsEstimator,
+    DensitySource, MajorantGrid, PINURM_DEFAULT_LOOKUPS, PinControlledUrm, PinsEstimator,
     RenderError,
 };
 
@@ -258,7 +258,7 @@ impl EstimatorSpec {
     /// (which reads both: [`EstimatorSpec::build_pin_controlled`]).
     pub fn build_density_estimator<E: From<RenderError>>(
         self,
-        field: &dyn Fn() -> Result<Arc<dyn DensityField>, E>,
+        field: &dyn Fn() -> Result<Arc<dyn DensitySource>, E>,
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
         Ok(Some(match self {
@@ -282,7 +282,7 @@ impl EstimatorSpec {
     /// (`pinurm`), or `Ok(None)` for every other kind (nothing is built then).
     pub fn build_pin_controlled<E: From<RenderError>>(
         self,
-        field: &dyn Fn() -> Result<Arc<dyn DensityField>, E>,
+        field: &dyn Fn() -> Result<Arc<dyn DensitySource>, E>,
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
         pins: &dyn Fn() -> Result<Arc<PinsEstimator>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {

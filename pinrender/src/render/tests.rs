@@ -5,11 +5,7 @@ use glam::{DVec3, Vec3};
 use std::sync::Arc;
 
 fn unit_box(sigma: f32) -> Arc<HomogeneousBox> {
-    Arc::new(HomogeneousBox {
-        min: [0.0; 3],
-        max: [1.0; 3],
-        sigma_t: sigma,
-    })
+    Arc::new(HomogeneousBox::new(Aabb::from_arrays([0.0; 3], [1.0; 3]), sigma).unwrap())
 }
 
 /// Mean and standard error of `n` draws (shared by the estimators' statistical tests).
@@ -34,7 +30,7 @@ fn assert_z(label: &str, (m, se): (f64, f64), expect: f64) {
     );
 }
 
-fn estimators(field: Arc<dyn DensityField>, dims: [u32; 3]) -> Vec<Box<dyn TransportEstimator>> {
+fn estimators(field: Arc<dyn DensitySource>, dims: [u32; 3]) -> Vec<Box<dyn TransportEstimator>> {
     let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
     vec![
         Box::new(DeltaTracking::new(field.clone(), maj.clone())),
@@ -72,7 +68,7 @@ fn trackers_transmittance_homogeneous() {
 #[test]
 fn trackers_transmittance_heterogeneous() {
     // sigma = 1 + 3 x^2 on the unit box: optical depth 2 along x, 2 |d| / d.x diagonally.
-    let field: Arc<dyn DensityField> = Arc::new(FnField {
+    let field: Arc<dyn DensitySource> = Arc::new(FnField {
         min: [0.0; 3],
         max: [1.0; 3],
         f: |p: Vec3| 1.0 + 3.0 * p.x * p.x,
@@ -113,7 +109,7 @@ fn trackers_transmittance_heterogeneous() {
 fn zero_and_loose_majorants() {
     // Empty left half: its brick has majorant 0 and is skipped; a right-half brick with a
     // majorant 5x too large stays unbiased.
-    let field: Arc<dyn DensityField> = Arc::new(FnField {
+    let field: Arc<dyn DensitySource> = Arc::new(FnField {
         min: [0.0; 3],
         max: [1.0; 3],
         f: |p: Vec3| if p.x > 0.5 { 2.0 } else { 0.0 },
@@ -272,15 +268,11 @@ fn camera(w: u32, h: u32, vfov: f32) -> Camera {
 }
 
 fn cube(sigma: f32) -> Arc<HomogeneousBox> {
-    Arc::new(HomogeneousBox {
-        min: [-1.0; 3],
-        max: [1.0; 3],
-        sigma_t: sigma,
-    })
+    Arc::new(HomogeneousBox::new(Aabb::from_arrays([-1.0; 3], [1.0; 3]), sigma).unwrap())
 }
 
 fn tracked(
-    field: Arc<dyn DensityField>,
+    field: Arc<dyn DensitySource>,
     dims: [u32; 3],
 ) -> (Arc<dyn TransportEstimator>, Arc<dyn TransportEstimator>) {
     let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
@@ -353,12 +345,11 @@ fn single_scattering_matches_closed_form() {
     let (sigma, h, albedo, g) = (1.0f32, 1.0f64, 0.8f32, 0.3f32);
     let alpha = 40f64.to_radians();
     let sun_dir = [alpha.sin() as f32, alpha.cos() as f32, 0.0];
-    let slab = |s: f32| -> Arc<dyn DensityField> {
-        Arc::new(HomogeneousBox {
-            min: [-20.0, 0.0, -20.0],
-            max: [20.0, h, 20.0],
-            sigma_t: s,
-        })
+    let slab = |s: f32| -> Arc<dyn DensitySource> {
+        Arc::new(
+            HomogeneousBox::new(Aabb::from_arrays([-20.0, 0.0, -20.0], [20.0, h, 20.0]), s)
+                .unwrap(),
+        )
     };
     let k = 1.0 + 1.0 / alpha.cos();
     let sd = sigma as f64;
@@ -402,7 +393,7 @@ fn single_scattering_matches_closed_form() {
 /// the expected radiance is exactly 1 whatever the medium, phase or estimator mix.
 #[test]
 fn white_furnace() {
-    let field: Arc<dyn DensityField> = Arc::new(FnField {
+    let field: Arc<dyn DensitySource> = Arc::new(FnField {
         min: [-1.0; 3],
         max: [1.0; 3],
         f: |p: Vec3| 2.0 + 1.5 * (3.0 * p.x).sin() * p.y,
@@ -709,19 +700,15 @@ impl TransportEstimator for Probe {
     }
 }
 
-fn slab_box(min: [f64; 3], max: [f64; 3], sigma: f32) -> Arc<dyn DensityField> {
-    Arc::new(HomogeneousBox {
-        min,
-        max,
-        sigma_t: sigma,
-    })
+fn slab_box(min: [f64; 3], max: [f64; 3], sigma: f32) -> Arc<dyn DensitySource> {
+    Arc::new(HomogeneousBox::new(Aabb::from_arrays(min, max), sigma).unwrap())
 }
 
 /// Every estimator's box is where its queries are clipped: rays that miss it get
 /// transmittance 1 and no collision (the contract that lets the tracer skip them).
 #[test]
 fn estimator_bounds_contain_everything_they_see() {
-    let field: Arc<dyn DensityField> = Arc::new(FnField {
+    let field: Arc<dyn DensitySource> = Arc::new(FnField {
         min: [1.0, -2.0, 0.5],
         max: [2.0, 0.0, 3.0],
         f: |p: Vec3| 3.0 + p.x.sin(),
@@ -880,7 +867,7 @@ fn culled_distance_sampling_is_exact() {
 /// fewer media.
 #[test]
 fn culling_keeps_radiance_unbiased() {
-    let blob = |c: Vec3, sigma: f32| -> Arc<dyn DensityField> {
+    let blob = |c: Vec3, sigma: f32| -> Arc<dyn DensitySource> {
         let lo = (c - 0.5).as_dvec3().to_array();
         let hi = (c + 0.5).as_dvec3().to_array();
         Arc::new(FnField {
@@ -1061,7 +1048,7 @@ fn residual_z(
 }
 
 fn residual_both(
-    field: Arc<dyn DensityField>,
+    field: Arc<dyn DensitySource>,
     maj: &Arc<MajorantGrid>,
 ) -> Vec<ResidualRatioTracking> {
     [ResidualControl::Min, ResidualControl::Mean]
@@ -1077,7 +1064,7 @@ fn residual_both(
 #[test]
 fn residual_ratio_tracking_matches_the_box() {
     let sigma = 2.0f32;
-    let field: Arc<dyn DensityField> = unit_box(sigma);
+    let field: Arc<dyn DensitySource> = unit_box(sigma);
     let s = sigma as f64;
     let rays: [ExactRay; 4] = [
         (
@@ -1186,7 +1173,7 @@ fn residual_ratio_tracking_is_unbiased_on_the_cosine_cube() {
         }
     };
     let rays = cube_rays(exact);
-    let field: Arc<dyn DensityField> = noise.clone();
+    let field: Arc<dyn DensitySource> = noise.clone();
     let maj = Arc::new(MajorantGrid::from_field(&*field, [8, 8, 8]).unwrap());
     for est in residual_both(field.clone(), &maj) {
         let good = residual_z(&est, &rays, 40_000, 7, 1.0);
@@ -1228,7 +1215,7 @@ fn contrast_grid() -> VoxelGrid {
 fn voxel_minimum_bounds_the_trilinear_field() {
     let g = contrast_grid();
     let view = g.dense_view().unwrap();
-    let (lo, hi) = g.bounds();
+    let (lo, hi) = g.bounds().to_arrays();
     let (dims, origin, spacing, values) = g.parts();
     let own_cells_min = |blo: [f64; 3], bhi: [f64; 3]| {
         let mut m = f32::INFINITY;
@@ -1252,19 +1239,22 @@ fn voxel_minimum_bounds_the_trilinear_field() {
         let b = [0, 1, 2].map(|k| lo[k] + (hi[k] - lo[k]) * rng.next_f64());
         let blo = [0, 1, 2].map(|k| a[k].min(b[k]));
         let bhi = [0, 1, 2].map(|k| a[k].max(b[k]));
-        let least = g.min_extinction(blo, bhi).unwrap();
+        let least = g.min_extinction_in(Aabb::from_arrays(blo, bhi)).unwrap();
         assert_eq!(least, view.min_over(blo, bhi));
         let mutant = own_cells_min(blo, bhi);
         for _ in 0..100 {
             let p = [0, 1, 2].map(|k| (blo[k] + (bhi[k] - blo[k]) * rng.next_f64()) as f32);
-            let e = g.extinction(Vec3::from_array(p));
+            let e = g.extinction(Vec3::from_array(p).as_dvec3());
             assert!(e >= least - 1e-5, "{p:?}: {e} < {least}");
             mutant_exceeds |= e < mutant - 1e-5;
         }
     }
     assert!(mutant_exceeds);
     // A box reaching outside the grid has minimum 0 (the extinction there).
-    assert_eq!(g.min_extinction([-1.0; 3], [0.0; 3]), Some(0.0));
+    assert_eq!(
+        g.min_extinction_in(Aabb::from_arrays([-1.0; 3], [0.0; 3])),
+        Some(0.0)
+    );
 }
 
 /// Residual ratio tracking through the dense array of a voxel grid (both controls, 4x3x3
@@ -1273,7 +1263,7 @@ fn voxel_minimum_bounds_the_trilinear_field() {
 #[test]
 fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
     let g = Arc::new(contrast_grid());
-    let (lo, hi) = g.bounds();
+    let (lo, hi) = g.bounds().to_arrays();
     let exact = |o: Vec3, d: Vec3, t_max: f32| {
         let (od, dd) = (o.as_dvec3(), d.as_dvec3());
         let Some((t0, t1)) = super::majorant::clip_box(od, dd, &lo, &hi, 0.0, t_max as f64) else {
@@ -1282,7 +1272,10 @@ fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
         let n = 100_000;
         let h = (t1 - t0) / n as f64;
         let depth: f64 = (0..n)
-            .map(|i| g.extinction((od + dd * (t0 + (i as f64 + 0.5) * h)).as_vec3()) as f64 * h)
+            .map(|i| {
+                g.extinction((od + dd * (t0 + (i as f64 + 0.5) * h)).as_vec3().as_dvec3()) as f64
+                    * h
+            })
             .sum();
         (-depth).exp()
     };
@@ -1294,7 +1287,7 @@ fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
             (o, d, t, exact(o, d, t))
         })
         .collect();
-    let field: Arc<dyn DensityField> = g.clone();
+    let field: Arc<dyn DensitySource> = g.clone();
     let maj = Arc::new(MajorantGrid::from_field(&*field, [4, 3, 3]).unwrap());
     for est in residual_both(field, &maj) {
         let z = residual_z(&est, &rays, 40_000, 9, 1.0);
@@ -1306,7 +1299,7 @@ fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
 /// tracking's one walk (transmittance correlated with the collision), draw for draw.
 #[test]
 fn residual_pairs_are_ratio_trackings_one_walk() {
-    let g: Arc<dyn DensityField> = Arc::new(contrast_grid());
+    let g: Arc<dyn DensitySource> = Arc::new(contrast_grid());
     let maj = Arc::new(MajorantGrid::from_field(&*g, [4, 3, 3]).unwrap());
     let ratio = RatioTracking::new(g.clone(), maj.clone());
     for est in residual_both(g, &maj) {

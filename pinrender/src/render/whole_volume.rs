@@ -666,11 +666,13 @@ mod tests {
     #[test]
     fn matches_the_path_tracer_single_scattering() {
         let b = unit();
-        let hb = Arc::new(HomogeneousBox {
-            min: b.min,
-            max: b.max,
-            sigma_t: b.sigma_t as f32,
-        });
+        let hb = Arc::new(
+            HomogeneousBox::new(
+                crate::render::Aabb::from_arrays(b.min, b.max),
+                b.sigma_t as f32,
+            )
+            .unwrap(),
+        );
         let maj = Arc::new(MajorantGrid::from_field(&*hb, [1, 1, 1]).unwrap());
         let tracked = Medium::new(
             Arc::new(DeltaTracking::new(hb.clone(), maj.clone())),

@@ -32,9 +32,9 @@ use anyhow::{Result, anyhow};
 use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
-use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
+use pinbake::source::{Aabb, DenseGrid, ProceduralSpec};
 use pinrender::render::{
-    CombKind, DeltaTracking, DensityField, MajorantGrid, PINURM_DEFAULT_PIN_QUERIES, Pcg32,
+    CombKind, DeltaTracking, DensitySource, MajorantGrid, PINURM_DEFAULT_PIN_QUERIES, Pcg32,
     PinControlledUrm, PinsEstimator, RatioTracking, ResidualControl, ResidualRatioTracking,
     TransportEstimator,
 };
@@ -42,7 +42,7 @@ use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
 use serde_json::{Value, json};
 
-use crate::volume::{self, SourceField, VolumeArgs};
+use crate::volume::{self, TrackedSource, VolumeArgs};
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
@@ -97,17 +97,21 @@ pub const VARIANCE_REPEATS: u64 = 64;
 /// A field that counts its lookups. It has no dense view, so a tracker over it asks
 /// `extinction` at every tentative collision: its count is the tracker's lookups.
 struct Counted {
-    inner: Arc<dyn DensityField>,
+    inner: Arc<dyn DensitySource>,
     lookups: AtomicU64,
 }
 
-impl DensityField for Counted {
-    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+impl DensitySource for Counted {
+    fn bounds(&self) -> Aabb {
         self.inner.bounds()
     }
-    fn extinction(&self, p: Vec3) -> f32 {
+    fn extinction(&self, p: DVec3) -> f32 {
         self.lookups.fetch_add(1, Ordering::Relaxed);
         self.inner.extinction(p)
+    }
+    /// No bound: the majorant grid samples a lattice, as for any field without one.
+    fn max_extinction_in(&self, _region: Aabb) -> f32 {
+        f32::INFINITY
     }
 }
 
@@ -557,7 +561,7 @@ fn bench_volume(
     // The comb estimators at their default lookups, on the same rays as ray marching, as
     // the path tracer builds them: combs and their majorant-depth rule over a majorant grid
     // of the source (built once, not timed).
-    let field = Arc::new(SourceField::new(source_arc.clone()));
+    let field = Arc::new(TrackedSource::new(source_arc.clone()));
     let majorants = volume::majorants(&field, MAJORANT_BRICKS)?;
     // The trackers production renderers use, over the same majorant grid and rays: ratio
     // tracking (transmittance; its distances are delta tracking's), residual ratio tracking
@@ -565,7 +569,7 @@ fn bench_volume(
     let residual = |control| -> Result<Arc<ResidualRatioTracking>> {
         Ok(Arc::new(
             ResidualRatioTracking::new(
-                field.clone() as Arc<dyn DensityField>,
+                field.clone() as Arc<dyn DensitySource>,
                 majorants.clone(),
                 control,
             )
@@ -621,7 +625,7 @@ fn bench_volume(
         let (controls, residual) = est.controls();
         Ok(Arc::new(
             ResidualRatioTracking::with_controls(
-                counted.clone() as Arc<dyn DensityField>,
+                counted.clone() as Arc<dyn DensitySource>,
                 maj.clone(),
                 controls.to_vec(),
                 residual.to_vec(),
@@ -633,7 +637,7 @@ fn bench_volume(
         (
             "ratio",
             Arc::new(RatioTracking::new(
-                counted.clone() as Arc<dyn DensityField>,
+                counted.clone() as Arc<dyn DensitySource>,
                 majorants.clone(),
             )) as Arc<dyn TransportEstimator>,
         ),
@@ -680,7 +684,7 @@ fn bench_volume(
             format!("pinurm@{lookups}/pins={queries}")
         }
     };
-    let pinurm = |f: Arc<dyn DensityField>,
+    let pinurm = |f: Arc<dyn DensitySource>,
                   (lookups, queries): (u32, u32)|
      -> Result<Arc<dyn TransportEstimator>> {
         Ok(Arc::new(

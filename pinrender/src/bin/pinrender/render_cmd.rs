@@ -9,13 +9,13 @@ use std::time::Instant;
 
 use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::render::{
-    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image, MajorantGrid,
+    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image, MajorantGrid,
     RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
 
-use crate::volume::{self, SourceField, VolumeArgs};
+use crate::volume::{self, TrackedSource, VolumeArgs};
 use pin_cli::parse::parse_f64x3;
 use pinrender::medium::{MediumDesc, PlacedPins};
 
@@ -390,7 +390,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
 /// estimators), or from a pin file alone.
 struct OpenedMedium {
     bounds: ([f64; 3], [f64; 3]),
-    field: Option<Arc<dyn DensityField>>,
+    field: Option<Arc<dyn DensitySource>>,
     /// The file's majorants (a pin file alone); `None`: built from the field.
     majorants: Option<Arc<MajorantGrid>>,
     pins: Option<Arc<pinrt::PinGrid>>,
@@ -462,7 +462,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     };
     Ok(OpenedMedium {
         bounds: (b.min.to_array(), b.max.to_array()),
-        field: Some(Arc::new(SourceField::new(source))),
+        field: Some(Arc::new(TrackedSource::new(source))),
         majorants: None,
         pins,
         opened: Some(opened),

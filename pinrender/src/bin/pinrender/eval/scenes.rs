@@ -10,15 +10,15 @@ use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, Procedu
 use pinrender::render::CacheSettings;
 use pinrender::render::whole_volume::WholeVolumeBox;
 use pinrender::render::{
-    AnalyticOpticalDepth, Camera, ClosedFormTracker, DensityField, EstimatorSpec, HomogeneousBox,
-    MajorantGrid, Medium, Scene, Sun, TransportEstimator, splitmix64,
+    AnalyticOpticalDepth, Camera, ClosedFormTracker, EstimatorSpec, HomogeneousBox, MajorantGrid,
+    Medium, Scene, Sun, TransportEstimator, splitmix64,
 };
 
 use pinrender::gpu_render::{GpuDensity, GpuMedia};
 use pinrender::medium::MediumDesc;
 use pinrt::SamplerOptions;
 
-use crate::volume::{Opened, SourceField, VolumeArgs};
+use crate::volume::{Opened, TrackedSource, VolumeArgs};
 
 /// Sizes that differ between the default run and `--quick`.
 #[derive(Clone, Copy, Debug)]
@@ -234,7 +234,7 @@ fn cache_for(lo: DVec3, hi: DVec3, sizes: &Sizes) -> CacheSettings {
 /// The one medium of a single-volume scene: `field` for the CPU, its GPU copy in the same
 /// frame, majorants of `bricks`^3.
 fn single_instance(
-    field: Arc<dyn DensityField>,
+    field: Arc<dyn DensitySource>,
     bricks: u32,
     analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
     gpu_density: Option<Arc<GpuDensity>>,
@@ -270,7 +270,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
+    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     let inst = single_instance(field, 16, None, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.4, 0.15, 1.0), 40.0, 0.95);
@@ -321,7 +321,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
+    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     let inst = single_instance(field, 16, None, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.35, 1.0), 40.0, 0.8);
@@ -372,7 +372,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     let src: Arc<dyn DensitySource> = noise.clone();
     let gpu_density = Arc::new(Opened::Noise(noise.clone()).gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
+    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
     let inst = single_instance(field, 16, Some(analytic), Some(gpu_density))?;
     let size = sizes.image;
@@ -422,11 +422,13 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
     let pb = source::HomogeneousBox::new(Aabb::new(lo, hi), BOX_SIGMA as f32)?;
     let src: Arc<dyn DensitySource> = Arc::new(pb.clone());
     let gpu_density = Arc::new(Opened::Box(pb.clone()).gpu_density()?);
-    let field: Arc<dyn DensityField> = Arc::new(HomogeneousBox {
-        min: lo.to_array(),
-        max: hi.to_array(),
-        sigma_t: BOX_SIGMA as f32,
-    });
+    let field: Arc<dyn DensitySource> = Arc::new(
+        HomogeneousBox::new(
+            Aabb::from_arrays(lo.to_array(), hi.to_array()),
+            BOX_SIGMA as f32,
+        )
+        .unwrap(),
+    );
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(BoxAnalytic(pb));
     let inst = single_instance(field, 1, Some(analytic), Some(gpu_density))?;
     // The box scenes are cheap: a larger image.
@@ -496,7 +498,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
 
 /// A field moved by `offset` (what an instance transform does to a tracker's field).
 pub struct Offset {
-    inner: Arc<dyn DensityField>,
+    inner: Arc<dyn DensitySource>,
     off: [f64; 3],
     off32: Vec3,
     lo: [f64; 3],
@@ -504,8 +506,8 @@ pub struct Offset {
 }
 
 impl Offset {
-    pub fn new(inner: Arc<dyn DensityField>, off: [f64; 3]) -> Self {
-        let (lo, hi) = inner.bounds();
+    pub fn new(inner: Arc<dyn DensitySource>, off: [f64; 3]) -> Self {
+        let (lo, hi) = inner.bounds().to_arrays();
         Offset {
             off,
             off32: DVec3::from_array(off).as_vec3(),
@@ -516,19 +518,21 @@ impl Offset {
     }
 }
 
-impl DensityField for Offset {
-    fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        (self.lo, self.hi)
+impl DensitySource for Offset {
+    fn bounds(&self) -> Aabb {
+        Aabb::from_arrays(self.lo, self.hi)
     }
+    /// The shift in f32, as an instance transform moves the renderer's f32 points.
     #[inline]
-    fn extinction(&self, p: Vec3) -> f32 {
-        self.inner.extinction(p - self.off32)
+    fn extinction(&self, p: DVec3) -> f32 {
+        self.inner.extinction((p.as_vec3() - self.off32).as_dvec3())
     }
-    fn max_extinction(&self, lo: [f64; 3], hi: [f64; 3]) -> Option<f32> {
-        self.inner.max_extinction(
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let (lo, hi) = region.to_arrays();
+        self.inner.max_extinction_in(Aabb::from_arrays(
             [0, 1, 2].map(|a| lo[a] - self.off[a]),
             [0, 1, 2].map(|a| hi[a] - self.off[a]),
-        )
+        ))
     }
 }
 
@@ -576,7 +580,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
     let blob = Opened::Dense(Arc::new(blob()?));
     let gpu_density = Arc::new(blob.gpu_density()?);
     let base = blob.source();
-    let base_field: Arc<dyn DensityField> = Arc::new(SourceField::new(base.clone()));
+    let base_field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(base.clone()));
     let k = INSTANCES_PER_AXIS;
     let spacing = 0.55;
     let mut seed = 0x1257_u64;
@@ -591,7 +595,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
             for x in 0..k {
                 let off = DVec3::new(x as f64, y as f64, z as f64) * spacing
                     + DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5) * 0.25;
-                let field: Arc<dyn DensityField> =
+                let field: Arc<dyn DensitySource> =
                     Arc::new(Offset::new(base_field.clone(), off.to_array()));
                 lo = lo.min(off);
                 hi = hi.max(off + DVec3::ONE);
@@ -662,7 +666,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
+    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     // Finer bricks than the other scenes: the cloud has large empty regions between lobes.
     let inst = single_instance(field, 32, None, Some(gpu_density))?;
     let size = sizes.image;
@@ -721,7 +725,7 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
         Err(e) => (None, Some(format!("{e:#}"))),
     };
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensityField> = Arc::new(SourceField::new(src.clone()));
+    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     let inst = single_instance(field, 32, None, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
