@@ -232,7 +232,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         (Some(_), Some(_)) if !uses_pins => {
             // It used to be ignored silently, so a typo in the estimator went unnoticed.
             crate::usage!(
-                "--pins is used only by the pins, pinms and pinurm estimators, not by {} (or give \
+                "--pins is used only by the pins, pinms, pinurm and pinres estimators, not by {} (or give \
                  --pins without --volume to render the pin file's own medium)",
                 a.estimator
             )
@@ -444,6 +444,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
             source.as_ref(),
             a.pin_cells,
             a.seed,
+            a.estimator.needs_control(),
             &pinbake::files::MemoryBudget::new(a.max_memory),
         )?;
         if let Some(p) = &a.pins {

@@ -1,0 +1,115 @@
+//! `pinres`: residual ratio tracking over the control the bake stores (the pin file's control
+//! section, docs/format.md section 5.8), with the section's per-brick majorants for distances
+//! and paired queries (docs/final-frames.md).
+
+use std::sync::Arc;
+
+use glam::Vec3;
+use pinrt::PinGrid;
+
+use super::estimator::{ResidualRatioTracking, TransportEstimator};
+use super::majorant::MajorantGrid;
+use super::rng::Pcg32;
+use super::{DensityField, RenderError};
+
+/// Residual ratio tracking (Novák, Selle and Jarosz 2014) over a baked control: per brick of
+/// the control grid, the control extinction `c` is taken out exactly and the residual
+/// `sigma - c` is ratio-tracked at the baked residual majorant `m`. Distances are delta
+/// tracking over the baked majorants `M`; paired queries are ratio tracking's one walk over
+/// them (as `residual`'s, docs/residual.md "Distances").
+///
+/// Unbiased for any control and any `m > 0` (the weights `1 - (sigma - c) / m` may be
+/// negative or above 1); a brick with `m = 0` is one the bake bounded by zero, where `sigma =
+/// c = 0`. The relative variance of a transmittance estimate is `exp(int (sigma - c)^2 / m) -
+/// 1` at `int m` lookups: the baker chooses `c` and `m` per brick to balance the two.
+pub struct BakedResidualTracking {
+    inner: ResidualRatioTracking<dyn DensityField>,
+    dims: [u32; 3],
+}
+
+impl BakedResidualTracking {
+    /// Over `field`, with the bricks `dims` tiling the world box `[lo, hi]` and their
+    /// control, residual majorant and majorant (each finite and `>= 0`).
+    pub fn new(
+        field: Arc<dyn DensityField>,
+        (lo, hi): ([f64; 3], [f64; 3]),
+        dims: [u32; 3],
+        control: Vec<f32>,
+        residual: Vec<f32>,
+        majorant: Vec<f32>,
+    ) -> Result<Self, RenderError> {
+        let majorants = Arc::new(MajorantGrid::from_parts(lo, hi, dims, majorant)?);
+        let inner = ResidualRatioTracking::with_controls(field, majorants, control, residual)?;
+        Ok(Self { inner, dims })
+    }
+
+    /// Over `field`, from the control section of `grid` placed by `local_to_world` (the
+    /// file's own when `None`): a positive scale and a translation per axis, as the
+    /// renderer's fields are axis-aligned. An error when the grid has no control section.
+    pub fn from_grid(
+        field: Arc<dyn DensityField>,
+        grid: &PinGrid,
+        local_to_world: Option<&[f64; 12]>,
+    ) -> Result<Self, RenderError> {
+        let invalid = |why: String| RenderError::Invalid {
+            what: "pinres control",
+            why,
+        };
+        let control = grid
+            .control()
+            .map_err(|e| invalid(e.to_string()))?
+            .ok_or_else(|| {
+                invalid("the pin grid has no control section (bake it with --embed-control)".into())
+            })?;
+        let m = *local_to_world.unwrap_or(&grid.desc().local_to_world);
+        let scale = [m[0], m[5], m[10]];
+        let off_diagonal = [m[1], m[2], m[4], m[6], m[8], m[9]];
+        if !(off_diagonal.iter().all(|&v| v == 0.0)
+            && scale.iter().all(|&v| v > 0.0 && v.is_finite()))
+        {
+            return Err(invalid(
+                "the grid is rotated or sheared in the world; its control is axis-aligned".into(),
+            ));
+        }
+        let (blo, bhi) = control.bounds();
+        let to_world = |p: [f64; 3]| [0, 1, 2].map(|a| scale[a] * p[a] + m[4 * a + 3]);
+        Self::new(
+            field,
+            (to_world(blo), to_world(bhi)),
+            control.dims(),
+            control.control().to_vec(),
+            control.residual().to_vec(),
+            control.majorant().to_vec(),
+        )
+    }
+
+    /// The controls and residual majorants per brick.
+    pub fn controls(&self) -> (&[f32], &[f32]) {
+        self.inner.controls()
+    }
+}
+
+impl TransportEstimator for BakedResidualTracking {
+    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
+        self.inner.sample_distance(o, d, t_max, rng)
+    }
+    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
+        self.inner.transmittance(o, d, t_max, rng)
+    }
+    fn transmittance_and_distance(
+        &self,
+        o: Vec3,
+        d: Vec3,
+        t_max: f32,
+        rng: &mut Pcg32,
+    ) -> (f32, Option<f32>) {
+        self.inner.transmittance_and_distance(o, d, t_max, rng)
+    }
+    fn name(&self) -> String {
+        let d = self.dims;
+        format!("pinres({}x{}x{})", d[0], d[1], d[2])
+    }
+    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
+        self.inner.bounds()
+    }
+}
