@@ -22,7 +22,6 @@
 //!     density: None,
 //!     sparse_density: None,
 //!     control: None,
-//!     control: None,
 //!     metadata: None,
 //! };
 //! let bytes = grid.to_bytes().unwrap();

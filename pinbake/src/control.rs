@@ -7,10 +7,9 @@
 //! 0`, the only brick with `m = 0`). Elsewhere a midpoint lattice of `lattice^3` points gives
 //! `c`, the mean of the extinction weighted by `exp(-2 thickness sigma edge)` (a brick that is
 //! optically thick weighs its thin parts, where a ray keeps its transmittance, the most), and
-//! `m = scale` times the weighted root mean square of `sigma - c`, raised to `floor (M - c)`:
-//! the residual majorant that balances the variance `int r^2 / m` against the lookups `int m`
-//! rather than bounding the residual. Any `c` and any `m > 0` give an unbiased estimator; these
-//! set its variance (the rule and its constants were chosen by measurement).
+//! `m = floor` times the largest residual `max(M - c, c - least sample)`. Any `c` and any
+//! `m > 0` give an unbiased estimator; these set its variance. The rule and its constants were
+//! chosen by measurement (docs/final-frames.md): bricks of 4 voxels, `thickness` 1, `floor` 1.
 
 use glam::DVec3;
 use pin_format::OwnedControl;
@@ -41,11 +40,11 @@ pub struct ControlOptions {
     pub dims: ControlDims,
     /// Midpoint lattice points per brick edge.
     pub lattice: u32,
-    /// `m = scale x` the weighted RMS of the residual.
-    pub scale: f64,
     /// The weights `exp(-2 thickness sigma edge)`; 0 makes `c` the plain mean.
     pub thickness: f64,
-    /// `m >= floor (M - c)`.
+    /// `m = floor max(M - c, c - least sample)`, in `(0, 1]`: with 1, every weight
+    /// `1 - (sigma - c) / m` of a sampled extinction lies in `[0, 2]`; below 1 the weights
+    /// may leave it (fewer lookups, more variance).
     pub floor: f64,
 }
 
@@ -54,9 +53,8 @@ impl Default for ControlOptions {
         Self {
             dims: ControlDims::Edge(DEFAULT_CONTROL_EDGE),
             lattice: 4,
-            scale: 1.0,
             thickness: 1.0,
-            floor: 0.05,
+            floor: 1.0,
         }
     }
 }
@@ -101,15 +99,13 @@ pub fn bake_control(
     opts: &ControlOptions,
 ) -> Result<OwnedControl, BakeError> {
     if !(opts.lattice >= 1
-        && opts.scale > 0.0
-        && opts.scale.is_finite()
         && opts.thickness >= 0.0
         && opts.thickness.is_finite()
         && opts.floor > 0.0
         && opts.floor <= 1.0)
     {
         return Err(BakeError::Options(format!(
-            "control options {opts:?}: lattice >= 1, scale > 0, thickness >= 0, floor in (0, 1]"
+            "control options {opts:?}: lattice >= 1, thickness >= 0, floor in (0, 1]"
         )));
     }
     let dims = control_dims(source, bbox, opts)?;
@@ -181,12 +177,11 @@ fn brick_control(
         samples.iter().copied().fold(f64::INFINITY, f64::min)
     };
     let c = (c.min(f64::from(big)) as f32).max(0.0);
-    let mut sr = 0.0;
-    for &s in &samples {
-        sr += w(s) * (s - f64::from(c)).powi(2);
-    }
-    let rms = if sw > 0.0 { (sr / sw).sqrt() } else { 0.0 };
-    let spread = (f64::from(big) - f64::from(c)).max(1e-3 * f64::from(big));
-    let m = (o.scale * rms).max(o.floor * spread);
+    let least = samples.iter().copied().fold(f64::INFINITY, f64::min);
+    let c64 = f64::from(c);
+    let spread = (f64::from(big) - c64)
+        .max(c64 - least)
+        .max(1e-3 * f64::from(big));
+    let m = o.floor * spread;
     [c, (m as f32).clamp(f32::MIN_POSITIVE, f32::MAX), big]
 }

@@ -320,6 +320,7 @@ impl EstimatorSpec {
                     field()?,
                     pins.grid(),
                     Some(pins.placement()),
+                    majorants().ok(),
                 )?))
             }
             _ => None,

@@ -34,9 +34,9 @@ use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
 use pinrender::render::{
-    CombKind, DeltaTracking, DensityField, MajorantGrid, PINURM_DEFAULT_PIN_QUERIES, Pcg32,
-    PinControlledUrm, PinsEstimator, RatioTracking, ResidualControl, ResidualRatioTracking,
-    TransportEstimator,
+    BakedResidualTracking, CombKind, DeltaTracking, DensityField, MajorantGrid,
+    PINURM_DEFAULT_PIN_QUERIES, Pcg32, PinControlledUrm, PinsEstimator, RatioTracking,
+    ResidualControl, ResidualRatioTracking, TransportEstimator,
 };
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
@@ -576,6 +576,26 @@ fn bench_volume(
         residual(ResidualControl::Mean)?,
         residual(ResidualControl::Min)?,
     );
+    // `pinres`: the control section a bake with `--embed-control` stores, computed here over
+    // the source's box (not timed), over `f`.
+    let control = {
+        let opts = pinbake::control::ControlOptions::default();
+        pinbake::control::bake_control(source, &b, &opts)?
+    };
+    let pinres = |f: Arc<dyn DensityField>| -> Result<Arc<dyn TransportEstimator>> {
+        Ok(Arc::new(
+            BakedResidualTracking::new(
+                f,
+                (b.min.to_array(), b.max.to_array()),
+                control.dims,
+                control.control.clone(),
+                control.residual.clone(),
+                control.majorant.clone(),
+                None,
+            )
+            .map_err(|e| anyhow!("{e}"))?,
+        ))
+    };
     let trackers_first = rows.len();
     for (method, tracker) in [
         (
@@ -585,6 +605,7 @@ fn bench_volume(
         ),
         ("residual", residual_mean.clone()),
         ("residual@min", residual_min.clone()),
+        ("pinres", pinres(field.clone())?),
         (
             "delta",
             Arc::new(DeltaTracking::new(field.clone(), majorants.clone())),
@@ -639,6 +660,7 @@ fn bench_volume(
         ),
         ("residual", with_controls(&residual_mean, &majorants)?),
         ("residual@min", with_controls(&residual_min, &majorants)?),
+        ("pinres", pinres(counted.clone())?),
     ] {
         let row = rows[trackers_first..]
             .iter_mut()
