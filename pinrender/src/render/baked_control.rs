@@ -69,7 +69,12 @@ impl BakedResidualTracking {
             .control()
             .map_err(|e| invalid(e.to_string()))?
             .ok_or_else(|| {
-                invalid("the pin grid has no control section (bake it with --embed-control)".into())
+                let file = grid
+                    .path()
+                    .map_or_else(|| "the pin grid".to_string(), |p| p.display().to_string());
+                invalid(format!(
+                    "{file} has no control section (bake it with --embed-control)"
+                ))
             })?;
         let m = *local_to_world.unwrap_or(&grid.desc().local_to_world);
         let scale = [m[0], m[5], m[10]];

@@ -66,6 +66,19 @@ pub struct BenchArgs {
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
+    /// The `pinres` rows' control: source voxels per brick edge (`pinbake bake
+    /// --embed-control EDGE`; 1..=64).
+    #[arg(long, default_value_t = pinbake::control::DEFAULT_CONTROL_EDGE,
+          value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub pinres_edge: u32,
+    /// The `pinres` rows' residual majorant as a fraction of the brick's largest residual
+    /// (1, the default, bounds it; (0, 1]).
+    #[arg(long, default_value_t = 1.0)]
+    pub pinres_floor: f64,
+    /// The `pinres` rows' control weights `exp(-2 THICKNESS sigma edge)` (0: the plain mean;
+    /// >= 0).
+    #[arg(long, default_value_t = 1.0)]
+    pub pinres_thickness: f64,
     /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
     /// cpu_queries_per_s?, mean_abs_error?, error_rays?, per_ray_variance?,
     /// lookups_per_query?, variance_x_lookups?, variance_rays?, bake?, pin_bytes?}, ...]}
@@ -579,7 +592,12 @@ fn bench_volume(
     // `pinres`: the control section a bake with `--embed-control` stores, computed here over
     // the source's box (not timed), over `f`.
     let control = {
-        let opts = pinbake::control::ControlOptions::default();
+        let opts = pinbake::control::ControlOptions {
+            dims: pinbake::control::ControlDims::Edge(args.pinres_edge),
+            floor: args.pinres_floor,
+            thickness: args.pinres_thickness,
+            ..pinbake::control::ControlOptions::default()
+        };
         pinbake::control::bake_control(source, &b, &opts)?
     };
     let pinres = |f: Arc<dyn DensityField>| -> Result<Arc<dyn TransportEstimator>> {

@@ -70,7 +70,8 @@ with residual@min, times ratio tracking of the residual; CPU only), urm[@N]
 longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
 tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
 hash-grid radiance cache), pinurm[@N] (unbiased ray marching around the pins' answer: the
-pins give the control optical depth, combs of N lookups correct it; CPU only),
+pins give the control optical depth, combs of N lookups correct it; CPU only), pinres
+(residual ratio tracking over the control the bake stores per 4^3-voxel brick; CPU only),
 cosine-closed-form / box-closed-form (exact transmittance),
 whole-volume (box-ss only). rm@STEP, delta, ratio, urm, jackknife, pins and pinms also run on
 the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
