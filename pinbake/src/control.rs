@@ -185,3 +185,82 @@ fn brick_control(
     let m = o.floor * spread;
     [c, (m as f32).clamp(f32::MIN_POSITIVE, f32::MAX), big]
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::source::ProceduralSpec;
+
+    fn sphere() -> Box<dyn DensitySource> {
+        "sphere:radius=0.3,density=3"
+            .parse::<ProceduralSpec>()
+            .unwrap()
+            .build()
+            .unwrap()
+    }
+
+    /// The section keeps its rules (what verify checks) on a sphere whose corners are empty,
+    /// empty bricks are exactly the ones the source bounds by zero, and the bytes do not
+    /// depend on the thread count.
+    #[test]
+    fn control_is_valid_empty_where_bounded_by_zero_and_deterministic() {
+        let src = sphere();
+        let bbox = src.bounds();
+        let opts = ControlOptions {
+            dims: ControlDims::Exact([9, 7, 8]),
+            ..ControlOptions::default()
+        };
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| bake_control(&*src, &bbox, &opts).unwrap())
+        };
+        let c = run(1);
+        assert_eq!(c, run(3));
+        let bytes = c.to_bytes().unwrap();
+        pin_format::ControlView::parse(&bytes)
+            .unwrap()
+            .check_values()
+            .unwrap();
+        let mut empty = 0;
+        for i in 0..c.control.len() {
+            assert_eq!(c.residual[i] == 0.0, c.majorant[i] == 0.0, "brick {i}");
+            empty += usize::from(c.majorant[i] == 0.0);
+        }
+        assert!(empty > 0 && empty < c.control.len());
+    }
+
+    /// Bad options are errors, not panics: an edge of 0, a floor outside (0, 1], a negative
+    /// thickness, and more bricks than the limit.
+    #[test]
+    fn bad_control_options_are_errors() {
+        let src = sphere();
+        let bbox = src.bounds();
+        for opts in [
+            ControlOptions {
+                dims: ControlDims::Edge(0),
+                ..ControlOptions::default()
+            },
+            ControlOptions {
+                floor: 0.0,
+                ..ControlOptions::default()
+            },
+            ControlOptions {
+                floor: 1.5,
+                ..ControlOptions::default()
+            },
+            ControlOptions {
+                thickness: -1.0,
+                ..ControlOptions::default()
+            },
+            ControlOptions {
+                dims: ControlDims::Exact([1 << 10, 1 << 10, 1 << 8]),
+                ..ControlOptions::default()
+            },
+        ] {
+            assert!(bake_control(&*src, &bbox, &opts).is_err(), "{opts:?}");
+        }
+    }
+}
