@@ -53,8 +53,11 @@ impl BakedResidualTracking {
 
     /// Over `field`, from the control section of `grid` placed by `local_to_world` (the
     /// file's own when `None`): a positive scale and a translation per axis, as the
-    /// renderer's fields are axis-aligned; `other` as in [`Self::new`]. An error when the
-    /// grid has no control section.
+    /// renderer's fields are axis-aligned; `other` as in [`Self::new`]. Where `field` bounds
+    /// itself ([`DensityField::max_extinction`]), a brick's majorant is raised to that bound
+    /// and an empty brick where the field is not 0 gets a residual majorant, so that a field
+    /// other than the baked one (the file's f16 copy) is still tracked without bias. An error
+    /// when the grid has no control section.
     pub fn from_grid(
         field: Arc<dyn DensityField>,
         grid: &PinGrid,
@@ -88,13 +91,41 @@ impl BakedResidualTracking {
         }
         let (blo, bhi) = control.bounds();
         let to_world = |p: [f64; 3]| [0, 1, 2].map(|a| scale[a] * p[a] + m[4 * a + 3]);
+        let (lo, hi) = (to_world(blo), to_world(bhi));
+        let dims = control.dims();
+        let mut residual = control.residual().to_vec();
+        let mut majorant = control.majorant().to_vec();
+        // The section bounds the field the bake saw; the renderer may track another (the
+        // file's f16 copy, whose rounding and resampling reach a little past it). Where the
+        // field bounds itself, each brick's majorant is raised to that bound (delta tracking
+        // needs one), and an empty brick (`m = 0`, skipped by the walk) where the field is
+        // not 0 gets `m` = that bound, so that the walk is unbiased for the field it reads.
+        let size = [0, 1, 2].map(|a| (hi[a] - lo[a]) / f64::from(dims[a]));
+        let mut k = 0;
+        for z in 0..dims[2] {
+            for y in 0..dims[1] {
+                for x in 0..dims[0] {
+                    let i = [x, y, z];
+                    let blo = [0, 1, 2].map(|a| lo[a] + size[a] * f64::from(i[a]));
+                    let bhi = [0, 1, 2].map(|a| lo[a] + size[a] * f64::from(i[a] + 1));
+                    if let Some(e) = field.max_extinction(blo, bhi) {
+                        let e = if e > 0.0 { e.min(f32::MAX) } else { 0.0 };
+                        majorant[k] = majorant[k].max(e);
+                        if residual[k] == 0.0 && e > 0.0 {
+                            residual[k] = e;
+                        }
+                    }
+                    k += 1;
+                }
+            }
+        }
         Self::new(
             field,
-            (to_world(blo), to_world(bhi)),
-            control.dims(),
+            (lo, hi),
+            dims,
             control.control().to_vec(),
-            control.residual().to_vec(),
-            control.majorant().to_vec(),
+            residual,
+            majorant,
             other,
         )
     }

@@ -1572,3 +1572,70 @@ fn pinres_reads_the_control_section() {
     let rotated = [0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
     assert!(BakedResidualTracking::from_grid(field, &grid, Some(&rotated), None).is_err());
 }
+
+/// A control section that does not fit the field it is rendered with (an "empty" brick where
+/// the field is not 0, a majorant below the field): `from_grid` raises them from the field's
+/// own bound, and the estimate stays unbiased (z-test, fixed seed, 40,000 estimates); the
+/// section's values used as they are (the mutation, through `new`) are biased.
+#[test]
+fn pinres_fits_the_section_to_the_field() {
+    use pin_format::{Directions, OwnedControl, OwnedPinGrid, PinEntry, grid_desc};
+    let sigma = 1.5f32;
+    let field: Arc<dyn DensityField> = unit_box(sigma);
+    let mut desc = grid_desc([1; 3], Directions::Octahedral { n: 1 }, 1, 1);
+    desc.box_min = [0.0; 3];
+    desc.box_max = [1.0; 3];
+    // Brick 0 claims to be empty; brick 1's majorant is below the field.
+    let control = OwnedControl {
+        dims: [2, 1, 1],
+        control: vec![0.0, 1.0],
+        residual: vec![0.0, 0.5],
+        majorant: vec![0.0, 1.0],
+    };
+    let owned = OwnedPinGrid {
+        desc,
+        tile: None,
+        cell_index: None,
+        pins: vec![PinEntry::EMPTY],
+        majorant: None,
+        density: None,
+        sparse_density: None,
+        control: Some(control.clone()),
+        metadata: None,
+    };
+    let grid = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    let fitted = BakedResidualTracking::from_grid(field.clone(), &grid, None, None).unwrap();
+    let (_, residual) = fitted.controls();
+    assert_eq!(residual, &[sigma, 0.5]);
+    let as_is = BakedResidualTracking::new(
+        field,
+        ([0.0; 3], [1.0; 3]),
+        control.dims,
+        control.control,
+        control.residual,
+        control.majorant,
+        None,
+    )
+    .unwrap();
+    let (o, d) = (Vec3::new(-0.5, 0.5, 0.5), Vec3::X);
+    let exact = (-(sigma as f64)).exp();
+    let z = |est: &BakedResidualTracking, seed: u64| {
+        let mut rng = Pcg32::new(seed, 1);
+        let (m, se) = mean_se(40_000, || {
+            est.transmittance(o, d, f32::INFINITY, &mut rng) as f64
+        });
+        (m - exact).abs() / (se + 1e-9)
+    };
+    assert!(z(&fitted, 5) < 5.0);
+    assert!(z(&as_is, 5) > 5.0);
+    // Distances over the raised majorants: the fraction of rays without a collision.
+    let mut rng = Pcg32::new(6, 1);
+    let (m, se) = mean_se(40_000, || {
+        f64::from(u8::from(
+            fitted
+                .sample_distance(o, d, f32::INFINITY, &mut rng)
+                .is_none(),
+        ))
+    });
+    assert!((m - exact).abs() <= 5.0 * se, "{m} vs {exact} ({se})");
+}
