@@ -72,6 +72,7 @@ fn write_small(path: &Path) {
         majorant: None,
         density: None,
         sparse_density: None,
+        control: None,
         metadata: None,
     };
     grid.write_atomic(path).unwrap();

@@ -87,10 +87,13 @@ pub enum SectionKind {
     /// [`SparseDensityHeader`], a `u32` per brick (slot or [`EMPTY_BRICK`]), then the
     /// stored bricks' voxels (format 1.1).
     SparseDensity = 8,
+    /// [`ControlHeader`], then three `f32` arrays of one value per brick: the control
+    /// extinction, the residual majorant and the majorant (format 1.1).
+    Control = 9,
 }
 
 impl SectionKind {
-    pub const ALL: [SectionKind; 8] = [
+    pub const ALL: [SectionKind; 9] = [
         SectionKind::GridDesc,
         SectionKind::Pins,
         SectionKind::CellIndex,
@@ -99,6 +102,7 @@ impl SectionKind {
         SectionKind::Metadata,
         SectionKind::Tile,
         SectionKind::SparseDensity,
+        SectionKind::Control,
     ];
 
     pub fn from_u32(v: u32) -> Option<Self> {
@@ -115,6 +119,7 @@ impl SectionKind {
             SectionKind::Metadata => "metadata",
             SectionKind::Tile => "tile",
             SectionKind::SparseDensity => "sparse-density",
+            SectionKind::Control => "control",
         }
     }
 }
@@ -189,6 +194,17 @@ impl PinEntry {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
 pub struct MajorantHeader {
+    pub dims: [u32; 3],
+    pub reserved: u32,
+}
+
+/// Prefix of the control section (16 bytes, format 1.1), followed by three `f32` arrays of
+/// `n = dims.x * dims.y * dims.z` values each, x fastest: the control extinction `c`, the
+/// residual majorant `m` and the majorant `M` of every brick. The bricks tile the grid box
+/// uniformly, as the majorant section's do (docs/format.md section 5.8).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct ControlHeader {
     pub dims: [u32; 3],
     pub reserved: u32,
 }

@@ -21,6 +21,7 @@
 //!     majorant: None,
 //!     density: None,
 //!     sparse_density: None,
+//!     control: None,
 //!     metadata: None,
 //! };
 //! let bytes = grid.to_bytes().unwrap();
@@ -33,6 +34,7 @@
 compile_error!("pin files are little-endian and read in place; big-endian hosts are not supported");
 
 mod checksum;
+mod control;
 mod directions;
 mod error;
 pub mod input;
@@ -47,11 +49,12 @@ pub mod text;
 mod writer;
 
 pub use checksum::checksum;
+pub use control::{ControlView, OwnedControl};
 pub use directions::{Directions, MAX_DIRECTIONS, atan2_turns, octahedral_uv};
 pub use error::{FormatError, Result};
 pub use layout::{
-    DensityHeader, EMPTY_CELL, FileHeader, GridDesc, MajorantHeader, PinEntry, SectionEntry,
-    SectionKind, SparseDensityHeader, TileDesc,
+    ControlHeader, DensityHeader, EMPTY_CELL, FileHeader, GridDesc, MajorantHeader, PinEntry,
+    SectionEntry, SectionKind, SparseDensityHeader, TileDesc,
 };
 pub use metadata::{MAX_METADATA_BYTES, Metadata};
 pub use owned::{OwnedPinGrid, grid_desc};

@@ -9,6 +9,7 @@ use std::io::{Cursor, Seek, Write};
 #[cfg(feature = "writer")]
 use std::path::Path;
 
+use crate::control::OwnedControl;
 use crate::error::{FormatError, Result};
 use crate::layout::*;
 use crate::metadata::Metadata;
@@ -30,6 +31,9 @@ pub struct OwnedPinGrid {
     pub density: Option<(DensityHeader, Vec<half::f16>)>,
     /// The sparse, bricked density (format 1.1; its presence makes the file 1.1).
     pub sparse_density: Option<OwnedSparseDensity>,
+    /// The per-brick control of residual ratio tracking (format 1.1; its presence makes the
+    /// file 1.1).
+    pub control: Option<OwnedControl>,
     pub metadata: Option<Metadata>,
 }
 
@@ -80,6 +84,12 @@ impl OwnedPinGrid {
         if let Some(s) = &self.sparse_density {
             s.view()
                 .map_err(|e| FormatError::InvalidInput(format!("sparse density: {e}")))?;
+        }
+        if let Some(c) = &self.control {
+            let bytes = c.to_bytes()?;
+            crate::control::ControlView::parse(&bytes)
+                .and_then(|v| v.check_values())
+                .map_err(|e| FormatError::InvalidInput(format!("control: {e}")))?;
         }
         Ok(shape)
     }
@@ -134,6 +144,9 @@ impl OwnedPinGrid {
             }
             w.end_section()?;
         }
+        if let Some(c) = &self.control {
+            w.add_section(SectionKind::Control as u32, 0, &c.to_bytes()?)?;
+        }
         if let Some(m) = &self.metadata {
             w.add_section(SectionKind::Metadata as u32, 0, &m.encode()?)?;
         }
@@ -184,6 +197,7 @@ impl OwnedPinGrid {
             sparse_density: file
                 .sparse_density()
                 .map(|v| OwnedSparseDensity::from_view(&v)),
+            control: file.control().map(|v| OwnedControl::from_view(&v)),
             metadata: file.metadata().transpose()?,
         })
     }

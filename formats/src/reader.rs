@@ -9,6 +9,7 @@ use bytemuck::Pod;
 
 use crate::checksum::checksum;
 use crate::checksum::header_checksum;
+use crate::control::ControlView;
 use crate::error::{FormatError, Result};
 use crate::layout::*;
 use crate::metadata::{MAX_METADATA_BYTES, Metadata};
@@ -43,6 +44,7 @@ pub struct PinFile<'a> {
     majorant: Option<MajorantView<'a>>,
     density: Option<DensityView<'a>>,
     sparse_density: Option<SparseDensityView<'a>>,
+    control: Option<ControlView<'a>>,
     metadata: Option<&'a [u8]>,
 }
 
@@ -335,6 +337,9 @@ impl<'a> PinFile<'a> {
         let sparse_density = body(SectionKind::SparseDensity)
             .map(|(_, b)| SparseDensityView::parse(b))
             .transpose()?;
+        let control = body(SectionKind::Control)
+            .map(|(_, b)| ControlView::parse(b))
+            .transpose()?;
         let metadata = match body(SectionKind::Metadata) {
             Some((_, b)) if b.len() > MAX_METADATA_BYTES => {
                 return Err(FormatError::BadMetadata(format!(
@@ -357,6 +362,7 @@ impl<'a> PinFile<'a> {
             majorant,
             density,
             sparse_density,
+            control,
             metadata,
         })
     }
@@ -442,6 +448,9 @@ impl<'a> PinFile<'a> {
                 ));
             }
         }
+        if let Some(c) = &self.control {
+            c.check_values()?;
+        }
         if self.metadata.is_some() {
             self.metadata().transpose()?;
         }
@@ -475,6 +484,10 @@ impl<'a> PinFile<'a> {
     }
     pub fn density(&self) -> Option<DensityView<'a>> {
         self.density
+    }
+    /// The control section (format 1.1), lengths checked; values by `verify`.
+    pub fn control(&self) -> Option<ControlView<'a>> {
+        self.control
     }
     /// The sparse, bricked density (format 1.1), lengths checked; entries by `verify`.
     pub fn sparse_density(&self) -> Option<SparseDensityView<'a>> {

@@ -145,11 +145,14 @@ impl<W: Write + Seek> PinFileWriter<W> {
     }
 }
 
-/// The lowest minor version that can describe `sections`: 1.0 unless a 1.1 section is there,
-/// so that files without one stay byte-identical 1.0 files.
+/// The lowest minor version that can describe `sections`: 1.0 unless a 1.1 section (sparse
+/// density, control) is there, so that files without one stay byte-identical 1.0 files.
 fn version_minor(sections: &[SectionEntry]) -> u16 {
-    let sparse = SectionKind::SparseDensity as u32;
-    if sections.iter().any(|s| s.kind == sparse) {
+    let newer = [
+        SectionKind::SparseDensity as u32,
+        SectionKind::Control as u32,
+    ];
+    if sections.iter().any(|s| newer.contains(&s.kind)) {
         VERSION_MINOR_SPARSE_DENSITY
     } else {
         VERSION_MINOR

@@ -886,3 +886,75 @@ fn only_a_sparse_density_makes_a_file_1_1() {
         assert_eq!(back, g);
     }
 }
+
+/// A grid with a 3x2x2 control section (format 1.1): the third brick empty.
+fn control_grid() -> OwnedPinGrid {
+    let mut g = full_grid();
+    let n = 12;
+    let mut control = OwnedControl {
+        dims: [3, 2, 2],
+        control: (0..n).map(|i| 0.5 + i as f32 * 0.1).collect(),
+        residual: (0..n).map(|i| 0.25 + i as f32 * 0.05).collect(),
+        majorant: (0..n).map(|i| 1.0 + i as f32 * 0.2).collect(),
+    };
+    control.control[2] = 0.0;
+    control.residual[2] = 0.0;
+    control.majorant[2] = 0.0;
+    g.control = Some(control);
+    g
+}
+
+/// The control section round-trips and makes the file 1.1; a lying header, a length that
+/// does not match its dims, and a truncated section are parse errors of the control section
+/// (lengths are checked before any count is used); values that break the section's rules pass
+/// parse and fail verify.
+#[test]
+fn lying_control_section() {
+    let kind = SectionKind::Control;
+    let g = control_grid();
+    let good = g.to_bytes().unwrap();
+    assert_eq!(header(&good).version_minor, 1);
+    let f = PinFile::parse(&good).unwrap();
+    f.verify().unwrap();
+    assert_eq!(OwnedPinGrid::from_file(&f).unwrap(), g);
+    // Without the section the same grid is the same 1.0 bytes as ever.
+    let mut plain = g.clone();
+    plain.control = None;
+    assert_eq!(plain.to_bytes().unwrap(), full_grid().to_bytes().unwrap());
+    for (word, v) in [(0usize, 0u32), (1, 3), (2, u32::MAX), (0, 4)] {
+        let mut d = good.clone();
+        patch_section(&mut d, kind, |s| {
+            s[word * 4..word * 4 + 4].copy_from_slice(&v.to_le_bytes())
+        });
+        assert_err!(parse_err(&d), FormatError::BadData(k, _) if k == kind);
+    }
+    for len in [0u64, 15, 16, 16 + 12 * 12 - 4] {
+        let mut d = good.clone();
+        let i = section_position(&d, kind);
+        patch_table(&mut d, |t| t[i].length = len);
+        assert_err!(parse_err(&d), FormatError::BadData(k, _) if k == kind);
+    }
+    // (array, brick, value, what the message names): a NaN, a negative, a control above the
+    // majorant, a residual majorant of 0 in a brick that is not empty.
+    let at = |array: usize, brick: usize| 16 + 4 * (12 * array + brick);
+    for (array, brick, v, want) in [
+        (0, 0, f32::NAN, "finite"),
+        (2, 5, -1.0, "finite"),
+        (1, 7, f32::INFINITY, "finite"),
+        (0, 1, 10.0, "above its majorant"),
+        (1, 4, 0.0, "residual majorant 0"),
+    ] {
+        let mut d = good.clone();
+        patch_section(&mut d, kind, |s| {
+            s[at(array, brick)..at(array, brick) + 4].copy_from_slice(&v.to_le_bytes())
+        });
+        let e = verify_err(&d);
+        assert_err!(&e, FormatError::BadData(k, m) if *k == kind && m.contains(want));
+    }
+    // An owned grid that breaks the rules is refused before anything is written.
+    let mut bad = g.clone();
+    bad.control.as_mut().unwrap().residual[0] = 0.0;
+    assert!(bad.to_bytes().is_err());
+    bad.control.as_mut().unwrap().residual.pop();
+    assert!(bad.to_bytes().is_err());
+}

@@ -60,6 +60,8 @@ pub struct BakeOptions {
     /// The embedded sparse, bricked f16 density (format 1.1) and its voxel dims; `None`
     /// leaves the section out.
     pub embed_sparse: Option<crate::sparse_density::SparseDims>,
+    /// The control section (format 1.1) for residual ratio tracking; `None` leaves it out.
+    pub embed_control: Option<crate::control::ControlOptions>,
     /// Worker threads; `None` means rayon's default.
     pub threads: Option<usize>,
     /// Recorded in the metadata; the source's density scale is already applied to values.
@@ -92,6 +94,7 @@ impl Default for BakeOptions {
             majorant: Some([16; 3]),
             embed_density: None,
             embed_sparse: None,
+            embed_control: None,
             threads: None,
             density_scale: 1.0,
             metadata: Metadata::default(),
@@ -450,8 +453,13 @@ fn bake_in_pool(
         block_len,
         started,
     )?;
-    if sparse.is_some() {
+    let control = opts
+        .embed_control
+        .map(|c| crate::control::bake_control(source, &bbox, &c))
+        .transpose()?;
+    if sparse.is_some() || control.is_some() {
         grid.sparse_density = sparse;
+        grid.control = control;
         grid.validate()?;
     }
     Ok((grid, stats))
@@ -539,6 +547,7 @@ pub(crate) fn finish(
         majorant,
         density,
         sparse_density: None,
+        control: None,
         metadata: Some(metadata),
     };
     grid.validate()?;

@@ -21,6 +21,7 @@ pub mod bake;
 pub mod choose;
 #[cfg(feature = "cli")]
 pub mod cli_args;
+pub mod control;
 pub mod files;
 pub mod limits;
 pub mod merge;

@@ -118,12 +118,15 @@ pub fn merge_tiles(tiles: &[(String, PinFile<'_>)]) -> Result<OwnedPinGrid, Merg
         majorant: None,
         density: None,
         sparse_density: None,
+        control: None,
         metadata: first.metadata().transpose()?,
     };
     let mut grid = grid;
     let full = OwnedPinGrid::from_file(first)?;
     grid.majorant = full.majorant;
     grid.density = full.density;
+    // Like the majorants, the control covers the whole box in every tile.
+    grid.control = full.control;
     grid.validate()?;
     Ok(grid)
 }

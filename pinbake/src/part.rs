@@ -229,6 +229,11 @@ fn check(part: Part, opts: &BakeOptions) -> Result<(), BakeError> {
             "--embed-density is not available in a part bake (--part)".into(),
         ));
     }
+    if opts.embed_control.is_some() {
+        return Err(BakeError::Options(
+            "--embed-control is not available in a part bake (--part)".into(),
+        ));
+    }
     crate::bake::check_step(opts)
 }
 

@@ -105,6 +105,8 @@ pub struct BakeRequest {
     pub embed_density: Option<[u32; 3]>,
     /// An embedded sparse, bricked f16 density (format 1.1) with these voxel dims.
     pub embed_sparse: Option<crate::sparse_density::SparseDims>,
+    /// The control section for residual ratio tracking (format 1.1), by these options.
+    pub embed_control: Option<crate::control::ControlOptions>,
     /// Worker threads, 1..=[`crate::limits::max_threads`] (all cores when `None`).
     pub threads: Option<usize>,
     /// Density multiplier, finite and >= 0 (recorded in the metadata; a source spec carries
@@ -130,6 +132,7 @@ impl Default for BakeRequest {
             majorant: d.majorant,
             embed_density: None,
             embed_sparse: None,
+            embed_control: None,
             threads: None,
             density_scale: d.density_scale,
             max_memory: None,
@@ -426,6 +429,7 @@ pub fn options(req: &BakeRequest, choice: &Choice, metadata: pin_format::Metadat
         majorant: req.majorant,
         embed_density: req.embed_density,
         embed_sparse: req.embed_sparse,
+        embed_control: req.embed_control,
         threads: req.threads,
         density_scale: req.density_scale,
         metadata,
@@ -697,6 +701,9 @@ fn validate_part(req: &BakeRequest, part: Part) -> Result<(), PlanError> {
     }
     if req.embed_density.is_some() || req.embed_sparse.is_some() {
         return Err(usage("--embed-density is not available with --part".into()));
+    }
+    if req.embed_control.is_some() {
+        return Err(usage("--embed-control is not available with --part".into()));
     }
     Ok(())
 }

@@ -500,12 +500,14 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
 /// Loads `--pins FILE`, or bakes the volume in memory as `pinbake bake` would by default: the
 /// cells (unless given), directions and pins per entry chosen from the volume by the same
 /// `pinbake::plan` calls as `pinbake bake`, so a render without `--pins` sees the same bake as
-/// a render of `pinbake bake`'s file.
+/// a render of `pinbake bake`'s file. With `control`, the in-memory bake also stores the
+/// control section (`pinbake bake --embed-control`, for `pinres`).
 pub fn pins_for(
     pins: Option<&Path>,
     source: &dyn DensitySource,
     cells: Option<u32>,
     seed: u64,
+    control: bool,
     budget: &pinbake::files::MemoryBudget,
 ) -> Result<PinGrid> {
     if let Some(p) = pins {
@@ -514,6 +516,7 @@ pub fn pins_for(
     let req = pinbake::BakeRequest {
         cells: cells.map(|c| [c; 3]),
         seed,
+        embed_control: control.then(pinbake::control::ControlOptions::default),
         ..pinbake::BakeRequest::default()
     };
     let choice = pinbake::plan::choose(source, &req)?;

@@ -23,6 +23,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pinms",
             "pinms+cache",
             "pinurm",
+            "pinres",
         ],
     ),
     (
@@ -39,6 +40,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pinms",
             "pinms+cache",
             "pinurm",
+            "pinres",
         ],
     ),
     (
@@ -55,6 +57,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pinms",
             "pinms+cache",
             "pinurm",
+            "pinres",
             "cosine-closed-form",
         ],
     ),
@@ -72,6 +75,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pinms",
             "pinms+cache",
             "pinurm",
+            "pinres",
             "box-closed-form",
         ],
     ),
@@ -104,6 +108,7 @@ const EXPECTED: [(&str, &[&str]); 6] = [
             "pinms",
             "pinms+cache",
             "pinurm",
+            "pinres",
         ],
     ),
 ];
@@ -667,4 +672,7 @@ fn the_estimator_catalogue_is_json_with_the_contract_fields() {
     assert_eq!(get("pinurm")["needs_bake"], true);
     assert_eq!(get("pinurm")["unbiased"], true);
     assert_eq!(get("pinurm")["gpu"], false);
+    assert_eq!(get("pinres")["needs_bake"], true);
+    assert_eq!(get("pinres")["unbiased"], true);
+    assert_eq!(get("pinres")["gpu"], false);
 }

@@ -89,6 +89,7 @@
 //!     majorant: None,
 //!     density: None,
 //!     sparse_density: None,
+//!     control: None,
 //!     metadata: None,
 //! };
 //! let dir = tempfile::tempdir()?;
@@ -166,7 +167,7 @@ pub use sampler::{
     BATCH, GpuRay, GpuResult, NO_ENTRY, NO_INTERVAL, QueryMode, QueryResult, Ray, RayQuery,
     Sampler, SamplerOptions, status,
 };
-pub use sections::{Density, Majorants};
+pub use sections::{Control, Density, Majorants};
 pub use sparse::SparseDensity;
 
 /// The WGSL source of the GPU path (`shaders/pin.wgsl`).

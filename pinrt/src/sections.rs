@@ -8,7 +8,7 @@
 //! of a view need no checks of their own. Both live in the grid's local box
 //! `[box_min, box_max]` (placed in the world by the grid's `local_to_world`).
 
-use pin_format::{DensityView, MajorantView};
+use pin_format::{ControlView, DensityView, MajorantView};
 
 use crate::error::{Error, Result};
 use crate::loader::PinGrid;
@@ -33,6 +33,60 @@ pub struct Density<'g> {
     values: &'g [half::f16],
     box_min: [f64; 3],
     box_max: [f64; 3],
+}
+
+/// The control section (format 1.1): per brick of a grid tiling the grid box uniformly
+/// (`x` fastest), a control extinction, a residual majorant and a majorant, for residual ratio
+/// tracking (docs/format.md section 5.8). A view of the grid's bytes, validated when made by
+/// the format's rules (every value finite and `>= 0`, control at most the majorant, a residual
+/// majorant of 0 only in an empty brick), in the grid's local box.
+#[derive(Clone, Copy, Debug)]
+pub struct Control<'g> {
+    view: ControlView<'g>,
+    box_min: [f64; 3],
+    box_max: [f64; 3],
+}
+
+impl<'g> Control<'g> {
+    /// Validates a section view over the box `[box_min, box_max]`.
+    pub fn new(
+        view: ControlView<'g>,
+        box_min: [f64; 3],
+        box_max: [f64; 3],
+    ) -> std::result::Result<Self, String> {
+        check_dims("control", view.dims, view.control.len())?;
+        view.check_values().map_err(|e| e.to_string())?;
+        Ok(Self {
+            view,
+            box_min,
+            box_max,
+        })
+    }
+
+    /// Bricks along x, y, z (each `>= 1`).
+    pub fn dims(&self) -> [u32; 3] {
+        self.view.dims
+    }
+
+    /// The control extinction per brick.
+    pub fn control(&self) -> &'g [f32] {
+        self.view.control
+    }
+
+    /// The residual majorant per brick (0 only in an empty brick).
+    pub fn residual(&self) -> &'g [f32] {
+        self.view.residual
+    }
+
+    /// The majorant per brick.
+    pub fn majorant(&self) -> &'g [f32] {
+        self.view.majorant
+    }
+
+    /// The grid's local box the bricks tile.
+    pub fn bounds(&self) -> ([f64; 3], [f64; 3]) {
+        (self.box_min, self.box_max)
+    }
 }
 
 /// `dims[0] * dims[1] * dims[2]` when every dim is `>= 1` and the product equals `len`.
@@ -222,6 +276,15 @@ impl PinGrid {
             .transpose()
     }
 
+    /// The control section (format 1.1), validated; `None` if the file has none.
+    pub fn control(&self) -> Result<Option<Control<'_>>> {
+        let file = self.file()?;
+        let d = self.desc();
+        file.control()
+            .map(|v| Control::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
+            .transpose()
+    }
+
     /// The embedded density section, validated; `None` if the file has none.
     pub fn density(&self) -> Result<Option<Density<'_>>> {
         let file = self.file()?;
@@ -259,6 +322,7 @@ mod tests {
                 (DensityHeader { dims, encoding }, v)
             }),
             sparse_density: None,
+            control: None,
             metadata: None,
         };
         owned.to_bytes().unwrap()

@@ -171,6 +171,7 @@ mod tests {
                 },
                 dense,
             )),
+            control: None,
             sparse_density: Some(OwnedSparseDensity {
                 header: SparseDensityHeader {
                     dims,

@@ -57,6 +57,7 @@ pub fn random_grid(
         majorant: None,
         density: None,
         sparse_density: None,
+        control: None,
         metadata: None,
     }
 }
@@ -71,6 +72,7 @@ pub fn single_entry_grid(entry: PinEntry) -> OwnedPinGrid {
         majorant: None,
         density: None,
         sparse_density: None,
+        control: None,
         metadata: None,
     }
 }

@@ -438,6 +438,7 @@ fn bake(
         majorant: (majorant != [0; 3]).then_some(majorant),
         embed_density,
         embed_sparse: None,
+        embed_control: None,
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),

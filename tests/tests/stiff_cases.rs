@@ -961,6 +961,7 @@ fn homogeneous_grid(dirs: Directions, entry: PinEntry) -> PinGrid {
         majorant: None,
         density: None,
         sparse_density: None,
+        control: None,
         metadata: None,
     };
     PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap()

@@ -148,6 +148,7 @@ pub fn build_grid(p: &GridParams) -> OwnedPinGrid {
         majorant,
         density,
         sparse_density: None,
+        control: None,
         metadata: p.metadata.clone(),
     }
 }
@@ -229,6 +230,7 @@ pub fn golden_grid() -> OwnedPinGrid {
         )),
         density: None,
         sparse_density: None,
+        control: None,
         metadata: Some(Metadata {
             tool: "pinbake".into(),
             tool_version: "0.1.0".into(),

@@ -86,6 +86,13 @@ pub struct BakeArgs {
     /// 4096 per axis (for tracked and ray-marched rays from the .pin alone).
     #[arg(long, value_parser = parse_embed_density, help_heading = "Grid")]
     pub embed_density: Option<EmbedDensity>,
+    /// Embed the control of residual ratio tracking (a format 1.1 file): per brick of EDGE
+    /// source voxels per axis (default 4, at most 64), a control extinction, a residual
+    /// majorant and a majorant, for `pinrender`'s unbiased `pinres` estimator
+    /// (docs/final-frames.md).
+    #[arg(long, value_name = "EDGE", num_args = 0..=1, default_missing_value = "4",
+          value_parser = parse_control_edge, help_heading = "Grid")]
+    pub embed_control: Option<u32>,
 
     /// Bake only tile I of N (a slab of z layers); join tiles with `pinbake merge`.
     #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
@@ -133,6 +140,14 @@ fn parse_u32x3_max4096(s: &str) -> Result<[u32; 3], String> {
         return Err(format!("{v:?}: at most 4096 per axis"));
     }
     Ok(v)
+}
+
+/// `--embed-control`: source voxels per brick edge, 1..=64.
+fn parse_control_edge(s: &str) -> Result<u32, String> {
+    match s.trim().parse::<u32>() {
+        Ok(e) if (1..=64).contains(&e) => Ok(e),
+        _ => Err(format!("'{s}': a brick edge of 1..=64 voxels")),
+    }
 }
 
 /// What `--embed-density` asks for.
@@ -251,6 +266,12 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
             Some(EmbedDensity::Sparse(s)) => Some(s),
             _ => None,
         },
+        embed_control: args
+            .embed_control
+            .map(|edge| pinbake::control::ControlOptions {
+                dims: pinbake::control::ControlDims::Edge(edge),
+                ..pinbake::control::ControlOptions::default()
+            }),
         threads: args.threads,
         density_scale: args.volume.density_scale,
         max_memory: args.max_memory,

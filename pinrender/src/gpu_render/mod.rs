@@ -239,7 +239,7 @@ impl GpuEstimator {
             Self::Jackknife { .. } => (EST_JACKKNIFE, EST_JACKKNIFE),
             Self::Pins => (EST_PINS, EST_PINS),
             Self::PinMs => (EST_RATIO, EST_PINS),
-            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. } => {
+            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. } | Self::PinRes => {
                 return Err(RenderError::Invalid {
                     what: "estimator",
                     why: format!("{self} runs on the CPU path tracer only (--backend cpu)"),

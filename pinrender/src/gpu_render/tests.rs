@@ -60,6 +60,7 @@ fn blob_grid(cells: u32, directions: Directions, ppe: u32, strength: f32) -> Own
         majorant: None,
         density: None,
         sparse_density: None,
+        control: None,
         metadata: None,
     }
 }
@@ -591,7 +592,9 @@ impl MultiScene {
                             .unwrap(),
                     ),
                     // CPU only: the GPU renderer refuses it before any medium is built.
-                    GpuEstimator::PinUrm { .. } => panic!("{est} has no GPU twin to compare"),
+                    GpuEstimator::PinUrm { .. } | GpuEstimator::PinRes => {
+                        panic!("{est} has no GPU twin to compare")
+                    }
                 }
             })
             .collect()

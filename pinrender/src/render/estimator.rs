@@ -786,6 +786,39 @@ impl<F: DensitySource + ?Sized> ResidualRatioTracking<F> {
         })
     }
 
+    /// Given controls and residual majorants on a grid of their own (`residual`, its layout),
+    /// with `majorants` (any grid over the field's support) for distances and paired
+    /// queries. The residual's walk reads the field's dense array only when both grids lie
+    /// inside the field's box.
+    pub fn with_residual_grid(
+        field: Arc<F>,
+        majorants: Arc<MajorantGrid>,
+        residual: MajorantGrid,
+        controls: Vec<f32>,
+    ) -> Result<Self, RenderError> {
+        if controls.len() != residual.values().len()
+            || controls.iter().any(|c| !(c.is_finite() && *c >= 0.0))
+        {
+            return Err(RenderError::Invalid {
+                what: "residual controls",
+                why: format!(
+                    "need {} finite values >= 0, one per residual brick",
+                    residual.values().len()
+                ),
+            });
+        }
+        let mut tracker = Tracker::new(field, majorants);
+        let (flo, fhi) = tracker.field.bounds().to_arrays();
+        let (rlo, rhi) = residual.bounds();
+        tracker.dense &= (0..3).all(|a| rlo[a] >= flo[a] && rhi[a] <= fhi[a]);
+        Ok(ResidualRatioTracking {
+            tracker,
+            residual,
+            controls,
+            control: None,
+        })
+    }
+
     /// The controls and residual majorants per brick (the grids' layout).
     pub fn controls(&self) -> (&[f32], &[f32]) {
         (&self.controls, self.residual.values())

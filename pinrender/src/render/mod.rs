@@ -99,6 +99,7 @@
 //! collision), NaN and negative extinction count as 0 and `+inf` as opaque, non-finite path
 //! samples are dropped.
 
+mod baked_control;
 mod bounds;
 mod bricks;
 pub mod cache;
@@ -121,6 +122,7 @@ pub mod whole_volume;
 #[cfg(test)]
 mod tests;
 
+pub use baked_control::BakedResidualTracking;
 pub use bricks::BrickGrid;
 pub use cache::RadianceCache;
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};

@@ -16,6 +16,8 @@ pub struct PinsEstimator {
     grid: Arc<PinGrid>,
     xf: UnitTransform,
     opts: SamplerOptions,
+    /// The row-major 3x4 local-to-world placement (the file's own unless given).
+    placement: [f64; 12],
     /// The placed grid's world box (the renderer skips the estimator for rays that miss it).
     bounds: Option<([f64; 3], [f64; 3])>,
 }
@@ -35,6 +37,7 @@ impl PinsEstimator {
             })?;
         Ok(Self {
             bounds: xf.world_bounds(),
+            placement: *local_to_world.unwrap_or(&grid.desc().local_to_world),
             grid,
             xf,
             opts,
@@ -44,6 +47,11 @@ impl PinsEstimator {
     /// The shared grid (for the GPU upload).
     pub fn grid(&self) -> &Arc<PinGrid> {
         &self.grid
+    }
+
+    /// The grid's row-major 3x4 local-to-world placement.
+    pub fn placement(&self) -> &[f64; 12] {
+        &self.placement
     }
 
     /// A sampler over the grid with this estimator's placement and options.

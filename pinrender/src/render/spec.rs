@@ -1,6 +1,6 @@
 //! [`EstimatorSpec`]: the one description of a transport estimator, parsed once from the
 //! names the CLI and the evaluation use (`rm@STEP`, `delta`, `ratio`, `residual[@CONTROL]`,
-//! `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`, `pinurm[@N]`), shared by the CPU estimators and the GPU path tracer
+//! `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`, `pinurm[@N]`, `pinres`), shared by the CPU estimators and the GPU path tracer
 //! (`gpu_render::GpuEstimator` is this type).
 
 use std::sync::Arc;
@@ -10,8 +10,8 @@ use super::estimator::{
     TransportEstimator,
 };
 use super::{
-    DensitySource, MajorantGrid, PINURM_DEFAULT_LOOKUPS, PinControlledUrm, PinsEstimator,
-    RenderError,
+    BakedResidualTracking, DensitySource, MajorantGrid, PINURM_DEFAULT_LOOKUPS, PinControlledUrm,
+    PinsEstimator, RenderError,
 };
 
 /// Smallest relative ray-marching step, one bound for the baker and the renderer
@@ -48,11 +48,14 @@ pub enum EstimatorSpec {
     /// depth, combs of `lookups` per longest edge of the majorant box correct it) for
     /// transmittance, delta tracking for distances. Needs pins, a density and majorants.
     PinUrm { lookups: u32 },
+    /// Residual ratio tracking over the control the bake stores (the pin file's control
+    /// section) for transmittance, delta tracking over the section's majorants for
+    /// distances. Needs the bake (its control section) and a density.
+    PinRes,
 }
 
 /// The names [`EstimatorSpec`] reads, for messages.
-pub const ESTIMATOR_SYNTAX: &str =
-    "rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms, pinurm[@N]";
+pub const ESTIMATOR_SYNTAX: &str = "rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms, pinurm[@N], pinres";
 
 /// The control `residual` means without `@CONTROL`.
 pub const RESIDUAL_DEFAULT_CONTROL: ResidualControl = ResidualControl::Mean;
@@ -98,6 +101,7 @@ impl std::str::FromStr for EstimatorSpec {
             },
             "pins" => Self::Pins,
             "pinms" => Self::PinMs,
+            "pinres" => Self::PinRes,
             s => {
                 let Some(step) = s.strip_prefix("rm@") else {
                     return Err(format!("unknown estimator '{s}' ({ESTIMATOR_SYNTAX})"));
@@ -134,6 +138,7 @@ impl std::fmt::Display for EstimatorSpec {
             Self::PinMs => f.write_str("pinms"),
             Self::PinUrm { lookups } if lookups == PINURM_DEFAULT_LOOKUPS => f.write_str("pinurm"),
             Self::PinUrm { lookups } => write!(f, "pinurm@{lookups}"),
+            Self::PinRes => f.write_str("pinres"),
         }
     }
 }
@@ -212,6 +217,11 @@ pub const ESTIMATORS: &[EstimatorInfo] = &[
         },
         summary: "unbiased ray marching around the pins' answer: their optical depth as the control, combs correct it",
     },
+    EstimatorInfo {
+        name: "pinres",
+        spec: EstimatorSpec::PinRes,
+        summary: "residual ratio tracking over the bake's per-brick control and residual majorant (--embed-control)",
+    },
 ];
 
 impl EstimatorSpec {
@@ -226,6 +236,7 @@ impl EstimatorSpec {
                 | Self::ResidualRatioTracking { .. }
                 | Self::Urm { .. }
                 | Self::PinUrm { .. }
+                | Self::PinRes
         )
     }
 
@@ -233,13 +244,22 @@ impl EstimatorSpec {
     pub fn runs_on_gpu(self) -> bool {
         !matches!(
             self,
-            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. }
+            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. } | Self::PinRes
         )
     }
 
-    /// Whether it queries pin grids.
+    /// Whether it reads the bake: queries pin grids, or (`pinres`) reads the pin file's
+    /// control section.
     pub fn needs_pins(self) -> bool {
-        matches!(self, Self::Pins | Self::PinMs | Self::PinUrm { .. })
+        matches!(
+            self,
+            Self::Pins | Self::PinMs | Self::PinUrm { .. } | Self::PinRes
+        )
+    }
+
+    /// Whether it reads the pin file's control section (`pinbake bake --embed-control`).
+    pub fn needs_control(self) -> bool {
+        self == Self::PinRes
     }
 
     /// Whether it reads the density (every estimator but `pins`).
@@ -262,7 +282,7 @@ impl EstimatorSpec {
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
         Ok(Some(match self {
-            Self::Pins | Self::PinUrm { .. } => return Ok(None),
+            Self::Pins | Self::PinUrm { .. } | Self::PinRes => return Ok(None),
             Self::RayMarching { rel_step } => Arc::new(RayMarching::new(field()?, rel_step)?),
             Self::DeltaTracking => Arc::new(DeltaTracking::new(field()?, majorants()?)),
             Self::RatioTracking | Self::PinMs => {
@@ -278,8 +298,9 @@ impl EstimatorSpec {
         }))
     }
 
-    /// The CPU estimator of a kind that reads the density and the placed pins together
-    /// (`pinurm`), or `Ok(None)` for every other kind (nothing is built then).
+    /// The CPU estimator of a kind that reads the density and the placed pin grid together
+    /// (`pinurm`; `pinres`, from the grid's control section), or `Ok(None)` for every other
+    /// kind (nothing is built then).
     pub fn build_pin_controlled<E: From<RenderError>>(
         self,
         field: &dyn Fn() -> Result<Arc<dyn DensitySource>, E>,
@@ -293,6 +314,15 @@ impl EstimatorSpec {
                 pins()?,
                 lookups,
             )?)),
+            Self::PinRes => {
+                let pins = pins()?;
+                Some(Arc::new(BakedResidualTracking::from_grid(
+                    field()?,
+                    pins.grid(),
+                    Some(pins.placement()),
+                    majorants().ok(),
+                )?))
+            }
             _ => None,
         })
     }
@@ -344,6 +374,7 @@ mod tests {
             "pinms",
             "pinurm",
             "pinurm@4",
+            "pinres",
         ] {
             let spec: EstimatorSpec = name.parse().unwrap();
             assert_eq!(spec.to_string(), name);

@@ -1314,3 +1314,319 @@ fn residual_pairs_are_ratio_trackings_one_walk() {
         }
     }
 }
+
+/// A renderer's field as a baker's source over the box `[lo, hi]` (the field's own bounds
+/// for the extinction), so that `pinbake::control::bake_control` computes the control of
+/// exactly the field the estimator reads.
+#[cfg(feature = "cli")]
+struct FieldSource {
+    field: Arc<dyn DensitySource>,
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+#[cfg(feature = "cli")]
+impl pinbake::source::DensitySource for FieldSource {
+    fn bounds(&self) -> pinbake::source::Aabb {
+        pinbake::source::Aabb::new(DVec3::from(self.lo), DVec3::from(self.hi))
+    }
+    fn extinction(&self, p: DVec3) -> f32 {
+        self.field.extinction(p.as_vec3().as_dvec3())
+    }
+    fn max_extinction_in(&self, r: pinbake::source::Aabb) -> f32 {
+        self.field.max_extinction_in(r).min(f32::MAX)
+    }
+    fn describe(&self) -> String {
+        "test field".into()
+    }
+}
+
+/// `pinres` over `field`: the control `pinbake` bakes for it over `[lo, hi]` with `dims`
+/// bricks, and, with `wrong_m`, the mutation that stores a residual majorant of 0 in every
+/// brick (the walk then skips the residual: the estimate is `exp(-int c)`).
+#[cfg(feature = "cli")]
+fn baked_pinres(
+    field: Arc<dyn DensitySource>,
+    (lo, hi): ([f64; 3], [f64; 3]),
+    dims: [u32; 3],
+    wrong_m: bool,
+) -> BakedResidualTracking {
+    let src = FieldSource {
+        field: field.clone(),
+        lo,
+        hi,
+    };
+    let opts = pinbake::control::ControlOptions {
+        dims: pinbake::control::ControlDims::Exact(dims),
+        ..pinbake::control::ControlOptions::default()
+    };
+    let c = pinbake::control::bake_control(&src, &src.bounds_box(), &opts).unwrap();
+    let residual = if wrong_m {
+        vec![0.0; c.residual.len()]
+    } else {
+        c.residual
+    };
+    BakedResidualTracking::new(
+        field,
+        (lo, hi),
+        c.dims,
+        c.control,
+        residual,
+        c.majorant,
+        None,
+    )
+    .unwrap()
+}
+
+#[cfg(feature = "cli")]
+impl FieldSource {
+    fn bounds_box(&self) -> pinbake::source::Aabb {
+        pinbake::source::DensitySource::bounds(self)
+    }
+}
+
+/// `pinres` against closed forms, with the control `pinbake` bakes (fixed seeds, 40,000
+/// estimates per ray, 5 standard errors): a homogeneous box inside a wider control grid
+/// (bricks straddle its faces, so controls lie between 0 and the extinction and residuals
+/// have both signs), and the cosine-noise cube. Each estimate is also the estimator's own
+/// `transmittance`, draw for draw (`residual_z`). Two mutations must fail: the control's
+/// depth dropped (`exp(-int c)` left out), and residual majorants of 0 (the wrong `m`).
+#[cfg(feature = "cli")]
+#[test]
+fn pinres_is_unbiased_against_closed_forms() {
+    use super::closed_form::tests::CosNoise;
+    let sigma = 2.0f32;
+    let s = sigma as f64;
+    let boxed: Arc<dyn DensitySource> = unit_box(sigma);
+    let box_rays: Vec<ExactRay> = vec![
+        (
+            Vec3::new(-1.0, 0.5, 0.5),
+            Vec3::X,
+            f32::INFINITY,
+            (-s).exp(),
+        ),
+        (Vec3::new(-1.0, 0.3, 0.6), Vec3::X, 1.5, (-s * 0.5).exp()),
+        (
+            Vec3::splat(0.5),
+            Vec3::ONE.normalize(),
+            f32::INFINITY,
+            (-s * 0.5 * 3f64.sqrt()).exp(),
+        ),
+        (
+            Vec3::new(0.3, 0.4, -2.0),
+            Vec3::Z,
+            f32::INFINITY,
+            (-s).exp(),
+        ),
+    ];
+    let noise = Arc::new(CosNoise::new(8, 10.0, 3.0, 5));
+    let exact = |o: Vec3, d: Vec3, t_max: f32| {
+        let (o, d) = (o.as_dvec3(), d.as_dvec3());
+        match super::majorant::clip_box(o, d, &noise.lo, &noise.hi, 0.0, t_max as f64) {
+            Some((t0, t1)) => (-noise.optical_depth(o + d * t0, d, t1 - t0)).exp(),
+            None => 1.0,
+        }
+    };
+    type Case = (
+        Arc<dyn DensitySource>,
+        ([f64; 3], [f64; 3]),
+        [u32; 3],
+        Vec<ExactRay>,
+    );
+    let cases: Vec<Case> = vec![
+        (boxed.clone(), ([-0.3; 3], [1.4; 3]), [5, 4, 7], box_rays),
+        (
+            noise.clone(),
+            (noise.lo, noise.hi),
+            [12, 12, 12],
+            cube_rays(exact),
+        ),
+    ];
+    for (field, bounds, dims, rays) in cases {
+        let est = baked_pinres(field.clone(), bounds, dims, false);
+        let (controls, residual) = est.controls();
+        assert!(controls.iter().any(|&c| c > 0.0) && residual.iter().any(|&m| m > 0.0));
+        let good = residual_z(est.tracking(), &rays, 40_000, 11, 1.0);
+        assert!(good.iter().all(|&z| z < 5.0), "{}: {good:?}", est.name());
+        let dropped = residual_z(est.tracking(), &rays, 40_000, 11, 0.0);
+        assert!(dropped.iter().any(|&z| z > 5.0), "{dropped:?}");
+        let wrong_m = baked_pinres(field, bounds, dims, true);
+        let bad = residual_z(wrong_m.tracking(), &rays, 40_000, 11, 1.0);
+        assert!(bad.iter().any(|&z| z > 5.0), "{bad:?}");
+    }
+}
+
+/// `pinres` against ratio tracking on a voxel grid, through the dense array (fixed seeds):
+/// two-sample z-tests of the mean transmittance, 40,000 `pinres` estimates against 160,000
+/// ratio-tracking ones per ray, within 5 combined standard errors on every ray; the wrong `m`
+/// (residual majorants of 0) fails on some ray. Its distances and paired queries track the
+/// baked majorants, which bound the field: the fraction of rays without a collision matches
+/// ratio tracking's transmittance too.
+#[cfg(feature = "cli")]
+#[test]
+fn pinres_matches_ratio_tracking_on_a_voxel_grid() {
+    let g = Arc::new(contrast_grid());
+    let field: Arc<dyn DensitySource> = g.clone();
+    let (lo, hi) = g.bounds().to_arrays();
+    let maj = Arc::new(MajorantGrid::from_field(&*field, [4, 3, 3]).unwrap());
+    let ratio = RatioTracking::new(field.clone(), maj);
+    let rays: Vec<(Vec3, Vec3, f32)> = cube_rays(|_, _, _| 0.0)
+        .into_iter()
+        .map(|(o, d, t, _)| {
+            (
+                o * Vec3::new(1.35, 1.4, 0.96) + Vec3::new(-0.2, 0.1, 0.0),
+                d,
+                t,
+            )
+        })
+        .collect();
+    let z = |est: &dyn TransportEstimator, seed: u64| -> Vec<f64> {
+        rays.iter()
+            .enumerate()
+            .flat_map(|(k, &(o, d, t_max))| {
+                let mut a = Pcg32::new(seed, k as u64);
+                let mut b = Pcg32::new(seed + 1, k as u64);
+                let mut c = Pcg32::new(seed + 2, k as u64);
+                let want = mean_se(160_000, || ratio.transmittance(o, d, t_max, &mut b) as f64);
+                let got = mean_se(40_000, || est.transmittance(o, d, t_max, &mut a) as f64);
+                let passed = mean_se(40_000, || {
+                    f64::from(u8::from(est.sample_distance(o, d, t_max, &mut c).is_none()))
+                });
+                [got, passed].map(|(m, se)| (m - want.0).abs() / (se.hypot(want.1) + 1e-9))
+            })
+            .collect()
+    };
+    let est = baked_pinres(field.clone(), (lo, hi), [6, 5, 5], false);
+    let good = z(&est, 13);
+    assert!(good.iter().all(|&v| v < 5.0), "{good:?}");
+    let wrong_m = baked_pinres(field, (lo, hi), [6, 5, 5], true);
+    let bad = z(&wrong_m, 13);
+    assert!(bad.iter().any(|&v| v > 5.0), "{bad:?}");
+}
+
+/// `pinres` from a pin grid's control section: placed by the grid's translation, refused
+/// without the section or with a rotated placement, and the same estimator as from the
+/// section's values directly, draw for draw.
+#[test]
+fn pinres_reads_the_control_section() {
+    use pin_format::{Directions, OwnedControl, OwnedPinGrid, PinEntry, grid_desc};
+    let field: Arc<dyn DensitySource> = unit_box(1.5);
+    let mut desc = grid_desc([1; 3], Directions::Octahedral { n: 1 }, 1, 1);
+    desc.box_min = [0.0; 3];
+    desc.box_max = [1.0; 3];
+    let control = OwnedControl {
+        dims: [2, 1, 1],
+        control: vec![1.0, 1.5],
+        residual: vec![0.5, 0.5],
+        majorant: vec![1.5, 1.5],
+    };
+    let mut owned = OwnedPinGrid {
+        desc,
+        tile: None,
+        cell_index: None,
+        pins: vec![PinEntry::EMPTY],
+        majorant: None,
+        density: None,
+        sparse_density: None,
+        control: None,
+        metadata: None,
+    };
+    let plain = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    let e = BakedResidualTracking::from_grid(field.clone(), &plain, None, None).err();
+    assert!(e.is_some_and(|e| e.to_string().contains("--embed-control")));
+    owned.control = Some(control.clone());
+    let grid = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    let shifted = [1.0, 0.0, 0.0, 0.25, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    let est = BakedResidualTracking::from_grid(field.clone(), &grid, Some(&shifted), None).unwrap();
+    assert_eq!(est.bounds(), Some(([0.25, 0.0, 0.0], [1.25, 1.0, 1.0])));
+    let direct = BakedResidualTracking::new(
+        field.clone(),
+        ([0.25, 0.0, 0.0], [1.25, 1.0, 1.0]),
+        control.dims,
+        control.control,
+        control.residual,
+        control.majorant,
+        None,
+    )
+    .unwrap();
+    let (mut a, mut b) = (Pcg32::new(3, 3), Pcg32::new(3, 3));
+    for (o, d, t_max, _) in cube_rays(|_, _, _| 0.0) {
+        assert_eq!(
+            est.transmittance(o, d, t_max, &mut a),
+            direct.transmittance(o, d, t_max, &mut b)
+        );
+        assert_eq!(
+            est.transmittance_and_distance(o, d, t_max, &mut a),
+            direct.transmittance_and_distance(o, d, t_max, &mut b)
+        );
+    }
+    let rotated = [0.0, -1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+    assert!(BakedResidualTracking::from_grid(field, &grid, Some(&rotated), None).is_err());
+}
+
+/// A control section that does not fit the field it is rendered with (an "empty" brick where
+/// the field is not 0, a majorant below the field): `from_grid` raises them from the field's
+/// own bound, and the estimate stays unbiased (z-test, fixed seed, 40,000 estimates); the
+/// section's values used as they are (the mutation, through `new`) are biased.
+#[test]
+fn pinres_fits_the_section_to_the_field() {
+    use pin_format::{Directions, OwnedControl, OwnedPinGrid, PinEntry, grid_desc};
+    let sigma = 1.5f32;
+    let field: Arc<dyn DensitySource> = unit_box(sigma);
+    let mut desc = grid_desc([1; 3], Directions::Octahedral { n: 1 }, 1, 1);
+    desc.box_min = [0.0; 3];
+    desc.box_max = [1.0; 3];
+    // Brick 0 claims to be empty; brick 1's majorant is below the field.
+    let control = OwnedControl {
+        dims: [2, 1, 1],
+        control: vec![0.0, 1.0],
+        residual: vec![0.0, 0.5],
+        majorant: vec![0.0, 1.0],
+    };
+    let owned = OwnedPinGrid {
+        desc,
+        tile: None,
+        cell_index: None,
+        pins: vec![PinEntry::EMPTY],
+        majorant: None,
+        density: None,
+        sparse_density: None,
+        control: Some(control.clone()),
+        metadata: None,
+    };
+    let grid = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    let fitted = BakedResidualTracking::from_grid(field.clone(), &grid, None, None).unwrap();
+    let (_, residual) = fitted.controls();
+    assert_eq!(residual, &[sigma, 0.5]);
+    let as_is = BakedResidualTracking::new(
+        field,
+        ([0.0; 3], [1.0; 3]),
+        control.dims,
+        control.control,
+        control.residual,
+        control.majorant,
+        None,
+    )
+    .unwrap();
+    let (o, d) = (Vec3::new(-0.5, 0.5, 0.5), Vec3::X);
+    let exact = (-(sigma as f64)).exp();
+    let z = |est: &BakedResidualTracking, seed: u64| {
+        let mut rng = Pcg32::new(seed, 1);
+        let (m, se) = mean_se(40_000, || {
+            est.transmittance(o, d, f32::INFINITY, &mut rng) as f64
+        });
+        (m - exact).abs() / (se + 1e-9)
+    };
+    assert!(z(&fitted, 5) < 5.0);
+    assert!(z(&as_is, 5) > 5.0);
+    // Distances over the raised majorants: the fraction of rays without a collision.
+    let mut rng = Pcg32::new(6, 1);
+    let (m, se) = mean_se(40_000, || {
+        f64::from(u8::from(
+            fitted
+                .sample_distance(o, d, f32::INFINITY, &mut rng)
+                .is_none(),
+        ))
+    });
+    assert!((m - exact).abs() <= 5.0 * se, "{m} vs {exact} ({se})");
+}

@@ -34,9 +34,9 @@ use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{Aabb, DenseGrid, ProceduralSpec};
 use pinrender::render::{
-    CombKind, DeltaTracking, DensitySource, MajorantGrid, PINURM_DEFAULT_PIN_QUERIES, Pcg32,
-    PinControlledUrm, PinsEstimator, RatioTracking, ResidualControl, ResidualRatioTracking,
-    TransportEstimator,
+    BakedResidualTracking, CombKind, DeltaTracking, DensitySource, MajorantGrid,
+    PINURM_DEFAULT_PIN_QUERIES, Pcg32, PinControlledUrm, PinsEstimator, RatioTracking,
+    ResidualControl, ResidualRatioTracking, TransportEstimator,
 };
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};
@@ -66,6 +66,19 @@ pub struct BenchArgs {
     /// Skip the wgpu measurements.
     #[arg(long)]
     pub no_gpu: bool,
+    /// The `pinres` rows' control: source voxels per brick edge (`pinbake bake
+    /// --embed-control EDGE`; 1..=64).
+    #[arg(long, default_value_t = pinbake::control::DEFAULT_CONTROL_EDGE,
+          value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub pinres_edge: u32,
+    /// The `pinres` rows' residual majorant as a fraction of the brick's largest residual
+    /// (1, the default, bounds it; (0, 1]).
+    #[arg(long, default_value_t = 1.0)]
+    pub pinres_floor: f64,
+    /// The `pinres` rows' control weights `exp(-2 THICKNESS sigma edge)` (0: the plain mean;
+    /// >= 0).
+    #[arg(long, default_value_t = 1.0)]
+    pub pinres_thickness: f64,
     /// Print one JSON object: {"results": [{volume, method, query, backend, queries_per_s,
     /// cpu_queries_per_s?, mean_abs_error?, error_rays?, per_ray_variance?,
     /// lookups_per_query?, variance_x_lookups?, variance_rays?, bake?, pin_bytes?}, ...]}
@@ -580,6 +593,31 @@ fn bench_volume(
         residual(ResidualControl::Mean)?,
         residual(ResidualControl::Min)?,
     );
+    // `pinres`: the control section a bake with `--embed-control` stores, computed here over
+    // the source's box (not timed), over `f`.
+    let control = {
+        let opts = pinbake::control::ControlOptions {
+            dims: pinbake::control::ControlDims::Edge(args.pinres_edge),
+            floor: args.pinres_floor,
+            thickness: args.pinres_thickness,
+            ..pinbake::control::ControlOptions::default()
+        };
+        pinbake::control::bake_control(source, &b, &opts)?
+    };
+    let pinres = |f: Arc<dyn DensitySource>| -> Result<Arc<dyn TransportEstimator>> {
+        Ok(Arc::new(
+            BakedResidualTracking::new(
+                f,
+                (b.min.to_array(), b.max.to_array()),
+                control.dims,
+                control.control.clone(),
+                control.residual.clone(),
+                control.majorant.clone(),
+                None,
+            )
+            .map_err(|e| anyhow!("{e}"))?,
+        ))
+    };
     let trackers_first = rows.len();
     for (method, tracker) in [
         (
@@ -589,6 +627,7 @@ fn bench_volume(
         ),
         ("residual", residual_mean.clone()),
         ("residual@min", residual_min.clone()),
+        ("pinres", pinres(field.clone())?),
         (
             "delta",
             Arc::new(DeltaTracking::new(field.clone(), majorants.clone())),
@@ -643,6 +682,7 @@ fn bench_volume(
         ),
         ("residual", with_controls(&residual_mean, &majorants)?),
         ("residual@min", with_controls(&residual_min, &majorants)?),
+        ("pinres", pinres(counted.clone())?),
     ] {
         let row = rows[trackers_first..]
             .iter_mut()

@@ -70,7 +70,8 @@ with residual@min, times ratio tracking of the residual; CPU only), urm[@N]
 longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
 tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
 hash-grid radiance cache), pinurm[@N] (unbiased ray marching around the pins' answer: the
-pins give the control optical depth, combs of N lookups correct it; CPU only),
+pins give the control optical depth, combs of N lookups correct it; CPU only), pinres
+(residual ratio tracking over the control the bake stores per 4^3-voxel brick; CPU only),
 cosine-closed-form / box-closed-form (exact transmittance),
 whole-volume (box-ss only). rm@STEP, delta, ratio, urm, jackknife, pins and pinms also run on
 the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
@@ -670,7 +671,8 @@ fn reference_half(es: &EvalScene, a: &EvalArgs, seed: u64, spp: u32) -> Result<I
 const LOOKUP: SamplerOptions = crate::render_cmd::DEFAULT_LOOKUP;
 
 /// Bakes the scene's pins and installs a pin estimator per instance.
-fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
+/// With `control`, the bake also stores the control section (`pinres`).
+fn bake_pins(es: &mut EvalScene, a: &EvalArgs, control: bool) -> Result<BakeInfo> {
     // The full eval bakes what `pinbake bake` chooses by default (the product's default is
     // what the figures are about); `--quick` keeps the scenes' small fixed bakes, for time.
     let (cells, directions) = if es.choose_bake || !a.quick {
@@ -695,6 +697,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs) -> Result<BakeInfo> {
         directions,
         seed: a.seed,
         threads: a.threads,
+        embed_control: control.then(pinbake::control::ControlOptions::default),
         ..pinbake::BakeOptions::default()
     };
     let t = Instant::now();
@@ -753,7 +756,11 @@ fn eval_scene(
         .collect();
     let needs_pins = ests.iter().any(|e| reads_pins(e));
     let bake = if needs_pins {
-        Some(bake_pins(&mut es, a)?)
+        let control = ests.iter().any(|e| {
+            e.parse::<pinrender::render::EstimatorSpec>()
+                .is_ok_and(|s| s.needs_control())
+        });
+        Some(bake_pins(&mut es, a, control)?)
     } else {
         None
     };

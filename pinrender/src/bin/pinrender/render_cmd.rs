@@ -43,6 +43,9 @@ Estimators:
   pinurm[@N]  delta tracking (distances) + unbiased ray marching around the pins' answer
               (transmittance): the pins' optical depth is the control, combs of N lookups per
               longest box edge (default 8) correct it; unbiased, CPU only
+  pinres      delta tracking (distances) + residual ratio tracking (transmittance) over the
+              control the bake stores per brick (`pinbake bake --embed-control`; bakes the
+              volume in memory with it unless --pins); unbiased, CPU only
 
 --backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
 one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
@@ -52,7 +55,8 @@ for bit.")]
 pub struct RenderArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
-    /// Pin file for the `pins`, `pinms` and `pinurm` estimators (default: bake the volume in memory).
+    /// Pin file for the `pins`, `pinms`, `pinurm` and `pinres` estimators (default: bake the
+    /// volume in memory).
     /// Without --volume, the medium itself: the estimators that need density use the file's
     /// embedded density (`pinbake bake --embed-density`) and majorant sections.
     #[arg(long)]
@@ -62,7 +66,7 @@ pub struct RenderArgs {
     #[arg(long)]
     pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
-    /// pins, pinms or pinurm[@N].
+    /// pins, pinms, pinurm[@N] or pinres.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
     pub estimator: EstimatorSpec,
     /// Image width in pixels (1..=16384).
@@ -232,7 +236,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         (Some(_), Some(_)) if !uses_pins => {
             // It used to be ignored silently, so a typo in the estimator went unnoticed.
             crate::usage!(
-                "--pins is used only by the pins, pinms and pinurm estimators, not by {} (or give \
+                "--pins is used only by the pins, pinms, pinurm and pinres estimators, not by {} (or give \
                  --pins without --volume to render the pin file's own medium)",
                 a.estimator
             )
@@ -444,6 +448,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
             source.as_ref(),
             a.pin_cells,
             a.seed,
+            a.estimator.needs_control(),
             &pinbake::files::MemoryBudget::new(a.max_memory),
         )?;
         if let Some(p) = &a.pins {

@@ -154,6 +154,7 @@ fn estimators(extra: &[&str], cache: bool) -> Vec<String> {
         "pins",
         "pinms",
         "pinurm",
+        "pinres",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -808,7 +809,7 @@ pub fn media(es: &EvalScene, name: &str) -> Result<Vec<Medium>> {
                 }
                 other => match other.parse::<EstimatorSpec>() {
                     // Estimators that read the density and the pins together.
-                    Ok(spec @ EstimatorSpec::PinUrm { .. }) => inst
+                    Ok(spec @ (EstimatorSpec::PinUrm { .. } | EstimatorSpec::PinRes)) => inst
                         .cpu_medium(spec, super::LOOKUP)
                         .map_err(|e| anyhow!("{other}: {e}"))?,
                     _ => Medium::single(estimator(inst, other)?),
