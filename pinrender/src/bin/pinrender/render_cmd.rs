@@ -9,8 +9,9 @@ use std::time::Instant;
 
 use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::render::{
-    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image, MajorantGrid,
-    RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront, rmse,
+    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensityField, EstimatorSpec, Image,
+    MajorantGrid, RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
+    rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -394,10 +395,12 @@ struct OpenedMedium {
     /// The file's majorants (a pin file alone); `None`: built from the field.
     majorants: Option<Arc<MajorantGrid>>,
     pins: Option<Arc<pinrt::PinGrid>>,
-    /// The source volume, for its GPU copy.
-    opened: Option<volume::Opened>,
-    /// A pin file's embedded density, for its GPU copy.
+    /// The source volume and its field, for its GPU copy.
+    opened: Option<(volume::Opened, Arc<SourceField>)>,
+    /// A pin file's embedded dense density, for its GPU copy.
     voxels: Option<Arc<VoxelGrid>>,
+    /// A pin file's embedded sparse density, for its GPU copy when there is no dense one.
+    bricks: Option<Arc<BrickGrid>>,
 }
 
 impl OpenedMedium {
@@ -424,12 +427,13 @@ impl OpenedMedium {
     }
 
     fn gpu_density(&self) -> Result<GpuDensity> {
-        match (&self.opened, &self.voxels) {
-            (Some(o), _) => o.gpu_density(),
-            (None, Some(v)) => {
+        match (&self.opened, &self.voxels, &self.bricks) {
+            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, volume::GPU_DENSE_VOXELS),
+            (None, Some(v), _) => {
                 GpuDensity::from_voxel_grid((**v).clone()).map_err(|e| anyhow!("{e}"))
             }
-            (None, None) => bail!("no density to upload"),
+            (None, None, Some(b)) => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
+            (None, None, None) => bail!("no density to upload"),
         }
     }
 }
@@ -460,13 +464,15 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     } else {
         None
     };
+    let field = Arc::new(SourceField::new(source));
     Ok(OpenedMedium {
         bounds: (b.min.to_array(), b.max.to_array()),
-        field: Some(Arc::new(SourceField::new(source))),
+        field: Some(field.clone()),
         majorants: None,
         pins,
-        opened: Some(opened),
+        opened: Some((opened, field)),
         voxels: None,
+        bricks: None,
     })
 }
 
@@ -485,11 +491,10 @@ fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
         majorants: m.majorants,
         pins: Some(grid),
         opened: None,
-        // A sparse-only file on the GPU: its dense expansion, within the one binding's
-        // 2^28 voxels.
-        voxels: m
-            .density
-            .or_else(|| m.bricks.and_then(|b| b.to_voxels(1 << 28)).map(Arc::new)),
+        // The GPU reads the dense section if there is one, else the bricks (the same
+        // images as their dense expansion, at the bricks' size).
+        voxels: m.density,
+        bricks: m.bricks,
     })
 }
 
