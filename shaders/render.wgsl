@@ -65,6 +65,8 @@ override RT_PRIMARY: u32 = 3u;
 override RT_SECONDARY: u32 = 3u;
 // The scene has exactly one medium (a specialisation, not a different result).
 override RT_ONE_MEDIUM: bool = false;
+// Some density of the scene is bricked (without, the compiler drops the bricked fetch).
+override RT_BRICKS: bool = false;
 
 struct RtPass {
     index: u32,
@@ -123,11 +125,15 @@ struct RtMedium {
 // query reads its grid from here, which compilers keep in scalar registers.
 @group(1) @binding(6) var<uniform> rt_grid0: Params;
 // Brick values of the bricked densities: one space of 32-bit words (f16 pairs or f32 bits)
-// split over four bindings of `RtMedium.bfmt.z` words each.
+// split over eight bindings of `RtMedium.bfmt.z` words each (gpu_render's VALUE_BINDINGS).
 @group(1) @binding(7) var<storage, read> rt_bricks0: array<u32>;
 @group(1) @binding(8) var<storage, read> rt_bricks1: array<u32>;
 @group(1) @binding(9) var<storage, read> rt_bricks2: array<u32>;
 @group(1) @binding(10) var<storage, read> rt_bricks3: array<u32>;
+@group(1) @binding(11) var<storage, read> rt_bricks4: array<u32>;
+@group(1) @binding(12) var<storage, read> rt_bricks5: array<u32>;
+@group(1) @binding(13) var<storage, read> rt_bricks6: array<u32>;
+@group(1) @binding(14) var<storage, read> rt_bricks7: array<u32>;
 
 const RT_TAU: f32 = 0x1.921fb6p2f;
 const RT_INV_4PI: f32 = 0x1.45f306p-4f;
@@ -277,8 +283,20 @@ fn rt_brick_word(a: u32, cap: u32) -> u32 {
         case 2u: {
             return rt_bricks2[i];
         }
-        default: {
+        case 3u: {
             return rt_bricks3[i];
+        }
+        case 4u: {
+            return rt_bricks4[i];
+        }
+        case 5u: {
+            return rt_bricks5[i];
+        }
+        case 6u: {
+            return rt_bricks6[i];
+        }
+        default: {
+            return rt_bricks7[i];
         }
     }
 }
@@ -318,10 +336,27 @@ fn rt_brick_voxel(m: u32, x: u32, y: u32, z: u32) -> f32 {
     return bitcast<f32>(rt_brick_word(bi.w + (slot << (3u * s)) + local, bf.z));
 }
 
-fn rt_voxel(m: u32, base: u32, dims: vec3<u32>, x: u32, y: u32, z: u32) -> f32 {
-    if (rt_media[m].ids.w == RT_KIND_BRICKS) {
-        return rt_brick_voxel(m, x, y, z);
+// The trilinear value of a bricked density between the voxels i0 and i1 = i0 + 1 (clamped)
+// with weights f: the dense path's mixes in the dense path's order over the same eight values,
+// so the same bits. One fetch in a loop (not eight inlined copies of the binding switch).
+fn rt_brick_trilinear(m: u32, i0: vec3<u32>, i1: vec3<u32>, f: vec3<f32>) -> f32 {
+    var v: array<f32, 8>;
+    for (var c = 0u; c < 8u; c = c + 1u) {
+        let x = select(i0.x, i1.x, (c & 1u) != 0u);
+        let y = select(i0.y, i1.y, (c & 2u) != 0u);
+        let z = select(i0.z, i1.z, (c & 4u) != 0u);
+        v[c] = rt_brick_voxel(m, x, y, z);
     }
+    let c00 = mix(v[0], v[1], f.x);
+    let c10 = mix(v[2], v[3], f.x);
+    let c01 = mix(v[4], v[5], f.x);
+    let c11 = mix(v[6], v[7], f.x);
+    let c0 = mix(c00, c10, f.y);
+    let c1 = mix(c01, c11, f.y);
+    return mix(c0, c1, f.z);
+}
+
+fn rt_voxel(base: u32, dims: vec3<u32>, x: u32, y: u32, z: u32) -> f32 {
     return rt_f(base + x + dims.x * (y + dims.y * z));
 }
 
@@ -355,10 +390,13 @@ fn rt_extinction(m: u32, p: vec3<f32>) -> f32 {
     let i0 = vec3<u32>(fl);
     let i1 = min(i0 + vec3<u32>(1u), dims - vec3<u32>(1u));
     let f = u - fl;
-    let c00 = mix(rt_voxel(m, base, dims, i0.x, i0.y, i0.z), rt_voxel(m, base, dims, i1.x, i0.y, i0.z), f.x);
-    let c10 = mix(rt_voxel(m, base, dims, i0.x, i1.y, i0.z), rt_voxel(m, base, dims, i1.x, i1.y, i0.z), f.x);
-    let c01 = mix(rt_voxel(m, base, dims, i0.x, i0.y, i1.z), rt_voxel(m, base, dims, i1.x, i0.y, i1.z), f.x);
-    let c11 = mix(rt_voxel(m, base, dims, i0.x, i1.y, i1.z), rt_voxel(m, base, dims, i1.x, i1.y, i1.z), f.x);
+    if (RT_BRICKS && rt_media[m].ids.w == RT_KIND_BRICKS) {
+        return rt_brick_trilinear(m, i0, i1, f);
+    }
+    let c00 = mix(rt_voxel(base, dims, i0.x, i0.y, i0.z), rt_voxel(base, dims, i1.x, i0.y, i0.z), f.x);
+    let c10 = mix(rt_voxel(base, dims, i0.x, i1.y, i0.z), rt_voxel(base, dims, i1.x, i1.y, i0.z), f.x);
+    let c01 = mix(rt_voxel(base, dims, i0.x, i0.y, i1.z), rt_voxel(base, dims, i1.x, i0.y, i1.z), f.x);
+    let c11 = mix(rt_voxel(base, dims, i0.x, i1.y, i1.z), rt_voxel(base, dims, i1.x, i1.y, i1.z), f.x);
     let c0 = mix(c00, c10, f.y);
     let c1 = mix(c01, c11, f.y);
     return mix(c0, c1, f.z);

@@ -276,9 +276,10 @@ pub(super) const FLAG_MAJORANTS: u32 = 4;
 const KIND_VOXELS: u32 = 1;
 const KIND_COSINE: u32 = 2;
 const KIND_BRICKS: u32 = 3;
-/// Storage bindings that hold brick values (`rt_bricks0..3` of `render.wgsl`): bricks that
-/// exceed one binding are split over them.
-pub const VALUE_BINDINGS: usize = 4;
+/// Storage bindings that hold brick values (`rt_bricks0..7` of `render.wgsl`): bricks that
+/// exceed one binding are split over them (8 x 128 MiB, lavapipe's and many GPUs' binding
+/// limit, holds a GiB of bricks).
+pub const VALUE_BINDINGS: usize = 8;
 /// Floats per cosine wave in the data buffer.
 const WAVE_FLOATS: usize = 8;
 

@@ -512,11 +512,11 @@ impl GpuRenderer {
                 storage_entry(4, true),
                 storage_entry(5, true),
                 uniform_entry(6, false, size_of::<media::GridParams>() as u64),
-                storage_entry(7, true),
-                storage_entry(8, true),
-                storage_entry(9, true),
-                storage_entry(10, true),
-            ],
+            ]
+            .into_iter()
+            // 7..: the brick values.
+            .chain((0..VALUE_BINDINGS as u32).map(|k| storage_entry(7 + k, true)))
+            .collect::<Vec<_>>(),
         });
         let grid_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("render grid"),
@@ -588,6 +588,7 @@ impl GpuRenderer {
             ("RT_PRIMARY", f64::from(primary)),
             ("RT_SECONDARY", f64::from(secondary)),
             ("RT_ONE_MEDIUM", one_medium),
+            ("RT_BRICKS", if self.brick_bindings > 0 { 1.0 } else { 0.0 }),
         ];
         let pipeline = self
             .device
@@ -774,23 +775,18 @@ impl GpuRenderer {
                         binding: 6,
                         resource: self.grid0.as_entire_binding(),
                     },
-                    wgpu::BindGroupEntry {
-                        binding: 7,
-                        resource: self.bricks[0].as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 8,
-                        resource: self.bricks[1].as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 9,
-                        resource: self.bricks[2].as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 10,
-                        resource: self.bricks[3].as_entire_binding(),
-                    },
-                ],
+                ]
+                .into_iter()
+                .chain(
+                    self.bricks
+                        .iter()
+                        .zip(7..)
+                        .map(|(b, binding)| wgpu::BindGroupEntry {
+                            binding,
+                            resource: b.as_entire_binding(),
+                        }),
+                )
+                .collect::<Vec<_>>(),
             });
             let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("render passes"),
