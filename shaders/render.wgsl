@@ -125,7 +125,7 @@ struct RtMedium {
 // query reads its grid from here, which compilers keep in scalar registers.
 @group(1) @binding(6) var<uniform> rt_grid0: Params;
 // Brick values of the bricked densities: one space of 32-bit words (f16 pairs or f32 bits)
-// split over eight bindings of `RtMedium.bfmt.z` words each (gpu_render's VALUE_BINDINGS).
+// split over sixteen bindings of `RtMedium.bfmt.z` words each (gpu_render's VALUE_BINDINGS).
 @group(1) @binding(7) var<storage, read> rt_bricks0: array<u32>;
 @group(1) @binding(8) var<storage, read> rt_bricks1: array<u32>;
 @group(1) @binding(9) var<storage, read> rt_bricks2: array<u32>;
@@ -134,6 +134,14 @@ struct RtMedium {
 @group(1) @binding(12) var<storage, read> rt_bricks5: array<u32>;
 @group(1) @binding(13) var<storage, read> rt_bricks6: array<u32>;
 @group(1) @binding(14) var<storage, read> rt_bricks7: array<u32>;
+@group(1) @binding(15) var<storage, read> rt_bricks8: array<u32>;
+@group(1) @binding(16) var<storage, read> rt_bricks9: array<u32>;
+@group(1) @binding(17) var<storage, read> rt_bricks10: array<u32>;
+@group(1) @binding(18) var<storage, read> rt_bricks11: array<u32>;
+@group(1) @binding(19) var<storage, read> rt_bricks12: array<u32>;
+@group(1) @binding(20) var<storage, read> rt_bricks13: array<u32>;
+@group(1) @binding(21) var<storage, read> rt_bricks14: array<u32>;
+@group(1) @binding(22) var<storage, read> rt_bricks15: array<u32>;
 
 const RT_TAU: f32 = 0x1.921fb6p2f;
 const RT_INV_4PI: f32 = 0x1.45f306p-4f;
@@ -295,8 +303,32 @@ fn rt_brick_word(a: u32, cap: u32) -> u32 {
         case 6u: {
             return rt_bricks6[i];
         }
-        default: {
+        case 7u: {
             return rt_bricks7[i];
+        }
+        case 8u: {
+            return rt_bricks8[i];
+        }
+        case 9u: {
+            return rt_bricks9[i];
+        }
+        case 10u: {
+            return rt_bricks10[i];
+        }
+        case 11u: {
+            return rt_bricks11[i];
+        }
+        case 12u: {
+            return rt_bricks12[i];
+        }
+        case 13u: {
+            return rt_bricks13[i];
+        }
+        case 14u: {
+            return rt_bricks14[i];
+        }
+        default: {
+            return rt_bricks15[i];
         }
     }
 }

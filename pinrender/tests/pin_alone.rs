@@ -161,7 +161,7 @@ fn a_sparse_density_renders_on_the_gpu_in_bricks_with_the_dense_bits() {
         "--camera-target",
         "0.5,0.5,0.5",
     ];
-    for est in ["ratio", "pinms", "rm@0.02"] {
+    for est in ["ratio", "pinms"] {
         let mut images = Vec::new();
         for (name, pins) in [("d", &dense), ("s", &sparse)] {
             let out = d.join(format!("gpu-{name}-{est}.exr"));

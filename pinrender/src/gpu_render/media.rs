@@ -276,10 +276,11 @@ pub(super) const FLAG_MAJORANTS: u32 = 4;
 const KIND_VOXELS: u32 = 1;
 const KIND_COSINE: u32 = 2;
 const KIND_BRICKS: u32 = 3;
-/// Storage bindings that hold brick values (`rt_bricks0..7` of `render.wgsl`): bricks that
-/// exceed one binding are split over them (8 x 128 MiB, lavapipe's and many GPUs' binding
-/// limit, holds a GiB of bricks).
-pub const VALUE_BINDINGS: usize = 8;
+/// Storage bindings that hold brick values (`rt_bricks0..15` of `render.wgsl`): bricks that
+/// exceed one binding are split over them (16 x 128 MiB, lavapipe's and many GPUs' binding
+/// limit, hold 2 GiB of bricks: the half-resolution production cloud's f32 bricks are
+/// 1.1 GB). With the other bindings, 22 storage buffers in the compute stage.
+pub const VALUE_BINDINGS: usize = 16;
 /// Floats per cosine wave in the data buffer.
 const WAVE_FLOATS: usize = 8;
 

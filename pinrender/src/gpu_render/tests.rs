@@ -1054,17 +1054,17 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
         let brick_r =
             GpuRenderer::with_media(&ctx, &placed(gb.clone(), &maj, Some(&grid))).unwrap();
         assert_eq!((dense_r.brick_bindings(), brick_r.brick_bindings()), (0, 1));
-        // Split: a sixth of the brick bytes per binding (the other buffers are smaller
+        // Split: a twelfth of the brick bytes per binding (the other buffers are smaller
         // without pins).
         let (_, brick, stored) = bricks.shape();
         let brick_bytes = u64::from(brick).pow(3) * if f16 { 2 } else { 4 };
         let total = brick_bytes * stored as u64;
-        let limit = total / 6 / 4 * 4;
+        let limit = total / 12 / 4 * 4;
         let dense_np = GpuRenderer::with_media(&ctx, &placed(gd, &maj, None)).unwrap();
         let split =
             GpuRenderer::with_media_limited(&ctx, &placed(gb.clone(), &maj, None), limit).unwrap();
         assert!(
-            (6..=VALUE_BINDINGS).contains(&split.brick_bindings()),
+            (12..=VALUE_BINDINGS).contains(&split.brick_bindings()),
             "{} bindings",
             split.brick_bindings()
         );
@@ -1093,8 +1093,8 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
             let got = image_bits(&split.render(&sc, est, 2, 78).unwrap());
             assert!(want == got, "f16 {f16}, {}: split bits differ", est.name());
         }
-        // Whole bricks per binding: a ninth of the bytes needs more than eight bindings.
-        let small = total / 9;
+        // Whole bricks per binding: a seventeenth of the bytes needs more than sixteen.
+        let small = total / 17;
         let e = GpuRenderer::with_media_limited(&ctx, &placed(gb, &maj, None), small)
             .unwrap_err()
             .to_string();
