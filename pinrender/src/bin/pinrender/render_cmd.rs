@@ -47,8 +47,9 @@ Estimators:
 
 --backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
 one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
-of its active box, cosine noise as its waves, a box as one voxel; the procedural sphere has no GPU
-form). Its random streams differ from the CPU's, so the two images agree in expectation, not bit
+of its active box, or above 2^28 voxels as the bricks the CPU trackers read, a pin file's sparse
+density as its bricks, cosine noise as its waves, a box as one voxel; the procedural sphere has no
+GPU form). Its random streams differ from the CPU's, so the two images agree in expectation, not bit
 for bit.")]
 pub struct RenderArgs {
     #[command(flatten)]
