@@ -324,6 +324,8 @@ pub struct GpuRenderer {
     bricks: Vec<wgpu::Buffer>,
     /// How many of `bricks` hold values.
     brick_bindings: usize,
+    /// Some density is bricked (`RT_BRICKS`; it may have no stored brick at all).
+    bricked: bool,
     /// Medium 0's grid parameters as a uniform (`rt_grid0`).
     grid0: wgpu::Buffer,
     caps: Vec<media::Caps>,
@@ -467,6 +469,8 @@ impl GpuRenderer {
                 let mut at = 0;
                 while at < words {
                     let n = CHUNK.min(words - at) as usize;
+                    // Zeros between two grids' bricks (alignment).
+                    chunk[..n].fill(0);
                     b.fill(start + at, &mut chunk[..n]);
                     let bytes = (at * 4) as usize..((at + n as u64) * 4) as usize;
                     view.slice(bytes)
@@ -562,6 +566,7 @@ impl GpuRenderer {
             data,
             bricks,
             brick_bindings: packed.bricks.bindings(),
+            bricked: !packed.bricks.grids.is_empty(),
             grid0,
             caps: packed.caps,
             pin_bytes: packed.pins.len() as u64,
@@ -588,7 +593,7 @@ impl GpuRenderer {
             ("RT_PRIMARY", f64::from(primary)),
             ("RT_SECONDARY", f64::from(secondary)),
             ("RT_ONE_MEDIUM", one_medium),
-            ("RT_BRICKS", if self.brick_bindings > 0 { 1.0 } else { 0.0 }),
+            ("RT_BRICKS", if self.bricked { 1.0 } else { 0.0 }),
         ];
         let pipeline = self
             .device
