@@ -65,6 +65,8 @@ override RT_PRIMARY: u32 = 3u;
 override RT_SECONDARY: u32 = 3u;
 // The scene has exactly one medium (a specialisation, not a different result).
 override RT_ONE_MEDIUM: bool = false;
+// Some density of the scene is bricked (without, the compiler drops the bricked fetch).
+override RT_BRICKS: bool = false;
 
 struct RtPass {
     index: u32,
@@ -77,10 +79,10 @@ struct RtPass {
 struct RtMedium {
     // x: first pin entry of its grid in `pins`, y: first word of its cell index in
     // `cell_index`, z: flags (1 pins, 2 density, 4 majorants), w: density kind (1 voxels,
-    // 2 cosine waves).
+    // 2 cosine waves, 3 bricked voxels).
     ids: vec4<u32>,
-    // x: first value of the density in `rt_data`, y: number of cosine waves, z: first
-    // majorant in `rt_data`, w: unused.
+    // x: first value of the density (voxels, waves; bricks: the brick index) in `rt_data`,
+    // y: number of cosine waves, z: first majorant in `rt_data`, w: unused.
     offs: vec4<u32>,
     // Voxel counts (x, y, z), unused.
     vdims: vec4<u32>,
@@ -100,6 +102,13 @@ struct RtMedium {
     // World box of the placed pin grid (conservative), to skip missed instances cheaply.
     pin_lo: vec4<f32>,
     pin_hi: vec4<f32>,
+    // Bricks: first index entry in `rt_data` (one u32 per brick, x fastest, 0xffffffff for an
+    // empty brick, else its slot), bricks along x and y, first word of its values in the
+    // brick value space.
+    bidx: vec4<u32>,
+    // Bricks: log2 of the brick edge, 1 for f16 values (two per word, the lower half first)
+    // else f32, words per value binding (a brick never straddles two), unused.
+    bfmt: vec4<u32>,
 }
 
 @group(1) @binding(0) var<uniform> RP: RtParams;
@@ -110,11 +119,29 @@ struct RtMedium {
 @group(1) @binding(3) var<storage, read> rt_grids: array<Params>;
 @group(1) @binding(4) var<storage, read> rt_media: array<RtMedium>;
 // Voxel values, cosine waves (8 floats each: w.xyz, amplitude, phase, 3 unused) and
-// majorants, at the offsets of `RtMedium.offs`.
-@group(1) @binding(5) var<storage, read> rt_data: array<f32>;
+// majorants as f32 bits, and brick indices, at the offsets of `RtMedium.offs`.
+@group(1) @binding(5) var<storage, read> rt_data: array<u32>;
 // Medium 0's grid parameters again, as a uniform: with one medium (`RT_ONE_MEDIUM`) the
 // query reads its grid from here, which compilers keep in scalar registers.
 @group(1) @binding(6) var<uniform> rt_grid0: Params;
+// Brick values of the bricked densities: one space of 32-bit words (f16 pairs or f32 bits)
+// split over sixteen bindings of `RtMedium.bfmt.z` words each (gpu_render's VALUE_BINDINGS).
+@group(1) @binding(7) var<storage, read> rt_bricks0: array<u32>;
+@group(1) @binding(8) var<storage, read> rt_bricks1: array<u32>;
+@group(1) @binding(9) var<storage, read> rt_bricks2: array<u32>;
+@group(1) @binding(10) var<storage, read> rt_bricks3: array<u32>;
+@group(1) @binding(11) var<storage, read> rt_bricks4: array<u32>;
+@group(1) @binding(12) var<storage, read> rt_bricks5: array<u32>;
+@group(1) @binding(13) var<storage, read> rt_bricks6: array<u32>;
+@group(1) @binding(14) var<storage, read> rt_bricks7: array<u32>;
+@group(1) @binding(15) var<storage, read> rt_bricks8: array<u32>;
+@group(1) @binding(16) var<storage, read> rt_bricks9: array<u32>;
+@group(1) @binding(17) var<storage, read> rt_bricks10: array<u32>;
+@group(1) @binding(18) var<storage, read> rt_bricks11: array<u32>;
+@group(1) @binding(19) var<storage, read> rt_bricks12: array<u32>;
+@group(1) @binding(20) var<storage, read> rt_bricks13: array<u32>;
+@group(1) @binding(21) var<storage, read> rt_bricks14: array<u32>;
+@group(1) @binding(22) var<storage, read> rt_bricks15: array<u32>;
 
 const RT_TAU: f32 = 0x1.921fb6p2f;
 const RT_INV_4PI: f32 = 0x1.45f306p-4f;
@@ -133,6 +160,8 @@ const RT_HAS_DENSITY: u32 = 2u;
 const RT_HAS_MAJORANTS: u32 = 4u;
 const RT_KIND_VOXELS: u32 = 1u;
 const RT_KIND_COSINE: u32 = 2u;
+const RT_KIND_BRICKS: u32 = 3u;
+const RT_EMPTY_BRICK: u32 = 0xffffffffu;
 
 // Safety valves of render/estimator.rs: tentative collisions per tracker query, steps per
 // marched segment.
@@ -244,8 +273,123 @@ fn rt_clean(s: f32) -> f32 {
     return 0.0;
 }
 
+fn rt_f(i: u32) -> f32 {
+    return bitcast<f32>(rt_data[i]);
+}
+
+// Word `a` of the brick value space.
+fn rt_brick_word(a: u32, cap: u32) -> u32 {
+    let k = a / cap;
+    let i = a - k * cap;
+    switch k {
+        case 0u: {
+            return rt_bricks0[i];
+        }
+        case 1u: {
+            return rt_bricks1[i];
+        }
+        case 2u: {
+            return rt_bricks2[i];
+        }
+        case 3u: {
+            return rt_bricks3[i];
+        }
+        case 4u: {
+            return rt_bricks4[i];
+        }
+        case 5u: {
+            return rt_bricks5[i];
+        }
+        case 6u: {
+            return rt_bricks6[i];
+        }
+        case 7u: {
+            return rt_bricks7[i];
+        }
+        case 8u: {
+            return rt_bricks8[i];
+        }
+        case 9u: {
+            return rt_bricks9[i];
+        }
+        case 10u: {
+            return rt_bricks10[i];
+        }
+        case 11u: {
+            return rt_bricks11[i];
+        }
+        case 12u: {
+            return rt_bricks12[i];
+        }
+        case 13u: {
+            return rt_bricks13[i];
+        }
+        case 14u: {
+            return rt_bricks14[i];
+        }
+        default: {
+            return rt_bricks15[i];
+        }
+    }
+}
+
+// An f16 (the bits in the low half) as f32, exactly: subnormals by a scale, so that no
+// device's flushing of f16 denormals changes a value. Bricks hold no infinity or NaN (the
+// values are cleaned, and an infinity stays f32).
+fn rt_half(h: u32) -> f32 {
+    let e = (h >> 10u) & 0x1fu;
+    let m = h & 0x3ffu;
+    var v = f32(m) * 0x1p-24f;
+    if (e != 0u) {
+        v = bitcast<f32>(((e + 112u) << 23u) | (m << 13u));
+    }
+    if ((h & 0x8000u) != 0u) {
+        v = -v;
+    }
+    return v;
+}
+
+// Voxel (x, y, z) of a bricked density (render/bricks.rs, `BrickGrid::at`).
+fn rt_brick_voxel(m: u32, x: u32, y: u32, z: u32) -> f32 {
+    let bi = rt_media[m].bidx;
+    let bf = rt_media[m].bfmt;
+    let s = bf.x;
+    let slot = rt_data[bi.x + (x >> s) + bi.y * ((y >> s) + bi.z * (z >> s))];
+    if (slot == RT_EMPTY_BRICK) {
+        return 0.0;
+    }
+    let mask = (1u << s) - 1u;
+    let local = (x & mask) | ((y & mask) << s) | ((z & mask) << (2u * s));
+    if (bf.y != 0u) {
+        // Half a brick's words per slot (s >= 1 for f16 bricks).
+        let w = rt_brick_word(bi.w + (slot << (3u * s - 1u)) + (local >> 1u), bf.z);
+        return rt_half((w >> (16u * (local & 1u))) & 0xffffu);
+    }
+    return bitcast<f32>(rt_brick_word(bi.w + (slot << (3u * s)) + local, bf.z));
+}
+
+// The trilinear value of a bricked density between the voxels i0 and i1 = i0 + 1 (clamped)
+// with weights f: the dense path's mixes in the dense path's order over the same eight values,
+// so the same bits. One fetch in a loop (not eight inlined copies of the binding switch).
+fn rt_brick_trilinear(m: u32, i0: vec3<u32>, i1: vec3<u32>, f: vec3<f32>) -> f32 {
+    var v: array<f32, 8>;
+    for (var c = 0u; c < 8u; c = c + 1u) {
+        let x = select(i0.x, i1.x, (c & 1u) != 0u);
+        let y = select(i0.y, i1.y, (c & 2u) != 0u);
+        let z = select(i0.z, i1.z, (c & 4u) != 0u);
+        v[c] = rt_brick_voxel(m, x, y, z);
+    }
+    let c00 = mix(v[0], v[1], f.x);
+    let c10 = mix(v[2], v[3], f.x);
+    let c01 = mix(v[4], v[5], f.x);
+    let c11 = mix(v[6], v[7], f.x);
+    let c0 = mix(c00, c10, f.y);
+    let c1 = mix(c01, c11, f.y);
+    return mix(c0, c1, f.z);
+}
+
 fn rt_voxel(base: u32, dims: vec3<u32>, x: u32, y: u32, z: u32) -> f32 {
-    return rt_data[base + x + dims.x * (y + dims.y * z)];
+    return rt_f(base + x + dims.x * (y + dims.y * z));
 }
 
 // Extinction of medium m at world point p (0 outside its clip box).
@@ -262,15 +406,15 @@ fn rt_extinction(m: u32, p: vec3<f32>) -> f32 {
         var s = 1.0;
         for (var k = 0u; k < n; k = k + 1u) {
             let at = base + 8u * k;
-            let w = vec3<f32>(rt_data[at], rt_data[at + 1u], rt_data[at + 2u]);
+            let w = vec3<f32>(rt_f(at), rt_f(at + 1u), rt_f(at + 2u));
             // Range reduction in turns keeps cos accurate where w . q is hundreds of radians.
-            let turns = (dot(w, q) + rt_data[at + 4u]) * INV_TAU;
-            s = s + rt_data[at + 3u] * cos(RT_TAU * fract(turns));
+            let turns = (dot(w, q) + rt_f(at + 4u)) * INV_TAU;
+            s = s + rt_f(at + 3u) * cos(RT_TAU * fract(turns));
         }
         return max(rt_media[m].clip_lo.w * s, 0.0);
     }
-    // Voxels, the shared convention: trilinear between voxel centres, the edge voxel's value
-    // in the outer half voxel.
+    // Voxels, dense or bricked, the shared convention: trilinear between voxel centres, the
+    // edge voxel's value in the outer half voxel.
     let dims = rt_media[m].vdims.xyz;
     let nmax = vec3<f32>(dims) - vec3<f32>(1.0);
     let u = clamp((q - rt_media[m].vox_origin.xyz) * rt_media[m].vox_inv.xyz - vec3<f32>(0.5), vec3<f32>(0.0), nmax);
@@ -278,6 +422,9 @@ fn rt_extinction(m: u32, p: vec3<f32>) -> f32 {
     let i0 = vec3<u32>(fl);
     let i1 = min(i0 + vec3<u32>(1u), dims - vec3<u32>(1u));
     let f = u - fl;
+    if (RT_BRICKS && rt_media[m].ids.w == RT_KIND_BRICKS) {
+        return rt_brick_trilinear(m, i0, i1, f);
+    }
     let c00 = mix(rt_voxel(base, dims, i0.x, i0.y, i0.z), rt_voxel(base, dims, i1.x, i0.y, i0.z), f.x);
     let c10 = mix(rt_voxel(base, dims, i0.x, i1.y, i0.z), rt_voxel(base, dims, i1.x, i1.y, i0.z), f.x);
     let c01 = mix(rt_voxel(base, dims, i0.x, i0.y, i1.z), rt_voxel(base, dims, i1.x, i0.y, i1.z), f.x);
@@ -402,7 +549,7 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_o
         }
         let seg_t1 = min(next_t[a], t_end);
         let b = brick;
-        let maj = rt_data[mbase + u32(b.x) + dims.x * (u32(b.y) + dims.y * u32(b.z))];
+        let maj = rt_f(mbase + u32(b.x) + dims.x * (u32(b.y) + dims.y * u32(b.z)));
         if (depth_only) {
             depth = depth + maj * max(seg_t1 - t_seg, 0.0);
         } else if (maj > 0.0) {

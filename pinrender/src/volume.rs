@@ -71,7 +71,8 @@ impl Opened {
     /// * a raw grid as is (same convention);
     /// * a VDB as the dense grid of its active index box plus a border of one zero voxel on
     ///   every side, so that trilinear interpolation between voxel centres (integer index
-    ///   coordinates) reproduces the sparse sampler exactly (refused above 2^28 voxels);
+    ///   coordinates) reproduces the sparse sampler exactly (refused above
+    ///   [`GPU_DENSE_VOXELS`]; [`Opened::gpu_density_or_bricks`] bricks it instead);
     /// * cosine noise as its waves, a homogeneous box as one voxel.
     pub fn gpu_density(&self) -> Result<GpuDensity> {
         let src = self.source();
@@ -90,7 +91,7 @@ impl Opened {
                 let first = ilo - glam::IVec3::ONE;
                 let dims = (ihi - ilo + glam::IVec3::splat(3)).to_array().map(|d| d as u32);
                 let count = dims.iter().map(|&d| d as u64).product::<u64>();
-                if count > 1 << 28 {
+                if count > GPU_DENSE_VOXELS {
                     anyhow::bail!(
                         "the VDB's active box needs {count} dense voxels on the GPU (limit 2^28)"
                     );
@@ -142,7 +143,48 @@ impl Opened {
         .map_err(|e| anyhow!("{e}"))?;
         d.with_bounds(lo, hi).map_err(|e| anyhow!("{e}"))
     }
+
+    /// [`Opened::gpu_density`], except that an axis-aligned VDB whose dense copy would exceed
+    /// `max_dense` voxels ([`GPU_DENSE_VOXELS`] for a render) goes to the GPU as `field`'s
+    /// bricks: the [`BrickGrid`] the CPU trackers read ([`TrackedSource::bricked`]), shared, so
+    /// both renderers track the same field (or, where the field has a dense copy instead,
+    /// [`bricks_of`] its source). Smaller volumes keep their dense copy (and their images).
+    pub fn gpu_density_or_bricks(
+        &self,
+        field: &TrackedSource,
+        max_dense: u64,
+    ) -> Result<GpuDensity> {
+        let Opened::Vdb(v) = self else {
+            return self.gpu_density();
+        };
+        let (ilo, ihi) = v.index_bounds();
+        let count = (ihi - ilo + glam::IVec3::splat(3))
+            .to_array()
+            .iter()
+            .map(|&d| d.max(0) as u64)
+            .product::<u64>();
+        if !v.is_axis_aligned() || count <= max_dense {
+            return self.gpu_density();
+        }
+        let bricks = field
+            .bricked_shared()
+            .or_else(|| bricks_of(&**field.source()).map(Arc::new));
+        let Some(bricks) = bricks else {
+            anyhow::bail!(
+                "the VDB's active box needs {count} voxels on the GPU, more than a dense copy \
+                 takes ({max_dense}), and its bricks do not fit in half the memory budget"
+            );
+        };
+        let b = v.bounds();
+        GpuDensity::from_bricks(bricks)
+            .and_then(|d| d.with_bounds(b.min.to_array(), b.max.to_array()))
+            .map_err(|e| anyhow!("{e}"))
+    }
 }
+
+/// The most voxels a VDB's dense GPU copy may have; a larger one is bricked
+/// ([`Opened::gpu_density_or_bricks`]).
+pub const GPU_DENSE_VOXELS: u64 = 1 << 28;
 
 /// [`open_volume`] with the concrete source type kept.
 ///
@@ -196,7 +238,7 @@ pub struct TrackedSource {
     /// A voxel source too large for `copy` bricked instead ([`BrickGrid`]: only the bricks
     /// the source does not bound by zero), made on first use; `None` inside when there is a
     /// dense view, no voxels, or the bricks would not fit either.
-    bricks: OnceLock<Option<BrickGrid>>,
+    bricks: OnceLock<Option<Arc<BrickGrid>>>,
 }
 
 impl TrackedSource {
@@ -214,33 +256,21 @@ impl TrackedSource {
     /// index grid of an axis-aligned VDB, one zero voxel beyond its bounds on every side), so
     /// its trilinear field is the tree's up to the rounding of the world-to-index map.
     pub fn bricked(&self) -> Option<&BrickGrid> {
+        self.bricked_shared_ref().map(|g| &**g)
+    }
+
+    /// [`TrackedSource::bricked`] as a shared grid (the GPU's copy reads it too).
+    pub fn bricked_shared(&self) -> Option<Arc<BrickGrid>> {
+        self.bricked_shared_ref().cloned()
+    }
+
+    fn bricked_shared_ref(&self) -> Option<&Arc<BrickGrid>> {
         self.bricks
             .get_or_init(|| {
                 if self.dense_view().is_some() {
                     return None;
                 }
-                let voxel = self.source.voxel_size()?;
-                let b = self.source.bounds();
-                let (lo, hi) = (b.min - voxel * 0.5, b.max + voxel * 0.5);
-                let n = (hi - lo) / voxel;
-                if !(n.is_finite() && n.max_element() < f64::from(1u32 << 20)) {
-                    return None;
-                }
-                let dims = n.round().max(DVec3::ONE).to_array().map(|v| v as u32);
-                let bbox = source::Aabb::new(lo, hi);
-                let limit = pinbake::files::default_memory_limit() / 2;
-                let (index, values) =
-                    pinbake::sparse_density::sparse_f32_bricks(&*self.source, &bbox, dims, limit)?;
-                let spacing = [0, 1, 2].map(|a| (hi[a] - lo[a]) / f64::from(dims[a]));
-                BrickGrid::new(
-                    dims,
-                    lo.to_array(),
-                    spacing,
-                    pinbake::sparse_density::SPARSE_BRICK,
-                    index,
-                    values,
-                )
-                .ok()
+                bricks_of(&*self.source).map(Arc::new)
             })
             .as_ref()
     }
@@ -249,6 +279,35 @@ impl TrackedSource {
     pub fn source(&self) -> &Arc<dyn DensitySource> {
         &self.source
     }
+}
+
+/// A voxel source bricked ([`TrackedSource::bricked`]): its values at the centres of voxels of
+/// its own size over its bounds widened by half a voxel (for an axis-aligned VDB: its index
+/// grid with one zero voxel beyond its bounds on every side), in the bricks that the source
+/// does not bound by zero; `None` for a source without voxels, or bricks over half the
+/// memory budget.
+pub fn bricks_of(source: &dyn DensitySource) -> Option<BrickGrid> {
+    let voxel = source.voxel_size()?;
+    let b = source.bounds();
+    let (lo, hi) = (b.min - voxel * 0.5, b.max + voxel * 0.5);
+    let n = (hi - lo) / voxel;
+    if !(n.is_finite() && n.max_element() < f64::from(1u32 << 20)) {
+        return None;
+    }
+    let dims = n.round().max(DVec3::ONE).to_array().map(|v| v as u32);
+    let bbox = source::Aabb::new(lo, hi);
+    let limit = pinbake::files::default_memory_limit() / 2;
+    let (index, values) = pinbake::sparse_density::sparse_f32_bricks(source, &bbox, dims, limit)?;
+    let spacing = [0, 1, 2].map(|a| (hi[a] - lo[a]) / f64::from(dims[a]));
+    BrickGrid::new(
+        dims,
+        lo.to_array(),
+        spacing,
+        pinbake::sparse_density::SPARSE_BRICK,
+        index,
+        values,
+    )
+    .ok()
 }
 
 /// The dense grid's convention is `DenseView`'s: voxel `i`'s centre at `origin + (i + 0.5)

@@ -127,3 +127,51 @@ fn tracker_dense_view_reproduces_the_source() {
         );
     }
 }
+
+/// A VDB over the dense GPU limit goes to the GPU in bricks (`gpu_density_or_bricks`, here
+/// with a limit of 0 voxels): the source's extinction, as the dense copy gives it, and a
+/// density under the limit keeps its dense copy.
+#[test]
+fn a_vdb_over_the_dense_limit_goes_to_the_gpu_in_bricks() {
+    use pinbake::source::DensitySource;
+    use pinrender::gpu_render::GpuDensityKind;
+    use pinrender::volume::TrackedSource;
+    let smoke = data("openvdb_smoke1.vdb");
+    let opts = VdbOptions {
+        density_scale: 2.0,
+        ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"))
+    };
+    let vdb = Arc::new(VdbSource::open(Path::new(&smoke), &opts).unwrap());
+    let opened = Opened::Vdb(vdb.clone());
+    let field = TrackedSource::new(opened.source());
+    let dense = opened.gpu_density_or_bricks(&field, 1 << 28).unwrap();
+    assert!(matches!(dense.kind, GpuDensityKind::Voxels(_)));
+    let bricked = opened.gpu_density_or_bricks(&field, 0).unwrap();
+    let GpuDensityKind::Bricks(grid) = &bricked.kind else {
+        panic!("not bricked: {:?}", bricked.bounds)
+    };
+    let (dims, _, stored) = grid.shape();
+    let all = dims
+        .iter()
+        .map(|&d| u64::from(d.div_ceil(8)))
+        .product::<u64>();
+    assert!((stored as u64) < all, "{stored} of {all} bricks stored");
+    assert_eq!(bricked.bounds, dense.bounds);
+    let b = vdb.bounds();
+    let scale = vdb.max_extinction_in(b) as f64;
+    let mut rng = pinrender::render::Pcg32::new(8, 9);
+    let (mut worst, mut nonzero) = (0.0f64, 0);
+    for _ in 0..20_000 {
+        let p = [0, 1, 2].map(|k| {
+            let e = b.max[k] - b.min[k];
+            b.min[k] - 0.1 * e + 1.2 * e * rng.next_f64()
+        });
+        let want = f64::from(vdb.extinction(DVec3::from_array(p)));
+        let got = bricked.extinction(p);
+        worst = worst.max((got - want).abs() / scale);
+        nonzero += usize::from(want > 0.0);
+        assert!((got - dense.extinction(p)).abs() <= 1e-5 * scale, "{p:?}");
+    }
+    assert!(nonzero > 1000, "only {nonzero} non-zero samples");
+    assert!(worst < 1e-5, "worst relative difference {worst}");
+}

@@ -147,6 +147,36 @@ fn a_sparse_density_renders_alone_like_the_dense_one_and_a_lying_index_is_refuse
     assert!(!out.exists());
 }
 
+/// On the GPU a sparse-only pin file renders as the dense section of the same bake does (the
+/// same f16 voxels; at this size through their dense expansion, above one storage binding
+/// through the bricks, which `gpu_render`'s tests compare with the dense path).
+#[test]
+fn a_sparse_density_renders_on_the_gpu_with_the_dense_sections_bits() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let dense = bake(d, "dense.pin", 1.0, Some(32), true);
+    let sparse = bake_sparse(d, "sparse.pin", 32);
+    let cam = [
+        "--camera-origin",
+        "0.5,0.6,2.6",
+        "--camera-target",
+        "0.5,0.5,0.5",
+    ];
+    for est in ["ratio", "pinms"] {
+        let mut images = Vec::new();
+        for (name, pins) in [("d", &dense), ("s", &sparse)] {
+            let out = d.join(format!("gpu-{name}-{est}.exr"));
+            let mut args = vec!["--pins", pins.to_str().unwrap(), "--estimator", est];
+            args.extend(["--spp", "8", "--backend", "gpu"]);
+            args.extend(cam);
+            args.extend(["--out", out.to_str().unwrap()]);
+            expect(&render(&args), 0, "rendered");
+            images.push(std::fs::read(&out).unwrap());
+        }
+        assert!(images[0] == images[1], "{est}: the bricked image differs");
+    }
+}
+
 fn render(args: &[&str]) -> Output {
     Command::new(BIN)
         .arg("render")

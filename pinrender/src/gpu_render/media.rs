@@ -3,7 +3,8 @@
 //!
 //! A scene's media are [`GpuMedia`]: the distinct pin grids (concatenated into one pin and one
 //! cell-index buffer), the distinct density fields ([`GpuDensity`]: a voxel grid in the
-//! project's convention or closed-form cosine noise), and the instances ([`GpuMedium`]), each
+//! project's convention, dense or bricked, or closed-form cosine noise), and the instances
+//! ([`GpuMedium`]), each
 //! with an optional placed pin grid (what `pins` and PinMS query) and an optional placed
 //! density with its world-space majorant grid (what ray marching and the trackers query).
 //! An instance may have either or both; which estimators a render may use follows from that.
@@ -13,7 +14,9 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::render::{DensitySource, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid};
+use crate::render::{
+    BrickGrid, DensitySource, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid,
+};
 use pinrt::Error;
 use pinrt::PinGrid;
 use pinrt::SamplerOptions;
@@ -37,6 +40,14 @@ pub enum GpuDensityKind {
     /// trilinear between centres, the edge voxel's value in the outer half voxel; values `x`
     /// fastest, cleaned by [`VoxelGrid::new`]. Evaluated in f32 on the GPU.
     Voxels(VoxelGrid),
+    /// The same convention in bricks behind a top-level index ([`BrickGrid`]: one `u32` per
+    /// brick, empty bricks read 0), for grids too large for one dense binding. The shader
+    /// reads the eight voxels of a lookup through the index (no apron: a lookup across a
+    /// brick border reads the neighbour brick) with the dense grid's f32 arithmetic, so a
+    /// bricked grid renders the same bits as its dense expansion. Brick values live in up to
+    /// [`VALUE_BINDINGS`] storage bindings, as f16 when every value is exactly an f16 (a pin
+    /// file's f16 sparse section), else as f32 (`docs/gpu.md`, "Bricked densities").
+    Bricks(Arc<BrickGrid>),
     /// `density * max(0, 1 + sum_k amplitude_k cos(w_k . p + phase_k))`, pinbake's cosine
     /// noise (evaluated in f32 with the phase reduced to turns before the cosine).
     Cosine {
@@ -95,6 +106,16 @@ impl GpuDensity {
         })
     }
 
+    /// The GPU copy of a [`BrickGrid`] (shared, not copied; same convention, same box).
+    pub fn from_bricks(grid: Arc<BrickGrid>) -> Result<Self, RenderError> {
+        let (lo, hi) = grid.bounds().to_arrays();
+        check_box(&lo, &hi)?;
+        Ok(GpuDensity {
+            bounds: (lo, hi),
+            kind: GpuDensityKind::Bricks(grid),
+        })
+    }
+
     /// A homogeneous box: one voxel over the box, which the convention makes constant inside.
     pub fn homogeneous(b: &HomogeneousBox) -> Result<Self, RenderError> {
         let (lo, hi) = b.bounds().to_arrays();
@@ -145,6 +166,7 @@ impl GpuDensity {
                 (f64::from(*density) * s).max(0.0)
             }
             GpuDensityKind::Voxels(grid) => grid.trilinear(p),
+            GpuDensityKind::Bricks(grid) => grid.trilinear(p),
         }
     }
 
@@ -225,7 +247,7 @@ pub(super) struct Caps {
     pub majorants: bool,
 }
 
-/// `RtMedium` of `render.wgsl` (208 bytes).
+/// `RtMedium` of `render.wgsl` (240 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub(super) struct MediumRecord {
@@ -242,6 +264,11 @@ pub(super) struct MediumRecord {
     pub maj_hi: [f32; 4],
     pub pin_lo: [f32; 4],
     pub pin_hi: [f32; 4],
+    /// Bricks: first index entry in the data buffer, bricks along x and y, first value word.
+    pub bidx: [u32; 4],
+    /// Bricks: log2 of the brick edge, 1 for f16 values (else f32), words per value binding,
+    /// unused.
+    pub bfmt: [u32; 4],
 }
 
 pub(super) const FLAG_PINS: u32 = 1;
@@ -249,14 +276,72 @@ pub(super) const FLAG_DENSITY: u32 = 2;
 pub(super) const FLAG_MAJORANTS: u32 = 4;
 const KIND_VOXELS: u32 = 1;
 const KIND_COSINE: u32 = 2;
+const KIND_BRICKS: u32 = 3;
+/// Storage bindings that hold brick values (`rt_bricks0..15` of `render.wgsl`): bricks that
+/// exceed one binding are split over them (16 x 128 MiB, lavapipe's and many GPUs' binding
+/// limit, hold 2 GiB of bricks: the half-resolution production cloud's f32 bricks are
+/// 1.1 GB). With the other bindings, 22 storage buffers in the compute stage.
+pub const VALUE_BINDINGS: usize = 16;
 /// Floats per cosine wave in the data buffer.
 const WAVE_FLOATS: usize = 8;
+
+/// Where the brick values of a scene's bricked densities go: one address space of 32-bit
+/// words, cut into value bindings of `cap_words` each. Each grid's bricks are consecutive
+/// from its `base` (a multiple of its brick's words, which divide `cap_words`), so no brick
+/// straddles two bindings.
+pub(super) struct BrickValues {
+    pub cap_words: u64,
+    pub total_words: u64,
+    /// Grid, first word, f16 (two values per word, the lower half first) or f32.
+    pub grids: Vec<(Arc<BrickGrid>, u64, bool)>,
+}
+
+impl BrickValues {
+    /// Number of value bindings in use.
+    pub fn bindings(&self) -> usize {
+        self.total_words.div_ceil(self.cap_words.max(1)) as usize
+    }
+
+    /// Words `first..first + out.len()` of the value space into `out`.
+    pub fn fill(&self, first: u64, out: &mut [u32]) {
+        let start = first;
+        let end = start + out.len() as u64;
+        for (grid, base, f16) in &self.grids {
+            let (_, values) = grid.parts();
+            let words = if *f16 { values.len() / 2 } else { values.len() } as u64;
+            let (lo, hi) = ((*base).max(start), (base + words).min(end));
+            for w in lo..hi {
+                let i = (w - base) as usize;
+                out[(w - start) as usize] = if *f16 {
+                    let h = |v: f32| u32::from(half::f16::from_f32(v).to_bits());
+                    h(values[2 * i]) | (h(values[2 * i + 1]) << 16)
+                } else {
+                    values[i].to_bits()
+                };
+            }
+        }
+    }
+}
+
+/// Whether the GPU keeps `grid`'s values as f16: every value is exactly an f16 (and a brick
+/// holds whole words of them).
+fn keeps_f16(grid: &BrickGrid) -> bool {
+    let (_, brick, _) = grid.shape();
+    brick >= 2
+        && grid
+            .parts()
+            .1
+            .iter()
+            .all(|&v| half::f16::from_f32(v).to_f32().to_bits() == v.to_bits())
+}
 
 /// The buffers of a scene's media, ready to upload.
 pub(super) struct Packed<'g> {
     pub grid_params: Vec<GridParams>,
     pub records: Vec<MediumRecord>,
-    pub data: Vec<f32>,
+    /// Voxels, cosine waves, majorants (f32 bits) and brick indices (u32).
+    pub data: Vec<u32>,
+    pub bricks: BrickValues,
     pub pins: Cow<'g, [u8]>,
     pub index: Cow<'g, [u8]>,
     pub caps: Vec<Caps>,
@@ -341,16 +426,37 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
         u32::try_from(v).map_err(|_| gpu(format!("{what} offset {v} exceeds u32")))
     };
 
-    // Densities: values and waves at offsets in one f32 array.
-    let mut data: Vec<f32> = Vec::new();
+    // Densities: values and waves (f32 bits) and brick indices at offsets in one u32 array;
+    // brick values in their own address space.
+    let mut data: Vec<u32> = Vec::new();
     let mut density_off = Vec::with_capacity(media.densities.len());
-    for d in &media.densities {
+    // Per density: its bricks' first value word and whether they are f16.
+    let mut brick_at = vec![(0u64, false); media.densities.len()];
+    let mut bricks = BrickValues {
+        cap_words: 0,
+        total_words: 0,
+        grids: Vec::new(),
+    };
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let mut largest_brick = 0u64;
+    for (k, d) in media.densities.iter().enumerate() {
         density_off.push(data.len());
         match &d.kind {
-            GpuDensityKind::Voxels(grid) => data.extend_from_slice(grid.parts().3),
+            GpuDensityKind::Voxels(grid) => data.extend(grid.parts().3.iter().map(|v| v.to_bits())),
+            GpuDensityKind::Bricks(grid) => {
+                data.extend_from_slice(grid.parts().0);
+                let (_, brick, slots) = grid.shape();
+                let f16 = keeps_f16(grid);
+                let words = u64::from(brick).pow(3) >> u32::from(f16);
+                let base = bricks.total_words.next_multiple_of(words);
+                brick_at[k] = (base, f16);
+                bricks.total_words = base + words * slots as u64;
+                largest_brick = largest_brick.max(words);
+                bricks.grids.push((grid.clone(), base, f16));
+            }
             GpuDensityKind::Cosine { waves, .. } => {
                 for w in waves {
-                    data.extend_from_slice(&[
+                    data.extend(bits(&[
                         w.w[0],
                         w.w[1],
                         w.w[2],
@@ -359,10 +465,26 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
                         0.0,
                         0.0,
                         0.0,
-                    ]);
+                    ]));
                 }
                 debug_assert_eq!(data.len() % WAVE_FLOATS, 0);
             }
+        }
+    }
+    if let Some(whole) = (limit / 4)
+        .min(u64::from(u32::MAX) / VALUE_BINDINGS as u64)
+        .checked_div(largest_brick)
+    {
+        // Whole bricks per binding; word addresses stay below 2^32.
+        bricks.cap_words = whole * largest_brick;
+        if bricks.cap_words == 0 || bricks.bindings() > VALUE_BINDINGS {
+            return Err(gpu(format!(
+                "the bricked densities need {} bytes of brick values ({} bytes per brick), \
+                 more than {VALUE_BINDINGS} storage bindings of {limit} bytes hold on this \
+                 device; use a smaller volume or a device with larger storage bindings",
+                bricks.total_words * 4,
+                largest_brick * 4
+            )));
         }
     }
 
@@ -418,6 +540,28 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
                     r.vox_inv = f4(spacing.map(|s| 1.0 / s), 0.0);
                     r.clip_lo = f4(wlo, 0.0);
                 }
+                GpuDensityKind::Bricks(grid) => {
+                    let (dims, brick, _) = grid.shape();
+                    let (origin, spacing) = grid.placement();
+                    let (base, f16) = brick_at[pd.density];
+                    r.ids[3] = KIND_BRICKS;
+                    r.vdims = [dims[0], dims[1], dims[2], 0];
+                    r.vox_origin = f4(origin, 0.0);
+                    r.vox_inv = f4(spacing.map(|s| 1.0 / s), 0.0);
+                    r.clip_lo = f4(wlo, 0.0);
+                    r.bidx = [
+                        r.offs[0],
+                        dims[0].div_ceil(brick),
+                        dims[1].div_ceil(brick),
+                        to_u32("brick value", base as usize)?,
+                    ];
+                    r.bfmt = [
+                        brick.trailing_zeros(),
+                        u32::from(f16),
+                        to_u32("brick binding", bricks.cap_words as usize)?,
+                        0,
+                    ];
+                }
                 GpuDensityKind::Cosine { density, waves } => {
                     r.ids[3] = KIND_COSINE;
                     r.offs[1] = to_u32("wave count", waves.len())?;
@@ -430,7 +574,7 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
                 let (mlo, mhi) = mg.bounds();
                 let md = mg.dims();
                 r.offs[2] = to_u32("majorant", data.len())?;
-                data.extend_from_slice(mg.values());
+                data.extend(mg.values().iter().map(|v| v.to_bits()));
                 r.mdims = [md[0], md[1], md[2], 0];
                 r.maj_lo = f4(mlo, 0.0);
                 r.maj_hi = f4(mhi, 0.0);
@@ -455,6 +599,7 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
         grid_params: params,
         records,
         data,
+        bricks,
         pins,
         index,
         caps,

@@ -30,6 +30,7 @@ mod media;
 
 pub use media::{
     CosineWave, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity,
+    VALUE_BINDINGS,
 };
 
 use std::collections::HashMap;
@@ -319,6 +320,12 @@ pub struct GpuRenderer {
     grids: wgpu::Buffer,
     records: wgpu::Buffer,
     data: wgpu::Buffer,
+    /// Brick values (`rt_bricks0..`), dummies where unused.
+    bricks: Vec<wgpu::Buffer>,
+    /// How many of `bricks` hold values.
+    brick_bindings: usize,
+    /// Some density is bricked (`RT_BRICKS`; it may have no stored brick at all).
+    bricked: bool,
     /// Medium 0's grid parameters as a uniform (`rt_grid0`).
     grid0: wgpu::Buffer,
     caps: Vec<media::Caps>,
@@ -383,11 +390,33 @@ impl GpuRenderer {
     /// path tracer. Errors: an index out of range, a placement that is not invertible, a
     /// buffer larger than the device binds, a GPU failure.
     pub fn with_media(ctx: &GpuContext, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
-        pollster::block_on(Self::create(ctx, media))
+        Self::with_media_limited(ctx, media, pinrt::gpu::binding_limit(&ctx.limits))
     }
 
-    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
-        let packed = media::pack(media, pinrt::gpu::binding_limit(&ctx.limits))?;
+    /// [`GpuRenderer::with_media`] with at most `binding_limit` bytes per storage binding
+    /// (the device's own limit if smaller): what a device with smaller bindings would do,
+    /// e.g. split brick values over more of them, or refuse.
+    pub fn with_media_limited(
+        ctx: &GpuContext,
+        media: &GpuMedia<'_>,
+        binding_limit: u64,
+    ) -> pinrt::Result<Self> {
+        let limit = binding_limit.min(pinrt::gpu::binding_limit(&ctx.limits));
+        pollster::block_on(Self::create(ctx, media, limit))
+    }
+
+    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>, limit: u64) -> pinrt::Result<Self> {
+        // Group 0: pins and cell indices; group 1: accumulation, grid parameters, media,
+        // data and the brick values.
+        let storage_needed = 6 + VALUE_BINDINGS as u32;
+        let storage_max = ctx.limits.max_storage_buffers_per_shader_stage;
+        if storage_max < storage_needed {
+            return Err(Error::Gpu(format!(
+                "the path tracer binds {storage_needed} storage buffers in one shader stage; \
+                 this device binds {storage_max}"
+            )));
+        }
+        let packed = media::pack(media, limit)?;
 
         let dev = &ctx.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -412,6 +441,46 @@ impl GpuRenderer {
         );
         let records = storage("render media", bytemuck::cast_slice(&packed.records));
         let data = storage("render density data", bytemuck::cast_slice(&packed.data));
+        // Brick values are written straight into each mapped buffer (no second copy of the
+        // bricks in memory).
+        let mut bricks = Vec::with_capacity(VALUE_BINDINGS);
+        for k in 0..VALUE_BINDINGS {
+            let b = &packed.bricks;
+            let start = k as u64 * b.cap_words;
+            let words = b.total_words.saturating_sub(start).min(b.cap_words);
+            if words == 0 {
+                bricks.push(storage("render brick values (unused)", &[]));
+                continue;
+            }
+            let buffer = dev.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("render brick values"),
+                size: words * 4,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: true,
+            });
+            {
+                let mut view = buffer
+                    .slice(..)
+                    .get_mapped_range_mut()
+                    .map_err(|e| gpu_err("mapping the brick values", e))?;
+                // Through a small staging chunk: the mapping is write-only.
+                const CHUNK: u64 = 1 << 20;
+                let mut chunk = vec![0u32; CHUNK.min(words) as usize];
+                let mut at = 0;
+                while at < words {
+                    let n = CHUNK.min(words - at) as usize;
+                    // Zeros between two grids' bricks (alignment).
+                    chunk[..n].fill(0);
+                    b.fill(start + at, &mut chunk[..n]);
+                    let bytes = (at * 4) as usize..((at + n as u64) * 4) as usize;
+                    view.slice(bytes)
+                        .copy_from_slice(bytemuck::cast_slice(&chunk[..n]));
+                    at += n as u64;
+                }
+            }
+            buffer.unmap();
+            bricks.push(buffer);
+        }
         let grid0 = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("render grid 0"),
             contents: bytemuck::bytes_of(
@@ -447,7 +516,11 @@ impl GpuRenderer {
                 storage_entry(4, true),
                 storage_entry(5, true),
                 uniform_entry(6, false, size_of::<media::GridParams>() as u64),
-            ],
+            ]
+            .into_iter()
+            // 7..: the brick values.
+            .chain((0..VALUE_BINDINGS as u32).map(|k| storage_entry(7 + k, true)))
+            .collect::<Vec<_>>(),
         });
         let grid_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("render grid"),
@@ -491,6 +564,9 @@ impl GpuRenderer {
             grids,
             records,
             data,
+            bricks,
+            brick_bindings: packed.bricks.bindings(),
+            bricked: !packed.bricks.grids.is_empty(),
             grid0,
             caps: packed.caps,
             pin_bytes: packed.pins.len() as u64,
@@ -517,6 +593,7 @@ impl GpuRenderer {
             ("RT_PRIMARY", f64::from(primary)),
             ("RT_SECONDARY", f64::from(secondary)),
             ("RT_ONE_MEDIUM", one_medium),
+            ("RT_BRICKS", if self.bricked { 1.0 } else { 0.0 }),
         ];
         let pipeline = self
             .device
@@ -542,6 +619,12 @@ impl GpuRenderer {
     /// Number of media instances.
     pub fn media_count(&self) -> usize {
         self.caps.len()
+    }
+
+    /// Number of storage bindings that hold brick values (0 without bricked densities, at
+    /// most [`VALUE_BINDINGS`]).
+    pub fn brick_bindings(&self) -> usize {
+        self.brick_bindings
     }
 
     /// Checks that every medium has what `estimator` queries.
@@ -697,7 +780,18 @@ impl GpuRenderer {
                         binding: 6,
                         resource: self.grid0.as_entire_binding(),
                     },
-                ],
+                ]
+                .into_iter()
+                .chain(
+                    self.bricks
+                        .iter()
+                        .zip(7..)
+                        .map(|(b, binding)| wgpu::BindGroupEntry {
+                            binding,
+                            resource: b.as_entire_binding(),
+                        }),
+                )
+                .collect::<Vec<_>>(),
             });
             let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
                 label: Some("render passes"),

@@ -970,3 +970,229 @@ fn stiff_media_stay_finite() {
         }
     }
 }
+
+// ---------------------------------------------------------------------------------------
+// Bricked densities
+// ---------------------------------------------------------------------------------------
+
+/// The multi-medium tests' blob at 24^3 (values rounded to f16 when `f16`), dense and in
+/// bricks of 4 (the corner bricks are empty).
+fn blob_bricks(f16: bool) -> (VoxelGrid, Arc<crate::render::BrickGrid>) {
+    let n = 24;
+    let mut values = blob_voxels(n, 6.0);
+    if f16 {
+        for v in &mut values {
+            *v = half::f16::from_f32(*v).to_f32();
+        }
+    }
+    let dense = VoxelGrid::new([n; 3], [-1.0; 3], [2.0 / n as f64; 3], values).unwrap();
+    let bricks = Arc::new(crate::render::BrickGrid::from_voxels(&dense, 4).unwrap());
+    let (_, _, stored) = bricks.shape();
+    assert!(stored < 216, "some bricks must be empty");
+    (dense, bricks)
+}
+
+/// `density` at [`OFFSETS`] with `majorants`, and the blob pin grid when `pins`.
+fn placed<'g>(
+    density: GpuDensity,
+    majorants: &[Arc<MajorantGrid>],
+    pins: Option<&'g PinGrid>,
+) -> GpuMedia<'g> {
+    GpuMedia {
+        grids: pins.into_iter().collect(),
+        densities: vec![density],
+        media: (0..OFFSETS.len())
+            .map(|k| GpuMedium {
+                pins: pins.map(|_| GpuPins {
+                    grid: 0,
+                    local_to_world: Some(translated_identity(OFFSETS[k])),
+                    options: SamplerOptions::default(),
+                }),
+                density: Some(GpuPlacedDensity {
+                    density: 0,
+                    translation: OFFSETS[k],
+                    majorants: Some(majorants[k].clone()),
+                }),
+            })
+            .collect(),
+    }
+}
+
+/// World-space majorants of `field`'s blob at each of [`OFFSETS`].
+fn placed_majorants(dense: &VoxelGrid) -> Vec<Arc<MajorantGrid>> {
+    let (dims, origin, spacing, values) = dense.parts();
+    OFFSETS
+        .iter()
+        .map(|off| {
+            let o = [0, 1, 2].map(|a| origin[a] + off[a]);
+            let g = VoxelGrid::new(dims, o, spacing, values.to_vec()).unwrap();
+            Arc::new(MajorantGrid::from_field(&g, [4, 4, 4]).unwrap())
+        })
+        .collect()
+}
+
+fn image_bits(im: &Image) -> Vec<u32> {
+    im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect()
+}
+
+/// A bricked density renders the bits of its dense expansion with every GPU estimator (the
+/// shader reads the same eight voxels and does the same f32 arithmetic), f32 and f16 bricks,
+/// whole or split over several value bindings; a split that does not fit is one error.
+#[test]
+fn bricked_density_renders_the_dense_bits_whole_or_split() {
+    let ctx = context();
+    let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
+    let grid = load(&owned);
+    let mut sc = scene(24, 0.9, 0.3, 3);
+    sc.camera.origin = [0.5, 0.8, 4.5];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    for f16 in [false, true] {
+        let (dense, bricks) = blob_bricks(f16);
+        let maj = placed_majorants(&dense);
+        let gd = GpuDensity::from_voxel_grid(dense.clone()).unwrap();
+        let gb = GpuDensity::from_bricks(bricks.clone()).unwrap();
+        assert_eq!(gd.bounds, gb.bounds);
+        let dense_r =
+            GpuRenderer::with_media(&ctx, &placed(gd.clone(), &maj, Some(&grid))).unwrap();
+        let brick_r =
+            GpuRenderer::with_media(&ctx, &placed(gb.clone(), &maj, Some(&grid))).unwrap();
+        assert_eq!((dense_r.brick_bindings(), brick_r.brick_bindings()), (0, 1));
+        // Split: a twelfth of the brick bytes per binding (the other buffers are smaller
+        // without pins).
+        let (_, brick, stored) = bricks.shape();
+        let brick_bytes = u64::from(brick).pow(3) * if f16 { 2 } else { 4 };
+        let total = brick_bytes * stored as u64;
+        let limit = total / 12 / 4 * 4;
+        let dense_np = GpuRenderer::with_media(&ctx, &placed(gd, &maj, None)).unwrap();
+        let split =
+            GpuRenderer::with_media_limited(&ctx, &placed(gb.clone(), &maj, None), limit).unwrap();
+        assert!(
+            (12..=VALUE_BINDINGS).contains(&split.brick_bindings()),
+            "{} bindings",
+            split.brick_bindings()
+        );
+        // Every estimator on the f32 bricks; the f16 ones and the splits share the code
+        // below the value fetch (each pipeline costs seconds to compile on lavapipe).
+        let all = [
+            GpuEstimator::RayMarching { rel_step: 0.05 },
+            GpuEstimator::DeltaTracking,
+            GpuEstimator::RatioTracking,
+            GpuEstimator::PinMs,
+            GpuEstimator::Urm { lookups: 8 },
+            GpuEstimator::Jackknife { lookups: 8 },
+        ];
+        let whole: &[GpuEstimator] = if f16 { &all[2..4] } else { &all };
+        for &est in whole {
+            let want = image_bits(&dense_r.render(&sc, est, 2, 77).unwrap());
+            let got = image_bits(&brick_r.render(&sc, est, 2, 77).unwrap());
+            assert!(
+                want == got,
+                "f16 {f16}, {}: bricked bits differ",
+                est.name()
+            );
+        }
+        for est in [all[0], all[2]] {
+            let want = image_bits(&dense_np.render(&sc, est, 2, 78).unwrap());
+            let got = image_bits(&split.render(&sc, est, 2, 78).unwrap());
+            assert!(want == got, "f16 {f16}, {}: split bits differ", est.name());
+        }
+        if !f16 {
+            // No stored brick at all: the bricked path still runs (and reads 0), the
+            // environment comes through unattenuated.
+            let zeros =
+                VoxelGrid::new([24; 3], [-1.0; 3], [2.0 / 24.0; 3], vec![0.0; 24 * 24 * 24]);
+            let empty =
+                Arc::new(crate::render::BrickGrid::from_voxels(&zeros.unwrap(), 4).unwrap());
+            assert_eq!(empty.shape().2, 0);
+            let d = GpuDensity::from_bricks(empty).unwrap();
+            let r = GpuRenderer::with_media(&ctx, &placed(d, &maj, None)).unwrap();
+            assert_eq!(r.brick_bindings(), 0);
+            let mut t_only = sc.clone();
+            t_only.albedo = 0.0;
+            let img = r
+                .render(&t_only, GpuEstimator::RatioTracking, 1, 5)
+                .unwrap();
+            let env = t_only.env_radiance;
+            assert!(
+                img.rgb
+                    .iter()
+                    .all(|p| (0..3).all(|c| (p[c] - env[c]).abs() < 1e-6))
+            );
+        }
+        // Whole bricks per binding: a seventeenth of the bytes needs more than sixteen.
+        let small = total / 17;
+        let e = GpuRenderer::with_media_limited(&ctx, &placed(gb, &maj, None), small)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(&format!("{total} bytes of brick values"))
+                && e.contains(&format!("{small} bytes"))
+                && !e.contains('\n'),
+            "{e}"
+        );
+    }
+}
+
+/// The GPU path tracer over bricks against the CPU one over the same [`BrickGrid`]s (f16
+/// values, three instances): the same expected image, per pixel and overall.
+#[test]
+fn bricked_density_matches_cpu() {
+    let ctx = context();
+    let (_, bricks) = blob_bricks(true);
+    let (dims, brick, _) = bricks.shape();
+    let ((origin, spacing), (index, values)) = (bricks.placement(), bricks.parts());
+    let fields: Vec<Arc<crate::render::BrickGrid>> = OFFSETS
+        .iter()
+        .map(|off| {
+            let o = [0, 1, 2].map(|a| origin[a] + off[a]);
+            let g = crate::render::BrickGrid::new(
+                dims,
+                o,
+                spacing,
+                brick,
+                index.to_vec(),
+                values.to_vec(),
+            );
+            Arc::new(g.unwrap())
+        })
+        .collect();
+    let maj: Vec<Arc<MajorantGrid>> = fields
+        .iter()
+        .map(|f| Arc::new(MajorantGrid::from_field(&**f, [4, 4, 4]).unwrap()))
+        .collect();
+    let gb = GpuDensity::from_bricks(bricks.clone()).unwrap();
+    let renderer = GpuRenderer::with_media(&ctx, &placed(gb, &maj, None)).unwrap();
+    let mut sc = scene(24, 0.9, 0.3, 3);
+    sc.camera.origin = [0.5, 0.8, 4.5];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    for est in [
+        GpuEstimator::RayMarching { rel_step: 0.05 },
+        GpuEstimator::RatioTracking,
+    ] {
+        let cpu = |k: u64| {
+            let media = (0..OFFSETS.len())
+                .map(|i| {
+                    let e: Arc<dyn TransportEstimator> = match est {
+                        GpuEstimator::RatioTracking => Arc::new(crate::render::RatioTracking::new(
+                            fields[i].clone(),
+                            maj[i].clone(),
+                        )),
+                        _ => Arc::new(
+                            crate::render::RayMarching::new(fields[i].clone(), 0.05).unwrap(),
+                        ),
+                    };
+                    Medium::single(separate(e))
+                })
+                .collect();
+            cpu_render_media(media, &sc, 2, 4000 + k)
+        };
+        compare_with(
+            &format!("bricks, {}", est.name()),
+            |k| renderer.render(&sc, est, 2, 400 + k).unwrap(),
+            cpu,
+            24,
+            2,
+            (4.5, 4),
+        );
+    }
+}

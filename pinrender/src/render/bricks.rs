@@ -170,8 +170,8 @@ impl BrickGrid {
         Self::new(dims, origin, spacing, b, index, values)
     }
 
-    /// The same field as a dense [`VoxelGrid`] (for consumers of dense arrays, such as the
-    /// GPU's one-binding copy), when it has at most `max_voxels` voxels.
+    /// The same field as a dense [`VoxelGrid`] (for consumers of dense arrays; the GPU's
+    /// bricked copy is checked against it), when it has at most `max_voxels` voxels.
     pub fn to_voxels(&self, max_voxels: u64) -> Option<VoxelGrid> {
         let d = self.dims.map(|v| v as usize);
         let n = d[0].checked_mul(d[1])?.checked_mul(d[2])?;
@@ -209,6 +209,14 @@ impl BrickGrid {
     fn slot(&self, b: [usize; 3]) -> u32 {
         let [nx, ny, _] = self.brick_dims.map(|v| v as usize);
         self.index[b[0] + nx * (b[1] + ny * b[2])]
+    }
+
+    /// The trilinear value at `q` (in f64), clamped to the grid as [`VoxelGrid`]'s: the
+    /// edge voxel's value in and beyond the outer half voxel. Callers test the box.
+    pub(crate) fn trilinear(&self, q: [f64; 3]) -> f64 {
+        super::field::trilinear(q, self.origin, self.spacing, self.dims, |x, y, z| {
+            self.at(x, y, z)
+        })
     }
 
     /// Voxel `(x, y, z)` (in range).
@@ -275,9 +283,7 @@ impl DensitySource for BrickGrid {
         if !inside(q, &self.origin, &self.max) {
             return 0.0;
         }
-        super::field::trilinear(q, self.origin, self.spacing, self.dims, |x, y, z| {
-            self.at(x, y, z)
-        }) as f32
+        self.trilinear(q) as f32
     }
 
     /// The largest brick maximum over the bricks of the voxels whose centre cells touch the

@@ -9,8 +9,9 @@ use std::time::Instant;
 
 use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::render::{
-    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image, MajorantGrid,
-    RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront, rmse,
+    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image,
+    MajorantGrid, RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
+    rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -49,8 +50,9 @@ Estimators:
 
 --backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
 one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
-of its active box, cosine noise as its waves, a box as one voxel; the procedural sphere has no GPU
-form). Its random streams differ from the CPU's, so the two images agree in expectation, not bit
+of its active box, a pin file's sparse density densely, each as the bricks the CPU trackers read
+when the dense copy would exceed 2^28 voxels or one storage binding, cosine noise as its waves, a
+box as one voxel; the procedural sphere has no GPU form). Its random streams differ from the CPU's, so the two images agree in expectation, not bit
 for bit.")]
 pub struct RenderArgs {
     #[command(flatten)]
@@ -325,7 +327,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
             a.estimator
         );
     }
-    let desc = medium.desc(&a)?;
+    // The GPU first: its storage binding limit decides between a dense and a bricked copy.
+    let ctx = if a.backend == "gpu" {
+        Some(GpuContext::new().map_err(|e| anyhow!("{e}"))?)
+    } else {
+        None
+    };
+    let desc = medium.desc(&a, ctx.as_ref())?;
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
     let target = a.camera_target.unwrap_or(centre.to_array());
@@ -353,7 +361,8 @@ pub fn run(a: RenderArgs) -> Result<()> {
         media: Vec::new(),
     };
     if a.backend == "gpu" {
-        let image = render_gpu(&a, &desc, &scene)?;
+        let ctx = ctx.as_ref().ok_or_else(|| anyhow!("no GPU context"))?;
+        let image = render_gpu(&a, ctx, &desc, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
     let medium = desc
@@ -398,17 +407,19 @@ struct OpenedMedium {
     /// The file's majorants (a pin file alone); `None`: built from the field.
     majorants: Option<Arc<MajorantGrid>>,
     pins: Option<Arc<pinrt::PinGrid>>,
-    /// The source volume, for its GPU copy.
-    opened: Option<volume::Opened>,
-    /// A pin file's embedded density, for its GPU copy.
+    /// The source volume and its field, for its GPU copy.
+    opened: Option<(volume::Opened, Arc<TrackedSource>)>,
+    /// A pin file's embedded dense density, for its GPU copy.
     voxels: Option<Arc<VoxelGrid>>,
+    /// A pin file's embedded sparse density, for its GPU copy when there is no dense one.
+    bricks: Option<Arc<BrickGrid>>,
 }
 
 impl OpenedMedium {
     /// The render's medium description: what the CPU estimators and the GPU packing read
     /// (the GPU copy of the density only for a GPU render of an estimator that reads it).
-    fn desc(&self, a: &RenderArgs) -> Result<MediumDesc> {
-        let gpu = a.backend == "gpu" && a.estimator.needs_density();
+    fn desc(&self, a: &RenderArgs, ctx: Option<&GpuContext>) -> Result<MediumDesc> {
+        let gpu = ctx.filter(|_| a.estimator.needs_density());
         Ok(MediumDesc {
             field: self.field.clone(),
             majorants: self.majorants.clone(),
@@ -418,22 +429,27 @@ impl OpenedMedium {
                 grid,
                 local_to_world: None,
             }),
-            gpu_density: if gpu {
-                Some(Arc::new(self.gpu_density()?))
-            } else {
-                None
+            gpu_density: match gpu {
+                Some(ctx) => Some(Arc::new(self.gpu_density(ctx)?)),
+                None => None,
             },
             translation: [0.0; 3],
         })
     }
 
-    fn gpu_density(&self) -> Result<GpuDensity> {
-        match (&self.opened, &self.voxels) {
-            (Some(o), _) => o.gpu_density(),
-            (None, Some(v)) => {
-                GpuDensity::from_voxel_grid((**v).clone()).map_err(|e| anyhow!("{e}"))
-            }
-            (None, None) => bail!("no density to upload"),
+    /// The GPU's copy: dense when it has at most [`volume::GPU_DENSE_VOXELS`] voxels and fits
+    /// one storage binding of `ctx` (the images of before the bricks), else bricked.
+    fn gpu_density(&self, ctx: &GpuContext) -> Result<GpuDensity> {
+        let max_dense = volume::GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(&ctx.limits) / 4);
+        let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
+        match (&self.opened, &self.voxels, &self.bricks) {
+            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
+            (None, Some(v), _) => dense((**v).clone()),
+            (None, None, Some(b)) => match b.to_voxels(max_dense) {
+                Some(v) => dense(v),
+                None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
+            },
+            (None, None, None) => bail!("no density to upload"),
         }
     }
 }
@@ -465,13 +481,15 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     } else {
         None
     };
+    let field = Arc::new(TrackedSource::new(source));
     Ok(OpenedMedium {
         bounds: (b.min.to_array(), b.max.to_array()),
-        field: Some(Arc::new(TrackedSource::new(source))),
+        field: Some(field.clone()),
         majorants: None,
         pins,
-        opened: Some(opened),
+        opened: Some((opened, field)),
         voxels: None,
+        bricks: None,
     })
 }
 
@@ -490,11 +508,10 @@ fn open_medium_from_pins(path: &Path) -> Result<OpenedMedium> {
         majorants: m.majorants,
         pins: Some(grid),
         opened: None,
-        // A sparse-only file on the GPU: its dense expansion, within the one binding's
-        // 2^28 voxels.
-        voxels: m
-            .density
-            .or_else(|| m.bricks.and_then(|b| b.to_voxels(1 << 28)).map(Arc::new)),
+        // The GPU reads the dense section if there is one, else the bricks' dense expansion
+        // where it fits one binding, else the bricks.
+        voxels: m.density,
+        bricks: m.bricks,
     })
 }
 
@@ -551,12 +568,16 @@ fn write(
 
 /// The same render on the GPU path tracer: returns the image, its spp and the seconds spent
 /// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
-fn render_gpu(a: &RenderArgs, desc: &MediumDesc, scene: &Scene) -> Result<(Image, u32, f64)> {
+fn render_gpu(
+    a: &RenderArgs,
+    ctx: &GpuContext,
+    desc: &MediumDesc,
+    scene: &Scene,
+) -> Result<(Image, u32, f64)> {
     let est: GpuEstimator = a.estimator;
     let media = pinrender::medium::gpu_media(std::slice::from_ref(desc), Some(est), a.lookup())
         .map_err(|e| anyhow!("{e}"))?;
-    let ctx = GpuContext::new().map_err(|e| anyhow!("{e}"))?;
-    let renderer = GpuRenderer::with_media(&ctx, &media).map_err(|e| anyhow!("{e}"))?;
+    let renderer = GpuRenderer::with_media(ctx, &media).map_err(|e| anyhow!("{e}"))?;
     let gs = GpuScene::from_scene(scene, a.max_bounces);
     let start = Instant::now();
     match a.seconds {
