@@ -111,7 +111,7 @@ pub trait TransportEstimator: Send + Sync {
 
 /// A validated ray in f64 with unit direction; `scale = |d|` converts back to the caller's t.
 #[derive(Clone, Copy)]
-pub(crate) struct Prepared {
+pub(crate) struct PreparedRay {
     pub o: DVec3,
     pub d: DVec3,
     pub scale: f64,
@@ -119,7 +119,7 @@ pub(crate) struct Prepared {
 }
 
 #[inline]
-pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<Prepared> {
+pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<PreparedRay> {
     if !(o.is_finite() && d.is_finite() && t_max > 0.0) {
         return None;
     }
@@ -128,7 +128,7 @@ pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<Prepared> {
     if !(scale > 0.0 && scale.is_finite()) {
         return None;
     }
-    Some(Prepared {
+    Some(PreparedRay {
         o: o.as_dvec3(),
         d: d / scale,
         scale,
@@ -136,7 +136,7 @@ pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<Prepared> {
     })
 }
 
-impl Prepared {
+impl PreparedRay {
     /// World distance back to the caller's parameter, strictly inside `[0, t_max]`.
     #[inline]
     pub(crate) fn to_t(self, t_world: f64, t_max: f32) -> f32 {
@@ -208,7 +208,7 @@ impl<F: DensitySource + ?Sized> RayMarching<F> {
 
     /// Walks the steps; `visit(t_start, h, sigma)` returns true to stop.
     #[inline]
-    fn march(&self, r: &Prepared, mut visit: impl FnMut(f64, f64, f64) -> bool) {
+    fn march(&self, r: &PreparedRay, mut visit: impl FnMut(f64, f64, f64) -> bool) {
         let Some((t0, t1)) = clip_box(r.o, r.d, &self.lo, &self.hi, 0.0, r.t_max) else {
             return;
         };
@@ -296,9 +296,9 @@ pub(crate) struct Tracker<F: ?Sized> {
 /// How [`Tracker::walk_with`] reads the extinction at a tentative collision.
 trait Lookup {
     /// A new majorant segment starts at world distance `t0` along the ray.
-    fn segment(&mut self, r: &Prepared, t0: f64);
+    fn segment(&mut self, r: &PreparedRay, t0: f64);
     /// The extinction at world distance `t` (inside the current segment).
-    fn at(&self, r: &Prepared, t: f64) -> f32;
+    fn at(&self, r: &PreparedRay, t: f64) -> f32;
 }
 
 /// Through [`DensitySource::extinction`] at the f32 world point.
@@ -306,9 +306,9 @@ struct PointLookup<'a, F: ?Sized>(&'a F);
 
 impl<F: DensitySource + ?Sized> Lookup for PointLookup<'_, F> {
     #[inline(always)]
-    fn segment(&mut self, _: &Prepared, _: f64) {}
+    fn segment(&mut self, _: &PreparedRay, _: f64) {}
     #[inline(always)]
-    fn at(&self, r: &Prepared, t: f64) -> f32 {
+    fn at(&self, r: &PreparedRay, t: f64) -> f32 {
         self.0.extinction(r.at(t).as_dvec3())
     }
 }
@@ -325,7 +325,7 @@ struct DenseLookup<'a> {
 }
 
 impl<'a> DenseLookup<'a> {
-    fn new(view: DenseView<'a>, r: &Prepared) -> Self {
+    fn new(view: DenseView<'a>, r: &PreparedRay) -> Self {
         DenseLookup {
             du: view.index_dir(r.d.to_array()).map(|v| v as f32),
             view,
@@ -337,7 +337,7 @@ impl<'a> DenseLookup<'a> {
 
 impl Lookup for DenseLookup<'_> {
     #[inline(always)]
-    fn segment(&mut self, r: &Prepared, t0: f64) {
+    fn segment(&mut self, r: &PreparedRay, t0: f64) {
         self.t0 = t0;
         self.u0 = self
             .view
@@ -345,7 +345,7 @@ impl Lookup for DenseLookup<'_> {
             .map(|v| v as f32);
     }
     #[inline(always)]
-    fn at(&self, _: &Prepared, t: f64) -> f32 {
+    fn at(&self, _: &PreparedRay, t: f64) -> f32 {
         let s = (t - self.t0) as f32;
         self.view.at([0, 1, 2].map(|a| self.u0[a] + self.du[a] * s))
     }
@@ -357,7 +357,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
     #[inline]
     fn walk<R>(
         &self,
-        r: &Prepared,
+        r: &PreparedRay,
         rng: &mut Pcg32,
         visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
     ) -> Walk<R> {
@@ -372,7 +372,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
     fn walk_segments<R>(
         &self,
         segments: impl Iterator<Item = MajorantSegment>,
-        r: &Prepared,
+        r: &PreparedRay,
         rng: &mut Pcg32,
         visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
     ) -> Walk<R> {
@@ -394,7 +394,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
     fn walk_with<R, L: Lookup>(
         &self,
         segments: impl Iterator<Item = MajorantSegment>,
-        r: &Prepared,
+        r: &PreparedRay,
         rng: &mut Pcg32,
         mut lookup: L,
         mut visit: impl FnMut(f64, f64, f64, f64, &mut Pcg32) -> Option<R>,
@@ -441,7 +441,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
     /// Delta tracking over [`Tracker::walk`]: a tentative collision is accepted with
     /// probability `sigma / majorant` (clamped to 1 where a supplied majorant is too small).
     #[inline]
-    pub(crate) fn delta(&self, r: &Prepared, rng: &mut Pcg32) -> Option<f64> {
+    pub(crate) fn delta(&self, r: &PreparedRay, rng: &mut Pcg32) -> Option<f64> {
         match self.walk(r, rng, |t, sigma, maj, _, rng| {
             (rng.next_f64() * maj < sigma).then_some(t)
         }) {
@@ -456,7 +456,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
     /// Russian roulette below |T| = 0.1 (survival probability |T| / 0.1, weight divided by
     /// it) keeps dense media cheap without bias.
     #[inline]
-    fn ratio(&self, r: &Prepared, rng: &mut Pcg32) -> f32 {
+    fn ratio(&self, r: &PreparedRay, rng: &mut Pcg32) -> f32 {
         let mut tr = 1.0f64;
         let walk = self.walk(r, rng, |_, sigma, _, inv, rng| {
             ratio_step(&mut tr, sigma, inv, rng)
@@ -475,7 +475,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
     /// its own tracker's distribution; they are correlated, which a sum of their terms
     /// does not mind (`TransportEstimator::transmittance_and_distance`).
     #[inline]
-    pub(crate) fn ratio_and_delta(&self, r: &Prepared, rng: &mut Pcg32) -> (f32, Option<f64>) {
+    pub(crate) fn ratio_and_delta(&self, r: &PreparedRay, rng: &mut Pcg32) -> (f32, Option<f64>) {
         let mut tr = 1.0f64;
         let mut ratio: Option<f32> = None;
         let mut hit: Option<f64> = None;
@@ -833,7 +833,7 @@ impl<F: DensitySource + ?Sized> ResidualRatioTracking<F> {
     }
 
     /// The control's optical depth over the ray's segment, alone.
-    fn control_depth(&self, r: &Prepared) -> f64 {
+    fn control_depth(&self, r: &PreparedRay) -> f64 {
         self.residual
             .segments(r.o, r.d, 0.0, r.t_max)
             .map(|seg| self.control_of(seg.brick) * (seg.t1 - seg.t0).max(0.0))
@@ -844,7 +844,7 @@ impl<F: DensitySource + ?Sized> ResidualRatioTracking<F> {
     /// product `exp(-depth) weight` is the estimate, or `None` when the walk ended in
     /// transmittance 0 (roulette, or an opaque extinction).
     #[inline]
-    pub(crate) fn residual_walk(&self, r: &Prepared, rng: &mut Pcg32) -> Option<(f64, f64)> {
+    pub(crate) fn residual_walk(&self, r: &PreparedRay, rng: &mut Pcg32) -> Option<(f64, f64)> {
         // The segment being walked: its control, and `tau_c(t) = offset + control t` inside
         // it; `depth` is the control depth to the end of the segments pulled so far. Cells:
         // the segment stream sets them and the tentative collisions read them.
@@ -999,7 +999,7 @@ impl<F: DensitySource + ?Sized> Combed<F> {
     }
 
     /// The majorant optical depth along the prepared ray (the combs' lookup rule reads it).
-    pub(crate) fn majorant_depth(&self, r: &Prepared) -> f64 {
+    pub(crate) fn majorant_depth(&self, r: &PreparedRay) -> f64 {
         self.tracker
             .majorants
             .segments(r.o, r.d, 0.0, r.t_max)

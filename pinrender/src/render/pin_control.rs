@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::estimator::{Combed, Prepared, clean, prepare};
+use super::estimator::{Combed, PreparedRay, clean, prepare};
 use super::majorant::clip_box;
 use super::{DensitySource, MajorantGrid, Pcg32, PinsEstimator, RenderError, TransportEstimator};
 
@@ -115,7 +115,7 @@ impl<F: DensitySource + ?Sized> PinControlledUrm<F> {
     /// control when given (the tests' deliberately wrong controls).
     pub(crate) fn estimate(
         &self,
-        r: &Prepared,
+        r: &PreparedRay,
         (o, d, t_max): (Vec3, Vec3, f32),
         rng: &mut Pcg32,
         tail: bool,

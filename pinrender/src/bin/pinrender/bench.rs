@@ -45,7 +45,7 @@ use serde_json::{Value, json};
 use crate::volume::{self, TrackedSource, VolumeArgs};
 
 #[derive(Args, Debug)]
-pub struct BenchArgs {
+pub struct RenderBenchArgs {
     /// Pin file to benchmark (default: bake each volume once, cached in the private
     /// per-user directory $XDG_CACHE_HOME/pinbake or ~/.cache/pinbake).
     #[arg(long)]
@@ -452,7 +452,7 @@ fn bench_volume(
     name: &str,
     source_arc: &Arc<dyn DensitySource>,
     grid: &Arc<PinGrid>,
-    args: &BenchArgs,
+    args: &RenderBenchArgs,
     default_grid: Option<&Arc<PinGrid>>,
     gpu: Option<&pinrt::gpu::GpuContext>,
     rows: &mut Vec<Value>,
@@ -809,7 +809,7 @@ fn bench_volume(
     Ok(())
 }
 
-pub fn run(args: BenchArgs) -> Result<()> {
+pub fn run(args: RenderBenchArgs) -> Result<()> {
     if let Some(d) = &args.data {
         crate::data::set_dir(d.clone());
     }

@@ -22,7 +22,7 @@ pub struct PlotBiasArgs {
 
 /// One CSV row (the columns the plot uses).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Row {
+pub struct SweepRow {
     pub scene: String,
     pub config: String,
     pub cells: Option<u32>,
@@ -34,7 +34,7 @@ pub struct Row {
 }
 
 /// Parses the sweep's CSV; a malformed line is an error naming its line number.
-pub fn parse(text: &str) -> Result<Vec<Row>> {
+pub fn parse(text: &str) -> Result<Vec<SweepRow>> {
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().context("empty CSV")?.split(',').collect();
     let col = |name: &str| {
@@ -73,7 +73,7 @@ pub fn parse(text: &str) -> Result<Vec<Row>> {
                 .map_err(|e| anyhow!("line {}: '{}': {e}", i + 2, f[k]))
         };
         let opt = |k: usize| f[k].trim().parse::<f64>().ok();
-        rows.push(Row {
+        rows.push(SweepRow {
             scene: f[scene].to_string(),
             config: f[config].to_string(),
             cells: opt(cells).map(|c| c as u32),
@@ -109,8 +109,8 @@ fn plot_err<E: std::fmt::Display>(e: E) -> anyhow::Error {
 }
 
 /// The plot (module docs) of `rows` into `out`.
-pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
-    let bakes: Vec<&Row> = rows
+pub fn draw(rows: &[SweepRow], out: &std::path::Path) -> Result<()> {
+    let bakes: Vec<&SweepRow> = rows
         .iter()
         .filter(|r| r.ratio > 0.0 && r.block > 0.0)
         .collect();
@@ -155,7 +155,7 @@ pub fn draw(rows: &[Row], out: &std::path::Path) -> Result<()> {
         .map_err(plot_err)?;
     for (si, scene) in scenes.iter().enumerate() {
         let color = COLORS[si % COLORS.len()];
-        let mine: Vec<&Row> = bakes
+        let mine: Vec<&SweepRow> = bakes
             .iter()
             .copied()
             .filter(|r| r.scene == *scene)

@@ -258,7 +258,7 @@ impl Gpu {
 
 /// One measurement: an estimator at one budget.
 #[derive(Clone, Debug)]
-pub struct Row {
+pub struct Measurement {
     pub scene: String,
     pub estimator: String,
     pub backend: &'static str,
@@ -269,7 +269,7 @@ pub struct Row {
     pub rel_mse: f64,
 }
 
-impl Row {
+impl Measurement {
     /// The name in tables and plots: the estimator, with ` (gpu)` on the GPU backend.
     pub fn label(&self) -> String {
         label(&self.estimator, self.backend)
@@ -298,7 +298,7 @@ pub struct SceneResult {
     pub bake: Option<BakeInfo>,
     /// The GPU line of the scene (setup time, or why there is no GPU row).
     pub gpu_note: Option<String>,
-    pub rows: Vec<Row>,
+    pub rows: Vec<Measurement>,
     /// (label, final image) in estimator order.
     pub images: Vec<(String, Image)>,
     pub reference_image: Image,
@@ -773,7 +773,7 @@ fn eval_scene(
     let mut rows = Vec::new();
     let mut images = Vec::new();
 
-    let mut keep = |pts: Vec<Row>, img: Image, rows: &mut Vec<Row>| -> Result<()> {
+    let mut keep = |pts: Vec<Measurement>, img: Image, rows: &mut Vec<Measurement>| -> Result<()> {
         let Some(r) = pts.last() else {
             return Ok(());
         };
@@ -875,7 +875,7 @@ fn measure(
     a: &EvalArgs,
     budgets: &[f64],
     reference: &Image,
-) -> Result<(Vec<Row>, Image)> {
+) -> Result<(Vec<Measurement>, Image)> {
     let media = match est {
         "whole-volume" => Vec::new(),
         _ => scenes::media(es, est)?,
@@ -925,7 +925,7 @@ fn measure_gpu(
     a: &EvalArgs,
     budgets: &[f64],
     reference: &Image,
-) -> Result<(Vec<Row>, Image)> {
+) -> Result<(Vec<Measurement>, Image)> {
     let gs = GpuScene::from_scene(&es.scene, es.max_bounces);
     let batch = a.gpu_batch;
     progressive(
@@ -955,7 +955,7 @@ fn progressive(
     reference: &Image,
     mut elapsed: f64,
     mut pass: impl FnMut(u64) -> Result<(Image, u32)>,
-) -> Result<(Vec<Row>, Image)> {
+) -> Result<(Vec<Measurement>, Image)> {
     let (width, height) = (es.scene.camera.width, es.scene.camera.height);
     let n = (width as usize) * (height as usize);
     let mut sum = vec![[0f64; 3]; n];
@@ -994,7 +994,7 @@ fn progressive(
             let e = rmse(&img, reference).map_err(|e| anyhow!("{e}"))?;
             let r = relative_mse(&img, reference).map_err(|e| anyhow!("{e}"))?;
             while next < budgets.len() && (elapsed >= budgets[next] || spp == u32::MAX) {
-                rows.push(Row {
+                rows.push(Measurement {
                     scene: es.name.to_string(),
                     estimator: est.to_string(),
                     backend,

@@ -34,7 +34,7 @@ struct Cli {
 #[derive(Subcommand, Debug)]
 enum Command {
     /// Queries per second: pins vs ray marching (steps 0.015 and 0.005) on the same rays.
-    Bench(Box<bench::BenchArgs>),
+    Bench(Box<bench::RenderBenchArgs>),
     /// Render one image of a volume with a chosen estimator.
     Render(Box<render_cmd::RenderArgs>),
     /// Error against run time of every estimator on the evaluation scenes (CSV, plots, report).
