@@ -231,6 +231,16 @@ impl BakeRequest {
                 )));
             }
         }
+        if let Some(crate::control::ControlOptions {
+            dims: crate::control::ControlDims::Edge(e),
+            ..
+        }) = self.embed_control
+            && !(1..=64).contains(&e)
+        {
+            return Err(usage(format!(
+                "embed_control: {e} is not a brick edge of 1..=64 voxels"
+            )));
+        }
         if let Some(d) = self.directions {
             let (k, r) = d.to_desc();
             Directions::from_desc(k, r).map_err(|e| usage(format!("directions: {e}")))?;

@@ -391,7 +391,8 @@ fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
 #[pyo3(signature = (
     input, output, *, data=None, spacing=None, origin=None, cells=None,
     directions=None, pins_per_entry=None, target_error=None, step=0.01, seed=0, crop=true,
-    center_pins=true, majorant=[16, 16, 16], embed_density=None, density_scale=1.0,
+    center_pins=true, majorant=[16, 16, 16], embed_density=None, embed_control=None,
+    density_scale=1.0,
     threads=None, max_memory=None, grid=None, levelset_to_fog=false, dims=None,
     voxel_type=None, endian=None, clamp_negative=false, nan_as_zero=false, vdb_worker=None
 ))]
@@ -413,6 +414,7 @@ fn bake(
     center_pins: bool,
     majorant: [u32; 3],
     embed_density: Option<[u32; 3]>,
+    embed_control: Option<u32>,
     density_scale: f64,
     threads: Option<usize>,
     max_memory: Option<u64>,
@@ -438,7 +440,10 @@ fn bake(
         majorant: (majorant != [0; 3]).then_some(majorant),
         embed_density,
         embed_sparse: None,
-        embed_control: None,
+        embed_control: embed_control.map(|edge| pinbake::control::ControlOptions {
+            dims: pinbake::control::ControlDims::Edge(edge),
+            ..pinbake::control::ControlOptions::default()
+        }),
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),

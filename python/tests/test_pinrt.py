@@ -261,6 +261,20 @@ def test_python_bakes_equal_pinbake_bakes_byte_for_byte(smoke, tmp_path):
     assert s["directions"] == {"kind": "octahedral", "n": 4}
     assert s["pins_per_entry"] == 2 and s["seed"] == 9
 
+    # The baked control of residual tracking (pinrender's pinres), as --embed-control.
+    py = tmp_path / "h_py_control.pin"
+    cli = tmp_path / "h_cli_control.pin"
+    pinrt.bake(raw, py, cells=4, density_scale=0.05, step=0.05, embed_control=8)
+    subprocess.run(
+        [exe("PINBAKE_EXE"), "bake", str(raw), "-o", str(cli), "--cells", "4",
+         "--density-scale", "0.05", "--step", "0.05", "--embed-control", "8", "-q"],
+        check=True,
+    )
+    assert py.read_bytes() == cli.read_bytes()
+    plain = tmp_path / "h_py_plain.pin"
+    pinrt.bake(raw, plain, cells=4, density_scale=0.05, step=0.05)
+    assert plain.stat().st_size < py.stat().st_size
+
 
 def test_arrays_bake_like_the_same_voxels_in_a_raw_file(tmp_path):
     # A blob in a 20x16x12 grid indexed [x, y, z] and stored in Fortran order, to show that

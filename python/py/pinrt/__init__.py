@@ -99,6 +99,7 @@ def bake(
     center_pins: bool = True,
     majorant: Union[int, Sequence[int]] = 16,
     embed_density: Union[int, Sequence[int], None] = None,
+    embed_control: Optional[int] = None,
     density_scale: float = 1.0,
     threads: Optional[int] = None,
     max_memory: Optional[int] = None,
@@ -127,7 +128,9 @@ def bake(
     (``docs/evaluation.md``, "Bias against bytes"; ``target_error`` is ``--target-error``),
     ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
-    ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density``, ``density_scale``
+    ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density``, ``embed_control``
+    (``--embed-control EDGE``: residual tracking's control per brick of EDGE voxels, 1..=64, for
+    ``pinrender``'s ``pinres``), ``density_scale``
     ``threads`` and ``max_memory`` (bytes; ``--max-memory``, default half of the physical
     memory). A bake is deterministic: the same input and options give the same bytes as the
     ``pinbake`` command.
@@ -152,6 +155,7 @@ def bake(
         center_pins=center_pins,
         majorant=_triple("majorant", majorant),
         embed_density=None if embed_density is None else _triple("embed_density", embed_density),
+        embed_control=embed_control,
         density_scale=density_scale,
         threads=threads,
         max_memory=max_memory,

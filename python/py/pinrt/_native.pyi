@@ -62,6 +62,7 @@ def bake(
     center_pins: bool = ...,
     majorant: Tuple[int, int, int] = ...,
     embed_density: Optional[Tuple[int, int, int]] = ...,
+    embed_control: Optional[int] = ...,
     density_scale: float = ...,
     threads: Optional[int] = ...,
     max_memory: Optional[int] = ...,
