@@ -341,12 +341,7 @@ impl DensitySource for TrackedSource {
         if let Some(g) = self.bricked() {
             return g.min_extinction_in(region);
         }
-        let b = self.bounds();
-        if !(region.min.cmpge(b.min).all() && region.max.cmple(b.max).all()) {
-            return Some(0.0);
-        }
-        let (lo, hi) = region.to_arrays();
-        self.dense_view().map(|v| v.min_over(lo, hi))
+        source::min_extinction_by_view(self, region)
     }
     fn voxel_size(&self) -> Option<DVec3> {
         self.source.voxel_size()

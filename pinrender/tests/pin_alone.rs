@@ -9,6 +9,13 @@ use pinbake::source::{DensitySource, ProceduralSpec, SourceIdentity};
 
 const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
 const COSINE: &str = "procedural:cosine:seed=5,freq=4,density=6";
+/// The camera of every render here: in front of the unit box, looking at its centre.
+const CAMERA: [&str; 4] = [
+    "--camera-origin",
+    "0.5,0.6,2.6",
+    "--camera-target",
+    "0.5,0.5,0.5",
+];
 
 fn source(scale: f64) -> Box<dyn DensitySource> {
     let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
@@ -86,17 +93,11 @@ fn a_sparse_density_renders_alone_like_the_dense_one_and_a_lying_index_is_refuse
     let d = dir.path();
     let dense = bake(d, "dense.pin", 1.0, Some(32), true);
     let sparse = bake_sparse(d, "sparse.pin", 32);
-    let cam = [
-        "--camera-origin",
-        "0.5,0.6,2.6",
-        "--camera-target",
-        "0.5,0.5,0.5",
-    ];
     let reference = d.join("ref.exr");
     let r = reference.to_str().unwrap();
     let mut args = vec!["--pins", dense.to_str().unwrap(), "--estimator", "ratio"];
     args.extend(["--spp", "64"]);
-    args.extend(cam);
+    args.extend(CAMERA);
     args.extend(["--out", r]);
     expect(&render(&args), 0, "rendered");
     // The same f16 voxels bricked: the trackers see the same field, so the images agree to
@@ -105,7 +106,7 @@ fn a_sparse_density_renders_alone_like_the_dense_one_and_a_lying_index_is_refuse
         let out = d.join(format!("s-{est}.exr"));
         let mut args = vec!["--pins", sparse.to_str().unwrap(), "--estimator", est];
         args.extend(["--spp", "64"]);
-        args.extend(cam);
+        args.extend(CAMERA);
         args.extend(["--out", out.to_str().unwrap(), "--reference", r]);
         let e = mean_error(&render(&args));
         assert!(e.abs() < 0.01, "{est}: sparse vs dense mean error {e}");
@@ -156,19 +157,13 @@ fn a_sparse_density_renders_on_the_gpu_with_the_dense_sections_bits() {
     let d = dir.path();
     let dense = bake(d, "dense.pin", 1.0, Some(32), true);
     let sparse = bake_sparse(d, "sparse.pin", 32);
-    let cam = [
-        "--camera-origin",
-        "0.5,0.6,2.6",
-        "--camera-target",
-        "0.5,0.5,0.5",
-    ];
     for est in ["ratio", "pinms"] {
         let mut images = Vec::new();
         for (name, pins) in [("d", &dense), ("s", &sparse)] {
             let out = d.join(format!("gpu-{name}-{est}.exr"));
             let mut args = vec!["--pins", pins.to_str().unwrap(), "--estimator", est];
             args.extend(["--spp", "8", "--backend", "gpu"]);
-            args.extend(cam);
+            args.extend(CAMERA);
             args.extend(["--out", out.to_str().unwrap()]);
             expect(&render(&args), 0, "rendered");
             images.push(std::fs::read(&out).unwrap());
@@ -220,16 +215,10 @@ fn every_estimator_renders_from_the_pin_file_alone_and_agrees_with_the_volume() 
     let p = pins.to_str().unwrap();
     // The volume's camera frames the source box; the pin file's frames its (cropped) grid
     // box: one explicit camera for both.
-    let cam = [
-        "--camera-origin",
-        "0.5,0.6,2.6",
-        "--camera-target",
-        "0.5,0.5,0.5",
-    ];
     let reference = d.join("ref.exr");
     let r = reference.to_str().unwrap();
     let mut args = vec!["--volume", COSINE, "--estimator", "ratio", "--spp", "64"];
-    args.extend(cam);
+    args.extend(CAMERA);
     args.extend(["--out", r]);
     expect(&render(&args), 0, "rendered");
     // The pin estimators carry the pin model's bias; the source-free trackers only the f16
@@ -243,7 +232,7 @@ fn every_estimator_renders_from_the_pin_file_alone_and_agrees_with_the_volume() 
     ] {
         let out = d.join(format!("{est}.exr"));
         let mut args = vec!["--pins", p, "--estimator", est, "--spp", "64"];
-        args.extend(cam);
+        args.extend(CAMERA);
         args.extend(["--out", out.to_str().unwrap(), "--reference", r]);
         let e = mean_error(&render(&args));
         assert!(
@@ -256,7 +245,7 @@ fn every_estimator_renders_from_the_pin_file_alone_and_agrees_with_the_volume() 
     let out = d.join("dense.exr");
     let mut args = vec!["--pins", dense.to_str().unwrap(), "--estimator", "ratio"];
     args.extend(["--spp", "64"]);
-    args.extend(cam);
+    args.extend(CAMERA);
     args.extend(["--out", out.to_str().unwrap(), "--reference", r]);
     let e = mean_error(&render(&args));
     assert!(e.abs() > 0.05, "twice the density went unnoticed: {e}");

@@ -116,12 +116,7 @@ pub trait DensitySource: Send + Sync {
     /// region reaches outside [`Self::bounds`] (the extinction is 0 there), else through the
     /// [`Self::dense_view`] if there is one ([`DenseView::min_over`]), else `None`.
     fn min_extinction_in(&self, region: Aabb) -> Option<f32> {
-        let b = self.bounds();
-        if !(region.min.cmpge(b.min).all() && region.max.cmple(b.max).all()) {
-            return Some(0.0);
-        }
-        let (lo, hi) = region.to_arrays();
-        self.dense_view().map(|v| v.min_over(lo, hi))
+        min_extinction_by_view(self, region)
     }
 
     /// The field as a dense voxel array, when it is one: inside [`Self::bounds`],
@@ -208,6 +203,18 @@ pub trait DensitySource: Send + Sync {
             *o = self.extinction(origin + step * i as f64);
         }
     }
+}
+
+/// [`DensitySource::min_extinction_in`]'s default, for overrides that fall back to it: 0
+/// where `region` reaches outside the source's bounds, else [`DenseView::min_over`] of its
+/// [`DensitySource::dense_view`], else `None`.
+pub fn min_extinction_by_view<S: DensitySource + ?Sized>(source: &S, region: Aabb) -> Option<f32> {
+    let b = source.bounds();
+    if !(region.min.cmpge(b.min).all() && region.max.cmple(b.max).all()) {
+        return Some(0.0);
+    }
+    let (lo, hi) = region.to_arrays();
+    source.dense_view().map(|v| v.min_over(lo, hi))
 }
 
 /// The memory a source holds: [`DensitySource::footprint`].

@@ -601,24 +601,11 @@ impl MultiScene {
     }
 
     fn gpu_media(&self) -> GpuMedia<'_> {
-        GpuMedia {
-            grids: vec![&*self.grid],
-            densities: vec![GpuDensity::from_voxel_grid(self.base.clone()).unwrap()],
-            media: (0..OFFSETS.len())
-                .map(|k| GpuMedium {
-                    pins: Some(GpuPins {
-                        grid: 0,
-                        local_to_world: Some(translated_identity(OFFSETS[k])),
-                        options: SamplerOptions::default(),
-                    }),
-                    density: Some(GpuPlacedDensity {
-                        density: 0,
-                        translation: OFFSETS[k],
-                        majorants: Some(self.majorants[k].clone()),
-                    }),
-                })
-                .collect(),
-        }
+        placed(
+            GpuDensity::from_voxel_grid(self.base.clone()).unwrap(),
+            &self.majorants,
+            Some(&*self.grid),
+        )
     }
 }
 

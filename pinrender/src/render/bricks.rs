@@ -267,11 +267,6 @@ impl BrickGrid {
     }
 }
 
-#[inline]
-fn inside(p: [f64; 3], lo: &[f64; 3], hi: &[f64; 3]) -> bool {
-    (0..3).all(|a| p[a] >= lo[a] && p[a] <= hi[a])
-}
-
 impl DensitySource for BrickGrid {
     fn bounds(&self) -> Aabb {
         Aabb::from_arrays(self.origin, self.max)
@@ -279,11 +274,10 @@ impl DensitySource for BrickGrid {
 
     /// [`VoxelGrid`]'s arithmetic (f64 index, f64 lerps), so the two agree bit for bit.
     fn extinction(&self, p: DVec3) -> f32 {
-        let q = p.to_array();
-        if !inside(q, &self.origin, &self.max) {
+        if !super::field::inside(p, &self.origin, &self.max) {
             return 0.0;
         }
-        self.trilinear(q) as f32
+        self.trilinear(p.to_array()) as f32
     }
 
     /// The largest brick maximum over the bricks of the voxels whose centre cells touch the

@@ -5,8 +5,9 @@
 use glam::{DVec3, Vec3};
 use pinbake::source::{Aabb, DenseMap, DenseView, DensitySource};
 
+/// Whether `p` lies in the closed box `[lo, hi]` (the voxel and bricked grids' box test).
 #[inline]
-fn inside(p: DVec3, lo: &[f64; 3], hi: &[f64; 3]) -> bool {
+pub(super) fn inside(p: DVec3, lo: &[f64; 3], hi: &[f64; 3]) -> bool {
     let q = p.to_array();
     (0..3).all(|a| q[a] >= lo[a] && q[a] <= hi[a])
 }

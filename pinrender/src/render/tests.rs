@@ -1013,6 +1013,34 @@ fn many_media_image_independent_of_threads() {
 /// A ray `(o, d, t_max)` and its exact transmittance.
 type ExactRay = (Vec3, Vec3, f32, f64);
 
+/// Rays through [`unit_box`] of extinction `sigma` with their exact transmittance: along an
+/// axis through the whole box, half of it, along the diagonal from the centre, and from
+/// below along z.
+fn unit_box_rays(sigma: f32) -> [ExactRay; 4] {
+    let s = sigma as f64;
+    [
+        (
+            Vec3::new(-1.0, 0.5, 0.5),
+            Vec3::X,
+            f32::INFINITY,
+            (-s).exp(),
+        ),
+        (Vec3::new(-1.0, 0.3, 0.6), Vec3::X, 1.5, (-s * 0.5).exp()),
+        (
+            Vec3::splat(0.5),
+            Vec3::ONE.normalize(),
+            f32::INFINITY,
+            (-s * 0.5 * 3f64.sqrt()).exp(),
+        ),
+        (
+            Vec3::new(0.3, 0.4, -2.0),
+            Vec3::Z,
+            f32::INFINITY,
+            (-s).exp(),
+        ),
+    ]
+}
+
 /// `|mean - exact| / standard error` of `n` residual-ratio-tracking estimates per ray
 /// (fixed seed), each estimate `exp(-depth_scale x control depth) x residual weight` from
 /// the estimator's one walk: `depth_scale = 1` is the estimator itself (checked against its
@@ -1065,28 +1093,7 @@ fn residual_both(
 fn residual_ratio_tracking_matches_the_box() {
     let sigma = 2.0f32;
     let field: Arc<dyn DensitySource> = unit_box(sigma);
-    let s = sigma as f64;
-    let rays: [ExactRay; 4] = [
-        (
-            Vec3::new(-1.0, 0.5, 0.5),
-            Vec3::X,
-            f32::INFINITY,
-            (-s).exp(),
-        ),
-        (Vec3::new(-1.0, 0.3, 0.6), Vec3::X, 1.5, (-s * 0.5).exp()),
-        (
-            Vec3::splat(0.5),
-            Vec3::ONE.normalize(),
-            f32::INFINITY,
-            (-s * 0.5 * 3f64.sqrt()).exp(),
-        ),
-        (
-            Vec3::new(0.3, 0.4, -2.0),
-            Vec3::Z,
-            f32::INFINITY,
-            (-s).exp(),
-        ),
-    ];
+    let rays = unit_box_rays(sigma);
     for dims in [[1, 1, 1], [16, 16, 16], [3, 1, 7]] {
         let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
         for est in residual_both(field.clone(), &maj) {
@@ -1396,29 +1403,8 @@ impl FieldSource {
 fn pinres_is_unbiased_against_closed_forms() {
     use super::closed_form::tests::CosNoise;
     let sigma = 2.0f32;
-    let s = sigma as f64;
     let boxed: Arc<dyn DensitySource> = unit_box(sigma);
-    let box_rays: Vec<ExactRay> = vec![
-        (
-            Vec3::new(-1.0, 0.5, 0.5),
-            Vec3::X,
-            f32::INFINITY,
-            (-s).exp(),
-        ),
-        (Vec3::new(-1.0, 0.3, 0.6), Vec3::X, 1.5, (-s * 0.5).exp()),
-        (
-            Vec3::splat(0.5),
-            Vec3::ONE.normalize(),
-            f32::INFINITY,
-            (-s * 0.5 * 3f64.sqrt()).exp(),
-        ),
-        (
-            Vec3::new(0.3, 0.4, -2.0),
-            Vec3::Z,
-            f32::INFINITY,
-            (-s).exp(),
-        ),
-    ];
+    let box_rays = unit_box_rays(sigma).to_vec();
     let noise = Arc::new(CosNoise::new(8, 10.0, 3.0, 5));
     let exact = |o: Vec3, d: Vec3, t_max: f32| {
         let (o, d) = (o.as_dvec3(), d.as_dvec3());
@@ -1504,23 +1490,14 @@ fn pinres_matches_ratio_tracking_on_a_voxel_grid() {
     assert!(bad.iter().any(|&v| v > 5.0), "{bad:?}");
 }
 
-/// `pinres` from a pin grid's control section: placed by the grid's translation, refused
-/// without the section or with a rotated placement, and the same estimator as from the
-/// section's values directly, draw for draw.
-#[test]
-fn pinres_reads_the_control_section() {
-    use pin_format::{Directions, OwnedControl, OwnedPinGrid, PinEntry, grid_desc};
-    let field: Arc<dyn DensitySource> = unit_box(1.5);
+/// A one-cell pin grid over the unit box with no pins, carrying `control` (the section
+/// `pinres` reads) when given.
+fn unit_pin_grid(control: Option<pin_format::OwnedControl>) -> pinrt::PinGrid {
+    use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
     let mut desc = grid_desc([1; 3], Directions::Octahedral { n: 1 }, 1, 1);
     desc.box_min = [0.0; 3];
     desc.box_max = [1.0; 3];
-    let control = OwnedControl {
-        dims: [2, 1, 1],
-        control: vec![1.0, 1.5],
-        residual: vec![0.5, 0.5],
-        majorant: vec![1.5, 1.5],
-    };
-    let mut owned = OwnedPinGrid {
+    let owned = OwnedPinGrid {
         desc,
         tile: None,
         cell_index: None,
@@ -1528,14 +1505,29 @@ fn pinres_reads_the_control_section() {
         majorant: None,
         density: None,
         sparse_density: None,
-        control: None,
+        control,
         metadata: None,
     };
-    let plain = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap()
+}
+
+/// `pinres` from a pin grid's control section: placed by the grid's translation, refused
+/// without the section or with a rotated placement, and the same estimator as from the
+/// section's values directly, draw for draw.
+#[test]
+fn pinres_reads_the_control_section() {
+    use pin_format::OwnedControl;
+    let field: Arc<dyn DensitySource> = unit_box(1.5);
+    let control = OwnedControl {
+        dims: [2, 1, 1],
+        control: vec![1.0, 1.5],
+        residual: vec![0.5, 0.5],
+        majorant: vec![1.5, 1.5],
+    };
+    let plain = unit_pin_grid(None);
     let e = BakedResidualTracking::from_grid(field.clone(), &plain, None, None).err();
     assert!(e.is_some_and(|e| e.to_string().contains("--embed-control")));
-    owned.control = Some(control.clone());
-    let grid = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    let grid = unit_pin_grid(Some(control.clone()));
     let shifted = [1.0, 0.0, 0.0, 0.25, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
     let est = BakedResidualTracking::from_grid(field.clone(), &grid, Some(&shifted), None).unwrap();
     assert_eq!(est.bounds(), Some(([0.25, 0.0, 0.0], [1.25, 1.0, 1.0])));
@@ -1570,12 +1562,9 @@ fn pinres_reads_the_control_section() {
 /// section's values used as they are (the mutation, through `new`) are biased.
 #[test]
 fn pinres_fits_the_section_to_the_field() {
-    use pin_format::{Directions, OwnedControl, OwnedPinGrid, PinEntry, grid_desc};
+    use pin_format::OwnedControl;
     let sigma = 1.5f32;
     let field: Arc<dyn DensitySource> = unit_box(sigma);
-    let mut desc = grid_desc([1; 3], Directions::Octahedral { n: 1 }, 1, 1);
-    desc.box_min = [0.0; 3];
-    desc.box_max = [1.0; 3];
     // Brick 0 claims to be empty; brick 1's majorant is below the field.
     let control = OwnedControl {
         dims: [2, 1, 1],
@@ -1583,18 +1572,7 @@ fn pinres_fits_the_section_to_the_field() {
         residual: vec![0.0, 0.5],
         majorant: vec![0.0, 1.0],
     };
-    let owned = OwnedPinGrid {
-        desc,
-        tile: None,
-        cell_index: None,
-        pins: vec![PinEntry::EMPTY],
-        majorant: None,
-        density: None,
-        sparse_density: None,
-        control: Some(control.clone()),
-        metadata: None,
-    };
-    let grid = pinrt::PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap();
+    let grid = unit_pin_grid(Some(control.clone()));
     let fitted = BakedResidualTracking::from_grid(field.clone(), &grid, None, None).unwrap();
     let (_, residual) = fitted.controls();
     assert_eq!(residual, &[sigma, 0.5]);

@@ -10,8 +10,8 @@ use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, Procedu
 use pinrender::render::CacheSettings;
 use pinrender::render::whole_volume::WholeVolumeBox;
 use pinrender::render::{
-    AnalyticOpticalDepth, Camera, ClosedFormTracker, EstimatorSpec, HomogeneousBox, MajorantGrid,
-    Medium, Scene, Sun, TransportEstimator, splitmix64,
+    AnalyticOpticalDepth, Camera, ClosedFormTracker, EstimatorSpec, MajorantGrid, Medium, Scene,
+    Sun, TransportEstimator, splitmix64,
 };
 
 use pinrender::gpu_render::{GpuDensity, GpuMedia};
@@ -423,13 +423,8 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
     let pb = source::HomogeneousBox::new(Aabb::new(lo, hi), BOX_SIGMA as f32)?;
     let src: Arc<dyn DensitySource> = Arc::new(pb.clone());
     let gpu_density = Arc::new(Opened::Box(pb.clone()).gpu_density()?);
-    let field: Arc<dyn DensitySource> = Arc::new(
-        HomogeneousBox::new(
-            Aabb::from_arrays(lo.to_array(), hi.to_array()),
-            BOX_SIGMA as f32,
-        )
-        .unwrap(),
-    );
+    // The renderer tracks the baker's box itself.
+    let field = src.clone();
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(BoxAnalytic(pb));
     let inst = single_instance(field, 1, Some(analytic), Some(gpu_density))?;
     // The box scenes are cheap: a larger image.
