@@ -161,6 +161,26 @@ pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), 
     }
 }
 
+/// Bytes the sections built after the pins hold at their peak: the sparse density
+/// ([`crate::sparse_density::sparse_density_bytes`]) and the control grid (its bricks' three
+/// values gathered, then copied into the section's three arrays: 24 bytes per brick). 0 for
+/// a section whose size cannot be worked out (the bake then fails with its own error).
+pub fn estimate_section_bytes(source: &dyn DensitySource, opts: &BakeOptions) -> u64 {
+    let Ok((bbox, _)) = bake_box(source, opts.crop) else {
+        return 0;
+    };
+    let sparse = opts.embed_sparse.map_or(0, |spec| {
+        crate::sparse_density::sparse_dims(source, &bbox, spec).map_or(0, |dims| {
+            crate::sparse_density::sparse_density_bytes(source, &bbox, dims)
+        })
+    });
+    let control = opts.embed_control.map_or(0, |c| {
+        crate::control::control_dims(source, &bbox, &c)
+            .map_or(0, |d| d.iter().map(|&x| u64::from(x)).product::<u64>() * 24)
+    });
+    sparse.saturating_add(control)
+}
+
 /// The default direction set. Not the thesis' polar 16x4, whose cap cells put near-axis pins
 /// ~29 degrees off the query: octahedral:16 at 20^3 cells beat polar 16x4, polar 8x8,
 /// octahedral:8 at 32^3 and polar 32x8 at 20^3 (all about the same bytes) on pins-only renders
@@ -569,12 +589,18 @@ pub(crate) fn try_filled<T: Clone>(
     n: usize,
     value: T,
 ) -> Result<Vec<T>, BakeError> {
+    let mut v = try_reserved(what, n)?;
+    v.resize(n, value);
+    Ok(v)
+}
+
+/// An empty vector with room for `n` values, or [`BakeError::Alloc`] naming `what`.
+pub(crate) fn try_reserved<T>(what: &'static str, n: usize) -> Result<Vec<T>, BakeError> {
     let mut v = Vec::new();
     v.try_reserve_exact(n).map_err(|_| BakeError::Alloc {
         what,
         bytes: (n as u64).saturating_mul(size_of::<T>() as u64),
     })?;
-    v.resize(n, value);
     Ok(v)
 }
 

@@ -348,8 +348,9 @@ pub const PROCESS_BASE_BYTES: u64 = 24 << 20;
 /// The peak memory of a bake of `source` with `opts` (before its dense copy is sized) and
 /// the part of it that is that copy: the process base, what the source holds (exactly, where
 /// it can say: [`DensitySource::footprint`]; else `input_bytes`), and the larger of what its
-/// reader held beside it while opening and what the bake adds (the output, the per-pin
-/// state, and the dense copy that the bake makes when it fits in `limit`).
+/// reader held beside it while opening and what the bake adds (the output and the sections
+/// built after the pins, the per-pin state, and the dense copy that the bake makes when it
+/// fits in `limit`).
 pub fn memory_estimate(
     source: &dyn DensitySource,
     opts: &BakeOptions,
@@ -360,7 +361,10 @@ pub fn memory_estimate(
         Some(f) => (f.held, f.while_opening.saturating_sub(f.held)),
         None => (input_bytes, 0),
     };
-    let output = crate::bake::estimate_output_bytes(opts);
+    // The sections built after the pins (sparse density, control) are held beside the
+    // output until the file is written.
+    let output = crate::bake::estimate_output_bytes(opts)
+        .saturating_add(crate::bake::estimate_section_bytes(source, opts));
     // The layered march's per-pin state exists only beside a large dense grid.
     let layered = |grid_bytes: u64| {
         if grid_bytes >= crate::sweep::Sweep::default().min_grid_bytes as u64 {

@@ -69,6 +69,33 @@ pub fn sparse_dims(
     Ok(dims)
 }
 
+/// The bytes [`bake_sparse_density`] holds at its peak for `source` over `bbox` with `dims`
+/// voxels: the index and every brick the source's bound does not rule out (counted with the
+/// same test the fill makes, which fills them all before it drops those that are all zero).
+/// For the bake's memory estimate.
+pub fn sparse_density_bytes(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> u64 {
+    let bdims = brick_dims(dims, SPARSE_BRICK);
+    let geo = Geometry::new(bbox, dims);
+    let rows = bdims[1] as usize * bdims[2] as usize;
+    let candidates: u64 = (0..rows)
+        .into_par_iter()
+        .map(|row| {
+            let (by, bz) = (
+                (row % bdims[1] as usize) as u32,
+                (row / bdims[1] as usize) as u32,
+            );
+            (0..bdims[0])
+                .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
+                .count() as u64
+        })
+        .sum();
+    let slots: u64 = bdims.iter().map(|&d| u64::from(d)).product();
+    let brick = u64::from(SPARSE_BRICK).pow(3) * 2;
+    slots
+        .saturating_mul(4)
+        .saturating_add(candidates.saturating_mul(brick))
+}
+
 /// The sparse f16 density of `source` over `bbox` with `dims` voxels.
 pub fn bake_sparse_density(
     source: &dyn DensitySource,
@@ -161,11 +188,13 @@ impl Geometry {
     }
 }
 
-/// One row of bricks' non-empty bricks: (brick number, voxels), in x order.
-type BrickRow<T> = Vec<(u32, Vec<T>)>;
-
 /// The index and the stored bricks (canonical slot order), each voxel `encode`d from the
 /// source's value at its centre; `None` from `encode` is a value out of the encoding's range.
+///
+/// Memory: the bricks the source's bound does not rule out (the candidates) are filled in
+/// place in one array, then the all-zero ones are squeezed out. So the bricks are held once,
+/// not once per brick allocation and again in the array (small allocations are not given
+/// back to the system when freed, which put a bake's peak at twice the bricks).
 fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
     source: &dyn DensitySource,
     bbox: &Aabb,
@@ -177,61 +206,83 @@ fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
     let geo = Geometry::new(bbox, dims);
     let bv = (b as usize).pow(3);
     let zero = T::default();
-    // One row of bricks (fixed y and z) per task; each returns its non-empty bricks in x
-    // order, so the assembly below is the same whatever the thread count.
     let rows = bdims[1] as usize * bdims[2] as usize;
-    let filled: Vec<Result<BrickRow<T>, BakeError>> = (0..rows)
+    let row_of = |row: usize| {
+        (
+            (row % bdims[1] as usize) as u32,
+            (row / bdims[1] as usize) as u32,
+        )
+    };
+    // The candidates of each row (fixed y and z), in x order.
+    let candidates: Vec<Vec<u32>> = (0..rows)
         .into_par_iter()
         .map(|row| {
-            let (by, bz) = (
-                (row % bdims[1] as usize) as u32,
-                (row / bdims[1] as usize) as u32,
-            );
-            let mut out = Vec::new();
-            for bx in 0..bdims[0] {
-                let (region, lo, hi) = geo.region([bx, by, bz]);
-                if source.max_extinction_in(region) <= 0.0 {
-                    continue;
-                }
-                let mut brick = vec![zero; bv];
-                let mut any = false;
-                for z in lo[2]..hi[2] {
-                    for y in lo[1]..hi[1] {
-                        for x in lo[0]..hi[0] {
-                            let p = geo.centre([x, y, z]);
-                            let v = source.extinction(p);
-                            let Some(h) = encode(v) else {
-                                return Err(BakeError::DensityRange {
-                                    value: v,
-                                    at: p.to_array(),
-                                });
-                            };
-                            let l = (x - lo[0]) + b * ((y - lo[1]) + b * (z - lo[2]));
-                            brick[l as usize] = h;
-                            any |= h != zero;
+            let (by, bz) = row_of(row);
+            (0..bdims[0])
+                .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
+                .collect()
+        })
+        .collect();
+    let total: usize = candidates.iter().map(Vec::len).sum();
+    let mut values = crate::bake::try_filled("the sparse density bricks", total * bv, zero)?;
+    // Each row's candidates get consecutive slots; rows fill their own slices in parallel
+    // and say which of their bricks hold a non-zero value.
+    let mut slices = Vec::with_capacity(rows);
+    let mut rest = values.as_mut_slice();
+    for c in &candidates {
+        let (head, tail) = rest.split_at_mut(c.len() * bv);
+        slices.push(head);
+        rest = tail;
+    }
+    let filled: Vec<Result<Vec<bool>, BakeError>> = slices
+        .into_par_iter()
+        .zip(candidates.par_iter())
+        .enumerate()
+        .map(|(row, (slice, xs))| {
+            let (by, bz) = row_of(row);
+            xs.iter()
+                .zip(slice.chunks_exact_mut(bv))
+                .map(|(&bx, brick)| {
+                    let (_, lo, hi) = geo.region([bx, by, bz]);
+                    let mut any = false;
+                    for z in lo[2]..hi[2] {
+                        for y in lo[1]..hi[1] {
+                            for x in lo[0]..hi[0] {
+                                let p = geo.centre([x, y, z]);
+                                let v = source.extinction(p);
+                                let Some(h) = encode(v) else {
+                                    return Err(BakeError::DensityRange {
+                                        value: v,
+                                        at: p.to_array(),
+                                    });
+                                };
+                                let l = (x - lo[0]) + b * ((y - lo[1]) + b * (z - lo[2]));
+                                brick[l as usize] = h;
+                                any |= h != zero;
+                            }
                         }
                     }
-                }
-                if any {
-                    out.push((bx, brick));
-                }
-            }
-            Ok(out)
+                    Ok(any)
+                })
+                .collect()
         })
         .collect();
     let bricks = bdims.iter().map(|&d| d as usize).product::<usize>();
     let mut index = crate::bake::try_filled("the sparse density index", bricks, EMPTY_BRICK)?;
-    let stored: usize = filled.iter().map(|r| r.as_ref().map_or(0, Vec::len)).sum();
-    let mut values = crate::bake::try_filled("the sparse density bricks", stored * bv, zero)?;
-    let mut slot = 0usize;
-    for (row, r) in filled.into_iter().enumerate() {
+    let (mut slot, mut candidate) = (0usize, 0usize);
+    for (row, (r, xs)) in filled.into_iter().zip(&candidates).enumerate() {
         // The first failing row in brick order, so the message does not depend on scheduling.
-        for (bx, brick) in r? {
-            index[row * bdims[0] as usize + bx as usize] = slot as u32;
-            values[slot * bv..(slot + 1) * bv].copy_from_slice(&brick);
-            slot += 1;
+        for (keep, &bx) in r?.into_iter().zip(xs) {
+            if keep {
+                index[row * bdims[0] as usize + bx as usize] = slot as u32;
+                values.copy_within(candidate * bv..(candidate + 1) * bv, slot * bv);
+                slot += 1;
+            }
+            candidate += 1;
         }
     }
+    values.truncate(slot * bv);
+    values.shrink_to_fit();
     Ok((index, values))
 }
 

@@ -811,6 +811,29 @@ fn sparse_embedded_density_bakes_verifies_and_refuses_a_lying_index() {
         .product();
     let stored = sd["brick_count"].as_u64().unwrap();
     assert!(stored > 0 && stored < bricks, "{stored} of {bricks}");
+    // The memory estimate counts the section: at least its index and its stored bricks.
+    let est_out = dir.path().join("estimate.pin");
+    let estimate = |extra: &[&str]| {
+        let mut args = vec![
+            "bake",
+            input.to_str().unwrap(),
+            "-o",
+            est_out.to_str().unwrap(),
+            "--cells",
+            "4",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = pinbake(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["memory_estimate_bytes"].as_u64().unwrap()
+    };
+    let added = estimate(&["--embed-density", "sparse"]) - estimate(&[]);
+    assert!(
+        added >= 4 * bricks + 1024 * stored && added < 4 * bricks + 1024 * (2 * stored + 256),
+        "estimate grew by {added} for {stored} of {bricks} bricks"
+    );
     // A capped size, and the dense form, which keeps the file 1.0.
     let capped = dir.path().join("capped.pin");
     bake_ok(
@@ -891,6 +914,35 @@ fn embedded_control_bakes_and_verifies() {
     assert!(
         (0..n).any(|k| f32_at(2 * n + k) == 0.0),
         "the smoke has empty bricks"
+    );
+    // inspect --json describes the section as it is stored.
+    let c = &v["control"];
+    assert_eq!(c["dims"], serde_json::json!(dims), "{c}");
+    assert_eq!(c["bricks"], n as u64);
+    assert_eq!(c["bytes"], len as u64);
+    let empty = (0..n).filter(|&k| f32_at(n + k) == 0.0).count();
+    assert_eq!(c["empty_bricks"], empty as u64);
+    // The memory estimate counts the section: 24 bytes per brick at its peak.
+    let est_out = dir.path().join("estimate.pin");
+    let estimate = |extra: &[&str]| {
+        let mut args = vec![
+            "bake",
+            input.to_str().unwrap(),
+            "-o",
+            est_out.to_str().unwrap(),
+            "--cells",
+            "4",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = pinbake(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["memory_estimate_bytes"].as_u64().unwrap()
+    };
+    assert_eq!(
+        estimate(&["--embed-control", "8"]) - estimate(&[]),
+        24 * n as u64
     );
     let mut bad = b.clone();
     let at = off + 16 + 4 * (n + full);

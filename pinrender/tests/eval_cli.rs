@@ -238,11 +238,21 @@ fn eval_quick_end_to_end() {
     assert!(md.contains("WGSL"));
 
     // --no-gpu: no gpu rows, and the report says so. With --clock cpu, the budgets count
-    // CPU time per worker thread and the report names that clock.
+    // CPU time per worker thread and the report names that clock. An estimator named in
+    // --estimators runs even where the scene's own list leaves it out (residual@min).
     let out2 = dir.path().join("eval-nogpu");
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
         .args([
-            "eval", "--quick", "--no-gpu", "--clock", "cpu", "--scenes", "box", "--out",
+            "eval",
+            "--quick",
+            "--no-gpu",
+            "--clock",
+            "cpu",
+            "--scenes",
+            "box",
+            "--estimators",
+            "ratio,residual@min",
+            "--out",
         ])
         .arg(&out2)
         .args(TINY)
@@ -251,6 +261,9 @@ fn eval_quick_end_to_end() {
     assert!(status.success());
     let csv = std::fs::read_to_string(out2.join("errors.csv")).unwrap();
     assert!(!csv.contains(",gpu,"), "{csv}");
+    assert!(csv.contains("\nbox,residual@min,cpu,"), "{csv}");
+    assert!(csv.contains("\nbox,ratio,cpu,"), "{csv}");
+    assert!(!csv.contains(",delta,"), "{csv}");
     let md = std::fs::read_to_string(out2.join("summary.md")).unwrap();
     assert!(md.contains("GPU: not measured** (`--no-gpu`)"), "{md}");
     assert!(md.contains("CPU time per worker thread"), "{md}");

@@ -48,6 +48,14 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
             "encoding": if h.encoding == pin_format::layout::DENSITY_F32 { "f32" } else { "f16" },
         });
     }
+    if let Some(c) = file.control() {
+        let bricks = c.len();
+        let empty = c.residual.iter().filter(|&&m| m == 0.0).count();
+        v["control"] = json!({
+            "dims": c.dims, "bricks": bricks, "empty_bricks": empty,
+            "bytes": 16 + 12 * bricks as u64,
+        });
+    }
     if let Some(m) = &metadata {
         v["metadata"] = json!({
             "tool": m.tool, "tool_version": m.tool_version, "source_name": m.source_name,
@@ -109,6 +117,22 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
             s.offset,
             s.length,
             s.checksum
+        )?;
+    }
+    if let Some(sd) = v.get("sparse_density") {
+        pin_cli::outln!(
+            "  sparse density {} voxels, {} bricks of {}^3 ({})",
+            sd["dims"],
+            sd["brick_count"],
+            sd["brick"],
+            sd["encoding"].as_str().unwrap_or("?")
+        )?;
+    }
+    if let Some(c) = v.get("control") {
+        pin_cli::outln!(
+            "  control       {} bricks, {} of them empty (residual ratio tracking: pinres)",
+            c["dims"],
+            c["empty_bricks"]
         )?;
     }
     if let Some(m) = metadata {

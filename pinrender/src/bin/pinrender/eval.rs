@@ -748,12 +748,21 @@ fn eval_scene(
             .as_ref()
             .is_none_or(|v| v.iter().any(|x| x == e))
     };
-    let ests: Vec<String> = es
+    let mut ests: Vec<String> = es
         .estimators
         .iter()
         .filter(|e| wanted(e))
         .cloned()
         .collect();
+    // An estimator named in --estimators runs on every scene, even where the scene's own
+    // list leaves it out (`residual@min`, `urm@64`, `rm@0.002`); the names that only some
+    // scenes have (closed forms, the radiance cache) stay with those scenes.
+    for e in a.estimators.iter().flatten() {
+        let named = e.parse::<pinrender::render::EstimatorSpec>().is_ok();
+        if named && !ests.contains(e) {
+            ests.push(e.clone());
+        }
+    }
     let needs_pins = ests.iter().any(|e| reads_pins(e));
     let bake = if needs_pins {
         let control = ests.iter().any(|e| {

@@ -671,7 +671,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     // The trackers, pins and PinMS, and rm@0.015 for the time-to-error
     // column; the other estimators would add minutes at this size and say nothing new.
     let ests: Vec<String> = [
-        "rm@0.015", "delta", "ratio", "residual", "pins", "pinms", "pinurm",
+        "rm@0.015", "delta", "ratio", "residual", "pins", "pinms", "pinurm", "pinres",
     ]
     .iter()
     .map(|s| s.to_string())
@@ -727,7 +727,7 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
     let (sun, env) = lights((hi - lo).length());
     let ests: Vec<String> = [
-        "rm@0.015", "delta", "ratio", "residual", "urm", "pins", "pinms", "pinurm",
+        "rm@0.015", "delta", "ratio", "residual", "urm", "pins", "pinms", "pinurm", "pinres",
     ]
     .iter()
     .map(|s| s.to_string())
