@@ -18,14 +18,22 @@ use rayon::prelude::*;
 use crate::bake::BakeError;
 use crate::source::{Aabb, DensitySource};
 
-/// Source voxels per brick edge of the control grid by default.
+/// The least source voxels per brick edge of the default control grid ([`ControlDims::Auto`]).
 pub const DEFAULT_CONTROL_EDGE: u32 = 4;
+/// Bricks along the longest axis that the default control grid aims for: a volume with more
+/// than `4 x 64` voxels along it gets bricks of more than 4 voxels ([`auto_control_edge`]).
+pub const CONTROL_BRICKS_LONGEST: u32 = 64;
+/// The largest brick edge, in source voxels.
+pub const MAX_CONTROL_EDGE: u32 = 64;
 /// Most bricks of a control grid (12 bytes each: 1.5 GiB).
 pub const MAX_CONTROL_BRICKS: u64 = 1 << 27;
 
 /// How many bricks the control grid has.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ControlDims {
+    /// The default: bricks of [`auto_control_edge`] source voxels per edge, which grows with
+    /// the volume's resolution so that a ray crosses about as many bricks in any volume.
+    Auto,
     /// Bricks of this many source voxels per edge (the voxel size of
     /// [`crate::sparse_density::sparse_dims`]: the source's own, or the box over 256 for an
     /// analytic field).
@@ -51,7 +59,7 @@ pub struct ControlOptions {
 impl Default for ControlOptions {
     fn default() -> Self {
         Self {
-            dims: ControlDims::Edge(DEFAULT_CONTROL_EDGE),
+            dims: ControlDims::Auto,
             lattice: 4,
             thickness: 1.0,
             floor: 1.0,
@@ -65,19 +73,20 @@ pub fn control_dims(
     bbox: &Aabb,
     opts: &ControlOptions,
 ) -> Result<[u32; 3], BakeError> {
+    let voxels = || {
+        crate::sparse_density::sparse_dims(source, bbox, crate::sparse_density::SparseDims::Source)
+    };
     let dims = match opts.dims {
         ControlDims::Exact(d) => d,
-        ControlDims::Edge(edge) => {
-            if edge == 0 {
-                return Err(BakeError::Options(
-                    "control brick edge must be at least 1 voxel".into(),
-                ));
-            }
-            let voxels = crate::sparse_density::sparse_dims(
-                source,
-                bbox,
-                crate::sparse_density::SparseDims::Source,
-            )?;
+        ControlDims::Edge(0) => {
+            return Err(BakeError::Options(
+                "control brick edge must be at least 1 voxel".into(),
+            ));
+        }
+        ControlDims::Edge(edge) => voxels()?.map(|v| v.div_ceil(edge)),
+        ControlDims::Auto => {
+            let voxels = voxels()?;
+            let edge = auto_control_edge(voxels);
             voxels.map(|v| v.div_ceil(edge))
         }
     };
@@ -90,6 +99,19 @@ pub fn control_dims(
             "control dims {dims:?} must be >= 1 per axis and at most {MAX_CONTROL_BRICKS} bricks"
         ))),
     }
+}
+
+/// The brick edge of the default control grid for a bake box of `voxels` source voxels:
+/// [`DEFAULT_CONTROL_EDGE`] voxels, or coarser so that the longest axis has about
+/// [`CONTROL_BRICKS_LONGEST`] bricks. Measured (docs/final-frames.md, "The resolution"): a
+/// shadow ray pays one DDA step per brick it crosses, so the best edge per CPU second was 4
+/// voxels on volumes of 128 to 256 voxels per axis and 16 or more on a 1225-voxel cloud,
+/// where 4-voxel bricks made every query 9 times slower.
+pub fn auto_control_edge(voxels: [u32; 3]) -> u32 {
+    let longest = voxels.iter().copied().max().unwrap_or(1);
+    longest
+        .div_ceil(CONTROL_BRICKS_LONGEST)
+        .clamp(DEFAULT_CONTROL_EDGE, MAX_CONTROL_EDGE)
 }
 
 /// The control section of `source` over `bbox`.
@@ -230,6 +252,31 @@ mod tests {
             empty += usize::from(c.majorant[i] == 0.0);
         }
         assert!(empty > 0 && empty < c.control.len());
+    }
+
+    /// The default edge keeps 4 voxels up to 256 along the longest axis, then aims at 64
+    /// bricks along it, within 4..=64 voxels.
+    #[test]
+    fn auto_edge_grows_with_the_longest_axis() {
+        for (voxels, edge) in [
+            ([1, 1, 1], 4),
+            ([112, 223, 113], 4),
+            ([256, 256, 256], 4),
+            ([257, 10, 10], 5),
+            ([992, 674, 1225], 20),
+            ([1790, 1216, 2210], 35),
+            ([5000, 5000, 100_000], 64),
+        ] {
+            assert_eq!(auto_control_edge(voxels), edge, "{voxels:?}");
+        }
+        let src = sphere();
+        let bbox = src.bounds();
+        let auto = control_dims(&*src, &bbox, &ControlOptions::default()).unwrap();
+        let four = ControlOptions {
+            dims: ControlDims::Edge(DEFAULT_CONTROL_EDGE),
+            ..ControlOptions::default()
+        };
+        assert_eq!(auto, control_dims(&*src, &bbox, &four).unwrap());
     }
 
     /// Bad options are errors, not panics: an edge of 0, a floor outside (0, 1], a negative

@@ -383,6 +383,31 @@ fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
     Ok(v)
 }
 
+/// `bake(embed_control=...)`: `True` or `"auto"` for the default brick edge (as
+/// `--embed-control` without a value), an edge in voxels, or `False` for none. A bool is
+/// tried first: Python's `True` is also the integer 1, which would be a 1-voxel edge.
+#[derive(FromPyObject)]
+enum ControlEdge {
+    Flag(bool),
+    Edge(u32),
+    Word(String),
+}
+
+impl ControlEdge {
+    fn dims(self) -> PyResult<Option<pinbake::control::ControlDims>> {
+        use pinbake::control::ControlDims;
+        match self {
+            Self::Flag(false) => Ok(None),
+            Self::Flag(true) => Ok(Some(ControlDims::Auto)),
+            Self::Edge(e) => Ok(Some(ControlDims::Edge(e))),
+            Self::Word(w) if w == "auto" => Ok(Some(ControlDims::Auto)),
+            Self::Word(w) => Err(pyo3::exceptions::PyValueError::new_err(format!(
+                "embed_control: '{w}' is not `auto`, True or a brick edge of 1..=64 voxels"
+            ))),
+        }
+    }
+}
+
 /// Bakes `input` (a file path, `procedural:SPEC`, or `<array>` with `data`) into `output` and
 /// returns the JSON summary, through `pinbake::plan::bake_to_file`: the ranges, the output
 /// rule, the memory budget, the choice and the summary of `pinbake bake`, by the same code.
@@ -414,7 +439,7 @@ fn bake(
     center_pins: bool,
     majorant: [u32; 3],
     embed_density: Option<[u32; 3]>,
-    embed_control: Option<u32>,
+    embed_control: Option<ControlEdge>,
     density_scale: f64,
     threads: Option<usize>,
     max_memory: Option<u64>,
@@ -440,10 +465,14 @@ fn bake(
         majorant: (majorant != [0; 3]).then_some(majorant),
         embed_density,
         embed_sparse: None,
-        embed_control: embed_control.map(|edge| pinbake::control::ControlOptions {
-            dims: pinbake::control::ControlDims::Edge(edge),
-            ..pinbake::control::ControlOptions::default()
-        }),
+        embed_control: embed_control
+            .map(ControlEdge::dims)
+            .transpose()?
+            .flatten()
+            .map(|dims| pinbake::control::ControlOptions {
+                dims,
+                ..pinbake::control::ControlOptions::default()
+            }),
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),

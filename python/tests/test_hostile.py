@@ -107,6 +107,7 @@ def test_a_fifo_is_refused_without_blocking(tmp_path):
         (dict(majorant=5000), "majorant"),
         (dict(embed_control=0), "embed_control"),
         (dict(embed_control=65), "embed_control"),
+        (dict(embed_control="fine"), "embed_control"),
         (dict(dims=8), "dims does not apply to an array"),
         (dict(grid="density"), "grid does not apply to an array"),
         (dict(clamp_negative=True), "clamp_negative does not apply"),

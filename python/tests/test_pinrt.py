@@ -274,6 +274,20 @@ def test_python_bakes_equal_pinbake_bakes_byte_for_byte(smoke, tmp_path):
     plain = tmp_path / "h_py_plain.pin"
     pinrt.bake(raw, plain, cells=4, density_scale=0.05, step=0.05)
     assert plain.stat().st_size < py.stat().st_size
+    # True and "auto" are the CLI's --embed-control without a value; False is none.
+    auto_cli = tmp_path / "h_cli_auto.pin"
+    subprocess.run(
+        [exe("PINBAKE_EXE"), "bake", str(raw), "-o", str(auto_cli), "--cells", "4",
+         "--density-scale", "0.05", "--step", "0.05", "--embed-control", "-q"],
+        check=True,
+    )
+    for flag in (True, "auto"):
+        auto_py = tmp_path / f"h_py_auto_{flag}.pin"
+        pinrt.bake(raw, auto_py, cells=4, density_scale=0.05, step=0.05, embed_control=flag)
+        assert auto_py.read_bytes() == auto_cli.read_bytes()
+    none_py = tmp_path / "h_py_none.pin"
+    pinrt.bake(raw, none_py, cells=4, density_scale=0.05, step=0.05, embed_control=False)
+    assert none_py.read_bytes() == plain.read_bytes()
 
 
 def test_arrays_bake_like_the_same_voxels_in_a_raw_file(tmp_path):

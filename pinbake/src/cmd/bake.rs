@@ -1,5 +1,6 @@
 //! `pinbake bake`.
 
+use pinbake::control::ControlDims;
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -87,12 +88,12 @@ pub struct BakeArgs {
     #[arg(long, value_parser = parse_embed_density, help_heading = "Grid")]
     pub embed_density: Option<EmbedDensity>,
     /// Embed the control of residual ratio tracking (a format 1.1 file): per brick of EDGE
-    /// source voxels per axis (default 4, at most 64), a control extinction, a residual
-    /// majorant and a majorant, for `pinrender`'s unbiased `pinres` estimator
-    /// (docs/final-frames.md).
-    #[arg(long, value_name = "EDGE", num_args = 0..=1, default_missing_value = "4",
+    /// source voxels per axis (1..=64; without a value or `auto`: 4, or coarser so that the
+    /// longest axis has about 64 bricks), a control extinction, a residual majorant and a
+    /// majorant, for `pinrender`'s unbiased `pinres` estimator (docs/final-frames.md).
+    #[arg(long, value_name = "EDGE", num_args = 0..=1, default_missing_value = "auto",
           value_parser = parse_control_edge, help_heading = "Grid")]
-    pub embed_control: Option<u32>,
+    pub embed_control: Option<ControlDims>,
 
     /// Bake only tile I of N (a slab of z layers); join tiles with `pinbake merge`.
     #[arg(long, value_parser = parse_tile, help_heading = "Execution")]
@@ -143,10 +144,13 @@ fn parse_u32x3_max4096(s: &str) -> Result<[u32; 3], String> {
 }
 
 /// `--embed-control`: source voxels per brick edge, 1..=64.
-fn parse_control_edge(s: &str) -> Result<u32, String> {
+fn parse_control_edge(s: &str) -> Result<ControlDims, String> {
+    if s.trim() == "auto" {
+        return Ok(ControlDims::Auto);
+    }
     match s.trim().parse::<u32>() {
-        Ok(e) if (1..=64).contains(&e) => Ok(e),
-        _ => Err(format!("'{s}': a brick edge of 1..=64 voxels")),
+        Ok(e) if (1..=pinbake::control::MAX_CONTROL_EDGE).contains(&e) => Ok(ControlDims::Edge(e)),
+        _ => Err(format!("'{s}': `auto` or a brick edge of 1..=64 voxels")),
     }
 }
 
@@ -268,8 +272,8 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
         },
         embed_control: args
             .embed_control
-            .map(|edge| pinbake::control::ControlOptions {
-                dims: pinbake::control::ControlDims::Edge(edge),
+            .map(|dims| pinbake::control::ControlOptions {
+                dims,
                 ..pinbake::control::ControlOptions::default()
             }),
         threads: args.threads,

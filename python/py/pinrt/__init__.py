@@ -99,7 +99,7 @@ def bake(
     center_pins: bool = True,
     majorant: Union[int, Sequence[int]] = 16,
     embed_density: Union[int, Sequence[int], None] = None,
-    embed_control: Optional[int] = None,
+    embed_control: Union[int, bool, str, None] = None,
     density_scale: float = 1.0,
     threads: Optional[int] = None,
     max_memory: Optional[int] = None,
@@ -129,8 +129,9 @@ def bake(
     ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
     ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density``, ``embed_control``
-    (``--embed-control EDGE``: residual tracking's control per brick of EDGE voxels, 1..=64, for
-    ``pinrender``'s ``pinres``), ``density_scale``
+    (``--embed-control [EDGE]``: residual tracking's control per brick of EDGE voxels, 1..=64,
+    or ``True``/``"auto"`` for the default edge, which grows with the volume's resolution;
+    for ``pinrender``'s ``pinres``), ``density_scale``
     ``threads`` and ``max_memory`` (bytes; ``--max-memory``, default half of the physical
     memory). A bake is deterministic: the same input and options give the same bytes as the
     ``pinbake`` command.

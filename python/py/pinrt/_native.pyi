@@ -62,7 +62,7 @@ def bake(
     center_pins: bool = ...,
     majorant: Tuple[int, int, int] = ...,
     embed_density: Optional[Tuple[int, int, int]] = ...,
-    embed_control: Optional[int] = ...,
+    embed_control: Union[int, bool, str, None] = ...,
     density_scale: float = ...,
     threads: Optional[int] = ...,
     max_memory: Optional[int] = ...,

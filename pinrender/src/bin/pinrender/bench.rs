@@ -67,10 +67,10 @@ pub struct RenderBenchArgs {
     #[arg(long)]
     pub no_gpu: bool,
     /// The `pinres` rows' control: source voxels per brick edge (`pinbake bake
-    /// --embed-control EDGE`; 1..=64).
-    #[arg(long, default_value_t = pinbake::control::DEFAULT_CONTROL_EDGE,
-          value_parser = clap::value_parser!(u32).range(1..=64))]
-    pub pinres_edge: u32,
+    /// --embed-control EDGE`; 1..=64; default: the bake's default, 4 or coarser so that the
+    /// longest axis has about 64 bricks).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub pinres_edge: Option<u32>,
     /// The `pinres` rows' residual majorant as a fraction of the brick's largest residual
     /// (1, the default, bounds it; (0, 1]).
     #[arg(long, default_value_t = 1.0)]
@@ -597,7 +597,11 @@ fn bench_volume(
     // the source's box (not timed), over `f`.
     let control = {
         let opts = pinbake::control::ControlOptions {
-            dims: pinbake::control::ControlDims::Edge(args.pinres_edge),
+            dims: args
+                .pinres_edge
+                .map_or(pinbake::control::ControlDims::Auto, |e| {
+                    pinbake::control::ControlDims::Edge(e)
+                }),
             floor: args.pinres_floor,
             thickness: args.pinres_thickness,
             ..pinbake::control::ControlOptions::default()
