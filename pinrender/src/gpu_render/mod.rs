@@ -4,8 +4,10 @@
 //! (`shaders/render.wgsl` appended to `shaders/pin.wgsl`) over a scene's media
 //! ([`GpuMedia`]: pin grids, density fields, placed instances), with the transport estimator
 //! chosen per render ([`GpuEstimator`]): ray marching, delta tracking, ratio tracking (over
-//! each instance's majorant grid, DDA traversal), pins for everything, or PinMS (ratio
-//! tracking for camera rays and single scattering, pins after the first scattering event).
+//! each instance's majorant grid, DDA traversal), residual ratio tracking (`residual`,
+//! `residual@min`, `pinres`: over a control the CPU estimator builds, [`GpuControl`]), the
+//! comb estimators, pins for everything, or PinMS (ratio tracking for camera rays and single
+//! scattering, pins after the first scattering event).
 //!
 //! * pinhole camera, one uniformly jittered ray per sample inside the pixel (box filter);
 //! * the camera ray scores `env * T`, then distance sampling;

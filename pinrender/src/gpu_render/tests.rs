@@ -91,7 +91,7 @@ fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
 }
 
 /// A CPU estimator that answers a query pair along one ray as two separate queries (the
-/// trait's default), as the GPU path tracer does: the CPU's one-lookup / one-walk pairs
+/// trait's default), as the GPU path tracer does for every estimator but the residual ones: the CPU's one-lookup / one-walk pairs
 /// (`TransportEstimator::transmittance_and_distance`) have the same means but a lower
 /// per-pixel variance, which the comparisons below would count as a difference.
 struct Separate(Arc<dyn TransportEstimator>);
