@@ -24,8 +24,10 @@
 //
 // Per query the estimator is `RT_PRIMARY` (camera rays and the shadow rays of the first
 // scattering vertex) or `RT_SECONDARY` (everything after): 0 ray marching,
-// 1 delta tracking, 2 ratio tracking (delta tracking for distances), 3 pins. PinMS is
-// (2, 3), "pins for everything" (3, 3). The trackers and the marcher are ports of
+// 1 delta tracking, 2 ratio tracking (delta tracking for distances), 3 pins, 4 `urm`,
+// 5 `jackknife`, 6 residual ratio tracking (`residual`, `residual@min`, `pinres`: the control
+// of slot `RP.seed.z` of each medium's control table). PinMS is (2, 3), "pins for
+// everything" (3, 3). The trackers and the marcher are ports of
 // render/estimator.rs and render/majorant.rs in f32 (the CPU works in f64).
 //
 // Random numbers: a per-sample path generator (`rt_next`, xoshiro128** seeded by hashing
@@ -54,7 +56,7 @@ struct RtParams {
     material: vec4<f32>,
     // width, height, max_bounces, number of media.
     size: vec4<u32>,
-    // seed low word, seed high word, unused, unused.
+    // seed low word, seed high word, residual control slot (RT_EST_RESIDUAL), unused.
     seed: vec4<u32>,
 }
 
@@ -82,7 +84,8 @@ struct RtMedium {
     // 2 cosine waves, 3 bricked voxels).
     ids: vec4<u32>,
     // x: first value of the density (voxels, waves; bricks: the brick index) in `rt_data`,
-    // y: number of cosine waves, z: first majorant in `rt_data`, w: unused.
+    // y: number of cosine waves, z: first majorant in `rt_data`, w: first word of its
+    // residual control table in `rt_data` (`RT_CONTROL_WORDS` per slot; see `RtGrid`).
     offs: vec4<u32>,
     // Voxel counts (x, y, z), unused.
     vdims: vec4<u32>,
@@ -154,6 +157,20 @@ const RT_EST_RATIO: u32 = 2u;
 const RT_EST_PINS: u32 = 3u;
 const RT_EST_URM: u32 = 4u;
 const RT_EST_JACKKNIFE: u32 = 5u;
+const RT_EST_RESIDUAL: u32 = 6u;
+
+// The walks of `rt_track`.
+const RT_WALK_DELTA: u32 = 0u;
+const RT_WALK_RATIO: u32 = 1u;
+const RT_WALK_DEPTH: u32 = 2u;
+const RT_WALK_PAIR: u32 = 3u;
+const RT_WALK_RESIDUAL: u32 = 4u;
+// Words per slot of a medium's residual control table (gpu_render/media.rs, `CONTROL_WORDS`):
+// 0-2 the residual grid's world box minimum, 3 the first control value, 4-6 its maximum,
+// 7 the first residual majorant, 8-10 its brick counts, 11 the first value of the majorants
+// that distances and paired queries track, 12-14 their brick counts, 16-18 and 20-22 their
+// world box. Values per brick, x fastest, as f32 bits in `rt_data`.
+const RT_CONTROL_WORDS: u32 = 24u;
 
 const RT_HAS_PINS: u32 = 1u;
 const RT_HAS_DENSITY: u32 = 2u;
@@ -484,29 +501,77 @@ fn rt_march(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, want_distance: bool)
 }
 
 // ---------------------------------------------------------------------------------------------
-// Trackers over the majorant grid (estimator.rs `Tracker`, majorant.rs `Dda`).
-// `ratio` false: delta tracking, returns (collision distance or +inf, 1);
-// `ratio` true: ratio tracking, returns (+inf, transmittance weight);
-// `depth_only` true: no tracking and no random draws, returns (+inf, majorant optical depth of
-// the segment inside the majorant box) for the comb estimators' lookup count.
+// Trackers over a grid of bricks (estimator.rs `Tracker`, majorant.rs `Dda`), by `mode`:
+// RT_WALK_DELTA: delta tracking, returns (collision distance or +inf, 1);
+// RT_WALK_RATIO: ratio tracking, returns (+inf, transmittance weight);
+// RT_WALK_DEPTH: no tracking and no random draws, returns (+inf, majorant optical depth of
+//   the segment inside the grid's box) for the comb estimators' lookup count;
+// RT_WALK_PAIR: ratio tracking's transmittance and delta tracking's collision from one walk
+//   (estimator.rs `Tracker::ratio_and_delta`): at each tentative collision, until one is
+//   accepted, delta tracking's draw, then ratio tracking's step until its weight is final;
+//   returns (collision distance or +inf, transmittance weight);
+// RT_WALK_RESIDUAL: residual ratio tracking (estimator.rs `ResidualRatioTracking::
+//   residual_walk` and `residual_step`): the grid's values are the residual majorants, `cbase`
+//   the first of the controls (same bricks); the control's depth is summed exactly per brick,
+//   the residual `sigma - c` is ratio-tracked at rate `m`, and Russian roulette acts on the
+//   whole weight exp(-control depth so far) * weight; returns (+inf, transmittance).
 // ---------------------------------------------------------------------------------------------
 
-fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_only: bool) -> vec2<f32> {
+// A grid of bricks over a world box, its values (f32 bits) from `base` in `rt_data`.
+struct RtGrid {
+    lo: vec3<f32>,
+    hi: vec3<f32>,
+    dims: vec3<u32>,
+    base: u32,
+}
+
+// Medium m's own majorant grid.
+fn rt_majorant_grid(m: u32) -> RtGrid {
+    return RtGrid(rt_media[m].maj_lo.xyz, rt_media[m].maj_hi.xyz, rt_media[m].mdims.xyz, rt_media[m].offs.z);
+}
+
+fn rt_vec3_at(i: u32) -> vec3<f32> {
+    return vec3<f32>(rt_f(i), rt_f(i + 1u), rt_f(i + 2u));
+}
+
+fn rt_uvec3_at(i: u32) -> vec3<u32> {
+    return vec3<u32>(rt_data[i], rt_data[i + 1u], rt_data[i + 2u]);
+}
+
+// First word of medium m's control of this render (slot RP.seed.z).
+fn rt_control_entry(m: u32) -> u32 {
+    return rt_media[m].offs.w + RT_CONTROL_WORDS * RP.seed.z;
+}
+
+// The residual majorants of medium m's control (their grid carries the controls at word 3).
+fn rt_residual_grid(e: u32) -> RtGrid {
+    return RtGrid(rt_vec3_at(e), rt_vec3_at(e + 4u), rt_uvec3_at(e + 8u), rt_data[e + 7u]);
+}
+
+// The majorants that distances and paired queries of medium m's control track.
+fn rt_control_majorants(e: u32) -> RtGrid {
+    return RtGrid(rt_vec3_at(e + 16u), rt_vec3_at(e + 20u), rt_uvec3_at(e + 12u), rt_data[e + 11u]);
+}
+
+fn rt_track(m: u32, grid: RtGrid, cbase: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, mode: u32) -> vec2<f32> {
     let none = vec2<f32>(rt_inf(), 1.0);
-    let lo = rt_media[m].maj_lo.xyz;
-    let hi = rt_media[m].maj_hi.xyz;
+    let lo = grid.lo;
+    let hi = grid.hi;
     let ch = rt_clip(o, d, lo, hi, 0.0, t_max);
     if (!(ch.x < ch.y)) {
         return none;
     }
+    let depth_only = mode == RT_WALK_DEPTH;
     // Majorant optical depth left to the next tentative collision, carried across bricks.
     var tau = 0.0;
     if (!depth_only) {
         tau = rt_exp();
     }
+    // The majorant depth (RT_WALK_DEPTH) or the control depth (RT_WALK_RESIDUAL) to the end of
+    // the bricks walked so far.
     var depth = 0.0;
-    let dims = rt_media[m].mdims.xyz;
-    let mbase = rt_media[m].offs.z;
+    let dims = grid.dims;
+    let mbase = grid.base;
     let t_end = ch.y;
     var t_seg = ch.x;
     let p = o + d * ch.x;
@@ -535,6 +600,11 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_o
         }
     }
     var tr = 1.0;
+    // RT_WALK_PAIR: the accepted collision, and whether ratio tracking's weight is final.
+    var hit = rt_inf();
+    var ratio_done = false;
+    // RT_WALK_RESIDUAL: false once the step limit is reached (the control depth goes on).
+    var tracking = true;
     var steps = 0u;
     // A ray crosses at most dims.x + dims.y + dims.z bricks; the bound only guards rounding.
     let max_segments = dims.x + dims.y + dims.z + 3u;
@@ -549,10 +619,20 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_o
         }
         let seg_t1 = min(next_t[a], t_end);
         let b = brick;
-        let maj = rt_f(mbase + u32(b.x) + dims.x * (u32(b.y) + dims.y * u32(b.z)));
+        let bi = u32(b.x) + dims.x * (u32(b.y) + dims.y * u32(b.z));
+        let maj = rt_f(mbase + bi);
+        // RT_WALK_RESIDUAL: the brick's control, and the control depth at t inside it is
+        // offset + c t.
+        var c = 0.0;
+        var offset = 0.0;
+        if (mode == RT_WALK_RESIDUAL) {
+            c = rt_f(cbase + bi);
+            offset = depth - c * t_seg;
+            depth = depth + c * max(seg_t1 - t_seg, 0.0);
+        }
         if (depth_only) {
             depth = depth + maj * max(seg_t1 - t_seg, 0.0);
-        } else if (maj > 0.0) {
+        } else if (maj > 0.0 && tracking) {
             let inv = 1.0 / maj;
             var t = t_seg;
             loop {
@@ -568,7 +648,7 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_o
                 // and a huge majorant (t + tau / majorant == t) would then never move on.
                 let pt = clamp(o + d * t, lo, hi);
                 let sigma = rt_clean(rt_extinction(m, pt));
-                if (ratio) {
+                if (mode == RT_WALK_RATIO) {
                     tr = tr * (1.0 - sigma * inv);
                     if (tr == 0.0 || !(tr == tr)) {
                         return vec2<f32>(rt_inf(), 0.0);
@@ -580,12 +660,54 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_o
                         }
                         tr = tr / q;
                     }
+                } else if (mode == RT_WALK_RESIDUAL) {
+                    // residual_step: the residual may be negative (a control above the
+                    // extinction); that keeps the expectation, so it is not clamped.
+                    tr = tr * (1.0 - (sigma - c) * inv);
+                    if (tr == 0.0 || !is_finite_bits(tr)) {
+                        return vec2<f32>(rt_inf(), 0.0);
+                    }
+                    let whole = abs(tr) * exp(-(offset + c * t));
+                    if (whole < RT_RR) {
+                        let q = whole / RT_RR;
+                        if (rt_f32() >= q) {
+                            return vec2<f32>(rt_inf(), 0.0);
+                        }
+                        tr = tr / q;
+                    }
+                } else if (mode == RT_WALK_PAIR) {
+                    if (!(hit < rt_inf()) && rt_f32() * maj < sigma) {
+                        hit = t;
+                    }
+                    if (!ratio_done) {
+                        tr = tr * (1.0 - sigma * inv);
+                        if (tr == 0.0 || !(tr == tr)) {
+                            tr = 0.0;
+                            ratio_done = true;
+                        } else if (abs(tr) < RT_RR) {
+                            let q = abs(tr) / RT_RR;
+                            if (rt_f32() >= q) {
+                                tr = 0.0;
+                                ratio_done = true;
+                            } else {
+                                tr = tr / q;
+                            }
+                        }
+                    }
+                    if (hit < rt_inf() && ratio_done) {
+                        return vec2<f32>(hit, tr);
+                    }
                 } else if (rt_f32() * maj < sigma) {
                     return vec2<f32>(t, 1.0);
                 }
                 steps = steps + 1u;
                 if (steps >= RT_MAX_TRACKING_STEPS) {
-                    return vec2<f32>(rt_inf(), tr);
+                    if (mode == RT_WALK_RESIDUAL) {
+                        // The walk stops; the rest of the control depth by itself.
+                        tracking = false;
+                        break;
+                    }
+                    return vec2<f32>(hit, tr);
                 }
             }
         }
@@ -602,7 +724,21 @@ fn rt_track(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32, ratio: bool, depth_o
     if (depth_only) {
         return vec2<f32>(rt_inf(), depth);
     }
-    return vec2<f32>(rt_inf(), tr);
+    if (mode == RT_WALK_RESIDUAL) {
+        let t = exp(-depth) * tr;
+        // 0 x inf (a roulette survivor's huge weight past an opaque control) is 0.
+        if (!is_finite_bits(t)) {
+            return vec2<f32>(rt_inf(), 0.0);
+        }
+        return vec2<f32>(rt_inf(), t);
+    }
+    return vec2<f32>(hit, tr);
+}
+
+// Residual ratio tracking's transmittance of medium m along o + t d (RT_EST_RESIDUAL).
+fn rt_residual_transmittance(m: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
+    let e = rt_control_entry(m);
+    return rt_track(m, rt_residual_grid(e), rt_data[e + 3u], o, d, rt_inf(), RT_WALK_RESIDUAL).y;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -667,7 +803,7 @@ fn rt_comb_transmittance(m: u32, o: vec3<f32>, d: vec3<f32>, jackknife: bool) ->
     let e = hi - lo;
     let spacing = RP.material.z * max(e.x, max(e.y, e.z));
     let len = ch.y - ch.x;
-    let maj_depth = rt_track(m, o, d, rt_inf(), false, true).y;
+    let maj_depth = rt_track(m, rt_majorant_grid(m), 0u, o, d, rt_inf(), RT_WALK_DEPTH).y;
     let n = u32(clamp(max(ceil(len / spacing), ceil(maj_depth * RT_COMB_PER_DEPTH)), 1.0, RT_MAX_COMB_LOOKUPS));
     if (jackknife) {
         let t1 = rt_comb(m, o, d, ch.x, len, n);
@@ -742,13 +878,16 @@ fn rt_medium_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32
             return rt_march(m, o, d, inf, false).y;
         }
         case RT_EST_DELTA: {
-            if (rt_track(m, o, d, inf, false, false).x < inf) {
+            if (rt_track(m, rt_majorant_grid(m), 0u, o, d, inf, RT_WALK_DELTA).x < inf) {
                 return 0.0;
             }
             return 1.0;
         }
         case RT_EST_RATIO: {
-            return rt_track(m, o, d, inf, true, false).y;
+            return rt_track(m, rt_majorant_grid(m), 0u, o, d, inf, RT_WALK_RATIO).y;
+        }
+        case RT_EST_RESIDUAL: {
+            return rt_residual_transmittance(m, o, d);
         }
         case RT_EST_URM: {
             return rt_comb_transmittance(m, o, d, false);
@@ -768,7 +907,11 @@ fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32)
             return rt_march(m, o, d, t_max, true).x;
         }
         case RT_EST_DELTA, RT_EST_RATIO, RT_EST_URM, RT_EST_JACKKNIFE: {
-            return rt_track(m, o, d, t_max, false, false).x;
+            return rt_track(m, rt_majorant_grid(m), 0u, o, d, t_max, RT_WALK_DELTA).x;
+        }
+        case RT_EST_RESIDUAL: {
+            let e = rt_control_entry(m);
+            return rt_track(m, rt_control_majorants(e), 0u, o, d, t_max, RT_WALK_DELTA).x;
         }
         default: {
             return rt_pins(m, o, d, t_max).x;
@@ -797,6 +940,15 @@ fn rt_distance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
         }
     }
     return best;
+}
+
+// Both queries along one ray with one medium (tracer.rs `Ctx::transmittance_and_distance`):
+// the residual estimators answer with ratio tracking's one walk over the majorants their
+// distances track (docs/residual.md, "Distances"). Returns (collision distance or +inf,
+// transmittance).
+fn rt_pair(o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    let e = rt_control_entry(0u);
+    return rt_track(0u, rt_control_majorants(e), 0u, o, d, rt_inf(), RT_WALK_PAIR);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -876,13 +1028,24 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     let max_bounces = RP.size.z;
     let primary = RT_PRIMARY;
     let secondary = RT_SECONDARY;
-    if (has_env) {
-        l = l + env * rt_transmittance(primary, o, d);
+    // tracer.rs `Ctx::paired`: with one medium, an estimator that answers a transmittance and
+    // a distance along one ray together (the residual ones) gets both from one walk.
+    let pairs = primary == RT_EST_RESIDUAL && secondary == RT_EST_RESIDUAL && RP.size.w == 1u;
+    let scatters = !(albedo <= 0.0 || max_bounces == 0u);
+    var first = rt_inf();
+    if (has_env && scatters && pairs) {
+        let p = rt_pair(o, d);
+        l = l + env * p.y;
+        first = p.x;
+    } else {
+        if (has_env) {
+            l = l + env * rt_transmittance(primary, o, d);
+        }
+        if (!scatters) {
+            return l;
+        }
+        first = rt_distance(primary, o, d);
     }
-    if (albedo <= 0.0 || max_bounces == 0u) {
-        return l;
-    }
-    let first = rt_distance(primary, o, d);
     if (!(first < rt_inf())) {
         return l;
     }
@@ -905,13 +1068,21 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
         let u1 = rt_f32();
         let u2 = rt_f32();
         let w = rt_sample_hg(dir, g, u1, u2);
-        if (has_env) {
-            l = l + env * (beta * rt_transmittance(shadow, x, w));
+        let last = depth >= max_bounces;
+        var t = rt_inf();
+        if (has_env && !last && pairs) {
+            let p = rt_pair(x, w);
+            l = l + env * (beta * p.y);
+            t = p.x;
+        } else {
+            if (has_env) {
+                l = l + env * (beta * rt_transmittance(shadow, x, w));
+            }
+            if (last) {
+                break;
+            }
+            t = rt_distance(secondary, x, w);
         }
-        if (depth >= max_bounces) {
-            break;
-        }
-        let t = rt_distance(secondary, x, w);
         if (!(t < rt_inf())) {
             break;
         }

@@ -8,11 +8,13 @@ use std::sync::Arc;
 use pinrt::{PinGrid, SamplerOptions};
 
 #[cfg(feature = "gpu")]
-use crate::gpu_render::{GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
+use crate::gpu_render::{GpuControl, GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
 use crate::render::{
     AnalyticOpticalDepth, DensitySource, EstimatorSpec, MajorantGrid, Medium, PinsEstimator,
     RenderError, TransportEstimator,
 };
+#[cfg(feature = "gpu")]
+use crate::render::{BakedResidualTracking, ResidualRatioTracking};
 
 /// A pin grid placed in the world.
 #[derive(Clone)]
@@ -115,20 +117,94 @@ impl MediumDesc {
     }
 }
 
+#[cfg(feature = "gpu")]
+impl MediumDesc {
+    /// The residual control that `spec` reads on the GPU, built exactly as its CPU estimator
+    /// builds it (`residual[@min|@mean]`: over the majorant grid at load time; `pinres`: from
+    /// the pin file's control section, with the CPU's raising of the majorants and its
+    /// choice of the majorants it tracks), or `Ok(None)` for an estimator that reads none.
+    pub fn gpu_control(&self, spec: EstimatorSpec) -> Result<Option<GpuControl>, RenderError> {
+        let take = |t: &ResidualRatioTracking<dyn DensitySource>| {
+            let (residual, majorants) = t.grids();
+            GpuControl {
+                spec,
+                residual: residual.clone(),
+                controls: t.controls().0.to_vec(),
+                majorants: majorants.clone(),
+            }
+        };
+        Ok(match spec {
+            EstimatorSpec::ResidualRatioTracking { control } => Some(take(
+                &ResidualRatioTracking::new(self.field()?, self.majorants()?, control)?,
+            )),
+            EstimatorSpec::PinRes => {
+                let p = self
+                    .pins
+                    .as_ref()
+                    .ok_or_else(|| missing("medium", "no pin grid (pinres reads its control)"))?;
+                let baked = BakedResidualTracking::from_grid(
+                    self.field()?,
+                    &p.grid,
+                    p.local_to_world.as_ref(),
+                    self.majorants().ok(),
+                )?;
+                Some(take(baked.tracking()))
+            }
+            _ => None,
+        })
+    }
+}
+
 /// The GPU renderer's media for `media`: every pin grid and density they share uploaded
 /// once, each instance placed as its CPU estimators are. `spec`: only what that estimator
-/// reads (a render); `None`: everything the media have (the eval renders several
-/// estimators with one upload).
+/// reads (a render); `None`: everything the media have but the residual controls, which are
+/// built per estimator ([`gpu_media_for`]).
 #[cfg(feature = "gpu")]
 pub fn gpu_media<'a>(
     media: &'a [MediumDesc],
     spec: Option<EstimatorSpec>,
     lookup: SamplerOptions,
 ) -> Result<GpuMedia<'a>, RenderError> {
-    let (pins, density, majorants) = match spec {
-        Some(s) => (s.uses_pins(), s.needs_density(), s.uses_majorants()),
-        None => (true, true, true),
-    };
+    match spec {
+        Some(s) => gpu_media_for(media, &[s], lookup),
+        None => pack_media(media, (true, true, true), &[], lookup),
+    }
+}
+
+/// The GPU renderer's media for rendering each of `specs` (the eval renders several
+/// estimators with one upload): what any of them reads, with the residual control of each
+/// residual estimator among them.
+#[cfg(feature = "gpu")]
+pub fn gpu_media_for<'a>(
+    media: &'a [MediumDesc],
+    specs: &[EstimatorSpec],
+    lookup: SamplerOptions,
+) -> Result<GpuMedia<'a>, RenderError> {
+    let needs = (
+        specs.iter().any(|s| s.uses_pins()),
+        specs.iter().any(|s| s.needs_density()),
+        specs.iter().any(|s| s.uses_majorants()),
+    );
+    let mut controls: Vec<EstimatorSpec> = Vec::new();
+    for &s in specs {
+        if matches!(
+            s,
+            EstimatorSpec::ResidualRatioTracking { .. } | EstimatorSpec::PinRes
+        ) && !controls.contains(&s)
+        {
+            controls.push(s);
+        }
+    }
+    pack_media(media, needs, &controls, lookup)
+}
+
+#[cfg(feature = "gpu")]
+fn pack_media<'a>(
+    media: &'a [MediumDesc],
+    (pins, density, majorants): (bool, bool, bool),
+    controls: &[EstimatorSpec],
+    lookup: SamplerOptions,
+) -> Result<GpuMedia<'a>, RenderError> {
     let mut out = GpuMedia::default();
     let mut grids: Vec<&'a Arc<PinGrid>> = Vec::new();
     let mut densities: Vec<&'a Arc<GpuDensity>> = Vec::new();
@@ -169,6 +245,10 @@ pub fn gpu_media<'a>(
                     } else {
                         None
                     },
+                    controls: controls
+                        .iter()
+                        .filter_map(|&s| m.gpu_control(s).transpose())
+                        .collect::<Result<_, _>>()?,
                 })
             }
             _ => None,

@@ -124,7 +124,16 @@ const TINY: [&str; 6] = [
 ];
 
 /// What the GPU path tracer runs besides `rm@STEP`.
-const GPU_ESTIMATORS: [&str; 6] = ["delta", "ratio", "urm", "jackknife", "pins", "pinms"];
+const GPU_ESTIMATORS: [&str; 8] = [
+    "delta",
+    "ratio",
+    "residual",
+    "urm",
+    "jackknife",
+    "pins",
+    "pinms",
+    "pinres",
+];
 
 #[test]
 fn eval_quick_end_to_end() {
@@ -392,7 +401,11 @@ fn render_backends_agree() {
         assert!(out.with_extension("png").is_file());
         exr_mean(&out)
     };
-    for (est, albedo, spp, tol) in [("ratio", "0.9", "128", 0.03), ("rm@0.02", "0", "16", 0.005)] {
+    for (est, albedo, spp, tol) in [
+        ("ratio", "0.9", "128", 0.03),
+        ("rm@0.02", "0", "16", 0.005),
+        ("residual", "0.9", "128", 0.03),
+    ] {
         let cpu = render("cpu", est, albedo, spp, "1");
         let gpu = render("gpu", est, albedo, spp, "2");
         assert!(cpu > 0.01, "{est}: empty image");
@@ -687,5 +700,6 @@ fn the_estimator_catalogue_is_json_with_the_contract_fields() {
     assert_eq!(get("pinurm")["gpu"], false);
     assert_eq!(get("pinres")["needs_bake"], true);
     assert_eq!(get("pinres")["unbiased"], true);
-    assert_eq!(get("pinres")["gpu"], false);
+    assert_eq!(get("pinres")["gpu"], true);
+    assert_eq!(get("residual")["gpu"], true);
 }

@@ -15,7 +15,8 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 
 use crate::render::{
-    BrickGrid, DensitySource, HomogeneousBox, MajorantGrid, RenderError, VoxelGrid,
+    BrickGrid, DensitySource, EstimatorSpec, HomogeneousBox, MajorantGrid, RenderError,
+    ResidualControl, VoxelGrid,
 };
 use pinrt::Error;
 use pinrt::PinGrid;
@@ -199,6 +200,42 @@ pub struct GpuPlacedDensity {
     pub translation: [f64; 3],
     /// World-space majorant grid over the placed density (needed by the trackers).
     pub majorants: Option<Arc<MajorantGrid>>,
+    /// The residual controls of this instance, at most one per residual estimator
+    /// (`residual`, `residual@min`, `pinres`: [`GpuControl::spec`]).
+    pub controls: Vec<GpuControl>,
+}
+
+/// What residual ratio tracking reads for one instance, in the world (as the CPU's
+/// `ResidualRatioTracking` holds it): per brick of `residual`'s grid a control extinction
+/// (`controls`, the grid's layout) and a residual majorant (`residual`'s values), and the
+/// majorants that its distances and paired queries track. Packed into the density data
+/// buffer (no binding of its own).
+#[derive(Clone, Debug)]
+pub struct GpuControl {
+    /// The estimator that reads it: `residual@mean`, `residual@min` or `pinres`.
+    pub spec: EstimatorSpec,
+    pub residual: MajorantGrid,
+    pub controls: Vec<f32>,
+    pub majorants: Arc<MajorantGrid>,
+}
+
+/// Slots of a medium's control table, one per residual estimator.
+pub(super) const CONTROL_SLOTS: usize = 3;
+/// Words per slot (`RT_CONTROL_WORDS` of `render.wgsl`).
+const CONTROL_WORDS: usize = 24;
+
+/// The slot of the control table that `spec` reads, if it reads one.
+pub(super) fn control_slot(spec: EstimatorSpec) -> Option<usize> {
+    match spec {
+        EstimatorSpec::ResidualRatioTracking {
+            control: ResidualControl::Mean,
+        } => Some(0),
+        EstimatorSpec::ResidualRatioTracking {
+            control: ResidualControl::Min,
+        } => Some(1),
+        EstimatorSpec::PinRes => Some(2),
+        _ => None,
+    }
 }
 
 /// One medium instance. Media add: distance sampling takes the nearest collision over the
@@ -245,6 +282,8 @@ pub(super) struct Caps {
     pub pins: bool,
     pub density: bool,
     pub majorants: bool,
+    /// A residual control per slot ([`control_slot`]).
+    pub controls: [bool; CONTROL_SLOTS],
 }
 
 /// `RtMedium` of `render.wgsl` (240 bytes).
@@ -391,6 +430,62 @@ fn f4(v: [f64; 3], w: f32) -> [f32; 4] {
 
 fn gpu(why: String) -> Error {
     Error::Gpu(why)
+}
+
+/// Appends an instance's residual controls to `data`: the table of [`CONTROL_SLOTS`] slots
+/// (`RT_CONTROL_WORDS` of `render.wgsl` says what each word holds), then each control's
+/// values, residual majorants and tracked majorants.
+fn pack_controls(
+    r: &mut MediumRecord,
+    cap: &mut Caps,
+    data: &mut Vec<u32>,
+    controls: &[GpuControl],
+    medium: usize,
+) -> pinrt::Result<()> {
+    let to_u32 = |what: &str, v: usize| {
+        u32::try_from(v).map_err(|_| gpu(format!("{what} offset {v} exceeds u32")))
+    };
+    let table = data.len();
+    r.offs[3] = to_u32("control table", table)?;
+    data.resize(table + CONTROL_SLOTS * CONTROL_WORDS, 0);
+    for c in controls {
+        let slot = control_slot(c.spec).ok_or_else(|| {
+            gpu(format!(
+                "medium {medium}: {} reads no residual control",
+                c.spec
+            ))
+        })?;
+        let n = c.residual.values().len();
+        if c.controls.len() != n {
+            return Err(gpu(format!(
+                "medium {medium}: {} controls for {n} residual bricks",
+                c.controls.len()
+            )));
+        }
+        let at = table + slot * CONTROL_WORDS;
+        let f3 = |v: [f64; 3]| v.map(|x| (x as f32).to_bits());
+        let (lo, hi) = c.residual.bounds();
+        let (mlo, mhi) = c.majorants.bounds();
+        let (rd, md) = (c.residual.dims(), c.majorants.dims());
+        let control_at = to_u32("control", data.len())?;
+        data.extend(c.controls.iter().map(|v| v.to_bits()));
+        let residual_at = to_u32("residual majorant", data.len())?;
+        data.extend(c.residual.values().iter().map(|v| v.to_bits()));
+        let majorant_at = to_u32("majorant", data.len())?;
+        data.extend(c.majorants.values().iter().map(|v| v.to_bits()));
+        let e = &mut data[at..at + CONTROL_WORDS];
+        e[0..3].copy_from_slice(&f3(lo));
+        e[3] = control_at;
+        e[4..7].copy_from_slice(&f3(hi));
+        e[7] = residual_at;
+        e[8..11].copy_from_slice(&rd);
+        e[11] = majorant_at;
+        e[12..15].copy_from_slice(&md);
+        e[16..19].copy_from_slice(&f3(mlo));
+        e[20..23].copy_from_slice(&f3(mhi));
+        cap.controls[slot] = true;
+    }
+    Ok(())
 }
 
 /// Packs `media` into the shader's records; `limit` is the largest storage binding in bytes.
@@ -580,6 +675,9 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
                 r.maj_hi = f4(mhi, 0.0);
                 r.ids[2] |= FLAG_MAJORANTS;
                 cap.majorants = true;
+            }
+            if !pd.controls.is_empty() {
+                pack_controls(&mut r, &mut cap, &mut data, &pd.controls, i)?;
             }
         }
         params.push(gp);

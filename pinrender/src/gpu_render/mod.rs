@@ -4,8 +4,10 @@
 //! (`shaders/render.wgsl` appended to `shaders/pin.wgsl`) over a scene's media
 //! ([`GpuMedia`]: pin grids, density fields, placed instances), with the transport estimator
 //! chosen per render ([`GpuEstimator`]): ray marching, delta tracking, ratio tracking (over
-//! each instance's majorant grid, DDA traversal), pins for everything, or PinMS (ratio
-//! tracking for camera rays and single scattering, pins after the first scattering event).
+//! each instance's majorant grid, DDA traversal), residual ratio tracking (`residual`,
+//! `residual@min`, `pinres`: over a control the CPU estimator builds, [`GpuControl`]), the
+//! comb estimators, pins for everything, or PinMS (ratio tracking for camera rays and single
+//! scattering, pins after the first scattering event).
 //!
 //! * pinhole camera, one uniformly jittered ray per sample inside the pixel (box filter);
 //! * the camera ray scores `env * T`, then distance sampling;
@@ -29,8 +31,8 @@
 mod media;
 
 pub use media::{
-    CosineWave, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity,
-    VALUE_BINDINGS,
+    CosineWave, GpuControl, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins,
+    GpuPlacedDensity, VALUE_BINDINGS,
 };
 
 use std::collections::HashMap;
@@ -179,7 +181,12 @@ impl GpuScene {
                 0.0,
             ],
             size: [c.width, c.height, self.max_bounces, media],
-            seed: [seed as u32, (seed >> 32) as u32, 0, 0],
+            seed: [
+                seed as u32,
+                (seed >> 32) as u32,
+                media::control_slot(estimator).unwrap_or(0) as u32,
+                0,
+            ],
         }
     }
 }
@@ -201,8 +208,8 @@ struct RtParams {
 }
 
 /// The transport estimator of a GPU render: the renderer's one [`EstimatorSpec`] (the CPU's
-/// `rm@STEP`, `delta`, `ratio`, `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`; `residual` and
-/// `pinurm` are CPU only, which [`GpuEstimator::parse`] and a render say).
+/// `rm@STEP`, `delta`, `ratio`, `residual[@min|@mean]`, `urm[@N]`, `jackknife[@N]`, `pins`,
+/// `pinms`, `pinres`; `pinurm` is CPU only, which [`GpuEstimator::parse`] and a render say).
 ///
 /// [`EstimatorSpec`]: crate::render::EstimatorSpec
 pub type GpuEstimator = crate::render::EstimatorSpec;
@@ -214,6 +221,7 @@ const EST_RATIO: u32 = 2;
 const EST_PINS: u32 = 3;
 const EST_URM: u32 = 4;
 const EST_JACKKNIFE: u32 = 5;
+const EST_RESIDUAL: u32 = 6;
 
 impl GpuEstimator {
     /// Parses the names the CLI and the evaluation use ([`EstimatorSpec`]'s `FromStr`;
@@ -240,7 +248,8 @@ impl GpuEstimator {
             Self::Jackknife { .. } => (EST_JACKKNIFE, EST_JACKKNIFE),
             Self::Pins => (EST_PINS, EST_PINS),
             Self::PinMs => (EST_RATIO, EST_PINS),
-            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. } | Self::PinRes => {
+            Self::ResidualRatioTracking { .. } | Self::PinRes => (EST_RESIDUAL, EST_RESIDUAL),
+            Self::PinUrm { .. } => {
                 return Err(RenderError::Invalid {
                     what: "estimator",
                     why: format!("{self} runs on the CPU path tracer only (--backend cpu)"),
@@ -268,12 +277,19 @@ impl GpuEstimator {
         self.needs().majorants
     }
 
-    /// What every medium must have for this estimator.
+    /// What every medium must have for this estimator. `pinres` reads the bake's control
+    /// section, not the pins: on the GPU it needs the control (built on the CPU from the
+    /// section, [`GpuControl`]), not the pin grid.
     fn needs(self) -> media::Caps {
+        let mut controls = [false; media::CONTROL_SLOTS];
+        if let Some(slot) = media::control_slot(self) {
+            controls[slot] = true;
+        }
         media::Caps {
-            pins: self.needs_pins(),
+            pins: self.needs_pins() && self != Self::PinRes,
             density: self.needs_density(),
             majorants: self.needs_majorants(),
+            controls,
         }
     }
 
@@ -632,10 +648,12 @@ impl GpuRenderer {
         estimator.validate()?;
         let need = estimator.needs();
         for (i, c) in self.caps.iter().enumerate() {
+            let control = (0..media::CONTROL_SLOTS).any(|k| need.controls[k] && !c.controls[k]);
             let missing = [
                 (need.pins && !c.pins, "a pin grid"),
                 (need.density && !c.density, "a density"),
                 (need.majorants && !c.majorants, "a majorant grid"),
+                (control, "its residual control"),
             ];
             if let Some((_, what)) = missing.iter().find(|(m, _)| *m) {
                 return Err(RenderError::Invalid {

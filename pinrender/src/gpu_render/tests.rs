@@ -91,7 +91,7 @@ fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
 }
 
 /// A CPU estimator that answers a query pair along one ray as two separate queries (the
-/// trait's default), as the GPU path tracer does: the CPU's one-lookup / one-walk pairs
+/// trait's default), as the GPU path tracer does for every estimator but the residual ones: the CPU's one-lookup / one-walk pairs
 /// (`TransportEstimator::transmittance_and_distance`) have the same means but a lower
 /// per-pixel variance, which the comparisons below would count as a difference.
 struct Separate(Arc<dyn TransportEstimator>);
@@ -591,9 +591,10 @@ impl MultiScene {
                             .build(f, maj, lookups)
                             .unwrap(),
                     ),
-                    // CPU only: the GPU renderer refuses it before any medium is built.
+                    // pinurm is CPU only; pinres reads a control section, which these pins
+                    // lack (`residual_estimators_match_cpu` compares it).
                     GpuEstimator::PinUrm { .. } | GpuEstimator::PinRes => {
-                        panic!("{est} has no GPU twin to compare")
+                        panic!("{est} has no GPU twin to compare here")
                     }
                 }
             })
@@ -739,6 +740,7 @@ fn cosine_density_matches_cpu() {
                 density: 0,
                 translation: [0.0; 3],
                 majorants: Some(maj.clone()),
+                controls: Vec::new(),
             }),
         }],
     };
@@ -805,6 +807,7 @@ fn media_and_estimators_are_checked() {
                 density: 0,
                 translation: [0.0; 3],
                 majorants: None,
+                controls: Vec::new(),
             }),
         }],
     };
@@ -895,6 +898,7 @@ fn stiff_media_stay_finite() {
                     density: 0,
                     translation: [0.0; 3],
                     majorants: Some(maj),
+                    controls: Vec::new(),
                 }),
             }],
         };
@@ -999,6 +1003,7 @@ fn placed<'g>(
                     density: 0,
                     translation: OFFSETS[k],
                     majorants: Some(majorants[k].clone()),
+                    controls: Vec::new(),
                 }),
             })
             .collect(),
@@ -1180,6 +1185,287 @@ fn bricked_density_matches_cpu() {
             24,
             2,
             (4.5, 4),
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Residual ratio tracking: residual, residual@min, pinres
+// ---------------------------------------------------------------------------------------
+
+/// The GPU's residual estimators (one WGSL walk; the controls differ).
+const RESIDUALS: [GpuEstimator; 3] = [
+    GpuEstimator::ResidualRatioTracking {
+        control: crate::render::ResidualControl::Mean,
+    },
+    GpuEstimator::ResidualRatioTracking {
+        control: crate::render::ResidualControl::Min,
+    },
+    GpuEstimator::PinRes,
+];
+
+/// The multi-medium tests' three blob instances as the renderers' medium descriptions (one
+/// shared GPU density), with the blob pin grid carrying a control section baked from the
+/// blob's voxels (6^3 bricks of 2 voxels, the baker's default rule otherwise).
+fn residual_descs(ms: &MultiScene) -> Vec<crate::medium::MediumDesc> {
+    use pinbake::control::{ControlDims, ControlOptions, bake_control};
+    let mut owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
+    let opts = ControlOptions {
+        dims: ControlDims::Exact([6; 3]),
+        ..ControlOptions::default()
+    };
+    let bbox = crate::render::DensitySource::bounds(&ms.base);
+    owned.control = Some(bake_control(&ms.base, &bbox, &opts).unwrap());
+    let grid = load(&owned);
+    let gpu = Arc::new(GpuDensity::from_voxel_grid(ms.base.clone()).unwrap());
+    (0..OFFSETS.len())
+        .map(|k| crate::medium::MediumDesc {
+            field: Some(ms.fields[k].clone()),
+            majorants: Some(ms.majorants[k].clone()),
+            majorant_bricks: 4,
+            analytic: None,
+            pins: Some(crate::medium::PlacedPins {
+                grid: grid.clone(),
+                local_to_world: Some(translated_identity(OFFSETS[k])),
+            }),
+            gpu_density: Some(gpu.clone()),
+            translation: OFFSETS[k],
+        })
+        .collect()
+}
+
+/// `residual`, `residual@min` and `pinres` against their CPU estimators, over three
+/// instances (no pairs: with several media each query is its own) and over one (where the
+/// CPU answers a transmittance and a distance along one ray with ratio tracking's one walk,
+/// and the GPU must too: the per-pixel variance ratio checks that).
+#[test]
+fn residual_estimators_match_cpu() {
+    let ctx = context();
+    let ms = MultiScene::new();
+    let descs = residual_descs(&ms);
+    let mut sc = scene(24, 0.9, 0.3, 3);
+    sc.camera.origin = [0.5, 0.8, 4.5];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    let lookup = SamplerOptions::default();
+    // One medium: the environment alone, deep paths, where the pairs' correlation matters.
+    let mut env_only = sc.clone();
+    env_only.sun = None;
+    env_only.albedo = 0.95;
+    env_only.max_bounces = 8;
+    for (label, media, sc) in [
+        ("3 instances", &descs[..], &sc),
+        ("1 medium, environment", &descs[..1], &env_only),
+    ] {
+        let gpu_media = crate::medium::gpu_media_for(media, &RESIDUALS, lookup).unwrap();
+        // pinres reads the control section, not the pins.
+        assert!(gpu_media.grids.is_empty());
+        let renderer = GpuRenderer::with_media(&ctx, &gpu_media).unwrap();
+        for est in RESIDUALS {
+            let cpu: Vec<Medium> = media
+                .iter()
+                .map(|d| d.cpu_medium(est, lookup).unwrap())
+                .collect();
+            compare_with(
+                &format!("{label}, {}", est.name()),
+                |k| renderer.render(sc, est, 2, 100 + k).unwrap(),
+                |k| cpu_render_media(cpu.clone(), sc, 2, 900 + k),
+                24,
+                2,
+                (4.5, 4),
+            );
+        }
+    }
+    // Without its control a medium cannot answer: a one-line refusal naming the medium.
+    let only_mean = crate::medium::gpu_media_for(&descs, &RESIDUALS[..1], lookup).unwrap();
+    let renderer = GpuRenderer::with_media(&ctx, &only_mean).unwrap();
+    for est in &RESIDUALS[1..] {
+        match renderer.render(&sc, *est, 1, 0) {
+            Err(GpuRenderError::Invalid(e)) => {
+                let e = e.to_string();
+                assert!(
+                    e.contains("residual control") && e.contains("medium 0"),
+                    "{e}"
+                );
+            }
+            other => panic!("{est}: {other:?}"),
+        }
+    }
+    // The controls share the density data binding: a device whose bindings cannot hold
+    // them refuses the media with one line naming the sizes.
+    let small = crate::medium::gpu_media_for(&descs, &RESIDUALS, lookup).unwrap();
+    let plain =
+        crate::medium::gpu_media_for(&descs, &[GpuEstimator::RatioTracking], lookup).unwrap();
+    let plain_bytes = media::pack(&plain, u64::MAX).unwrap().data.len() as u64 * 4;
+    match GpuRenderer::with_media_limited(&ctx, &small, plain_bytes) {
+        Err(e) => assert!(e.to_string().contains("the density data"), "{e}"),
+        Ok(_) => panic!("the controls must not fit the plain media's data binding"),
+    }
+}
+
+/// The albedo-0 image of the cosine cube (amplitudes summing below 1, so the field is
+/// never clamped at 0): per pixel `env * E[T]`, with `T` in closed form along 16 x 16
+/// midpoint sub-pixel rays of the GPU's camera (the pixel jitter averages over the pixel).
+fn cosine_pixel_expectations(
+    sc: &GpuScene,
+    (lo, hi): ([f64; 3], [f64; 3]),
+    density: f64,
+    waves: &[CosineWave],
+) -> Vec<f64> {
+    use glam::DVec3;
+    let c = &sc.camera;
+    let o = DVec3::from_array(c.origin.map(f64::from));
+    let f = (DVec3::from_array(c.target.map(f64::from)) - o).normalize();
+    let r = f.cross(DVec3::Y).normalize();
+    let u = r.cross(f);
+    let tan_half = (f64::from(c.vfov_deg).to_radians() * 0.5).tan();
+    let (w, h) = (f64::from(c.width), f64::from(c.height));
+    let aspect = w / h;
+    let depth = |d: DVec3| -> f64 {
+        let (mut t0, mut t1) = (0.0f64, f64::INFINITY);
+        for a in 0..3 {
+            let (n, m) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
+            t0 = t0.max(n.min(m));
+            t1 = t1.min(n.max(m));
+        }
+        if !(t0 < t1) {
+            return 0.0;
+        }
+        let len = t1 - t0;
+        let mut tau = len;
+        for wave in waves {
+            let wv = DVec3::from_array(wave.w.map(f64::from));
+            let (a, ph) = (f64::from(wave.amplitude), f64::from(wave.phase));
+            let wd = wv.dot(d);
+            let at = |t: f64| wv.dot(o + d * t) + ph;
+            tau += if wd.abs() > 1e-9 {
+                a * (at(t1).sin() - at(t0).sin()) / wd
+            } else {
+                a * at(t0).cos() * len
+            };
+        }
+        density * tau
+    };
+    let env = grey(sc.env_radiance);
+    const SUB: u32 = 16;
+    let mut out = Vec::with_capacity((c.width * c.height) as usize);
+    for py in 0..c.height {
+        for px in 0..c.width {
+            let mut sum = 0.0;
+            for sy in 0..SUB {
+                for sx in 0..SUB {
+                    let x = f64::from(px) + (f64::from(sx) + 0.5) / f64::from(SUB);
+                    let y = f64::from(py) + (f64::from(sy) + 0.5) / f64::from(SUB);
+                    let a = (2.0 * x / w - 1.0) * tan_half * aspect;
+                    let b = (1.0 - 2.0 * y / h) * tan_half;
+                    sum += (-depth((f + r * a + u * b).normalize())).exp();
+                }
+            }
+            out.push(env * sum / f64::from(SUB * SUB));
+        }
+    }
+    out
+}
+
+/// The GPU's residual ratio tracking is unbiased: the albedo-0 image of a cosine cube
+/// against its closed form, per pixel and for the image mean (z-tests from the replicates'
+/// variance, fixed seeds), with both load-time controls. Mutation: the control's depth
+/// counted 10% high in the walk (`depth + 1.1 * c * ...` in `rt_track`) fails it.
+#[test]
+fn residual_on_gpu_matches_the_cosine_closed_form() {
+    let ctx = context();
+    let waves = vec![
+        CosineWave {
+            w: [9.0, 3.0, -7.0],
+            amplitude: 0.5,
+            phase: 0.3,
+        },
+        CosineWave {
+            w: [-5.0, 11.0, 4.0],
+            amplitude: 0.3,
+            phase: 2.0,
+        },
+    ];
+    let (lo, hi) = ([-1.0, -0.8, -1.0], [1.0, 0.8, 1.0]);
+    let density = 0.5f32;
+    let cpu_waves = waves.clone();
+    let field: Arc<dyn crate::render::DensitySource> = Arc::new(crate::render::FnField {
+        min: lo,
+        max: hi,
+        f: move |p: Vec3| {
+            let p = p.as_dvec3();
+            let mut s = 1.0f64;
+            for w in &cpu_waves {
+                let wv = glam::DVec3::from_array(w.w.map(f64::from));
+                s += f64::from(w.amplitude) * (wv.dot(p) + f64::from(w.phase)).cos();
+            }
+            (f64::from(density) * s).max(0.0) as f32
+        },
+    });
+    // Bound: density * (1 + sum |amplitude|), on 4^3 bricks (each gets its own control).
+    let bound = density * 1.8 * 1.0001;
+    let maj = Arc::new(MajorantGrid::from_parts(lo, hi, [4; 3], vec![bound; 64]).unwrap());
+    let desc = crate::medium::MediumDesc {
+        field: Some(field),
+        majorants: Some(maj),
+        majorant_bricks: 4,
+        analytic: None,
+        pins: None,
+        gpu_density: Some(Arc::new(
+            GpuDensity::cosine(lo, hi, density, waves.clone()).unwrap(),
+        )),
+        translation: [0.0; 3],
+    };
+    let ests = &RESIDUALS[..2];
+    let media =
+        crate::medium::gpu_media_for(std::slice::from_ref(&desc), ests, SamplerOptions::default())
+            .unwrap();
+    let renderer = GpuRenderer::with_media(&ctx, &media).unwrap();
+    // Every pixel's rays cross the cube (no pixel that only a corner grazes).
+    let mut sc = scene(24, 0.0, 0.0, 0);
+    sc.camera.origin = [0.3, 0.2, 4.0];
+    sc.camera.vfov_deg = 18.0;
+    let expected = cosine_pixel_expectations(&sc, (lo, hi), f64::from(density), &waves);
+    let exp_mean = expected.iter().sum::<f64>() / expected.len() as f64;
+    for est in ests {
+        let images: Vec<Image> = (0..32)
+            .map(|k| renderer.render(&sc, *est, 4, 700 + k).unwrap())
+            .collect();
+        let s = stats(&images);
+        let (mut exceed, mut max_z, mut constant) = (0, 0.0f64, 0);
+        for (i, e) in expected.iter().enumerate() {
+            if s.var_mean[i].sqrt() <= 1e-9 {
+                // Every sample of the pixel gave the same value (the replicates' variance is
+                // 0 up to the rounding of their f64 mean): rays that miss the cube, or a
+                // pixel that the cube's corner grazes, where no sample met a thin chord's
+                // collision. No z there; the grazed part bounds the difference.
+                constant += 1;
+                assert!(
+                    (s.mean[i] - e).abs() <= 2e-3 * grey(sc.env_radiance),
+                    "[{est}] pixel {i}: {} vs {e}",
+                    s.mean[i]
+                );
+                continue;
+            }
+            let z = (s.mean[i] - e) / s.var_mean[i].sqrt();
+            max_z = max_z.max(z.abs());
+            if z.abs() > 4.5 {
+                exceed += 1;
+            }
+        }
+        let z_image = (s.image_mean - exp_mean) / s.image_var_mean.sqrt();
+        eprintln!(
+            "[cosine closed form, {est}] 32 x 4 spp: image mean gpu {:.6} +- {:.6}, closed \
+             form {exp_mean:.6}, z = {z_image:.2}; pixels beyond 4.5: {exceed} of {} \
+             ({constant} constant), max |z| {max_z:.2}",
+            s.image_mean,
+            s.image_var_mean.sqrt(),
+            expected.len()
+        );
+        assert!(z_image.abs() < 4.0, "[{est}] image mean z = {z_image}");
+        assert!(exceed <= 3, "[{est}] {exceed} pixels beyond |z| 4.5");
+        // The cube is in view and attenuates.
+        assert!(
+            expected.iter().cloned().fold(f64::INFINITY, f64::min) < 0.5 * grey(sc.env_radiance)
         );
     }
 }

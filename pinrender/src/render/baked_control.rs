@@ -137,9 +137,9 @@ impl BakedResidualTracking {
         self.inner.controls()
     }
 
-    /// The residual ratio tracking it runs (the statistical tests walk it directly).
-    #[cfg(all(test, feature = "cli"))]
-    pub(crate) fn tracking(&self) -> &ResidualRatioTracking<dyn DensitySource> {
+    /// The residual ratio tracking it runs (the statistical tests walk it directly; the GPU
+    /// path tracer uploads its grids).
+    pub fn tracking(&self) -> &ResidualRatioTracking<dyn DensitySource> {
         &self.inner
     }
 }

@@ -824,6 +824,12 @@ impl<F: DensitySource + ?Sized> ResidualRatioTracking<F> {
         (&self.controls, self.residual.values())
     }
 
+    /// The residual majorants' grid (the controls' layout) and the majorants that its
+    /// distances and paired queries track: what the GPU path tracer uploads.
+    pub fn grids(&self) -> (&MajorantGrid, &Arc<MajorantGrid>) {
+        (&self.residual, &self.tracker.majorants)
+    }
+
     #[inline(always)]
     fn control_of(&self, brick: [u32; 3]) -> f64 {
         let d = self.residual.dims();

@@ -240,12 +240,9 @@ impl EstimatorSpec {
         )
     }
 
-    /// Whether the GPU path tracer runs it.
+    /// Whether the GPU path tracer runs it (all but `pinurm`).
     pub fn runs_on_gpu(self) -> bool {
-        !matches!(
-            self,
-            Self::ResidualRatioTracking { .. } | Self::PinUrm { .. } | Self::PinRes
-        )
+        !matches!(self, Self::PinUrm { .. })
     }
 
     /// Whether it reads the bake: queries pin grids, or (`pinres`) reads the pin file's

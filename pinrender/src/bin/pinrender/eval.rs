@@ -65,16 +65,16 @@ scattering, whole-volume reference), instances (64 overlapping noise blobs).
 
 Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), residual
 (residual ratio tracking: a control extinction per majorant brick, the mean, or the minimum
-with residual@min, times ratio tracking of the residual; CPU only), urm[@N]
+with residual@min, times ratio tracking of the residual), urm[@N]
 (unbiased ray marching), jackknife[@N] (jackknife transmittance; both: combs of N lookups per
 longest box edge, delta tracking for distances), pins (pins for every ray), pinms (ratio
 tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
 hash-grid radiance cache), pinurm[@N] (unbiased ray marching around the pins' answer: the
 pins give the control optical depth, combs of N lookups correct it; CPU only), pinres
-(residual ratio tracking over the control the bake stores per 4^3-voxel brick; CPU only),
+(residual ratio tracking over the control the bake stores per 4^3-voxel brick),
 cosine-closed-form / box-closed-form (exact transmittance),
-whole-volume (box-ss only). rm@STEP, delta, ratio, urm, jackknife, pins and pinms also run on
-the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
+whole-volume (box-ss only). rm@STEP, delta, ratio, residual, urm, jackknife, pins, pinms and
+pinres also run on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
 Example: pinrender eval --out out/eval --docs docs")]
 pub struct EvalArgs {
@@ -819,7 +819,7 @@ fn eval_scene(
         ),
         Gpu::Ready { ctx, .. } => 'gpu: {
             let t = Instant::now();
-            let media = scenes::gpu_media(&es, LOOKUP)?;
+            let media = scenes::gpu_media(&es, &gpu_ests, LOOKUP)?;
             // A scene the device cannot hold (the 512^3 cloud's density is over lavapipe's
             // 128 MiB storage-buffer binding) is a property of the device: the CPU rows stand,
             // and the report says why the GPU rows are missing.

@@ -46,9 +46,9 @@ Estimators:
               longest box edge (default 8) correct it; unbiased, CPU only
   pinres      delta tracking (distances) + residual ratio tracking (transmittance) over the
               control the bake stores per brick (`pinbake bake --embed-control`; bakes the
-              volume in memory with it unless --pins); unbiased, CPU only
+              volume in memory with it unless --pins); unbiased
 
---backend gpu renders with the WGSL path tracer (wgpu; every estimator above) instead of the CPU
+--backend gpu renders with the WGSL path tracer (wgpu; every estimator above but pinurm) instead of the CPU
 one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
 of its active box, a pin file's sparse density densely, each as the bricks the CPU trackers read
 when the dense copy would exceed 2^28 voxels or one storage binding, cosine noise as its waves, a

@@ -824,9 +824,14 @@ pub fn translated(local_to_world: &[f64; 12], offset: [f64; 3]) -> [f64; 12] {
     m
 }
 
-/// The scene's media for the GPU renderer, from the same descriptions as the CPU's: the
-/// baked pin grid (if any) and the density, placed per instance exactly as the CPU
-/// estimators place them, with the CPU's majorant grids; `lookup` is the pins' lookup jitter.
-pub fn gpu_media(es: &EvalScene, lookup: SamplerOptions) -> Result<GpuMedia<'_>> {
-    pinrender::medium::gpu_media(&es.instances, None, lookup).map_err(|e| anyhow!("{e}"))
+/// The scene's media for the GPU renderer's estimators `ests`, from the same descriptions as
+/// the CPU's: the baked pin grid (if any) and the density, placed per instance exactly as
+/// the CPU estimators place them, with the CPU's majorant grids and residual controls;
+/// `lookup` is the pins' lookup jitter.
+pub fn gpu_media<'a>(
+    es: &'a EvalScene,
+    ests: &[EstimatorSpec],
+    lookup: SamplerOptions,
+) -> Result<GpuMedia<'a>> {
+    pinrender::medium::gpu_media_for(&es.instances, ests, lookup).map_err(|e| anyhow!("{e}"))
 }
