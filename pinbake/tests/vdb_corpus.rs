@@ -287,10 +287,9 @@ fn the_value_check_detects_a_wrong_reader() {
 /// the grids with tiles at levels 1 and 2 (`density`, `density64`) and root tiles (`roots`).
 /// At the density scale 2^-150 every value below 1 becomes 0 in f32: most leaves are then
 /// active but all zero, some tiles too, and the non-zero box is smaller than the active box.
-/// Made to fail by counting a skipped leaf's values as zeros (dropping the statistics'
-/// box, leaf count and maximum: `stats.nonzero_box = None` below makes every
-/// describe/bounds assertion fail) and by a `skip_leaf` that ignores the inactive values'
-/// bytes (the next leaf is then misread: "could not be read").
+/// Verified to fail when `VdbSource::from_stream` ignores the statistics' non-zero box (a
+/// part's bounds then differ from the whole read's) and when `skip_leaf` does not move past
+/// a leaf's inactive values (the next leaf is misread: "could not be read").
 #[test]
 fn parts_skip_leaves_undecoded_in_every_encoding() {
     use pinbake::{Part, bake_part, merge_parts};
