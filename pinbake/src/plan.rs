@@ -532,6 +532,21 @@ fn prepare(
                     (file_name(p), hash_file(p)?)
                 }
             };
+            // Grid statistics of another file (or of this file before it changed) would
+            // make this part's bytes those of another bake.
+            #[cfg(feature = "vdb")]
+            if let SourceSpec::Vdb(path, o) = &spec
+                && let (Some(_), Some(g)) = (&o.part, &o.grid_stats)
+                && g.file_xxh3 != h
+            {
+                return Err(PlanError::Source(SourceError::Vdb {
+                    path: path.clone(),
+                    message: format!(
+                        "the grid statistics were made for another file (content hash {}, this file's is {h}); make them again with `pinbake grid-stats`",
+                        one_line_hash(&g.file_xxh3)
+                    ),
+                }));
+            }
             (source::open_source(&spec)?, n, h)
         }
         BakeInput::Array {
@@ -770,6 +785,12 @@ pub fn bake_part_to_file(
         memory_estimate_bytes: need,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// A hash from a statistics file, shown safely in a one-line message.
+#[cfg(feature = "vdb")]
+fn one_line_hash(h: &str) -> String {
+    h.chars().take(64).filter(char::is_ascii_hexdigit).collect()
 }
 
 fn file_name(p: &Path) -> String {

@@ -758,6 +758,188 @@ fn parts_merge_into_the_monolithic_bytes_and_bad_parts_are_refused() {
     assert!(stderr(&o).contains("--cells"), "{}", stderr(&o));
 }
 
+/// `pinbake grid-stats` and `bake --part I/N --grid-stats FILE`: parts that skip the leaves
+/// outside their slab merge into the monolithic bytes (with a density scale, parts in any
+/// order, mixed with parts made without statistics); every bad statistics file or
+/// mismatched option is one line, exit 1 (2 for usage), no output; parts made with
+/// statistics that lie about a fact that decides the bytes are refused by the merge.
+#[test]
+fn grid_stats_parts_merge_into_the_monolithic_bytes_and_bad_stats_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |n: &str| dir.path().join(n);
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let input = data("openvdb_smoke1.vdb");
+    let input = input.to_str().unwrap();
+    let whole = d("whole.pin");
+    bake_ok(input, &whole, &["--density-scale", "0.5"]);
+    let want = std::fs::read(&whole).unwrap();
+    let stats = d("stats.json");
+    let o = pinbake(&[
+        "grid-stats",
+        input,
+        "--density-scale",
+        "0.5",
+        "-o",
+        &s(&stats),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["format"], "pinbake-grid-stats-1");
+    assert!(v["nonzero_leaves"].as_u64().unwrap() > 0);
+    let part = |i: u32, n: u32, stats: Option<&Path>, out: &Path| {
+        let mut a: Vec<String> = ["bake", input, "-o", &s(out), "--density-scale", "0.5"]
+            .iter()
+            .map(|x| x.to_string())
+            .collect();
+        a.extend(["--part".into(), format!("{i}/{n}")]);
+        if let Some(st) = stats {
+            a.extend(["--grid-stats".into(), s(st)]);
+        }
+        a.extend(FAST.iter().map(|x| x.to_string()));
+        Command::new(BIN)
+            .args(&a)
+            .stdin(Stdio::null())
+            .output()
+            .unwrap()
+    };
+    let merge = |paths: &[PathBuf], out: &Path| {
+        let mut a = vec!["merge".to_string()];
+        a.extend(paths.iter().map(|p| s(p)));
+        a.extend(["-o".into(), s(out)]);
+        Command::new(BIN).args(&a).output().unwrap()
+    };
+    for n in [2u32, 4] {
+        let paths: Vec<PathBuf> = (0..n).map(|i| d(&format!("g{n}_{i}.part"))).collect();
+        for (i, p) in paths.iter().enumerate() {
+            let o = part(i as u32, n, Some(&stats), p);
+            assert!(o.status.success(), "{}", stderr(&o));
+        }
+        let out = d(&format!("merged{n}.pin"));
+        let rev: Vec<PathBuf> = paths.iter().rev().cloned().collect();
+        let o = merge(&rev, &out);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(
+            std::fs::read(&out).unwrap() == want,
+            "{n} parts == monolithic"
+        );
+    }
+    // A part made without statistics is the same part.
+    let plain = d("plain_1.part");
+    assert!(part(1, 2, None, &plain).status.success());
+    assert_eq!(
+        std::fs::read(&plain).unwrap(),
+        std::fs::read(d("g2_1.part")).unwrap()
+    );
+
+    // Bad statistics: one line, exit 1, no output.
+    let out = d("refused.part");
+    let text = std::fs::read_to_string(&stats).unwrap();
+    let edited = |name: &str, from: &str, to: &str| {
+        assert!(text.contains(from), "{from} in {text}");
+        let p = d(name);
+        std::fs::write(&p, text.replacen(from, to, 1)).unwrap();
+        p
+    };
+    let key = |k: &str| {
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        format!("\"{k}\":{}", v[k])
+    };
+    let cases: Vec<(PathBuf, &str)> = vec![
+        (edited("junk.json", "{", "["), "not a grid statistics file"),
+        (
+            edited(
+                "version.json",
+                "pinbake-grid-stats-1",
+                "pinbake-grid-stats-9",
+            ),
+            "this version",
+        ),
+        (
+            edited("hash.json", "\"file_xxh3\":\"", "\"file_xxh3\":\"0"),
+            "another file",
+        ),
+        (
+            edited("size.json", &key("file_bytes"), "\"file_bytes\":7"),
+            "a file of 7 bytes",
+        ),
+        (
+            edited(
+                "scale.json",
+                &key("density_scale"),
+                "\"density_scale\":0.25",
+            ),
+            "density scale",
+        ),
+        (
+            edited("grid.json", "\"grid\":\"density\"", "\"grid\":\"smoke\""),
+            "grid 'smoke'",
+        ),
+        (
+            edited("active.json", &key("active_voxels"), "\"active_voxels\":7"),
+            "tree",
+        ),
+        (
+            edited("leaves.json", &key("leaves"), "\"leaves\":1"),
+            "damaged",
+        ),
+        (
+            edited("few.json", &key("nonzero_leaves"), "\"nonzero_leaves\":1"),
+            "values",
+        ),
+        (
+            edited("max.json", &key("max_value"), "\"max_value\":0.001"),
+            "values",
+        ),
+        (
+            edited("unknown.json", "{", "{\"extra\":1,"),
+            "not a grid statistics file",
+        ),
+        (d("missing.json"), "missing.json"),
+    ];
+    for (p, needle) in &cases {
+        let o = part(0, 2, Some(p), &out);
+        assert_clean_failure(&o, needle, &out);
+    }
+    // Statistics with a box larger than the grid's: the part cannot tell (its own voxels
+    // lie inside), but its grid description differs, and the merge refuses it among
+    // correct parts.
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let hi = v["nonzero_box"][1][0].as_i64().unwrap();
+    v["nonzero_box"][1][0] = serde_json::json!(hi + 8);
+    let wide = d("wide.json");
+    std::fs::write(&wide, serde_json::to_string(&v).unwrap()).unwrap();
+    let lying = d("lying_1.part");
+    let o = part(1, 2, Some(&wide), &lying);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bad = d("bad.pin");
+    let o = merge(&[d("g2_0.part"), lying], &bad);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("differs"), "{}", stderr(&o));
+    assert!(!bad.exists());
+
+    // Usage: --grid-stats without --part, grid-stats of a raw or procedural input.
+    let o = pinbake(&["bake", input, "-o", &s(&out), "--grid-stats", &s(&stats)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let o = pinbake(&["grid-stats", "procedural:sphere", "-o", &s(&d("p.json"))]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(!d("p.json").exists());
+    let o = part(0, 2, Some(&stats), &out);
+    assert!(o.status.success());
+    std::fs::remove_file(&out).unwrap();
+    let o = Command::new(BIN)
+        .args(["bake", "procedural:sphere", "-o", &s(&out), "--part", "0/2"])
+        .args(["--grid-stats", &s(&stats)])
+        .args(FAST)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(!out.exists());
+    // The statistics file is never written over the input.
+    let o = pinbake(&["grid-stats", input, "-o", input]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+}
+
 /// The section table of a pin file: (kind, offset, length) per entry, from the header's
 /// table offset and count.
 fn sections_of(b: &[u8]) -> Vec<(u32, usize, usize)> {

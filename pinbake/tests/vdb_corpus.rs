@@ -279,3 +279,88 @@ fn the_value_check_detects_a_wrong_reader() {
     });
     assert!(perturbed > 0, "{perturbed}");
 }
+
+/// Part reads that skip the leaves outside their slab undecoded, with the grid's statistics
+/// from `VdbSource::grid_stats`, hold the whole read's statistics and merge into its bake's
+/// bytes, in every encoding of the corpus (float and half; none, ZIP, Blosc, each with and
+/// without active-mask compression: every way `skip_leaf` must find a leaf's end) and on
+/// the grids with tiles at levels 1 and 2 (`density`, `density64`) and root tiles (`roots`).
+/// At the density scale 2^-150 every value below 1 becomes 0 in f32: most leaves are then
+/// active but all zero, some tiles too, and the non-zero box is smaller than the active box.
+/// Verified to fail when `VdbSource::from_stream` ignores the statistics' non-zero box (a
+/// part's bounds then differ from the whole read's) and when `skip_leaf` does not move past
+/// a leaf's inactive values (the next leaf is misread: "could not be read").
+#[test]
+fn parts_skip_leaves_undecoded_in_every_encoding() {
+    use pinbake::{Part, bake_part, merge_parts};
+    let dir = openvdb::corpus(env!("CARGO_TARGET_TMPDIR"), "pinbake");
+    let files = openvdb::manifest(dir);
+    let mut checked = 0;
+    let mut shrunk = 0;
+    for f in files
+        .iter()
+        .filter(|f| f.file.to_string_lossy().contains("enc_"))
+    {
+        for grid in ["density", "density64", "roots"] {
+            for scale in [1.0, 2f64.powi(-150)] {
+                let base = VdbOptions {
+                    grid: Some(grid.into()),
+                    density_scale: scale,
+                    ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
+                };
+                let at = format!("{} {grid} x {scale}", f.file.display());
+                let whole = match VdbSource::open(&f.file, &base) {
+                    Ok(s) => s,
+                    // Every value of `roots` but the root tiles' is below 1.
+                    Err(e) if e.to_string().contains("all are zero") => continue,
+                    Err(e) => panic!("{at}: {e}"),
+                };
+                let stats =
+                    VdbSource::grid_stats(&f.file, &base).unwrap_or_else(|e| panic!("{at}: {e}"));
+                let g = f.grids.iter().find(|g| g.name == grid).unwrap();
+                let (lo, hi) = whole.index_bounds();
+                if IVec3::from_array(g.active_bbox.0).cmplt(lo).any()
+                    || IVec3::from_array(g.active_bbox.1).cmpgt(hi).any()
+                {
+                    shrunk += 1;
+                }
+                let opts = small_bake();
+                let want = pinbake::bake(&whole, &opts, &|_| {})
+                    .unwrap()
+                    .0
+                    .to_bytes()
+                    .unwrap();
+                for count in [2, 3] {
+                    let parts: Vec<_> = (0..count)
+                        .map(|index| {
+                            let o = VdbOptions {
+                                part: Some(pinbake::source::VdbPart { index, count }),
+                                grid_stats: Some(Box::new(stats.clone())),
+                                ..base.clone()
+                            };
+                            let s = VdbSource::open(&f.file, &o)
+                                .unwrap_or_else(|e| panic!("{at} {index}/{count}: {e}"));
+                            assert_eq!(s.describe(), whole.describe(), "{at}");
+                            assert_eq!(s.bounds(), whole.bounds(), "{at}");
+                            assert_eq!(s.stored_voxels(), whole.stored_voxels(), "{at}");
+                            let d = bake_part(&s, &opts, Part { index, count }, &|_| {}).unwrap();
+                            (format!("{at} {index}/{count}"), d)
+                        })
+                        .collect();
+                    let got = merge_parts(&parts).unwrap().0.to_bytes().unwrap();
+                    assert!(
+                        got == want,
+                        "{at}: {count} parts differ from the whole bake"
+                    );
+                }
+                checked += 1;
+            }
+        }
+    }
+    // 12 encodings x (density, density64) x 2 scales, and roots at scale 1.
+    assert!(checked >= 12 * 5, "{checked} grids checked");
+    assert!(
+        shrunk >= 12,
+        "{shrunk} grids with a non-zero box inside the active box"
+    );
+}

@@ -29,7 +29,9 @@ Typical use:
 Farm bakes: run `pinbake bake ... --tile I/N -o part_I.pin` for I in 0..N anywhere, then
 `pinbake merge part_*.pin -o full.pin` gives the same bytes as a single bake. For a volume
 too large for one node, `--part I/N` splits the volume instead (each part reads only its
-slab of a VDB); `pinbake merge` of the part files gives the same bytes too.
+slab of a VDB); `pinbake merge` of the part files gives the same bytes too. Run
+`pinbake grid-stats smoke.vdb -o stats.json` once and give every part `--grid-stats
+stats.json`: each part then decodes only its slab's leaves.
 
 Exit codes: 0 success, 1 bad input or failed check, 2 usage error.";
 
@@ -76,8 +78,29 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Write the whole grid's statistics that the parts of a farm bake of an OpenVDB file
+    /// take with `bake --part I/N --grid-stats FILE`: one pass over every leaf, once per bake.
+    GridStats(Box<GridStatsArgs>),
     /// Bake the thesis' largest configuration and print pins/s for 1 and 2 threads.
     Bench(BenchArgs),
+}
+
+/// `pinbake grid-stats INPUT -o STATS`.
+#[derive(clap::Args, Debug)]
+pub struct GridStatsArgs {
+    /// The OpenVDB file the parts will bake.
+    pub input: PathBuf,
+    /// The statistics file (JSON; written atomically; a new path or a regular file other
+    /// than the input).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// How to read the input: the same grid, level-set and density-scale flags as every
+    /// part's bake.
+    #[command(flatten)]
+    pub volume: pinbake::cli_args::SourceArgs,
+    /// Print the statistics and the seconds as one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
 }
 
 pub fn run(cli: Cli) -> Result<ExitCode> {
@@ -103,8 +126,94 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
             max_memory,
             json,
         } => merge(&tiles, &output, max_memory, json),
+        Command::GridStats(args) => grid_stats(&args),
         Command::Bench(args) => bench::run(args),
     }
+}
+
+/// `pinbake grid-stats`: the statistics pass of a farm bake split by volume.
+fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
+    use pinbake::source::{InputKind, SourceSpec, VdbSource, nanovdb};
+    let started = std::time::Instant::now();
+    let spec = args.volume.source_spec(&args.input, "input", || {
+        std::env::current_exe().context("locating the pinbake binary")
+    })?;
+    let (path, opts) = match spec {
+        SourceSpec::Vdb(path, o)
+            if InputKind::of(&path) != InputKind::NanoVdb && !nanovdb::is_nanovdb_file(&path) =>
+        {
+            (path, o)
+        }
+        _ => usage!(
+            "grid-stats reads an OpenVDB file; {} is not one (its parts read it whole)",
+            args.input.display()
+        ),
+    };
+    let target = check_output(&args.output, &[&path])?;
+    let stats = VdbSource::grid_stats(&path, &opts)?;
+    let text = format!("{}\n", stats.to_json());
+    write_text_atomic(&target, &text)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    let seconds = started.elapsed().as_secs_f64();
+    if args.json {
+        let mut v: serde_json::Value = serde_json::from_str(&text)?;
+        v["output"] = serde_json::json!(args.output.display().to_string());
+        v["seconds"] = serde_json::json!(seconds);
+        pin_cli::outln!("{v}")?;
+    } else {
+        pin_cli::errln!(
+            "grid statistics of {} -> {}: {} leaves, {} non-zero, {:.2} s",
+            args.input.display(),
+            args.output.display(),
+            stats.leaves,
+            stats.nonzero_leaves,
+            seconds
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Reads a statistics file of `pinbake grid-stats` (at most 1 MiB).
+pub fn read_grid_stats(path: &std::path::Path) -> Result<pinbake::source::GridStats> {
+    use std::io::Read;
+    let shown = path.display();
+    let (f, size) = pinbake::files::open_input(path)?;
+    if size > 1 << 20 {
+        anyhow::bail!("{shown}: is not a grid statistics file ({size} bytes)");
+    }
+    let mut text = String::new();
+    f.take(1 << 20)
+        .read_to_string(&mut text)
+        .map_err(|_| anyhow::anyhow!("{shown}: is not a grid statistics file (not text)"))?;
+    pinbake::source::GridStats::from_json(&text).map_err(|e| anyhow::anyhow!("{shown}: {e}"))
+}
+
+/// Writes `text` to a temp file beside `target`, synced, renamed into place.
+fn write_text_atomic(target: &std::path::Path, text: &str) -> std::io::Result<()> {
+    use std::io::Write;
+    let dir = match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    let name = target
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "stats".into());
+    let temp = dir.join(format!(".{name}.{}.partial", std::process::id()));
+    let _announced = pinbake::files::announce_partial_file(&temp);
+    let result = (|| {
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&temp)?;
+        f.write_all(text.as_bytes())?;
+        f.sync_all()?;
+        std::fs::rename(&temp, target)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&temp);
+    }
+    result
 }
 
 /// `pinbake merge`: tiles or parts, told apart by their first bytes.

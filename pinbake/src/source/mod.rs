@@ -46,7 +46,7 @@ pub use mip::{Mip, MipAllocError};
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
 #[cfg(feature = "vdb")]
-pub use vdb::{VdbOptions, VdbPart, VdbSource};
+pub use vdb::{GridStats, VdbOptions, VdbPart, VdbSource};
 
 /// An axis-aligned world-space box, `min <= max` componentwise.
 #[derive(Clone, Copy, Debug, PartialEq)]

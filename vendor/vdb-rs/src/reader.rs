@@ -793,6 +793,92 @@ pub struct LeafData<'a, R: Read + Seek> {
 }
 
 impl<R: Read + Seek> LeafData<'_, R> {
+    /// Moves past the next leaf without decompressing its values: the value mask, the
+    /// per-node metadata, the inactive values and selection mask are read, and the value
+    /// buffer is skipped by the size its ZIP or Blosc chunk carries (or, uncompressed, by the
+    /// count the mask gives). `T` is the type `next_leaf` would be called with. Leaves the
+    /// reader exactly where `next_leaf::<T>` would.
+    pub fn skip_leaf<T: Pod>(&mut self) -> Result<(), ParseError> {
+        if !self.started {
+            self.gd.seek_to_blocks(self.reader)?;
+            self.started = true;
+        }
+        let reader = &mut *self.reader;
+        let header = self.header;
+        let gd = &self.gd;
+        let mut value_mask = [0u64; 8];
+        reader.read_u64_into::<LittleEndian>(&mut value_mask)?;
+        if header.file_version < OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION {
+            let _origin = read_i_vec3(reader)?;
+            let num_buffers = reader.read_u8()?;
+            if num_buffers != 1 {
+                return Err(ParseError::InvalidNodeMetadata(num_buffers));
+            }
+        }
+        let mut meta_data = NodeMetaData::NoMaskAndAllVals;
+        if header.file_version >= OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION {
+            meta_data = reader.read_u8()?.try_into()?;
+        }
+        let is_f32 = std::any::TypeId::of::<T>() == std::any::TypeId::of::<f32>();
+        let is_f64 = std::any::TypeId::of::<T>() == std::any::TypeId::of::<f64>();
+        let is_f16 = std::any::TypeId::of::<T>() == std::any::TypeId::of::<f16>();
+        let half_storage = gd.meta_data.is_half_float() && (is_f32 || is_f64);
+        // The size of one stored value, as `read_compressed` reads it.
+        let stored = if half_storage {
+            2
+        } else if !gd.meta_data.is_half_float() && is_f16 {
+            4
+        } else {
+            std::mem::size_of::<T>() as i64
+        };
+        let mut skip = 0i64;
+        if meta_data == NodeMetaData::NoMaskAndOneInactiveVal
+            || meta_data == NodeMetaData::MaskAndOneInactiveVal
+            || meta_data == NodeMetaData::MaskAndTwoInactiveVals
+        {
+            skip += std::mem::size_of::<T>() as i64;
+            if meta_data == NodeMetaData::MaskAndTwoInactiveVals {
+                skip += std::mem::size_of::<T>() as i64;
+            }
+        }
+        if meta_data == NodeMetaData::MaskAndNoInactiveVals
+            || meta_data == NodeMetaData::MaskAndOneInactiveVal
+            || meta_data == NodeMetaData::MaskAndTwoInactiveVals
+        {
+            skip += 64;
+        }
+        skip_bytes(reader, skip)?;
+        let count = if gd.compression.contains(Compression::ACTIVE_MASK)
+            && meta_data != NodeMetaData::NoMaskAndAllVals
+            && header.file_version >= OPENVDB_FILE_VERSION_NODE_MASK_COMPRESSION
+        {
+            value_mask.iter().map(|w| w.count_ones() as i64).sum()
+        } else {
+            512
+        };
+        if half_storage && count == 0 {
+            return Ok(());
+        }
+        let skip = if gd.compression.contains(Compression::BLOSC)
+            || gd.compression.contains(Compression::ZIP)
+        {
+            let n = reader.read_i64::<LittleEndian>()?;
+            if n <= 0 {
+                // Stored raw: as many whole values as `read_compressed_data` reads.
+                (n / stored)
+                    .checked_neg()
+                    .and_then(|c| c.checked_mul(stored))
+                    .ok_or(ParseError::InvalidBloscData)?
+            } else {
+                n
+            }
+        } else {
+            count * stored
+        };
+        skip_bytes(reader, skip)
+    }
+
+
     /// The 512 values of the next leaf, inactive values expanded as `read_grid` does.
     pub fn next_leaf<T: Pod>(&mut self) -> Result<Vec<T>, ParseError> {
         if !self.started {
@@ -816,4 +902,27 @@ impl<R: Read + Seek> LeafData<'_, R> {
             value_mask.as_bitslice(),
         )
     }
+}
+
+/// Moves `reader` `n` bytes on: small steps are read through (a buffered reader keeps its
+/// buffer), long ones are a seek. A negative or past-the-end step is an error.
+fn skip_bytes<R: Read + Seek>(reader: &mut R, n: i64) -> Result<(), ParseError> {
+    if n < 0 {
+        return Err(ParseError::InvalidBloscData);
+    }
+    if n <= 1 << 16 {
+        let copied = std::io::copy(&mut reader.by_ref().take(n as u64), &mut std::io::sink())?;
+        if copied != n as u64 {
+            return Err(ParseError::IoError(std::io::ErrorKind::UnexpectedEof.into()));
+        }
+    } else {
+        let end = reader.seek(SeekFrom::End(0))?;
+        let pos = reader.seek(SeekFrom::Current(0))?;
+        let to = pos.checked_add(n as u64).filter(|&t| t <= end);
+        let Some(to) = to else {
+            return Err(ParseError::IoError(std::io::ErrorKind::UnexpectedEof.into()));
+        };
+        reader.seek(SeekFrom::Start(to))?;
+    }
+    Ok(())
 }

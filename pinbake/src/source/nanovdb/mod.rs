@@ -250,6 +250,7 @@ fn read(
             active: t.active,
             negatives: t.negatives,
             part: None,
+            stats: None,
         },
         value,
     ))

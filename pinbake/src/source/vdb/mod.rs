@@ -98,10 +98,17 @@ pub struct VdbOptions {
     /// [`SourceError::Memory`] as soon as the worker has counted its leaves, before they are
     /// read. `None`: no limit beyond what the allocator gives.
     pub max_leaf_bytes: Option<u64>,
-    /// Read one z-slab of the grid for one part of a farm bake ([`VdbPart`]): the leaves
-    /// outside it are decoded for the grid's statistics but neither sent nor kept, so the
-    /// leaf table holds about `1 / count` of the grid; `None` reads the whole grid.
+    /// Read one z-slab of the grid for one part of a farm bake ([`VdbPart`]): the leaf
+    /// table holds about `1 / count` of the grid; `None` reads the whole grid. Without
+    /// [`Self::grid_stats`] the leaves outside the slab are decoded for the grid's
+    /// statistics but neither sent nor kept.
     pub part: Option<VdbPart>,
+    /// The whole grid's statistics ([`GridStats`], from [`VdbSource::grid_stats`] with the
+    /// same file, grid, level-set mode and density scale), for a part read: the reader then
+    /// moves past the leaves outside the slab without decoding them (a level set's leaves
+    /// are decoded all the same, for its flood fill). Statistics that do not match the file
+    /// or what the part reads are an error. Ignored without [`Self::part`].
+    pub grid_stats: Option<Box<GridStats>>,
 }
 
 impl Default for VdbOptions {
@@ -115,6 +122,7 @@ impl Default for VdbOptions {
             timeout: Duration::from_secs(60),
             max_leaf_bytes: None,
             part: None,
+            grid_stats: None,
         }
     }
 }
@@ -152,7 +160,7 @@ use wire::*;
 pub use reader::worker_main;
 pub use source::VdbSource;
 pub use spawn::WORKER_ENV;
-pub use wire::VdbPart;
+pub use wire::{GridStats, VdbPart};
 // What the NanoVDB reader builds a `VdbSource` from: the worker's stream, made in-process.
 pub(crate) use wire::{
     GridInfo, LEAF_F32, LEAF_HALF, LeafValues, Stream, StreamError, ValueKind, leaf_table_bytes,
@@ -240,13 +248,19 @@ mod tests {
             active: 512 * origins.len() as u64,
             negatives: 0,
             part: None,
+            stats: None,
         }
     }
 
     /// A part read ([`VdbOptions::part`]) keeps only its slab's leaves and a margin, counts
     /// the others in its statistics (box, leaf count, description, stored voxels), and the
     /// parts of a bake merge into the whole grid's bake: for a rotated grid (the smoke, baked
-    /// in its frame), a level set and an axis-aligned grid, with density scales.
+    /// in its frame), a level set and an axis-aligned grid, with density scales; both ways,
+    /// the leaves outside the slab decoded and summarised, and skipped undecoded with the
+    /// grid's statistics from the statistics pass. A density scale of 2^-150 over the
+    /// gaffer sphere's median leaf maximum turns the smaller values to 0 in f32: active
+    /// leaves that are all zero, and a non-zero box smaller than the active one, which the
+    /// statistics must give exactly.
     #[test]
     fn parts_hold_their_slab_and_merge_into_the_whole_bake() {
         use crate::bake::{BakeOptions, Provenance, bake_metadata};
@@ -256,14 +270,48 @@ mod tests {
             ("openvdb_smoke1.vdb", false, 1.0),
             ("openvdb_sphere_levelset.vdb", true, 2.5),
             ("gaffer_sphere_density.vdb", false, 0.5),
+            ("gaffer_sphere_density.vdb", false, f64::NAN),
         ] {
+            let tiny = scale.is_nan();
+            let scale = if tiny {
+                let s = in_process(file, None, false).unwrap();
+                let mut m = s.leaf_max.clone();
+                m.sort_by(f32::total_cmp);
+                2f64.powi(-150) / f64::from(m[m.len() / 2])
+            } else {
+                scale
+            };
             let p = data(file);
             let size = std::fs::metadata(&p).unwrap().len();
             let ds = DensityScale::new(scale).unwrap();
-            let read = |part: Option<VdbPart>| {
+            let vdb_opts = VdbOptions {
+                levelset_to_fog: to_fog,
+                density_scale: scale,
+                ..VdbOptions::default()
+            };
+            let stats = {
                 let mut buf = Vec::new();
-                worker_run(&p, None, to_fog, part.map(|pt| (pt, ds)), &mut buf).unwrap();
-                let st = parse_stream_within(&buf[..], size, u64::MAX, part.is_some()).unwrap();
+                let pass = PartRead {
+                    part: VdbPart { index: 0, count: 1 },
+                    scale: ds,
+                    mode: PartMode::Stats,
+                };
+                worker_run(&p, None, to_fog, Some(pass), &mut buf).unwrap();
+                let st = parse_stream_within(&buf[..], size, u64::MAX, true).unwrap();
+                source::stats_of_stream(&st, size, String::new(), &vdb_opts).unwrap()
+            };
+            let read = |part: Option<VdbPart>, mode: PartMode| {
+                let mut buf = Vec::new();
+                let pr = part.map(|part| PartRead {
+                    part,
+                    scale: ds,
+                    mode,
+                });
+                worker_run(&p, None, to_fog, pr, &mut buf).unwrap();
+                let mut st = parse_stream_within(&buf[..], size, u64::MAX, part.is_some()).unwrap();
+                if mode == PartMode::Skip {
+                    st.stats = Some(stats.clone());
+                }
                 VdbSource::from_stream(&p, st, ds).unwrap()
             };
             let (cells, directions) = ([5, 4, 6], Directions::Octahedral { n: 3 });
@@ -287,16 +335,32 @@ mod tests {
                 ),
                 ..BakeOptions::default()
             };
-            let whole = read(None);
+            let whole = read(None, PartMode::Summarise);
+            let (lo, hi) = whole.index_bounds();
+            assert_eq!(stats.nonzero_box, Some([lo.to_array(), hi.to_array()]));
+            if tiny {
+                assert!(
+                    stats.nonzero_leaves < stats.leaves,
+                    "{file}: no zero leaves"
+                );
+                let (alo, ahi) = in_process(file, None, false).unwrap().index_bounds();
+                assert!(
+                    alo.cmplt(lo).any() || ahi.cmpgt(hi).any(),
+                    "{file}: the box did not shrink"
+                );
+            }
             let want = crate::bake(&whole, &opts(&whole), &|_| {})
                 .unwrap()
                 .0
                 .to_bytes()
                 .unwrap();
-            for count in [1, 2, 3, 5] {
+            for (count, mode) in [1, 2, 3, 5]
+                .into_iter()
+                .flat_map(|n| [(n, PartMode::Summarise), (n, PartMode::Skip)])
+            {
                 let parts: Vec<_> = (0..count)
                     .map(|index| {
-                        let s = read(Some(VdbPart { index, count }));
+                        let s = read(Some(VdbPart { index, count }), mode);
                         assert_eq!(s.describe(), whole.describe(), "{file}");
                         assert_eq!(s.bounds(), whole.bounds(), "{file}");
                         assert_eq!(s.index_bounds(), whole.index_bounds(), "{file}");
@@ -316,7 +380,7 @@ mod tests {
                 let got = crate::merge_parts(&parts).unwrap().0.to_bytes().unwrap();
                 assert!(
                     got == want,
-                    "{file}: {count} parts differ from the whole bake"
+                    "{file}: {count} parts ({mode:?}) differ from the whole bake"
                 );
             }
         }

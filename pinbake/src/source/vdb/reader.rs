@@ -13,13 +13,16 @@ pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
     // The file may be any path; the selector, mode and part come from our own command line.
     let usage = || {
         tell_parent(&format!(
-            "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog> [<part I/N> <density-scale>]"
+            "usage: pinbake {WORKER_SUBCOMMAND} <file> <grid-selector> <fog|levelset-to-fog> [<part I/N|stats> <density-scale> [summarise|skip]]"
         ));
         2
     };
-    let (file, selector, mode, part) = match args {
-        [file, selector, mode] => (file, selector, mode, None),
-        [file, selector, mode, part, scale] => (file, selector, mode, Some((part, scale))),
+    let (file, selector, mode, part, how) = match args {
+        [file, selector, mode] => (file, selector, mode, None, None),
+        [file, selector, mode, part, scale] => (file, selector, mode, Some((part, scale)), None),
+        [file, selector, mode, part, scale, how] => {
+            (file, selector, mode, Some((part, scale)), Some(how))
+        }
         _ => return usage(),
     };
     let (Some(selector), Some(mode)) = (selector.to_str(), mode.to_str()) else {
@@ -29,13 +32,30 @@ pub fn worker_main(args: &[std::ffi::OsString]) -> i32 {
         None => None,
         Some((part, scale)) => {
             let parsed = (|| {
-                let (i, n) = part.to_str()?.split_once('/')?;
+                let scale = DensityScale::new(scale.to_str()?.parse().ok()?).ok()?;
+                let part = part.to_str()?;
+                if part == "stats" {
+                    return (how.is_none()).then_some(PartRead {
+                        part: VdbPart { index: 0, count: 1 },
+                        scale,
+                        mode: PartMode::Stats,
+                    });
+                }
+                let (i, n) = part.split_once('/')?;
                 let part = VdbPart {
                     index: i.parse().ok()?,
                     count: n.parse().ok()?,
                 };
-                let scale = DensityScale::new(scale.to_str()?.parse().ok()?).ok()?;
-                (part.count > 0 && part.index < part.count).then_some((part, scale))
+                let mode = match how.map(|h| h.to_str()) {
+                    None | Some(Some("summarise")) => PartMode::Summarise,
+                    Some(Some("skip")) => PartMode::Skip,
+                    _ => return None,
+                };
+                (part.count > 0 && part.index < part.count).then_some(PartRead {
+                    part,
+                    scale,
+                    mode,
+                })
             })();
             match parsed {
                 Some(p) => Some(p),
@@ -263,7 +283,7 @@ pub(super) fn worker_run(
     path: &Path,
     selector: Option<&str>,
     to_fog: bool,
-    part: Option<(VdbPart, DensityScale)>,
+    part: Option<PartRead>,
     out: &mut impl Write,
 ) -> Result<(), String> {
     let version = check_header(path)?;
@@ -481,7 +501,7 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     leaves: &mut vdb_rs::LeafData<'_, R>,
     (kind, version, level_set): (ValueKind, u32, bool),
     shown: &str,
-    part: Option<(VdbPart, DensityScale)>,
+    part: Option<PartRead>,
     out: &mut impl Write,
 ) -> Result<(), String> {
     for v in affine_rows(&g.transform, shown)? {
@@ -498,14 +518,25 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     // (trilinear samples in the slab reach one voxel past it).
     let slab = match part {
         None => None,
-        Some((p, _)) => Some(part_slab(g, p)?),
+        // The statistics pass keeps no leaf: its slab is empty.
+        Some(PartRead {
+            mode: PartMode::Stats,
+            ..
+        }) => Some((i64::MAX, i64::MAX)),
+        Some(p) => Some(part_slab(g, p.part)?),
     };
+    let stats_only = matches!(part, Some(p) if p.mode == PartMode::Stats);
     let keep = |o3: [i32; 3]| {
-        slab.is_none_or(|(lo, hi): (i64, i64)| {
-            let z = i64::from(o3[2]);
-            z >= lo.saturating_sub(8) && z < hi.saturating_add(8)
-        })
+        !stats_only
+            && slab.is_none_or(|(lo, hi): (i64, i64)| {
+                let z = i64::from(o3[2]);
+                z >= lo.saturating_sub(8) && z < hi.saturating_add(8)
+            })
     };
+    // A part read with the grid's statistics given (`Skip`) moves past the leaves it does
+    // not keep without decompressing them; a level set's flood fill needs every leaf's
+    // first and last sign, so its leaves are always decoded.
+    let skip = matches!(part, Some(p) if p.mode == PartMode::Skip) && !level_set;
     // The parent sizes its leaf table from this count before the first leaf arrives.
     let sent_count = match slab {
         None => leaf_count,
@@ -521,9 +552,9 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     let half = level_set || matches!(kind, ValueKind::FloatSavedAsHalf | ValueKind::Half);
     let encoding = if half { LEAF_HALF } else { LEAF_F32 };
     put_u8(out, encoding)?;
-    if let (Some((p, _)), Some((lo, hi))) = (part, slab) {
-        put_u32(out, p.index)?;
-        put_u32(out, p.count)?;
+    if let (Some(p), Some((lo, hi))) = (part, slab) {
+        put_u32(out, p.part.index)?;
+        put_u32(out, p.part.count)?;
         put_u64(out, lo as u64)?;
         put_u64(out, hi as u64)?;
         put_u64(out, leaf_count)?;
@@ -556,6 +587,12 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
                     .nodes
                     .get(&(i4 as u32))
                     .ok_or("leaf node missing (corrupt file)")?;
+                let o3 = child_origin(o4, i4, 4, 3)?;
+                if skip && !keep(o3) {
+                    leaves.skip_leaf::<T>().map_err(|e| read_err(shown, e))?;
+                    active += Mask(leaf.value_mask.as_raw_slice()).count_ones(512);
+                    continue;
+                }
                 let buffer: Vec<T> = leaves.next_leaf().map_err(|e| read_err(shown, e))?;
                 if buffer.len() != 512 {
                     return Err(format!(
@@ -563,7 +600,6 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
                         buffer.len()
                     ));
                 }
-                let o3 = child_origin(o4, i4, 4, 3)?;
                 let mask = Mask(leaf.value_mask.as_raw_slice());
                 active += mask.count_ones(512);
                 let mut any = false;
@@ -595,8 +631,8 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
                     }
                 }
                 if any && !keep(o3) {
-                    if let Some((_, scale)) = part {
-                        skipped.add(&leaf_buf, half, scale, o3, shown)?;
+                    if let Some(p) = part {
+                        skipped.add(&leaf_buf, half, p.scale, o3, shown)?;
                     }
                 } else if any {
                     put_u8(out, TAG_LEAF)?;
@@ -718,6 +754,27 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
         out.write_all(&skipped.max.to_le_bytes()).map_err(wr)?;
     }
     out.write_all(STREAM_END).map_err(wr)
+}
+
+/// How a part read treats the leaves outside its slab.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum PartMode {
+    /// Decodes them and summarises them in the stream's trailer (the grid's statistics
+    /// without a statistics file).
+    Summarise,
+    /// Moves past them undecoded: the parent has the grid's statistics from elsewhere
+    /// ([`super::GridStats`]).
+    Skip,
+    /// Keeps no leaf and summarises every one: the statistics pass.
+    Stats,
+}
+
+/// A part read as the worker's command line asks for it.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct PartRead {
+    pub(super) part: VdbPart,
+    pub(super) scale: DensityScale,
+    pub(super) mode: PartMode,
 }
 
 /// Calls `f` with the origin of every leaf of `g`, in the file's order.

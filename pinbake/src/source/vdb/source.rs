@@ -212,6 +212,105 @@ pub struct VdbSource {
     pub(super) unloaded_leaves: u64,
 }
 
+/// The statistics a statistics pass's stream (worker mode `stats`) carries.
+pub(super) fn stats_of_stream(
+    st: &Stream,
+    file_bytes: u64,
+    file_xxh3: String,
+    opt: &VdbOptions,
+) -> Result<GridStats, String> {
+    let p = st.part.ok_or("worker sent no statistics")?;
+    if !st.origins.is_empty() {
+        return Err("worker sent leaves in a statistics pass".into());
+    }
+    let nonzero_box = (p.skipped_kept > 0).then_some([p.skipped_lo, p.skipped_hi]);
+    if nonzero_box.is_some_and(|[lo, hi]| (0..3).any(|a| lo[a] > hi[a])) {
+        return Err("worker sent an inverted box (corrupt stream)".into());
+    }
+    Ok(GridStats {
+        format: GridStats::FORMAT.into(),
+        file_bytes,
+        file_xxh3,
+        grid: st.grids[st.chosen].display(),
+        levelset_to_fog: opt.levelset_to_fog,
+        density_scale: opt.density_scale,
+        leaves: p.total_leaves,
+        active_voxels: st.active,
+        negative_values: st.negatives,
+        nonzero_leaves: p.skipped_kept,
+        nonzero_box,
+        max_value: p.skipped_max,
+    })
+}
+
+/// Statistics given for a part read must be those of this file read this way.
+fn check_stats_options(g: &GridStats, file_size: u64, opt: &VdbOptions) -> Result<(), String> {
+    let differs = |what: &str, stats: String, here: String| {
+        Err(format!(
+            "the grid statistics were made for {what} {stats}, this bake has {here} (make them again with the bake's options)"
+        ))
+    };
+    if g.file_bytes != file_size {
+        return differs(
+            "a file of",
+            format!("{} bytes", g.file_bytes),
+            format!("{file_size} bytes"),
+        );
+    }
+    if g.density_scale.to_bits() != opt.density_scale.to_bits() {
+        return differs(
+            "density scale",
+            format!("{:?}", g.density_scale),
+            format!("{:?}", opt.density_scale),
+        );
+    }
+    if g.levelset_to_fog != opt.levelset_to_fog {
+        return differs(
+            "--levelset-to-fog",
+            g.levelset_to_fog.to_string(),
+            opt.levelset_to_fog.to_string(),
+        );
+    }
+    Ok(())
+}
+
+/// The grid statistics must describe the grid this part read: the same grid, topology
+/// (leaves, active voxels) and at least what the part's own leaves hold.
+fn check_stats_against_read(
+    w: &GridStats,
+    (grid, active, negatives, total_leaves): (&str, u64, u64, u64),
+    (lo, hi): (IVec3, IVec3),
+    own_max: f32,
+    own_leaves: u64,
+) -> Result<(), String> {
+    if w.grid != grid {
+        return Err(format!(
+            "are for grid '{}', this part reads grid '{grid}'",
+            one_line(&w.grid)
+        ));
+    }
+    if w.leaves != total_leaves || w.active_voxels != active {
+        return Err(format!(
+            "do not match this file's tree ({} leaves and {} active voxels in the statistics, {total_leaves} and {active} in the file)",
+            w.leaves, w.active_voxels
+        ));
+    }
+    let inside = own_leaves == 0
+        || w.nonzero_box.is_some_and(|[wlo, whi]| {
+            lo.cmpge(IVec3::from_array(wlo)).all() && hi.cmple(IVec3::from_array(whi)).all()
+        });
+    if own_leaves > w.nonzero_leaves
+        || !inside
+        || own_max > w.max_value
+        || negatives > w.negative_values
+    {
+        return Err(
+            "do not match the values of this file's leaves (made from another file?)".into(),
+        );
+    }
+    Ok(())
+}
+
 /// The worker's memory per leaf of the file: vdb-rs keeps every leaf's node (value mask,
 /// origin, an empty buffer) and its hash-table slot while the values stream through.
 /// Measured: 83 MB for the 539 K leaves of the 263 M-voxel cloud, about 155 bytes each.
@@ -245,6 +344,45 @@ impl VdbSource {
         // A FIFO, device or directory is refused before the worker could block on it or
         // read it without end.
         let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
+        let stats = match (&opt.part, &opt.grid_stats) {
+            (Some(_), Some(g)) => {
+                check_stats_options(g, file_size, opt).map_err(fail)?;
+                Some(GridStats::clone(g))
+            }
+            _ => None,
+        };
+        let mut stream = Self::read_stream(path, opt, file_size, false)?;
+        stream.stats = stats;
+        Self::from_stream(path, stream, scale).map_err(fail)
+    }
+
+    /// The whole grid's statistics ([`GridStats`]) for the parts of a farm bake with `opt`'s
+    /// grid, level-set mode and density scale (its `part` and `grid_stats` are ignored): the
+    /// reader decodes every leaf and sends none, so this needs the reader's memory (its
+    /// topology) and not the leaf table's.
+    pub fn grid_stats(path: &Path, opt: &VdbOptions) -> Result<GridStats, SourceError> {
+        let fail = |m: String| SourceError::Vdb {
+            path: path.to_path_buf(),
+            message: m,
+        };
+        DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
+        let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
+        let file_xxh3 = crate::plan::hash_file(path).map_err(SourceError::from_file)?;
+        let st = Self::read_stream(path, opt, file_size, true)?;
+        stats_of_stream(&st, file_size, file_xxh3, opt).map_err(fail)
+    }
+
+    /// Runs the worker for a read (`stats_pass`: the statistics pass) and parses its stream.
+    fn read_stream(
+        path: &Path,
+        opt: &VdbOptions,
+        file_size: u64,
+        stats_pass: bool,
+    ) -> Result<Stream, SourceError> {
+        let fail = |m: String| SourceError::Vdb {
+            path: path.to_path_buf(),
+            message: m,
+        };
         let limit = opt
             .memory_limit
             .unwrap_or_else(|| default_memory_limit(file_size));
@@ -256,17 +394,14 @@ impl VdbSource {
             ..opt.clone()
         };
         let max_leaf_bytes = opt.max_leaf_bytes.unwrap_or(u64::MAX);
-        let stream = match run_worker(path, &opt, file_size, limit, max_leaf_bytes) {
-            Ok(s) => s,
-            Err(e @ StreamError::Budget { .. }) => {
-                return Err(SourceError::Memory {
-                    path: path.to_path_buf(),
-                    message: e.to_string(),
-                });
-            }
-            Err(StreamError::Message(m)) => return Err(fail(m)),
-        };
-        Self::from_stream(path, stream, scale).map_err(fail)
+        match run_worker(path, &opt, file_size, limit, max_leaf_bytes, stats_pass) {
+            Ok(s) => Ok(s),
+            Err(e @ StreamError::Budget { .. }) => Err(SourceError::Memory {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            }),
+            Err(StreamError::Message(m)) => Err(fail(m)),
+        }
     }
 
     /// Bytes this grid holds in memory: its leaf values (f16 or f32), the per-leaf maximum,
@@ -403,6 +538,18 @@ impl VdbSource {
             kept += 1;
         }
         drop(origins);
+        // A part that moved past the leaves outside its slab counts them from the grid's
+        // statistics, after checking that its own leaves agree with them.
+        if let (Some(w), Some(p)) = (&st.stats, &st.part) {
+            let read = (grid.as_str(), st.active, st.negatives, p.total_leaves);
+            check_stats_against_read(w, read, (lo, hi), global_max, kept as u64)
+                .map_err(|e| format!("the grid statistics {e}"))?;
+            if let Some([wlo, whi]) = w.nonzero_box {
+                lo = lo.min(IVec3::from_array(wlo));
+                hi = hi.max(IVec3::from_array(whi));
+            }
+            global_max = global_max.max(w.max_value);
+        }
         let leaves = match (values, lut) {
             (LeafValues::F32(mut v), _) => {
                 v.truncate(kept);
@@ -442,8 +589,13 @@ impl VdbSource {
         }
         // A part's statistics are those of the whole grid: the leaves the worker left out
         // count as a whole read would count them.
-        let unloaded_leaves = st.part.map_or(0, |p| p.skipped_kept);
+        let unloaded_leaves = match (&st.stats, st.part) {
+            (Some(w), Some(_)) => w.nonzero_leaves - kept as u64,
+            (None, p) => p.map_or(0, |p| p.skipped_kept),
+            (Some(_), None) => 0,
+        };
         if let Some(p) = st.part
+            && st.stats.is_none()
             && p.skipped_kept > 0
         {
             lo = lo.min(IVec3::from_array(p.skipped_lo));
@@ -540,8 +692,12 @@ impl VdbSource {
                 None => format!("{:?} (affine)", st.xf),
             },
         );
-        if st.negatives > 0 {
-            label.push_str(&format!(", {} negative values clamped to 0", st.negatives));
+        let negatives = match (&st.stats, st.part) {
+            (Some(w), Some(_)) => w.negative_values,
+            _ => st.negatives,
+        };
+        if negatives > 0 {
+            label.push_str(&format!(", {negatives} negative values clamped to 0"));
         }
         Ok(Self {
             blocks,

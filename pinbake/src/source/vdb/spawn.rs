@@ -10,12 +10,34 @@ use super::*;
 pub const WORKER_ENV: &str = "PINBAKE_VDB_WORKER";
 
 /// Spawns the worker with limits, parses its stream and turns every failure mode into text.
+/// The worker's arguments after the level-set mode: none for a whole read; the part, the
+/// density scale and how to treat the leaves outside the slab for a part read (`skip` when
+/// the grid's statistics are given); `stats` and the scale for the statistics pass.
+pub(super) fn worker_part_args(opt: &VdbOptions, stats_pass: bool) -> Vec<String> {
+    let scale = format!("{:?}", opt.density_scale);
+    if stats_pass {
+        return vec!["stats".into(), scale];
+    }
+    match opt.part {
+        None => Vec::new(),
+        Some(p) => {
+            let how = if opt.grid_stats.is_some() {
+                "skip"
+            } else {
+                "summarise"
+            };
+            vec![format!("{}/{}", p.index, p.count), scale, how.into()]
+        }
+    }
+}
+
 pub(super) fn run_worker(
     path: &Path,
     opt: &VdbOptions,
     file_size: u64,
     limit: u64,
     max_leaf_bytes: u64,
+    stats_pass: bool,
 ) -> Result<Stream, StreamError> {
     if std::env::var_os(WORKER_ENV).is_some() {
         return Err(format!(
@@ -35,12 +57,7 @@ pub(super) fn run_worker(
         } else {
             "fog"
         })
-        .args(opt.part.iter().flat_map(|p| {
-            [
-                format!("{}/{}", p.index, p.count),
-                format!("{:?}", opt.density_scale),
-            ]
-        }))
+        .args(worker_part_args(opt, stats_pass))
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
@@ -77,7 +94,7 @@ pub(super) fn run_worker(
         )
     })?;
     let stdout = child.stdout.take().ok_or("worker has no stdout")?;
-    let part = opt.part.is_some();
+    let part = opt.part.is_some() || stats_pass;
     let stderr = child.stderr.take().ok_or("worker has no stderr")?;
     let parser = std::thread::spawn(move || {
         let mut r = BufReader::with_capacity(1 << 16, stdout);

@@ -244,11 +244,84 @@ pub(crate) struct Stream {
     pub(crate) negatives: u64,
     /// What the worker says about the slab it read, when it read one part of the grid.
     pub(crate) part: Option<PartStream>,
+    /// The whole grid's statistics from a statistics pass ([`GridStats`]), which a part read
+    /// that skipped the leaves outside its slab counts in place of those leaves.
+    pub(crate) stats: Option<GridStats>,
 }
 
-/// One part of a farm bake (`pinbake bake --part I/N`): the worker reads the whole file but
-/// keeps and sends only the leaves of z-slab `index` of `count` (and a margin of one leaf
-/// each side), and summarises the others.
+/// What a part of a farm bake needs to know about the whole grid and cannot learn from its
+/// slab: the facts of the leaves it does not decode that decide the bake's bytes (the box of
+/// the non-zero voxels, the count of non-zero leaves, the largest value, the negative values
+/// clamped), and the facts of the topology and the file every part checks it against. Made
+/// once per bake by a statistics pass over every leaf ([`VdbSource::grid_stats`], `pinbake
+/// grid-stats`), given to every part ([`VdbOptions::grid_stats`], `pinbake bake --part I/N
+/// --grid-stats FILE`). Values are after the density scale, as the source holds them.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridStats {
+    /// Always [`GridStats::FORMAT`].
+    pub format: String,
+    /// Size of the VDB file in bytes.
+    pub file_bytes: u64,
+    /// The file's content hash as the bake's provenance records it (xxh3-128, hex).
+    pub file_xxh3: String,
+    /// The grid read, as the bake's description names it.
+    pub grid: String,
+    pub levelset_to_fog: bool,
+    pub density_scale: f64,
+    /// Leaves of the tree (its topology).
+    pub leaves: u64,
+    /// Active voxels of leaves and tiles (its topology).
+    pub active_voxels: u64,
+    /// Active negative values clamped to 0 (leaves and tiles).
+    pub negative_values: u64,
+    /// Leaves holding a non-zero value.
+    pub nonzero_leaves: u64,
+    /// Index box of the leaves' non-zero voxels, inclusive; `null` when there are none.
+    pub nonzero_box: Option<[[i32; 3]; 2]>,
+    /// The leaves' largest value.
+    pub max_value: f32,
+}
+
+impl GridStats {
+    /// The `format` field of a statistics file.
+    pub const FORMAT: &'static str = "pinbake-grid-stats-1";
+
+    /// The statistics as one line of JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).unwrap_or_default()
+    }
+
+    /// Parses a statistics file's text; a message for anything else.
+    pub fn from_json(text: &str) -> Result<Self, String> {
+        let s: Self = serde_json::from_str(text)
+            .map_err(|e| format!("is not a grid statistics file: {e}"))?;
+        if s.format != Self::FORMAT {
+            return Err(format!(
+                "is not a grid statistics file of this version (format '{}', expected '{}')",
+                one_line(&s.format),
+                Self::FORMAT
+            ));
+        }
+        let valid_box = s
+            .nonzero_box
+            .is_none_or(|[lo, hi]| (0..3).all(|a| lo[a] <= hi[a]));
+        if !(s.max_value.is_finite() && s.max_value >= 0.0 && s.density_scale.is_finite())
+            || s.density_scale < 0.0
+            || s.nonzero_leaves > s.leaves
+            || !valid_box
+            || (s.nonzero_leaves == 0) != s.nonzero_box.is_none()
+        {
+            return Err("is a damaged grid statistics file (inconsistent values)".into());
+        }
+        Ok(s)
+    }
+}
+
+/// One part of a farm bake (`pinbake bake --part I/N`): the worker keeps and sends only the
+/// leaves of z-slab `index` of `count` (and a margin of one leaf each side); it decodes and
+/// summarises the others, or moves past them undecoded when the grid's statistics are given
+/// ([`VdbOptions::grid_stats`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct VdbPart {
     pub index: u32,
@@ -504,5 +577,6 @@ pub(super) fn parse_stream_within(
         active,
         negatives,
         part,
+        stats: None,
     })
 }
