@@ -74,26 +74,12 @@ pub fn sparse_dims(
 /// same test the fill makes, which fills them all before it drops those that are all zero).
 /// For the bake's memory estimate.
 pub fn sparse_density_bytes(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> u64 {
-    let bdims = brick_dims(dims, SPARSE_BRICK);
-    let geo = Geometry::new(bbox, dims);
-    let rows = bdims[1] as usize * bdims[2] as usize;
-    let candidates: u64 = (0..rows)
-        .into_par_iter()
-        .map(|row| {
-            let (by, bz) = (
-                (row % bdims[1] as usize) as u32,
-                (row / bdims[1] as usize) as u32,
-            );
-            (0..bdims[0])
-                .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
-                .count() as u64
-        })
-        .sum();
-    let slots: u64 = bdims.iter().map(|&d| u64::from(d)).product();
+    let c = Candidates::new(source, bbox, dims);
+    let slots: u64 = c.bdims.iter().map(|&d| u64::from(d)).product();
     let brick = u64::from(SPARSE_BRICK).pow(3) * 2;
     slots
         .saturating_mul(4)
-        .saturating_add(candidates.saturating_mul(brick))
+        .saturating_add(c.count().saturating_mul(brick))
 }
 
 /// The sparse f16 density of `source` over `bbox` with `dims` voxels.
@@ -102,7 +88,7 @@ pub fn bake_sparse_density(
     bbox: &Aabb,
     dims: [u32; 3],
 ) -> Result<OwnedSparseDensity, BakeError> {
-    let (index, values) = fill_bricks(source, bbox, dims, |v| {
+    let (index, values) = fill_bricks(source, &Candidates::new(source, bbox, dims), |v| {
         let h = f16::from_f32(v);
         h.is_finite().then_some(h)
     })?;
@@ -130,26 +116,14 @@ pub fn sparse_f32_bricks(
     dims: [u32; 3],
     max_bytes: u64,
 ) -> Option<(Vec<u32>, Vec<f32>)> {
-    let bdims = brick_dims(dims, SPARSE_BRICK);
-    let rows = bdims[1] as usize * bdims[2] as usize;
-    let geo = Geometry::new(bbox, dims);
-    let nonempty: u64 = (0..rows)
-        .into_par_iter()
-        .map(|row| {
-            let (by, bz) = (
-                (row % bdims[1] as usize) as u32,
-                (row / bdims[1] as usize) as u32,
-            );
-            (0..bdims[0])
-                .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
-                .count() as u64
-        })
-        .sum();
-    let bytes = nonempty.saturating_mul(u64::from(SPARSE_BRICK).pow(3) * 4);
+    let candidates = Candidates::new(source, bbox, dims);
+    let bytes = candidates
+        .count()
+        .saturating_mul(u64::from(SPARSE_BRICK).pow(3) * 4);
     if bytes > max_bytes {
         return None;
     }
-    fill_bricks(source, bbox, dims, |v| v.is_finite().then_some(v)).ok()
+    fill_bricks(source, &candidates, |v| v.is_finite().then_some(v)).ok()
 }
 
 /// Voxel centres and brick boxes of `dims` voxels over `bbox`.
@@ -188,6 +162,44 @@ impl Geometry {
     }
 }
 
+/// The bricks of `dims` voxels over `bbox` that the source's bound does not rule out: per row
+/// of bricks (fixed y and z, `y` fastest), their x in order. What a fill samples, what the
+/// memory checks count.
+struct Candidates {
+    geo: Geometry,
+    bdims: [u32; 3],
+    rows: Vec<Vec<u32>>,
+}
+
+impl Candidates {
+    fn new(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> Self {
+        let bdims = brick_dims(dims, SPARSE_BRICK);
+        let geo = Geometry::new(bbox, dims);
+        let rows = (0..bdims[1] as usize * bdims[2] as usize)
+            .into_par_iter()
+            .map(|row| {
+                let (by, bz) = Self::row_yz(bdims, row);
+                (0..bdims[0])
+                    .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
+                    .collect()
+            })
+            .collect();
+        Self { geo, bdims, rows }
+    }
+
+    /// The brick y and z of row `row`.
+    fn row_yz(bdims: [u32; 3], row: usize) -> (u32, u32) {
+        (
+            (row % bdims[1] as usize) as u32,
+            (row / bdims[1] as usize) as u32,
+        )
+    }
+
+    fn count(&self) -> u64 {
+        self.rows.iter().map(|r| r.len() as u64).sum()
+    }
+}
+
 /// The index and the stored bricks (canonical slot order), each voxel `encode`d from the
 /// source's value at its centre; `None` from `encode` is a value out of the encoding's range.
 ///
@@ -197,39 +209,25 @@ impl Geometry {
 /// back to the system when freed, which put a bake's peak at twice the bricks).
 fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
     source: &dyn DensitySource,
-    bbox: &Aabb,
-    dims: [u32; 3],
+    candidates: &Candidates,
     encode: impl Fn(f32) -> Option<T> + Sync,
 ) -> Result<(Vec<u32>, Vec<T>), BakeError> {
     let b = SPARSE_BRICK;
-    let bdims = brick_dims(dims, b);
-    let geo = Geometry::new(bbox, dims);
+    let Candidates {
+        geo,
+        bdims,
+        rows: candidates,
+    } = candidates;
+    let bdims = *bdims;
     let bv = (b as usize).pow(3);
     let zero = T::default();
-    let rows = bdims[1] as usize * bdims[2] as usize;
-    let row_of = |row: usize| {
-        (
-            (row % bdims[1] as usize) as u32,
-            (row / bdims[1] as usize) as u32,
-        )
-    };
-    // The candidates of each row (fixed y and z), in x order.
-    let candidates: Vec<Vec<u32>> = (0..rows)
-        .into_par_iter()
-        .map(|row| {
-            let (by, bz) = row_of(row);
-            (0..bdims[0])
-                .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
-                .collect()
-        })
-        .collect();
     let total: usize = candidates.iter().map(Vec::len).sum();
     let mut values = crate::bake::try_filled("the sparse density bricks", total * bv, zero)?;
     // Each row's candidates get consecutive slots; rows fill their own slices in parallel
     // and say which of their bricks hold a non-zero value.
-    let mut slices = Vec::with_capacity(rows);
+    let mut slices = Vec::with_capacity(candidates.len());
     let mut rest = values.as_mut_slice();
-    for c in &candidates {
+    for c in candidates {
         let (head, tail) = rest.split_at_mut(c.len() * bv);
         slices.push(head);
         rest = tail;
@@ -239,7 +237,7 @@ fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
         .zip(candidates.par_iter())
         .enumerate()
         .map(|(row, (slice, xs))| {
-            let (by, bz) = row_of(row);
+            let (by, bz) = Candidates::row_yz(bdims, row);
             xs.iter()
                 .zip(slice.chunks_exact_mut(bv))
                 .map(|(&bx, brick)| {
@@ -270,7 +268,7 @@ fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
     let bricks = bdims.iter().map(|&d| d as usize).product::<usize>();
     let mut index = crate::bake::try_filled("the sparse density index", bricks, EMPTY_BRICK)?;
     let (mut slot, mut candidate) = (0usize, 0usize);
-    for (row, (r, xs)) in filled.into_iter().zip(&candidates).enumerate() {
+    for (row, (r, xs)) in filled.into_iter().zip(candidates).enumerate() {
         // The first failing row in brick order, so the message does not depend on scheduling.
         for (keep, &bx) in r?.into_iter().zip(xs) {
             if keep {

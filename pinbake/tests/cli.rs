@@ -970,6 +970,25 @@ fn reseal_all(b: &mut [u8]) {
     b[56..64].copy_from_slice(&c.to_le_bytes());
 }
 
+/// `memory_estimate_bytes` of `pinbake bake INPUT --cells 4 --json` with `extra` flags,
+/// written to `out`.
+fn memory_estimate(input: &Path, out: &Path, extra: &[&str]) -> u64 {
+    let mut args = vec![
+        "bake",
+        input.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--cells",
+        "4",
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    let o = pinbake(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["memory_estimate_bytes"].as_u64().unwrap()
+}
+
 #[test]
 fn sparse_embedded_density_bakes_verifies_and_refuses_a_lying_index() {
     let dir = tempfile::tempdir().unwrap();
@@ -995,22 +1014,7 @@ fn sparse_embedded_density_bakes_verifies_and_refuses_a_lying_index() {
     assert!(stored > 0 && stored < bricks, "{stored} of {bricks}");
     // The memory estimate counts the section: at least its index and its stored bricks.
     let est_out = dir.path().join("estimate.pin");
-    let estimate = |extra: &[&str]| {
-        let mut args = vec![
-            "bake",
-            input.to_str().unwrap(),
-            "-o",
-            est_out.to_str().unwrap(),
-            "--cells",
-            "4",
-            "--json",
-        ];
-        args.extend_from_slice(extra);
-        let o = pinbake(&args);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-        v["memory_estimate_bytes"].as_u64().unwrap()
-    };
+    let estimate = |extra: &[&str]| memory_estimate(&input, &est_out, extra);
     let added = estimate(&["--embed-density", "sparse"]) - estimate(&[]);
     assert!(
         added >= 4 * bricks + 1024 * stored && added < 4 * bricks + 1024 * (2 * stored + 256),
@@ -1106,22 +1110,7 @@ fn embedded_control_bakes_and_verifies() {
     assert_eq!(c["empty_bricks"], empty as u64);
     // The memory estimate counts the section: 24 bytes per brick at its peak.
     let est_out = dir.path().join("estimate.pin");
-    let estimate = |extra: &[&str]| {
-        let mut args = vec![
-            "bake",
-            input.to_str().unwrap(),
-            "-o",
-            est_out.to_str().unwrap(),
-            "--cells",
-            "4",
-            "--json",
-        ];
-        args.extend_from_slice(extra);
-        let o = pinbake(&args);
-        assert!(o.status.success(), "{}", stderr(&o));
-        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-        v["memory_estimate_bytes"].as_u64().unwrap()
-    };
+    let estimate = |extra: &[&str]| memory_estimate(&input, &est_out, extra);
     assert_eq!(
         estimate(&["--embed-control", "8"]) - estimate(&[]),
         24 * n as u64
