@@ -51,9 +51,15 @@ pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
     if let Some(c) = file.control() {
         let bricks = c.len();
         let empty = c.residual.iter().filter(|&&m| m == 0.0).count();
+        // The section's length as the table records it (the parse checked it against the
+        // brick count).
+        let bytes = file
+            .sections()
+            .iter()
+            .find(|s| s.kind == SectionKind::Control as u32)
+            .map(|s| s.length);
         v["control"] = json!({
-            "dims": c.dims, "bricks": bricks, "empty_bricks": empty,
-            "bytes": 16 + 12 * bricks as u64,
+            "dims": c.dims, "bricks": bricks, "empty_bricks": empty, "bytes": bytes,
         });
     }
     if let Some(m) = &metadata {
