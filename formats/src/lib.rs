@@ -57,6 +57,8 @@ pub use layout::{
     SectionEntry, SectionKind, SparseDensityHeader, TileDesc,
 };
 pub use metadata::{MAX_METADATA_BYTES, Metadata};
+#[cfg(feature = "writer")]
+pub use owned::StreamedSparseDensity;
 pub use owned::{OwnedPinGrid, grid_desc};
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};

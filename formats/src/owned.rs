@@ -97,6 +97,37 @@ impl OwnedPinGrid {
     /// Streams the grid into `w` in the canonical section order.
     #[cfg(feature = "writer")]
     pub fn write_into<W: Write + Seek>(&self, w: &mut PinFileWriter<W>) -> Result<()> {
+        self.write_sections(w, None)
+    }
+
+    /// [`OwnedPinGrid::write_into`], with the sparse density section taken from `sparse`,
+    /// whose bricks are copied from a reader as the section is written: a grid whose bricks
+    /// would not fit beside the rest (a production-scale bake spools them to a temporary
+    /// file) is written without ever holding them. The bytes are those of the same grid with
+    /// the bricks in [`OwnedPinGrid::sparse_density`]. The grid's own `sparse_density` must
+    /// be `None`.
+    #[cfg(feature = "writer")]
+    pub fn write_streamed_into<W: Write + Seek>(
+        &self,
+        w: &mut PinFileWriter<W>,
+        sparse: StreamedSparseDensity<'_>,
+    ) -> Result<()> {
+        if self.sparse_density.is_some() {
+            return Err(FormatError::InvalidInput(
+                "a grid with a sparse density of its own cannot also stream one".into(),
+            ));
+        }
+        crate::sparse::SparseDensityView::check_index(&sparse.header, sparse.index)
+            .map_err(|e| FormatError::InvalidInput(format!("sparse density: {e}")))?;
+        self.write_sections(w, Some(sparse))
+    }
+
+    #[cfg(feature = "writer")]
+    fn write_sections<W: Write + Seek>(
+        &self,
+        w: &mut PinFileWriter<W>,
+        streamed: Option<StreamedSparseDensity<'_>>,
+    ) -> Result<()> {
         self.validate()?;
         w.add_section(
             SectionKind::GridDesc as u32,
@@ -142,6 +173,13 @@ impl OwnedPinGrid {
             for part in s.body_parts() {
                 w.write(part)?;
             }
+            w.end_section()?;
+        }
+        if let Some(s) = streamed {
+            w.begin_section(SectionKind::SparseDensity as u32, 0)?;
+            w.write(bytemuck::bytes_of(&s.header))?;
+            w.write(bytemuck::cast_slice(s.index))?;
+            copy_bricks(w, &s.header, s.values)?;
             w.end_section()?;
         }
         if let Some(c) = &self.control {
@@ -201,6 +239,46 @@ impl OwnedPinGrid {
             metadata: file.metadata().transpose()?,
         })
     }
+}
+
+/// A sparse density section whose bricks are read from `values` while the section is
+/// written ([`OwnedPinGrid::write_streamed_into`]): `header.brick_count` bricks of
+/// `header.brick`^3 voxels in the header's encoding, in slot order, and nothing after them.
+#[cfg(feature = "writer")]
+pub struct StreamedSparseDensity<'a> {
+    pub header: SparseDensityHeader,
+    pub index: &'a [u32],
+    pub values: &'a mut dyn std::io::Read,
+}
+
+/// Copies the bricks that `header` counts from `values` into the open section: exactly the bytes its header counts (a
+/// short reader, or one with bytes left over, is an error rather than a wrong file).
+#[cfg(feature = "writer")]
+fn copy_bricks<W: Write + Seek>(
+    w: &mut PinFileWriter<W>,
+    header: &SparseDensityHeader,
+    values: &mut dyn std::io::Read,
+) -> Result<()> {
+    let elem: u64 = if header.encoding == DENSITY_F16 { 2 } else { 4 };
+    let mut left = u64::from(header.brick_count) * u64::from(header.brick).pow(3) * elem;
+    let mut buf = vec![0u8; 1 << 20];
+    while left > 0 {
+        let n = (left.min(buf.len() as u64)) as usize;
+        values.read_exact(&mut buf[..n]).map_err(|e| {
+            FormatError::InvalidInput(format!(
+                "sparse density bricks: {left} bytes still to copy: {e}"
+            ))
+        })?;
+        w.write(&buf[..n])?;
+        left -= n as u64;
+    }
+    let mut extra = [0u8; 1];
+    if values.read(&mut extra).map_err(FormatError::Io)? != 0 {
+        return Err(FormatError::InvalidInput(
+            "sparse density bricks: more bytes than the header counts".into(),
+        ));
+    }
+    Ok(())
 }
 
 /// A grid description with the given shape and everything else at neutral defaults

@@ -85,6 +85,31 @@ pub fn brick_dims(dims: [u32; 3], brick: u32) -> [u32; 3] {
     dims.map(|d| d.div_ceil(brick))
 }
 
+/// Every entry of `index` is [`EMPTY_BRICK`] or the next slot, and the slots used are
+/// exactly the header's `brick_count`.
+fn check_index_entries(header: &SparseDensityHeader, index: &[u32]) -> Result<()> {
+    let mut next = 0u64;
+    for (brick, &slot) in index.iter().enumerate() {
+        if slot == EMPTY_BRICK {
+            continue;
+        }
+        if u64::from(slot) != next {
+            return Err(bad(format!(
+                "brick {brick} points at slot {slot}, expected {next} (of {})",
+                header.brick_count
+            )));
+        }
+        next += 1;
+    }
+    if next != u64::from(header.brick_count) {
+        return Err(bad(format!(
+            "{next} non-empty bricks but {} stored",
+            header.brick_count
+        )));
+    }
+    Ok(())
+}
+
 impl<'a> SparseDensityView<'a> {
     /// Checks the header and every length against the section's size `b.len()` (which the
     /// reader has checked against the file's), then views the index and the bricks in place.
@@ -191,26 +216,25 @@ impl<'a> SparseDensityView<'a> {
     /// Every index entry is [`EMPTY_BRICK`] or the next slot in brick order (the canonical
     /// form: no slot twice, none out of range, all used); linear in the index.
     pub fn check_entries(&self) -> Result<()> {
-        let mut next = 0u64;
-        for (brick, &slot) in self.index.iter().enumerate() {
-            if slot == EMPTY_BRICK {
-                continue;
-            }
-            if u64::from(slot) != next {
-                return Err(bad(format!(
-                    "brick {brick} points at slot {slot}, expected {next} (of {})",
-                    self.header.brick_count
-                )));
-            }
-            next += 1;
+        check_index_entries(&self.header, self.index)
+    }
+
+    /// The checks of [`SparseDensityView::from_parts`] and
+    /// [`SparseDensityView::check_entries`] on a header and its index alone, for a writer
+    /// whose bricks are streamed into the section rather than held (their count is then the
+    /// header's `brick_count`, which the copy checks).
+    pub fn check_index(header: &SparseDensityHeader, index: &[u32]) -> Result<()> {
+        let bricks = Self::brick_count_of(header)?;
+        if !matches!(header.encoding, DENSITY_F16 | DENSITY_F32) {
+            return Err(bad(format!("unknown encoding {}", header.encoding)));
         }
-        if next != u64::from(self.header.brick_count) {
+        if index.len() as u64 != bricks {
             return Err(bad(format!(
-                "{next} non-empty bricks but {} stored",
-                self.header.brick_count
+                "{} index entries, the header needs {bricks}",
+                index.len()
             )));
         }
-        Ok(())
+        check_index_entries(header, index)
     }
 
     /// The first stored voxel that is not finite and `>= 0`: (value index, value).

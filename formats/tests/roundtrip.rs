@@ -260,6 +260,64 @@ fn streamed_sections_equal_one_shot_sections() {
 }
 
 #[test]
+fn a_streamed_sparse_density_writes_the_bytes_of_an_owned_one() {
+    for f32 in [false, true] {
+        let mut grid = sparse_grid();
+        let sd = sparse_density([21, 9, 17], 4, f32, 5);
+        grid.sparse_density = Some(sd.clone());
+        let want = grid.to_bytes().unwrap();
+        let [_, values] = sd.body_parts();
+        let index = sd.index.clone();
+        grid.sparse_density = None;
+        let write = |values: &[u8], header: SparseDensityHeader, index: &[u32]| {
+            let mut w = PinFileWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+            let mut r = values;
+            grid.write_streamed_into(
+                &mut w,
+                StreamedSparseDensity {
+                    header,
+                    index,
+                    values: &mut r,
+                },
+            )
+            .map(|()| w.finish().unwrap().into_inner())
+        };
+        assert!(
+            write(values, sd.header, &index).unwrap() == want,
+            "f32 {f32}"
+        );
+        // A reader short of the header's count, or with bytes left over, is an error, not a
+        // file.
+        let short = write(&values[..values.len() - 1], sd.header, &index).unwrap_err();
+        assert!(short.to_string().contains("still to copy"), "{short}");
+        let mut long = values.to_vec();
+        long.push(0);
+        let extra = write(&long, sd.header, &index).unwrap_err();
+        assert!(extra.to_string().contains("more bytes"), "{extra}");
+        // The index is checked as an owned section's is.
+        let mut lying = index.clone();
+        let at = lying.iter().position(|&s| s != layout::EMPTY_BRICK).unwrap();
+        lying[at] = 7777;
+        assert!(write(values, sd.header, &lying).is_err());
+        assert!(write(values, sd.header, &index[1..]).is_err());
+        // A grid cannot carry both an owned and a streamed sparse density.
+        let mut both = grid.clone();
+        both.sparse_density = Some(sd.clone());
+        let mut w = PinFileWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+        let mut r = values;
+        let e = both.write_streamed_into(
+            &mut w,
+            StreamedSparseDensity {
+                header: sd.header,
+                index: &index,
+                values: &mut r,
+            },
+        );
+        assert!(e.is_err());
+    }
+}
+
+#[test]
 fn writer_rejects_misuse() {
     let mut w = PinFileWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
     assert!(matches!(w.write(b"x"), Err(FormatError::InvalidInput(_))));

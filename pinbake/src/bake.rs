@@ -19,6 +19,7 @@ use rayon::prelude::*;
 pub use crate::pin::PinLayout;
 use crate::pin::{Field, Placement, field_optical_depths, make_entry};
 use crate::source::{Aabb, DensitySource};
+use crate::sparse_density::SparseSpool;
 use crate::sweep::Sweep;
 
 /// One slab of a tiled bake: tile `index` of `count`, split along z.
@@ -121,6 +122,11 @@ pub enum BakeError {
     Format(#[from] pin_format::FormatError),
     #[error("thread pool: {0}")]
     Threads(String),
+    #[error("cannot spool the sparse density's bricks to a temporary file in {dir:?}: {source}")]
+    Spool {
+        dir: std::path::PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Numbers describing a finished bake.
@@ -281,6 +287,25 @@ pub fn bake(
     bake_with_sweep(source, opts, Some(Sweep::default()), progress)
 }
 
+/// [`bake`], with an embedded sparse density's bricks spooled to an unnamed temporary file in
+/// `spool_dir` instead of held in the grid: the grid comes back without them
+/// (`sparse_density` is `None`) and the spool, when the options embed one, is written with
+/// [`pin_format::OwnedPinGrid::write_streamed_into`]. The file's bytes are [`bake`]'s.
+pub fn bake_spooled(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    progress: &(dyn Fn(u64) + Sync),
+    spool_dir: &std::path::Path,
+) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
+    bake_outputs(
+        source,
+        opts,
+        Some(Sweep::default()),
+        progress,
+        Some(spool_dir),
+    )
+}
+
 /// [`bake`], marching a dense grid by layers cut as `sweep` says, or pin by pin with `None`
 /// (the order the layered sweep must reproduce to the bit; tests compare the two).
 pub(crate) fn bake_with_sweep(
@@ -289,15 +314,26 @@ pub(crate) fn bake_with_sweep(
     sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    let (grid, _, stats) = bake_outputs(source, opts, sweep, progress, None)?;
+    Ok((grid, stats))
+}
+
+fn bake_outputs(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    sweep: Option<Sweep>,
+    progress: &(dyn Fn(u64) + Sync),
+    spool_dir: Option<&std::path::Path>,
+) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     check_step(opts)?;
     let pool = thread_pool(opts)?;
     match source.bake_frame() {
-        None => pool.install(|| bake_in_pool(source, opts, sweep, progress)),
+        None => pool.install(|| bake_in_pool(source, opts, sweep, progress, spool_dir)),
         Some((local, local_to_world)) => {
-            let (mut grid, stats) =
-                pool.install(|| bake_in_pool(local.as_ref(), opts, sweep, progress))?;
+            let (mut grid, spool, stats) =
+                pool.install(|| bake_in_pool(local.as_ref(), opts, sweep, progress, spool_dir))?;
             grid.desc.local_to_world = local_to_world;
-            Ok((grid, stats))
+            Ok((grid, spool, stats))
         }
     }
 }
@@ -352,7 +388,8 @@ fn bake_in_pool(
     opts: &BakeOptions,
     sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    spool_dir: Option<&std::path::Path>,
+) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     let started = Instant::now();
     let (bbox, desc) = grid_description(source, opts)?;
     let tile = match opts.tile {
@@ -454,15 +491,22 @@ fn bake_in_pool(
         .embed_density
         .map(|dims| bake_density(source, &bbox, dims))
         .transpose()?;
-    let sparse = match opts.embed_sparse {
-        None => None,
-        Some(spec) => {
-            let dims = crate::sparse_density::sparse_dims(source, &bbox, spec)?;
-            Some(crate::sparse_density::bake_sparse_density(
-                source, &bbox, dims,
-            )?)
+    let (mut sparse, mut spool) = (None, None);
+    if let Some(spec) = opts.embed_sparse {
+        let dims = crate::sparse_density::sparse_dims(source, &bbox, spec)?;
+        match spool_dir {
+            None => {
+                sparse = Some(crate::sparse_density::bake_sparse_density(
+                    source, &bbox, dims,
+                )?)
+            }
+            Some(dir) => {
+                spool = Some(crate::sparse_density::spool_sparse_density(
+                    source, &bbox, dims, dir,
+                )?)
+            }
         }
-    };
+    }
 
     let (mut grid, stats) = finish(
         desc,
@@ -482,7 +526,10 @@ fn bake_in_pool(
         grid.control = control;
         grid.validate()?;
     }
-    Ok((grid, stats))
+    if let Some(s) = &spool {
+        pin_format::SparseDensityView::check_index(&s.header, &s.index)?;
+    }
+    Ok((grid, spool, stats))
 }
 
 /// The grid from every pin of the bake (`dense`, `block_len` pins per covered cell, in cell

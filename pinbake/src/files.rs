@@ -306,6 +306,14 @@ pub fn physical_memory() -> Option<u64> {
     }
 }
 
+/// The directory that holds `path` (`.` for a bare file name).
+pub fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
 /// Writes `grid` atomically to `target` (temp file beside it, fsync, rename), with the temp
 /// file announced to the [`watch_partial_files`] hook while it exists.
 pub fn write_pin_atomic(
@@ -382,6 +390,20 @@ impl PendingPin {
 
     pub fn write(mut self, grid: &pin_format::OwnedPinGrid) -> Result<(), pin_format::FormatError> {
         grid.write_into(self.file.writer())?;
+        self.file.commit()
+    }
+
+    /// [`PendingPin::write`], with the sparse density streamed from `spool` when there is
+    /// one ([`crate::bake::bake_spooled`]).
+    pub fn write_spooled(
+        mut self,
+        grid: &pin_format::OwnedPinGrid,
+        spool: Option<&mut crate::sparse_density::SparseSpool>,
+    ) -> Result<(), pin_format::FormatError> {
+        match spool {
+            None => grid.write_into(self.file.writer())?,
+            Some(s) => grid.write_streamed_into(self.file.writer(), s.streamed()?)?,
+        }
         self.file.commit()
     }
 }

@@ -639,7 +639,12 @@ pub fn bake_to_file(
     progress.start(crate::bake::pin_count(&opts));
     let started = Instant::now();
     let advance = |n: u64| progress.advance(n);
-    let (grid, stats) = crate::bake(source.as_ref(), &opts, &advance).map_err(bake_err)?;
+    // An embedded sparse density's bricks wait in an unnamed file beside the output (the
+    // same file system, which must hold the output anyway), not in memory.
+    let spool_dir = crate::files::parent_dir(pending.temp_path());
+    let (grid, mut spool, stats) =
+        crate::bake::bake_spooled(source.as_ref(), &opts, &advance, &spool_dir)
+            .map_err(bake_err)?;
     // Checked again just before the rename: the path may have been replaced during the bake.
     let target = crate::files::check_output_among(output, &[inputs, &own])?;
     let write_err = |source| PlanError::Write {
@@ -649,9 +654,13 @@ pub fn bake_to_file(
     if target != output {
         // A symlink to a regular file: the file it points to is replaced, the link stays.
         drop(pending);
-        crate::files::write_pin_atomic(&grid, &target).map_err(write_err)?;
+        crate::files::PendingPin::create(&target)
+            .and_then(|p| p.write_spooled(&grid, spool.as_mut()))
+            .map_err(write_err)?;
     } else {
-        pending.write(&grid).map_err(write_err)?;
+        pending
+            .write_spooled(&grid, spool.as_mut())
+            .map_err(write_err)?;
     }
     let file_bytes = std::fs::metadata(&target)
         .map_err(|err| FileError::Io {

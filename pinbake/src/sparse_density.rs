@@ -9,8 +9,11 @@
 use glam::DVec3;
 use half::f16;
 use pin_format::layout::{DENSITY_F16, EMPTY_BRICK, SparseDensityHeader};
-use pin_format::{OwnedSparseDensity, OwnedSparseValues, brick_dims};
+use pin_format::{OwnedSparseDensity, OwnedSparseValues, StreamedSparseDensity, brick_dims};
 use rayon::prelude::*;
+use std::fs::File;
+use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
 
 use crate::bake::BakeError;
 use crate::source::{Aabb, DensitySource};
@@ -69,40 +72,153 @@ pub fn sparse_dims(
     Ok(dims)
 }
 
-/// The bytes [`bake_sparse_density`] holds at its peak for `source` over `bbox` with `dims`
-/// voxels: the index and every brick the source's bound does not rule out (counted with the
-/// same test the fill makes, which fills them all before it drops those that are all zero).
-/// For the bake's memory estimate.
+/// The bytes [`spool_sparse_density`] holds at its peak for `source` over `bbox` with `dims`
+/// voxels: the index and one batch of the bricks the source's bound does not rule out
+/// (counted with the same test the fill makes). The bricks themselves go to the spool file,
+/// not to memory. For the bake's memory estimate.
 pub fn sparse_density_bytes(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> u64 {
     let c = Candidates::new(source, bbox, dims);
     let slots: u64 = c.bdims.iter().map(|&d| u64::from(d)).product();
     let brick = u64::from(SPARSE_BRICK).pow(3) * 2;
+    let batch = c
+        .batches(brick as usize, BATCH_BYTES)
+        .map(|r| c.rows[r].iter().map(|x| x.len() as u64).sum::<u64>())
+        .max()
+        .unwrap_or(0);
     slots
         .saturating_mul(4)
-        .saturating_add(c.count().saturating_mul(brick))
+        .saturating_add(batch.saturating_mul(brick))
+        .saturating_add(SPOOL_BUFFER as u64)
 }
 
-/// The sparse f16 density of `source` over `bbox` with `dims` voxels.
+/// The sparse f16 density of `source` over `bbox` with `dims` voxels, in memory: the stored
+/// bricks and one batch of candidates at the peak.
 pub fn bake_sparse_density(
     source: &dyn DensitySource,
     bbox: &Aabb,
     dims: [u32; 3],
 ) -> Result<OwnedSparseDensity, BakeError> {
-    let (index, values) = fill_bricks(source, &Candidates::new(source, bbox, dims), |v| {
-        let h = f16::from_f32(v);
-        h.is_finite().then_some(h)
-    })?;
-    Ok(OwnedSparseDensity {
-        header: SparseDensityHeader {
-            dims,
-            encoding: DENSITY_F16,
-            brick: SPARSE_BRICK,
-            brick_count: (values.len() / (SPARSE_BRICK as usize).pow(3)) as u32,
-            reserved: [0; 2],
+    let candidates = Candidates::new(source, bbox, dims);
+    let mut values: Vec<f16> = reserved_for(&candidates, "the sparse density bricks")?;
+    let index = fill_bricks(
+        source,
+        &candidates,
+        encode_f16,
+        BATCH_BYTES,
+        &mut |bricks| {
+            values.extend_from_slice(bricks);
+            Ok(())
         },
+    )?;
+    values.shrink_to_fit();
+    Ok(OwnedSparseDensity {
+        header: f16_header(dims, values.len()),
         index,
         values: OwnedSparseValues::F16(values),
     })
+}
+
+/// A sparse f16 density whose bricks wait in an unnamed temporary file
+/// ([`spool_sparse_density`]) until the pin file is written
+/// ([`pin_format::OwnedPinGrid::write_streamed_into`]).
+pub struct SparseSpool {
+    pub header: SparseDensityHeader,
+    pub index: Vec<u32>,
+    file: File,
+}
+
+impl SparseSpool {
+    /// The section to stream into a pin file, its bricks read from the start of the spool.
+    pub fn streamed(&mut self) -> std::io::Result<StreamedSparseDensity<'_>> {
+        self.file.seek(SeekFrom::Start(0))?;
+        Ok(StreamedSparseDensity {
+            header: self.header,
+            index: &self.index,
+            values: &mut self.file,
+        })
+    }
+
+    /// Reads the bricks back into memory (for tests and small grids).
+    pub fn into_owned(mut self) -> Result<OwnedSparseDensity, BakeError> {
+        let n = self.header.brick_count as usize * (self.header.brick as usize).pow(3);
+        let mut values = crate::bake::try_filled("the sparse density bricks", n, f16::ZERO)?;
+        self.file
+            .seek(SeekFrom::Start(0))
+            .and_then(|_| self.file.read_exact(bytemuck::cast_slice_mut(&mut values)))
+            .map_err(|source| BakeError::Spool {
+                dir: PathBuf::new(),
+                source,
+            })?;
+        Ok(OwnedSparseDensity {
+            header: self.header,
+            index: self.index,
+            values: OwnedSparseValues::F16(values),
+        })
+    }
+}
+
+/// Bytes of the spool's write buffer.
+const SPOOL_BUFFER: usize = 1 << 20;
+
+/// [`bake_sparse_density`] with the bricks written, batch by batch, to an unnamed temporary
+/// file in `dir` (removed by the system when it is closed, even if the process is killed)
+/// instead of held: a production-scale bake then holds its source, the index and one batch,
+/// where the bricks alone can outweigh the source (1.5 G voxels of f16).
+pub fn spool_sparse_density(
+    source: &dyn DensitySource,
+    bbox: &Aabb,
+    dims: [u32; 3],
+    dir: &Path,
+) -> Result<SparseSpool, BakeError> {
+    let spool_err = |source| BakeError::Spool {
+        dir: dir.to_path_buf(),
+        source,
+    };
+    let candidates = Candidates::new(source, bbox, dims);
+    let file = tempfile::tempfile_in(dir).map_err(spool_err)?;
+    let mut out = BufWriter::with_capacity(SPOOL_BUFFER, file);
+    let mut stored = 0usize;
+    let index = fill_bricks(
+        source,
+        &candidates,
+        encode_f16,
+        BATCH_BYTES,
+        &mut |bricks| {
+            stored += bricks.len();
+            out.write_all(bytemuck::cast_slice(bricks))
+                .map_err(spool_err)
+        },
+    )?;
+    let file = out.into_inner().map_err(|e| spool_err(e.into_error()))?;
+    Ok(SparseSpool {
+        header: f16_header(dims, stored),
+        index,
+        file,
+    })
+}
+
+fn encode_f16(v: f32) -> Option<f16> {
+    let h = f16::from_f32(v);
+    h.is_finite().then_some(h)
+}
+
+fn f16_header(dims: [u32; 3], voxels: usize) -> SparseDensityHeader {
+    SparseDensityHeader {
+        dims,
+        encoding: DENSITY_F16,
+        brick: SPARSE_BRICK,
+        brick_count: (voxels / (SPARSE_BRICK as usize).pow(3)) as u32,
+        reserved: [0; 2],
+    }
+}
+
+/// An empty vector with room for every candidate brick: the address space of the bound,
+/// of which only the stored bricks are ever touched (and so resident).
+fn reserved_for<T>(candidates: &Candidates, what: &'static str) -> Result<Vec<T>, BakeError> {
+    let n = usize::try_from(candidates.count())
+        .unwrap_or(usize::MAX)
+        .saturating_mul((SPARSE_BRICK as usize).pow(3));
+    crate::bake::try_reserved(what, n)
 }
 
 /// Bricks of `SPARSE_BRICK` over `bbox` with `dims` voxels whose box the source does not
@@ -123,7 +239,20 @@ pub fn sparse_f32_bricks(
     if bytes > max_bytes {
         return None;
     }
-    fill_bricks(source, &candidates, |v| v.is_finite().then_some(v)).ok()
+    let mut values: Vec<f32> = reserved_for(&candidates, "the bricks").ok()?;
+    let index = fill_bricks(
+        source,
+        &candidates,
+        |v| v.is_finite().then_some(v),
+        BATCH_BYTES,
+        &mut |b| {
+            values.extend_from_slice(b);
+            Ok(())
+        },
+    )
+    .ok()?;
+    values.shrink_to_fit();
+    Some((index, values))
 }
 
 /// Voxel centres and brick boxes of `dims` voxels over `bbox`.
@@ -198,95 +327,153 @@ impl Candidates {
     fn count(&self) -> u64 {
         self.rows.iter().map(|r| r.len() as u64).sum()
     }
+
+    /// Consecutive runs of rows whose candidates take about `batch_bytes` at `brick_bytes`
+    /// each (a row is never split, so a batch may exceed it by one row).
+    fn batches(
+        &self,
+        brick_bytes: usize,
+        batch_bytes: usize,
+    ) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
+        let per_batch = (batch_bytes / brick_bytes.max(1)).max(1);
+        let mut start = 0;
+        std::iter::from_fn(move || {
+            if start >= self.rows.len() {
+                return None;
+            }
+            let (mut end, mut n) = (start, 0usize);
+            while end < self.rows.len() && (n == 0 || n + self.rows[end].len() <= per_batch) {
+                n += self.rows[end].len();
+                end += 1;
+            }
+            let r = start..end;
+            start = end;
+            Some(r)
+        })
+    }
 }
 
-/// The index and the stored bricks (canonical slot order), each voxel `encode`d from the
-/// source's value at its centre; `None` from `encode` is a value out of the encoding's range.
-///
-/// Memory: the bricks the source's bound does not rule out (the candidates) are filled in
-/// place in one array, then the all-zero ones are squeezed out. So the bricks are held once,
-/// not once per brick allocation and again in the array (small allocations are not given
-/// back to the system when freed, which put a bake's peak at twice the bricks).
+/// Candidate bricks' bytes filled at once: the most a fill holds beside the bricks it keeps.
+/// Large enough that a batch has hundreds of rows for the threads to share.
+const BATCH_BYTES: usize = 64 << 20;
+
+/// Fills the candidates batch by batch ([`Candidates::batches`]), each voxel `encode`d from the
+/// source's value at its centre (`None` from `encode` is a value out of the encoding's
+/// range), and hands the bricks that hold a non-zero value to `sink` in slot order; returns
+/// the index. Memory: one batch of candidates, filled in place in one array and squeezed
+/// (one array, not one allocation per brick: small allocations are not given back to the
+/// system when freed). The bytes do not depend on the batches or the threads.
 fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
     source: &dyn DensitySource,
     candidates: &Candidates,
     encode: impl Fn(f32) -> Option<T> + Sync,
-) -> Result<(Vec<u32>, Vec<T>), BakeError> {
+    batch_bytes: usize,
+    sink: &mut dyn FnMut(&[T]) -> Result<(), BakeError>,
+) -> Result<Vec<u32>, BakeError> {
     let b = SPARSE_BRICK;
-    let Candidates {
-        geo,
-        bdims,
-        rows: candidates,
-    } = candidates;
+    let Candidates { geo, bdims, rows } = candidates;
     let bdims = *bdims;
     let bv = (b as usize).pow(3);
     let zero = T::default();
-    let total: usize = candidates.iter().map(Vec::len).sum();
-    let mut values = crate::bake::try_filled("the sparse density bricks", total * bv, zero)?;
-    // Each row's candidates get consecutive slots; rows fill their own slices in parallel
-    // and say which of their bricks hold a non-zero value.
-    let mut slices = Vec::with_capacity(candidates.len());
-    let mut rest = values.as_mut_slice();
-    for c in candidates {
-        let (head, tail) = rest.split_at_mut(c.len() * bv);
-        slices.push(head);
-        rest = tail;
-    }
-    let filled: Vec<Result<Vec<bool>, BakeError>> = slices
-        .into_par_iter()
-        .zip(candidates.par_iter())
-        .enumerate()
-        .map(|(row, (slice, xs))| {
-            let (by, bz) = Candidates::row_yz(bdims, row);
-            xs.iter()
-                .zip(slice.chunks_exact_mut(bv))
-                .map(|(&bx, brick)| {
-                    let (_, lo, hi) = geo.region([bx, by, bz]);
-                    let mut any = false;
-                    for z in lo[2]..hi[2] {
-                        for y in lo[1]..hi[1] {
-                            for x in lo[0]..hi[0] {
-                                let p = geo.centre([x, y, z]);
-                                let v = source.extinction(p);
-                                let Some(h) = encode(v) else {
-                                    return Err(BakeError::DensityRange {
-                                        value: v,
-                                        at: p.to_array(),
-                                    });
-                                };
-                                let l = (x - lo[0]) + b * ((y - lo[1]) + b * (z - lo[2]));
-                                brick[l as usize] = h;
-                                any |= h != zero;
-                            }
-                        }
-                    }
-                    Ok(any)
-                })
-                .collect()
-        })
+    let batches: Vec<_> = candidates
+        .batches(bv * size_of::<T>(), batch_bytes)
         .collect();
-    let bricks = bdims.iter().map(|&d| d as usize).product::<usize>();
-    let mut index = crate::bake::try_filled("the sparse density index", bricks, EMPTY_BRICK)?;
-    let (mut slot, mut candidate) = (0usize, 0usize);
-    for (row, (r, xs)) in filled.into_iter().zip(candidates).enumerate() {
-        // The first failing row in brick order, so the message does not depend on scheduling.
-        for (keep, &bx) in r?.into_iter().zip(xs) {
-            if keep {
-                index[row * bdims[0] as usize + bx as usize] = slot as u32;
-                values.copy_within(candidate * bv..(candidate + 1) * bv, slot * bv);
-                slot += 1;
+    let largest = batches
+        .iter()
+        .map(|r| rows[r.clone()].iter().map(Vec::len).sum::<usize>())
+        .max()
+        .unwrap_or(0);
+    let mut buffer =
+        crate::bake::try_filled("a batch of sparse density bricks", largest * bv, zero)?;
+    let slots = bdims.iter().map(|&d| d as usize).product::<usize>();
+    let mut index = crate::bake::try_filled("the sparse density index", slots, EMPTY_BRICK)?;
+    let mut slot = 0usize;
+    for batch in batches {
+        let n: usize = rows[batch.clone()].iter().map(Vec::len).sum();
+        let values = &mut buffer[..n * bv];
+        // Bricks cut by the grid's far faces leave voxels unwritten: they must be 0 in every
+        // batch, whatever the previous batch left there.
+        values.fill(zero);
+        // Each row's candidates get consecutive places; rows fill their own slices in
+        // parallel and say which of their bricks hold a non-zero value.
+        let mut slices = Vec::with_capacity(batch.len());
+        let mut rest = &mut *values;
+        for xs in &rows[batch.clone()] {
+            let (head, tail) = rest.split_at_mut(xs.len() * bv);
+            slices.push(head);
+            rest = tail;
+        }
+        let filled: Vec<Result<Vec<bool>, BakeError>> = slices
+            .into_par_iter()
+            .zip(rows[batch.clone()].par_iter())
+            .enumerate()
+            .map(|(i, (slice, xs))| {
+                let (by, bz) = Candidates::row_yz(bdims, batch.start + i);
+                xs.iter()
+                    .zip(slice.chunks_exact_mut(bv))
+                    .map(|(&bx, brick)| fill_brick(source, geo, [bx, by, bz], brick, &encode))
+                    .collect()
+            })
+            .collect();
+        let mut kept = 0usize;
+        let mut candidate = 0usize;
+        for (row, (r, xs)) in batch
+            .clone()
+            .zip(filled.into_iter().zip(&rows[batch.clone()]))
+        {
+            // The first failing row in brick order, so the message does not depend on
+            // scheduling.
+            for (keep, &bx) in r?.into_iter().zip(xs) {
+                if keep {
+                    index[row * bdims[0] as usize + bx as usize] = slot as u32;
+                    values.copy_within(candidate * bv..(candidate + 1) * bv, kept * bv);
+                    kept += 1;
+                    slot += 1;
+                }
+                candidate += 1;
             }
-            candidate += 1;
+        }
+        sink(&values[..kept * bv])?;
+    }
+    Ok(index)
+}
+
+/// Fills brick `at` from the source; whether any voxel is not zero.
+fn fill_brick<T: Copy + Default + PartialEq>(
+    source: &dyn DensitySource,
+    geo: &Geometry,
+    at: [u32; 3],
+    brick: &mut [T],
+    encode: &impl Fn(f32) -> Option<T>,
+) -> Result<bool, BakeError> {
+    let b = SPARSE_BRICK;
+    let zero = T::default();
+    let (_, lo, hi) = geo.region(at);
+    let mut any = false;
+    for z in lo[2]..hi[2] {
+        for y in lo[1]..hi[1] {
+            for x in lo[0]..hi[0] {
+                let p = geo.centre([x, y, z]);
+                let v = source.extinction(p);
+                let Some(h) = encode(v) else {
+                    return Err(BakeError::DensityRange {
+                        value: v,
+                        at: p.to_array(),
+                    });
+                };
+                let l = (x - lo[0]) + b * ((y - lo[1]) + b * (z - lo[2]));
+                brick[l as usize] = h;
+                any |= h != zero;
+            }
         }
     }
-    values.truncate(slot * bv);
-    values.shrink_to_fit();
-    Ok((index, values))
+    Ok(any)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::source::grid::DenseGrid;
     use crate::source::procedural::HomogeneousBox;
 
     #[test]
@@ -309,6 +496,117 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A grid with scattered clusters of density, not a multiple of the brick on any axis:
+    /// its bound admits bricks next to a cluster whose own voxels are all zero, so a fill
+    /// drops candidates, and the bricks on the far faces are partly outside the grid.
+    fn clustered() -> (DenseGrid, Aabb, [u32; 3]) {
+        let dims = [37, 29, 45];
+        let data = (0..37 * 29 * 45)
+            .map(|i: u32| {
+                let (x, y, z) = (i % 37, (i / 37) % 29, i / (37 * 29));
+                let h = (x / 5).wrapping_mul(73_856_093)
+                    ^ (y / 5).wrapping_mul(19_349_663)
+                    ^ (z / 5).wrapping_mul(83_492_791);
+                if h % 7 == 0 && (x + y + z) % 3 != 0 {
+                    0.5 + (i % 11) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let g = DenseGrid::new(dims, data, DVec3::ONE, DVec3::ZERO, "clusters").unwrap();
+        let bbox = g.bounds();
+        (g, bbox, dims)
+    }
+
+    #[test]
+    fn batches_and_the_spool_give_the_bytes_of_one_fill() {
+        let (g, bbox, dims) = clustered();
+        let c = Candidates::new(&g, &bbox, dims);
+        let fill = |batch_bytes| {
+            let (mut values, mut batches) = (Vec::new(), 0);
+            let index = fill_bricks(&g, &c, encode_f16, batch_bytes, &mut |b| {
+                values.extend_from_slice(b);
+                batches += 1;
+                Ok(())
+            })
+            .unwrap();
+            (index, values, batches)
+        };
+        let (index, values, one) = fill(usize::MAX);
+        assert_eq!(one, 1);
+        let stored = values.len() as u64 / 512;
+        assert!(
+            stored > 4 && stored < c.count(),
+            "{stored} stored of {} candidates: the test needs both kinds",
+            c.count()
+        );
+        // One brick per batch, and a few rows per batch.
+        for batch_bytes in [1, 5 * 1024, 16 * 1024] {
+            let (i, v, n) = fill(batch_bytes);
+            assert!(n > 3, "{n} batches of {batch_bytes} bytes");
+            assert_eq!(i, index, "index, batches of {batch_bytes} bytes");
+            assert_eq!(v, values, "bricks, batches of {batch_bytes} bytes");
+        }
+        let in_memory = bake_sparse_density(&g, &bbox, dims).unwrap();
+        assert_eq!(in_memory.index, index);
+        assert_eq!(in_memory.values, OwnedSparseValues::F16(values));
+        let dir = tempfile::tempdir().unwrap();
+        let spool = spool_sparse_density(&g, &bbox, dims, dir.path()).unwrap();
+        // The spool has no name: nothing is left in the directory.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        assert_eq!(spool.into_owned().unwrap(), in_memory);
+    }
+
+    #[test]
+    fn a_spooled_bake_writes_the_bytes_of_the_in_memory_bake() {
+        use crate::bake::{BakeOptions, bake, bake_spooled};
+        use pin_format::{Directions, PinFileWriter};
+        let (g, _, _) = clustered();
+        let opts = BakeOptions {
+            cells: [5, 4, 6],
+            directions: Directions::Octahedral { n: 4 },
+            embed_sparse: Some(SparseDims::Source),
+            embed_control: Some(crate::control::ControlOptions::default()),
+            ..BakeOptions::default()
+        };
+        let (grid, _) = bake(&g, &opts, &|_| {}).unwrap();
+        assert!(grid.sparse_density.is_some());
+        let want = grid.to_bytes().unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let (bare, spool, _) = bake_spooled(&g, &opts, &|_| {}, dir.path()).unwrap();
+        assert!(bare.sparse_density.is_none());
+        let mut spool = spool.expect("the options embed a sparse density");
+        let mut w = PinFileWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+        bare.write_streamed_into(&mut w, spool.streamed().unwrap())
+            .unwrap();
+        assert!(w.finish().unwrap().into_inner() == want);
+        // Written twice from one spool (a retry re-reads it from the start).
+        let mut w = PinFileWriter::new(std::io::Cursor::new(Vec::new())).unwrap();
+        bare.write_streamed_into(&mut w, spool.streamed().unwrap())
+            .unwrap();
+        assert!(w.finish().unwrap().into_inner() == want);
+        // Without a sparse density there is no spool and the same grid.
+        let plain = BakeOptions {
+            embed_sparse: None,
+            ..opts
+        };
+        let (g2, spool, _) = bake_spooled(&g, &plain, &|_| {}, dir.path()).unwrap();
+        assert!(spool.is_none());
+        assert_eq!(g2, bake(&g, &plain, &|_| {}).unwrap().0);
+    }
+
+    #[test]
+    fn a_spool_in_a_missing_directory_is_an_error_naming_it() {
+        let (g, bbox, dims) = clustered();
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("gone");
+        let Err(e) = spool_sparse_density(&g, &bbox, dims, &missing) else {
+            panic!("a spool in a missing directory");
+        };
+        assert!(e.to_string().contains("gone"), "{e}");
     }
 
     #[test]
