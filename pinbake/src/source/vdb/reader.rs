@@ -361,11 +361,11 @@ pub(super) fn worker_run(
     let name = info.name.as_str();
     match kind {
         ValueKind::Float | ValueKind::FloatSavedAsHalf => {
-            let (g, mut leaves) = reader
+            let (mut g, mut leaves) = reader
                 .read_grid_topology::<f32>(name)
                 .map_err(|e| read_err(&shown, e))?;
             emit_grid(
-                &g,
+                &mut g,
                 &mut leaves,
                 (kind, version, level_set),
                 &shown,
@@ -374,11 +374,11 @@ pub(super) fn worker_run(
             )
         }
         ValueKind::Half => {
-            let (g, mut leaves) = reader
+            let (mut g, mut leaves) = reader
                 .read_grid_topology::<u16>(name)
                 .map_err(|e| read_err(&shown, e))?;
             emit_grid(
-                &g,
+                &mut g,
                 &mut leaves,
                 (kind, version, level_set),
                 &shown,
@@ -387,11 +387,11 @@ pub(super) fn worker_run(
             )
         }
         ValueKind::Double => {
-            let (g, mut leaves) = reader
+            let (mut g, mut leaves) = reader
                 .read_grid_topology::<f64>(name)
                 .map_err(|e| read_err(&shown, e))?;
             emit_grid(
-                &g,
+                &mut g,
                 &mut leaves,
                 (kind, version, level_set),
                 &shown,
@@ -497,7 +497,7 @@ pub(super) fn tile_values<T: Val>(
 /// it (the file's order) and sent on at once, so the worker holds one leaf's values at a
 /// time, not the grid's (a 1.5 G-voxel cloud would otherwise need 6 GB here).
 pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
-    g: &vdb_rs::Grid<T>,
+    g: &mut vdb_rs::Grid<T>,
     leaves: &mut vdb_rs::LeafData<'_, R>,
     (kind, version, level_set): (ValueKind, u32, bool),
     shown: &str,
@@ -537,6 +537,13 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     // not keep without decompressing them; a level set's flood fill needs every leaf's
     // first and last sign, so its leaves are always decoded.
     let skip = matches!(part, Some(p) if p.mode == PartMode::Skip) && !level_set;
+    // Those leaves' topology (a value mask and its node, about 160 bytes a leaf: 0.5 GB for a
+    // 1.5 G-voxel cloud) is dropped before the parent allocates its leaf table, so that the
+    // two never add up; only their active voxels are kept, counted here.
+    let mut active: u64 = 0;
+    if skip {
+        active = prune_leaves(g, &keep)?;
+    }
     // The parent sizes its leaf table from this count before the first leaf arrives.
     let sent_count = match slab {
         None => leaf_count,
@@ -561,7 +568,6 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     }
     let mut skipped = Skipped::default();
 
-    let mut active: u64 = 0;
     let mut negatives: u64 = 0;
     let mut leaf_buf = [0f32; 512];
     for n5 in &g.tree.root_nodes {
@@ -583,16 +589,16 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
             let t4 = tile_values(&n4.data, c4, 16 * 16 * 16, version)?;
             let mut leaf_first_last: HashMap<usize, (bool, bool)> = HashMap::new();
             for i4 in n4.child_mask.iter_ones() {
+                let o3 = child_origin(o4, i4, 4, 3)?;
+                if skip && !keep(o3) {
+                    // Pruned: its active voxels are counted already.
+                    leaves.skip_leaf::<T>().map_err(|e| read_err(shown, e))?;
+                    continue;
+                }
                 let leaf = n4
                     .nodes
                     .get(&(i4 as u32))
                     .ok_or("leaf node missing (corrupt file)")?;
-                let o3 = child_origin(o4, i4, 4, 3)?;
-                if skip && !keep(o3) {
-                    leaves.skip_leaf::<T>().map_err(|e| read_err(shown, e))?;
-                    active += Mask(leaf.value_mask.as_raw_slice()).count_ones(512);
-                    continue;
-                }
                 let buffer: Vec<T> = leaves.next_leaf().map_err(|e| read_err(shown, e))?;
                 if buffer.len() != 512 {
                     return Err(format!(
@@ -775,6 +781,48 @@ pub(super) struct PartRead {
     pub(super) part: VdbPart,
     pub(super) scale: DensityScale,
     pub(super) mode: PartMode,
+}
+
+/// Removes from `g` every leaf whose origin `keep` refuses, and gives their freed memory back
+/// to the system; returns how many active voxels they had. Their child bits stay set, so a
+/// walk still knows where they were (and moves past their values unread).
+fn prune_leaves<T>(
+    g: &mut vdb_rs::Grid<T>,
+    keep: &impl Fn([i32; 3]) -> bool,
+) -> Result<u64, String> {
+    let mut active = 0u64;
+    for n5 in &mut g.tree.root_nodes {
+        let o5 = n5.origin.to_array();
+        for i5 in n5.child_mask.iter_ones() {
+            let n4 = n5
+                .nodes
+                .get_mut(&(i5 as u32))
+                .ok_or("internal node child missing (corrupt file)")?;
+            let o4 = child_origin(o5, i5, 5, 7)?;
+            for i4 in n4.child_mask.iter_ones() {
+                if keep(child_origin(o4, i4, 4, 3)?) {
+                    continue;
+                }
+                if let Some(leaf) = n4.nodes.remove(&(i4 as u32)) {
+                    active += Mask(leaf.value_mask.as_raw_slice()).count_ones(512);
+                }
+            }
+            n4.nodes.shrink_to_fit();
+        }
+    }
+    give_back_freed_memory();
+    Ok(active)
+}
+
+/// Returns the heap's free pages to the system (glibc keeps freed small blocks, such as the
+/// pruned leaves' masks, in the process otherwise). Elsewhere a no-op.
+fn give_back_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases memory the allocator holds free; it has no
+    // preconditions.
+    unsafe {
+        libc::malloc_trim(0);
+    }
 }
 
 /// Calls `f` with the origin of every leaf of `g`, in the file's order.
