@@ -296,7 +296,10 @@ fn a_streamed_sparse_density_writes_the_bytes_of_an_owned_one() {
         assert!(extra.to_string().contains("more bytes"), "{extra}");
         // The index is checked as an owned section's is.
         let mut lying = index.clone();
-        let at = lying.iter().position(|&s| s != layout::EMPTY_BRICK).unwrap();
+        let at = lying
+            .iter()
+            .position(|&s| s != layout::EMPTY_BRICK)
+            .unwrap();
         lying[at] = 7777;
         assert!(write(values, sd.header, &lying).is_err());
         assert!(write(values, sd.header, &index[1..]).is_err());
