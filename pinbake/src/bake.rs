@@ -122,6 +122,11 @@ pub enum BakeError {
     Format(#[from] pin_format::FormatError),
     #[error("thread pool: {0}")]
     Threads(String),
+    #[error("cannot write {}: {message}", path.display())]
+    Write {
+        path: std::path::PathBuf,
+        message: String,
+    },
     #[error("cannot spool the sparse density's bricks to a temporary file in {dir:?}: {source}")]
     Spool {
         dir: std::path::PathBuf,

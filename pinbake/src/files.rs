@@ -347,13 +347,13 @@ fn announce_partial(path: Option<&Path>) {
 
 /// Announces `path` as a partial file to the [`watch_partial_files`] hook, and its end when
 /// the guard drops: for an atomic write that is not a pin file's.
-pub fn announce_partial_file(path: &Path) -> impl Drop + use<> {
+pub fn announce_partial_file(path: &Path) -> Announced {
     announce_partial(Some(path));
     Announced
 }
 
 /// Announces `None` when the partial file is gone.
-struct Announced;
+pub struct Announced;
 
 impl Drop for Announced {
     fn drop(&mut self) {

@@ -237,6 +237,29 @@ fn check(part: Part, opts: &BakeOptions) -> Result<(), BakeError> {
     crate::bake::check_step(opts)
 }
 
+/// Where a part's samples go as they are taken: [`SampleSink::start`] once with everything
+/// of the part but its samples, then [`SampleSink::samples`] with the samples in the part
+/// file's order, batch after batch, so that a part written to a file never holds them all.
+pub trait SampleSink {
+    /// `head` is the part with `samples` empty; `total` samples follow.
+    fn start(&mut self, head: &PartData, total: u64) -> Result<(), BakeError>;
+    fn samples(&mut self, samples: &[f32]) -> Result<(), BakeError>;
+}
+
+/// The samples kept in memory ([`bake_part`]).
+struct InMemory(Vec<f32>);
+
+impl SampleSink for InMemory {
+    fn start(&mut self, _: &PartData, total: u64) -> Result<(), BakeError> {
+        self.0 = crate::bake::try_reserved("the part's samples", total as usize)?;
+        Ok(())
+    }
+    fn samples(&mut self, samples: &[f32]) -> Result<(), BakeError> {
+        self.0.extend_from_slice(samples);
+        Ok(())
+    }
+}
+
 /// Bakes part `part` of `source` with `opts`: the samples of every pin in the part's slab
 /// (the source's [`DensitySource::part_slab`], or an even split of the box along z for a
 /// source that holds the whole field), the majorant over what it holds, the identity
@@ -247,6 +270,33 @@ pub fn bake_part(
     part: Part,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<PartData, BakeError> {
+    let mut sink = InMemory(Vec::new());
+    let mut data = bake_part_into(source, opts, part, progress, &mut sink)?;
+    data.samples = sink.0;
+    Ok(data)
+}
+
+/// [`bake_part`], with the samples handed to `sink` as they are taken (the part comes back
+/// with `samples` empty).
+pub fn bake_part_into(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    part: Part,
+    progress: &(dyn Fn(u64) + Sync),
+    sink: &mut (dyn SampleSink + Send),
+) -> Result<PartData, BakeError> {
+    bake_part_batched(source, opts, part, progress, sink, SAMPLE_BATCH)
+}
+
+/// [`bake_part_into`] with at most `batch` samples a batch (or one row's, when a row has more).
+pub(crate) fn bake_part_batched(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    part: Part,
+    progress: &(dyn Fn(u64) + Sync),
+    sink: &mut (dyn SampleSink + Send),
+    batch: usize,
+) -> Result<PartData, BakeError> {
     check(part, opts)?;
     let pool = crate::bake::thread_pool(opts)?;
     pool.install(|| {
@@ -255,22 +305,29 @@ pub fn bake_part(
             Some((local, m)) => (local.as_ref(), Some(*m)),
             None => (source, None),
         };
-        let mut data = part_in_pool(local, opts, part, progress)?;
-        if let Some(m) = local_to_world {
-            data.desc.local_to_world = m;
-        }
-        (data.lattice, data.lattice_owned) = lattice_part(source, local_to_world, data.slab);
-        Ok(data)
+        part_in_pool(
+            (source, local, local_to_world),
+            opts,
+            part,
+            progress,
+            sink,
+            batch,
+        )
     })
 }
 
+/// Samples taken in one batch of rows: the most a part holds of them at once.
+const SAMPLE_BATCH: usize = 4 << 20;
+
 fn part_in_pool(
-    source: &dyn DensitySource,
+    (world, source, local_to_world): (&dyn DensitySource, &dyn DensitySource, Option<[f64; 12]>),
     opts: &BakeOptions,
     part: Part,
     progress: &(dyn Fn(u64) + Sync),
+    sink: &mut (dyn SampleSink + Send),
+    batch: usize,
 ) -> Result<PartData, BakeError> {
-    let (bbox, desc) = crate::bake::grid_description(source, opts)?;
+    let (bbox, mut desc) = crate::bake::grid_description(source, opts)?;
     let slab = source.part_slab().unwrap_or_else(|| even_slab(&bbox, part));
     let placement = Placement::over(&bbox, opts.step);
     // The same choice of march as the bake's (`bake::bake_in_pool`).
@@ -290,41 +347,9 @@ fn part_in_pool(
         opts.jitter_pins,
         opts.seed,
     );
-    let [nx, ny, nz] = opts.cells;
+    let [nx, ny, _] = opts.cells;
     let (dirs, ppe) = (opts.directions.count(), opts.pins_per_entry);
-    let rows = ny as usize * nz as usize;
-    // The samples are counted first, so that they are one allocation of their exact size
-    // that the rows fill in place (they are most of a part's memory beside the source).
-    let counts = row_counts(&layout, &placement, &[slab]);
-    let total: usize = counts.iter().map(|c| c[0]).sum();
-    let mut samples = crate::bake::try_filled("the part's samples", total, 0.0f32)?;
-    let mut slices: Vec<&mut [f32]> = Vec::with_capacity(rows);
-    let mut rest = samples.as_mut_slice();
-    for c in &counts {
-        let (row, tail) = rest.split_at_mut(c[0]);
-        slices.push(row);
-        rest = tail;
-    }
-    slices.into_par_iter().enumerate().for_each(|(row, slice)| {
-        let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
-        let mut out = Vec::with_capacity(slice.len());
-        let mut buf = [0f32; CHUNK];
-        for x in 0..nx {
-            for dir in 0..dirs {
-                for k in 0..ppe {
-                    let cell = [x, y, z];
-                    let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
-                    let (p, w) = layout.line(cell, dir, &mut rng);
-                    if let Some(cs) = chord_samples(&placement, p, w) {
-                        let (a, b) = owned_range(&cs, slab);
-                        march.samples(&cs, a..b, &mut buf, &mut out);
-                    }
-                }
-            }
-        }
-        slice.copy_from_slice(&out);
-        progress(u64::from(nx) * u64::from(dirs) * u64::from(ppe));
-    });
+    // Everything but the samples first: the part file holds it before them.
     let majorant = opts
         .majorant
         .map(|dims| crate::bake::bake_majorant(source, &bbox, dims).map(|(h, v)| (h.dims, v)))
@@ -335,17 +360,73 @@ fn part_in_pool(
             v.clear();
         }
     }
-    Ok(PartData {
+    if let Some(m) = local_to_world {
+        desc.local_to_world = m;
+    }
+    let (lattice, lattice_owned) = lattice_part(world, local_to_world, slab);
+    let head = PartData {
         part,
         desc,
         metadata,
         slab,
         grid_march: matches!(march, March::Grid(_)),
         majorant,
-        lattice: Vec::new(),
-        lattice_owned: Vec::new(),
-        samples,
-    })
+        lattice,
+        lattice_owned,
+        samples: Vec::new(),
+    };
+    // The samples are counted first: the file states their number before them, and each
+    // batch of rows is one allocation that the rows fill in place.
+    let counts: Vec<usize> = row_counts(&layout, &placement, &[slab])
+        .into_iter()
+        .map(|c| c[0])
+        .collect();
+    sink.start(&head, counts.iter().map(|&c| c as u64).sum())?;
+    let largest = counts.iter().copied().max().unwrap_or(0);
+    let mut buffer = crate::bake::try_filled(
+        "a batch of the part's samples",
+        SAMPLE_BATCH.max(largest),
+        0f32,
+    )?;
+    let mut row0 = 0usize;
+    while row0 < counts.len() {
+        let (mut row1, mut n) = (row0, 0usize);
+        while row1 < counts.len() && (row1 == row0 || n + counts[row1] <= batch) {
+            n += counts[row1];
+            row1 += 1;
+        }
+        let mut slices: Vec<&mut [f32]> = Vec::with_capacity(row1 - row0);
+        let mut rest = &mut buffer[..n];
+        for &c in &counts[row0..row1] {
+            let (row, tail) = rest.split_at_mut(c);
+            slices.push(row);
+            rest = tail;
+        }
+        slices.into_par_iter().enumerate().for_each(|(i, slice)| {
+            let row = row0 + i;
+            let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
+            let mut out = Vec::with_capacity(slice.len());
+            let mut buf = [0f32; CHUNK];
+            for x in 0..nx {
+                for dir in 0..dirs {
+                    for k in 0..ppe {
+                        let cell = [x, y, z];
+                        let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                        let (p, w) = layout.line(cell, dir, &mut rng);
+                        if let Some(cs) = chord_samples(&placement, p, w) {
+                            let (a, b) = owned_range(&cs, slab);
+                            march.samples(&cs, a..b, &mut buf, &mut out);
+                        }
+                    }
+                }
+            }
+            slice.copy_from_slice(&out);
+            progress(u64::from(nx) * u64::from(dirs) * u64::from(ppe));
+        });
+        sink.samples(&buffer[..n])?;
+        row0 = row1;
+    }
+    Ok(head)
 }
 
 fn layout_of(
@@ -884,6 +965,36 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn batches_and_the_streamed_file_give_the_bytes_of_one_batch() {
+        let g = grid();
+        let o = opts();
+        let part = Part { index: 1, count: 3 };
+        let whole = bake_part(&g, &o, part, &|_| {}).unwrap();
+        let rows = (o.cells[1] * o.cells[2]) as u64;
+        assert!(
+            whole.samples.len() as u64 > 4 * rows,
+            "the test needs rows of samples"
+        );
+        // Batches of one row (a row never splits), of a few rows, of everything.
+        for batch in [1, whole.samples.len() / 7, usize::MAX / 2] {
+            let mut sink = InMemory(Vec::new());
+            let mut d = bake_part_batched(&g, &o, part, &|_| {}, &mut sink, batch).unwrap();
+            d.samples = sink.0;
+            assert!(d == whole, "batches of {batch} samples");
+        }
+        // Streamed into its file as it is baked: the bytes of the whole part's encoding, and
+        // nothing but the file in the directory.
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("p.part");
+        let mut w = crate::part_file::PartFileWriter::create(&target).unwrap();
+        bake_part_batched(&g, &o, part, &|_| {}, &mut w, 1000).unwrap();
+        assert_eq!(w.samples_written(), whole.samples.len() as u64);
+        w.finish().unwrap();
+        assert!(std::fs::read(&target).unwrap() == crate::part_file::encode(&whole).unwrap());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     #[test]

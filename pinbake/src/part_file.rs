@@ -18,11 +18,12 @@
 //! one-line error and never an allocation the file asked for.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use pin_format::{GridDesc, Metadata};
 
-use crate::part::{Part, PartData};
+use crate::bake::BakeError;
+use crate::part::{Part, PartData, SampleSink};
 
 pub const PART_MAGIC: &[u8; 8] = b"PINPART\0";
 pub const PART_VERSION: u32 = 1;
@@ -79,14 +80,23 @@ impl<W: Write> Write for Hashing<W> {
 /// Writes the file to `w` as it goes (the samples are not copied first), returning its
 /// length in bytes.
 pub fn encode_into(d: &PartData, w: &mut impl Write) -> Result<u64, PartFileError> {
-    let meta = d.metadata.encode()?;
     let mut h = Hashing {
         inner: w,
         hash: xxhash_rust::xxh3::Xxh3::new(),
         bytes: 0,
     };
-    let io = |e: std::io::Error| PartFileError::Write(e.to_string());
-    let b = &mut h;
+    write_head(d, d.samples.len() as u64, &mut h)?;
+    write_samples(&d.samples, &mut h)?;
+    finish_hash(h)
+}
+
+fn io(e: std::io::Error) -> PartFileError {
+    PartFileError::Write(e.to_string())
+}
+
+/// Every byte before the samples, `total` as their count.
+fn write_head(d: &PartData, total: u64, b: &mut impl Write) -> Result<(), PartFileError> {
+    let meta = d.metadata.encode()?;
     b.write_all(PART_MAGIC).map_err(io)?;
     for v in [
         PART_VERSION,
@@ -122,11 +132,18 @@ pub fn encode_into(d: &PartData, w: &mut impl Write) -> Result<u64, PartFileErro
         .map_err(io)?;
     b.write_all(bytemuck::cast_slice(&d.lattice)).map_err(io)?;
     b.write_all(&d.lattice_owned).map_err(io)?;
-    b.write_all(&(d.samples.len() as u64).to_le_bytes())
-        .map_err(io)?;
-    for chunk in d.samples.chunks(1 << 16) {
+    b.write_all(&total.to_le_bytes()).map_err(io)
+}
+
+fn write_samples(samples: &[f32], b: &mut impl Write) -> Result<(), PartFileError> {
+    for chunk in samples.chunks(1 << 16) {
         b.write_all(bytemuck::cast_slice(chunk)).map_err(io)?;
     }
+    Ok(())
+}
+
+/// Appends the checksum; the file's length.
+fn finish_hash<W: Write>(mut h: Hashing<W>) -> Result<u64, PartFileError> {
     let sum = h.hash.digest();
     h.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
     Ok(h.bytes + 8)
@@ -261,40 +278,142 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
 /// it (announced to [`crate::files::watch_partial_files`] while it exists), fsync, rename. A
 /// failure leaves no file behind. Returns the file's length.
 pub fn write_atomic(target: &Path, d: &PartData) -> Result<u64, PartFileError> {
-    let dir = match target.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let name = target
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "part".into());
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.subsec_nanos());
-    let temp = dir.join(format!(".{name}.{}-{nanos}.partial", std::process::id()));
-    let _announced = crate::files::announce_partial_file(&temp);
-    let io = |e: std::io::Error| PartFileError::Write(e.to_string());
-    let result = (|| {
+    let mut w = PartFileWriter::create(target)?;
+    w.start_part(d, d.samples.len() as u64)?;
+    w.write_samples(&d.samples)?;
+    w.finish()
+}
+
+/// A part file written as its part is baked ([`crate::part::bake_part_into`], as a
+/// [`SampleSink`]): the head first, then the samples batch by batch, then the checksum, into
+/// a temporary `.NAME.*.partial` beside the target that [`PartFileWriter::finish`] renames
+/// into place. Dropped unfinished (an error, a panic), it removes its temporary file.
+pub struct PartFileWriter {
+    target: PathBuf,
+    temp: PathBuf,
+    out: Option<Hashing<std::io::BufWriter<std::fs::File>>>,
+    /// Samples the head announced, and those written so far.
+    total: u64,
+    written: u64,
+    _announced: crate::files::Announced,
+}
+
+impl PartFileWriter {
+    /// Creates the temporary file beside `target`.
+    pub fn create(target: &Path) -> Result<Self, PartFileError> {
+        let dir = crate::files::parent_dir(target);
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "part".into());
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos());
+        let temp = dir.join(format!(".{name}.{}-{nanos}.partial", std::process::id()));
+        let announced = crate::files::announce_partial_file(&temp);
         let f = std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
             .open(&temp)
             .map_err(io)?;
-        let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
-        let n = encode_into(d, &mut w)?;
-        let f = w.into_inner().map_err(|e| io(e.into_error()))?;
+        Ok(Self {
+            target: target.to_path_buf(),
+            temp,
+            out: Some(Hashing {
+                inner: std::io::BufWriter::with_capacity(1 << 20, f),
+                hash: xxhash_rust::xxh3::Xxh3::new(),
+                bytes: 0,
+            }),
+            total: 0,
+            written: 0,
+            _announced: announced,
+        })
+    }
+
+    /// The temporary file's path.
+    pub fn temp_path(&self) -> &Path {
+        &self.temp
+    }
+
+    /// Samples written so far.
+    pub fn samples_written(&self) -> u64 {
+        self.written
+    }
+
+    fn out(&mut self) -> Result<&mut Hashing<std::io::BufWriter<std::fs::File>>, PartFileError> {
+        self.out
+            .as_mut()
+            .ok_or_else(|| PartFileError::Write("the part file is already finished".into()))
+    }
+
+    /// Writes everything before the samples; `total` samples must follow.
+    pub fn start_part(&mut self, head: &PartData, total: u64) -> Result<(), PartFileError> {
+        self.total = total;
+        write_head(head, total, self.out()?)
+    }
+
+    pub fn write_samples(&mut self, samples: &[f32]) -> Result<(), PartFileError> {
+        self.written += samples.len() as u64;
+        if self.written > self.total {
+            return Err(PartFileError::Write(format!(
+                "{} samples written, the head announced {}",
+                self.written, self.total
+            )));
+        }
+        write_samples(samples, self.out()?)
+    }
+
+    /// The checksum, fsync, rename into place; the file's length.
+    pub fn finish(mut self) -> Result<u64, PartFileError> {
+        if self.written != self.total {
+            return Err(PartFileError::Write(format!(
+                "{} samples written, the head announced {}",
+                self.written, self.total
+            )));
+        }
+        let h = self.out.take().expect("finish is called once");
+        let len = h.bytes;
+        let mut inner = h.inner;
+        let sum = h.hash.digest();
+        inner.write_all(&sum.to_le_bytes()).map_err(io)?;
+        let f = inner.into_inner().map_err(|e| io(e.into_error()))?;
         f.sync_all().map_err(io)?;
-        std::fs::rename(&temp, target).map_err(io)?;
-        if let Ok(d) = std::fs::File::open(dir) {
+        std::fs::rename(&self.temp, &self.target).map_err(io)?;
+        // Renamed: nothing for the drop to remove.
+        self.temp = PathBuf::new();
+        if let Ok(d) = std::fs::File::open(crate::files::parent_dir(&self.target)) {
             let _ = d.sync_all();
         }
-        Ok(n)
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temp);
+        Ok(len + 8)
     }
-    result
+}
+
+impl Drop for PartFileWriter {
+    fn drop(&mut self) {
+        if !self.temp.as_os_str().is_empty() {
+            let _ = std::fs::remove_file(&self.temp);
+        }
+    }
+}
+
+impl SampleSink for PartFileWriter {
+    fn start(&mut self, head: &PartData, total: u64) -> Result<(), BakeError> {
+        let r = self.start_part(head, total);
+        r.map_err(|e| self.bake_error(e))
+    }
+    fn samples(&mut self, samples: &[f32]) -> Result<(), BakeError> {
+        let r = self.write_samples(samples);
+        r.map_err(|e| self.bake_error(e))
+    }
+}
+
+impl PartFileWriter {
+    fn bake_error(&self, e: PartFileError) -> BakeError {
+        BakeError::Write {
+            path: self.target.clone(),
+            message: e.to_string(),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -313,6 +432,38 @@ mod tests {
             ..BakeOptions::default()
         };
         crate::part::bake_part(&src, &opts, Part { index: 1, count: 3 }, &|_| {}).unwrap()
+    }
+
+    #[test]
+    fn a_streamed_part_file_refuses_a_wrong_sample_count_and_leaves_nothing() {
+        let d = sample();
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("x.part");
+        let n = d.samples.len() as u64;
+        // Fewer samples than announced: finish refuses, nothing stays.
+        let mut w = PartFileWriter::create(&target).unwrap();
+        w.start_part(&d, n).unwrap();
+        w.write_samples(&d.samples[..1]).unwrap();
+        assert!(w.finish().unwrap_err().to_string().contains("announced"));
+        // More: refused as they come.
+        let mut w = PartFileWriter::create(&target).unwrap();
+        w.start_part(&d, 1).unwrap();
+        assert!(w.write_samples(&d.samples).is_err());
+        drop(w);
+        // Dropped unfinished: nothing stays.
+        let mut w = PartFileWriter::create(&target).unwrap();
+        w.start_part(&d, n).unwrap();
+        assert!(w.temp_path().exists());
+        drop(w);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        // Announced and written in pieces: the bytes of the whole encoding.
+        let mut w = PartFileWriter::create(&target).unwrap();
+        w.start_part(&d, n).unwrap();
+        for c in d.samples.chunks(3) {
+            w.write_samples(c).unwrap();
+        }
+        assert_eq!(w.finish().unwrap(), encode(&d).unwrap().len() as u64);
+        assert_eq!(std::fs::read(&target).unwrap(), encode(&d).unwrap());
     }
 
     #[test]

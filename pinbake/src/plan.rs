@@ -775,19 +775,29 @@ pub fn bake_part_to_file(
     progress.start(crate::bake::pin_count(&opts));
     let started = Instant::now();
     let advance = |n: u64| progress.advance(n);
-    let data = crate::part::bake_part(source.as_ref(), &opts, part, &advance).map_err(bake_err)?;
-    // The source is not needed for the write: its memory goes before the file is written.
-    drop(source);
+    let write_err = |e: crate::part_file::PartFileError| PlanError::Write {
+        path: output.to_path_buf(),
+        source: pin_format::FormatError::InvalidInput(e.to_string()),
+    };
+    // The samples go to the part file as they are taken, batch by batch: a part holds its
+    // slab of the source and one batch, not all its samples.
     let target = crate::files::check_output_among(output, &[inputs, &own])?;
-    let file_bytes =
-        crate::part_file::write_atomic(&target, &data).map_err(|e| PlanError::Write {
-            path: output.to_path_buf(),
-            source: pin_format::FormatError::InvalidInput(e.to_string()),
-        })?;
+    let mut file = crate::part_file::PartFileWriter::create(&target).map_err(write_err)?;
+    let data = crate::part::bake_part_into(source.as_ref(), &opts, part, &advance, &mut file)
+        .map_err(bake_err)?;
+    drop(source);
+    // Checked again just before the rename: the path may have been replaced during the bake.
+    if crate::files::check_output_among(output, &[inputs, &own])? != target {
+        return Err(write_err(crate::part_file::PartFileError::Write(
+            "the output was replaced by a link elsewhere during the bake".into(),
+        )));
+    }
+    let samples = file.samples_written();
+    let file_bytes = file.finish().map_err(write_err)?;
     Ok(BakedPart {
         part,
         slab: data.slab,
-        samples: data.samples.len() as u64,
+        samples,
         choice,
         output: output.to_path_buf(),
         file_bytes,
