@@ -205,6 +205,10 @@ pub struct VdbSource {
     /// What the worker process held at most beside this process's table while the grid
     /// was read: its tree topology (estimated per leaf, [`WORKER_BYTES_PER_LEAF`]).
     pub(super) reader_peak_bytes: u64,
+    /// What the worker held at most before this process's table existed: for a part read
+    /// that dropped the topology outside its slab ([`VdbOptions::grid_stats`] given), the
+    /// whole tree's topology, held alone; 0 otherwise.
+    pub(super) reader_alone_bytes: u64,
     /// Read for one part of a farm bake: the index-z slab `[lo, hi)` whose samples this
     /// source holds (with a margin of a leaf each side), and the non-zero leaves of the
     /// grid it does not hold, which its statistics count all the same.
@@ -587,6 +591,9 @@ impl VdbSource {
                 _ => huge_entries.push((o >> 12, s)),
             }
         }
+        // A part read with the statistics given moves past the other leaves and drops their
+        // topology first (a level set's part decodes every leaf and keeps it).
+        let pruned = st.part.is_some() && st.stats.is_some() && !st.level_set;
         // A part's statistics are those of the whole grid: the leaves the worker left out
         // count as a whole read would count them.
         let unloaded_leaves = match (&st.stats, st.part) {
@@ -720,10 +727,20 @@ impl VdbSource {
             global_max,
             label,
             cache: None,
-            reader_peak_bytes: st
-                .part
-                .map_or(origins_len as u64, |p| p.total_leaves)
-                .saturating_mul(WORKER_BYTES_PER_LEAF),
+            reader_peak_bytes: if pruned {
+                // The worker dropped the other leaves' topology before the first leaf came.
+                origins_len as u64
+            } else {
+                st.part.map_or(origins_len as u64, |p| p.total_leaves)
+            }
+            .saturating_mul(WORKER_BYTES_PER_LEAF),
+            reader_alone_bytes: if pruned {
+                st.part
+                    .map_or(0, |p| p.total_leaves)
+                    .saturating_mul(WORKER_BYTES_PER_LEAF)
+            } else {
+                0
+            },
             part: st.part.map(|p| p.core),
             unloaded_leaves,
         })
@@ -1207,7 +1224,9 @@ impl DensitySource for VdbSource {
         let held = self.memory_bytes();
         Some(super::super::Footprint {
             held,
-            while_opening: held.saturating_add(self.reader_peak_bytes),
+            while_opening: held
+                .saturating_add(self.reader_peak_bytes)
+                .max(self.reader_alone_bytes),
         })
     }
 
