@@ -87,7 +87,7 @@ pub fn encode_into(d: &PartData, w: &mut impl Write) -> Result<u64, PartFileErro
     };
     write_head(d, d.samples.len() as u64, &mut h)?;
     write_samples(&d.samples, &mut h)?;
-    finish_hash(h)
+    finish_hash(&mut h)
 }
 
 fn io(e: std::io::Error) -> PartFileError {
@@ -143,7 +143,7 @@ fn write_samples(samples: &[f32], b: &mut impl Write) -> Result<(), PartFileErro
 }
 
 /// Appends the checksum; the file's length.
-fn finish_hash<W: Write>(mut h: Hashing<W>) -> Result<u64, PartFileError> {
+fn finish_hash<W: Write>(h: &mut Hashing<W>) -> Result<u64, PartFileError> {
     let sum = h.hash.digest();
     h.inner.write_all(&sum.to_le_bytes()).map_err(io)?;
     Ok(h.bytes + 8)
@@ -371,12 +371,12 @@ impl PartFileWriter {
                 self.written, self.total
             )));
         }
-        let h = self.out.take().expect("finish is called once");
-        let len = h.bytes;
-        let mut inner = h.inner;
-        let sum = h.hash.digest();
-        inner.write_all(&sum.to_le_bytes()).map_err(io)?;
-        let f = inner.into_inner().map_err(|e| io(e.into_error()))?;
+        let mut h = self
+            .out
+            .take()
+            .ok_or_else(|| PartFileError::Write("the part file is already finished".into()))?;
+        let len = finish_hash(&mut h)?;
+        let f = h.inner.into_inner().map_err(|e| io(e.into_error()))?;
         f.sync_all().map_err(io)?;
         std::fs::rename(&self.temp, &self.target).map_err(io)?;
         // Renamed: nothing for the drop to remove.
@@ -384,7 +384,7 @@ impl PartFileWriter {
         if let Ok(d) = std::fs::File::open(crate::files::parent_dir(&self.target)) {
             let _ = d.sync_all();
         }
-        Ok(len + 8)
+        Ok(len)
     }
 }
 

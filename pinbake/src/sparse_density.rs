@@ -125,6 +125,8 @@ pub struct SparseSpool {
     pub header: SparseDensityHeader,
     pub index: Vec<u32>,
     file: File,
+    /// Where the spool lives, for messages.
+    dir: PathBuf,
 }
 
 impl SparseSpool {
@@ -146,7 +148,7 @@ impl SparseSpool {
             .seek(SeekFrom::Start(0))
             .and_then(|_| self.file.read_exact(bytemuck::cast_slice_mut(&mut values)))
             .map_err(|source| BakeError::Spool {
-                dir: PathBuf::new(),
+                dir: self.dir.clone(),
                 source,
             })?;
         Ok(OwnedSparseDensity {
@@ -194,6 +196,7 @@ pub fn spool_sparse_density(
         header: f16_header(dims, stored),
         index,
         file,
+        dir: dir.to_path_buf(),
     })
 }
 
