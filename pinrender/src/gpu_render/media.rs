@@ -488,6 +488,36 @@ fn pack_controls(
     Ok(())
 }
 
+/// Words of brick values one binding holds (whole bricks of `brick_words` words), for
+/// `total_words` words over at most [`VALUE_BINDINGS`] bindings of `limit` bytes each; the
+/// one-line refusal when they do not fit. Word addresses stay below 2^32.
+fn brick_value_capacity(limit: u64, total_words: u64, brick_words: u64) -> pinrt::Result<u64> {
+    let per_binding = (limit / 4).min(u64::from(u32::MAX) / VALUE_BINDINGS as u64);
+    let cap = per_binding
+        .checked_div(brick_words)
+        .map_or(0, |whole| whole * brick_words);
+    if cap == 0 || total_words.div_ceil(cap) > VALUE_BINDINGS as u64 {
+        return Err(gpu(format!(
+            "the bricked densities need {} bytes of brick values ({} bytes per brick), \
+             more than {VALUE_BINDINGS} storage bindings of {limit} bytes hold on this \
+             device; use a smaller volume or a device with larger storage bindings",
+            total_words.saturating_mul(4),
+            brick_words * 4
+        )));
+    }
+    Ok(cap)
+}
+
+/// Checks, before any brick is read, that `bricks` stored bricks of edge `edge` can go to a
+/// device whose largest storage binding is `limit` bytes, counting them at their smallest
+/// (f16, as a pin file's bricks go): a sparse density this refuses, [`pack`] would refuse
+/// after the bricks were widened and packed; one it passes may still be refused there, if
+/// its values are not all f16.
+pub fn check_brick_values_fit(limit: u64, edge: u32, bricks: u64) -> pinrt::Result<()> {
+    let words = u64::from(edge).pow(3) >> u32::from(edge >= 2);
+    brick_value_capacity(limit, bricks.saturating_mul(words), words.max(1)).map(|_| ())
+}
+
 /// Packs `media` into the shader's records; `limit` is the largest storage binding in bytes.
 pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed<'g>> {
     let check = |what: &str, len: usize| check_binding(limit, what, len);
@@ -566,21 +596,8 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
             }
         }
     }
-    if let Some(whole) = (limit / 4)
-        .min(u64::from(u32::MAX) / VALUE_BINDINGS as u64)
-        .checked_div(largest_brick)
-    {
-        // Whole bricks per binding; word addresses stay below 2^32.
-        bricks.cap_words = whole * largest_brick;
-        if bricks.cap_words == 0 || bricks.bindings() > VALUE_BINDINGS {
-            return Err(gpu(format!(
-                "the bricked densities need {} bytes of brick values ({} bytes per brick), \
-                 more than {VALUE_BINDINGS} storage bindings of {limit} bytes hold on this \
-                 device; use a smaller volume or a device with larger storage bindings",
-                bricks.total_words * 4,
-                largest_brick * 4
-            )));
-        }
+    if largest_brick > 0 {
+        bricks.cap_words = brick_value_capacity(limit, bricks.total_words, largest_brick)?;
     }
 
     let mut params = Vec::with_capacity(media.media.len());
@@ -702,4 +719,28 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
         index,
         caps,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The early check and the packing count the same bindings: with 1 KiB bindings an
+    /// 8^3 brick of f16 values (1 KiB) fills one, so 16 bricks fit and 17 are refused, with
+    /// the packing's message; f32 bricks of edge 1 (one word) fill 256 to a binding.
+    #[test]
+    fn brick_values_fit_the_bindings_they_count() {
+        assert!(check_brick_values_fit(1024, 8, 16).is_ok());
+        let e = check_brick_values_fit(1024, 8, 17).unwrap_err().to_string();
+        assert!(
+            e.contains("17408 bytes of brick values (1024 bytes per brick)"),
+            "{e}"
+        );
+        assert!(e.contains("16 storage bindings of 1024 bytes"), "{e}");
+        assert!(check_brick_values_fit(1024, 1, 16 * 256).is_ok());
+        assert!(check_brick_values_fit(1024, 1, 16 * 256 + 1).is_err());
+        // A brick larger than a binding fits in none.
+        assert!(check_brick_values_fit(1024, 16, 1).is_err());
+        assert_eq!(brick_value_capacity(1024, 10, 3).ok(), Some(255));
+    }
 }

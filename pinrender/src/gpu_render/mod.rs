@@ -32,7 +32,7 @@ mod media;
 
 pub use media::{
     CosineWave, GpuControl, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins,
-    GpuPlacedDensity, VALUE_BINDINGS,
+    GpuPlacedDensity, VALUE_BINDINGS, check_brick_values_fit,
 };
 
 use std::collections::HashMap;

@@ -445,7 +445,9 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
         if !versus.is_empty() {
             let _ = writeln!(
                 s,
-                "At equal CPU time, per budget: the best estimator that reads the bake against                  the best that does not (CPU rows; the closed forms and whole-volume sampling                  left out of both):"
+                "At equal CPU time, per budget: the best estimator that reads the bake against \
+                 the best that does not (CPU rows; the closed forms and whole-volume sampling \
+                 left out of both):"
             );
             let _ = writeln!(s);
             s.push_str(&versus);
