@@ -347,7 +347,7 @@ fn part_in_pool(
         opts.jitter_pins,
         opts.seed,
     );
-    let [nx, ny, _] = opts.cells;
+    let nx = opts.cells[0];
     let (dirs, ppe) = (opts.directions.count(), opts.pins_per_entry);
     // Everything but the samples first: the part file holds it before them.
     let majorant = opts
@@ -403,23 +403,12 @@ fn part_in_pool(
             rest = tail;
         }
         slices.into_par_iter().enumerate().for_each(|(i, slice)| {
-            let row = row0 + i;
-            let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
             let mut out = Vec::with_capacity(slice.len());
             let mut buf = [0f32; CHUNK];
-            for x in 0..nx {
-                for dir in 0..dirs {
-                    for k in 0..ppe {
-                        let cell = [x, y, z];
-                        let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
-                        let (p, w) = layout.line(cell, dir, &mut rng);
-                        if let Some(cs) = chord_samples(&placement, p, w) {
-                            let (a, b) = owned_range(&cs, slab);
-                            march.samples(&cs, a..b, &mut buf, &mut out);
-                        }
-                    }
-                }
-            }
+            for_each_chord_in_row(&layout, &placement, row0 + i, |cs| {
+                let (a, b) = owned_range(cs, slab);
+                march.samples(cs, a..b, &mut buf, &mut out);
+            });
             slice.copy_from_slice(&out);
             progress(u64::from(nx) * u64::from(dirs) * u64::from(ppe));
         });
@@ -476,31 +465,45 @@ fn lattice_part(
     (values, owned)
 }
 
+/// Calls `f` with the chord of every pin of row `row` of cells (`y + ny * z`) that crosses
+/// the box, in file order (x, then direction, then pin): the order of a part's samples.
+fn for_each_chord_in_row(
+    layout: &PinLayout,
+    placement: &Placement,
+    row: usize,
+    mut f: impl FnMut(&ChordSamples),
+) {
+    let [nx, ny, _] = layout.dims;
+    let (dirs, ppe) = (layout.directions.count(), layout.pins_per_entry);
+    let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
+    for x in 0..nx {
+        for dir in 0..dirs {
+            for k in 0..ppe {
+                let cell = [x, y, z];
+                let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
+                let (p, w) = layout.line(cell, dir, &mut rng);
+                if let Some(cs) = chord_samples(placement, p, w) {
+                    f(&cs);
+                }
+            }
+        }
+    }
+}
+
 /// For each row of cells (`y + ny * z`), the number of its pins' samples in each of
 /// `slabs`: where each row's samples start in a part's file.
 fn row_counts(layout: &PinLayout, placement: &Placement, slabs: &[[f64; 2]]) -> Vec<Vec<usize>> {
-    let [nx, ny, nz] = layout.dims;
-    let (dirs, ppe) = (layout.directions.count(), layout.pins_per_entry);
+    let [_, ny, nz] = layout.dims;
     (0..ny as usize * nz as usize)
         .into_par_iter()
         .map(|row| {
             let mut c = vec![0usize; slabs.len()];
-            let (y, z) = ((row % ny as usize) as u32, (row / ny as usize) as u32);
-            for x in 0..nx {
-                for dir in 0..dirs {
-                    for k in 0..ppe {
-                        let cell = [x, y, z];
-                        let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
-                        let (p, w) = layout.line(cell, dir, &mut rng);
-                        if let Some(cs) = chord_samples(placement, p, w) {
-                            for (c, s) in c.iter_mut().zip(slabs) {
-                                let (a, b) = owned_range(&cs, *s);
-                                *c += b - a;
-                            }
-                        }
-                    }
+            for_each_chord_in_row(layout, placement, row, |cs| {
+                for (c, s) in c.iter_mut().zip(slabs) {
+                    let (a, b) = owned_range(cs, *s);
+                    *c += b - a;
                 }
-            }
+            });
             c
         })
         .collect()
