@@ -530,24 +530,23 @@ fn open_medium_from_pins(path: &Path, gpu: Option<&GpuContext>) -> Result<Opened
 /// nor fits its brick bindings, from the section's header alone: before the bricks are
 /// widened to f32 (the full-size cloud's took 27 s and 9.7 GB before the packing refused them).
 fn check_gpu_bricks(path: &Path, grid: &pinrt::PinGrid, ctx: &GpuContext) -> Result<()> {
-    let named = |e: pinrt::Error| anyhow!("{}: {e}", path.display());
-    if grid.density().map_err(named)?.is_some() {
+    // The section's view, lengths checked: O(1), where `PinGrid::sparse_density` checks
+    // every value.
+    let file = grid.file().map_err(|e| anyhow!("{e}"))?;
+    if file.density().is_some() {
         return Ok(());
     }
-    let Some(sparse) = grid.sparse_density().map_err(named)? else {
+    let Some(sparse) = file.sparse_density() else {
         return Ok(());
     };
+    let h = sparse.header;
     let limit = pinrt::gpu::binding_limit(&ctx.limits);
-    let voxels = sparse.dims().iter().map(|&d| u64::from(d)).product::<u64>();
+    let voxels = h.dims.iter().map(|&d| u64::from(d)).product::<u64>();
     if voxels <= volume::GPU_DENSE_VOXELS.min(limit / 4) {
         return Ok(());
     }
-    pinrender::gpu_render::check_brick_values_fit(
-        limit,
-        sparse.brick(),
-        u64::from(sparse.brick_count()),
-    )
-    .map_err(|e| anyhow!("{}: {e}", path.display()))
+    pinrender::gpu_render::check_brick_values_fit(limit, h.brick, u64::from(h.brick_count))
+        .map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
 fn write(
