@@ -71,8 +71,8 @@ longest box edge, delta tracking for distances), pins (pins for every ray), pinm
 tracking for primary rays and single scattering, pins after), pinms+cache (pinms with the
 hash-grid radiance cache), pinurm[@N] (unbiased ray marching around the pins' answer: the
 pins give the control optical depth, combs of N lookups correct it; CPU only), pinres
-(residual ratio tracking over the control the bake stores per 4^3-voxel brick),
-cosine-closed-form / box-closed-form (exact transmittance),
+(residual ratio tracking over the control the bake stores per brick: 4 voxels, coarser on
+large volumes), cosine-closed-form / box-closed-form (exact transmittance),
 whole-volume (box-ss only). rm@STEP, delta, ratio, residual, urm, jackknife, pins, pinms and
 pinres also run on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
