@@ -9,7 +9,7 @@ use pinbake::summary::{directions_json, summary};
 use serde_json::{Value, json};
 
 pub fn run(path: &Path, as_json: bool) -> Result<ExitCode> {
-    let bytes = super::read_file(path, &pinbake::files::MemoryBudget::new(None))?;
+    let bytes = super::map_pin_file(path)?;
     let file = PinFile::parse(&bytes).with_context(|| format!("{}", path.display()))?;
     let metadata = file
         .metadata()

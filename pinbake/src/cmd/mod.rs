@@ -108,9 +108,8 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
         Command::Bake(args) => bake::run(*args),
         Command::Inspect { file, json } => inspect::run(&file, json),
         Command::Verify { files } => {
-            let budget = MemoryBudget::new(None);
             for file in &files {
-                let bytes = read_file(file, &budget)?;
+                let bytes = map_pin_file(file)?;
                 let parsed = pin_format::PinFile::parse(&bytes)
                     .with_context(|| format!("{}", file.display()))?;
                 parsed
@@ -294,6 +293,41 @@ fn merge(
 /// allocators (the reader casts in place and reports a misaligned buffer).
 pub fn read_file(path: &std::path::Path, budget: &MemoryBudget) -> Result<Vec<u8>> {
     Ok(pinbake::files::read_input(path, budget)?)
+}
+
+/// A pin file's bytes for a command that reads them once (`inspect`, `verify`): mapped, so
+/// that a file of any size is read in place from the page cache, not copied into memory
+/// (a copy made a 3.2 GB file cost 3.2 GB and 16 s to inspect, and one larger than the
+/// memory budget could not be inspected at all).
+pub enum PinBytes {
+    Mapped(memmap2::Mmap),
+    /// An empty file, which has nothing to map.
+    Empty,
+}
+
+impl std::ops::Deref for PinBytes {
+    type Target = [u8];
+    fn deref(&self) -> &[u8] {
+        match self {
+            Self::Mapped(m) => m,
+            Self::Empty => &[],
+        }
+    }
+}
+
+/// Maps `path` read-only (a regular file only, opened without blocking). As for every
+/// mapped reader (`pinrt::PinGrid::open`), a file truncated in place while the command runs
+/// raises SIGBUS; pin files are replaced by rename, never rewritten in place.
+pub fn map_pin_file(path: &std::path::Path) -> Result<PinBytes> {
+    let (file, len) = pinbake::files::open_input(path)?;
+    if len == 0 {
+        return Ok(PinBytes::Empty);
+    }
+    // SAFETY: read-only; every value read from the map is validated before use, so changed
+    // bytes give wrong answers or errors, not memory unsafety (see above for truncation).
+    let map = unsafe { memmap2::Mmap::map(&file) }
+        .with_context(|| format!("{}: cannot map the file", path.display()))?;
+    Ok(PinBytes::Mapped(map))
 }
 
 /// [`pinbake::files::check_output`] with its error as an `anyhow` error.
