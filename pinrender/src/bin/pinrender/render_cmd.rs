@@ -390,7 +390,9 @@ pub fn run(a: RenderArgs) -> Result<()> {
         cache: None,
     };
     // Pin queries answered in batches (wavefront loop): the same image as `render`, sooner.
-    let out = if a.estimator.needs_pins() {
+    // Only `pins` and `pinms` answer in batches; the others (`pinurm`, `pinres`) answer one
+    // query at a time, which `render`'s own loop does with less bookkeeping (as in the eval).
+    let out = if matches!(a.estimator, EstimatorSpec::Pins | EstimatorSpec::PinMs) {
         render_wavefront(&scene, &settings, DEFAULT_WAVEFRONT_BATCH)
     } else {
         render(&scene, &settings)
