@@ -128,7 +128,10 @@ struct RtMedium {
 // query reads its grid from here, which compilers keep in scalar registers.
 @group(1) @binding(6) var<uniform> rt_grid0: Params;
 // Brick values of the bricked densities: one space of 32-bit words (f16 pairs or f32 bits)
-// split over sixteen bindings of `RtMedium.bfmt.z` words each (gpu_render's VALUE_BINDINGS).
+// split over bindings of `RtMedium.bfmt.z` words each. This file declares sixteen; the
+// renderer generates the declarations and `rt_brick_word` between the `value bindings`
+// markers for as many as a scene needs and the device binds (gpu_render's `render_wgsl`).
+// value bindings {
 @group(1) @binding(7) var<storage, read> rt_bricks0: array<u32>;
 @group(1) @binding(8) var<storage, read> rt_bricks1: array<u32>;
 @group(1) @binding(9) var<storage, read> rt_bricks2: array<u32>;
@@ -145,6 +148,7 @@ struct RtMedium {
 @group(1) @binding(20) var<storage, read> rt_bricks13: array<u32>;
 @group(1) @binding(21) var<storage, read> rt_bricks14: array<u32>;
 @group(1) @binding(22) var<storage, read> rt_bricks15: array<u32>;
+// } value bindings
 
 const RT_TAU: f32 = 0x1.921fb6p2f;
 const RT_INV_4PI: f32 = 0x1.45f306p-4f;
@@ -295,6 +299,7 @@ fn rt_f(i: u32) -> f32 {
 }
 
 // Word `a` of the brick value space.
+// brick word {
 fn rt_brick_word(a: u32, cap: u32) -> u32 {
     let k = a / cap;
     let i = a - k * cap;
@@ -349,6 +354,7 @@ fn rt_brick_word(a: u32, cap: u32) -> u32 {
         }
     }
 }
+// } brick word
 
 // An f16 (the bits in the low half) as f32, exactly: subnormals by a scale, so that no
 // device's flushing of f16 denormals changes a value. Bricks hold no infinity or NaN (the

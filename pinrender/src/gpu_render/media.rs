@@ -46,7 +46,7 @@ pub enum GpuDensityKind {
     /// reads the eight voxels of a lookup through the index (no apron: a lookup across a
     /// brick border reads the neighbour brick) with the dense grid's f32 arithmetic, so a
     /// bricked grid renders the same bits as its dense expansion. Brick values live in up to
-    /// [`VALUE_BINDINGS`] storage bindings, as f16 when every value is exactly an f16 (a pin
+    /// [`MAX_VALUE_BINDINGS`] storage bindings, as f16 when every value is exactly an f16 (a pin
     /// file's f16 sparse section), else as f32 (`docs/gpu.md`, "Bricked densities").
     Bricks(Arc<BrickGrid>),
     /// `density * max(0, 1 + sum_k amplitude_k cos(w_k . p + phase_k))`, pinbake's cosine
@@ -316,11 +316,26 @@ pub(super) const FLAG_MAJORANTS: u32 = 4;
 const KIND_VOXELS: u32 = 1;
 const KIND_COSINE: u32 = 2;
 const KIND_BRICKS: u32 = 3;
-/// Storage bindings that hold brick values (`rt_bricks0..15` of `render.wgsl`): bricks that
-/// exceed one binding are split over them (16 x 128 MiB, lavapipe's and many GPUs' binding
-/// limit, hold 2 GiB of bricks: the half-resolution production cloud's f32 bricks are
-/// 1.1 GB). With the other bindings, 22 storage buffers in the compute stage.
-pub const VALUE_BINDINGS: usize = 16;
+/// The most storage bindings that hold brick values (`rt_bricks0..` of `render.wgsl`):
+/// bricks that exceed one binding are split over as many as the scene needs and the device
+/// binds beside the path tracer's other storage buffers ([`value_bindings`]). Lavapipe binds
+/// 32 storage buffers of 128 MiB in a stage, so 26 value bindings: 3.25 GiB of bricks, which
+/// holds the full-size production cloud's 3.18 GB of f16 bricks.
+pub const MAX_VALUE_BINDINGS: usize = 32;
+/// The path tracer's storage buffers besides the brick values: the pins and cell indices
+/// (group 0), the accumulation, grid parameters, media and data (group 1).
+pub const OTHER_STORAGE_BINDINGS: u32 = 6;
+
+/// How many brick value bindings the path tracer can use on a device with `limits`: what it
+/// binds in the compute stage beside the other storage buffers, at most
+/// [`MAX_VALUE_BINDINGS`] (0 where it cannot bind even the others and one).
+pub fn value_bindings(limits: &wgpu::Limits) -> usize {
+    (limits
+        .max_storage_buffers_per_shader_stage
+        .saturating_sub(OTHER_STORAGE_BINDINGS) as usize)
+        .min(MAX_VALUE_BINDINGS)
+}
+
 /// Floats per cosine wave in the data buffer.
 const WAVE_FLOATS: usize = 8;
 
@@ -489,18 +504,23 @@ fn pack_controls(
 }
 
 /// Words of brick values one binding holds (whole bricks of `brick_words` words), for
-/// `total_words` words over at most [`VALUE_BINDINGS`] bindings of `limit` bytes each; the
-/// one-line refusal when they do not fit. Word addresses stay below 2^32.
-fn brick_value_capacity(limit: u64, total_words: u64, brick_words: u64) -> pinrt::Result<u64> {
-    let per_binding = (limit / 4).min(u64::from(u32::MAX) / VALUE_BINDINGS as u64);
+/// `total_words` words over at most `bindings` bindings of `limit` bytes each; the one-line
+/// refusal when they do not fit. Word addresses stay below 2^32 whatever the binding count.
+fn brick_value_capacity(
+    limit: u64,
+    bindings: usize,
+    total_words: u64,
+    brick_words: u64,
+) -> pinrt::Result<u64> {
+    let per_binding = (limit / 4).min(u64::from(u32::MAX) / MAX_VALUE_BINDINGS as u64);
     let cap = per_binding
         .checked_div(brick_words)
         .map_or(0, |whole| whole * brick_words);
-    if cap == 0 || total_words.div_ceil(cap) > VALUE_BINDINGS as u64 {
+    if cap == 0 || total_words.div_ceil(cap) > bindings as u64 {
         return Err(gpu(format!(
             "the bricked densities need {} bytes of brick values ({} bytes per brick), \
-             more than {VALUE_BINDINGS} storage bindings of {limit} bytes hold on this \
-             device; use a smaller volume or a device with larger storage bindings",
+             more than {bindings} storage bindings of {limit} bytes hold on this device; \
+             use a smaller volume or a device with larger storage bindings",
             total_words.saturating_mul(4),
             brick_words * 4
         )));
@@ -509,17 +529,28 @@ fn brick_value_capacity(limit: u64, total_words: u64, brick_words: u64) -> pinrt
 }
 
 /// Checks, before any brick is read, that `bricks` stored bricks of edge `edge` can go to a
-/// device whose largest storage binding is `limit` bytes, counting them at their smallest
-/// (f16, as a pin file's bricks go): a sparse density this refuses, [`pack`] would refuse
-/// after the bricks were widened and packed; one it passes may still be refused there, if
-/// its values are not all f16.
-pub fn check_brick_values_fit(limit: u64, edge: u32, bricks: u64) -> pinrt::Result<()> {
+/// device whose largest storage binding is `limit` bytes and that gives the brick values
+/// `bindings` bindings ([`value_bindings`]), counting them at their smallest (f16, as a pin
+/// file's bricks go): a sparse density this refuses, [`pack`] would refuse after the bricks
+/// were widened and packed; one it passes may still be refused there, if its values are not
+/// all f16.
+pub fn check_brick_values_fit(
+    limit: u64,
+    bindings: usize,
+    edge: u32,
+    bricks: u64,
+) -> pinrt::Result<()> {
     let words = u64::from(edge).pow(3) >> u32::from(edge >= 2);
-    brick_value_capacity(limit, bricks.saturating_mul(words), words.max(1)).map(|_| ())
+    brick_value_capacity(limit, bindings, bricks.saturating_mul(words), words.max(1)).map(|_| ())
 }
 
-/// Packs `media` into the shader's records; `limit` is the largest storage binding in bytes.
-pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed<'g>> {
+/// Packs `media` into the shader's records; `limit` is the largest storage binding in bytes,
+/// `bindings` the most brick value bindings ([`value_bindings`]).
+pub(super) fn pack<'g>(
+    media: &GpuMedia<'g>,
+    limit: u64,
+    bindings: usize,
+) -> pinrt::Result<Packed<'g>> {
     let check = |what: &str, len: usize| check_binding(limit, what, len);
     // Pin grids: concatenated (borrowed straight from the mapping when there is one).
     let mut pin_base = Vec::with_capacity(media.grids.len());
@@ -597,7 +628,8 @@ pub(super) fn pack<'g>(media: &GpuMedia<'g>, limit: u64) -> pinrt::Result<Packed
         }
     }
     if largest_brick > 0 {
-        bricks.cap_words = brick_value_capacity(limit, bricks.total_words, largest_brick)?;
+        bricks.cap_words =
+            brick_value_capacity(limit, bindings, bricks.total_words, largest_brick)?;
     }
 
     let mut params = Vec::with_capacity(media.media.len());
@@ -726,21 +758,41 @@ mod tests {
     use super::*;
 
     /// The early check and the packing count the same bindings: with 1 KiB bindings an
-    /// 8^3 brick of f16 values (1 KiB) fills one, so 16 bricks fit and 17 are refused, with
-    /// the packing's message; f32 bricks of edge 1 (one word) fill 256 to a binding.
+    /// 8^3 brick of f16 values (1 KiB) fills one, so 16 bricks fit 16 bindings and 17 are
+    /// refused, with the packing's message; f32 bricks of edge 1 (one word) fill 256 to a
+    /// binding.
     #[test]
     fn brick_values_fit_the_bindings_they_count() {
-        assert!(check_brick_values_fit(1024, 8, 16).is_ok());
-        let e = check_brick_values_fit(1024, 8, 17).unwrap_err().to_string();
+        assert!(check_brick_values_fit(1024, 16, 8, 16).is_ok());
+        let e = check_brick_values_fit(1024, 16, 8, 17)
+            .unwrap_err()
+            .to_string();
         assert!(
             e.contains("17408 bytes of brick values (1024 bytes per brick)"),
             "{e}"
         );
         assert!(e.contains("16 storage bindings of 1024 bytes"), "{e}");
-        assert!(check_brick_values_fit(1024, 1, 16 * 256).is_ok());
-        assert!(check_brick_values_fit(1024, 1, 16 * 256 + 1).is_err());
-        // A brick larger than a binding fits in none.
-        assert!(check_brick_values_fit(1024, 16, 1).is_err());
-        assert_eq!(brick_value_capacity(1024, 10, 3).ok(), Some(255));
+        assert!(check_brick_values_fit(1024, 26, 8, 26).is_ok());
+        assert!(check_brick_values_fit(1024, 26, 8, 27).is_err());
+        assert!(check_brick_values_fit(1024, 16, 1, 16 * 256).is_ok());
+        assert!(check_brick_values_fit(1024, 16, 1, 16 * 256 + 1).is_err());
+        // A brick larger than a binding fits in none; no binding holds anything.
+        assert!(check_brick_values_fit(1024, 16, 16, 1).is_err());
+        assert!(check_brick_values_fit(1024, 0, 1, 1).is_err());
+        assert_eq!(brick_value_capacity(1024, 16, 10, 3).ok(), Some(255));
+    }
+
+    /// The value bindings are what the device binds beside the other storage buffers,
+    /// at most the shader generator's maximum.
+    #[test]
+    fn value_bindings_follow_the_device() {
+        let with = |n: u32| wgpu::Limits {
+            max_storage_buffers_per_shader_stage: n,
+            ..wgpu::Limits::default()
+        };
+        assert_eq!(value_bindings(&with(32)), 26);
+        assert_eq!(value_bindings(&with(8)), 2);
+        assert_eq!(value_bindings(&with(6)), 0);
+        assert_eq!(value_bindings(&with(1 << 20)), MAX_VALUE_BINDINGS);
     }
 }

@@ -29,11 +29,14 @@
 //! whole-volume estimators, time budgets (the caller loops over passes).
 
 mod media;
+mod wgsl;
 
 pub use media::{
     CosineWave, GpuControl, GpuDensity, GpuDensityKind, GpuMedia, GpuMedium, GpuPins,
-    GpuPlacedDensity, VALUE_BINDINGS, check_brick_values_fit,
+    GpuPlacedDensity, MAX_VALUE_BINDINGS, OTHER_STORAGE_BINDINGS, check_brick_values_fit,
+    value_bindings,
 };
+pub use wgsl::{RENDER_WGSL, render_wgsl};
 
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -48,13 +51,6 @@ use pinrt::Error;
 use pinrt::PinGrid;
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
-
-/// The WGSL of the GPU path tracer: the pin sampler followed by `shaders/render.wgsl`
-/// (entry point `render_main`).
-pub const RENDER_WGSL: &str = concat!(
-    include_str!("../../../shaders/pin.wgsl"),
-    include_str!("../../../shaders/render.wgsl")
-);
 
 /// Workgroup size of `render_main` (x, y), in pixels.
 pub const WORKGROUP: [u32; 2] = [8, 8];
@@ -424,15 +420,18 @@ impl GpuRenderer {
     async fn create(ctx: &GpuContext, media: &GpuMedia<'_>, limit: u64) -> pinrt::Result<Self> {
         // Group 0: pins and cell indices; group 1: accumulation, grid parameters, media,
         // data and the brick values.
-        let storage_needed = 6 + VALUE_BINDINGS as u32;
-        let storage_max = ctx.limits.max_storage_buffers_per_shader_stage;
-        if storage_max < storage_needed {
+        let available = value_bindings(&ctx.limits);
+        if available == 0 {
             return Err(Error::Gpu(format!(
-                "the path tracer binds {storage_needed} storage buffers in one shader stage; \
-                 this device binds {storage_max}"
+                "the path tracer binds at least {} storage buffers in one shader stage; \
+                 this device binds {}",
+                OTHER_STORAGE_BINDINGS + 1,
+                ctx.limits.max_storage_buffers_per_shader_stage
             )));
         }
-        let packed = media::pack(media, limit)?;
+        let packed = media::pack(media, limit, available)?;
+        // As many value bindings as the bricks fill (one, unused, without bricks).
+        let value_count = packed.bricks.bindings().max(1);
 
         let dev = &ctx.device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
@@ -459,8 +458,8 @@ impl GpuRenderer {
         let data = storage("render density data", bytemuck::cast_slice(&packed.data));
         // Brick values are written straight into each mapped buffer (no second copy of the
         // bricks in memory).
-        let mut bricks = Vec::with_capacity(VALUE_BINDINGS);
-        for k in 0..VALUE_BINDINGS {
+        let mut bricks = Vec::with_capacity(value_count);
+        for k in 0..value_count {
             let b = &packed.bricks;
             let start = k as u64 * b.cap_words;
             let words = b.total_words.saturating_sub(start).min(b.cap_words);
@@ -535,7 +534,7 @@ impl GpuRenderer {
             ]
             .into_iter()
             // 7..: the brick values.
-            .chain((0..VALUE_BINDINGS as u32).map(|k| storage_entry(7 + k, true)))
+            .chain((0..value_count as u32).map(|k| storage_entry(7 + k, true)))
             .collect::<Vec<_>>(),
         });
         let grid_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -563,7 +562,7 @@ impl GpuRenderer {
         });
         let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("pin.wgsl + render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(RENDER_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(render_wgsl(value_count).into()),
         });
         if let Some(e) = scope.pop().await {
             return Err(gpu_err("compiling shaders/render.wgsl", e));
@@ -638,7 +637,7 @@ impl GpuRenderer {
     }
 
     /// Number of storage bindings that hold brick values (0 without bricked densities, at
-    /// most [`VALUE_BINDINGS`]).
+    /// most [`value_bindings`] of the device).
     pub fn brick_bindings(&self) -> usize {
         self.brick_bindings
     }

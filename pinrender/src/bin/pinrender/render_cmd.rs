@@ -547,8 +547,14 @@ fn check_gpu_bricks(path: &Path, grid: &pinrt::PinGrid, ctx: &GpuContext) -> Res
     if voxels <= volume::GPU_DENSE_VOXELS.min(limit / 4) {
         return Ok(());
     }
-    pinrender::gpu_render::check_brick_values_fit(limit, h.brick, u64::from(h.brick_count))
-        .map_err(|e| anyhow!("{}: {e}", path.display()))
+    let bindings = pinrender::gpu_render::value_bindings(&ctx.limits);
+    pinrender::gpu_render::check_brick_values_fit(
+        limit,
+        bindings,
+        h.brick,
+        u64::from(h.brick_count),
+    )
+    .map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
 fn write(
