@@ -111,10 +111,11 @@ fn a_sparse_density_renders_alone_like_the_dense_one_and_a_lying_index_is_refuse
         let e = mean_error(&render(&args));
         assert!(e.abs() < 0.01, "{est}: sparse vs dense mean error {e}");
     }
-    // The memory check of a pin file alone is 3x its length (mapped, and its density widened
-    // to f32), not the 8x of a VDB: a budget between the two renders, one below refuses.
+    // The memory check of a pin file alone on the CPU is 2x its length (mapped, and its
+    // density copied at its own precision), not the 8x of a VDB: a budget above renders, one
+    // byte below refuses.
     let len = std::fs::metadata(&sparse).unwrap().len();
-    for (budget, code, needle) in [(len * 4, 0, "rendered"), (len * 2, 1, "reading")] {
+    for (budget, code, needle) in [(len * 3, 0, "rendered"), (len * 2 - 1, 1, "reading")] {
         let out = d.join("budget.exr");
         let budget = budget.to_string();
         let mut args = vec!["--pins", sparse.to_str().unwrap(), "--estimator", "ratio"];

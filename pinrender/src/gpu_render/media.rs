@@ -18,6 +18,7 @@ use crate::render::{
     BrickGrid, DensitySource, EstimatorSpec, HomogeneousBox, MajorantGrid, RenderError,
     ResidualControl, VoxelGrid,
 };
+use pin_format::SparseValues;
 use pinrt::Error;
 use pinrt::PinGrid;
 use pinrt::SamplerOptions;
@@ -364,14 +365,32 @@ impl BrickValues {
             let (_, values) = grid.parts();
             let words = if *f16 { values.len() / 2 } else { values.len() } as u64;
             let (lo, hi) = ((*base).max(start), (base + words).min(end));
-            for w in lo..hi {
-                let i = (w - base) as usize;
-                out[(w - start) as usize] = if *f16 {
-                    let h = |v: f32| u32::from(half::f16::from_f32(v).to_bits());
-                    h(values[2 * i]) | (h(values[2 * i + 1]) << 16)
-                } else {
-                    values[i].to_bits()
-                };
+            if lo >= hi {
+                continue;
+            }
+            let dst = &mut out[(lo - start) as usize..(hi - start) as usize];
+            let from = (lo - base) as usize;
+            match (values, *f16) {
+                // Stored as f16: the bits as they are.
+                (SparseValues::F16(v), true) => {
+                    for (k, d) in dst.iter_mut().enumerate() {
+                        let i = 2 * (from + k);
+                        *d = u32::from(v[i].to_bits()) | (u32::from(v[i + 1].to_bits()) << 16);
+                    }
+                }
+                // f32 values that are all exactly f16 (`keeps_f16`).
+                (SparseValues::F32(v), true) => {
+                    let h = |x: f32| u32::from(half::f16::from_f32(x).to_bits());
+                    for (k, d) in dst.iter_mut().enumerate() {
+                        let i = 2 * (from + k);
+                        *d = h(v[i]) | (h(v[i + 1]) << 16);
+                    }
+                }
+                (values, false) => {
+                    for (k, d) in dst.iter_mut().enumerate() {
+                        *d = values.get(from + k).unwrap_or(0.0).to_bits();
+                    }
+                }
             }
         }
     }
@@ -382,11 +401,12 @@ impl BrickValues {
 fn keeps_f16(grid: &BrickGrid) -> bool {
     let (_, brick, _) = grid.shape();
     brick >= 2
-        && grid
-            .parts()
-            .1
-            .iter()
-            .all(|&v| half::f16::from_f32(v).to_f32().to_bits() == v.to_bits())
+        && match grid.parts().1 {
+            SparseValues::F16(_) => true,
+            SparseValues::F32(v) => v
+                .iter()
+                .all(|&x| half::f16::from_f32(x).to_f32().to_bits() == x.to_bits()),
+        }
 }
 
 /// The buffers of a scene's media, ready to upload.
@@ -780,6 +800,60 @@ mod tests {
         assert!(check_brick_values_fit(1024, 16, 16, 1).is_err());
         assert!(check_brick_values_fit(1024, 0, 1, 1).is_err());
         assert_eq!(brick_value_capacity(1024, 16, 10, 3).ok(), Some(255));
+    }
+
+    /// A grid stored as f16 and the same values stored as f32 go to the GPU as the same
+    /// words (both kept as f16), whatever the window the fill asks for.
+    #[test]
+    fn f16_and_f32_storage_fill_the_same_words() {
+        let halves: Vec<half::f16> = (0..2 * 64)
+            .map(|i| half::f16::from_f32(i as f32 * 0.375))
+            .collect();
+        let wide: Vec<f32> = halves.iter().map(|h| h.to_f32()).collect();
+        let index = vec![0, u32::MAX, 1];
+        let grid = |f16: bool| {
+            let g = if f16 {
+                BrickGrid::new_f16(
+                    [12, 4, 4],
+                    [0.0; 3],
+                    [1.0; 3],
+                    4,
+                    index.clone(),
+                    halves.clone(),
+                )
+            } else {
+                BrickGrid::new(
+                    [12, 4, 4],
+                    [0.0; 3],
+                    [1.0; 3],
+                    4,
+                    index.clone(),
+                    wide.clone(),
+                )
+            };
+            Arc::new(g.unwrap())
+        };
+        let words = |g: Arc<BrickGrid>| {
+            assert!(keeps_f16(&g));
+            let values = BrickValues {
+                cap_words: 64,
+                total_words: 3 + 64,
+                grids: vec![(g, 3, true)],
+            };
+            let mut out = vec![7u32; 70];
+            values.fill(0, &mut out);
+            let mut part = vec![7u32; 20];
+            values.fill(40, &mut part);
+            assert_eq!(part, out[40..60]);
+            out
+        };
+        let (a, b) = (words(grid(true)), words(grid(false)));
+        assert_eq!(a, b);
+        assert_eq!(&a[..3], &[7, 7, 7]);
+        assert_eq!(
+            a[4],
+            u32::from(halves[2].to_bits()) | (u32::from(halves[3].to_bits()) << 16)
+        );
     }
 
     /// The value bindings are what the device binds beside the other storage buffers,

@@ -977,7 +977,20 @@ fn blob_bricks(f16: bool) -> (VoxelGrid, Arc<crate::render::BrickGrid>) {
         }
     }
     let dense = VoxelGrid::new([n; 3], [-1.0; 3], [2.0 / n as f64; 3], values).unwrap();
-    let bricks = Arc::new(crate::render::BrickGrid::from_voxels(&dense, 4).unwrap());
+    let mut bricks = crate::render::BrickGrid::from_voxels(&dense, 4).unwrap();
+    if f16 {
+        // Stored as f16, as a pin file's sparse section is read.
+        let (dims, _, _) = bricks.shape();
+        let ((origin, spacing), (index, values)) = (bricks.placement(), bricks.parts());
+        let halves = (0..values.len())
+            .map(|i| half::f16::from_f32(values.get(i).unwrap()))
+            .collect();
+        bricks =
+            crate::render::BrickGrid::new_f16(dims, origin, spacing, 4, index.to_vec(), halves)
+                .unwrap();
+        assert!(matches!(bricks.parts().1, pin_format::SparseValues::F16(_)));
+    }
+    let bricks = Arc::new(bricks);
     let (_, _, stored) = bricks.shape();
     assert!(stored < 216, "some bricks must be empty");
     (dense, bricks)
@@ -1162,7 +1175,7 @@ fn bricked_density_matches_cpu() {
                 spacing,
                 brick,
                 index.to_vec(),
-                values.to_vec(),
+                (0..values.len()).map(|i| values.get(i).unwrap()).collect(),
             );
             Arc::new(g.unwrap())
         })

@@ -8,6 +8,8 @@
 //! for the majorant grid and residual tracking's control.
 
 use glam::DVec3;
+use half::f16;
+use pin_format::SparseValues;
 
 use super::RenderError;
 use super::field::VoxelGrid;
@@ -15,6 +17,23 @@ use super::{Aabb, DensitySource};
 
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;
+
+/// The stored voxels, slot after slot: f16 where they came as f16 (a pin file's f16 sparse
+/// section: half the memory of widening them, and every f16 is exactly an f32), else f32.
+#[derive(Clone, Debug)]
+enum Stored {
+    F32(Vec<f32>),
+    F16(Vec<f16>),
+}
+
+impl Stored {
+    fn len(&self) -> usize {
+        match self {
+            Stored::F32(v) => v.len(),
+            Stored::F16(v) => v.len(),
+        }
+    }
+}
 
 /// Voxels of `dims` with `spacing` from `origin` (voxel `i`'s centre at `origin + (i + 0.5)
 /// spacing`), trilinear between centres, the edge voxel's value in the outer half voxel, 0
@@ -30,7 +49,7 @@ pub struct BrickGrid {
     shift: u32,
     brick_dims: [u32; 3],
     index: Vec<u32>,
-    values: Vec<f32>,
+    values: Stored,
     /// Per stored slot: the largest and smallest cleaned voxel.
     slot_max: Vec<f32>,
     slot_min: Vec<f32>,
@@ -48,6 +67,47 @@ impl BrickGrid {
         brick: u32,
         index: Vec<u32>,
         mut values: Vec<f32>,
+    ) -> Result<Self, RenderError> {
+        for v in &mut values {
+            *v = if *v > 0.0 { v.min(f32::MAX) } else { 0.0 };
+        }
+        Self::build(dims, origin, spacing, brick, index, Stored::F32(values))
+    }
+
+    /// [`BrickGrid::new`] for f16 values, kept as f16 (read back exactly as their f32). They
+    /// are cleaned the same way: NaN and negatives to 0; a grid with a `+inf`, which reads
+    /// as `f32::MAX`, is widened to f32.
+    pub fn new_f16(
+        dims: [u32; 3],
+        origin: [f64; 3],
+        spacing: [f64; 3],
+        brick: u32,
+        index: Vec<u32>,
+        mut values: Vec<f16>,
+    ) -> Result<Self, RenderError> {
+        // On the bits: +inf is 0x7c00; above it lie the positive NaNs and every value with
+        // the sign bit (negatives, -0, negative NaNs).
+        const INF: u16 = 0x7c00;
+        if values.iter().any(|v| v.to_bits() == INF) {
+            let wide = values.iter().map(|v| v.to_f32()).collect();
+            return Self::new(dims, origin, spacing, brick, index, wide);
+        }
+        for v in &mut values {
+            if v.to_bits() > INF {
+                *v = f16::ZERO;
+            }
+        }
+        Self::build(dims, origin, spacing, brick, index, Stored::F16(values))
+    }
+
+    /// Validates the parts around cleaned values.
+    fn build(
+        dims: [u32; 3],
+        origin: [f64; 3],
+        spacing: [f64; 3],
+        brick: u32,
+        index: Vec<u32>,
+        values: Stored,
     ) -> Result<Self, RenderError> {
         let invalid = |why: String| RenderError::Invalid {
             what: "bricked grid",
@@ -84,17 +144,28 @@ impl BrickGrid {
                 index[i]
             )));
         }
-        for v in &mut values {
-            *v = if *v > 0.0 { v.min(f32::MAX) } else { 0.0 };
-        }
-        let (slot_max, slot_min) = values
-            .chunks_exact(bv)
-            .map(|b| {
-                b.iter().fold((0.0f32, f32::INFINITY), |(hi, lo), &v| {
-                    (hi.max(v), lo.min(v))
-                })
+        let range = |b: &mut dyn Iterator<Item = f32>| {
+            b.fold((0.0f32, f32::INFINITY), |(hi, lo), v| {
+                (hi.max(v), lo.min(v))
             })
-            .unzip();
+        };
+        let (slot_max, slot_min) = match &values {
+            Stored::F32(v) => v
+                .chunks_exact(bv)
+                .map(|b| range(&mut b.iter().copied()))
+                .unzip(),
+            // Cleaned f16 values order as their bits do (all `+0..=MAX`).
+            Stored::F16(v) => v
+                .chunks_exact(bv)
+                .map(|b| {
+                    let (hi, lo) = b.iter().fold((0u16, u16::MAX), |(hi, lo), h| {
+                        (hi.max(h.to_bits()), lo.min(h.to_bits()))
+                    });
+                    let f = |bits: u16| f16::from_bits(bits).to_f32();
+                    (f(hi), f(lo))
+                })
+                .unzip(),
+        };
         let max = [0, 1, 2].map(|a| origin[a] + f64::from(dims[a]) * spacing[a]);
         Ok(Self {
             dims,
@@ -111,22 +182,18 @@ impl BrickGrid {
     }
 
     /// The pin file's sparse density placed at `origin` with `spacing` (its box mapped to the
-    /// world by a positive scale and a translation), widened to f32 (exact).
+    /// world by a positive scale and a translation), its values at their own precision (f16
+    /// or f32; either reads back exactly).
     pub fn from_sparse(
         s: &pinrt::SparseDensity<'_>,
         origin: [f64; 3],
         spacing: [f64; 3],
     ) -> Result<Self, RenderError> {
-        let v = s.values();
-        let values = (0..v.len()).map(|i| v.get(i).unwrap_or(0.0)).collect();
-        Self::new(
-            s.dims(),
-            origin,
-            spacing,
-            s.brick(),
-            s.index().to_vec(),
-            values,
-        )
+        let (dims, brick, index) = (s.dims(), s.brick(), s.index().to_vec());
+        match s.values() {
+            SparseValues::F16(v) => Self::new_f16(dims, origin, spacing, brick, index, v.to_vec()),
+            SparseValues::F32(v) => Self::new(dims, origin, spacing, brick, index, v.to_vec()),
+        }
     }
 
     /// The same field as `grid`, bricked in bricks of `brick` (empty bricks: all zero).
@@ -200,9 +267,14 @@ impl BrickGrid {
         (self.origin, self.spacing)
     }
 
-    /// Brick index (x fastest; slot or [`EMPTY`]) and the stored voxels, slot after slot.
-    pub fn parts(&self) -> (&[u32], &[f32]) {
-        (&self.index, &self.values)
+    /// Brick index (x fastest; slot or [`EMPTY`]) and the stored voxels, slot after slot (f16
+    /// where they came as f16, [`BrickGrid::new_f16`]).
+    pub fn parts(&self) -> (&[u32], SparseValues<'_>) {
+        let values = match &self.values {
+            Stored::F32(v) => SparseValues::F32(v),
+            Stored::F16(v) => SparseValues::F16(v),
+        };
+        (&self.index, values)
     }
 
     #[inline(always)]
@@ -229,7 +301,11 @@ impl BrickGrid {
         }
         let m = (1usize << s) - 1;
         let local = (x & m) | ((y & m) << s) | ((z & m) << (2 * s));
-        self.values[((slot as usize) << (3 * s)) | local]
+        let i = ((slot as usize) << (3 * s)) | local;
+        match &self.values {
+            Stored::F32(v) => v[i],
+            Stored::F16(v) => v[i].to_f32(),
+        }
     }
 
     /// The voxel ranges whose centre cells touch `[lo, hi]` (as [`VoxelGrid`]'s maximum).
@@ -374,6 +450,60 @@ mod tests {
         // The whole box: exact, the largest voxel.
         let all = dense.parts().3.iter().copied().fold(0.0, f32::max);
         assert_eq!(bricked.max_extinction_in(Aabb::from_arrays(lo, hi)), all);
+    }
+
+    /// f16 values kept as f16 read back what the same values widened to f32 read, bit for
+    /// bit (field, brick bounds), at half the bytes; cleaning as the f32 path cleans.
+    #[test]
+    fn f16_storage_reads_what_f32_storage_reads() {
+        let dense = cloud([29, 17, 33]);
+        let wide = BrickGrid::from_voxels(&dense, 8).unwrap();
+        let (dims, brick, _) = wide.shape();
+        let ((origin, spacing), (index, values)) = (wide.placement(), wide.parts());
+        let halves: Vec<f16> = (0..values.len())
+            .map(|i| f16::from_f32(values.get(i).unwrap()))
+            .collect();
+        let narrow =
+            BrickGrid::new_f16(dims, origin, spacing, brick, index.to_vec(), halves.clone())
+                .unwrap();
+        assert!(matches!(narrow.parts().1, SparseValues::F16(_)));
+        // The cloud's values are multiples of 0.5 below 6.5: exactly f16.
+        let widened = halves.iter().map(|h| h.to_f32()).collect();
+        let wide = BrickGrid::new(dims, origin, spacing, brick, index.to_vec(), widened).unwrap();
+        let (lo, hi) = dense.bounds().to_arrays();
+        let mut rng = crate::render::Pcg32::new(9, 1);
+        for _ in 0..20000 {
+            let p = [0, 1, 2].map(|a| lo[a] - 0.3 + (hi[a] - lo[a] + 0.6) * rng.next_f32() as f64);
+            let p = DVec3::from_array(p);
+            assert_eq!(
+                narrow.extinction(p).to_bits(),
+                wide.extinction(p).to_bits(),
+                "{p}"
+            );
+        }
+        for _ in 0..2000 {
+            let a = [0, 1, 2].map(|k| lo[k] + (hi[k] - lo[k]) * rng.next_f32() as f64);
+            let b = [0, 1, 2].map(|k| a[k] + (hi[k] - a[k]) * rng.next_f32() as f64 * 0.3);
+            let r = Aabb::from_arrays(a, b);
+            assert_eq!(narrow.max_extinction_in(r), wide.max_extinction_in(r));
+            assert_eq!(narrow.min_extinction_in(r), wide.min_extinction_in(r));
+        }
+        assert_eq!(
+            narrow.to_voxels(1 << 20).unwrap().parts().3,
+            wide.to_voxels(1 << 20).unwrap().parts().3
+        );
+        // Cleaning: NaN and negatives read 0; a +inf reads f32::MAX (the grid widens).
+        let odd = |v: f16| {
+            let mut vals = vec![f16::from_f32(2.0); 8];
+            vals[3] = v;
+            BrickGrid::new_f16([2, 2, 2], [0.0; 3], [1.0; 3], 2, vec![0], vals).unwrap()
+        };
+        assert_eq!(odd(f16::NAN).at(1, 1, 0), 0.0);
+        assert_eq!(odd(f16::from_f32(-3.0)).at(1, 1, 0), 0.0);
+        assert_eq!(odd(f16::from_f32(-0.0)).at(1, 1, 0).to_bits(), 0);
+        let inf = odd(f16::INFINITY);
+        assert_eq!(inf.at(1, 1, 0), f32::MAX);
+        assert!(matches!(inf.parts().1, SparseValues::F32(_)));
     }
 
     #[test]
