@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use crate::gpu_render::{CosineWave, GpuDensity};
-use crate::render::{BrickGrid, DenseMap, DenseView, MajorantGrid, VoxelGrid};
+use crate::render::{BrickGrid, DenseMap, DenseView, MajorantGrid, SharedHalves, VoxelGrid};
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::DVec3;
@@ -472,7 +472,40 @@ impl PinFileMedium {
 /// live in the grid's local box; the renderer's fields are axis-aligned in the world, so a
 /// placement other than a positive scale and a translation is refused (render such a grid
 /// with `--volume`).
-pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
+/// A pin file's f16 sparse values, read in place from the grid's bytes (its mapping).
+#[derive(Debug)]
+struct MappedHalves {
+    grid: Arc<PinGrid>,
+    /// Byte range of the values in the grid's bytes.
+    range: std::ops::Range<usize>,
+}
+
+impl MappedHalves {
+    /// `values`, a view into `grid`'s bytes, as their byte range there; `None` where they
+    /// are not such a view.
+    fn new(grid: &Arc<PinGrid>, values: &[half::f16]) -> Option<Self> {
+        let bytes = grid.bytes();
+        let start = (values.as_ptr() as usize).checked_sub(bytes.as_ptr() as usize)?;
+        let range = start..start.checked_add(std::mem::size_of_val(values))?;
+        let back: &[half::f16] = bytemuck::try_cast_slice(bytes.get(range.clone())?).ok()?;
+        (back.as_ptr() == values.as_ptr()).then(|| Self {
+            grid: grid.clone(),
+            range,
+        })
+    }
+}
+
+impl SharedHalves for MappedHalves {
+    fn halves(&self) -> &[half::f16] {
+        // Checked in `new`: in range and aligned, and the grid's bytes do not move.
+        bytemuck::cast_slice(&self.grid.bytes()[self.range.clone()])
+    }
+}
+
+/// The embedded density of `grid` (opened from `path`) for the trackers: a dense section as
+/// f32 voxels; a sparse one as bricks, whose f16 values are read in place from the grid's
+/// mapping (no copy; f32 values are copied).
+pub fn pin_file_medium(path: &Path, grid: &Arc<PinGrid>) -> Result<PinFileMedium> {
     let named = |e: pinrt::Error| anyhow!("{e}");
     let density = grid.density().map_err(named)?;
     let sparse = grid.sparse_density().map_err(named)?;
@@ -508,9 +541,27 @@ pub fn pin_file_medium(path: &Path, grid: &PinGrid) -> Result<PinFileMedium> {
         .transpose()?;
     let bricks = sparse
         .map(|s| {
-            BrickGrid::from_sparse(&s, bounds.0, spacing_of(s.dims()))
-                .map(Arc::new)
-                .map_err(|e| anyhow!("{}: embedded sparse density: {e}", path.display()))
+            let (origin, spacing) = (bounds.0, spacing_of(s.dims()));
+            let mapped = match s.values() {
+                pin_format::SparseValues::F16(v) => MappedHalves::new(grid, v),
+                pin_format::SparseValues::F32(_) => None,
+            };
+            match mapped {
+                Some(m) => {
+                    let index = s.index().to_vec();
+                    BrickGrid::from_shared_f16(
+                        s.dims(),
+                        origin,
+                        spacing,
+                        s.brick(),
+                        index,
+                        Arc::new(m),
+                    )
+                }
+                None => BrickGrid::from_sparse(&s, origin, spacing),
+            }
+            .map(Arc::new)
+            .map_err(|e| anyhow!("{}: embedded sparse density: {e}", path.display()))
         })
         .transpose()?;
     let mut medium = PinFileMedium {

@@ -7,6 +7,8 @@
 //! [`DensitySource::min_extinction_in`] cost one entry per brick a box touches instead of a voxel,
 //! for the majorant grid and residual tracking's control.
 
+use std::sync::Arc;
+
 use glam::DVec3;
 use half::f16;
 use pin_format::SparseValues;
@@ -18,19 +20,27 @@ use super::{Aabb, DensitySource};
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;
 
+/// f16 voxel values read in place from memory that a [`BrickGrid`] does not own (a pin
+/// file's mapping): every call returns the same slice.
+pub trait SharedHalves: Send + Sync + std::fmt::Debug {
+    fn halves(&self) -> &[f16];
+}
+
 /// The stored voxels, slot after slot: f16 where they came as f16 (a pin file's f16 sparse
-/// section: half the memory of widening them, and every f16 is exactly an f32), else f32.
+/// section, read in place or copied: every f16 is exactly an f32), else f32.
 #[derive(Clone, Debug)]
 enum Stored {
     F32(Vec<f32>),
     F16(Vec<f16>),
+    Shared(Arc<dyn SharedHalves>),
 }
 
 impl Stored {
-    fn len(&self) -> usize {
+    fn view(&self) -> SparseValues<'_> {
         match self {
-            Stored::F32(v) => v.len(),
-            Stored::F16(v) => v.len(),
+            Stored::F32(v) => SparseValues::F32(v),
+            Stored::F16(v) => SparseValues::F16(v),
+            Stored::Shared(v) => SparseValues::F16(v.halves()),
         }
     }
 }
@@ -100,6 +110,25 @@ impl BrickGrid {
         Self::build(dims, origin, spacing, brick, index, Stored::F16(values))
     }
 
+    /// [`BrickGrid::new_f16`] over values read in place: kept shared where they are clean
+    /// already (every value `+0` to the largest finite f16), else copied and cleaned.
+    pub fn from_shared_f16(
+        dims: [u32; 3],
+        origin: [f64; 3],
+        spacing: [f64; 3],
+        brick: u32,
+        index: Vec<u32>,
+        values: Arc<dyn SharedHalves>,
+    ) -> Result<Self, RenderError> {
+        // Below +inf's bits, and without the sign bit: finite and `>= +0`.
+        const INF: u16 = 0x7c00;
+        if values.halves().iter().all(|v| v.to_bits() < INF) {
+            return Self::build(dims, origin, spacing, brick, index, Stored::Shared(values));
+        }
+        let copy = values.halves().to_vec();
+        Self::new_f16(dims, origin, spacing, brick, index, copy)
+    }
+
     /// Validates the parts around cleaned values.
     fn build(
         dims: [u32; 3],
@@ -127,14 +156,14 @@ impl BrickGrid {
             .try_fold(1usize, |acc, &d| acc.checked_mul(d as usize))
             .ok_or_else(|| invalid(format!("dims {dims:?} overflow")))?;
         let bv = (brick as usize).pow(3);
-        if index.len() != bricks || !values.len().is_multiple_of(bv) {
+        if index.len() != bricks || !values.view().len().is_multiple_of(bv) {
             return Err(invalid(format!(
                 "{} index entries for {bricks} bricks, {} values for bricks of {bv}",
                 index.len(),
-                values.len()
+                values.view().len()
             )));
         }
-        let slots = values.len() / bv;
+        let slots = values.view().len() / bv;
         if let Some(i) = index
             .iter()
             .position(|&s| s != EMPTY && s as usize >= slots)
@@ -149,13 +178,13 @@ impl BrickGrid {
                 (hi.max(v), lo.min(v))
             })
         };
-        let (slot_max, slot_min) = match &values {
-            Stored::F32(v) => v
+        let (slot_max, slot_min) = match values.view() {
+            SparseValues::F32(v) => v
                 .chunks_exact(bv)
                 .map(|b| range(&mut b.iter().copied()))
                 .unzip(),
             // Cleaned f16 values order as their bits do (all `+0..=MAX`).
-            Stored::F16(v) => v
+            SparseValues::F16(v) => v
                 .chunks_exact(bv)
                 .map(|b| {
                     let (hi, lo) = b.iter().fold((0u16, u16::MAX), |(hi, lo), h| {
@@ -270,11 +299,7 @@ impl BrickGrid {
     /// Brick index (x fastest; slot or [`EMPTY`]) and the stored voxels, slot after slot (f16
     /// where they came as f16, [`BrickGrid::new_f16`]).
     pub fn parts(&self) -> (&[u32], SparseValues<'_>) {
-        let values = match &self.values {
-            Stored::F32(v) => SparseValues::F32(v),
-            Stored::F16(v) => SparseValues::F16(v),
-        };
-        (&self.index, values)
+        (&self.index, self.values.view())
     }
 
     #[inline(always)]
@@ -284,16 +309,34 @@ impl BrickGrid {
     }
 
     /// The trilinear value at `q` (in f64), clamped to the grid as [`VoxelGrid`]'s: the
-    /// edge voxel's value in and beyond the outer half voxel. Callers test the box.
+    /// edge voxel's value in and beyond the outer half voxel. Callers test the box. The
+    /// values are looked up once per call, not per voxel.
     pub(crate) fn trilinear(&self, q: [f64; 3]) -> f64 {
-        super::field::trilinear(q, self.origin, self.spacing, self.dims, |x, y, z| {
-            self.at(x, y, z)
-        })
+        let (o, sp, d) = (self.origin, self.spacing, self.dims);
+        match self.values.view() {
+            SparseValues::F32(v) => {
+                super::field::trilinear(q, o, sp, d, |x, y, z| self.voxel_in(v, x, y, z))
+            }
+            SparseValues::F16(v) => {
+                super::field::trilinear(q, o, sp, d, |x, y, z| self.voxel_in(v, x, y, z))
+            }
+        }
     }
 
     /// Voxel `(x, y, z)` (in range).
-    #[inline(always)]
     fn at(&self, x: usize, y: usize, z: usize) -> f32 {
+        match self.values.view() {
+            SparseValues::F32(v) => self.voxel_in(v, x, y, z),
+            SparseValues::F16(v) => self.voxel_in(v, x, y, z),
+        }
+    }
+
+    /// Voxel `(x, y, z)` (in range) of the stored `values`.
+    #[inline(always)]
+    fn voxel_in<T: Copy>(&self, values: &[T], x: usize, y: usize, z: usize) -> f32
+    where
+        f32: From<T>,
+    {
         let s = self.shift;
         let slot = self.slot([x >> s, y >> s, z >> s]);
         if slot == EMPTY {
@@ -301,11 +344,7 @@ impl BrickGrid {
         }
         let m = (1usize << s) - 1;
         let local = (x & m) | ((y & m) << s) | ((z & m) << (2 * s));
-        let i = ((slot as usize) << (3 * s)) | local;
-        match &self.values {
-            Stored::F32(v) => v[i],
-            Stored::F16(v) => v[i].to_f32(),
-        }
+        f32::from(values[((slot as usize) << (3 * s)) | local])
     }
 
     /// The voxel ranges whose centre cells touch `[lo, hi]` (as [`VoxelGrid`]'s maximum).
@@ -504,6 +543,65 @@ mod tests {
         let inf = odd(f16::INFINITY);
         assert_eq!(inf.at(1, 1, 0), f32::MAX);
         assert!(matches!(inf.parts().1, SparseValues::F32(_)));
+    }
+
+    /// Values shared from elsewhere read in place (the same slice, no copy) and read what a
+    /// copy reads; shared values that need cleaning are copied and cleaned instead.
+    #[test]
+    fn shared_f16_reads_in_place_what_a_copy_reads() {
+        #[derive(Debug)]
+        struct Held(Vec<f16>);
+        impl SharedHalves for Held {
+            fn halves(&self) -> &[f16] {
+                &self.0
+            }
+        }
+        let dense = cloud([29, 17, 33]);
+        let wide = BrickGrid::from_voxels(&dense, 8).unwrap();
+        let (dims, brick, _) = wide.shape();
+        let ((origin, spacing), (index, values)) = (wide.placement(), wide.parts());
+        let halves: Vec<f16> = (0..values.len())
+            .map(|i| f16::from_f32(values.get(i).unwrap()))
+            .collect();
+        let held = Arc::new(Held(halves.clone()));
+        let at = held.0.as_ptr();
+        let shared =
+            BrickGrid::from_shared_f16(dims, origin, spacing, brick, index.to_vec(), held).unwrap();
+        let copied =
+            BrickGrid::new_f16(dims, origin, spacing, brick, index.to_vec(), halves.clone())
+                .unwrap();
+        match shared.parts().1 {
+            SparseValues::F16(v) => assert_eq!(v.as_ptr(), at, "read in place"),
+            SparseValues::F32(_) => panic!("widened"),
+        }
+        let (lo, hi) = dense.bounds().to_arrays();
+        let mut rng = crate::render::Pcg32::new(11, 1);
+        for _ in 0..20000 {
+            let p = [0, 1, 2].map(|a| lo[a] - 0.3 + (hi[a] - lo[a] + 0.6) * rng.next_f32() as f64);
+            let p = DVec3::from_array(p);
+            assert_eq!(
+                shared.extinction(p).to_bits(),
+                copied.extinction(p).to_bits()
+            );
+        }
+        let r = Aabb::from_arrays(lo, hi);
+        assert_eq!(shared.max_extinction_in(r), copied.max_extinction_in(r));
+        // A negative zero and a NaN: copied and cleaned, read as +0.
+        let mut dirty = halves;
+        let first = dirty.iter().position(|v| v.to_f32() > 0.0).unwrap();
+        dirty[first] = f16::NAN;
+        dirty[first + 1] = f16::from_f32(-0.0);
+        let at = dirty.as_ptr();
+        let held = Arc::new(Held(dirty));
+        let g =
+            BrickGrid::from_shared_f16(dims, origin, spacing, brick, index.to_vec(), held).unwrap();
+        match g.parts().1 {
+            SparseValues::F16(v) => {
+                assert_ne!(v.as_ptr(), at, "copied");
+                assert_eq!((v[first].to_bits(), v[first + 1].to_bits()), (0, 0));
+            }
+            SparseValues::F32(_) => panic!("widened"),
+        }
     }
 
     #[test]

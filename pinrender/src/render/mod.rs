@@ -123,7 +123,7 @@ pub mod whole_volume;
 mod tests;
 
 pub use baked_control::BakedResidualTracking;
-pub use bricks::BrickGrid;
+pub use bricks::{BrickGrid, SharedHalves};
 pub use cache::RadianceCache;
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use estimator::{
