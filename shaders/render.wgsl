@@ -948,13 +948,23 @@ fn rt_distance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
     return best;
 }
 
-// Both queries along one ray with one medium (tracer.rs `Ctx::transmittance_and_distance`):
-// the residual estimators answer with ratio tracking's one walk over the majorants their
-// distances track (docs/residual.md, "Distances"). Returns (collision distance or +inf,
+// Whether estimator `kind` answers a transmittance and a distance along one ray together,
+// with one medium (tracer.rs `Ctx::paired`): ratio tracking and the residual estimators.
+fn rt_pairs(kind: u32) -> bool {
+    return (kind == RT_EST_RATIO || kind == RT_EST_RESIDUAL) && RP.size.w == 1u;
+}
+
+// Both queries along one ray with one medium (tracer.rs `Ctx::transmittance_and_distance`),
+// for a `kind` that `rt_pairs`: ratio tracking's transmittance and delta tracking's collision
+// from one walk over the majorants the distances track (the residual estimators: their
+// control's, docs/residual.md, "Distances"). Returns (collision distance or +inf,
 // transmittance).
-fn rt_pair(o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
-    let e = rt_control_entry(0u);
-    return rt_track(0u, rt_control_majorants(e), 0u, o, d, rt_inf(), RT_WALK_PAIR);
+fn rt_pair(kind: u32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    if (kind == RT_EST_RESIDUAL) {
+        let e = rt_control_entry(0u);
+        return rt_track(0u, rt_control_majorants(e), 0u, o, d, rt_inf(), RT_WALK_PAIR);
+    }
+    return rt_track(0u, rt_majorant_grid(0u), 0u, o, d, rt_inf(), RT_WALK_PAIR);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1035,12 +1045,13 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     let primary = RT_PRIMARY;
     let secondary = RT_SECONDARY;
     // tracer.rs `Ctx::paired`: with one medium, an estimator that answers a transmittance and
-    // a distance along one ray together (the residual ones) gets both from one walk.
-    let pairs = primary == RT_EST_RESIDUAL && secondary == RT_EST_RESIDUAL && RP.size.w == 1u;
+    // a distance along one ray together gets both from one walk where one estimator answers
+    // both: the camera ray (primary for both), and a continuation whose transmittance comes
+    // from the estimator that samples its distance (secondary).
     let scatters = !(albedo <= 0.0 || max_bounces == 0u);
     var first = rt_inf();
-    if (has_env && scatters && pairs) {
-        let p = rt_pair(o, d);
+    if (has_env && scatters && rt_pairs(primary)) {
+        let p = rt_pair(primary, o, d);
         l = l + env * p.y;
         first = p.x;
     } else {
@@ -1076,8 +1087,8 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
         let w = rt_sample_hg(dir, g, u1, u2);
         let last = depth >= max_bounces;
         var t = rt_inf();
-        if (has_env && !last && pairs) {
-            let p = rt_pair(x, w);
+        if (has_env && !last && shadow == secondary && rt_pairs(secondary)) {
+            let p = rt_pair(secondary, x, w);
             l = l + env * (beta * p.y);
             t = p.x;
         } else {

@@ -91,7 +91,8 @@ fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
 }
 
 /// A CPU estimator that answers a query pair along one ray as two separate queries (the
-/// trait's default), as the GPU path tracer does for every estimator but the residual ones: the CPU's one-lookup / one-walk pairs
+/// trait's default), as the GPU path tracer does for every estimator but ratio tracking and
+/// the residual ones (and for those with several media): the CPU's one-lookup / one-walk pairs
 /// (`TransportEstimator::transmittance_and_distance`) have the same means but a lower
 /// per-pixel variance, which the comparisons below would count as a difference.
 struct Separate(Arc<dyn TransportEstimator>);
@@ -755,11 +756,12 @@ fn cosine_density_matches_cpu() {
             )),
         ),
         (
+            // Paired on both sides: one walk for a ray's transmittance and distance.
             GpuEstimator::RatioTracking,
-            Medium::single(separate(Arc::new(crate::render::RatioTracking::new(
+            Medium::single(Arc::new(crate::render::RatioTracking::new(
                 field.clone(),
                 maj.clone(),
-            )))),
+            ))),
         ),
     ] {
         let name = format!("cosine, {}", est.name());
