@@ -20,6 +20,11 @@ use super::{Aabb, DensitySource};
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;
 
+/// The bits of f16 `+inf`. Above them lie the positive NaNs and every value with the sign
+/// bit (negatives, -0, negative NaNs); below them, the finite values `>= +0`, which order as
+/// their bits do.
+const F16_INF_BITS: u16 = 0x7c00;
+
 /// f16 voxel values read in place from memory that a [`BrickGrid`] does not own (a pin
 /// file's mapping): every call returns the same slice.
 pub trait SharedHalves: Send + Sync + std::fmt::Debug {
@@ -95,15 +100,12 @@ impl BrickGrid {
         index: Vec<u32>,
         mut values: Vec<f16>,
     ) -> Result<Self, RenderError> {
-        // On the bits: +inf is 0x7c00; above it lie the positive NaNs and every value with
-        // the sign bit (negatives, -0, negative NaNs).
-        const INF: u16 = 0x7c00;
-        if values.iter().any(|v| v.to_bits() == INF) {
+        if values.iter().any(|v| v.to_bits() == F16_INF_BITS) {
             let wide = values.iter().map(|v| v.to_f32()).collect();
             return Self::new(dims, origin, spacing, brick, index, wide);
         }
         for v in &mut values {
-            if v.to_bits() > INF {
+            if v.to_bits() > F16_INF_BITS {
                 *v = f16::ZERO;
             }
         }
@@ -120,13 +122,34 @@ impl BrickGrid {
         index: Vec<u32>,
         values: Arc<dyn SharedHalves>,
     ) -> Result<Self, RenderError> {
-        // Below +inf's bits, and without the sign bit: finite and `>= +0`.
-        const INF: u16 = 0x7c00;
-        if values.halves().iter().all(|v| v.to_bits() < INF) {
-            return Self::build(dims, origin, spacing, brick, index, Stored::Shared(values));
+        let grid = Self::build(
+            dims,
+            origin,
+            spacing,
+            brick,
+            index,
+            Stored::Shared(values.clone()),
+        )?;
+        // The bricks' maxima come from the largest bit pattern of each brick, and every value
+        // that needs cleaning (+inf, NaN, anything with the sign bit) has larger bits than
+        // every clean one: the values are clean exactly where every maximum is finite and
+        // `>= +0`. So the pass that finds the maxima is also the test, with no pass of its own.
+        if grid
+            .slot_max
+            .iter()
+            .all(|m| m.is_finite() && m.is_sign_positive())
+        {
+            return Ok(grid);
         }
-        let copy = values.halves().to_vec();
-        Self::new_f16(dims, origin, spacing, brick, index, copy)
+        let Self { index, .. } = grid;
+        Self::new_f16(
+            dims,
+            origin,
+            spacing,
+            brick,
+            index,
+            values.halves().to_vec(),
+        )
     }
 
     /// Validates the parts around cleaned values.
@@ -183,7 +206,8 @@ impl BrickGrid {
                 .chunks_exact(bv)
                 .map(|b| range(&mut b.iter().copied()))
                 .unzip(),
-            // Cleaned f16 values order as their bits do (all `+0..=MAX`).
+            // Clean f16 values order as their bits do ([`F16_INF_BITS`]); shared values not
+            // yet known clean are told by these maxima (`from_shared_f16`).
             SparseValues::F16(v) => v
                 .chunks_exact(bv)
                 .map(|b| {
