@@ -907,17 +907,23 @@ fn rt_medium_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32
     }
 }
 
+// The majorants that estimator `kind`'s distances in medium m track (and its paired walk):
+// the residual estimators' control's, the others' majorant grid.
+fn rt_distance_majorants(kind: u32, m: u32) -> RtGrid {
+    if (kind == RT_EST_RESIDUAL) {
+        return rt_control_majorants(rt_control_entry(m));
+    }
+    return rt_majorant_grid(m);
+}
+
 fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
     switch kind {
         case RT_EST_MARCH: {
             return rt_march(m, o, d, t_max, true).x;
         }
-        case RT_EST_DELTA, RT_EST_RATIO, RT_EST_URM, RT_EST_JACKKNIFE: {
-            return rt_track(m, rt_majorant_grid(m), 0u, o, d, t_max, RT_WALK_DELTA).x;
-        }
-        case RT_EST_RESIDUAL: {
-            let e = rt_control_entry(m);
-            return rt_track(m, rt_control_majorants(e), 0u, o, d, t_max, RT_WALK_DELTA).x;
+        case RT_EST_DELTA, RT_EST_RATIO, RT_EST_URM, RT_EST_JACKKNIFE, RT_EST_RESIDUAL: {
+            let grid = rt_distance_majorants(kind, m);
+            return rt_track(m, grid, 0u, o, d, t_max, RT_WALK_DELTA).x;
         }
         default: {
             return rt_pins(m, o, d, t_max).x;
@@ -960,11 +966,7 @@ fn rt_pairs(kind: u32) -> bool {
 // control's, docs/residual.md, "Distances"). Returns (collision distance or +inf,
 // transmittance).
 fn rt_pair(kind: u32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
-    if (kind == RT_EST_RESIDUAL) {
-        let e = rt_control_entry(0u);
-        return rt_track(0u, rt_control_majorants(e), 0u, o, d, rt_inf(), RT_WALK_PAIR);
-    }
-    return rt_track(0u, rt_majorant_grid(0u), 0u, o, d, rt_inf(), RT_WALK_PAIR);
+    return rt_track(0u, rt_distance_majorants(kind, 0u), 0u, o, d, rt_inf(), RT_WALK_PAIR);
 }
 
 // ---------------------------------------------------------------------------------------------
