@@ -127,6 +127,9 @@ pub enum BakeError {
         path: std::path::PathBuf,
         message: String,
     },
+    /// Its output or spool would not fit the free space of its directory.
+    #[error(transparent)]
+    Disk(crate::files::FileError),
     #[error("cannot spool the sparse density's bricks to a temporary file in {dir:?}: {source}")]
     Spool {
         dir: std::path::PathBuf,
@@ -243,6 +246,27 @@ pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
         .saturating_add(cells.saturating_mul(4))
         .saturating_add(vol(opts.majorant, 4))
         .saturating_add(vol(opts.embed_density, 2))
+}
+
+/// Bytes that a bake of `source` with `opts` writes to its output's directory at least:
+/// the dense sections, whose size the options fix, and twice the sparse density's bricks that
+/// the source's solid boxes force it to store (the spool, then the file that copies it);
+/// the pins, whose bytes depend on which cells are empty, count nothing. For the disk check
+/// before a bake starts, which must not refuse a bake that fits.
+pub fn estimate_min_file_bytes(source: &dyn DensitySource, opts: &BakeOptions) -> u64 {
+    let vol = |d: Option<[u32; 3]>, b: u64| {
+        d.map_or(0, |d| d.iter().map(|&x| u64::from(x)).product::<u64>() * b)
+    };
+    let sparse = opts.embed_sparse.map_or(0, |spec| {
+        bake_box(source, opts.crop).map_or(0, |(bbox, _)| {
+            crate::sparse_density::sparse_dims(source, &bbox, spec).map_or(0, |dims| {
+                crate::sparse_density::sparse_density_min_file_bytes(source, &bbox, dims)
+            })
+        })
+    });
+    vol(opts.majorant, 4)
+        .saturating_add(vol(opts.embed_density, 2))
+        .saturating_add(sparse.saturating_mul(2))
 }
 
 /// The most bytes a dense copy of a sparse source may take in a bake with `opts`: what

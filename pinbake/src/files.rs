@@ -47,6 +47,8 @@ pub enum FileError {
     Io { path: PathBuf, err: std::io::Error },
     #[error("{what} needs {} bytes, more than the memory budget of {} bytes (--max-memory)", .need, .limit)]
     Memory { what: String, need: u64, limit: u64 },
+    #[error("{}: writing needs about {need} bytes, more than the {free} bytes free on its file system", .path.display())]
+    Disk { path: PathBuf, need: u64, free: u64 },
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> FileError + '_ {
@@ -276,6 +278,52 @@ impl MemoryBudget {
     }
 }
 
+/// Bytes that an unprivileged writer may still write to the file system holding `dir`, if
+/// the system says.
+pub fn free_space(dir: &Path) -> Option<u64> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+        // SAFETY: `path` is a NUL-terminated string and `st` a writable statvfs that the call
+        // fills on success; it is read only then.
+        let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+        if unsafe { libc::statvfs(path.as_ptr(), &mut st) } != 0 {
+            return None;
+        }
+        #[allow(clippy::unnecessary_cast)] // the field types differ between systems
+        Some((st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = dir;
+        None
+    }
+}
+
+/// Refuses to write `need` bytes to `path` (a file to be written, or a directory to write
+/// into) when its file system has less free: a bake that would fill the disk stops before
+/// its first byte, not when the disk is full. Passes where the system cannot tell.
+pub fn check_free_space(path: &Path, need: u64) -> Result<(), FileError> {
+    let dir = if path.is_dir() {
+        path.to_path_buf()
+    } else {
+        parent_dir(path)
+    };
+    check_free(path, need, free_space(&dir))
+}
+
+fn check_free(path: &Path, need: u64, free: Option<u64>) -> Result<(), FileError> {
+    match free {
+        Some(free) if need > free => Err(FileError::Disk {
+            path: path.to_path_buf(),
+            need,
+            free,
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Half of the physical memory (or of the cgroup's limit when lower), 4 GiB if unknown:
 /// leaves room for the rest of the machine and for the estimates' slack.
 pub fn default_memory_limit() -> u64 {
@@ -410,6 +458,25 @@ impl PendingPin {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn free_space_is_checked_against_the_need() {
+        let dir = tempfile::tempdir().unwrap();
+        let free = super::free_space(dir.path()).expect("statvfs answers on a temp dir");
+        assert!(free > 0);
+        assert!(super::check_free_space(dir.path(), 1).is_ok());
+        let e = super::check_free_space(&dir.path().join("out.pin"), u64::MAX).unwrap_err();
+        let line = e.to_string();
+        assert!(
+            line.contains("out.pin") && line.contains(&u64::MAX.to_string()),
+            "{line}"
+        );
+        assert!(line.contains(" bytes free"), "{line}");
+        // Unknown free space passes; a known one refuses exactly above it.
+        assert!(super::check_free(dir.path(), u64::MAX, None).is_ok());
+        assert!(super::check_free(dir.path(), 10, Some(10)).is_ok());
+        assert!(super::check_free(dir.path(), 11, Some(10)).is_err());
+    }
+
     use super::*;
 
     #[test]

@@ -589,6 +589,12 @@ fn prepare(
     // dense grid is marched by layers with a batch of per-pin state beside it.
     let (need, copy) = memory_estimate(source.as_ref(), &opts, input_bytes, budget.limit);
     budget.check(&what, need)?;
+    // The disk before the first pin: the sections whose size is known, and a sparse
+    // density's spool beside the file that copies it.
+    crate::files::check_free_space(
+        output,
+        crate::bake::estimate_min_file_bytes(source.as_ref(), &opts),
+    )?;
     // A sparse VDB is copied into a dense grid when the copy fits in what the budget leaves.
     opts.dense_copy_bytes = budget.limit.saturating_sub(need.saturating_sub(copy));
     Ok(Prepared {

@@ -72,23 +72,93 @@ pub fn sparse_dims(
     Ok(dims)
 }
 
+/// What a sparse density of `dims` voxels over `bbox` costs, known before any brick is
+/// tested: from the grid's dims and the source's solid boxes
+/// ([`DensitySource::solid_boxes`]: a VDB's constant tiles), in time that does not grow with
+/// the bricks. A few hundred bytes of VDB can declare a 4096^3 constant root tile, whose
+/// sparse copy is 134 M bricks: counting its candidates one by one before checking any
+/// budget held gigabytes and ran for minutes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SparseBounds {
+    /// Brick slots of the index (a `u32` each, whatever is stored).
+    pub slots: u64,
+    /// Rows of bricks (fixed y and z): one candidate list each.
+    pub rows: u64,
+    /// Bricks along a row.
+    pub row_len: u64,
+    /// Bricks that must be stored: each lies inside a solid box (a lower bound).
+    pub min_bricks: u64,
+}
+
+/// Bytes of one f16 brick, as stored in the file and the spool.
+pub const F16_BRICK_BYTES: u64 = (SPARSE_BRICK as u64).pow(3) * 2;
+/// Bytes of one f32 brick, as the renderer's trackers hold them ([`sparse_f32_bricks`]).
+pub const F32_BRICK_BYTES: u64 = (SPARSE_BRICK as u64).pow(3) * 4;
+
+/// Smallest value whose f16 is not zero (the smallest subnormal): where the source is at
+/// least this, a brick is stored whatever the encoding.
+const STORED_FLOOR: f32 = 1.0 / 16_777_216.0;
+
+impl SparseBounds {
+    pub fn new(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> Self {
+        let bdims = brick_dims(dims, SPARSE_BRICK).map(u64::from);
+        let geo = Geometry::new(bbox, dims);
+        // Boxes of disjoint tiles are disjoint, so the bricks wholly inside one are not
+        // inside another: the sum does not count a brick twice.
+        let min_bricks = source
+            .solid_boxes(STORED_FLOOR)
+            .iter()
+            .map(|b| geo.bricks_inside(b))
+            .fold(0u64, u64::saturating_add);
+        Self {
+            slots: bdims.iter().product(),
+            rows: bdims[1] * bdims[2],
+            row_len: bdims[0],
+            min_bricks: min_bricks.min(bdims.iter().product()),
+        }
+    }
+
+    /// Bricks of `brick_bytes` in one fill batch at most ([`Candidates::batches`]).
+    fn batch_bricks(&self, brick_bytes: u64) -> u64 {
+        let per_batch = (BATCH_BYTES as u64 / brick_bytes.max(1)).max(1);
+        per_batch.max(self.row_len).min(self.slots)
+    }
+
+    /// Bytes held while the bricks are found and filled, beside those kept: the index, the
+    /// candidate lists (a row's list of at most `row_len` brick x, its vector's header), and
+    /// one batch of bricks of `brick_bytes`.
+    pub fn working_bytes(&self, brick_bytes: u64) -> u64 {
+        let lists = self
+            .rows
+            .saturating_mul(size_of::<Vec<u32>>() as u64)
+            .saturating_add(self.slots.saturating_mul(4));
+        self.slots
+            .saturating_mul(4)
+            .saturating_add(lists)
+            .saturating_add(self.batch_bricks(brick_bytes).saturating_mul(brick_bytes))
+    }
+}
+
 /// The bytes [`spool_sparse_density`] holds at its peak for `source` over `bbox` with `dims`
-/// voxels: the index and one batch of the bricks the source's bound does not rule out
-/// (counted with the same test the fill makes). The bricks themselves go to the spool file,
-/// not to memory. For the bake's memory estimate.
+/// voxels ([`SparseBounds::working_bytes`] and the spool's buffer): the bricks themselves go
+/// to the spool file, not to memory. For the bake's memory estimate; counted from the dims
+/// and the source's tree, never by building the candidates.
 pub fn sparse_density_bytes(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> u64 {
-    let c = Candidates::new(source, bbox, dims);
-    let slots: u64 = c.bdims.iter().map(|&d| u64::from(d)).product();
-    let brick = u64::from(SPARSE_BRICK).pow(3) * 2;
-    let batch = c
-        .batches(brick as usize, BATCH_BYTES)
-        .map(|r| c.rows[r].iter().map(|x| x.len() as u64).sum::<u64>())
-        .max()
-        .unwrap_or(0);
-    slots
-        .saturating_mul(4)
-        .saturating_add(batch.saturating_mul(brick))
+    SparseBounds::new(source, bbox, dims)
+        .working_bytes(F16_BRICK_BYTES)
         .saturating_add(SPOOL_BUFFER as u64)
+}
+
+/// The least bytes the spool of a sparse density must write ([`SparseBounds::min_bricks`]),
+/// for the bake's disk check before it starts.
+pub fn sparse_density_min_file_bytes(
+    source: &dyn DensitySource,
+    bbox: &Aabb,
+    dims: [u32; 3],
+) -> u64 {
+    SparseBounds::new(source, bbox, dims)
+        .min_bricks
+        .saturating_mul(F16_BRICK_BYTES)
 }
 
 /// The sparse f16 density of `source` over `bbox` with `dims` voxels, in memory: the stored
@@ -177,6 +247,13 @@ pub fn spool_sparse_density(
         source,
     };
     let candidates = Candidates::new(source, bbox, dims);
+    // The spool holds at most every candidate, and the output then copies what it holds:
+    // refused before the first brick is written, not when the disk is full.
+    let need = candidates
+        .count()
+        .saturating_mul(F16_BRICK_BYTES)
+        .saturating_mul(2);
+    crate::files::check_free_space(dir, need).map_err(BakeError::Disk)?;
     let file = tempfile::tempfile_in(dir).map_err(spool_err)?;
     let mut out = BufWriter::with_capacity(SPOOL_BUFFER, file);
     let mut stored = 0usize;
@@ -226,20 +303,26 @@ fn reserved_for<T>(candidates: &Candidates, what: &'static str) -> Result<Vec<T>
 
 /// Bricks of `SPARSE_BRICK` over `bbox` with `dims` voxels whose box the source does not
 /// bound by zero, in f32 (the source's own values at the centres): the brick index and the
-/// stored voxels, or `None` when they would take more than `max_bytes` (counted from the
-/// source's bounds before anything is sampled). For renderers that track a sparse source
-/// through an array instead of its tree.
+/// stored voxels, or `None` when they would take more than `max_bytes`. Counted twice, each
+/// time before the memory it counts is touched: from the dims and the source's solid boxes
+/// ([`SparseBounds`]) before the candidates are listed, then from the candidates before
+/// any is filled. For renderers that track a sparse source through an array instead of its
+/// tree.
 pub fn sparse_f32_bricks(
     source: &dyn DensitySource,
     bbox: &Aabb,
     dims: [u32; 3],
     max_bytes: u64,
 ) -> Option<(Vec<u32>, Vec<f32>)> {
+    let bounds = SparseBounds::new(source, bbox, dims);
+    let working = bounds.working_bytes(F32_BRICK_BYTES);
+    let least = bounds.min_bricks.saturating_mul(F32_BRICK_BYTES);
+    if working.saturating_add(least) > max_bytes {
+        return None;
+    }
     let candidates = Candidates::new(source, bbox, dims);
-    let bytes = candidates
-        .count()
-        .saturating_mul(u64::from(SPARSE_BRICK).pow(3) * 4);
-    if bytes > max_bytes {
+    let bytes = candidates.count().saturating_mul(F32_BRICK_BYTES);
+    if working.saturating_add(bytes) > max_bytes {
         return None;
     }
     let mut values: Vec<f32> = reserved_for(&candidates, "the bricks").ok()?;
@@ -283,6 +366,36 @@ impl Geometry {
         self.min + (DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64) + 0.5) * self.spacing
     }
 
+    /// Bricks all of whose voxel centres lie in `b` (none if it misses the grid).
+    fn bricks_inside(&self, b: &Aabb) -> u64 {
+        let per_axis = |a: usize| -> u64 {
+            let n = i64::from(self.dims[a]);
+            // Voxel i's centre is at min + (i + 0.5) spacing.
+            let lo = ((b.min[a] - self.min[a]) / self.spacing[a] - 0.5).ceil();
+            let hi = ((b.max[a] - self.min[a]) / self.spacing[a] - 0.5).floor();
+            if !(lo.is_finite() && hi.is_finite()) {
+                return 0;
+            }
+            let lo = (lo.max(0.0) as i64).min(n);
+            let hi = (hi.min((n - 1) as f64) as i64).max(-1);
+            if hi < lo {
+                return 0;
+            }
+            // A brick's voxels run from 8k to min(8k + 7, n - 1).
+            let k = i64::from(SPARSE_BRICK);
+            let first = (lo + k - 1) / k;
+            let last = if hi == n - 1 {
+                hi / k
+            } else {
+                (hi + 1) / k - 1
+            };
+            (last - first + 1).max(0) as u64
+        };
+        per_axis(0)
+            .saturating_mul(per_axis(1))
+            .saturating_mul(per_axis(2))
+    }
+
     /// The box of brick `b` and its voxel range `lo..hi`.
     fn region(&self, b: [u32; 3]) -> (Aabb, [u32; 3], [u32; 3]) {
         let lo = b.map(|c| c * SPARSE_BRICK);
@@ -311,9 +424,13 @@ impl Candidates {
             .into_par_iter()
             .map(|row| {
                 let (by, bz) = Self::row_yz(bdims, row);
-                (0..bdims[0])
+                // Shrunk to what it holds: the lists take at most what
+                // `SparseBounds::working_bytes` counts.
+                let mut xs: Vec<u32> = (0..bdims[0])
                     .filter(|&bx| source.max_extinction_in(geo.region([bx, by, bz]).0) > 0.0)
-                    .collect()
+                    .collect();
+                xs.shrink_to_fit();
+                xs
             })
             .collect();
         Self { geo, bdims, rows }
@@ -610,6 +727,118 @@ mod tests {
             panic!("a spool in a missing directory");
         };
         assert!(e.to_string().contains("gone"), "{e}");
+    }
+
+    /// A box that says it is solid: the lower bound of [`SparseBounds`] through the same
+    /// trait method a VDB's tiles answer.
+    struct SolidBox(HomogeneousBox, Aabb);
+
+    impl DensitySource for SolidBox {
+        fn bounds(&self) -> Aabb {
+            self.0.bounds()
+        }
+        fn extinction(&self, p: DVec3) -> f32 {
+            self.0.extinction(p)
+        }
+        fn max_extinction_in(&self, region: Aabb) -> f32 {
+            self.0.max_extinction_in(region)
+        }
+        fn solid_boxes(&self, floor: f32) -> Vec<Aabb> {
+            if self.0.extinction(self.1.min) >= floor {
+                vec![self.1]
+            } else {
+                Vec::new()
+            }
+        }
+    }
+
+    #[test]
+    fn bricks_inside_a_box_are_counted_exactly() {
+        let bbox = Aabb::new(DVec3::ZERO, DVec3::new(37.0, 29.0, 45.0));
+        let dims = [37, 29, 45];
+        let geo = Geometry::new(&bbox, dims);
+        let bdims = brick_dims(dims, SPARSE_BRICK);
+        let mut rng = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng % 10_000) as f64 / 10_000.0
+        };
+        let mut nonzero = 0;
+        for _ in 0..300 {
+            let a = DVec3::new(
+                next() * 50.0 - 5.0,
+                next() * 40.0 - 5.0,
+                next() * 60.0 - 5.0,
+            );
+            let b = a + DVec3::new(next() * 40.0, next() * 40.0, next() * 40.0);
+            let solid = Aabb::new(a, b);
+            let mut want = 0u64;
+            for bz in 0..bdims[2] {
+                for by in 0..bdims[1] {
+                    for bx in 0..bdims[0] {
+                        let (_, lo, hi) = geo.region([bx, by, bz]);
+                        let inside = (lo[2]..hi[2]).all(|z| {
+                            (lo[1]..hi[1]).all(|y| {
+                                (lo[0]..hi[0]).all(|x| {
+                                    let c = geo.centre([x, y, z]);
+                                    c.cmpge(solid.min).all() && c.cmple(solid.max).all()
+                                })
+                            })
+                        });
+                        want += u64::from(inside);
+                    }
+                }
+            }
+            assert_eq!(geo.bricks_inside(&solid), want, "{solid:?}");
+            nonzero += usize::from(want > 0);
+        }
+        assert!(
+            nonzero > 30,
+            "{nonzero} boxes held a brick: the test needs both kinds"
+        );
+    }
+
+    #[test]
+    fn bounds_hold_what_a_fill_stores_and_holds() {
+        let bbox = Aabb::new(DVec3::ZERO, DVec3::ONE);
+        let dims = [70, 50, 90];
+        let inner = Aabb::new(DVec3::new(0.1, 0.2, 0.05), DVec3::new(0.8, 0.7, 0.9));
+        let src = SolidBox(HomogeneousBox::new(inner, 2.0).unwrap(), inner);
+        let bounds = SparseBounds::new(&src, &bbox, dims);
+        let stored = bake_sparse_density(&src, &bbox, dims)
+            .unwrap()
+            .header
+            .brick_count as u64;
+        // A lower bound that leaves out only the bricks that the box's faces cut (two
+        // thirds of them on a box 6 to 9 bricks across).
+        assert!(bounds.min_bricks <= stored, "{bounds:?} vs {stored}");
+        assert!(bounds.min_bricks * 3 >= stored, "{bounds:?} vs {stored}");
+        let c = Candidates::new(&src, &bbox, dims);
+        let lists: u64 = c
+            .rows
+            .iter()
+            .map(|r| r.capacity() as u64 * 4 + size_of::<Vec<u32>>() as u64)
+            .sum();
+        assert!(lists + bounds.slots * 4 <= bounds.working_bytes(F16_BRICK_BYTES));
+        assert_eq!(bounds.slots, 9 * 7 * 12);
+        // Too small a floor for f16 says nothing is solid.
+        let faint = SolidBox(HomogeneousBox::new(inner, 1e-9).unwrap(), inner);
+        assert_eq!(SparseBounds::new(&faint, &bbox, dims).min_bricks, 0);
+    }
+
+    #[test]
+    fn f32_bricks_are_refused_before_they_are_listed() {
+        let bbox = Aabb::new(DVec3::ZERO, DVec3::ONE);
+        let dims = [64, 64, 64];
+        let src = SolidBox(HomogeneousBox::new(bbox, 1.0).unwrap(), bbox);
+        let bounds = SparseBounds::new(&src, &bbox, dims);
+        assert_eq!(bounds.min_bricks, 512);
+        let need = bounds.working_bytes(F32_BRICK_BYTES) + 512 * F32_BRICK_BYTES;
+        assert!(sparse_f32_bricks(&src, &bbox, dims, need - 1).is_none());
+        let (index, values) = sparse_f32_bricks(&src, &bbox, dims, need).unwrap();
+        assert_eq!((index.len(), values.len()), (512, 512 * 512));
     }
 
     #[test]

@@ -14,7 +14,10 @@
 //! nothing was damaged.
 #![cfg(all(feature = "cli", feature = "vdb"))]
 
+#[path = "hostile/budget.rs"]
+mod budget;
 mod nanovdb;
+mod openvdb;
 
 use std::ffi::{OsStr, OsString};
 use std::os::unix::ffi::OsStrExt;

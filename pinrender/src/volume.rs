@@ -168,7 +168,7 @@ impl Opened {
         }
         let bricks = field
             .bricked_shared()
-            .or_else(|| bricks_of(&**field.source()).map(Arc::new));
+            .or_else(|| bricks_of(&**field.source(), field.bricks_budget()).map(Arc::new));
         let Some(bricks) = bricks else {
             anyhow::bail!(
                 "the VDB's active box needs {count} voxels on the GPU, more than a dense copy \
@@ -239,16 +239,32 @@ pub struct TrackedSource {
     /// the source does not bound by zero), made on first use; `None` inside when there is a
     /// dense view, no voxels, or the bricks would not fit either.
     bricks: OnceLock<Option<Arc<BrickGrid>>>,
+    /// The render's memory budget: the bricks may take half of it, the dense copy a quarter
+    /// (the source and the rest of the render keep the other half).
+    budget: u64,
 }
 
 impl TrackedSource {
+    /// Under the default memory budget ([`pinbake::files::default_memory_limit`]).
     pub fn new(source: Arc<dyn DensitySource>) -> Self {
+        Self::with_budget(source, pinbake::files::default_memory_limit())
+    }
+
+    /// Under a render's memory budget (`--max-memory`), which bounds its caches before they
+    /// are built.
+    pub fn with_budget(source: Arc<dyn DensitySource>, budget: u64) -> Self {
         TrackedSource {
             source,
             copy: OnceLock::new(),
             map: OnceLock::new(),
             bricks: OnceLock::new(),
+            budget,
         }
+    }
+
+    /// The most bytes its bricks may take ([`bricks_of`]).
+    pub fn bricks_budget(&self) -> u64 {
+        self.budget / 2
     }
 
     /// The bricked copy of a voxel source whose dense copy does not fit: the trackers read
@@ -270,7 +286,7 @@ impl TrackedSource {
                 if self.dense_view().is_some() {
                     return None;
                 }
-                bricks_of(&*self.source).map(Arc::new)
+                bricks_of(&*self.source, self.bricks_budget()).map(Arc::new)
             })
             .as_ref()
     }
@@ -284,9 +300,9 @@ impl TrackedSource {
 /// A voxel source bricked ([`TrackedSource::bricked`]): its values at the centres of voxels of
 /// its own size over its bounds widened by half a voxel (for an axis-aligned VDB: its index
 /// grid with one zero voxel beyond its bounds on every side), in the bricks that the source
-/// does not bound by zero; `None` for a source without voxels, or bricks over half the
-/// memory budget.
-pub fn bricks_of(source: &dyn DensitySource) -> Option<BrickGrid> {
+/// does not bound by zero; `None` for a source without voxels, or bricks over `max_bytes`
+/// (counted before they are listed: [`pinbake::sparse_density::sparse_f32_bricks`]).
+pub fn bricks_of(source: &dyn DensitySource, max_bytes: u64) -> Option<BrickGrid> {
     let voxel = source.voxel_size()?;
     let b = source.bounds();
     let (lo, hi) = (b.min - voxel * 0.5, b.max + voxel * 0.5);
@@ -296,8 +312,8 @@ pub fn bricks_of(source: &dyn DensitySource) -> Option<BrickGrid> {
     }
     let dims = n.round().max(DVec3::ONE).to_array().map(|v| v as u32);
     let bbox = source::Aabb::new(lo, hi);
-    let limit = pinbake::files::default_memory_limit() / 2;
-    let (index, values) = pinbake::sparse_density::sparse_f32_bricks(source, &bbox, dims, limit)?;
+    let (index, values) =
+        pinbake::sparse_density::sparse_f32_bricks(source, &bbox, dims, max_bytes)?;
     let spacing = [0, 1, 2].map(|a| (hi[a] - lo[a]) / f64::from(dims[a]));
     BrickGrid::new(
         dims,
@@ -358,10 +374,8 @@ impl DensitySource for TrackedSource {
             None => self
                 .copy
                 .get_or_init(|| {
-                    self.source.dense_copy(
-                        pinbake::bake::DEFAULT_DENSE_COPY_BYTES
-                            .min(pinbake::files::default_memory_limit() / 4),
-                    )
+                    self.source
+                        .dense_copy(pinbake::bake::DEFAULT_DENSE_COPY_BYTES.min(self.budget / 4))
                 })
                 .as_ref()?,
         };

@@ -106,6 +106,15 @@ pub trait DensitySource: Send + Sync {
         None
     }
 
+    /// World boxes inside each of which the extinction is at least `floor` at every point (a
+    /// VDB's constant tiles, shrunk by the reach of its interpolation): what a sparse copy of
+    /// the source must store, known from its tree's counts before any brick is tested (the
+    /// memory and disk checks of [`crate::sparse_density`]). Empty (the default) where the
+    /// source cannot tell cheaply; a lower bound, never more than is there.
+    fn solid_boxes(&self, _floor: f32) -> Vec<Aabb> {
+        Vec::new()
+    }
+
     /// Maximum extinction inside `region` (a conservative upper bound is fine). Used for
     /// majorant grids and empty-space detection. A field that cannot bound itself cheaply
     /// returns `f32::INFINITY`: the renderer's majorant grid then samples a lattice instead.

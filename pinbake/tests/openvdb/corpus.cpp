@@ -393,6 +393,20 @@ int main(int argc, char** argv) {
                    "float/blosc+mask");
     }
 
+    // Eight active 4096^3 root tiles and nothing else: a few hundred bytes that declare 2^39
+    // voxels, for the budget tests. Not in the manifest, whose files the tests bake whole.
+    {
+        auto g = FloatGrid::create(0.0f);
+        g->setName("density");
+        g->setGridClass(GRID_FOG_VOLUME);
+        for (int i = 0; i < 8; ++i)
+            g->tree().addTile(3, Coord(4096 * (i & 1), 4096 * ((i >> 1) & 1), 4096 * (i >> 2)),
+                              0.5f, true);
+        io::File f(dir + "/root_tiles.vdb");
+        f.write({g});
+        f.close();
+    }
+
     // Read everything back with OpenVDB and dump what it sees.
     std::ofstream js(dir + "/manifest.json");
     js << "{\"openvdb\":" << json_str(getLibraryVersionString()) << ",\"files\":[";

@@ -1177,6 +1177,44 @@ impl DensitySource for VdbSource {
         })
     }
 
+    fn solid_boxes(&self, floor: f32) -> Vec<Aabb> {
+        // Axis-aligned maps only: a rotated tile's box is not a box of the world's axes.
+        // A part read answers for its slab only.
+        let Some((scale, _)) = self.diag.filter(|_| self.part.is_none()) else {
+            return Vec::new();
+        };
+        let lim = (1u64 << 21) - 1;
+        let unpack = |k: u64, base: IVec3| {
+            IVec3::new(
+                (k & lim) as i32,
+                ((k >> 21) & lim) as i32,
+                ((k >> 42) & lim) as i32,
+            ) + base
+        };
+        let tiles = (self
+            .big
+            .iter()
+            .map(|(k, v)| (unpack(*k, self.big_base) << 7, 128, *v)))
+        .chain(
+            self.huge
+                .iter()
+                .map(|(k, v)| (unpack(*k, self.huge_base) << 12, 4096, *v)),
+        );
+        tiles
+            .filter(|&(_, _, v)| v >= floor)
+            .filter_map(|(origin, size, _): (IVec3, i32, f32)| {
+                // Trilinear sampling reads the voxel centres around a point: inside the
+                // tile's centres less one voxel on each side, every one it reads is the
+                // tile's.
+                let lo = (origin + 1).as_dvec3();
+                let hi = (origin + (size - 2)).as_dvec3();
+                let (a, b) = (lo * scale + self.translation, hi * scale + self.translation);
+                let b = Aabb::new(a.min(b), a.max(b));
+                b.is_valid().then_some(b)
+            })
+            .collect()
+    }
+
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         let lo = region.min.max(self.bounds.min);
         let hi = region.max.min(self.bounds.max);

@@ -490,7 +490,10 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     } else {
         None
     };
-    let field = Arc::new(TrackedSource::new(source));
+    let field = Arc::new(TrackedSource::with_budget(
+        source,
+        pinbake::files::MemoryBudget::new(a.max_memory).limit,
+    ));
     Ok(OpenedMedium {
         bounds: (b.min.to_array(), b.max.to_array()),
         field: Some(field.clone()),
