@@ -11,6 +11,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::Instant;
 
+#[path = "hostile/sections.rs"]
+mod sections;
+
 const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
 const MAX_SECONDS: f64 = 20.0;
 

@@ -5,12 +5,14 @@
 //! Both views borrow the grid's bytes (no copy) and are validated when made: the dimensions
 //! are checked against the section's actual length (a length or count in the file is never
 //! trusted on its own), and every value is checked finite and `>= 0` once, so that readers
-//! of a view need no checks of their own. Both live in the grid's local box
+//! of a view need no checks of their own. Made from a file ([`PinGrid::majorants`] and the
+//! others), a view is also checked against its section's checksum, in the same pass over
+//! the bytes: a damaged section is refused even where its values stay in range. Both live in the grid's local box
 //! `[box_min, box_max]` (placed in the world by the grid's `local_to_world`).
 
 use pin_format::{ControlView, DensityView, MajorantView};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::loader::PinGrid;
 
 /// The majorant section: a conservative upper bound of the extinction per brick; the bricks
@@ -257,41 +259,45 @@ pub(crate) fn trilinear(
 }
 
 impl PinGrid {
-    pub(crate) fn section_err(&self, problem: String) -> Error {
-        Error::Section {
-            path: self
-                .path()
-                .map(|p| p.to_path_buf())
-                .unwrap_or_else(|| "<memory>".into()),
-            problem,
-        }
-    }
-
-    /// The majorant section, validated; `None` if the file has none.
+    /// The majorant section, validated: its checksum and every value, in one pass over its
+    /// bytes (each call reads it again); `None` if the file has none.
     pub fn majorants(&self) -> Result<Option<Majorants<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.majorant()
-            .map(|v| Majorants::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file.checked_majorant().map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| Majorants {
+            dims: view.dims,
+            values: view.values,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 
-    /// The control section (format 1.1), validated; `None` if the file has none.
+    /// The control section (format 1.1), validated: its checksum and every brick's rules,
+    /// in one pass over its bytes; `None` if the file has none.
     pub fn control(&self) -> Result<Option<Control<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.control()
-            .map(|v| Control::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file.checked_control().map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| Control {
+            view,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 
-    /// The embedded density section, validated; `None` if the file has none.
+    /// The embedded density section, validated: its checksum and every voxel, in one pass
+    /// over its bytes; `None` if the file has none.
     pub fn density(&self) -> Result<Option<Density<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.density()
-            .map(|v| Density::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file.checked_density().map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| Density {
+            dims: view.dims,
+            values: view.values,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 }
 
