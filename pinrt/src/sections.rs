@@ -356,6 +356,44 @@ mod tests {
         assert_eq!(d.to_f32(), vec![1.0, 3.0]);
     }
 
+    /// A value changed within range (the low bit of the last one): the values pass, the
+    /// checksum does not, and the error names the grid and the section.
+    #[test]
+    fn damaged_sections_are_refused_on_first_use() {
+        let clean = grid_with(
+            Some(([2, 1, 1], vec![1.5, 4.0])),
+            Some(([2, 1, 1], vec![f16::from_f32(1.0), f16::from_f32(3.0)])),
+        );
+        let file = pin_format::PinFile::parse(&clean).unwrap();
+        let end = |kind: pin_format::SectionKind| {
+            let s = file
+                .sections()
+                .iter()
+                .find(|s| s.kind == kind as u32)
+                .unwrap();
+            (s.offset + s.length) as usize
+        };
+        let cases = [
+            (end(pin_format::SectionKind::Majorant) - 4, "'majorant'"),
+            (end(pin_format::SectionKind::Density) - 2, "'density'"),
+        ];
+        for (at, name) in cases {
+            let mut bytes = clean.clone();
+            bytes[at] ^= 1;
+            let grid = PinGrid::from_bytes(bytes).unwrap();
+            let e = if name == "'majorant'" {
+                grid.majorants().map(|_| ()).unwrap_err()
+            } else {
+                grid.density().map(|_| ()).unwrap_err()
+            }
+            .to_string();
+            assert!(
+                e.starts_with("<memory>: checksum mismatch in section ") && e.contains(name),
+                "{e}"
+            );
+        }
+    }
+
     #[test]
     fn absent_sections_are_none() {
         let grid = PinGrid::from_bytes(grid_with(None, None)).unwrap();
