@@ -237,7 +237,7 @@ fn camera_and_phase_ranges_are_usage_errors_naming_the_flag() {
         (&["--fov", "0"], "--fov"),
         (&["--fov", "180"], "--fov"),
         (&["--g", "2"], "--g"),
-        (&["--g=-1"], "--g"),
+        (&["--g", "-1"], "--g"),
         (&["--albedo", "1.5"], "--albedo"),
         (&["--sun-dir", "0,0,0"], "--sun-dir"),
         (&["--sun-dir", "1e-300"], "--sun-dir"),
@@ -265,6 +265,31 @@ fn camera_and_phase_ranges_are_usage_errors_naming_the_flag() {
         expect(&format!("{extra:?}"), &r, 2, flag);
         assert!(!out.exists());
     }
+    // Negative values are values, not flags.
+    let args = [
+        "render",
+        "--volume",
+        "procedural:box",
+        "--width",
+        "4",
+        "--height",
+        "4",
+        "--spp",
+        "1",
+        "--g",
+        "-0.5",
+        "--sun-dir",
+        "-1,0.5,0",
+        "--camera-origin",
+        "-2,0.5,0.5",
+        "--camera-target",
+        "-0.5,0.5,0.5",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let r = run(&args, d);
+    assert_eq!(r.out.status.code(), Some(0), "{}", r.stderr());
+    std::fs::remove_file(&out).unwrap();
     // The GPU's limit is named.
     let r = run(
         &[

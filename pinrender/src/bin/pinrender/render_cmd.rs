@@ -87,16 +87,16 @@ pub struct RenderArgs {
     #[arg(long, value_parser = parse_seconds)]
     pub seconds: Option<f64>,
     /// Camera position X,Y,Z (default: in front of the volume's box, looking at its centre).
-    #[arg(long, value_parser = parse_f64x3)]
+    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
     pub camera_origin: Option<[f64; 3]>,
     /// Point the camera looks at (default: the box centre).
-    #[arg(long, value_parser = parse_f64x3)]
+    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
     pub camera_target: Option<[f64; 3]>,
     /// Vertical field of view in degrees, in (0, 180).
     #[arg(long, default_value_t = 40.0, value_parser = parse_fov)]
     pub fov: f64,
     /// Direction from the scene towards the sun (finite, not zero).
-    #[arg(long, value_parser = parse_direction, default_value = "0.3,1,0.2")]
+    #[arg(long, value_parser = parse_direction, default_value = "0.3,1,0.2", allow_hyphen_values = true)]
     pub sun_dir: [f64; 3],
     #[arg(long, default_value_t = 3.0, value_parser = pin_cli::parse::parse_nonneg)]
     pub sun_radiance: f64,
@@ -106,7 +106,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 0.9, value_parser = parse_albedo)]
     pub albedo: f64,
     /// Henyey-Greenstein asymmetry, in (-1, 1).
-    #[arg(long, default_value_t = 0.0, value_parser = parse_hg_g)]
+    #[arg(long, default_value_t = 0.0, value_parser = parse_hg_g, allow_negative_numbers = true)]
     pub g: f64,
     /// Scattering events at most (with --backend gpu at most 1024, the GPU's limit).
     #[arg(long, default_value_t = 8)]
