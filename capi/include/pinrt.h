@@ -351,6 +351,18 @@ extern "C" {
 enum PinrtStatus pinrt_open(const char *path, struct PinrtGrid **out);
 
 /**
+ * `pinrt_open`, then every section's checksum and every value checked before the grid is
+ * returned (as `pinrt_verify`, each section read once: linear in the file size). A damaged
+ * file is `PINRT_STATUS_FORMAT` with one line naming the file and the section, and `*out`
+ * is NULL. For pipelines that want damage refused at open: `pinrt_open` checks the
+ * structure only, and the queries read the pins and the cell index lazily, unchecked.
+ *
+ * # Safety
+ * As `pinrt_open`.
+ */
+enum PinrtStatus pinrt_open_checked(const char *path, struct PinrtGrid **out);
+
+/**
  * Opens a pin file from `len` bytes in memory. The bytes are copied; the caller may free its
  * buffer as soon as this returns. Errors name the file `<memory>`.
  *

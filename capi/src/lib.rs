@@ -387,19 +387,52 @@ pub unsafe extern "C" fn pinrt_open(path: *const c_char, out: *mut *mut PinrtGri
         check_out(out)?;
         // SAFETY: checked non-null and aligned.
         unsafe { out.write(std::ptr::null_mut()) };
-        if path.is_null() {
-            return Err(null("path"));
-        }
-        // SAFETY: the caller promises a NUL-terminated string.
-        let c = unsafe { CStr::from_ptr(path) };
-        let path = c.to_str().map_err(|_| {
-            Fail(
-                PinrtStatus::InvalidArgument,
-                // Quoted with escapes: a control character cannot cut the message.
-                format!("{:?}: path is not UTF-8", c),
-            )
-        })?;
+        // SAFETY: the caller's contract on `path`.
+        let path = unsafe { path_arg(path) }?;
         publish(PinGrid::open(path)?, out);
+        Ok(())
+    })
+}
+
+/// The path argument of the openers: not NULL, UTF-8.
+///
+/// # Safety
+/// `path` is NULL or a NUL-terminated string valid for `'a`.
+unsafe fn path_arg<'a>(path: *const c_char) -> Result<&'a str, Fail> {
+    if path.is_null() {
+        return Err(null("path"));
+    }
+    // SAFETY: the caller's contract.
+    let c = unsafe { CStr::from_ptr(path) };
+    c.to_str().map_err(|_| {
+        Fail(
+            PinrtStatus::InvalidArgument,
+            // Quoted with escapes: a control character cannot cut the message.
+            format!("{:?}: path is not UTF-8", c),
+        )
+    })
+}
+
+/// `pinrt_open`, then every section's checksum and every value checked before the grid is
+/// returned (as `pinrt_verify`, each section read once: linear in the file size). A damaged
+/// file is `PINRT_STATUS_FORMAT` with one line naming the file and the section, and `*out`
+/// is NULL. For pipelines that want damage refused at open: `pinrt_open` checks the
+/// structure only, and the queries read the pins and the cell index lazily, unchecked.
+///
+/// # Safety
+/// As `pinrt_open`.
+#[unsafe(no_mangle)]
+pub unsafe extern "C" fn pinrt_open_checked(
+    path: *const c_char,
+    out: *mut *mut PinrtGrid,
+) -> PinrtStatus {
+    guard("pinrt_open_checked", || {
+        check_out(out)?;
+        // SAFETY: checked non-null and aligned.
+        unsafe { out.write(std::ptr::null_mut()) };
+        // SAFETY: the caller's contract on `path`.
+        let path = unsafe { path_arg(path) }?;
+        publish(PinGrid::open_checked(path)?, out);
         Ok(())
     })
 }

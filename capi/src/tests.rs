@@ -652,3 +652,135 @@ fn render_lookup_constants_are_the_rust_samplers() {
     assert_eq!(PINRT_THESIS_START_INSIDE == 1, t.start_inside);
     assert_eq!(PINRT_THESIS_NEAREST_LINE, t.nearest_line);
 }
+
+/// A grid with every section a renderer reads whole (majorant, dense and sparse density,
+/// control), valid.
+fn grid_with_bulk_sections() -> Vec<u8> {
+    use pin_format::layout::DENSITY_F16;
+    use pin_format::{
+        DensityHeader, MajorantHeader, OwnedControl, OwnedSparseDensity, OwnedSparseValues,
+        SparseDensityHeader,
+    };
+    let mut g = random_grid(Directions::THESIS_DEFAULT, [5, 4, 3], 2, true, 11);
+    // f16 2.0, through its bits (the crate has no f16 type of its own).
+    let two = || -> Vec<_> { vec![bytemuck::cast(0x4000u16); 64] };
+    g.majorant = Some((
+        MajorantHeader {
+            dims: [2; 3],
+            reserved: 0,
+        },
+        vec![4.0; 8],
+    ));
+    g.density = Some((
+        DensityHeader {
+            dims: [4; 3],
+            encoding: DENSITY_F16,
+        },
+        two(),
+    ));
+    g.sparse_density = Some(OwnedSparseDensity {
+        header: SparseDensityHeader {
+            dims: [4; 3],
+            encoding: DENSITY_F16,
+            brick: 2,
+            brick_count: 8,
+            reserved: [0; 2],
+        },
+        index: (0..8).collect(),
+        values: OwnedSparseValues::F16(two()),
+    });
+    g.control = Some(OwnedControl {
+        dims: [2; 3],
+        control: vec![1.0; 8],
+        residual: vec![3.0; 8],
+        majorant: vec![4.0; 8],
+    });
+    g.to_bytes().unwrap()
+}
+
+/// `pinrt_open` checks the structure (O(number of sections)); `pinrt_open_checked` and
+/// `pinrt_verify` check every section: a section damaged so that its values stay in range
+/// is refused with one line naming the file once and the section.
+#[test]
+fn checked_open_refuses_damaged_sections_naming_the_file_once_and_the_section() {
+    use pin_format::{PinFile, SectionKind};
+    let dir = tempfile::tempdir().unwrap();
+    let clean = grid_with_bulk_sections();
+    let open = |path: &std::path::Path, checked: bool| {
+        let c = CString::new(path.to_str().unwrap()).unwrap();
+        let mut g = 0x10 as *mut PinrtGrid;
+        // SAFETY: valid string and out pointer.
+        let st = unsafe {
+            if checked {
+                pinrt_open_checked(c.as_ptr(), &mut g)
+            } else {
+                pinrt_open(c.as_ptr(), &mut g)
+            }
+        };
+        (st, g)
+    };
+    let ok = dir.path().join("clean.pin");
+    std::fs::write(&ok, &clean).unwrap();
+    let (st, g) = open(&ok, true);
+    assert_eq!(st, PinrtStatus::Ok, "{}", last_error());
+    // SAFETY: opened above.
+    unsafe { pinrt_close(g) };
+    for kind in [
+        SectionKind::SparseDensity,
+        SectionKind::Control,
+        SectionKind::Majorant,
+        SectionKind::Density,
+        SectionKind::Pins,
+    ] {
+        let file = PinFile::parse(&clean).unwrap();
+        let s = *file
+            .sections()
+            .iter()
+            .find(|s| s.kind == kind as u32)
+            .unwrap();
+        // The low byte of the section's last value: a value a few ulps away, in range.
+        let elem = if matches!(kind, SectionKind::Density | SectionKind::SparseDensity) {
+            2
+        } else {
+            4
+        };
+        let mut bytes = clean.clone();
+        bytes[(s.offset + s.length) as usize - elem] ^= 0x01;
+        let path = dir.path().join(format!("{}.pin", kind.name()));
+        std::fs::write(&path, &bytes).unwrap();
+        let shown = path.to_str().unwrap();
+        let want = format!("checksum mismatch in section '{}'", kind.name());
+        let (st, g) = open(&path, false);
+        assert_eq!(st, PinrtStatus::Ok, "{}: {}", kind.name(), last_error());
+        // SAFETY: opened above.
+        assert_eq!(unsafe { pinrt_verify(g) }, PinrtStatus::Format);
+        let msg = last_error();
+        assert!(
+            msg.contains(&want) && msg.matches(shown).count() == 1,
+            "{msg}"
+        );
+        // SAFETY: opened above.
+        unsafe { pinrt_close(g) };
+        let (st, g) = open(&path, true);
+        assert_eq!(st, PinrtStatus::Format, "{}", kind.name());
+        assert!(g.is_null(), "a refused open leaves NULL behind");
+        let msg = last_error();
+        assert!(
+            msg.starts_with(shown) && msg.contains(&want) && msg.matches(shown).count() == 1,
+            "{msg}"
+        );
+    }
+    let mut cut = clean.clone();
+    cut.truncate(cut.len() - 3);
+    let path = dir.path().join("cut.pin");
+    std::fs::write(&path, &cut).unwrap();
+    for checked in [false, true] {
+        let (st, _) = open(&path, checked);
+        assert_eq!(st, PinrtStatus::Format);
+        let msg = last_error();
+        assert!(
+            msg.contains("truncated") && msg.matches(path.to_str().unwrap()).count() == 1,
+            "{msg}"
+        );
+    }
+}

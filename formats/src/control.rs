@@ -86,26 +86,32 @@ impl<'a> ControlView<'a> {
     /// exactly. The first brick that breaks one, as a message.
     pub fn check_values(&self) -> Result<()> {
         for i in 0..self.len() {
-            let (c, m, mx) = (self.control[i], self.residual[i], self.majorant[i]);
-            let ok = |v: f32| v.is_finite() && v >= 0.0;
-            if !(ok(c) && ok(m) && ok(mx)) {
-                return Err(bad(format!(
-                    "brick {i} has control {c}, residual {m}, majorant {mx}: each must be finite and >= 0"
-                )));
-            }
-            if c > mx {
-                return Err(bad(format!(
-                    "brick {i} has control {c} above its majorant {mx}"
-                )));
-            }
-            if m == 0.0 && mx != 0.0 {
-                return Err(bad(format!(
-                    "brick {i} has residual majorant 0 but majorant {mx}: only an empty brick may have 0"
-                )));
-            }
+            check_brick(i, self.control[i], self.residual[i], self.majorant[i])?;
         }
         Ok(())
     }
+}
+
+/// The rules of verify for brick `i`, whose control, residual majorant and majorant are `c`,
+/// `m` and `mx` (see [`ControlView::check_values`]).
+pub(crate) fn check_brick(i: usize, c: f32, m: f32, mx: f32) -> Result<()> {
+    let ok = |v: f32| v.is_finite() && v >= 0.0;
+    if !(ok(c) && ok(m) && ok(mx)) {
+        return Err(bad(format!(
+            "brick {i} has control {c}, residual {m}, majorant {mx}: each must be finite and >= 0"
+        )));
+    }
+    if c > mx {
+        return Err(bad(format!(
+            "brick {i} has control {c} above its majorant {mx}"
+        )));
+    }
+    if m == 0.0 && mx != 0.0 {
+        return Err(bad(format!(
+            "brick {i} has residual majorant 0 but majorant {mx}: only an empty brick may have 0"
+        )));
+    }
+    Ok(())
 }
 
 /// The control section in memory, as a baker fills it.

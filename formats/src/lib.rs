@@ -33,6 +33,7 @@
 #[cfg(target_endian = "big")]
 compile_error!("pin files are little-endian and read in place; big-endian hosts are not supported");
 
+mod checked;
 mod checksum;
 mod control;
 mod directions;

@@ -368,9 +368,22 @@ impl<'a> PinFile<'a> {
     }
 
     /// Checks every section checksum and every value: pins, index order, majorants, density,
-    /// metadata. Linear in the file size.
+    /// metadata. Linear in the file size, and each section's bytes are read once: hashed and
+    /// checked piece by piece (as the `checked_*` reads of the bulk sections do).
     pub fn verify(&self) -> Result<()> {
+        // Hashed and checked in one pass each below; the rest only has a checksum here.
+        const ONE_PASS: [SectionKind; 6] = [
+            SectionKind::CellIndex,
+            SectionKind::Pins,
+            SectionKind::Majorant,
+            SectionKind::Density,
+            SectionKind::SparseDensity,
+            SectionKind::Control,
+        ];
         for s in &self.sections {
+            if ONE_PASS.iter().any(|&k| k as u32 == s.kind) {
+                continue;
+            }
             let b = &self.bytes[s.offset as usize..(s.offset + s.length) as usize];
             if checksum(b) != s.checksum {
                 let kind = SectionKind::from_u32(s.kind)
@@ -382,75 +395,12 @@ impl<'a> PinFile<'a> {
                 });
             }
         }
-        if let Some(index) = self.cell_index {
-            // Canonical form: the n-th non-empty cell (in cell order) owns block n.
-            let mut next = 0u64;
-            for (cell, &block) in index.iter().enumerate() {
-                if block == EMPTY_CELL {
-                    continue;
-                }
-                if u64::from(block) != next {
-                    return Err(FormatError::BadData(
-                        SectionKind::CellIndex,
-                        format!("cell {cell} points at block {block}, expected {next}"),
-                    ));
-                }
-                next += 1;
-            }
-            if next != self.desc.stored_cells {
-                return Err(FormatError::BadData(
-                    SectionKind::CellIndex,
-                    format!(
-                        "{next} non-empty cells but {} stored",
-                        self.desc.stored_cells
-                    ),
-                ));
-            }
-        }
-        if let Some(i) = self
-            .pins
-            .iter()
-            .position(|p| !(p.t_min >= 0.0 && p.t_min <= 1.0) || (p.t_min == 1.0 && p.mask != 0))
-        {
-            return Err(FormatError::BadData(
-                SectionKind::Pins,
-                format!(
-                    "pin {i} has t_min {} and mask {:#010x}",
-                    self.pins[i].t_min, self.pins[i].mask
-                ),
-            ));
-        }
-        if let Some(m) = self.majorant
-            && let Some(i) = m.values.iter().position(|v| !(v.is_finite() && *v >= 0.0))
-        {
-            return Err(FormatError::BadData(
-                SectionKind::Majorant,
-                format!("brick {i} has majorant {}", m.values[i]),
-            ));
-        }
-        if let Some(d) = self.density
-            && let Some(i) = d
-                .values
-                .iter()
-                .position(|v| !(v.is_finite() && v.to_f32() >= 0.0))
-        {
-            return Err(FormatError::BadData(
-                SectionKind::Density,
-                format!("voxel {i} has density {}", d.values[i]),
-            ));
-        }
-        if let Some(s) = &self.sparse_density {
-            s.check_entries()?;
-            if let Some((i, v)) = s.first_bad_value() {
-                return Err(FormatError::BadData(
-                    SectionKind::SparseDensity,
-                    format!("stored voxel {i} has density {v}"),
-                ));
-            }
-        }
-        if let Some(c) = &self.control {
-            c.check_values()?;
-        }
+        self.check_cell_index()?;
+        self.check_pins()?;
+        self.checked_majorant()?;
+        self.checked_density()?;
+        self.checked_sparse_density()?;
+        self.checked_control()?;
         if self.metadata.is_some() {
             self.metadata().transpose()?;
         }

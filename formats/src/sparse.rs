@@ -85,29 +85,61 @@ pub fn brick_dims(dims: [u32; 3], brick: u32) -> [u32; 3] {
     dims.map(|d| d.div_ceil(brick))
 }
 
+/// The canonical-order check of an index fed in pieces, in brick order: every entry is
+/// [`EMPTY_BRICK`] or the next slot, and the slots used are exactly the header's
+/// `brick_count`. One implementation for the whole index (verify) and for the pieces a
+/// checked read hashes ([`crate::PinFile::checked_sparse_density`]).
+pub(crate) struct IndexOrder {
+    next: u64,
+    bricks_seen: usize,
+}
+
+impl IndexOrder {
+    pub(crate) fn new() -> Self {
+        Self {
+            next: 0,
+            bricks_seen: 0,
+        }
+    }
+
+    /// The next `entries` of the index.
+    pub(crate) fn feed(&mut self, header: &SparseDensityHeader, entries: &[u32]) -> Result<()> {
+        for (k, &slot) in entries.iter().enumerate() {
+            if slot == EMPTY_BRICK {
+                continue;
+            }
+            if u64::from(slot) != self.next {
+                return Err(bad(format!(
+                    "brick {} points at slot {slot}, expected {} (of {})",
+                    self.bricks_seen + k,
+                    self.next,
+                    header.brick_count
+                )));
+            }
+            self.next += 1;
+        }
+        self.bricks_seen += entries.len();
+        Ok(())
+    }
+
+    /// After the last entry: the slots used are the header's count.
+    pub(crate) fn finish(&self, header: &SparseDensityHeader) -> Result<()> {
+        if self.next != u64::from(header.brick_count) {
+            return Err(bad(format!(
+                "{} non-empty bricks but {} stored",
+                self.next, header.brick_count
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// Every entry of `index` is [`EMPTY_BRICK`] or the next slot, and the slots used are
 /// exactly the header's `brick_count`.
 fn check_index_entries(header: &SparseDensityHeader, index: &[u32]) -> Result<()> {
-    let mut next = 0u64;
-    for (brick, &slot) in index.iter().enumerate() {
-        if slot == EMPTY_BRICK {
-            continue;
-        }
-        if u64::from(slot) != next {
-            return Err(bad(format!(
-                "brick {brick} points at slot {slot}, expected {next} (of {})",
-                header.brick_count
-            )));
-        }
-        next += 1;
-    }
-    if next != u64::from(header.brick_count) {
-        return Err(bad(format!(
-            "{next} non-empty bricks but {} stored",
-            header.brick_count
-        )));
-    }
-    Ok(())
+    let mut order = IndexOrder::new();
+    order.feed(header, index)?;
+    order.finish(header)
 }
 
 impl<'a> SparseDensityView<'a> {

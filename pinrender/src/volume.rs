@@ -395,12 +395,9 @@ pub fn majorants(field: &TrackedSource, bricks: u32) -> Result<Arc<MajorantGrid>
 pub fn load_pins(p: &Path) -> Result<PinGrid> {
     // A FIFO would block the open, a device or directory map as nonsense.
     pinbake::files::check_input(p)?;
-    let grid = PinGrid::open(p).map_err(|e| anyhow!("{}: {e}", p.display()))?;
-    if let Some(t) = grid
-        .file()
-        .map_err(|e| anyhow!("{}: {e}", p.display()))?
-        .tile()
-    {
+    // pinrt's errors name the file already.
+    let grid = PinGrid::open(p).map_err(|e| anyhow!("{e}"))?;
+    if let Some(t) = grid.file().map_err(|e| anyhow!("{e}"))?.tile() {
         anyhow::bail!(
             "{}: tile {}/{} of a farm bake, not a whole grid; join the tiles with \
              `pinbake merge` first",
@@ -464,9 +461,10 @@ pub fn check_pins_match(
 /// [`BrickGrid`], the dense section as a [`VoxelGrid`].
 pub struct PinFileMedium {
     pub bounds: ([f64; 3], [f64; 3]),
-    /// The dense section's grid (also the GPU's copy).
+    /// The dense section's grid, when the file has no sparse one (also the GPU's copy).
     pub density: Option<Arc<VoxelGrid>>,
-    /// The sparse section's grid: what the CPU trackers read when the file has one.
+    /// The sparse section's grid: what the CPU trackers and the GPU read when the file has
+    /// one, whether or not it also has a dense one.
     pub bricks: Option<Arc<BrickGrid>>,
     pub majorants: Option<Arc<MajorantGrid>>,
 }
@@ -516,13 +514,25 @@ impl SharedHalves for MappedHalves {
     }
 }
 
-/// The embedded density of `grid` (opened from `path`) for the trackers: a dense section as
-/// f32 voxels; a sparse one as bricks, whose f16 values are read in place from the grid's
-/// mapping (no copy; f32 values are copied).
+/// The embedded density of `grid` (opened from `path`) for the trackers: a sparse section as
+/// bricks, whose f16 values are read in place from the grid's mapping (no copy; f32 values
+/// are copied); a dense one as f32 voxels.
+///
+/// A file that carries both density sections renders its sparse one, on the CPU and on the
+/// GPU alike (`docs/format.md` section 5.6a): its f16 values are read in place, where the
+/// dense one would be widened to f32, so the sparse section keeps the memory bounded by the
+/// mapping. The dense section is then not read (`pinbake verify` checks it).
+///
+/// Each section read is checked against its checksum in the pass that validates its values
+/// (`pinrt::PinGrid::sparse_density` and the others): a damaged section is one error line
+/// naming the file and the section.
 pub fn pin_file_medium(path: &Path, grid: &Arc<PinGrid>) -> Result<PinFileMedium> {
     let named = |e: pinrt::Error| anyhow!("{e}");
-    let density = grid.density().map_err(named)?;
     let sparse = grid.sparse_density().map_err(named)?;
+    let density = match sparse {
+        Some(_) => None,
+        None => grid.density().map_err(named)?,
+    };
     let majorants = grid.majorants().map_err(named)?;
     let d = grid.desc();
     let m = d.local_to_world;

@@ -13,6 +13,8 @@ use std::time::Instant;
 
 #[path = "hostile/budget.rs"]
 mod budget;
+#[path = "hostile/sections.rs"]
+mod sections;
 
 const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
 const MAX_SECONDS: f64 = 20.0;

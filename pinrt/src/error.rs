@@ -27,7 +27,10 @@ pub enum Error {
         #[source]
         source: FormatError,
     },
-    /// An optional section (majorant, density) holds values a reader cannot use.
+    /// An optional section holds values a reader cannot use. The section accessors
+    /// (`PinGrid::majorants` and the others) report a damaged or invalid section as
+    /// [`Error::Format`] instead (its checksum and values are checked in one pass); this
+    /// variant stays for callers that match on it.
     #[error("{}: {problem}", pin_format::input::quoted(.path))]
     Section { path: PathBuf, problem: String },
     /// The placement transform cannot be inverted or does not fit f32.

@@ -128,6 +128,17 @@ impl PinGrid {
         Self::from_storage(Storage::Mmap(map), Some(path.to_path_buf()))
     }
 
+    /// [`PinGrid::open`] then [`PinGrid::verify`]: every section's checksum and every value
+    /// checked before the grid is returned, each section in one pass over its bytes (linear
+    /// in the file size). For pipelines that want damage refused at open rather than found
+    /// by a later `verify`: a plain open checks the structure only, and a sampler reads the
+    /// pins lazily, unchecked (`docs/format.md` section 9 says what is checked when).
+    pub fn open_checked(path: impl AsRef<Path>) -> Result<Self> {
+        let grid = Self::open(path)?;
+        grid.verify()?;
+        Ok(grid)
+    }
+
     /// Reads the whole file into an aligned buffer: immune to later changes of the file.
     /// The buffer is allocated fallibly: a file larger than memory is an error.
     pub fn read_into_memory(path: impl AsRef<Path>) -> Result<Self> {
@@ -154,14 +165,15 @@ impl PinGrid {
         Self::from_storage(Storage::aligned_copy(bytes)?, None)
     }
 
-    /// Full check: every section checksum and every value (linear in the file size).
+    /// Full check: every section checksum and every value (linear in the file size; each
+    /// section's bytes are read once).
     pub fn verify(&self) -> Result<()> {
         self.file()?
             .verify()
             .map_err(|source| self.format_err(source))
     }
 
-    fn format_err(&self, source: pin_format::FormatError) -> Error {
+    pub(crate) fn format_err(&self, source: pin_format::FormatError) -> Error {
         Error::Format {
             path: self
                 .path

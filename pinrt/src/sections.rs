@@ -5,12 +5,14 @@
 //! Both views borrow the grid's bytes (no copy) and are validated when made: the dimensions
 //! are checked against the section's actual length (a length or count in the file is never
 //! trusted on its own), and every value is checked finite and `>= 0` once, so that readers
-//! of a view need no checks of their own. Both live in the grid's local box
+//! of a view need no checks of their own. Made from a file ([`PinGrid::majorants`] and the
+//! others), a view is also checked against its section's checksum, in the same pass over
+//! the bytes: a damaged section is refused even where its values stay in range. Both live in the grid's local box
 //! `[box_min, box_max]` (placed in the world by the grid's `local_to_world`).
 
 use pin_format::{ControlView, DensityView, MajorantView};
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::loader::PinGrid;
 
 /// The majorant section: a conservative upper bound of the extinction per brick; the bricks
@@ -257,41 +259,45 @@ pub(crate) fn trilinear(
 }
 
 impl PinGrid {
-    pub(crate) fn section_err(&self, problem: String) -> Error {
-        Error::Section {
-            path: self
-                .path()
-                .map(|p| p.to_path_buf())
-                .unwrap_or_else(|| "<memory>".into()),
-            problem,
-        }
-    }
-
-    /// The majorant section, validated; `None` if the file has none.
+    /// The majorant section, validated: its checksum and every value, in one pass over its
+    /// bytes (each call reads it again); `None` if the file has none.
     pub fn majorants(&self) -> Result<Option<Majorants<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.majorant()
-            .map(|v| Majorants::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file.checked_majorant().map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| Majorants {
+            dims: view.dims,
+            values: view.values,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 
-    /// The control section (format 1.1), validated; `None` if the file has none.
+    /// The control section (format 1.1), validated: its checksum and every brick's rules,
+    /// in one pass over its bytes; `None` if the file has none.
     pub fn control(&self) -> Result<Option<Control<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.control()
-            .map(|v| Control::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file.checked_control().map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| Control {
+            view,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 
-    /// The embedded density section, validated; `None` if the file has none.
+    /// The embedded density section, validated: its checksum and every voxel, in one pass
+    /// over its bytes; `None` if the file has none.
     pub fn density(&self) -> Result<Option<Density<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.density()
-            .map(|v| Density::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file.checked_density().map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| Density {
+            dims: view.dims,
+            values: view.values,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 }
 
@@ -348,6 +354,44 @@ mod tests {
         assert_eq!(e(1.9), 3.0);
         assert_eq!(e(2.1), 0.0); // outside the box
         assert_eq!(d.to_f32(), vec![1.0, 3.0]);
+    }
+
+    /// A value changed within range (the low bit of the last one): the values pass, the
+    /// checksum does not, and the error names the grid and the section.
+    #[test]
+    fn damaged_sections_are_refused_on_first_use() {
+        let clean = grid_with(
+            Some(([2, 1, 1], vec![1.5, 4.0])),
+            Some(([2, 1, 1], vec![f16::from_f32(1.0), f16::from_f32(3.0)])),
+        );
+        let file = pin_format::PinFile::parse(&clean).unwrap();
+        let end = |kind: pin_format::SectionKind| {
+            let s = file
+                .sections()
+                .iter()
+                .find(|s| s.kind == kind as u32)
+                .unwrap();
+            (s.offset + s.length) as usize
+        };
+        let cases = [
+            (end(pin_format::SectionKind::Majorant) - 4, "'majorant'"),
+            (end(pin_format::SectionKind::Density) - 2, "'density'"),
+        ];
+        for (at, name) in cases {
+            let mut bytes = clean.clone();
+            bytes[at] ^= 1;
+            let grid = PinGrid::from_bytes(bytes).unwrap();
+            let e = if name == "'majorant'" {
+                grid.majorants().map(|_| ()).unwrap_err()
+            } else {
+                grid.density().map(|_| ()).unwrap_err()
+            }
+            .to_string();
+            assert!(
+                e.starts_with("<memory>: checksum mismatch in section ") && e.contains(name),
+                "{e}"
+            );
+        }
     }
 
     #[test]

@@ -1,7 +1,8 @@
 //! A typed, read-only view of a pin file's sparse, bricked density section (format 1.1,
 //! `docs/format.md` section 5.6a): zero-copy from the mapped file, validated once when made
-//! (every index entry canonical and in range, every stored voxel finite and `>= 0`), with the
-//! dense view's voxel and trilinear conventions.
+//! (every index entry canonical and in range, every stored voxel finite and `>= 0`, and, from
+//! a file, the section's checksum in the same pass), with the dense view's voxel and
+//! trilinear conventions.
 
 use pin_format::{SparseDensityView, SparseValues};
 
@@ -95,13 +96,19 @@ impl<'g> SparseDensity<'g> {
 }
 
 impl PinGrid {
-    /// The sparse density section (format 1.1), validated; `None` if the file has none.
+    /// The sparse density section (format 1.1), validated: its checksum, its index and
+    /// every stored voxel, in one pass over its bytes; `None` if the file has none.
     pub fn sparse_density(&self) -> Result<Option<SparseDensity<'_>>> {
         let file = self.file()?;
         let d = self.desc();
-        file.sparse_density()
-            .map(|v| SparseDensity::new(v, d.box_min, d.box_max).map_err(|p| self.section_err(p)))
-            .transpose()
+        let view = file
+            .checked_sparse_density()
+            .map_err(|e| self.format_err(e))?;
+        Ok(view.map(|view| SparseDensity {
+            view,
+            box_min: d.box_min,
+            box_max: d.box_max,
+        }))
     }
 }
 

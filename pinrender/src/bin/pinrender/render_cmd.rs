@@ -50,7 +50,8 @@ Estimators:
 
 --backend gpu renders with the WGSL path tracer (wgpu; every estimator above but pinurm) instead of the CPU
 one: the same estimator over a GPU copy of the density (a raw grid as is, a VDB as the dense grid
-of its active box, a pin file's sparse density densely, each as the bricks the CPU trackers read
+of its active box, a pin file's sparse density densely (the section the CPU reads: the sparse one
+of a file that has both), each as the bricks the CPU trackers read
 when the dense copy would exceed 2^28 voxels or one storage binding, cosine noise as its waves, a
 box as one voxel; the procedural sphere has no GPU form). Its random streams differ from the CPU's, so the two images agree in expectation, not bit
 for bit.")]
@@ -60,7 +61,9 @@ pub struct RenderArgs {
     /// Pin file for the `pins`, `pinms`, `pinurm` and `pinres` estimators (default: bake the
     /// volume in memory).
     /// Without --volume, the medium itself: the estimators that need density use the file's
-    /// embedded density (`pinbake bake --embed-density`) and majorant sections.
+    /// embedded density (`pinbake bake --embed-density`) and majorant sections; a file with
+    /// both a sparse and a dense density renders the sparse one, on either backend. Each
+    /// section is checked against its checksum as it is read.
     #[arg(long)]
     pub pins: Option<PathBuf>,
     /// Render with --pins even when the pin file records a different source than --volume
@@ -84,25 +87,28 @@ pub struct RenderArgs {
     #[arg(long, value_parser = parse_seconds)]
     pub seconds: Option<f64>,
     /// Camera position X,Y,Z (default: in front of the volume's box, looking at its centre).
-    #[arg(long, value_parser = parse_f64x3)]
+    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
     pub camera_origin: Option<[f64; 3]>,
     /// Point the camera looks at (default: the box centre).
-    #[arg(long, value_parser = parse_f64x3)]
+    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
     pub camera_target: Option<[f64; 3]>,
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 40.0, value_parser = pin_cli::parse::parse_finite)]
+    /// Vertical field of view in degrees, in (0, 180).
+    #[arg(long, default_value_t = 40.0, value_parser = parse_fov)]
     pub fov: f64,
-    /// Direction from the scene towards the sun.
-    #[arg(long, value_parser = parse_f64x3, default_value = "0.3,1,0.2")]
+    /// Direction from the scene towards the sun (finite, not zero).
+    #[arg(long, value_parser = parse_direction, default_value = "0.3,1,0.2", allow_hyphen_values = true)]
     pub sun_dir: [f64; 3],
     #[arg(long, default_value_t = 3.0, value_parser = pin_cli::parse::parse_nonneg)]
     pub sun_radiance: f64,
     #[arg(long, default_value_t = 0.3, value_parser = pin_cli::parse::parse_nonneg)]
     pub env_radiance: f64,
-    #[arg(long, default_value_t = 0.9, value_parser = pin_cli::parse::parse_nonneg)]
+    /// Single-scattering albedo, in [0, 1].
+    #[arg(long, default_value_t = 0.9, value_parser = parse_albedo)]
     pub albedo: f64,
-    #[arg(long, default_value_t = 0.0, value_parser = pin_cli::parse::parse_finite)]
+    /// Henyey-Greenstein asymmetry, in (-1, 1).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_hg_g, allow_negative_numbers = true)]
     pub g: f64,
+    /// Scattering events at most (with --backend gpu at most 1024, the GPU's limit).
     #[arg(long, default_value_t = 8)]
     pub max_bounces: u32,
     #[arg(long, default_value_t = 0)]
@@ -192,6 +198,50 @@ fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
     s.parse()
 }
 
+/// `--fov`: degrees in (0, 180), as the f32 the camera holds.
+fn parse_fov(s: &str) -> Result<f64, String> {
+    let v = pin_cli::parse::parse_finite(s)?;
+    let f = v as f32;
+    if !(f > 0.0 && f < 180.0) {
+        return Err(format!("{} must be in (0, 180) degrees", pin_cli::num(v)));
+    }
+    Ok(v)
+}
+
+/// `--albedo`: in [0, 1].
+fn parse_albedo(s: &str) -> Result<f64, String> {
+    let v = pin_cli::parse::parse_finite(s)?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("{} must be in [0, 1]", pin_cli::num(v)));
+    }
+    Ok(v)
+}
+
+/// `--g`: the Henyey-Greenstein asymmetry in (-1, 1), as the f32 the scene holds.
+fn parse_hg_g(s: &str) -> Result<f64, String> {
+    let v = pin_cli::parse::parse_finite(s)?;
+    let f = v as f32;
+    if !(f > -1.0 && f < 1.0) {
+        return Err(format!("{} must be in (-1, 1)", pin_cli::num(v)));
+    }
+    Ok(v)
+}
+
+/// `--sun-dir`: a direction whose f32 form the renderer can normalise (finite, not zero).
+fn parse_direction(s: &str) -> Result<[f64; 3], String> {
+    let v = parse_f64x3(s)?;
+    let d = glam::Vec3::from_array(v.map(|x| x as f32));
+    if !(d.is_finite() && d.length_squared() > 0.0 && d.normalize().is_finite()) {
+        return Err(format!(
+            "{},{},{} is not a direction (zero, or too small or large to normalise)",
+            pin_cli::num(v[0]),
+            pin_cli::num(v[1]),
+            pin_cli::num(v[2])
+        ));
+    }
+    Ok(v)
+}
+
 fn parse_seconds(s: &str) -> Result<f64, String> {
     let v = pin_cli::parse::parse_finite(s)?;
     if !(v > 0.0 && v <= 1e5) {
@@ -251,6 +301,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
         }
         (Some(v), _) => v.clone(),
     };
+    let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
+    if a.backend == "gpu" && a.max_bounces > max_gpu {
+        crate::usage!(
+            "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
+            a.max_bounces
+        );
+    }
     let inputs: Vec<&Path> = [a.volume.volume.as_deref(), a.pins.as_deref()]
         .into_iter()
         .flatten()
@@ -418,9 +475,9 @@ struct OpenedMedium {
     pins: Option<Arc<pinrt::PinGrid>>,
     /// The source volume and its field, for its GPU copy.
     opened: Option<(volume::Opened, Arc<TrackedSource>)>,
-    /// A pin file's embedded dense density, for its GPU copy.
+    /// A pin file's embedded dense density, for its GPU copy when there is no sparse one.
     voxels: Option<Arc<VoxelGrid>>,
-    /// A pin file's embedded sparse density, for its GPU copy when there is no dense one.
+    /// A pin file's embedded sparse density, for its GPU copy (preferred to a dense one).
     bricks: Option<Arc<BrickGrid>>,
 }
 
@@ -453,11 +510,11 @@ impl OpenedMedium {
         let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
         match (&self.opened, &self.voxels, &self.bricks) {
             (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
-            (None, Some(v), _) => dense((**v).clone()),
-            (None, None, Some(b)) => match b.to_voxels(max_dense) {
+            (None, _, Some(b)) => match b.to_voxels(max_dense) {
                 Some(v) => dense(v),
                 None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
             },
+            (None, Some(v), None) => dense((**v).clone()),
             (None, None, None) => bail!("no density to upload"),
         }
     }
@@ -524,8 +581,8 @@ fn open_medium_from_pins(path: &Path, gpu: Option<&GpuContext>) -> Result<Opened
         majorants: m.majorants,
         pins: Some(grid),
         opened: None,
-        // The GPU reads the dense section if there is one, else the bricks' dense expansion
-        // where it fits one binding, else the bricks.
+        // The GPU reads the section the CPU reads: the sparse one if there is one (as its
+        // dense expansion where that fits one binding, else as the bricks), else the dense.
         voxels: m.density,
         bricks: m.bricks,
     })
@@ -538,9 +595,6 @@ fn check_gpu_bricks(path: &Path, grid: &pinrt::PinGrid, ctx: &GpuContext) -> Res
     // The section's view, lengths checked: O(1), where `PinGrid::sparse_density` checks
     // every value.
     let file = grid.file().map_err(|e| anyhow!("{e}"))?;
-    if file.density().is_some() {
-        return Ok(());
-    }
     let Some(sparse) = file.sparse_density() else {
         return Ok(());
     };
