@@ -14,6 +14,8 @@
 //! nothing was damaged.
 #![cfg(all(feature = "cli", feature = "vdb"))]
 
+#[path = "hostile/farm.rs"]
+mod farm;
 mod nanovdb;
 
 use std::ffi::{OsStr, OsString};

@@ -69,8 +69,9 @@ pub enum Command {
         /// Output pin file (written atomically; a new path or a regular file, not a tile).
         #[arg(short, long)]
         output: PathBuf,
-        /// Refuse tiles whose total size exceeds this many bytes (K/M/G/T suffixes; default:
-        /// half of the physical memory).
+        /// Refuse a merge that would hold more than this many bytes (K/M/G/T suffixes;
+        /// default: half of the physical memory): twice the inputs' size, and for parts the
+        /// merged grid's pins and tables on top, checked before they are allocated.
         #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
         max_memory: Option<u64>,
         /// Print one JSON object (the merged file's summary, as `inspect --json`, with the
@@ -184,7 +185,10 @@ pub fn read_grid_stats(path: &std::path::Path) -> Result<pinbake::source::GridSt
     f.take(1 << 20)
         .read_to_string(&mut text)
         .map_err(|_| anyhow::anyhow!("{shown}: is not a grid statistics file (not text)"))?;
-    pinbake::source::GridStats::from_json(&text).map_err(|e| anyhow::anyhow!("{shown}: {e}"))
+    let mut stats = pinbake::source::GridStats::from_json(&text)
+        .map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    stats.path = Some(path.to_path_buf());
+    Ok(stats)
 }
 
 /// Writes `text` to a temp file beside `target`, synced, renamed into place.
@@ -267,7 +271,9 @@ fn merge(
                 Ok((n, d))
             })
             .collect::<Result<Vec<_>>>()?;
-        pinbake::merge_parts(&decoded)?.0
+        // The grid and its tables come on top of the part files and their decoded copies.
+        let left = budget.limit.saturating_sub(total.saturating_mul(2));
+        pinbake::part::merge_parts_within(&decoded, Some(left))?.0
     };
     // Checked again just before the write: the path may have changed meanwhile.
     let target = check_output(output, &inputs)?;
