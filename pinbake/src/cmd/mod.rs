@@ -235,7 +235,7 @@ fn merge(
         total = total.saturating_add(pinbake::files::check_input(t)?);
     }
     let budget = MemoryBudget::new(max_memory);
-    budget.check("merging the tiles", total.saturating_mul(2))?;
+    budget.check("merging these files", total.saturating_mul(2))?;
     let data: Vec<(String, Vec<u8>)> = tiles
         .iter()
         .map(|t| Ok((t.display().to_string(), read_file(t, &budget)?)))
