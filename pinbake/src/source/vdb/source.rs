@@ -283,16 +283,15 @@ fn check_stats_options(g: &GridStats, file_size: u64, opt: &VdbOptions) -> Resul
     Ok(())
 }
 
-/// The grid statistics must describe the grid this part read: the same grid, topology
-/// (leaves, active voxels) and at least what the part's own leaves hold; and where the
-/// part's slab (index z `core`, whole leaf layers) holds a z face of the statistics' box,
-/// the slab's own leaves (`slab`) must reach that face, since a correct box's face is a
-/// non-zero voxel of a leaf in the slab that holds it. A slab that holds the box's whole
-/// z range holds every non-zero leaf: its leaves must be the statistics' exactly.
+/// Where the part's slab (index z `core`, whole leaf layers) holds a z face of the
+/// statistics' box, the slab's own leaves (`slab`) must reach that face, since a correct
+/// box's face is a non-zero voxel of a leaf in the slab that holds it. A slab that holds the
+/// box's whole z range holds every non-zero leaf: its leaves must be the statistics' exactly.
+/// (The faces along x and y, and the z faces outside the slab, only the merge can check.)
 fn check_stats_against_slab(
     w: &GridStats,
     core: (i64, i64),
-    slab: crate::part::LeafSummary,
+    slab: LeafSummary,
 ) -> Result<(), String> {
     let Some([wlo, whi]) = w.nonzero_box else {
         return Ok(());
