@@ -99,6 +99,11 @@ pub struct GridStatsArgs {
     /// part's bake.
     #[command(flatten)]
     pub volume: pinbake::cli_args::SourceArgs,
+    /// Cap the reader's memory at this many bytes (K/M/G/T suffixes; default: 64 MiB + 64 x
+    /// the file's size, at most 16 GiB): the statistics pass holds the tree's topology in the
+    /// reader and no leaves, so a pass over a larger tree is refused in one line.
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
+    pub max_memory: Option<u64>,
     /// Print the statistics and the seconds as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
@@ -150,6 +155,12 @@ fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
         ),
     };
     let target = check_output(&args.output, &[&path])?;
+    let mut opts = opts;
+    if let Some(max) = args.max_memory {
+        let size = pinbake::files::check_input(&path)?;
+        let default = pinbake::source::vdb::default_memory_limit(size);
+        opts.memory_limit = Some(max.min(default));
+    }
     let stats = VdbSource::grid_stats(&path, &opts)?;
     let text = format!("{}\n", stats.to_json());
     write_text_atomic(&target, &text)

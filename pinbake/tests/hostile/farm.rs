@@ -215,3 +215,20 @@ fn parts_of_different_statistics_do_not_merge() {
     expect("raised negatives", &merge(&n0, &n1), 1, "negative values");
     assert!(!merged.exists());
 }
+
+/// The statistics pass holds the reader's topology: `--max-memory` caps it, and a pass that
+/// needs more is one line, exit 1, no statistics file.
+#[test]
+fn a_statistics_pass_beyond_its_memory_is_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("stats.json");
+    let vdb = data("openvdb_smoke1.vdb");
+    let r = run(&["grid-stats", s(&vdb), "-o", s(&out), "--max-memory", "4M"]);
+    expect("grid-stats --max-memory 4M", &r, 1, "memory");
+    assert!(!out.exists());
+    ok(
+        "grid-stats --max-memory 1G",
+        &run(&["grid-stats", s(&vdb), "-o", s(&out), "--max-memory", "1G"]),
+    );
+    assert!(out.exists());
+}
