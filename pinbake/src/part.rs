@@ -141,7 +141,9 @@ pub enum PartError {
     Mismatch { name: String, problem: String },
     #[error("parts do not cover the volume: {0}")]
     Coverage(String),
-    #[error("merging the parts needs about {need} bytes, more than --max-memory {limit}")]
+    #[error(
+        "merging the parts needs about {need} bytes for the merged grid, more than the {limit} bytes the memory budget (--max-memory) leaves beside the part files"
+    )]
     Memory { need: u64, limit: u64 },
     #[error(transparent)]
     Bake(#[from] BakeError),
