@@ -33,6 +33,78 @@ pub struct Part {
     pub count: u32,
 }
 
+/// The most parts a bake splits into (`--part I/N`, [`PartData::part`] of a part file). Every
+/// part reads the whole tree's topology and hashes the whole input, and the merge holds every
+/// part's identity lattice (160 KiB each: 160 MiB at this count), so a larger split costs
+/// more than it saves; a part count above it in a part file is damage.
+pub const MAX_PARTS: u32 = 1024;
+
+/// The non-zero leaves of a voxel grid, or of one slab of it: how many, the inclusive index
+/// box of their non-zero voxels (`None` when there are none) and their largest value, after
+/// the density scale.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LeafSummary {
+    pub nonzero_leaves: u64,
+    pub nonzero_box: Option<[[i32; 3]; 2]>,
+    pub max_value: f32,
+}
+
+impl LeafSummary {
+    /// No leaves.
+    pub const EMPTY: Self = Self {
+        nonzero_leaves: 0,
+        nonzero_box: None,
+        max_value: 0.0,
+    };
+
+    /// The summary of the leaves of `self` and of `other` together (disjoint sets of leaves).
+    pub fn union(self, other: Self) -> Self {
+        let nonzero_box = match (self.nonzero_box, other.nonzero_box) {
+            (Some([a0, a1]), Some([b0, b1])) => Some([
+                std::array::from_fn(|i| a0[i].min(b0[i])),
+                std::array::from_fn(|i| a1[i].max(b1[i])),
+            ]),
+            (a, None) => a,
+            (None, b) => b,
+        };
+        Self {
+            nonzero_leaves: self.nonzero_leaves.saturating_add(other.nonzero_leaves),
+            nonzero_box,
+            max_value: self.max_value.max(other.max_value),
+        }
+    }
+}
+
+impl std::fmt::Display for LeafSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.nonzero_box {
+            Some([lo, hi]) => write!(
+                f,
+                "{} non-zero leaves in index box {lo:?}..={hi:?}, largest value {}",
+                self.nonzero_leaves, self.max_value
+            ),
+            None => write!(f, "{} non-zero leaves", self.nonzero_leaves),
+        }
+    }
+}
+
+/// What a part of a voxel grid knows about the grid's leaves, for the merge to check the
+/// parts against each other: the whole grid's facts it baked with (from `--grid-stats`, or
+/// from its own read of every leaf) and what it found in the leaves of its own slab (not its
+/// margin). The slabs tile the grid, so the slabs' summaries together must be the whole
+/// grid's: statistics that overstate or understate the grid fail that test.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PartFacts {
+    pub grid: LeafSummary,
+    /// Active negative values of the grid clamped to 0 (leaves and tiles).
+    pub negative_values: u64,
+    pub slab: LeafSummary,
+    /// Active negative values in the slab's leaves, and in the tiles (every part reads them
+    /// all): over the parts, the slabs' and the tiles' make the grid's.
+    pub slab_negative_values: u64,
+    pub tile_negative_values: u64,
+}
+
 /// What one part computed: with the other parts, everything the merge needs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PartData {
@@ -56,6 +128,8 @@ pub struct PartData {
     /// The samples of every pin in the slab, pin after pin in the file's order (cells x
     /// fastest, then direction, then pin of the entry).
     pub samples: Vec<f32>,
+    /// A voxel grid's facts ([`DensitySource::part_facts`]); `None` for a source read whole.
+    pub facts: Option<PartFacts>,
 }
 
 /// Why parts do not merge. Messages are one line and name the part.
@@ -67,6 +141,10 @@ pub enum PartError {
     Mismatch { name: String, problem: String },
     #[error("parts do not cover the volume: {0}")]
     Coverage(String),
+    #[error(
+        "merging the parts needs about {need} bytes for the merged grid, more than the {limit} bytes the memory budget (--max-memory) leaves beside the part files"
+    )]
+    Memory { need: u64, limit: u64 },
     #[error(transparent)]
     Bake(#[from] BakeError),
 }
@@ -215,9 +293,9 @@ fn even_slab(bbox: &Aabb, part: Part) -> [f64; 2] {
 }
 
 fn check(part: Part, opts: &BakeOptions) -> Result<(), BakeError> {
-    if part.count == 0 || part.index >= part.count {
+    if part.count == 0 || part.index >= part.count || part.count > MAX_PARTS {
         return Err(BakeError::Options(format!(
-            "part {}/{} out of range",
+            "part {}/{} out of range (at most {MAX_PARTS} parts)",
             part.index, part.count
         )));
     }
@@ -374,6 +452,7 @@ fn part_in_pool(
         lattice,
         lattice_owned,
         samples: Vec::new(),
+        facts: source.part_facts(),
     };
     // The samples are counted first: the file states their number before them, and each
     // batch of rows is one allocation that the rows fill in place.
@@ -514,6 +593,15 @@ fn row_counts(layout: &PinLayout, placement: &Placement, slabs: &[[f64; 2]]) -> 
 /// description, metadata, march or majorant size differ), a part missing or given twice,
 /// slabs that do not tile the volume, a part whose sample count is not what the grid needs.
 pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeStats), PartError> {
+    merge_parts_within(parts, None)
+}
+
+/// [`merge_parts`] refusing, before it allocates them, a grid and tables of more than
+/// `max_memory` bytes (what the merge holds beside the parts themselves).
+pub fn merge_parts_within(
+    parts: &[(String, PartData)],
+    max_memory: Option<u64>,
+) -> Result<(OwnedPinGrid, BakeStats), PartError> {
     let started = Instant::now();
     let (first_name, first) = parts.first().ok_or(PartError::Empty)?;
     let count = first.part.count;
@@ -541,6 +629,14 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
             Some("majorant grid")
         } else if p.lattice.len() != first.lattice.len() {
             Some("identity lattice")
+        } else if p
+            .facts
+            .map(|f| (f.grid, f.negative_values, f.tile_negative_values))
+            != first
+                .facts
+                .map(|f| (f.grid, f.negative_values, f.tile_negative_values))
+        {
+            Some("grid statistics (non-zero leaves, their box and largest value, negative values)")
         } else {
             None
         };
@@ -548,23 +644,35 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
             return Err(mismatch(name, format!("{what} differs from {first_name}")));
         }
     }
-    let mut by_index: Vec<Option<&str>> = vec![None; count as usize];
+    // The part count comes from a file: nothing is sized by it. The parts given, sorted by
+    // index, must be 0, 1, ... count - 1.
+    let mut by_index: Vec<(u32, &str)> = parts
+        .iter()
+        .map(|(name, p)| (p.part.index, name.as_str()))
+        .collect();
+    by_index.sort_unstable();
     for (name, p) in parts {
-        let slot = by_index.get_mut(p.part.index as usize).ok_or_else(|| {
-            mismatch(
+        if p.part.index >= count {
+            return Err(mismatch(
                 name,
                 format!("part {} of {count} out of range", p.part.index),
-            )
-        })?;
-        if let Some(other) = slot {
+            ));
+        }
+    }
+    for w in by_index.windows(2) {
+        if w[0].0 == w[1].0 {
             return Err(PartError::Coverage(format!(
-                "part {} of {count} is given twice ({other} and {name})",
-                p.part.index
+                "part {} of {count} is given twice ({} and {})",
+                w[0].0, w[0].1, w[1].1
             )));
         }
-        *slot = Some(name);
     }
-    if let Some(i) = by_index.iter().position(Option::is_none) {
+    if by_index.len() != count as usize {
+        let i = by_index
+            .iter()
+            .zip(0u32..)
+            .find(|((index, _), i)| index != i)
+            .map_or(by_index.len() as u32, |(_, i)| i);
         return Err(PartError::Coverage(format!(
             "part {i} of {count} is missing ({} of {count} given)",
             parts.len()
@@ -591,6 +699,7 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         return Err(PartError::Coverage(format!("no part holds z from {z} up")));
     }
     let slabs: Vec<[f64; 2]> = order.iter().map(|(_, p)| p.slab).collect();
+    check_facts(first_name, &order)?;
 
     // The identity: each lattice point from its one owner.
     let mut metadata = first.metadata.clone();
@@ -683,6 +792,12 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         .filter(|&v| v <= (isize::MAX as u64) / 8)
         .ok_or_else(|| mismatch(first_name, "grid has more pins than memory can hold".into()))?
         as usize;
+    if let Some(limit) = max_memory {
+        let need = merge_bytes(pins, rows, slabs.len(), first.lattice.len());
+        if need > limit {
+            return Err(PartError::Memory { need, limit });
+        }
+    }
     // The pins first: a grid too large for memory is refused before the passes over it.
     let mut dense = crate::bake::try_filled("the pins", pins, PinEntry::EMPTY)?;
     let pin = |row: usize, x: u32, dir: u32, k: u32| {
@@ -760,6 +875,57 @@ pub fn merge_parts(parts: &[(String, PartData)]) -> Result<(OwnedPinGrid, BakeSt
         block_len,
         started,
     )?)
+}
+
+/// What [`merge_parts_within`] allocates beside the parts: the pins (and the canonical
+/// grid's copy of them), each row's sample counts and starts per part, the lattice.
+fn merge_bytes(pins: usize, rows: usize, parts: usize, lattice: usize) -> u64 {
+    let row_table = (size_of::<Vec<usize>>() as u64)
+        .saturating_add((parts as u64).saturating_mul(size_of::<usize>() as u64));
+    (pins as u64)
+        .saturating_mul(2 * size_of::<PinEntry>() as u64)
+        .saturating_add(
+            (rows as u64 + 1)
+                .saturating_mul(row_table)
+                .saturating_mul(2),
+        )
+        .saturating_add((lattice as u64).saturating_mul(4))
+}
+
+/// The parts of a voxel grid (`order`, bottom to top) against the grid statistics they were
+/// baked with (which they agree on, checked before): their slabs tile the grid, so the
+/// leaves of all the slabs are the grid's leaves. Statistics that widen or shrink the
+/// non-zero box, or miscount the leaves or the largest value, give every part the same
+/// wrong bytes and pass every other check; here they fail.
+fn check_facts(first_name: &str, order: &[&(String, PartData)]) -> Result<(), PartError> {
+    let Some(want) = order.first().and_then(|(_, p)| p.facts) else {
+        return Ok(());
+    };
+    let facts = || order.iter().filter_map(|(_, p)| p.facts);
+    let got = facts().fold(LeafSummary::EMPTY, |a, f| a.union(f.slab));
+    let negatives = facts().fold(want.tile_negative_values, |a, f| {
+        a.saturating_add(f.slab_negative_values)
+    });
+    // The largest values are maxima of the same f32 values: equal, not close.
+    let same = got.nonzero_leaves == want.grid.nonzero_leaves
+        && got.nonzero_box == want.grid.nonzero_box
+        && got.max_value == want.grid.max_value;
+    let problem = if !same {
+        format!("say {}, the parts' slabs hold {got}", want.grid)
+    } else if negatives != want.negative_values {
+        format!(
+            "count {} negative values, the parts' slabs and the tiles hold {negatives}",
+            want.negative_values
+        )
+    } else {
+        return Ok(());
+    };
+    Err(PartError::Mismatch {
+        name: first_name.to_string(),
+        problem: format!(
+            "the grid statistics the parts were baked with do not match the grid: they {problem} (statistics edited, or made for another file or other options)"
+        ),
+    })
 }
 
 #[cfg(test)]
@@ -1041,6 +1207,116 @@ mod tests {
         assert!(merge_parts(&[c, a, b]).is_ok());
     }
 
+    /// The part count is read from the files: a count far above the parts given is a
+    /// missing part, found without sizing anything by the count.
+    #[test]
+    fn merge_sizes_nothing_by_the_part_count() {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        let mut parts: Vec<(String, PartData)> = (0..2)
+            .map(|index| {
+                let d = bake_part(&src, &opts(), Part { index, count: 2 }, &|_| {}).unwrap();
+                (format!("p{index}"), d)
+            })
+            .collect();
+        for (_, p) in &mut parts {
+            p.part.count = u32::MAX;
+        }
+        let e = merge_parts(&parts).unwrap_err().to_string();
+        assert!(e.contains("part 2 of 4294967295 is missing"), "{e}");
+        parts[1].1.part.index = 7;
+        let e = merge_parts(&parts).unwrap_err().to_string();
+        assert!(e.contains("part 1 of 4294967295 is missing"), "{e}");
+    }
+
+    /// A merge with a memory budget refuses a grid beyond it before allocating it.
+    #[test]
+    fn merge_within_a_budget_refuses_before_allocating() {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        let parts: Vec<(String, PartData)> = (0..2)
+            .map(|index| {
+                let d = bake_part(&src, &opts(), Part { index, count: 2 }, &|_| {}).unwrap();
+                (format!("p{index}"), d)
+            })
+            .collect();
+        assert!(matches!(
+            merge_parts_within(&parts, Some(1000)),
+            Err(PartError::Memory { limit: 1000, .. })
+        ));
+        assert!(merge_parts_within(&parts, Some(1 << 30)).is_ok());
+    }
+
+    /// Parts of a voxel grid carry the grid's facts they baked with and their slab's: parts
+    /// that disagree on the grid's, or whose slabs together are not the grid, do not merge.
+    #[test]
+    fn merge_checks_the_parts_grid_facts() {
+        let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
+        let summary = |n, lo: [i32; 3], hi: [i32; 3], m| LeafSummary {
+            nonzero_leaves: n,
+            nonzero_box: Some([lo, hi]),
+            max_value: m,
+        };
+        let grid = summary(5, [0, 0, 0], [20, 9, 30], 2.0);
+        let slabs = [
+            (summary(2, [1, 0, 0], [20, 3, 15], 2.0), 1),
+            (summary(3, [0, 2, 16], [19, 9, 30], 1.5), 2),
+        ];
+        let parts: Vec<(String, PartData)> = slabs
+            .iter()
+            .enumerate()
+            .map(|(index, (slab, negatives))| {
+                let mut d = bake_part(
+                    &src,
+                    &opts(),
+                    Part {
+                        index: index as u32,
+                        count: 2,
+                    },
+                    &|_| {},
+                )
+                .unwrap();
+                d.facts = Some(PartFacts {
+                    grid,
+                    negative_values: 7,
+                    slab: *slab,
+                    slab_negative_values: *negatives,
+                    tile_negative_values: 4,
+                });
+                (format!("p{index}"), d)
+            })
+            .collect();
+        assert!(merge_parts(&parts).is_ok());
+        let edit = |f: &dyn Fn(&mut PartFacts)| {
+            let mut p = parts.clone();
+            for (_, d) in &mut p {
+                f(d.facts.as_mut().unwrap());
+            }
+            merge_parts(&p).unwrap_err().to_string()
+        };
+        // Every part baked with the same lying statistics.
+        let e = edit(&|f| f.grid.nonzero_box = Some([[0, 0, 0], [21, 9, 30]]));
+        assert!(
+            e.contains("do not match the grid") && e.starts_with("p0: "),
+            "{e}"
+        );
+        assert!(edit(&|f| f.grid.nonzero_leaves = 6).contains("do not match"));
+        assert!(edit(&|f| f.grid.max_value = 3.0).contains("do not match"));
+        assert!(edit(&|f| f.negative_values = 8).contains("negative values"));
+        // Parts baked with different statistics.
+        let mut p = parts.clone();
+        p[1].1.facts.as_mut().unwrap().grid.max_value = 3.0;
+        let e = merge_parts(&p).unwrap_err().to_string();
+        assert!(e.contains("p1") && e.contains("grid statistics"), "{e}");
+        // A part of a voxel grid among parts of a source read whole.
+        let mut p = parts.clone();
+        p[0].1.facts = None;
+        assert!(
+            merge_parts(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("grid statistics")
+        );
+    }
+
     #[test]
     fn part_bakes_refuse_what_they_cannot_split() {
         let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
@@ -1060,5 +1336,13 @@ mod tests {
             ));
         }
         assert!(bake_part(&src, &opts(), Part { index: 2, count: 2 }, &|_| {}).is_err());
+        let too_many = Part {
+            index: 1,
+            count: MAX_PARTS + 1,
+        };
+        assert!(matches!(
+            bake_part(&src, &opts(), too_many, &|_| {}),
+            Err(BakeError::Options(_))
+        ));
     }
 }

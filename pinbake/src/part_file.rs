@@ -9,13 +9,20 @@
 //! metadata: length u32 | pin_format metadata encoding (content hash empty)
 //! majorant dims 3 x u32 (0 0 0: none) | majorant f32 x (product of dims)
 //! lattice count u32 | lattice f32 x count | lattice owners u8 x count
+//! grid facts: present u32 (0 or 1) | if 1: grid summary | negative values u64 | slab summary
+//!   | slab's negative values u64 | tiles' negative values u64
+//!   (a summary: non-zero leaves u64 | box lo 3 x i32 | box hi 3 x i32 | largest value f32;
+//!   no box: lo i32::MAX x 3, hi i32::MIN x 3)
 //! sample count u64 | samples f32 x count
 //! checksum u64: xxh3-64 of every byte before it
 //! ```
 //!
 //! A reader checks the length, magic, version and checksum before anything else, then every
-//! count against the bytes left (checked arithmetic), so a damaged or truncated file is a
-//! one-line error and never an allocation the file asked for.
+//! count against the bytes left (checked arithmetic) and against what a bake writes (the part
+//! count against [`MAX_PARTS`], the lattice against its fixed size), so a damaged or
+//! truncated file is a one-line error and never an allocation the file asked for. The
+//! checksum is no defence against an edited file whose checksum was recomputed: the counts
+//! are checked all the same.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -23,10 +30,12 @@ use std::path::{Path, PathBuf};
 use pin_format::{GridDesc, Metadata};
 
 use crate::bake::BakeError;
-use crate::part::{Part, PartData, SampleSink};
+use crate::part::{LeafSummary, MAX_PARTS, Part, PartData, PartFacts, SampleSink};
+use crate::source::identity;
 
 pub const PART_MAGIC: &[u8; 8] = b"PINPART\0";
-pub const PART_VERSION: u32 = 1;
+/// 2: the grid facts ([`PartFacts`]) after the lattice.
+pub const PART_VERSION: u32 = 2;
 /// `flags` bit: the samples are a dense grid's march ([`PartData::grid_march`]).
 pub const PART_FLAG_GRID_MARCH: u32 = 1;
 
@@ -132,7 +141,28 @@ fn write_head(d: &PartData, total: u64, b: &mut impl Write) -> Result<(), PartFi
         .map_err(io)?;
     b.write_all(bytemuck::cast_slice(&d.lattice)).map_err(io)?;
     b.write_all(&d.lattice_owned).map_err(io)?;
+    match &d.facts {
+        None => b.write_all(&0u32.to_le_bytes()).map_err(io)?,
+        Some(f) => {
+            b.write_all(&1u32.to_le_bytes()).map_err(io)?;
+            write_summary(&f.grid, b)?;
+            b.write_all(&f.negative_values.to_le_bytes()).map_err(io)?;
+            write_summary(&f.slab, b)?;
+            for v in [f.slab_negative_values, f.tile_negative_values] {
+                b.write_all(&v.to_le_bytes()).map_err(io)?;
+            }
+        }
+    }
     b.write_all(&total.to_le_bytes()).map_err(io)
+}
+
+fn write_summary(s: &LeafSummary, b: &mut impl Write) -> Result<(), PartFileError> {
+    b.write_all(&s.nonzero_leaves.to_le_bytes()).map_err(io)?;
+    let [lo, hi] = s.nonzero_box.unwrap_or([[i32::MAX; 3], [i32::MIN; 3]]);
+    for v in lo.into_iter().chain(hi) {
+        b.write_all(&v.to_le_bytes()).map_err(io)?;
+    }
+    b.write_all(&s.max_value.to_le_bytes()).map_err(io)
 }
 
 fn write_samples(samples: &[f32], b: &mut impl Write) -> Result<(), PartFileError> {
@@ -171,6 +201,41 @@ impl<'a> Cursor<'a> {
     fn u64(&mut self, what: &str) -> Result<u64, PartFileError> {
         let b = self.take(8, what)?;
         Ok(u64::from_le_bytes(b.try_into().expect("8 bytes")))
+    }
+    /// A [`LeafSummary`]: a box with every `lo <= hi`, or the marker of none with no leaves;
+    /// a finite largest value, 0 without leaves.
+    fn summary(&mut self, what: &str) -> Result<LeafSummary, PartFileError> {
+        let nonzero_leaves = self.u64(what)?;
+        let mut v = [0i32; 6];
+        for x in &mut v {
+            *x = self.u32(what)? as i32;
+        }
+        let (lo, hi) = ([v[0], v[1], v[2]], [v[3], v[4], v[5]]);
+        let max_value = f32::from_bits(self.u32(what)?);
+        let nonzero_box = if (lo, hi) == ([i32::MAX; 3], [i32::MIN; 3]) {
+            None
+        } else {
+            Some([lo, hi])
+        };
+        let valid = match nonzero_box {
+            None => nonzero_leaves == 0 && max_value == 0.0,
+            Some([lo, hi]) => {
+                nonzero_leaves > 0
+                    && (0..3).all(|a| lo[a] <= hi[a])
+                    && max_value.is_finite()
+                    && max_value > 0.0
+            }
+        };
+        if !valid {
+            return Err(PartFileError::Corrupt(format!(
+                "{what}: {nonzero_leaves} leaves, box {lo:?}..{hi:?}, largest value {max_value}"
+            )));
+        }
+        Ok(LeafSummary {
+            nonzero_leaves,
+            nonzero_box,
+            max_value,
+        })
     }
     fn f32s(&mut self, n: u64, what: &str) -> Result<Vec<f32>, PartFileError> {
         let bytes = self.take(
@@ -213,8 +278,10 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
     let mut c = Cursor(&body[12..]);
     let index = c.u32("part index")?;
     let count = c.u32("part count")?;
-    if count == 0 || index >= count {
-        return Err(PartFileError::Corrupt(format!("part {index} of {count}")));
+    if count == 0 || index >= count || count > MAX_PARTS {
+        return Err(PartFileError::Corrupt(format!(
+            "part {index} of {count} (a bake has 1 to {MAX_PARTS} parts)"
+        )));
     }
     let flags = c.u32("flags")?;
     if flags & !PART_FLAG_GRID_MARCH != 0 {
@@ -246,6 +313,12 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
         Some((dims, c.f32s(n, "majorant")?))
     };
     let n = u64::from(c.u32("lattice count")?);
+    let points = identity::LATTICE.pow(3) as u64;
+    if n != points {
+        return Err(PartFileError::Corrupt(format!(
+            "identity lattice of {n} points, not {points}"
+        )));
+    }
     let lattice = c.f32s(n, "lattice")?;
     let lattice_owned = c.take(n, "lattice owners")?.to_vec();
     if lattice_owned.iter().any(|&o| o > 1) {
@@ -253,6 +326,36 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
             "lattice owner flag not 0 or 1".into(),
         ));
     }
+    let facts = match c.u32("grid facts")? {
+        0 => None,
+        1 => {
+            let grid = c.summary("the grid's leaves")?;
+            let negative_values = c.u64("negative values")?;
+            let slab = c.summary("the slab's leaves")?;
+            let slab_negative_values = c.u64("negative values")?;
+            let tile_negative_values = c.u64("negative values")?;
+            if slab.nonzero_leaves > grid.nonzero_leaves
+                || slab.max_value > grid.max_value
+                || slab_negative_values.saturating_add(tile_negative_values) > negative_values
+            {
+                return Err(PartFileError::Corrupt(format!(
+                    "the slab's leaves ({slab}, {slab_negative_values} negative values) are more than the grid's ({grid}, {negative_values})"
+                )));
+            }
+            Some(PartFacts {
+                grid,
+                negative_values,
+                slab,
+                slab_negative_values,
+                tile_negative_values,
+            })
+        }
+        other => {
+            return Err(PartFileError::Corrupt(format!(
+                "grid facts marker {other}, not 0 or 1"
+            )));
+        }
+    };
     let n = c.u64("sample count")?;
     let samples = c.f32s(n, "samples")?;
     if !c.0.is_empty() {
@@ -271,6 +374,7 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
         lattice,
         lattice_owned,
         samples,
+        facts,
     })
 }
 
@@ -468,11 +572,59 @@ mod tests {
 
     #[test]
     fn a_part_file_reads_back_what_was_written() {
-        let d = sample();
+        let mut d = sample();
         assert!(!d.samples.is_empty());
         let bytes = encode(&d).unwrap();
         assert!(is_part_file(&bytes));
         assert_eq!(decode(&bytes).unwrap(), d);
+        let s = |n, m| LeafSummary {
+            nonzero_leaves: n,
+            nonzero_box: Some([[-3, 0, 8], [40, 41, 42]]),
+            max_value: m,
+        };
+        d.facts = Some(PartFacts {
+            grid: s(9, 2.5),
+            negative_values: 5,
+            slab: LeafSummary::EMPTY,
+            slab_negative_values: 1,
+            tile_negative_values: 3,
+        });
+        assert_eq!(decode(&encode(&d).unwrap()).unwrap(), d);
+        d.facts.as_mut().unwrap().slab = s(4, 2.0);
+        assert_eq!(decode(&encode(&d).unwrap()).unwrap(), d);
+        // A slab of more leaves than its grid: refused.
+        d.facts.as_mut().unwrap().slab = s(10, 2.0);
+        assert!(matches!(
+            decode(&encode(&d).unwrap()),
+            Err(PartFileError::Corrupt(_))
+        ));
+    }
+
+    /// Counts a bake never writes, under a valid checksum: one line, before anything is
+    /// sized by them.
+    #[test]
+    fn absurd_counts_are_refused_under_a_valid_checksum() {
+        let resealed = |f: &dyn Fn(&mut Vec<u8>)| {
+            let mut b = encode(&sample()).unwrap();
+            b.truncate(b.len() - 8);
+            f(&mut b);
+            let sum = xxhash_rust::xxh3::xxh3_64(&b);
+            b.extend_from_slice(&sum.to_le_bytes());
+            decode(&b).unwrap_err().to_string()
+        };
+        // The part count (after magic, version and index).
+        let e = resealed(&|b| b[16..20].copy_from_slice(&u32::MAX.to_le_bytes()));
+        assert!(e.contains("part 1 of 4294967295"), "{e}");
+        let e = resealed(&|b| b[16..20].copy_from_slice(&(MAX_PARTS + 1).to_le_bytes()));
+        assert!(e.contains("1025"), "{e}");
+        // The lattice count: where the lattice's points and owners begin, 5 bytes each.
+        let d = sample();
+        let tail = 4 + 5 * d.lattice.len() + 4 + 8 + 4 * d.samples.len();
+        let e = resealed(&|b| {
+            let at = b.len() - tail;
+            b[at..at + 4].copy_from_slice(&7u32.to_le_bytes());
+        });
+        assert!(e.contains("identity lattice of 7 points"), "{e}");
     }
 
     /// Every truncation and every flipped byte is a one-line error, never a panic or a

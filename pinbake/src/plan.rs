@@ -542,7 +542,8 @@ fn prepare(
                 return Err(PlanError::Source(SourceError::Vdb {
                     path: path.clone(),
                     message: format!(
-                        "the grid statistics were made for another file (content hash {}, this file's is {h}); make them again with `pinbake grid-stats`",
+                        "{} were made for another file (content hash {}, this file's is {h}); make them again with `pinbake grid-stats`",
+                        g.named(),
                         one_line_hash(&g.file_xxh3)
                     ),
                 }));

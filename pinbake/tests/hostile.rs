@@ -16,6 +16,8 @@
 
 #[path = "hostile/budget.rs"]
 mod budget;
+#[path = "hostile/farm.rs"]
+mod farm;
 mod nanovdb;
 mod openvdb;
 

@@ -100,7 +100,7 @@ pub struct BakeArgs {
     pub tile: Option<Tile>,
     /// Bake only part I of N of a bake split by volume: the pins' samples in z-slab I of the
     /// volume, into a part file (a VDB is read for that slab only); join the N part files
-    /// with `pinbake merge`. Needs --cells and --dirs.
+    /// with `pinbake merge`. Needs --cells and --dirs; N is at most 1024.
     #[arg(long, value_parser = parse_part, help_heading = "Execution", conflicts_with = "tile")]
     pub part: Option<pinbake::Part>,
     /// With --part and an OpenVDB input: the whole grid's statistics that `pinbake grid-stats`
@@ -243,8 +243,17 @@ fn parse_tile(s: &str) -> Result<Tile, String> {
     Ok(Tile { index, count })
 }
 
+/// `--part I/N`: at most [`pinbake::part::MAX_PARTS`] parts (a part file of more is damage,
+/// and the merge could not hold their lattices).
 fn parse_part(s: &str) -> Result<pinbake::Part, String> {
     let t = parse_tile(s).map_err(|e| e.replace("tile", "part"))?;
+    if t.count > pinbake::part::MAX_PARTS {
+        return Err(format!(
+            "{} parts: a bake splits into at most {} parts",
+            t.count,
+            pinbake::part::MAX_PARTS
+        ));
+    }
     Ok(pinbake::Part {
         index: t.index,
         count: t.count,

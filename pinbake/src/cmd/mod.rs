@@ -69,8 +69,9 @@ pub enum Command {
         /// Output pin file (written atomically; a new path or a regular file, not a tile).
         #[arg(short, long)]
         output: PathBuf,
-        /// Refuse tiles whose total size exceeds this many bytes (K/M/G/T suffixes; default:
-        /// half of the physical memory).
+        /// Refuse a merge that would hold more than this many bytes (K/M/G/T suffixes;
+        /// default: half of the physical memory): twice the inputs' size, and for parts the
+        /// merged grid's pins and tables on top, checked before they are allocated.
         #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
         max_memory: Option<u64>,
         /// Print one JSON object (the merged file's summary, as `inspect --json`, with the
@@ -98,6 +99,11 @@ pub struct GridStatsArgs {
     /// part's bake.
     #[command(flatten)]
     pub volume: pinbake::cli_args::SourceArgs,
+    /// Cap the reader's memory at this many bytes (K/M/G/T suffixes; default: 64 MiB + 64 x
+    /// the file's size, at most 16 GiB): the statistics pass holds the tree's topology in the
+    /// reader and no leaves, so a pass over a larger tree is refused in one line.
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
+    pub max_memory: Option<u64>,
     /// Print the statistics and the seconds as one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
@@ -149,6 +155,12 @@ fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
         ),
     };
     let target = check_output(&args.output, &[&path])?;
+    let mut opts = opts;
+    if let Some(max) = args.max_memory {
+        let size = pinbake::files::check_input(&path)?;
+        let default = pinbake::source::vdb::default_memory_limit(size);
+        opts.memory_limit = Some(max.min(default));
+    }
     let stats = VdbSource::grid_stats(&path, &opts)?;
     let text = format!("{}\n", stats.to_json());
     write_text_atomic(&target, &text)
@@ -184,7 +196,10 @@ pub fn read_grid_stats(path: &std::path::Path) -> Result<pinbake::source::GridSt
     f.take(1 << 20)
         .read_to_string(&mut text)
         .map_err(|_| anyhow::anyhow!("{shown}: is not a grid statistics file (not text)"))?;
-    pinbake::source::GridStats::from_json(&text).map_err(|e| anyhow::anyhow!("{shown}: {e}"))
+    let mut stats = pinbake::source::GridStats::from_json(&text)
+        .map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    stats.path = Some(path.to_path_buf());
+    Ok(stats)
 }
 
 /// Writes `text` to a temp file beside `target`, synced, renamed into place.
@@ -231,7 +246,7 @@ fn merge(
         total = total.saturating_add(pinbake::files::check_input(t)?);
     }
     let budget = MemoryBudget::new(max_memory);
-    budget.check("merging the tiles", total.saturating_mul(2))?;
+    budget.check("merging these files", total.saturating_mul(2))?;
     let data: Vec<(String, Vec<u8>)> = tiles
         .iter()
         .map(|t| Ok((t.display().to_string(), read_file(t, &budget)?)))
@@ -267,7 +282,9 @@ fn merge(
                 Ok((n, d))
             })
             .collect::<Result<Vec<_>>>()?;
-        pinbake::merge_parts(&decoded)?.0
+        // The grid and its tables come on top of the part files and their decoded copies.
+        let left = budget.limit.saturating_sub(total.saturating_mul(2));
+        pinbake::part::merge_parts_within(&decoded, Some(left))?.0
     };
     // Checked again just before the write: the path may have changed meanwhile.
     let target = check_output(output, &inputs)?;

@@ -162,6 +162,13 @@ pub trait DensitySource: Send + Sync {
         None
     }
 
+    /// For a voxel grid read for one part of a farm bake: the grid's leaf facts it baked
+    /// with and those of its own slab's leaves ([`crate::part::PartFacts`]), for the merge's
+    /// checks. `None` (the default): the source holds the whole field.
+    fn part_facts(&self) -> Option<crate::part::PartFacts> {
+        None
+    }
+
     /// The source as a dense grid, when it is one: the baker then marches its voxels directly
     /// ([`DenseGrid::march_runs`]) instead of going through `extinction_along`.
     fn as_dense_grid(&self) -> Option<&DenseGrid> {

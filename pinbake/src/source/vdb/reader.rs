@@ -569,6 +569,10 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     let mut skipped = Skipped::default();
 
     let mut negatives: u64 = 0;
+    // A part's account of the negative values: those of the leaves of its own slab (not its
+    // margin) and those of the tiles (which every part reads), for the merge's checks.
+    let (mut leaf_negatives, mut slab_leaf_negatives) = (0u64, 0u64);
+    let in_core = |o3: [i32; 3]| slab.is_some_and(|(lo, hi)| (lo..hi).contains(&i64::from(o3[2])));
     let mut leaf_buf = [0f32; 512];
     for n5 in &g.tree.root_nodes {
         let o5 = n5.origin.to_array();
@@ -630,7 +634,8 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
                             ));
                         }
                         if v < 0.0 {
-                            negatives += 1;
+                            leaf_negatives += 1;
+                            slab_leaf_negatives += u64::from(in_core(o3));
                         }
                         *o = v.max(0.0);
                         any |= *o != 0.0;
@@ -752,12 +757,15 @@ pub(super) fn emit_grid<T: Val, R: Read + std::io::Seek>(
     }
     put_u8(out, TAG_END)?;
     put_u64(out, active)?;
-    put_u64(out, negatives)?;
+    put_u64(out, negatives + leaf_negatives)?;
     if part.is_some() {
         put_u64(out, skipped.kept)?;
         put_ivec(out, skipped.lo)?;
         put_ivec(out, skipped.hi)?;
         out.write_all(&skipped.max.to_le_bytes()).map_err(wr)?;
+        put_u64(out, slab_leaf_negatives)?;
+        // The tiles' negative values.
+        put_u64(out, negatives)?;
     }
     out.write_all(STREAM_END).map_err(wr)
 }

@@ -2,6 +2,7 @@
 //! copy, and its `DensitySource` sampling and marching.
 
 use super::*;
+use crate::part::{LeafSummary, PartFacts};
 
 /// A block of 8^3 voxels: a leaf's values or a constant tile.
 #[derive(Clone, Copy, Debug)]
@@ -213,6 +214,8 @@ pub struct VdbSource {
     /// source holds (with a margin of a leaf each side), and the non-zero leaves of the
     /// grid it does not hold, which its statistics count all the same.
     pub(super) part: Option<(i64, i64)>,
+    /// A part's leaf facts for the merge's checks ([`PartFacts`]).
+    pub(super) part_facts: Option<PartFacts>,
     pub(super) unloaded_leaves: u64,
 }
 
@@ -244,6 +247,7 @@ pub(super) fn stats_of_stream(
         nonzero_leaves: p.skipped_kept,
         nonzero_box,
         max_value: p.skipped_max,
+        path: None,
     })
 }
 
@@ -251,7 +255,8 @@ pub(super) fn stats_of_stream(
 fn check_stats_options(g: &GridStats, file_size: u64, opt: &VdbOptions) -> Result<(), String> {
     let differs = |what: &str, stats: String, here: String| {
         Err(format!(
-            "the grid statistics were made for {what} {stats}, this bake has {here} (make them again with the bake's options)"
+            "{} were made for {what} {stats}, this bake has {here} (make them again with the bake's options)",
+            g.named()
         ))
     };
     if g.file_bytes != file_size {
@@ -274,6 +279,48 @@ fn check_stats_options(g: &GridStats, file_size: u64, opt: &VdbOptions) -> Resul
             g.levelset_to_fog.to_string(),
             opt.levelset_to_fog.to_string(),
         );
+    }
+    Ok(())
+}
+
+/// Where the part's slab (index z `core`, whole leaf layers) holds a z face of the
+/// statistics' box, the slab's own leaves (`slab`) must reach that face, since a correct
+/// box's face is a non-zero voxel of a leaf in the slab that holds it. A slab that holds the
+/// box's whole z range holds every non-zero leaf: its leaves must be the statistics' exactly.
+/// (The faces along x and y, and the z faces outside the slab, only the merge can check.)
+fn check_stats_against_slab(
+    w: &GridStats,
+    core: (i64, i64),
+    slab: LeafSummary,
+) -> Result<(), String> {
+    let Some([wlo, whi]) = w.nonzero_box else {
+        return Ok(());
+    };
+    let in_core = |z: i32| core.0 <= i64::from(z) && i64::from(z) < core.1;
+    let (slo, shi) = match slab.nonzero_box {
+        Some([a, b]) => (Some(a[2]), Some(b[2])),
+        None => (None, None),
+    };
+    let face = |name: &str, want: i32, got: Option<i32>| {
+        format!(
+            "put the {name} z face of the non-zero box at index z {want}, inside this part's slab, where its leaves' non-zero voxels {}",
+            match got {
+                Some(z) => format!("reach index z {z}"),
+                None => "are none".into(),
+            }
+        )
+    };
+    if in_core(wlo[2]) && slo != Some(wlo[2]) {
+        return Err(face("lower", wlo[2], slo));
+    }
+    if in_core(whi[2]) && shi != Some(whi[2]) {
+        return Err(face("upper", whi[2], shi));
+    }
+    if in_core(wlo[2]) && in_core(whi[2]) && slab != w.leaf_summary() {
+        return Err(format!(
+            "say {}, but this part's slab holds the box's whole z range and {slab}",
+            w.leaf_summary()
+        ));
     }
     Ok(())
 }
@@ -496,17 +543,21 @@ impl VdbSource {
             LeafValues::F32(_) => None,
         };
         let mut kept = 0usize;
+        // The kept leaves' summary, and that of those in the part's own slab (not its margin).
+        let core = st.part.map(|p| p.core);
+        let (mut own, mut in_slab) = (LeafSummary::EMPTY, LeafSummary::EMPTY);
         for (i, o) in origins.iter().enumerate() {
             let o = IVec3::from_array(*o);
             if (o & 7) != IVec3::ZERO {
                 return Err(format!("worker sent a misaligned leaf at {o}"));
             }
             let mut m = 0.0f32;
+            let (mut llo, mut lhi) = (IVec3::MAX, IVec3::MIN);
             let mut note = |k: usize, s: f32| {
                 if s != 0.0 {
                     let at = o + IVec3::from_array(local(k, 3));
-                    lo = lo.min(at);
-                    hi = hi.max(at);
+                    llo = llo.min(at);
+                    lhi = lhi.max(at);
                 }
                 m = m.max(s);
             };
@@ -536,6 +587,17 @@ impl VdbSource {
             if m == 0.0 {
                 continue;
             }
+            lo = lo.min(llo);
+            hi = hi.max(lhi);
+            let leaf = LeafSummary {
+                nonzero_leaves: 1,
+                nonzero_box: Some([llo.to_array(), lhi.to_array()]),
+                max_value: m,
+            };
+            own = own.union(leaf);
+            if core.is_none_or(|(a, b)| a <= i64::from(o.z) && i64::from(o.z) < b) {
+                in_slab = in_slab.union(leaf);
+            }
             global_max = global_max.max(m);
             entries.push((o >> 3, Block::Dense(kept as u32)));
             leaf_max.push(m);
@@ -547,7 +609,8 @@ impl VdbSource {
         if let (Some(w), Some(p)) = (&st.stats, &st.part) {
             let read = (grid.as_str(), st.active, st.negatives, p.total_leaves);
             check_stats_against_read(w, read, (lo, hi), global_max, kept as u64)
-                .map_err(|e| format!("the grid statistics {e}"))?;
+                .and_then(|()| check_stats_against_slab(w, p.core, in_slab))
+                .map_err(|e| format!("{} {e}", w.named()))?;
             if let Some([wlo, whi]) = w.nonzero_box {
                 lo = lo.min(IVec3::from_array(wlo));
                 hi = hi.max(IVec3::from_array(whi));
@@ -703,6 +766,22 @@ impl VdbSource {
             (Some(w), Some(_)) => w.negative_values,
             _ => st.negatives,
         };
+        // The grid's leaves as this part baked them: the statistics', or its own and the
+        // summary of those it decoded and left out.
+        let part_facts = st.part.map(|p| PartFacts {
+            grid: match &st.stats {
+                Some(w) => w.leaf_summary(),
+                None => own.union(LeafSummary {
+                    nonzero_leaves: p.skipped_kept,
+                    nonzero_box: (p.skipped_kept > 0).then_some([p.skipped_lo, p.skipped_hi]),
+                    max_value: p.skipped_max,
+                }),
+            },
+            negative_values: negatives,
+            slab: in_slab,
+            slab_negative_values: p.slab_leaf_negatives,
+            tile_negative_values: p.tile_negatives,
+        });
         if negatives > 0 {
             label.push_str(&format!(", {negatives} negative values clamped to 0"));
         }
@@ -742,6 +821,7 @@ impl VdbSource {
                 0
             },
             part: st.part.map(|p| p.core),
+            part_facts,
             unloaded_leaves,
         })
     }
@@ -1258,6 +1338,10 @@ impl DensitySource for VdbSource {
         Some([a.min(b), a.max(b)])
     }
 
+    fn part_facts(&self) -> Option<PartFacts> {
+        self.part_facts
+    }
+
     fn footprint(&self) -> Option<super::super::Footprint> {
         let held = self.memory_bytes();
         Some(super::super::Footprint {
@@ -1460,5 +1544,9 @@ impl DensitySource for GridFrame<'_> {
         let r22 = 1.0 / self.to_index.z_axis.z;
         let (a, b) = (a * r22, b * r22);
         Some([a.min(b), a.max(b)])
+    }
+
+    fn part_facts(&self) -> Option<PartFacts> {
+        self.grid.part_facts
     }
 }

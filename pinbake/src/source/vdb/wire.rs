@@ -281,11 +281,33 @@ pub struct GridStats {
     pub nonzero_box: Option<[[i32; 3]; 2]>,
     /// The leaves' largest value.
     pub max_value: f32,
+    /// Where the statistics were read from (`pinbake bake --grid-stats FILE`), for messages;
+    /// not part of the file.
+    #[serde(skip)]
+    pub path: Option<std::path::PathBuf>,
 }
 
 impl GridStats {
     /// The `format` field of a statistics file.
     pub const FORMAT: &'static str = "pinbake-grid-stats-1";
+
+    /// "the grid statistics in FILE" (or without the file when they were not read from one):
+    /// how messages name them.
+    pub fn named(&self) -> String {
+        match &self.path {
+            Some(p) => format!("the grid statistics in {}", p.display()),
+            None => "the grid statistics".into(),
+        }
+    }
+
+    /// The leaves' summary the statistics give.
+    pub fn leaf_summary(&self) -> crate::part::LeafSummary {
+        crate::part::LeafSummary {
+            nonzero_leaves: self.nonzero_leaves,
+            nonzero_box: self.nonzero_box,
+            max_value: self.max_value,
+        }
+    }
 
     /// The statistics as one line of JSON.
     pub fn to_json(&self) -> String {
@@ -311,6 +333,7 @@ impl GridStats {
             || s.nonzero_leaves > s.leaves
             || !valid_box
             || (s.nonzero_leaves == 0) != s.nonzero_box.is_none()
+            || (s.nonzero_leaves == 0) != (s.max_value == 0.0)
         {
             return Err("is a damaged grid statistics file (inconsistent values)".into());
         }
@@ -347,6 +370,10 @@ pub(crate) struct PartStream {
     pub(super) skipped_hi: [i32; 3],
     /// Their largest value after the density scale.
     pub(super) skipped_max: f32,
+    /// Active negative values clamped to 0 in the leaves of the slab itself (not its margin)
+    /// and in the tiles: a part's share of the grid's count, for the merge's checks.
+    pub(super) slab_leaf_negatives: u64,
+    pub(super) tile_negatives: u64,
 }
 
 pub(super) struct StreamReader<R: Read> {
@@ -543,7 +570,12 @@ pub(super) fn parse_stream_within(
             let mut b = [0u8; 4];
             s.fill(&mut b)?;
             let skipped_max = f32::from_le_bytes(b);
-            if skipped_kept > total_leaves || !(skipped_max.is_finite() && skipped_max >= 0.0) {
+            let slab_leaf_negatives = s.u64()?;
+            let tile_negatives = s.u64()?;
+            if skipped_kept > total_leaves
+                || !(skipped_max.is_finite() && skipped_max >= 0.0)
+                || slab_leaf_negatives.saturating_add(tile_negatives) > negatives
+            {
                 return Err("worker stream has a bad part summary".into());
             }
             Some(PartStream {
@@ -555,6 +587,8 @@ pub(super) fn parse_stream_within(
                 skipped_lo,
                 skipped_hi,
                 skipped_max,
+                slab_leaf_negatives,
+                tile_negatives,
             })
         }
     };
