@@ -15,6 +15,8 @@
 #![cfg(all(feature = "cli", feature = "vdb"))]
 
 mod nanovdb;
+#[path = "hostile/python_twins.rs"]
+mod python_twins;
 
 use std::ffi::{OsStr, OsString};
 use std::os::unix::ffi::OsStrExt;
