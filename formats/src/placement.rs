@@ -7,7 +7,15 @@
 //! 1 through an opaque box) or nothing at all (a box of extent 1e-300, a singular or hugely
 //! sheared `local_to_world`, which every query refused).
 
-use crate::text::num;
+/// A number for the messages: scientific below 1e-3 and from 1e6 up (`1e-9`, not
+/// `0.000000001`), else [`crate::text::num`].
+fn num(x: f64) -> String {
+    if x != 0.0 && x.is_finite() && !(1e-3..1e6).contains(&x.abs()) {
+        format!("{x:e}")
+    } else {
+        crate::text::num(x)
+    }
+}
 
 /// The largest coordinate of a box corner, local or world, in either sign: beyond it an f32
 /// position has a spacing of more than 2^16 units and squared lengths approach f32's range.
@@ -127,7 +135,7 @@ mod tests {
         let e = check_placement([0.0; 3], [1e39; 3], &ID).unwrap_err();
         assert!(e.contains("beyond +-1e12"), "{e}");
         let e = check_placement([0.0; 3], [1e-300; 3], &ID).unwrap_err();
-        assert!(e.contains("1e-300 wide along x"), "{e}");
+        assert!(e.contains("1e-300 wide along x, less than 1e-9"), "{e}");
         // 1e-3 wide at 1e6: 1e-9 relative.
         assert!(check_placement([1e6; 3], [1e6 + 1e-3; 3], &ID).is_err());
         assert!(check_placement([0.0; 3], [f64::NAN, 1.0, 1.0], &ID).is_err());

@@ -590,8 +590,13 @@ fn prepare(
     crate::limits::check_source_placement(source.as_ref(), req.crop).map_err(bake_err)?;
     let choice = choose(source.as_ref(), req).map_err(bake_err)?;
     if let Some(c) = &req.embed_control {
-        crate::control::check_control(source.as_ref(), req.crop, c)
-            .map_err(|e| usage(format!("{name}: embed_control: {e}")))?;
+        crate::control::check_control(source.as_ref(), req.crop, c).map_err(|e| {
+            let e = match e {
+                BakeError::Options(m) => m,
+                other => other.to_string(),
+            };
+            usage(format!("{name}: embed_control: {e}"))
+        })?;
     }
     if req.target_error.is_some() {
         // Before the bake: a target asking for gigabytes of pins is refused, not run.

@@ -158,9 +158,9 @@ def bake(
     """Bakes a volume into the pin file ``output`` and returns the ``pinbake bake --json``
     summary as a dict.
 
-    ``array_or_path`` is a 3-D NumPy float array indexed ``[x, y, z]`` (any memory order;
-    values finite and >= 0; ``spacing`` is the world size of a voxel and ``origin`` the world
-    position of the grid box's minimum corner), or a path that ``pinbake bake`` reads: an
+    ``array_or_path`` is a 3-D NumPy float array indexed ``[x, y, z]`` (any memory order,
+    strided or broadcast; values finite and >= 0; ``spacing`` is the world size of a voxel and
+    ``origin`` the world position of the grid box's minimum corner), or a path that ``pinbake bake`` reads: an
     OpenVDB fog volume (``grid``, ``levelset_to_fog``), a raw file (``dims``, ``voxel_type``
     u8/u16/f16/f32/f64, ``endian``, ``spacing``, ``origin``, ``clamp_negative``,
     ``nan_as_zero``; dims and type may come from a ``NAME_XxYxZ_TYPE.raw`` file name), or
@@ -184,10 +184,28 @@ def bake(
     its rules: ``output`` must be a new path or a regular file that is not the input (a
     symlink to a file replaces the file and keeps the link; directories, devices, FIFOs and
     dangling symlinks are refused) and is written atomically; options outside their ranges
-    (``step`` in [1e-5, 1], ``spacing`` in [1e-9, 1e9], ``origin`` within 1e12, ...) and
-    options that do not apply to the input (``dims`` for an array, ``grid`` for a raw file)
-    raise ``ValueError``; a bake over the memory budget, or a copy that cannot be allocated,
-    raises ``MemoryError``; a bad input raises :class:`PinError`.
+    (``step`` in [1e-5, 1], ``spacing`` in [1e-9, 1e9], ``origin`` within 1e12, integers
+    outside their type such as ``seed=-1``, ...) and options that do not apply to the input
+    (``dims`` for an array, ``grid`` for a raw file) raise ``ValueError``; a bake over the
+    memory budget, or a copy that cannot be allocated, raises ``MemoryError``; a bad input
+    raises :class:`PinError`.
+
+    Memory: a float32 or float64 array is copied once, by the extension, after that copy (and
+    the array) is counted against ``max_memory``; other float dtypes are converted here after
+    the same check, which counts that conversion too. A masked array with masked voxels raises
+    ``ValueError`` (the mask would be ignored); one with nothing masked bakes its data.
+
+    Placement: the grid's box and transform must be finite, invertible and within what f32
+    queries represent (corners within 1e12, edges at least 1e-9 and 1e-5 of the largest
+    coordinate), the rule every reader applies at open: ``ValueError`` for ``spacing`` and
+    ``origin``, :class:`PinError` for a file or ``procedural:`` spec.
+
+    Size: a ``target_error`` whose chosen bake would exceed 256 MiB of pins, and an
+    ``embed_control`` grid of more than 2^21 bricks (an analytic field counts 256 voxels along
+    its longest axis), raise ``ValueError`` before the bake starts, naming the limit.
+
+    Ctrl-C (``KeyboardInterrupt``) stops a running bake within a second and leaves no output
+    and no temp file.
     """
     kwargs: Dict[str, Any] = dict(
         cells=None if cells is None else _triple("cells", cells, 1),
