@@ -393,7 +393,13 @@ pub fn check_target(choice: &Choice) -> Result<(), String> {
         choice.pins_per_entry,
         bytes.div_ceil(1 << 20)
     );
-    let target = pin_format::text::num(choice.target_error);
+    let t = choice.target_error;
+    // 1e-9, not 0.000000001.
+    let target = if t < 1e-3 {
+        format!("{t:e}")
+    } else {
+        pin_format::text::num(t)
+    };
     let limit = MAX_TARGET_PIN_BYTES >> 20;
     Err(if choice.target_met {
         format!(
