@@ -42,6 +42,7 @@ pub mod input;
 pub mod layout;
 mod metadata;
 mod owned;
+mod placement;
 mod reader;
 mod shape;
 mod sparse;
@@ -61,6 +62,10 @@ pub use metadata::{MAX_METADATA_BYTES, Metadata};
 #[cfg(feature = "writer")]
 pub use owned::StreamedSparseDensity;
 pub use owned::{OwnedPinGrid, grid_desc};
+pub use placement::{
+    IDENTITY_LOCAL_TO_WORLD, MAX_PLACEMENT_COORD, MIN_PLACEMENT_EXTENT, MIN_RELATIVE_EXTENT,
+    MIN_TRANSFORM_CONDITION, check_placement,
+};
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};
 pub use sparse::{

@@ -82,6 +82,8 @@ impl GridShape {
         if desc.local_to_world.iter().any(|x| !x.is_finite()) {
             return Err(bad("local-to-world transform is not finite"));
         }
+        crate::placement::check_placement(desc.box_min, desc.box_max, &desc.local_to_world)
+            .map_err(bad)?;
         if !desc.step_size.is_finite() || desc.step_size < 0.0 {
             return Err(bad("step size must be finite and >= 0"));
         }

@@ -74,6 +74,27 @@ pub struct BakeOptions {
     /// sparse ones to a few f32 ulps, not bit for bit (docs/performance.md), so this decides
     /// bytes too.
     pub dense_copy_bytes: u64,
+    /// Set by the caller to stop the bake: it is polled between rows of pins, batches of the
+    /// layered march and bricks of the control grid, and the bake then returns
+    /// [`BakeError::Cancelled`] within a fraction of a second. Not part of the bytes.
+    pub cancel: Option<std::sync::Arc<std::sync::atomic::AtomicBool>>,
+}
+
+impl BakeOptions {
+    /// Whether [`BakeOptions::cancel`] is set.
+    pub fn cancelled(&self) -> bool {
+        self.cancel
+            .as_ref()
+            .is_some_and(|c| c.load(std::sync::atomic::Ordering::Relaxed))
+    }
+
+    /// `Err(Cancelled)` when [`BakeOptions::cancel`] is set.
+    pub fn check_cancel(&self) -> Result<(), BakeError> {
+        if self.cancelled() {
+            return Err(BakeError::Cancelled);
+        }
+        Ok(())
+    }
 }
 
 /// [`BakeOptions::dense_copy_bytes`] by default: 1 GiB, a 645^3 active box. A fixed figure
@@ -100,6 +121,7 @@ impl Default for BakeOptions {
             density_scale: 1.0,
             metadata: Metadata::default(),
             dense_copy_bytes: DEFAULT_DENSE_COPY_BYTES,
+            cancel: None,
         }
     }
 }
@@ -110,6 +132,13 @@ pub enum BakeError {
     Options(String),
     #[error("source has an invalid bounding box {0:?}")]
     Bounds(Aabb),
+    /// The box or transform the bake would record breaks the placement rule
+    /// ([`pin_format::check_placement`]).
+    #[error("placement: {0}")]
+    Placement(String),
+    /// The caller asked the bake to stop ([`BakeOptions::cancel`]).
+    #[error("the bake was cancelled")]
+    Cancelled,
     #[error(
         "density {value} at {at:?} does not fit the embedded f16 field; lower --density-scale or drop --embed-density"
     )]
@@ -486,6 +515,7 @@ fn bake_in_pool(
                 &mut dense,
                 sweep,
                 progress,
+                &|| opts.cancelled(),
             )
         }
         // One task per x-row of cells, direction-major inside: consecutive pins are then
@@ -497,6 +527,10 @@ fn bake_in_pool(
             .for_each(|(row, blocks)| {
                 let (y, z) = ((row % ny) as u32, (row / ny) as u32 + shape.z_begin);
                 for dir in 0..dirs {
+                    // Polled per direction: a row of long pins takes seconds.
+                    if opts.cancelled() {
+                        return;
+                    }
                     for k in 0..ppe {
                         let slot = (dir * ppe + k) as usize;
                         for (x, block) in blocks.chunks_mut(block_len).enumerate() {
@@ -512,6 +546,7 @@ fn bake_in_pool(
             }),
     }
 
+    opts.check_cancel()?;
     let majorant = opts
         .majorant
         .map(|dims| bake_majorant(source, &bbox, dims))
@@ -548,8 +583,9 @@ fn bake_in_pool(
     )?;
     let control = opts
         .embed_control
-        .map(|c| crate::control::bake_control(source, &bbox, &c))
+        .map(|c| crate::control::bake_control_cancellable(source, &bbox, &c, &|| opts.cancelled()))
         .transpose()?;
+    opts.check_cancel()?;
     if sparse.is_some() || control.is_some() {
         grid.sparse_density = sparse;
         grid.control = control;

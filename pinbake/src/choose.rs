@@ -370,6 +370,49 @@ pub fn pin_bytes(cells: [u32; 3], directions: u32, pins_per_entry: u32) -> u64 {
     n * u64::from(directions) * u64::from(pins_per_entry) * 8 + n * 4
 }
 
+/// The most pin bytes ([`pin_bytes`]: dense pins and the cell index) of a bake chosen for an
+/// explicit `--target-error`: 256 MiB, about 25 s of baking on 2 cores. The search's largest
+/// bake (64^3 cells, octahedral:32) is 2.1 GB and ran for 180 s; a target that asks for more
+/// than this is refused before the bake starts ([`check_target`]), and `--cells`/`--dirs`
+/// name a larger bake explicitly.
+pub const MAX_TARGET_PIN_BYTES: u64 = 256 << 20;
+
+/// Refuses a choice made for an explicit target (`--target-error`, Python's `target_error`)
+/// whose pins would exceed [`MAX_TARGET_PIN_BYTES`]: one line with the target, the bake it
+/// needs and the limit. A target nothing in the search reaches with a bake within the limit
+/// keeps the closest bake and its warning, as before.
+pub fn check_target(choice: &Choice) -> Result<(), String> {
+    let bytes = choice.predicted_pin_bytes;
+    if bytes <= MAX_TARGET_PIN_BYTES {
+        return Ok(());
+    }
+    let [x, y, z] = choice.cells;
+    let bake = format!(
+        "{x}x{y}x{z} cells, {} directions, {} pins per entry: {} MiB of pins",
+        choice.directions.count(),
+        choice.pins_per_entry,
+        bytes.div_ceil(1 << 20)
+    );
+    let t = choice.target_error;
+    // 1e-9, not 0.000000001.
+    let target = if t < 1e-3 {
+        format!("{t:e}")
+    } else {
+        pin_format::text::num(t)
+    };
+    let limit = MAX_TARGET_PIN_BYTES >> 20;
+    Err(if choice.target_met {
+        format!(
+            "target_error {target} needs a bake of {bake}, more than the {limit} MiB a chosen bake may have; ask for a larger target error, or name the cells and directions (--cells, --dirs) to bake it anyway"
+        )
+    } else {
+        format!(
+            "target_error {target} cannot be met: no bake up to {MAX_CHOICE_CELLS} cells and octahedral:{MAX_CHOICE_OCTAHEDRAL} reaches it, and the closest (predicted error {:.3}) is {bake}, more than the {limit} MiB a chosen bake may have; ask for a target error of at least {:.3}, or name the cells and directions (--cells, --dirs)",
+            choice.predicted_error, choice.predicted_error
+        )
+    })
+}
+
 /// The smallest bake whose predicted error is at most `target` (module docs). When no bake in
 /// the searched range meets it, the one with the lowest predicted error (fewest bytes among
 /// equals): a smaller target never yields a smaller bake.
@@ -449,12 +492,14 @@ fn choose_above(
     } else {
         String::new()
     };
+    // `num`: a target of 1e-300 is not 300 digits in a message.
+    let target_shown = pin_format::text::num(target);
     let goal = if target_met {
-        format!("the fewest bytes{floor} with a predicted block error <= {target}")
+        format!("the fewest bytes{floor} with a predicted block error <= {target_shown}")
     } else {
         format!(
             "no bake up to {MAX_CHOICE_CELLS} cells and octahedral:{MAX_CHOICE_OCTAHEDRAL} \
-             reaches {target}: the lowest predicted error"
+             reaches {target_shown}: the lowest predicted error"
         )
     };
     let capped_by_voxels = fixed.cells.is_none()
@@ -484,7 +529,7 @@ fn choose_above(
     } else if !target_met {
         Some(format!(
             "no bake up to {MAX_CHOICE_CELLS} cells and octahedral:{MAX_CHOICE_OCTAHEDRAL} \
-             resolves this volume's detail to the target block error {target} (the closest \
+             resolves this volume's detail to the target block error {target_shown} (the closest \
              predicts {error:.3}, model variation {:.1}): expect visible pin bias; name finer \
              --cells/--dirs, or render final frames with an unbiased estimator",
             stats.model_variation

@@ -25,8 +25,13 @@ pub const DEFAULT_CONTROL_EDGE: u32 = 4;
 pub const CONTROL_BRICKS_LONGEST: u32 = 64;
 /// The largest brick edge, in source voxels.
 pub const MAX_CONTROL_EDGE: u32 = 64;
-/// Most bricks of a control grid (12 bytes each: 1.5 GiB).
-pub const MAX_CONTROL_BRICKS: u64 = 1 << 27;
+/// Most bricks of a control grid: 2^21 (128^3), 48 MiB while it is built and about 20 s of
+/// sampling at 4^3 lattice points per brick. An analytic field has 256 voxels along its
+/// longest axis, so `--embed-control 1` asks for 256^3 bricks there, which ran for 170 s;
+/// such a grid is refused before the bake starts ([`check_control`]), naming the smallest
+/// brick edge that fits. The default edge stays far below it (about 64 bricks along the
+/// longest axis).
+pub const MAX_CONTROL_BRICKS: u64 = 1 << 21;
 
 /// How many bricks the control grid has.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -73,9 +78,7 @@ pub fn control_dims(
     bbox: &Aabb,
     opts: &ControlOptions,
 ) -> Result<[u32; 3], BakeError> {
-    let voxels = || {
-        crate::sparse_density::sparse_dims(source, bbox, crate::sparse_density::SparseDims::Source)
-    };
+    let voxels = || Ok::<_, BakeError>(box_voxels(source, bbox));
     let dims = match opts.dims {
         ControlDims::Exact(d) => d,
         ControlDims::Edge(0) => {
@@ -90,15 +93,64 @@ pub fn control_dims(
             voxels.map(|v| v.div_ceil(edge))
         }
     };
-    let n = dims
-        .iter()
-        .try_fold(1u64, |acc, &d| acc.checked_mul(u64::from(d)));
-    match n {
-        Some(n) if !dims.contains(&0) && n <= MAX_CONTROL_BRICKS => Ok(dims),
-        _ => Err(BakeError::Options(format!(
-            "control dims {dims:?} must be >= 1 per axis and at most {MAX_CONTROL_BRICKS} bricks"
-        ))),
+    let n = bricks(dims);
+    if !dims.contains(&0) && n <= MAX_CONTROL_BRICKS {
+        return Ok(dims);
     }
+    let [x, y, z] = dims;
+    let hint = match opts.dims {
+        ControlDims::Exact(_) => String::new(),
+        _ => {
+            let v = box_voxels(source, bbox);
+            match (1..=MAX_CONTROL_EDGE)
+                .find(|&e| bricks(v.map(|d| d.div_ceil(e))) <= MAX_CONTROL_BRICKS)
+            {
+                Some(e) => format!("; a brick edge of at least {e} voxels fits"),
+                None => String::new(),
+            }
+        }
+    };
+    Err(BakeError::Options(format!(
+        "the control grid would have {x}x{y}x{z} bricks, more than the {MAX_CONTROL_BRICKS} (128^3) a bake builds{hint}"
+    )))
+}
+
+/// Bricks of a grid of `dims` (saturating).
+fn bricks(dims: [u32; 3]) -> u64 {
+    dims.iter()
+        .fold(1u64, |acc, &d| acc.saturating_mul(u64::from(d)))
+}
+
+/// The source voxels `bbox` spans per axis (at least 1): the source's voxel size, or the box
+/// over [`crate::sparse_density::ANALYTIC_VOXELS`] for an analytic field, as the sparse
+/// density counts them, but without that section's per-axis limit: a control grid of a
+/// 1x1x100000 volume has 1x1x1563 bricks of 64 voxels, within its own bound.
+fn box_voxels(source: &dyn DensitySource, bbox: &Aabb) -> [u32; 3] {
+    let e = bbox.extent();
+    let voxel = source
+        .voxel_size()
+        .filter(|v| v.is_finite() && v.cmpgt(DVec3::ZERO).all())
+        .unwrap_or(DVec3::splat(
+            e.max_element() / f64::from(crate::sparse_density::ANALYTIC_VOXELS),
+        ));
+    // A box cropped to whole voxels gives integers up to rounding: no voxel for the rounding.
+    (e / voxel)
+        .to_array()
+        .map(|v| ((v - 1e-6).ceil().max(1.0)).min(f64::from(u32::MAX)) as u32)
+}
+
+/// The control grid a bake of `source` with `opts` would build, checked before the bake
+/// starts (its brick count, [`MAX_CONTROL_BRICKS`]): the bake computes it only after the
+/// pins, minutes in.
+pub fn check_control(
+    source: &dyn DensitySource,
+    crop: bool,
+    opts: &ControlOptions,
+) -> Result<[u32; 3], BakeError> {
+    let frame = source.bake_frame();
+    let local: &dyn DensitySource = frame.as_ref().map_or(source, |(l, _)| l.as_ref());
+    let (bbox, _) = crate::bake::bake_box(local, crop)?;
+    control_dims(local, &bbox, opts)
 }
 
 /// The brick edge of the default control grid for a bake box of `voxels` source voxels:
@@ -119,6 +171,17 @@ pub fn bake_control(
     source: &dyn DensitySource,
     bbox: &Aabb,
     opts: &ControlOptions,
+) -> Result<OwnedControl, BakeError> {
+    bake_control_cancellable(source, bbox, opts, &|| false)
+}
+
+/// [`bake_control`], polling `cancelled` between bricks: once it answers true the remaining
+/// bricks are skipped and the result is [`BakeError::Cancelled`].
+pub fn bake_control_cancellable(
+    source: &dyn DensitySource,
+    bbox: &Aabb,
+    opts: &ControlOptions,
+    cancelled: &(dyn Fn() -> bool + Sync),
 ) -> Result<OwnedControl, BakeError> {
     if !(opts.lattice >= 1
         && opts.thickness >= 0.0
@@ -141,12 +204,18 @@ pub fn bake_control(
     );
     let edge = (size.x * size.y * size.z).cbrt();
     bricks.par_iter_mut().enumerate().for_each(|(i, out)| {
+        if cancelled() {
+            return;
+        }
         let (nx, ny) = (dims[0] as usize, dims[1] as usize);
         let c = [i % nx, (i / nx) % ny, i / (nx * ny)].map(|v| v as f64);
         let lo = bbox.min + DVec3::new(c[0], c[1], c[2]) * size;
         let region = Aabb::new(lo, lo + size);
         *out = brick_control(source, region, edge, opts);
     });
+    if cancelled() {
+        return Err(BakeError::Cancelled);
+    }
     let mut out = OwnedControl {
         dims,
         control: Vec::with_capacity(n),

@@ -296,6 +296,17 @@ fn validate_input(input: &BakeInput) -> Result<(), PlanError> {
         crate::limits::check_spacing(spacing).map_err(|e| usage(format!("spacing: {e}")))?;
         crate::limits::check_origin(origin).map_err(|e| usage(format!("origin: {e}")))?;
     }
+    if let BakeInput::Array {
+        dims,
+        spacing,
+        origin,
+        ..
+    } = input
+    {
+        let max = [0, 1, 2].map(|a| origin[a] + spacing[a] * f64::from(dims[a]));
+        pin_format::check_placement(*origin, max, &pin_format::IDENTITY_LOCAL_TO_WORLD)
+            .map_err(|e| usage(format!("spacing and origin: {e}")))?;
+    }
     Ok(())
 }
 
@@ -303,6 +314,11 @@ fn validate_input(input: &BakeInput) -> Result<(), PlanError> {
 pub trait Progress: Sync {
     fn start(&self, _total_pins: u64) {}
     fn advance(&self, _pins: u64) {}
+    /// A flag the caller sets to stop the bake ([`BakeOptions::cancel`]): the bake then
+    /// fails with [`BakeError::Cancelled`] and leaves no output and no temp file.
+    fn cancel_flag(&self) -> Option<std::sync::Arc<std::sync::atomic::AtomicBool>> {
+        None
+    }
 }
 
 /// No progress report.
@@ -448,6 +464,7 @@ pub fn options(req: &BakeRequest, choice: &Choice, metadata: pin_format::Metadat
         density_scale: req.density_scale,
         metadata,
         dense_copy_bytes: crate::bake::DEFAULT_DENSE_COPY_BYTES,
+        cancel: None,
     }
 }
 
@@ -492,8 +509,8 @@ fn prepare(
                 .saturating_mul(4),
             _ => 0,
         },
-        // Already in memory; the grid takes it over without a copy.
-        BakeInput::Array { .. } => 0,
+        // Already in memory (the grid takes it over without a copy), and held throughout.
+        BakeInput::Array { values, .. } => (values.len() as u64).saturating_mul(4),
     };
     let what = format!("baking {name}");
     let need = crate::bake::estimate_output_bytes(&probe)
@@ -571,7 +588,21 @@ fn prepare(
             (Box::new(g), "<array>".into(), String::new())
         }
     };
+    crate::limits::check_source_placement(source.as_ref(), req.crop).map_err(bake_err)?;
     let choice = choose(source.as_ref(), req).map_err(bake_err)?;
+    if let Some(c) = &req.embed_control {
+        crate::control::check_control(source.as_ref(), req.crop, c).map_err(|e| {
+            let e = match e {
+                BakeError::Options(m) => m,
+                other => other.to_string(),
+            };
+            usage(format!("{name}: embed_control: {e}"))
+        })?;
+    }
+    if req.target_error.is_some() {
+        // Before the bake: a target asking for gigabytes of pins is refused, not run.
+        crate::choose::check_target(&choice).map_err(|e| usage(format!("{name}: {e}")))?;
+    }
     let metadata = crate::bake::bake_metadata(
         source.as_ref(),
         Provenance {
@@ -632,7 +663,7 @@ pub fn bake_to_file(
 ) -> Result<Baked, PlanError> {
     let Prepared {
         source,
-        opts,
+        mut opts,
         choice,
         need,
         pending,
@@ -643,6 +674,7 @@ pub fn bake_to_file(
         input: name.clone(),
         source,
     };
+    opts.cancel = progress.cancel_flag();
     progress.start(crate::bake::pin_count(&opts));
     let started = Instant::now();
     let advance = |n: u64| progress.advance(n);

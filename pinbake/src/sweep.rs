@@ -140,6 +140,7 @@ pub(crate) fn bake_grid(
     out: &mut [PinEntry],
     sweep: Sweep,
     progress: &(dyn Fn(u64) + Sync),
+    cancelled: &(dyn Fn() -> bool + Sync),
 ) {
     let block_len = block_len.max(1);
     let cells_total = out.len() / block_len;
@@ -150,7 +151,8 @@ pub(crate) fn bake_grid(
     let cells = grid.cells();
     let (mut heads, mut lanes): (Vec<Head>, Vec<Lane>) = (Vec::new(), Vec::new());
     let mut c0 = 0;
-    while c0 < cells_total {
+    // A cancelled bake stops after the batch in flight; its caller reports it.
+    while c0 < cells_total && !cancelled() {
         let nc = per_batch.min(cells_total - c0);
         // Slot-major inside the batch: neighbouring lanes are pins of one direction in
         // neighbouring cells, whose samples in a layer lie near each other.
@@ -179,7 +181,13 @@ pub(crate) fn bake_grid(
             heads
                 .par_chunks_mut(task)
                 .zip(lanes.par_chunks_mut(task))
-                .for_each(|(h, l)| advance(&cells, h, l, z_end));
+                .for_each(|(h, l)| {
+                    // Polled per task too: a batch of long pins takes seconds. A cancelled
+                    // batch is left unfinished and never written.
+                    if !cancelled() {
+                        advance(&cells, h, l, z_end)
+                    }
+                });
         }
         let out = &mut out[c0 * block_len..(c0 + nc) * block_len];
         out.par_chunks_mut(block_len)

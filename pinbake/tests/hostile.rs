@@ -20,6 +20,8 @@ mod budget;
 mod farm;
 mod nanovdb;
 mod openvdb;
+#[path = "hostile/python_twins.rs"]
+mod python_twins;
 
 use std::ffi::{OsStr, OsString};
 use std::os::unix::ffi::OsStrExt;

@@ -6,7 +6,9 @@
 //! are the Rust sampler's bit for bit (same rays, seed and first index).
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
 
 use numpy::{
     PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
@@ -34,13 +36,21 @@ fn pin_err(e: impl std::fmt::Display) -> PyErr {
     PinError::new_err(e.to_string().replace(['\n', '\r'], " "))
 }
 
-/// A runtime error: `MemoryError` for a buffer that could not be allocated, `PinError` else.
+/// A runtime error: `MemoryError` for a buffer or a mapping that could not be allocated
+/// (out of memory or of address space: ENOMEM), `PinError` else.
 fn rt_err(e: pinrt::Error) -> PyErr {
-    match e {
-        pinrt::Error::Input(pin_format::input::InputError::OutOfMemory { .. }) => {
+    use pin_format::input::InputError;
+    let enomem = |err: &std::io::Error| err.kind() == std::io::ErrorKind::OutOfMemory;
+    match &e {
+        pinrt::Error::Input(InputError::OutOfMemory { .. }) => {
             PyMemoryError::new_err(e.to_string())
         }
-        e => pin_err(e),
+        pinrt::Error::Input(InputError::Io { err, .. }) | pinrt::Error::Io { source: err, .. }
+            if enomem(err) =>
+        {
+            PyMemoryError::new_err(e.to_string())
+        }
+        _ => pin_err(e),
     }
 }
 
@@ -419,14 +429,15 @@ impl ControlEdge {
     center_pins=true, majorant=[16, 16, 16], embed_density=None, embed_control=None,
     density_scale=1.0,
     threads=None, max_memory=None, grid=None, levelset_to_fog=false, dims=None,
-    voxel_type=None, endian=None, clamp_negative=false, nan_as_zero=false, vdb_worker=None
+    voxel_type=None, endian=None, clamp_negative=false, nan_as_zero=false, vdb_worker=None,
+    held_bytes=0
 ))]
 #[allow(clippy::too_many_arguments)]
 fn bake(
     py: Python<'_>,
     input: &str,
     output: PathBuf,
-    data: Option<PyReadonlyArray3<'_, f32>>,
+    data: Option<Bound<'_, PyAny>>,
     spacing: Option<[f64; 3]>,
     origin: Option<[f64; 3]>,
     cells: Option<[u32; 3]>,
@@ -451,8 +462,9 @@ fn bake(
     clamp_negative: bool,
     nan_as_zero: bool,
     vdb_worker: Option<PathBuf>,
+    held_bytes: u64,
 ) -> PyResult<String> {
-    let req = BakeRequest {
+    let mut req = BakeRequest {
         cells,
         directions: directions.map(parse_dirs).transpose()?,
         pins_per_entry,
@@ -505,20 +517,15 @@ fn bake(
     let origin = origin.unwrap_or([0.0; 3]);
 
     let source = if let Some(arr) = data {
-        // The Python layer passes a C-contiguous (z, y, x) view: x fastest, as DenseGrid
-        // stores voxels. Another memory order would be read wrongly, so it is refused.
-        if !arr.is_c_contiguous() {
-            return Err(value_err("data must be C-contiguous"));
+        // `held_bytes`: a copy the Python layer made (a dtype other than float32/float64),
+        // alive throughout the bake; the bake's own budget is what the budget leaves beside it.
+        let budget = pinbake::files::MemoryBudget::new(req.max_memory);
+        if held_bytes > 0 {
+            req.max_memory = Some(budget.limit.saturating_sub(held_bytes).max(1));
         }
-        let shape = arr.shape();
-        let src = arr
-            .as_slice()
-            .map_err(|_| value_err("data must be C-contiguous"))?;
-        let mut values = try_with_capacity(src.len(), "the volume array's copy")?;
-        values.extend_from_slice(src);
-        let d = [shape[2], shape[1], shape[0]].map(|x| u32::try_from(x).unwrap_or(u32::MAX));
+        let (dims, values) = array_values(py, &arr, &budget, held_bytes)?;
         BakeInput::Array {
-            dims: d,
+            dims,
             values,
             spacing,
             origin,
@@ -575,14 +582,136 @@ fn bake(
         }
     };
     let started = Instant::now();
-    let baked = py
-        .detach(|| pinbake::plan::bake_to_file(source, &output, &req, &InputSet::default(), &()))
-        .map_err(plan_err)?;
+    let baked = interruptible_bake(py, source, &output, &req)?;
     let mut v = baked
         .summary()
         .map_err(|e| pin_err(format!("{}: {e}", output.display())))?;
     v["seconds"] = serde_json::json!(started.elapsed().as_secs_f64());
     Ok(v.to_string())
+}
+
+/// The voxels of `data`, a 3-D float32 or float64 array indexed `[x, y, z]` in any memory
+/// order (C, Fortran, strided, broadcast), copied x-fastest into the one f32 vector the bake
+/// takes over. The copy is the bake's only one: it is counted against `budget` with `held`
+/// bytes the caller holds beside it before it is allocated (a broadcast array of 2^26 voxels
+/// holds 4 bytes and needs 256 MiB), and allocated fallibly.
+fn array_values(
+    py: Python<'_>,
+    data: &Bound<'_, PyAny>,
+    budget: &pinbake::files::MemoryBudget,
+    held: u64,
+) -> PyResult<([u32; 3], Vec<f32>)> {
+    if let Ok(a) = data.extract::<PyReadonlyArray3<'_, f32>>() {
+        copy_xyz(py, a.as_array(), budget, held, |v| v)
+    } else if let Ok(a) = data.extract::<PyReadonlyArray3<'_, f64>>() {
+        copy_xyz(py, a.as_array(), budget, held, |v| v as f32)
+    } else {
+        Err(value_err(
+            "data must be a 3-D NumPy array of float32 or float64",
+        ))
+    }
+}
+
+/// Refuses, with `MemoryError`, the f32 copy of a volume array of `shape` beside `held` bytes
+/// that the caller holds when the two exceed `budget`; returns the voxel count.
+fn check_copy(shape: &[usize], held: u64, budget: &pinbake::files::MemoryBudget) -> PyResult<u64> {
+    let n = shape
+        .iter()
+        .try_fold(1u64, |acc, &d| acc.checked_mul(d as u64))
+        .unwrap_or(u64::MAX);
+    let need = n
+        .saturating_mul(4)
+        .saturating_add(held)
+        .saturating_add(pinbake::plan::PROCESS_BASE_BYTES);
+    let shown = shape
+        .iter()
+        .map(|d| d.to_string())
+        .collect::<Vec<_>>()
+        .join("x");
+    budget
+        .check(&format!("copying the {shown} volume array"), need)
+        .map_err(|e| PyMemoryError::new_err(pin_format::text::error_line(&e)))?;
+    Ok(n)
+}
+
+/// The check [`bake`] makes before it copies a volume array (`check_copy`), for the Python
+/// layer to make before a dtype conversion of its own (`held` bytes).
+#[pyfunction]
+#[pyo3(signature = (shape, held, max_memory=None))]
+fn check_array_memory(shape: Vec<usize>, held: u64, max_memory: Option<u64>) -> PyResult<()> {
+    let budget = pinbake::files::MemoryBudget::new(max_memory.map(|m| m.max(1)));
+    check_copy(&shape, held, &budget).map(|_| ())
+}
+
+/// See [`array_values`].
+fn copy_xyz<T: Copy + Sync>(
+    py: Python<'_>,
+    a: numpy::ndarray::ArrayView3<'_, T>,
+    budget: &pinbake::files::MemoryBudget,
+    held: u64,
+    to_f32: impl Fn(T) -> f32 + Send + Sync,
+) -> PyResult<([u32; 3], Vec<f32>)> {
+    let shape = a.shape();
+    let dims = [shape[0], shape[1], shape[2]].map(|d| u32::try_from(d).unwrap_or(u32::MAX));
+    let n = check_copy(shape, held, budget)?;
+    let n = usize::try_from(n)
+        .map_err(|_| PyMemoryError::new_err("the volume array's copy: out of address space"))?;
+    let mut values = try_with_capacity(n, "the volume array's copy")?;
+    // z slowest, x fastest: the layout of the baker's dense grid.
+    let zyx = a.permuted_axes([2, 1, 0]);
+    py.detach(|| values.extend(zyx.iter().map(|&v| to_f32(v))));
+    Ok((dims, values))
+}
+
+/// The bake's progress hook: only its cancel flag.
+struct CancelOnly(Arc<AtomicBool>);
+
+impl pinbake::plan::Progress for CancelOnly {
+    fn cancel_flag(&self) -> Option<Arc<AtomicBool>> {
+        Some(self.0.clone())
+    }
+}
+
+/// How often the waiting interpreter looks for a signal (Ctrl-C) while a bake runs.
+const SIGNAL_POLL: Duration = Duration::from_millis(50);
+
+/// [`pinbake::plan::bake_to_file`] on a worker thread, with the GIL released, while this
+/// thread polls Python's signal handlers every [`SIGNAL_POLL`]: a `KeyboardInterrupt` (or any
+/// exception a handler raises) sets the bake's cancel flag, the bake stops at its next row or
+/// batch and removes its temp file, and the exception propagates with no output written.
+fn interruptible_bake(
+    py: Python<'_>,
+    source: BakeInput,
+    output: &Path,
+    req: &BakeRequest,
+) -> PyResult<pinbake::plan::Baked> {
+    let cancel = Arc::new(AtomicBool::new(false));
+    let hook = CancelOnly(cancel.clone());
+    std::thread::scope(|s| {
+        let waiter = std::thread::current();
+        let worker = s.spawn(move || {
+            let r = pinbake::plan::bake_to_file(source, output, req, &InputSet::default(), &hook);
+            waiter.unpark();
+            r
+        });
+        loop {
+            // Woken when the worker ends (or after SIGNAL_POLL, or spuriously).
+            py.detach(|| std::thread::park_timeout(SIGNAL_POLL));
+            if worker.is_finished() {
+                break;
+            }
+            if let Err(interrupt) = py.check_signals() {
+                cancel.store(true, Ordering::Relaxed);
+                // The bake stops within a row or batch; its error is the interrupt's.
+                let _ = py.detach(|| worker.join());
+                return Err(interrupt);
+            }
+        }
+        match py.detach(|| worker.join()) {
+            Ok(r) => r.map_err(plan_err),
+            Err(_) => Err(pin_err(format!("{}: the bake panicked", output.display()))),
+        }
+    })
 }
 
 /// The isolated OpenVDB reader (`pinrt-vdb-worker __vdb-worker FILE SELECTOR MODE`): `args`
@@ -625,6 +754,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     )?;
     m.add_function(wrap_pyfunction!(bake, m)?)?;
     m.add_function(wrap_pyfunction!(vdb_worker, m)?)?;
+    m.add_function(wrap_pyfunction!(check_array_memory, m)?)?;
     m.add("PinError", m.py().get_type::<PinError>())?;
     Ok(())
 }

@@ -6,6 +6,7 @@ code as the ``pinbake`` command; each test fails when its rule is taken out of t
 from __future__ import annotations
 
 import math
+import time
 import os
 import stat
 import subprocess
@@ -170,8 +171,6 @@ def test_fortran_order_is_refused_by_native_and_right_through_the_api(pin):
     native = g._g
     with pytest.raises(ValueError, match="C-contiguous"):
         native.transmittance(np.asfortranarray(o), d, t, 0, 0, 0.0, 0.0, 0, "start", False)
-    with pytest.raises(ValueError, match="C-contiguous"):
-        _native.bake("<array>", "x.pin", data=np.asfortranarray(np.zeros((4, 4, 4), np.float32)))
     c = g.transmittance(o, d, seed=3)
     f = g.transmittance(np.asfortranarray(o), np.asfortranarray(d), seed=3)
     assert np.array_equal(c, f)
@@ -219,3 +218,221 @@ def test_a_bake_leaves_ctrl_c_to_python(tmp_path):
     assert r.returncode == 0, (r.returncode, r.stderr)
     assert r.stdout.strip() == "interrupted"
     assert (tmp_path / "a.pin").is_file()
+
+
+# --- Budgets, interrupts, placement, ranges and messages --------------------------------
+
+
+def test_max_memory_counts_the_array_copy_before_making_it(tmp_path):
+    # 2^26 voxels that hold 4 bytes: the bake's f32 copy is 256 MiB, over a 64 MiB budget.
+    out = tmp_path / "o.pin"
+    huge = np.broadcast_to(np.float32(1.0), (512, 512, 256))
+    with pytest.raises(MemoryError, match="volume array"):
+        pinrt.bake(huge, out, max_memory=64 << 20, **SMALL)
+    assert not out.exists()
+    # float16 is converted in Python: that copy is counted too, before it is made.
+    with pytest.raises(MemoryError, match="volume array"):
+        pinrt.bake(np.broadcast_to(np.float16(1.0), (512, 512, 256)), out, max_memory=64 << 20, **SMALL)
+
+
+def test_any_memory_order_bakes_the_same_bytes(tmp_path):
+    b = blob()
+    ref = tmp_path / "c.pin"
+    pinrt.bake(b, ref, **SMALL)
+    for name, a in [
+        ("fortran", np.asfortranarray(b)),
+        ("strided", np.repeat(b, 2, axis=0)[::2]),
+        ("float64", b.astype(np.float64)),
+    ]:
+        out = tmp_path / f"{name}.pin"
+        pinrt.bake(a, out, **SMALL)
+        assert out.read_bytes() == ref.read_bytes(), name
+    half = b.astype(np.float16)
+    pinrt.bake(half, tmp_path / "h16.pin", **SMALL)
+    pinrt.bake(half.astype(np.float32), tmp_path / "h32.pin", **SMALL)
+    assert (tmp_path / "h16.pin").read_bytes() == (tmp_path / "h32.pin").read_bytes()
+    flat = np.broadcast_to(np.float32(0.5), (8, 8, 8))
+    pinrt.bake(flat, tmp_path / "b.pin", **SMALL)
+    pinrt.bake(np.full((8, 8, 8), 0.5, np.float32), tmp_path / "f.pin", **SMALL)
+    assert (tmp_path / "b.pin").read_bytes() == (tmp_path / "f.pin").read_bytes()
+
+
+def test_a_masked_array_is_refused_naming_the_mask(tmp_path):
+    b = blob()
+    masked = np.ma.masked_greater(b, 0.5)
+    with pytest.raises(ValueError, match="mask"):
+        pinrt.bake(masked, tmp_path / "m.pin", **SMALL)
+    assert not (tmp_path / "m.pin").exists()
+    # Nothing masked: its data, baked as the plain array.
+    pinrt.bake(np.ma.masked_array(b), tmp_path / "n.pin", **SMALL)
+    pinrt.bake(b, tmp_path / "p.pin", **SMALL)
+    assert (tmp_path / "n.pin").read_bytes() == (tmp_path / "p.pin").read_bytes()
+
+
+def test_ctrl_c_stops_a_bake_within_a_second_and_leaves_nothing(tmp_path):
+    # A bake of minutes (1e4 steps per pin); SIGINT after 1 s must end it within a second,
+    # as KeyboardInterrupt, with no output and no temp file.
+    code = (
+        "import os, signal, threading, time, numpy as np, pinrt\n"
+        "a = np.random.default_rng(1).random((32, 32, 32), dtype=np.float32)\n"
+        "sent = []\n"
+        "def fire():\n"
+        "    time.sleep(1.5)\n"
+        "    sent.append(time.monotonic())\n"
+        "    os.kill(os.getpid(), signal.SIGINT)\n"
+        "threading.Thread(target=fire, daemon=True).start()\n"
+        "try:\n"
+        "    pinrt.bake(a, os.environ['OUT'], cells=16, directions='octahedral:16', step=1e-4)\n"
+        "    print('finished')\n"
+        "except KeyboardInterrupt:\n"
+        "    print('interrupted %.3f' % (time.monotonic() - sent[0]))\n"
+    )
+    env = dict(os.environ, OUT=str(tmp_path / "slow.pin"))
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    words = r.stdout.split()
+    assert words[0] == "interrupted", r.stdout + r.stderr
+    assert float(words[1]) < 1.0, f"stopped {words[1]} s after the signal"
+    assert os.listdir(tmp_path) == [], os.listdir(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ("procedural:box:extent=1e39", "beyond"),
+        ("procedural:box:extent=1e-300", "wide"),
+        ("procedural:sphere:radius=1e20", "beyond"),
+    ],
+)
+def test_placement_outside_f32_is_refused_at_bake(tmp_path, spec, message):
+    out = tmp_path / "o.pin"
+    with pytest.raises(PinError, match=message) as e:
+        pinrt.bake(spec, out, **SMALL)
+    assert len(str(e.value)) < 300, str(e.value)
+    assert not out.exists()
+
+
+def test_array_placement_outside_f32_is_a_value_error(tmp_path):
+    # Each value in its own range, together a box 1e-8 wide at 1e12: f32 cannot tell it apart.
+    with pytest.raises(ValueError, match="spacing and origin"):
+        pinrt.bake(blob(), tmp_path / "o.pin", spacing=1e-9, origin=1e12, **SMALL)
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(max_memory=-1), "max_memory"),
+        (dict(max_memory=2**64), "max_memory"),
+        (dict(seed=-1), "seed"),
+        (dict(seed=2**64), "seed"),
+        (dict(cells=-1), "cells"),
+        (dict(cells=(4, 4, 2**32)), "cells"),
+        (dict(threads=-1), "threads"),
+        (dict(embed_density=2**32), "embed_density"),
+        (dict(majorant=-1), "majorant"),
+        (dict(pins_per_entry=-1), "pins_per_entry"),
+        (dict(embed_control=-1), "embed_control"),
+        (dict(embed_control=2**40), "embed_control"),
+        (dict(embed_control=1.5), "embed_control"),
+        (dict(seed=2**1000), "seed"),
+    ],
+)
+def test_out_of_range_integers_are_value_errors(tmp_path, kwargs, name):
+    out = tmp_path / "o.pin"
+    with pytest.raises(ValueError, match=name) as e:
+        pinrt.bake(blob(), out, **{**SMALL, **kwargs})
+    assert type(e.value) is ValueError
+    assert len(str(e.value)) < 120, str(e.value)
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(seed=-1), "seed"),
+        (dict(seed=2**32), "seed"),
+        (dict(first_index=-1), "first_index"),
+        (dict(first_index=2**32), "first_index"),
+        (dict(chain_stride=-1), "chain_stride"),
+        (dict(nearest_line=2**32), "nearest_line"),
+        (dict(seed=1.5), "seed"),
+    ],
+)
+def test_out_of_range_query_options_are_value_errors(pin, kwargs, name):
+    g = PinGrid(pin)
+    for query in (g.transmittance, g.sample_distance):
+        with pytest.raises(ValueError, match=name) as e:
+            query(np.zeros((2, 3)), np.ones((2, 3)), **kwargs)
+        assert type(e.value) is ValueError
+
+
+def test_open_out_of_address_space_is_a_memory_error(pin, tmp_path):
+    # A pin file made 4 GiB long (sparse, no disk), opened under an address-space limit.
+    big = tmp_path / "big.pin"
+    big.write_bytes(pin.read_bytes())
+    os.truncate(big, 4 << 30)
+    code = f"""
+import resource, pinrt
+soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+used = int(open('/proc/self/statm').read().split()[0]) * resource.getpagesize()
+resource.setrlimit(resource.RLIMIT_AS, (used + (512 << 20), hard))
+try:
+    pinrt.PinGrid({str(big)!r})
+    print("opened")
+except MemoryError as e:
+    print("MemoryError:", e)
+except pinrt.PinError as e:
+    print("PinError:", e)
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.stdout.startswith("MemoryError"), r.stdout + r.stderr
+
+
+def test_embed_control_on_a_long_thin_array_names_no_unset_option(tmp_path):
+    a = np.zeros((1, 1, 100_000), np.float32)
+    a[0, 0, 40_000:60_000] = 1.0
+    s = pinrt.bake(a, tmp_path / "o.pin", embed_control=True, **SMALL)
+    assert s["file_bytes"] > 0
+    PinGrid(tmp_path / "o.pin").verify()
+
+
+def test_unreachable_target_error_is_refused_before_the_bake(tmp_path):
+    a = np.random.default_rng(3).random((64, 64, 64), dtype=np.float32) * 40
+    out = tmp_path / "o.pin"
+    started = time.monotonic()
+    with pytest.raises(ValueError, match="target_error 1e-9 cannot be met") as e:
+        pinrt.bake(a, out, target_error=1e-9)
+    assert "MiB" in str(e.value) and len(str(e.value)) < 400, str(e.value)
+    assert time.monotonic() - started < 20
+    assert not out.exists()
+
+
+def test_a_control_grid_beyond_its_limit_is_refused_before_the_bake(tmp_path):
+    out = tmp_path / "o.pin"
+    started = time.monotonic()
+    with pytest.raises(ValueError, match="control grid would have 256x256x256 bricks"):
+        pinrt.bake("procedural:box", out, embed_control=1, **SMALL)
+    assert time.monotonic() - started < 10
+    assert not out.exists()
+    pinrt.bake("procedural:box", out, embed_control=2, **SMALL)
+
+
+def test_a_checked_open_catches_what_open_does_not(pin, tmp_path):
+    data = bytearray(pin.read_bytes())
+    g = PinGrid(pin)
+    # A byte in the middle of the pin section (kind 2 in the section table): open maps it,
+    # verify sums it.
+    count = int.from_bytes(data[16:20], "little")
+    table = int.from_bytes(data[24:32], "little")
+    entries = [data[table + 32 * i : table + 32 * (i + 1)] for i in range(count)]
+    pins = next(e for e in entries if int.from_bytes(e[0:4], "little") == 2)
+    offset, length = int.from_bytes(pins[8:16], "little"), int.from_bytes(pins[16:24], "little")
+    data[offset + length // 2] ^= 0x40
+    bad = tmp_path / "bad.pin"
+    bad.write_bytes(bytes(data))
+    PinGrid(bad)  # opens: the pins are read lazily
+    with pytest.raises(PinError, match="checksum"):
+        PinGrid(bad, verify=True)
+    with pytest.raises(PinError, match="checksum"):
+        PinGrid.from_bytes(bytes(data), verify=True)
+    assert PinGrid(pin, verify=True).info == g.info

@@ -605,7 +605,7 @@ impl ProceduralSpec {
                 other => other.to_string(),
             },
         };
-        Ok(match self.kind {
+        let source: Box<dyn DensitySource> = match self.kind {
             ProceduralKind::Box => {
                 Box::new(HomogeneousBox::new(self.world_box(), self.density as f32).map_err(err)?)
             }
@@ -620,7 +620,20 @@ impl ProceduralSpec {
             ProceduralKind::Cosine | ProceduralKind::Fractal => {
                 Box::new(self.build_noise().map_err(err)?)
             }
-        })
+        };
+        // The placement rule of every grid (`pin_format::check_placement`): `extent=1e39`
+        // overflows f32 and `extent=1e-300` is below what a query resolves.
+        let b = source.bounds();
+        pin_format::check_placement(
+            b.min.to_array(),
+            b.max.to_array(),
+            &pin_format::IDENTITY_LOCAL_TO_WORLD,
+        )
+        .map_err(|m| SourceError::Procedural {
+            spec: self.to_string(),
+            message: m,
+        })?;
+        Ok(source)
     }
 
     /// Builds the cosine noise itself (for callers that need the closed form).
@@ -992,6 +1005,9 @@ mod tests {
             "box:density=-1",
             "box:density=1e300",
             "box:extent=0",
+            "box:extent=1e39",
+            "box:extent=1e-300",
+            "sphere:radius=1e20",
             "sphere:radius=0",
         ] {
             let e = bad.parse::<ProceduralSpec>().unwrap_err().to_string();

@@ -63,13 +63,57 @@ def _worker_path() -> Optional[str]:
     return shutil.which(_WORKER)
 
 
-def _triple(name: str, v: Union[int, Sequence[int]]) -> Tuple[int, int, int]:
-    if isinstance(v, int):
-        return (v, v, v)
-    t = tuple(int(x) for x in v)
+_U32 = (1 << 32) - 1
+_U64 = (1 << 64) - 1
+
+
+def _shown(v: Any) -> str:
+    """A value for a message: huge integers by their size, not their 300 digits."""
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 10**12:
+        return f"{'-' if v < 0 else ''}a {abs(v).bit_length()}-bit integer"
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _int(name: str, v: Any, lo: int, hi: int) -> int:
+    """``v`` as an integer in ``lo..=hi``, else ``ValueError`` naming ``name`` (never the
+    ``OverflowError`` or ``TypeError`` of the conversion to the native type)."""
+    import numbers
+
+    if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+        raise ValueError(f"{name} must be an integer, got {_shown(v)}")
+    i = int(v)
+    if not lo <= i <= hi:
+        raise ValueError(f"{name} is {_shown(i)}; it must be in {lo}..={hi}")
+    return i
+
+
+def _opt_int(name: str, v: Any, lo: int, hi: int) -> Optional[int]:
+    return None if v is None else _int(name, v, lo, hi)
+
+
+def _triple(name: str, v: Any, lo: int = 0, hi: int = _U32) -> Tuple[int, int, int]:
+    import numbers
+
+    if isinstance(v, numbers.Integral) and not isinstance(v, bool):
+        i = _int(name, v, lo, hi)
+        return (i, i, i)
+    try:
+        t = tuple(v)
+    except TypeError:
+        raise ValueError(f"{name} must be one integer or three, got {_shown(v)}") from None
     if len(t) != 3:
-        raise ValueError(f"{name} must be one integer or three, got {v!r}")
-    return (t[0], t[1], t[2])
+        raise ValueError(f"{name} must be one integer or three, got {_shown(v)}")
+    a, b, c = (_int(name, x, lo, hi) for x in t)
+    return (a, b, c)
+
+
+def _embed_control(v: Any) -> Union[bool, int, str, None]:
+    """``embed_control``: None, a bool, ``"auto"`` or a brick edge of 1..=64 voxels; anything
+    else (-1, 2**40, 1.5) is a ``ValueError``."""
+    if v is None or isinstance(v, (bool, str)):
+        return v
+    return _int("embed_control", v, 1, 64)
 
 
 def _floats3(name: str, v: Union[float, Sequence[float], None]) -> Optional[Tuple[float, float, float]]:
@@ -114,9 +158,9 @@ def bake(
     """Bakes a volume into the pin file ``output`` and returns the ``pinbake bake --json``
     summary as a dict.
 
-    ``array_or_path`` is a 3-D NumPy float array indexed ``[x, y, z]`` (any memory order;
-    values finite and >= 0; ``spacing`` is the world size of a voxel and ``origin`` the world
-    position of the grid box's minimum corner), or a path that ``pinbake bake`` reads: an
+    ``array_or_path`` is a 3-D NumPy float array indexed ``[x, y, z]`` (any memory order,
+    strided or broadcast; values finite and >= 0; ``spacing`` is the world size of a voxel and
+    ``origin`` the world position of the grid box's minimum corner), or a path that ``pinbake bake`` reads: an
     OpenVDB fog volume (``grid``, ``levelset_to_fog``), a raw file (``dims``, ``voxel_type``
     u8/u16/f16/f32/f64, ``endian``, ``spacing``, ``origin``, ``clamp_negative``,
     ``nan_as_zero``; dims and type may come from a ``NAME_XxYxZ_TYPE.raw`` file name), or
@@ -140,32 +184,50 @@ def bake(
     its rules: ``output`` must be a new path or a regular file that is not the input (a
     symlink to a file replaces the file and keeps the link; directories, devices, FIFOs and
     dangling symlinks are refused) and is written atomically; options outside their ranges
-    (``step`` in [1e-5, 1], ``spacing`` in [1e-9, 1e9], ``origin`` within 1e12, ...) and
-    options that do not apply to the input (``dims`` for an array, ``grid`` for a raw file)
-    raise ``ValueError``; a bake over the memory budget, or a copy that cannot be allocated,
-    raises ``MemoryError``; a bad input raises :class:`PinError`.
+    (``step`` in [1e-5, 1], ``spacing`` in [1e-9, 1e9], ``origin`` within 1e12, integers
+    outside their type such as ``seed=-1``, ...) and options that do not apply to the input
+    (``dims`` for an array, ``grid`` for a raw file) raise ``ValueError``; a bake over the
+    memory budget, or a copy that cannot be allocated, raises ``MemoryError``; a bad input
+    raises :class:`PinError`.
+
+    Memory: a float32 or float64 array is copied once, by the extension, after that copy (and
+    the array) is counted against ``max_memory``; other float dtypes are converted here after
+    the same check, which counts that conversion too. A masked array with masked voxels raises
+    ``ValueError`` (the mask would be ignored); one with nothing masked bakes its data.
+
+    Placement: the grid's box and transform must be finite, invertible and within what f32
+    queries represent (corners within 1e12, edges at least 1e-9 and 1e-5 of the largest
+    coordinate), the rule every reader applies at open: ``ValueError`` for ``spacing`` and
+    ``origin``, :class:`PinError` for a file or ``procedural:`` spec.
+
+    Size: a ``target_error`` whose chosen bake would exceed 256 MiB of pins, and an
+    ``embed_control`` grid of more than 2^21 bricks (an analytic field counts 256 voxels along
+    its longest axis), raise ``ValueError`` before the bake starts, naming the limit.
+
+    Ctrl-C (``KeyboardInterrupt``) stops a running bake within a second and leaves no output
+    and no temp file.
     """
     kwargs: Dict[str, Any] = dict(
-        cells=None if cells is None else _triple("cells", cells),
+        cells=None if cells is None else _triple("cells", cells, 1),
         directions=directions,
-        pins_per_entry=pins_per_entry,
+        pins_per_entry=_opt_int("pins_per_entry", pins_per_entry, 0, _U32),
         target_error=target_error,
         step=step,
-        seed=seed,
+        seed=_int("seed", seed, 0, _U64),
         crop=crop,
         center_pins=center_pins,
         majorant=_triple("majorant", majorant),
         embed_density=None if embed_density is None else _triple("embed_density", embed_density),
-        embed_control=embed_control,
+        embed_control=_embed_control(embed_control),
         density_scale=density_scale,
-        threads=threads,
-        max_memory=max_memory,
+        threads=_opt_int("threads", threads, 1, _U32),
+        max_memory=_opt_int("max_memory", max_memory, 0, _U64),
         spacing=_floats3("spacing", spacing),
         origin=_floats3("origin", origin),
         # Passed for every input: the options that do not apply to it are refused there.
         grid=grid,
         levelset_to_fog=levelset_to_fog,
-        dims=None if dims is None else _triple("dims", dims),
+        dims=None if dims is None else _triple("dims", dims, 1),
         voxel_type=voxel_type,
         endian=endian,
         clamp_negative=clamp_negative,
@@ -183,14 +245,29 @@ def bake(
 
     import numpy as np
 
+    if isinstance(array_or_path, np.ma.MaskedArray):
+        # np.asarray would drop the mask and bake the hidden values.
+        if np.ma.getmask(array_or_path) is not np.ma.nomask and np.ma.getmask(array_or_path).any():
+            raise ValueError(
+                "the volume array is a masked array with masked voxels: the mask would be "
+                "ignored; fill them first (a.filled(0.0)) or pass a.data"
+            )
+        array_or_path = np.ma.getdata(array_or_path)
     a = np.asarray(array_or_path)
     if a.ndim != 3:
         raise ValueError(f"the volume array must be 3-D, got shape {a.shape}")
     if not np.issubdtype(a.dtype, np.floating):
         raise ValueError(f"the volume array must hold floats, got dtype {a.dtype}")
-    # [x, y, z] indexing with x fastest in memory: the layout of the baker's dense grid.
-    data = np.ascontiguousarray(a.astype(np.float32, copy=False).transpose(2, 1, 0))
-    return json.loads(_native.bake("<array>", out, data=data, **kwargs))
+    held = 0
+    if a.dtype not in (np.float32, np.float64):
+        # float16, longdouble: converted here, a copy that lives through the bake and is
+        # counted against max_memory beside the bake's own copy. Its size is checked first.
+        held = a.size * 4
+        _native.check_array_memory(a.shape, held, kwargs["max_memory"])
+        a = a.astype(np.float32)
+    # Any memory order (C, Fortran, strided, broadcast): the extension copies the [x, y, z]
+    # voxels x-fastest into the bake's grid, once, after counting that copy against max_memory.
+    return json.loads(_native.bake("<array>", out, data=a, held_bytes=held, **kwargs))
 
 
 def _numeric(name: str, value: "npt.ArrayLike") -> "np.ndarray":
@@ -224,6 +301,16 @@ def _rays(
     return o, d, t
 
 
+def _query_ints(seed: Any, first_index: Any, chain_stride: Any, nearest_line: Any) -> Tuple[int, int, int, int]:
+    """The integer query options, each a 32-bit unsigned integer (``ValueError`` otherwise)."""
+    return (
+        _int("seed", seed, 0, _U32),
+        _int("first_index", first_index, 0, _U32),
+        _int("chain_stride", chain_stride, 0, _U32),
+        _int("nearest_line", nearest_line, 0, _U32),
+    )
+
+
 class PinGrid:
     """An open pin grid. ``PinGrid(path)`` memory-maps the file (O(1), no copy);
     :meth:`from_bytes` copies a file's bytes. Safe to query from many threads at once.
@@ -233,17 +320,37 @@ class PinGrid:
     is open: touching a vanished page raises SIGBUS, which kills the interpreter. Replace pin
     files atomically (write a new file, then rename it over the old one, as ``pinbake`` and
     :func:`bake` do): the mapping keeps the old file alive. Where that cannot be ruled out,
-    use ``PinGrid.from_bytes(open(path, "rb").read())``."""
+    use ``PinGrid.from_bytes(open(path, "rb").read())``.
+
+    What opening checks, in time independent of the file's size (the pins are read lazily,
+    as queries reach them): the header, the section table and the grid description and their
+    checksums, every count against the file's length, and the placement (box and
+    ``local_to_world`` finite, invertible and within what f32 queries represent, the rule
+    :func:`bake` applies). The pin section and the cell index are not checksummed at open: a
+    damaged byte there changes query results silently. :meth:`verify` adds every section's
+    checksum and every stored value (linear in the file size). Pipelines that take files
+    from elsewhere open them with ``verify=True``, which runs :meth:`verify` before the grid
+    is returned."""
 
     __slots__ = ("_g",)
 
-    def __init__(self, path: Union[str, "os.PathLike[str]"]) -> None:
+    def __init__(self, path: Union[str, "os.PathLike[str]"], *, verify: bool = False) -> None:
+        """Opens (memory-maps) the pin file ``path``; with ``verify=True`` also checks every
+        checksum and value first (:meth:`verify`). Raises :class:`PinError` for a file that
+        is not a valid pin file, ``MemoryError`` when it cannot be mapped (out of memory or
+        address space)."""
         self._g = _native.PinGrid(os.fspath(path))
+        if verify:
+            self._g.verify()
 
     @classmethod
-    def from_bytes(cls, data: bytes) -> "PinGrid":
+    def from_bytes(cls, data: bytes, *, verify: bool = False) -> "PinGrid":
+        """A grid from the bytes of a pin file (copied), checked as ``PinGrid(path)``
+        checks a file, and with ``verify=True`` as :meth:`verify` does."""
         g = cls.__new__(cls)
         g._g = _native.PinGrid.from_bytes(data)
+        if verify:
+            g._g.verify()
         return g
 
     @property
@@ -252,7 +359,9 @@ class PinGrid:
         return json.loads(self._g.info_json())
 
     def verify(self) -> None:
-        """Checks every checksum and value (linear in the file size); raises PinError."""
+        """Checks what opening does not: every section's checksum (pins and cell index
+        included) and every stored value, linear in the file size; raises :class:`PinError`
+        naming the file and the damage."""
         self._g.verify()
 
     def transmittance(
@@ -284,6 +393,9 @@ class PinGrid:
         ``RENDER_LOOKUP`` (``pinrender render``'s, the least biased); the thesis' lookup is
         ``**THESIS_LOOKUP`` (no jitter, one lookup at the segment start)."""
         o, d, t = _rays(origins, directions, t_max)
+        seed, first_index, chain_stride, nearest_line = _query_ints(
+            seed, first_index, chain_stride, nearest_line
+        )
         return self._g.transmittance(
             o, d, t, seed, first_index, spatial_jitter, directional_jitter,
             chain_stride, lookup_point, start_inside, nearest_line,
@@ -308,6 +420,9 @@ class PinGrid:
         passes without a collision. Returns float32 of shape (N,). The lookup options are
         ``transmittance``'s."""
         o, d, t = _rays(origins, directions, t_max)
+        seed, first_index, chain_stride, nearest_line = _query_ints(
+            seed, first_index, chain_stride, nearest_line
+        )
         return self._g.sample_distance(
             o, d, t, seed, first_index, spatial_jitter, directional_jitter,
             chain_stride, lookup_point, start_inside, nearest_line,

@@ -49,7 +49,7 @@ def bake(
     input: str,
     output: Union[str, PathLike[str]],
     *,
-    data: Optional[npt.NDArray[np.float32]] = ...,
+    data: Optional[Union[npt.NDArray[np.float32], npt.NDArray[np.float64]]] = ...,
     spacing: Optional[Tuple[float, float, float]] = ...,
     origin: Optional[Tuple[float, float, float]] = ...,
     cells: Optional[Tuple[int, int, int]] = ...,
@@ -74,5 +74,9 @@ def bake(
     clamp_negative: bool = ...,
     nan_as_zero: bool = ...,
     vdb_worker: Optional[Union[str, PathLike[str]]] = ...,
+    held_bytes: int = ...,
 ) -> str: ...
+def check_array_memory(
+    shape: Tuple[int, ...], held: int, max_memory: Optional[int] = ...
+) -> None: ...
 def vdb_worker(args: list[str]) -> int: ...
