@@ -56,8 +56,9 @@ fn allocated_by<T>(f: impl FnOnce() -> T) -> (T, usize) {
     (out, ALLOCATED.with(Cell::get) - before)
 }
 
-/// Slack for the text of an error message (a `String` or two of a few dozen bytes).
-const ERROR_SLACK: usize = 256;
+/// Slack for the text of an error message: a placement refusal formats a dozen numbers,
+/// each its own short `String`, into a line of a few hundred bytes (frees not subtracted).
+const ERROR_SLACK: usize = 1024;
 
 fn seeds() -> Vec<Vec<u8>> {
     let mut out = vec![
@@ -393,13 +394,19 @@ fn check_counted(bytes: &[u8], out: &mut Outcomes) {
 
 #[test]
 fn mutated_files_never_panic_or_over_allocate() {
-    use proptest::test_runner::{Config, TestRunner};
+    use proptest::test_runner::{Config, RngSeed, TestRunner};
     let seeds = seeds();
     let cases = 100_000;
     let mut runner = TestRunner::new(Config {
         cases,
         max_shrink_iters: 4000,
         failure_persistence: None,
+        // The same 100,000 files on every run, so that CI fails or passes for the code,
+        // not for the draw; `PROPTEST_RNG_SEED=N` explores others.
+        rng_seed: std::env::var("PROPTEST_RNG_SEED")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .map_or(RngSeed::Fixed(0x9e37_79b9), RngSeed::Fixed),
         ..Config::default()
     });
     let out = std::cell::RefCell::new(Outcomes::default());

@@ -384,6 +384,8 @@ fn bake_outputs(
     spool_dir: Option<&std::path::Path>,
 ) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     check_step(opts)?;
+    // Refused before any work, with the rule's own message, whoever calls.
+    crate::limits::check_source_placement(source, opts.crop)?;
     let pool = thread_pool(opts)?;
     match source.bake_frame() {
         None => pool.install(|| bake_in_pool(source, opts, sweep, progress, spool_dir)),
