@@ -2,12 +2,12 @@
 # shellcheck shell=bash
 #   Vulkan on the CPU (Mesa lavapipe) for the wgpu paths, which fail loudly without an adapter;
 #   fontconfig and a font for the plot labels of `pinrender eval`; Slurm and munge for the farm
-#   test (pinbake/tests/slurm.rs starts a single-node cluster with scripts/slurm-local.sh);
+#   test (pinbake/tests/it/slurm.rs starts a single-node cluster with scripts/slurm-local.sh);
 #   OpenVDB's C++ library, Boost headers and g++ for the VDB compatibility corpus
-#   (pinbake/tests/vdb_corpus.rs writes its files with OpenVDB itself); nanovdb_convert
-#   (libnanovdb-tools) for the NanoVDB corpus (pinbake/tests/nanovdb_corpus.rs); spirv-val and
+#   (pinbake/tests/it/vdb_corpus.rs writes its files with OpenVDB itself); nanovdb_convert
+#   (libnanovdb-tools) for the NanoVDB corpus (pinbake/tests/it/nanovdb_corpus.rs); spirv-val and
 #   glslangValidator for the generated shaders (pinrender/tests/shaders.rs); valgrind for the C
-#   example (capi/tests/c_example.rs); python3-venv for the Python package's tests.
+#   example (capi/tests/it/c_example.rs); python3-venv for the Python package's tests.
 APT_PACKAGES="mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev slurm-wlm munge g++ libopenvdb-dev libboost-dev libnanovdb-tools spirv-tools glslang-tools valgrind python3-venv"
 export DEBIAN_FRONTEND=noninteractive
 SUDO=""

@@ -8,7 +8,11 @@ source scripts/deps.sh
 source scripts/env.sh
 DATA=data
 mkdir -p out
-cargo build "${PROFILE_FLAGS[@]}" --bins
+# The binaries, built as the test command builds them: `cargo test --no-run` resolves the
+# dependencies' features with the tests' dev-dependencies, which `cargo build --bins` leaves
+# out, so a plain `build` compiles some two dozen crates (wgpu among them) a second time for
+# scripts/test.sh. This way the two commands share one build.
+cargo test "${PROFILE_FLAGS[@]}" --no-run
 BIN="$BIN_DIR/pinbake"
 # The default bake (octahedral:16 directions, up to 20^3 cells), with an f16 copy of the density.
 $BIN bake "$DATA/openvdb_smoke1.vdb" -o out/smoke.pin \

@@ -16,7 +16,12 @@ use pin_format::{
 };
 use rayon::prelude::*;
 
+use crate::embed_density::EmbedDensity;
+pub use crate::error::BakeError;
 pub use crate::pin::PinLayout;
+pub use crate::placement::bake_box;
+
+use crate::alloc::try_filled;
 use crate::pin::{Field, Placement, field_optical_depths, make_entry};
 use crate::source::{Aabb, DensitySource};
 use crate::sparse_density::SparseSpool;
@@ -56,11 +61,8 @@ pub struct BakeOptions {
     pub tile: Option<Tile>,
     /// Bricks of the majorant grid per axis; `None` leaves the section out.
     pub majorant: Option<[u32; 3]>,
-    /// Voxels of the embedded f16 density per axis; `None` leaves the section out.
-    pub embed_density: Option<[u32; 3]>,
-    /// The embedded sparse, bricked f16 density (format 1.1) and its voxel dims; `None`
-    /// leaves the section out.
-    pub embed_sparse: Option<crate::sparse_density::SparseDims>,
+    /// The embedded f16 density, dense or sparse (format 1.1); `None` leaves it out.
+    pub embed_density: Option<EmbedDensity>,
     /// The control section (format 1.1) for residual ratio tracking; `None` leaves it out.
     pub embed_control: Option<crate::control::ControlOptions>,
     /// Worker threads; `None` means rayon's default.
@@ -115,7 +117,6 @@ impl Default for BakeOptions {
             tile: None,
             majorant: Some([16; 3]),
             embed_density: None,
-            embed_sparse: None,
             embed_control: None,
             threads: None,
             density_scale: 1.0,
@@ -124,46 +125,6 @@ impl Default for BakeOptions {
             cancel: None,
         }
     }
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum BakeError {
-    #[error("invalid bake options: {0}")]
-    Options(String),
-    #[error("source has an invalid bounding box {0:?}")]
-    Bounds(Aabb),
-    /// The box or transform the bake would record breaks the placement rule
-    /// ([`pin_format::check_placement`]).
-    #[error("placement: {0}")]
-    Placement(String),
-    /// The caller asked the bake to stop ([`BakeOptions::cancel`]).
-    #[error("the bake was cancelled")]
-    Cancelled,
-    #[error(
-        "density {value} at {at:?} does not fit the embedded f16 field; lower --density-scale or drop --embed-density"
-    )]
-    DensityRange { value: f32, at: [f64; 3] },
-    #[error("bake needs about {need} bytes, more than --max-memory {limit}")]
-    Memory { need: u64, limit: u64 },
-    #[error("cannot allocate {bytes} bytes for {what}")]
-    Alloc { what: &'static str, bytes: u64 },
-    #[error(transparent)]
-    Format(#[from] pin_format::FormatError),
-    #[error("thread pool: {0}")]
-    Threads(String),
-    #[error("cannot write {}: {message}", path.display())]
-    Write {
-        path: std::path::PathBuf,
-        message: String,
-    },
-    /// Its output or spool would not fit the free space of its directory.
-    #[error(transparent)]
-    Disk(crate::files::FileError),
-    #[error("cannot spool the sparse density's bricks to a temporary file in {dir:?}: {source}")]
-    Spool {
-        dir: std::path::PathBuf,
-        source: std::io::Error,
-    },
 }
 
 /// Numbers describing a finished bake.
@@ -179,31 +140,6 @@ pub struct BakeStats {
     pub pins_per_s: f64,
 }
 
-/// The box a bake covers: the source bounds, cropped to its non-empty region if asked.
-pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), BakeError> {
-    let bounds = source.bounds();
-    if !bounds.is_valid() {
-        return Err(BakeError::Bounds(bounds));
-    }
-    if !crop {
-        return Ok((bounds, false));
-    }
-    match source.occupied_bounds() {
-        Some(o) => {
-            let min = o.min.max(bounds.min);
-            let max = o.max.min(bounds.max);
-            let b = Aabb::new(min, max);
-            // A field with nothing in it keeps the source box: an all-empty grid is valid.
-            if b.is_valid() {
-                Ok((b, b != bounds))
-            } else {
-                Ok((bounds, false))
-            }
-        }
-        None => Ok((bounds, false)),
-    }
-}
-
 /// Bytes the sections built after the pins hold at their peak: the sparse density
 /// ([`crate::sparse_density::sparse_density_bytes`]) and the control grid (its bricks' three
 /// values gathered, then copied into the section's three arrays: 24 bytes per brick). 0 for
@@ -212,11 +148,14 @@ pub fn estimate_section_bytes(source: &dyn DensitySource, opts: &BakeOptions) ->
     let Ok((bbox, _)) = bake_box(source, opts.crop) else {
         return 0;
     };
-    let sparse = opts.embed_sparse.map_or(0, |spec| {
-        crate::sparse_density::sparse_dims(source, &bbox, spec).map_or(0, |dims| {
-            crate::sparse_density::sparse_density_bytes(source, &bbox, dims)
-        })
-    });
+    let sparse = opts
+        .embed_density
+        .and_then(EmbedDensity::sparse)
+        .map_or(0, |spec| {
+            crate::sparse_density::sparse_dims(source, &bbox, spec).map_or(0, |dims| {
+                crate::sparse_density::sparse_density_bytes(source, &bbox, dims)
+            })
+        });
     let control = opts.embed_control.map_or(0, |c| {
         crate::control::control_dims(source, &bbox, &c)
             .map_or(0, |d| d.iter().map(|&x| u64::from(x)).product::<u64>() * 24)
@@ -274,7 +213,7 @@ pub fn estimate_output_bytes(opts: &BakeOptions) -> u64 {
         .saturating_mul(2)
         .saturating_add(cells.saturating_mul(4))
         .saturating_add(vol(opts.majorant, 4))
-        .saturating_add(vol(opts.embed_density, 2))
+        .saturating_add(vol(opts.embed_density.and_then(EmbedDensity::dense), 2))
 }
 
 /// Bytes that a bake of `source` with `opts` writes to its output's directory at least:
@@ -286,15 +225,18 @@ pub fn estimate_min_file_bytes(source: &dyn DensitySource, opts: &BakeOptions) -
     let vol = |d: Option<[u32; 3]>, b: u64| {
         d.map_or(0, |d| d.iter().map(|&x| u64::from(x)).product::<u64>() * b)
     };
-    let sparse = opts.embed_sparse.map_or(0, |spec| {
-        bake_box(source, opts.crop).map_or(0, |(bbox, _)| {
-            crate::sparse_density::sparse_dims(source, &bbox, spec).map_or(0, |dims| {
-                crate::sparse_density::sparse_density_min_file_bytes(source, &bbox, dims)
+    let sparse = opts
+        .embed_density
+        .and_then(EmbedDensity::sparse)
+        .map_or(0, |spec| {
+            bake_box(source, opts.crop).map_or(0, |(bbox, _)| {
+                crate::sparse_density::sparse_dims(source, &bbox, spec).map_or(0, |dims| {
+                    crate::sparse_density::sparse_density_min_file_bytes(source, &bbox, dims)
+                })
             })
-        })
-    });
+        });
     vol(opts.majorant, 4)
-        .saturating_add(vol(opts.embed_density, 2))
+        .saturating_add(vol(opts.embed_density.and_then(EmbedDensity::dense), 2))
         .saturating_add(sparse.saturating_mul(2))
 }
 
@@ -385,7 +327,7 @@ fn bake_outputs(
 ) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     check_step(opts)?;
     // Refused before any work, with the rule's own message, whoever calls.
-    crate::limits::check_source_placement(source, opts.crop)?;
+    crate::placement::check_source_placement(source, opts.crop)?;
     let pool = thread_pool(opts)?;
     match source.bake_frame() {
         None => pool.install(|| bake_in_pool(source, opts, sweep, progress, spool_dir)),
@@ -555,10 +497,11 @@ fn bake_in_pool(
         .transpose()?;
     let density = opts
         .embed_density
+        .and_then(EmbedDensity::dense)
         .map(|dims| bake_density(source, &bbox, dims))
         .transpose()?;
     let (mut sparse, mut spool) = (None, None);
-    if let Some(spec) = opts.embed_sparse {
+    if let Some(spec) = opts.embed_density.and_then(EmbedDensity::sparse) {
         let dims = crate::sparse_density::sparse_dims(source, &bbox, spec)?;
         match spool_dir {
             None => {
@@ -697,27 +640,6 @@ fn cell_box(bbox: &Aabb, dims: [u32; 3], c: [u32; 3]) -> Aabb {
     )
 }
 
-/// `vec![value; n]` that reports a failed allocation instead of aborting the process.
-pub(crate) fn try_filled<T: Clone>(
-    what: &'static str,
-    n: usize,
-    value: T,
-) -> Result<Vec<T>, BakeError> {
-    let mut v = try_reserved(what, n)?;
-    v.resize(n, value);
-    Ok(v)
-}
-
-/// An empty vector with room for `n` values, or [`BakeError::Alloc`] naming `what`.
-pub(crate) fn try_reserved<T>(what: &'static str, n: usize) -> Result<Vec<T>, BakeError> {
-    let mut v = Vec::new();
-    v.try_reserve_exact(n).map_err(|_| BakeError::Alloc {
-        what,
-        bytes: (n as u64).saturating_mul(size_of::<T>() as u64),
-    })?;
-    Ok(v)
-}
-
 fn check_dims(what: &str, dims: [u32; 3]) -> Result<usize, BakeError> {
     if dims.contains(&0) || dims.iter().any(|&d| d > 4096) {
         return Err(BakeError::Options(format!(
@@ -811,7 +733,7 @@ mod tests {
             directions: Directions::Octahedral { n: 3 },
             pins_per_entry: 2,
             majorant: Some([2, 2, 2]),
-            embed_density: Some([3, 3, 3]),
+            embed_density: Some(EmbedDensity::Dense([3, 3, 3])),
             ..BakeOptions::default()
         }
     }

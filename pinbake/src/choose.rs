@@ -34,7 +34,8 @@
 use glam::DVec3;
 use pin_format::Directions;
 
-use crate::bake::{BakeError, bake_box};
+use crate::error::BakeError;
+use crate::placement::bake_box;
 use crate::source::DensitySource;
 
 /// Probe points per axis at most (64^3 = 262144 density lookups: well under a second even for

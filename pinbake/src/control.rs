@@ -15,7 +15,8 @@ use glam::DVec3;
 use pin_format::OwnedControl;
 use rayon::prelude::*;
 
-use crate::bake::BakeError;
+use crate::alloc::try_filled;
+use crate::error::BakeError;
 use crate::source::{Aabb, DensitySource};
 
 /// The least source voxels per brick edge of the default control grid ([`ControlDims::Auto`]).
@@ -149,7 +150,7 @@ pub fn check_control(
 ) -> Result<[u32; 3], BakeError> {
     let frame = source.bake_frame();
     let local: &dyn DensitySource = frame.as_ref().map_or(source, |(l, _)| l.as_ref());
-    let (bbox, _) = crate::bake::bake_box(local, crop)?;
+    let (bbox, _) = crate::placement::bake_box(local, crop)?;
     control_dims(local, &bbox, opts)
 }
 
@@ -195,7 +196,7 @@ pub fn bake_control_cancellable(
     }
     let dims = control_dims(source, bbox, opts)?;
     let n = dims.iter().map(|&d| d as usize).product::<usize>();
-    let mut bricks = crate::bake::try_filled("the control grid", n, [0.0f32; 3])?;
+    let mut bricks = try_filled("the control grid", n, [0.0f32; 3])?;
     let e = bbox.extent();
     let size = DVec3::new(
         e.x / f64::from(dims[0]),

@@ -441,19 +441,38 @@ impl PendingPin {
         self.file.commit()
     }
 
-    /// [`PendingPin::write`], with the sparse density streamed from `spool` when there is
-    /// one ([`crate::bake::bake_spooled`]).
+    /// [`PendingPin::write`], with the sparse density streamed from `sparse` when there is
+    /// one (the spool of [`crate::bake::bake_spooled`]).
     pub fn write_spooled(
         mut self,
         grid: &pin_format::OwnedPinGrid,
-        spool: Option<&mut crate::sparse_density::SparseSpool>,
+        sparse: Option<pin_format::StreamedSparseDensity<'_>>,
     ) -> Result<(), pin_format::FormatError> {
-        match spool {
+        match sparse {
             None => grid.write_into(self.file.writer())?,
-            Some(s) => grid.write_streamed_into(self.file.writer(), s.streamed()?)?,
+            Some(s) => grid.write_streamed_into(self.file.writer(), s)?,
         }
         self.file.commit()
     }
+}
+
+/// Hex xxh3-128 of a file, streamed (a large volume is not read twice into memory): the
+/// metadata's source hash.
+pub fn hash_file(path: &Path) -> Result<String, FileError> {
+    let (mut f, _) = open_input(path)?;
+    let mut h = xxhash_rust::xxh3::Xxh3::new();
+    let mut buf = vec![0u8; 1 << 20];
+    loop {
+        let n = f.read(&mut buf).map_err(|err| FileError::Io {
+            path: path.to_path_buf(),
+            err,
+        })?;
+        if n == 0 {
+            break;
+        }
+        h.update(&buf[..n]);
+    }
+    Ok(format!("{:032x}", h.digest128()))
 }
 
 #[cfg(test)]

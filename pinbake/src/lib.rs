@@ -17,17 +17,21 @@
 /// users name the same version of its types without a direct dependency.
 pub use glam;
 
+pub mod alloc;
 pub mod bake;
 pub mod choose;
 #[cfg(feature = "cli")]
 pub mod cli_args;
 pub mod control;
+pub mod embed_density;
+pub mod error;
 pub mod files;
 pub mod limits;
 pub mod merge;
 pub mod part;
 pub mod part_file;
 pub mod pin;
+pub mod placement;
 pub mod plan;
 pub mod rng;
 pub mod source;
@@ -35,7 +39,9 @@ pub mod sparse_density;
 pub mod summary;
 mod sweep;
 
-pub use bake::{BakeError, BakeOptions, BakeStats, Tile, bake};
+pub use bake::{BakeOptions, BakeStats, Tile, bake};
+pub use embed_density::EmbedDensity;
+pub use error::BakeError;
 pub use merge::{MergeError, merge_tiles};
 pub use part::{Part, PartData, PartError, bake_part, merge_parts};
 pub use plan::{

@@ -37,25 +37,6 @@ pub fn check_origin(v: [f64; 3]) -> Result<[f64; 3], String> {
     Ok(v)
 }
 
-/// The placement rule of every grid ([`pin_format::check_placement`], which readers apply at
-/// open and `verify`) for the box and transform a bake of `source` will record, before the
-/// bake starts: finite, invertible, within what f32 queries can represent.
-pub fn check_source_placement(
-    source: &dyn crate::source::DensitySource,
-    crop: bool,
-) -> Result<(), crate::bake::BakeError> {
-    use crate::bake::{BakeError, bake_box};
-    let (bbox, local_to_world) = match source.bake_frame() {
-        None => (
-            bake_box(source, crop)?.0,
-            pin_format::IDENTITY_LOCAL_TO_WORLD,
-        ),
-        Some((local, m)) => (bake_box(local.as_ref(), crop)?.0, m),
-    };
-    pin_format::check_placement(bbox.min.to_array(), bbox.max.to_array(), &local_to_world)
-        .map_err(BakeError::Placement)
-}
-
 /// Upper bound of worker threads: more than this only cost memory and start-up time
 /// (`--threads 10000` spent its time spawning threads).
 pub fn max_threads() -> usize {

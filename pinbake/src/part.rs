@@ -20,11 +20,15 @@ use pin_format::layout::GRID_FLAG_JITTERED_PINS;
 use pin_format::{Directions, GridDesc, MajorantHeader, Metadata, OwnedPinGrid, PinEntry};
 use rayon::prelude::*;
 
-use crate::bake::{BakeError, BakeOptions, BakeStats};
+use crate::alloc::{try_filled, try_reserved};
+use crate::bake::{BakeOptions, BakeStats};
+use crate::error::BakeError;
 use crate::pin::{
     ChordSamples, GRID_WHOLE_PIN_STEPS, INTERVALS, PinLayout, Placement, chord_samples, make_entry,
 };
 use crate::source::{Aabb, DenseGrid, DensitySource, identity};
+
+pub use crate::source::part_facts::{LeafSummary, PartFacts};
 
 /// Part `index` of `count` of a bake split by volume.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -38,72 +42,6 @@ pub struct Part {
 /// part's identity lattice (160 KiB each: 160 MiB at this count), so a larger split costs
 /// more than it saves; a part count above it in a part file is damage.
 pub const MAX_PARTS: u32 = 1024;
-
-/// The non-zero leaves of a voxel grid, or of one slab of it: how many, the inclusive index
-/// box of their non-zero voxels (`None` when there are none) and their largest value, after
-/// the density scale.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LeafSummary {
-    pub nonzero_leaves: u64,
-    pub nonzero_box: Option<[[i32; 3]; 2]>,
-    pub max_value: f32,
-}
-
-impl LeafSummary {
-    /// No leaves.
-    pub const EMPTY: Self = Self {
-        nonzero_leaves: 0,
-        nonzero_box: None,
-        max_value: 0.0,
-    };
-
-    /// The summary of the leaves of `self` and of `other` together (disjoint sets of leaves).
-    pub fn union(self, other: Self) -> Self {
-        let nonzero_box = match (self.nonzero_box, other.nonzero_box) {
-            (Some([a0, a1]), Some([b0, b1])) => Some([
-                std::array::from_fn(|i| a0[i].min(b0[i])),
-                std::array::from_fn(|i| a1[i].max(b1[i])),
-            ]),
-            (a, None) => a,
-            (None, b) => b,
-        };
-        Self {
-            nonzero_leaves: self.nonzero_leaves.saturating_add(other.nonzero_leaves),
-            nonzero_box,
-            max_value: self.max_value.max(other.max_value),
-        }
-    }
-}
-
-impl std::fmt::Display for LeafSummary {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self.nonzero_box {
-            Some([lo, hi]) => write!(
-                f,
-                "{} non-zero leaves in index box {lo:?}..={hi:?}, largest value {}",
-                self.nonzero_leaves, self.max_value
-            ),
-            None => write!(f, "{} non-zero leaves", self.nonzero_leaves),
-        }
-    }
-}
-
-/// What a part of a voxel grid knows about the grid's leaves, for the merge to check the
-/// parts against each other: the whole grid's facts it baked with (from `--grid-stats`, or
-/// from its own read of every leaf) and what it found in the leaves of its own slab (not its
-/// margin). The slabs tile the grid, so the slabs' summaries together must be the whole
-/// grid's: statistics that overstate or understate the grid fail that test.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PartFacts {
-    pub grid: LeafSummary,
-    /// Active negative values of the grid clamped to 0 (leaves and tiles).
-    pub negative_values: u64,
-    pub slab: LeafSummary,
-    /// Active negative values in the slab's leaves, and in the tiles (every part reads them
-    /// all): over the parts, the slabs' and the tiles' make the grid's.
-    pub slab_negative_values: u64,
-    pub tile_negative_values: u64,
-}
 
 /// What one part computed: with the other parts, everything the merge needs.
 #[derive(Clone, Debug, PartialEq)]
@@ -302,7 +240,7 @@ fn check(part: Part, opts: &BakeOptions) -> Result<(), BakeError> {
     if opts.tile.is_some() {
         return Err(BakeError::Options("a part bake takes no --tile".into()));
     }
-    if opts.embed_density.is_some() || opts.embed_sparse.is_some() {
+    if opts.embed_density.is_some() {
         return Err(BakeError::Options(
             "--embed-density is not available in a part bake (--part)".into(),
         ));
@@ -329,7 +267,7 @@ struct InMemory(Vec<f32>);
 
 impl SampleSink for InMemory {
     fn start(&mut self, _: &PartData, total: u64) -> Result<(), BakeError> {
-        self.0 = crate::bake::try_reserved("the part's samples", total as usize)?;
+        self.0 = try_reserved("the part's samples", total as usize)?;
         Ok(())
     }
     fn samples(&mut self, samples: &[f32]) -> Result<(), BakeError> {
@@ -462,7 +400,7 @@ fn part_in_pool(
         .collect();
     sink.start(&head, counts.iter().map(|&c| c as u64).sum())?;
     let largest = counts.iter().copied().max().unwrap_or(0);
-    let mut buffer = crate::bake::try_filled(
+    let mut buffer = try_filled(
         "a batch of the part's samples",
         SAMPLE_BATCH.max(largest),
         0f32,
@@ -799,7 +737,7 @@ pub fn merge_parts_within(
         }
     }
     // The pins first: a grid too large for memory is refused before the passes over it.
-    let mut dense = crate::bake::try_filled("the pins", pins, PinEntry::EMPTY)?;
+    let mut dense = try_filled("the pins", pins, PinEntry::EMPTY)?;
     let pin = |row: usize, x: u32, dir: u32, k: u32| {
         let cell = [x, (row % ny as usize) as u32, (row / ny as usize) as u32];
         let mut rng = layout.rng(layout.cell_linear(cell), dir, k);
@@ -1322,7 +1260,7 @@ mod tests {
         let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();
         for o in [
             BakeOptions {
-                embed_density: Some([2, 2, 2]),
+                embed_density: Some(crate::EmbedDensity::Dense([2, 2, 2])),
                 ..opts()
             },
             BakeOptions {

@@ -29,7 +29,7 @@ use std::path::{Path, PathBuf};
 
 use pin_format::{GridDesc, Metadata};
 
-use crate::bake::BakeError;
+use crate::error::BakeError;
 use crate::part::{LeafSummary, MAX_PARTS, Part, PartData, PartFacts, SampleSink};
 use crate::source::identity;
 

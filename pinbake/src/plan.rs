@@ -25,8 +25,9 @@ use std::time::Instant;
 use pin_format::{Directions, OwnedPinGrid};
 use serde_json::{Value, json};
 
-use crate::bake::{BakeError, BakeOptions, BakeStats, Provenance, Tile};
+use crate::bake::{BakeOptions, BakeStats, Provenance, Tile};
 use crate::choose::Choice;
+use crate::error::BakeError;
 use crate::files::{FileError, InputSet, MemoryBudget, PendingPin};
 use crate::part::Part;
 use crate::source::{self, DenseGrid, DensitySource, SourceError, SourceSpec};
@@ -101,10 +102,9 @@ pub struct BakeRequest {
     pub tile: Option<Tile>,
     /// Majorant bricks per axis, 1..=4096 each; `None` leaves the section out.
     pub majorant: Option<[u32; 3]>,
-    /// An embedded f16 density of this many voxels, 1..=4096 per axis.
-    pub embed_density: Option<[u32; 3]>,
-    /// An embedded sparse, bricked f16 density (format 1.1) with these voxel dims.
-    pub embed_sparse: Option<crate::sparse_density::SparseDims>,
+    /// An embedded f16 density: dense, 1..=4096 voxels per axis, or sparse bricks (format
+    /// 1.1) with these voxel dims.
+    pub embed_density: Option<crate::EmbedDensity>,
     /// The control section for residual ratio tracking (format 1.1), by these options.
     pub embed_control: Option<crate::control::ControlOptions>,
     /// Worker threads, 1..=[`crate::limits::max_threads`] (all cores when `None`).
@@ -131,7 +131,6 @@ impl Default for BakeRequest {
             tile: None,
             majorant: d.majorant,
             embed_density: None,
-            embed_sparse: None,
             embed_control: None,
             threads: None,
             density_scale: d.density_scale,
@@ -221,7 +220,10 @@ impl BakeRequest {
         }
         for (name, v) in [
             ("majorant", self.majorant),
-            ("embed_density", self.embed_density),
+            (
+                "embed_density",
+                self.embed_density.and_then(crate::EmbedDensity::dense),
+            ),
         ] {
             if let Some(d) = v
                 && d.iter().any(|&n| !(1..=4096).contains(&n))
@@ -409,25 +411,15 @@ pub fn memory_estimate(
     (before_copy.saturating_add(bake.max(opening)), copy)
 }
 
-/// Hex xxh3-128 of a file, streamed (a large volume is not read twice into memory): the
-/// metadata's source hash.
-pub fn hash_file(path: &Path) -> Result<String, FileError> {
-    use std::io::Read;
-    let (mut f, _) = crate::files::open_input(path)?;
-    let mut h = xxhash_rust::xxh3::Xxh3::new();
-    let mut buf = vec![0u8; 1 << 20];
-    loop {
-        let n = f.read(&mut buf).map_err(|err| FileError::Io {
-            path: path.to_path_buf(),
-            err,
-        })?;
-        if n == 0 {
-            break;
-        }
-        h.update(&buf[..n]);
-    }
-    Ok(format!("{:032x}", h.digest128()))
+/// The spooled sparse density as the section to stream into the pin file, its bricks read
+/// from the start of the spool.
+fn streamed(
+    spool: &mut Option<crate::sparse_density::SparseSpool>,
+) -> Result<Option<pin_format::StreamedSparseDensity<'_>>, pin_format::FormatError> {
+    Ok(spool.as_mut().map(|s| s.streamed()).transpose()?)
 }
+
+pub use crate::files::hash_file;
 
 /// The cells, directions and pins per entry of a bake of `source`: those `req` gives, the
 /// rest chosen from the volume ([`crate::choose`]).
@@ -458,7 +450,6 @@ pub fn options(req: &BakeRequest, choice: &Choice, metadata: pin_format::Metadat
         tile: req.tile,
         majorant: req.majorant,
         embed_density: req.embed_density,
-        embed_sparse: req.embed_sparse,
         embed_control: req.embed_control,
         threads: req.threads,
         density_scale: req.density_scale,
@@ -495,7 +486,9 @@ fn prepare(
         directions: req.directions.unwrap_or(crate::bake::DEFAULT_DIRECTIONS),
         pins_per_entry: req.pins_per_entry.unwrap_or(1),
         majorant: req.majorant,
-        embed_density: req.embed_density,
+        // The dense section, whose size the options fix (a sparse one is counted once the
+        // source is open).
+        embed_density: req.embed_density.filter(|e| e.dense().is_some()),
         ..BakeOptions::default()
     };
     let input_bytes = match &input {
@@ -588,7 +581,7 @@ fn prepare(
             (Box::new(g), "<array>".into(), String::new())
         }
     };
-    crate::limits::check_source_placement(source.as_ref(), req.crop).map_err(bake_err)?;
+    crate::placement::check_source_placement(source.as_ref(), req.crop).map_err(bake_err)?;
     let choice = choose(source.as_ref(), req).map_err(bake_err)?;
     if let Some(c) = &req.embed_control {
         crate::control::check_control(source.as_ref(), req.crop, c).map_err(|e| {
@@ -694,11 +687,11 @@ pub fn bake_to_file(
         // A symlink to a regular file: the file it points to is replaced, the link stays.
         drop(pending);
         crate::files::PendingPin::create(&target)
-            .and_then(|p| p.write_spooled(&grid, spool.as_mut()))
+            .and_then(|p| p.write_spooled(&grid, streamed(&mut spool)?))
             .map_err(write_err)?;
     } else {
-        pending
-            .write_spooled(&grid, spool.as_mut())
+        streamed(&mut spool)
+            .and_then(|sparse| pending.write_spooled(&grid, sparse))
             .map_err(write_err)?;
     }
     let file_bytes = std::fs::metadata(&target)
@@ -776,7 +769,7 @@ fn validate_part(req: &BakeRequest, part: Part) -> Result<(), PlanError> {
             "--part takes no --target-error (name --cells and --dirs)".into(),
         ));
     }
-    if req.embed_density.is_some() || req.embed_sparse.is_some() {
+    if req.embed_density.is_some() {
         return Err(usage("--embed-density is not available with --part".into()));
     }
     if req.embed_control.is_some() {

@@ -15,7 +15,8 @@ use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-use crate::bake::BakeError;
+use crate::alloc::{try_filled, try_reserved};
+use crate::error::BakeError;
 use crate::source::{Aabb, DensitySource};
 
 /// Brick edge of the sections pinbake writes: 8^3 voxels (1 KiB of f16), the granularity of an
@@ -213,7 +214,7 @@ impl SparseSpool {
     /// Reads the bricks back into memory (for tests and small grids).
     pub fn into_owned(mut self) -> Result<OwnedSparseDensity, BakeError> {
         let n = self.header.brick_count as usize * (self.header.brick as usize).pow(3);
-        let mut values = crate::bake::try_filled("the sparse density bricks", n, f16::ZERO)?;
+        let mut values = try_filled("the sparse density bricks", n, f16::ZERO)?;
         self.file
             .seek(SeekFrom::Start(0))
             .and_then(|_| self.file.read_exact(bytemuck::cast_slice_mut(&mut values)))
@@ -298,7 +299,7 @@ fn reserved_for<T>(candidates: &Candidates, what: &'static str) -> Result<Vec<T>
     let n = usize::try_from(candidates.count())
         .unwrap_or(usize::MAX)
         .saturating_mul((SPARSE_BRICK as usize).pow(3));
-    crate::bake::try_reserved(what, n)
+    try_reserved(what, n)
 }
 
 /// Bricks of `SPARSE_BRICK` over `bbox` with `dims` voxels whose box the source does not
@@ -503,10 +504,9 @@ fn fill_bricks<T: Copy + Default + PartialEq + Send + Sync>(
         .map(|r| rows[r.clone()].iter().map(Vec::len).sum::<usize>())
         .max()
         .unwrap_or(0);
-    let mut buffer =
-        crate::bake::try_filled("a batch of sparse density bricks", largest * bv, zero)?;
+    let mut buffer = try_filled("a batch of sparse density bricks", largest * bv, zero)?;
     let slots = bdims.iter().map(|&d| d as usize).product::<usize>();
-    let mut index = crate::bake::try_filled("the sparse density index", slots, EMPTY_BRICK)?;
+    let mut index = try_filled("the sparse density index", slots, EMPTY_BRICK)?;
     let mut slot = 0usize;
     for batch in batches {
         let n: usize = rows[batch.clone()].iter().map(Vec::len).sum();
@@ -688,7 +688,7 @@ mod tests {
         let opts = BakeOptions {
             cells: [5, 4, 6],
             directions: Directions::Octahedral { n: 4 },
-            embed_sparse: Some(SparseDims::Source),
+            embed_density: Some(crate::EmbedDensity::Sparse(SparseDims::Source)),
             embed_control: Some(crate::control::ControlOptions::default()),
             ..BakeOptions::default()
         };
@@ -710,7 +710,7 @@ mod tests {
         assert!(w.finish().unwrap().into_inner() == want);
         // Without a sparse density there is no spool and the same grid.
         let plain = BakeOptions {
-            embed_sparse: None,
+            embed_density: None,
             ..opts
         };
         let (g2, spool, _) = bake_spooled(&g, &plain, &|_| {}, dir.path()).unwrap();

@@ -23,9 +23,8 @@ use glam::DVec3;
 use pin_format::PinEntry;
 use rayon::prelude::*;
 
-use crate::bake::PinLayout;
 use crate::pin::{
-    ChordSamples, Field, GRID_WHOLE_PIN_STEPS, INTERVALS, Placement, chord_samples,
+    ChordSamples, Field, GRID_WHOLE_PIN_STEPS, INTERVALS, PinLayout, Placement, chord_samples,
     field_optical_depths, make_entry,
 };
 use crate::rng::CounterRng;

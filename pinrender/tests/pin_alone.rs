@@ -35,7 +35,7 @@ fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>, identity: bool) 
     let opts = pinbake::BakeOptions {
         cells: [8; 3],
         density_scale: scale,
-        embed_density: embed.map(|n| [n; 3]),
+        embed_density: embed.map(|n| pinbake::EmbedDensity::Dense([n; 3])),
         majorant: Some([8; 3]),
         metadata: Metadata {
             extra,
@@ -54,7 +54,9 @@ fn bake_sparse(dir: &Path, name: &str, n: u32) -> PathBuf {
     let src = source(1.0);
     let opts = pinbake::BakeOptions {
         cells: [8; 3],
-        embed_sparse: Some(pinbake::sparse_density::SparseDims::Exact([n; 3])),
+        embed_density: Some(pinbake::EmbedDensity::Sparse(
+            pinbake::sparse_density::SparseDims::Exact([n; 3]),
+        )),
         majorant: Some([8; 3]),
         metadata: Metadata {
             extra: SourceIdentity::of(src.as_ref(), 1.0).to_extra(),
@@ -208,7 +210,7 @@ fn pinres_renders_from_a_pin_file_on_the_gpu() {
     let src = source(1.0);
     let opts = pinbake::BakeOptions {
         cells: [8; 3],
-        embed_density: Some([32; 3]),
+        embed_density: Some(pinbake::EmbedDensity::Dense([32; 3])),
         embed_control: Some(pinbake::control::ControlOptions::default()),
         majorant: Some([8; 3]),
         ..pinbake::BakeOptions::default()

@@ -16,6 +16,7 @@ use std::path::{Path, PathBuf};
 use pin_format::{GridDesc, GridShape, PinEntry, PinFile};
 
 use crate::error::{Error, Result};
+use crate::lookup::GridView;
 
 /// The name of a grid that has no file, in messages.
 const MEMORY: &str = "<memory>";
@@ -235,7 +236,7 @@ impl PinGrid {
     /// One entry by cell, direction cell and pin number; empty cells read as
     /// [`PinEntry::EMPTY`]. Same answer as `PinFile::entry`.
     pub fn entry(&self, cell: [u32; 3], direction: u32, pin: u32) -> PinEntry {
-        crate::lookup::GridView::new(self)
+        GridView::new(self)
             .entry_index(cell, direction, pin)
             .and_then(|i| self.pins().get(i as usize).copied())
             .unwrap_or(PinEntry::EMPTY)
@@ -245,6 +246,20 @@ impl PinGrid {
     /// own placement.
     pub fn sampler(&self) -> Result<crate::Sampler<'_>> {
         crate::Sampler::new(self)
+    }
+}
+
+/// The lookup's view of a loaded grid: made here, so that the lookup needs no loader.
+impl<'g> GridView<'g> {
+    pub fn new(grid: &'g PinGrid) -> Self {
+        let shape = *grid.shape();
+        Self {
+            pins: grid.pins(),
+            index: grid.cell_index(),
+            shape,
+            dims_f: shape.dims.map(|d| d as f32),
+            stored_cells: grid.desc().stored_cells,
+        }
     }
 }
 

@@ -15,9 +15,9 @@
 use pin_format::{Directions, EMPTY_CELL, GridShape, PinEntry, atan2_turns, octahedral_uv};
 
 use crate::chord::bin;
-use crate::loader::PinGrid;
 
-/// The hot-path view of a grid: slices into the mapped bytes plus precomputed sizes.
+/// The hot-path view of a grid: slices into the mapped bytes plus precomputed sizes
+/// (`GridView::new`, beside the loader).
 #[derive(Clone, Copy, Debug)]
 pub struct GridView<'g> {
     pub pins: &'g [PinEntry],
@@ -28,18 +28,7 @@ pub struct GridView<'g> {
     pub stored_cells: u64,
 }
 
-impl<'g> GridView<'g> {
-    pub fn new(grid: &'g PinGrid) -> Self {
-        let shape = *grid.shape();
-        Self {
-            pins: grid.pins(),
-            index: grid.cell_index(),
-            shape,
-            dims_f: shape.dims.map(|d| d as f32),
-            stored_cells: grid.desc().stored_cells,
-        }
-    }
-
+impl GridView<'_> {
     /// Linear index of a cell within the covered slab, or `None` outside it (other tiles).
     #[inline(always)]
     pub fn local_cell(&self, cell: [u32; 3]) -> Option<u64> {
@@ -236,6 +225,7 @@ pub fn nearest_line_cell(c: [f32; 3], view: &GridView<'_>, dcell: u32, steps: u3
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::loader::PinGrid;
     use crate::rng::Rng;
 
     fn random_dir(r: &mut Rng) -> [f32; 3] {

@@ -393,6 +393,27 @@ fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
     Ok(v)
 }
 
+/// `bake(embed_density=...)`: the text of `--embed-density` (`"sparse"`, `"sparse:N"`,
+/// `"sparse:X,Y,Z"`, `"64"`), parsed by pinbake as the flag is, or the voxels per axis of a
+/// dense copy (the Python layer makes three of one integer). Text first: a string of three
+/// characters is no triple.
+#[derive(FromPyObject)]
+enum EmbedDensityArg {
+    Text(String),
+    Dims([u32; 3]),
+}
+
+impl EmbedDensityArg {
+    fn density(self) -> PyResult<pinbake::EmbedDensity> {
+        match self {
+            Self::Text(t) => t
+                .parse()
+                .map_err(|e| value_err(format!("embed_density: {e}"))),
+            Self::Dims(d) => Ok(pinbake::EmbedDensity::Dense(d)),
+        }
+    }
+}
+
 /// `bake(embed_control=...)`: `True` or `"auto"` for the default brick edge (as
 /// `--embed-control` without a value), an edge in voxels, or `False` for none. A bool is
 /// tried first: Python's `True` is also the integer 1, which would be a 1-voxel edge.
@@ -449,7 +470,7 @@ fn bake(
     crop: bool,
     center_pins: bool,
     majorant: [u32; 3],
-    embed_density: Option<[u32; 3]>,
+    embed_density: Option<EmbedDensityArg>,
     embed_control: Option<ControlEdge>,
     density_scale: f64,
     threads: Option<usize>,
@@ -473,10 +494,8 @@ fn bake(
         seed,
         crop,
         jitter_pins: !center_pins,
-        tile: None,
         majorant: (majorant != [0; 3]).then_some(majorant),
-        embed_density,
-        embed_sparse: None,
+        embed_density: embed_density.map(EmbedDensityArg::density).transpose()?,
         embed_control: embed_control
             .map(ControlEdge::dims)
             .transpose()?
@@ -488,6 +507,8 @@ fn bake(
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),
+        // A bake option without a keyword here (a tile) keeps the command line's default.
+        ..BakeRequest::default()
     };
     req.validate().map_err(plan_err)?;
     // Options meant for another kind of input are refused, as on the command line.

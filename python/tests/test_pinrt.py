@@ -289,6 +289,21 @@ def test_python_bakes_equal_pinbake_bakes_byte_for_byte(smoke, tmp_path):
     pinrt.bake(raw, none_py, cells=4, density_scale=0.05, step=0.05, embed_control=False)
     assert none_py.read_bytes() == plain.read_bytes()
 
+    # The embedded density, dense or sparse, as --embed-density's text.
+    for flag, arg in (("sparse", "sparse"), ("sparse:16", "sparse:16"), ("8", 8)):
+        py = tmp_path / f"h_py_density_{flag}.pin"
+        cli = tmp_path / f"h_cli_density_{flag}.pin"
+        s = pinrt.bake(raw, py, cells=4, density_scale=0.05, step=0.05, embed_density=arg)
+        subprocess.run(
+            [exe("PINBAKE_EXE"), "bake", str(raw), "-o", str(cli), "--cells", "4",
+             "--density-scale", "0.05", "--step", "0.05", "--embed-density", flag, "-q"],
+            check=True,
+        )
+        assert py.read_bytes() == cli.read_bytes(), flag
+        assert py.stat().st_size > plain.stat().st_size, flag
+    with pytest.raises(ValueError, match="embed_density"):
+        pinrt.bake(raw, tmp_path / "never.pin", cells=4, embed_density="sparse:0")
+
 
 def test_arrays_bake_like_the_same_voxels_in_a_raw_file(tmp_path):
     # A blob in a 20x16x12 grid indexed [x, y, z] and stored in Fortran order, to show that

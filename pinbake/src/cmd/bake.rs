@@ -12,8 +12,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::Directions;
 use pinbake::cli_args::SourceArgs;
 use pinbake::source::SourceSpec;
-use pinbake::sparse_density::{MAX_SPARSE_DIM, SparseDims};
-use pinbake::{BakeInput, BakeRequest, PlanError, Tile};
+use pinbake::{BakeInput, BakeRequest, EmbedDensity, PlanError, Tile};
 
 #[derive(Args, Debug, Clone)]
 #[command(after_help = "\
@@ -164,38 +163,9 @@ fn parse_control_edge(s: &str) -> Result<ControlDims, String> {
     }
 }
 
-/// What `--embed-density` asks for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum EmbedDensity {
-    Dense([u32; 3]),
-    Sparse(SparseDims),
-}
-
 /// `--embed-density`: `sparse`, `sparse:N`, `sparse:X,Y,Z`, or dense N / X,Y,Z.
 fn parse_embed_density(s: &str) -> Result<EmbedDensity, String> {
-    let t = s.trim();
-    let Some(rest) = t.strip_prefix("sparse") else {
-        return parse_u32x3_max4096(t).map(EmbedDensity::Dense);
-    };
-    let dims = match rest.strip_prefix(':') {
-        None if rest.is_empty() => SparseDims::Source,
-        None => return Err(format!("'{s}': expected sparse, sparse:N or sparse:X,Y,Z")),
-        Some(d) if !d.contains(',') => {
-            let n: u32 = d.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
-            if !(1..=MAX_SPARSE_DIM).contains(&n) {
-                return Err(format!("'{s}': N must be in 1..={MAX_SPARSE_DIM}"));
-            }
-            SparseDims::Max(n)
-        }
-        Some(d) => {
-            let v = parse_u32x3(d)?;
-            if v.iter().any(|&n| !(1..=MAX_SPARSE_DIM).contains(&n)) {
-                return Err(format!("'{s}': each axis must be in 1..={MAX_SPARSE_DIM}"));
-            }
-            SparseDims::Exact(v)
-        }
-    };
-    Ok(EmbedDensity::Sparse(dims))
+    s.parse()
 }
 
 fn parse_u32x3_or_zero(s: &str) -> Result<[u32; 3], String> {
@@ -297,14 +267,7 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
         jitter_pins: args.jitter_pins,
         tile: args.tile,
         majorant: majorant_dims(args.majorant),
-        embed_density: match args.embed_density {
-            Some(EmbedDensity::Dense(d)) => Some(d),
-            _ => None,
-        },
-        embed_sparse: match args.embed_density {
-            Some(EmbedDensity::Sparse(s)) => Some(s),
-            _ => None,
-        },
+        embed_density: args.embed_density,
         embed_control: args
             .embed_control
             .map(|dims| pinbake::control::ControlOptions {
@@ -317,10 +280,8 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
     }
 }
 
+/// One volume (a sequence, `--frames`, is `frames::run_sequence`).
 pub fn run(args: BakeArgs) -> Result<ExitCode> {
-    if args.frames.is_some() {
-        return super::frames::run_sequence(args);
-    }
     let inputs = pinbake::files::InputSet::of(&[args.input.as_path()])?;
     let summary = bake_one(&args, &inputs)?;
     if args.json {

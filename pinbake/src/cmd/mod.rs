@@ -111,6 +111,8 @@ pub struct GridStatsArgs {
 
 pub fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
+        // A sequence bakes each frame as `bake` does one volume.
+        Command::Bake(args) if args.frames.is_some() => frames::run_sequence(*args),
         Command::Bake(args) => bake::run(*args),
         Command::Inspect { file, json } => inspect::run(&file, json),
         Command::Verify { files } => {

@@ -30,6 +30,7 @@ pub mod identity;
 pub mod mip;
 #[cfg(feature = "vdb")]
 pub mod nanovdb;
+pub mod part_facts;
 pub mod procedural;
 pub mod raw;
 #[cfg(feature = "vdb")]
@@ -163,9 +164,9 @@ pub trait DensitySource: Send + Sync {
     }
 
     /// For a voxel grid read for one part of a farm bake: the grid's leaf facts it baked
-    /// with and those of its own slab's leaves ([`crate::part::PartFacts`]), for the merge's
+    /// with and those of its own slab's leaves ([`part_facts::PartFacts`]), for the merge's
     /// checks. `None` (the default): the source holds the whole field.
-    fn part_facts(&self) -> Option<crate::part::PartFacts> {
+    fn part_facts(&self) -> Option<part_facts::PartFacts> {
         None
     }
 

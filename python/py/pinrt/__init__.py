@@ -108,6 +108,14 @@ def _triple(name: str, v: Any, lo: int = 0, hi: int = _U32) -> Tuple[int, int, i
     return (a, b, c)
 
 
+def _embed_density(v: Any) -> Union[str, Tuple[int, int, int], None]:
+    """``embed_density``: None, ``--embed-density``'s text (``"sparse"``, ``"sparse:N"``,
+    ``"sparse:X,Y,Z"``), or dense voxels per axis (N or (X, Y, Z))."""
+    if v is None or isinstance(v, str):
+        return v
+    return _triple("embed_density", v)
+
+
 def _embed_control(v: Any) -> Union[bool, int, str, None]:
     """``embed_control``: None, a bool, ``"auto"`` or a brick edge of 1..=64 voxels; anything
     else (-1, 2**40, 1.5) is a ``ValueError``."""
@@ -142,7 +150,7 @@ def bake(
     crop: bool = True,
     center_pins: bool = True,
     majorant: Union[int, Sequence[int]] = 16,
-    embed_density: Union[int, Sequence[int], None] = None,
+    embed_density: Union[int, Sequence[int], str, None] = None,
     embed_control: Union[int, bool, str, None] = None,
     density_scale: float = 1.0,
     threads: Optional[int] = None,
@@ -172,7 +180,9 @@ def bake(
     (``docs/evaluation.md``, "Bias against bytes"; ``target_error`` is ``--target-error``),
     ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
-    ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density``, ``embed_control``
+    ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density`` (N or (X, Y, Z) voxels of a
+    dense f16 copy, or ``"sparse"``, ``"sparse:N"``, ``"sparse:X,Y,Z"``: f16 bricks where the
+    density is non-zero, as ``--embed-density``), ``embed_control``
     (``--embed-control [EDGE]``: residual tracking's control per brick of EDGE voxels, 1..=64,
     or ``True``/``"auto"`` for the default edge, which grows with the volume's resolution;
     for ``pinrender``'s ``pinres``), ``density_scale``
@@ -217,7 +227,7 @@ def bake(
         crop=crop,
         center_pins=center_pins,
         majorant=_triple("majorant", majorant),
-        embed_density=None if embed_density is None else _triple("embed_density", embed_density),
+        embed_density=_embed_density(embed_density),
         embed_control=_embed_control(embed_control),
         density_scale=density_scale,
         threads=_opt_int("threads", threads, 1, _U32),

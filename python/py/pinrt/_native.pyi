@@ -61,7 +61,7 @@ def bake(
     crop: bool = ...,
     center_pins: bool = ...,
     majorant: Tuple[int, int, int] = ...,
-    embed_density: Optional[Tuple[int, int, int]] = ...,
+    embed_density: Union[str, Tuple[int, int, int], None] = ...,
     embed_control: Union[int, bool, str, None] = ...,
     density_scale: float = ...,
     threads: Optional[int] = ...,

@@ -55,17 +55,6 @@ pub fn is_nanovdb_file(path: &Path) -> bool {
     super::has_nanovdb_magic(path)
 }
 
-/// The grid type names the baker reads, as they appear in listings.
-pub(crate) const FLOAT_TYPES: [&str; 7] = [
-    "nanovdb:float",
-    "nanovdb:double",
-    "nanovdb:half",
-    "nanovdb:fp4",
-    "nanovdb:fp8",
-    "nanovdb:fp16",
-    "nanovdb:fpN",
-];
-
 /// The mapped or inflated bytes of the chosen grid.
 enum Buffer {
     Mapped(memmap2::Mmap, u64, u64),

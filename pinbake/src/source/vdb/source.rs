@@ -2,7 +2,7 @@
 //! copy, and its `DensitySource` sampling and marching.
 
 use super::*;
-use crate::part::{LeafSummary, PartFacts};
+use crate::source::part_facts::{LeafSummary, PartFacts};
 
 /// A block of 8^3 voxels: a leaf's values or a constant tile.
 #[derive(Clone, Copy, Debug)]
@@ -418,7 +418,7 @@ impl VdbSource {
         };
         DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
         let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
-        let file_xxh3 = crate::plan::hash_file(path).map_err(SourceError::from_file)?;
+        let file_xxh3 = crate::files::hash_file(path).map_err(SourceError::from_file)?;
         let st = Self::read_stream(path, opt, file_size, true)?;
         stats_of_stream(&st, file_size, file_xxh3, opt).map_err(fail)
     }

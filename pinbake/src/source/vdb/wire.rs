@@ -128,10 +128,21 @@ impl GridInfo {
         }
     }
     pub(super) fn is_scalar_float(&self) -> bool {
-        self.value_kind(false).is_some()
-            || crate::source::nanovdb::FLOAT_TYPES.contains(&self.grid_type.as_str())
+        self.value_kind(false).is_some() || NANOVDB_FLOAT_TYPES.contains(&self.grid_type.as_str())
     }
 }
+
+/// The NanoVDB grid types the baker reads, by the names the NanoVDB reader lists them under
+/// (`nanovdb::open`): its grids reach the source through this stream too.
+pub(crate) const NANOVDB_FLOAT_TYPES: [&str; 7] = [
+    "nanovdb:float",
+    "nanovdb:double",
+    "nanovdb:half",
+    "nanovdb:fp4",
+    "nanovdb:fp8",
+    "nanovdb:fp16",
+    "nanovdb:fpN",
+];
 
 /// `density\x1e1` is shown (and selected) as `density#1`.
 pub(crate) fn display_name(name: &str) -> String {
@@ -301,8 +312,8 @@ impl GridStats {
     }
 
     /// The leaves' summary the statistics give.
-    pub fn leaf_summary(&self) -> crate::part::LeafSummary {
-        crate::part::LeafSummary {
+    pub fn leaf_summary(&self) -> crate::source::part_facts::LeafSummary {
+        crate::source::part_facts::LeafSummary {
             nonzero_leaves: self.nonzero_leaves,
             nonzero_box: self.nonzero_box,
             max_value: self.max_value,

@@ -1,0 +1,119 @@
+//! What density a pin file carries for rendering from the file alone (`--embed-density`,
+//! Python's `embed_density=`): one value from the flag, through the request and the bake's
+//! options, to the section it writes.
+
+use std::str::FromStr;
+
+use crate::sparse_density::{MAX_SPARSE_DIM, SparseDims};
+
+/// The embedded density: a dense f16 grid of these voxels per axis (1..=4096, the format's
+/// limit), or sparse f16 bricks where the field is non-zero (format 1.1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EmbedDensity {
+    Dense([u32; 3]),
+    Sparse(SparseDims),
+}
+
+impl EmbedDensity {
+    /// The dense grid's voxels per axis, if dense.
+    pub fn dense(self) -> Option<[u32; 3]> {
+        match self {
+            Self::Dense(d) => Some(d),
+            Self::Sparse(_) => None,
+        }
+    }
+
+    /// The sparse bricks' voxel dims, if sparse.
+    pub fn sparse(self) -> Option<SparseDims> {
+        match self {
+            Self::Sparse(s) => Some(s),
+            Self::Dense(_) => None,
+        }
+    }
+}
+
+/// `sparse`, `sparse:N`, `sparse:X,Y,Z`, or dense `N` / `X,Y,Z` (the flag's text).
+impl FromStr for EmbedDensity {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let t = s.trim();
+        let Some(rest) = t.strip_prefix("sparse") else {
+            let v = parse_counts(t)?;
+            if v.iter().any(|&d| d > 4096) {
+                return Err(format!("{v:?}: at most 4096 per axis"));
+            }
+            return Ok(Self::Dense(v));
+        };
+        let dims = match rest.strip_prefix(':') {
+            None if rest.is_empty() => SparseDims::Source,
+            None => return Err(format!("'{s}': expected sparse, sparse:N or sparse:X,Y,Z")),
+            Some(d) if !d.contains(',') => {
+                let n: u32 = d.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
+                if !(1..=MAX_SPARSE_DIM).contains(&n) {
+                    return Err(format!("'{s}': N must be in 1..={MAX_SPARSE_DIM}"));
+                }
+                SparseDims::Max(n)
+            }
+            Some(d) => {
+                let v = parse_counts(d)?;
+                if v.iter().any(|&n| !(1..=MAX_SPARSE_DIM).contains(&n)) {
+                    return Err(format!("'{s}': each axis must be in 1..={MAX_SPARSE_DIM}"));
+                }
+                SparseDims::Exact(v)
+            }
+        };
+        Ok(Self::Sparse(dims))
+    }
+}
+
+/// `N` or `X,Y,Z` (or `XxYxZ`), each at least 1: the command line's count triples.
+fn parse_counts(s: &str) -> Result<[u32; 3], String> {
+    let v: Vec<u32> = s
+        .split([',', 'x'])
+        .map(|p| p.trim().parse::<u32>().map_err(|e| format!("'{p}': {e}")))
+        .collect::<Result<_, _>>()?;
+    let out = match v.as_slice() {
+        [n] => [*n; 3],
+        [x, y, z] => [*x, *y, *z],
+        _ => return Err("expected N or X,Y,Z".into()),
+    };
+    if out.contains(&0) {
+        return Err("every count must be at least 1".into());
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_flag_text_parses_to_one_value() {
+        let p = |s: &str| s.parse::<EmbedDensity>();
+        assert_eq!(p("64"), Ok(EmbedDensity::Dense([64; 3])));
+        assert_eq!(p("8,16,32"), Ok(EmbedDensity::Dense([8, 16, 32])));
+        assert_eq!(p("sparse"), Ok(EmbedDensity::Sparse(SparseDims::Source)));
+        assert_eq!(
+            p("sparse:128"),
+            Ok(EmbedDensity::Sparse(SparseDims::Max(128)))
+        );
+        assert_eq!(
+            p("sparse:4,5,6"),
+            Ok(EmbedDensity::Sparse(SparseDims::Exact([4, 5, 6])))
+        );
+        for bad in [
+            "0",
+            "4097",
+            "1,2",
+            "sparsely",
+            "sparse:0",
+            "sparse:1,2,0",
+            "",
+        ] {
+            assert!(p(bad).is_err(), "{bad}");
+        }
+        assert_eq!(p("64").unwrap().dense(), Some([64; 3]));
+        assert_eq!(p("sparse").unwrap().dense(), None);
+    }
+}
