@@ -7,7 +7,8 @@ use anyhow::{Result, anyhow, bail};
 use clap::Args;
 use std::time::Instant;
 
-use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
+use pinlab::Estimator;
+use pinrender::gpu_render::{GpuDensity, GpuRenderer, GpuScene};
 use pinrender::render::{
     BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image,
     MajorantGrid, RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
@@ -73,7 +74,7 @@ pub struct RenderArgs {
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
     /// pins, pinms, pinurm[@N] or pinres.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
-    pub estimator: EstimatorSpec,
+    pub estimator: Estimator,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -193,8 +194,8 @@ impl RenderArgs {
     }
 }
 
-/// `--estimator`: [`EstimatorSpec`]'s names.
-fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
+/// `--estimator`: [`Estimator`]'s names.
+fn parse_estimator(s: &str) -> Result<Estimator, String> {
     s.parse()
 }
 
@@ -429,8 +430,9 @@ pub fn run(a: RenderArgs) -> Result<()> {
         let image = render_gpu(&a, ctx, &desc, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
-    let medium = desc
-        .cpu_medium(a.estimator, a.lookup())
+    let medium = a
+        .estimator
+        .cpu_medium(&desc, a.lookup())
         .map_err(|e| anyhow!("{e}"))?;
     let scene = Scene {
         media: vec![medium],
@@ -444,12 +446,15 @@ pub fn run(a: RenderArgs) -> Result<()> {
             None => Budget::Spp(a.spp),
         },
         threads: a.threads,
-        cache: None,
     };
     // Pin queries answered in batches (wavefront loop): the same image as `render`, sooner.
     // Only `pins` and `pinms` answer in batches; the others (`pinurm`, `pinres`) answer one
     // query at a time, which `render`'s own loop does with less bookkeeping (as in the eval).
-    let out = if matches!(a.estimator, EstimatorSpec::Pins | EstimatorSpec::PinMs) {
+    let batched = matches!(
+        a.estimator.core(),
+        Some(EstimatorSpec::Pins | EstimatorSpec::PinMs)
+    );
+    let out = if batched {
         render_wavefront(&scene, &settings, DEFAULT_WAVEFRONT_BATCH)
     } else {
         render(&scene, &settings)
@@ -490,7 +495,6 @@ impl OpenedMedium {
             field: self.field.clone(),
             majorants: self.majorants.clone(),
             majorant_bricks: a.majorant_bricks,
-            analytic: None,
             pins: self.pins.clone().map(|grid| PlacedPins {
                 grid,
                 local_to_world: None,
@@ -673,8 +677,8 @@ fn render_gpu(
     desc: &MediumDesc,
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
-    let est: GpuEstimator = a.estimator;
-    let media = pinrender::medium::gpu_media(std::slice::from_ref(desc), Some(est), a.lookup())
+    let est = a.estimator.gpu_or_err().map_err(|e| anyhow!("{e}"))?;
+    let media = pinrender::medium::gpu_media_for(std::slice::from_ref(desc), &[est], a.lookup())
         .map_err(|e| anyhow!("{e}"))?;
     let renderer = GpuRenderer::with_media(ctx, &media).map_err(|e| anyhow!("{e}"))?;
     let gs = GpuScene::from_scene(scene, a.max_bounces);
