@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use pinrender::gpu_render::{GpuEstimator, ShaderKernel};
 use pinrender::medium::MediumDesc;
-use pinrender::render::{EstimatorSpec, Medium, RenderError};
+use pinrender::render::{EstimatorSpec, Medium, RenderError, RenderPlan, SampleLoop};
 use pinrt::SamplerOptions;
 
 use crate::comb::MAX_COMB_LOOKUPS;
@@ -122,26 +122,32 @@ impl Estimator {
 
     /// Whether it reads the bake (pin grids, or the pin file's control section).
     pub fn needs_pins(self) -> bool {
-        match self {
-            Self::Core(spec) => spec.needs_pins(),
-            Self::PinUrm { .. } => true,
-            Self::Urm { .. } | Self::Jackknife { .. } => false,
-        }
-    }
-
-    /// Whether it reads the pin file's control section (`pinbake bake --embed-control`).
-    pub fn needs_control(self) -> bool {
-        self.core().is_some_and(EstimatorSpec::needs_control)
-    }
-
-    /// Whether it reads the density (every estimator but `pins`).
-    pub fn needs_density(self) -> bool {
-        self.core().is_none_or(EstimatorSpec::needs_density)
+        self.plan().reads_bake
     }
 
     /// Whether it tracks over majorants.
     pub fn needs_majorants(self) -> bool {
-        self.core().is_none_or(EstimatorSpec::needs_majorants)
+        self.plan().majorants
+    }
+
+    /// What a render with it loads and which CPU sample loop runs it: the renderer's plan, or
+    /// for the lab's estimators the path loop over the density and majorants (`pinurm` also
+    /// queries the pins, one query at a time).
+    pub fn plan(self) -> RenderPlan {
+        match self {
+            Self::Core(spec) => spec.plan(),
+            Self::Urm { .. } | Self::Jackknife { .. } | Self::PinUrm { .. } => {
+                let pins = matches!(self, Self::PinUrm { .. });
+                RenderPlan {
+                    reads_bake: pins,
+                    queries_pins: pins,
+                    control: false,
+                    density: true,
+                    majorants: true,
+                    sample_loop: SampleLoop::Paths,
+                }
+            }
+        }
     }
 
     /// The GPU path tracer's estimator, or `None` where it has none (`pinurm`).

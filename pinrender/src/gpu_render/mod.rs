@@ -318,10 +318,11 @@ impl GpuEstimator {
         if let Some(slot) = media::control_slot(spec) {
             controls[slot] = true;
         }
+        let plan = spec.plan();
         media::Caps {
-            pins: spec.needs_pins() && spec != EstimatorSpec::PinRes,
-            density: spec.needs_density(),
-            majorants: spec.needs_majorants(),
+            pins: plan.queries_pins,
+            density: plan.density,
+            majorants: plan.majorants,
             controls,
         }
     }

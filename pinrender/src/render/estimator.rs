@@ -1,10 +1,10 @@
 //! Free-flight distance sampling and transmittance estimation behind one trait.
 
-use super::RenderError;
+use super::error::RenderError;
 use super::majorant::{MajorantGrid, MajorantSegment, check_box, clip_box};
 use super::rng::Pcg32;
-use super::{Aabb, DenseView, DensitySource};
 use glam::{DVec3, Vec3};
+use pinbake::source::{Aabb, DenseView, DensitySource};
 use std::sync::Arc;
 
 /// A distance sampler and transmittance estimator for one medium (one instance).
@@ -39,9 +39,10 @@ pub trait TransportEstimator: Send + Sync {
         None
     }
 
-    /// This estimator as a placed pin grid, if it is one: the wavefront loop answers the
-    /// queries of several media that share one grid (instances) in one batch through it.
-    fn as_pins(&self) -> Option<&super::PinsEstimator> {
+    /// This estimator as `Any`, for a loop that answers some estimator types together (the
+    /// wavefront loop answers the queries of several media that share one pin grid in one
+    /// batch); `None`, the default, leaves it out of such batches.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         None
     }
 
@@ -965,7 +966,8 @@ impl<F: DensitySource + ?Sized> TransportEstimator for ResidualRatioTracking<F> 
 #[cfg(test)]
 mod dense_tests {
     use super::*;
-    use crate::render::{DenseMap, VoxelGrid};
+    use crate::render::field::VoxelGrid;
+    use pinbake::source::DenseMap;
 
     /// A 7x5x6 grid, a ramp along x with random contrast on top (values 0.2 ..= 3.4).
     fn grid() -> VoxelGrid {

@@ -1,8 +1,8 @@
 //! Coarse majorant grid and its DDA traversal (per-segment majorants, as in pbrt-v4).
 
-use super::RenderError;
-use super::{Aabb, DensitySource};
+use super::error::RenderError;
 use glam::DVec3;
+use pinbake::source::{Aabb, DensitySource};
 
 /// Max extinction per brick over a world box; bricks tile the box, `x` fastest, then `y`,
 /// then `z` (the pin file's majorant-section layout).

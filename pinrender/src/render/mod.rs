@@ -101,6 +101,7 @@
 mod baked_control;
 mod bounds;
 mod bricks;
+mod error;
 mod estimator;
 mod field;
 mod image;
@@ -108,6 +109,7 @@ mod majorant;
 mod numeric;
 pub mod phase;
 mod pins;
+mod plan;
 mod rng;
 mod settings;
 mod spec;
@@ -119,6 +121,7 @@ mod tests;
 
 pub use baked_control::BakedResidualTracking;
 pub use bricks::{BrickGrid, SharedHalves};
+pub use error::RenderError;
 pub use estimator::{
     DeltaTracking, MAX_MARCH_STEPS, MAX_TRACKING_STEPS, PreparedRay, RatioTracking, RayMarching,
     ResidualControl, ResidualRatioTracking, TransportEstimator, clean, prepare,
@@ -131,6 +134,7 @@ pub use numeric::exprel;
 /// tracks what the baker bakes.
 pub use pinbake::source::{Aabb, DenseMap, DenseView, DensitySource, HomogeneousBox};
 pub use pins::PinsEstimator;
+pub use plan::{RenderPlan, SampleLoop};
 pub use rng::{Pcg32, splitmix64};
 pub use settings::{Budget, RenderSettings};
 pub use spec::{
@@ -144,27 +148,6 @@ pub use tracer::{
 pub use wavefront::{
     DEFAULT_WAVEFRONT_BATCH, ROW_CHUNK_PATHS, render_wavefront, row_scratch_bytes,
 };
-
-/// Errors of the render module.
-#[derive(Debug, thiserror::Error)]
-pub enum RenderError {
-    #[error("invalid {what}: {why}")]
-    Invalid { what: &'static str, why: String },
-    #[error("I/O error on {path}: {source}")]
-    Io {
-        path: std::path::PathBuf,
-        source: std::io::Error,
-    },
-    #[error("EXR: {0}")]
-    Exr(String),
-    #[error("PNG: {0}")]
-    Png(String),
-    #[error("thread pool: {0}")]
-    ThreadPool(String),
-    /// An allocation whose size comes from the settings failed.
-    #[error("{what}: out of memory for {bytes} bytes")]
-    OutOfMemory { what: &'static str, bytes: u64 },
-}
 
 /// The one entry point of the CPU path tracer: the sample loop of `tracer.rs` over every
 /// path. Render `scene`. Sample `s` of pixel `(x, y)` uses `Pcg32::for_sample(seed, y * width + x,

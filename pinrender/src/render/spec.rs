@@ -6,11 +6,15 @@
 
 use std::sync::Arc;
 
+use super::baked_control::BakedResidualTracking;
+use super::error::RenderError;
 use super::estimator::{
     DeltaTracking, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
     TransportEstimator,
 };
-use super::{BakedResidualTracking, DensitySource, MajorantGrid, PinsEstimator, RenderError};
+use super::majorant::MajorantGrid;
+use super::pins::PinsEstimator;
+use pinbake::source::DensitySource;
 
 /// Smallest relative ray-marching step, one bound for the baker and the renderer
 /// (`pin_format::MIN_REL_STEP`; smaller steps ran for minutes per pixel).

@@ -1,7 +1,7 @@
 //! The volumetric path tracer: camera, lights, media instances, the render loop.
 
-use super::RenderError;
 use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
+use super::error::RenderError;
 use super::estimator::TransportEstimator;
 use super::image::Image;
 use super::phase::{hg_phase, sample_hg};

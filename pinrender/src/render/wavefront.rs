@@ -27,9 +27,9 @@
 use glam::Vec3;
 use std::time::Instant;
 
-use super::RenderError;
-use super::TransportEstimator;
 use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
+use super::error::RenderError;
+use super::estimator::TransportEstimator;
 use super::phase::{hg_phase, sample_hg};
 use super::pins::{MemberQuery, SharedPins, SharedScratch, query_rng};
 use super::rng::Pcg32;

@@ -491,23 +491,23 @@ const ESTIMATOR_NAMES: [&str; 8] = [
     "whole-volume",
 ];
 
-/// Whether an eval entry reads the pin grid: an estimator whose spec needs pins, alone or
-/// with the radiance cache (`pinms+cache`).
+/// The render plan of an eval entry: an estimator's, with the radiance cache's
+/// (`pinms+cache`) that of `pinms`; `None` for the scenes' exact estimators.
+fn plan_of(e: &str) -> Option<pinrender::render::RenderPlan> {
+    let e = e.strip_suffix("+cache").unwrap_or(e);
+    e.parse::<Estimator>().ok().map(Estimator::plan)
+}
+
+/// Whether an eval entry reads the bake.
 fn reads_pins(e: &str) -> bool {
-    e.strip_suffix("+cache")
-        .unwrap_or(e)
-        .parse::<Estimator>()
-        .is_ok_and(|s| s.needs_pins())
+    plan_of(e).is_some_and(|p| p.reads_bake)
 }
 
 /// Whether an entry's pin queries go through the batched sampler (`pins`, `pinms`), so
 /// that the wavefront loop gives `render`'s image sooner.
 fn answers_pins_in_batches(e: &str) -> bool {
-    use pinrender::render::EstimatorSpec;
-    matches!(
-        e.parse::<Estimator>().map(Estimator::core),
-        Ok(Some(EstimatorSpec::Pins | EstimatorSpec::PinMs))
-    )
+    e.parse::<Estimator>()
+        .is_ok_and(|e| e.plan().sample_loop == pinrender::render::SampleLoop::Wavefront)
 }
 
 /// Whether a user would pick `e` with `pinrender render --estimator`: one of the renderer's
@@ -791,9 +791,7 @@ fn eval_scene(
     }
     let needs_pins = ests.iter().any(|e| reads_pins(e));
     let bake = if needs_pins {
-        let control = ests
-            .iter()
-            .any(|e| e.parse::<Estimator>().is_ok_and(|s| s.needs_control()));
+        let control = ests.iter().any(|e| plan_of(e).is_some_and(|p| p.control));
         Some(bake_pins(&mut es, a, control)?)
     } else {
         None

@@ -10,9 +10,8 @@ use std::time::Instant;
 use pinlab::Estimator;
 use pinrender::gpu_render::{GpuDensity, GpuRenderer, GpuScene};
 use pinrender::render::{
-    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image,
-    MajorantGrid, RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
-    rmse,
+    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, Image, MajorantGrid,
+    RenderSettings, SampleLoop, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -281,7 +280,9 @@ fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let uses_pins = a.estimator.needs_pins();
+    // What to load, which loop runs and what memory it holds: decided here, once.
+    let plan = a.estimator.plan();
+    let uses_pins = plan.reads_bake;
     let input = match (&a.volume.volume, &a.pins) {
         (None, None) => crate::usage!(
             "--volume is required (or --pins FILE alone, to render a pin file's own medium)"
@@ -320,14 +321,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
-    if a.estimator.needs_pins() {
+    let per_row = plan.scratch_bytes_per_thread(a.width as usize);
+    if per_row > 0 {
         // The wavefront loop's rows in flight, one per worker thread: bounded by a chunk of
         // paths whatever --spp is.
         let threads = a.threads.unwrap_or_else(rayon::current_num_threads) as u64;
-        let per_row = pinrender::render::row_scratch_bytes(
-            a.width as usize,
-            pinrender::render::DEFAULT_WAVEFRONT_BATCH,
-        );
         budget.check(
             &format!("{threads} image rows of {} pixels in flight", a.width),
             threads.saturating_mul(per_row),
@@ -345,8 +343,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             m.len().saturating_mul(factor),
         )?;
     }
-    let uses_majorants = a.estimator.needs_majorants();
-    if uses_majorants && a.volume.volume.is_some() {
+    if plan.majorants && a.volume.volume.is_some() {
         // f32 values plus the brick bounds the grid keeps, per brick.
         budget.check(
             &format!("{}^3 majorant bricks", a.majorant_bricks),
@@ -382,15 +379,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     let medium = match &a.volume.volume {
         Some(v) => open_medium_from_volume(&a, v)?,
-        None => {
-            open_medium_from_pins(&input, ctx.as_ref().filter(|_| a.estimator.needs_density()))?
-        }
+        None => open_medium_from_pins(&input, ctx.as_ref().filter(|_| plan.density))?,
     };
     let (lo, hi) = (
         glam::DVec3::from(medium.bounds.0),
         glam::DVec3::from(medium.bounds.1),
     );
-    if a.estimator.needs_density() && medium.field.is_none() {
+    if plan.density && medium.field.is_none() {
         bail!(
             "{}: no embedded density, which the {} estimator needs (bake with \
              `pinbake bake --embed-density N`, or render with --volume)",
@@ -450,11 +445,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
     // Pin queries answered in batches (wavefront loop): the same image as `render`, sooner.
     // Only `pins` and `pinms` answer in batches; the others (`pinurm`, `pinres`) answer one
     // query at a time, which `render`'s own loop does with less bookkeeping (as in the eval).
-    let batched = matches!(
-        a.estimator.core(),
-        Some(EstimatorSpec::Pins | EstimatorSpec::PinMs)
-    );
-    let out = if batched {
+    let out = if plan.sample_loop == SampleLoop::Wavefront {
         render_wavefront(&scene, &settings, DEFAULT_WAVEFRONT_BATCH)
     } else {
         render(&scene, &settings)
@@ -490,7 +481,7 @@ impl OpenedMedium {
     /// The render's medium description: what the CPU estimators and the GPU packing read
     /// (the GPU copy of the density only for a GPU render of an estimator that reads it).
     fn desc(&self, a: &RenderArgs, ctx: Option<&GpuContext>) -> Result<MediumDesc> {
-        let gpu = ctx.filter(|_| a.estimator.needs_density());
+        let gpu = ctx.filter(|_| a.estimator.plan().density);
         Ok(MediumDesc {
             field: self.field.clone(),
             majorants: self.majorants.clone(),
@@ -528,13 +519,14 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     let opened = volume::open_volume_typed(input, &a.volume)?;
     let source = opened.source();
     let b = source.bounds();
-    let pins = if a.estimator.needs_pins() {
+    let plan = a.estimator.plan();
+    let pins = if plan.reads_bake {
         let grid = volume::pins_for(
             a.pins.as_deref(),
             source.as_ref(),
             a.pin_cells,
             a.seed,
-            a.estimator.needs_control(),
+            plan.control,
             &pinbake::files::MemoryBudget::new(a.max_memory),
         )?;
         if let Some(p) = &a.pins {
