@@ -34,8 +34,8 @@ for est in pins pinms; do
   $R render --pins out/smoke.pin --estimator $est --width 256 --height 256 --spp 32 --seed 1 \
     --out out/smoke_${est}_pin_alone.exr
 done
-# The error-against-run-time report on sub-second budgets, about two minutes on 2 cores (the
-# full one: `pinrender eval`, ~10 min with the GPU rows).
+# The error-against-run-time report on sub-second budgets with the estimators a user picks,
+# about 30 s of CPU on 2 cores (the full one with the lab's estimators: `pinrender eval`).
 $R eval --quick --out out/eval
 cat <<EOT
 main job done. Read first: out/eval/summary.md (what the report shows, tables, errors.png).

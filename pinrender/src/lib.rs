@@ -1,10 +1,14 @@
 //! # pinrender: the reference path tracer over pin grids
 //!
-//! A research harness, not a runtime: the CPU path tracer [`render`] (ray marching,
-//! delta/ratio tracking over a majorant grid, pins, PinMS, closed-form cosine noise,
-//! whole-volume box scattering, radiance cache) and its GPU twin [`gpu_render`] (feature
-//! `gpu`), both built on the `pinrt` runtime. The `pinrender` binary (feature `cli`) renders,
-//! benchmarks and evaluates real volumes read through `pinbake`'s sources.
+//! The renderer a user runs, on the CPU ([`render`]) and the GPU ([`gpu_render`], feature
+//! `gpu`), both built on the `pinrt` runtime, with the estimators a user picks: ray marching,
+//! delta, ratio and residual ratio tracking over a majorant grid, pins, PinMS and pinres.
+//! [`medium`] describes a medium once for both renderers; [`volume`] (feature `cli`) opens real
+//! volumes through `pinbake`'s sources for the `pinrender` binary.
+//!
+//! Research estimators, the evaluation and the benchmarks live in the `pinlab` crate, which
+//! extends this one through its public traits ([`render::TransportEstimator`],
+//! [`render::VertexHook`], [`gpu_render::ShaderKernel`]); this crate does not depend on it.
 
 #[cfg(feature = "gpu")]
 pub mod gpu_render;

@@ -8,13 +8,15 @@ use std::sync::Arc;
 use pinrt::{PinGrid, SamplerOptions};
 
 #[cfg(feature = "gpu")]
-use crate::gpu_render::{GpuControl, GpuDensity, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity};
-use crate::render::{
-    AnalyticOpticalDepth, DensitySource, EstimatorSpec, MajorantGrid, Medium, PinsEstimator,
-    RenderError, TransportEstimator,
+use crate::gpu_render::{
+    GpuControl, GpuDensity, GpuEstimator, GpuMedia, GpuMedium, GpuPins, GpuPlacedDensity,
 };
 #[cfg(feature = "gpu")]
 use crate::render::{BakedResidualTracking, ResidualRatioTracking};
+use crate::render::{
+    DensitySource, EstimatorSpec, MajorantGrid, Medium, PinsEstimator, RenderError,
+    TransportEstimator,
+};
 
 /// A pin grid placed in the world.
 #[derive(Clone)]
@@ -35,8 +37,6 @@ pub struct MediumDesc {
     /// `majorant_bricks` per axis when an estimator tracks.
     pub majorants: Option<Arc<MajorantGrid>>,
     pub majorant_bricks: u32,
-    /// The closed form of `field`'s optical depth (exact references), if it has one.
-    pub analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
     pub pins: Option<PlacedPins>,
     /// The GPU's copy of the density in its own frame, placed by `translation`
     /// (`field(p) = gpu_density(p - translation)`); `None` where no GPU render needs it.
@@ -79,8 +79,8 @@ impl MediumDesc {
         Ok(self.placed_pins(lookup)?)
     }
 
-    /// The placed pin grid with lookup options `lookup`, as its own type (what `pinurm`
-    /// reads its control from).
+    /// The placed pin grid with lookup options `lookup`, as its own type (an estimator that
+    /// reads the pins beside the density builds on it).
     pub fn placed_pins(&self, lookup: SamplerOptions) -> Result<Arc<PinsEstimator>, RenderError> {
         let p = self
             .pins
@@ -95,7 +95,7 @@ impl MediumDesc {
 
     /// The CPU renderer's medium for `spec`: the estimator over the density, the pins,
     /// PinMS (the density's ratio tracking for primary rays, pins after the first
-    /// scattering), or `pinurm` (the density and the pins in one estimator).
+    /// scattering), or `pinres` (the density and the bake's control in one estimator).
     pub fn cpu_medium(
         &self,
         spec: EstimatorSpec,
@@ -166,27 +166,29 @@ pub fn gpu_media<'a>(
     lookup: SamplerOptions,
 ) -> Result<GpuMedia<'a>, RenderError> {
     match spec {
-        Some(s) => gpu_media_for(media, &[s], lookup),
+        Some(s) => gpu_media_for(media, &[s.into()], lookup),
         None => pack_media(media, (true, true, true), &[], lookup),
     }
 }
 
-/// The GPU renderer's media for rendering each of `specs` (the eval renders several
+/// The GPU renderer's media for rendering each of `estimators` (the eval renders several
 /// estimators with one upload): what any of them reads, with the residual control of each
 /// residual estimator among them.
 #[cfg(feature = "gpu")]
 pub fn gpu_media_for<'a>(
     media: &'a [MediumDesc],
-    specs: &[EstimatorSpec],
+    estimators: &[GpuEstimator],
     lookup: SamplerOptions,
 ) -> Result<GpuMedia<'a>, RenderError> {
     let needs = (
-        specs.iter().any(|s| s.uses_pins()),
-        specs.iter().any(|s| s.needs_density()),
-        specs.iter().any(|s| s.uses_majorants()),
+        estimators.iter().any(|e| e.uses_pins()),
+        estimators
+            .iter()
+            .any(|e| e.spec().is_none_or(|s| s.needs_density())),
+        estimators.iter().any(|e| e.uses_majorants()),
     );
     let mut controls: Vec<EstimatorSpec> = Vec::new();
-    for &s in specs {
+    for s in estimators.iter().filter_map(|e| e.spec()) {
         if matches!(
             s,
             EstimatorSpec::ResidualRatioTracking { .. } | EstimatorSpec::PinRes
@@ -380,16 +382,5 @@ mod tests {
                 .is_err()
         );
         assert!(no_field.cpu_medium(EstimatorSpec::Pins, opts).is_ok());
-        // pinurm reads both: one estimator for every query, and an error without either.
-        let pinurm = EstimatorSpec::PinUrm { lookups: 4 };
-        let m = descs[1].cpu_medium(pinurm, opts).unwrap();
-        assert!(
-            m.primary.name().starts_with("pinurm@4"),
-            "{}",
-            m.primary.name()
-        );
-        assert_eq!(m.primary.name(), m.secondary.name());
-        assert!(no_pins.cpu_medium(pinurm, opts).is_err());
-        assert!(no_field.cpu_medium(pinurm, opts).is_err());
     }
 }

@@ -5,9 +5,10 @@
 //! ([`GpuMedia`]: pin grids, density fields, placed instances), with the transport estimator
 //! chosen per render ([`GpuEstimator`]): ray marching, delta tracking, ratio tracking (over
 //! each instance's majorant grid, DDA traversal), residual ratio tracking (`residual`,
-//! `residual@min`, `pinres`: over a control the CPU estimator builds, [`GpuControl`]), the
-//! comb estimators, pins for everything, or PinMS (ratio tracking for camera rays and single
-//! scattering, pins after the first scattering event).
+//! `residual@min`, `pinres`: over a control the CPU estimator builds, [`GpuControl`]),
+//! further transmittance kernels that an extension names ([`ShaderKernel`]), pins for
+//! everything, or PinMS (ratio tracking for camera rays and single scattering, pins after the
+//! first scattering event).
 //!
 //! * pinhole camera, one uniformly jittered ray per sample inside the pixel (box filter);
 //! * the camera ray scores `env * T`, then distance sampling;
@@ -25,8 +26,7 @@
 //! contract and the tests that check it. A GPU render is deterministic: the same media,
 //! scene, estimator, spp and seed give the same image bits.
 //!
-//! Not supported here (use the CPU renderer): the radiance cache, the closed-form and
-//! whole-volume estimators, time budgets (the caller loops over passes).
+//! Not supported here: time budgets (the caller loops over passes).
 
 mod media;
 mod wgsl;
@@ -46,7 +46,7 @@ use glam::Vec3;
 use wgpu::util::DeviceExt;
 
 use crate::render::phase::G_LIMIT;
-use crate::render::{Camera, Image, RenderError, Scene, Sun};
+use crate::render::{Camera, EstimatorSpec, Image, RenderError, Scene, Sun};
 use pinrt::Error;
 use pinrt::PinGrid;
 use pinrt::SamplerOptions;
@@ -180,7 +180,7 @@ impl GpuScene {
             seed: [
                 seed as u32,
                 (seed >> 32) as u32,
-                media::control_slot(estimator).unwrap_or(0) as u32,
+                estimator.spec().and_then(media::control_slot).unwrap_or(0) as u32,
                 0,
             ],
         }
@@ -203,63 +203,92 @@ struct RtParams {
     seed: [u32; 4],
 }
 
-/// The transport estimator of a GPU render: the renderer's one [`EstimatorSpec`] (the CPU's
-/// `rm@STEP`, `delta`, `ratio`, `residual[@min|@mean]`, `urm[@N]`, `jackknife[@N]`, `pins`,
-/// `pinms`, `pinres`; `pinurm` is CPU only, which [`GpuEstimator::parse`] and a render say).
+/// The transport estimator of a GPU render: one of the renderer's estimators
+/// ([`EstimatorSpec`]: `rm@STEP`, `delta`, `ratio`, `residual[@min|@mean]`, `pins`, `pinms`,
+/// `pinres`), or a further transmittance kernel of `render.wgsl` ([`ShaderKernel`]) that an
+/// extension names. An [`EstimatorSpec`] converts into it.
 ///
-/// [`EstimatorSpec`]: crate::render::EstimatorSpec
-pub type GpuEstimator = crate::render::EstimatorSpec;
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GpuEstimator {
+    Spec(EstimatorSpec),
+    Kernel(ShaderKernel),
+}
+
+/// A transmittance kernel of `render.wgsl` beyond the renderer's own estimators, chosen by
+/// its code in the shader's estimator switch: it reads the density over the majorant box, and
+/// distances are delta tracking over the majorants. The extension that names the kernel owns
+/// what its code and `rel_step` mean.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShaderKernel {
+    /// The shader's estimator code (above the renderer's own codes).
+    pub code: u32,
+    /// `RP.material.z`: a step relative to the longest edge of the majorant box, in `(0, 1]`.
+    pub rel_step: f64,
+    /// The name in messages.
+    pub name: &'static str,
+}
+
+impl From<EstimatorSpec> for GpuEstimator {
+    fn from(spec: EstimatorSpec) -> Self {
+        GpuEstimator::Spec(spec)
+    }
+}
 
 /// Estimator codes of `render.wgsl`.
 const EST_MARCH: u32 = 0;
 const EST_DELTA: u32 = 1;
 const EST_RATIO: u32 = 2;
 const EST_PINS: u32 = 3;
-const EST_URM: u32 = 4;
-const EST_JACKKNIFE: u32 = 5;
 const EST_RESIDUAL: u32 = 6;
+/// The codes the renderer's own estimators take; a [`ShaderKernel`] takes another.
+const OWN_CODES: [u32; 5] = [EST_MARCH, EST_DELTA, EST_RATIO, EST_PINS, EST_RESIDUAL];
 
 impl GpuEstimator {
-    /// Parses the names the CLI and the evaluation use ([`EstimatorSpec`]'s `FromStr`;
-    /// `None` for a bad name or parameter, or an estimator the GPU does not have).
-    ///
-    /// [`EstimatorSpec`]: crate::render::EstimatorSpec
+    /// Parses the names the CLI uses ([`EstimatorSpec`]'s `FromStr`; `None` for a bad name
+    /// or parameter).
     pub fn parse(name: &str) -> Option<Self> {
-        name.parse().ok().filter(|e: &Self| e.kinds().is_ok())
+        name.parse::<EstimatorSpec>().ok().map(Self::Spec)
     }
 
-    /// The name [`GpuEstimator::parse`] reads.
+    /// The name [`GpuEstimator::parse`] reads (a kernel's own name).
     pub fn name(self) -> String {
-        self.to_string()
+        match self {
+            Self::Spec(s) => s.to_string(),
+            Self::Kernel(k) => k.name.to_string(),
+        }
     }
 
-    /// (primary, secondary) codes; an error for an estimator that `render.wgsl` does not
-    /// have.
-    fn kinds(self) -> Result<(u32, u32), RenderError> {
-        Ok(match self {
-            Self::RayMarching { .. } => (EST_MARCH, EST_MARCH),
-            Self::DeltaTracking => (EST_DELTA, EST_DELTA),
-            Self::RatioTracking => (EST_RATIO, EST_RATIO),
-            Self::Urm { .. } => (EST_URM, EST_URM),
-            Self::Jackknife { .. } => (EST_JACKKNIFE, EST_JACKKNIFE),
-            Self::Pins => (EST_PINS, EST_PINS),
-            Self::PinMs => (EST_RATIO, EST_PINS),
-            Self::ResidualRatioTracking { .. } | Self::PinRes => (EST_RESIDUAL, EST_RESIDUAL),
-            Self::PinUrm { .. } => {
-                return Err(RenderError::Invalid {
-                    what: "estimator",
-                    why: format!("{self} runs on the CPU path tracer only (--backend cpu)"),
-                });
-            }
-        })
+    /// (primary, secondary) codes.
+    fn kinds(self) -> (u32, u32) {
+        match self {
+            Self::Kernel(k) => (k.code, k.code),
+            Self::Spec(s) => match s {
+                EstimatorSpec::RayMarching { .. } => (EST_MARCH, EST_MARCH),
+                EstimatorSpec::DeltaTracking => (EST_DELTA, EST_DELTA),
+                EstimatorSpec::RatioTracking => (EST_RATIO, EST_RATIO),
+                EstimatorSpec::Pins => (EST_PINS, EST_PINS),
+                EstimatorSpec::PinMs => (EST_RATIO, EST_PINS),
+                EstimatorSpec::ResidualRatioTracking { .. } | EstimatorSpec::PinRes => {
+                    (EST_RESIDUAL, EST_RESIDUAL)
+                }
+            },
+        }
     }
 
-    /// `RP.material.z`: the march step, or a comb's spacing, relative to the longest edge.
+    /// `RP.material.z`: the march step, or a kernel's, relative to the longest edge.
     fn rel_step(self) -> f64 {
         match self {
-            Self::RayMarching { rel_step } => rel_step,
-            Self::Urm { lookups } | Self::Jackknife { lookups } => 1.0 / lookups.max(1) as f64,
-            _ => 0.0,
+            Self::Spec(EstimatorSpec::RayMarching { rel_step }) => rel_step,
+            Self::Kernel(k) => k.rel_step,
+            Self::Spec(_) => 0.0,
+        }
+    }
+
+    /// The renderer's estimator, if it is one.
+    pub fn spec(self) -> Option<EstimatorSpec> {
+        match self {
+            Self::Spec(s) => Some(s),
+            Self::Kernel(_) => None,
         }
     }
 
@@ -278,36 +307,44 @@ impl GpuEstimator {
     /// section, [`GpuControl`]), not the pin grid.
     fn needs(self) -> media::Caps {
         let mut controls = [false; media::CONTROL_SLOTS];
-        if let Some(slot) = media::control_slot(self) {
+        let Some(spec) = self.spec() else {
+            return media::Caps {
+                pins: false,
+                density: true,
+                majorants: true,
+                controls,
+            };
+        };
+        if let Some(slot) = media::control_slot(spec) {
             controls[slot] = true;
         }
+        let plan = spec.plan();
         media::Caps {
-            pins: self.needs_pins() && self != Self::PinRes,
-            density: self.needs_density(),
-            majorants: self.needs_majorants(),
+            pins: plan.queries_pins,
+            density: plan.density,
+            majorants: plan.majorants,
             controls,
         }
     }
 
     fn validate(self) -> Result<(), RenderError> {
-        self.kinds()?;
-        if let Self::RayMarching { rel_step } = self
-            && !(rel_step > 0.0 && rel_step <= 1.0)
-        {
+        let rel_step = match self {
+            Self::Spec(EstimatorSpec::RayMarching { rel_step }) => rel_step,
+            Self::Kernel(k) => {
+                if OWN_CODES.contains(&k.code) {
+                    return Err(RenderError::Invalid {
+                        what: "shader kernel",
+                        why: format!("{}: code {} is a built-in estimator's", k.name, k.code),
+                    });
+                }
+                k.rel_step
+            }
+            Self::Spec(_) => return Ok(()),
+        };
+        if !(rel_step > 0.0 && rel_step <= 1.0) {
             return Err(RenderError::Invalid {
                 what: "ray marching step",
                 why: format!("relative step {rel_step} must be in (0, 1]"),
-            });
-        }
-        if let Self::Urm { lookups } | Self::Jackknife { lookups } = self
-            && !(1..=crate::render::comb::MAX_COMB_LOOKUPS as u32).contains(&lookups)
-        {
-            return Err(RenderError::Invalid {
-                what: "comb lookups",
-                why: format!(
-                    "{lookups} lookups per edge must be in 1..={}",
-                    crate::render::comb::MAX_COMB_LOOKUPS
-                ),
             });
         }
         Ok(())
@@ -676,10 +713,11 @@ impl GpuRenderer {
     pub fn render(
         &self,
         scene: &GpuScene,
-        estimator: GpuEstimator,
+        estimator: impl Into<GpuEstimator>,
         spp: u32,
         seed: u64,
     ) -> Result<Image, GpuRenderError> {
+        let estimator = estimator.into();
         scene.validate()?;
         self.check_estimator(estimator)?;
         if spp == 0 {
@@ -713,7 +751,7 @@ impl GpuRenderer {
         let media = u32::try_from(self.caps.len())
             .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
         let params = scene.params(seed, estimator, media);
-        let kinds = estimator.kinds()?;
+        let kinds = estimator.kinds();
         Ok(pollster::block_on(async {
             let pipeline = self.pipeline(kinds).await?;
             self.run(&pipeline, &params, gx, gy, spp, accum_size, w, h)

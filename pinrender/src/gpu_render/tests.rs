@@ -130,7 +130,6 @@ fn cpu_render(
         seed,
         budget: Budget::Spp(spp),
         threads,
-        cache: None,
     };
     let out = render(
         &scene.to_scene(vec![Medium::single(separate(est))]),
@@ -197,7 +196,7 @@ fn compare(
         name,
         |k| {
             renderer
-                .render(scene, GpuEstimator::Pins, spp, 1000 + k)
+                .render(scene, EstimatorSpec::Pins, spp, 1000 + k)
                 .unwrap()
         },
         |k| cpu_render(grid, scene, spp, 5000 + k, None).0,
@@ -300,7 +299,7 @@ fn albedo_zero_matches_cpu_transmittance() {
     assert!(hi <= env * (1.0 + 1e-6), "{hi} > env {env}");
     assert!(lo < 0.5 * env, "medium not visible: darkest pixel {lo}");
     // Per channel the image is env * T: the channels are proportional.
-    let img = renderer.render(&sc, GpuEstimator::Pins, 8, 3).unwrap();
+    let img = renderer.render(&sc, EstimatorSpec::Pins, 8, 3).unwrap();
     for p in &img.rgb {
         let t = p[0] / sc.env_radiance[0];
         assert!((0.0..=1.0 + 1e-6).contains(&t));
@@ -328,10 +327,10 @@ fn scattering_matches_cpu() {
     // The transmitted environment alone (albedo 0) is darker.
     let g0 = stats(&[
         renderer
-            .render(&scene(32, 0.0, 0.6, 4), GpuEstimator::Pins, 16, 7)
+            .render(&scene(32, 0.0, 0.6, 4), EstimatorSpec::Pins, 16, 7)
             .unwrap(),
         renderer
-            .render(&scene(32, 0.0, 0.6, 4), GpuEstimator::Pins, 16, 8)
+            .render(&scene(32, 0.0, 0.6, 4), EstimatorSpec::Pins, 16, 8)
             .unwrap(),
     ]);
     assert!(g.image_mean > g0.image_mean, "scattering must add light");
@@ -360,22 +359,22 @@ fn deterministic_and_checked() {
     let grid = &load(&owned);
     let renderer = GpuRenderer::new(&ctx, grid).unwrap();
     let sc = scene(32, 0.9, 0.3, 4);
-    let a = renderer.render(&sc, GpuEstimator::Pins, 5, 42).unwrap();
-    let b = renderer.render(&sc, GpuEstimator::Pins, 5, 42).unwrap();
+    let a = renderer.render(&sc, EstimatorSpec::Pins, 5, 42).unwrap();
+    let b = renderer.render(&sc, EstimatorSpec::Pins, 5, 42).unwrap();
     let bits =
         |im: &Image| -> Vec<u32> { im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect() };
     assert_eq!(bits(&a), bits(&b), "same seed, different bits");
-    let c = renderer.render(&sc, GpuEstimator::Pins, 5, 43).unwrap();
+    let c = renderer.render(&sc, EstimatorSpec::Pins, 5, 43).unwrap();
     assert_ne!(bits(&a), bits(&c), "the seed must matter");
     // Odd sizes (partial workgroups) and more passes than one submission holds.
     let mut odd = scene(13, 0.9, 0.3, 2);
     odd.camera.height = 7;
     let spp = PASSES_PER_SUBMIT + 44;
     let x = renderer
-        .render(&odd, GpuEstimator::Pins, spp, u64::MAX)
+        .render(&odd, EstimatorSpec::Pins, spp, u64::MAX)
         .unwrap();
     let y = renderer
-        .render(&odd, GpuEstimator::Pins, spp, u64::MAX)
+        .render(&odd, EstimatorSpec::Pins, spp, u64::MAX)
         .unwrap();
     assert_eq!((x.width, x.height, x.rgb.len()), (13, 7, 91));
     assert_eq!(bits(&x), bits(&y));
@@ -385,7 +384,7 @@ fn deterministic_and_checked() {
     let bad = |f: &dyn Fn(&mut GpuScene)| {
         let mut s = scene(8, 0.5, 0.0, 2);
         f(&mut s);
-        let r = renderer.render(&s, GpuEstimator::Pins, 1, 0);
+        let r = renderer.render(&s, EstimatorSpec::Pins, 1, 0);
         assert!(matches!(r, Err(GpuRenderError::Invalid(_))), "{r:?}");
     };
     bad(&|s| s.camera.width = 0);
@@ -405,14 +404,14 @@ fn deterministic_and_checked() {
     });
     bad(&|s| s.max_bounces = MAX_GPU_BOUNCES + 1);
     assert!(matches!(
-        renderer.render(&scene(8, 0.5, 0.0, 2), GpuEstimator::Pins, 0, 0),
+        renderer.render(&scene(8, 0.5, 0.0, 2), EstimatorSpec::Pins, 0, 0),
         Err(GpuRenderError::Invalid(_))
     ));
     // No lights: black, not NaN.
     let mut dark = scene(8, 0.5, 0.0, 2);
     dark.sun = None;
     dark.env_radiance = [0.0; 3];
-    let img = renderer.render(&dark, GpuEstimator::Pins, 2, 0).unwrap();
+    let img = renderer.render(&dark, EstimatorSpec::Pins, 2, 0).unwrap();
     assert!(img.rgb.iter().flatten().all(|&c| c == 0.0));
 }
 
@@ -442,7 +441,7 @@ fn measure() {
             scene(128, 0.9, 0.6, 4),
         ),
     ] {
-        renderer.render(&sc, GpuEstimator::Pins, 1, 0).unwrap(); // warm-up
+        renderer.render(&sc, EstimatorSpec::Pins, 1, 0).unwrap(); // warm-up
         let best = |f: &dyn Fn() -> Image| {
             (0..5)
                 .map(|_| {
@@ -453,7 +452,7 @@ fn measure() {
                 .min_by(|a, b| a.0.total_cmp(&b.0))
                 .unwrap()
         };
-        let (tg, gi) = best(&|| renderer.render(&sc, GpuEstimator::Pins, 16, 1).unwrap());
+        let (tg, gi) = best(&|| renderer.render(&sc, EstimatorSpec::Pins, 16, 1).unwrap());
         let (t1, c1) = best(&|| cpu_render(grid, &sc, 16, 1, Some(1)).0);
         let (t2, _) = best(&|| cpu_render(grid, &sc, 16, 1, Some(2)).0);
         let mean = |im: &Image| im.rgb.iter().map(|&p| grey(p)).sum::<f64>() / im.rgb.len() as f64;
@@ -472,11 +471,11 @@ fn measure() {
     sc.camera.origin = [0.5, 0.8, 4.5];
     sc.camera.target = [0.05, 0.3, 0.05];
     for est in [
-        GpuEstimator::RayMarching { rel_step: 0.015 },
-        GpuEstimator::DeltaTracking,
-        GpuEstimator::RatioTracking,
-        GpuEstimator::Pins,
-        GpuEstimator::PinMs,
+        EstimatorSpec::RayMarching { rel_step: 0.015 },
+        EstimatorSpec::DeltaTracking,
+        EstimatorSpec::RatioTracking,
+        EstimatorSpec::Pins,
+        EstimatorSpec::PinMs,
     ] {
         renderer.render(&sc, est, 1, 0).unwrap(); // warm-up
         let time = |f: &dyn Fn()| {
@@ -497,7 +496,7 @@ fn measure() {
         eprintln!(
             "[3 instances, {}] 128x128 x 8 spp (best of 3): gpu {tg:.3} s, cpu (all threads) \
              {tc:.3} s",
-            est.name()
+            est
         );
     }
 }
@@ -564,7 +563,7 @@ impl MultiScene {
         }
     }
 
-    fn cpu_media(&self, est: GpuEstimator) -> Vec<Medium> {
+    fn cpu_media(&self, est: EstimatorSpec) -> Vec<Medium> {
         (0..OFFSETS.len())
             .map(|k| {
                 let f = self.fields[k].clone();
@@ -572,29 +571,21 @@ impl MultiScene {
                 let ratio: Arc<dyn TransportEstimator> =
                     Arc::new(crate::render::RatioTracking::new(f.clone(), maj.clone()));
                 match est {
-                    GpuEstimator::RayMarching { rel_step } => Medium::single(Arc::new(
+                    EstimatorSpec::RayMarching { rel_step } => Medium::single(Arc::new(
                         crate::render::RayMarching::new(f, rel_step).unwrap(),
                     )),
-                    GpuEstimator::DeltaTracking => {
+                    EstimatorSpec::DeltaTracking => {
                         Medium::single(Arc::new(crate::render::DeltaTracking::new(f, maj)))
                     }
-                    GpuEstimator::RatioTracking => Medium::single(ratio),
-                    GpuEstimator::ResidualRatioTracking { control } => Medium::single(Arc::new(
+                    EstimatorSpec::RatioTracking => Medium::single(ratio),
+                    EstimatorSpec::ResidualRatioTracking { control } => Medium::single(Arc::new(
                         crate::render::ResidualRatioTracking::new(f, maj, control).unwrap(),
                     )),
-                    GpuEstimator::Pins => Medium::single(self.samplers[k].clone()),
-                    GpuEstimator::PinMs => Medium::new(ratio, self.samplers[k].clone()),
-                    GpuEstimator::Urm { lookups } => {
-                        Medium::single(crate::render::CombKind::Urm.build(f, maj, lookups).unwrap())
-                    }
-                    GpuEstimator::Jackknife { lookups } => Medium::single(
-                        crate::render::CombKind::Jackknife
-                            .build(f, maj, lookups)
-                            .unwrap(),
-                    ),
-                    // pinurm is CPU only; pinres reads a control section, which these pins
-                    // lack (`residual_estimators_match_cpu` compares it).
-                    GpuEstimator::PinUrm { .. } | GpuEstimator::PinRes => {
+                    EstimatorSpec::Pins => Medium::single(self.samplers[k].clone()),
+                    EstimatorSpec::PinMs => Medium::new(ratio, self.samplers[k].clone()),
+                    // pinres reads a control section, which these pins lack
+                    // (`residual_estimators_match_cpu` compares it).
+                    EstimatorSpec::PinRes => {
                         panic!("{est} has no GPU twin to compare here")
                     }
                 }
@@ -623,7 +614,6 @@ fn cpu_render_media(media: Vec<Medium>, scene: &GpuScene, spp: u32, seed: u64) -
         seed,
         budget: Budget::Spp(spp),
         threads: None,
-        cache: None,
     };
     render(&scene.to_scene(media), &settings).unwrap().image
 }
@@ -638,15 +628,13 @@ fn every_estimator_matches_cpu_with_instances() {
     sc.camera.origin = [0.5, 0.8, 4.5];
     sc.camera.target = [0.05, 0.3, 0.05];
     for est in [
-        GpuEstimator::RayMarching { rel_step: 0.05 },
-        GpuEstimator::DeltaTracking,
-        GpuEstimator::RatioTracking,
-        GpuEstimator::Pins,
-        GpuEstimator::PinMs,
-        GpuEstimator::Urm { lookups: 8 },
-        GpuEstimator::Jackknife { lookups: 8 },
+        EstimatorSpec::RayMarching { rel_step: 0.05 },
+        EstimatorSpec::DeltaTracking,
+        EstimatorSpec::RatioTracking,
+        EstimatorSpec::Pins,
+        EstimatorSpec::PinMs,
     ] {
-        let name = format!("3 instances, {}", est.name());
+        let name = format!("3 instances, {}", est);
         compare_with(
             &name,
             |k| renderer.render(&sc, est, 2, 100 + k).unwrap(),
@@ -666,7 +654,7 @@ fn every_estimator_matches_cpu_with_instances() {
             renderer
                 .render(
                     &t_only,
-                    GpuEstimator::RayMarching { rel_step: 0.02 },
+                    EstimatorSpec::RayMarching { rel_step: 0.02 },
                     2,
                     7 + k,
                 )
@@ -674,7 +662,7 @@ fn every_estimator_matches_cpu_with_instances() {
         },
         |k| {
             cpu_render_media(
-                ms.cpu_media(GpuEstimator::RayMarching { rel_step: 0.02 }),
+                ms.cpu_media(EstimatorSpec::RayMarching { rel_step: 0.02 }),
                 &t_only,
                 2,
                 70 + k,
@@ -750,21 +738,21 @@ fn cosine_density_matches_cpu() {
     sc.camera.origin = [0.9, 0.7, 3.6];
     for (est, cpu) in [
         (
-            GpuEstimator::RayMarching { rel_step: 0.01 },
+            EstimatorSpec::RayMarching { rel_step: 0.01 },
             Medium::single(Arc::new(
                 crate::render::RayMarching::new(field.clone(), 0.01).unwrap(),
             )),
         ),
         (
             // Paired on both sides: one walk for a ray's transmittance and distance.
-            GpuEstimator::RatioTracking,
+            EstimatorSpec::RatioTracking,
             Medium::single(Arc::new(crate::render::RatioTracking::new(
                 field.clone(),
                 maj.clone(),
             ))),
         ),
     ] {
-        let name = format!("cosine, {}", est.name());
+        let name = format!("cosine, {}", est);
         compare_with(
             &name,
             |k| renderer.render(&sc, est, 2, 300 + k).unwrap(),
@@ -775,7 +763,7 @@ fn cosine_density_matches_cpu() {
         );
     }
     // Pins are not part of these media: asking for them is an error, not a silent render.
-    let r = renderer.render(&sc, GpuEstimator::PinMs, 1, 0);
+    let r = renderer.render(&sc, EstimatorSpec::PinMs, 1, 0);
     assert!(matches!(r, Err(GpuRenderError::Invalid(_))), "{r:?}");
 }
 
@@ -788,10 +776,10 @@ fn media_and_estimators_are_checked() {
     // Pins only: every density estimator is refused with the medium named.
     let pins_only = GpuRenderer::new(&ctx, grid).unwrap();
     for est in [
-        GpuEstimator::RayMarching { rel_step: 0.1 },
-        GpuEstimator::DeltaTracking,
-        GpuEstimator::RatioTracking,
-        GpuEstimator::PinMs,
+        EstimatorSpec::RayMarching { rel_step: 0.1 },
+        EstimatorSpec::DeltaTracking,
+        EstimatorSpec::RatioTracking,
+        EstimatorSpec::PinMs,
     ] {
         match pins_only.render(&sc, est, 1, 0) {
             Err(GpuRenderError::Invalid(e)) => assert!(e.to_string().contains("medium 0"), "{e}"),
@@ -815,17 +803,17 @@ fn media_and_estimators_are_checked() {
     };
     let r = GpuRenderer::with_media(&ctx, &media).unwrap();
     assert!(
-        r.render(&sc, GpuEstimator::RayMarching { rel_step: 0.1 }, 1, 0)
+        r.render(&sc, EstimatorSpec::RayMarching { rel_step: 0.1 }, 1, 0)
             .is_ok()
     );
-    assert!(r.render(&sc, GpuEstimator::DeltaTracking, 1, 0).is_err());
+    assert!(r.render(&sc, EstimatorSpec::DeltaTracking, 1, 0).is_err());
     for bad in [0.0, -0.1, 1.5, f64::NAN] {
-        let e = r.render(&sc, GpuEstimator::RayMarching { rel_step: bad }, 1, 0);
+        let e = r.render(&sc, EstimatorSpec::RayMarching { rel_step: bad }, 1, 0);
         assert!(matches!(e, Err(GpuRenderError::Invalid(_))), "{bad}: {e:?}");
     }
     // No media at all: the environment, unattenuated.
     let empty = GpuRenderer::with_media(&ctx, &GpuMedia::default()).unwrap();
-    let img = empty.render(&sc, GpuEstimator::Pins, 2, 0).unwrap();
+    let img = empty.render(&sc, EstimatorSpec::Pins, 2, 0).unwrap();
     let env = sc.env_radiance;
     assert!(
         img.rgb
@@ -877,11 +865,9 @@ fn stiff_media_stay_finite() {
     sc.camera.vfov_deg = 20.0; // every pixel's ray crosses the box [-1, 1]^3
     let env = sc.env_radiance;
     let estimators = [
-        GpuEstimator::RayMarching { rel_step: 0.05 },
-        GpuEstimator::DeltaTracking,
-        GpuEstimator::RatioTracking,
-        GpuEstimator::Urm { lookups: 16 },
-        GpuEstimator::Jackknife { lookups: 16 },
+        EstimatorSpec::RayMarching { rel_step: 0.05 },
+        EstimatorSpec::DeltaTracking,
+        EstimatorSpec::RatioTracking,
     ];
     for (label, value, expect_t) in [
         ("empty", 0.0f32, 1.0f32),
@@ -916,18 +902,12 @@ fn stiff_media_stay_finite() {
         for est in estimators {
             // Transmitted environment: exactly env * T, on both backends.
             let cpu_est: Arc<dyn TransportEstimator> = match est {
-                GpuEstimator::RayMarching { rel_step } => {
+                EstimatorSpec::RayMarching { rel_step } => {
                     Arc::new(crate::render::RayMarching::new(grid.clone(), rel_step).unwrap())
                 }
-                GpuEstimator::DeltaTracking => {
+                EstimatorSpec::DeltaTracking => {
                     Arc::new(crate::render::DeltaTracking::new(grid.clone(), maj.clone()))
                 }
-                GpuEstimator::Urm { lookups } => crate::render::CombKind::Urm
-                    .build(grid.clone(), maj.clone(), lookups)
-                    .unwrap(),
-                GpuEstimator::Jackknife { lookups } => crate::render::CombKind::Jackknife
-                    .build(grid.clone(), maj.clone(), lookups)
-                    .unwrap(),
                 _ => Arc::new(crate::render::RatioTracking::new(grid.clone(), maj.clone())),
             };
             let cpu = cpu_render_media(vec![Medium::single(cpu_est)], &sc, 4, 1);
@@ -937,7 +917,7 @@ fn stiff_media_stay_finite() {
                     assert!(
                         (p[c] - env[c] * expect_t).abs() <= 1e-6,
                         "[{label}, {}, cpu] pixel {p:?}, expected T = {expect_t}",
-                        est.name()
+                        est
                     );
                 }
             }
@@ -946,7 +926,7 @@ fn stiff_media_stay_finite() {
                     assert!(
                         (p[c] - env[c] * expect_t).abs() <= 1e-6,
                         "[{label}, {}] pixel {p:?}, expected T = {expect_t}",
-                        est.name()
+                        est
                     );
                 }
             }
@@ -958,7 +938,7 @@ fn stiff_media_stay_finite() {
             assert!(
                 img.rgb.iter().flatten().all(|c| c.is_finite() && *c >= 0.0),
                 "[{label}, {}] non-finite or negative pixel",
-                est.name()
+                est
             );
         }
     }
@@ -1098,27 +1078,21 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
         // Every estimator on the f32 bricks; the f16 ones and the splits share the code
         // below the value fetch (each pipeline costs seconds to compile on lavapipe).
         let all = [
-            GpuEstimator::RayMarching { rel_step: 0.05 },
-            GpuEstimator::DeltaTracking,
-            GpuEstimator::RatioTracking,
-            GpuEstimator::PinMs,
-            GpuEstimator::Urm { lookups: 8 },
-            GpuEstimator::Jackknife { lookups: 8 },
+            EstimatorSpec::RayMarching { rel_step: 0.05 },
+            EstimatorSpec::DeltaTracking,
+            EstimatorSpec::RatioTracking,
+            EstimatorSpec::PinMs,
         ];
-        let whole: &[GpuEstimator] = if f16 { &all[2..4] } else { &all };
+        let whole: &[EstimatorSpec] = if f16 { &all[2..4] } else { &all };
         for &est in whole {
             let want = image_bits(&dense_r.render(&sc, est, 2, 77).unwrap());
             let got = image_bits(&brick_r.render(&sc, est, 2, 77).unwrap());
-            assert!(
-                want == got,
-                "f16 {f16}, {}: bricked bits differ",
-                est.name()
-            );
+            assert!(want == got, "f16 {f16}, {}: bricked bits differ", est);
         }
         for est in [all[0], all[2]] {
             let want = image_bits(&dense_np.render(&sc, est, 2, 78).unwrap());
             let got = image_bits(&split.render(&sc, est, 2, 78).unwrap());
-            assert!(want == got, "f16 {f16}, {}: split bits differ", est.name());
+            assert!(want == got, "f16 {f16}, {}: split bits differ", est);
         }
         if !f16 {
             // No stored brick at all: the bricked path still runs (and reads 0), the
@@ -1134,7 +1108,7 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
             let mut t_only = sc.clone();
             t_only.albedo = 0.0;
             let img = r
-                .render(&t_only, GpuEstimator::RatioTracking, 1, 5)
+                .render(&t_only, EstimatorSpec::RatioTracking, 1, 5)
                 .unwrap();
             let env = t_only.env_radiance;
             assert!(
@@ -1192,17 +1166,16 @@ fn bricked_density_matches_cpu() {
     sc.camera.origin = [0.5, 0.8, 4.5];
     sc.camera.target = [0.05, 0.3, 0.05];
     for est in [
-        GpuEstimator::RayMarching { rel_step: 0.05 },
-        GpuEstimator::RatioTracking,
+        EstimatorSpec::RayMarching { rel_step: 0.05 },
+        EstimatorSpec::RatioTracking,
     ] {
         let cpu = |k: u64| {
             let media = (0..OFFSETS.len())
                 .map(|i| {
                     let e: Arc<dyn TransportEstimator> = match est {
-                        GpuEstimator::RatioTracking => Arc::new(crate::render::RatioTracking::new(
-                            fields[i].clone(),
-                            maj[i].clone(),
-                        )),
+                        EstimatorSpec::RatioTracking => Arc::new(
+                            crate::render::RatioTracking::new(fields[i].clone(), maj[i].clone()),
+                        ),
                         _ => Arc::new(
                             crate::render::RayMarching::new(fields[i].clone(), 0.05).unwrap(),
                         ),
@@ -1213,7 +1186,7 @@ fn bricked_density_matches_cpu() {
             cpu_render_media(media, &sc, 2, 4000 + k)
         };
         compare_with(
-            &format!("bricks, {}", est.name()),
+            &format!("bricks, {}", est),
             |k| renderer.render(&sc, est, 2, 400 + k).unwrap(),
             cpu,
             24,
@@ -1228,14 +1201,14 @@ fn bricked_density_matches_cpu() {
 // ---------------------------------------------------------------------------------------
 
 /// The GPU's residual estimators (one WGSL walk; the controls differ).
-const RESIDUALS: [GpuEstimator; 3] = [
-    GpuEstimator::ResidualRatioTracking {
+const RESIDUALS: [EstimatorSpec; 3] = [
+    EstimatorSpec::ResidualRatioTracking {
         control: crate::render::ResidualControl::Mean,
     },
-    GpuEstimator::ResidualRatioTracking {
+    EstimatorSpec::ResidualRatioTracking {
         control: crate::render::ResidualControl::Min,
     },
-    GpuEstimator::PinRes,
+    EstimatorSpec::PinRes,
 ];
 
 /// The multi-medium tests' three blob instances as the renderers' medium descriptions (one
@@ -1257,7 +1230,6 @@ fn residual_descs(ms: &MultiScene) -> Vec<crate::medium::MediumDesc> {
             field: Some(ms.fields[k].clone()),
             majorants: Some(ms.majorants[k].clone()),
             majorant_bricks: 4,
-            analytic: None,
             pins: Some(crate::medium::PlacedPins {
                 grid: grid.clone(),
                 local_to_world: Some(translated_identity(OFFSETS[k])),
@@ -1290,7 +1262,9 @@ fn residual_estimators_match_cpu() {
         ("3 instances", &descs[..], &sc),
         ("1 medium, environment", &descs[..1], &env_only),
     ] {
-        let gpu_media = crate::medium::gpu_media_for(media, &RESIDUALS, lookup).unwrap();
+        let gpu_media =
+            crate::medium::gpu_media_for(media, &RESIDUALS.map(GpuEstimator::from), lookup)
+                .unwrap();
         // pinres reads the control section, not the pins.
         assert!(gpu_media.grids.is_empty());
         let renderer = GpuRenderer::with_media(&ctx, &gpu_media).unwrap();
@@ -1300,7 +1274,7 @@ fn residual_estimators_match_cpu() {
                 .map(|d| d.cpu_medium(est, lookup).unwrap())
                 .collect();
             compare_with(
-                &format!("{label}, {}", est.name()),
+                &format!("{label}, {}", est),
                 |k| renderer.render(sc, est, 2, 100 + k).unwrap(),
                 |k| cpu_render_media(cpu.clone(), sc, 2, 900 + k),
                 24,
@@ -1310,7 +1284,7 @@ fn residual_estimators_match_cpu() {
         }
     }
     // Without its control a medium cannot answer: a one-line refusal naming the medium.
-    let only_mean = crate::medium::gpu_media_for(&descs, &RESIDUALS[..1], lookup).unwrap();
+    let only_mean = crate::medium::gpu_media_for(&descs, &[RESIDUALS[0].into()], lookup).unwrap();
     let renderer = GpuRenderer::with_media(&ctx, &only_mean).unwrap();
     for est in &RESIDUALS[1..] {
         match renderer.render(&sc, *est, 1, 0) {
@@ -1326,9 +1300,11 @@ fn residual_estimators_match_cpu() {
     }
     // The controls share the density data binding: a device whose bindings cannot hold
     // them refuses the media with one line naming the sizes.
-    let small = crate::medium::gpu_media_for(&descs, &RESIDUALS, lookup).unwrap();
+    let small =
+        crate::medium::gpu_media_for(&descs, &RESIDUALS.map(GpuEstimator::from), lookup).unwrap();
     let plain =
-        crate::medium::gpu_media_for(&descs, &[GpuEstimator::RatioTracking], lookup).unwrap();
+        crate::medium::gpu_media_for(&descs, &[EstimatorSpec::RatioTracking.into()], lookup)
+            .unwrap();
     let plain_bytes = media::pack(&plain, u64::MAX, MAX_VALUE_BINDINGS)
         .unwrap()
         .data
@@ -1446,7 +1422,6 @@ fn residual_on_gpu_matches_the_cosine_closed_form() {
         field: Some(field),
         majorants: Some(maj),
         majorant_bricks: 4,
-        analytic: None,
         pins: None,
         gpu_density: Some(Arc::new(
             GpuDensity::cosine(lo, hi, density, waves.clone()).unwrap(),
@@ -1454,9 +1429,15 @@ fn residual_on_gpu_matches_the_cosine_closed_form() {
         translation: [0.0; 3],
     };
     let ests = &RESIDUALS[..2];
-    let media =
-        crate::medium::gpu_media_for(std::slice::from_ref(&desc), ests, SamplerOptions::default())
-            .unwrap();
+    let media = crate::medium::gpu_media_for(
+        std::slice::from_ref(&desc),
+        &ests
+            .iter()
+            .map(|&e| e.into())
+            .collect::<Vec<GpuEstimator>>(),
+        SamplerOptions::default(),
+    )
+    .unwrap();
     let renderer = GpuRenderer::with_media(&ctx, &media).unwrap();
     // Every pixel's rays cross the cube (no pixel that only a corner grazes).
     let mut sc = scene(24, 0.0, 0.0, 0);

@@ -7,10 +7,11 @@ use std::sync::Arc;
 use glam::Vec3;
 use pinrt::PinGrid;
 
+use super::error::RenderError;
 use super::estimator::{ResidualRatioTracking, TransportEstimator};
 use super::majorant::MajorantGrid;
 use super::rng::Pcg32;
-use super::{Aabb, DensitySource, RenderError};
+use pinbake::source::{Aabb, DensitySource};
 
 /// Residual ratio tracking (Novák, Selle and Jarosz 2014) over a baked control: per brick of
 /// the control grid, the control extinction `c` is taken out exactly and the residual

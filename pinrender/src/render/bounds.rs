@@ -236,7 +236,7 @@ mod tests {
     /// direction components, three segment ends.
     #[test]
     fn entry_of_one_box_equals_the_chunk() {
-        let mut rng = crate::render::Pcg32::new(12, 4);
+        let mut rng = crate::render::rng::Pcg32::new(12, 4);
         let boxes = MediaBoxes::new((0..70).map(|_| {
             let lo = [0, 1, 2].map(|_| rng.next_f32() as f64 * 2.0 - 1.0);
             let hi = lo.map(|v| v + 0.05 + rng.next_f32() as f64);
@@ -273,7 +273,7 @@ mod tests {
     #[test]
     fn strictly_inside_means_entered_at_zero() {
         let b = unit();
-        let mut rng = crate::render::Pcg32::new(8, 1);
+        let mut rng = crate::render::rng::Pcg32::new(8, 1);
         let mut checked = 0;
         for _ in 0..20_000 {
             let o = [0, 1, 2].map(|_| -0.1 + 1.2 * rng.next_f32());

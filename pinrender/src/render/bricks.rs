@@ -13,9 +13,9 @@ use glam::DVec3;
 use half::f16;
 use pin_format::SparseValues;
 
-use super::RenderError;
+use super::error::RenderError;
 use super::field::VoxelGrid;
-use super::{Aabb, DensitySource};
+use pinbake::source::{Aabb, DensitySource};
 
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;
@@ -485,7 +485,7 @@ mod tests {
         assert!(bricked.shape().2 < 4 * 3 * 5, "some bricks are empty");
         assert_eq!(bricked.bounds(), dense.bounds());
         let (lo, hi) = dense.bounds().to_arrays();
-        let mut rng = crate::render::Pcg32::new(7, 1);
+        let mut rng = crate::render::rng::Pcg32::new(7, 1);
         for _ in 0..20000 {
             let p = Vec3::from_array(
                 [0, 1, 2]
@@ -534,7 +534,7 @@ mod tests {
         let widened = halves.iter().map(|h| h.to_f32()).collect();
         let wide = BrickGrid::new(dims, origin, spacing, brick, index.to_vec(), widened).unwrap();
         let (lo, hi) = dense.bounds().to_arrays();
-        let mut rng = crate::render::Pcg32::new(9, 1);
+        let mut rng = crate::render::rng::Pcg32::new(9, 1);
         for _ in 0..20000 {
             let p = [0, 1, 2].map(|a| lo[a] - 0.3 + (hi[a] - lo[a] + 0.6) * rng.next_f32() as f64);
             let p = DVec3::from_array(p);
@@ -599,7 +599,7 @@ mod tests {
             SparseValues::F32(_) => panic!("widened"),
         }
         let (lo, hi) = dense.bounds().to_arrays();
-        let mut rng = crate::render::Pcg32::new(11, 1);
+        let mut rng = crate::render::rng::Pcg32::new(11, 1);
         for _ in 0..20000 {
             let p = [0, 1, 2].map(|a| lo[a] - 0.3 + (hi[a] - lo[a] + 0.6) * rng.next_f32() as f64);
             let p = DVec3::from_array(p);

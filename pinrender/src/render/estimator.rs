@@ -1,10 +1,10 @@
 //! Free-flight distance sampling and transmittance estimation behind one trait.
 
-use super::RenderError;
+use super::error::RenderError;
 use super::majorant::{MajorantGrid, MajorantSegment, check_box, clip_box};
 use super::rng::Pcg32;
-use super::{Aabb, DenseView, DensitySource};
 use glam::{DVec3, Vec3};
+use pinbake::source::{Aabb, DenseView, DensitySource};
 use std::sync::Arc;
 
 /// A distance sampler and transmittance estimator for one medium (one instance).
@@ -39,9 +39,10 @@ pub trait TransportEstimator: Send + Sync {
         None
     }
 
-    /// This estimator as a placed pin grid, if it is one: the wavefront loop answers the
-    /// queries of several media that share one grid (instances) in one batch through it.
-    fn as_pins(&self) -> Option<&super::PinsEstimator> {
+    /// This estimator as `Any`, for a loop that answers some estimator types together (the
+    /// wavefront loop answers the queries of several media that share one pin grid in one
+    /// batch); `None`, the default, leaves it out of such batches.
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         None
     }
 
@@ -111,15 +112,17 @@ pub trait TransportEstimator: Send + Sync {
 
 /// A validated ray in f64 with unit direction; `scale = |d|` converts back to the caller's t.
 #[derive(Clone, Copy)]
-pub(crate) struct PreparedRay {
+pub struct PreparedRay {
     pub o: DVec3,
     pub d: DVec3,
     pub scale: f64,
     pub t_max: f64,
 }
 
+/// The ray `o + t d`, `t` in `[0, t_max]`, in f64 with a unit direction, or `None` for an
+/// invalid one (non-finite, zero direction, `t_max <= 0`): the first step of every estimator.
 #[inline]
-pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<PreparedRay> {
+pub fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<PreparedRay> {
     if !(o.is_finite() && d.is_finite() && t_max > 0.0) {
         return None;
     }
@@ -139,11 +142,11 @@ pub(crate) fn prepare(o: Vec3, d: Vec3, t_max: f32) -> Option<PreparedRay> {
 impl PreparedRay {
     /// World distance back to the caller's parameter, strictly inside `[0, t_max]`.
     #[inline]
-    pub(crate) fn to_t(self, t_world: f64, t_max: f32) -> f32 {
+    pub fn to_t(self, t_world: f64, t_max: f32) -> f32 {
         ((t_world / self.scale) as f32).clamp(0.0, t_max)
     }
     #[inline]
-    pub(crate) fn at(&self, t: f64) -> Vec3 {
+    pub fn at(&self, t: f64) -> Vec3 {
         (self.o + self.d * t).as_vec3()
     }
 }
@@ -151,7 +154,7 @@ impl PreparedRay {
 /// Extinction as the estimators use it: NaN and negative values are 0, `+inf` is kept
 /// (opaque).
 #[inline]
-pub(crate) fn clean(sigma: f32) -> f64 {
+pub fn clean(sigma: f32) -> f64 {
     if sigma > 0.0 { sigma as f64 } else { 0.0 }
 }
 
@@ -496,7 +499,7 @@ impl<F: DensitySource + ?Sized> Tracker<F> {
 
     /// [`Self::ratio_and_delta`] for a query ray: what `transmittance_and_distance` answers
     /// for every estimator that pairs ratio tracking's transmittance with delta tracking's
-    /// collision (ratio, residual, pinurm).
+    /// collision (ratio, residual).
     pub(crate) fn ratio_and_delta_query(
         &self,
         o: Vec3,
@@ -960,214 +963,11 @@ impl<F: DensitySource + ?Sized> TransportEstimator for ResidualRatioTracking<F> 
     }
 }
 
-// ---------------------------------------------------------------------------------------
-// Comb estimators: unbiased ray marching and jackknife (transmittance), delta tracking
-// (distances)
-// ---------------------------------------------------------------------------------------
-
-/// Default comb lookups per longest edge of the majorant box for `urm` (each query takes
-/// about 3.42 combs: the control, two always-taken orders and the roulette's 1/3 + 1/12 + ...).
-/// Dense media get more: see [`super::comb::lookups_for`].
-pub const URM_DEFAULT_LOOKUPS: u32 = 16;
-/// Default comb lookups per longest edge for `jackknife` (two combs per query).
-pub const JACKKNIFE_DEFAULT_LOOKUPS: u32 = 32;
-
-/// Shared state of the comb estimators: delta tracking for distances, and the comb spacing
-/// `longest edge of the majorant box / lookups`.
-pub(crate) struct Combed<F: ?Sized> {
-    pub(crate) tracker: Tracker<F>,
-    pub(crate) lookups: u32,
-    pub(crate) spacing: f64,
-}
-
-impl<F: DensitySource + ?Sized> Combed<F> {
-    pub(crate) fn new(
-        field: Arc<F>,
-        majorants: Arc<MajorantGrid>,
-        lookups: u32,
-    ) -> Result<Self, RenderError> {
-        if !(1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&lookups) {
-            return Err(RenderError::Invalid {
-                what: "comb lookups",
-                why: format!(
-                    "{lookups} lookups per edge must be in 1..={}",
-                    super::comb::MAX_COMB_LOOKUPS
-                ),
-            });
-        }
-        let (lo, hi) = majorants.bounds();
-        let longest = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max);
-        Ok(Combed {
-            tracker: Tracker::new(field, majorants),
-            lookups,
-            spacing: longest / lookups as f64,
-        })
-    }
-
-    /// The majorant optical depth along the prepared ray (the combs' lookup rule reads it).
-    pub(crate) fn majorant_depth(&self, r: &PreparedRay) -> f64 {
-        self.tracker
-            .majorants
-            .segments(r.o, r.d, 0.0, r.t_max)
-            .map(|seg| seg.majorant as f64 * (seg.t1 - seg.t0).max(0.0))
-            .sum()
-    }
-
-    /// Transmittance over the ray's segment inside the majorant box (the combs span the
-    /// clipped segment; the field is 0 outside that box): `urm` or, with `jackknife`, the
-    /// jackknife. Static dispatch: the density lookup is the hot loop.
-    #[inline]
-    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32, jackknife: bool) -> f32 {
-        let Some(r) = prepare(o, d, t_max) else {
-            return 1.0;
-        };
-        let (lo, hi) = self.tracker.majorants.bounds();
-        let Some((t0, t1)) = clip_box(r.o, r.d, &lo, &hi, 0.0, r.t_max) else {
-            return 1.0;
-        };
-        let len = t1 - t0;
-        let maj_depth = self.majorant_depth(&r);
-        let m = super::comb::lookups_for(len, self.spacing, maj_depth);
-        let field = &self.tracker.field;
-        let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s).as_dvec3()));
-        let mut uniform = || rng.next_f64();
-        let t = if jackknife {
-            super::comb::jackknife_transmittance(len, m, &mut sigma, &mut uniform)
-        } else {
-            super::comb::urm_transmittance(len, m, &mut sigma, &mut uniform)
-        };
-        t as f32
-    }
-}
-
-/// Unbiased ray marching (Kettunen et al. 2021) for transmittance, delta tracking for
-/// distances; see [`super::comb::urm_transmittance`].
-pub struct UnbiasedRayMarching<F: ?Sized = dyn DensitySource>(Combed<F>);
-
-/// Jackknife transmittance (Peters 2025) for transmittance, delta tracking for distances;
-/// see [`super::comb::jackknife_transmittance`].
-pub struct JackknifeMarching<F: ?Sized = dyn DensitySource>(Combed<F>);
-
-impl<F: DensitySource + ?Sized> UnbiasedRayMarching<F> {
-    /// Combs of `lookups` per longest edge of the majorant box (`1 ..= 2^20`); the majorant
-    /// grid bounds the combs and the tracking and should cover the field's support.
-    pub fn new(
-        field: Arc<F>,
-        majorants: Arc<MajorantGrid>,
-        lookups: u32,
-    ) -> Result<Self, RenderError> {
-        Combed::new(field, majorants, lookups).map(UnbiasedRayMarching)
-    }
-}
-
-impl<F: DensitySource + ?Sized> JackknifeMarching<F> {
-    /// As [`UnbiasedRayMarching::new`]; each query takes two combs.
-    pub fn new(
-        field: Arc<F>,
-        majorants: Arc<MajorantGrid>,
-        lookups: u32,
-    ) -> Result<Self, RenderError> {
-        Combed::new(field, majorants, lookups).map(JackknifeMarching)
-    }
-}
-
-impl<F: DensitySource + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
-    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
-        let r = prepare(o, d, t_max)?;
-        self.0.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
-    }
-    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
-        self.0.transmittance(o, d, t_max, rng, false)
-    }
-    fn name(&self) -> String {
-        format!("urm@{}({})", self.0.lookups, self.0.tracker.dims_label())
-    }
-    /// The majorant grid's box: combs and tracking are clipped to it.
-    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        Some(self.0.tracker.majorants.bounds())
-    }
-}
-
-impl<F: DensitySource + ?Sized> TransportEstimator for JackknifeMarching<F> {
-    fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
-        let r = prepare(o, d, t_max)?;
-        self.0.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
-    }
-    fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
-        self.0.transmittance(o, d, t_max, rng, true)
-    }
-    fn name(&self) -> String {
-        format!(
-            "jackknife@{}({})",
-            self.0.lookups,
-            self.0.tracker.dims_label()
-        )
-    }
-    /// The majorant grid's box: combs and tracking are clipped to it.
-    fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        Some(self.0.tracker.majorants.bounds())
-    }
-}
-
-/// The two comb estimators by name, for the command lines: `urm`, `urm@LOOKUPS`,
-/// `jackknife`, `jackknife@LOOKUPS` (lookups per longest edge of the majorant box, per comb).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum CombKind {
-    Urm,
-    Jackknife,
-}
-
-impl CombKind {
-    /// `None` if `name` is not a comb estimator's name; an error message if it is one with a
-    /// bad lookup count.
-    pub fn parse(name: &str) -> Option<Result<(CombKind, u32), String>> {
-        let (base, arg) = match name.split_once('@') {
-            Some((b, a)) => (b, Some(a)),
-            None => (name, None),
-        };
-        let kind = match base {
-            "urm" => CombKind::Urm,
-            "jackknife" => CombKind::Jackknife,
-            _ => return None,
-        };
-        let lookups = match arg {
-            None => Ok(kind.default_lookups()),
-            Some(a) => match a.parse::<u32>() {
-                Ok(n) if (1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&n) => Ok(n),
-                _ => Err(format!(
-                    "estimator {name}: lookups must be an integer in 1..={}",
-                    super::comb::MAX_COMB_LOOKUPS
-                )),
-            },
-        };
-        Some(lookups.map(|n| (kind, n)))
-    }
-
-    pub fn default_lookups(self) -> u32 {
-        match self {
-            CombKind::Urm => URM_DEFAULT_LOOKUPS,
-            CombKind::Jackknife => JACKKNIFE_DEFAULT_LOOKUPS,
-        }
-    }
-
-    /// The estimator over `field` with combs and delta tracking over `majorants`.
-    pub fn build<F: DensitySource + ?Sized + 'static>(
-        self,
-        field: Arc<F>,
-        majorants: Arc<MajorantGrid>,
-        lookups: u32,
-    ) -> Result<Arc<dyn TransportEstimator>, RenderError> {
-        Ok(match self {
-            CombKind::Urm => Arc::new(UnbiasedRayMarching::new(field, majorants, lookups)?),
-            CombKind::Jackknife => Arc::new(JackknifeMarching::new(field, majorants, lookups)?),
-        })
-    }
-}
-
 #[cfg(test)]
 mod dense_tests {
     use super::*;
-    use crate::render::{DenseMap, VoxelGrid};
+    use crate::render::field::VoxelGrid;
+    use pinbake::source::DenseMap;
 
     /// A 7x5x6 grid, a ramp along x with random contrast on top (values 0.2 ..= 3.4).
     fn grid() -> VoxelGrid {

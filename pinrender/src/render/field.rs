@@ -71,8 +71,8 @@ impl VoxelGrid {
         origin: [f64; 3],
         spacing: [f64; 3],
         values: Vec<f32>,
-    ) -> Result<Self, super::RenderError> {
-        let invalid = |why: String| super::RenderError::Invalid {
+    ) -> Result<Self, super::error::RenderError> {
+        let invalid = |why: String| super::error::RenderError::Invalid {
             what: "voxel grid",
             why,
         };

@@ -1,6 +1,6 @@
 //! Float RGB images: EXR and PNG output (atomic), error metrics.
 
-use super::RenderError;
+use super::error::RenderError;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};

@@ -1,8 +1,8 @@
 //! Coarse majorant grid and its DDA traversal (per-segment majorants, as in pbrt-v4).
 
-use super::RenderError;
-use super::{Aabb, DensitySource};
+use super::error::RenderError;
 use glam::DVec3;
+use pinbake::source::{Aabb, DensitySource};
 
 /// Max extinction per brick over a world box; bricks tile the box, `x` fastest, then `y`,
 /// then `z` (the pin file's majorant-section layout).
@@ -32,7 +32,8 @@ fn invalid(why: String) -> RenderError {
     }
 }
 
-pub(crate) fn check_box(lo: &[f64; 3], hi: &[f64; 3]) -> Result<(), String> {
+/// Accepts a box finite on every axis with `min < max` there; the message says why not.
+pub fn check_box(lo: &[f64; 3], hi: &[f64; 3]) -> Result<(), String> {
     if (0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] < hi[a]) {
         Ok(())
     } else {
@@ -179,7 +180,7 @@ fn brick_box(lo: &[f64; 3], hi: &[f64; 3], dims: [u32; 3], i: [u32; 3]) -> ([f64
 /// and reject otherwise, so no `0 * inf` NaN can arise. Returns `None` for an empty or
 /// zero-length overlap.
 #[inline]
-pub(crate) fn clip_box(
+pub fn clip_box(
     o: DVec3,
     d: DVec3,
     lo: &[f64; 3],

@@ -75,14 +75,13 @@
 //! [`Sampler::world_bounds`](pinrt::Sampler::world_bounds) from `bounds()` so that rays
 //! missing the placed grid never reach it.
 //!
-//! ## The companion papers
+//! ## Extending it
 //!
-//! * [`closed_form`]: [`ClosedFormTracker`] over any [`AnalyticOpticalDepth`] field (the
-//!   cosine-noise paper): exact transmittance, distance sampling by root finding.
-//! * [`whole_volume`]: analytic single scattering of a homogeneous box under the sun and
-//!   whole-volume distance sampling, [`render_single_scattering`].
-//! * [`cache`]: a hash-grid path-space radiance cache, enabled by
-//!   [`RenderSettings::cache`] (`None` renders exactly as without it).
+//! Research estimators and sample loops live outside this crate (the `pinlab` crate): an
+//! estimator implements [`TransportEstimator`] (over [`prepare`]d rays, a [`DeltaTracking`] for
+//! its distances if it likes), and a loop that does more at each scattering vertex (a
+//! path-space cache) runs the tracer's own walk through [`Scene::ctx`], [`Ctx::walk`] and a
+//! [`VertexHook`], inside [`accumulate`] so that it keeps `render`'s determinism and budgets.
 //!
 //! ## Determinism
 //!
@@ -102,92 +101,62 @@
 mod baked_control;
 mod bounds;
 mod bricks;
-pub mod cache;
-pub mod closed_form;
-pub mod comb;
+mod error;
 mod estimator;
 mod field;
 mod image;
 mod majorant;
+mod numeric;
 pub mod phase;
-mod pin_control;
 mod pins;
+mod plan;
 mod rng;
 mod settings;
 mod spec;
 mod tracer;
 mod wavefront;
-pub mod whole_volume;
 
 #[cfg(test)]
 mod tests;
 
 pub use baked_control::BakedResidualTracking;
 pub use bricks::{BrickGrid, SharedHalves};
-pub use cache::RadianceCache;
-pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
+pub use error::RenderError;
 pub use estimator::{
-    CombKind, DeltaTracking, JACKKNIFE_DEFAULT_LOOKUPS, JackknifeMarching, MAX_MARCH_STEPS,
-    MAX_TRACKING_STEPS, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
-    TransportEstimator, URM_DEFAULT_LOOKUPS, UnbiasedRayMarching,
+    DeltaTracking, MAX_MARCH_STEPS, MAX_TRACKING_STEPS, PreparedRay, RatioTracking, RayMarching,
+    ResidualControl, ResidualRatioTracking, TransportEstimator, clean, prepare,
 };
 pub use field::{FnField, VoxelGrid};
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
-pub use majorant::{Dda, MajorantGrid, MajorantSegment};
-pub use pin_control::{
-    PINURM_DEFAULT_LOOKUPS, PINURM_DEFAULT_PIN_QUERIES, PINURM_MAX_PIN_QUERIES,
-    PINURM_MAX_PIN_SPREAD, PinControlledUrm,
-};
+pub use majorant::{Dda, MajorantGrid, MajorantSegment, check_box, clip_box};
+pub use numeric::exprel;
 /// The one density interface and the dense view, from the baker's sources: the renderer
 /// tracks what the baker bakes.
 pub use pinbake::source::{Aabb, DenseMap, DenseView, DensitySource, HomogeneousBox};
 pub use pins::PinsEstimator;
+pub use plan::{RenderPlan, SampleLoop};
 pub use rng::{Pcg32, splitmix64};
-pub use settings::{Budget, CacheSettings, MAX_CAPACITY_LOG2, RenderSettings};
+pub use settings::{Budget, RenderSettings};
 pub use spec::{
     ESTIMATOR_SYNTAX, ESTIMATORS, EstimatorInfo, EstimatorSpec, MIN_REL_STEP,
     RESIDUAL_DEFAULT_CONTROL,
 };
-pub use tracer::{Camera, Medium, RenderOutput, Scene, Sun};
+pub use tracer::{
+    Camera, Ctx, Frame, Medium, NoHook, PathVertex, RenderOutput, Scene, Sun, VertexHook, Which,
+    accumulate, check_settings, in_pool,
+};
 pub use wavefront::{
     DEFAULT_WAVEFRONT_BATCH, ROW_CHUNK_PATHS, render_wavefront, row_scratch_bytes,
 };
-pub use whole_volume::{SingleScatterSampling, WholeVolumeBox, exprel, render_single_scattering};
 
-/// Errors of the render module.
-#[derive(Debug, thiserror::Error)]
-pub enum RenderError {
-    #[error("invalid {what}: {why}")]
-    Invalid { what: &'static str, why: String },
-    #[error("I/O error on {path}: {source}")]
-    Io {
-        path: std::path::PathBuf,
-        source: std::io::Error,
-    },
-    #[error("EXR: {0}")]
-    Exr(String),
-    #[error("PNG: {0}")]
-    Png(String),
-    #[error("thread pool: {0}")]
-    ThreadPool(String),
-    /// An allocation whose size comes from the settings failed.
-    #[error("{what}: out of memory for {bytes} bytes")]
-    OutOfMemory { what: &'static str, bytes: u64 },
-}
-
-/// The one entry point of the CPU path tracer: the radiance cache's sample loop when
-/// `settings.cache` asks for it (`cache.rs`), the plain loop of `tracer.rs` otherwise. The fork
-/// lives here, so the tracer does not know the cache.
-/// Render `scene`. Sample `s` of pixel `(x, y)` uses `Pcg32::for_sample(seed, y * width + x,
+/// The one entry point of the CPU path tracer: the sample loop of `tracer.rs` over every
+/// path. Render `scene`. Sample `s` of pixel `(x, y)` uses `Pcg32::for_sample(seed, y * width + x,
 /// s)` (two draws for the jitter inside the pixel, then the path), and per-pixel sums run
 /// in sample order, so the image is the same for any thread count and a time-budget render
 /// that reached `n` spp equals an `Spp(n)` render. Non-finite samples (possible only with
 /// a misbehaving plug-in estimator) are dropped.
 pub fn render(scene: &Scene, settings: &RenderSettings) -> Result<RenderOutput, RenderError> {
     scene.validate()?;
-    if let Some(cache) = &settings.cache {
-        return cache::render_cached(scene, settings, cache);
-    }
     let ctx = scene.ctx(settings.max_bounces);
     tracer::accumulate(scene, settings, std::time::Instant::now(), |o, d, rng| {
         ctx.trace(o, d, rng)

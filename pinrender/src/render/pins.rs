@@ -6,7 +6,9 @@ use bytemuck::Zeroable;
 use glam::Vec3;
 use pinrt::{PinGrid, QueryResult, Ray, RayQuery, Rng, Sampler, SamplerOptions, UnitTransform};
 
-use super::{Pcg32, RenderError, TransportEstimator};
+use super::error::RenderError;
+use super::estimator::TransportEstimator;
+use super::rng::Pcg32;
 
 /// A placed pin grid answering the renderer's queries. It shares its grid (an `Arc`, so a
 /// scene's instances and the GPU upload read one copy) and keeps the placement and lookup
@@ -166,7 +168,7 @@ impl TransportEstimator for PinsEstimator {
     fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
         self.bounds
     }
-    fn as_pins(&self) -> Option<&PinsEstimator> {
+    fn as_any(&self) -> Option<&dyn std::any::Any> {
         Some(self)
     }
 }
@@ -236,7 +238,7 @@ impl<'a> SharedPins<'a> {
     ) -> Option<Self> {
         let members = estimators
             .into_iter()
-            .map(|e| e.as_pins())
+            .map(|e| e.as_any()?.downcast_ref::<PinsEstimator>())
             .collect::<Option<Vec<&PinsEstimator>>>()?;
         let first = *members.first()?;
         let same = members

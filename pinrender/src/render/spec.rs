@@ -1,18 +1,20 @@
-//! [`EstimatorSpec`]: the one description of a transport estimator, parsed once from the
-//! names the CLI and the evaluation use (`rm@STEP`, `delta`, `ratio`, `residual[@CONTROL]`,
-//! `urm[@N]`, `jackknife[@N]`, `pins`, `pinms`, `pinurm[@N]`, `pinres`), shared by the CPU estimators and the GPU path tracer
-//! (`gpu_render::GpuEstimator` is this type).
+//! [`EstimatorSpec`]: the one description of a renderer's transport estimator, parsed once
+//! from the names the CLI uses (`rm@STEP`, `delta`, `ratio`, `residual[@CONTROL]`, `pins`,
+//! `pinms`, `pinres`), shared by the CPU estimators and the GPU path tracer
+//! (`gpu_render::GpuEstimator` wraps it). Research estimators extend the list from outside
+//! (the `pinlab` crate) through [`TransportEstimator`].
 
 use std::sync::Arc;
 
+use super::baked_control::BakedResidualTracking;
+use super::error::RenderError;
 use super::estimator::{
-    CombKind, DeltaTracking, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
+    DeltaTracking, RatioTracking, RayMarching, ResidualControl, ResidualRatioTracking,
     TransportEstimator,
 };
-use super::{
-    BakedResidualTracking, DensitySource, MajorantGrid, PINURM_DEFAULT_LOOKUPS, PinControlledUrm,
-    PinsEstimator, RenderError,
-};
+use super::majorant::MajorantGrid;
+use super::pins::PinsEstimator;
+use pinbake::source::DensitySource;
 
 /// Smallest relative ray-marching step, one bound for the baker and the renderer
 /// (`pin_format::MIN_REL_STEP`; smaller steps ran for minutes per pixel).
@@ -33,21 +35,11 @@ pub enum EstimatorSpec {
     /// exact, times ratio tracking of the residual), delta tracking for distances. Needs a
     /// density and majorants.
     ResidualRatioTracking { control: ResidualControl },
-    /// Unbiased ray marching (combs of `lookups` per longest edge of the majorant box) for
-    /// transmittance, delta tracking for distances. Needs a density and majorants.
-    Urm { lookups: u32 },
-    /// Jackknife transmittance (two combs of `lookups` per longest edge of the majorant
-    /// box), delta tracking for distances. Needs a density and majorants.
-    Jackknife { lookups: u32 },
     /// The pin grid for every query. Needs pins.
     Pins,
     /// Ratio tracking for camera rays and the first vertex's shadow rays, pins after the
     /// first scattering event. Needs pins, a density and majorants.
     PinMs,
-    /// Unbiased ray marching around the pin's answer (the pin gives the control optical
-    /// depth, combs of `lookups` per longest edge of the majorant box correct it) for
-    /// transmittance, delta tracking for distances. Needs pins, a density and majorants.
-    PinUrm { lookups: u32 },
     /// Residual ratio tracking over the control the bake stores (the pin file's control
     /// section) for transmittance, delta tracking over the section's majorants for
     /// distances. Needs the bake (its control section) and a density.
@@ -55,7 +47,8 @@ pub enum EstimatorSpec {
 }
 
 /// The names [`EstimatorSpec`] reads, for messages.
-pub const ESTIMATOR_SYNTAX: &str = "rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms, pinurm[@N], pinres";
+pub const ESTIMATOR_SYNTAX: &str =
+    "rm@STEP, delta, ratio, residual[@min|@mean], pins, pinms, pinres";
 
 /// The control `residual` means without `@CONTROL`.
 pub const RESIDUAL_DEFAULT_CONTROL: ResidualControl = ResidualControl::Mean;
@@ -63,30 +56,8 @@ pub const RESIDUAL_DEFAULT_CONTROL: ResidualControl = ResidualControl::Mean;
 impl std::str::FromStr for EstimatorSpec {
     type Err = String;
 
-    /// A known name; an out-of-range `rm@STEP` or comb count is an error naming the range.
+    /// A known name; an out-of-range `rm@STEP` is an error naming the range.
     fn from_str(name: &str) -> Result<Self, String> {
-        if let Some(arg) = name.strip_prefix("pinurm") {
-            let lookups = match arg.strip_prefix('@') {
-                None if arg.is_empty() => PINURM_DEFAULT_LOOKUPS,
-                None => return Err(format!("unknown estimator '{name}' ({ESTIMATOR_SYNTAX})")),
-                Some(a) => match a.parse::<u32>() {
-                    Ok(n) if (1..=super::comb::MAX_COMB_LOOKUPS as u32).contains(&n) => n,
-                    _ => {
-                        return Err(format!(
-                            "estimator {name}: lookups must be an integer in 1..={}",
-                            super::comb::MAX_COMB_LOOKUPS
-                        ));
-                    }
-                },
-            };
-            return Ok(Self::PinUrm { lookups });
-        }
-        if let Some(parsed) = CombKind::parse(name) {
-            return Ok(match parsed? {
-                (CombKind::Urm, lookups) => Self::Urm { lookups },
-                (CombKind::Jackknife, lookups) => Self::Jackknife { lookups },
-            });
-        }
         Ok(match name {
             "delta" => Self::DeltaTracking,
             "ratio" => Self::RatioTracking,
@@ -117,8 +88,7 @@ impl std::str::FromStr for EstimatorSpec {
 }
 
 impl std::fmt::Display for EstimatorSpec {
-    /// The name [`EstimatorSpec`] parses back (a comb's default count is the bare name, as the
-    /// evaluation's rows spell it).
+    /// The name [`EstimatorSpec`] parses back.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match *self {
             Self::RayMarching { rel_step } => write!(f, "rm@{rel_step}"),
@@ -128,16 +98,8 @@ impl std::fmt::Display for EstimatorSpec {
                 f.write_str("residual")
             }
             Self::ResidualRatioTracking { control } => write!(f, "residual@{}", control.name()),
-            Self::Urm { lookups } if lookups == super::URM_DEFAULT_LOOKUPS => f.write_str("urm"),
-            Self::Jackknife { lookups } if lookups == super::JACKKNIFE_DEFAULT_LOOKUPS => {
-                f.write_str("jackknife")
-            }
-            Self::Urm { lookups } => write!(f, "urm@{lookups}"),
-            Self::Jackknife { lookups } => write!(f, "jackknife@{lookups}"),
             Self::Pins => f.write_str("pins"),
             Self::PinMs => f.write_str("pinms"),
-            Self::PinUrm { lookups } if lookups == PINURM_DEFAULT_LOOKUPS => f.write_str("pinurm"),
-            Self::PinUrm { lookups } => write!(f, "pinurm@{lookups}"),
             Self::PinRes => f.write_str("pinres"),
         }
     }
@@ -187,20 +149,6 @@ pub const ESTIMATORS: &[EstimatorInfo] = &[
         summary: "residual ratio tracking with the brick's minimum as the control",
     },
     EstimatorInfo {
-        name: "urm",
-        spec: EstimatorSpec::Urm {
-            lookups: super::URM_DEFAULT_LOOKUPS,
-        },
-        summary: "unbiased ray marching (power-series correction of jittered combs)",
-    },
-    EstimatorInfo {
-        name: "jackknife",
-        spec: EstimatorSpec::Jackknife {
-            lookups: super::JACKKNIFE_DEFAULT_LOOKUPS,
-        },
-        summary: "jackknife transmittance from two combs (biased by the combs' departure from normality)",
-    },
-    EstimatorInfo {
         name: "pins",
         spec: EstimatorSpec::Pins,
         summary: "the pin grid for every query",
@@ -211,13 +159,6 @@ pub const ESTIMATORS: &[EstimatorInfo] = &[
         summary: "ratio tracking to the first scattering vertex, pins after it",
     },
     EstimatorInfo {
-        name: "pinurm",
-        spec: EstimatorSpec::PinUrm {
-            lookups: PINURM_DEFAULT_LOOKUPS,
-        },
-        summary: "unbiased ray marching around the pins' answer: their optical depth as the control, combs correct it",
-    },
-    EstimatorInfo {
         name: "pinres",
         spec: EstimatorSpec::PinRes,
         summary: "residual ratio tracking over the bake's per-brick control and residual majorant (--embed-control)",
@@ -226,32 +167,21 @@ pub const ESTIMATORS: &[EstimatorInfo] = &[
 
 impl EstimatorSpec {
     /// Whether its expected value is the exact answer of the medium it reads (no bias floor):
-    /// the trackers, unbiased ray marching and `pinurm` (which reads the pins only for its
-    /// control). Ray marching, the jackknife, `pins` and `pinms` are biased.
+    /// the trackers. Ray marching, `pins` and `pinms` are biased.
     pub fn is_unbiased(self) -> bool {
         matches!(
             self,
             Self::DeltaTracking
                 | Self::RatioTracking
                 | Self::ResidualRatioTracking { .. }
-                | Self::Urm { .. }
-                | Self::PinUrm { .. }
                 | Self::PinRes
         )
-    }
-
-    /// Whether the GPU path tracer runs it (all but `pinurm`).
-    pub fn runs_on_gpu(self) -> bool {
-        !matches!(self, Self::PinUrm { .. })
     }
 
     /// Whether it reads the bake: queries pin grids, or (`pinres`) reads the pin file's
     /// control section.
     pub fn needs_pins(self) -> bool {
-        matches!(
-            self,
-            Self::Pins | Self::PinMs | Self::PinUrm { .. } | Self::PinRes
-        )
+        matches!(self, Self::Pins | Self::PinMs | Self::PinRes)
     }
 
     /// Whether it reads the pin file's control section (`pinbake bake --embed-control`).
@@ -271,7 +201,7 @@ impl EstimatorSpec {
 
     /// The CPU estimator over a density (`field`, with `majorants` built on demand) for every
     /// kind but the pin ones, whose grids the caller places ([`EstimatorSpec::needs_pins`]):
-    /// for `pinms` this is its ratio-tracking part. `Ok(None)` for `pins` and `pinurm`
+    /// for `pinms` this is its ratio-tracking part. `Ok(None)` for `pins` and `pinres`
     /// (which reads both: [`EstimatorSpec::build_pin_controlled`]).
     pub fn build_density_estimator<E: From<RenderError>>(
         self,
@@ -279,7 +209,7 @@ impl EstimatorSpec {
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
         Ok(Some(match self {
-            Self::Pins | Self::PinUrm { .. } | Self::PinRes => return Ok(None),
+            Self::Pins | Self::PinRes => return Ok(None),
             Self::RayMarching { rel_step } => Arc::new(RayMarching::new(field()?, rel_step)?),
             Self::DeltaTracking => Arc::new(DeltaTracking::new(field()?, majorants()?)),
             Self::RatioTracking | Self::PinMs => {
@@ -288,16 +218,12 @@ impl EstimatorSpec {
             Self::ResidualRatioTracking { control } => {
                 Arc::new(ResidualRatioTracking::new(field()?, majorants()?, control)?)
             }
-            Self::Urm { lookups } => CombKind::Urm.build(field()?, majorants()?, lookups)?,
-            Self::Jackknife { lookups } => {
-                CombKind::Jackknife.build(field()?, majorants()?, lookups)?
-            }
         }))
     }
 
     /// The CPU estimator of a kind that reads the density and the placed pin grid together
-    /// (`pinurm`; `pinres`, from the grid's control section), or `Ok(None)` for every other
-    /// kind (nothing is built then).
+    /// (`pinres`, from the grid's control section), or `Ok(None)` for every other kind
+    /// (nothing is built then).
     pub fn build_pin_controlled<E: From<RenderError>>(
         self,
         field: &dyn Fn() -> Result<Arc<dyn DensitySource>, E>,
@@ -305,12 +231,6 @@ impl EstimatorSpec {
         pins: &dyn Fn() -> Result<Arc<PinsEstimator>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
         Ok(match self {
-            Self::PinUrm { lookups } => Some(Arc::new(PinControlledUrm::new(
-                field()?,
-                majorants()?,
-                pins()?,
-                lookups,
-            )?)),
             Self::PinRes => {
                 let pins = pins()?;
                 Some(Arc::new(BakedResidualTracking::from_grid(
@@ -337,8 +257,7 @@ mod tests {
             } else {
                 assert_eq!(e.name.parse::<EstimatorSpec>(), Ok(e.spec), "{}", e.name);
             }
-            // The estimators that answer from the pins have a floor of their own besides rm
-            // and the jackknife; `pinurm` reads them only for its control and has none.
+            // The estimators that answer from the pins have a floor of their own besides rm.
             if matches!(e.spec, EstimatorSpec::Pins | EstimatorSpec::PinMs) {
                 assert!(!e.spec.is_unbiased());
             }
@@ -348,11 +267,6 @@ mod tests {
                 .iter()
                 .any(|e| e.name == "ratio" && e.spec.is_unbiased())
         );
-        let pinurm = EstimatorSpec::PinUrm {
-            lookups: PINURM_DEFAULT_LOOKUPS,
-        };
-        assert!(pinurm.is_unbiased() && pinurm.needs_pins() && pinurm.needs_majorants());
-        assert!(!pinurm.runs_on_gpu());
     }
 
     #[test]
@@ -363,14 +277,8 @@ mod tests {
             "ratio",
             "residual",
             "residual@min",
-            "urm",
-            "urm@8",
-            "jackknife",
-            "jackknife@3",
             "pins",
             "pinms",
-            "pinurm",
-            "pinurm@4",
             "pinres",
         ] {
             let spec: EstimatorSpec = name.parse().unwrap();
@@ -379,11 +287,9 @@ mod tests {
         for (bad, why) in [
             ("rm@0", "[1e-5, 1]"),
             ("rm@x", "'x'"),
-            ("urm@0", "lookups"),
+            ("urm", "unknown estimator"),
             ("tracking", "unknown estimator"),
             ("residual@max", "unknown estimator"),
-            ("pinurm@0", "lookups"),
-            ("pinurmx", "unknown estimator"),
         ] {
             let e = bad.parse::<EstimatorSpec>().unwrap_err();
             assert!(e.contains(why), "{bad}: {e}");

@@ -1,7 +1,7 @@
 //! The volumetric path tracer: camera, lights, media instances, the render loop.
 
-use super::RenderError;
 use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
+use super::error::RenderError;
 use super::estimator::TransportEstimator;
 use super::image::Image;
 use super::phase::{hg_phase, sample_hg};
@@ -95,9 +95,9 @@ fn radiance_ok(v: &[f32; 3]) -> bool {
     v.iter().all(|c| c.is_finite() && *c >= 0.0)
 }
 
-/// The camera's validated frame.
+/// The camera's validated frame: the rays of its pixels ([`Frame::ray`]).
 #[derive(Clone, Copy)]
-pub(crate) struct Frame {
+pub struct Frame {
     o: Vec3,
     f: Vec3,
     r: Vec3,
@@ -109,7 +109,8 @@ pub(crate) struct Frame {
 }
 
 impl Camera {
-    pub(crate) fn frame(&self) -> Result<Frame, RenderError> {
+    /// The validated frame, or an error for a camera `render` refuses.
+    pub fn frame(&self) -> Result<Frame, RenderError> {
         let n = (self.width as u64) * (self.height as u64);
         if n == 0 || n > (1 << 31) {
             return Err(invalid(
@@ -161,29 +162,31 @@ impl Frame {
     /// Normalising here as well cost a second square root and division on the path's
     /// critical path, 6% of a pins render (`docs/performance.md`).
     #[inline]
-    pub(crate) fn ray(&self, px: f32, py: f32) -> (Vec3, Vec3) {
+    pub fn ray(&self, px: f32, py: f32) -> (Vec3, Vec3) {
         let sx = (2.0 * px / self.w - 1.0) * self.tan_half * self.aspect;
         let sy = (1.0 - 2.0 * py / self.h) * self.tan_half;
         (self.o, self.f + self.r * sx + self.u * sy)
     }
 }
 
+/// The role of an estimator query: [`Medium::primary`] or [`Medium::secondary`].
 #[derive(Clone, Copy, PartialEq, Eq, Debug)]
-pub(crate) enum Which {
+pub enum Which {
     Primary = 0,
     Secondary = 1,
 }
 
 /// The scene in the form the inner loop wants it (sun direction normalised, flags, the
 /// media's boxes per estimator role).
-pub(crate) struct Ctx<'a> {
+pub struct Ctx<'a> {
     pub(crate) media: &'a [Medium],
     /// `boxes[Which as usize]`: the world boxes of the media's primary / secondary
     /// estimators (see [`super::bounds`]).
     pub(crate) boxes: [MediaBoxes; 2],
     pub(crate) sun: Option<(Vec3, Vec3)>,
     pub(crate) env: Option<Vec3>,
-    pub(crate) albedo: f32,
+    /// The scene's albedo (a path's throughput factor per vertex).
+    pub albedo: f32,
     pub(crate) g: f32,
     pub(crate) max_bounces: u32,
     /// One medium whose primary and secondary estimators are the same object: a query
@@ -219,7 +222,9 @@ impl Scene {
         Ok(())
     }
 
-    pub(crate) fn ctx(&self, max_bounces: u32) -> Ctx<'_> {
+    /// The scene as the path loop reads it ([`Ctx::walk`]), for paths of up to
+    /// `max_bounces` scattering events.
+    pub fn ctx(&self, max_bounces: u32) -> Ctx<'_> {
         let sun = self.sun.as_ref().and_then(|s| {
             let d = Vec3::from_array(s.dir).normalize_or_zero();
             let r = Vec3::from_array(s.radiance);
@@ -393,7 +398,7 @@ impl Ctx<'_> {
     /// since `E[T] = P(escape)` already paid for that. The sun is a delta light: it is seen
     /// only through next-event estimation, `phase * T * radiance`. Scattering weights the
     /// throughput by the albedo (no roulette); `max_bounces` vertices at most.
-    pub(crate) fn trace(&self, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Vec3 {
+    pub fn trace(&self, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Vec3 {
         let (l, hit) = self.camera_segment(o, d, rng);
         match hit {
             None => l,
@@ -413,7 +418,7 @@ impl Ctx<'_> {
     /// The camera segment of a path: the environment seen through it, and the first
     /// scattering vertex `(x, d, t)` along the normalised direction `d` (`None`: the path
     /// ends here).
-    pub(crate) fn camera_segment(
+    pub fn camera_segment(
         &self,
         o: Vec3,
         d: Vec3,
@@ -447,10 +452,10 @@ impl Ctx<'_> {
     /// `l` what each vertex scores. `first` is the estimator of the first vertex's shadow
     /// and environment rays (primary from the camera, secondary for a vertex's postfix).
     /// `hook` sees each vertex before its estimators run and may end the path there (the
-    /// radiance cache).
+    /// a path-space cache).
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
-    pub(crate) fn walk<H: VertexHook>(
+    pub fn walk<H: VertexHook>(
         &self,
         mut l: Vec3,
         mut x: Vec3,
@@ -513,7 +518,7 @@ impl Ctx<'_> {
 }
 
 /// A scattering vertex of [`Ctx::walk`], before its estimators run.
-pub(crate) struct PathVertex {
+pub struct PathVertex {
     /// 1 for the first scattering vertex.
     pub depth: u32,
     pub x: Vec3,
@@ -524,16 +529,16 @@ pub(crate) struct PathVertex {
     pub beta: f32,
 }
 
-/// What a path does at each vertex besides scoring it (the radiance cache records vertices
+/// What a path does at each vertex besides scoring it (a path-space cache records vertices
 /// for training, or ends the path in a converged cell).
-pub(crate) trait VertexHook {
+pub trait VertexHook {
     /// `l`: what the walk has scored so far. `Some(r)`: end the path, the walk returning
     /// `l + r`.
     fn at_vertex(&mut self, v: &PathVertex, l: Vec3, rng: &mut Pcg32) -> Option<Vec3>;
 }
 
 /// The plain path: no hook (compiled away).
-pub(crate) struct NoHook;
+pub struct NoHook;
 
 impl VertexHook for NoHook {
     #[inline(always)]
@@ -547,7 +552,7 @@ impl VertexHook for NoHook {
 /// render's clock started (earlier than now when a pre-pass, e.g. cache training, counts
 /// towards the time budget). Shared by the other entry points of the module so that they
 /// keep `render`'s determinism and budget semantics.
-pub(crate) fn accumulate<T>(
+pub fn accumulate<T>(
     scene: &Scene,
     settings: &RenderSettings,
     start: Instant,
@@ -655,7 +660,7 @@ pub(crate) fn average_sums(
 }
 
 /// The budget and thread checks of [`render`].
-pub(crate) fn check_settings(settings: &RenderSettings) -> Result<(), RenderError> {
+pub fn check_settings(settings: &RenderSettings) -> Result<(), RenderError> {
     match settings.budget {
         Budget::Spp(0) => return Err(invalid("budget", "0 samples per pixel".into())),
         Budget::Seconds(s) if !(s >= 0.0 && s.is_finite()) => {
@@ -670,7 +675,7 @@ pub(crate) fn check_settings(settings: &RenderSettings) -> Result<(), RenderErro
 }
 
 /// Runs `f` in a private pool of `settings.threads` workers, or in rayon's global pool.
-pub(crate) fn in_pool<R: Send>(
+pub fn in_pool<R: Send>(
     settings: &RenderSettings,
     f: impl FnOnce() -> R + Send,
 ) -> Result<R, RenderError> {

@@ -27,9 +27,9 @@
 use glam::Vec3;
 use std::time::Instant;
 
-use super::RenderError;
-use super::TransportEstimator;
 use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
+use super::error::RenderError;
+use super::estimator::TransportEstimator;
 use super::phase::{hg_phase, sample_hg};
 use super::pins::{MemberQuery, SharedPins, SharedScratch, query_rng};
 use super::rng::Pcg32;
@@ -654,8 +654,7 @@ pub fn row_scratch_bytes(width: usize, batch: usize) -> u64 {
 
 /// [`super::render`] with the paths of each image row traced in tiles of `batch` paths
 /// (`batch >= 1`) whose queries are answered in batches. The image, spp and determinism are
-/// those of `render` (same seed: the same bits). A radiance cache in `settings` is refused:
-/// it has its own sample loop.
+/// those of `render` (same seed: the same bits).
 pub fn render_wavefront(
     scene: &Scene,
     settings: &RenderSettings,
@@ -667,12 +666,6 @@ pub fn render_wavefront(
         return Err(RenderError::Invalid {
             what: "batch",
             why: "0 paths per tile".into(),
-        });
-    }
-    if settings.cache.is_some() {
-        return Err(RenderError::Invalid {
-            what: "settings",
-            why: "the wavefront loop has no radiance cache; use render".into(),
         });
     }
     let start = Instant::now();
@@ -773,7 +766,6 @@ mod tests {
             seed: 77,
             budget,
             threads: Some(2),
-            cache: None,
         }
     }
 
@@ -941,11 +933,8 @@ mod tests {
     }
 
     #[test]
-    fn zero_batch_and_a_cache_are_refused() {
+    fn zero_batch_is_refused() {
         let sc = scene(vec![Medium::single(pins())]);
         assert!(render_wavefront(&sc, &settings(Budget::Spp(1)), 0).is_err());
-        let mut st = settings(Budget::Spp(1));
-        st.cache = Some(crate::render::CacheSettings::default());
-        assert!(render_wavefront(&sc, &st, 4).is_err());
     }
 }

@@ -212,3 +212,30 @@ fn the_runtime_links_no_writer() {
         assert!(tree.lines().any(|l| l.starts_with("pin-format ")), "{tree}");
     }
 }
+
+/// The map's claim for the renderer: `cargo tree -p pinrender -e normal` (every feature) shows
+/// no `pinlab`, while the lab's tree shows `pinrender` (so the search below can find a crate).
+#[test]
+fn the_renderer_depends_on_no_lab() {
+    let tree = |package: &str| {
+        let out = std::process::Command::new(env!("CARGO"))
+            .args(["tree", "-p", package, "-e", "normal", "--all-features"])
+            .args(["--prefix", "none", "--offline"])
+            .current_dir(repo())
+            .output()
+            .expect("cargo tree runs");
+        assert!(
+            out.status.success(),
+            "cargo tree: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let renderer = tree("pinrender");
+    assert!(
+        !renderer.lines().any(|l| l.starts_with("pinlab ")),
+        "pinrender depends on the lab:\n{renderer}"
+    );
+    let lab = tree("pinlab");
+    assert!(lab.lines().any(|l| l.starts_with("pinrender ")), "{lab}");
+}

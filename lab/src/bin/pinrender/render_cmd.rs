@@ -7,11 +7,11 @@ use anyhow::{Result, anyhow, bail};
 use clap::Args;
 use std::time::Instant;
 
-use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuRenderer, GpuScene};
+use pinlab::Estimator;
+use pinrender::gpu_render::{GpuDensity, GpuRenderer, GpuScene};
 use pinrender::render::{
-    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image,
-    MajorantGrid, RenderSettings, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront,
-    rmse,
+    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, Image, MajorantGrid,
+    RenderSettings, SampleLoop, Scene, Sun, VoxelGrid, block_bias, render, render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -73,7 +73,7 @@ pub struct RenderArgs {
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
     /// pins, pinms, pinurm[@N] or pinres.
     #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
-    pub estimator: EstimatorSpec,
+    pub estimator: Estimator,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -193,8 +193,8 @@ impl RenderArgs {
     }
 }
 
-/// `--estimator`: [`EstimatorSpec`]'s names.
-fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
+/// `--estimator`: [`Estimator`]'s names.
+fn parse_estimator(s: &str) -> Result<Estimator, String> {
     s.parse()
 }
 
@@ -280,7 +280,9 @@ fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf
 }
 
 pub fn run(a: RenderArgs) -> Result<()> {
-    let uses_pins = a.estimator.needs_pins();
+    // What to load, which loop runs and what memory it holds: decided here, once.
+    let plan = a.estimator.plan();
+    let uses_pins = plan.reads_bake;
     let input = match (&a.volume.volume, &a.pins) {
         (None, None) => crate::usage!(
             "--volume is required (or --pins FILE alone, to render a pin file's own medium)"
@@ -319,14 +321,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
-    if a.estimator.needs_pins() {
+    let per_row = plan.scratch_bytes_per_thread(a.width as usize);
+    if per_row > 0 {
         // The wavefront loop's rows in flight, one per worker thread: bounded by a chunk of
         // paths whatever --spp is.
         let threads = a.threads.unwrap_or_else(rayon::current_num_threads) as u64;
-        let per_row = pinrender::render::row_scratch_bytes(
-            a.width as usize,
-            pinrender::render::DEFAULT_WAVEFRONT_BATCH,
-        );
         budget.check(
             &format!("{threads} image rows of {} pixels in flight", a.width),
             threads.saturating_mul(per_row),
@@ -344,8 +343,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
             m.len().saturating_mul(factor),
         )?;
     }
-    let uses_majorants = a.estimator.needs_majorants();
-    if uses_majorants && a.volume.volume.is_some() {
+    if plan.majorants && a.volume.volume.is_some() {
         // f32 values plus the brick bounds the grid keeps, per brick.
         budget.check(
             &format!("{}^3 majorant bricks", a.majorant_bricks),
@@ -381,15 +379,13 @@ pub fn run(a: RenderArgs) -> Result<()> {
     };
     let medium = match &a.volume.volume {
         Some(v) => open_medium_from_volume(&a, v)?,
-        None => {
-            open_medium_from_pins(&input, ctx.as_ref().filter(|_| a.estimator.needs_density()))?
-        }
+        None => open_medium_from_pins(&input, ctx.as_ref().filter(|_| plan.density))?,
     };
     let (lo, hi) = (
         glam::DVec3::from(medium.bounds.0),
         glam::DVec3::from(medium.bounds.1),
     );
-    if a.estimator.needs_density() && medium.field.is_none() {
+    if plan.density && medium.field.is_none() {
         bail!(
             "{}: no embedded density, which the {} estimator needs (bake with \
              `pinbake bake --embed-density N`, or render with --volume)",
@@ -429,8 +425,9 @@ pub fn run(a: RenderArgs) -> Result<()> {
         let image = render_gpu(&a, ctx, &desc, &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
-    let medium = desc
-        .cpu_medium(a.estimator, a.lookup())
+    let medium = a
+        .estimator
+        .cpu_medium(&desc, a.lookup())
         .map_err(|e| anyhow!("{e}"))?;
     let scene = Scene {
         media: vec![medium],
@@ -444,12 +441,11 @@ pub fn run(a: RenderArgs) -> Result<()> {
             None => Budget::Spp(a.spp),
         },
         threads: a.threads,
-        cache: None,
     };
     // Pin queries answered in batches (wavefront loop): the same image as `render`, sooner.
     // Only `pins` and `pinms` answer in batches; the others (`pinurm`, `pinres`) answer one
     // query at a time, which `render`'s own loop does with less bookkeeping (as in the eval).
-    let out = if matches!(a.estimator, EstimatorSpec::Pins | EstimatorSpec::PinMs) {
+    let out = if plan.sample_loop == SampleLoop::Wavefront {
         render_wavefront(&scene, &settings, DEFAULT_WAVEFRONT_BATCH)
     } else {
         render(&scene, &settings)
@@ -485,12 +481,11 @@ impl OpenedMedium {
     /// The render's medium description: what the CPU estimators and the GPU packing read
     /// (the GPU copy of the density only for a GPU render of an estimator that reads it).
     fn desc(&self, a: &RenderArgs, ctx: Option<&GpuContext>) -> Result<MediumDesc> {
-        let gpu = ctx.filter(|_| a.estimator.needs_density());
+        let gpu = ctx.filter(|_| a.estimator.plan().density);
         Ok(MediumDesc {
             field: self.field.clone(),
             majorants: self.majorants.clone(),
             majorant_bricks: a.majorant_bricks,
-            analytic: None,
             pins: self.pins.clone().map(|grid| PlacedPins {
                 grid,
                 local_to_world: None,
@@ -524,13 +519,14 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     let opened = volume::open_volume_typed(input, &a.volume)?;
     let source = opened.source();
     let b = source.bounds();
-    let pins = if a.estimator.needs_pins() {
+    let plan = a.estimator.plan();
+    let pins = if plan.reads_bake {
         let grid = volume::pins_for(
             a.pins.as_deref(),
             source.as_ref(),
             a.pin_cells,
             a.seed,
-            a.estimator.needs_control(),
+            plan.control,
             &pinbake::files::MemoryBudget::new(a.max_memory),
         )?;
         if let Some(p) = &a.pins {
@@ -673,8 +669,8 @@ fn render_gpu(
     desc: &MediumDesc,
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
-    let est: GpuEstimator = a.estimator;
-    let media = pinrender::medium::gpu_media(std::slice::from_ref(desc), Some(est), a.lookup())
+    let est = a.estimator.gpu_or_err().map_err(|e| anyhow!("{e}"))?;
+    let media = pinrender::medium::gpu_media_for(std::slice::from_ref(desc), &[est], a.lookup())
         .map_err(|e| anyhow!("{e}"))?;
     let renderer = GpuRenderer::with_media(ctx, &media).map_err(|e| anyhow!("{e}"))?;
     let gs = GpuScene::from_scene(scene, a.max_bounces);

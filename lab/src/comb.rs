@@ -2,8 +2,8 @@
 //!
 //! Both estimators see a segment of length `len` only through `sigma(s)`, the (cleaned)
 //! extinction at distance `s` from the segment start, and draw their randomness from a
-//! uniform source, so the path tracer ([`super::UnbiasedRayMarching`],
-//! [`super::JackknifeMarching`]) and `pinrender bench` (over a pinbake density) share one
+//! uniform source, so the path tracer ([`crate::UnbiasedRayMarching`],
+//! [`crate::JackknifeMarching`]) and `pinrender bench` (over a pinbake density) share one
 //! implementation. The derivations are in `docs/sampling.md`, section "Comb estimators".
 //!
 //! * A **comb** of `m` lookups is `h * sum_j sigma((j + u) h)`, `h = len / m`, one uniform
@@ -32,7 +32,7 @@ pub const URM_ABR_ORDER: usize = 2;
 pub const URM_MAX_ORDER: usize = 24;
 
 /// Upper bound on the lookups of one comb; longer segments get a wider spacing (as
-/// [`super::MAX_MARCH_STEPS`] does for ray marching).
+/// [`pinrender::render::MAX_MARCH_STEPS`] does for ray marching).
 pub const MAX_COMB_LOOKUPS: u64 = 1 << 20;
 
 /// Comb lookups per unit of majorant optical depth along the segment, at least: a tooth
@@ -245,14 +245,14 @@ pub(crate) fn jackknife_with(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::closed_form::tests::CosNoise;
-    use crate::render::rng::Pcg32;
-    use crate::render::tests::mean_se;
-    use crate::render::{
-        AnalyticOpticalDepth, DensitySource, HomogeneousBox, JackknifeMarching, MajorantGrid,
-        TransportEstimator, UnbiasedRayMarching,
-    };
+    use crate::closed_form::AnalyticOpticalDepth;
+    use crate::closed_form::tests::CosNoise;
+    use crate::comb_estimators::{JackknifeMarching, UnbiasedRayMarching};
+    use crate::testing::mean_se;
     use glam::{DVec3, Vec3};
+    use pinrender::render::{
+        Aabb, DensitySource, HomogeneousBox, MajorantGrid, Pcg32, TransportEstimator, clip_box,
+    };
     use std::sync::Arc;
 
     /// Fixed rays (origin, unit direction) from points of the unit cube in directions
@@ -274,7 +274,7 @@ mod tests {
     /// estimators compute it.
     fn segment(o: Vec3, d: Vec3, lo: [f64; 3], hi: [f64; 3]) -> Option<(DVec3, DVec3, f64)> {
         let (o, d) = (o.as_dvec3(), d.as_dvec3().normalize());
-        let (t0, t1) = crate::render::majorant::clip_box(o, d, &lo, &hi, 0.0, f64::INFINITY)?;
+        let (t0, t1) = clip_box(o, d, &lo, &hi, 0.0, f64::INFINITY)?;
         Some((o + d * t0, d, t1 - t0))
     }
 
@@ -312,11 +312,9 @@ mod tests {
         let lo = [0.2, 0.15, 0.25];
         let hi = [0.8, 0.9, 0.7];
         let sigma = 3.0;
-        let field =
-            HomogeneousBox::new(crate::render::Aabb::from_arrays(lo, hi), sigma as f32).unwrap();
+        let field = HomogeneousBox::new(Aabb::from_arrays(lo, hi), sigma as f32).unwrap();
         let tau = move |p0: DVec3, d: DVec3, len: f64| {
-            crate::render::majorant::clip_box(p0, d, &lo, &hi, 0.0, len)
-                .map_or(0.0, |(a, b)| sigma * (b - a))
+            clip_box(p0, d, &lo, &hi, 0.0, len).map_or(0.0, |(a, b)| sigma * (b - a))
         };
         (field, tau)
     }
@@ -386,9 +384,8 @@ mod tests {
                 "jackknife {m} vs {exact} (se {se})"
             );
         }
-        let flat = Arc::new(
-            HomogeneousBox::new(crate::render::Aabb::from_arrays([0.0; 3], [1.0; 3]), 2.5).unwrap(),
-        );
+        let flat =
+            Arc::new(HomogeneousBox::new(Aabb::from_arrays([0.0; 3], [1.0; 3]), 2.5).unwrap());
         let maj = Arc::new(MajorantGrid::from_field(&*flat, [2, 2, 2]).unwrap());
         let urm = UnbiasedRayMarching::new(flat.clone(), maj.clone(), 3).unwrap();
         let jk = JackknifeMarching::new(flat, maj, 3).unwrap();
@@ -413,7 +410,7 @@ mod tests {
 
     #[test]
     fn names_parse() {
-        use crate::render::CombKind;
+        use crate::comb_estimators::CombKind;
         assert_eq!(CombKind::parse("urm"), Some(Ok((CombKind::Urm, 16))));
         assert_eq!(
             CombKind::parse("jackknife"),
@@ -437,18 +434,19 @@ mod tests {
         for other in ["ratio", "rm@0.1", "urmx", "jack", ""] {
             assert_eq!(CombKind::parse(other), None, "{other}");
         }
-        #[cfg(feature = "gpu")]
         {
-            use crate::gpu_render::GpuEstimator;
+            use crate::Estimator;
             for name in ["urm@8", "jackknife@4", "urm", "jackknife"] {
-                assert_eq!(GpuEstimator::parse(name).unwrap().name(), name);
+                let e: Estimator = name.parse().unwrap();
+                assert_eq!(e.to_string(), name);
+                assert!(e.runs_on_gpu());
             }
-            assert_eq!(GpuEstimator::parse("urm@16").unwrap().name(), "urm");
+            assert_eq!("urm@16".parse::<Estimator>().unwrap().to_string(), "urm");
             assert_eq!(
-                GpuEstimator::parse("urm"),
-                Some(GpuEstimator::Urm { lookups: 16 })
+                "urm".parse::<Estimator>(),
+                Ok(Estimator::Urm { lookups: 16 })
             );
-            assert_eq!(GpuEstimator::parse("urm@0"), None);
+            assert!("urm@0".parse::<Estimator>().is_err());
         }
     }
 

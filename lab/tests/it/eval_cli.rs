@@ -8,109 +8,36 @@
 use std::collections::BTreeSet;
 use std::process::Command;
 
+/// What a user picks (the renderer's own estimators, ray marching at the baseline step): the
+/// quick run's rows per scene. The lab's estimators run in the full eval and when named
+/// (the `--estimators` run below).
+const USER: &[&str] = &[
+    "rm@0.015", "delta", "ratio", "residual", "pins", "pinms", "pinres",
+];
 const EXPECTED: [(&str, &[&str]); 6] = [
-    (
-        "smoke",
-        &[
-            "rm@0.05",
-            "rm@0.015",
-            "rm@0.005",
-            "delta",
-            "ratio",
-            "urm",
-            "jackknife",
-            "pins",
-            "pinms",
-            "pinms+cache",
-            "pinurm",
-            "pinres",
-        ],
-    ),
-    (
-        "hydrogen",
-        &[
-            "rm@0.05",
-            "rm@0.015",
-            "rm@0.005",
-            "delta",
-            "ratio",
-            "urm",
-            "jackknife",
-            "pins",
-            "pinms",
-            "pinms+cache",
-            "pinurm",
-            "pinres",
-        ],
-    ),
-    (
-        "cosine",
-        &[
-            "rm@0.05",
-            "rm@0.015",
-            "rm@0.005",
-            "delta",
-            "ratio",
-            "urm",
-            "jackknife",
-            "pins",
-            "pinms",
-            "pinms+cache",
-            "pinurm",
-            "pinres",
-            "cosine-closed-form",
-        ],
-    ),
-    (
-        "box",
-        &[
-            "rm@0.05",
-            "rm@0.015",
-            "rm@0.005",
-            "delta",
-            "ratio",
-            "urm",
-            "jackknife",
-            "pins",
-            "pinms",
-            "pinms+cache",
-            "pinurm",
-            "pinres",
-            "box-closed-form",
-        ],
-    ),
+    ("smoke", USER),
+    ("hydrogen", USER),
+    ("cosine", USER),
+    ("box", USER),
     (
         "box-ss",
-        &[
-            "rm@0.05",
-            "rm@0.015",
-            "rm@0.005",
-            "delta",
-            "ratio",
-            "urm",
-            "jackknife",
-            "pins",
-            "box-closed-form",
-            "whole-volume",
-        ],
+        &["rm@0.015", "delta", "ratio", "residual", "pins"],
     ),
-    (
-        "instances",
-        &[
-            "rm@0.05",
-            "rm@0.015",
-            "rm@0.005",
-            "delta",
-            "ratio",
-            "urm",
-            "jackknife",
-            "pins",
-            "pinms",
-            "pinms+cache",
-            "pinurm",
-            "pinres",
-        ],
-    ),
+    ("instances", USER),
+];
+
+/// The lab's estimators (and rm's other steps): never in a quick run unless named.
+const LAB: [&str; 10] = [
+    "rm@0.05",
+    "rm@0.005",
+    "urm",
+    "jackknife",
+    "pinurm",
+    "pinms+cache",
+    "cosine-closed-form",
+    "box-closed-form",
+    "whole-volume",
+    "residual@min",
 ];
 
 /// Shrinks `--quick` further: the test checks the plumbing, not the figures.
@@ -141,9 +68,10 @@ fn eval_quick_end_to_end() {
     let out = dir.path().join("eval");
     let docs = dir.path().join("docs");
     std::fs::create_dir_all(&docs).unwrap();
-    // A docs file with the companion-papers marker: everything from it on must survive.
-    let tail = "<!-- companion papers -->\n\n## Paper sections\n\nkept verbatim\n";
-    std::fs::write(docs.join("evaluation.md"), format!("# old head\n\n{tail}")).unwrap();
+    // A hand-written page in the docs folder: the eval writes its report beside it, never
+    // into it.
+    let page = "# Evaluation\n\nhand-written, kept verbatim\n";
+    std::fs::write(docs.join("evaluation.md"), page).unwrap();
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
         .args(["eval", "--quick", "--out"])
         .arg(&out)
@@ -183,28 +111,34 @@ fn eval_quick_end_to_end() {
             let x: f64 = v.parse().unwrap();
             assert!(x.is_finite() && x >= 0.0, "{line}");
         }
+        assert!(
+            !LAB.contains(&f[1]),
+            "a lab estimator in a quick run: {line}"
+        );
         if f[2] == "cpu" {
             seen.insert((f[0].to_string(), f[1].to_string()));
         }
         budgets.insert(f[6].to_string());
     }
     assert_eq!(budgets.len(), 3, "three budgets");
-    // Every scene, every estimator the GPU path tracer has (instances included).
+    // Every scene, the quick run's GPU rows (the estimators that read the bake; instances
+    // included).
     assert!(
         !gpu_seen.is_empty(),
         "no gpu rows (is a wgpu adapter, e.g. lavapipe, installed?)"
     );
     for (scene, ests) in EXPECTED {
-        for e in ests
-            .iter()
-            .filter(|e| GPU_ESTIMATORS.contains(e) || e.starts_with("rm@"))
-        {
+        for e in ests.iter().filter(|e| ["pins", "pinms"].contains(e)) {
             assert!(
                 gpu_seen.contains(&(scene.to_string(), e.to_string())),
                 "no gpu rows for {scene} / {e}"
             );
         }
     }
+    assert!(
+        gpu_seen.iter().all(|(_, e)| e == "pins" || e == "pinms"),
+        "{gpu_seen:?}"
+    );
     for (scene, ests) in EXPECTED {
         for e in ests {
             assert!(
@@ -224,31 +158,53 @@ fn eval_quick_end_to_end() {
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(
         summary.contains("This report measures how quickly each way"),
-        "summary.md opens with what the reader is looking at"
+        "summary.md says what the reader is looking at"
     );
+    // It opens with one line per scene on what the bake buys at each budget.
+    let opening: Vec<&str> = summary
+        .lines()
+        .skip_while(|l| !l.starts_with("What the bake buys"))
+        .skip(2)
+        .take_while(|l| l.starts_with("- **"))
+        .collect();
+    assert_eq!(opening.len(), EXPECTED.len(), "{summary}");
+    for ((scene, _), line) in EXPECTED.iter().zip(&opening) {
+        assert!(
+            line.starts_with(&format!("- **{scene}**: 0.01 s: ")),
+            "{line}"
+        );
+        assert_eq!(
+            line.matches(" s: ").count(),
+            3,
+            "a ratio per budget: {line}"
+        );
+    }
     // Per scene and budget, the best estimator reading the bake against the best without.
     assert!(
         summary.contains("| budget | best reading the bake | RMSE | best without | RMSE |"),
         "summary.md compares the bake's estimators with the others"
     );
-    assert!(out.join("errors.png").is_file());
-    assert!(docs.join("eval").join("errors.png").is_file());
-    let md = std::fs::read_to_string(docs.join("evaluation.md")).unwrap();
-    assert!(md.ends_with(tail), "the companion-papers part must be kept");
-    assert!(!md.contains("# old head"));
+    for png in ["errors.png", "errors_all.png"] {
+        assert!(out.join(png).is_file(), "{png}");
+        assert!(docs.join("eval").join(png).is_file(), "docs copy of {png}");
+    }
+    assert_eq!(
+        std::fs::read_to_string(docs.join("evaluation.md")).unwrap(),
+        page,
+        "the hand-written page is not rewritten"
+    );
+    let md = std::fs::read_to_string(docs.join("eval").join("report.md")).unwrap();
+    assert!(md.starts_with("# pinrender eval"), "{md}");
     assert!(md.contains("| **rm@0.015** |"));
     assert!(md.contains("| pins (gpu) |"), "gpu row in the table");
     assert!(md.contains("| pinms (gpu) |"), "gpu PinMS row in the table");
-    assert!(
-        md.contains("| ratio (gpu) |"),
-        "gpu tracker row in the table"
-    );
     assert!(!md.contains("GPU: not measured** (no GPU"));
     assert!(md.contains("WGSL"));
 
     // --no-gpu: no gpu rows, and the report says so. With --clock cpu, the budgets count
     // CPU time per worker thread and the report names that clock. An estimator named in
-    // --estimators runs even where the scene's own list leaves it out (residual@min).
+    // --estimators runs even where the scene's own list leaves it out (residual@min), and the
+    // lab's estimators run when named, in a quick run too.
     let out2 = dir.path().join("eval-nogpu");
     let status = Command::new(env!("CARGO_BIN_EXE_pinrender"))
         .args([
@@ -260,7 +216,7 @@ fn eval_quick_end_to_end() {
             "--scenes",
             "box",
             "--estimators",
-            "ratio,residual@min",
+            "ratio,residual@min,urm,jackknife,pinurm,pinms+cache,box-closed-form",
             "--out",
         ])
         .arg(&out2)
@@ -272,6 +228,15 @@ fn eval_quick_end_to_end() {
     assert!(!csv.contains(",gpu,"), "{csv}");
     assert!(csv.contains("\nbox,residual@min,cpu,"), "{csv}");
     assert!(csv.contains("\nbox,ratio,cpu,"), "{csv}");
+    for lab in [
+        "urm",
+        "jackknife",
+        "pinurm",
+        "pinms+cache",
+        "box-closed-form",
+    ] {
+        assert!(csv.contains(&format!("\nbox,{lab},cpu,")), "{lab}: {csv}");
+    }
     assert!(!csv.contains(",delta,"), "{csv}");
     let md = std::fs::read_to_string(out2.join("summary.md")).unwrap();
     assert!(md.contains("GPU: not measured** (`--no-gpu`)"), "{md}");
@@ -405,6 +370,9 @@ fn render_backends_agree() {
         ("ratio", "0.9", "128", 0.03),
         ("rm@0.02", "0", "16", 0.005),
         ("residual", "0.9", "128", 0.03),
+        // The lab's comb estimator: a shader kernel on the GPU, combs and delta tracking on
+        // the CPU.
+        ("urm", "0.9", "128", 0.03),
     ] {
         let cpu = render("cpu", est, albedo, spp, "1");
         let gpu = render("gpu", est, albedo, spp, "2");

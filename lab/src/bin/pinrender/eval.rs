@@ -20,11 +20,12 @@
 //!
 //! Outputs (in `--out`), a contract that scripts rely on: `errors.csv` (header
 //! `scene,estimator,backend,seconds,rmse,relmse,budget_s,spp`: the first six columns are
-//! fixed, later ones may be added), `errors.png` (error against time, every scene),
-//! `summary.md` (the report); also `bake.csv`, `error_vs_time_<scene>.png`,
-//! `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at the largest budget) and
-//! `<scene>/reference.exr`. With `--docs DIR` also `DIR/evaluation.md` (the part above
-//! `<!-- companion papers -->`) and small PNG copies under `DIR/eval/`.
+//! fixed, later ones may be added), `errors.png` (error against time per scene: the best
+//! estimator without a bake, pins, PinMS and pinres), `summary.md` (the report, opening with
+//! what the bake buys per scene); also `errors_all.png` (every estimator), `bake.csv`,
+//! `error_vs_time_<scene>.png`, `images_<scene>.png`, `<scene>/<estimator>.exr` (the image at
+//! the largest budget) and `<scene>/reference.exr`. With `--docs DIR` also
+//! `DIR/eval/report.md` (the report, a file of its own) and the PNGs beside it.
 //!
 //! Each reference is rendered as two independent halves; half their RMSE against each other
 //! is the reference's own noise, reported per scene, and a time-to-error target below twice
@@ -41,10 +42,11 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow, bail};
 use clap::Args;
+use pinlab::Estimator;
+use pinlab::cache::{render_with_cache, train_cache};
+use pinlab::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrender::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
 use pinrender::medium::PlacedPins;
-use pinrender::render::cache::{render_with_cache, train_cache};
-use pinrender::render::whole_volume::{SingleScatterSampling, render_single_scattering};
 use pinrender::render::{
     Budget, DEFAULT_WAVEFRONT_BATCH, Image, Medium, RatioTracking, RenderOutput, RenderSettings,
     Scene, TransportEstimator, relative_mse, render, render_wavefront, rmse, splitmix64,
@@ -81,11 +83,13 @@ pub struct EvalArgs {
     /// Output directory.
     #[arg(long, default_value = "out/eval")]
     pub out: PathBuf,
-    /// Tiny images, budgets and references: an end-to-end smoke test in seconds.
+    /// Small images, sub-second budgets and references, and only the estimators a user picks
+    /// (the renderer's own, on the GPU pins and pinms; the lab's run when named in
+    /// --estimators).
     #[arg(long)]
     pub quick: bool,
     /// Time budgets in seconds, comma separated (default 0.25,0.5,1,2,4,10,30,60; --quick
-    /// 0.1,0.2,0.4). Each estimator renders once, progressively, and is measured at every
+    /// 0.05,0.1,0.2). Each estimator renders once, progressively, and is measured at every
     /// budget: a run costs its longest budget per estimator, not the sum.
     #[arg(long, value_delimiter = ',')]
     pub budgets: Option<Vec<f64>>,
@@ -109,7 +113,7 @@ pub struct EvalArgs {
     /// Worker threads (default: all cores; at most 64 per core and 4096).
     #[arg(long, value_parser = pinbake::cli_args::parse_threads)]
     pub threads: Option<usize>,
-    /// Also write DIR/evaluation.md (table and plots part) and PNG copies under DIR/eval/.
+    /// Also write the report to DIR/eval/report.md, with copies of its PNGs beside it.
     #[arg(long)]
     pub docs: Option<PathBuf>,
     /// What a CPU row's time budget counts: `wall` seconds, or `cpu`: the process's CPU
@@ -137,6 +141,13 @@ pub struct EvalArgs {
 
 /// The longest budget the scenes' reference samples per pixel are sized for.
 const REFERENCE_BUDGET_S: f64 = 4.0;
+
+/// The quick run's budgets in seconds.
+pub const QUICK_BUDGETS: [f64; 3] = [0.05, 0.1, 0.2];
+
+/// The GPU rows of a quick run without --estimators: the estimators that read the bake (each
+/// GPU estimator costs a pipeline compile per scene, seconds on lavapipe).
+const QUICK_GPU: [&str; 2] = ["pins", "pinms"];
 
 /// The full run's budgets in seconds: previews to final frames.
 pub const FULL_BUDGETS: [f64; 8] = [0.25, 0.5, 1.0, 2.0, 4.0, 10.0, 30.0, 60.0];
@@ -342,7 +353,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     };
     let mut budgets = a.budgets.clone().unwrap_or_else(|| {
         if a.quick {
-            vec![0.1, 0.2, 0.4]
+            QUICK_BUDGETS.to_vec()
         } else {
             FULL_BUDGETS.to_vec()
         }
@@ -427,10 +438,11 @@ pub fn run(a: EvalArgs) -> Result<()> {
         plot::error_vs_time(&a.out.join(format!("error_vs_time_{}.png", r.name)), r)?;
         plot::montage(&a.out.join(format!("images_{}.png", r.name)), r)?;
     }
-    plot::error_vs_time_all(&a.out.join(report::ERRORS_PNG), &results)?;
+    plot::headline(&a.out.join(report::ERRORS_PNG), &results)?;
+    plot::error_vs_time_all(&a.out.join(report::ERRORS_ALL_PNG), &results)?;
     let total = started.elapsed().as_secs_f64();
     let meta = report::RunMeta::new(&a, &budgets, &sizes, total, &gpu);
-    let md = report::markdown(&results, &meta, "")?;
+    let md = report::markdown(&results, &meta)?;
     let summary = a.out.join(report::SUMMARY_MD);
     std::fs::write(&summary, md).with_context(|| format!("writing {}", summary.display()))?;
     if let Some(docs) = &a.docs {
@@ -479,27 +491,42 @@ const ESTIMATOR_NAMES: [&str; 8] = [
     "whole-volume",
 ];
 
-/// Whether an eval entry reads the pin grid: an estimator whose spec needs pins, alone or
-/// with the radiance cache (`pinms+cache`).
+/// The render plan of an eval entry: an estimator's, with the radiance cache's
+/// (`pinms+cache`) that of `pinms`; `None` for the scenes' exact estimators.
+fn plan_of(e: &str) -> Option<pinrender::render::RenderPlan> {
+    let e = e.strip_suffix("+cache").unwrap_or(e);
+    e.parse::<Estimator>().ok().map(Estimator::plan)
+}
+
+/// Whether an eval entry reads the bake.
 fn reads_pins(e: &str) -> bool {
-    e.strip_suffix("+cache")
-        .unwrap_or(e)
-        .parse::<pinrender::render::EstimatorSpec>()
-        .is_ok_and(|s| s.needs_pins())
+    plan_of(e).is_some_and(|p| p.reads_bake)
 }
 
 /// Whether an entry's pin queries go through the batched sampler (`pins`, `pinms`), so
 /// that the wavefront loop gives `render`'s image sooner.
 fn answers_pins_in_batches(e: &str) -> bool {
+    e.parse::<Estimator>()
+        .is_ok_and(|e| e.plan().sample_loop == pinrender::render::SampleLoop::Wavefront)
+}
+
+/// Whether a user would pick `e` with `pinrender render --estimator`: one of the renderer's
+/// own estimators (`pinrender estimators`, the lab's left out), ray marching at the baseline
+/// step only. `eval --quick` runs these.
+fn user_pickable(e: &str) -> bool {
     use pinrender::render::EstimatorSpec;
-    matches!(e.parse(), Ok(EstimatorSpec::Pins | EstimatorSpec::PinMs))
+    match e.parse::<EstimatorSpec>() {
+        Ok(EstimatorSpec::RayMarching { .. }) => e == report::BASELINE,
+        Ok(_) => true,
+        Err(_) => false,
+    }
 }
 
 fn check_estimator_name(e: &str) -> Result<()> {
     if ESTIMATOR_NAMES.contains(&e) {
         return Ok(());
     }
-    match e.parse::<pinrender::render::EstimatorSpec>() {
+    match e.parse::<Estimator>() {
         Ok(_) => Ok(()),
         Err(why) if why.starts_with("unknown estimator") => crate::usage!(
             "--estimators: unknown estimator '{e}' (known: rm@STEP, urm[@N], jackknife[@N], residual[@min|@mean], {})",
@@ -515,7 +542,6 @@ fn settings(es: &EvalScene, seed: u64, budget: Budget, threads: Option<usize>) -
         seed,
         budget,
         threads,
-        cache: None,
     }
 }
 
@@ -743,10 +769,10 @@ fn eval_scene(
     production: &std::path::Path,
 ) -> Result<SceneResult> {
     let mut es = scenes::build(name, sizes, production)?;
-    let wanted = |e: &str| {
-        a.estimators
-            .as_ref()
-            .is_none_or(|v| v.iter().any(|x| x == e))
+    // Without --estimators, a quick run measures only what a user would pick.
+    let wanted = |e: &str| match &a.estimators {
+        Some(v) => v.iter().any(|x| x == e),
+        None => !a.quick || user_pickable(e),
     };
     let mut ests: Vec<String> = es
         .estimators
@@ -758,17 +784,14 @@ fn eval_scene(
     // list leaves it out (`residual@min`, `urm@64`, `rm@0.002`); the names that only some
     // scenes have (closed forms, the radiance cache) stay with those scenes.
     for e in a.estimators.iter().flatten() {
-        let named = e.parse::<pinrender::render::EstimatorSpec>().is_ok();
+        let named = e.parse::<Estimator>().is_ok();
         if named && !ests.contains(e) {
             ests.push(e.clone());
         }
     }
     let needs_pins = ests.iter().any(|e| reads_pins(e));
     let bake = if needs_pins {
-        let control = ests.iter().any(|e| {
-            e.parse::<pinrender::render::EstimatorSpec>()
-                .is_ok_and(|s| s.needs_control())
-        });
+        let control = ests.iter().any(|e| plan_of(e).is_some_and(|p| p.control));
         Some(bake_pins(&mut es, a, control)?)
     } else {
         None
@@ -806,7 +829,16 @@ fn eval_scene(
         keep(pts, img, &mut rows)?;
     }
     // The GPU path tracer after the CPU rows: every estimator it has, with the same media.
-    let gpu_ests: Vec<GpuEstimator> = ests.iter().filter_map(|e| GpuEstimator::parse(e)).collect();
+    // (name, GPU estimator) of every estimator the GPU path tracer runs.
+    let gpu_rows: Vec<(String, GpuEstimator)> = ests
+        .iter()
+        .filter(|e| !a.quick || a.estimators.is_some() || QUICK_GPU.contains(&e.as_str()))
+        .filter_map(|e| {
+            let e = e.parse::<Estimator>().ok()?;
+            Some((e.to_string(), e.gpu()?))
+        })
+        .collect();
+    let gpu_ests: Vec<GpuEstimator> = gpu_rows.iter().map(|&(_, g)| g).collect();
     let gpu_note = Some(match gpu {
         Gpu::Off => "GPU: not measured (`--no-gpu`).".to_string(),
         Gpu::NoAdapter(_) => "**GPU: no adapter** (no GPU rows).".to_string(),
@@ -833,15 +865,16 @@ fn eval_scene(
             // JITs it): one warm-up pass per estimator belongs to the setup, not to that
             // estimator's times.
             let gs = GpuScene::from_scene(&es.scene, es.max_bounces);
-            for est in &gpu_ests {
+            for (name, est) in &gpu_rows {
                 renderer
                     .render(&gs, *est, 1, 0)
-                    .map_err(|e| anyhow!("GPU warm-up of {} for {}: {e}", est.name(), es.name))?;
+                    .map_err(|e| anyhow!("GPU warm-up of {name} for {}: {e}", es.name))?;
             }
             let setup = t.elapsed().as_secs_f64();
-            for est in gpu_ests {
-                let (pts, img) = measure_gpu(&es, &renderer, est, a, budgets, &reference_image)
-                    .with_context(|| format!("estimator {} (gpu)", est.name()))?;
+            for (name, est) in &gpu_rows {
+                let (pts, img) =
+                    measure_gpu(&es, &renderer, (name, *est), a, budgets, &reference_image)
+                        .with_context(|| format!("estimator {name} (gpu)"))?;
                 keep(pts, img, &mut rows)?;
             }
             format!(
@@ -930,27 +963,19 @@ fn measure(
 fn measure_gpu(
     es: &EvalScene,
     renderer: &GpuRenderer,
-    est: GpuEstimator,
+    (name, est): (&str, GpuEstimator),
     a: &EvalArgs,
     budgets: &[f64],
     reference: &Image,
 ) -> Result<(Vec<Measurement>, Image)> {
     let gs = GpuScene::from_scene(&es.scene, es.max_bounces);
     let batch = a.gpu_batch;
-    progressive(
-        es,
-        ("gpu", &est.name()),
-        a,
-        budgets,
-        reference,
-        0.0,
-        |seed| {
-            renderer
-                .render(&gs, est, batch, seed)
-                .map(|img| (img, batch))
-                .map_err(|e| anyhow!("{e}"))
-        },
-    )
+    progressive(es, ("gpu", name), a, budgets, reference, 0.0, |seed| {
+        renderer
+            .render(&gs, est, batch, seed)
+            .map(|img| (img, batch))
+            .map_err(|e| anyhow!("{e}"))
+    })
 }
 
 /// The measurement loop: `pass(seed)` (an image of `spp` samples) with distinct seeds,

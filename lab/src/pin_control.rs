@@ -1,6 +1,6 @@
 //! `pinurm`: unbiased ray marching around the pins' answer. Pin lookups give the control
 //! optical depth of the ray, and the power series of unbiased ray marching
-//! ([`super::comb::series_transmittance`]) corrects `exp(-control)` to the true
+//! ([`crate::comb::series_transmittance`]) corrects `exp(-control)` to the true
 //! transmittance with density lookups. The derivation and the measurements are in
 //! `docs/final-frames.md`.
 
@@ -8,12 +8,15 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use super::estimator::{Combed, PreparedRay, clean, prepare};
-use super::majorant::clip_box;
-use super::{DensitySource, MajorantGrid, Pcg32, PinsEstimator, RenderError, TransportEstimator};
+use pinrender::render::{
+    DensitySource, MajorantGrid, Pcg32, PinsEstimator, PreparedRay, RenderError,
+    TransportEstimator, clean, clip_box, prepare,
+};
+
+use crate::comb_estimators::Combed;
 
 /// Default comb lookups per longest edge of the majorant box for `pinurm` (the majorant
-/// depth rule of [`super::comb::lookups_for`] raises them in dense media).
+/// depth rule of [`crate::comb::lookups_for`] raises them in dense media).
 pub const PINURM_DEFAULT_LOOKUPS: u32 = 8;
 
 /// Pin queries averaged into the control by default: one answer `t_min^n` is a coarse
@@ -121,7 +124,7 @@ impl<F: DensitySource + ?Sized> PinControlledUrm<F> {
         tail: bool,
         control: Option<&dyn Fn(f64) -> f64>,
     ) -> f64 {
-        let (lo, hi) = self.comb.tracker.majorants.bounds();
+        let (lo, hi) = self.comb.majorants.bounds();
         let Some((t0, t1)) = clip_box(r.o, r.d, &lo, &hi, 0.0, r.t_max) else {
             return 1.0;
         };
@@ -134,20 +137,19 @@ impl<F: DensitySource + ?Sized> PinControlledUrm<F> {
             Some(f) => Some(f(maj_depth)),
             None => self.control(o, d, t_max, maj_depth, rng),
         };
-        let m = super::comb::lookups_for(len, self.comb.spacing, maj_depth);
-        let field = &self.comb.tracker.field;
+        let m = crate::comb::lookups_for(len, self.comb.spacing, maj_depth);
+        let field = &self.comb.field;
         let mut sigma = |s: f64| clean(field.extinction(r.at(t0 + s).as_dvec3()));
         let mut uniform = || rng.next_f64();
         // Where the pins do not resolve the ray, urm's own control: an independent comb.
-        let tau_c = tau_c.unwrap_or_else(|| super::comb::comb(len, m, uniform(), &mut sigma));
-        super::comb::series_with_tail(tau_c, len, m, &mut sigma, &mut uniform, tail)
+        let tau_c = tau_c.unwrap_or_else(|| crate::comb::comb(len, m, uniform(), &mut sigma));
+        crate::comb::series_with_tail(tau_c, len, m, &mut sigma, &mut uniform, tail)
     }
 }
 
 impl<F: DensitySource + ?Sized> TransportEstimator for PinControlledUrm<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
-        let r = prepare(o, d, t_max)?;
-        self.comb.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
+        self.comb.tracking.sample_distance(o, d, t_max, rng)
     }
 
     fn transmittance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> f32 {
@@ -169,32 +171,35 @@ impl<F: DensitySource + ?Sized> TransportEstimator for PinControlledUrm<F> {
         t_max: f32,
         rng: &mut Pcg32,
     ) -> (f32, Option<f32>) {
-        self.comb.tracker.ratio_and_delta_query(o, d, t_max, rng)
+        self.comb
+            .tracking
+            .transmittance_and_distance(o, d, t_max, rng)
     }
 
     fn name(&self) -> String {
         format!(
             "pinurm@{}({}, {} pin queries)",
             self.comb.lookups,
-            self.comb.tracker.dims_label(),
+            self.comb.dims_label(),
             self.pin_queries
         )
     }
 
     /// The majorant grid's box: combs and tracking are clipped to it.
     fn bounds(&self) -> Option<([f64; 3], [f64; 3])> {
-        Some(self.comb.tracker.majorants.bounds())
+        Some(self.comb.majorants.bounds())
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::closed_form::tests::CosNoise;
-    use crate::render::tests::mean_se;
-    use crate::render::{AnalyticOpticalDepth, HomogeneousBox, RatioTracking, VoxelGrid};
+    use crate::closed_form::AnalyticOpticalDepth;
+    use crate::closed_form::tests::CosNoise;
+    use crate::testing::mean_se;
     use glam::DVec3;
     use pin_format::Directions;
+    use pinrender::render::{Aabb, FnField, HomogeneousBox, RatioTracking, VoxelGrid};
     use pinrt::testing::random_grid;
     use pinrt::{PinGrid, SamplerOptions};
 
@@ -289,9 +294,7 @@ mod tests {
     /// and have variance), and the cosine-noise cube, against their closed forms.
     fn closed_form_cases() -> Vec<(&'static str, PinControlledUrm, ExactDepth)> {
         let (lo, hi, sigma) = ([0.2, 0.15, 0.25], [0.8, 0.9, 0.7], 3.0);
-        let boxf = Arc::new(
-            HomogeneousBox::new(crate::render::Aabb::from_arrays(lo, hi), sigma as f32).unwrap(),
-        );
+        let boxf = Arc::new(HomogeneousBox::new(Aabb::from_arrays(lo, hi), sigma as f32).unwrap());
         let box_maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], sigma as f32).unwrap());
         let box_est: PinControlledUrm =
             PinControlledUrm::new(boxf as Arc<dyn DensitySource>, box_maj, random_pins(3), 4)
@@ -412,7 +415,6 @@ mod tests {
     /// estimator is unbiased against a fine midpoint rule on every ray (z-tests, 20,000
     /// estimates, fixed seeds). The pins' own answer, `exp(-control)` without the series,
     /// fails the same z-tests: the test can see the bias that the series removes.
-    #[cfg(feature = "cli")]
     #[test]
     fn pinurm_with_baked_pins_uses_them_and_is_unbiased() {
         use pinbake::source::DenseGrid;
@@ -505,7 +507,7 @@ mod tests {
     #[test]
     fn pinurm_survives_bad_rays_and_opaque_media() {
         // An opaque box: the baker's box refuses an infinite density, a closure does not.
-        let field = Arc::new(crate::render::FnField {
+        let field = Arc::new(FnField {
             min: [0.0; 3],
             max: [1.0; 3],
             f: |_| f32::INFINITY,
@@ -531,10 +533,7 @@ mod tests {
         assert!(t.is_finite() && t.abs() <= 1e-6, "{t}");
         assert!(
             PinControlledUrm::new(
-                Arc::new(
-                    HomogeneousBox::new(crate::render::Aabb::from_arrays([0.0; 3], [1.0; 3]), 1.0)
-                        .unwrap()
-                ),
+                Arc::new(HomogeneousBox::new(Aabb::from_arrays([0.0; 3], [1.0; 3]), 1.0).unwrap()),
                 Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], 1.0).unwrap()),
                 random_pins(1),
                 0,

@@ -21,10 +21,10 @@ pub const ERRORS_CSV_HEADER: &str = "scene,estimator,backend,seconds,rmse,relmse
 /// resolved by the reference: the column says so instead of printing a speedup of noise.
 pub const REFERENCE_NOISE_FACTOR: f64 = 2.0;
 
-/// The marker of docs/evaluation.md: everything from it on is kept as is.
-pub const DOC_MARKER: &str = "<!-- companion papers -->";
-const DISCUSSION_BEGIN: &str = "<!-- discussion -->";
-const DISCUSSION_END: &str = "<!-- /discussion -->";
+/// Every estimator's error against time (the headline `errors.png` shows four per scene).
+pub const ERRORS_ALL_PNG: &str = "errors_all.png";
+/// The report `--docs DIR` writes, under `DIR/eval/` beside its figures.
+pub const DOCS_REPORT: &str = "report.md";
 
 /// How the run was made, for the report header.
 pub struct RunMeta {
@@ -95,8 +95,6 @@ fn gpu_sentence(gpu: &Gpu, batch: u32) -> String {
             let mut s = format!(
                 "GPU: rows marked `(gpu)` are the WGSL path tracer \
                  (`pinrender::gpu_render::GpuRenderer`, backend `gpu` in the CSV) on `{describe}` \
-                 with every estimator it has (`rm@STEP`, `delta`, `ratio`, `urm`, `jackknife`, \
-                 `pins`, `pinms`) \
                  over the same media as the CPU rows (the same pin grid and lookup jitter, a GPU \
                  copy of the density, the CPU's majorant grids, every instance), measured the \
                  same way ({batch} spp per render call, each call a pass with its own seed, \
@@ -289,10 +287,7 @@ pub fn reads_bake(est: &str) -> Option<bool> {
     match est {
         "cosine-closed-form" | "box-closed-form" | "whole-volume" => None,
         "pinms+cache" => Some(true),
-        e => e
-            .parse::<pinrender::render::EstimatorSpec>()
-            .ok()
-            .map(|s| s.needs_pins()),
+        e => e.parse::<pinlab::Estimator>().ok().map(|s| s.needs_pins()),
     }
 }
 
@@ -471,6 +466,33 @@ pub fn body(results: &[SceneResult], meta: &RunMeta, link_prefix: &str) -> Strin
     s
 }
 
+/// One line per scene: what the bake buys at each budget (the best CPU estimator reading
+/// the bake against the best without, as RMSE ratios), the first thing summary.md says.
+pub fn what_the_bake_buys(results: &[SceneResult]) -> String {
+    let mut s = String::from(
+        "What the bake buys, per scene and budget: the lowest RMSE of an estimator that reads \
+         the pin file divided by the lowest of one that needs nothing baked, at equal time on \
+         the CPU (below 1: the bake wins; the two estimators in brackets).\n\n",
+    );
+    for r in results {
+        let cells: Vec<String> = bake_vs_no_bake(r)
+            .into_iter()
+            .filter_map(|(budget, bake, plain)| {
+                let ((bn, be), (pn, pe)) = (bake?, plain?);
+                (pe > 0.0).then(|| format!("{budget} s: {:.2} ({bn} / {pn})", be / pe))
+            })
+            .collect();
+        let line = if cells.is_empty() {
+            "no estimator reading the bake ran".to_string()
+        } else {
+            cells.join("; ")
+        };
+        let _ = writeln!(s, "- **{}**: {line}.", r.name);
+    }
+    s.push('\n');
+    s
+}
+
 /// The three sentences that open summary.md: what the reader is looking at.
 fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
     let names: Vec<&str> = results.iter().map(|r| r.name.as_str()).collect();
@@ -480,8 +502,9 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
          Every estimator renders the same image for fixed amounts of {} ({} s){}, and \
          lower error (RMSE against the reference) at equal time is better; `pins` and \
          `pinms` answer transmittance from a pin grid that was baked once beforehand, the \
-         others need nothing precomputed. `{ERRORS_PNG}` plots error against time for every \
-         scene, `{ERRORS_CSV}` holds every measurement, and the tables below say how much \
+         others need nothing precomputed. `{ERRORS_PNG}` plots error against time per scene \
+         for the best estimator without a bake, `pins`, `pinms` and `pinres`, \
+         `{ERRORS_ALL_PNG}` for every estimator, `{ERRORS_CSV}` holds every measurement, and the tables below say how much \
          sooner each estimator reaches the error of ray marching at step 0.015.{}\n\n",
         names.len(),
         if names.len() == 1 { "" } else { "s" },
@@ -500,7 +523,8 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
             super::Clock::Cpu => " (`--clock cpu`; the `(gpu)` rows count wall time)",
         },
         if meta.quick {
-            " This is the quick run (64 px images, sub-second budgets): its figures show the \
+            " This is the quick run (48 px images, sub-second budgets, references of 64 \
+             samples per pixel and up, only the estimators a user picks): its figures show the \
              shape of the curves, not final numbers; `pinrender eval` without `--quick` makes \
              the full report."
         } else {
@@ -510,23 +534,23 @@ fn opening(results: &[SceneResult], meta: &RunMeta) -> String {
 }
 
 /// summary.md in the output directory.
-pub fn markdown(results: &[SceneResult], meta: &RunMeta, discussion: &str) -> Result<String> {
+pub fn markdown(results: &[SceneResult], meta: &RunMeta) -> Result<String> {
     let mut s = String::from("# pinrender eval: error against run time\n\n");
+    s.push_str(&what_the_bake_buys(results));
     s.push_str(&opening(results, meta));
-    let _ = writeln!(s, "![error against time, every scene]({ERRORS_PNG})\n");
+    let _ = writeln!(
+        s,
+        "![error against time per scene: the best estimator without a bake, pins, pinms, pinres]({ERRORS_PNG})\n"
+    );
     s.push_str(&body(results, meta, ""));
-    if !discussion.is_empty() {
-        s.push_str(discussion);
-    }
     s.push_str(&format!(
         "Raw numbers: `{ERRORS_CSV}` (every budget), `bake.csv`; images: `<scene>/*.exr`.\n"
     ));
     Ok(s)
 }
 
-/// Rewrites the part of `docs/evaluation.md` above the marker line (kept with everything
-/// below it), preserving a hand-written discussion block, and copies the PNGs to
-/// `docs/eval/`.
+/// Writes the report for the docs, `docs/eval/report.md` (its own file: no hand-written
+/// page is rewritten), and copies the figures beside it.
 pub fn write_docs(docs: &Path, out: &Path, results: &[SceneResult], meta: &RunMeta) -> Result<()> {
     let eval_dir = docs.join("eval");
     std::fs::create_dir_all(&eval_dir)
@@ -537,39 +561,11 @@ pub fn write_docs(docs: &Path, out: &Path, results: &[SceneResult], meta: &RunMe
             format!("images_{}.png", r.name),
         ]
     });
-    for f in per_scene.chain([ERRORS_PNG.to_string()]) {
+    for f in per_scene.chain([ERRORS_PNG.to_string(), ERRORS_ALL_PNG.to_string()]) {
         std::fs::copy(out.join(&f), eval_dir.join(&f))
             .with_context(|| format!("copying {f} to {}", eval_dir.display()))?;
     }
-    let path = docs.join("evaluation.md");
-    let old = std::fs::read_to_string(&path).unwrap_or_default();
-    let tail = old
-        .find(DOC_MARKER)
-        .map(|i| old[i..].to_string())
-        .unwrap_or_else(|| {
-            // No marker: keep whatever the file had below a fresh marker.
-            format!("{DOC_MARKER}\n\n{old}")
-        });
-    let head = old.find(DOC_MARKER).map(|i| &old[..i]).unwrap_or("");
-    let discussion = match (head.find(DISCUSSION_BEGIN), head.find(DISCUSSION_END)) {
-        (Some(a), Some(b)) if a < b => head[a..b + DISCUSSION_END.len()].to_string(),
-        _ => format!(
-            "{DISCUSSION_BEGIN}\n\n_Discussion: to be written from the numbers above._\n\n{DISCUSSION_END}"
-        ),
-    };
-    let mut s = String::from("# Evaluation\n\n## Error against run time (`pinrender eval`)\n\n");
-    s.push_str(&opening(results, meta).replace(ERRORS_PNG, &format!("eval/{ERRORS_PNG}")));
-    let _ = writeln!(s, "![error against time, every scene](eval/{ERRORS_PNG})\n");
-    s.push_str(&body(results, meta, "eval/"));
-    s.push_str("### What the numbers show\n\n");
-    s.push_str(&discussion);
-    s.push_str(
-        "\n\nRaw numbers: `out/eval/errors.csv` and `out/eval/bake.csv` of the run above (not \
-         committed; rerun the command, references are cached).\n\n",
-    );
-    s.push_str(&tail);
-    if !s.ends_with('\n') {
-        s.push('\n');
-    }
-    std::fs::write(&path, s).with_context(|| format!("writing {}", path.display()))
+    let path = eval_dir.join(DOCS_REPORT);
+    let md = markdown(results, meta)?;
+    std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))
 }

@@ -24,11 +24,8 @@
 //! after [`MAX_ROOT_ITERS`] iterations (returning the bracket midpoint). With `ROOT_TOL =
 //! 1e-10` the sampled optical depth is exact far below f32 resolution of the returned `t`.
 
-use super::RenderError;
-use super::estimator::{TransportEstimator, prepare};
-use super::majorant::{check_box, clip_box};
-use super::rng::Pcg32;
 use glam::{DVec3, Vec3};
+use pinrender::render::{Pcg32, RenderError, TransportEstimator, check_box, clip_box, prepare};
 use std::sync::Arc;
 
 /// A medium whose optical depth along a segment has a closed form.
@@ -165,7 +162,7 @@ impl<A: AnalyticOpticalDepth + ?Sized> TransportEstimator for ClosedFormTracker<
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::render::{Aabb, DeltaTracking, DensitySource, MajorantGrid, RatioTracking};
+    use pinrender::render::{Aabb, DeltaTracking, DensitySource, MajorantGrid, RatioTracking};
     use std::time::Instant;
 
     /// `sin(x) / x`, stable at 0 (the series is exact to f64 below |x| = 1e-4).

@@ -53,18 +53,19 @@ enum Command {
     },
 }
 
-/// `pinrender estimators`: the catalogue of `pinrender::render::ESTIMATORS`.
+/// `pinrender estimators`: the catalogue of [`pinlab::estimators`] (the renderer's and the
+/// lab's).
 fn list_estimators(json: bool) -> anyhow::Result<()> {
-    use pinrender::render::ESTIMATORS;
+    let catalogue = pinlab::estimators();
     if json {
-        let rows: Vec<serde_json::Value> = ESTIMATORS
+        let rows: Vec<serde_json::Value> = catalogue
             .iter()
             .map(|e| {
                 serde_json::json!({
                     "name": e.name,
-                    "needs_bake": e.spec.needs_pins(),
-                    "unbiased": e.spec.is_unbiased(),
-                    "gpu": e.spec.runs_on_gpu(),
+                    "needs_bake": e.estimator.needs_pins(),
+                    "unbiased": e.estimator.is_unbiased(),
+                    "gpu": e.estimator.runs_on_gpu(),
                     "summary": e.summary,
                 })
             })
@@ -72,21 +73,21 @@ fn list_estimators(json: bool) -> anyhow::Result<()> {
         pin_cli::outln!("{}", serde_json::json!({ "estimators": rows }))?;
         return Ok(());
     }
-    for e in ESTIMATORS {
+    for e in catalogue {
         pin_cli::outln!(
             "{:<13} {:<10} {:<8} {:<8} {}",
             e.name,
-            if e.spec.needs_pins() {
+            if e.estimator.needs_pins() {
                 "bake"
             } else {
                 "no bake"
             },
-            if e.spec.is_unbiased() {
+            if e.estimator.is_unbiased() {
                 "unbiased"
             } else {
                 "biased"
             },
-            if e.spec.runs_on_gpu() {
+            if e.estimator.runs_on_gpu() {
                 "cpu+gpu"
             } else {
                 "cpu"

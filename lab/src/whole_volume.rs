@@ -1,7 +1,7 @@
 //! # Whole-volume single scattering in a homogeneous box (`whole-volume`)
 //!
 //! The collimated-light paper (docs/background.md, sections 4-6)
-//! for an axis-aligned homogeneous box lit by the [`Sun`](super::Sun):
+//! for an axis-aligned homogeneous box lit by the [`Sun`](pinrender::render::Sun):
 //!
 //! * **Analytic unoccluded single scattering** along a camera ray. For a point `o + t d` in
 //!   the box, the distance `L(t)` to the box exit toward the sun is the minimum over the axes
@@ -34,27 +34,15 @@
 //! occluders') plus one single-scattering sample: the sun term (next-event estimation) and
 //! the environment term (one phase-sampled direction, exact box transmittance), both at the
 //! same sampled point. With no occluders this equals the path tracer's `max_bounces = 1`
-//! image of a [`HomogeneousBox`](super::HomogeneousBox) of the same extinction.
+//! image of a [`HomogeneousBox`](pinrender::render::HomogeneousBox) of the same extinction.
 
-use super::phase::{hg_phase, sample_hg};
-use super::rng::Pcg32;
-use super::settings::{Budget, RenderSettings};
-use super::tracer::{RenderOutput, Scene, accumulate};
-use super::{RenderError, majorant::check_box, majorant::clip_box};
 use glam::{DVec3, Vec3};
+use pinrender::render::phase::{hg_phase, sample_hg};
+use pinrender::render::{
+    Budget, Pcg32, RenderError, RenderOutput, RenderSettings, Scene, accumulate, check_box,
+    clip_box, exprel,
+};
 use std::time::Instant;
-
-/// `expm1(x) / x`, with the limit 1 at 0. Accurate to a few ulp for all `x` where the
-/// result is finite (`expm1` carries the cancellation; the division is exact to 1 ulp).
-#[inline]
-pub fn exprel(x: f64) -> f64 {
-    if x.abs() < 1e-8 {
-        // Second-order series: the next term, x^2/6, is below 1e-16 here.
-        1.0 + 0.5 * x
-    } else {
-        x.exp_m1() / x
-    }
-}
 
 /// A homogeneous axis-aligned box (the only scattering medium of this module).
 #[derive(Clone, Debug)]
@@ -414,7 +402,7 @@ pub fn single_scattering_sample(
 
 /// Renders the single scattering of the homogeneous box `medium` (see the module docs) with
 /// the chosen distance sampling. Same sample loop, seeds, determinism and budget semantics
-/// as [`render`](super::render); `settings.max_bounces` and `settings.cache` are ignored
+/// as [`render`](pinrender::render::render); `settings.max_bounces` is ignored
 /// (this is single scattering by construction).
 pub fn render_single_scattering(
     scene: &Scene,
@@ -438,9 +426,9 @@ pub fn render_single_scattering(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
-    use crate::render::{
-        Camera, DeltaTracking, HomogeneousBox, MajorantGrid, Medium, RatioTracking, Sun, rmse,
+    use crate::closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
+    use pinrender::render::{
+        Aabb, Camera, DeltaTracking, HomogeneousBox, MajorantGrid, Medium, RatioTracking, Sun, rmse,
     };
     use std::sync::Arc;
 
@@ -656,7 +644,6 @@ mod tests {
             seed,
             budget: Budget::Spp(spp),
             threads: None,
-            cache: None,
         }
     }
 
@@ -667,11 +654,7 @@ mod tests {
     fn matches_the_path_tracer_single_scattering() {
         let b = unit();
         let hb = Arc::new(
-            HomogeneousBox::new(
-                crate::render::Aabb::from_arrays(b.min, b.max),
-                b.sigma_t as f32,
-            )
-            .unwrap(),
+            HomogeneousBox::new(Aabb::from_arrays(b.min, b.max), b.sigma_t as f32).unwrap(),
         );
         let maj = Arc::new(MajorantGrid::from_field(&*hb, [1, 1, 1]).unwrap());
         let tracked = Medium::new(

@@ -7,14 +7,13 @@ use anyhow::{Context, Result, anyhow, bail};
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::CosineParams;
 use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, ProceduralSpec};
-use pinrender::render::CacheSettings;
-use pinrender::render::whole_volume::WholeVolumeBox;
+use pinlab::whole_volume::WholeVolumeBox;
+use pinlab::{AnalyticOpticalDepth, CacheSettings, ClosedFormTracker, Estimator};
 use pinrender::render::{
-    AnalyticOpticalDepth, Camera, ClosedFormTracker, EstimatorSpec, MajorantGrid, Medium, Scene,
-    Sun, TransportEstimator, splitmix64,
+    Camera, EstimatorSpec, MajorantGrid, Medium, Scene, Sun, TransportEstimator, splitmix64,
 };
 
-use pinrender::gpu_render::{GpuDensity, GpuMedia};
+use pinrender::gpu_render::{GpuDensity, GpuEstimator, GpuMedia};
 use pinrender::medium::MediumDesc;
 use pinrt::SamplerOptions;
 
@@ -44,13 +43,13 @@ impl Sizes {
             cache_training_spp: 2,
         }
     }
-    /// Small enough for about two minutes on 2 cores, large enough to read: 64 px images,
-    /// references converged well below the errors measured at the quick budgets.
+    /// Small enough for well under a minute on 2 cores, large enough to read: 48 px images,
+    /// references whose own noise the report states beside every error.
     pub fn quick() -> Self {
         Sizes {
-            image: 64,
+            image: 48,
             pin_cells: 12,
-            ref_spp: 256,
+            ref_spp: 64,
             max_bounces: 4,
             cache_training_spp: 1,
         }
@@ -96,6 +95,8 @@ pub struct EvalScene {
     /// Each medium instance, described once for the CPU estimators and the GPU packing;
     /// their pins are placed after the bake.
     pub instances: Vec<MediumDesc>,
+    /// The closed form of the one medium's optical depth (exact references), if it has one.
+    pub closed_form: Option<Arc<dyn AnalyticOpticalDepth>>,
     /// The field the pins are baked from (the base volume for instanced scenes).
     pub bake_source: Arc<dyn DensitySource>,
     pub bake_cells: u32,
@@ -237,7 +238,6 @@ fn cache_for(lo: DVec3, hi: DVec3, sizes: &Sizes) -> CacheSettings {
 fn single_instance(
     field: Arc<dyn DensitySource>,
     bricks: u32,
-    analytic: Option<Arc<dyn AnalyticOpticalDepth>>,
     gpu_density: Option<Arc<GpuDensity>>,
 ) -> Result<MediumDesc> {
     let majorants =
@@ -246,7 +246,6 @@ fn single_instance(
         field: Some(field),
         majorants: Some(majorants),
         majorant_bricks: bricks,
-        analytic,
         pins: None,
         gpu_density,
         translation: [0.0; 3],
@@ -272,7 +271,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
-    let inst = single_instance(field, 16, None, Some(gpu_density))?;
+    let inst = single_instance(field, 16, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.4, 0.15, 1.0), 40.0, 0.95);
     let (sun, env) = lights((hi - lo).length());
@@ -290,6 +289,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
+        closed_form: None,
         bake_source: src,
         bake_cells,
         choose_bake: false,
@@ -323,7 +323,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
-    let inst = single_instance(field, 16, None, Some(gpu_density))?;
+    let inst = single_instance(field, 16, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.35, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
@@ -339,6 +339,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
+        closed_form: None,
         bake_source: src,
         bake_cells,
         choose_bake: false,
@@ -375,7 +376,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
-    let inst = single_instance(field, 16, Some(analytic), Some(gpu_density))?;
+    let inst = single_instance(field, 16, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.6, 0.45, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
@@ -390,6 +391,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
+        closed_form: Some(analytic),
         bake_source: src,
         bake_cells,
         choose_bake: false,
@@ -426,7 +428,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
     // The renderer tracks the baker's box itself.
     let field = src.clone();
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(BoxAnalytic(pb));
-    let inst = single_instance(field, 1, Some(analytic), Some(gpu_density))?;
+    let inst = single_instance(field, 1, Some(gpu_density))?;
     // The box scenes are cheap: a larger image.
     let size = sizes.image + sizes.image / 2;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.55, 0.5, 1.0), 40.0, 0.8);
@@ -476,6 +478,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: bounces,
         instances: vec![inst],
+        closed_form: Some(analytic),
         bake_source: src,
         bake_cells,
         choose_bake: false,
@@ -602,7 +605,6 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
                     field: Some(field),
                     majorants: Some(majorants),
                     majorant_bricks: 4,
-                    analytic: None,
                     pins: None,
                     gpu_density: Some(gpu_density.clone()),
                     translation: off.to_array(),
@@ -635,6 +637,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: sizes.max_bounces,
         instances: insts,
+        closed_form: None,
         bake_source: base,
         bake_cells,
         choose_bake: false,
@@ -664,7 +667,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
     // Finer bricks than the other scenes: the cloud has large empty regions between lobes.
-    let inst = single_instance(field, 32, None, Some(gpu_density))?;
+    let inst = single_instance(field, 32, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
     let (sun, env) = lights(1.0);
@@ -687,6 +690,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
+        closed_form: None,
         bake_source: src,
         bake_cells: 0,
         choose_bake: true,
@@ -722,7 +726,7 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
     };
     let (lo, hi) = bounds_of(&*src);
     let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
-    let inst = single_instance(field, 32, None, gpu_density)?;
+    let inst = single_instance(field, 32, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
     let (sun, env) = lights((hi - lo).length());
@@ -757,6 +761,7 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
         scene: base_scene(camera, sun, env),
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
+        closed_form: None,
         bake_source: src,
         bake_cells: 0,
         choose_bake: true,
@@ -769,25 +774,32 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
     })
 }
 
-/// One instance's estimator by name: the closed forms here, every other through the
-/// renderer's one parser and the instance's description.
-pub fn estimator(inst: &MediumDesc, name: &str) -> Result<Arc<dyn TransportEstimator>> {
+/// One instance's estimator by name: the closed forms (over the scene's `closed_form`) here,
+/// every other through the one parser and the instance's description.
+pub fn estimator(
+    inst: &MediumDesc,
+    closed_form: Option<&Arc<dyn AnalyticOpticalDepth>>,
+    name: &str,
+) -> Result<Arc<dyn TransportEstimator>> {
     Ok(match name {
         "pins" => inst
             .pins_estimator(super::LOOKUP)
             .map_err(|_| anyhow!("pins are not baked for this scene"))?,
         "cosine-closed-form" | "box-closed-form" => {
-            let a = inst
-                .analytic
-                .clone()
+            let a = closed_form
+                .cloned()
                 .ok_or_else(|| anyhow!("{name}: this scene has no closed form"))?;
             Arc::new(ClosedFormTracker::new(a).map_err(|e| anyhow!("{e}"))?)
         }
         other => {
-            let spec: EstimatorSpec = other.parse().map_err(|e: String| anyhow!("{e}"))?;
-            spec.build_density_estimator(&|| inst.field(), &|| inst.majorants())
-                .map_err(|e| anyhow!("{e}"))?
-                .ok_or_else(|| anyhow!("estimator {other}: not over a density"))?
+            let e: Estimator = other.parse().map_err(|e: String| anyhow!("{e}"))?;
+            let medium = e
+                .cpu_medium(inst, super::LOOKUP)
+                .map_err(|e| anyhow!("{e}"))?;
+            if e.needs_pins() {
+                bail!("estimator {other}: not over a density");
+            }
+            medium.primary
         }
     })
 }
@@ -799,15 +811,17 @@ pub fn media(es: &EvalScene, name: &str) -> Result<Vec<Medium>> {
         .iter()
         .map(|inst| {
             Ok(match name {
-                "pinms" | "pinms+cache" => {
-                    Medium::new(estimator(inst, "ratio")?, estimator(inst, "pins")?)
-                }
-                other => match other.parse::<EstimatorSpec>() {
+                "pinms" | "pinms+cache" => Medium::new(
+                    estimator(inst, None, "ratio")?,
+                    estimator(inst, None, "pins")?,
+                ),
+                other => match other.parse::<Estimator>() {
                     // Estimators that read the density and the pins together.
-                    Ok(spec @ (EstimatorSpec::PinUrm { .. } | EstimatorSpec::PinRes)) => inst
-                        .cpu_medium(spec, super::LOOKUP)
-                        .map_err(|e| anyhow!("{other}: {e}"))?,
-                    _ => Medium::single(estimator(inst, other)?),
+                    Ok(e @ (Estimator::PinUrm { .. } | Estimator::Core(EstimatorSpec::PinRes))) => {
+                        e.cpu_medium(inst, super::LOOKUP)
+                            .map_err(|e| anyhow!("{other}: {e}"))?
+                    }
+                    _ => Medium::single(estimator(inst, es.closed_form.as_ref(), other)?),
                 },
             })
         })
@@ -830,7 +844,7 @@ pub fn translated(local_to_world: &[f64; 12], offset: [f64; 3]) -> [f64; 12] {
 /// `lookup` is the pins' lookup jitter.
 pub fn gpu_media<'a>(
     es: &'a EvalScene,
-    ests: &[EstimatorSpec],
+    ests: &[GpuEstimator],
     lookup: SamplerOptions,
 ) -> Result<GpuMedia<'a>> {
     pinrender::medium::gpu_media_for(&es.instances, ests, lookup).map_err(|e| anyhow!("{e}"))

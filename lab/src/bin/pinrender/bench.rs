@@ -33,10 +33,10 @@ use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
 use pinbake::source::{Aabb, DenseGrid, ProceduralSpec};
+use pinlab::{CombKind, PINURM_DEFAULT_PIN_QUERIES, PinControlledUrm};
 use pinrender::render::{
-    BakedResidualTracking, CombKind, DeltaTracking, DensitySource, MajorantGrid,
-    PINURM_DEFAULT_PIN_QUERIES, Pcg32, PinControlledUrm, PinsEstimator, RatioTracking,
-    ResidualControl, ResidualRatioTracking, TransportEstimator,
+    BakedResidualTracking, DeltaTracking, DensitySource, MajorantGrid, Pcg32, PinsEstimator,
+    RatioTracking, ResidualControl, ResidualRatioTracking, TransportEstimator,
 };
 use pinrt::march::{self, MarchBox};
 use pinrt::{PinGrid, RayQuery, Rng, SamplerOptions};

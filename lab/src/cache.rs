@@ -40,16 +40,84 @@
 //! *accumulated path variance* would exceed a budget and blend with `alpha`: here a path
 //! terminates when the *cell* is converged enough, the criterion this project asked for.
 
-use super::RenderError;
-use super::rng::{Pcg32, splitmix64};
-use super::settings::{CacheSettings, MAX_CAPACITY_LOG2, RenderSettings};
-use super::tracer::{
-    Ctx, NoHook, PathVertex, RenderOutput, Scene, VertexHook, Which, accumulate, check_settings,
-    in_pool,
-};
 use glam::Vec3;
+use pinrender::render::{
+    Ctx, NoHook, PathVertex, Pcg32, RenderError, RenderOutput, RenderSettings, Scene, VertexHook,
+    Which, accumulate, check_settings, in_pool, splitmix64,
+};
 use rayon::prelude::*;
 use std::time::Instant;
+
+/// Largest `capacity_log2` accepted (2^26 cells of 48 bytes: 3 GiB).
+pub const MAX_CAPACITY_LOG2: u32 = 26;
+
+/// Options of the radiance cache ([`render_cached`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CacheSettings {
+    /// The table holds `2^capacity_log2` cells (1 ..= [`MAX_CAPACITY_LOG2`]).
+    pub capacity_log2: u32,
+    /// Cell edge at level 0, world units (> 0).
+    pub cell_size: f32,
+    /// Multiplies the footprint `path length x pixel angle` before the level of detail is
+    /// taken; 0 disables the level of detail (every cell at level 0).
+    pub footprint_scale: f32,
+    /// Key cells also by the cube face of the propagation direction (6 bins).
+    pub direction_bins: bool,
+    /// Uncached training paths per pixel (>= 1).
+    pub training_spp: u32,
+    /// Minimum cell sample count before a path may terminate into it (>= 1).
+    pub min_samples: u32,
+    /// Largest standard error of the cell mean, relative to the mean, for termination.
+    pub max_rel_std_err: f32,
+    /// Jitter the lookup position within one cell (reduces blocky bias, adds some noise).
+    pub jitter: bool,
+}
+
+impl Default for CacheSettings {
+    fn default() -> Self {
+        CacheSettings {
+            capacity_log2: 18,
+            cell_size: 0.05,
+            footprint_scale: 4.0,
+            direction_bins: false,
+            training_spp: 4,
+            min_samples: 16,
+            max_rel_std_err: 0.05,
+            jitter: true,
+        }
+    }
+}
+
+impl CacheSettings {
+    /// Rejects values the cache cannot work with.
+    pub fn validate(&self) -> Result<(), RenderError> {
+        let bad = |why: String| {
+            Err(RenderError::Invalid {
+                what: "cache settings",
+                why,
+            })
+        };
+        if !(1..=MAX_CAPACITY_LOG2).contains(&self.capacity_log2) {
+            return bad(format!(
+                "capacity_log2 {} not in 1..=26",
+                self.capacity_log2
+            ));
+        }
+        if !(self.cell_size > 0.0 && self.cell_size.is_finite()) {
+            return bad(format!("cell size {}", self.cell_size));
+        }
+        if !(self.footprint_scale >= 0.0 && self.footprint_scale.is_finite()) {
+            return bad(format!("footprint scale {}", self.footprint_scale));
+        }
+        if self.training_spp == 0 || self.min_samples == 0 {
+            return bad("training_spp and min_samples must be >= 1".into());
+        }
+        if !(self.max_rel_std_err >= 0.0) {
+            return bad(format!("max_rel_std_err {}", self.max_rel_std_err));
+        }
+        Ok(())
+    }
+}
 
 /// Longest linear-probing run, in slots.
 pub const MAX_PROBES: usize = 16;
@@ -480,10 +548,10 @@ pub fn train_cache(
     Ok(cache)
 }
 
-/// [`render`](super::render) with `settings.cache = Some(cs)`: training pass, then the
+/// `pinrender::render::render` with the radiance cache `cs`: training pass, then the
 /// rendering pass with termination into the cache. The training time is part of
 /// `RenderOutput::seconds` and of a `Budget::Seconds` budget.
-pub(crate) fn render_cached(
+pub fn render_cached(
     scene: &Scene,
     settings: &RenderSettings,
     cs: &CacheSettings,
@@ -514,19 +582,17 @@ pub fn render_with_cache(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{
-        Budget, Camera, DeltaTracking, HomogeneousBox, MajorantGrid, Medium, RatioTracking, Sun,
-        render, rmse,
+    use pinrender::render::{
+        Aabb, Budget, Camera, DeltaTracking, HomogeneousBox, Image, MajorantGrid, Medium,
+        RatioTracking, Sun, rmse,
     };
     use std::sync::Arc;
 
     /// A homogeneous box `[-0.5, 0.6]^3` (centre 0.05: the level-0 cell `[0, 0.1)^3` of a
     /// 0.1 grid is centred on it), multiple scattering, sun and sky.
     fn box_scene(size: u32) -> Scene {
-        let hb = Arc::new(
-            HomogeneousBox::new(crate::render::Aabb::from_arrays([-0.5; 3], [0.6; 3]), 6.0)
-                .unwrap(),
-        );
+        let hb =
+            Arc::new(HomogeneousBox::new(Aabb::from_arrays([-0.5; 3], [0.6; 3]), 6.0).unwrap());
         let maj = Arc::new(MajorantGrid::from_field(&*hb, [1, 1, 1]).unwrap());
         Scene {
             camera: Camera {
@@ -550,13 +616,29 @@ mod tests {
         }
     }
 
-    fn settings(spp: u32, threads: Option<usize>, cache: Option<CacheSettings>) -> RenderSettings {
-        RenderSettings {
+    /// The settings of the tests' renders, with the cache to render with.
+    fn settings(
+        spp: u32,
+        threads: Option<usize>,
+        cache: Option<CacheSettings>,
+    ) -> (RenderSettings, Option<CacheSettings>) {
+        let st = RenderSettings {
             max_bounces: 64,
             seed: 5,
             budget: Budget::Spp(spp),
             threads,
-            cache,
+        };
+        (st, cache)
+    }
+
+    /// `render_cached` with a cache, the plain renderer without.
+    fn render(
+        scene: &Scene,
+        (st, cache): &(RenderSettings, Option<CacheSettings>),
+    ) -> Result<RenderOutput, RenderError> {
+        match cache {
+            Some(cs) => render_cached(scene, st, cs),
+            None => pinrender::render::render(scene, st),
         }
     }
 
@@ -650,7 +732,7 @@ mod tests {
             training_spp: 160,
             ..CacheSettings::default()
         };
-        let st = settings(1, None, Some(cs.clone()));
+        let (st, _) = settings(1, None, Some(cs.clone()));
         let cache = train_cache(&scene, &st, &cs).unwrap();
         let key = CellKey {
             coords: [0; 3],
@@ -702,15 +784,14 @@ mod tests {
         // The cache changes the image (paths do terminate into it) but not grossly.
         let plain = render(&scene, &settings(4, Some(1), None)).unwrap();
         assert_ne!(plain.image, a.image);
-        let mean = |im: &crate::render::Image| {
-            im.rgb.iter().map(|p| p[0] as f64).sum::<f64>() / im.rgb.len() as f64
-        };
+        let mean =
+            |im: &Image| im.rgb.iter().map(|p| p[0] as f64).sum::<f64>() / im.rgb.len() as f64;
         let (pm, cm) = (mean(&plain.image), mean(&a.image));
         assert!((pm - cm).abs() < 0.1 * pm, "plain {pm} cached {cm}");
     }
 
     /// Cached vs uncached at equal time against a high-spp reference. Prints; run with
-    /// `cargo test -p pinrender --no-default-features
+    /// `cargo test -p pinlab
     /// cache_equal_time -- --ignored --nocapture`.
     #[test]
     #[ignore]
@@ -723,7 +804,7 @@ mod tests {
         );
         for secs in [0.25, 1.0] {
             let mut st = settings(1, None, None);
-            st.budget = Budget::Seconds(secs);
+            st.0.budget = Budget::Seconds(secs);
             let plain = render(&scene, &st).unwrap();
             let e0 = rmse(&plain.image, &reference.image).unwrap();
             eprintln!(
@@ -742,7 +823,7 @@ mod tests {
                     cell_size: cell,
                     ..CacheSettings::default()
                 };
-                st.cache = Some(cs);
+                st.1 = Some(cs);
                 let cached = render(&scene, &st).unwrap();
                 let e1 = rmse(&cached.image, &reference.image).unwrap();
                 eprintln!(
@@ -752,7 +833,7 @@ mod tests {
                     e1 / e0
                 );
             }
-            st.cache = None;
+            st.1 = None;
         }
     }
 }

@@ -5,7 +5,7 @@
 
 use super::*;
 
-#[path = "../../../pinbake/tests/openvdb/mod.rs"]
+#[path = "../../../../pinbake/tests/openvdb/mod.rs"]
 mod openvdb;
 
 /// Runs pinrender (under `timeout`) and returns its exit code, stderr and peak RSS in KiB

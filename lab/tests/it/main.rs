@@ -1,0 +1,8 @@
+//! The `pinrender` binary's tests, one test binary (one link of the tree) with a module per
+//! concern.
+
+mod eval_cli;
+mod gpu_density;
+mod hostile;
+mod pin_alone;
+mod shaders;
