@@ -8,6 +8,7 @@
 
 #[cfg(feature = "gpu")]
 pub mod gpu_render;
+pub mod instance;
 pub mod medium;
 pub mod render;
 #[cfg(feature = "cli")]
