@@ -78,7 +78,7 @@ impl MediaBoxes {
         let mut m = MediaBoxes::default();
         for b in boxes {
             let (lo, hi) = padded(b).unwrap_or(([f32::NEG_INFINITY; 3], [f32::INFINITY; 3]));
-            if m.lo[0].len() % CHUNK == 0 {
+            if m.lo[0].len().is_multiple_of(CHUNK) {
                 m.chunk_lo.push(lo);
                 m.chunk_hi.push(hi);
             }
@@ -110,7 +110,7 @@ impl MediaBoxes {
         out: &mut [f32; CHUNK],
     ) -> usize {
         let n = self.len().saturating_sub(start).min(CHUNK);
-        if start % CHUNK == 0
+        if start.is_multiple_of(CHUNK)
             && let Some(c) = self.chunk_lo.get(start / CHUNK)
             && slab_entry(*c, self.chunk_hi[start / CHUNK], ray, t_max) == MISS
         {
@@ -299,9 +299,9 @@ mod tests {
                 let mut out = [0.0; CHUNK];
                 for start in (0..m.len()).step_by(CHUNK) {
                     let n = m.entries(start, &ray, t_max, &mut out);
-                    for i in 0..n {
+                    for (i, got) in out[..n].iter().enumerate() {
                         assert_eq!(
-                            out[i].to_bits(),
+                            got.to_bits(),
                             m.entry_of(start + i, &ray, t_max).to_bits(),
                             "box {}",
                             start + i
