@@ -92,6 +92,9 @@ pub struct PlacedEstimator {
     inner: Arc<dyn TransportEstimator>,
     /// World to the asset's frame, rows `(A_i0, A_i1, A_i2, b_i)`, in f32 as rays are.
     to_local: [[f32; 4]; 3],
+    /// The linear part is the identity: directions and lengths are kept as they are, and a
+    /// translated instance answers with the asset's own bits along the shifted ray.
+    translation_only: bool,
     bounds: Option<([f64; 3], [f64; 3])>,
 }
 
@@ -116,6 +119,7 @@ impl PlacedEstimator {
             }
         }
         Ok(PlacedEstimator {
+            translation_only: is_translation(local_to_world),
             bounds: inner.bounds().map(|b| world_box(local_to_world, b)),
             inner,
             to_local,
@@ -126,6 +130,9 @@ impl PlacedEstimator {
     /// local lengths; `None` when the mapped direction is degenerate in f32.
     fn local(&self, o: Vec3, d: Vec3) -> Option<(Vec3, Vec3, f32)> {
         let r = &self.to_local;
+        if self.translation_only {
+            return Some((o + Vec3::new(r[0][3], r[1][3], r[2][3]), d, 1.0));
+        }
         let row = |i: usize| Vec3::new(r[i][0], r[i][1], r[i][2]);
         let o_l = Vec3::new(
             row(0).dot(o) + r[0][3],
@@ -219,6 +226,9 @@ pub fn place_medium(
     local_to_world: &[f64; 12],
     lookup: SamplerOptions,
 ) -> Result<Medium, RenderError> {
+    if *local_to_world == pin_format::IDENTITY_LOCAL_TO_WORLD {
+        return Ok(Medium::new(asset.primary.clone(), asset.secondary.clone()));
+    }
     let primary = place_estimator(&asset.primary, local_to_world, lookup)?;
     let secondary = if Arc::ptr_eq(&asset.primary, &asset.secondary) {
         primary.clone()

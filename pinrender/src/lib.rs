@@ -12,4 +12,6 @@ pub mod instance;
 pub mod medium;
 pub mod render;
 #[cfg(feature = "cli")]
+pub mod scene_media;
+#[cfg(feature = "cli")]
 pub mod volume;
