@@ -12,7 +12,10 @@
 
 #[cfg(feature = "gpu")]
 pub mod gpu_render;
+pub mod instance;
 pub mod medium;
 pub mod render;
+#[cfg(feature = "cli")]
+pub mod scene_media;
 #[cfg(feature = "cli")]
 pub mod volume;

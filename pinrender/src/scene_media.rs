@@ -1,0 +1,362 @@
+//! A scene file's media: each asset opened once (its volume read, its pins loaded or baked
+//! in memory, its estimators built in its own frame), then placed once per instance
+//! ([`crate::instance`]), in an order that keeps neighbours together so that the tracer's
+//! chunked box test skips whole chunks of instances a ray does not meet.
+//!
+//! Messages name the scene file and the JSON path of what failed (`assets.cloud.volume`),
+//! then the problem.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Result, anyhow, bail};
+use pin_scene::{Asset, Scene};
+use pinrt::SamplerOptions;
+
+use crate::instance::{place_medium, world_box};
+use crate::medium::{MediumDesc, PlacedPins};
+use crate::render::{EstimatorSpec, Medium};
+use crate::volume::{self, TrackedSource, VolumeArgs};
+
+/// What a render asks of its assets.
+#[derive(Clone, Copy, Debug)]
+pub struct AssetOptions {
+    pub estimator: EstimatorSpec,
+    /// Cells of an in-memory bake (an asset with a volume and no pins, for the pin
+    /// estimators); `None`: chosen as `pinbake bake` chooses them.
+    pub pin_cells: Option<u32>,
+    pub seed: u64,
+    pub majorant_bricks: u32,
+    pub max_memory: Option<u64>,
+    pub allow_mismatched_pins: bool,
+    pub lookup: SamplerOptions,
+}
+
+/// A world box `(min, max)`.
+pub type WorldBox = ([f64; 3], [f64; 3]);
+
+/// One asset, opened: its medium in its own frame and that frame's box.
+pub struct OpenedAsset {
+    pub desc: MediumDesc,
+    pub bounds: ([f64; 3], [f64; 3]),
+}
+
+/// Bytes a placed instance holds at most on the CPU (its estimators, their boxes, a pin
+/// sampler), counted against the memory budget before any is built.
+pub const BYTES_PER_INSTANCE: u64 = 1024;
+
+/// The scene's CPU media, one per instance, and the world box of them all.
+pub struct SceneMedia {
+    pub media: Vec<Medium>,
+    /// `order[k]`: the instance (its index in the file) that `media[k]` places.
+    pub order: Vec<usize>,
+    pub bounds: ([f64; 3], [f64; 3]),
+}
+
+fn named(scene: &Scene, at: &str, e: impl std::fmt::Display) -> anyhow::Error {
+    anyhow!("{}: {at}: {e}", pin_format::input::quoted(&scene.file))
+}
+
+/// Opens every asset that an instance uses (each once; unused assets are not read).
+pub fn open_assets(scene: &Scene, o: &AssetOptions) -> Result<Vec<Option<OpenedAsset>>> {
+    let budget = pinbake::files::MemoryBudget::new(o.max_memory);
+    budget.check(
+        &format!("{} instances", scene.instances.len()),
+        (scene.instances.len() as u64).saturating_mul(BYTES_PER_INSTANCE),
+    )?;
+    let uses = scene.uses();
+    scene
+        .assets
+        .iter()
+        .zip(uses)
+        .map(|(a, n)| (n > 0).then(|| open_asset(scene, a, o)).transpose())
+        .collect()
+}
+
+fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset> {
+    let spec = o.estimator;
+    match (&a.volume, &a.pins) {
+        (Some(v), pins) => {
+            let at = a.json_path("volume");
+            let args = VolumeArgs {
+                volume: None,
+                read: pinbake::cli_args::SourceArgs {
+                    grid: a.grid.clone(),
+                    density_scale: a.density_scale.unwrap_or(1.0),
+                    ..Default::default()
+                },
+            };
+            let opened = volume::open_volume_typed(v, &args)
+                .map_err(|e| named(scene, &at, format!("{e:#}")))?;
+            let source = opened.source();
+            let b = source.bounds();
+            let grid = if spec.needs_pins() {
+                let budget = pinbake::files::MemoryBudget::new(o.max_memory);
+                let grid = volume::pins_for(
+                    pins.as_deref(),
+                    source.as_ref(),
+                    o.pin_cells,
+                    o.seed,
+                    spec.needs_control(),
+                    &budget,
+                )
+                .map_err(|e| named(scene, &a.json_path("pins"), format!("{e:#}")))?;
+                if let Some(p) = pins {
+                    volume::check_pins_match(
+                        p,
+                        &grid,
+                        v,
+                        source.as_ref(),
+                        args.read.density_scale,
+                        o.allow_mismatched_pins,
+                    )
+                    .map_err(|e| named(scene, &a.json_path("pins"), format!("{e:#}")))?;
+                }
+                Some(Arc::new(grid))
+            } else {
+                None
+            };
+            let field = Arc::new(TrackedSource::with_budget(
+                source,
+                pinbake::files::MemoryBudget::new(o.max_memory).limit,
+            ));
+            Ok(OpenedAsset {
+                desc: MediumDesc {
+                    field: Some(field),
+                    majorant_bricks: o.majorant_bricks,
+                    pins: grid.map(|grid| PlacedPins {
+                        grid,
+                        local_to_world: None,
+                    }),
+                    ..MediumDesc::default()
+                },
+                bounds: (b.min.to_array(), b.max.to_array()),
+            })
+        }
+        (None, Some(p)) => {
+            let at = a.json_path("pins");
+            let grid =
+                Arc::new(volume::load_pins(p).map_err(|e| named(scene, &at, format!("{e:#}")))?);
+            let m = volume::pin_file_medium(p, &grid)
+                .map_err(|e| named(scene, &at, format!("{e:#}")))?;
+            let bounds = grid
+                .sampler()
+                .map_err(|e| named(scene, &at, e))?
+                .world_bounds()
+                .unwrap_or(m.bounds);
+            let field = m.field();
+            if spec.needs_density() && field.is_none() {
+                return Err(named(
+                    scene,
+                    &at,
+                    format!(
+                        "{}: no embedded density, which the {spec} estimator needs (give the \
+                         asset a volume, or bake with `pinbake bake --embed-density`)",
+                        p.display()
+                    ),
+                ));
+            }
+            Ok(OpenedAsset {
+                desc: MediumDesc {
+                    field,
+                    majorants: m.majorants,
+                    majorant_bricks: o.majorant_bricks,
+                    pins: Some(PlacedPins {
+                        grid,
+                        local_to_world: None,
+                    }),
+                    ..MediumDesc::default()
+                },
+                bounds,
+            })
+        }
+        (None, None) => Err(named(
+            scene,
+            &format!("assets.{}", a.name),
+            "needs a volume, pins, or both",
+        )),
+    }
+}
+
+/// Interleaves the low 21 bits of `v` with two zero bits between each.
+fn spread(v: u64) -> u64 {
+    let mut x = v & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f_0000_0000_ffff;
+    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+    (x | x << 2) & 0x1249_2492_4924_9249
+}
+
+/// The instances in Morton order of their world boxes' centres (ties in file order), so
+/// that neighbours share the tracer's chunks of boxes.
+fn morton_order(boxes: &[([f64; 3], [f64; 3])]) -> Vec<usize> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let centres: Vec<[f64; 3]> = boxes
+        .iter()
+        .map(|(a, b)| [0, 1, 2].map(|k| 0.5 * (a[k] + b[k])))
+        .collect();
+    for c in &centres {
+        for k in 0..3 {
+            lo[k] = lo[k].min(c[k]);
+            hi[k] = hi[k].max(c[k]);
+        }
+    }
+    let cell = |c: &[f64; 3], k: usize| {
+        let span = hi[k] - lo[k];
+        if span > 0.0 {
+            (((c[k] - lo[k]) / span) * f64::from((1u32 << 21) - 1)) as u64
+        } else {
+            0
+        }
+    };
+    let mut keyed: Vec<(u64, usize)> = centres
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            (
+                spread(cell(c, 0)) | spread(cell(c, 1)) << 1 | spread(cell(c, 2)) << 2,
+                i,
+            )
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
+/// The CPU media of `scene`: each used asset's medium built once for `o.estimator`, placed
+/// per instance.
+pub fn cpu_media(
+    scene: &Scene,
+    assets: &[Option<OpenedAsset>],
+    o: &AssetOptions,
+) -> Result<SceneMedia> {
+    let mut built: Vec<Option<Medium>> = Vec::with_capacity(assets.len());
+    for (a, opened) in scene.assets.iter().zip(assets) {
+        built.push(match opened {
+            Some(x) => Some(
+                x.desc
+                    .cpu_medium(o.estimator, o.lookup)
+                    .map_err(|e| named(scene, &format!("assets.{}", a.name), e))?,
+            ),
+            None => None,
+        });
+    }
+    let boxes: Vec<_> = scene
+        .instances
+        .iter()
+        .map(|inst| {
+            let a = assets[inst.asset as usize]
+                .as_ref()
+                .expect("every used asset is opened");
+            world_box(&inst.local_to_world, a.bounds)
+        })
+        .collect();
+    let order = morton_order(&boxes);
+    let mut media = Vec::with_capacity(order.len());
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &i in &order {
+        let inst = &scene.instances[i];
+        let asset = built[inst.asset as usize]
+            .as_ref()
+            .expect("every used asset is built");
+        let placed = place_medium(asset, &inst.local_to_world, o.lookup)
+            .map_err(|e| named(scene, &format!("{}.transform", Scene::instance_path(i)), e))?;
+        media.push(placed);
+        for k in 0..3 {
+            lo[k] = lo[k].min(boxes[i].0[k]);
+            hi[k] = hi[k].max(boxes[i].1[k]);
+        }
+    }
+    Ok(SceneMedia {
+        media,
+        order,
+        bounds: (lo, hi),
+    })
+}
+
+/// The scene's instances as GPU medium descriptions: pin grids placed by the composed
+/// transform (any transform); an estimator that reads the density is refused, since the
+/// GPU path tracer places a density by a translation of its own copy and a scene's assets
+/// are shared between instances of any transform.
+pub fn gpu_descs(
+    scene: &Scene,
+    assets: &[Option<OpenedAsset>],
+    o: &AssetOptions,
+) -> Result<(Vec<MediumDesc>, WorldBox)> {
+    if o.estimator.needs_density() {
+        bail!(
+            "{}: the GPU path renders a scene with the pins estimator; {} reads the density \
+             (render it with --backend cpu)",
+            pin_format::input::quoted(&scene.file),
+            o.estimator
+        );
+    }
+    let mut descs = Vec::with_capacity(scene.instances.len());
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut boxes = Vec::with_capacity(scene.instances.len());
+    for inst in &scene.instances {
+        let a = assets[inst.asset as usize]
+            .as_ref()
+            .expect("every used asset is opened");
+        boxes.push(world_box(&inst.local_to_world, a.bounds));
+    }
+    for i in morton_order(&boxes) {
+        let inst = &scene.instances[i];
+        let a = assets[inst.asset as usize]
+            .as_ref()
+            .expect("every used asset is opened");
+        let p = a.desc.pins.as_ref().ok_or_else(|| {
+            named(
+                scene,
+                &format!("{}.asset", Scene::instance_path(i)),
+                "no pins",
+            )
+        })?;
+        let own = p.local_to_world.unwrap_or(p.grid.desc().local_to_world);
+        descs.push(MediumDesc {
+            pins: Some(PlacedPins {
+                grid: p.grid.clone(),
+                local_to_world: Some(crate::instance::compose(&inst.local_to_world, &own)),
+            }),
+            ..MediumDesc::default()
+        });
+        for k in 0..3 {
+            lo[k] = lo[k].min(boxes[i].0[k]);
+            hi[k] = hi[k].max(boxes[i].1[k]);
+        }
+    }
+    Ok((descs, (lo, hi)))
+}
+
+/// Loads `path` as a scene under the memory budget (`pin_scene::load`), with the error as
+/// one line.
+pub fn load_scene(path: &Path, max_memory: Option<u64>) -> Result<Scene> {
+    let limit = pinbake::files::MemoryBudget::new(max_memory).limit;
+    pin_scene::load(path, Some(limit)).map_err(|e| anyhow!("{e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn morton_order_keeps_neighbours_together() {
+        // Two clusters far apart, listed interleaved: the order separates them.
+        let mut boxes = Vec::new();
+        for i in 0..8 {
+            let x = if i % 2 == 0 { 0.0 } else { 1000.0 } + i as f64 * 0.1;
+            boxes.push(([x, 0.0, 0.0], [x + 1.0, 1.0, 1.0]));
+        }
+        let order = morton_order(&boxes);
+        let first: Vec<bool> = order.iter().map(|&i| i % 2 == 0).collect();
+        assert_eq!(first, [true, true, true, true, false, false, false, false]);
+        let mut sorted = order.clone();
+        sorted.sort();
+        assert_eq!(sorted, (0..8).collect::<Vec<_>>());
+        assert_eq!(spread(0b111), 0b1001001);
+    }
+}
