@@ -210,14 +210,16 @@ pub fn place_estimator(
     local_to_world: &[f64; 12],
     lookup: SamplerOptions,
 ) -> Result<Arc<dyn TransportEstimator>, RenderError> {
-    Ok(match e.as_any().and_then(|a| a.downcast_ref::<PinsEstimator>()) {
-        Some(p) => Arc::new(PinsEstimator::new(
-            p.grid().clone(),
-            Some(&compose(local_to_world, p.placement())),
-            lookup,
-        )?),
-        None => Arc::new(PlacedEstimator::new(e.clone(), local_to_world)?),
-    })
+    Ok(
+        match e.as_any().and_then(|a| a.downcast_ref::<PinsEstimator>()) {
+            Some(p) => Arc::new(PinsEstimator::new(
+                p.grid().clone(),
+                Some(&compose(local_to_world, p.placement())),
+                lookup,
+            )?),
+            None => Arc::new(PlacedEstimator::new(e.clone(), local_to_world)?),
+        },
+    )
 }
 
 /// An asset's medium (built once, in the asset's frame) placed as one instance.
