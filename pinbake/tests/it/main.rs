@@ -1,6 +1,7 @@
-//! pinbake's integration tests, one binary (one link of the crate and its dependencies).
-//! Most drive the `pinbake` binary (`CARGO_BIN_EXE_pinbake`), which is also the isolated
-//! VDB reader the library tests start.
+//! pinbake's integration tests, one binary (one link of the crate and its dependencies),
+//! except those that bound a child's peak memory (`tests/memory/`). Most drive the `pinbake`
+//! binary (`CARGO_BIN_EXE_pinbake`), which is also the isolated VDB reader the library tests
+//! start.
 
 mod nanovdb;
 /// The OpenVDB compatibility corpus, shared by path with the cross-crate tests.
@@ -8,10 +9,8 @@ mod nanovdb;
 mod openvdb;
 
 mod cli;
-mod hostile;
 mod nanovdb_corpus;
 mod production;
-mod sequences;
 mod slurm;
 mod sources;
 mod vdb_corpus;

@@ -206,7 +206,7 @@ fn a_frame_range_beyond_i64_is_a_usage_error_under_a_small_budget() {
 }
 
 /// [`pinbake`], and the peak resident memory of that one process in bytes: reaped with
-/// `wait4`, so that the other tests' children in this binary do not count (as they would in
+/// `wait4`, so that the other tests' children do not count (as they would in
 /// `getrusage(RUSAGE_CHILDREN)`).
 #[allow(clippy::zombie_processes)] // reaped by wait4 below, which std cannot see
 fn pinbake_with_peak(args: &[&str]) -> (Output, u64) {
