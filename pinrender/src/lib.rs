@@ -14,5 +14,7 @@
 pub mod gpu_render;
 pub mod medium;
 pub mod render;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
 #[cfg(feature = "cli")]
 pub mod volume;
