@@ -245,14 +245,13 @@ pub(crate) fn jackknife_with(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::closed_form::AnalyticOpticalDepth;
     use crate::closed_form::tests::CosNoise;
     use crate::comb_estimators::{JackknifeMarching, UnbiasedRayMarching};
-    use crate::testing::mean_se;
     use glam::{DVec3, Vec3};
     use pinrender::render::{
         Aabb, DensitySource, HomogeneousBox, MajorantGrid, Pcg32, TransportEstimator, clip_box,
     };
+    use pinrender::testing::mean_se;
     use std::sync::Arc;
 
     /// Fixed rays (origin, unit direction) from points of the unit cube in directions

@@ -25,9 +25,6 @@ pub mod estimator;
 pub mod pin_control;
 pub mod whole_volume;
 
-#[cfg(test)]
-pub(crate) mod testing;
-
 pub use cache::{CacheSettings, RadianceCache, render_cached};
 pub use closed_form::{AnalyticOpticalDepth, ClosedFormTracker};
 pub use comb_estimators::{

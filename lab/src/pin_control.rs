@@ -194,12 +194,11 @@ impl<F: DensitySource + ?Sized> TransportEstimator for PinControlledUrm<F> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::closed_form::AnalyticOpticalDepth;
     use crate::closed_form::tests::CosNoise;
-    use crate::testing::mean_se;
     use glam::DVec3;
     use pin_format::Directions;
     use pinrender::render::{Aabb, FnField, HomogeneousBox, RatioTracking, VoxelGrid};
+    use pinrender::testing::mean_se;
     use pinrt::testing::random_grid;
     use pinrt::{PinGrid, SamplerOptions};
 
