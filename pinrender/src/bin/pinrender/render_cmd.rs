@@ -71,8 +71,13 @@ pub struct RenderArgs {
     #[arg(long)]
     pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
-    /// pins, pinms, pinurm[@N] or pinres.
-    #[arg(long, default_value = "ratio", value_parser = parse_estimator)]
+    /// pins, pinms, pinurm[@N] or pinres. Default: follows the input. With --pins, pinms when
+    /// a density is at hand (--volume, or the pin file embeds one) and pins when it is not;
+    /// with --volume alone, ratio.
+    #[arg(long = "estimator", value_parser = parse_estimator)]
+    pub estimator_flag: Option<EstimatorSpec>,
+    /// The estimator of the render: --estimator, or the default that follows the input.
+    #[arg(skip = EstimatorSpec::RatioTracking)]
     pub estimator: EstimatorSpec,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
@@ -279,7 +284,30 @@ fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf
     ))
 }
 
-pub fn run(a: RenderArgs) -> Result<()> {
+/// The estimator when --estimator is not given: pinms for a pin file with a density at hand
+/// (--volume, or one embedded in the file), pins for a pin file without one, ratio for a
+/// volume alone. Reads the file's section table only.
+pub fn default_estimator(volume: Option<&Path>, pins: Option<&Path>) -> Result<EstimatorSpec> {
+    Ok(match (volume, pins) {
+        (_, None) => EstimatorSpec::RatioTracking,
+        (Some(_), Some(_)) => EstimatorSpec::PinMs,
+        (None, Some(p)) => {
+            let grid = volume::load_pins(p)?;
+            let file = grid.file().map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            if file.density().is_some() || file.sparse_density().is_some() {
+                EstimatorSpec::PinMs
+            } else {
+                EstimatorSpec::Pins
+            }
+        }
+    })
+}
+
+pub fn run(mut a: RenderArgs) -> Result<()> {
+    a.estimator = match a.estimator_flag {
+        Some(e) => e,
+        None => default_estimator(a.volume.volume.as_deref(), a.pins.as_deref())?,
+    };
     let uses_pins = a.estimator.needs_pins();
     let input = match (&a.volume.volume, &a.pins) {
         (None, None) => crate::usage!(
