@@ -27,6 +27,7 @@ pub fn pinrender() -> PathBuf {
 /// An Xvfb server on a display of its own, stopped when dropped.
 pub struct Display {
     child: Child,
+    number: u32,
     pub name: String,
 }
 
@@ -34,6 +35,9 @@ impl Drop for Display {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+        // A killed server leaves its lock and socket behind; they are this test's own.
+        let _ = std::fs::remove_file(format!("/tmp/.X{}-lock", self.number));
+        let _ = std::fs::remove_file(format!("/tmp/.X11-unix/X{}", self.number));
     }
 }
 
@@ -58,8 +62,8 @@ pub fn display() -> Option<Display> {
         eprintln!("SKIPPED: {why}");
         return None;
     }
-    for _ in 0..50 {
-        let n = 100 + (std::process::id() % 400) * 8 + NEXT.fetch_add(1, Ordering::Relaxed) % 8;
+    for _ in 0..64 {
+        let n = 100 + (std::process::id() % 256) * 64 + NEXT.fetch_add(1, Ordering::Relaxed) % 64;
         if Path::new(&format!("/tmp/.X{n}-lock")).exists() {
             continue;
         }
@@ -82,6 +86,7 @@ pub fn display() -> Option<Display> {
             if Path::new(&socket).exists() {
                 return Some(Display {
                     child,
+                    number: n,
                     name: format!(":{n}"),
                 });
             }
@@ -99,7 +104,9 @@ pub fn display() -> Option<Display> {
 /// Runs pinview on `display` (none: without any display) with `args`.
 pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
     let mut cmd = Command::new(PINVIEW);
-    cmd.args(args).env_remove("WAYLAND_DISPLAY");
+    cmd.args(args)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir());
     match display {
         Some(d) => cmd.env("DISPLAY", &d.name),
         None => cmd.env_remove("DISPLAY"),
@@ -107,8 +114,23 @@ pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
     cmd.stdin(Stdio::null()).output().expect("running pinview")
 }
 
+/// A private, valid XDG runtime directory: without one Mesa's Vulkan loader prints a warning
+/// line per start, which the one-line failure checks would count.
+fn runtime_dir() -> PathBuf {
+    static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("pinview-xdg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+        dir
+    })
+    .clone()
+}
+
 pub fn pinrender_render(args: &[&str]) -> Output {
     Command::new(pinrender())
+        .env("XDG_RUNTIME_DIR", runtime_dir())
         .arg("render")
         .args(args)
         .stdin(Stdio::null())

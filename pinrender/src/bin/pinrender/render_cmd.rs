@@ -741,3 +741,60 @@ fn render_gpu(
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A cosine field's pins (4^3 cells), with `embed` density voxels per axis.
+    fn bake(dir: &Path, name: &str, embed: Option<u32>) -> PathBuf {
+        let p: pinbake::source::ProceduralSpec = "cosine:seed=5,freq=4,density=6".parse().unwrap();
+        let src = p.build().unwrap();
+        let opts = pinbake::BakeOptions {
+            cells: [4; 3],
+            embed_density: embed.map(|n| [n; 3]),
+            majorant: embed.map(|_| [4; 3]),
+            ..pinbake::BakeOptions::default()
+        };
+        let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
+        let path = dir.join(name);
+        grid.write_atomic(&path).unwrap();
+        path
+    }
+
+    #[test]
+    fn the_default_estimator_follows_the_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let bare = bake(dir.path(), "bare.pin", None);
+        let dense = bake(dir.path(), "dense.pin", Some(8));
+        let volume = Path::new("procedural:cosine");
+        let d = |v: Option<&Path>, p: Option<&Path>| default_estimator(v, p).unwrap();
+        assert_eq!(d(None, Some(&bare)), EstimatorSpec::Pins);
+        assert_eq!(d(None, Some(&dense)), EstimatorSpec::PinMs);
+        assert_eq!(d(Some(volume), None), EstimatorSpec::RatioTracking);
+        assert_eq!(d(Some(volume), Some(&bare)), EstimatorSpec::PinMs);
+        // A file that is not a pin file is an error naming it, not a default.
+        let junk = dir.path().join("junk.pin");
+        std::fs::write(&junk, b"junk").unwrap();
+        let e = default_estimator(None, Some(&junk))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("junk.pin"), "{e}");
+    }
+
+    #[test]
+    fn help_says_what_the_default_is() {
+        use clap::CommandFactory;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            render: RenderArgs,
+        }
+        let help = Cli::command().render_long_help().to_string();
+        assert!(
+            help.contains("pinms when a density is at hand")
+                && help.contains("with --volume alone, ratio"),
+            "{help}"
+        );
+    }
+}
