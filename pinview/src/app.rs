@@ -142,6 +142,8 @@ pub struct Viewer {
     paused: bool,
     /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
     frames_played: Vec<u64>,
+    /// A scripted window screenshot asked for: when, and its result once written.
+    window_shot: Option<(Instant, Arc<Mutex<Option<Result<(), String>>>>)>,
 }
 
 impl Viewer {
@@ -200,6 +202,7 @@ impl Viewer {
             command: String::new(),
             paused: false,
             frames_played: Vec::new(),
+            window_shot: None,
             args,
         };
         if let Some(s) = &viewer.sequence {
@@ -510,6 +513,47 @@ impl Viewer {
             o.finished = true;
         }
         self.args.frames = None;
+        if let Some(path) = self.args.window_screenshot.clone() {
+            // The next frame is captured whole; the window closes once it is written.
+            let done = Arc::new(Mutex::new(None));
+            let slot = done.clone();
+            ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(
+                egui::ScreenshotCallback::new(move |image| {
+                    let [w, h] = image.size;
+                    let rgb: Vec<u8> = image
+                        .pixels
+                        .iter()
+                        .flat_map(|c| [c.r(), c.g(), c.b()])
+                        .collect();
+                    let r = export::write_png(&path, w as u32, h as u32, &rgb)
+                        .map_err(|e| e.to_string());
+                    if let Ok(mut s) = slot.lock() {
+                        *s = Some(r);
+                    }
+                }),
+            ));
+            self.window_shot = Some((Instant::now(), done));
+            return Ok(());
+        }
+        ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        Ok(())
+    }
+
+    /// Closes the window once a scripted window screenshot is written (or has failed).
+    fn finish_window_shot(&mut self, ctx: &egui::Context) -> Result<()> {
+        let Some((asked, done)) = &self.window_shot else {
+            return Ok(());
+        };
+        let result = done.lock().ok().and_then(|mut d| d.take());
+        match result {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(anyhow!(e)),
+            None if asked.elapsed() > Duration::from_secs(20) => {
+                return Err(anyhow!("the window screenshot did not arrive within 20 s"));
+            }
+            None => return Ok(()),
+        }
+        self.window_shot = None;
         ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         Ok(())
     }
@@ -808,6 +852,12 @@ impl eframe::App for Viewer {
         }
         if let Err(e) = self.finish_script(&ctx) {
             self.fail(&ctx, e);
+        }
+        if let Err(e) = self.finish_window_shot(&ctx) {
+            if let Ok(mut o) = self.outcome.lock() {
+                o.error = Some(e.to_string());
+            }
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         ctx.request_repaint();
     }

@@ -85,6 +85,10 @@ pub struct ViewArgs {
     /// With --frames: the accumulated linear image as EXR.
     #[arg(long, requires = "frames")]
     pub save: Option<PathBuf>,
+    /// With --frames: the whole window (controls and readouts included) as PNG, taken after
+    /// the other outputs.
+    #[arg(long, requires = "frames")]
+    pub window_screenshot: Option<PathBuf>,
     /// With --frames: one JSON object on stdout (adapter, backend, estimator, width, height,
     /// passes, first_image_s, ms_per_pass, frame, frame_path).
     #[arg(long, requires = "frames")]

@@ -82,7 +82,10 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
             ));
         }
     }
-    for out in [&a.screenshot, &a.save].into_iter().flatten() {
+    for out in [&a.screenshot, &a.save, &a.window_screenshot]
+        .into_iter()
+        .flatten()
+    {
         pinbake::files::check_output(out, &[first.as_path()])?;
     }
     // This build opens X11 windows only (winit's x11 backend).
