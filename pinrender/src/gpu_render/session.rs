@@ -238,6 +238,12 @@ impl GpuSession {
         &self.accum
     }
 
+    /// The first row of the pass in progress that is not rendered yet (0: no pass in
+    /// progress); the rows above it hold one sample more than [`GpuSession::passes`].
+    pub fn next_row(&self) -> u32 {
+        self.next_row
+    }
+
     /// The measured wall time of one whole pass in seconds (0 before the first
     /// [`GpuSession::add_for`]).
     pub fn pass_seconds(&self) -> f64 {

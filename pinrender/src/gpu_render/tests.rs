@@ -1678,4 +1678,24 @@ fn tone_map_pass_shows_what_the_png_holds() {
         );
         assert!(png.iter().any(|&c| c > 20), "the image must not be black");
     }
+    // A pass in progress (one band of 8 rows): those rows show 5 samples, the others 4.
+    let four = session.image().unwrap();
+    session
+        .add_for(std::time::Duration::ZERO, std::time::Duration::ZERO, 1)
+        .unwrap();
+    assert_eq!((session.passes(), session.next_row()), (4, 8));
+    let five = renderer.render(&sc, GpuEstimator::Pins, 5, 5).unwrap();
+    tone.draw(&session, &view, 1.0);
+    let shown = read_rgb(&ctx, &texture, 24, 24);
+    let mut worst = 0;
+    for (i, &code) in shown.iter().enumerate() {
+        let (pixel, channel) = (i / 3, i % 3);
+        let source = if pixel / 24 < 8 { &five } else { &four };
+        let want = crate::render::tone_map(source.rgb[pixel][channel], 1.0);
+        worst = worst.max((i32::from(code) - i32::from(want)).abs());
+    }
+    assert!(
+        worst <= 1,
+        "the band in progress is shown {worst} codes off"
+    );
 }

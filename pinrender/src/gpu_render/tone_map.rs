@@ -95,16 +95,14 @@ impl GpuToneMap {
     /// texture of the session's size) and submits it. Before the first pass it draws black.
     pub fn draw(&self, session: &GpuSession, target: &wgpu::TextureView, exposure: f32) {
         let device = &session.device;
+        // Rows above the band in progress hold one sample more than the whole passes.
+        let inv = |n: u32| if n > 0 { 1.0 / n as f32 } else { 0.0 };
         let params = ToneParams {
-            size: [session.width(), session.height(), 0, 0],
+            size: [session.width(), session.height(), session.next_row(), 0],
             scale: [
-                if session.passes() > 0 {
-                    1.0 / session.passes() as f32
-                } else {
-                    0.0
-                },
+                inv(session.passes()),
                 exposure,
-                0.0,
+                inv(session.passes() + 1),
                 0.0,
             ],
         };

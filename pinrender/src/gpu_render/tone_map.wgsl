@@ -4,9 +4,10 @@
 // is a non-sRGB 8-bit format: the value written is already the 8-bit code divided by 255.
 
 struct ToneParams {
-    // width, height, -, -
+    // width, height, first row of the pass in progress not yet rendered (0: none), -
     size: vec4<u32>,
-    // 1 / passes (0 before the first), exposure, -, -
+    // 1 / passes (0 before the first), exposure, 1 / (passes + 1) for the rows above the
+    // pass in progress, -
     scale: vec4<f32>,
 }
 
@@ -45,7 +46,11 @@ fn fs_main(@builtin(position) p: vec4<f32>) -> @location(0) vec4<f32> {
         return vec4<f32>(0.0, 0.0, 0.0, 1.0);
     }
     let i = 2u * (y * TP.size.x + x);
-    let m = (accum[i].xyz - accum[i + 1u].xyz) * TP.scale.x;
+    var inv = TP.scale.x;
+    if (y < TP.size.z) {
+        inv = TP.scale.z;
+    }
+    let m = (accum[i].xyz - accum[i + 1u].xyz) * inv;
     let e = TP.scale.y;
     return vec4<f32>(tone(m.x, e), tone(m.y, e), tone(m.z, e), 1.0);
 }
