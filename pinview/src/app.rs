@@ -112,6 +112,9 @@ struct Target {
     size: (u32, u32),
 }
 
+/// Where the window screenshot's callback leaves its result.
+type ShotResult = Arc<Mutex<Option<Result<(), String>>>>;
+
 pub struct Viewer {
     args: ViewArgs,
     started: Instant,
@@ -143,7 +146,7 @@ pub struct Viewer {
     /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
     frames_played: Vec<u64>,
     /// A scripted window screenshot asked for: when, and its result once written.
-    window_shot: Option<(Instant, Arc<Mutex<Option<Result<(), String>>>>)>,
+    window_shot: Option<(Instant, ShotResult)>,
 }
 
 impl Viewer {
@@ -732,8 +735,7 @@ impl Viewer {
         let avail = ui.available_size();
         let scale = (avail.x / w as f32)
             .min(avail.y / h as f32)
-            .min(1.0)
-            .max(0.05);
+            .clamp(0.05, 1.0);
         let size = egui::vec2(w as f32 * scale, h as f32 * scale);
         let response = ui.add(
             egui::Image::new(egui::load::SizedTexture::new(self.target.id, size))

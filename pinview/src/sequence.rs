@@ -46,10 +46,11 @@ pub fn list_frames(pattern: &Path) -> Result<Vec<(u64, PathBuf)>> {
         else {
             continue;
         };
-        if middle.len() == digits && middle.bytes().all(|b| b.is_ascii_digit()) {
-            if let Ok(n) = middle.parse::<u64>() {
-                frames.push((n, dir.join(name)));
-            }
+        if middle.len() == digits
+            && middle.bytes().all(|b| b.is_ascii_digit())
+            && let Ok(n) = middle.parse::<u64>()
+        {
+            frames.push((n, dir.join(name)));
         }
     }
     frames.sort();
