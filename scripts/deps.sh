@@ -7,8 +7,9 @@
 #   (pinbake/tests/it/vdb_corpus.rs writes its files with OpenVDB itself); nanovdb_convert
 #   (libnanovdb-tools) for the NanoVDB corpus (pinbake/tests/it/nanovdb_corpus.rs); spirv-val and
 #   glslangValidator for the generated shaders (lab/tests/it/shaders.rs); valgrind for the C
-#   example (capi/tests/it/c_example.rs); python3-venv for the Python package's tests.
-APT_PACKAGES="mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev slurm-wlm munge g++ libopenvdb-dev libboost-dev libnanovdb-tools spirv-tools glslang-tools valgrind python3-venv"
+#   example (capi/tests/it/c_example.rs); python3-venv for the Python package's tests; xvfb and
+#   libxkbcommon-x11-0 for the viewer's window tests (pinview/tests/it/ start Xvfb themselves).
+APT_PACKAGES="mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev slurm-wlm munge g++ libopenvdb-dev libboost-dev libnanovdb-tools spirv-tools glslang-tools valgrind python3-venv xvfb libxkbcommon-x11-0"
 export DEBIAN_FRONTEND=noninteractive
 SUDO=""
 if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi

@@ -72,7 +72,9 @@ override RT_BRICKS: bool = false;
 
 struct RtPass {
     index: u32,
-    pad0: u32,
+    // First image row of this dispatch: a progressive session slices a pass into bands of
+    // rows so that no submission runs long (0 for a whole pass).
+    row0: u32,
     pad1: u32,
     pad2: u32,
 }
@@ -1117,16 +1119,17 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
 fn render_main(@builtin(global_invocation_id) gid: vec3<u32>) {
     let width = RP.size.x;
     let height = RP.size.y;
-    if (gid.x >= width || gid.y >= height) {
+    let row = gid.y + RPASS.row0;
+    if (gid.x >= width || row >= height) {
         return;
     }
-    let pixel = gid.y * width + gid.x;
+    let pixel = row * width + gid.x;
     rt_seed(pixel, RPASS.index);
 
     let jx = rt_f32();
     let jy = rt_f32();
     let px = f32(gid.x) + jx;
-    let py = f32(gid.y) + jy;
+    let py = f32(row) + jy;
     let sx = (2.0 * px / RP.cam_r.w - 1.0) * RP.cam_o.w * RP.cam_f.w;
     let sy = (1.0 - 2.0 * py / RP.cam_u.w) * RP.cam_o.w;
     let dv = RP.cam_f.xyz + RP.cam_r.xyz * sx + RP.cam_u.xyz * sy;

@@ -15,9 +15,9 @@ pub mod gpu_render;
 pub mod instance;
 pub mod medium;
 pub mod render;
-#[cfg(any(test, feature = "testing"))]
-pub mod testing;
 #[cfg(feature = "cli")]
 pub mod scene_media;
+#[cfg(any(test, feature = "testing"))]
+pub mod testing;
 #[cfg(feature = "cli")]
 pub mod volume;

@@ -29,6 +29,8 @@
 //! Not supported here: time budgets (the caller loops over passes).
 
 mod media;
+mod session;
+mod tone_map;
 mod wgsl;
 
 pub use media::{
@@ -36,6 +38,8 @@ pub use media::{
     GpuPlacedDensity, MAX_VALUE_BINDINGS, OTHER_STORAGE_BINDINGS, check_brick_values_fit,
     value_bindings,
 };
+pub use session::GpuSession;
+pub use tone_map::{GpuToneMap, TONE_MAP_WGSL};
 pub use wgsl::{RENDER_WGSL, render_wgsl};
 
 use std::collections::HashMap;
@@ -379,6 +383,8 @@ pub struct GpuRenderer {
     grid0: wgpu::Buffer,
     caps: Vec<media::Caps>,
     pin_bytes: u64,
+    /// Bytes of each uploaded section, for a viewer's readout.
+    section_bytes: Vec<(&'static str, u64)>,
 }
 
 impl std::fmt::Debug for GpuRenderer {
@@ -451,26 +457,50 @@ impl GpuRenderer {
         binding_limit: u64,
     ) -> pinrt::Result<Self> {
         let limit = binding_limit.min(pinrt::gpu::binding_limit(&ctx.limits));
-        pollster::block_on(Self::create(ctx, media, limit))
+        pollster::block_on(Self::create(
+            &ctx.device,
+            &ctx.queue,
+            &ctx.limits,
+            media,
+            limit,
+        ))
     }
 
-    async fn create(ctx: &GpuContext, media: &GpuMedia<'_>, limit: u64) -> pinrt::Result<Self> {
+    /// [`GpuRenderer::with_media`] on a device the caller opened (a viewer's, which also
+    /// presents to a window): `limits` are the limits the device was created with.
+    pub fn with_media_on(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        limits: &wgpu::Limits,
+        media: &GpuMedia<'_>,
+    ) -> pinrt::Result<Self> {
+        let limit = pinrt::gpu::binding_limit(limits);
+        pollster::block_on(Self::create(device, queue, limits, media, limit))
+    }
+
+    async fn create(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        limits: &wgpu::Limits,
+        media: &GpuMedia<'_>,
+        limit: u64,
+    ) -> pinrt::Result<Self> {
         // Group 0: pins and cell indices; group 1: accumulation, grid parameters, media,
         // data and the brick values.
-        let available = value_bindings(&ctx.limits);
+        let available = value_bindings(limits);
         if available == 0 {
             return Err(Error::Gpu(format!(
                 "the path tracer binds at least {} storage buffers in one shader stage; \
                  this device binds {}",
                 OTHER_STORAGE_BINDINGS + 1,
-                ctx.limits.max_storage_buffers_per_shader_stage
+                limits.max_storage_buffers_per_shader_stage
             )));
         }
         let packed = media::pack(media, limit, available)?;
         // As many value bindings as the bricks fill (one, unused, without bricks).
         let value_count = packed.bricks.bindings().max(1);
 
-        let dev = &ctx.device;
+        let dev = device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu refuses zero-sized bindings: an absent section binds a small dummy.
         let dummy = [0u8; 256];
@@ -604,10 +634,25 @@ impl GpuRenderer {
         if let Some(e) = scope.pop().await {
             return Err(gpu_err("compiling shaders/render.wgsl", e));
         }
+        let section_bytes = vec![
+            ("pins", packed.pins.len() as u64),
+            ("cell index", packed.index.len() as u64),
+            ("grid parameters", grids.size()),
+            ("media", records.size()),
+            ("density, majorants and controls", data.size()),
+            (
+                "brick values",
+                bricks
+                    .iter()
+                    .take(packed.bricks.bindings())
+                    .map(|b| b.size())
+                    .sum(),
+            ),
+        ];
         Ok(Self {
-            device: ctx.device.clone(),
-            queue: ctx.queue.clone(),
-            limits: ctx.limits.clone(),
+            device: device.clone(),
+            queue: queue.clone(),
+            limits: limits.clone(),
             module,
             layout,
             pipelines: Mutex::new(HashMap::new()),
@@ -620,6 +665,7 @@ impl GpuRenderer {
             brick_bindings: packed.bricks.bindings(),
             bricked: !packed.bricks.grids.is_empty(),
             grid0,
+            section_bytes,
             caps: packed.caps,
             pin_bytes: packed.pins.len() as u64,
         })
@@ -704,12 +750,21 @@ impl GpuRenderer {
         Ok(())
     }
 
+    /// Bytes of each section this renderer uploaded (pins, cell index, grid parameters,
+    /// media records, density data, brick values), in that order.
+    pub fn section_bytes(&self) -> &[(&'static str, u64)] {
+        &self.section_bytes
+    }
+
     /// Renders `spp` samples per pixel (one pass each) with `estimator` and seed `seed`. The
     /// same inputs give the same image bits. Errors: an invalid scene (the CPU renderer's
     /// checks: zero-size image, NaN camera, `g` outside `(-1, 1)`, albedo outside `[0, 1]`,
     /// bad radiance), an estimator that needs what some medium lacks (pins, a density,
     /// majorants) or a ray-marching step outside `(0, 1]`, `spp == 0`, `max_bounces > MAX_GPU_BOUNCES`, an image too large for one dispatch or
     /// one storage buffer, or a GPU failure.
+    ///
+    /// It is a [`GpuSession`] with `spp` passes, read back once: a viewer that adds the same
+    /// passes one at a time accumulates the same bits.
     pub fn render(
         &self,
         scene: &GpuScene,
@@ -718,176 +773,18 @@ impl GpuRenderer {
         seed: u64,
     ) -> Result<Image, GpuRenderError> {
         let estimator = estimator.into();
-        scene.validate()?;
-        self.check_estimator(estimator)?;
         if spp == 0 {
+            scene.validate()?;
+            self.check_estimator(estimator)?;
             return Err(RenderError::Invalid {
                 what: "budget",
                 why: "0 samples per pixel".into(),
             }
             .into());
         }
-        let (w, h) = (scene.camera.width, scene.camera.height);
-        let gx = w.div_ceil(WORKGROUP[0]);
-        let gy = h.div_ceil(WORKGROUP[1]);
-        let max_groups = self.limits.max_compute_workgroups_per_dimension;
-        if gx > max_groups || gy > max_groups {
-            return Err(Error::Gpu(format!(
-                "image {w}x{h} needs {gx}x{gy} workgroups, more than this device dispatches \
-                 ({max_groups} per dimension)"
-            ))
-            .into());
-        }
-        let pixels = u64::from(w) * u64::from(h);
-        let accum_size = pixels * 32;
-        let limit = pinrt::gpu::binding_limit(&self.limits);
-        if accum_size > limit {
-            return Err(Error::Gpu(format!(
-                "image {w}x{h} needs a {accum_size}-byte accumulation buffer, more than this \
-                 device binds ({limit} bytes)"
-            ))
-            .into());
-        }
-        let media = u32::try_from(self.caps.len())
-            .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
-        let params = scene.params(seed, estimator, media);
-        let kinds = estimator.kinds();
-        Ok(pollster::block_on(async {
-            let pipeline = self.pipeline(kinds).await?;
-            self.run(&pipeline, &params, gx, gy, spp, accum_size, w, h)
-                .await
-        })?)
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    async fn run(
-        &self,
-        pipeline: &wgpu::ComputePipeline,
-        params: &RtParams,
-        gx: u32,
-        gy: u32,
-        spp: u32,
-        accum_size: u64,
-        width: u32,
-        height: u32,
-    ) -> pinrt::Result<Image> {
-        let dev = &self.device;
-        let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
-        let scene_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("render scene params"),
-            contents: bytemuck::bytes_of(params),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        // Zero-initialised by wgpu.
-        let accum = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("render accumulation"),
-            size: accum_size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let stride = u64::from(self.limits.min_uniform_buffer_offset_alignment).max(16);
-        let mut first = 0u32;
-        while first < spp {
-            let count = (spp - first).min(PASSES_PER_SUBMIT);
-            let mut pass_data = vec![0u8; (stride * u64::from(count)) as usize];
-            for k in 0..count {
-                let at = (stride * u64::from(k)) as usize;
-                pass_data[at..at + 4].copy_from_slice(&(first + k).to_le_bytes());
-            }
-            let pass_uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some("render pass indices"),
-                contents: &pass_data,
-                usage: wgpu::BufferUsages::UNIFORM,
-            });
-            let group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some("render scene"),
-                layout: &self.render_layout,
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: scene_uniform.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 1,
-                        resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                            buffer: &pass_uniform,
-                            offset: 0,
-                            size: wgpu::BufferSize::new(16),
-                        }),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: accum.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 3,
-                        resource: self.grids.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 4,
-                        resource: self.records.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 5,
-                        resource: self.data.as_entire_binding(),
-                    },
-                    wgpu::BindGroupEntry {
-                        binding: 6,
-                        resource: self.grid0.as_entire_binding(),
-                    },
-                ]
-                .into_iter()
-                .chain(
-                    self.bricks
-                        .iter()
-                        .zip(7..)
-                        .map(|(b, binding)| wgpu::BindGroupEntry {
-                            binding,
-                            resource: b.as_entire_binding(),
-                        }),
-                )
-                .collect::<Vec<_>>(),
-            });
-            let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("render passes"),
-            });
-            {
-                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("render passes"),
-                    timestamp_writes: None,
-                });
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(0, &self.grid_group, &[]);
-                for k in 0..count {
-                    pass.set_bind_group(1, &group, &[(stride * u64::from(k)) as u32]);
-                    pass.dispatch_workgroups(gx, gy, 1);
-                }
-            }
-            self.queue.submit([enc.finish()]);
-            first += count;
-        }
-        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("render readback"),
-            size: accum_size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("render readback"),
-        });
-        enc.copy_buffer_to_buffer(&accum, 0, &staging, 0, accum_size);
-        self.queue.submit([enc.finish()]);
-        let sums: Vec<[f32; 8]> =
-            pinrt::gpu::read_back(dev, &staging, scope, "render dispatch").await?;
-        let inv = 1.0 / f64::from(spp);
-        let rgb = sums
-            .iter()
-            .map(|s| {
-                // Kahan: the compensation holds what the running sum over-counted.
-                std::array::from_fn(|c| ((f64::from(s[c]) - f64::from(s[4 + c])) * inv) as f32)
-            })
-            .collect();
-        Ok(Image { width, height, rgb })
+        let mut session = self.session(scene, estimator, seed)?;
+        session.add_passes(spp)?;
+        Ok(session.image()?)
     }
 }
 

@@ -1488,3 +1488,195 @@ fn residual_on_gpu_matches_the_cosine_closed_form() {
         );
     }
 }
+
+fn bits_of(im: &Image) -> Vec<u32> {
+    im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect()
+}
+
+#[test]
+fn session_slices_give_the_batch_render_bits() {
+    let ctx = context();
+    let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
+    let grid = &load(&owned);
+    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    // Odd size: partial workgroups and a last band shorter than the others.
+    let mut sc = scene(13, 0.9, 0.3, 3);
+    sc.camera.height = 21;
+    let batch = renderer.render(&sc, EstimatorSpec::Pins, 7, 9).unwrap();
+
+    // One pass at a time.
+    let mut one = renderer.session(&sc, EstimatorSpec::Pins, 9).unwrap();
+    for _ in 0..7 {
+        one.add_passes(1).unwrap();
+    }
+    assert_eq!(one.passes(), 7);
+    assert_eq!(bits_of(&one.image().unwrap()), bits_of(&batch));
+
+    // Bands of 8 rows (a zero slice asks for the smallest), capped at 7 passes.
+    let mut banded = renderer.session(&sc, EstimatorSpec::Pins, 9).unwrap();
+    let mut calls = 0;
+    while banded.passes() < 7 {
+        let long = std::time::Duration::from_secs(30);
+        banded
+            .add_for(long, std::time::Duration::ZERO, 7 - banded.passes())
+            .unwrap();
+        calls += 1;
+        assert!(calls < 100, "add_for makes no progress");
+    }
+    assert_eq!(banded.passes(), 7, "add_for must not pass its cap");
+    assert_eq!(bits_of(&banded.image().unwrap()), bits_of(&batch));
+
+    // A pass left in progress (one band) is finished before the read-back.
+    let mut partial = renderer.session(&sc, EstimatorSpec::Pins, 9).unwrap();
+    partial.add_passes(6).unwrap();
+    partial
+        .add_for(std::time::Duration::ZERO, std::time::Duration::ZERO, 1)
+        .unwrap();
+    assert_eq!(bits_of(&partial.image().unwrap()), bits_of(&batch));
+    assert!(
+        renderer
+            .session(&sc, EstimatorSpec::Pins, 9)
+            .unwrap()
+            .image()
+            .is_err()
+    );
+
+    // Reset: another view from an empty accumulation, the same bits as its batch render.
+    let mut moved = sc.clone();
+    moved.sun = Some(Sun {
+        dir: [-0.7, 0.2, 0.4],
+        radiance: [5.0, 5.0, 5.0],
+    });
+    let moved_batch = renderer.render(&moved, EstimatorSpec::Pins, 3, 4).unwrap();
+    assert_ne!(bits_of(&moved_batch), bits_of(&batch));
+    one.reset(&moved, 4).unwrap();
+    assert_eq!(one.passes(), 0);
+    one.add_passes(3).unwrap();
+    assert_eq!(bits_of(&one.image().unwrap()), bits_of(&moved_batch));
+    let mut other_size = moved.clone();
+    other_size.camera.width = 14;
+    assert!(one.reset(&other_size, 4).is_err());
+    let mut bad = moved.clone();
+    bad.g = 2.0;
+    assert!(matches!(
+        one.reset(&bad, 4),
+        Err(GpuRenderError::Invalid(_))
+    ));
+}
+
+/// Reads an `Rgba8Unorm` texture back as RGB bytes.
+fn read_rgb(ctx: &GpuContext, texture: &wgpu::Texture, w: u32, h: u32) -> Vec<u8> {
+    let padded = (w * 4).div_ceil(256) * 256;
+    let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: None,
+        size: u64::from(padded * h),
+        usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let mut enc = ctx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None });
+    enc.copy_texture_to_buffer(
+        texture.as_image_copy(),
+        wgpu::TexelCopyBufferInfo {
+            buffer: &buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(padded),
+                rows_per_image: Some(h),
+            },
+        },
+        wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+    );
+    ctx.queue.submit([enc.finish()]);
+    buffer.slice(..).map_async(wgpu::MapMode::Read, |_| {});
+    ctx.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .unwrap();
+    let view = buffer.slice(..).get_mapped_range().unwrap();
+    (0..h as usize)
+        .flat_map(|y| {
+            view[y * padded as usize..y * padded as usize + 4 * w as usize]
+                .chunks_exact(4)
+                .flat_map(|p| [p[0], p[1], p[2]])
+                .collect::<Vec<_>>()
+        })
+        .collect()
+}
+
+#[test]
+fn tone_map_pass_shows_what_the_png_holds() {
+    let ctx = context();
+    let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
+    let grid = &load(&owned);
+    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let sc = scene(24, 0.9, 0.3, 3);
+    let mut session = renderer.session(&sc, EstimatorSpec::Pins, 5).unwrap();
+    session.add_passes(4).unwrap();
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: None,
+        size: wgpu::Extent3d {
+            width: 24,
+            height: 24,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba8Unorm,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    });
+    let view = texture.create_view(&Default::default());
+    let tone = GpuToneMap::new(&ctx.device, wgpu::TextureFormat::Rgba8Unorm);
+    for exposure in [1.0f32, 4.0] {
+        tone.draw(&session, &view, exposure);
+        let shown = read_rgb(&ctx, &texture, 24, 24);
+        let image = session.image().unwrap();
+        let png: Vec<u8> = image
+            .rgb
+            .iter()
+            .flat_map(|p| p.map(|c| crate::render::tone_map(c, exposure)))
+            .collect();
+        assert_eq!(shown.len(), png.len());
+        let diffs: Vec<i32> = shown
+            .iter()
+            .zip(&png)
+            .map(|(&a, &b)| i32::from(a) - i32::from(b))
+            .collect();
+        let worst = diffs.iter().map(|d| d.abs()).max().unwrap();
+        let off = diffs.iter().filter(|&&d| d != 0).count();
+        // The mean and the sRGB curve in f32 on the GPU, f64/f32 on the CPU: a rare code
+        // one step away where a value sits on a rounding boundary.
+        assert!(worst <= 1, "exposure {exposure}: a code {worst} steps off");
+        assert!(
+            off * 50 <= diffs.len(),
+            "exposure {exposure}: {off} codes off"
+        );
+        assert!(png.iter().any(|&c| c > 20), "the image must not be black");
+    }
+    // A pass in progress (one band of 8 rows): those rows show 5 samples, the others 4.
+    let four = session.image().unwrap();
+    session
+        .add_for(std::time::Duration::ZERO, std::time::Duration::ZERO, 1)
+        .unwrap();
+    assert_eq!((session.passes(), session.next_row()), (4, 8));
+    let five = renderer.render(&sc, EstimatorSpec::Pins, 5, 5).unwrap();
+    tone.draw(&session, &view, 1.0);
+    let shown = read_rgb(&ctx, &texture, 24, 24);
+    let mut worst = 0;
+    for (i, &code) in shown.iter().enumerate() {
+        let (pixel, channel) = (i / 3, i % 3);
+        let source = if pixel / 24 < 8 { &five } else { &four };
+        let want = crate::render::tone_map(source.rgb[pixel][channel], 1.0);
+        worst = worst.max((i32::from(code) - i32::from(want)).abs());
+    }
+    assert!(
+        worst <= 1,
+        "the band in progress is shown {worst} codes off"
+    );
+}

@@ -1,0 +1,866 @@
+//! The window: the progressive session shown through the tone-map pass, the controls, the
+//! readouts, export, and the scripted run (`--frames`).
+
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, anyhow};
+use eframe::egui;
+use eframe::egui::mutex::RwLock;
+use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap};
+use pinrender::render::EstimatorSpec;
+
+use crate::args::ViewArgs;
+use crate::export;
+use crate::open::{BakeJob, Medium, gpu_media};
+use crate::sequence::{Opener, Sequence};
+use crate::view::View;
+
+/// Wall time the renderer may take per frame, and per submission within it: the window
+/// answers well within 100 ms.
+const FRAME_BUDGET: Duration = Duration::from_millis(40);
+const SLICE: Duration = Duration::from_millis(20);
+/// The texture format of the displayed image (the tone-map pass writes sRGB codes itself).
+const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+/// What the window leaves for `main`: a fatal error, the JSON line, whether a scripted run
+/// finished.
+#[derive(Default, Debug)]
+pub struct Outcome {
+    pub error: Option<String>,
+    pub json: Option<String>,
+    pub finished: bool,
+}
+
+/// The window's options: title, size, drag and drop, and the wgpu device opened on the
+/// adapter `pinrender render --backend gpu` picks, with the adapter's own limits.
+pub fn native_options(a: &ViewArgs) -> eframe::NativeOptions {
+    let title = format!("pinview - {}", a.file.display());
+    let w = (a.width as f32 + 360.0).min(1900.0);
+    let h = (a.height as f32 + 24.0).clamp(700.0, 1200.0);
+    let setup = egui_wgpu::WgpuSetupCreateNew {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        native_adapter_selector: Some(Arc::new(|adapters, _surface| {
+            pick_adapter(adapters).ok_or_else(|| {
+                "no GPU adapter found. Install a Vulkan driver; without a GPU, Mesa's lavapipe \
+                 works: `apt-get install mesa-vulkan-drivers libvulkan1`"
+                    .to_string()
+            })
+        })),
+        device_descriptor: Arc::new(|adapter| wgpu::DeviceDescriptor {
+            label: Some("pinview"),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            ..Default::default()
+        }),
+        ..egui_wgpu::WgpuSetupCreateNew::without_display_handle()
+    };
+    eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title(title)
+            .with_inner_size([w, h])
+            .with_drag_and_drop(true),
+        renderer: eframe::Renderer::Wgpu,
+        wgpu_options: egui_wgpu::WgpuConfiguration {
+            wgpu_setup: egui_wgpu::WgpuSetup::CreateNew(setup),
+            // Frames are paced by the render slices, not by the display.
+            surface: egui_wgpu::SurfaceConfig {
+                present_mode: wgpu::PresentMode::AutoNoVsync,
+                ..egui_wgpu::SurfaceConfig::LOW_LATENCY
+            },
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// The adapter `pinrt::gpu::GpuContext::new` opens (high performance first, then a software
+/// fallback), found among the window's adapters by name and backend, so that the viewer
+/// and `pinrender render --backend gpu` run on the same one; else the first.
+fn pick_adapter(adapters: &[wgpu::Adapter]) -> Option<wgpu::Adapter> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let mut options = wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    };
+    let reference = pollster::block_on(instance.request_adapter(&options))
+        .or_else(|_| {
+            options.force_fallback_adapter = true;
+            pollster::block_on(instance.request_adapter(&options))
+        })
+        .ok()
+        .map(|a| a.get_info());
+    reference
+        .and_then(|r| {
+            adapters.iter().find(|a| {
+                let i = a.get_info();
+                i.name == r.name && i.backend == r.backend
+            })
+        })
+        .or_else(|| adapters.first())
+        .cloned()
+}
+
+/// The displayed image: a texture the tone-map pass draws into and egui shows.
+struct Target {
+    texture: wgpu::Texture,
+    view: wgpu::TextureView,
+    id: egui::TextureId,
+    size: (u32, u32),
+}
+
+/// Where the window screenshot's callback leaves its result.
+type ShotResult = Arc<Mutex<Option<Result<(), String>>>>;
+
+pub struct Viewer {
+    args: ViewArgs,
+    started: Instant,
+    outcome: Arc<Mutex<Outcome>>,
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    limits: wgpu::Limits,
+    info: wgpu::AdapterInfo,
+    egui_renderer: Arc<RwLock<egui_wgpu::Renderer>>,
+    tone: GpuToneMap,
+    target: Target,
+    medium: Medium,
+    bake: Option<BakeJob>,
+    sequence: Option<Sequence>,
+    opener: Opener,
+    view: View,
+    /// The estimator asked for (shown once the medium answers it).
+    wanted: EstimatorSpec,
+    renderer: Option<(EstimatorSpec, GpuRenderer)>,
+    session: Option<GpuSession>,
+    /// The view changed: the accumulation starts again.
+    dirty: bool,
+    first_image_s: Option<f64>,
+    /// Wall time spent adding the current session's passes.
+    render_seconds: f64,
+    status: String,
+    command: String,
+    paused: bool,
+    /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
+    frames_played: Vec<u64>,
+    /// A scripted window screenshot asked for: when, and its result once written.
+    window_shot: Option<(Instant, ShotResult)>,
+}
+
+impl Viewer {
+    pub fn new(
+        cc: &eframe::CreationContext<'_>,
+        args: ViewArgs,
+        medium: Medium,
+        frames: Option<Vec<(u64, PathBuf)>>,
+        opener: Opener,
+        started: Instant,
+        outcome: Arc<Mutex<Outcome>>,
+    ) -> Result<Self> {
+        let rs = cc
+            .wgpu_render_state
+            .as_ref()
+            .ok_or_else(|| anyhow!("the window has no wgpu renderer"))?;
+        let device = rs.device.clone();
+        let queue = rs.queue.clone();
+        let limits = device.limits();
+        let info = rs.adapter.get_info();
+        let tone = GpuToneMap::new(&device, IMAGE_FORMAT);
+        let target = Self::make_target(&device, &rs.renderer, args.width, args.height, None);
+        let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
+        let view = View::new(&args, &medium.bounds, wanted);
+        let bake = if medium.is_volume {
+            Some(BakeJob::start(&medium, args.seed)?)
+        } else {
+            None
+        };
+        let mut sequence = frames.map(|f| Sequence::new(f, opener.clone()));
+        if let Some(s) = &mut sequence {
+            s.playing = args.play;
+        }
+        let mut viewer = Self {
+            started,
+            outcome,
+            device,
+            queue,
+            limits,
+            info,
+            egui_renderer: rs.renderer.clone(),
+            tone,
+            target,
+            medium,
+            bake,
+            sequence,
+            opener,
+            view,
+            wanted,
+            renderer: None,
+            session: None,
+            dirty: false,
+            first_image_s: None,
+            render_seconds: 0.0,
+            status: String::new(),
+            command: String::new(),
+            paused: false,
+            frames_played: Vec::new(),
+            window_shot: None,
+            args,
+        };
+        if let Some(s) = &viewer.sequence {
+            viewer.frames_played.push(s.frames[s.current].0);
+        }
+        // Compile and upload before the window shows, so that a bad file or estimator is one
+        // error line, and the first frame renders at once.
+        viewer.ensure_session()?;
+        Ok(viewer)
+    }
+
+    fn make_target(
+        device: &wgpu::Device,
+        renderer: &Arc<RwLock<egui_wgpu::Renderer>>,
+        width: u32,
+        height: u32,
+        old: Option<egui::TextureId>,
+    ) -> Target {
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("pinview image"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: IMAGE_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        let mut r = renderer.write();
+        let id = match old {
+            Some(id) => {
+                r.update_egui_texture_from_wgpu_texture(
+                    device,
+                    &view,
+                    wgpu::FilterMode::Nearest,
+                    id,
+                );
+                id
+            }
+            None => r.register_native_texture(device, &view, wgpu::FilterMode::Nearest),
+        };
+        Target {
+            texture,
+            view,
+            id,
+            size: (width, height),
+        }
+    }
+
+    /// The estimator shown now: the one asked for once the medium answers it, else the
+    /// medium's default (ratio while a volume's pins bake).
+    fn estimator_now(&self) -> EstimatorSpec {
+        if self.medium.estimators().contains(&self.wanted) {
+            self.wanted
+        } else {
+            self.medium.default_estimator()
+        }
+    }
+
+    /// Uploads the medium for the current estimator (when it changed) and starts or resets
+    /// the session (when the view changed).
+    fn ensure_session(&mut self) -> Result<()> {
+        let est = self.estimator_now();
+        self.view.estimator = est;
+        if self.renderer.as_ref().is_none_or(|(e, _)| *e != est) {
+            self.session = None;
+            self.renderer = None;
+            let desc = self.medium.desc(est, &self.limits)?;
+            let media = gpu_media(&desc, est)?;
+            let r = GpuRenderer::with_media_on(&self.device, &self.queue, &self.limits, &media)
+                .map_err(|e| anyhow!("{}: {e}", self.medium.path.display()))?;
+            self.renderer = Some((est, r));
+        }
+        let scene = self.view.scene();
+        let size = (self.view.width, self.view.height);
+        match &mut self.session {
+            Some(s) if (s.width(), s.height()) == size => {
+                if self.dirty {
+                    s.reset(&scene, self.view.seed)
+                        .map_err(|e| anyhow!("{e}"))?;
+                    self.render_seconds = 0.0;
+                }
+            }
+            _ => {
+                let (_, r) = self
+                    .renderer
+                    .as_ref()
+                    .ok_or_else(|| anyhow!("no renderer"))?;
+                self.session = Some(
+                    r.session(&scene, est, self.view.seed)
+                        .map_err(|e| anyhow!("{e}"))?,
+                );
+                self.render_seconds = 0.0;
+                if self.target.size != size {
+                    self.target = Self::make_target(
+                        &self.device,
+                        &self.egui_renderer,
+                        size.0,
+                        size.1,
+                        Some(self.target.id),
+                    );
+                }
+            }
+        }
+        self.dirty = false;
+        Ok(())
+    }
+
+    /// Replaces the medium (a frame of a sequence, a dropped file, finished pins).
+    fn set_medium(&mut self, medium: Medium) {
+        self.medium = medium;
+        self.renderer = None;
+        self.session = None;
+    }
+
+    fn fail(&mut self, ctx: &egui::Context, e: anyhow::Error) {
+        if self.args.frames.is_some() {
+            if let Ok(mut o) = self.outcome.lock() {
+                o.error = Some(e.to_string());
+            }
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        } else {
+            self.status = e.to_string();
+        }
+    }
+
+    /// Background work: the bake, the sequence, dropped files.
+    fn poll_background(&mut self, ctx: &egui::Context) -> Result<()> {
+        if let Some(job) = &mut self.bake
+            && let Some(done) = job.finished()
+        {
+            self.bake = None;
+            match done {
+                Ok(grid) => {
+                    self.medium.set_pins(Arc::new(grid));
+                    if self.args.estimator.is_none() {
+                        self.wanted = self.medium.default_estimator();
+                    }
+                    self.status = "pins baked: every estimator is available".into();
+                }
+                Err(e) => {
+                    if self.wanted.needs_pins() {
+                        return Err(anyhow!("{}: baking pins: {e}", self.medium.path.display()));
+                    }
+                    self.status = format!("baking pins failed: {e}");
+                }
+            }
+        }
+        let frame_passes = self.args.frame_passes;
+        let done = self.session.as_ref().map_or(0, |s| s.passes());
+        // A scripted run plays the sequence once and stops on its last frame.
+        let scripted = self.args.frames.is_some();
+        let next = match &self.sequence {
+            Some(s)
+                if s.playing
+                    && !self.paused
+                    && done >= frame_passes
+                    && s.len() > 1
+                    && !(scripted && s.current + 1 == s.len()) =>
+            {
+                Some((s.current + 1) % s.len())
+            }
+            _ => None,
+        };
+        if let Some(i) = next {
+            self.go_to_frame(i)?;
+        }
+        let dropped: Vec<PathBuf> = ctx.input(|i| {
+            i.raw
+                .dropped_files
+                .iter()
+                .map(|f| f.path().to_path_buf())
+                .collect()
+        });
+        if let Some(path) = dropped.into_iter().next() {
+            match (self.opener)(&path) {
+                Ok(m) => {
+                    let bounds = m.bounds;
+                    self.bake = if m.is_volume {
+                        BakeJob::start(&m, self.view.seed).ok()
+                    } else {
+                        None
+                    };
+                    self.sequence = None;
+                    self.set_medium(m);
+                    let (o, t) = crate::view::default_camera(&bounds);
+                    self.view.origin = o;
+                    self.view.target = t;
+                    self.status = format!("opened {}", path.display());
+                }
+                Err(e) => self.status = format!("{}: {e}", path.display()),
+            }
+        }
+        Ok(())
+    }
+
+    fn go_to_frame(&mut self, i: usize) -> Result<()> {
+        let Some(s) = &mut self.sequence else {
+            return Ok(());
+        };
+        let m = s.go_to(i)?;
+        self.frames_played.push(s.frames[s.current].0);
+        self.set_medium(m);
+        Ok(())
+    }
+
+    /// Adds passes for this frame and draws the accumulation into the texture.
+    fn render(&mut self) -> Result<()> {
+        self.ensure_session()?;
+        let limit = match self.args.frames {
+            Some(n) => {
+                // A scripted run renders only the estimator it asked for.
+                if self.estimator_now() != self.wanted {
+                    return Ok(());
+                }
+                n
+            }
+            None => u32::MAX,
+        };
+        let Some(session) = &mut self.session else {
+            return Ok(());
+        };
+        let remaining = limit.saturating_sub(session.passes());
+        if remaining > 0 && !(self.paused && self.sequence.is_none()) {
+            let t = Instant::now();
+            session
+                .add_for(FRAME_BUDGET, SLICE, remaining)
+                .map_err(|e| anyhow!("{e}"))?;
+            self.render_seconds += t.elapsed().as_secs_f64();
+        }
+        // After a reset the old image stays up until the first new pass is in: no black
+        // frames while a long pass renders in bands.
+        if session.passes() > 0 {
+            self.tone
+                .draw(session, &self.target.view, self.view.exposure);
+        }
+        if session.passes() > 0 && self.first_image_s.is_none() {
+            self.first_image_s = Some(self.started.elapsed().as_secs_f64());
+        }
+        Ok(())
+    }
+
+    fn ms_per_pass(&self) -> f64 {
+        let passes = self.session.as_ref().map_or(0, |s| s.passes());
+        if passes == 0 {
+            0.0
+        } else {
+            1e3 * self.render_seconds / f64::from(passes)
+        }
+    }
+
+    /// The scripted run's end: outputs, the JSON line, close.
+    fn finish_script(&mut self, ctx: &egui::Context) -> Result<()> {
+        let Some(n) = self.args.frames else {
+            return Ok(());
+        };
+        let passes = self.session.as_ref().map_or(0, |s| s.passes());
+        if passes < n || self.estimator_now() != self.wanted {
+            return Ok(());
+        }
+        if self
+            .sequence
+            .as_ref()
+            .is_some_and(|s| s.playing && s.current + 1 < s.len())
+        {
+            return Ok(());
+        }
+        let (w, h) = self.target.size;
+        if let Some(path) = &self.args.screenshot {
+            let rgb =
+                export::read_texture_rgb(&self.device, &self.queue, &self.target.texture, w, h)?;
+            export::write_png(path, w, h, &rgb)?;
+        }
+        if let Some(path) = &self.args.save {
+            let session = self.session.as_mut().ok_or_else(|| anyhow!("no session"))?;
+            let image = session.image().map_err(|e| anyhow!("{e}"))?;
+            image
+                .write_exr(path)
+                .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+        }
+        let frame = self.sequence.as_ref().map(|s| &s.frames[s.current]);
+        let json = serde_json::json!({
+            "adapter": self.info.name,
+            "backend": format!("{:?}", self.info.backend),
+            "device_type": format!("{:?}", self.info.device_type),
+            "estimator": self.view.estimator.to_string(),
+            "width": w,
+            "height": h,
+            "passes": passes,
+            "first_image_s": self.first_image_s.unwrap_or(0.0),
+            "ms_per_pass": self.ms_per_pass(),
+            "frame": frame.map(|f| f.0),
+            "frame_path": frame.map(|f| f.1.display().to_string()),
+            "frames_played": self.frames_played,
+            "file": self.medium.path.display().to_string(),
+        });
+        if let Ok(mut o) = self.outcome.lock() {
+            if self.args.json {
+                o.json = Some(json.to_string());
+            }
+            o.finished = true;
+        }
+        self.args.frames = None;
+        if let Some(path) = self.args.window_screenshot.clone() {
+            // The next frame is captured whole; the window closes once it is written.
+            let done = Arc::new(Mutex::new(None));
+            let slot = done.clone();
+            ctx.send_viewport_cmd(egui::ViewportCommand::Screenshot(
+                egui::ScreenshotCallback::new(move |image| {
+                    let [w, h] = image.size;
+                    let rgb: Vec<u8> = image
+                        .pixels
+                        .iter()
+                        .flat_map(|c| [c.r(), c.g(), c.b()])
+                        .collect();
+                    let r = export::write_png(&path, w as u32, h as u32, &rgb)
+                        .map_err(|e| e.to_string());
+                    if let Ok(mut s) = slot.lock() {
+                        *s = Some(r);
+                    }
+                }),
+            ));
+            self.window_shot = Some((Instant::now(), done));
+            return Ok(());
+        }
+        ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        Ok(())
+    }
+
+    /// Closes the window once a scripted window screenshot is written (or has failed).
+    fn finish_window_shot(&mut self, ctx: &egui::Context) -> Result<()> {
+        let Some((asked, done)) = &self.window_shot else {
+            return Ok(());
+        };
+        let result = done.lock().ok().and_then(|mut d| d.take());
+        match result {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(anyhow!(e)),
+            None if asked.elapsed() > Duration::from_secs(20) => {
+                return Err(anyhow!("the window screenshot did not arrive within 20 s"));
+            }
+            None => return Ok(()),
+        }
+        self.window_shot = None;
+        ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        Ok(())
+    }
+
+    fn controls(&mut self, ui: &mut egui::Ui) {
+        ui.heading("pinview");
+        ui.label(self.medium.path.display().to_string());
+        if let Some(job) = &self.bake {
+            ui.add(egui::ProgressBar::new(job.progress()).text("baking pins"));
+        }
+        let mut go_to = None;
+        if let Some(s) = &mut self.sequence {
+            ui.separator();
+            ui.label(format!(
+                "frame {} ({} of {})",
+                s.frames[s.current].0,
+                s.current + 1,
+                s.len()
+            ));
+            ui.horizontal(|ui| {
+                if ui
+                    .button(if s.playing { "pause" } else { "play" })
+                    .clicked()
+                {
+                    s.playing = !s.playing;
+                }
+                if ui.button("<").clicked() {
+                    go_to = Some((s.current + s.len() - 1) % s.len());
+                }
+                if ui.button(">").clicked() {
+                    go_to = Some((s.current + 1) % s.len());
+                }
+            });
+            let mut at = s.current;
+            if ui
+                .add(egui::Slider::new(&mut at, 0..=s.len() - 1).text("scrub"))
+                .changed()
+            {
+                go_to = Some(at);
+            }
+        }
+        if let Some(i) = go_to
+            && let Err(e) = self.go_to_frame(i)
+        {
+            self.status = e.to_string();
+        }
+        ui.separator();
+        let available = self.medium.estimators();
+        egui::ComboBox::from_label("estimator")
+            .selected_text(self.view.estimator.to_string())
+            .show_ui(ui, |ui| {
+                for e in &available {
+                    ui.selectable_value(&mut self.wanted, *e, e.to_string());
+                }
+            });
+        let v = &mut self.view;
+        ui.add(egui::Slider::new(&mut v.fov, 5.0..=120.0).text("fov"));
+        ui.add(egui::Slider::new(&mut v.albedo, 0.0..=1.0).text("albedo"));
+        ui.add(egui::Slider::new(&mut v.g, -0.95..=0.95).text("g"));
+        ui.add(egui::Slider::new(&mut v.max_bounces, 0..=64).text("bounces"));
+        ui.add(egui::Slider::new(&mut v.sun_radiance, 0.0..=20.0).text("sun radiance"));
+        ui.add(egui::Slider::new(&mut v.env_radiance, 0.0..=5.0).text("sky radiance"));
+        ui.add(
+            egui::Slider::new(&mut v.exposure, 0.05..=20.0)
+                .logarithmic(true)
+                .text("exposure"),
+        );
+        ui.label(format!(
+            "sun direction {:.2}, {:.2}, {:.2} (ctrl-drag the image)",
+            v.sun_dir[0], v.sun_dir[1], v.sun_dir[2]
+        ));
+        ui.horizontal(|ui| {
+            if ui.button("reset view").clicked() {
+                let (o, t) = crate::view::default_camera(&self.medium.bounds);
+                self.view.origin = o;
+                self.view.target = t;
+            }
+            if ui
+                .button(if self.paused { "resume" } else { "pause" })
+                .clicked()
+            {
+                self.paused = !self.paused;
+            }
+        });
+        ui.separator();
+        self.readouts(ui);
+        ui.separator();
+        self.export(ui);
+        if !self.status.is_empty() {
+            ui.separator();
+            ui.label(egui::RichText::new(&self.status).color(egui::Color32::YELLOW));
+        }
+    }
+
+    fn readouts(&self, ui: &mut egui::Ui) {
+        ui.label(format!(
+            "adapter: {} ({:?}, {:?})",
+            self.info.name, self.info.backend, self.info.device_type
+        ));
+        if self.info.device_type == wgpu::DeviceType::Cpu {
+            ui.label(
+                egui::RichText::new("a CPU adapter: figures are not GPU speed")
+                    .color(egui::Color32::LIGHT_RED),
+            );
+        }
+        let passes = self.session.as_ref().map_or(0, |s| s.passes());
+        let ms = self.ms_per_pass();
+        let pixels = f64::from(self.view.width) * f64::from(self.view.height);
+        ui.label(format!("spp {passes}"));
+        ui.label(format!("{ms:.2} ms per pass"));
+        if ms > 0.0 {
+            ui.label(format!("{:.3e} samples/s", pixels / (ms * 1e-3)));
+        }
+        if let Some(t) = self.first_image_s {
+            ui.label(format!("first image after {t:.3} s"));
+        }
+        if let Some((_, r)) = &self.renderer {
+            ui.label("GPU bytes:");
+            for (name, bytes) in r.section_bytes() {
+                ui.label(format!("  {name}: {bytes}"));
+            }
+        }
+    }
+
+    fn export(&mut self, ui: &mut egui::Ui) {
+        let passes = self.session.as_ref().map_or(0, |s| s.passes());
+        ui.horizontal(|ui| {
+            if ui.button("save PNG").clicked() {
+                let (w, h) = self.target.size;
+                let path = PathBuf::from(format!("pinview-{passes}spp.png"));
+                self.status = match export::read_texture_rgb(
+                    &self.device,
+                    &self.queue,
+                    &self.target.texture,
+                    w,
+                    h,
+                )
+                .and_then(|rgb| export::write_png(&path, w, h, &rgb))
+                {
+                    Ok(()) => format!("wrote {}", path.display()),
+                    Err(e) => e.to_string(),
+                };
+            }
+            if ui.button("save EXR").clicked()
+                && let Some(s) = &mut self.session
+            {
+                let path = PathBuf::from(format!("pinview-{passes}spp.exr"));
+                self.status = match s
+                    .image()
+                    .map_err(|e| anyhow!("{e}"))
+                    .and_then(|i| i.write_exr(&path).map_err(|e| anyhow!("{e}")))
+                {
+                    Ok(()) => format!("wrote {}", path.display()),
+                    Err(e) => e.to_string(),
+                };
+            }
+            if ui.button("copy command").clicked() {
+                self.command =
+                    self.view
+                        .command_line(&self.medium.path, self.medium.is_volume, passes);
+                ui.ctx().copy_text(self.command.clone());
+            }
+        });
+        if !self.command.is_empty() {
+            ui.add(
+                egui::TextEdit::multiline(&mut self.command.as_str())
+                    .desired_rows(4)
+                    .font(egui::TextStyle::Monospace),
+            );
+        }
+    }
+
+    /// The image with its mouse controls.
+    fn image(&mut self, ui: &mut egui::Ui) {
+        let (w, h) = self.target.size;
+        let avail = ui.available_size();
+        let scale = (avail.x / w as f32)
+            .min(avail.y / h as f32)
+            .clamp(0.05, 1.0);
+        let size = egui::vec2(w as f32 * scale, h as f32 * scale);
+        let response = ui.add(
+            egui::Image::new(egui::load::SizedTexture::new(self.target.id, size))
+                .sense(egui::Sense::click_and_drag()),
+        );
+        let d = response.drag_delta();
+        let (ctrl, shift) = ui.input(|i| (i.modifiers.ctrl, i.modifiers.shift));
+        let k = 0.01;
+        if d != egui::Vec2::ZERO {
+            if ctrl {
+                self.view.turn_sun(f64::from(d.x) * k, f64::from(-d.y) * k);
+            } else if response.dragged_by(egui::PointerButton::Secondary) || shift {
+                self.view.pan(
+                    f64::from(d.x) / f64::from(size.x),
+                    f64::from(d.y) / f64::from(size.y),
+                );
+            } else {
+                self.view.orbit(f64::from(-d.x) * k, f64::from(d.y) * k);
+            }
+        }
+        if response.hovered() {
+            let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+            if scroll != 0.0 {
+                self.view.zoom((-f64::from(scroll) * 0.002).exp());
+            }
+        }
+    }
+
+    fn keys(&mut self, ctx: &egui::Context) {
+        use egui::Key;
+        let pressed = |k: Key| ctx.input(|i| i.key_pressed(k));
+        if ctx.egui_wants_keyboard_input() {
+            return;
+        }
+        let step = 0.08;
+        if pressed(Key::ArrowLeft) {
+            self.view.orbit(-step, 0.0);
+        }
+        if pressed(Key::ArrowRight) {
+            self.view.orbit(step, 0.0);
+        }
+        if pressed(Key::ArrowUp) {
+            self.view.orbit(0.0, step);
+        }
+        if pressed(Key::ArrowDown) {
+            self.view.orbit(0.0, -step);
+        }
+        if pressed(Key::Plus) || pressed(Key::Equals) {
+            self.view.zoom(0.9);
+        }
+        if pressed(Key::Minus) {
+            self.view.zoom(1.1);
+        }
+        if pressed(Key::R) {
+            let (o, t) = crate::view::default_camera(&self.medium.bounds);
+            self.view.origin = o;
+            self.view.target = t;
+        }
+        if let Some(s) = &mut self.sequence {
+            if pressed(Key::Space) {
+                s.playing = !s.playing;
+            }
+            let n = s.len();
+            let step_to = if pressed(Key::Period) {
+                Some((s.current + 1) % n)
+            } else if pressed(Key::Comma) {
+                Some((s.current + n - 1) % n)
+            } else {
+                None
+            };
+            if let Some(i) = step_to
+                && let Err(e) = self.go_to_frame(i)
+            {
+                self.status = e.to_string();
+            }
+        }
+    }
+}
+
+/// `pinrender render`'s default for the input; for a volume, the pins estimator it will
+/// have once baked is not assumed: ratio until then.
+fn initial_estimator(medium: &Medium) -> EstimatorSpec {
+    medium.default_estimator()
+}
+
+impl eframe::App for Viewer {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        if let Err(e) = self.poll_background(&ctx) {
+            self.fail(&ctx, e);
+        }
+        let before = self.view.clone();
+        let scripted = self.args.frames.is_some();
+        if !scripted {
+            self.keys(&ctx);
+        }
+        egui::Panel::left("controls")
+            .resizable(false)
+            .exact_size(340.0)
+            .show(ui, |ui| {
+                egui::ScrollArea::vertical().show(ui, |ui| self.controls(ui));
+            });
+        egui::CentralPanel::default().show(ui, |ui| self.image(ui));
+        // Exposure is the tone map's alone; anything else starts the accumulation again.
+        let mut a = before.clone();
+        let mut b = self.view.clone();
+        a.exposure = 0.0;
+        b.exposure = 0.0;
+        a.estimator = self.wanted;
+        b.estimator = self.wanted;
+        if a != b {
+            self.dirty = true;
+        }
+        if let Err(e) = self.render() {
+            self.fail(&ctx, e);
+        }
+        if let Err(e) = self.finish_script(&ctx) {
+            self.fail(&ctx, e);
+        }
+        if let Err(e) = self.finish_window_shot(&ctx) {
+            if let Ok(mut o) = self.outcome.lock() {
+                o.error = Some(e.to_string());
+            }
+            ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+        }
+        ctx.request_repaint();
+    }
+}

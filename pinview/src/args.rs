@@ -1,0 +1,156 @@
+//! The command line: a file and the render flags of `pinrender render` (same names, ranges
+//! and defaults but the image size), plus the scripting flags.
+
+use std::path::PathBuf;
+
+use clap::Parser;
+use pin_cli::parse::{parse_f64x3, parse_finite, parse_nonneg};
+use pinrender::render::EstimatorSpec;
+
+#[derive(Parser, Debug, Clone)]
+#[command(
+    name = "pinview",
+    version,
+    about = "Look through a bake: an interactive GPU viewer of pin files and volumes.",
+    after_help = "\
+FILE is a pin file (.pin: shown with pins alone at once; pinms, pinres, ratio and the other
+trackers where it embeds a density or a control), a volume (.vdb, .nvdb, .raw with --dims, or
+procedural:SPEC: tracked at once while its pins bake in the background, then every estimator),
+or a frame pattern (sim.####.pin: play, pause, step and scrub). A file dropped on the window
+opens in its place.
+
+Scripting: --frames N renders N one-sample passes in the window, then writes --screenshot
+(the render as the window shows it, tone-mapped as `pinrender render` writes its PNG) and
+--save (the accumulated linear image as EXR: the same bits as `pinrender render --backend gpu
+--spp N` with the same flags and seed), prints one JSON object with --json, and exits 0.
+Errors (no display, no adapter, a bad file) are one line on stderr and exit 1; usage errors
+exit 2.
+
+Mouse on the image: drag orbits, right-drag (or shift-drag) pans, the wheel zooms, ctrl-drag
+moves the sun. Keys: arrows orbit, +/- zoom, R resets the view, space plays or pauses a
+sequence, . and , step it."
+)]
+pub struct ViewArgs {
+    /// A .pin file, a volume (.vdb, .nvdb, .raw, procedural:SPEC) or a frame pattern.
+    pub file: PathBuf,
+    #[command(flatten)]
+    pub read: pinbake::cli_args::SourceArgs,
+    /// rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms or
+    /// pinres. Default: as `pinrender render`: pinms for a pin file with a density, pins for
+    /// one without, ratio for a volume until its pins are baked.
+    #[arg(long, value_parser = parse_estimator)]
+    pub estimator: Option<EstimatorSpec>,
+    /// Image width in pixels (1..=16384).
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
+    pub width: u32,
+    /// Image height in pixels (1..=16384).
+    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
+    pub height: u32,
+    /// Camera position X,Y,Z (default: in front of the box, as `pinrender render`).
+    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
+    pub camera_origin: Option<[f64; 3]>,
+    /// Point the camera looks at (default: the box centre).
+    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
+    pub camera_target: Option<[f64; 3]>,
+    /// Vertical field of view in degrees, in (0, 180).
+    #[arg(long, default_value_t = 40.0, value_parser = parse_fov)]
+    pub fov: f64,
+    /// Direction from the scene towards the sun.
+    #[arg(long, value_parser = parse_direction, default_value = "0.3,1,0.2", allow_hyphen_values = true)]
+    pub sun_dir: [f64; 3],
+    #[arg(long, default_value_t = 3.0, value_parser = parse_nonneg)]
+    pub sun_radiance: f64,
+    #[arg(long, default_value_t = 0.3, value_parser = parse_nonneg)]
+    pub env_radiance: f64,
+    /// Single-scattering albedo, in [0, 1].
+    #[arg(long, default_value_t = 0.9, value_parser = parse_albedo)]
+    pub albedo: f64,
+    /// Henyey-Greenstein asymmetry, in (-1, 1).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_hg_g, allow_negative_numbers = true)]
+    pub g: f64,
+    /// Scattering events at most (at most 1024, the GPU's limit).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(0..=1024))]
+    pub max_bounces: u32,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Exposure of the displayed image (finite, > 0).
+    #[arg(long, default_value_t = 1.0, value_parser = parse_exposure)]
+    pub exposure: f32,
+    /// Render this many one-sample passes, write the outputs asked for and exit.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub frames: Option<u32>,
+    /// With --frames: the window's render as PNG.
+    #[arg(long, requires = "frames")]
+    pub screenshot: Option<PathBuf>,
+    /// With --frames: the accumulated linear image as EXR.
+    #[arg(long, requires = "frames")]
+    pub save: Option<PathBuf>,
+    /// With --frames: the whole window (controls and readouts included) as PNG, taken after
+    /// the other outputs.
+    #[arg(long, requires = "frames")]
+    pub window_screenshot: Option<PathBuf>,
+    /// With --frames: one JSON object on stdout (adapter, backend, estimator, width, height,
+    /// passes, first_image_s, ms_per_pass, frame, frame_path).
+    #[arg(long, requires = "frames")]
+    pub json: bool,
+    /// Play a frame sequence from the start (one frame per --frame-passes passes).
+    #[arg(long)]
+    pub play: bool,
+    /// Passes each frame of a playing sequence accumulates before the next.
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
+    pub frame_passes: u32,
+}
+
+/// Every estimator of the renderer runs on the GPU path tracer (the lab's do not, and the
+/// viewer does not offer them).
+fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
+    s.parse()
+}
+
+fn parse_fov(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    let f = v as f32;
+    if !(f > 0.0 && f < 180.0) {
+        return Err(format!("{} must be in (0, 180) degrees", pin_cli::num(v)));
+    }
+    Ok(v)
+}
+
+fn parse_albedo(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("{} must be in [0, 1]", pin_cli::num(v)));
+    }
+    Ok(v)
+}
+
+fn parse_hg_g(s: &str) -> Result<f64, String> {
+    let v = parse_finite(s)?;
+    let f = v as f32;
+    if !(f > -1.0 && f < 1.0) {
+        return Err(format!("{} must be in (-1, 1)", pin_cli::num(v)));
+    }
+    Ok(v)
+}
+
+fn parse_direction(s: &str) -> Result<[f64; 3], String> {
+    let v = parse_f64x3(s)?;
+    let d = glam::Vec3::from_array(v.map(|x| x as f32));
+    if !(d.is_finite() && d.length_squared() > 0.0 && d.normalize().is_finite()) {
+        return Err(format!(
+            "{},{},{} is not a direction",
+            pin_cli::num(v[0]),
+            pin_cli::num(v[1]),
+            pin_cli::num(v[2])
+        ));
+    }
+    Ok(v)
+}
+
+fn parse_exposure(s: &str) -> Result<f32, String> {
+    let v = parse_finite(s)?;
+    if !(v > 0.0 && v <= f64::from(f32::MAX)) {
+        return Err(format!("{} must be > 0", pin_cli::num(v)));
+    }
+    Ok(v as f32)
+}

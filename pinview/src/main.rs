@@ -1,0 +1,141 @@
+//! `pinview`: an interactive GPU viewer of pin files and volumes (see `docs/viewer.md`).
+//!
+//! The window is eframe (winit, X11) drawing egui through egui-wgpu on the project's wgpu;
+//! the image is the GPU path tracer's progressive session ([`pinrender::gpu_render::GpuSession`])
+//! on the same device, tone-mapped into a texture that egui shows, never read back to draw.
+//! Exit codes: 0 success, 1 a bad file, no display or no adapter, 2 usage.
+
+mod app;
+mod args;
+mod export;
+mod open;
+mod sequence;
+mod view;
+
+use std::path::Path;
+use std::process::ExitCode;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use anyhow::{Result, anyhow};
+
+use args::ViewArgs;
+use open::Medium;
+
+fn main() -> ExitCode {
+    let started = Instant::now();
+    let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    // The isolated OpenVDB reader re-executes this binary (see `pinbake::source::vdb`).
+    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
+        return code;
+    }
+    pin_cli::run_main("pinview", args, |a: ViewArgs| run(a, started))
+}
+
+/// Opens one frame or file as the viewer reads it.
+fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
+    if open::is_pin_file(path) {
+        if let Some(flag) = a.read.given().first() {
+            pin_cli::usage!(
+                "{flag} applies to a volume, not to the pin file {}",
+                path.display()
+            );
+        }
+        Medium::open_pins(path)
+    } else {
+        let read = pinrender::volume::VolumeArgs {
+            volume: Some(path.to_path_buf()),
+            read: a.read.clone(),
+        };
+        Medium::open_volume(path, &read)
+    }
+}
+
+fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
+    if a.play && a.frames.is_some() && sequence::split_pattern(&a.file).is_none() {
+        pin_cli::usage!(
+            "--play needs a frame pattern (sim.####.pin), not {}",
+            a.file.display()
+        );
+    }
+    // The file first: a bad one is reported without opening a window.
+    let frames = match sequence::split_pattern(&a.file) {
+        Some(_) => Some(sequence::list_frames(&a.file)?),
+        None => None,
+    };
+    let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
+    let medium = open_medium(&first, &a)?;
+    if let Some(e) = a.estimator {
+        use pinrender::render::EstimatorSpec;
+        if e.needs_density() && !medium.has_density() {
+            return Err(anyhow!(
+                "{}: no embedded density, which the {e} estimator needs (bake with \
+                 `pinbake bake --embed-density N`, or open the volume)",
+                first.display()
+            ));
+        }
+        if e == EstimatorSpec::PinRes && !medium.is_volume && !medium.estimators().contains(&e) {
+            return Err(anyhow!(
+                "{}: no control section, which pinres reads (bake with `pinbake bake \
+                 --embed-control`)",
+                first.display()
+            ));
+        }
+    }
+    for out in [&a.screenshot, &a.save, &a.window_screenshot]
+        .into_iter()
+        .flatten()
+    {
+        pinbake::files::check_output(out, &[first.as_path()])?;
+    }
+    // This build opens X11 windows only (winit's x11 backend).
+    if std::env::var_os("DISPLAY").is_none_or(|d| d.is_empty()) {
+        return Err(anyhow!(
+            "no display: DISPLAY is not set; pinview needs an X server (under a headless \
+             session: `Xvfb :99 & DISPLAY=:99 pinview ...`)"
+        ));
+    }
+    let outcome = Arc::new(Mutex::new(app::Outcome::default()));
+    let options = app::native_options(&a);
+    let a2 = a.clone();
+    let outcome2 = outcome.clone();
+    let opener_args = a.clone();
+    let opener: sequence::Opener = Arc::new(move |p: &Path| open_medium(p, &opener_args));
+    let result = eframe::run_native(
+        "pinview",
+        options,
+        Box::new(move |cc| {
+            let keep = outcome2.clone();
+            match app::Viewer::new(cc, a2, medium, frames, opener, started, outcome2) {
+                Ok(viewer) => Ok(Box::new(viewer)),
+                Err(e) => {
+                    // Reported by `main` as the error itself, not as a window failure.
+                    if let Ok(mut o) = keep.lock() {
+                        o.error = Some(e.to_string());
+                    }
+                    Err(e.to_string().into())
+                }
+            }
+        }),
+    );
+    let outcome = outcome
+        .lock()
+        .map_err(|_| anyhow!("the viewer's outcome was poisoned"))?;
+    if let Some(e) = &outcome.error {
+        return Err(anyhow!("{e}"));
+    }
+    if let Err(e) = result {
+        let line = e.to_string().replace('\n', " ");
+        return Err(anyhow!("cannot open the viewer window: {line}"));
+    }
+    if let Some(json) = &outcome.json {
+        pin_cli::outln!("{json}")?;
+    }
+    if a.frames.is_some() && !outcome.finished {
+        return Err(anyhow!(
+            "the window closed before {} passes were rendered",
+            a.frames.unwrap_or(0)
+        ));
+    }
+    Ok(ExitCode::SUCCESS)
+}

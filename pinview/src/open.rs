@@ -1,0 +1,283 @@
+//! What the viewer renders: a pin file alone, or a volume (tracked at once, its pins baked in
+//! the background), as the media `pinrender render` builds from the same flags, so that the
+//! viewer's passes and a batch render of the same view hold the same bits.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+use anyhow::{Result, anyhow, bail};
+
+use pinrender::gpu_render::{GpuDensity, GpuMedia};
+use pinrender::medium::{MediumDesc, PlacedPins};
+use pinrender::render::{BrickGrid, DensitySource, EstimatorSpec, VoxelGrid};
+use pinrender::volume::{self, Opened, TrackedSource, VolumeArgs};
+use pinrt::SamplerOptions;
+
+/// Majorant bricks per axis: `pinrender render`'s default.
+pub const MAJORANT_BRICKS: u32 = 16;
+
+/// One frame's medium, with what the estimators can read.
+pub struct Medium {
+    pub path: PathBuf,
+    /// World box of the medium (the camera frames it).
+    pub bounds: ([f64; 3], [f64; 3]),
+    /// A volume (`--volume`), as opposed to a pin file alone.
+    pub is_volume: bool,
+    field: Option<Arc<dyn DensitySource>>,
+    majorants: Option<Arc<pinrender::render::MajorantGrid>>,
+    pins: Option<Arc<pinrt::PinGrid>>,
+    opened: Option<(Opened, Arc<TrackedSource>)>,
+    voxels: Option<Arc<VoxelGrid>>,
+    bricks: Option<Arc<BrickGrid>>,
+    /// The GPU copy of the density, made on first use (shared by the estimators).
+    gpu_density: Option<Arc<GpuDensity>>,
+}
+
+/// Every estimator the viewer offers, in menu order.
+pub fn all_estimators() -> Vec<EstimatorSpec> {
+    [
+        "pins",
+        "pinms",
+        "pinres",
+        "ratio",
+        "residual",
+        "delta",
+        "rm@0.015",
+        "urm",
+        "jackknife",
+    ]
+    .iter()
+    .filter_map(|n| n.parse().ok())
+    .collect()
+}
+
+impl Medium {
+    /// A pin file alone (mapped, O(1); the density sections are read when an estimator asks).
+    pub fn open_pins(path: &Path) -> Result<Self> {
+        let grid = Arc::new(volume::load_pins(path)?);
+        let m = volume::pin_file_medium(path, &grid)?;
+        let bounds = grid
+            .sampler()
+            .map_err(|e| anyhow!("{}: {e}", path.display()))?
+            .world_bounds()
+            .unwrap_or(m.bounds);
+        Ok(Self {
+            path: path.to_path_buf(),
+            bounds,
+            is_volume: false,
+            field: m.field(),
+            majorants: m.majorants,
+            pins: Some(grid),
+            opened: None,
+            voxels: m.density,
+            bricks: m.bricks,
+            gpu_density: None,
+        })
+    }
+
+    /// A volume: tracked at once, without pins until [`Medium::set_pins`].
+    pub fn open_volume(path: &Path, read: &VolumeArgs) -> Result<Self> {
+        let opened = volume::open_volume_typed(path, read)?;
+        let source = opened.source();
+        let b = source.bounds();
+        let field = Arc::new(TrackedSource::with_budget(
+            source,
+            pinbake::files::MemoryBudget::new(None).limit,
+        ));
+        Ok(Self {
+            path: path.to_path_buf(),
+            bounds: (b.min.to_array(), b.max.to_array()),
+            is_volume: true,
+            field: Some(field.clone()),
+            majorants: None,
+            pins: None,
+            opened: Some((opened, field)),
+            voxels: None,
+            bricks: None,
+            gpu_density: None,
+        })
+    }
+
+    /// Pins baked for this volume (in the background).
+    pub fn set_pins(&mut self, grid: Arc<pinrt::PinGrid>) {
+        self.pins = Some(grid);
+    }
+
+    pub fn has_density(&self) -> bool {
+        self.field.is_some()
+    }
+
+    /// The estimators this medium answers now.
+    pub fn estimators(&self) -> Vec<EstimatorSpec> {
+        all_estimators()
+            .into_iter()
+            .filter(|e| {
+                (!e.needs_pins() || self.pins.is_some())
+                    && (!e.needs_density() || self.field.is_some())
+                    && (*e != EstimatorSpec::PinRes
+                        || self
+                            .pins
+                            .as_ref()
+                            .and_then(|p| p.file().ok().map(|f| f.control().is_some()))
+                            .unwrap_or(false))
+            })
+            .collect()
+    }
+
+    /// The estimator when none is asked for: `pinrender render`'s default for the same input
+    /// (pinms with pins and a density, pins with pins alone, ratio for a volume without pins).
+    pub fn default_estimator(&self) -> EstimatorSpec {
+        match (self.pins.is_some(), self.field.is_some()) {
+            (true, true) => EstimatorSpec::PinMs,
+            (true, false) => EstimatorSpec::Pins,
+            _ => EstimatorSpec::RatioTracking,
+        }
+    }
+
+    /// The medium description of a render with `estimator` on `limits`' device (the GPU copy
+    /// of the density only when the estimator reads it), as `pinrender render` makes it.
+    pub fn desc(&mut self, estimator: EstimatorSpec, limits: &wgpu::Limits) -> Result<MediumDesc> {
+        if estimator.needs_pins() && self.pins.is_none() {
+            bail!(
+                "{}: the {estimator} estimator needs pins, which are not baked yet",
+                self.path.display()
+            );
+        }
+        if estimator.needs_density() && self.field.is_none() {
+            bail!(
+                "{}: no embedded density, which the {estimator} estimator needs (bake with \
+                 `pinbake bake --embed-density N`, or open the volume)",
+                self.path.display()
+            );
+        }
+        let gpu_density = if estimator.needs_density() {
+            if self.gpu_density.is_none() {
+                self.gpu_density = Some(Arc::new(self.gpu_copy(limits)?));
+            }
+            self.gpu_density.clone()
+        } else {
+            None
+        };
+        Ok(MediumDesc {
+            field: self.field.clone(),
+            majorants: self.majorants.clone(),
+            majorant_bricks: MAJORANT_BRICKS,
+            pins: self.pins.clone().map(|grid| PlacedPins {
+                grid,
+                local_to_world: None,
+            }),
+            gpu_density,
+            translation: [0.0; 3],
+        })
+    }
+
+    /// The GPU's copy of the density, chosen as `pinrender render` chooses it.
+    fn gpu_copy(&self, limits: &wgpu::Limits) -> Result<GpuDensity> {
+        let max_dense = volume::GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(limits) / 4);
+        let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
+        match (&self.opened, &self.voxels, &self.bricks) {
+            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
+            (None, _, Some(b)) => match b.to_voxels(max_dense) {
+                Some(v) => dense(v),
+                None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
+            },
+            (None, Some(v), None) => dense((**v).clone()),
+            (None, None, None) => bail!("{}: no density to upload", self.path.display()),
+        }
+    }
+}
+
+/// The GPU media of `desc` for `estimator`, as `pinrender render --backend gpu` packs them.
+pub fn gpu_media(desc: &MediumDesc, estimator: EstimatorSpec) -> Result<GpuMedia<'_>> {
+    pinrender::medium::gpu_media(
+        std::slice::from_ref(desc),
+        Some(estimator),
+        SamplerOptions::RENDER,
+    )
+    .map_err(|e| anyhow!("{e}"))
+}
+
+/// A bake of a volume's pins on a worker thread, as `pinrender render` bakes without `--pins`
+/// (cells, directions and pins chosen from the volume by `pinbake::plan`), with the control
+/// section so that pinres can run too.
+pub struct BakeJob {
+    pub done: Arc<AtomicU64>,
+    pub total: u64,
+    cancel: Arc<AtomicBool>,
+    handle: Option<std::thread::JoinHandle<Result<pinrt::PinGrid>>>,
+}
+
+impl BakeJob {
+    pub fn start(medium: &Medium, seed: u64) -> Result<Self> {
+        let Some((_, field)) = &medium.opened else {
+            bail!("only a volume is baked");
+        };
+        let source = field.source().clone();
+        let req = pinbake::BakeRequest {
+            seed,
+            embed_control: Some(pinbake::control::ControlOptions::default()),
+            ..pinbake::BakeRequest::default()
+        };
+        let choice = pinbake::plan::choose(source.as_ref(), &req)?;
+        let mut opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
+        pinbake::files::MemoryBudget::new(None).check(
+            &format!(
+                "baking {:?} pin cells x {:?} in memory",
+                opts.cells, opts.directions
+            ),
+            pinbake::bake::estimate_output_bytes(&opts).saturating_mul(2),
+        )?;
+        let cancel = Arc::new(AtomicBool::new(false));
+        opts.cancel = Some(cancel.clone());
+        let total = opts.cells.iter().map(|&c| u64::from(c)).product::<u64>()
+            * u64::from(opts.directions.count())
+            * u64::from(opts.pins_per_entry);
+        let done = Arc::new(AtomicU64::new(0));
+        let counter = done.clone();
+        let handle = std::thread::Builder::new()
+            .name("pinview bake".into())
+            .spawn(move || {
+                let progress = move |n: u64| {
+                    counter.fetch_add(n, Ordering::Relaxed);
+                };
+                let (grid, _) = pinbake::bake(source.as_ref(), &opts, &progress)?;
+                pinrt::PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
+            })?;
+        Ok(Self {
+            done,
+            total: total.max(1),
+            cancel,
+            handle: Some(handle),
+        })
+    }
+
+    /// Fraction of the pins baked.
+    pub fn progress(&self) -> f32 {
+        (self.done.load(Ordering::Relaxed) as f64 / self.total as f64).min(1.0) as f32
+    }
+
+    /// The grid when the bake has finished (then `Some` once).
+    pub fn finished(&mut self) -> Option<Result<pinrt::PinGrid>> {
+        if self.handle.as_ref().is_some_and(|h| h.is_finished()) {
+            let h = self.handle.take()?;
+            return Some(
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow!("the bake panicked"))),
+            );
+        }
+        None
+    }
+}
+
+impl Drop for BakeJob {
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+}
+
+/// Whether `path` names a pin file (by its extension; anything else is read as a volume).
+pub fn is_pin_file(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("pin"))
+}

@@ -1,0 +1,176 @@
+//! The view: camera, light, material, estimator and exposure, in the units of `pinrender
+//! render`'s flags, so that the GPU scene is built from them exactly as the batch renderer
+//! builds it and the view can be written back as its command line.
+
+use std::path::Path;
+
+use glam::DVec3;
+use pinrender::gpu_render::GpuScene;
+use pinrender::render::{Camera, EstimatorSpec, Sun};
+
+use crate::args::ViewArgs;
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct View {
+    pub estimator: EstimatorSpec,
+    pub width: u32,
+    pub height: u32,
+    pub origin: [f64; 3],
+    pub target: [f64; 3],
+    pub fov: f64,
+    pub sun_dir: [f64; 3],
+    pub sun_radiance: f64,
+    pub env_radiance: f64,
+    pub albedo: f64,
+    pub g: f64,
+    pub max_bounces: u32,
+    pub seed: u64,
+    pub exposure: f32,
+}
+
+/// `pinrender render`'s default camera for a medium's world box: in front of the box,
+/// looking at its centre.
+pub fn default_camera(bounds: &([f64; 3], [f64; 3])) -> ([f64; 3], [f64; 3]) {
+    let (lo, hi) = (DVec3::from(bounds.0), DVec3::from(bounds.1));
+    let centre = (lo + hi) * 0.5;
+    let size = (hi - lo).length();
+    (
+        [
+            centre.x + 0.35 * size,
+            centre.y + 0.25 * size,
+            centre.z + 1.6 * size,
+        ],
+        centre.to_array(),
+    )
+}
+
+impl View {
+    pub fn new(a: &ViewArgs, bounds: &([f64; 3], [f64; 3]), estimator: EstimatorSpec) -> Self {
+        let (origin, target) = default_camera(bounds);
+        let target = a.camera_target.unwrap_or(target);
+        Self {
+            estimator,
+            width: a.width,
+            height: a.height,
+            origin: a.camera_origin.unwrap_or(origin),
+            target,
+            fov: a.fov,
+            sun_dir: a.sun_dir,
+            sun_radiance: a.sun_radiance,
+            env_radiance: a.env_radiance,
+            albedo: a.albedo,
+            g: a.g,
+            max_bounces: a.max_bounces,
+            seed: a.seed,
+            exposure: a.exposure,
+        }
+    }
+
+    /// The scene as `pinrender render` builds it from the same flags.
+    pub fn scene(&self) -> GpuScene {
+        let f = |v: [f64; 3]| v.map(|x| x as f32);
+        GpuScene {
+            camera: Camera {
+                origin: f(self.origin),
+                target: f(self.target),
+                vfov_deg: self.fov as f32,
+                width: self.width,
+                height: self.height,
+            },
+            sun: (self.sun_radiance > 0.0).then(|| Sun {
+                dir: f(self.sun_dir),
+                radiance: [self.sun_radiance as f32; 3],
+            }),
+            env_radiance: [self.env_radiance as f32; 3],
+            albedo: self.albedo as f32,
+            g: self.g as f32,
+            max_bounces: self.max_bounces,
+        }
+    }
+
+    /// Turns the camera around its target: `yaw` about the world's y axis, `pitch` towards
+    /// the poles (radians; kept off the poles).
+    pub fn orbit(&mut self, yaw: f64, pitch: f64) {
+        let t = DVec3::from(self.target);
+        let d = DVec3::from(self.origin) - t;
+        let r = d.length().max(1e-9);
+        let az = d.x.atan2(d.z) + yaw;
+        let el = ((d.y / r).clamp(-1.0, 1.0).asin() + pitch).clamp(-1.5, 1.5);
+        let o = t + r * DVec3::new(el.cos() * az.sin(), el.sin(), el.cos() * az.cos());
+        self.origin = o.to_array();
+    }
+
+    /// Moves camera and target in the image plane by fractions of the distance to the target.
+    pub fn pan(&mut self, dx: f64, dy: f64) {
+        let t = DVec3::from(self.target);
+        let o = DVec3::from(self.origin);
+        let f = (t - o).normalize_or_zero();
+        let mut r = f.cross(DVec3::Y);
+        if r.length_squared() < 1e-12 {
+            r = f.cross(DVec3::Z);
+        }
+        let r = r.normalize_or_zero();
+        let u = r.cross(f);
+        let shift = ((-dx) * r + dy * u) * (t - o).length();
+        self.origin = (o + shift).to_array();
+        self.target = (t + shift).to_array();
+    }
+
+    /// Moves the camera towards the target by `factor` of the distance (< 1 closer).
+    pub fn zoom(&mut self, factor: f64) {
+        let t = DVec3::from(self.target);
+        let o = DVec3::from(self.origin);
+        let o = t + (o - t) * factor.clamp(0.05, 20.0);
+        self.origin = o.to_array();
+    }
+
+    /// Turns the sun direction about the world's y axis and towards the zenith.
+    pub fn turn_sun(&mut self, yaw: f64, pitch: f64) {
+        let d = DVec3::from(self.sun_dir).normalize_or_zero();
+        let az = d.x.atan2(d.z) + yaw;
+        let el = (d.y.clamp(-1.0, 1.0).asin() + pitch).clamp(-1.55, 1.55);
+        self.sun_dir = [el.cos() * az.sin(), el.sin(), el.cos() * az.cos()];
+    }
+
+    /// The `pinrender render` command line that renders this view of `file` in batch
+    /// (`spp` samples, the same seed): with `--backend gpu`, the same bits as the viewer's
+    /// accumulation after `spp` passes.
+    pub fn command_line(&self, file: &Path, is_volume: bool, spp: u32) -> String {
+        let v3 = |v: [f64; 3]| format!("{},{},{}", v[0], v[1], v[2]);
+        let input = if is_volume { "--volume" } else { "--pins" };
+        format!(
+            "pinrender render {input} {} --backend gpu --estimator {} --width {} --height {} \
+             --camera-origin {} --camera-target {} --fov {} --sun-dir {} --sun-radiance {} \
+             --env-radiance {} --albedo {} --g {} --max-bounces {} --seed {} --exposure {} \
+             --spp {} --out view.exr",
+            shell_quote(&file.display().to_string()),
+            self.estimator,
+            self.width,
+            self.height,
+            v3(self.origin),
+            v3(self.target),
+            self.fov,
+            v3(self.sun_dir),
+            self.sun_radiance,
+            self.env_radiance,
+            self.albedo,
+            self.g,
+            self.max_bounces,
+            self.seed,
+            self.exposure,
+            spp.max(1),
+        )
+    }
+}
+
+/// `s` as one shell word.
+fn shell_quote(s: &str) -> String {
+    if !s.is_empty()
+        && s.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"-_./:=@,+".contains(&b))
+    {
+        s.to_string()
+    } else {
+        format!("'{}'", s.replace('\'', "'\\''"))
+    }
+}

@@ -1,0 +1,191 @@
+//! The scripting contract: the screenshot and the EXR against `pinrender render --backend
+//! gpu`, the JSON line, the default estimator, and that a camera or sun change changes the
+//! image.
+
+use crate::support::*;
+
+/// (viewer EXR bits, pinrender EXR bits, viewer PNG, pinrender PNG, JSON line).
+type Both = (
+    Vec<u32>,
+    Vec<u32>,
+    (u32, u32, Vec<u8>),
+    (u32, u32, Vec<u8>),
+    serde_json::Value,
+);
+
+/// Renders `file` with pinview (`--frames spp`) and with `pinrender render --backend gpu`
+/// (`--spp spp`), both with `flags`, and returns (viewer EXR, pinrender EXR, viewer PNG,
+/// pinrender PNG, JSON).
+fn both(
+    dir: &std::path::Path,
+    tag: &str,
+    input: (&str, &str),
+    flags: &[&str],
+    spp: u32,
+) -> Option<Both> {
+    let display = display()?;
+    let shot = dir.join(format!("{tag}-view.png"));
+    let saved = dir.join(format!("{tag}-view.exr"));
+    let reference = dir.join(format!("{tag}-ref.exr"));
+    let n = spp.to_string();
+    let mut view_args = vec![input.1];
+    view_args.extend_from_slice(flags);
+    view_args.extend_from_slice(&[
+        "--frames",
+        &n,
+        "--screenshot",
+        s(&shot),
+        "--save",
+        s(&saved),
+        "--json",
+    ]);
+    let out = pinview(Some(&display), &view_args);
+    ok(&out, "pinview");
+    let mut render_args = vec![input.0, input.1, "--backend", "gpu", "--spp", &n];
+    render_args.extend_from_slice(flags);
+    render_args.extend_from_slice(&["--out", s(&reference)]);
+    ok(&pinrender_render(&render_args), "pinrender render");
+    Some((
+        exr_bits(&saved),
+        exr_bits(&reference),
+        png_rgb(&shot),
+        png_rgb(&reference.with_extension("png")),
+        json(&out),
+    ))
+}
+
+fn assert_png_close(view: &(u32, u32, Vec<u8>), reference: &(u32, u32, Vec<u8>)) {
+    assert_eq!((view.0, view.1), (reference.0, reference.1), "PNG sizes");
+    let worst = view
+        .2
+        .iter()
+        .zip(&reference.2)
+        .map(|(&a, &b)| (i32::from(a) - i32::from(b)).abs())
+        .max()
+        .unwrap();
+    let off = view
+        .2
+        .iter()
+        .zip(&reference.2)
+        .filter(|(a, b)| a != b)
+        .count();
+    // The window's tone map runs in f32 on the GPU: a code may be one step off where the
+    // value sits on a rounding boundary; the EXR is compared bit for bit.
+    assert!(
+        worst <= 1,
+        "a screenshot code is {worst} steps off pinrender's PNG"
+    );
+    assert!(
+        off * 50 <= view.2.len(),
+        "{off} screenshot codes differ from pinrender's PNG"
+    );
+    assert!(view.2.iter().any(|&c| c > 30), "the screenshot is black");
+}
+
+#[test]
+fn pins_alone_matches_pinrender_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let mut flags = VIEW.to_vec();
+    flags.extend_from_slice(&["--seed", "7", "--g", "0.3", "--max-bounces", "3"]);
+    let Some((view, reference, vpng, rpng, j)) =
+        both(dir.path(), "pins", ("--pins", s(&pins)), &flags, 3)
+    else {
+        return;
+    };
+    assert_eq!(view.len(), 48 * 40 * 3);
+    assert!(
+        view == reference,
+        "the viewer's EXR differs from pinrender render --backend gpu"
+    );
+    assert_png_close(&vpng, &rpng);
+    // Without --estimator both use pins: the file has no density.
+    assert_eq!(j["estimator"], "pins");
+    assert_eq!(j["width"], 48);
+    assert_eq!(j["height"], 40);
+    assert_eq!(j["passes"], 3);
+    for key in ["adapter", "backend"] {
+        assert!(j[key].as_str().is_some_and(|v| !v.is_empty()), "{key}: {j}");
+    }
+    for key in ["first_image_s", "ms_per_pass"] {
+        assert!(j[key].as_f64().is_some_and(|v| v > 0.0), "{key}: {j}");
+    }
+}
+
+#[test]
+fn embedded_density_defaults_to_pinms_and_matches() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, Some(12));
+    let mut flags = VIEW.to_vec();
+    flags.extend_from_slice(&["--seed", "3"]);
+    let Some((view, reference, vpng, rpng, j)) =
+        both(dir.path(), "pinms", ("--pins", s(&pins)), &flags, 2)
+    else {
+        return;
+    };
+    assert_eq!(j["estimator"], "pinms", "{j}");
+    assert!(
+        view == reference,
+        "pinms: the viewer's EXR differs from pinrender's"
+    );
+    assert_png_close(&vpng, &rpng);
+}
+
+#[test]
+fn a_volume_is_tracked_with_ratio_like_pinrender() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut flags = VIEW.to_vec();
+    flags.extend_from_slice(&["--seed", "11", "--estimator", "ratio"]);
+    let Some((view, reference, ..)) = both(dir.path(), "ratio", ("--volume", COSINE), &flags, 2)
+    else {
+        return;
+    };
+    assert!(
+        view == reference,
+        "ratio on a volume: the viewer's EXR differs"
+    );
+}
+
+/// One pinview EXR of the pin file with `extra` flags.
+fn view_exr(
+    display: &Display,
+    dir: &std::path::Path,
+    pins: &std::path::Path,
+    tag: &str,
+    extra: &[&str],
+) -> Vec<u32> {
+    let out_path = dir.join(format!("{tag}.exr"));
+    let mut args = vec![s(pins)];
+    // An --camera-origin in `extra` replaces the default one (clap takes each flag once).
+    let skip = if extra.contains(&"--camera-origin") {
+        2
+    } else {
+        0
+    };
+    args.extend_from_slice(&VIEW[skip..]);
+    args.extend_from_slice(extra);
+    args.extend_from_slice(&["--frames", "2", "--save", s(&out_path)]);
+    ok(&pinview(Some(display), &args), "pinview");
+    exr_bits(&out_path)
+}
+
+#[test]
+fn camera_and_sun_changes_change_the_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let Some(display) = display() else { return };
+    let d = &display;
+    let base = view_exr(d, dir.path(), &pins, "base", &[]);
+    let again = view_exr(d, dir.path(), &pins, "again", &[]);
+    assert!(base == again, "the same view must give the same bits");
+    let sun = view_exr(d, dir.path(), &pins, "sun", &["--sun-dir", "-0.8,0.3,-0.5"]);
+    assert!(sun != base, "moving the sun left the image unchanged");
+    let camera = view_exr(
+        d,
+        dir.path(),
+        &pins,
+        "camera",
+        &["--camera-origin", "2.4,0.9,0.7"],
+    );
+    assert!(camera != base, "moving the camera left the image unchanged");
+}

@@ -1,0 +1,87 @@
+//! Failure lines: one line on stderr naming the problem (and the file), exit 1 (2 for usage),
+//! never a panic.
+
+use std::process::Output;
+
+use crate::support::*;
+
+fn one_line(out: &Output, code: i32, needle: &str) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(code), "exit code; stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "one line expected: {err}");
+    assert!(lines[0].starts_with("pinview: error: "), "{err}");
+    assert!(lines[0].contains(needle), "'{needle}' missing from: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(out.stdout.is_empty(), "nothing on stdout on failure");
+}
+
+#[test]
+fn failures_are_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(display) = display() else { return };
+    let d = Some(&display);
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let missing = dir.path().join("missing.pin");
+    one_line(
+        &pinview(d, &[s(&missing), "--frames", "1"]),
+        1,
+        "missing.pin",
+    );
+    let garbage = dir.path().join("garbage.pin");
+    std::fs::write(&garbage, b"not a pin file at all, just some bytes").unwrap();
+    one_line(
+        &pinview(d, &[s(&garbage), "--frames", "1"]),
+        1,
+        "garbage.pin",
+    );
+    // A pin file without density cannot be tracked.
+    one_line(
+        &pinview(d, &[s(&pins), "--estimator", "ratio", "--frames", "1"]),
+        1,
+        "no embedded density",
+    );
+    // A frame pattern that matches nothing.
+    let pattern = dir.path().join("sim.####.pin");
+    one_line(
+        &pinview(d, &[s(&pattern), "--frames", "1"]),
+        1,
+        "no frame matches",
+    );
+    // Usage errors: exit 2.
+    one_line(&pinview(d, &[s(&pins), "--frames", "0"]), 2, "--frames");
+    one_line(
+        &pinview(d, &[s(&pins), "--albedo", "2", "--frames", "1"]),
+        2,
+        "--albedo",
+    );
+    one_line(
+        &pinview(d, &[s(&pins), "--screenshot", "x.png"]),
+        2,
+        "--frames",
+    );
+    one_line(
+        &pinview(d, &[s(&pins), "--estimator", "pinurm", "--frames", "1"]),
+        2,
+        "CPU",
+    );
+    one_line(
+        &pinview(d, &[s(&pins), "--density-scale", "2", "--frames", "1"]),
+        2,
+        "--density-scale",
+    );
+    // An output that is an input is refused before any window opens.
+    one_line(
+        &pinview(d, &[s(&pins), "--frames", "1", "--save", s(&pins)]),
+        1,
+        "c.pin",
+    );
+}
+
+#[test]
+fn no_display_is_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let out = pinview(None, &[s(&pins), "--frames", "1"]);
+    one_line(&out, 1, "no display");
+}

@@ -1,0 +1,8 @@
+//! pinview in a real window: under Xvfb (one private server per test) on the machine's
+//! adapter (lavapipe on CI). Each test compares what the viewer writes with `pinrender
+//! render --backend gpu` for the same flags, seed and passes, or checks a failure line.
+
+mod contract;
+mod failures;
+mod sequence;
+mod support;

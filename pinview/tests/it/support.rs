@@ -1,0 +1,212 @@
+//! A private X server per test (Xvfb), the binaries, and small bakes.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::{Duration, Instant};
+
+use pin_format::Metadata;
+use pinbake::source::{DensitySource, ProceduralSpec, SourceIdentity};
+
+pub const PINVIEW: &str = env!("CARGO_BIN_EXE_pinview");
+pub const COSINE: &str = "procedural:cosine:seed=5,freq=4,density=6";
+
+/// `pinrender` from the same target directory (built by `cargo test --workspace`).
+pub fn pinrender() -> PathBuf {
+    let dir = Path::new(PINVIEW).parent().unwrap();
+    let bin = dir.join("pinrender");
+    assert!(
+        bin.exists(),
+        "{} is missing: build it with `cargo build --release -p pinrender --all-features` \
+         (cargo test --workspace builds it)",
+        bin.display()
+    );
+    bin
+}
+
+/// An Xvfb server on a display of its own, stopped when dropped.
+pub struct Display {
+    child: Child,
+    number: u32,
+    pub name: String,
+}
+
+impl Drop for Display {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        // A killed server leaves its lock and socket behind; they are this test's own.
+        let _ = std::fs::remove_file(format!("/tmp/.X{}-lock", self.number));
+        let _ = std::fs::remove_file(format!("/tmp/.X11-unix/X{}", self.number));
+    }
+}
+
+/// Whether a missing X server must fail the test rather than skip it: on CI (`CI` set), the
+/// window tests are the point of the job.
+fn must_run() -> bool {
+    std::env::var_os("CI").is_some_and(|v| !v.is_empty() && v != "0" && v != "false")
+}
+
+/// Starts Xvfb, or returns `None` (after printing why) where it is not installed outside CI.
+pub fn display() -> Option<Display> {
+    static NEXT: AtomicU32 = AtomicU32::new(0);
+    if Command::new("Xvfb")
+        .arg("-help")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_err()
+    {
+        let why = "Xvfb is not installed (Debian package `xvfb`); the window tests need it";
+        assert!(!must_run(), "{why}");
+        eprintln!("SKIPPED: {why}");
+        return None;
+    }
+    for _ in 0..64 {
+        let n = 100 + (std::process::id() % 256) * 64 + NEXT.fetch_add(1, Ordering::Relaxed) % 64;
+        if Path::new(&format!("/tmp/.X{n}-lock")).exists() {
+            continue;
+        }
+        let mut child = Command::new("Xvfb")
+            .args([
+                format!(":{n}").as_str(),
+                "-screen",
+                "0",
+                "1600x1200x24",
+                "-nolisten",
+                "tcp",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starting Xvfb");
+        let socket = format!("/tmp/.X11-unix/X{n}");
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(10) {
+            if Path::new(&socket).exists() {
+                return Some(Display {
+                    child,
+                    number: n,
+                    name: format!(":{n}"),
+                });
+            }
+            if let Ok(Some(_)) = child.try_wait() {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    panic!("could not start Xvfb on any display");
+}
+
+/// Runs pinview on `display` (none: without any display) with `args`.
+pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
+    let mut cmd = Command::new(PINVIEW);
+    cmd.args(args)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir());
+    match display {
+        Some(d) => cmd.env("DISPLAY", &d.name),
+        None => cmd.env_remove("DISPLAY"),
+    };
+    cmd.stdin(Stdio::null()).output().expect("running pinview")
+}
+
+/// A private, valid XDG runtime directory: without one Mesa's Vulkan loader prints a warning
+/// line per start, which the one-line failure checks would count.
+fn runtime_dir() -> PathBuf {
+    static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("pinview-xdg-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).unwrap();
+        dir
+    })
+    .clone()
+}
+
+pub fn pinrender_render(args: &[&str]) -> Output {
+    Command::new(pinrender())
+        .env("XDG_RUNTIME_DIR", runtime_dir())
+        .arg("render")
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("running pinrender")
+}
+
+pub fn ok(out: &Output, what: &str) {
+    assert!(
+        out.status.success(),
+        "{what} failed ({:?}): {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Bakes the cosine field times `scale` (8^3 cells), with `embed` density voxels per axis.
+pub fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>) -> PathBuf {
+    let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
+    p.density *= scale;
+    let src: Box<dyn DensitySource> = p.build().unwrap();
+    let opts = pinbake::BakeOptions {
+        cells: [8; 3],
+        density_scale: scale,
+        embed_density: embed.map(|n| pinbake::EmbedDensity::Dense([n; 3])),
+        majorant: embed.map(|_| [8; 3]),
+        metadata: Metadata {
+            extra: SourceIdentity::of(src.as_ref(), scale).to_extra(),
+            ..Metadata::default()
+        },
+        ..pinbake::BakeOptions::default()
+    };
+    let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
+    let path = dir.join(name);
+    grid.write_atomic(&path).unwrap();
+    path
+}
+
+/// The camera of the renders here: in front of the unit box.
+pub const VIEW: [&str; 8] = [
+    "--camera-origin",
+    "0.5,0.6,2.6",
+    "--camera-target",
+    "0.5,0.5,0.5",
+    "--width",
+    "48",
+    "--height",
+    "40",
+];
+
+/// An EXR's float bits.
+pub fn exr_bits(path: &Path) -> Vec<u32> {
+    let im = pinrender::render::Image::read_exr(path).unwrap();
+    im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect()
+}
+
+/// A PNG's 8-bit RGB (or RGBA reduced to RGB) and its size.
+pub fn png_rgb(path: &Path) -> (u32, u32, Vec<u8>) {
+    let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let channels = info.color_type.samples();
+    let rgb = buf[..info.buffer_size()]
+        .chunks_exact(channels)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    (info.width, info.height, rgb)
+}
+
+pub fn json(out: &Output) -> serde_json::Value {
+    let s = String::from_utf8_lossy(&out.stdout);
+    let line = s.lines().last().unwrap_or_default();
+    serde_json::from_str(line).unwrap_or_else(|e| panic!("not one JSON object ({e}): {s}"))
+}
+
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
