@@ -126,6 +126,10 @@ fn asset_file(
     if given.is_empty() {
         return Err(SceneError::at(file, at(), "is an empty path"));
     }
+    // A procedural volume (`procedural:cosine:...`, as `pinbake bake` takes it) is no file.
+    if given.starts_with("procedural:") {
+        return Ok(Some(PathBuf::from(given)));
+    }
     let resolved = base.join(&given);
     check_regular(&resolved).map_err(|e| SceneError::at(file, at(), e.to_string()))?;
     Ok(Some(resolved))

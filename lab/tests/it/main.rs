@@ -5,4 +5,5 @@ mod eval_cli;
 mod gpu_density;
 mod hostile;
 mod pin_alone;
+mod scene;
 mod shaders;

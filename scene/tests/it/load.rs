@@ -12,7 +12,8 @@ fn a_whole_scene_reads_in_order_with_paths_resolved() {
         r#"{
           "assets": {
             "z": {"pins": "sub/b.pin"},
-            "a": {"volume": "a.vdb", "pins": "a.pin", "density_scale": 2.5, "grid": "density"}
+            "a": {"volume": "a.vdb", "pins": "a.pin", "density_scale": 2.5, "grid": "density"},
+            "p": {"volume": "procedural:cosine:seed=5"}
           },
           "instances": [
             {"asset": "a"},
@@ -27,7 +28,7 @@ fn a_whole_scene_reads_in_order_with_paths_resolved() {
     );
     let s = load(&p, None).unwrap();
     let names: Vec<_> = s.assets.iter().map(|a| a.name.as_str()).collect();
-    assert_eq!(names, ["z", "a"], "document order, not name order");
+    assert_eq!(names, ["z", "a", "p"], "document order, not name order");
     assert_eq!(
         s.assets[0].pins.as_deref(),
         Some(dir.path().join("sub/b.pin").as_path())
@@ -55,7 +56,12 @@ fn a_whole_scene_reads_in_order_with_paths_resolved() {
     assert_eq!(s.instances[2].local_to_world, compose_trs(&trs));
     let m = s.instances[3].local_to_world;
     assert_eq!([m[0], m[5], m[10]], [1.0, 2.0, 3.0]);
-    assert_eq!(s.uses(), [1, 3]);
+    assert_eq!(s.uses(), [1, 3, 0]);
+    assert_eq!(
+        s.assets[2].volume.as_deref(),
+        Some(std::path::Path::new("procedural:cosine:seed=5")),
+        "a procedural volume is no file"
+    );
     assert_eq!(s.camera.origin, Some([0.0, 0.0, -5.0]));
     assert_eq!(s.camera.fov, Some(30.0));
     assert_eq!(s.sun.direction, Some([0.0, 1.0, 0.0]));

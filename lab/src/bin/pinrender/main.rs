@@ -10,6 +10,7 @@ mod cpu_time;
 mod data;
 mod eval;
 mod render_cmd;
+mod scene_cmd;
 mod shaders;
 
 // The volume adapters live in the library (its tests link against them); the subcommands

@@ -59,6 +59,10 @@ for bit.")]
 pub struct RenderArgs {
     #[command(flatten)]
     pub volume: VolumeArgs,
+    /// A scene file of instanced volumes (docs/scene.md), instead of --volume and --pins. Its
+    /// camera, sun, sky, albedo, g and bounces apply unless a flag gives them.
+    #[arg(long, conflicts_with = "pins")]
+    pub scene: Option<PathBuf>,
     /// Pin file for the `pins`, `pinms`, `pinurm` and `pinres` estimators (default: bake the
     /// volume in memory).
     /// Without --volume, the medium itself: the estimators that need density use the file's
@@ -98,25 +102,33 @@ pub struct RenderArgs {
     /// Point the camera looks at (default: the box centre).
     #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
     pub camera_target: Option<[f64; 3]>,
-    /// Vertical field of view in degrees, in (0, 180).
-    #[arg(long, default_value_t = 40.0, value_parser = parse_fov)]
-    pub fov: f64,
-    /// Direction from the scene towards the sun (finite, not zero).
-    #[arg(long, value_parser = parse_direction, default_value = "0.3,1,0.2", allow_hyphen_values = true)]
-    pub sun_dir: [f64; 3],
-    #[arg(long, default_value_t = 3.0, value_parser = pin_cli::parse::parse_nonneg)]
-    pub sun_radiance: f64,
-    #[arg(long, default_value_t = 0.3, value_parser = pin_cli::parse::parse_nonneg)]
-    pub env_radiance: f64,
-    /// Single-scattering albedo, in [0, 1].
-    #[arg(long, default_value_t = 0.9, value_parser = parse_albedo)]
-    pub albedo: f64,
-    /// Henyey-Greenstein asymmetry, in (-1, 1).
-    #[arg(long, default_value_t = 0.0, value_parser = parse_hg_g, allow_negative_numbers = true)]
-    pub g: f64,
-    /// Scattering events at most (with --backend gpu at most 1024, the GPU's limit).
-    #[arg(long, default_value_t = 8)]
-    pub max_bounces: u32,
+    /// Vertical field of view in degrees, in (0, 180) [default: 40, or the scene's].
+    #[arg(long = "fov", value_parser = parse_fov)]
+    pub fov_flag: Option<f64>,
+    /// Direction from the scene towards the sun (finite, not zero) [default: 0.3,1,0.2, or
+    /// the scene's].
+    #[arg(long = "sun-dir", value_parser = parse_direction, allow_hyphen_values = true)]
+    pub sun_dir_flag: Option<[f64; 3]>,
+    /// [default: 3, or the scene's]
+    #[arg(long = "sun-radiance", value_parser = pin_cli::parse::parse_nonneg)]
+    pub sun_radiance_flag: Option<f64>,
+    /// [default: 0.3, or the scene's]
+    #[arg(long = "env-radiance", value_parser = pin_cli::parse::parse_nonneg)]
+    pub env_radiance_flag: Option<f64>,
+    /// Single-scattering albedo, in [0, 1] [default: 0.9, or the scene's].
+    #[arg(long = "albedo", value_parser = parse_albedo)]
+    pub albedo_flag: Option<f64>,
+    /// Henyey-Greenstein asymmetry, in (-1, 1) [default: 0, or the scene's].
+    #[arg(long = "g", value_parser = parse_hg_g, allow_negative_numbers = true)]
+    pub g_flag: Option<f64>,
+    /// Scattering events at most (with --backend gpu at most 1024, the GPU's limit)
+    /// [default: 8, or the scene's].
+    #[arg(long = "max-bounces")]
+    pub max_bounces_flag: Option<u32>,
+    /// The lighting and medium values of the render: the flags, else the scene file's, else
+    /// the defaults (set by `run`).
+    #[arg(skip = Look::default())]
+    pub look: Look,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Majorant bricks per axis for the trackers (1..=1024).
@@ -187,7 +199,7 @@ fn parse_jitter(s: &str) -> Result<f32, String> {
 }
 
 impl RenderArgs {
-    fn lookup(&self) -> SamplerOptions {
+    pub(crate) fn lookup(&self) -> SamplerOptions {
         SamplerOptions {
             spatial_jitter: self.spatial_jitter,
             directional_jitter: self.directional_jitter,
@@ -266,11 +278,11 @@ fn parse_exposure(s: &str) -> Result<f32, String> {
 
 /// Bytes per pixel the renderers hold at most: the f32 RGB image, f64 sums of the passes,
 /// the PNG and EXR encoders' copies, with slack.
-const BYTES_PER_PIXEL: u64 = 96;
+pub(crate) const BYTES_PER_PIXEL: u64 = 96;
 
 /// Where the images go: `(exr, png)`; `FILE.png` writes the PNG only. Both are checked
 /// against the inputs and refused when they are not a new path or a regular file.
-fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf)> {
+pub(crate) fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf)> {
     let is_png = a
         .out
         .extension()
@@ -304,7 +316,66 @@ pub fn default_estimator(volume: Option<&Path>, pins: Option<&Path>) -> Result<E
     })
 }
 
+/// The values a scene file may set and a flag overrides.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Look {
+    pub fov: f64,
+    pub sun_dir: [f64; 3],
+    pub sun_radiance: f64,
+    pub env_radiance: f64,
+    pub albedo: f64,
+    pub g: f64,
+    pub max_bounces: u32,
+}
+
+impl Default for Look {
+    fn default() -> Self {
+        Look {
+            fov: 40.0,
+            sun_dir: [0.3, 1.0, 0.2],
+            sun_radiance: 3.0,
+            env_radiance: 0.3,
+            albedo: 0.9,
+            g: 0.0,
+            max_bounces: 8,
+        }
+    }
+}
+
+impl RenderArgs {
+    /// The look of the render: each flag given, else the scene's value, else the default.
+    pub fn look_over(&self, scene: Option<&pin_scene::Scene>) -> Look {
+        let d = Look::default();
+        let sc = |f: &dyn Fn(&pin_scene::Scene) -> Option<f64>| scene.and_then(f);
+        Look {
+            fov: self.fov_flag.or(sc(&|s| s.camera.fov)).unwrap_or(d.fov),
+            sun_dir: self
+                .sun_dir_flag
+                .or(scene.and_then(|s| s.sun.direction))
+                .unwrap_or(d.sun_dir),
+            sun_radiance: self
+                .sun_radiance_flag
+                .or(sc(&|s| s.sun.radiance))
+                .unwrap_or(d.sun_radiance),
+            env_radiance: self
+                .env_radiance_flag
+                .or(sc(&|s| s.env_radiance))
+                .unwrap_or(d.env_radiance),
+            albedo: self.albedo_flag.or(sc(&|s| s.albedo)).unwrap_or(d.albedo),
+            g: self.g_flag.or(sc(&|s| s.g)).unwrap_or(d.g),
+            max_bounces: self
+                .max_bounces_flag
+                .or(scene.and_then(|s| s.max_bounces))
+                .unwrap_or(d.max_bounces),
+        }
+    }
+}
+
 pub fn run(mut a: RenderArgs) -> Result<()> {
+    if let Some(path) = a.scene.clone() {
+        return crate::scene_cmd::run(a, &path);
+    }
+    a.look = a.look_over(None);
     a.estimator = match a.estimator_flag {
         Some(e) => e,
         None => default_estimator(a.volume.volume.as_deref(), a.pins.as_deref())?.into(),
@@ -333,10 +404,10 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         (Some(v), _) => v.clone(),
     };
     let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
-    if a.backend == "gpu" && a.max_bounces > max_gpu {
+    if a.backend == "gpu" && a.look.max_bounces > max_gpu {
         crate::usage!(
             "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
-            a.max_bounces
+            a.look.max_bounces
         );
     }
     let inputs: Vec<&Path> = [a.volume.volume.as_deref(), a.pins.as_deref()]
@@ -436,22 +507,22 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         camera: Camera {
             origin: f(origin),
             target: f(target),
-            vfov_deg: a.fov as f32,
+            vfov_deg: a.look.fov as f32,
             width: a.width,
             height: a.height,
         },
-        sun: (a.sun_radiance > 0.0).then(|| Sun {
-            dir: f(a.sun_dir),
-            radiance: [a.sun_radiance as f32; 3],
+        sun: (a.look.sun_radiance > 0.0).then(|| Sun {
+            dir: f(a.look.sun_dir),
+            radiance: [a.look.sun_radiance as f32; 3],
         }),
-        env_radiance: [a.env_radiance as f32; 3],
-        albedo: a.albedo as f32,
-        g: a.g as f32,
+        env_radiance: [a.look.env_radiance as f32; 3],
+        albedo: a.look.albedo as f32,
+        g: a.look.g as f32,
         media: Vec::new(),
     };
     if a.backend == "gpu" {
         let ctx = ctx.as_ref().ok_or_else(|| anyhow!("no GPU context"))?;
-        let image = render_gpu(&a, ctx, &desc, &scene)?;
+        let image = render_gpu(&a, ctx, std::slice::from_ref(&desc), &scene)?;
         return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
     }
     let medium = a
@@ -463,7 +534,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         ..scene
     };
     let settings = RenderSettings {
-        max_bounces: a.max_bounces,
+        max_bounces: a.look.max_bounces,
         seed: a.seed,
         budget: match a.seconds {
             Some(s) => Budget::Seconds(s),
@@ -639,7 +710,7 @@ fn check_gpu_bricks(path: &Path, grid: &pinrt::PinGrid, ctx: &GpuContext) -> Res
     .map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
-fn write(
+pub(crate) fn write(
     a: &RenderArgs,
     input: &Path,
     image: &Image,
@@ -692,17 +763,17 @@ fn write(
 
 /// The same render on the GPU path tracer: returns the image, its spp and the seconds spent
 /// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
-fn render_gpu(
+pub(crate) fn render_gpu(
     a: &RenderArgs,
     ctx: &GpuContext,
-    desc: &MediumDesc,
+    descs: &[MediumDesc],
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
     let est = a.estimator.gpu_or_err().map_err(|e| anyhow!("{e}"))?;
-    let media = pinrender::medium::gpu_media_for(std::slice::from_ref(desc), &[est], a.lookup())
-        .map_err(|e| anyhow!("{e}"))?;
+    let media =
+        pinrender::medium::gpu_media_for(descs, &[est], a.lookup()).map_err(|e| anyhow!("{e}"))?;
     let renderer = GpuRenderer::with_media(ctx, &media).map_err(|e| anyhow!("{e}"))?;
-    let gs = GpuScene::from_scene(scene, a.max_bounces);
+    let gs = GpuScene::from_scene(scene, a.look.max_bounces);
     let start = Instant::now();
     match a.seconds {
         None => {

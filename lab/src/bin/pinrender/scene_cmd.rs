@@ -1,0 +1,157 @@
+//! `pinrender render --scene FILE`: a scene file's instances (`docs/scene.md`) rendered on
+//! the CPU or the GPU path. The flags the scene can set (camera, sun, sky, albedo, g,
+//! bounces) override it when given; the others mean what they mean for one volume.
+
+use std::path::Path;
+
+use anyhow::{Result, anyhow};
+use glam::DVec3;
+use pinlab::Estimator;
+use pinrender::render::{
+    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, RenderSettings, SampleLoop, Scene, Sun,
+    render, render_wavefront,
+};
+use pinrender::scene_media::{self, AssetOptions};
+use pinrt::gpu::GpuContext;
+
+use crate::render_cmd::{BYTES_PER_PIXEL, RenderArgs, outputs, render_gpu, write};
+
+/// The estimator when --estimator is not given: pinms when every asset an instance uses has
+/// both a volume and pins, pins when every one has pins, ratio otherwise.
+fn default_estimator(scene: &pin_scene::Scene) -> EstimatorSpec {
+    let used: Vec<&pin_scene::Asset> = scene
+        .assets
+        .iter()
+        .zip(scene.uses())
+        .filter(|(_, n)| *n > 0)
+        .map(|(a, _)| a)
+        .collect();
+    if used.iter().all(|a| a.pins.is_some() && a.volume.is_some()) {
+        EstimatorSpec::PinMs
+    } else if used.iter().all(|a| a.pins.is_some()) {
+        EstimatorSpec::Pins
+    } else {
+        EstimatorSpec::RatioTracking
+    }
+}
+
+pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
+    if a.volume.volume.is_some() {
+        crate::usage!("--scene names its volumes; --volume cannot be given with it");
+    }
+    if let Some(flag) = a.volume.read.given().first() {
+        crate::usage!("{flag} applies to --volume; a scene sets its assets' reading in the file");
+    }
+    let budget = pinbake::files::MemoryBudget::new(a.max_memory);
+    budget.check(
+        &format!("a {}x{} image", a.width, a.height),
+        u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
+    )?;
+    let scene = scene_media::load_scene(path, a.max_memory)?;
+    a.look = a.look_over(Some(&scene));
+    let spec = match a.estimator_flag {
+        Some(Estimator::Core(s)) => s,
+        Some(other) => crate::usage!(
+            "--scene renders with the renderer's estimators (ratio, delta, residual, rm, pins, \
+             pinms, pinres), not {other}"
+        ),
+        None => default_estimator(&scene),
+    };
+    a.estimator = Estimator::Core(spec);
+    let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
+    if a.backend == "gpu" && a.look.max_bounces > max_gpu {
+        crate::usage!(
+            "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
+            a.look.max_bounces
+        );
+    }
+    // The output must replace neither the scene nor an asset.
+    let mut inputs: Vec<&Path> = vec![path];
+    for asset in &scene.assets {
+        inputs.extend(asset.volume.as_deref());
+        inputs.extend(asset.pins.as_deref());
+    }
+    outputs(&a, &inputs)?;
+    let opts = AssetOptions {
+        estimator: spec,
+        pin_cells: a.pin_cells,
+        seed: a.seed,
+        majorant_bricks: a.majorant_bricks,
+        max_memory: a.max_memory,
+        allow_mismatched_pins: a.allow_mismatched_pins,
+        lookup: a.lookup(),
+    };
+    let ctx = if a.backend == "gpu" {
+        Some(GpuContext::new().map_err(|e| anyhow!("{e}"))?)
+    } else {
+        None
+    };
+    let assets = scene_media::open_assets(&scene, &opts)?;
+    let (cpu, descs, (lo, hi)) = match &ctx {
+        None => {
+            let m = scene_media::cpu_media(&scene, &assets, &opts)?;
+            let b = m.bounds;
+            (Some(m), Vec::new(), b)
+        }
+        Some(_) => {
+            let (d, b) = scene_media::gpu_descs(&scene, &assets, &opts)?;
+            (None, d, b)
+        }
+    };
+    let (lo, hi) = (DVec3::from(lo), DVec3::from(hi));
+    let centre = (lo + hi) * 0.5;
+    let size = (hi - lo).length();
+    let target = a
+        .camera_target
+        .or(scene.camera.target)
+        .unwrap_or(centre.to_array());
+    let origin = a.camera_origin.or(scene.camera.origin).unwrap_or([
+        centre.x + 0.35 * size,
+        centre.y + 0.25 * size,
+        centre.z + 1.6 * size,
+    ]);
+    if origin == target {
+        crate::usage!("the camera's origin and target are the same point");
+    }
+    let f = |v: [f64; 3]| v.map(|x| x as f32);
+    let look = a.look;
+    let frame = Scene {
+        camera: Camera {
+            origin: f(origin),
+            target: f(target),
+            vfov_deg: look.fov as f32,
+            width: a.width,
+            height: a.height,
+        },
+        sun: (look.sun_radiance > 0.0).then(|| Sun {
+            dir: f(look.sun_dir),
+            radiance: [look.sun_radiance as f32; 3],
+        }),
+        env_radiance: [look.env_radiance as f32; 3],
+        albedo: look.albedo as f32,
+        g: look.g as f32,
+        media: Vec::new(),
+    };
+    if let Some(ctx) = &ctx {
+        let (image, spp, seconds) = render_gpu(&a, ctx, &descs, &frame)?;
+        return write(&a, path, &image, spp, seconds, None);
+    }
+    let media = cpu.expect("a CPU render built its media").media;
+    let frame = Scene { media, ..frame };
+    let settings = RenderSettings {
+        max_bounces: look.max_bounces,
+        seed: a.seed,
+        budget: match a.seconds {
+            Some(s) => Budget::Seconds(s),
+            None => Budget::Spp(a.spp),
+        },
+        threads: a.threads,
+    };
+    let out = if a.estimator.plan().sample_loop == SampleLoop::Wavefront {
+        render_wavefront(&frame, &settings, DEFAULT_WAVEFRONT_BATCH)
+    } else {
+        render(&frame, &settings)
+    }
+    .map_err(|e| anyhow!("{e}"))?;
+    write(&a, path, &out.image, out.spp, out.seconds, None)
+}

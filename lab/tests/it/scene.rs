@@ -1,0 +1,196 @@
+//! `pinrender render --scene`: a scene file's instances on the CPU and the GPU path.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
+const COSINE: &str = "procedural:cosine:seed=5,freq=4,density=6";
+const SMALL: [&str; 6] = ["--width", "24", "--height", "16", "--spp", "2"];
+
+fn pinrender(args: &[&str]) -> Output {
+    Command::new(BIN).arg("render").args(args).output().unwrap()
+}
+
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Bakes the cosine field's pins (4^3 cells) into `dir/c.pin`.
+fn bake(dir: &Path) -> PathBuf {
+    let p: pinbake::source::ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
+    let src = p.build().unwrap();
+    let opts = pinbake::BakeOptions {
+        cells: [4; 3],
+        ..pinbake::BakeOptions::default()
+    };
+    let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
+    let path = dir.join("c.pin");
+    grid.write_atomic(&path).unwrap();
+    path
+}
+
+fn scene(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+fn exr(p: &Path) -> Vec<[f32; 3]> {
+    pinrender::render::Image::read_exr(p).unwrap().rgb
+}
+
+/// One instance with no transform is the asset as it is: the same bits as `--volume` with
+/// `--pins`, for an estimator that reads the density and one that reads the pins.
+#[test]
+fn one_untransformed_instance_is_the_volume_itself() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let pins = bake(d);
+    let sc = scene(
+        d,
+        "one.json",
+        &format!(
+            r#"{{"assets": {{"c": {{"volume": "{COSINE}", "pins": "c.pin"}}}}, "instances": [{{"asset": "c"}}]}}"#
+        ),
+    );
+    for est in ["ratio", "pins", "pinms"] {
+        let a = d.join(format!("scene-{est}.exr"));
+        let b = d.join(format!("volume-{est}.exr"));
+        let mut args = vec!["--scene", sc.to_str().unwrap(), "--estimator", est];
+        args.extend(SMALL);
+        args.extend(["--out", a.to_str().unwrap()]);
+        ok(&pinrender(&args));
+        let mut args = vec!["--volume", COSINE, "--estimator", est];
+        if est != "ratio" {
+            args.extend(["--pins", pins.to_str().unwrap()]);
+        }
+        args.extend(SMALL);
+        args.extend(["--out", b.to_str().unwrap()]);
+        ok(&pinrender(&args));
+        assert_eq!(exr(&a), exr(&b), "{est}");
+    }
+}
+
+/// Three instances, turned and stretched: every estimator renders them, the flags override
+/// the file's look, and moving an instance changes the image.
+#[test]
+fn instances_render_and_flags_override_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake(d);
+    let body = |albedo: &str, x: f64| {
+        format!(
+            r#"{{"assets": {{"c": {{"volume": "{COSINE}", "pins": "c.pin"}}}},
+               "instances": [
+                 {{"asset": "c"}},
+                 {{"asset": "c", "transform": {{"translate": [{x}, 0, 0], "rotate_deg": [0, 90, 0], "scale": [1, 1.5, 1]}}}},
+                 {{"asset": "c", "transform": {{"translate": [-1.5, 0.2, 0.3], "rotate_deg": [10, 0, 30], "scale": 0.7}}}}
+               ],
+               "camera": {{"origin": [0.5, 1.5, 6], "target": [0.5, 0.5, 0.5], "fov": 50}}{albedo}}}"#
+        )
+    };
+    let plain = scene(d, "plain.json", &body("", 1.5));
+    let half = scene(d, "half.json", &body(r#", "albedo": 0.5"#, 1.5));
+    let moved = scene(d, "moved.json", &body("", 2.5));
+    let render = |sc: &Path, est: &str, extra: &[&str], name: &str| {
+        let out = d.join(name);
+        let mut args = vec!["--scene", sc.to_str().unwrap(), "--estimator", est];
+        args.extend(SMALL);
+        args.extend(extra);
+        args.extend(["--out", out.to_str().unwrap()]);
+        ok(&pinrender(&args));
+        exr(&out)
+    };
+    for est in ["ratio", "delta", "residual", "rm@0.05", "pins", "pinms"] {
+        let img = render(&plain, est, &[], &format!("{est}.exr"));
+        assert!(
+            img.iter().flatten().all(|v| v.is_finite() && *v >= 0.0),
+            "{est}"
+        );
+    }
+    let base = render(&plain, "pinms", &[], "base.exr");
+    // The file's albedo 0.5 differs from the default 0.9; --albedo 0.9 restores it.
+    assert_ne!(render(&half, "pinms", &[], "half.exr"), base);
+    assert_eq!(
+        render(&half, "pinms", &["--albedo", "0.9"], "over.exr"),
+        base
+    );
+    assert_ne!(render(&moved, "pinms", &[], "moved.exr"), base);
+    // The GPU path renders the pins of turned and stretched instances.
+    let gpu = render(&plain, "pins", &["--backend", "gpu"], "gpu.exr");
+    assert!(gpu.iter().flatten().any(|v| *v > 0.0));
+}
+
+#[test]
+fn bad_scenes_are_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake(d);
+    let out = d.join("x.exr");
+    let bad = scene(
+        d,
+        "bad.json",
+        r#"{"assets": {"c": {"pins": "c.pin"}}, "instances": [{"asset": "c"}, {"asset": "c", "transform": [1,0,0,0, 0,1,0,0, 0,0,0,0]}]}"#,
+    );
+    let o = pinrender(&[
+        "--scene",
+        bad.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains("bad.json: instances[1].transform: scales the z axis by 0"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let o = pinrender(&[
+        "--scene",
+        bad.to_str().unwrap(),
+        "--volume",
+        COSINE,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    // A density estimator over pins without a density is refused, naming the asset.
+    let good = scene(
+        d,
+        "good.json",
+        r#"{"assets": {"c": {"pins": "c.pin"}}, "instances": [{"asset": "c"}]}"#,
+    );
+    let o = pinrender(&[
+        "--scene",
+        good.to_str().unwrap(),
+        "--estimator",
+        "ratio",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("assets.c.pins") && err.contains("no embedded density"),
+        "{err}"
+    );
+    // The output must not replace the scene file.
+    let o = pinrender(&[
+        "--scene",
+        good.to_str().unwrap(),
+        "--out",
+        good.to_str().unwrap(),
+    ]);
+    assert_ne!(o.status.code(), Some(0));
+    assert!(std::fs::read_to_string(&good).unwrap().contains("assets"));
+}
