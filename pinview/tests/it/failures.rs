@@ -63,7 +63,7 @@ fn failures_are_one_line() {
     one_line(
         &pinview(d, &[s(&pins), "--estimator", "pinurm", "--frames", "1"]),
         2,
-        "CPU",
+        "unknown estimator 'pinurm'",
     );
     one_line(
         &pinview(d, &[s(&pins), "--density-scale", "2", "--frames", "1"]),
