@@ -1,8 +1,10 @@
 //! The ranges of the scene's values, one rule for the scene file and `pinrender render`'s
 //! flags (which parse with these). Each returns the value or a phrase for a message.
 
-/// A number for the messages: scientific below 1e-3 and from 1e6 up (`1e-9`, `2e12`), as
-/// the placement rule writes them, else [`pin_format::text::num`].
+use pin_format::text::num as flag_num;
+
+/// A number for the transform's messages: scientific below 1e-3 and from 1e6 up (`1e-9`,
+/// `2e12`), as the placement rule writes them, else [`pin_format::text::num`].
 pub(crate) fn num(x: f64) -> String {
     if x != 0.0 && x.is_finite() && !(1e-3..1e6).contains(&x.abs()) {
         format!("{x:e}")
@@ -15,7 +17,7 @@ pub(crate) fn num(x: f64) -> String {
 pub fn fov(v: f64) -> Result<f64, String> {
     let f = v as f32;
     if !(f > 0.0 && f < 180.0) {
-        return Err(format!("{} must be in (0, 180) degrees", num(v)));
+        return Err(format!("{} must be in (0, 180) degrees", flag_num(v)));
     }
     Ok(v)
 }
@@ -23,7 +25,7 @@ pub fn fov(v: f64) -> Result<f64, String> {
 /// Single-scattering albedo in [0, 1].
 pub fn albedo(v: f64) -> Result<f64, String> {
     if !(0.0..=1.0).contains(&v) {
-        return Err(format!("{} must be in [0, 1]", num(v)));
+        return Err(format!("{} must be in [0, 1]", flag_num(v)));
     }
     Ok(v)
 }
@@ -32,7 +34,7 @@ pub fn albedo(v: f64) -> Result<f64, String> {
 pub fn hg_g(v: f64) -> Result<f64, String> {
     let f = v as f32;
     if !(f > -1.0 && f < 1.0) {
-        return Err(format!("{} must be in (-1, 1)", num(v)));
+        return Err(format!("{} must be in (-1, 1)", flag_num(v)));
     }
     Ok(v)
 }
@@ -40,25 +42,25 @@ pub fn hg_g(v: f64) -> Result<f64, String> {
 /// A radiance: finite and not negative.
 pub fn radiance(v: f64) -> Result<f64, String> {
     if !(v.is_finite() && v >= 0.0) {
-        return Err(format!("{} must be finite and >= 0", num(v)));
+        return Err(format!("{} must be finite and >= 0", flag_num(v)));
     }
     Ok(v)
 }
 
 /// A direction whose f32 form the renderer can normalise (finite, not zero).
 pub fn direction(v: [f64; 3]) -> Result<[f64; 3], String> {
+    // As glam's `is_finite`, `length_squared` and `normalize` (`d * length().recip()`).
     let f = v.map(|x| x as f32);
     let len2 = f.iter().map(|x| x * x).sum::<f32>();
-    let ok = f.iter().all(|x| x.is_finite())
-        && len2 > 0.0
-        && len2.is_finite()
-        && f.iter().all(|x| (x / len2.sqrt()).is_finite());
+    let inv = len2.sqrt().recip();
+    let ok =
+        f.iter().all(|x| x.is_finite()) && len2 > 0.0 && f.iter().all(|x| (x * inv).is_finite());
     if !ok {
         return Err(format!(
             "{},{},{} is not a direction (zero, or too small or large to normalise)",
-            num(v[0]),
-            num(v[1]),
-            num(v[2])
+            flag_num(v[0]),
+            flag_num(v[1]),
+            flag_num(v[2])
         ));
     }
     Ok(v)
@@ -72,10 +74,10 @@ pub fn position(v: [f64; 3]) -> Result<[f64; 3], String> {
     {
         return Err(format!(
             "{},{},{} must be within +-{}",
-            num(v[0]),
-            num(v[1]),
-            num(v[2]),
-            num(pin_format::MAX_PLACEMENT_COORD)
+            flag_num(v[0]),
+            flag_num(v[1]),
+            flag_num(v[2]),
+            flag_num(pin_format::MAX_PLACEMENT_COORD)
         ));
     }
     Ok(v)
@@ -84,7 +86,7 @@ pub fn position(v: [f64; 3]) -> Result<[f64; 3], String> {
 /// A density scale: positive and finite.
 pub fn density_scale(v: f64) -> Result<f64, String> {
     if !(v > 0.0 && v.is_finite()) {
-        return Err(format!("{} must be positive and finite", num(v)));
+        return Err(format!("{} must be positive and finite", flag_num(v)));
     }
     Ok(v)
 }
@@ -103,6 +105,7 @@ mod tests {
         assert!(radiance(f64::INFINITY).is_err());
         assert!(direction([0.0, 1.0, 0.0]).is_ok() && direction([0.0; 3]).is_err());
         assert!(direction([1e300, 0.0, 0.0]).is_err());
+        assert!(direction([1e-30, 0.0, 0.0]).is_err());
         assert!(position([1e12, 0.0, -1e12]).is_ok() && position([1.1e12, 0.0, 0.0]).is_err());
         assert!(density_scale(0.5).is_ok() && density_scale(0.0).is_err());
     }

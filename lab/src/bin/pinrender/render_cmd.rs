@@ -218,46 +218,22 @@ fn parse_estimator(s: &str) -> Result<Estimator, String> {
 
 /// `--fov`: degrees in (0, 180), as the f32 the camera holds.
 fn parse_fov(s: &str) -> Result<f64, String> {
-    let v = pin_cli::parse::parse_finite(s)?;
-    let f = v as f32;
-    if !(f > 0.0 && f < 180.0) {
-        return Err(format!("{} must be in (0, 180) degrees", pin_cli::num(v)));
-    }
-    Ok(v)
+    pin_scene::ranges::fov(pin_cli::parse::parse_finite(s)?)
 }
 
 /// `--albedo`: in [0, 1].
 fn parse_albedo(s: &str) -> Result<f64, String> {
-    let v = pin_cli::parse::parse_finite(s)?;
-    if !(0.0..=1.0).contains(&v) {
-        return Err(format!("{} must be in [0, 1]", pin_cli::num(v)));
-    }
-    Ok(v)
+    pin_scene::ranges::albedo(pin_cli::parse::parse_finite(s)?)
 }
 
 /// `--g`: the Henyey-Greenstein asymmetry in (-1, 1), as the f32 the scene holds.
 fn parse_hg_g(s: &str) -> Result<f64, String> {
-    let v = pin_cli::parse::parse_finite(s)?;
-    let f = v as f32;
-    if !(f > -1.0 && f < 1.0) {
-        return Err(format!("{} must be in (-1, 1)", pin_cli::num(v)));
-    }
-    Ok(v)
+    pin_scene::ranges::hg_g(pin_cli::parse::parse_finite(s)?)
 }
 
 /// `--sun-dir`: a direction whose f32 form the renderer can normalise (finite, not zero).
 fn parse_direction(s: &str) -> Result<[f64; 3], String> {
-    let v = parse_f64x3(s)?;
-    let d = glam::Vec3::from_array(v.map(|x| x as f32));
-    if !(d.is_finite() && d.length_squared() > 0.0 && d.normalize().is_finite()) {
-        return Err(format!(
-            "{},{},{} is not a direction (zero, or too small or large to normalise)",
-            pin_cli::num(v[0]),
-            pin_cli::num(v[1]),
-            pin_cli::num(v[2])
-        ));
-    }
-    Ok(v)
+    pin_scene::ranges::direction(parse_f64x3(s)?)
 }
 
 fn parse_seconds(s: &str) -> Result<f64, String> {
