@@ -49,12 +49,15 @@ pub fn radiance(v: f64) -> Result<f64, String> {
 
 /// A direction whose f32 form the renderer can normalise (finite, not zero).
 pub fn direction(v: [f64; 3]) -> Result<[f64; 3], String> {
-    // As glam's `is_finite`, `length_squared` and `normalize` (`d * length().recip()`).
+    // As glam's `is_finite`, `length_squared` and `normalize` (`d * length().recip()`), and
+    // a squared length that does not overflow (beyond it the unit vector rounds to zero).
     let f = v.map(|x| x as f32);
     let len2 = f.iter().map(|x| x * x).sum::<f32>();
     let inv = len2.sqrt().recip();
-    let ok =
-        f.iter().all(|x| x.is_finite()) && len2 > 0.0 && f.iter().all(|x| (x * inv).is_finite());
+    let ok = f.iter().all(|x| x.is_finite())
+        && len2 > 0.0
+        && len2.is_finite()
+        && f.iter().all(|x| (x * inv).is_finite());
     if !ok {
         return Err(format!(
             "{},{},{} is not a direction (zero, or too small or large to normalise)",
@@ -106,6 +109,7 @@ mod tests {
         assert!(direction([0.0, 1.0, 0.0]).is_ok() && direction([0.0; 3]).is_err());
         assert!(direction([1e300, 0.0, 0.0]).is_err());
         assert!(direction([1e-30, 0.0, 0.0]).is_err());
+        assert!(direction([1e20, 0.0, 0.0]).is_err(), "normalises to zero");
         assert!(position([1e12, 0.0, -1e12]).is_ok() && position([1.1e12, 0.0, 0.0]).is_err());
         assert!(density_scale(0.5).is_ok() && density_scale(0.0).is_err());
     }
