@@ -249,7 +249,7 @@ mod tests {
     use crate::comb_estimators::{JackknifeMarching, UnbiasedRayMarching};
     use glam::{DVec3, Vec3};
     use pinrender::render::{
-        Aabb, DensitySource, HomogeneousBox, MajorantGrid, Pcg32, TransportEstimator, clip_box,
+        Aabb, Density, HomogeneousBox, MajorantGrid, Pcg32, TransportEstimator, clip_box,
     };
     use pinrender::testing::mean_se;
     use std::sync::Arc;
@@ -281,7 +281,7 @@ mod tests {
     /// `n` estimates through the library's combs over the segment in the unit box, spacing
     /// `1 / lookups`.
     fn urm_z(
-        field: &dyn DensitySource,
+        field: &dyn Density,
         exact_tau: &TauFn<'_>,
         lookups: u32,
         n: usize,
@@ -455,7 +455,7 @@ mod tests {
     /// Relative bias of the jackknife (or, without the correction, of `exp(-mean)` over the
     /// same lookups), averaged over 16 rays, with its standard error.
     fn jackknife_rel_bias(
-        field: &dyn DensitySource,
+        field: &dyn Density,
         tau: &TauFn<'_>,
         lookups: u32,
         correct: bool,
@@ -502,7 +502,7 @@ mod tests {
         let (boxf, box_tau) = homogeneous();
         let cos = CosNoise::new(8, 16.0, 4.0, 3);
         let cos_tau = |p0: DVec3, d: DVec3, len: f64| cos.optical_depth(p0, d, len);
-        let fields: [(&str, &dyn DensitySource, &TauFn<'_>); 2] =
+        let fields: [(&str, &dyn Density, &TauFn<'_>); 2] =
             [("box", &boxf, &box_tau), ("cosine", &cos, &cos_tau)];
         for (name, field, tau) in fields {
             let mut at = Vec::new();

@@ -6,8 +6,8 @@ use std::sync::Arc;
 
 use glam::Vec3;
 use pinrender::render::{
-    DensitySource, MajorantGrid, Pcg32, PreparedRay, RatioTracking, RenderError,
-    TransportEstimator, clean, clip_box, prepare,
+    Density, MajorantGrid, Pcg32, PreparedRay, RatioTracking, RenderError, TransportEstimator,
+    clean, clip_box, prepare,
 };
 
 use crate::comb::{MAX_COMB_LOOKUPS, jackknife_transmittance, lookups_for, urm_transmittance};
@@ -30,7 +30,7 @@ pub(crate) struct Combed<F: ?Sized> {
     pub(crate) spacing: f64,
 }
 
-impl<F: DensitySource + ?Sized> Combed<F> {
+impl<F: Density + ?Sized> Combed<F> {
     pub(crate) fn new(
         field: Arc<F>,
         majorants: Arc<MajorantGrid>,
@@ -96,13 +96,13 @@ impl<F: DensitySource + ?Sized> Combed<F> {
 
 /// Unbiased ray marching (Kettunen et al. 2021) for transmittance, delta tracking for
 /// distances; see [`urm_transmittance`].
-pub struct UnbiasedRayMarching<F: ?Sized = dyn DensitySource>(Combed<F>);
+pub struct UnbiasedRayMarching<F: ?Sized = dyn Density>(Combed<F>);
 
 /// Jackknife transmittance (Peters 2025) for transmittance, delta tracking for distances;
 /// see [`jackknife_transmittance`].
-pub struct JackknifeMarching<F: ?Sized = dyn DensitySource>(Combed<F>);
+pub struct JackknifeMarching<F: ?Sized = dyn Density>(Combed<F>);
 
-impl<F: DensitySource + ?Sized> UnbiasedRayMarching<F> {
+impl<F: Density + ?Sized> UnbiasedRayMarching<F> {
     /// Combs of `lookups` per longest edge of the majorant box (`1 ..= 2^20`); the majorant
     /// grid bounds the combs and the tracking and should cover the field's support.
     pub fn new(
@@ -114,7 +114,7 @@ impl<F: DensitySource + ?Sized> UnbiasedRayMarching<F> {
     }
 }
 
-impl<F: DensitySource + ?Sized> JackknifeMarching<F> {
+impl<F: Density + ?Sized> JackknifeMarching<F> {
     /// As [`UnbiasedRayMarching::new`]; each query takes two combs.
     pub fn new(
         field: Arc<F>,
@@ -125,7 +125,7 @@ impl<F: DensitySource + ?Sized> JackknifeMarching<F> {
     }
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
+impl<F: Density + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         self.0.tracking.sample_distance(o, d, t_max, rng)
     }
@@ -141,7 +141,7 @@ impl<F: DensitySource + ?Sized> TransportEstimator for UnbiasedRayMarching<F> {
     }
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for JackknifeMarching<F> {
+impl<F: Density + ?Sized> TransportEstimator for JackknifeMarching<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         self.0.tracking.sample_distance(o, d, t_max, rng)
     }
@@ -198,7 +198,7 @@ impl CombKind {
     }
 
     /// The estimator over `field` with combs and delta tracking over `majorants`.
-    pub fn build<F: DensitySource + ?Sized + 'static>(
+    pub fn build<F: Density + ?Sized + 'static>(
         self,
         field: Arc<F>,
         majorants: Arc<MajorantGrid>,

@@ -9,8 +9,8 @@ use std::sync::Arc;
 use glam::Vec3;
 
 use pinrender::render::{
-    DensitySource, MajorantGrid, Pcg32, PinsEstimator, PreparedRay, RenderError,
-    TransportEstimator, clean, clip_box, prepare,
+    Density, MajorantGrid, Pcg32, PinsEstimator, PreparedRay, RenderError, TransportEstimator,
+    clean, clip_box, prepare,
 };
 
 use crate::comb_estimators::Combed;
@@ -44,14 +44,14 @@ pub const PINURM_MAX_PIN_QUERIES: u32 = 1024;
 /// depend on the combs that follow it, so the pins' bias does not reach the estimate: it
 /// only sets how far the control is from the truth, which is the variance. Measured, the
 /// pins are a worse control than urm's comb (`docs/final-frames.md`).
-pub struct PinControlledUrm<F: ?Sized = dyn DensitySource> {
+pub struct PinControlledUrm<F: ?Sized = dyn Density> {
     /// The tracker and comb spacing `urm` and `jackknife` share.
     comb: Combed<F>,
     pins: Arc<PinsEstimator>,
     pin_queries: u32,
 }
 
-impl<F: DensitySource + ?Sized> PinControlledUrm<F> {
+impl<F: Density + ?Sized> PinControlledUrm<F> {
     /// Combs of `lookups` (`1 ..= 2^20`) per longest edge of `majorants`' box over `field`,
     /// controlled by `pins` (placed over the same medium; any placement is unbiased, a
     /// matching one is what makes the control good).
@@ -147,7 +147,7 @@ impl<F: DensitySource + ?Sized> PinControlledUrm<F> {
     }
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for PinControlledUrm<F> {
+impl<F: Density + ?Sized> TransportEstimator for PinControlledUrm<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         self.comb.tracking.sample_distance(o, d, t_max, rng)
     }
@@ -296,18 +296,13 @@ mod tests {
         let boxf = Arc::new(HomogeneousBox::new(Aabb::from_arrays(lo, hi), sigma as f32).unwrap());
         let box_maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], sigma as f32).unwrap());
         let box_est: PinControlledUrm =
-            PinControlledUrm::new(boxf as Arc<dyn DensitySource>, box_maj, random_pins(3), 4)
-                .unwrap();
+            PinControlledUrm::new(boxf as Arc<dyn Density>, box_maj, random_pins(3), 4).unwrap();
         let box_tau = move |ray| clipped_depth(ray, lo, hi, &|_, _, len| sigma * len);
         let cos = Arc::new(CosNoise::new(8, 16.0, 4.0, 3));
         let cos_maj = Arc::new(MajorantGrid::from_field(&*cos, [4, 4, 4]).unwrap());
-        let cos_est: PinControlledUrm = PinControlledUrm::new(
-            cos.clone() as Arc<dyn DensitySource>,
-            cos_maj,
-            random_pins(5),
-            4,
-        )
-        .unwrap();
+        let cos_est: PinControlledUrm =
+            PinControlledUrm::new(cos.clone() as Arc<dyn Density>, cos_maj, random_pins(5), 4)
+                .unwrap();
         let cos_tau = move |ray| {
             clipped_depth(ray, [0.0; 3], [1.0; 3], &|p0, d, len| {
                 cos.optical_depth(p0, d, len)
@@ -373,13 +368,13 @@ mod tests {
         let field = Arc::new(VoxelGrid::new(dims, [0.0; 3], spacing, values).unwrap());
         let maj = Arc::new(MajorantGrid::from_field(&*field, [3, 3, 3]).unwrap());
         let est: PinControlledUrm = PinControlledUrm::new(
-            field.clone() as Arc<dyn DensitySource>,
+            field.clone() as Arc<dyn Density>,
             maj.clone(),
             random_pins(9),
             4,
         )
         .unwrap();
-        let ratio = RatioTracking::new(field as Arc<dyn DensitySource>, maj);
+        let ratio = RatioTracking::new(field as Arc<dyn Density>, maj);
         let n = 10_000;
         let z = |control: Control, tail: bool| -> Vec<f64> {
             let mut rng = Pcg32::new(64, 3);
@@ -447,7 +442,7 @@ mod tests {
         let field = Arc::new(VoxelGrid::new(dims, [0.0; 3], spacing, values).unwrap());
         let maj = Arc::new(MajorantGrid::from_field(&*field, [4, 4, 4]).unwrap());
         let est: PinControlledUrm =
-            PinControlledUrm::new(field.clone() as Arc<dyn DensitySource>, maj, pins, 8).unwrap();
+            PinControlledUrm::new(field.clone() as Arc<dyn Density>, maj, pins, 8).unwrap();
         let (lo, hi) = field.bounds().to_arrays();
         let exact = |ray: (Vec3, Vec3, f32)| {
             clipped_depth(ray, lo, hi, &|p0, d, len| {
@@ -513,7 +508,7 @@ mod tests {
         });
         let maj = Arc::new(MajorantGrid::uniform([0.0; 3], [1.0; 3], f32::MAX).unwrap());
         let est: PinControlledUrm =
-            PinControlledUrm::new(field as Arc<dyn DensitySource>, maj, random_pins(1), 4).unwrap();
+            PinControlledUrm::new(field as Arc<dyn Density>, maj, random_pins(1), 4).unwrap();
         let mut rng = Pcg32::new(1, 1);
         let o = Vec3::new(-1.0, 0.5, 0.5);
         for (o, d, t_max) in [

@@ -716,6 +716,7 @@ mod tests {
     use super::*;
     use crate::pin::{interval_optical_depths, unit_cube_chord};
     use crate::rng::CounterRng;
+    use crate::source::Density;
     use crate::source::procedural::HomogeneousBox;
     use pin_format::PinFile;
 
@@ -1014,7 +1015,7 @@ mod tests {
 
     /// A field whose interval optical depths differ, so mask bits are genuinely random.
     struct Ramp;
-    impl DensitySource for Ramp {
+    impl Density for Ramp {
         fn bounds(&self) -> Aabb {
             Aabb::new(DVec3::ZERO, DVec3::ONE)
         }
@@ -1035,6 +1036,8 @@ mod tests {
             "ramp".into()
         }
     }
+
+    impl DensitySource for Ramp {}
 
     #[test]
     fn mask_bit_frequencies_match_ratios() {

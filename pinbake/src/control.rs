@@ -3,7 +3,7 @@
 //! residual ratio tracking reads (`pinrender`'s `pinres`, docs/final-frames.md).
 //!
 //! Built from the full-resolution source, brick by brick: `M` is the source's own bound
-//! ([`DensitySource::max_extinction_in`]), and a brick it bounds by zero is empty (`c = m = M =
+//! ([`Density::max_extinction_in`]), and a brick it bounds by zero is empty (`c = m = M =
 //! 0`, the only brick with `m = 0`). Elsewhere a midpoint lattice of `lattice^3` points gives
 //! `c`, the mean of the extinction weighted by `exp(-2 thickness sigma edge)` (a brick that is
 //! optically thick weighs its thin parts, where a ray keeps its transmittance, the most), and

@@ -872,11 +872,12 @@ mod tests {
     use crate::bake::bake;
     use crate::pin::field_optical_depths;
     use crate::rng::CounterRng;
+    use crate::source::Density;
     use crate::source::HomogeneousBox;
 
     /// A field with structure along every axis, sampled through `extinction_along`.
     struct Waves;
-    impl DensitySource for Waves {
+    impl Density for Waves {
         fn bounds(&self) -> Aabb {
             Aabb::new(DVec3::new(-1.0, 0.0, 2.0), DVec3::new(1.0, 0.5, 3.5))
         }
@@ -897,6 +898,8 @@ mod tests {
             "waves".into()
         }
     }
+
+    impl DensitySource for Waves {}
 
     fn grid() -> DenseGrid {
         let dims = [13u32, 9, 17];

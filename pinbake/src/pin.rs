@@ -5,7 +5,7 @@ use glam::DVec3;
 use pin_format::{Directions, PinEntry};
 
 use crate::rng::CounterRng;
-use crate::source::{DenseGrid, DensitySource, Mip};
+use crate::source::{DenseGrid, DensitySource};
 
 /// Deterministic per-pin geometry in unit-cube coordinates.
 #[derive(Clone, Copy, Debug)]
@@ -100,15 +100,13 @@ pub fn unit_cube_chord(p: DVec3, w: DVec3) -> Option<(f64, f64)> {
     (s0.is_finite() && s1.is_finite() && s1 >= s0).then_some((s0, s1))
 }
 
-/// What a bake marches: the source itself, or a box-filtered level of it whose voxels match
-/// the step ([`DensitySource::prefiltered`]).
+/// What a bake marches: the source itself, or its dense grid where it is one.
 #[derive(Clone, Copy)]
 pub enum Field<'a> {
     Source(&'a dyn DensitySource),
     /// A dense grid marched on its own voxels: the same samples as `Source`, without the
     /// per-sample transform and box test.
     Grid(&'a DenseGrid),
-    Mip(&'a Mip),
 }
 
 impl<'a> Field<'a> {
@@ -183,7 +181,7 @@ pub fn chord_samples(placement: &Placement, p: DVec3, w: DVec3) -> Option<ChordS
 }
 
 /// [`interval_optical_depths`] over either field: the same sample points and weights; a
-/// [`Field::Mip`] steps its index in f32 from one f64 transform per interval instead of
+/// [`Field::Grid`] steps its index in f32 from one f64 transform per interval instead of
 /// transforming every sample.
 pub fn field_optical_depths(
     field: Field<'_>,
@@ -251,13 +249,6 @@ pub fn field_optical_depths(
                 grid.march_runs(&[u], du, n, &mut sum);
                 sum[0]
             },
-        ),
-        Field::Mip(mip) => march(
-            &mut taus,
-            mip.index_of(origin),
-            mip.index_dir(world_dir),
-            (s0, ds, h, steps, weight),
-            |u, du, n| mip.march_sum(u, du, n),
         ),
     }
     taus
@@ -350,7 +341,7 @@ pub fn integration_error(
 }
 
 /// [`integration_error`] of the rule that marches `field` at `placement.step` (what a bake
-/// does: a [`Field::Mip`] for voxel grids) against the `supersample`x finer midpoint rule on
+/// does: [`Field::of`] the source) against the `supersample`x finer midpoint rule on
 /// `exact`, the source itself.
 pub fn integration_error_of(
     field: Field<'_>,
@@ -396,12 +387,13 @@ pub fn integration_error_of(
 mod tests {
     use super::*;
     use crate::source::Aabb;
+    use crate::source::Density;
 
     /// Extinction `k x^2` over the unit cube: the midpoint rule's error is known to fall as
     /// the square of the step.
     struct Parabola(f64);
 
-    impl DensitySource for Parabola {
+    impl Density for Parabola {
         fn bounds(&self) -> Aabb {
             Aabb::new(DVec3::ZERO, DVec3::ONE)
         }
@@ -415,6 +407,8 @@ mod tests {
             "parabola".into()
         }
     }
+
+    impl DensitySource for Parabola {}
 
     fn unit(step: f64) -> Placement {
         Placement {

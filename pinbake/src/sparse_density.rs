@@ -2,7 +2,7 @@
 //! centres over the grid box, stored only in bricks where it is non-zero.
 //!
 //! Built brick by brick from the source's own sparse structure: a brick whose box the source
-//! bounds by zero ([`DensitySource::max_extinction_in`], a VDB's leaf and tile table) is never
+//! bounds by zero ([`Density::max_extinction_in`], a VDB's leaf and tile table) is never
 //! sampled, and no dense grid of the box is ever allocated, so the section's memory is the
 //! stored bricks' plus one index entry per brick.
 
@@ -593,6 +593,7 @@ fn fill_brick<T: Copy + Default + PartialEq>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::source::Density;
     use crate::source::grid::DenseGrid;
     use crate::source::procedural::HomogeneousBox;
 
@@ -733,7 +734,7 @@ mod tests {
     /// trait method a VDB's tiles answer.
     struct SolidBox(HomogeneousBox, Aabb);
 
-    impl DensitySource for SolidBox {
+    impl Density for SolidBox {
         fn bounds(&self) -> Aabb {
             self.0.bounds()
         }
@@ -743,6 +744,9 @@ mod tests {
         fn max_extinction_in(&self, region: Aabb) -> f32 {
             self.0.max_extinction_in(region)
         }
+    }
+
+    impl DensitySource for SolidBox {
         fn solid_boxes(&self, floor: f32) -> Vec<Aabb> {
             if self.0.extinction(self.1.min) >= floor {
                 vec![self.1]

@@ -255,7 +255,7 @@ pub fn translation(m: &[f64; 12]) -> DVec3 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::render::{Aabb, DensitySource, HomogeneousBox, MajorantGrid, RatioTracking};
+    use crate::render::{Aabb, Density, HomogeneousBox, MajorantGrid, RatioTracking};
 
     fn trs(t: [f64; 3], deg_z: f64, s: [f64; 3]) -> [f64; 12] {
         let (sin, cos) = deg_z.to_radians().sin_cos();
@@ -304,7 +304,7 @@ mod tests {
     /// 3 units of world length and the cube's unit of optical depth 2: T = exp(-2).
     #[test]
     fn a_stretched_turned_instance_keeps_its_optical_depth() {
-        let field: Arc<dyn DensitySource> =
+        let field: Arc<dyn Density> =
             Arc::new(HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 2.0).unwrap());
         let majorants = Arc::new(MajorantGrid::from_field(&*field, [2; 3]).unwrap());
         let inner: Arc<dyn TransportEstimator> = Arc::new(RatioTracking::new(field, majorants));

@@ -14,8 +14,7 @@ use crate::gpu_render::{
 #[cfg(feature = "gpu")]
 use crate::render::{BakedResidualTracking, ResidualRatioTracking};
 use crate::render::{
-    DensitySource, EstimatorSpec, MajorantGrid, Medium, PinsEstimator, RenderError,
-    TransportEstimator,
+    Density, EstimatorSpec, MajorantGrid, Medium, PinsEstimator, RenderError, TransportEstimator,
 };
 
 /// A pin grid placed in the world.
@@ -32,7 +31,7 @@ pub struct PlacedPins {
 pub struct MediumDesc {
     /// The extinction the CPU estimators read, in the world (placement applied); `None`: a
     /// pin file without embedded density.
-    pub field: Option<Arc<dyn DensitySource>>,
+    pub field: Option<Arc<dyn Density>>,
     /// World-space majorants over `field`; `None`: built from `field` with
     /// `majorant_bricks` per axis when an estimator tracks.
     pub majorants: Option<Arc<MajorantGrid>>,
@@ -54,7 +53,7 @@ fn missing(what: &'static str, why: &str) -> RenderError {
 
 impl MediumDesc {
     /// The density field, or an error naming what is missing.
-    pub fn field(&self) -> Result<Arc<dyn DensitySource>, RenderError> {
+    pub fn field(&self) -> Result<Arc<dyn Density>, RenderError> {
         self.field
             .clone()
             .ok_or_else(|| missing("medium", "no density field"))
@@ -124,7 +123,7 @@ impl MediumDesc {
     /// the pin file's control section, with the CPU's raising of the majorants and its
     /// choice of the majorants it tracks), or `Ok(None)` for an estimator that reads none.
     pub fn gpu_control(&self, spec: EstimatorSpec) -> Result<Option<GpuControl>, RenderError> {
-        let take = |t: &ResidualRatioTracking<dyn DensitySource>| {
+        let take = |t: &ResidualRatioTracking<dyn Density>| {
             let (residual, majorants) = t.grids();
             GpuControl {
                 spec,
@@ -281,7 +280,7 @@ mod tests {
         let voxels = VoxelGrid::new([2; 3], [0.0; 3], [0.5; 3], vec![1.0; 8]).unwrap();
         #[cfg(feature = "gpu")]
         let density = Arc::new(GpuDensity::from_voxel_grid(voxels.clone()).unwrap());
-        let field: Arc<dyn DensitySource> = Arc::new(voxels);
+        let field: Arc<dyn Density> = Arc::new(voxels);
         let desc = |pins: Arc<PinGrid>, t: f64| MediumDesc {
             field: Some(field.clone()),
             majorant_bricks: 2,

@@ -1,7 +1,7 @@
 //! Fixtures of the renderer's statistical tests, shared with the crates that extend it
 //! (feature `testing`; the lab's tests compare their estimators on the same fields).
 
-use crate::render::{Aabb, DensitySource, Pcg32};
+use crate::render::{Aabb, Density, Pcg32};
 use glam::DVec3;
 
 /// `sin(x) / x`, stable at 0 (the series is exact to f64 below |x| = 1e-4).
@@ -70,7 +70,7 @@ impl CosNoise {
     }
 }
 
-impl DensitySource for CosNoise {
+impl Density for CosNoise {
     fn bounds(&self) -> Aabb {
         Aabb::from_arrays(self.lo, self.hi)
     }

@@ -12,7 +12,7 @@ use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::DVec3;
 use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{self, DensitySource, SourceSpec};
+use pinbake::source::{self, Density, DensitySource, SourceSpec};
 use pinrt::PinGrid;
 
 /// The volume and how to read it (the flags shared with `pinbake bake`).
@@ -229,7 +229,7 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
 /// fits), made on first use.
 pub struct TrackedSource {
     source: Arc<dyn DensitySource>,
-    /// A sparse grid's dense copy for the trackers' [`DensitySource::dense_view`], made on
+    /// A sparse grid's dense copy for the trackers' [`Density::dense_view`], made on
     /// first use (a pins-only render never asks); `None` inside when the source has no copy
     /// (analytic, rotated, or over the memory cap).
     copy: OnceLock<Option<source::DenseGrid>>,
@@ -337,7 +337,7 @@ fn map_of(g: &source::DenseGrid) -> Option<DenseMap> {
     )
 }
 
-impl DensitySource for TrackedSource {
+impl Density for TrackedSource {
     fn bounds(&self) -> source::Aabb {
         self.source.bounds()
     }
@@ -359,9 +359,6 @@ impl DensitySource for TrackedSource {
         }
         source::min_extinction_by_view(self, region)
     }
-    fn voxel_size(&self) -> Option<DVec3> {
-        self.source.voxel_size()
-    }
     fn describe(&self) -> String {
         self.source.describe()
     }
@@ -380,6 +377,12 @@ impl DensitySource for TrackedSource {
                 .as_ref()?,
         };
         DenseView::new(grid.data(), (*self.map.get_or_init(|| map_of(grid)))?)
+    }
+}
+
+impl DensitySource for TrackedSource {
+    fn voxel_size(&self) -> Option<DVec3> {
+        self.source.voxel_size()
     }
 }
 
@@ -471,7 +474,7 @@ pub struct PinFileMedium {
 
 impl PinFileMedium {
     /// The field the CPU estimators read: the bricked one if the file has it.
-    pub fn field(&self) -> Option<Arc<dyn DensitySource>> {
+    pub fn field(&self) -> Option<Arc<dyn Density>> {
         match (&self.bricks, &self.density) {
             (Some(b), _) => Some(b.clone()),
             (None, Some(d)) => Some(d.clone()),

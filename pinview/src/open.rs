@@ -8,9 +8,10 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use anyhow::{Result, anyhow, bail};
 
+use pinbake::source::Density;
 use pinrender::gpu_render::{GpuDensity, GpuMedia};
 use pinrender::medium::{MediumDesc, PlacedPins};
-use pinrender::render::{BrickGrid, DensitySource, EstimatorSpec, VoxelGrid};
+use pinrender::render::{BrickGrid, EstimatorSpec, VoxelGrid};
 use pinrender::volume::{self, Opened, TrackedSource, VolumeArgs};
 use pinrt::SamplerOptions;
 
@@ -24,7 +25,7 @@ pub struct Medium {
     pub bounds: ([f64; 3], [f64; 3]),
     /// A volume (`--volume`), as opposed to a pin file alone.
     pub is_volume: bool,
-    field: Option<Arc<dyn DensitySource>>,
+    field: Option<Arc<dyn Density>>,
     majorants: Option<Arc<pinrender::render::MajorantGrid>>,
     pins: Option<Arc<pinrt::PinGrid>>,
     opened: Option<(Opened, Arc<TrackedSource>)>,

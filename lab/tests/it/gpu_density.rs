@@ -84,7 +84,7 @@ fn gpu_density_reproduces_the_source() {
 /// read at the f32 index the trackers step to.
 #[test]
 fn tracker_dense_view_reproduces_the_source() {
-    use pinrender::render::DensitySource;
+    use pinbake::source::Density;
     use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");
     let opts = VdbOptions {
@@ -133,7 +133,7 @@ fn tracker_dense_view_reproduces_the_source() {
 /// density under the limit keeps its dense copy.
 #[test]
 fn a_vdb_over_the_dense_limit_goes_to_the_gpu_in_bricks() {
-    use pinbake::source::DensitySource;
+    use pinbake::source::Density;
     use pinrender::gpu_render::GpuDensityKind;
     use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");

@@ -5,9 +5,7 @@
 //! high-water mark so far, from /proc; null where unavailable) and `integration_error` (the
 //! mean absolute error of the interval transmittances against a 16x supersampled march, over
 //! 256 random pins: [`pinbake::pin::integration_error_of`]). Beside them: `cpu_s` (user +
-//! system CPU seconds of the bake, steadier than wall time on a shared machine) and
-//! `integration_error_prefiltered` (the same error for the box-filtered level,
-//! [`pinbake::source::Mip`], null where the grid has none; docs/performance.md).
+//! system CPU seconds of the bake, steadier than wall time on a shared machine).
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -19,7 +17,7 @@ use pin_format::Directions;
 use pinbake::BakeOptions;
 use pinbake::pin::{Field, integration_error_of};
 use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{DenseGrid, DensitySource, ProceduralSpec};
+use pinbake::source::{DenseGrid, Density, DensitySource, ProceduralSpec};
 use rayon::prelude::*;
 use serde_json::json;
 
@@ -105,18 +103,10 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             let wall = t.elapsed().as_secs_f64();
             let cpu = cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
             let pins = u64::from(args.cells).pow(3) * 64;
-            // The bake's own rule against the 16x supersampled march of the source; beside
-            // it the same midpoint rule on the box-filtered level (mip) whose voxels match the
-            // step, on the same pins (docs/performance.md: it is less accurate, so bakes do
-            // not use it).
+            // The bake's own rule against the 16x supersampled march of the source.
             let (bbox, _) = pinbake::bake::bake_box(source, opts.crop)?;
             let placement = pinbake::pin::Placement::over(&bbox, opts.step);
             let err = integration_error_of(Field::of(source), source, &placement, 256, 16, 1);
-            let mip = source.prefiltered(placement.step)?;
-            let mip_err = mip
-                .as_ref()
-                .map(|m| integration_error_of(Field::Mip(m), source, &placement, 256, 16, 1));
-            drop(mip);
             rows.push(json!({
                 "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
                 "threads": threads,
@@ -129,7 +119,6 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
                 "integration_error": err.mean_abs_transmittance,
                 "integration_error_max": err.max_abs_transmittance,
                 "optical_depth_rel_error": err.mean_rel_optical_depth,
-                "integration_error_prefiltered": mip_err.map(|e| e.mean_abs_transmittance),
                 "cpu_s": cpu,
             }));
         }

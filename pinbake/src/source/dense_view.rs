@@ -1,5 +1,5 @@
 //! A borrowed view of a dense f32 voxel array and its world-to-index map: how the renderer's
-//! trackers step through a dense grid ([`super::DensitySource::dense_view`]) in index space,
+//! trackers step through a dense grid ([`super::Density::dense_view`]) in index space,
 //! one transform per majorant brick instead of one per lookup. [`super::DenseGrid`] owns such
 //! an array; the renderer's voxel grids and a sparse source's dense copy offer the same view.
 

@@ -12,7 +12,7 @@
 
 use glam::DVec3;
 
-use super::{Aabb, DensitySource, Mip, MipAllocError, SourceError};
+use super::{Aabb, Density, DensitySource, SourceError};
 
 /// Dense f32 grid, x fastest, then y, then z (`data[x + nx * (y + ny * z)]`).
 #[derive(Clone, Debug)]
@@ -256,7 +256,7 @@ impl DenseGrid {
     /// caller knows the runs lie inside the box (the baker's chords do; a point outside is
     /// clamped to the edge value instead of reading zero).
     ///
-    /// The marching counterpart of [`DensitySource::extinction_along`]: the index advances in
+    /// The marching counterpart of [`Density::extinction_along`]: the index advances in
     /// f32 from one f64 base per run (no world-to-index transform and no box test per sample;
     /// `j * du` rather than a running sum keeps sample `j` within a few f32 ulps). It works in
     /// two passes over blocks of samples: the first computes every sample's cell and weights
@@ -570,11 +570,7 @@ fn prefetch(data: &[f32], i: usize) {
     let _ = (data, i);
 }
 
-impl DensitySource for DenseGrid {
-    fn as_dense_grid(&self) -> Option<&DenseGrid> {
-        Some(self)
-    }
-
+impl Density for DenseGrid {
     fn bounds(&self) -> Aabb {
         self.bounds
     }
@@ -586,14 +582,6 @@ impl DensitySource for DenseGrid {
         } else {
             0.0
         }
-    }
-
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.occupied)
-    }
-
-    fn voxel_size(&self) -> Option<DVec3> {
-        Some(self.spacing)
     }
 
     fn max_extinction_in(&self, region: Aabb) -> f32 {
@@ -635,14 +623,6 @@ impl DensitySource for DenseGrid {
         format!("{} {x}x{y}x{z}", self.label)
     }
 
-    fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
-        let nx = self.dims[0] as usize;
-        let fill = |y: usize, z: usize, row: &mut [f32]| {
-            row.copy_from_slice(&self.data[y * self.stride_y + z * self.stride_z..][..nx]);
-        };
-        Mip::build(self.dims, self.origin, self.bounds.extent(), step, &fill)
-    }
-
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
         for (i, o) in out.iter_mut().take(n).enumerate() {
             let p = origin + step * i as f64;
@@ -652,6 +632,20 @@ impl DensitySource for DenseGrid {
                 0.0
             };
         }
+    }
+}
+
+impl DensitySource for DenseGrid {
+    fn as_dense_grid(&self) -> Option<&DenseGrid> {
+        Some(self)
+    }
+
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.occupied)
+    }
+
+    fn voxel_size(&self) -> Option<DVec3> {
+        Some(self.spacing)
     }
 }
 

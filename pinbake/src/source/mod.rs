@@ -27,7 +27,6 @@ use glam::DVec3;
 pub mod dense_view;
 pub mod grid;
 pub mod identity;
-pub mod mip;
 #[cfg(feature = "vdb")]
 pub mod nanovdb;
 pub mod part_facts;
@@ -43,7 +42,6 @@ pub const VDB_WORKER_SUBCOMMAND: &str = "__vdb-worker";
 pub use dense_view::{DenseMap, DenseView};
 pub use grid::DenseGrid;
 pub use identity::SourceIdentity;
-pub use mip::{Mip, MipAllocError};
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
 #[cfg(feature = "vdb")]
@@ -77,8 +75,10 @@ impl Aabb {
     }
 }
 
-/// A scalar extinction field in world space: the one density interface of the product. The
-/// baker marches it into pins; the renderer's estimators (`pinrender`) march and track it.
+/// A scalar extinction field in world space, as a renderer reads it: a point lookup, a bound
+/// over a box (what majorant grids and controls are built from) and, where the field is a
+/// voxel array, a view of it for trackers that step in index space. The renderer's estimators
+/// (`pinrender`) take nothing wider; the baker's further questions are [`DensitySource`]'s.
 ///
 /// Implementations must be cheap to call from many threads at once and must never return NaN
 /// or a negative value (sources reject or sanitise such input when they are built; the
@@ -88,33 +88,12 @@ impl Aabb {
 /// Points are f64. The renderer's rays, the pin runtime's queries and the WGSL path work in
 /// f32, and the renderer asks at those f32 points widened exactly, so its reference sees the
 /// sample points the others would.
-pub trait DensitySource: Send + Sync {
+pub trait Density: Send + Sync {
     /// World-space box that contains every point with non-zero extinction.
     fn bounds(&self) -> Aabb;
 
     /// Extinction at a world-space point (zero outside `bounds`).
     fn extinction(&self, p: DVec3) -> f32;
-
-    /// Tight box around the non-zero extinction, if the source can tell cheaply (used for
-    /// cropping). `None` means "use `bounds`".
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        None
-    }
-
-    /// World size of one voxel per axis for a voxel grid, `None` for an analytic field. Bakes
-    /// use it to keep the default spatial cells no finer than the voxels.
-    fn voxel_size(&self) -> Option<DVec3> {
-        None
-    }
-
-    /// World boxes inside each of which the extinction is at least `floor` at every point (a
-    /// VDB's constant tiles, shrunk by the reach of its interpolation): what a sparse copy of
-    /// the source must store, known from its tree's counts before any brick is tested (the
-    /// memory and disk checks of [`crate::sparse_density`]). Empty (the default) where the
-    /// source cannot tell cheaply; a lower bound, never more than is there.
-    fn solid_boxes(&self, _floor: f32) -> Vec<Aabb> {
-        Vec::new()
-    }
 
     /// Maximum extinction inside `region` (a conservative upper bound is fine). Used for
     /// majorant grids and empty-space detection. A field that cannot bound itself cheaply
@@ -143,6 +122,47 @@ pub trait DensitySource: Send + Sync {
     /// default says only what it is: every source the baker opens names itself.
     fn describe(&self) -> String {
         String::from("density field")
+    }
+
+    /// Batched sampling along a line: `out[i] = extinction(origin + i * step)` for
+    /// `i < min(n, out.len())`.
+    ///
+    /// A ray marcher should prefer this over a loop of [`extinction`](Self::extinction): sources
+    /// override it to hoist per-call work (box tests, virtual dispatch, index transforms) out of
+    /// the loop or to use recurrences along the line. Overrides must agree with `extinction`
+    /// at `origin + step * i as f64` (computed in f64, as written) to within one f32 ulp;
+    /// the dense grid and the VDB source give identical bits.
+    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
+        for (i, o) in out.iter_mut().take(n).enumerate() {
+            *o = self.extinction(origin + step * i as f64);
+        }
+    }
+}
+
+/// A [`Density`] the baker reads: what a bake asks beyond a renderer (cropping, the voxel size
+/// that bounds the default cells, the frame a rotated grid is baked in, a farm part's slab,
+/// the dense copy a bake marches, the memory a source holds). Every source the baker opens
+/// ([`open_source`]) is one; a renderer's own fields need not be.
+pub trait DensitySource: Density {
+    /// Tight box around the non-zero extinction, if the source can tell cheaply (used for
+    /// cropping). `None` means "use `bounds`".
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        None
+    }
+
+    /// World size of one voxel per axis for a voxel grid, `None` for an analytic field. Bakes
+    /// use it to keep the default spatial cells no finer than the voxels.
+    fn voxel_size(&self) -> Option<DVec3> {
+        None
+    }
+
+    /// World boxes inside each of which the extinction is at least `floor` at every point (a
+    /// VDB's constant tiles, shrunk by the reach of its interpolation): what a sparse copy of
+    /// the source must store, known from its tree's counts before any brick is tested (the
+    /// memory and disk checks of [`crate::sparse_density`]). Empty (the default) where the
+    /// source cannot tell cheaply; a lower bound, never more than is there.
+    fn solid_boxes(&self, _floor: f32) -> Vec<Aabb> {
+        Vec::new()
     }
 
     /// The frame the baker should work in when it is not world space: a view of this source
@@ -197,35 +217,12 @@ pub trait DensitySource: Send + Sync {
     fn dense_copy_size(&self) -> Option<u64> {
         None
     }
-
-    /// A box-filtered dense level ([`Mip`]) with voxels of about `step` world units, for a
-    /// bake that marches at that step. `Ok(None)` (the default) means "sample the source
-    /// itself": analytic fields, grids whose voxels already match the step, and grids whose
-    /// dense level would not be small (a sparse VDB over a huge box) keep point sampling.
-    fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
-        let _ = step;
-        Ok(None)
-    }
-
-    /// Batched sampling along a line: `out[i] = extinction(origin + i * step)` for
-    /// `i < min(n, out.len())`.
-    ///
-    /// A ray marcher should prefer this over a loop of [`extinction`](Self::extinction): sources
-    /// override it to hoist per-call work (box tests, virtual dispatch, index transforms) out of
-    /// the loop or to use recurrences along the line. Overrides must agree with `extinction`
-    /// at `origin + step * i as f64` (computed in f64, as written) to within one f32 ulp;
-    /// the dense grid and the VDB source give identical bits.
-    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
-        for (i, o) in out.iter_mut().take(n).enumerate() {
-            *o = self.extinction(origin + step * i as f64);
-        }
-    }
 }
 
-/// [`DensitySource::min_extinction_in`]'s default, for overrides that fall back to it: 0
+/// [`Density::min_extinction_in`]'s default, for overrides that fall back to it: 0
 /// where `region` reaches outside the source's bounds, else [`DenseView::min_over`] of its
-/// [`DensitySource::dense_view`], else `None`.
-pub fn min_extinction_by_view<S: DensitySource + ?Sized>(source: &S, region: Aabb) -> Option<f32> {
+/// [`Density::dense_view`], else `None`.
+pub fn min_extinction_by_view<S: Density + ?Sized>(source: &S, region: Aabb) -> Option<f32> {
     let b = source.bounds();
     if !(region.min.cmpge(b.min).all() && region.max.cmple(b.max).all()) {
         return Some(0.0);

@@ -49,7 +49,7 @@ use std::str::FromStr;
 
 use glam::DVec3;
 
-use super::{Aabb, DensitySource, SourceError};
+use super::{Aabb, Density, DensitySource, SourceError};
 
 /// Constant extinction inside a box, zero outside.
 #[derive(Clone, Debug)]
@@ -76,7 +76,7 @@ impl HomogeneousBox {
     }
 }
 
-impl DensitySource for HomogeneousBox {
+impl Density for HomogeneousBox {
     fn bounds(&self) -> Aabb {
         self.bounds
     }
@@ -87,9 +87,6 @@ impl DensitySource for HomogeneousBox {
         } else {
             0.0
         }
-    }
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.bounds)
     }
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         if intersects(&self.bounds, &region) {
@@ -109,6 +106,12 @@ impl DensitySource for HomogeneousBox {
             "procedural box {}..{} density {}",
             self.bounds.min, self.bounds.max, self.density
         )
+    }
+}
+
+impl DensitySource for HomogeneousBox {
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
     }
 }
 
@@ -159,7 +162,7 @@ impl Sphere {
     }
 }
 
-impl DensitySource for Sphere {
+impl Density for Sphere {
     fn bounds(&self) -> Aabb {
         Aabb::new(self.center - self.radius, self.center + self.radius)
     }
@@ -170,9 +173,6 @@ impl DensitySource for Sphere {
         } else {
             0.0
         }
-    }
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.bounds())
     }
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         // Closest point of the region to the centre decides.
@@ -190,6 +190,12 @@ impl DensitySource for Sphere {
             "procedural sphere centre {} radius {} density {}",
             self.center, self.radius, self.density
         )
+    }
+}
+
+impl DensitySource for Sphere {
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds())
     }
 }
 
@@ -341,7 +347,7 @@ impl CosineNoise {
     }
 
     /// The analytic field in f64, ignoring the box (callers that want the box use
-    /// [`DensitySource::extinction`]).
+    /// [`Density::extinction`]).
     #[inline]
     pub fn field(&self, p: DVec3) -> f64 {
         let mut s = 1.0;
@@ -410,7 +416,7 @@ impl CosineNoise {
     }
 }
 
-impl DensitySource for CosineNoise {
+impl Density for CosineNoise {
     fn bounds(&self) -> Aabb {
         self.bounds
     }
@@ -421,9 +427,6 @@ impl DensitySource for CosineNoise {
         } else {
             0.0
         }
-    }
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.bounds)
     }
     fn max_extinction_in(&self, region: Aabb) -> f32 {
         let lo = region.min.max(self.bounds.min);
@@ -445,7 +448,7 @@ impl DensitySource for CosineNoise {
     /// Along a line each wave's phase grows linearly, so `cos` is advanced by a rotation
     /// (two multiply-adds) instead of a libm call; the start phase is recomputed exactly every
     /// 64 samples so rounding cannot drift. About 6x faster than per-point evaluation; agrees
-    /// with [`extinction`](DensitySource::extinction) to ~1e-12 relative before the f32
+    /// with [`extinction`](Density::extinction) to ~1e-12 relative before the f32
     /// rounding (so within one f32 ulp).
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
         const CHUNK: usize = 64;
@@ -474,6 +477,12 @@ impl DensitySource for CosineNoise {
             }
             start += len;
         }
+    }
+}
+
+impl DensitySource for CosineNoise {
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
     }
 }
 

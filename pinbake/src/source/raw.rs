@@ -269,7 +269,7 @@ fn sanitise(v: f64, opt: &RawOptions) -> Result<f64, &'static str> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::DensitySource;
+    use super::super::Density;
     use super::*;
     use std::io::Write;
 

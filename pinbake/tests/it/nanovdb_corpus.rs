@@ -18,8 +18,8 @@ use crate::{nanovdb, openvdb};
 use glam::{DVec3, IVec3};
 use pin_format::Directions;
 use pinbake::BakeOptions;
-use pinbake::source::DensitySource;
 use pinbake::source::vdb::{VdbOptions, VdbSource};
+use pinbake::source::{Density, DensitySource};
 
 fn open_nvdb(path: &Path, grid: Option<&str>, level_set: bool) -> Result<VdbSource, String> {
     let opt = VdbOptions {

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use pinbake::source::vdb::{VdbOptions, VdbSource};
-use pinbake::source::{DensitySource, SourceError};
+use pinbake::source::{Density, DensitySource, SourceError};
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 

@@ -12,7 +12,7 @@ use crate::openvdb;
 use glam::{DVec3, IVec3};
 use pin_format::Directions;
 use pinbake::BakeOptions;
-use pinbake::source::DensitySource;
+use pinbake::source::Density;
 use pinbake::source::vdb::{VdbOptions, VdbSource};
 
 fn open(file: &std::path::Path, grid: &str, level_set: bool) -> Result<VdbSource, String> {

@@ -15,8 +15,8 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 
 use crate::render::{
-    BrickGrid, DensitySource, EstimatorSpec, HomogeneousBox, MajorantGrid, RenderError,
-    ResidualControl, VoxelGrid,
+    BrickGrid, Density, EstimatorSpec, HomogeneousBox, MajorantGrid, RenderError, ResidualControl,
+    VoxelGrid,
 };
 use pin_format::SparseValues;
 use pinrt::Error;
@@ -60,7 +60,7 @@ pub enum GpuDensityKind {
 
 /// A density field for the GPU estimators: an extinction function and the local box that
 /// holds all of it (extinction is 0 outside `bounds`; ray marching steps are relative to its
-/// longest edge, as on the CPU, where it is [`crate::render::DensitySource::bounds`]).
+/// longest edge, as on the CPU, where it is [`crate::render::Density::bounds`]).
 #[derive(Clone, Debug)]
 pub struct GpuDensity {
     pub bounds: ([f64; 3], [f64; 3]),

@@ -1221,7 +1221,7 @@ fn residual_descs(ms: &MultiScene) -> Vec<crate::medium::MediumDesc> {
         dims: ControlDims::Exact([6; 3]),
         ..ControlOptions::default()
     };
-    let bbox = crate::render::DensitySource::bounds(&ms.base);
+    let bbox = crate::render::Density::bounds(&ms.base);
     owned.control = Some(bake_control(&ms.base, &bbox, &opts).unwrap());
     let grid = load(&owned);
     let gpu = Arc::new(GpuDensity::from_voxel_grid(ms.base.clone()).unwrap());
@@ -1402,7 +1402,7 @@ fn residual_on_gpu_matches_the_cosine_closed_form() {
     let (lo, hi) = ([-1.0, -0.8, -1.0], [1.0, 0.8, 1.0]);
     let density = 0.5f32;
     let cpu_waves = waves.clone();
-    let field: Arc<dyn crate::render::DensitySource> = Arc::new(crate::render::FnField {
+    let field: Arc<dyn crate::render::Density> = Arc::new(crate::render::FnField {
         min: lo,
         max: hi,
         f: move |p: Vec3| {

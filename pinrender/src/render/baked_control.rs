@@ -11,7 +11,7 @@ use super::error::RenderError;
 use super::estimator::{ResidualRatioTracking, TransportEstimator};
 use super::majorant::MajorantGrid;
 use super::rng::Pcg32;
-use pinbake::source::{Aabb, DensitySource};
+use pinbake::source::{Aabb, Density};
 
 /// Residual ratio tracking (Novák, Selle and Jarosz 2014) over a baked control: per brick of
 /// the control grid, the control extinction `c` is taken out exactly and the residual
@@ -24,7 +24,7 @@ use pinbake::source::{Aabb, DensitySource};
 /// c = 0`. The relative variance of a transmittance estimate is `exp(int (sigma - c)^2 / m) -
 /// 1` at `int m` lookups: the baker chooses `c` and `m` per brick to balance the two.
 pub struct BakedResidualTracking {
-    inner: ResidualRatioTracking<dyn DensitySource>,
+    inner: ResidualRatioTracking<dyn Density>,
     dims: [u32; 3],
 }
 
@@ -34,7 +34,7 @@ impl BakedResidualTracking {
     /// paired queries track the baked majorants, or `other` (the renderer's own grid over
     /// the same medium) where [`walk_cost`] says that walk is cheaper.
     pub fn new(
-        field: Arc<dyn DensitySource>,
+        field: Arc<dyn Density>,
         (lo, hi): ([f64; 3], [f64; 3]),
         dims: [u32; 3],
         control: Vec<f32>,
@@ -55,12 +55,12 @@ impl BakedResidualTracking {
     /// Over `field`, from the control section of `grid` placed by `local_to_world` (the
     /// file's own when `None`): a positive scale and a translation per axis, as the
     /// renderer's fields are axis-aligned; `other` as in [`Self::new`]. Where `field` bounds
-    /// itself ([`DensitySource::max_extinction_in`]), a brick's majorant is raised to that bound
+    /// itself ([`Density::max_extinction_in`]), a brick's majorant is raised to that bound
     /// and an empty brick where the field is not 0 gets a residual majorant, so that a field
     /// other than the baked one (the file's f16 copy) is still tracked without bias. An error
     /// when the grid has no control section.
     pub fn from_grid(
-        field: Arc<dyn DensitySource>,
+        field: Arc<dyn Density>,
         grid: &PinGrid,
         local_to_world: Option<&[f64; 12]>,
         other: Option<Arc<MajorantGrid>>,
@@ -140,7 +140,7 @@ impl BakedResidualTracking {
 
     /// The residual ratio tracking it runs (the statistical tests walk it directly; the GPU
     /// path tracer uploads its grids).
-    pub fn tracking(&self) -> &ResidualRatioTracking<dyn DensitySource> {
+    pub fn tracking(&self) -> &ResidualRatioTracking<dyn Density> {
         &self.inner
     }
 }

@@ -3,8 +3,8 @@
 //! `docs/format.md` 5.6a). What the trackers read when a dense copy would not fit: a 992 x 674
 //! x 1225 cloud is 3.3 GB dense in f32 and about its active voxels' worth bricked.
 //!
-//! Per-brick maxima and minima make [`DensitySource::max_extinction_in`] and
-//! [`DensitySource::min_extinction_in`] cost one entry per brick a box touches instead of a voxel,
+//! Per-brick maxima and minima make [`Density::max_extinction_in`] and
+//! [`Density::min_extinction_in`] cost one entry per brick a box touches instead of a voxel,
 //! for the majorant grid and residual tracking's control.
 
 use std::sync::Arc;
@@ -15,7 +15,7 @@ use pin_format::SparseValues;
 
 use super::error::RenderError;
 use super::field::VoxelGrid;
-use pinbake::source::{Aabb, DensitySource};
+use pinbake::source::{Aabb, Density, DensitySource};
 
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;
@@ -406,7 +406,7 @@ impl BrickGrid {
     }
 }
 
-impl DensitySource for BrickGrid {
+impl Density for BrickGrid {
     fn bounds(&self) -> Aabb {
         Aabb::from_arrays(self.origin, self.max)
     }
@@ -443,13 +443,15 @@ impl DensitySource for BrickGrid {
         }))
     }
 
-    fn voxel_size(&self) -> Option<DVec3> {
-        Some(DVec3::from(self.spacing))
-    }
-
     fn describe(&self) -> String {
         let [x, y, z] = self.dims;
         format!("bricked grid {x}x{y}x{z}")
+    }
+}
+
+impl DensitySource for BrickGrid {
+    fn voxel_size(&self) -> Option<DVec3> {
+        Some(DVec3::from(self.spacing))
     }
 }
 

@@ -4,7 +4,7 @@ use super::error::RenderError;
 use super::majorant::{MajorantGrid, MajorantSegment, check_box, clip_box};
 use super::rng::Pcg32;
 use glam::{DVec3, Vec3};
-use pinbake::source::{Aabb, DenseView, DensitySource};
+use pinbake::source::{Aabb, DenseView, Density};
 use std::sync::Arc;
 
 /// A distance sampler and transmittance estimator for one medium (one instance).
@@ -177,7 +177,7 @@ pub const MAX_MARCH_STEPS: f64 = (1u64 << 24) as f64;
 /// deterministic. Distance sampling draws a target optical depth `-ln(1 - u)` and inverts
 /// the piecewise-linear accumulated depth (constant extinction inside a step), so a
 /// homogeneous medium is sampled exactly.
-pub struct RayMarching<F: ?Sized = dyn DensitySource> {
+pub struct RayMarching<F: ?Sized = dyn Density> {
     field: Arc<F>,
     lo: [f64; 3],
     hi: [f64; 3],
@@ -185,7 +185,7 @@ pub struct RayMarching<F: ?Sized = dyn DensitySource> {
     step: f64,
 }
 
-impl<F: DensitySource + ?Sized> RayMarching<F> {
+impl<F: Density + ?Sized> RayMarching<F> {
     /// `rel_step` in `(0, 1]` times the longest edge of `field.bounds()` is the step.
     pub fn new(field: Arc<F>, rel_step: f64) -> Result<Self, RenderError> {
         let (lo, hi) = field.bounds().to_arrays();
@@ -232,7 +232,7 @@ impl<F: DensitySource + ?Sized> RayMarching<F> {
     }
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for RayMarching<F> {
+impl<F: Density + ?Sized> TransportEstimator for RayMarching<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         let target = rng.next_exp();
@@ -304,10 +304,10 @@ trait Lookup {
     fn at(&self, r: &PreparedRay, t: f64) -> f32;
 }
 
-/// Through [`DensitySource::extinction`] at the f32 world point.
+/// Through [`Density::extinction`] at the f32 world point.
 struct PointLookup<'a, F: ?Sized>(&'a F);
 
-impl<F: DensitySource + ?Sized> Lookup for PointLookup<'_, F> {
+impl<F: Density + ?Sized> Lookup for PointLookup<'_, F> {
     #[inline(always)]
     fn segment(&mut self, _: &PreparedRay, _: f64) {}
     #[inline(always)]
@@ -354,7 +354,7 @@ impl Lookup for DenseLookup<'_> {
     }
 }
 
-impl<F: DensitySource + ?Sized> Tracker<F> {
+impl<F: Density + ?Sized> Tracker<F> {
     /// The one majorant-stepping loop under delta and ratio tracking, reading the field
     /// through its dense array where it has one ([`Tracker::dense`]).
     #[inline]
@@ -560,26 +560,26 @@ fn ratio_step(tr: &mut f64, sigma: f64, inv: f64, rng: &mut Pcg32) -> Option<f32
 }
 
 /// Delta tracking for both queries (transmittance is the 0/1 indicator of passing).
-pub struct DeltaTracking<F: ?Sized = dyn DensitySource>(Tracker<F>);
+pub struct DeltaTracking<F: ?Sized = dyn Density>(Tracker<F>);
 
 /// Ratio tracking for transmittance, delta tracking for distances.
-pub struct RatioTracking<F: ?Sized = dyn DensitySource>(Tracker<F>);
+pub struct RatioTracking<F: ?Sized = dyn Density>(Tracker<F>);
 
-impl<F: DensitySource + ?Sized> DeltaTracking<F> {
+impl<F: Density + ?Sized> DeltaTracking<F> {
     /// The majorant grid's box bounds the tracking; it should cover the field's support.
     pub fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
         DeltaTracking(Tracker::new(field, majorants))
     }
 }
 
-impl<F: DensitySource + ?Sized> RatioTracking<F> {
+impl<F: Density + ?Sized> RatioTracking<F> {
     /// The majorant grid's box bounds the tracking; it should cover the field's support.
     pub fn new(field: Arc<F>, majorants: Arc<MajorantGrid>) -> Self {
         RatioTracking(Tracker::new(field, majorants))
     }
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for DeltaTracking<F> {
+impl<F: Density + ?Sized> TransportEstimator for DeltaTracking<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.0.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -599,7 +599,7 @@ impl<F: DensitySource + ?Sized> TransportEstimator for DeltaTracking<F> {
     }
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for RatioTracking<F> {
+impl<F: Density + ?Sized> TransportEstimator for RatioTracking<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.0.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -636,7 +636,7 @@ impl<F: DensitySource + ?Sized> TransportEstimator for RatioTracking<F> {
 /// The control extinction per brick of [`ResidualRatioTracking`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ResidualControl {
-    /// The least extinction in the brick ([`DensitySource::min_extinction_in`], exact for voxel
+    /// The least extinction in the brick ([`Density::min_extinction_in`], exact for voxel
     /// grids: the least of the voxels that the trilinear field reads there), so that the
     /// residual is never negative; fields without an exact minimum take the least of a
     /// lattice of points spanning the brick.
@@ -674,7 +674,7 @@ impl ResidualControl {
 /// Russian roulette acts on the whole weight `exp(-int_0^t c) x residual weight` below 0.1,
 /// as ratio tracking's does on its weight, so that a query stops once a dense control has
 /// made the transmittance small, not only once the residual has.
-pub struct ResidualRatioTracking<F: ?Sized = dyn DensitySource> {
+pub struct ResidualRatioTracking<F: ?Sized = dyn Density> {
     /// The field and the full majorants (delta tracking for distances).
     tracker: Tracker<F>,
     /// The residual majorants, over the same bricks as the tracker's grid.
@@ -686,7 +686,7 @@ pub struct ResidualRatioTracking<F: ?Sized = dyn DensitySource> {
 }
 
 /// The control and residual majorant of every brick of `majorants` over `field`.
-fn residual_controls<F: DensitySource + ?Sized>(
+fn residual_controls<F: Density + ?Sized>(
     field: &F,
     majorants: &MajorantGrid,
     control: ResidualControl,
@@ -746,7 +746,7 @@ fn residual_controls<F: DensitySource + ?Sized>(
     (controls, residual)
 }
 
-impl<F: DensitySource + ?Sized> ResidualRatioTracking<F> {
+impl<F: Density + ?Sized> ResidualRatioTracking<F> {
     /// Controls of kind `control` per brick of `majorants`, computed here from the field
     /// alone (a load-time pass over the bricks).
     pub fn new(
@@ -916,7 +916,7 @@ fn residual_step(
     None
 }
 
-impl<F: DensitySource + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
+impl<F: Density + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
     fn sample_distance(&self, o: Vec3, d: Vec3, t_max: f32, rng: &mut Pcg32) -> Option<f32> {
         let r = prepare(o, d, t_max)?;
         self.tracker.delta(&r, rng).map(|t| r.to_t(t, t_max))
@@ -984,7 +984,7 @@ mod dense_tests {
     /// along x: a deliberately wrong lookup, to show that the test below can fail.
     struct Shifted(VoxelGrid);
 
-    impl DensitySource for Shifted {
+    impl Density for Shifted {
         fn bounds(&self) -> Aabb {
             self.0.bounds()
         }
@@ -1004,7 +1004,7 @@ mod dense_tests {
     /// Optical depth of the unit-direction ray `o + t d`, `t` in `[t0, t1]`, by the midpoint
     /// rule with `n` steps of the field's point extinction (error far below the tests' bounds:
     /// the trilinear field is piecewise smooth and `n` large).
-    fn depth(field: &dyn DensitySource, o: Vec3, d: Vec3, t0: f64, t1: f64, n: usize) -> f64 {
+    fn depth(field: &dyn Density, o: Vec3, d: Vec3, t0: f64, t1: f64, n: usize) -> f64 {
         let h = (t1 - t0) / n as f64;
         (0..n)
             .map(|i| {
@@ -1055,7 +1055,7 @@ mod dense_tests {
                 Vec3::new(-1.0, -0.7, 0.4).normalize(),
             ),
         ];
-        let z = |field: Arc<dyn DensitySource>, seed: u64| -> Vec<f64> {
+        let z = |field: Arc<dyn Density>, seed: u64| -> Vec<f64> {
             let maj = Arc::new(MajorantGrid::from_field(&*field, [3, 2, 2]).unwrap());
             let ests: [Box<dyn TransportEstimator>; 2] = [
                 Box::new(RatioTracking::new(field.clone(), maj.clone())),
@@ -1100,7 +1100,7 @@ mod dense_tests {
     fn ratio_and_delta_from_one_walk_are_unbiased() {
         let g = Arc::new(grid());
         let maj = Arc::new(MajorantGrid::from_field(&*g, [3, 2, 2]).unwrap());
-        let est = RatioTracking::new(g.clone() as Arc<dyn DensitySource>, maj);
+        let est = RatioTracking::new(g.clone() as Arc<dyn Density>, maj);
         let rays = [
             (Vec3::new(-1.0, 0.6, 0.6), Vec3::X, f32::INFINITY),
             (

@@ -1,9 +1,9 @@
 //! The renderer's own density fields (a closure, a dense voxel grid): what the reference
 //! estimators march and track besides the baker's sources (the constant box among them). All of them are
-//! [`DensitySource`]s, the one density interface of bake and render.
+//! [`Density`]s, the one density interface of bake and render.
 
 use glam::{DVec3, Vec3};
-use pinbake::source::{Aabb, DenseMap, DenseView, DensitySource};
+use pinbake::source::{Aabb, DenseMap, DenseView, Density, DensitySource};
 
 /// Whether `p` lies in the closed box `[lo, hi]` (the voxel and bricked grids' box test).
 #[inline]
@@ -26,7 +26,7 @@ pub struct FnField<F> {
     pub f: F,
 }
 
-impl<F: Fn(Vec3) -> f32 + Send + Sync> DensitySource for FnField<F> {
+impl<F: Fn(Vec3) -> f32 + Send + Sync> Density for FnField<F> {
     fn bounds(&self) -> Aabb {
         Aabb::from_arrays(self.min, self.max)
     }
@@ -55,7 +55,7 @@ pub struct VoxelGrid {
     spacing: [f64; 3],
     values: Vec<f32>,
     max: [f64; 3],
-    /// `values` as the trackers read them ([`DensitySource::dense_view`]); boxed, so that
+    /// `values` as the trackers read them ([`Density::dense_view`]); boxed, so that
     /// the grid stays small where it is moved around by value.
     map: Option<Box<DenseMap>>,
 }
@@ -132,7 +132,7 @@ impl VoxelGrid {
     }
 }
 
-impl DensitySource for VoxelGrid {
+impl Density for VoxelGrid {
     fn bounds(&self) -> Aabb {
         Aabb::from_arrays(self.origin, self.max)
     }
@@ -179,13 +179,15 @@ impl DensitySource for VoxelGrid {
         DenseView::new(&self.values, *self.map.as_deref()?)
     }
 
-    fn voxel_size(&self) -> Option<DVec3> {
-        Some(DVec3::from(self.spacing))
-    }
-
     fn describe(&self) -> String {
         let [x, y, z] = self.dims;
         format!("voxel grid {x}x{y}x{z}")
+    }
+}
+
+impl DensitySource for VoxelGrid {
+    fn voxel_size(&self) -> Option<DVec3> {
+        Some(DVec3::from(self.spacing))
     }
 }
 

@@ -2,7 +2,7 @@
 
 use super::error::RenderError;
 use glam::DVec3;
-use pinbake::source::{Aabb, DensitySource};
+use pinbake::source::{Aabb, Density};
 
 /// Max extinction per brick over a world box; bricks tile the box, `x` fastest, then `y`,
 /// then `z` (the pin file's majorant-section layout).
@@ -85,12 +85,12 @@ impl MajorantGrid {
     }
 
     /// Build over the field's bounds with `dims` bricks. Per brick it uses the field's exact
-    /// [`DensitySource::max_extinction_in`] where it is finite; otherwise the max over a 5x5x5 lattice
+    /// [`Density::max_extinction_in`] where it is finite; otherwise the max over a 5x5x5 lattice
     /// of points spanning the brick (faces included) times 1.05 (conservative only for fields
     /// smooth at that scale; ratio tracking stays unbiased anyway, delta tracking clamps the
     /// acceptance probability where the bound is violated). Non-finite maxima (an infinite
     /// extinction) are stored as `f32::MAX`.
-    pub fn from_field(field: &dyn DensitySource, dims: [u32; 3]) -> Result<Self, RenderError> {
+    pub fn from_field(field: &dyn Density, dims: [u32; 3]) -> Result<Self, RenderError> {
         let (lo, hi) = field.bounds().to_arrays();
         check_box(&lo, &hi).map_err(invalid)?;
         let n = (dims[0] as u64) * (dims[1] as u64) * (dims[2] as u64);

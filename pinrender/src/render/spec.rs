@@ -14,7 +14,7 @@ use super::estimator::{
 };
 use super::majorant::MajorantGrid;
 use super::pins::PinsEstimator;
-use pinbake::source::DensitySource;
+use pinbake::source::Density;
 
 /// Smallest relative ray-marching step, one bound for the baker and the renderer
 /// (`pin_format::MIN_REL_STEP`; smaller steps ran for minutes per pixel).
@@ -205,7 +205,7 @@ impl EstimatorSpec {
     /// (which reads both: [`EstimatorSpec::build_pin_controlled`]).
     pub fn build_density_estimator<E: From<RenderError>>(
         self,
-        field: &dyn Fn() -> Result<Arc<dyn DensitySource>, E>,
+        field: &dyn Fn() -> Result<Arc<dyn Density>, E>,
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {
         Ok(Some(match self {
@@ -226,7 +226,7 @@ impl EstimatorSpec {
     /// (nothing is built then).
     pub fn build_pin_controlled<E: From<RenderError>>(
         self,
-        field: &dyn Fn() -> Result<Arc<dyn DensitySource>, E>,
+        field: &dyn Fn() -> Result<Arc<dyn Density>, E>,
         majorants: &dyn Fn() -> Result<Arc<MajorantGrid>, E>,
         pins: &dyn Fn() -> Result<Arc<PinsEstimator>, E>,
     ) -> Result<Option<Arc<dyn TransportEstimator>>, E> {

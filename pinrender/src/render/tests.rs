@@ -18,7 +18,7 @@ fn assert_z(label: &str, (m, se): (f64, f64), expect: f64) {
     );
 }
 
-fn estimators(field: Arc<dyn DensitySource>, dims: [u32; 3]) -> Vec<Box<dyn TransportEstimator>> {
+fn estimators(field: Arc<dyn Density>, dims: [u32; 3]) -> Vec<Box<dyn TransportEstimator>> {
     let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
     vec![
         Box::new(DeltaTracking::new(field.clone(), maj.clone())),
@@ -56,7 +56,7 @@ fn trackers_transmittance_homogeneous() {
 #[test]
 fn trackers_transmittance_heterogeneous() {
     // sigma = 1 + 3 x^2 on the unit box: optical depth 2 along x, 2 |d| / d.x diagonally.
-    let field: Arc<dyn DensitySource> = Arc::new(FnField {
+    let field: Arc<dyn Density> = Arc::new(FnField {
         min: [0.0; 3],
         max: [1.0; 3],
         f: |p: Vec3| 1.0 + 3.0 * p.x * p.x,
@@ -97,7 +97,7 @@ fn trackers_transmittance_heterogeneous() {
 fn zero_and_loose_majorants() {
     // Empty left half: its brick has majorant 0 and is skipped; a right-half brick with a
     // majorant 5x too large stays unbiased.
-    let field: Arc<dyn DensitySource> = Arc::new(FnField {
+    let field: Arc<dyn Density> = Arc::new(FnField {
         min: [0.0; 3],
         max: [1.0; 3],
         f: |p: Vec3| if p.x > 0.5 { 2.0 } else { 0.0 },
@@ -260,7 +260,7 @@ fn cube(sigma: f32) -> Arc<HomogeneousBox> {
 }
 
 fn tracked(
-    field: Arc<dyn DensitySource>,
+    field: Arc<dyn Density>,
     dims: [u32; 3],
 ) -> (Arc<dyn TransportEstimator>, Arc<dyn TransportEstimator>) {
     let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
@@ -332,7 +332,7 @@ fn single_scattering_matches_closed_form() {
     let (sigma, h, albedo, g) = (1.0f32, 1.0f64, 0.8f32, 0.3f32);
     let alpha = 40f64.to_radians();
     let sun_dir = [alpha.sin() as f32, alpha.cos() as f32, 0.0];
-    let slab = |s: f32| -> Arc<dyn DensitySource> {
+    let slab = |s: f32| -> Arc<dyn Density> {
         Arc::new(
             HomogeneousBox::new(Aabb::from_arrays([-20.0, 0.0, -20.0], [20.0, h, 20.0]), s)
                 .unwrap(),
@@ -380,7 +380,7 @@ fn single_scattering_matches_closed_form() {
 /// the expected radiance is exactly 1 whatever the medium, phase or estimator mix.
 #[test]
 fn white_furnace() {
-    let field: Arc<dyn DensitySource> = Arc::new(FnField {
+    let field: Arc<dyn Density> = Arc::new(FnField {
         min: [-1.0; 3],
         max: [1.0; 3],
         f: |p: Vec3| 2.0 + 1.5 * (3.0 * p.x).sin() * p.y,
@@ -683,7 +683,7 @@ impl TransportEstimator for Probe {
     }
 }
 
-fn slab_box(min: [f64; 3], max: [f64; 3], sigma: f32) -> Arc<dyn DensitySource> {
+fn slab_box(min: [f64; 3], max: [f64; 3], sigma: f32) -> Arc<dyn Density> {
     Arc::new(HomogeneousBox::new(Aabb::from_arrays(min, max), sigma).unwrap())
 }
 
@@ -691,7 +691,7 @@ fn slab_box(min: [f64; 3], max: [f64; 3], sigma: f32) -> Arc<dyn DensitySource> 
 /// transmittance 1 and no collision (the contract that lets the tracer skip them).
 #[test]
 fn estimator_bounds_contain_everything_they_see() {
-    let field: Arc<dyn DensitySource> = Arc::new(FnField {
+    let field: Arc<dyn Density> = Arc::new(FnField {
         min: [1.0, -2.0, 0.5],
         max: [2.0, 0.0, 3.0],
         f: |p: Vec3| 3.0 + p.x.sin(),
@@ -846,7 +846,7 @@ fn culled_distance_sampling_is_exact() {
 /// fewer media.
 #[test]
 fn culling_keeps_radiance_unbiased() {
-    let blob = |c: Vec3, sigma: f32| -> Arc<dyn DensitySource> {
+    let blob = |c: Vec3, sigma: f32| -> Arc<dyn Density> {
         let lo = (c - 0.5).as_dvec3().to_array();
         let hi = (c + 0.5).as_dvec3().to_array();
         Arc::new(FnField {
@@ -1053,10 +1053,7 @@ fn residual_z(
         .collect()
 }
 
-fn residual_both(
-    field: Arc<dyn DensitySource>,
-    maj: &Arc<MajorantGrid>,
-) -> Vec<ResidualRatioTracking> {
+fn residual_both(field: Arc<dyn Density>, maj: &Arc<MajorantGrid>) -> Vec<ResidualRatioTracking> {
     [ResidualControl::Min, ResidualControl::Mean]
         .map(|c| ResidualRatioTracking::new(field.clone(), maj.clone(), c).unwrap())
         .into()
@@ -1070,7 +1067,7 @@ fn residual_both(
 #[test]
 fn residual_ratio_tracking_matches_the_box() {
     let sigma = 2.0f32;
-    let field: Arc<dyn DensitySource> = unit_box(sigma);
+    let field: Arc<dyn Density> = unit_box(sigma);
     let rays = unit_box_rays(sigma);
     for dims in [[1, 1, 1], [16, 16, 16], [3, 1, 7]] {
         let maj = Arc::new(MajorantGrid::from_field(&*field, dims).unwrap());
@@ -1158,7 +1155,7 @@ fn residual_ratio_tracking_is_unbiased_on_the_cosine_cube() {
         }
     };
     let rays = cube_rays(exact);
-    let field: Arc<dyn DensitySource> = noise.clone();
+    let field: Arc<dyn Density> = noise.clone();
     let maj = Arc::new(MajorantGrid::from_field(&*field, [8, 8, 8]).unwrap());
     for est in residual_both(field.clone(), &maj) {
         let good = residual_z(&est, &rays, 40_000, 7, 1.0);
@@ -1272,7 +1269,7 @@ fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
             (o, d, t, exact(o, d, t))
         })
         .collect();
-    let field: Arc<dyn DensitySource> = g.clone();
+    let field: Arc<dyn Density> = g.clone();
     let maj = Arc::new(MajorantGrid::from_field(&*field, [4, 3, 3]).unwrap());
     for est in residual_both(field, &maj) {
         let z = residual_z(&est, &rays, 40_000, 9, 1.0);
@@ -1284,7 +1281,7 @@ fn residual_ratio_tracking_is_unbiased_on_a_voxel_grid() {
 /// tracking's one walk (transmittance correlated with the collision), draw for draw.
 #[test]
 fn residual_pairs_are_ratio_trackings_one_walk() {
-    let g: Arc<dyn DensitySource> = Arc::new(contrast_grid());
+    let g: Arc<dyn Density> = Arc::new(contrast_grid());
     let maj = Arc::new(MajorantGrid::from_field(&*g, [4, 3, 3]).unwrap());
     let ratio = RatioTracking::new(g.clone(), maj.clone());
     for est in residual_both(g, &maj) {
@@ -1305,13 +1302,13 @@ fn residual_pairs_are_ratio_trackings_one_walk() {
 /// exactly the field the estimator reads.
 #[cfg(feature = "cli")]
 struct FieldSource {
-    field: Arc<dyn DensitySource>,
+    field: Arc<dyn Density>,
     lo: [f64; 3],
     hi: [f64; 3],
 }
 
 #[cfg(feature = "cli")]
-impl pinbake::source::DensitySource for FieldSource {
+impl pinbake::source::Density for FieldSource {
     fn bounds(&self) -> pinbake::source::Aabb {
         pinbake::source::Aabb::new(DVec3::from(self.lo), DVec3::from(self.hi))
     }
@@ -1326,12 +1323,15 @@ impl pinbake::source::DensitySource for FieldSource {
     }
 }
 
+/// Baked into a control (`pinbake::control::bake_control`) by the tests below.
+impl pinbake::source::DensitySource for FieldSource {}
+
 /// `pinres` over `field`: the control `pinbake` bakes for it over `[lo, hi]` with `dims`
 /// bricks, and, with `wrong_m`, the mutation that stores a residual majorant of 0 in every
 /// brick (the walk then skips the residual: the estimate is `exp(-int c)`).
 #[cfg(feature = "cli")]
 fn baked_pinres(
-    field: Arc<dyn DensitySource>,
+    field: Arc<dyn Density>,
     (lo, hi): ([f64; 3], [f64; 3]),
     dims: [u32; 3],
     wrong_m: bool,
@@ -1366,7 +1366,7 @@ fn baked_pinres(
 #[cfg(feature = "cli")]
 impl FieldSource {
     fn bounds_box(&self) -> pinbake::source::Aabb {
-        pinbake::source::DensitySource::bounds(self)
+        pinbake::source::Density::bounds(self)
     }
 }
 
@@ -1381,7 +1381,7 @@ impl FieldSource {
 fn pinres_is_unbiased_against_closed_forms() {
     use crate::testing::CosNoise;
     let sigma = 2.0f32;
-    let boxed: Arc<dyn DensitySource> = unit_box(sigma);
+    let boxed: Arc<dyn Density> = unit_box(sigma);
     let box_rays = unit_box_rays(sigma).to_vec();
     let noise = Arc::new(CosNoise::new(8, 10.0, 3.0, 5));
     let exact = |o: Vec3, d: Vec3, t_max: f32| {
@@ -1392,7 +1392,7 @@ fn pinres_is_unbiased_against_closed_forms() {
         }
     };
     type Case = (
-        Arc<dyn DensitySource>,
+        Arc<dyn Density>,
         ([f64; 3], [f64; 3]),
         [u32; 3],
         Vec<ExactRay>,
@@ -1430,7 +1430,7 @@ fn pinres_is_unbiased_against_closed_forms() {
 #[test]
 fn pinres_matches_ratio_tracking_on_a_voxel_grid() {
     let g = Arc::new(contrast_grid());
-    let field: Arc<dyn DensitySource> = g.clone();
+    let field: Arc<dyn Density> = g.clone();
     let (lo, hi) = g.bounds().to_arrays();
     let maj = Arc::new(MajorantGrid::from_field(&*field, [4, 3, 3]).unwrap());
     let ratio = RatioTracking::new(field.clone(), maj);
@@ -1495,7 +1495,7 @@ fn unit_pin_grid(control: Option<pin_format::OwnedControl>) -> pinrt::PinGrid {
 #[test]
 fn pinres_reads_the_control_section() {
     use pin_format::OwnedControl;
-    let field: Arc<dyn DensitySource> = unit_box(1.5);
+    let field: Arc<dyn Density> = unit_box(1.5);
     let control = OwnedControl {
         dims: [2, 1, 1],
         control: vec![1.0, 1.5],
@@ -1542,7 +1542,7 @@ fn pinres_reads_the_control_section() {
 fn pinres_fits_the_section_to_the_field() {
     use pin_format::OwnedControl;
     let sigma = 1.5f32;
-    let field: Arc<dyn DensitySource> = unit_box(sigma);
+    let field: Arc<dyn Density> = unit_box(sigma);
     // Brick 0 claims to be empty; brick 1's majorant is below the field.
     let control = OwnedControl {
         dims: [2, 1, 1],

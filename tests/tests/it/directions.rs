@@ -13,7 +13,7 @@ use pin_format::Directions;
 use pinbake::bake::PinLayout;
 use pinbake::pin::{Placement, interval_optical_depths};
 use pinbake::rng::CounterRng;
-use pinbake::source::{Aabb, DensitySource};
+use pinbake::source::{Aabb, Density, DensitySource};
 use pinbake::{BakeOptions, bake};
 use pinrt::lookup::{GridView, direction_cell};
 use pinrt::{PinGrid, Ray, Rng, SamplerOptions};
@@ -86,7 +86,7 @@ fn every_baked_direction_maps_back_to_its_cell() {
 /// A field with different optical depths along every axis, so that a pin's mask is not
 /// symmetric and a reversal bug changes popcounts.
 struct Lopsided;
-impl DensitySource for Lopsided {
+impl Density for Lopsided {
     fn bounds(&self) -> Aabb {
         Aabb::new(DVec3::ZERO, DVec3::new(2.0, 1.0, 1.5))
     }
@@ -104,6 +104,8 @@ impl DensitySource for Lopsided {
         "lopsided".into()
     }
 }
+
+impl DensitySource for Lopsided {}
 
 /// End to end through a baked file: a query that starts at a pin's own point and runs along
 /// its line, forwards (`+w`) or backwards (`-w`, the reversed mask), reads that pin's entry,
@@ -269,7 +271,7 @@ fn pin_direction_error_by_region() {
 /// A peaked Gaussian blob in a unit cube (extinction up to 8): the kind of volume a user
 /// bakes.
 struct Blob;
-impl DensitySource for Blob {
+impl Density for Blob {
     fn bounds(&self) -> Aabb {
         Aabb::new(DVec3::ZERO, DVec3::ONE)
     }
@@ -287,6 +289,8 @@ impl DensitySource for Blob {
         "gaussian blob".into()
     }
 }
+
+impl DensitySource for Blob {}
 
 /// Mean over near-axis rays through the blob's core of (pin transmittance - ray-marched
 /// transmittance), for rays along `axis` (both orientations).

@@ -8,7 +8,7 @@ use pin_format::{Directions, PinEntry};
 use pinbake::pin::{INTERVALS, Placement, interval_optical_depths, make_entry};
 use pinbake::rng::CounterRng;
 use pinbake::source::procedural::CosineParams;
-use pinbake::source::{Aabb, CosineNoise, DensitySource, HomogeneousBox};
+use pinbake::source::{Aabb, CosineNoise, Density, DensitySource, HomogeneousBox};
 use pinbake::{BakeOptions, bake};
 use pinrt::chord::{segment, unit_cube_chord};
 use pinrt::mask::{exact_sample_mask, thesis_mask_probability, thesis_sample_mask};
@@ -195,7 +195,7 @@ fn transmittance_is_unbiased_through_baked_files() {
 
 /// A ramp `sigma = 4 x` over the unit box (for the bake-seed average).
 struct Ramp;
-impl DensitySource for Ramp {
+impl Density for Ramp {
     fn bounds(&self) -> Aabb {
         Aabb::new(DVec3::ZERO, DVec3::ONE)
     }
@@ -213,6 +213,8 @@ impl DensitySource for Ramp {
         "ramp".into()
     }
 }
+
+impl DensitySource for Ramp {}
 
 /// (a') Over the baker's mask draws: `E[t_min ^ popcount(I)] = prod t_i = exp(-sum tau_i)`
 /// for full chords, with the baker's own `interval_optical_depths` and `make_entry`.

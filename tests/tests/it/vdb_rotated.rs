@@ -8,7 +8,7 @@ mod openvdb;
 
 use glam::{DMat3, DVec3};
 use pin_format::Directions;
-use pinbake::source::{DensitySource, VdbOptions, VdbSource};
+use pinbake::source::{Density, VdbOptions, VdbSource};
 use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, Ray, Rng, Sampler};
 

@@ -23,6 +23,7 @@
 //! (`cpu_queries_per_s`); the printed ratios use the CPU rates, which a shared machine does
 //! not skew row by row.
 
+use pinbake::source::DensitySource;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -35,7 +36,7 @@ use glam::Vec3;
 use pinbake::source::{Aabb, DenseGrid, ProceduralSpec};
 use pinlab::{CombKind, PINURM_DEFAULT_PIN_QUERIES, PinControlledUrm};
 use pinrender::render::{
-    BakedResidualTracking, DeltaTracking, DensitySource, MajorantGrid, Pcg32, PinsEstimator,
+    BakedResidualTracking, DeltaTracking, Density, MajorantGrid, Pcg32, PinsEstimator,
     RatioTracking, ResidualControl, ResidualRatioTracking, TransportEstimator,
 };
 use pinrt::march::{self, MarchBox};
@@ -114,7 +115,7 @@ struct Counted {
     lookups: AtomicU64,
 }
 
-impl DensitySource for Counted {
+impl Density for Counted {
     fn bounds(&self) -> Aabb {
         self.inner.bounds()
     }
@@ -127,6 +128,9 @@ impl DensitySource for Counted {
         f32::INFINITY
     }
 }
+
+/// `pinres` bakes its control from the counted field.
+impl DensitySource for Counted {}
 
 /// Per-ray variance and lookups of a transmittance estimator over `rays`: for each ray
 /// `VARIANCE_REPEATS` estimates (fixed seeds), the mean of the rays' sample variances, and
@@ -582,7 +586,7 @@ fn bench_volume(
     let residual = |control| -> Result<Arc<ResidualRatioTracking>> {
         Ok(Arc::new(
             ResidualRatioTracking::new(
-                field.clone() as Arc<dyn DensitySource>,
+                field.clone() as Arc<dyn Density>,
                 majorants.clone(),
                 control,
             )

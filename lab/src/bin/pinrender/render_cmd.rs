@@ -10,7 +10,7 @@ use std::time::Instant;
 use pinlab::Estimator;
 use pinrender::gpu_render::{GpuDensity, GpuRenderer, GpuScene};
 use pinrender::render::{
-    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, DensitySource, EstimatorSpec, Image,
+    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, Density, EstimatorSpec, Image,
     MajorantGrid, RenderSettings, SampleLoop, Scene, Sun, VoxelGrid, block_bias, render,
     render_wavefront, rmse,
 };
@@ -541,7 +541,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
 /// estimators), or from a pin file alone.
 struct OpenedMedium {
     bounds: ([f64; 3], [f64; 3]),
-    field: Option<Arc<dyn DensitySource>>,
+    field: Option<Arc<dyn Density>>,
     /// The file's majorants (a pin file alone); `None`: built from the field.
     majorants: Option<Arc<MajorantGrid>>,
     pins: Option<Arc<pinrt::PinGrid>>,

@@ -939,7 +939,7 @@ impl VdbSource {
     ///
     /// The copy holds every voxel centre the trilinear field reaches, one beyond the stored
     /// ones on each side: those are zero, so the dense grid's clamp-to-edge outer half voxel
-    /// reads zero where this source does, and its box covers [`DensitySource::bounds`]. A
+    /// reads zero where this source does, and its box covers [`Density::bounds`]. A
     /// mirrored axis (negative scale) is stored reversed, so that the copy's index grows with
     /// world position. Values at voxel centres are bit-identical; between them the two
     /// samplers interpolate the same corners with the same f32 weights formula, but compute
@@ -1226,7 +1226,7 @@ impl VdbSource {
     }
 }
 
-impl DensitySource for VdbSource {
+impl Density for VdbSource {
     fn bounds(&self) -> Aabb {
         self.bounds
     }
@@ -1240,6 +1240,41 @@ impl DensitySource for VdbSource {
         self.sample_index(self.world_to_index(p))
     }
 
+    fn max_extinction_in(&self, region: Aabb) -> f32 {
+        let lo = region.min.max(self.bounds.min);
+        let hi = region.max.min(self.bounds.max);
+        if !lo.cmple(hi).all() {
+            return 0.0;
+        }
+        // The index box around the region's corners (for an axis-aligned map, the images of
+        // `lo` and `hi`).
+        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
+        for c in 0..8 {
+            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
+            let i = self.world_to_index(p);
+            a = a.min(i);
+            b = b.max(i);
+        }
+        self.max_in_index_box(a, b)
+    }
+
+    fn describe(&self) -> String {
+        self.label.clone()
+    }
+
+    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
+        for (i, o) in out.iter_mut().take(n).enumerate() {
+            let p = origin + step * i as f64;
+            *o = if p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all() {
+                self.sample_index(self.world_to_index(p))
+            } else {
+                0.0
+            };
+        }
+    }
+}
+
+impl DensitySource for VdbSource {
     fn occupied_bounds(&self) -> Option<Aabb> {
         Some(self.bounds)
     }
@@ -1295,28 +1330,6 @@ impl DensitySource for VdbSource {
             .collect()
     }
 
-    fn max_extinction_in(&self, region: Aabb) -> f32 {
-        let lo = region.min.max(self.bounds.min);
-        let hi = region.max.min(self.bounds.max);
-        if !lo.cmple(hi).all() {
-            return 0.0;
-        }
-        // The index box around the region's corners (for an axis-aligned map, the images of
-        // `lo` and `hi`).
-        let (mut a, mut b) = (DVec3::INFINITY, DVec3::NEG_INFINITY);
-        for c in 0..8 {
-            let p = DVec3::select(glam::BVec3::new(c & 1 != 0, c & 2 != 0, c & 4 != 0), hi, lo);
-            let i = self.world_to_index(p);
-            a = a.min(i);
-            b = b.max(i);
-        }
-        self.max_in_index_box(a, b)
-    }
-
-    fn describe(&self) -> String {
-        self.label.clone()
-    }
-
     fn bake_frame(&self) -> Option<(Box<dyn DensitySource + '_>, [f64; 12])> {
         // Axis-aligned grids keep baking in world space, as they always have.
         let (frame, local_to_world) = GridFrame::new(self)?;
@@ -1359,73 +1372,6 @@ impl DensitySource for VdbSource {
             .checked_mul(n.y as u64)?
             .checked_mul(n.z as u64)?;
         (self.stored_voxels() >= count / 2).then(|| count.saturating_mul(4))
-    }
-
-    fn prefiltered(&self, step: f64) -> Result<Option<Mip>, MipAllocError> {
-        // Axis-aligned maps only: a rotated or sheared grid's voxels are not boxes of the bake
-        // frame, and it keeps point sampling.
-        let Some((scale, _)) = self.diag else {
-            return Ok(None);
-        };
-        // The fine grid is every voxel centre the trilinear field reaches (one beyond the
-        // stored ones, where it falls to zero), each the centre of a unit index cell.
-        let (lo, hi) = (self.index_min - 1, self.index_max + 1);
-        let n = (hi - lo + 1).as_i64vec3();
-        if n.cmple(glam::I64Vec3::ZERO).any() || n.max_element() > i64::from(u32::MAX) {
-            return Ok(None);
-        }
-        let fine = [n.x as u32, n.y as u32, n.z as u32];
-        let extent = n.as_dvec3() * scale.abs();
-        // The dense level (and the pass that reads every fine voxel) must stay about the size
-        // of what the sparse grid stores: a few leaves under a huge tile box keep point
-        // sampling instead of a dense copy of the box.
-        let stored = (self.leaves.len() as u64 * 512).max(1 << 24);
-        let coarse: u64 = Mip::coarse_dims(fine, extent, step)
-            .iter()
-            .map(|&c| c as u64)
-            .product();
-        let fine_count = n.x as u64 * n.y as u64 * n.z as u64;
-        if coarse > stored || fine_count > 8 * stored {
-            return Ok(None);
-        }
-        // Fine index j along an axis is index `lo + j`, or `hi - j` where the map mirrors
-        // that axis (so that j grows with world position, as the mip's voxels do).
-        let at = |a: usize, j: usize| {
-            if scale[a] > 0.0 {
-                lo[a] + j as i32
-            } else {
-                hi[a] - j as i32
-            }
-        };
-        let corner = DVec3::new(
-            (lo.x as f64 - 0.5) * scale.x,
-            (lo.y as f64 - 0.5) * scale.y,
-            (lo.z as f64 - 0.5) * scale.z,
-        );
-        let far = DVec3::new(
-            (hi.x as f64 + 0.5) * scale.x,
-            (hi.y as f64 + 0.5) * scale.y,
-            (hi.z as f64 + 0.5) * scale.z,
-        );
-        let origin = corner.min(far) + self.translation;
-        let fill = |y: usize, z: usize, row: &mut [f32]| {
-            let (iy, iz) = (at(1, y), at(2, z));
-            for (x, v) in row.iter_mut().enumerate() {
-                *v = self.voxel(IVec3::new(at(0, x), iy, iz));
-            }
-        };
-        Mip::build(fine, origin, extent, step, &fill)
-    }
-
-    fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
-        for (i, o) in out.iter_mut().take(n).enumerate() {
-            let p = origin + step * i as f64;
-            *o = if p.cmpge(self.bounds.min).all() && p.cmple(self.bounds.max).all() {
-                self.sample_index(self.world_to_index(p))
-            } else {
-                0.0
-            };
-        }
     }
 }
 
@@ -1496,7 +1442,7 @@ impl<'a> GridFrame<'a> {
     }
 }
 
-impl DensitySource for GridFrame<'_> {
+impl Density for GridFrame<'_> {
     fn bounds(&self) -> Aabb {
         self.bounds
     }
@@ -1510,10 +1456,6 @@ impl DensitySource for GridFrame<'_> {
             return 0.0;
         }
         self.grid.sample_index(u)
-    }
-
-    fn occupied_bounds(&self) -> Option<Aabb> {
-        Some(self.bounds)
     }
 
     fn max_extinction_in(&self, region: Aabb) -> f32 {
@@ -1534,6 +1476,12 @@ impl DensitySource for GridFrame<'_> {
 
     fn describe(&self) -> String {
         format!("{}, baked in the grid's own frame", self.grid.label)
+    }
+}
+
+impl DensitySource for GridFrame<'_> {
+    fn occupied_bounds(&self) -> Option<Aabb> {
+        Some(self.bounds)
     }
 
     fn part_slab(&self) -> Option<[f64; 2]> {

@@ -6,7 +6,7 @@ use std::sync::Arc;
 use anyhow::{Context, Result, anyhow, bail};
 use glam::{DVec3, Vec3};
 use pinbake::source::procedural::CosineParams;
-use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, DensitySource, ProceduralSpec};
+use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, Density, DensitySource, ProceduralSpec};
 use pinlab::whole_volume::WholeVolumeBox;
 use pinlab::{AnalyticOpticalDepth, CacheSettings, ClosedFormTracker, Estimator};
 use pinrender::render::{
@@ -236,7 +236,7 @@ fn cache_for(lo: DVec3, hi: DVec3, sizes: &Sizes) -> CacheSettings {
 /// The one medium of a single-volume scene: `field` for the CPU, its GPU copy in the same
 /// frame, majorants of `bricks`^3.
 fn single_instance(
-    field: Arc<dyn DensitySource>,
+    field: Arc<dyn Density>,
     bricks: u32,
     gpu_density: Option<Arc<GpuDensity>>,
 ) -> Result<MediumDesc> {
@@ -270,7 +270,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
+    let field: Arc<dyn Density> = Arc::new(TrackedSource::new(src.clone()));
     let inst = single_instance(field, 16, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.4, 0.15, 1.0), 40.0, 0.95);
@@ -322,7 +322,7 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
+    let field: Arc<dyn Density> = Arc::new(TrackedSource::new(src.clone()));
     let inst = single_instance(field, 16, Some(gpu_density))?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.35, 1.0), 40.0, 0.8);
@@ -357,7 +357,7 @@ struct CosineAnalytic(Arc<CosineNoise>);
 
 impl AnalyticOpticalDepth for CosineAnalytic {
     fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        let b = DensitySource::bounds(&*self.0);
+        let b = Density::bounds(&*self.0);
         (b.min.to_array(), b.max.to_array())
     }
     fn optical_depth(&self, o: DVec3, d: DVec3, t: f64) -> f64 {
@@ -374,7 +374,7 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
     let src: Arc<dyn DensitySource> = noise.clone();
     let gpu_density = Arc::new(Opened::Noise(noise.clone()).gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
+    let field: Arc<dyn Density> = Arc::new(TrackedSource::new(src.clone()));
     let analytic: Arc<dyn AnalyticOpticalDepth> = Arc::new(CosineAnalytic(noise));
     let inst = single_instance(field, 16, Some(gpu_density))?;
     let size = sizes.image;
@@ -409,7 +409,7 @@ struct BoxAnalytic(source::HomogeneousBox);
 
 impl AnalyticOpticalDepth for BoxAnalytic {
     fn bounds(&self) -> ([f64; 3], [f64; 3]) {
-        let b = DensitySource::bounds(&self.0);
+        let b = Density::bounds(&self.0);
         (b.min.to_array(), b.max.to_array())
     }
     fn optical_depth(&self, o: DVec3, d: DVec3, t: f64) -> f64 {
@@ -497,7 +497,7 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
 
 /// A field moved by `offset` (what an instance transform does to a tracker's field).
 pub struct Offset {
-    inner: Arc<dyn DensitySource>,
+    inner: Arc<dyn Density>,
     off: [f64; 3],
     off32: Vec3,
     lo: [f64; 3],
@@ -505,7 +505,7 @@ pub struct Offset {
 }
 
 impl Offset {
-    pub fn new(inner: Arc<dyn DensitySource>, off: [f64; 3]) -> Self {
+    pub fn new(inner: Arc<dyn Density>, off: [f64; 3]) -> Self {
         let (lo, hi) = inner.bounds().to_arrays();
         Offset {
             off,
@@ -517,7 +517,7 @@ impl Offset {
     }
 }
 
-impl DensitySource for Offset {
+impl Density for Offset {
     fn bounds(&self) -> Aabb {
         Aabb::from_arrays(self.lo, self.hi)
     }
@@ -579,7 +579,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
     let blob = Opened::Dense(Arc::new(blob()?));
     let gpu_density = Arc::new(blob.gpu_density()?);
     let base = blob.source();
-    let base_field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(base.clone()));
+    let base_field: Arc<dyn Density> = Arc::new(TrackedSource::new(base.clone()));
     let k = INSTANCES_PER_AXIS;
     let spacing = 0.55;
     let mut seed = 0x1257_u64;
@@ -594,7 +594,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
             for x in 0..k {
                 let off = DVec3::new(x as f64, y as f64, z as f64) * spacing
                     + DVec3::new(rnd() - 0.5, rnd() - 0.5, rnd() - 0.5) * 0.25;
-                let field: Arc<dyn DensitySource> =
+                let field: Arc<dyn Density> =
                     Arc::new(Offset::new(base_field.clone(), off.to_array()));
                 lo = lo.min(off);
                 hi = hi.max(off + DVec3::ONE);
@@ -665,7 +665,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
+    let field: Arc<dyn Density> = Arc::new(TrackedSource::new(src.clone()));
     // Finer bricks than the other scenes: the cloud has large empty regions between lobes.
     let inst = single_instance(field, 32, Some(gpu_density))?;
     let size = sizes.image;
@@ -725,7 +725,7 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
         Err(e) => (None, Some(format!("{e:#}"))),
     };
     let (lo, hi) = bounds_of(&*src);
-    let field: Arc<dyn DensitySource> = Arc::new(TrackedSource::new(src.clone()));
+    let field: Arc<dyn Density> = Arc::new(TrackedSource::new(src.clone()));
     let inst = single_instance(field, 32, gpu_density)?;
     let size = sizes.image;
     let camera = frame_camera(lo, hi, size, DVec3::new(0.5, 0.3, 1.0), 40.0, 0.8);
