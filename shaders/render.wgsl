@@ -24,9 +24,10 @@
 //
 // Per query the estimator is `RT_PRIMARY` (camera rays and the shadow rays of the first
 // scattering vertex) or `RT_SECONDARY` (everything after): 0 ray marching,
-// 1 delta tracking, 2 ratio tracking (delta tracking for distances), 3 pins, 4 `urm`,
-// 5 `jackknife`, 6 residual ratio tracking (`residual`, `residual@min`, `pinres`: the control
-// of slot `RP.seed.z` of each medium's control table). PinMS is (2, 3), "pins for
+// 1 delta tracking, 2 ratio tracking (delta tracking for distances), 3 pins, 6 residual ratio
+// tracking (`residual`, `residual@min`, `pinres`: the control of slot `RP.seed.z` of each
+// medium's control table); any other code is an extension kernel (`rt_kernel_transmittance`,
+// distances by delta tracking). PinMS is (2, 3), "pins for
 // everything" (3, 3). The trackers and the marcher are ports of
 // render/estimator.rs and render/majorant.rs in f32 (the CPU works in f64).
 //
@@ -161,8 +162,6 @@ const RT_EST_MARCH: u32 = 0u;
 const RT_EST_DELTA: u32 = 1u;
 const RT_EST_RATIO: u32 = 2u;
 const RT_EST_PINS: u32 = 3u;
-const RT_EST_URM: u32 = 4u;
-const RT_EST_JACKKNIFE: u32 = 5u;
 const RT_EST_RESIDUAL: u32 = 6u;
 
 // The walks of `rt_track`.
@@ -192,12 +191,6 @@ const RT_MAX_TRACKING_STEPS: u32 = 4194304u;
 const RT_MAX_MARCH_STEPS: f32 = 16777216.0;
 // Russian roulette threshold of ratio tracking.
 const RT_RR: f32 = 0.1;
-// Comb estimators (render/comb.rs): always-taken series orders of `urm`, its order cap, and
-// the lookups of one comb at most.
-const RT_URM_ABR: u32 = 2u;
-const RT_URM_MAX_ORDER: u32 = 24u;
-const RT_MAX_COMB_LOOKUPS: f32 = 1048576.0;
-const RT_COMB_PER_DEPTH: f32 = 2.0;
 
 // Path generator: xoshiro128** (Blackman and Vigna), 128 bits of state per sample.
 var<private> rt_s: vec4<u32>;
@@ -784,96 +777,18 @@ fn rt_pins(m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<f32> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Comb estimators (render/comb.rs, estimator.rs `Combed`): jittered equidistant combs over the
-// segment inside the majorant box, spacing RP.material.z (1 / lookups) times that box's longest
-// edge. `urm`: control comb, power series of exp around it to a random order (elementary
-// symmetric means of the further combs); `jackknife`: exp(-mean) cos(half difference) of two
-// combs. Transmittance only; distances are delta tracking.
+// Extension kernels: a further transmittance estimator of an extension crate
+// (`pinrender::gpu_render::ShaderKernel`, estimator codes other than the renderer's own) puts
+// its WGSL between these markers, defining `rt_kernel_transmittance` (the lab's is
+// `shaders/lab_combs.wgsl`). Without one the region holds the function below, which no
+// pipeline reaches: the host dispatches a kernel's code only with that kernel's text.
 // ---------------------------------------------------------------------------------------------
 
-fn rt_comb(m: u32, o: vec3<f32>, d: vec3<f32>, t0: f32, len: f32, n: u32) -> f32 {
-    let h = len / f32(n);
-    let u = rt_f32();
-    var acc = 0.0;
-    for (var j = 0u; j < n; j = j + 1u) {
-        acc = acc + rt_clean(rt_extinction(m, o + d * (t0 + (f32(j) + u) * h)));
-    }
-    return acc * h;
+// extension kernels {
+fn rt_kernel_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
+    return 1.0;
 }
-
-fn rt_comb_transmittance(m: u32, o: vec3<f32>, d: vec3<f32>, jackknife: bool) -> f32 {
-    let lo = rt_media[m].maj_lo.xyz;
-    let hi = rt_media[m].maj_hi.xyz;
-    let ch = rt_clip(o, d, lo, hi, 0.0, rt_inf());
-    if (!(ch.x < ch.y)) {
-        return 1.0;
-    }
-    let e = hi - lo;
-    let spacing = RP.material.z * max(e.x, max(e.y, e.z));
-    let len = ch.y - ch.x;
-    let maj_depth = rt_track(m, rt_majorant_grid(m), 0u, o, d, rt_inf(), RT_WALK_DEPTH).y;
-    let n = u32(clamp(max(ceil(len / spacing), ceil(maj_depth * RT_COMB_PER_DEPTH)), 1.0, RT_MAX_COMB_LOOKUPS));
-    if (jackknife) {
-        let t1 = rt_comb(m, o, d, ch.x, len, n);
-        let t2 = rt_comb(m, o, d, ch.x, len, n);
-        if (!(is_finite_bits(t1) && is_finite_bits(t2))) {
-            return 0.0;
-        }
-        return exp(-0.5 * (t1 + t2)) * cos(0.5 * (t1 - t2));
-    }
-    let tau_c = rt_comb(m, o, d, ch.x, len, n);
-    let base = exp(-tau_c);
-    // An opaque control gives 0, not 0 * (an overflowing series) = NaN (comb.rs).
-    if (!(base > 0.0)) {
-        return 0.0;
-    }
-    // P(K >= k) = ABR! / k! above the always-taken orders, drawn before the combs.
-    var order = RT_URM_ABR;
-    loop {
-        if (order >= RT_URM_MAX_ORDER || !(rt_f32() * f32(order + 1u) < 1.0)) {
-            break;
-        }
-        order = order + 1u;
-    }
-    // Elementary symmetric polynomials of the samples, updated from the top down (an
-    // ascending loop over j, so no unsigned counter runs below zero).
-    var es: array<f32, 25>;
-    for (var k = 0u; k < 25u; k = k + 1u) {
-        es[k] = 0.0;
-    }
-    es[0] = 1.0;
-    for (var i = 0u; i < order; i = i + 1u) {
-        let tau_i = rt_comb(m, o, d, ch.x, len, n);
-        if (!is_finite_bits(tau_i)) {
-            return 0.0;
-        }
-        let x = tau_c - tau_i;
-        for (var j = 0u; j <= i; j = j + 1u) {
-            let k = i + 1u - j;
-            es[k] = es[k] + es[k - 1u] * x;
-        }
-    }
-    var series = 0.0;
-    var binom = 1.0;
-    var fact = 1.0;
-    for (var k = 0u; k <= order; k = k + 1u) {
-        if (k > 0u) {
-            binom = binom * f32(order + 1u - k) / f32(k);
-            fact = fact * f32(k);
-        }
-        // 1 / (k! P(K >= k)): 1 / k! up to the always-taken order, 1 / ABR! (= 1 / 2) above.
-        var w = 1.0 / fact;
-        if (k > RT_URM_ABR) {
-            w = 0.5;
-        }
-        series = series + es[k] / binom * w;
-    }
-    let t = base * series;
-    if (!is_finite_bits(t)) {
-        return 0.0;
-    }
-    return t;
-}
+// } extension kernels
 
 // ---------------------------------------------------------------------------------------------
 // The scene's media combined (tracer.rs, `Ctx::transmittance` / `Ctx::distance`)
@@ -897,14 +812,11 @@ fn rt_medium_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32
         case RT_EST_RESIDUAL: {
             return rt_residual_transmittance(m, o, d);
         }
-        case RT_EST_URM: {
-            return rt_comb_transmittance(m, o, d, false);
-        }
-        case RT_EST_JACKKNIFE: {
-            return rt_comb_transmittance(m, o, d, true);
+        case RT_EST_PINS: {
+            return rt_pins(m, o, d, inf).y;
         }
         default: {
-            return rt_pins(m, o, d, inf).y;
+            return rt_kernel_transmittance(kind, m, o, d);
         }
     }
 }
@@ -923,12 +835,13 @@ fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32)
         case RT_EST_MARCH: {
             return rt_march(m, o, d, t_max, true).x;
         }
-        case RT_EST_DELTA, RT_EST_RATIO, RT_EST_URM, RT_EST_JACKKNIFE, RT_EST_RESIDUAL: {
+        case RT_EST_PINS: {
+            return rt_pins(m, o, d, t_max).x;
+        }
+        // Delta, ratio and residual tracking, and every extension kernel.
+        default: {
             let grid = rt_distance_majorants(kind, m);
             return rt_track(m, grid, 0u, o, d, t_max, RT_WALK_DELTA).x;
-        }
-        default: {
-            return rt_pins(m, o, d, t_max).x;
         }
     }
 }

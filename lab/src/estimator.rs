@@ -18,6 +18,8 @@ use crate::pin_control::{PINURM_DEFAULT_LOOKUPS, PinControlledUrm};
 /// `shaders/render.wgsl`).
 const SHADER_URM: u32 = 4;
 const SHADER_JACKKNIFE: u32 = 5;
+/// The GPU kernels of `urm` and `jackknife`, for the path tracer's extension region.
+pub const COMBS_WGSL: &str = include_str!("../../shaders/lab_combs.wgsl");
 
 /// A transport estimator by kind and parameters: the renderer's, or one of the lab's.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -157,6 +159,7 @@ impl Estimator {
                 code,
                 rel_step: 1.0 / lookups.max(1) as f64,
                 name,
+                wgsl: COMBS_WGSL,
             }))
         };
         match self {

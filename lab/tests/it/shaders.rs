@@ -111,3 +111,24 @@ fn a_broken_module_is_caught_by_the_validator() {
         .expect("spirv-val (apt-get install spirv-tools)");
     assert!(!st.success(), "spirv-val accepted a truncated module");
 }
+
+/// The lab's kernels compile into the path tracer at its extension region, for every count of
+/// brick value bindings the renderer uses, and the region is really replaced (the file's own
+/// placeholder is gone, so a kernel code reaches the lab's function).
+#[test]
+fn the_lab_kernels_join_the_path_tracer() {
+    use pinrender::gpu_render::{RENDER_WGSL, render_wgsl_with};
+    assert!(RENDER_WGSL.contains("// extension kernels {\n"));
+    for n in [1, 16, 26] {
+        let text = render_wgsl_with(n, pinlab::estimator::COMBS_WGSL);
+        assert!(text.contains("fn rt_comb_transmittance"));
+        assert_eq!(text.matches("fn rt_kernel_transmittance").count(), 1);
+        let module = naga::front::wgsl::parse_str(&text).unwrap_or_else(|e| panic!("{n}: {e}"));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::all(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{n}: {e:?}"));
+    }
+}

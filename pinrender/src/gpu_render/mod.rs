@@ -40,7 +40,7 @@ pub use media::{
 };
 pub use session::GpuSession;
 pub use tone_map::{GpuToneMap, TONE_MAP_WGSL};
-pub use wgsl::{RENDER_WGSL, render_wgsl};
+pub use wgsl::{RENDER_WGSL, render_wgsl, render_wgsl_with};
 
 use std::collections::HashMap;
 use std::sync::Mutex;
@@ -218,10 +218,11 @@ pub enum GpuEstimator {
     Kernel(ShaderKernel),
 }
 
-/// A transmittance kernel of `render.wgsl` beyond the renderer's own estimators, chosen by
-/// its code in the shader's estimator switch: it reads the density over the majorant box, and
-/// distances are delta tracking over the majorants. The extension that names the kernel owns
-/// what its code and `rel_step` mean.
+/// A transmittance kernel beyond the renderer's own estimators: WGSL of an extension crate
+/// that `render.wgsl` takes at its extension region ([`render_wgsl_with`]), chosen by its code
+/// in the shader's estimator switch. It reads the density over the majorant box, and distances
+/// are delta tracking over the majorants. The extension that names the kernel owns what its
+/// code and `rel_step` mean; one code names one kernel.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShaderKernel {
     /// The shader's estimator code (above the renderer's own codes).
@@ -230,6 +231,9 @@ pub struct ShaderKernel {
     pub rel_step: f64,
     /// The name in messages.
     pub name: &'static str,
+    /// Its WGSL: defines `rt_kernel_transmittance(kind, m, o, d) -> f32` over the path
+    /// tracer's functions (the lab's is `shaders/lab_combs.wgsl`).
+    pub wgsl: &'static str,
 }
 
 impl From<EstimatorSpec> for GpuEstimator {
@@ -673,10 +677,8 @@ impl GpuRenderer {
 
     /// The pipeline of an estimator pair, compiled (with its pipeline-overridable constants)
     /// the first time it is asked for.
-    async fn pipeline(
-        &self,
-        (primary, secondary): (u32, u32),
-    ) -> pinrt::Result<wgpu::ComputePipeline> {
+    async fn pipeline(&self, estimator: GpuEstimator) -> pinrt::Result<wgpu::ComputePipeline> {
+        let (primary, secondary) = estimator.kinds();
         let cache = || {
             self.pipelines
                 .lock()
@@ -693,12 +695,25 @@ impl GpuRenderer {
             ("RT_ONE_MEDIUM", one_medium),
             ("RT_BRICKS", if self.bricked { 1.0 } else { 0.0 }),
         ];
+        // A kernel's WGSL joins the path tracer's at its extension region, in a module of its
+        // own; the renderer's estimators share the one compiled with the renderer.
+        let kernel_module = match estimator {
+            GpuEstimator::Kernel(k) => Some(self.device.create_shader_module(
+                wgpu::ShaderModuleDescriptor {
+                    label: Some(k.name),
+                    source: wgpu::ShaderSource::Wgsl(
+                        render_wgsl_with(self.brick_bindings.max(1), k.wgsl).into(),
+                    ),
+                },
+            )),
+            GpuEstimator::Spec(_) => None,
+        };
         let pipeline = self
             .device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("render"),
                 layout: Some(&self.layout),
-                module: &self.module,
+                module: kernel_module.as_ref().unwrap_or(&self.module),
                 entry_point: Some("render_main"),
                 compilation_options: wgpu::PipelineCompilationOptions {
                     constants: &constants,

@@ -93,9 +93,8 @@ impl GpuRenderer {
         let media = u32::try_from(self.caps.len())
             .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
         let params = scene.params(seed, estimator, media);
-        let kinds = estimator.kinds();
         Ok(pollster::block_on(async {
-            let pipeline = self.pipeline(kinds).await?;
+            let pipeline = self.pipeline(estimator).await?;
             self.begin(pipeline, &params, estimator, seed, media, w, h, accum_size)
                 .await
         })?)

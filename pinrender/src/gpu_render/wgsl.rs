@@ -17,6 +17,17 @@ pub const RENDER_WGSL: &str = concat!(
 /// The first binding (group 1) of the brick values.
 const FIRST_VALUE_BINDING: usize = 7;
 
+/// [`render_wgsl`] with an extension's kernels (a [`super::ShaderKernel`]'s WGSL, defining
+/// `rt_kernel_transmittance`) in place of the file's extension region.
+pub fn render_wgsl_with(bindings: usize, kernels: &str) -> String {
+    replace_region(
+        &render_wgsl(bindings),
+        "// extension kernels {\n",
+        "// } extension kernels\n",
+        kernels,
+    )
+}
+
 /// [`RENDER_WGSL`] with `bindings` brick value bindings (at least one).
 pub fn render_wgsl(bindings: usize) -> String {
     let n = bindings.max(1);
