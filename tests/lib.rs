@@ -10,7 +10,9 @@ use std::time::Duration;
 use glam::DVec3;
 use pin_format::{Directions, PinFile};
 use pinbake::source::raw::read_raw;
-use pinbake::source::{DensitySource, Endian, RawOptions, RawType, VdbOptions, VdbSource};
+use pinbake::source::{
+    DensityScale, DensitySource, Endian, RawOptions, RawType, VdbOptions, VdbSource,
+};
 use pinbake::{BakeOptions, bake};
 
 /// Length of the option header in front of the voxel bytes of a `raw` fuzz input.
@@ -36,7 +38,8 @@ pub enum Outcome {
 /// | 2 | spacing: `% 4` of 1, 0.5, 1e-20, 1e20 |
 /// | 3 | reserved |
 /// | 4..16 | dims: three u32 LE (bit 4) or three u16 LE in bytes 4..10 |
-pub fn raw_options(header: &[u8; RAW_HEADER]) -> (RawOptions, String) {
+/// The options, the density scale and the file name.
+pub fn raw_options(header: &[u8; RAW_HEADER]) -> (RawOptions, DensityScale, String) {
     let ty = [
         RawType::U8,
         RawType::U16,
@@ -52,7 +55,12 @@ pub fn raw_options(header: &[u8; RAW_HEADER]) -> (RawOptions, String) {
     } else {
         [u16_at(4) % 4097, u16_at(6) % 4097, u16_at(8) % 4097]
     };
-    let scale = [1.0, 0.0, 1e30, 1e-30][usize::from((flags >> 5) & 3)];
+    let scale = [
+        DensityScale::ONE,
+        DensityScale::new(0.0).expect("a valid scale"),
+        DensityScale::new(1e30).expect("a valid scale"),
+        DensityScale::new(1e-30).expect("a valid scale"),
+    ][usize::from((flags >> 5) & 3)];
     let spacing = [1.0, 0.5, 1e-20, 1e20][usize::from(header[2] % 4)];
     let from_name = flags & 0x08 != 0;
     let opt = RawOptions {
@@ -67,14 +75,13 @@ pub fn raw_options(header: &[u8; RAW_HEADER]) -> (RawOptions, String) {
         origin: [0.0; 3],
         clamp_negative: flags & 2 != 0,
         nan_as_zero: flags & 4 != 0,
-        density_scale: scale,
     };
     let name = if from_name {
         format!("fuzz_{}x{}x{}_{}.raw", dims[0], dims[1], dims[2], ty.name())
     } else {
         "input.raw".to_string()
     };
-    (opt, name)
+    (opt, scale, name)
 }
 
 /// Builds a `raw` fuzz input (for seed corpora and tests): header fields as documented in
@@ -96,10 +103,10 @@ pub fn fuzz_raw(data: &[u8], scratch: &Path) -> Outcome {
     let Some(header) = data.first_chunk::<RAW_HEADER>() else {
         return Outcome::TooShort;
     };
-    let (opt, name) = raw_options(header);
+    let (opt, scale, name) = raw_options(header);
     let path = scratch.join(name);
     std::fs::write(&path, &data[RAW_HEADER..]).expect("scratch file");
-    let res = read_raw(&path, &opt);
+    let res = read_raw(&path, &opt, scale);
     let _ = std::fs::remove_file(&path);
     let grid = match res {
         Ok(g) => g,
@@ -203,7 +210,7 @@ pub fn fuzz_vdb(data: &[u8], scratch: &Path, worker: &Path) -> Outcome {
         timeout: Duration::from_secs(20),
         ..VdbOptions::with_worker(worker)
     };
-    let res = VdbSource::open(&path, &opt);
+    let res = VdbSource::open(&path, &opt, pinbake::source::DensityScale::ONE);
     let _ = std::fs::remove_file(&path);
     match res {
         Ok(src) => {

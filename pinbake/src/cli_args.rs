@@ -22,9 +22,9 @@ pub fn parse_origin(s: &str) -> Result<[f64; 3], String> {
     crate::limits::check_origin(parse_f64x3(s)?)
 }
 
-/// `--density-scale`: finite and >= 0.
-pub fn parse_density_scale(s: &str) -> Result<f64, String> {
-    parse_nonneg(s)
+/// `--density-scale`: finite and >= 0 ([`crate::source::DensityScale`]).
+pub fn parse_density_scale(s: &str) -> Result<crate::source::DensityScale, String> {
+    crate::source::DensityScale::new(parse_nonneg(s)?).map_err(|e| e.to_string())
 }
 
 /// `--threads N`: see [`crate::limits::check_threads`].
@@ -70,8 +70,8 @@ pub struct SourceArgs {
     pub nan_as_zero: bool,
 
     /// Multiply every density by this (extinction = density x scale); finite, >= 0.
-    #[arg(long, default_value_t = 1.0, value_parser = parse_density_scale)]
-    pub density_scale: f64,
+    #[arg(long, default_value_t = crate::source::DensityScale::ONE, value_parser = parse_density_scale)]
+    pub density_scale: crate::source::DensityScale,
 }
 
 impl Default for SourceArgs {
@@ -87,7 +87,7 @@ impl Default for SourceArgs {
             origin: None,
             clamp_negative: false,
             nan_as_zero: false,
-            density_scale: 1.0,
+            density_scale: crate::source::DensityScale::ONE,
         }
     }
 }
@@ -110,7 +110,10 @@ impl SourceArgs {
             ("--origin", self.origin.is_some()),
             ("--clamp-negative", self.clamp_negative),
             ("--nan-as-zero", self.nan_as_zero),
-            ("--density-scale", self.density_scale != 1.0),
+            (
+                "--density-scale",
+                self.density_scale != crate::source::DensityScale::ONE,
+            ),
         ]
         .into_iter()
         .filter_map(|(name, set)| set.then_some(name))
@@ -156,10 +159,9 @@ impl SourceArgs {
             )));
         }
         if let Some(rest) = procedural {
-            let mut spec: ProceduralSpec = rest
+            let spec: ProceduralSpec = rest
                 .parse()
                 .map_err(|e: source::SourceError| anyhow::anyhow!("{e}"))?;
-            spec.density *= self.density_scale;
             return Ok(SourceSpec::Procedural(spec));
         }
         let path = input.to_path_buf();
@@ -172,7 +174,6 @@ impl SourceArgs {
                 source::VdbOptions {
                     grid: self.grid.clone(),
                     levelset_to_fog: self.levelset_to_fog,
-                    density_scale: self.density_scale,
                     worker_exe: worker_exe()?,
                     ..source::VdbOptions::default()
                 },
@@ -210,7 +211,6 @@ impl SourceArgs {
                 origin: self.origin.unwrap_or([0.0; 3]),
                 clamp_negative: self.clamp_negative,
                 nan_as_zero: self.nan_as_zero,
-                density_scale: self.density_scale,
             },
         ))
     }
@@ -268,19 +268,22 @@ mod tests {
 
     #[test]
     fn procedural_density_takes_the_scale() {
+        use crate::source::{DensityScale, open_source};
         let a = SourceArgs {
-            density_scale: 2.5,
+            density_scale: DensityScale::new(2.5).unwrap(),
             ..SourceArgs::default()
         };
         let plain = SourceArgs::default();
-        let get = |a: &SourceArgs| match a
-            .source_spec("procedural:box".as_ref(), "input", no_worker)
-            .unwrap()
-        {
-            SourceSpec::Procedural(p) => p.density,
-            _ => panic!("not procedural"),
+        let at_centre = |a: &SourceArgs| {
+            let spec = a
+                .source_spec("procedural:box".as_ref(), "input", no_worker)
+                .unwrap();
+            assert!(matches!(spec, SourceSpec::Procedural(_)));
+            open_source(&spec, a.density_scale)
+                .unwrap()
+                .extinction(glam::DVec3::splat(0.5))
         };
-        assert_eq!(get(&a), 2.5 * get(&plain));
+        assert_eq!(at_centre(&a), 2.5 * at_centre(&plain));
         assert_eq!(a.given(), ["--density-scale"]);
         assert!(plain.given().is_empty());
     }

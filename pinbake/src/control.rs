@@ -287,7 +287,7 @@ mod tests {
         "sphere:radius=0.3,density=3"
             .parse::<ProceduralSpec>()
             .unwrap()
-            .build()
+            .build(crate::source::DensityScale::ONE)
             .unwrap()
     }
 

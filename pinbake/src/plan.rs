@@ -109,8 +109,8 @@ pub struct BakeRequest {
     pub embed_control: Option<crate::control::ControlOptions>,
     /// Worker threads, 1..=[`crate::limits::max_threads`] (all cores when `None`).
     pub threads: Option<usize>,
-    /// Density multiplier, finite and >= 0 (recorded in the metadata; a source spec carries
-    /// its own copy, which it applies).
+    /// Density multiplier, finite and >= 0: the source is opened with it
+    /// ([`source::open_source`]) and the file records it.
     pub density_scale: f64,
     /// The memory budget in bytes (half of the physical memory when `None`).
     pub max_memory: Option<u64>,
@@ -182,18 +182,24 @@ fn usage(msg: String) -> PlanError {
 }
 
 impl BakeRequest {
+    /// The density scale, validated: the one rule every surface applies
+    /// ([`source::DensityScale::new`]).
+    pub fn scale(&self) -> Result<source::DensityScale, PlanError> {
+        source::DensityScale::new(self.density_scale).map_err(|_| {
+            usage(format!(
+                "density_scale: {} must be finite and >= 0",
+                pin_format::text::num(self.density_scale)
+            ))
+        })
+    }
+
     /// The documented range of every option (`docs/stability.md`, "Hostile use"): the same
     /// bounds the command line's parsers apply, so a library or Python caller cannot start
     /// a bake the command line would refuse (a step of 1e-12 ran for hours).
     pub fn validate(&self) -> Result<(), PlanError> {
         use crate::limits;
         limits::check_rel_step(self.step).map_err(|e| usage(format!("step: {e}")))?;
-        if !(self.density_scale.is_finite() && self.density_scale >= 0.0) {
-            return Err(usage(format!(
-                "density_scale: {} must be finite and >= 0",
-                pin_format::text::num(self.density_scale)
-            )));
-        }
+        self.scale()?;
         if let Some(e) = self.target_error
             && !(e.is_finite() && e > 0.0 && e <= 1.0)
         {
@@ -535,8 +541,12 @@ fn prepare(
     };
     let (source, provenance_name, hash): (Box<dyn DensitySource>, String, String) = match input {
         BakeInput::Source(spec) => {
+            let scale = req.scale()?;
             let (n, h) = match &spec {
-                SourceSpec::Procedural(p) => (format!("procedural:{p}"), String::new()),
+                // The field's own description: its density scaled.
+                SourceSpec::Procedural(p) => {
+                    (format!("procedural:{}", p.scaled(scale)), String::new())
+                }
                 other => {
                     let p = spec_path(other).unwrap_or(Path::new(""));
                     (file_name(p), hash_file(p)?)
@@ -558,7 +568,7 @@ fn prepare(
                     ),
                 }));
             }
-            (source::open_source(&spec)?, n, h)
+            (source::open_source(&spec, scale)?, n, h)
         }
         BakeInput::Array {
             dims,

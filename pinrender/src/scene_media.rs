@@ -11,6 +11,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, anyhow, bail};
 use pin_scene::{Asset, Scene};
+use pinbake::source::DensityScale;
 use pinrt::SamplerOptions;
 
 use crate::instance::{place_medium, world_box};
@@ -78,11 +79,15 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
     match (&a.volume, &a.pins) {
         (Some(v), pins) => {
             let at = a.json_path("volume");
+            // The scene's range rule (`pin_scene::ranges`) has checked it; the one rule
+            // again, as a message rather than a panic.
+            let density_scale = DensityScale::new(a.density_scale.unwrap_or(1.0))
+                .map_err(|e| named(scene, &a.json_path("density_scale"), e.to_string()))?;
             let args = VolumeArgs {
                 volume: None,
                 read: pinbake::cli_args::SourceArgs {
                     grid: a.grid.clone(),
-                    density_scale: a.density_scale.unwrap_or(1.0),
+                    density_scale,
                     ..Default::default()
                 },
             };

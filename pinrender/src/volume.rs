@@ -12,7 +12,7 @@ use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::DVec3;
 use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{self, Density, DensitySource, SourceSpec};
+use pinbake::source::{self, Density, DensityScale, DensitySource, SourceSpec};
 use pinrt::PinGrid;
 
 /// The volume and how to read it (the flags shared with `pinbake bake`).
@@ -27,7 +27,7 @@ pub struct VolumeArgs {
 
 impl VolumeArgs {
     /// No volume, the default reading flags but this density scale (the eval's scenes).
-    pub fn scaled(density_scale: f64) -> Self {
+    pub fn scaled(density_scale: DensityScale) -> Self {
         Self {
             volume: None,
             read: pinbake::cli_args::SourceArgs {
@@ -196,31 +196,36 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
         .source_spec(Path::new(input.as_ref()), "volume", || {
             std::env::current_exe().context("locating pinrender")
         })?;
+    let scale = a.read.density_scale;
     Ok(match spec {
         // The trackers sample the density point by point; a dense copy of the active box
         // answers them without the tree's hash lookups, with the same bits (the images do
         // not change), when it takes at most 1 GiB and a quarter of the memory budget.
         SourceSpec::Vdb(path, opts) => Opened::Vdb(Arc::new(
-            source::VdbSource::open(&path, &opts)?.with_dense_cache(
+            source::VdbSource::open(&path, &opts, scale)?.with_dense_cache(
                 pinbake::bake::DEFAULT_DENSE_COPY_BYTES
                     .min(pinbake::files::default_memory_limit() / 4),
             ),
         )),
         SourceSpec::Raw(path, opts) => {
-            Opened::Dense(Arc::new(source::raw::read_raw(&path, &opts)?))
+            Opened::Dense(Arc::new(source::raw::read_raw(&path, &opts, scale)?))
         }
-        SourceSpec::Procedural(p) => match p.kind {
-            ProceduralKind::Cosine | ProceduralKind::Fractal => {
-                // `build` first: it reports a bad spec with the spec in the message.
-                p.build()?;
-                Opened::Noise(Arc::new(p.build_noise()?))
+        SourceSpec::Procedural(p) => {
+            // The field itself, its density scaled (what `build` makes with the scale).
+            let p = p.scaled(scale);
+            match p.kind {
+                ProceduralKind::Cosine | ProceduralKind::Fractal => {
+                    // `build` first: it reports a bad spec with the spec in the message.
+                    p.build(DensityScale::ONE)?;
+                    Opened::Noise(Arc::new(p.build_noise()?))
+                }
+                ProceduralKind::Box => Opened::Box(source::HomogeneousBox::new(
+                    p.world_box(),
+                    p.density as f32,
+                )?),
+                ProceduralKind::Sphere => Opened::Other(Arc::from(p.build(DensityScale::ONE)?)),
             }
-            ProceduralKind::Box => Opened::Box(source::HomogeneousBox::new(
-                p.world_box(),
-                p.density as f32,
-            )?),
-            ProceduralKind::Sphere => Opened::Other(Arc::from(p.build()?)),
-        },
+        }
     })
 }
 
@@ -421,7 +426,7 @@ pub fn check_pins_match(
     grid: &PinGrid,
     volume: &Path,
     source: &dyn DensitySource,
-    density_scale: f64,
+    density_scale: DensityScale,
     allow: bool,
 ) -> Result<()> {
     let recorded = grid
@@ -441,7 +446,8 @@ pub fn check_pins_match(
         return Ok(());
     };
     let recorded = recorded.map_err(|e| anyhow!("{}: {e}", pins.display()))?;
-    let differences = recorded.differences(&source::SourceIdentity::of(source, density_scale));
+    let differences =
+        recorded.differences(&source::SourceIdentity::of(source, density_scale.get()));
     if differences.is_empty() {
         return Ok(());
     }

@@ -552,8 +552,8 @@ fn bake(
             origin,
         }
     } else if let Some(rest) = input.strip_prefix("procedural:") {
-        let mut spec: ProceduralSpec = rest.parse().map_err(pin_err)?;
-        spec.density *= density_scale;
+        // The request's density scale opens it (`pinbake::plan`), as every input.
+        let spec: ProceduralSpec = rest.parse().map_err(pin_err)?;
         BakeInput::Source(SourceSpec::Procedural(spec))
     } else {
         let path = PathBuf::from(input);
@@ -568,7 +568,6 @@ fn bake(
                 VdbOptions {
                     grid,
                     levelset_to_fog,
-                    density_scale,
                     worker_exe: worker,
                     ..VdbOptions::default()
                 },
@@ -597,7 +596,6 @@ fn bake(
                     origin,
                     clamp_negative,
                     nan_as_zero,
-                    density_scale,
                 },
             ))
         }

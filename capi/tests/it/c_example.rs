@@ -24,8 +24,12 @@ const VALGRIND_RAYS: usize = 2000;
 fn bake_smoke(dir: &Path) -> PathBuf {
     let vdb = repo().join("data/openvdb_smoke1.vdb");
     let exe = std::env::current_exe().expect("test executable path");
-    let source =
-        VdbSource::open(&vdb, &VdbOptions::with_worker(exe)).unwrap_or_else(|e| panic!("{e}"));
+    let source = VdbSource::open(
+        &vdb,
+        &VdbOptions::with_worker(exe),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     // Small on purpose (12^3 cells, about 1 MB): the test is about the ABI, not the bake.
     let opts = BakeOptions {
         cells: [12; 3],

@@ -15,7 +15,11 @@ use crate::common::compile_c;
 pub fn the_c_abi_keeps_the_hostile_use_contract() {
     let dir = tempfile::tempdir().unwrap();
     let spec: ProceduralSpec = "box".parse().unwrap();
-    let source = open_source(&SourceSpec::Procedural(spec)).unwrap();
+    let source = open_source(
+        &SourceSpec::Procedural(spec),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap();
     let opts = BakeOptions {
         cells: [4; 3],
         ..BakeOptions::default()

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use glam::DVec3;
-use pinbake::source::{VdbOptions, VdbSource};
+use pinbake::source::{DensityScale, VdbOptions, VdbSource};
 use pinrender::volume::{Opened, VolumeArgs, open_volume_typed};
 
 fn data(name: &str) -> String {
@@ -14,7 +14,7 @@ fn data(name: &str) -> String {
 }
 
 fn args(density_scale: f64, spacing: Option<[f64; 3]>) -> VolumeArgs {
-    let mut a = VolumeArgs::scaled(density_scale);
+    let mut a = VolumeArgs::scaled(DensityScale::new(density_scale).unwrap());
     a.read.spacing = spacing;
     a
 }
@@ -37,13 +37,12 @@ fn gpu_density_reproduces_the_source() {
     let mut opened_cases = Vec::new();
     // The VDB reader runs in a worker process: pinrender's own `__vdb-worker`.
     let smoke = data("openvdb_smoke1.vdb");
-    let opts = VdbOptions {
-        density_scale: 2.0,
-        ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"))
-    };
+    let opts = VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"));
     opened_cases.push((
         smoke.clone(),
-        Opened::Vdb(Arc::new(VdbSource::open(Path::new(&smoke), &opts).unwrap())),
+        Opened::Vdb(Arc::new(
+            VdbSource::open(Path::new(&smoke), &opts, DensityScale::new(2.0).unwrap()).unwrap(),
+        )),
     ));
     for (input, a) in cases {
         opened_cases.push((input.clone(), open_volume_typed(&input, &a).unwrap()));
@@ -87,12 +86,11 @@ fn tracker_dense_view_reproduces_the_source() {
     use pinbake::source::Density;
     use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");
-    let opts = VdbOptions {
-        density_scale: 2.0,
-        ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"))
-    };
+    let opts = VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"));
     let sources: Vec<Arc<dyn pinbake::source::DensitySource>> = vec![
-        Arc::new(VdbSource::open(Path::new(&smoke), &opts).unwrap()),
+        Arc::new(
+            VdbSource::open(Path::new(&smoke), &opts, DensityScale::new(2.0).unwrap()).unwrap(),
+        ),
         open_volume_typed(
             data("hydrogen_atom_128x128x128_uint8.raw"),
             &args(0.6, Some([1.0 / 128.0; 3])),
@@ -137,11 +135,10 @@ fn a_vdb_over_the_dense_limit_goes_to_the_gpu_in_bricks() {
     use pinrender::gpu_render::GpuDensityKind;
     use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");
-    let opts = VdbOptions {
-        density_scale: 2.0,
-        ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"))
-    };
-    let vdb = Arc::new(VdbSource::open(Path::new(&smoke), &opts).unwrap());
+    let opts = VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"));
+    let vdb = Arc::new(
+        VdbSource::open(Path::new(&smoke), &opts, DensityScale::new(2.0).unwrap()).unwrap(),
+    );
     let opened = Opened::Vdb(vdb.clone());
     let field = TrackedSource::new(opened.source());
     let dense = opened.gpu_density_or_bricks(&field, 1 << 28).unwrap();

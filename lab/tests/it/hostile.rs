@@ -514,7 +514,11 @@ fn pins_that_cannot_serve_the_render_are_refused() {
     let tile = dir.path().join("tile.pin");
     // A 2-tile bake's first tile, written with the library (no pinbake binary in this crate).
     let spec: pinbake::source::ProceduralSpec = "box".parse().unwrap();
-    let src = pinbake::source::open_source(&pinbake::source::SourceSpec::Procedural(spec)).unwrap();
+    let src = pinbake::source::open_source(
+        &pinbake::source::SourceSpec::Procedural(spec),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap();
     let opts = pinbake::BakeOptions {
         cells: [4; 3],
         tile: Some(pinbake::Tile { index: 0, count: 2 }),

@@ -20,7 +20,7 @@ const CAMERA: [&str; 4] = [
 fn source(scale: f64) -> Box<dyn DensitySource> {
     let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
     p.density *= scale;
-    p.build().unwrap()
+    p.build(pinbake::source::DensityScale::ONE).unwrap()
 }
 
 /// Bakes the cosine field scaled by `scale` as `pinbake bake` does (identity in the metadata

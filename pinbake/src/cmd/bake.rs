@@ -275,7 +275,7 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
                 ..pinbake::control::ControlOptions::default()
             }),
         threads: args.threads,
-        density_scale: args.volume.density_scale,
+        density_scale: args.volume.density_scale.get(),
         max_memory: args.max_memory,
     }
 }

@@ -163,7 +163,7 @@ fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
         let default = pinbake::source::vdb::default_memory_limit(size);
         opts.memory_limit = Some(max.min(default));
     }
-    let stats = VdbSource::grid_stats(&path, &opts)?;
+    let stats = VdbSource::grid_stats(&path, &opts, args.volume.density_scale)?;
     let text = format!("{}\n", stats.to_json());
     write_text_atomic(&target, &text)
         .with_context(|| format!("writing {}", args.output.display()))?;

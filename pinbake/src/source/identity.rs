@@ -193,7 +193,10 @@ mod tests {
     fn identity(spec: &str, scale: f64) -> SourceIdentity {
         let mut p: ProceduralSpec = spec.parse().unwrap();
         p.density *= scale;
-        SourceIdentity::of(p.build().unwrap().as_ref(), scale)
+        SourceIdentity::of(
+            p.build(crate::source::DensityScale::ONE).unwrap().as_ref(),
+            scale,
+        )
     }
 
     #[test]

@@ -502,26 +502,31 @@ pub enum SourceSpec {
     Procedural(ProceduralSpec),
 }
 
-/// Opens any source. The result is ready to sample: validated, density-scaled, bounds computed.
-pub fn open_source(spec: &SourceSpec) -> Result<Box<dyn DensitySource>, SourceError> {
+/// Opens any source with every density multiplied by `scale` (the one place a scale enters a
+/// source: the readers apply it as they build, so the hot path never multiplies). The result
+/// is ready to sample: validated, density-scaled, bounds computed.
+pub fn open_source(
+    spec: &SourceSpec,
+    scale: DensityScale,
+) -> Result<Box<dyn DensitySource>, SourceError> {
     match spec {
-        SourceSpec::Raw(path, options) => Ok(Box::new(raw::read_raw(path, options)?)),
+        SourceSpec::Raw(path, options) => Ok(Box::new(raw::read_raw(path, options, scale)?)),
         // A `.nvdb` name, or NanoVDB's magic whatever the name: the rest go to the OpenVDB
         // worker.
         #[cfg(feature = "vdb")]
         SourceSpec::Vdb(path, options)
             if InputKind::of(path) == InputKind::NanoVdb || nanovdb::is_nanovdb_file(path) =>
         {
-            Ok(Box::new(nanovdb::open(path, options)?))
+            Ok(Box::new(nanovdb::open(path, options, scale)?))
         }
         #[cfg(feature = "vdb")]
-        SourceSpec::Vdb(path, options) => Ok(Box::new(VdbSource::open(path, options)?)),
+        SourceSpec::Vdb(path, options) => Ok(Box::new(VdbSource::open(path, options, scale)?)),
         #[cfg(not(feature = "vdb"))]
         SourceSpec::Vdb(path) => Err(SourceError::Unsupported {
             path: path.clone(),
             message: "this build has no OpenVDB support (cargo feature `vdb`)".into(),
         }),
-        SourceSpec::Procedural(p) => p.build(),
+        SourceSpec::Procedural(p) => p.build(scale),
     }
 }
 
@@ -550,7 +555,11 @@ mod tests {
     #[test]
     fn open_procedural_from_string() {
         let spec: ProceduralSpec = "cosine:seed=7,freq=16".parse().unwrap();
-        let s = open_source(&SourceSpec::Procedural(spec)).unwrap();
+        let s = open_source(
+            &SourceSpec::Procedural(spec),
+            crate::source::DensityScale::ONE,
+        )
+        .unwrap();
         assert!(s.bounds().is_valid());
         let mut out = [0.0f32; 4];
         s.extinction_along(DVec3::splat(0.1), DVec3::splat(0.1), 4, &mut out);

@@ -49,7 +49,7 @@ use std::str::FromStr;
 
 use glam::DVec3;
 
-use super::{Aabb, Density, DensitySource, SourceError};
+use super::{Aabb, Density, DensityScale, DensitySource, SourceError};
 
 /// Constant extinction inside a box, zero outside.
 #[derive(Clone, Debug)]
@@ -600,13 +600,25 @@ impl ProceduralSpec {
         }
     }
 
+    /// The same field with its density multiplied by `scale`.
+    pub fn scaled(&self, scale: DensityScale) -> Self {
+        Self {
+            density: self.density * scale.get(),
+            ..self.clone()
+        }
+    }
+
     /// The world box `[0, extent]^3`.
     pub fn world_box(&self) -> Aabb {
         Aabb::new(DVec3::ZERO, DVec3::splat(self.extent))
     }
 
-    /// Builds the source.
-    pub fn build(&self) -> Result<Box<dyn DensitySource>, SourceError> {
+    /// Builds the source, its density multiplied by `scale` (the description names the
+    /// scaled density, as the field it is).
+    pub fn build(&self, scale: DensityScale) -> Result<Box<dyn DensitySource>, SourceError> {
+        if scale != DensityScale::ONE {
+            return self.scaled(scale).build(DensityScale::ONE);
+        }
         let err = |e: SourceError| SourceError::Procedural {
             spec: self.to_string(),
             message: match e {
@@ -768,7 +780,7 @@ impl FromStr for ProceduralSpec {
             }
         }
         // Validate now so that a bad spec fails at parse time, not at bake time.
-        spec.build().map_err(|e| match e {
+        spec.build(DensityScale::ONE).map_err(|e| match e {
             SourceError::Procedural { message, .. } => fail(message),
             other => other,
         })?;
@@ -959,7 +971,7 @@ mod tests {
     #[test]
     fn box_and_sphere() {
         let b: ProceduralSpec = "box:density=2,extent=3".parse().unwrap();
-        let s = b.build().unwrap();
+        let s = b.build(crate::source::DensityScale::ONE).unwrap();
         assert_eq!(s.extinction(DVec3::splat(1.0)), 2.0);
         assert_eq!(s.extinction(DVec3::splat(3.1)), 0.0);
         assert_eq!(s.bounds().max, DVec3::splat(3.0));
@@ -973,7 +985,7 @@ mod tests {
         );
 
         let sp: ProceduralSpec = "sphere:radius=0.25".parse().unwrap();
-        let s = sp.build().unwrap();
+        let s = sp.build(crate::source::DensityScale::ONE).unwrap();
         assert_eq!(s.extinction(DVec3::splat(0.5)), 1.0);
         assert_eq!(s.extinction(DVec3::new(0.5, 0.5, 0.76)), 0.0);
         assert_eq!(s.bounds().min, DVec3::splat(0.25));
@@ -1024,9 +1036,17 @@ mod tests {
         }
         // Density extremes from docs/background.md section 3.
         let z: ProceduralSpec = "cosine:density=0".parse().unwrap();
-        assert_eq!(z.build().unwrap().extinction(DVec3::splat(0.5)), 0.0);
+        assert_eq!(
+            z.build(crate::source::DensityScale::ONE)
+                .unwrap()
+                .extinction(DVec3::splat(0.5)),
+            0.0
+        );
         let h: ProceduralSpec = "cosine:density=1e30".parse().unwrap();
-        let v = h.build().unwrap().extinction(DVec3::splat(0.5));
+        let v = h
+            .build(crate::source::DensityScale::ONE)
+            .unwrap()
+            .extinction(DVec3::splat(0.5));
         assert!(v.is_finite() && v >= 0.0);
     }
 

@@ -82,8 +82,6 @@ pub struct RawOptions {
     pub clamp_negative: bool,
     /// NaN and +-inf become 0 instead of being an error.
     pub nan_as_zero: bool,
-    /// Multiplier applied to every value; must be finite and `>= 0`.
-    pub density_scale: f64,
 }
 
 impl Default for RawOptions {
@@ -96,7 +94,6 @@ impl Default for RawOptions {
             origin: [0.0; 3],
             clamp_negative: false,
             nan_as_zero: false,
-            density_scale: 1.0,
         }
     }
 }
@@ -120,8 +117,13 @@ pub fn parse_raw_file_name(path: &Path) -> Option<([u32; 3], RawType)> {
     Some((dims, ty))
 }
 
-/// Reads a raw file into a dense grid; see the module docs for the checks.
-pub fn read_raw(path: &Path, opt: &RawOptions) -> Result<DenseGrid, SourceError> {
+/// Reads a raw file into a dense grid, every value multiplied by `scale`; see the module docs
+/// for the checks.
+pub fn read_raw(
+    path: &Path,
+    opt: &RawOptions,
+    scale: DensityScale,
+) -> Result<DenseGrid, SourceError> {
     let err = |m: String| SourceError::raw(path, m);
     let inferred = parse_raw_file_name(path);
     let dims = opt.dims.or(inferred.map(|i| i.0)).ok_or_else(|| {
@@ -136,7 +138,6 @@ pub fn read_raw(path: &Path, opt: &RawOptions) -> Result<DenseGrid, SourceError>
             dims[0], dims[1], dims[2]
         )));
     }
-    let scale = DensityScale::new(opt.density_scale).map_err(|e| err(e.to_string()))?;
     let spacing = DVec3::from_array(opt.spacing);
     let origin = DVec3::from_array(opt.origin);
     if !(spacing.is_finite() && spacing.cmpgt(DVec3::ZERO).all()) {
@@ -312,7 +313,7 @@ mod tests {
     fn size_mismatch_and_huge_dims() {
         let d = tempfile::tempdir().unwrap();
         let p = write(d.path(), "v_2x2x2_u8.raw", &[1; 7]);
-        let e = read_raw(&p, &RawOptions::default())
+        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(
@@ -326,14 +327,18 @@ mod tests {
             voxel_type: Some(RawType::F32),
             ..Default::default()
         };
-        let e = read_raw(&p, &opt).unwrap_err().to_string();
+        let e = read_raw(&p, &opt, crate::source::DensityScale::ONE)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("34359738368 bytes"), "{e}");
         let opt = RawOptions {
             dims: Some([u32::MAX; 3]),
             voxel_type: Some(RawType::F64),
             ..Default::default()
         };
-        let e = read_raw(&p, &opt).unwrap_err().to_string();
+        let e = read_raw(&p, &opt, crate::source::DensityScale::ONE)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("overflow"), "{e}");
         assert!(!e.contains('\n'));
     }
@@ -344,7 +349,7 @@ mod tests {
         let mut v = vec![1.0f32; 2 * 3 * 4];
         v[1 + 2 * (2 + 3 * 3)] = f32::NAN; // voxel (1,2,3)
         let p = write(d.path(), "n_2x3x4_f32.raw", &f32s(&v));
-        let e = read_raw(&p, &RawOptions::default())
+        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("NaN") && e.contains("(1,2,3)"), "{e}");
@@ -354,13 +359,14 @@ mod tests {
                 nan_as_zero: true,
                 ..Default::default()
             },
+            crate::source::DensityScale::ONE,
         )
         .unwrap();
         assert_eq!(ok.voxel(1, 2, 3), Some(0.0));
 
         v[1 + 2 * (2 + 3 * 3)] = f32::NEG_INFINITY;
         let p = write(d.path(), "i_2x3x4_f32.raw", &f32s(&v));
-        let e = read_raw(&p, &RawOptions::default())
+        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("infinite") && e.contains("(1,2,3)"), "{e}");
@@ -368,7 +374,7 @@ mod tests {
         v[1 + 2 * (2 + 3 * 3)] = 1.0;
         v[2 * 3] = -0.5; // voxel (0,0,1)
         let p = write(d.path(), "g_2x3x4_f32.raw", &f32s(&v));
-        let e = read_raw(&p, &RawOptions::default())
+        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("negative") && e.contains("(0,0,1)"), "{e}");
@@ -378,6 +384,7 @@ mod tests {
                 clamp_negative: true,
                 ..Default::default()
             },
+            crate::source::DensityScale::ONE,
         )
         .unwrap();
         assert_eq!(ok.voxel(0, 0, 1), Some(0.0));
@@ -388,29 +395,20 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let sub = f32::from_bits(1); // smallest subnormal
         let p = write(d.path(), "s_2x1x1_f32.raw", &f32s(&[sub, 1e30]));
-        let g = read_raw(&p, &RawOptions::default()).unwrap();
+        let g = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE).unwrap();
         assert_eq!(g.voxel(0, 0, 0), Some(sub));
-        let zero = RawOptions {
-            density_scale: 0.0,
-            ..Default::default()
-        };
-        let g = read_raw(&p, &zero).unwrap();
+        let opts = RawOptions::default();
+        let g = read_raw(&p, &opts, DensityScale::new(0.0).unwrap()).unwrap();
         assert_eq!(g.max_value(), 0.0);
-        let big = RawOptions {
-            density_scale: 1e30,
-            ..Default::default()
-        };
-        let e = read_raw(&p, &big).unwrap_err().to_string();
+        let big = DensityScale::new(1e30).unwrap();
+        let e = read_raw(&p, &opts, big).unwrap_err().to_string();
         assert!(e.contains("overflows") && e.contains("(1,0,0)"), "{e}");
         let p = write(d.path(), "t_2x1x1_f32.raw", &f32s(&[1e-30, 2.0]));
-        let g = read_raw(&p, &big).unwrap();
+        let g = read_raw(&p, &opts, big).unwrap();
         assert!((g.voxel(0, 0, 0).unwrap() - 1.0).abs() < 1e-6);
         assert_eq!(g.voxel(1, 0, 0), Some(2e30));
-        let neg = RawOptions {
-            density_scale: -1.0,
-            ..Default::default()
-        };
-        assert!(read_raw(&p, &neg).is_err());
+        // A negative scale cannot be made: the one rule of every surface.
+        assert!(DensityScale::new(-1.0).is_err());
     }
 
     #[test]
@@ -429,13 +427,13 @@ mod tests {
             origin: [10.0, 0.0, 0.0],
             ..Default::default()
         };
-        let g = read_raw(&p, &opt).unwrap();
+        let g = read_raw(&p, &opt, crate::source::DensityScale::ONE).unwrap();
         assert_eq!(g.data(), &[1.0, 2.0, 3.0, 4.0]);
         assert_eq!(g.bounds().min.x, 10.0);
         assert_eq!(g.bounds().max.x, 18.0);
         assert_eq!(g.extinction(DVec3::new(13.0, 0.5, 0.5)), 2.0);
         // No name convention and no options: a clear error.
-        let e = read_raw(&p, &RawOptions::default())
+        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("no dims"), "{e}");

@@ -27,7 +27,8 @@ fn open_nvdb(path: &Path, grid: Option<&str>, level_set: bool) -> Result<VdbSour
         levelset_to_fog: level_set,
         ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
     };
-    pinbake::source::nanovdb::open(path, &opt).map_err(|e| e.to_string())
+    pinbake::source::nanovdb::open(path, &opt, pinbake::source::DensityScale::ONE)
+        .map_err(|e| e.to_string())
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
@@ -367,6 +368,7 @@ fn the_openvdb_corpus_through_nanovdb_convert_reads_as_the_vdb() {
                     levelset_to_fog: level_set,
                     ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
                 },
+                pinbake::source::DensityScale::ONE,
             )
             .expect("the corpus .vdb reads (tests/vdb_corpus.rs)");
             let mut vdb_bake = None;

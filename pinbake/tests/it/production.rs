@@ -54,7 +54,7 @@ fn a_small_production_cloud_reads_in_bounded_memory() {
         "{active} active voxels of {boxed}"
     );
     let file_bytes = std::fs::metadata(&path).unwrap().len();
-    let source = VdbSource::open(&path, &opts()).unwrap();
+    let source = VdbSource::open(&path, &opts(), pinbake::source::DensityScale::ONE).unwrap();
     assert!(
         source.describe().contains("saved as half"),
         "{}",
@@ -76,7 +76,7 @@ fn a_small_production_cloud_reads_in_bounded_memory() {
         max_leaf_bytes: Some(held / 2),
         ..opts()
     };
-    match VdbSource::open(&path, &small) {
+    match VdbSource::open(&path, &small, pinbake::source::DensityScale::ONE) {
         Err(e @ SourceError::Memory { .. }) => {
             let m = e.to_string();
             assert!(
@@ -91,6 +91,6 @@ fn a_small_production_cloud_reads_in_bounded_memory() {
         max_leaf_bytes: Some(2 * held),
         ..opts()
     };
-    let again = VdbSource::open(&path, &enough).unwrap();
+    let again = VdbSource::open(&path, &enough, pinbake::source::DensityScale::ONE).unwrap();
     assert_eq!(again.memory_bytes(), held);
 }

@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 use glam::{DVec3, IVec3};
 use pinbake::source::raw::{Endian, RawOptions, RawType, read_raw};
 use pinbake::source::vdb::{VdbOptions, VdbSource};
-use pinbake::source::{Density, DensitySource, SourceSpec, open_source};
+use pinbake::source::{Density, DensityScale, DensitySource, SourceSpec, open_source};
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data");
 
@@ -24,7 +24,8 @@ fn open_vdb(name: &str, grid: Option<&str>) -> Result<VdbSource, String> {
         grid: grid.map(str::to_string),
         ..vdb_opts()
     };
-    VdbSource::open(&data(name), &opt).map_err(|e| e.to_string())
+    VdbSource::open(&data(name), &opt, pinbake::source::DensityScale::ONE)
+        .map_err(|e| e.to_string())
 }
 
 // ------------------------------------------------------------------------------------------
@@ -65,7 +66,12 @@ fn inviwo_fixtures_read_exactly_in_every_type_and_endianness() {
             endian,
             ..Default::default()
         };
-        let g = read_raw(&data(&format!("inviwo_testdata/{file}")), &opt).unwrap();
+        let g = read_raw(
+            &data(&format!("inviwo_testdata/{file}")),
+            &opt,
+            pinbake::source::DensityScale::ONE,
+        )
+        .unwrap();
         for z in 0..3 {
             for y in 0..7 {
                 for x in 0..13 {
@@ -91,7 +97,12 @@ fn inviwo_fixtures_read_exactly_in_every_type_and_endianness() {
                 clamp_negative: true,
                 ..opt
             };
-            let g2 = read_raw(&data(&format!("inviwo_testdata/{file}")), &flipped).unwrap();
+            let g2 = read_raw(
+                &data(&format!("inviwo_testdata/{file}")),
+                &flipped,
+                pinbake::source::DensityScale::ONE,
+            )
+            .unwrap();
             assert_ne!(g2.data(), g.data(), "{file}");
         }
     }
@@ -102,6 +113,7 @@ fn hydrogen_atom_infers_dims_and_type_from_its_name() {
     let g = read_raw(
         &data("hydrogen_atom_128x128x128_uint8.raw"),
         &RawOptions::default(),
+        pinbake::source::DensityScale::ONE,
     )
     .unwrap();
     assert_eq!(g.dims(), [128, 128, 128]);
@@ -116,9 +128,13 @@ fn hydrogen_atom_infers_dims_and_type_from_its_name() {
 #[test]
 fn water_esp_is_signed_and_needs_clamping() {
     let p = data("water_esp_31x34x33_float32.raw");
-    let e = read_raw(&p, &RawOptions::default())
-        .unwrap_err()
-        .to_string();
+    let e = read_raw(
+        &p,
+        &RawOptions::default(),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("negative") && e.contains("water_esp"), "{e}");
     let g = read_raw(
         &p,
@@ -126,6 +142,7 @@ fn water_esp_is_signed_and_needs_clamping() {
             clamp_negative: true,
             ..Default::default()
         },
+        pinbake::source::DensityScale::ONE,
     )
     .unwrap();
     assert_eq!(g.dims(), [31, 34, 33]);
@@ -139,9 +156,13 @@ fn raw_wrong_size_and_nan_errors() {
         voxel_type: Some(RawType::U8),
         ..Default::default()
     };
-    let e = read_raw(&data("inviwo_testdata/testdata.UINT8.raw"), &opt)
-        .unwrap_err()
-        .to_string();
+    let e = read_raw(
+        &data("inviwo_testdata/testdata.UINT8.raw"),
+        &opt,
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("364 bytes") && e.contains("273 bytes"), "{e}");
     assert!(e.contains("testdata.UINT8.raw"), "{e}");
 
@@ -151,9 +172,13 @@ fn raw_wrong_size_and_nan_errors() {
     let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
     let p = dir.path().join("nan_4x5x6_float32.raw");
     std::fs::write(&p, bytes).unwrap();
-    let e = read_raw(&p, &RawOptions::default())
-        .unwrap_err()
-        .to_string();
+    let e = read_raw(
+        &p,
+        &RawOptions::default(),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("NaN") && e.contains("(3,4,5)"), "{e}");
 }
 
@@ -263,19 +288,15 @@ fn oiio_sphere_and_density_scale() {
     assert!(lo.cmpge(IVec3::splat(-12)).all() && hi.cmple(IVec3::splat(12)).all());
     let twice = VdbSource::open(
         &data("oiio_sphere_density.vdb"),
-        &VdbOptions {
-            density_scale: 2.0,
-            ..vdb_opts()
-        },
+        &vdb_opts(),
+        DensityScale::new(2.0).unwrap(),
     )
     .unwrap();
     assert_eq!(twice.extinction(DVec3::ZERO), 2.0 * c);
     let huge = VdbSource::open(
         &data("oiio_sphere_density.vdb"),
-        &VdbOptions {
-            density_scale: 1e30,
-            ..vdb_opts()
-        },
+        &vdb_opts(),
+        DensityScale::new(1e30).unwrap(),
     );
     // Either representable or a clear overflow error naming a voxel.
     if let Err(e) = huge {
@@ -283,17 +304,15 @@ fn oiio_sphere_and_density_scale() {
     }
     let zero = VdbSource::open(
         &data("oiio_sphere_density.vdb"),
-        &VdbOptions {
-            density_scale: 0.0,
-            ..vdb_opts()
-        },
+        &vdb_opts(),
+        DensityScale::new(0.0).unwrap(),
     );
     assert!(zero.unwrap_err().to_string().contains("zero"));
     // Through the generic entry point as well.
-    let b = open_source(&SourceSpec::Vdb(
-        data("oiio_sphere_density.vdb"),
-        vdb_opts(),
-    ))
+    let b = open_source(
+        &SourceSpec::Vdb(data("oiio_sphere_density.vdb"), vdb_opts()),
+        pinbake::source::DensityScale::ONE,
+    )
     .unwrap();
     assert_eq!(b.extinction(DVec3::ZERO), c);
 }
@@ -311,6 +330,7 @@ fn level_set_is_refused_then_converted() {
             levelset_to_fog: true,
             ..vdb_opts()
         },
+        pinbake::source::DensityScale::ONE,
     )
     .unwrap();
     // Radius about 3 world units (60 voxels of 0.05): inside is 1, outside 0, and the deep
@@ -396,7 +416,7 @@ fn mutated_files_never_take_the_parent_down() {
             ..vdb_opts()
         };
         let t = Instant::now();
-        match VdbSource::open(&p, &opt) {
+        match VdbSource::open(&p, &opt, pinbake::source::DensityScale::ONE) {
             Ok(s) => assert!(s.bounds().is_valid()),
             Err(e) => {
                 errors += 1;
@@ -429,9 +449,13 @@ fn worker_crash_timeout_and_memory_limit_become_errors() {
     let dir = tempfile::tempdir().unwrap();
     let file = data("oiio_sphere_density.vdb");
     let crash = script(dir.path(), "crash.sh", "kill -SEGV $$");
-    let e = VdbSource::open(&file, &VdbOptions::with_worker(crash))
-        .unwrap_err()
-        .to_string();
+    let e = VdbSource::open(
+        &file,
+        &VdbOptions::with_worker(crash),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("crashed (signal 11)"), "{e}");
 
     let slow = script(dir.path(), "slow.sh", "exec sleep 30");
@@ -440,18 +464,26 @@ fn worker_crash_timeout_and_memory_limit_become_errors() {
         ..VdbOptions::with_worker(slow)
     };
     let t = Instant::now();
-    let e = VdbSource::open(&file, &opt).unwrap_err().to_string();
+    let e = VdbSource::open(&file, &opt, pinbake::source::DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("timed out"), "{e}");
     assert!(t.elapsed() < Duration::from_secs(5));
 
     let garbage = script(dir.path(), "garbage.sh", "echo hello");
-    let e = VdbSource::open(&file, &VdbOptions::with_worker(garbage))
-        .unwrap_err()
-        .to_string();
+    let e = VdbSource::open(
+        &file,
+        &VdbOptions::with_worker(garbage),
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("worker stream"), "{e}");
 
     let missing = VdbOptions::with_worker(dir.path().join("nope"));
-    let e = VdbSource::open(&file, &missing).unwrap_err().to_string();
+    let e = VdbSource::open(&file, &missing, pinbake::source::DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("cannot start"), "{e}");
 
     // The smoke needs more than 6 MiB of address space in the worker (about 5.4 MiB
@@ -460,9 +492,13 @@ fn worker_crash_timeout_and_memory_limit_become_errors() {
         memory_limit: Some(6 << 20),
         ..vdb_opts()
     };
-    let e = VdbSource::open(&data("openvdb_smoke1.vdb"), &opt)
-        .unwrap_err()
-        .to_string();
+    let e = VdbSource::open(
+        &data("openvdb_smoke1.vdb"),
+        &opt,
+        pinbake::source::DensityScale::ONE,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("needs more than 6 MiB"), "{e}");
 }
 
@@ -482,16 +518,19 @@ fn extinction_cost() {
     let raw = read_raw(
         &data("hydrogen_atom_128x128x128_uint8.raw"),
         &RawOptions::default(),
+        pinbake::source::DensityScale::ONE,
     )
     .unwrap();
     let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
-    let cosine = open_source(&SourceSpec::Procedural(
-        "cosine:seed=7,freq=16".parse().unwrap(),
-    ))
+    let cosine = open_source(
+        &SourceSpec::Procedural("cosine:seed=7,freq=16".parse().unwrap()),
+        pinbake::source::DensityScale::ONE,
+    )
     .unwrap();
-    let fractal = open_source(&SourceSpec::Procedural(
-        "fractal:seed=7,octaves=4".parse().unwrap(),
-    ))
+    let fractal = open_source(
+        &SourceSpec::Procedural("fractal:seed=7,octaves=4".parse().unwrap()),
+        pinbake::source::DensityScale::ONE,
+    )
     .unwrap();
     let sources: [(&str, &dyn DensitySource); 4] = [
         ("grid 128^3 u8", &raw),

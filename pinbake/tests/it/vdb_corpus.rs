@@ -21,7 +21,7 @@ fn open(file: &std::path::Path, grid: &str, level_set: bool) -> Result<VdbSource
         levelset_to_fog: level_set,
         ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
     };
-    VdbSource::open(file, &opt).map_err(|e| e.to_string())
+    VdbSource::open(file, &opt, pinbake::source::DensityScale::ONE).map_err(|e| e.to_string())
 }
 
 fn small_bake() -> BakeOptions {
@@ -304,18 +304,18 @@ fn parts_skip_leaves_undecoded_in_every_encoding() {
             for scale in [1.0, 2f64.powi(-150)] {
                 let base = VdbOptions {
                     grid: Some(grid.into()),
-                    density_scale: scale,
                     ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
                 };
+                let ds = pinbake::source::DensityScale::new(scale).unwrap();
                 let at = format!("{} {grid} x {scale}", f.file.display());
-                let whole = match VdbSource::open(&f.file, &base) {
+                let whole = match VdbSource::open(&f.file, &base, ds) {
                     Ok(s) => s,
                     // Every value of `roots` but the root tiles' is below 1.
                     Err(e) if e.to_string().contains("all are zero") => continue,
                     Err(e) => panic!("{at}: {e}"),
                 };
-                let stats =
-                    VdbSource::grid_stats(&f.file, &base).unwrap_or_else(|e| panic!("{at}: {e}"));
+                let stats = VdbSource::grid_stats(&f.file, &base, ds)
+                    .unwrap_or_else(|e| panic!("{at}: {e}"));
                 let g = f.grids.iter().find(|g| g.name == grid).unwrap();
                 let (lo, hi) = whole.index_bounds();
                 if IVec3::from_array(g.active_bbox.0).cmplt(lo).any()
@@ -337,7 +337,7 @@ fn parts_skip_leaves_undecoded_in_every_encoding() {
                                 grid_stats: Some(Box::new(stats.clone())),
                                 ..base.clone()
                             };
-                            let s = VdbSource::open(&f.file, &o)
+                            let s = VdbSource::open(&f.file, &o, ds)
                                 .unwrap_or_else(|e| panic!("{at} {index}/{count}: {e}"));
                             assert_eq!(s.describe(), whole.describe(), "{at}");
                             assert_eq!(s.bounds(), whole.bounds(), "{at}");

@@ -1324,6 +1324,7 @@ impl pinbake::source::Density for FieldSource {
 }
 
 /// Baked into a control (`pinbake::control::bake_control`) by the tests below.
+#[cfg(feature = "cli")]
 impl pinbake::source::DensitySource for FieldSource {}
 
 /// `pinres` over `field`: the control `pinbake` bakes for it over `[lo, hi]` with `dims`

@@ -151,7 +151,7 @@ pub fn ok(out: &Output, what: &str) {
 pub fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>) -> PathBuf {
     let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
     p.density *= scale;
-    let src: Box<dyn DensitySource> = p.build().unwrap();
+    let src: Box<dyn DensitySource> = p.build(pinbake::source::DensityScale::ONE).unwrap();
     let opts = pinbake::BakeOptions {
         cells: [8; 3],
         density_scale: scale,

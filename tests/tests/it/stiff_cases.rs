@@ -13,8 +13,8 @@ use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
 use pin_tests::{assert_pin_bytes_sane, check_source};
 use pinbake::source::raw::read_raw;
 use pinbake::source::{
-    Aabb, DenseGrid, DensitySource, HomogeneousBox, RawOptions, RawType, SourceError, VdbOptions,
-    VdbSource,
+    Aabb, DenseGrid, DensityScale, DensitySource, HomogeneousBox, RawOptions, RawType, SourceError,
+    VdbOptions, VdbSource,
 };
 use pinbake::{BakeError, BakeOptions, bake};
 use pinrender::render::{
@@ -43,7 +43,8 @@ struct RawCase {
     dims: [u32; 3],
     ty: RawType,
     bytes: Vec<u8>,
-    tweak: fn(&mut RawOptions),
+    /// Changes the options and the density scale (1 unless changed).
+    tweak: fn(&mut RawOptions, &mut f64),
     expect: RawExpect,
 }
 
@@ -52,9 +53,9 @@ fn f32s(v: &[f32]) -> Vec<u8> {
 }
 
 fn raw_cases() -> Vec<RawCase> {
-    let none: fn(&mut RawOptions) = |_| {};
-    let nan0: fn(&mut RawOptions) = |o| o.nan_as_zero = true;
-    let clamp: fn(&mut RawOptions) = |o| o.clamp_negative = true;
+    let none: fn(&mut RawOptions, &mut f64) = |_, _| {};
+    let nan0: fn(&mut RawOptions, &mut f64) = |o, _| o.nan_as_zero = true;
+    let clamp: fn(&mut RawOptions, &mut f64) = |o, _| o.clamp_negative = true;
     let c = |name, dims, ty, bytes, tweak, expect| RawCase {
         name,
         dims,
@@ -237,7 +238,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::F32,
             f32s(&[1e9]),
-            |o| o.density_scale = 1e30,
+            |_, s| *s = 1e30,
             RawExpect::Err("overflows f32"),
         ),
         c(
@@ -245,7 +246,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::U8,
             vec![255],
-            |o| o.density_scale = 1e30,
+            |_, s| *s = 1e30,
             RawExpect::Ok(Some(2.55e32)),
         ),
         c(
@@ -253,7 +254,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::F32,
             f32s(&[f32::MAX]),
-            |o| o.density_scale = 0.0,
+            |_, s| *s = 0.0,
             RawExpect::Ok(Some(0.0)),
         ),
         c(
@@ -261,7 +262,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::U8,
             vec![1],
-            |o| o.density_scale = f64::NAN,
+            |_, s| *s = f64::NAN,
             RawExpect::Err("density scale"),
         ),
         c(
@@ -269,7 +270,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::U8,
             vec![1],
-            |o| o.density_scale = -1.0,
+            |_, s| *s = -1.0,
             RawExpect::Err("density scale"),
         ),
         c(
@@ -277,7 +278,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::U8,
             vec![1],
-            |o| o.spacing = [0.0, 1.0, 1.0],
+            |o, _| o.spacing = [0.0, 1.0, 1.0],
             RawExpect::Err("spacing"),
         ),
         c(
@@ -285,7 +286,7 @@ fn raw_cases() -> Vec<RawCase> {
             [1, 1, 1],
             RawType::U8,
             vec![1],
-            |o| o.origin = [f64::INFINITY, 0.0, 0.0],
+            |o, _| o.origin = [f64::INFINITY, 0.0, 0.0],
             RawExpect::Err("origin"),
         ),
     ]
@@ -303,9 +304,10 @@ fn raw_reader_cases() {
             voxel_type: Some(case.ty),
             ..RawOptions::default()
         };
-        (case.tweak)(&mut opt);
+        let mut scale = 1.0;
+        (case.tweak)(&mut opt, &mut scale);
         let t = Instant::now();
-        let res = read_raw(&path, &opt);
+        let res = DensityScale::new(scale).and_then(|s| read_raw(&path, &opt, s));
         let ms = t.elapsed().as_secs_f64() * 1e3;
         assert!(ms < 5_000.0, "{}: {ms} ms", case.name);
         let (expected, result) = match (&case.expect, res) {
@@ -331,8 +333,12 @@ fn raw_reader_cases() {
             }
             (RawExpect::Err(needle), Err(e)) => {
                 let msg = e.to_string();
+                // A bad scale is refused before any file is read: the one rule of every
+                // surface (`DensityScale::new`), not a fault of the file.
+                let scale_case = case.name.starts_with("density scale");
                 assert!(
-                    matches!(e, SourceError::Raw { .. }),
+                    matches!(e, SourceError::Raw { .. }) && !scale_case
+                        || matches!(e, SourceError::InvalidOption(_)) && scale_case,
                     "{}: wrong error kind {e:?}",
                     case.name
                 );
@@ -377,7 +383,7 @@ fn vdb_reader_damaged_files() {
     for path in &names {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         let t = Instant::now();
-        let res = VdbSource::open(path, &opt);
+        let res = VdbSource::open(path, &opt, pinbake::source::DensityScale::ONE);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         assert!(ms < 10_000.0, "{name}: {ms} ms");
         match res {
@@ -397,7 +403,8 @@ fn vdb_reader_damaged_files() {
     }
     // A valid file through the same path for contrast: finite, non-negative everywhere.
     let good = data("gaffer_sphere_density.vdb");
-    let src = VdbSource::open(&good, &opt).expect("a valid VDB opens");
+    let src = VdbSource::open(&good, &opt, pinbake::source::DensityScale::ONE)
+        .expect("a valid VDB opens");
     check_source(&src);
     assert!(pin_tests::bake_and_verify(&src));
     table.row(vec![
@@ -447,11 +454,8 @@ fn baker_cases() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("v_4x4x4_u8.raw");
         std::fs::write(&p, (1..=64u8).collect::<Vec<_>>()).unwrap();
-        let o = RawOptions {
-            density_scale: scale,
-            ..RawOptions::default()
-        };
-        Box::new(read_raw(&p, &o).unwrap())
+        let scale = DensityScale::new(scale).unwrap();
+        Box::new(read_raw(&p, &RawOptions::default(), scale).unwrap())
     };
     let hbox = |d: f32| -> Box<dyn DensitySource> {
         Box::new(HomogeneousBox::new(unit_box(), d).unwrap())

@@ -84,7 +84,8 @@ fn rotated_grid_renders_where_openvdb_places_it() {
         grid: Some(g.name.clone()),
         ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pin-tests-vdb-worker"))
     };
-    let src = VdbSource::open(&f.file, &opt).expect("the rotated grid opens");
+    let src = VdbSource::open(&f.file, &opt, pinbake::source::DensityScale::ONE)
+        .expect("the rotated grid opens");
     let (owned, _) = bake(&src, &bake_opts(), &|_| {}).expect("the rotated grid bakes");
     // Baked in the grid's own frame: the pin box is the index box (-3,-1,0)..(7,5,11)
     // scaled per axis, placed by the rotation and OpenVDB's translation.

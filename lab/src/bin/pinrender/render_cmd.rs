@@ -793,7 +793,7 @@ mod tests {
     /// A cosine field's pins (4^3 cells), with `embed` density voxels per axis.
     fn bake(dir: &Path, name: &str, embed: Option<u32>) -> PathBuf {
         let p: pinbake::source::ProceduralSpec = "cosine:seed=5,freq=4,density=6".parse().unwrap();
-        let src = p.build().unwrap();
+        let src = p.build(pinbake::source::DensityScale::ONE).unwrap();
         let opts = pinbake::BakeOptions {
             cells: [4; 3],
             embed_density: embed.map(|n| pinbake::EmbedDensity::Dense([n; 3])),

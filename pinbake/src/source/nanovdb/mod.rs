@@ -93,14 +93,13 @@ impl Buffer {
 }
 
 /// Opens the NanoVDB file `path` with the options of the OpenVDB path (`grid`,
-/// `levelset_to_fog`, `density_scale`, `max_leaf_bytes`); see the module docs. Every
-/// failure is one line naming the file.
-pub fn open(path: &Path, opt: &VdbOptions) -> Result<VdbSource, SourceError> {
+/// `levelset_to_fog`, `max_leaf_bytes`), every value multiplied by `scale`; see the module
+/// docs. Every failure is one line naming the file.
+pub fn open(path: &Path, opt: &VdbOptions, scale: DensityScale) -> Result<VdbSource, SourceError> {
     let fail = |m: String| SourceError::NanoVdb {
         path: path.to_path_buf(),
         message: m,
     };
-    let scale = DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
     let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
     let file = std::fs::File::open(path).map_err(|e| SourceError::Io {
         path: path.to_path_buf(),

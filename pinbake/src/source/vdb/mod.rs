@@ -83,8 +83,6 @@ pub struct VdbOptions {
     pub grid: Option<String>,
     /// Accept a level set and bake its interior (negative distance) as density 1.
     pub levelset_to_fog: bool,
-    /// Multiplier applied to every value (finite, `>= 0`).
-    pub density_scale: f64,
     /// Executable that understands `__vdb-worker` (normally the `pinbake` binary itself).
     pub worker_exe: PathBuf,
     /// Address-space limit of the worker in bytes; `None`: 64 MiB + 64 x file size, <= 16 GiB.
@@ -114,7 +112,6 @@ impl Default for VdbOptions {
         Self {
             grid: None,
             levelset_to_fog: false,
-            density_scale: 1.0,
             worker_exe: std::env::current_exe().unwrap_or_else(|_| PathBuf::from("pinbake")),
             memory_limit: None,
             timeout: Duration::from_secs(60),
@@ -284,7 +281,6 @@ mod tests {
             let ds = DensityScale::new(scale).unwrap();
             let vdb_opts = VdbOptions {
                 levelset_to_fog: to_fog,
-                density_scale: scale,
                 ..VdbOptions::default()
             };
             let stats = {
@@ -296,7 +292,7 @@ mod tests {
                 };
                 worker_run(&p, None, to_fog, Some(pass), &mut buf).unwrap();
                 let st = parse_stream_within(&buf[..], size, u64::MAX, true).unwrap();
-                source::stats_of_stream(&st, size, String::new(), &vdb_opts).unwrap()
+                source::stats_of_stream(&st, size, String::new(), &vdb_opts, ds).unwrap()
             };
             let read = |part: Option<VdbPart>, mode: PartMode| {
                 let mut buf = Vec::new();

@@ -225,6 +225,7 @@ pub(super) fn stats_of_stream(
     file_bytes: u64,
     file_xxh3: String,
     opt: &VdbOptions,
+    scale: DensityScale,
 ) -> Result<GridStats, String> {
     let p = st.part.ok_or("worker sent no statistics")?;
     if !st.origins.is_empty() {
@@ -240,7 +241,7 @@ pub(super) fn stats_of_stream(
         file_xxh3,
         grid: st.grids[st.chosen].display(),
         levelset_to_fog: opt.levelset_to_fog,
-        density_scale: opt.density_scale,
+        density_scale: scale.get(),
         leaves: p.total_leaves,
         active_voxels: st.active,
         negative_values: st.negatives,
@@ -252,7 +253,12 @@ pub(super) fn stats_of_stream(
 }
 
 /// Statistics given for a part read must be those of this file read this way.
-fn check_stats_options(g: &GridStats, file_size: u64, opt: &VdbOptions) -> Result<(), String> {
+fn check_stats_options(
+    g: &GridStats,
+    file_size: u64,
+    opt: &VdbOptions,
+    scale: DensityScale,
+) -> Result<(), String> {
     let differs = |what: &str, stats: String, here: String| {
         Err(format!(
             "{} were made for {what} {stats}, this bake has {here} (make them again with the bake's options)",
@@ -266,11 +272,11 @@ fn check_stats_options(g: &GridStats, file_size: u64, opt: &VdbOptions) -> Resul
             format!("{file_size} bytes"),
         );
     }
-    if g.density_scale.to_bits() != opt.density_scale.to_bits() {
+    if g.density_scale.to_bits() != scale.get().to_bits() {
         return differs(
             "density scale",
             format!("{:?}", g.density_scale),
-            format!("{:?}", opt.density_scale),
+            format!("{:?}", scale.get()),
         );
     }
     if g.levelset_to_fog != opt.levelset_to_fog {
@@ -386,23 +392,23 @@ impl std::fmt::Debug for VdbSource {
 impl VdbSource {
     /// Opens `path` with the isolated worker; see the module docs. Every failure, including a
     /// crash, timeout or memory exhaustion of the worker, is a one-line [`SourceError::Vdb`].
-    pub fn open(path: &Path, opt: &VdbOptions) -> Result<Self, SourceError> {
+    /// Every value is multiplied by `scale` as it is read.
+    pub fn open(path: &Path, opt: &VdbOptions, scale: DensityScale) -> Result<Self, SourceError> {
         let fail = |m: String| SourceError::Vdb {
             path: path.to_path_buf(),
             message: m,
         };
-        let scale = DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
         // A FIFO, device or directory is refused before the worker could block on it or
         // read it without end.
         let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
         let stats = match (&opt.part, &opt.grid_stats) {
             (Some(_), Some(g)) => {
-                check_stats_options(g, file_size, opt).map_err(fail)?;
+                check_stats_options(g, file_size, opt, scale).map_err(fail)?;
                 Some(GridStats::clone(g))
             }
             _ => None,
         };
-        let mut stream = Self::read_stream(path, opt, file_size, false)?;
+        let mut stream = Self::read_stream(path, opt, scale, file_size, false)?;
         stream.stats = stats;
         Self::from_stream(path, stream, scale).map_err(fail)
     }
@@ -411,22 +417,26 @@ impl VdbSource {
     /// grid, level-set mode and density scale (its `part` and `grid_stats` are ignored): the
     /// reader decodes every leaf and sends none, so this needs the reader's memory (its
     /// topology) and not the leaf table's.
-    pub fn grid_stats(path: &Path, opt: &VdbOptions) -> Result<GridStats, SourceError> {
+    pub fn grid_stats(
+        path: &Path,
+        opt: &VdbOptions,
+        scale: DensityScale,
+    ) -> Result<GridStats, SourceError> {
         let fail = |m: String| SourceError::Vdb {
             path: path.to_path_buf(),
             message: m,
         };
-        DensityScale::new(opt.density_scale).map_err(|e| fail(e.to_string()))?;
         let file_size = crate::files::check_input(path).map_err(SourceError::from_file)?;
         let file_xxh3 = crate::files::hash_file(path).map_err(SourceError::from_file)?;
-        let st = Self::read_stream(path, opt, file_size, true)?;
-        stats_of_stream(&st, file_size, file_xxh3, opt).map_err(fail)
+        let st = Self::read_stream(path, opt, scale, file_size, true)?;
+        stats_of_stream(&st, file_size, file_xxh3, opt, scale).map_err(fail)
     }
 
     /// Runs the worker for a read (`stats_pass`: the statistics pass) and parses its stream.
     fn read_stream(
         path: &Path,
         opt: &VdbOptions,
+        scale: DensityScale,
         file_size: u64,
         stats_pass: bool,
     ) -> Result<Stream, SourceError> {
@@ -445,7 +455,15 @@ impl VdbSource {
             ..opt.clone()
         };
         let max_leaf_bytes = opt.max_leaf_bytes.unwrap_or(u64::MAX);
-        match run_worker(path, &opt, file_size, limit, max_leaf_bytes, stats_pass) {
+        match run_worker(
+            path,
+            &opt,
+            scale,
+            file_size,
+            limit,
+            max_leaf_bytes,
+            stats_pass,
+        ) {
             Ok(s) => Ok(s),
             Err(e @ StreamError::Budget { .. }) => Err(SourceError::Memory {
                 path: path.to_path_buf(),

@@ -13,8 +13,12 @@ pub const WORKER_ENV: &str = "PINBAKE_VDB_WORKER";
 /// The worker's arguments after the level-set mode: none for a whole read; the part, the
 /// density scale and how to treat the leaves outside the slab for a part read (`skip` when
 /// the grid's statistics are given); `stats` and the scale for the statistics pass.
-pub(super) fn worker_part_args(opt: &VdbOptions, stats_pass: bool) -> Vec<String> {
-    let scale = format!("{:?}", opt.density_scale);
+pub(super) fn worker_part_args(
+    opt: &VdbOptions,
+    scale: DensityScale,
+    stats_pass: bool,
+) -> Vec<String> {
+    let scale = format!("{:?}", scale.get());
     if stats_pass {
         return vec!["stats".into(), scale];
     }
@@ -34,6 +38,7 @@ pub(super) fn worker_part_args(opt: &VdbOptions, stats_pass: bool) -> Vec<String
 pub(super) fn run_worker(
     path: &Path,
     opt: &VdbOptions,
+    scale: DensityScale,
     file_size: u64,
     limit: u64,
     max_leaf_bytes: u64,
@@ -57,7 +62,7 @@ pub(super) fn run_worker(
         } else {
             "fog"
         })
-        .args(worker_part_args(opt, stats_pass))
+        .args(worker_part_args(opt, scale, stats_pass))
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());

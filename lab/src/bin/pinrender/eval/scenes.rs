@@ -182,8 +182,10 @@ pub fn build(name: &str, sizes: &Sizes, production: &Path) -> Result<EvalScene> 
     }
 }
 
-fn volume_args(density_scale: f64) -> VolumeArgs {
-    VolumeArgs::scaled(density_scale)
+fn volume_args(density_scale: f64) -> Result<VolumeArgs> {
+    Ok(VolumeArgs::scaled(source::DensityScale::new(
+        density_scale,
+    )?))
 }
 
 /// A camera looking at the box centre from the front-right-above, framing the box.
@@ -265,7 +267,7 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     let path = crate::data::path("openvdb_smoke1.vdb")?;
     let opened = crate::volume::open_volume_typed(
         path.to_str().context("data path is not UTF-8")?,
-        &volume_args(SMOKE_DENSITY_SCALE),
+        &volume_args(SMOKE_DENSITY_SCALE)?,
     )?;
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
@@ -304,21 +306,15 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
 
 fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
     let path = crate::data::path("hydrogen_atom_128x128x128_uint8.raw")?;
-    let spec = source::SourceSpec::Raw(
-        path,
-        source::RawOptions {
-            dims: Some([128; 3]),
-            voxel_type: Some(source::RawType::U8),
-            spacing: [1.0 / 128.0; 3],
-            origin: [0.0; 3],
-            density_scale: HYDROGEN_DENSITY_SCALE,
-            ..source::RawOptions::default()
-        },
-    );
-    let source::SourceSpec::Raw(path, options) = &spec else {
-        unreachable!()
+    let options = source::RawOptions {
+        dims: Some([128; 3]),
+        voxel_type: Some(source::RawType::U8),
+        spacing: [1.0 / 128.0; 3],
+        origin: [0.0; 3],
+        ..source::RawOptions::default()
     };
-    let opened = Opened::Dense(Arc::new(source::raw::read_raw(path, options)?));
+    let scale = source::DensityScale::new(HYDROGEN_DENSITY_SCALE)?;
+    let opened = Opened::Dense(Arc::new(source::raw::read_raw(&path, &options, scale)?));
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
     let (lo, hi) = bounds_of(&*src);
@@ -711,7 +707,7 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
 fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
     let t = std::time::Instant::now();
     let opened =
-        crate::volume::open_volume_typed(vdb.as_os_str(), &volume_args(PRODUCTION_DENSITY_SCALE))?;
+        crate::volume::open_volume_typed(vdb.as_os_str(), &volume_args(PRODUCTION_DENSITY_SCALE)?)?;
     let src = opened.source();
     pin_cli::errln!(
         "  production: {} opened in {:.1} s",
