@@ -39,31 +39,12 @@ pub fn compose(a: &[f64; 12], b: &[f64; 12]) -> [f64; 12] {
 
 /// The inverse of a row-major 3x4 affine map, or `None` when it is singular.
 pub fn invert(m: &[f64; 12]) -> Option<[f64; 12]> {
-    let l = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
-    let det = l[0][0] * (l[1][1] * l[2][2] - l[1][2] * l[2][1])
-        - l[0][1] * (l[1][0] * l[2][2] - l[1][2] * l[2][0])
-        + l[0][2] * (l[1][0] * l[2][1] - l[1][1] * l[2][0]);
+    // The inverse the pin sampler's own placement uses (`pinrt::UnitTransform`), so the two
+    // agree bit for bit.
+    let (det, inv) = pinrt::chord::linear_inverse(m);
     if !(det.is_finite() && det != 0.0) {
         return None;
     }
-    let r = 1.0 / det;
-    let inv = [
-        [
-            (l[1][1] * l[2][2] - l[1][2] * l[2][1]) * r,
-            (l[0][2] * l[2][1] - l[0][1] * l[2][2]) * r,
-            (l[0][1] * l[1][2] - l[0][2] * l[1][1]) * r,
-        ],
-        [
-            (l[1][2] * l[2][0] - l[1][0] * l[2][2]) * r,
-            (l[0][0] * l[2][2] - l[0][2] * l[2][0]) * r,
-            (l[0][2] * l[1][0] - l[0][0] * l[1][2]) * r,
-        ],
-        [
-            (l[1][0] * l[2][1] - l[1][1] * l[2][0]) * r,
-            (l[0][1] * l[2][0] - l[0][0] * l[2][1]) * r,
-            (l[0][0] * l[1][1] - l[0][1] * l[1][0]) * r,
-        ],
-    ];
     let t = [m[3], m[7], m[11]];
     let mut out = [0.0; 12];
     for i in 0..3 {

@@ -1,7 +1,7 @@
 //! A scene file's media: each asset opened once (its volume read, its pins loaded or baked
 //! in memory, its estimators built in its own frame), then placed once per instance
-//! ([`crate::instance`]), in an order that keeps neighbours together so that the tracer's
-//! chunked box test skips whole chunks of instances a ray does not meet.
+//! ([`crate::instance`]), in an order that keeps neighbours together so that the runs of
+//! consecutive instances in the leaves of the tracer's box hierarchy are compact.
 //!
 //! Messages name the scene file and the JSON path of what failed (`assets.cloud.volume`),
 //! then the problem.
@@ -194,7 +194,7 @@ fn spread(v: u64) -> u64 {
 }
 
 /// The instances in Morton order of their world boxes' centres (ties in file order), so
-/// that neighbours share the tracer's chunks of boxes.
+/// that neighbours share the leaves of the tracer's box hierarchy.
 fn morton_order(boxes: &[([f64; 3], [f64; 3])]) -> Vec<usize> {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];

@@ -9,6 +9,36 @@ use pin_format::GridDesc;
 use crate::error::Error;
 use crate::mask::is_finite_bits;
 
+/// The determinant of the linear part `L` of a row-major 3x4 affine map and `inverse(L)`
+/// by cofactors over that determinant, in this operation order (the bits every placement
+/// of the workspace inverts with). The inverse is meaningful only for a finite, non-zero
+/// determinant; each caller applies its own rule for "too close to singular".
+pub fn linear_inverse(m: &[f64; 12]) -> (f64, [[f64; 3]; 3]) {
+    let l = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
+    let det = l[0][0] * (l[1][1] * l[2][2] - l[1][2] * l[2][1])
+        - l[0][1] * (l[1][0] * l[2][2] - l[1][2] * l[2][0])
+        + l[0][2] * (l[1][0] * l[2][1] - l[1][1] * l[2][0]);
+    let inv_det = 1.0 / det;
+    let inv = [
+        [
+            (l[1][1] * l[2][2] - l[1][2] * l[2][1]) * inv_det,
+            (l[0][2] * l[2][1] - l[0][1] * l[2][2]) * inv_det,
+            (l[0][1] * l[1][2] - l[0][2] * l[1][1]) * inv_det,
+        ],
+        [
+            (l[1][2] * l[2][0] - l[1][0] * l[2][2]) * inv_det,
+            (l[0][0] * l[2][2] - l[0][2] * l[2][0]) * inv_det,
+            (l[0][2] * l[1][0] - l[0][0] * l[1][2]) * inv_det,
+        ],
+        [
+            (l[1][0] * l[2][1] - l[1][1] * l[2][0]) * inv_det,
+            (l[0][1] * l[2][0] - l[0][0] * l[2][1]) * inv_det,
+            (l[0][0] * l[1][1] - l[0][1] * l[1][0]) * inv_det,
+        ],
+    ];
+    (det, inv)
+}
+
 /// The precomputed affine map from world space to the grid's unit cube.
 ///
 /// `o_u = A o_w + b`, `d_u = A d_w` with `A = diag(1 / extent) * inverse(L)` and
@@ -30,9 +60,7 @@ impl UnitTransform {
         }
         let l = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
         let t = [m[3], m[7], m[11]];
-        let det = l[0][0] * (l[1][1] * l[2][2] - l[1][2] * l[2][1])
-            - l[0][1] * (l[1][0] * l[2][2] - l[1][2] * l[2][0])
-            + l[0][2] * (l[1][0] * l[2][1] - l[1][1] * l[2][0]);
+        let (det, inv) = linear_inverse(m);
         let scale = l
             .iter()
             .flatten()
@@ -43,24 +71,6 @@ impl UnitTransform {
                 "local_to_world is singular (det {det:e})"
             )));
         }
-        let inv_det = 1.0 / det;
-        let inv = [
-            [
-                (l[1][1] * l[2][2] - l[1][2] * l[2][1]) * inv_det,
-                (l[0][2] * l[2][1] - l[0][1] * l[2][2]) * inv_det,
-                (l[0][1] * l[1][2] - l[0][2] * l[1][1]) * inv_det,
-            ],
-            [
-                (l[1][2] * l[2][0] - l[1][0] * l[2][2]) * inv_det,
-                (l[0][0] * l[2][2] - l[0][2] * l[2][0]) * inv_det,
-                (l[0][2] * l[1][0] - l[0][0] * l[1][2]) * inv_det,
-            ],
-            [
-                (l[1][0] * l[2][1] - l[1][1] * l[2][0]) * inv_det,
-                (l[0][1] * l[2][0] - l[0][0] * l[2][1]) * inv_det,
-                (l[0][0] * l[1][1] - l[0][1] * l[1][0]) * inv_det,
-            ],
-        ];
         let mut rows = [[0.0f32; 4]; 3];
         for i in 0..3 {
             let extent = desc.box_max[i] - desc.box_min[i];

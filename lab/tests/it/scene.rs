@@ -125,6 +125,77 @@ fn instances_render_and_flags_override_the_file() {
     assert!(gpu.iter().flatten().any(|v| *v > 0.0));
 }
 
+/// `--reference` compares a scene's render with a converged image as it does a volume's:
+/// the one stdout line, an RMSE of 0 against the render's own image, above 0 against
+/// another seed's; a reference of another size is an error naming it, exit 1.
+#[test]
+fn a_scene_render_is_compared_with_its_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake(d);
+    let sc = scene(
+        d,
+        "two.json",
+        &format!(
+            r#"{{"assets": {{"c": {{"volume": "{COSINE}", "pins": "c.pin"}}}}, "instances": [{{"asset": "c"}}, {{"asset": "c", "transform": {{"translate": [0.6, 0, 0], "rotate_deg": [0, 40, 0]}}}}]}}"#
+        ),
+    );
+    let sc = sc.to_str().unwrap();
+    let reference = d.join("ref.exr");
+    let mut args = vec!["--scene", sc, "--estimator", "ratio"];
+    args.extend(SMALL);
+    ok(&pinrender(
+        &[&args[..], &["--out", reference.to_str().unwrap()]].concat(),
+    ));
+    let rmse = |extra: &[&str], name: &str| {
+        let out = d.join(name);
+        let all = [
+            &args[..],
+            extra,
+            &[
+                "--reference",
+                reference.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ],
+        ]
+        .concat();
+        let o = pinrender(&all);
+        ok(&o);
+        let line = String::from_utf8(o.stdout).unwrap();
+        let f: Vec<&str> = line.split_whitespace().collect();
+        assert_eq!(f[0], "mean_error", "{line}");
+        assert_eq!(f[8], "rmse", "{line}");
+        f[9].parse::<f64>().unwrap()
+    };
+    assert_eq!(rmse(&[], "same.exr"), 0.0);
+    assert!(rmse(&["--seed", "3"], "other.exr") > 0.0);
+    let small = d.join("small.exr");
+    let o = pinrender(&[
+        "--scene",
+        sc,
+        "--estimator",
+        "ratio",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--spp",
+        "1",
+        "--reference",
+        reference.to_str().unwrap(),
+        "--out",
+        small.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let last = err.lines().last().unwrap_or_default();
+    assert!(
+        last.contains("ref.exr") && last.contains("8x8 vs 24x16"),
+        "{err}"
+    );
+}
+
 #[test]
 fn bad_scenes_are_one_line() {
     let dir = tempfile::tempdir().unwrap();

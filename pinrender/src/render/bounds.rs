@@ -26,8 +26,15 @@
 //! testing each. A scene of thousands of instances, listed in a spatially coherent order
 //! (the scene loader sorts them along a Morton curve), then costs a query one test per chunk
 //! plus the chunks it meets.
+//!
+//! That holds a scene of up to one chunk. Above that, [`super::bvh`] indexes the boxes in a
+//! hierarchy that keeps the media order, and a query walks it instead: its cost grows with
+//! the media the ray meets. Either way the queries see the same boxes met, with the same
+//! entries, in the same order ([`MediaBoxes::for_each_met`], [`MetChunks`]).
 
 use glam::Vec3;
+
+use super::bvh::{Bvh, Walk};
 
 /// Relative padding of a box: this fraction of its longest finite edge on every side.
 pub(crate) const PAD_REL: f64 = 1e-5;
@@ -71,10 +78,21 @@ pub(crate) struct MediaBoxes {
     /// The union box of each chunk of [`CHUNK`] boxes (`start / CHUNK`).
     chunk_lo: Vec<[f32; 3]>,
     chunk_hi: Vec<[f32; 3]>,
+    /// The hierarchy over more than one chunk of boxes; `None`: the linear scan of chunks.
+    tree: Option<Bvh>,
 }
 
 impl MediaBoxes {
     pub(crate) fn new(boxes: impl IntoIterator<Item = Option<([f64; 3], [f64; 3])>>) -> Self {
+        let mut m = Self::linear(boxes);
+        if m.len() > CHUNK {
+            m.tree = Bvh::build(&m.lo, &m.hi);
+        }
+        m
+    }
+
+    /// The boxes without the hierarchy, always scanned chunk by chunk (the tests' reference).
+    pub(crate) fn linear(boxes: impl IntoIterator<Item = Option<([f64; 3], [f64; 3])>>) -> Self {
         let mut m = MediaBoxes::default();
         for b in boxes {
             let (lo, hi) = padded(b).unwrap_or(([f32::NEG_INFINITY; 3], [f32::INFINITY; 3]));
@@ -95,6 +113,58 @@ impl MediaBoxes {
 
     pub(crate) fn len(&self) -> usize {
         self.lo[0].len()
+    }
+
+    /// Calls `f(i)` for every box `i` that the segment `[0, t_max]` of `ray` meets, in
+    /// media order, until `f` returns false.
+    #[inline]
+    pub(crate) fn for_each_met(
+        &self,
+        ray: &RaySlabs,
+        t_max: f32,
+        mut f: impl FnMut(usize) -> bool,
+    ) {
+        if let Some(tree) = &self.tree {
+            let mut walk = Walk::default();
+            while let Some(run) = tree.next_leaf(&mut walk, ray, t_max) {
+                for i in run {
+                    if self.entry_of(i, ray, t_max) != MISS && !f(i) {
+                        return;
+                    }
+                }
+            }
+            return;
+        }
+        let mut entry = [MISS; CHUNK];
+        for start in (0..self.len()).step_by(CHUNK) {
+            let n = self.entries(start, ray, t_max, &mut entry);
+            for (j, e) in entry[..n].iter().enumerate() {
+                if *e != MISS && !f(start + j) {
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Whether queries walk the hierarchy (for tests).
+    #[cfg(test)]
+    pub(crate) fn has_tree(&self) -> bool {
+        self.tree.is_some()
+    }
+
+    /// The struct-of-arrays boxes (for the hierarchy's tests).
+    #[cfg(test)]
+    pub(crate) fn soa(&self) -> (&[Vec<f32>; 3], &[Vec<f32>; 3]) {
+        (&self.lo, &self.hi)
+    }
+
+    /// Box `i` as stored, padded (for tests).
+    #[cfg(test)]
+    pub(crate) fn box_of(&self, i: usize) -> ([f32; 3], [f32; 3]) {
+        (
+            [self.lo[0][i], self.lo[1][i], self.lo[2][i]],
+            [self.hi[0][i], self.hi[1][i], self.hi[2][i]],
+        )
     }
 
     /// For the boxes `start..start + n` (`n = min(CHUNK, len - start)`, returned): where
@@ -167,7 +237,7 @@ impl MediaBoxes {
 /// Where the segment `[0, t_max]` of `ray` enters the box `[lo, hi]` (0 if it starts
 /// inside), or [`MISS`]: the body of [`MediaBoxes::entries`]' loop.
 #[inline(always)]
-fn slab_entry(lo: [f32; 3], hi: [f32; 3], ray: &RaySlabs, t_max: f32) -> f32 {
+pub(crate) fn slab_entry(lo: [f32; 3], hi: [f32; 3], ray: &RaySlabs, t_max: f32) -> f32 {
     let mut t_near = 0.0f32;
     let mut t_far = t_max;
     for a in 0..3 {
@@ -209,6 +279,114 @@ pub(crate) fn met_by_entry(entry: &[f32; CHUNK], n: usize, order: &mut [u8; CHUN
         k += 1;
     }
     k
+}
+
+/// The nearest-collision search's view of the boxes: chunk after chunk of [`CHUNK`] media,
+/// in media order, the boxes of the chunk that the segment `[0, best]` of the ray meets
+/// (`best` as it stands when the chunk is reached), by entry ([`met_by_entry`]'s order).
+/// Chunks that the ray does not meet are passed over. Resumable, so that the wavefront loop
+/// keeps one per path.
+#[derive(Clone, Copy)]
+pub(crate) struct MetChunks {
+    /// The current chunk's first medium.
+    pub(crate) start: usize,
+    /// `entry[j]`: where the ray enters box `start + j`, for the boxes in `order[..met]`.
+    pub(crate) entry: [f32; CHUNK],
+    pub(crate) order: [u8; CHUNK],
+    pub(crate) met: usize,
+    /// The linear scan: the next chunk's first medium.
+    next_start: usize,
+    /// The hierarchy: where its walk stands, and a leaf it met that belongs to a later chunk
+    /// than the one being gathered (`(first, end)`; `first == end`: none).
+    walk: Walk,
+    held: (u32, u32),
+}
+
+impl MetChunks {
+    pub(crate) fn new() -> Self {
+        MetChunks {
+            start: 0,
+            entry: [MISS; CHUNK],
+            order: [0; CHUNK],
+            met: 0,
+            next_start: 0,
+            walk: Walk::default(),
+            held: (0, 0),
+        }
+    }
+
+    /// Moves to the next chunk that has a box met by `[0, best]`; false when none is left.
+    #[inline]
+    pub(crate) fn advance(&mut self, boxes: &MediaBoxes, ray: &RaySlabs, best: f32) -> bool {
+        let Some(tree) = &boxes.tree else {
+            while self.next_start < boxes.len() {
+                self.start = self.next_start;
+                self.next_start += CHUNK;
+                let n = boxes.entries(self.start, ray, best, &mut self.entry);
+                self.met = met_by_entry(&self.entry, n, &mut self.order);
+                if self.met > 0 {
+                    return true;
+                }
+            }
+            self.met = 0;
+            return false;
+        };
+        // The leaves come in media order and never straddle a chunk, so a chunk's boxes met
+        // are gathered from consecutive leaves. Every test uses `best` as it stands now,
+        // which is what the linear scan uses for this chunk; a leaf held over from the last
+        // chunk was met with an earlier, larger `best`, a superset that its boxes' own tests
+        // narrow.
+        loop {
+            self.met = 0;
+            let mut chunk = None;
+            loop {
+                let run = if self.held.0 < self.held.1 {
+                    let r = self.held.0 as usize..self.held.1 as usize;
+                    self.held = (0, 0);
+                    r
+                } else {
+                    match tree.next_leaf(&mut self.walk, ray, best) {
+                        Some(r) => r,
+                        None => break,
+                    }
+                };
+                let c = run.start / CHUNK;
+                match chunk {
+                    None => {
+                        chunk = Some(c);
+                        self.start = c * CHUNK;
+                    }
+                    Some(cur) if cur != c => {
+                        self.held = (run.start as u32, run.end as u32);
+                        break;
+                    }
+                    Some(_) => {}
+                }
+                for i in run {
+                    let e = boxes.entry_of(i, ray, best);
+                    if e == MISS {
+                        continue;
+                    }
+                    // Insertion by entry, stable (media order on ties): `met_by_entry`.
+                    let j0 = i - self.start;
+                    self.entry[j0] = e;
+                    let mut j = self.met;
+                    while j > 0 && self.entry[self.order[j - 1] as usize] > e {
+                        self.order[j] = self.order[j - 1];
+                        j -= 1;
+                    }
+                    self.order[j] = j0 as u8;
+                    self.met += 1;
+                }
+            }
+            if chunk.is_none() {
+                return false;
+            }
+            if self.met > 0 {
+                return true;
+            }
+        }
+    }
 }
 
 /// A ray prepared for many box tests: origin and per-axis reciprocal direction (`+-inf` on

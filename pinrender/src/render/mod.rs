@@ -101,6 +101,7 @@
 mod baked_control;
 mod bounds;
 mod bricks;
+mod bvh;
 mod error;
 mod estimator;
 mod field;
@@ -157,7 +158,16 @@ pub use wavefront::{
 /// a misbehaving plug-in estimator) are dropped.
 pub fn render(scene: &Scene, settings: &RenderSettings) -> Result<RenderOutput, RenderError> {
     scene.validate()?;
-    let ctx = scene.ctx(settings.max_bounces);
+    render_in(scene, settings, &scene.ctx(settings.max_bounces))
+}
+
+/// [`render`] of a validated scene with its [`Ctx`] given (the tests render with the linear
+/// box scan through it).
+pub(crate) fn render_in(
+    scene: &Scene,
+    settings: &RenderSettings,
+    ctx: &Ctx<'_>,
+) -> Result<RenderOutput, RenderError> {
     tracer::accumulate(scene, settings, std::time::Instant::now(), |o, d, rng| {
         ctx.trace(o, d, rng)
     })

@@ -1,6 +1,6 @@
 //! The volumetric path tracer: camera, lights, media instances, the render loop.
 
-use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
+use super::bounds::{MISS, MediaBoxes, MetChunks, RaySlabs};
 use super::error::RenderError;
 use super::estimator::TransportEstimator;
 use super::image::Image;
@@ -253,6 +253,16 @@ impl Scene {
         }
     }
 
+    /// [`Scene::ctx`] with the media's boxes scanned chunk by chunk, never through the
+    /// hierarchy (the tests' reference).
+    #[cfg(test)]
+    pub(crate) fn ctx_linear(&self, max_bounces: u32) -> Ctx<'_> {
+        let mut ctx = self.ctx(max_bounces);
+        ctx.boxes = [Which::Primary, Which::Secondary]
+            .map(|w| MediaBoxes::linear(self.media.iter().map(|m| Ctx::est(m, w).bounds())));
+        ctx
+    }
+
     /// Radiance arriving at `o` from direction `-d` (one path sample). For tests and for
     /// callers with their own sample loop. Invalid rays give 0; out-of-range scene values
     /// are clamped (use [`Scene::validate`] to reject them instead).
@@ -292,19 +302,10 @@ impl Ctx<'_> {
             }
             return t;
         };
-        let mut entry = [MISS; CHUNK];
-        for start in (0..media.len()).step_by(CHUNK) {
-            let n = boxes.entries(start, &ray, f32::INFINITY, &mut entry);
-            for (m, e) in media[start..start + n].iter().zip(&entry[..n]) {
-                if *e == MISS {
-                    continue;
-                }
-                t *= Self::est(m, which).transmittance(o, d, f32::INFINITY, rng);
-                if t == 0.0 {
-                    return t;
-                }
-            }
-        }
+        boxes.for_each_met(&ray, f32::INFINITY, |i| {
+            t *= Self::est(&media[i], which).transmittance(o, d, f32::INFINITY, rng);
+            t != 0.0
+        });
         t
     }
 
@@ -355,8 +356,8 @@ impl Ctx<'_> {
     /// nearest collision so far: whether and where it collides before that point has the
     /// same distribution as in an untruncated search, which is all the minimum needs, and
     /// it holds in any order. So the media whose box the ray meets are asked in the order of
-    /// their box entries (per chunk of [`CHUNK`] media), and the search stops at the first
-    /// box that starts beyond the nearest collision so far.
+    /// their box entries (per chunk of `CHUNK` media, [`MetChunks`]), and each chunk's search
+    /// stops at the first box that starts beyond the nearest collision so far.
     #[inline]
     pub(crate) fn distance(&self, which: Which, o: Vec3, d: Vec3, rng: &mut Pcg32) -> Option<f32> {
         let media = self.media;
@@ -376,16 +377,13 @@ impl Ctx<'_> {
             }
             return (best < f32::INFINITY).then_some(best);
         };
-        let mut entry = [MISS; CHUNK];
-        let mut order = [0u8; CHUNK];
-        for start in (0..media.len()).step_by(CHUNK) {
-            let n = boxes.entries(start, &ray, best, &mut entry);
-            let k = met_by_entry(&entry, n, &mut order);
-            for &i in &order[..k] {
-                if entry[i as usize] > best {
+        let mut chunks = MetChunks::new();
+        while chunks.advance(boxes, &ray, best) {
+            for &j in &chunks.order[..chunks.met] {
+                if chunks.entry[j as usize] > best {
                     break;
                 }
-                sample(&media[start + i as usize], &mut best);
+                sample(&media[chunks.start + j as usize], &mut best);
             }
         }
         (best < f32::INFINITY).then_some(best)

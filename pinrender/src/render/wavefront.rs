@@ -27,7 +27,7 @@
 use glam::Vec3;
 use std::time::Instant;
 
-use super::bounds::{CHUNK, MISS, MediaBoxes, RaySlabs, met_by_entry};
+use super::bounds::{MediaBoxes, MetChunks, RaySlabs};
 use super::error::RenderError;
 use super::estimator::TransportEstimator;
 use super::phase::{hg_phase, sample_hg};
@@ -405,17 +405,10 @@ impl Ctx<'_> {
                     let boxes = &self.boxes[role];
                     match RaySlabs::new(q.o, q.d) {
                         None => (0..self.media.len()).for_each(&mut ask),
-                        Some(ray) => {
-                            let mut entry = [MISS; CHUNK];
-                            for start in (0..self.media.len()).step_by(CHUNK) {
-                                let n = boxes.entries(start, &ray, f32::INFINITY, &mut entry);
-                                for (j, e) in entry[..n].iter().enumerate() {
-                                    if *e != MISS {
-                                        ask(start + j);
-                                    }
-                                }
-                            }
-                        }
+                        Some(ray) => boxes.for_each_met(&ray, f32::INFINITY, |j| {
+                            ask(j);
+                            true
+                        }),
                     }
                     r.t_paths.push((i, first..r.t_queries.len()));
                 }
@@ -494,10 +487,10 @@ impl Ctx<'_> {
 }
 
 /// A path's nearest-collision search over several media in the steps of
-/// [`Ctx::distance`]: the media whose box the ray meets, per chunk of [`CHUNK`] media in the
-/// order of their box entries (tested against the nearest collision so far when the chunk
-/// starts), until a box starts beyond that collision; every medium in media order for a ray
-/// the box test cannot reason about.
+/// [`Ctx::distance`]: the media whose box the ray meets, per chunk of media in the order of
+/// their box entries (tested against the nearest collision so far when the chunk starts,
+/// [`MetChunks`]), until a box starts beyond that collision; every medium in media order
+/// for a ray the box test cannot reason about.
 #[derive(Clone, Copy)]
 struct Search {
     path: usize,
@@ -508,14 +501,8 @@ struct Search {
     best: f32,
     /// The medium being asked.
     asking: u32,
-    /// The first medium of the next chunk.
-    next_start: usize,
-    /// The current chunk: its first medium, box entries, the boxes met by entry
-    /// (`order[..met]`), and the next of them to ask.
-    start: usize,
-    entry: [f32; CHUNK],
-    order: [u8; CHUNK],
-    met: usize,
+    /// The current chunk's boxes met, and the next of them to ask (`chunks.order[pos]`).
+    chunks: MetChunks,
     pos: usize,
 }
 
@@ -528,11 +515,7 @@ impl Search {
             ray: RaySlabs::new(o, d),
             best: f32::INFINITY,
             asking: 0,
-            next_start: 0,
-            start: 0,
-            entry: [MISS; CHUNK],
-            order: [0; CHUNK],
-            met: 0,
+            chunks: MetChunks::new(),
             pos: 0,
         }
     }
@@ -545,22 +528,19 @@ impl Search {
             return (m < media).then_some(m);
         };
         loop {
-            if self.pos < self.met {
-                let i = self.order[self.pos] as usize;
+            let c = &self.chunks;
+            if self.pos < c.met {
+                let j = c.order[self.pos] as usize;
                 // `Ctx::distance` leaves the chunk at the first box beyond the nearest
                 // collision.
-                if !(self.entry[i] > self.best) {
+                if !(c.entry[j] > self.best) {
                     self.pos += 1;
-                    return Some(self.start + i);
+                    return Some(c.start + j);
                 }
             }
-            if self.next_start >= media {
+            if !self.chunks.advance(boxes, ray, self.best) {
                 return None;
             }
-            self.start = self.next_start;
-            self.next_start += CHUNK;
-            let n = boxes.entries(self.start, ray, self.best, &mut self.entry);
-            self.met = met_by_entry(&self.entry, n, &mut self.order);
             self.pos = 0;
         }
     }
@@ -669,7 +649,24 @@ pub fn render_wavefront(
         });
     }
     let start = Instant::now();
-    let ctx = scene.ctx(settings.max_bounces);
+    render_wavefront_in(
+        scene,
+        settings,
+        batch,
+        &scene.ctx(settings.max_bounces),
+        start,
+    )
+}
+
+/// [`render_wavefront`] after its checks, with the scene's [`Ctx`] given (the tests render
+/// with the linear box scan through it) and the render's start time.
+pub(crate) fn render_wavefront_in(
+    scene: &Scene,
+    settings: &RenderSettings,
+    batch: usize,
+    ctx: &Ctx<'_>,
+    start: Instant,
+) -> Result<RenderOutput, RenderError> {
     let shared: Shared<'_> = [Which::Primary, Which::Secondary]
         .map(|which| SharedPins::new(scene.media.iter().map(|m| Ctx::est(m, which))));
     let frame = scene.camera.frame()?;
@@ -914,6 +911,72 @@ mod tests {
             for batch in [1, 3, 32, 1000] {
                 let got = render_wavefront(&sc, &st, batch).unwrap();
                 assert_eq!(bits(&got), bits(&want), "{name}, batch {batch}");
+            }
+        }
+    }
+
+    /// Scenes of hundreds of media query their boxes through the hierarchy (`bvh.rs`): the
+    /// images equal those of the linear scan bit for bit, for the path loop and the
+    /// wavefront loop, for shared pin instances (pins, PinMS) and for ratio tracking placed
+    /// by turned and stretched transforms (one query at a time).
+    #[test]
+    fn the_hierarchy_renders_the_linear_scans_bits() {
+        let field = Arc::new(FnField {
+            min: [-0.5; 3],
+            max: [1.5; 3],
+            f: |p: Vec3| 1.0 + p.x * p.x,
+        });
+        let maj = Arc::new(MajorantGrid::from_field(&*field, [4; 3]).unwrap());
+        let ratio: Arc<dyn TransportEstimator> = Arc::new(RatioTracking::new(field, maj));
+        let mut g = Pcg32::new(21, 3);
+        let placed: Vec<Medium> = (0..150)
+            .map(|i| {
+                let (a, s) = (g.next_f64() * 6.0, 0.1 + 0.2 * g.next_f64());
+                let (c, sn) = (a.cos() * s, a.sin() * s);
+                let t = [i % 5, (i / 5) % 5, i / 25].map(|k| k as f64 * 0.25 - 0.4);
+                let m = [c, -sn, 0.0, t[0], sn, c, 0.0, t[1], 0.0, 0.0, 0.7 * s, t[2]];
+                let est = crate::instance::PlacedEstimator::new(ratio.clone(), &m).unwrap();
+                Medium::single(Arc::new(est))
+            })
+            .collect();
+        let cases: Vec<(&str, Vec<Medium>)> = vec![
+            (
+                "pins, 300 instances",
+                instances(300, pinrt::SamplerOptions::RENDER)
+                    .into_iter()
+                    .map(Medium::single)
+                    .collect(),
+            ),
+            (
+                "pinms, 200 instances",
+                instances(200, pinrt::SamplerOptions::THESIS)
+                    .into_iter()
+                    .map(|p| Medium::new(ratio.clone(), p))
+                    .collect(),
+            ),
+            ("ratio, 150 turned and stretched instances", placed),
+        ];
+        for (name, media) in cases {
+            let sc = scene(media);
+            let st = settings(Budget::Spp(2));
+            let (tree, linear) = (sc.ctx(st.max_bounces), sc.ctx_linear(st.max_bounces));
+            assert!(tree.boxes.iter().all(|b| b.has_tree()), "{name}");
+            assert!(!linear.boxes.iter().any(|b| b.has_tree()), "{name}");
+            let want = crate::render::render_in(&sc, &st, &linear).unwrap();
+            let lit = want
+                .image
+                .rgb
+                .iter()
+                .flatten()
+                .filter(|&&c| c > 0.0)
+                .count();
+            assert!(lit > 100, "{name}: {lit} lit channels");
+            assert_eq!(bits(&render(&sc, &st).unwrap()), bits(&want), "{name}");
+            for batch in [1, 64] {
+                let got = render_wavefront(&sc, &st, batch).unwrap();
+                assert_eq!(bits(&got), bits(&want), "{name}, batch {batch}");
+                let lin = render_wavefront_in(&sc, &st, batch, &linear, Instant::now()).unwrap();
+                assert_eq!(bits(&lin), bits(&want), "{name}, batch {batch}, linear");
             }
         }
     }

@@ -8,8 +8,8 @@ use anyhow::{Result, anyhow};
 use glam::DVec3;
 use pinlab::Estimator;
 use pinrender::render::{
-    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, RenderSettings, SampleLoop, Scene, Sun,
-    render, render_wavefront,
+    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop,
+    Scene, Sun, render, render_wavefront,
 };
 use pinrender::scene_media::{self, AssetOptions};
 use pinrt::gpu::GpuContext;
@@ -71,7 +71,13 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
         inputs.extend(asset.volume.as_deref());
         inputs.extend(asset.pins.as_deref());
     }
+    inputs.extend(a.reference.as_deref());
     outputs(&a, &inputs)?;
+    // Read the reference first: a bad path should not cost a whole render.
+    let reference = match &a.reference {
+        Some(r) => Some(Image::read_exr(r).map_err(|e| anyhow!("{}: {e}", r.display()))?),
+        None => None,
+    };
     let opts = AssetOptions {
         estimator: spec,
         pin_cells: a.pin_cells,
@@ -134,7 +140,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
     };
     if let Some(ctx) = &ctx {
         let (image, spp, seconds) = render_gpu(&a, ctx, &descs, &frame)?;
-        return write(&a, path, &image, spp, seconds, None);
+        return write(&a, path, &image, spp, seconds, reference.as_ref());
     }
     let media = cpu.expect("a CPU render built its media").media;
     let frame = Scene { media, ..frame };
@@ -153,5 +159,12 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
         render(&frame, &settings)
     }
     .map_err(|e| anyhow!("{e}"))?;
-    write(&a, path, &out.image, out.spp, out.seconds, None)
+    write(
+        &a,
+        path,
+        &out.image,
+        out.spp,
+        out.seconds,
+        reference.as_ref(),
+    )
 }
