@@ -8,13 +8,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Result, anyhow};
 use eframe::egui;
 use eframe::egui::mutex::RwLock;
-use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap};
+use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap, PassTimeSource};
 use pinrender::render::EstimatorSpec;
 
 use crate::args::ViewArgs;
 use crate::export;
 use crate::open::{BakeJob, Medium, gpu_media};
 use crate::sequence::{Opener, Sequence};
+use crate::startup::StartupClock;
 use crate::view::View;
 
 /// Wall time the renderer may take per frame, and per submission within it: the window
@@ -50,7 +51,8 @@ pub fn native_options(a: &ViewArgs) -> eframe::NativeOptions {
         })),
         device_descriptor: Arc::new(|adapter| wgpu::DeviceDescriptor {
             label: Some("pinview"),
-            required_features: wgpu::Features::empty(),
+            // Pass times from the GPU's own clock where the adapter can tell them.
+            required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
             required_limits: adapter.limits(),
             ..Default::default()
         }),
@@ -117,7 +119,8 @@ type ShotResult = Arc<Mutex<Option<Result<(), String>>>>;
 
 pub struct Viewer {
     args: ViewArgs,
-    started: Instant,
+    /// The process start and where the time to the first image went.
+    clock: StartupClock,
     outcome: Arc<Mutex<Outcome>>,
     device: wgpu::Device,
     queue: wgpu::Queue,
@@ -156,9 +159,10 @@ impl Viewer {
         medium: Medium,
         frames: Option<Vec<(u64, PathBuf)>>,
         opener: Opener,
-        started: Instant,
+        mut clock: StartupClock,
         outcome: Arc<Mutex<Outcome>>,
     ) -> Result<Self> {
+        clock.marks.window_and_device = clock.now();
         let rs = cc
             .wgpu_render_state
             .as_ref()
@@ -181,7 +185,7 @@ impl Viewer {
             s.playing = args.play;
         }
         let mut viewer = Self {
-            started,
+            clock,
             outcome,
             device,
             queue,
@@ -285,6 +289,9 @@ impl Viewer {
             let r = GpuRenderer::with_media_on(&self.device, &self.queue, &self.limits, &media)
                 .map_err(|e| anyhow!("{}: {e}", self.medium.path.display()))?;
             self.renderer = Some((est, r));
+            if self.clock.marks.upload == 0.0 {
+                self.clock.marks.upload = self.clock.now();
+            }
         }
         let scene = self.view.scene();
         let size = (self.view.width, self.view.height);
@@ -305,6 +312,9 @@ impl Viewer {
                     r.session(&scene, est, self.view.seed)
                         .map_err(|e| anyhow!("{e}"))?,
                 );
+                if self.clock.marks.pipeline == 0.0 {
+                    self.clock.marks.pipeline = self.clock.now();
+                }
                 self.render_seconds = 0.0;
                 if self.target.size != size {
                     self.target = Self::make_target(
@@ -450,18 +460,32 @@ impl Viewer {
                 .draw(session, &self.target.view, self.view.exposure);
         }
         if session.passes() > 0 && self.first_image_s.is_none() {
-            self.first_image_s = Some(self.started.elapsed().as_secs_f64());
+            let now = self.clock.now();
+            self.first_image_s = Some(now);
+            self.clock.marks.first_image = now;
         }
         Ok(())
     }
 
+    /// Milliseconds per pass: the GPU's timestamps where the session has them, else the wall
+    /// time spent rendering over the passes rendered.
     fn ms_per_pass(&self) -> f64 {
-        let passes = self.session.as_ref().map_or(0, |s| s.passes());
-        if passes == 0 {
+        let Some(session) = self.session.as_ref() else {
+            return 0.0;
+        };
+        if session.pass_time_source() == PassTimeSource::GpuTimestamps {
+            1e3 * session.pass_seconds()
+        } else if session.passes() == 0 {
             0.0
         } else {
-            1e3 * self.render_seconds / f64::from(passes)
+            1e3 * self.render_seconds / f64::from(session.passes())
         }
+    }
+
+    fn pass_time_source(&self) -> PassTimeSource {
+        self.session
+            .as_ref()
+            .map_or(PassTimeSource::Wall, |s| s.pass_time_source())
     }
 
     /// The scripted run's end: outputs, the JSON line, close.
@@ -503,7 +527,9 @@ impl Viewer {
             "height": h,
             "passes": passes,
             "first_image_s": self.first_image_s.unwrap_or(0.0),
+            "first_image_breakdown": self.clock.marks.breakdown(),
             "ms_per_pass": self.ms_per_pass(),
+            "pass_time_source": self.pass_time_source().as_str(),
             "frame": frame.map(|f| f.0),
             "frame_path": frame.map(|f| f.1.display().to_string()),
             "frames_played": self.frames_played,
@@ -666,7 +692,13 @@ impl Viewer {
         let ms = self.ms_per_pass();
         let pixels = f64::from(self.view.width) * f64::from(self.view.height);
         ui.label(format!("spp {passes}"));
-        ui.label(format!("{ms:.2} ms per pass"));
+        ui.label(format!(
+            "{ms:.2} ms per pass ({})",
+            match self.pass_time_source() {
+                PassTimeSource::GpuTimestamps => "GPU timestamps",
+                PassTimeSource::Wall => "wall time",
+            }
+        ));
         if ms > 0.0 {
             ui.label(format!("{:.3e} samples/s", pixels / (ms * 1e-3)));
         }

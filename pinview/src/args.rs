@@ -90,7 +90,7 @@ pub struct ViewArgs {
     #[arg(long, requires = "frames")]
     pub window_screenshot: Option<PathBuf>,
     /// With --frames: one JSON object on stdout (adapter, backend, estimator, width, height,
-    /// passes, first_image_s, ms_per_pass, frame, frame_path).
+    /// passes, first_image_s, ms_per_pass, pass_time_source, frame, frame_path).
     #[arg(long, requires = "frames")]
     pub json: bool,
     /// Play a frame sequence from the start (one frame per --frame-passes passes).
@@ -107,44 +107,22 @@ fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
     s.parse()
 }
 
+/// `--fov`, `--albedo`, `--g` and `--sun-dir` follow `pin_scene::ranges`, the rules of
+/// `pinrender render` and of the scene file: the same bounds and messages.
 fn parse_fov(s: &str) -> Result<f64, String> {
-    let v = parse_finite(s)?;
-    let f = v as f32;
-    if !(f > 0.0 && f < 180.0) {
-        return Err(format!("{} must be in (0, 180) degrees", pin_cli::num(v)));
-    }
-    Ok(v)
+    pin_scene::ranges::fov(parse_finite(s)?)
 }
 
 fn parse_albedo(s: &str) -> Result<f64, String> {
-    let v = parse_finite(s)?;
-    if !(0.0..=1.0).contains(&v) {
-        return Err(format!("{} must be in [0, 1]", pin_cli::num(v)));
-    }
-    Ok(v)
+    pin_scene::ranges::albedo(parse_finite(s)?)
 }
 
 fn parse_hg_g(s: &str) -> Result<f64, String> {
-    let v = parse_finite(s)?;
-    let f = v as f32;
-    if !(f > -1.0 && f < 1.0) {
-        return Err(format!("{} must be in (-1, 1)", pin_cli::num(v)));
-    }
-    Ok(v)
+    pin_scene::ranges::hg_g(parse_finite(s)?)
 }
 
 fn parse_direction(s: &str) -> Result<[f64; 3], String> {
-    let v = parse_f64x3(s)?;
-    let d = glam::Vec3::from_array(v.map(|x| x as f32));
-    if !(d.is_finite() && d.length_squared() > 0.0 && d.normalize().is_finite()) {
-        return Err(format!(
-            "{},{},{} is not a direction",
-            pin_cli::num(v[0]),
-            pin_cli::num(v[1]),
-            pin_cli::num(v[2])
-        ));
-    }
-    Ok(v)
+    pin_scene::ranges::direction(parse_f64x3(s)?)
 }
 
 fn parse_exposure(s: &str) -> Result<f32, String> {

@@ -10,6 +10,7 @@ mod args;
 mod export;
 mod open;
 mod sequence;
+mod startup;
 mod view;
 
 use std::path::Path;
@@ -52,6 +53,7 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
 }
 
 fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
+    let mut clock = startup::StartupClock::new(started);
     if a.play && a.frames.is_some() && sequence::split_pattern(&a.file).is_none() {
         pin_cli::usage!(
             "--play needs a frame pattern (sim.####.pin), not {}",
@@ -65,6 +67,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     };
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
     let medium = open_medium(&first, &a)?;
+    clock.marks.file_open = clock.now();
     if let Some(e) = a.estimator {
         use pinrender::render::EstimatorSpec;
         if e.needs_density() && !medium.has_density() {
@@ -106,7 +109,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         options,
         Box::new(move |cc| {
             let keep = outcome2.clone();
-            match app::Viewer::new(cc, a2, medium, frames, opener, started, outcome2) {
+            match app::Viewer::new(cc, a2, medium, frames, opener, clock, outcome2) {
                 Ok(viewer) => Ok(Box::new(viewer)),
                 Err(e) => {
                     // Reported by `main` as the error itself, not as a window failure.

@@ -29,6 +29,7 @@
 //! Not supported here: time budgets (the caller loops over passes).
 
 mod media;
+mod pass_timer;
 mod session;
 mod tone_map;
 mod wgsl;
@@ -38,6 +39,7 @@ pub use media::{
     GpuPlacedDensity, MAX_VALUE_BINDINGS, OTHER_STORAGE_BINDINGS, check_brick_values_fit,
     value_bindings,
 };
+pub use pass_timer::{PassTimeSource, timestamp_seconds};
 pub use session::GpuSession;
 pub use tone_map::{GpuToneMap, TONE_MAP_WGSL};
 pub use wgsl::{RENDER_WGSL, render_wgsl, render_wgsl_with};

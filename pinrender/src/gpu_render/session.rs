@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use wgpu::util::DeviceExt;
 
+use super::pass_timer::{PassTimeSource, PassTimer};
 use super::{
     GpuEstimator, GpuRenderError, GpuRenderer, GpuScene, PASSES_PER_SUBMIT, RtParams, WORKGROUP,
     gpu_err,
@@ -44,6 +45,11 @@ pub struct GpuSession {
     next_row: u32,
     /// Measured wall time of one image row of one pass, seconds (0: not measured yet).
     row_seconds: f64,
+    /// Timestamp queries around each compute pass, where the device has them.
+    timer: Option<PassTimer>,
+    /// GPU seconds and image rows of the slices [`GpuSession::add_for`] timed with them.
+    gpu_seconds: f64,
+    gpu_rows: u64,
 }
 
 impl std::fmt::Debug for GpuSession {
@@ -206,6 +212,9 @@ impl GpuRenderer {
             passes: 0,
             next_row: 0,
             row_seconds: 0.0,
+            timer: PassTimer::new(&self.device, &self.queue),
+            gpu_seconds: 0.0,
+            gpu_rows: 0,
         })
     }
 }
@@ -244,10 +253,27 @@ impl GpuSession {
         self.next_row
     }
 
-    /// The measured wall time of one whole pass in seconds (0 before the first
-    /// [`GpuSession::add_for`]).
+    /// The measured time of one whole pass in seconds (0 before the first
+    /// [`GpuSession::add_for`]): the mean GPU time of the passes timed so far where the
+    /// device has timestamp queries, else the latest wall-time estimate
+    /// ([`GpuSession::pass_time_source`] says which).
     pub fn pass_seconds(&self) -> f64 {
-        self.row_seconds * f64::from(self.height)
+        match self.pass_time_source() {
+            PassTimeSource::GpuTimestamps => {
+                self.gpu_seconds / self.gpu_rows as f64 * f64::from(self.height)
+            }
+            PassTimeSource::Wall => self.row_seconds * f64::from(self.height),
+        }
+    }
+
+    /// Where [`GpuSession::pass_seconds`] comes from: GPU timestamps once a slice was timed
+    /// with them, wall time otherwise.
+    pub fn pass_time_source(&self) -> PassTimeSource {
+        if self.gpu_rows > 0 {
+            PassTimeSource::GpuTimestamps
+        } else {
+            PassTimeSource::Wall
+        }
     }
 
     /// Starts again from an empty accumulation with `scene` (same image size, estimator and
@@ -276,6 +302,8 @@ impl GpuSession {
         self.seed = seed;
         self.passes = 0;
         self.next_row = 0;
+        self.gpu_seconds = 0.0;
+        self.gpu_rows = 0;
         Ok(())
     }
 
@@ -299,7 +327,7 @@ impl GpuSession {
         {
             let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
                 label: Some("render passes"),
-                timestamp_writes: None,
+                timestamp_writes: self.timer.as_ref().map(PassTimer::writes),
             });
             pass.set_pipeline(&self.pipeline);
             pass.set_bind_group(0, &self.grid_group, &[]);
@@ -307,6 +335,9 @@ impl GpuSession {
                 pass.set_bind_group(1, &self.group, &[(self.stride * k as u64) as u32]);
                 pass.dispatch_workgroups(self.gx, rows.div_ceil(WORKGROUP[1]), 1);
             }
+        }
+        if let Some(timer) = &self.timer {
+            timer.resolve(&mut enc);
         }
         self.queue.submit([enc.finish()]);
         match pollster::block_on(scope.pop()) {
@@ -382,6 +413,14 @@ impl GpuSession {
                 .poll(wgpu::PollType::wait_indefinitely())
                 .map_err(|e| gpu_err("poll", e))?;
             let per_row = t.elapsed().as_secs_f64() / rows_done as f64;
+            // The slicing keeps using wall time (what the window waits for); the readout
+            // uses the GPU's own time where the device tells it.
+            if let Some(timer) = &self.timer
+                && let Some(seconds) = timer.read(&self.device).map_err(Error::Gpu)?
+            {
+                self.gpu_seconds += seconds;
+                self.gpu_rows += rows_done;
+            }
             self.row_seconds = if self.row_seconds > 0.0 {
                 0.5 * (self.row_seconds + per_row)
             } else {

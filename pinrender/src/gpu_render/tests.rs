@@ -1680,3 +1680,88 @@ fn tone_map_pass_shows_what_the_png_holds() {
         "the band in progress is shown {worst} codes off"
     );
 }
+
+/// The adapter `GpuContext::new` opens, with a device that has timestamp queries where the
+/// adapter offers them (what the viewer requests), and whether it got them.
+fn timestamp_device() -> (wgpu::Device, wgpu::Queue, wgpu::Limits, bool) {
+    let ctx = context();
+    pollster::block_on(async {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        let adapters = instance.enumerate_adapters(wgpu::Backends::all()).await;
+        let adapter = adapters
+            .into_iter()
+            .find(|a| {
+                let i = a.get_info();
+                i.name == ctx.adapter_info.name && i.backend == ctx.adapter_info.backend
+            })
+            .expect("the adapter GpuContext::new opened");
+        let features = adapter.features() & wgpu::Features::TIMESTAMP_QUERY;
+        let limits = adapter.limits();
+        let (device, queue) = adapter
+            .request_device(&wgpu::DeviceDescriptor {
+                label: Some("timestamps"),
+                required_features: features,
+                required_limits: limits.clone(),
+                ..Default::default()
+            })
+            .await
+            .unwrap();
+        (device, queue, limits, !features.is_empty())
+    })
+}
+
+#[test]
+fn pass_times_come_from_gpu_timestamps_where_the_device_has_them() {
+    let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
+    let grid = &load(&owned);
+    let sc = scene(16, 0.9, 0.3, 3);
+    let long = std::time::Duration::from_secs(30);
+
+    // A device opened without the feature: wall time.
+    let ctx = context();
+    let plain = GpuRenderer::new(&ctx, grid).unwrap();
+    let mut wall = plain.session(&sc, EstimatorSpec::Pins, 2).unwrap();
+    assert_eq!(wall.pass_time_source(), PassTimeSource::Wall);
+    wall.add_for(long, long, 3).unwrap();
+    assert_eq!(wall.pass_time_source(), PassTimeSource::Wall);
+    assert!(wall.pass_seconds() > 0.0);
+
+    // The same adapter with timestamp queries requested where it has them.
+    let (device, queue, limits, has) = timestamp_device();
+    let media = GpuMedia::pins_only(grid, None, SamplerOptions::default());
+    let timed_renderer = GpuRenderer::with_media_on(&device, &queue, &limits, &media).unwrap();
+    let mut timed = timed_renderer.session(&sc, EstimatorSpec::Pins, 2).unwrap();
+    // Nothing timed yet: no GPU figure to report.
+    assert_eq!(timed.pass_time_source(), PassTimeSource::Wall);
+    let t = Instant::now();
+    timed.add_for(long, long, 3).unwrap();
+    let wall_seconds = t.elapsed().as_secs_f64();
+    let want = if has {
+        PassTimeSource::GpuTimestamps
+    } else {
+        PassTimeSource::Wall
+    };
+    assert_eq!(
+        timed.pass_time_source(),
+        want,
+        "adapter {}",
+        ctx.adapter_info.name
+    );
+    let seconds = timed.pass_seconds();
+    assert!(seconds.is_finite() && seconds > 0.0, "{seconds}");
+    // The GPU's time of the passes lies within the wall time around their submissions
+    // and waits.
+    assert!(
+        3.0 * seconds <= wall_seconds,
+        "3 passes of {seconds} s in {wall_seconds} s of wall time"
+    );
+    // Timing changes no bits.
+    assert_eq!(timed.passes(), 3);
+    assert_eq!(
+        bits_of(&timed.image().unwrap()),
+        bits_of(&plain.render(&sc, EstimatorSpec::Pins, 3, 2).unwrap())
+    );
+    // A reset forgets the timings of the old view.
+    timed.reset(&sc, 2).unwrap();
+    assert_eq!(timed.pass_time_source(), PassTimeSource::Wall);
+}

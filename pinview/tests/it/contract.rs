@@ -110,6 +110,36 @@ fn pins_alone_matches_pinrender_bit_for_bit() {
     for key in ["first_image_s", "ms_per_pass"] {
         assert!(j[key].as_f64().is_some_and(|v| v > 0.0), "{key}: {j}");
     }
+    // The steps to the first image, each measured, add up to it.
+    let steps = &j["first_image_breakdown"];
+    let mut sum = 0.0;
+    for key in [
+        "file_open_s",
+        "window_and_device_s",
+        "upload_s",
+        "pipeline_s",
+        "first_pass_s",
+    ] {
+        let v = steps[key].as_f64().unwrap_or(-1.0);
+        assert!(v > 0.0, "first_image_breakdown.{key}: {j}");
+        sum += v;
+    }
+    let first = j["first_image_s"].as_f64().unwrap_or_default();
+    assert!(
+        (sum - first).abs() < 1e-9,
+        "the steps add to {sum}, not {first}: {j}"
+    );
+    // GPU time where the adapter has timestamp queries (the viewer requests them), else wall.
+    let source = j["pass_time_source"].as_str().unwrap_or_default();
+    assert!(
+        ["gpu-timestamps", "wall"].contains(&source),
+        "pass_time_source: {j}"
+    );
+    assert_eq!(
+        source == "gpu-timestamps",
+        adapter_has_timestamps(),
+        "pass_time_source does not follow the adapter: {j}"
+    );
 }
 
 #[test]

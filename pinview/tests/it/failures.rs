@@ -85,3 +85,37 @@ fn no_display_is_one_line() {
     let out = pinview(None, &[s(&pins), "--frames", "1"]);
     one_line(&out, 1, "no display");
 }
+
+#[test]
+fn render_flags_follow_the_scene_ranges() {
+    // The bounds and messages of `pinrender render` and of the scene file
+    // (`pin_scene::ranges`); usage errors come before any window, so no display is needed.
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let cases = [
+        // A squared length that overflows f32: its unit vector would round to zero.
+        (
+            "--sun-dir",
+            "1e30,0,0",
+            pin_scene::ranges::direction([1e30, 0.0, 0.0]),
+        ),
+        ("--sun-dir", "0,0,0", pin_scene::ranges::direction([0.0; 3])),
+        (
+            "--fov",
+            "180",
+            pin_scene::ranges::fov(180.0).map(|_| [0.0; 3]),
+        ),
+        ("--g", "-1", pin_scene::ranges::hg_g(-1.0).map(|_| [0.0; 3])),
+        (
+            "--albedo",
+            "1.5",
+            pin_scene::ranges::albedo(1.5).map(|_| [0.0; 3]),
+        ),
+    ];
+    for (flag, value, rule) in cases {
+        let message = rule.expect_err(value);
+        let out = pinview(None, &[s(&pins), flag, value, "--frames", "1"]);
+        one_line(&out, 2, flag);
+        one_line(&out, 2, &message);
+    }
+}

@@ -210,3 +210,23 @@ pub fn json(out: &Output) -> serde_json::Value {
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
+
+/// Whether the adapter the viewer opens (`pinrt::gpu::GpuContext::new`'s, found by name)
+/// offers timestamp queries.
+pub fn adapter_has_timestamps() -> bool {
+    let ctx = pinrt::gpu::GpuContext::new().expect("a wgpu adapter");
+    pollster::block_on(async {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+        instance
+            .enumerate_adapters(wgpu::Backends::all())
+            .await
+            .into_iter()
+            .find(|a| {
+                let i = a.get_info();
+                i.name == ctx.adapter_info.name && i.backend == ctx.adapter_info.backend
+            })
+            .expect("the adapter GpuContext::new opened")
+            .features()
+            .contains(wgpu::Features::TIMESTAMP_QUERY)
+    })
+}
