@@ -42,6 +42,28 @@ impl Tile {
     }
 }
 
+/// Where a bake computes its pins' entries. Everything else (the box, the sections, the
+/// file) is the same code for both.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum BakeBackend {
+    /// The CPU march in f64 sums (rayon).
+    #[default]
+    Cpu,
+    /// A wgpu compute pass over the dense grid the CPU would march (feature `gpu`; a build
+    /// without it refuses). Its entries agree with the CPU's within the bound docs/gpu.md
+    /// states, and are the same bytes on one device whatever the tiling.
+    Gpu(GpuBakeOptions),
+}
+
+/// The GPU bake's settings, none of which changes the bytes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct GpuBakeOptions {
+    /// The most GPU bytes one dispatch's pins may take (jobs, entries and read-back); `None`
+    /// takes what the device binds in one storage buffer. Smaller budgets give more
+    /// dispatches and the same bytes.
+    pub tile_bytes: Option<u64>,
+}
+
 /// Everything that decides the bytes of a bake besides the source.
 #[derive(Clone, Debug)]
 pub struct BakeOptions {
@@ -287,6 +309,25 @@ pub fn bake(
     bake_with_sweep(source, opts, Some(Sweep::default()), progress)
 }
 
+/// [`bake`] with its entries computed by `backend`: the library's way to bake a source into
+/// an in-memory grid on the GPU (`BakeBackend::Gpu`), `progress` called per dispatch.
+pub fn bake_on(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    backend: BakeBackend,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
+    let (grid, _, stats) = bake_outputs(
+        source,
+        opts,
+        Some(Sweep::default()),
+        progress,
+        None,
+        backend,
+    )?;
+    Ok((grid, stats))
+}
+
 /// [`bake`], with an embedded sparse density's bricks spooled to an unnamed temporary file in
 /// `spool_dir` instead of held in the grid: the grid comes back without them
 /// (`sparse_density` is `None`) and the spool, when the options embed one, is written with
@@ -297,12 +338,24 @@ pub fn bake_spooled(
     progress: &(dyn Fn(u64) + Sync),
     spool_dir: &std::path::Path,
 ) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
+    bake_spooled_on(source, opts, BakeBackend::Cpu, progress, spool_dir)
+}
+
+/// [`bake_spooled`] with its entries computed by `backend`.
+pub fn bake_spooled_on(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    backend: BakeBackend,
+    progress: &(dyn Fn(u64) + Sync),
+    spool_dir: &std::path::Path,
+) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     bake_outputs(
         source,
         opts,
         Some(Sweep::default()),
         progress,
         Some(spool_dir),
+        backend,
     )
 }
 
@@ -314,7 +367,7 @@ pub(crate) fn bake_with_sweep(
     sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(OwnedPinGrid, BakeStats), BakeError> {
-    let (grid, _, stats) = bake_outputs(source, opts, sweep, progress, None)?;
+    let (grid, _, stats) = bake_outputs(source, opts, sweep, progress, None, BakeBackend::Cpu)?;
     Ok((grid, stats))
 }
 
@@ -324,16 +377,25 @@ fn bake_outputs(
     sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
     spool_dir: Option<&std::path::Path>,
+    backend: BakeBackend,
 ) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     check_step(opts)?;
+    // Without the feature the refusal comes before any work.
+    #[cfg(not(feature = "gpu"))]
+    if let BakeBackend::Gpu(_) = backend {
+        return Err(BakeError::Gpu(
+            "this build has no GPU bake (cargo feature `gpu`); use the CPU backend".into(),
+        ));
+    }
     // Refused before any work, with the rule's own message, whoever calls.
     crate::placement::check_source_placement(source, opts.crop)?;
     let pool = thread_pool(opts)?;
     match source.bake_frame() {
-        None => pool.install(|| bake_in_pool(source, opts, sweep, progress, spool_dir)),
+        None => pool.install(|| bake_in_pool(source, opts, sweep, progress, spool_dir, backend)),
         Some((local, local_to_world)) => {
-            let (mut grid, spool, stats) =
-                pool.install(|| bake_in_pool(local.as_ref(), opts, sweep, progress, spool_dir))?;
+            let (mut grid, spool, stats) = pool.install(|| {
+                bake_in_pool(local.as_ref(), opts, sweep, progress, spool_dir, backend)
+            })?;
             grid.desc.local_to_world = local_to_world;
             Ok((grid, spool, stats))
         }
@@ -391,6 +453,7 @@ fn bake_in_pool(
     sweep: Option<Sweep>,
     progress: &(dyn Fn(u64) + Sync),
     spool_dir: Option<&std::path::Path>,
+    backend: BakeBackend,
 ) -> Result<(OwnedPinGrid, Option<SparseSpool>, BakeStats), BakeError> {
     let started = Instant::now();
     let (bbox, desc) = grid_description(source, opts)?;
@@ -447,6 +510,17 @@ fn bake_in_pool(
     let dirs = opts.directions.count();
     let ppe = opts.pins_per_entry;
     match (field, sweep) {
+        // The GPU replaces only this step: the entries of every pin, in the same slots.
+        _ if backend != BakeBackend::Cpu => gpu_entries(
+            field,
+            source,
+            (&placement, &layout),
+            (shape.z_begin, block_len),
+            &mut dense,
+            backend,
+            progress,
+            opts,
+        )?,
         // A dense grid by layers of the grid: the samples of many pins in one slab at a time
         // hit the caches, where pin after pin each sample waited on memory (crate::sweep).
         (Field::Grid(grid), Some(sweep)) if size_of_val(grid.data()) >= sweep.min_grid_bytes => {
@@ -540,6 +614,55 @@ fn bake_in_pool(
         pin_format::SparseDensityView::check_index(&s.header, &s.index)?;
     }
     Ok((grid, spool, stats))
+}
+
+/// The entries of `dense` from the GPU bake of `field`, which must be a dense grid (the
+/// source's own or its dense copy within the budget).
+#[allow(clippy::too_many_arguments)]
+fn gpu_entries(
+    field: Field<'_>,
+    source: &dyn DensitySource,
+    (placement, layout): (&Placement, &PinLayout),
+    (z_begin, block_len): (u32, usize),
+    dense: &mut [PinEntry],
+    backend: BakeBackend,
+    progress: &(dyn Fn(u64) + Sync),
+    opts: &BakeOptions,
+) -> Result<(), BakeError> {
+    #[cfg(feature = "gpu")]
+    {
+        let BakeBackend::Gpu(gpu) = backend else {
+            return Ok(());
+        };
+        let Field::Grid(grid) = field else {
+            return Err(BakeError::Gpu(format!(
+                "the GPU bake marches a dense grid and {} has none within the dense-copy \
+                 budget of {} bytes",
+                source.describe(),
+                dense_copy_limit(opts)
+            )));
+        };
+        let baker = crate::gpu_bake::GpuBaker::new()?;
+        baker.bake_entries(
+            grid,
+            placement,
+            layout,
+            z_begin,
+            block_len,
+            dense,
+            &gpu,
+            progress,
+            &|| opts.cancelled(),
+        )
+    }
+    #[cfg(not(feature = "gpu"))]
+    {
+        let _ = (field, source, placement, layout, z_begin, block_len, dense);
+        let _ = (backend, progress, opts);
+        Err(BakeError::Gpu(
+            "this build has no GPU bake (cargo feature `gpu`); use the CPU backend".into(),
+        ))
+    }
 }
 
 /// The grid from every pin of the bake (`dense`, `block_len` pins per covered cell, in cell

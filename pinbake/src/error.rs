@@ -27,6 +27,9 @@ pub enum BakeError {
     Alloc { what: &'static str, bytes: u64 },
     #[error(transparent)]
     Format(#[from] pin_format::FormatError),
+    /// The GPU bake failed: no adapter, a device limit, a lost device.
+    #[error("GPU bake: {0}")]
+    Gpu(String),
     #[error("thread pool: {0}")]
     Threads(String),
     #[error("cannot write {}: {message}", path.display())]

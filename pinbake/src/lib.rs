@@ -26,6 +26,8 @@ pub mod control;
 pub mod embed_density;
 pub mod error;
 pub mod files;
+#[cfg(feature = "gpu")]
+pub mod gpu_bake;
 pub mod limits;
 pub mod merge;
 pub mod part;
@@ -39,7 +41,7 @@ pub mod sparse_density;
 pub mod summary;
 mod sweep;
 
-pub use bake::{BakeOptions, BakeStats, Tile, bake};
+pub use bake::{BakeBackend, BakeOptions, BakeStats, GpuBakeOptions, Tile, bake, bake_on};
 pub use embed_density::EmbedDensity;
 pub use error::BakeError;
 pub use merge::{MergeError, merge_tiles};

@@ -114,6 +114,8 @@ pub struct BakeRequest {
     pub density_scale: f64,
     /// The memory budget in bytes (half of the physical memory when `None`).
     pub max_memory: Option<u64>,
+    /// Where the pins' entries are computed: the CPU, or a wgpu compute pass.
+    pub backend: crate::BakeBackend,
 }
 
 impl Default for BakeRequest {
@@ -135,6 +137,7 @@ impl Default for BakeRequest {
             threads: None,
             density_scale: d.density_scale,
             max_memory: None,
+            backend: crate::BakeBackend::Cpu,
         }
     }
 }
@@ -685,7 +688,7 @@ pub fn bake_to_file(
     // same file system, which must hold the output anyway), not in memory.
     let spool_dir = crate::files::parent_dir(pending.temp_path());
     let (grid, mut spool, stats) =
-        crate::bake::bake_spooled(source.as_ref(), &opts, &advance, &spool_dir)
+        crate::bake::bake_spooled_on(source.as_ref(), &opts, req.backend, &advance, &spool_dir)
             .map_err(bake_err)?;
     // Checked again just before the rename: the path may have been replaced during the bake.
     let target = crate::files::check_output_among(output, &[inputs, &own])?;

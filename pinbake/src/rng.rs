@@ -32,6 +32,12 @@ impl CounterRng {
         mix64(self.key.wrapping_add(self.counter.wrapping_mul(GOLDEN)))
     }
 
+    /// The stream's key and the number of draws taken: draw `c` (from 1) is
+    /// `mix64(key + c * golden)`, what the GPU bake's shader recomputes.
+    pub(crate) fn state(&self) -> (u64, u64) {
+        (self.key, self.counter)
+    }
+
     /// Uniform in `[0, 1)` with 53 random bits.
     #[inline]
     pub fn next_f64(&mut self) -> f64 {

@@ -125,6 +125,14 @@ pub struct BakeArgs {
     #[arg(long, value_name = "FRAMES", help_heading = "Execution")]
     pub frames: Option<String>,
     /// Print one JSON summary object on stdout (with --frames: {"frames": [...], ...}).
+    /// Where the pins' entries are computed: `cpu`, or `gpu` (a wgpu compute pass; the rest
+    /// of the bake and the file are the same; docs/gpu.md states how close its entries are).
+    #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"], help_heading = "Execution", conflicts_with = "part")]
+    pub backend: String,
+    /// The most GPU bytes one dispatch of the GPU bake takes (tests force small tiles; the
+    /// file is the same).
+    #[arg(long, hide = true, value_parser = pin_cli::parse::parse_bytes, help_heading = "Execution")]
+    pub gpu_tile_bytes: Option<u64>,
     #[arg(long, help_heading = "Execution")]
     pub json: bool,
     /// No progress bar even on a terminal.
@@ -277,6 +285,12 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
         threads: args.threads,
         density_scale: args.volume.density_scale.get(),
         max_memory: args.max_memory,
+        backend: match args.backend.as_str() {
+            "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions {
+                tile_bytes: args.gpu_tile_bytes,
+            }),
+            _ => pinbake::BakeBackend::Cpu,
+        },
     }
 }
 

@@ -9,6 +9,8 @@ mod nanovdb;
 mod openvdb;
 
 mod cli;
+#[cfg(feature = "gpu")]
+mod gpu_bake;
 mod nanovdb_corpus;
 mod production;
 mod slurm;

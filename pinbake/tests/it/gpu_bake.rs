@@ -1,0 +1,287 @@
+//! The GPU bake (`BakeBackend::Gpu`, `pinbake bake --backend gpu`) against the CPU bake: the
+//! bound docs/gpu.md states, on the bundled volumes and a procedural cloud; the same bytes
+//! for any tiling; the command line's refusals. Runs on whatever adapter wgpu finds (Mesa's
+//! lavapipe here).
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use pin_format::{Directions, EMPTY_CELL, OwnedPinGrid, PinEntry};
+use pinbake::glam::DVec3;
+use pinbake::pin::{Field, PinLayout, Placement, field_optical_depths};
+use pinbake::source::raw::{RawOptions, RawType, read_raw};
+use pinbake::source::vdb::{VdbOptions, VdbSource};
+use pinbake::source::{
+    DenseGrid, Density, DensityScale, DensitySource, ProceduralSpec, procedural::ProceduralKind,
+};
+use pinbake::{BakeBackend, BakeOptions, GpuBakeOptions, bake, bake_on};
+
+/// The bound (docs/gpu.md "GPU bake"): every interval optical depth of the GPU is within
+/// `TAU_REL * max(tau, 1)` of the CPU's, so `|ln t_min_gpu - ln t_min_cpu|` is too...
+const TAU_REL: f64 = 1e-4;
+/// ...and a mask bit may differ only where the CPU's uniform is within this of the CPU's
+/// probability (the f32 probability's error plus the 2^-24 of the truncated uniform).
+const P_ABS: f64 = 2e-4;
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../data")
+        .join(name)
+}
+
+/// Every bundled volume as the dense grid the bake marches, and a small procedural cloud.
+fn volumes() -> Vec<(String, DenseGrid)> {
+    let mut out = Vec::new();
+    let opt = VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"));
+    for name in [
+        "openvdb_smoke1.vdb",
+        "gaffer_sphere_density.vdb",
+        "oiio_sphere_density.vdb",
+    ] {
+        let s = VdbSource::open(&data(name), &opt, DensityScale::ONE).unwrap();
+        assert!(s.bake_frame().is_none(), "{name}");
+        out.push((name.to_string(), s.dense_copy(1 << 30).unwrap()));
+    }
+    for (name, dims, ty) in [
+        ("water_esp_31x34x33_float32.raw", [31, 34, 33], RawType::F32),
+        (
+            "hydrogen_atom_128x128x128_uint8.raw",
+            [128, 128, 128],
+            RawType::U8,
+        ),
+    ] {
+        let opt = RawOptions {
+            dims: Some(dims),
+            voxel_type: Some(ty),
+            clamp_negative: true,
+            ..Default::default()
+        };
+        out.push((
+            name.to_string(),
+            read_raw(&data(name), &opt, DensityScale::ONE).unwrap(),
+        ));
+    }
+    out.push(("procedural cloud".to_string(), cloud(40)));
+    out
+}
+
+/// A procedural cloud (the benchmark's cosine noise), voxelised at `n`^3.
+fn cloud(n: u32) -> DenseGrid {
+    let mut spec = ProceduralSpec::new(ProceduralKind::Cosine);
+    spec.noise.seed = 5;
+    let noise = spec.build_noise().unwrap();
+    let b = noise.bounds();
+    let h = b.extent() / f64::from(n);
+    let mut data = vec![0.0f32; (n * n * n) as usize];
+    for (i, out) in data.chunks_mut(n as usize).enumerate() {
+        let (y, z) = ((i % n as usize) as f64, (i / n as usize) as f64);
+        let start = b.min + DVec3::new(0.5, y + 0.5, z + 0.5) * h;
+        noise.extinction_along(start, DVec3::new(h.x, 0.0, 0.0), n as usize, out);
+    }
+    DenseGrid::new([n; 3], data, h, b.min, "procedural cloud").unwrap()
+}
+
+fn opts(jitter: bool) -> BakeOptions {
+    BakeOptions {
+        cells: [8, 9, 7],
+        directions: Directions::Octahedral { n: 4 },
+        pins_per_entry: if jitter { 2 } else { 1 },
+        jitter_pins: jitter,
+        seed: 11,
+        threads: Some(2),
+        ..BakeOptions::default()
+    }
+}
+
+fn gpu() -> BakeBackend {
+    BakeBackend::Gpu(GpuBakeOptions::default())
+}
+
+/// The entry in slot `slot` of cell `cell` (x-fastest linear index).
+fn entry(g: &OwnedPinGrid, cell: usize, slot: usize, block: usize) -> PinEntry {
+    match &g.cell_index {
+        None => g.pins[cell * block + slot],
+        Some(index) if index[cell] == EMPTY_CELL => PinEntry::EMPTY,
+        Some(index) => g.pins[index[cell] as usize * block + slot],
+    }
+}
+
+#[derive(Default, Debug)]
+struct Agreement {
+    pins: usize,
+    bits: usize,
+    differing_bits: usize,
+    max_tau_rel: f64,
+    max_bit_margin: f64,
+}
+
+/// Compares the GPU bake of `grid` with the CPU's pin by pin, explaining every differing mask
+/// bit by the CPU's own optical depths and uniforms. Panics past the bound.
+fn compare(name: &str, grid: &DenseGrid, o: &BakeOptions) -> Agreement {
+    let (cpu, _) = bake(grid, o, &|_| {}).unwrap();
+    let (gpu_grid, _) = bake_on(grid, o, gpu(), &|_| {}).unwrap();
+    let (bbox, _) = pinbake::bake::bake_box(grid, o.crop).unwrap();
+    let placement = Placement::over(&bbox, o.step);
+    let layout = PinLayout {
+        dims: o.cells,
+        directions: o.directions,
+        pins_per_entry: o.pins_per_entry,
+        jitter: o.jitter_pins,
+        seed: o.seed,
+    };
+    let block = (o.directions.count() * o.pins_per_entry) as usize;
+    let mut a = Agreement::default();
+    let [nx, ny, nz] = o.cells;
+    for z in 0..nz {
+        for y in 0..ny {
+            for x in 0..nx {
+                let cell = [x, y, z];
+                let lin = layout.cell_linear(cell);
+                for slot in 0..block as u32 {
+                    let (dir, k) = (slot / o.pins_per_entry, slot % o.pins_per_entry);
+                    let c = entry(&cpu, lin as usize, slot as usize, block);
+                    let g = entry(&gpu_grid, lin as usize, slot as usize, block);
+                    let mut rng = layout.rng(lin, dir, k);
+                    let (p, w) = layout.line(cell, dir, &mut rng);
+                    let taus = field_optical_depths(Field::Grid(grid), &placement, p, w);
+                    let tau_max = taus.iter().copied().fold(0.0f64, f64::max);
+                    a.pins += 1;
+                    // t_min: ln t is -tau_max (both sides clamp an empty pin to 1).
+                    let (lc, lg) = (f64::from(c.t_min).ln(), f64::from(g.t_min).ln());
+                    let rel = (lc - lg).abs() / tau_max.max(1.0);
+                    if rel.is_finite() {
+                        // (A t_min that underflows to 0 is held by the absolute clause.)
+                        a.max_tau_rel = a.max_tau_rel.max(rel);
+                    }
+                    assert!(
+                        rel <= TAU_REL || (c.t_min - g.t_min).abs() <= 1e-6,
+                        "{name}: cell {cell:?} slot {slot}: t_min {} (CPU) vs {} (GPU)",
+                        c.t_min,
+                        g.t_min
+                    );
+                    if c == PinEntry::EMPTY || g == PinEntry::EMPTY {
+                        // An empty pin on one side only: its optical depth rounds to t = 1
+                        // in f32 on the other, where no mask bit can matter.
+                        assert!(c == g || tau_max < 1e-6, "{name}: {cell:?} {slot}");
+                        continue;
+                    }
+                    let denom = -(-tau_max).exp_m1();
+                    a.bits += 32;
+                    for (i, &tau) in taus.iter().enumerate() {
+                        let u = rng.next_f64();
+                        let bit = 1u32 << (31 - i);
+                        if c.mask & bit == g.mask & bit {
+                            continue;
+                        }
+                        let prob = -(-tau).exp_m1() / denom;
+                        a.differing_bits += 1;
+                        a.max_bit_margin = a.max_bit_margin.max((u - prob).abs());
+                        assert!(
+                            (u - prob).abs() <= P_ABS,
+                            "{name}: cell {cell:?} slot {slot} bit {i}: the CPU draws {u} \
+                             against probability {prob}, the GPU's bit differs"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    a
+}
+
+#[test]
+fn gpu_entries_agree_with_the_cpu_on_every_bundled_volume_and_a_cloud() {
+    for (name, grid) in volumes() {
+        for jitter in [false, true] {
+            let a = compare(&name, &grid, &opts(jitter));
+            eprintln!("{name} jitter {jitter}: {a:?}");
+            // Few differing bits: each one is a uniform within P_ABS of its probability.
+            assert!(
+                a.differing_bits as f64 <= 1e-3 * a.bits as f64 + 2.0,
+                "{name}: {a:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn gpu_bytes_do_not_depend_on_the_tiling() {
+    let grid = cloud(24);
+    let o = BakeOptions {
+        majorant: Some([4; 3]),
+        ..opts(true)
+    };
+    let (one, _) = bake_on(&grid, &o, gpu(), &|_| {}).unwrap();
+    let (again, _) = bake_on(&grid, &o, gpu(), &|_| {}).unwrap();
+    let small = BakeBackend::Gpu(GpuBakeOptions {
+        tile_bytes: Some(80 * 333),
+    });
+    let calls = std::sync::atomic::AtomicU64::new(0);
+    let (tiled, _) = bake_on(&grid, &o, small, &|_| {
+        calls.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    })
+    .unwrap();
+    let bytes = |g: &OwnedPinGrid| g.to_bytes().unwrap();
+    assert_eq!(bytes(&one), bytes(&again));
+    assert_eq!(bytes(&one), bytes(&tiled));
+    // 8 * 9 * 7 cells x 16 directions x 2 pins in dispatches of 333 pins.
+    let pins = 8 * 9 * 7 * 16 * 2u64;
+    assert_eq!(
+        calls.load(std::sync::atomic::Ordering::Relaxed),
+        pins.div_ceil(333)
+    );
+}
+
+fn pinbake() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_pinbake"))
+}
+
+#[test]
+fn the_command_line_bakes_on_the_gpu_and_refuses_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = |n: &str| dir.path().join(n);
+    let raw = data("water_esp_31x34x33_float32.raw");
+    let base = |o: &PathBuf| {
+        let mut c = pinbake();
+        c.arg("bake")
+            .arg(&raw)
+            .args(["--clamp-negative", "--cells", "6"])
+            .args(["--dirs", "octahedral:4", "-q", "-o"])
+            .arg(o);
+        c
+    };
+    let a = out("a.pin");
+    let st = base(&a).args(["--backend", "gpu"]).output().unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    let b = out("b.pin");
+    let st = base(&b)
+        .args(["--backend", "gpu", "--gpu-tile-bytes", "4000"])
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+
+    // A budget that holds no pin: one line, exit 1, no file.
+    let c = out("c.pin");
+    let st = base(&c)
+        .args(["--backend", "gpu", "--gpu-tile-bytes", "10"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert_eq!(st.status.code(), Some(1), "{err}");
+    let line = err.lines().find(|l| l.contains("pinbake")).unwrap_or("");
+    assert!(line.contains("holds no pin"), "{err}");
+    assert!(!c.exists());
+
+    // An unknown backend is a usage error.
+    let st = base(&c).args(["--backend", "tpu"]).output().unwrap();
+    assert_eq!(st.status.code(), Some(2));
+}

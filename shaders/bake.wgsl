@@ -1,0 +1,180 @@
+// The GPU bake's per-pin work: the midpoint march of a dense density grid over the 32
+// intervals of each pin's chord, t_min and the 32 mask bits (pinbake/src/gpu_bake.rs).
+//
+// The chord (its f64 geometry) comes from the CPU, one job per pin, rounded to f32 exactly
+// where the CPU march rounds it: the interval bases, the index step `du`, the sample count
+// and the weight. Here: sample `j` of interval `i` at `base + i * istep + j * du` in f32
+// (the CPU takes each base from f64, so positions agree to a few f32 ulps), trilinear values
+// as `Cells::interpolate` computes them, each interval summed with a compensated f32 sum
+// (the CPU sums in f64), and the mask bits from the CPU's counter RNG: splitmix64 in u32
+// pairs, draw `c` = mix64(key + c * golden).
+
+struct Params {
+    // nx, ny, nz, voxels per density binding
+    dims: vec4<u32>,
+    // stride y, stride z, jobs in this dispatch, threads per row of workgroups
+    stride: vec4<u32>,
+    // offsets of the +1 neighbour along x, y, z (0 on a one-voxel axis)
+    step: vec4<u32>,
+    // the index clamp: dims - 1
+    top: vec4<f32>,
+    // the lower corner's clamp: dims - 2
+    hi: vec4<f32>,
+}
+
+struct PinJob {
+    base: vec3<f32>,
+    steps: u32,
+    istep: vec3<f32>,
+    weight: f32,
+    du: vec3<f32>,
+    counter: u32,
+    key: vec2<u32>,
+    pad: vec2<u32>,
+}
+
+@group(0) @binding(0) var<uniform> P: Params;
+@group(0) @binding(1) var<storage, read> jobs: array<PinJob>;
+@group(0) @binding(2) var<storage, read_write> entries: array<vec2<u32>>;
+// The density in six bindings of `P.dims.w` voxels each: one binding is capped by the
+// device's max_storage_buffer_binding_size, which a 512^3 grid exceeds.
+@group(0) @binding(3) var<storage, read> d0: array<f32>;
+@group(0) @binding(4) var<storage, read> d1: array<f32>;
+@group(0) @binding(5) var<storage, read> d2: array<f32>;
+@group(0) @binding(6) var<storage, read> d3: array<f32>;
+@group(0) @binding(7) var<storage, read> d4: array<f32>;
+@group(0) @binding(8) var<storage, read> d5: array<f32>;
+
+fn load(i: u32) -> f32 {
+    let b = i / P.dims.w;
+    let o = i - b * P.dims.w;
+    switch b {
+        case 0u: { return d0[o]; }
+        case 1u: { return d1[o]; }
+        case 2u: { return d2[o]; }
+        case 3u: { return d3[o]; }
+        case 4u: { return d4[o]; }
+        default: { return d5[o]; }
+    }
+}
+
+// `Cells::locate` + `Cells::interpolate`: the trilinear value at continuous index `c`.
+fn density(c: vec3<f32>) -> f32 {
+    let cc = min(max(c, vec3<f32>(0.0)), P.top.xyz);
+    let ii = vec3<u32>(min(cc, P.hi.xyz));
+    let f = cc - vec3<f32>(ii);
+    let b = ii.x + ii.y * P.stride.x + ii.z * P.stride.y;
+    let sx = P.step.x;
+    let sy = P.step.y;
+    let sz = P.step.z;
+    let c0 = load(b);
+    let c00 = c0 + (load(b + sx) - c0) * f.x;
+    let y0 = load(b + sy);
+    let c10 = y0 + (load(b + sy + sx) - y0) * f.x;
+    let z0 = load(b + sz);
+    let c01 = z0 + (load(b + sz + sx) - z0) * f.x;
+    let yz = load(b + sz + sy);
+    let c11 = yz + (load(b + sz + sy + sx) - yz) * f.x;
+    let e0 = c00 + (c10 - c00) * f.y;
+    let e1 = c01 + (c11 - c01) * f.y;
+    return max(e0 + (e1 - e0) * f.z, 0.0);
+}
+
+// The high 32 bits of the 64-bit product of two u32.
+fn mulhi(a: u32, b: u32) -> u32 {
+    let a0 = a & 0xffffu;
+    let a1 = a >> 16u;
+    let b0 = b & 0xffffu;
+    let b1 = b >> 16u;
+    let p00 = a0 * b0;
+    let p01 = a0 * b1;
+    let p10 = a1 * b0;
+    let p11 = a1 * b1;
+    let mid = (p00 >> 16u) + (p01 & 0xffffu) + (p10 & 0xffffu);
+    return p11 + (p01 >> 16u) + (p10 >> 16u) + (mid >> 16u);
+}
+
+// u64 as (lo, hi): wrapping product, sum, and right shift by 0 < s < 32.
+fn mul64(a: vec2<u32>, b: vec2<u32>) -> vec2<u32> {
+    return vec2<u32>(a.x * b.x, mulhi(a.x, b.x) + a.x * b.y + a.y * b.x);
+}
+
+fn add64(a: vec2<u32>, b: vec2<u32>) -> vec2<u32> {
+    let lo = a.x + b.x;
+    return vec2<u32>(lo, a.y + b.y + select(0u, 1u, lo < a.x));
+}
+
+fn xorshr64(a: vec2<u32>, s: u32) -> vec2<u32> {
+    return a ^ vec2<u32>((a.x >> s) | (a.y << (32u - s)), a.y >> s);
+}
+
+// rng.rs `mix64` (splitmix64's finaliser).
+fn mix64(z0: vec2<u32>) -> vec2<u32> {
+    var z = mul64(xorshr64(z0, 30u), vec2<u32>(0x1ce4e5b9u, 0xbf58476du));
+    z = mul64(xorshr64(z, 27u), vec2<u32>(0x133111ebu, 0x94d049bbu));
+    return xorshr64(z, 31u);
+}
+
+const GOLDEN: vec2<u32> = vec2<u32>(0x7f4a7c15u, 0x9e3779b9u);
+
+// Draw `c` of the stream `key`: its top 24 bits as a uniform in [0, 1), the CPU's 53-bit
+// uniform truncated (never above it, at most 2^-24 below).
+fn uniform24(key: vec2<u32>, c: u32) -> f32 {
+    let x = mix64(add64(key, mul64(vec2<u32>(c, 0u), GOLDEN)));
+    return f32(x.y >> 8u) * (1.0 / 16777216.0);
+}
+
+// 1 - exp(-t) for t >= 0, accurate for small t (the CPU's -expm1(-t)).
+fn one_minus_exp(t: f32) -> f32 {
+    if t < 0.1 {
+        return t * (1.0 - t * (0.5 - t * (1.0 / 6.0 - t * (1.0 / 24.0 - t * (1.0 / 120.0)))));
+    }
+    return 1.0 - exp(-t);
+}
+
+@compute @workgroup_size(64)
+fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = gid.x + gid.y * P.stride.w;
+    if n >= P.stride.z {
+        return;
+    }
+    let job = jobs[n];
+    var taus: array<f32, 32>;
+    var tau_max = 0.0;
+    for (var i = 0u; i < 32u; i++) {
+        var s = 0.0;
+        var comp = 0.0;
+        if job.steps > 0u {
+            let b = job.base + f32(i) * job.istep;
+            for (var j = 0u; j < job.steps; j++) {
+                let v = density(b + f32(j) * job.du);
+                // Neumaier's compensated sum: the f32 sum of many samples keeps the CPU's
+                // f64 sum to about one f32 ulp.
+                let t = s + v;
+                if abs(s) >= abs(v) {
+                    comp += (s - t) + v;
+                } else {
+                    comp += (v - t) + s;
+                }
+                s = t;
+            }
+        }
+        let tau = (s + comp) * job.weight;
+        taus[i] = tau;
+        tau_max = max(tau_max, tau);
+    }
+    let t_min = exp(-tau_max);
+    if !(tau_max > 0.0) || t_min >= 1.0 {
+        entries[n] = vec2<u32>(0u, bitcast<u32>(1.0));
+        return;
+    }
+    let denom = one_minus_exp(tau_max);
+    var mask = 0u;
+    for (var i = 0u; i < 32u; i++) {
+        let p = one_minus_exp(taus[i]) / denom;
+        if uniform24(job.key, job.counter + 1u + i) < p {
+            mask |= 1u << (31u - i);
+        }
+    }
+    entries[n] = vec2<u32>(mask, bitcast<u32>(t_min));
+}
