@@ -124,7 +124,6 @@ pub struct BakeArgs {
     /// fails is reported and the rest go on; the exit code is 1 if any failed.
     #[arg(long, value_name = "FRAMES", help_heading = "Execution")]
     pub frames: Option<String>,
-    /// Print one JSON summary object on stdout (with --frames: {"frames": [...], ...}).
     /// Where the pins' entries are computed: `cpu`, or `gpu` (a wgpu compute pass; the rest
     /// of the bake and the file are the same; docs/gpu.md states how close its entries are).
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"], help_heading = "Execution", conflicts_with = "part")]
@@ -133,6 +132,7 @@ pub struct BakeArgs {
     /// file is the same).
     #[arg(long, hide = true, value_parser = pin_cli::parse::parse_bytes, help_heading = "Execution")]
     pub gpu_tile_bytes: Option<u64>,
+    /// Print one JSON summary object on stdout (with --frames: {"frames": [...], ...}).
     #[arg(long, help_heading = "Execution")]
     pub json: bool,
     /// No progress bar even on a terminal.

@@ -151,8 +151,21 @@ pub(super) fn run_worker(
     if status.success() {
         return parsed;
     }
-    // A limit below what the executable itself maps stops the dynamic loader before main.
-    if stderr_text.contains("memory allocation of") || stderr_text.contains("failed to map segment")
+    // A limit below what the executable itself maps stops the dynamic loader before main,
+    // or the kernel at exec (SIGSEGV before a line is written) when the executable's own
+    // segments exceed it.
+    #[cfg(unix)]
+    let killed_at_exec = {
+        use std::os::unix::process::ExitStatusExt;
+        status.signal() == Some(libc::SIGSEGV)
+            && stderr_text.trim().is_empty()
+            && std::fs::metadata(&opt.worker_exe).is_ok_and(|m| m.len() > limit)
+    };
+    #[cfg(not(unix))]
+    let killed_at_exec = false;
+    if stderr_text.contains("memory allocation of")
+        || stderr_text.contains("failed to map segment")
+        || killed_at_exec
     {
         // The default limit is 64 MiB + 64 x the file size; every stored node carries its
         // masks uncompressed, so a valid file stays below it (docs/vdb.md).
