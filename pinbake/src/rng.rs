@@ -34,6 +34,7 @@ impl CounterRng {
 
     /// The stream's key and the number of draws taken: draw `c` (from 1) is
     /// `mix64(key + c * golden)`, what the GPU bake's shader recomputes.
+    #[cfg_attr(not(feature = "gpu"), allow(dead_code))]
     pub(crate) fn state(&self) -> (u64, u64) {
         (self.key, self.counter)
     }
