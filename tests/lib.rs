@@ -210,7 +210,7 @@ pub fn fuzz_vdb(data: &[u8], scratch: &Path, worker: &Path) -> Outcome {
         timeout: Duration::from_secs(20),
         ..VdbOptions::with_worker(worker)
     };
-    let res = VdbSource::open(&path, &opt, pinbake::source::DensityScale::ONE);
+    let res = VdbSource::open(&path, &opt, DensityScale::ONE);
     let _ = std::fs::remove_file(&path);
     match res {
         Ok(src) => {

@@ -971,7 +971,7 @@ mod tests {
     #[test]
     fn box_and_sphere() {
         let b: ProceduralSpec = "box:density=2,extent=3".parse().unwrap();
-        let s = b.build(crate::source::DensityScale::ONE).unwrap();
+        let s = b.build(DensityScale::ONE).unwrap();
         assert_eq!(s.extinction(DVec3::splat(1.0)), 2.0);
         assert_eq!(s.extinction(DVec3::splat(3.1)), 0.0);
         assert_eq!(s.bounds().max, DVec3::splat(3.0));
@@ -985,7 +985,7 @@ mod tests {
         );
 
         let sp: ProceduralSpec = "sphere:radius=0.25".parse().unwrap();
-        let s = sp.build(crate::source::DensityScale::ONE).unwrap();
+        let s = sp.build(DensityScale::ONE).unwrap();
         assert_eq!(s.extinction(DVec3::splat(0.5)), 1.0);
         assert_eq!(s.extinction(DVec3::new(0.5, 0.5, 0.76)), 0.0);
         assert_eq!(s.bounds().min, DVec3::splat(0.25));
@@ -1037,14 +1037,14 @@ mod tests {
         // Density extremes from docs/background.md section 3.
         let z: ProceduralSpec = "cosine:density=0".parse().unwrap();
         assert_eq!(
-            z.build(crate::source::DensityScale::ONE)
+            z.build(DensityScale::ONE)
                 .unwrap()
                 .extinction(DVec3::splat(0.5)),
             0.0
         );
         let h: ProceduralSpec = "cosine:density=1e30".parse().unwrap();
         let v = h
-            .build(crate::source::DensityScale::ONE)
+            .build(DensityScale::ONE)
             .unwrap()
             .extinction(DVec3::splat(0.5));
         assert!(v.is_finite() && v >= 0.0);

@@ -313,7 +313,7 @@ mod tests {
     fn size_mismatch_and_huge_dims() {
         let d = tempfile::tempdir().unwrap();
         let p = write(d.path(), "v_2x2x2_u8.raw", &[1; 7]);
-        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(
@@ -327,7 +327,7 @@ mod tests {
             voxel_type: Some(RawType::F32),
             ..Default::default()
         };
-        let e = read_raw(&p, &opt, crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &opt, DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("34359738368 bytes"), "{e}");
@@ -336,7 +336,7 @@ mod tests {
             voxel_type: Some(RawType::F64),
             ..Default::default()
         };
-        let e = read_raw(&p, &opt, crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &opt, DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("overflow"), "{e}");
@@ -349,7 +349,7 @@ mod tests {
         let mut v = vec![1.0f32; 2 * 3 * 4];
         v[1 + 2 * (2 + 3 * 3)] = f32::NAN; // voxel (1,2,3)
         let p = write(d.path(), "n_2x3x4_f32.raw", &f32s(&v));
-        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("NaN") && e.contains("(1,2,3)"), "{e}");
@@ -359,14 +359,14 @@ mod tests {
                 nan_as_zero: true,
                 ..Default::default()
             },
-            crate::source::DensityScale::ONE,
+            DensityScale::ONE,
         )
         .unwrap();
         assert_eq!(ok.voxel(1, 2, 3), Some(0.0));
 
         v[1 + 2 * (2 + 3 * 3)] = f32::NEG_INFINITY;
         let p = write(d.path(), "i_2x3x4_f32.raw", &f32s(&v));
-        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("infinite") && e.contains("(1,2,3)"), "{e}");
@@ -374,7 +374,7 @@ mod tests {
         v[1 + 2 * (2 + 3 * 3)] = 1.0;
         v[2 * 3] = -0.5; // voxel (0,0,1)
         let p = write(d.path(), "g_2x3x4_f32.raw", &f32s(&v));
-        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("negative") && e.contains("(0,0,1)"), "{e}");
@@ -384,7 +384,7 @@ mod tests {
                 clamp_negative: true,
                 ..Default::default()
             },
-            crate::source::DensityScale::ONE,
+            DensityScale::ONE,
         )
         .unwrap();
         assert_eq!(ok.voxel(0, 0, 1), Some(0.0));
@@ -395,7 +395,7 @@ mod tests {
         let d = tempfile::tempdir().unwrap();
         let sub = f32::from_bits(1); // smallest subnormal
         let p = write(d.path(), "s_2x1x1_f32.raw", &f32s(&[sub, 1e30]));
-        let g = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE).unwrap();
+        let g = read_raw(&p, &RawOptions::default(), DensityScale::ONE).unwrap();
         assert_eq!(g.voxel(0, 0, 0), Some(sub));
         let opts = RawOptions::default();
         let g = read_raw(&p, &opts, DensityScale::new(0.0).unwrap()).unwrap();
@@ -427,13 +427,13 @@ mod tests {
             origin: [10.0, 0.0, 0.0],
             ..Default::default()
         };
-        let g = read_raw(&p, &opt, crate::source::DensityScale::ONE).unwrap();
+        let g = read_raw(&p, &opt, DensityScale::ONE).unwrap();
         assert_eq!(g.data(), &[1.0, 2.0, 3.0, 4.0]);
         assert_eq!(g.bounds().min.x, 10.0);
         assert_eq!(g.bounds().max.x, 18.0);
         assert_eq!(g.extinction(DVec3::new(13.0, 0.5, 0.5)), 2.0);
         // No name convention and no options: a clear error.
-        let e = read_raw(&p, &RawOptions::default(), crate::source::DensityScale::ONE)
+        let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
             .unwrap_err()
             .to_string();
         assert!(e.contains("no dims"), "{e}");

@@ -24,8 +24,7 @@ fn open_vdb(name: &str, grid: Option<&str>) -> Result<VdbSource, String> {
         grid: grid.map(str::to_string),
         ..vdb_opts()
     };
-    VdbSource::open(&data(name), &opt, pinbake::source::DensityScale::ONE)
-        .map_err(|e| e.to_string())
+    VdbSource::open(&data(name), &opt, DensityScale::ONE).map_err(|e| e.to_string())
 }
 
 // ------------------------------------------------------------------------------------------
@@ -69,7 +68,7 @@ fn inviwo_fixtures_read_exactly_in_every_type_and_endianness() {
         let g = read_raw(
             &data(&format!("inviwo_testdata/{file}")),
             &opt,
-            pinbake::source::DensityScale::ONE,
+            DensityScale::ONE,
         )
         .unwrap();
         for z in 0..3 {
@@ -100,7 +99,7 @@ fn inviwo_fixtures_read_exactly_in_every_type_and_endianness() {
             let g2 = read_raw(
                 &data(&format!("inviwo_testdata/{file}")),
                 &flipped,
-                pinbake::source::DensityScale::ONE,
+                DensityScale::ONE,
             )
             .unwrap();
             assert_ne!(g2.data(), g.data(), "{file}");
@@ -113,7 +112,7 @@ fn hydrogen_atom_infers_dims_and_type_from_its_name() {
     let g = read_raw(
         &data("hydrogen_atom_128x128x128_uint8.raw"),
         &RawOptions::default(),
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     assert_eq!(g.dims(), [128, 128, 128]);
@@ -128,13 +127,9 @@ fn hydrogen_atom_infers_dims_and_type_from_its_name() {
 #[test]
 fn water_esp_is_signed_and_needs_clamping() {
     let p = data("water_esp_31x34x33_float32.raw");
-    let e = read_raw(
-        &p,
-        &RawOptions::default(),
-        pinbake::source::DensityScale::ONE,
-    )
-    .unwrap_err()
-    .to_string();
+    let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("negative") && e.contains("water_esp"), "{e}");
     let g = read_raw(
         &p,
@@ -142,7 +137,7 @@ fn water_esp_is_signed_and_needs_clamping() {
             clamp_negative: true,
             ..Default::default()
         },
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     assert_eq!(g.dims(), [31, 34, 33]);
@@ -159,7 +154,7 @@ fn raw_wrong_size_and_nan_errors() {
     let e = read_raw(
         &data("inviwo_testdata/testdata.UINT8.raw"),
         &opt,
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap_err()
     .to_string();
@@ -172,13 +167,9 @@ fn raw_wrong_size_and_nan_errors() {
     let bytes: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
     let p = dir.path().join("nan_4x5x6_float32.raw");
     std::fs::write(&p, bytes).unwrap();
-    let e = read_raw(
-        &p,
-        &RawOptions::default(),
-        pinbake::source::DensityScale::ONE,
-    )
-    .unwrap_err()
-    .to_string();
+    let e = read_raw(&p, &RawOptions::default(), DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("NaN") && e.contains("(3,4,5)"), "{e}");
 }
 
@@ -311,7 +302,7 @@ fn oiio_sphere_and_density_scale() {
     // Through the generic entry point as well.
     let b = open_source(
         &SourceSpec::Vdb(data("oiio_sphere_density.vdb"), vdb_opts()),
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     assert_eq!(b.extinction(DVec3::ZERO), c);
@@ -330,7 +321,7 @@ fn level_set_is_refused_then_converted() {
             levelset_to_fog: true,
             ..vdb_opts()
         },
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     // Radius about 3 world units (60 voxels of 0.05): inside is 1, outside 0, and the deep
@@ -416,7 +407,7 @@ fn mutated_files_never_take_the_parent_down() {
             ..vdb_opts()
         };
         let t = Instant::now();
-        match VdbSource::open(&p, &opt, pinbake::source::DensityScale::ONE) {
+        match VdbSource::open(&p, &opt, DensityScale::ONE) {
             Ok(s) => assert!(s.bounds().is_valid()),
             Err(e) => {
                 errors += 1;
@@ -449,13 +440,9 @@ fn worker_crash_timeout_and_memory_limit_become_errors() {
     let dir = tempfile::tempdir().unwrap();
     let file = data("oiio_sphere_density.vdb");
     let crash = script(dir.path(), "crash.sh", "kill -SEGV $$");
-    let e = VdbSource::open(
-        &file,
-        &VdbOptions::with_worker(crash),
-        pinbake::source::DensityScale::ONE,
-    )
-    .unwrap_err()
-    .to_string();
+    let e = VdbSource::open(&file, &VdbOptions::with_worker(crash), DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("crashed (signal 11)"), "{e}");
 
     let slow = script(dir.path(), "slow.sh", "exec sleep 30");
@@ -464,24 +451,20 @@ fn worker_crash_timeout_and_memory_limit_become_errors() {
         ..VdbOptions::with_worker(slow)
     };
     let t = Instant::now();
-    let e = VdbSource::open(&file, &opt, pinbake::source::DensityScale::ONE)
+    let e = VdbSource::open(&file, &opt, DensityScale::ONE)
         .unwrap_err()
         .to_string();
     assert!(e.contains("timed out"), "{e}");
     assert!(t.elapsed() < Duration::from_secs(5));
 
     let garbage = script(dir.path(), "garbage.sh", "echo hello");
-    let e = VdbSource::open(
-        &file,
-        &VdbOptions::with_worker(garbage),
-        pinbake::source::DensityScale::ONE,
-    )
-    .unwrap_err()
-    .to_string();
+    let e = VdbSource::open(&file, &VdbOptions::with_worker(garbage), DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("worker stream"), "{e}");
 
     let missing = VdbOptions::with_worker(dir.path().join("nope"));
-    let e = VdbSource::open(&file, &missing, pinbake::source::DensityScale::ONE)
+    let e = VdbSource::open(&file, &missing, DensityScale::ONE)
         .unwrap_err()
         .to_string();
     assert!(e.contains("cannot start"), "{e}");
@@ -492,13 +475,9 @@ fn worker_crash_timeout_and_memory_limit_become_errors() {
         memory_limit: Some(6 << 20),
         ..vdb_opts()
     };
-    let e = VdbSource::open(
-        &data("openvdb_smoke1.vdb"),
-        &opt,
-        pinbake::source::DensityScale::ONE,
-    )
-    .unwrap_err()
-    .to_string();
+    let e = VdbSource::open(&data("openvdb_smoke1.vdb"), &opt, DensityScale::ONE)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("needs more than 6 MiB"), "{e}");
 }
 
@@ -518,18 +497,18 @@ fn extinction_cost() {
     let raw = read_raw(
         &data("hydrogen_atom_128x128x128_uint8.raw"),
         &RawOptions::default(),
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
     let cosine = open_source(
         &SourceSpec::Procedural("cosine:seed=7,freq=16".parse().unwrap()),
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     let fractal = open_source(
         &SourceSpec::Procedural("fractal:seed=7,octaves=4".parse().unwrap()),
-        pinbake::source::DensityScale::ONE,
+        DensityScale::ONE,
     )
     .unwrap();
     let sources: [(&str, &dyn DensitySource); 4] = [

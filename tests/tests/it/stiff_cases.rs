@@ -383,7 +383,7 @@ fn vdb_reader_damaged_files() {
     for path in &names {
         let name = path.file_name().unwrap().to_string_lossy().into_owned();
         let t = Instant::now();
-        let res = VdbSource::open(path, &opt, pinbake::source::DensityScale::ONE);
+        let res = VdbSource::open(path, &opt, DensityScale::ONE);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         assert!(ms < 10_000.0, "{name}: {ms} ms");
         match res {
@@ -403,8 +403,7 @@ fn vdb_reader_damaged_files() {
     }
     // A valid file through the same path for contrast: finite, non-negative everywhere.
     let good = data("gaffer_sphere_density.vdb");
-    let src = VdbSource::open(&good, &opt, pinbake::source::DensityScale::ONE)
-        .expect("a valid VDB opens");
+    let src = VdbSource::open(&good, &opt, DensityScale::ONE).expect("a valid VDB opens");
     check_source(&src);
     assert!(pin_tests::bake_and_verify(&src));
     table.row(vec![
