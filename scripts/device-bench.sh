@@ -2,28 +2,47 @@
 # GPU figures for a machine with a hardware adapter and no network.
 #
 #   bash scripts/device-bench.sh --pack DIR     # on the build machine: stripped release
-#                                               # binaries and this script into DIR (< 64 MiB)
-#   bash DIR/device-bench.sh [OUT]              # on the GPU machine, from DIR: under 8 minutes
+#                                               # binaries, the smoke, the scene writer and
+#                                               # this script into DIR (< 64 MiB)
+#   bash DIR/device-bench.sh [OUT]              # on the GPU machine, from DIR: about 5 minutes
 #
-# Measures milliseconds per pass at 1920x1080 and 1 spp for pins, pinms, pinres, ratio and
-# residual on a 512^3 fractal cloud (a procedural fractal baked with a dense 512^3 embedded
-# density and a control section) and on an instances scene (the cosine field baked with
-# --embed-density 128, as four placements are not a CLI input: one instance), through
-# `pinrender render --backend gpu` (each figure: (t(17 spp) - t(1 spp)) / 16, so upload and
-# pipeline compile cancel), plus the viewer headless at 1080p (`pinview --frames`, under Xvfb
-# when no display is set). Writes OUT/device-bench.json and OUT/device-bench.md.
-set -euo pipefail
+# Four parts, each written to OUT as soon as it is done (a part that fails is reported and the
+# next one runs):
+#   1. The GPU bake: `pinbake bench --default --backend cpu,gpu` on the 512^3 voxelised
+#      procedural noise (the thesis' 37^3 x 16x4 and the default bake) and the smoke's default
+#      bake, with the GPU's device, upload, jobs and dispatch seconds. -> bake-bench.json
+#   2. Milliseconds per pass at 1920x1080 and 1 spp for pins, pinms, pinres, ratio and
+#      residual on a 512^3 fractal cloud (a procedural fractal baked with a dense 512^3
+#      embedded density and a control section) and on the cosine field (--embed-density 128),
+#      through `pinrender render --backend gpu` (each figure: (t(65 spp) - t(1 spp)) / 64, so
+#      upload and pipeline compile cancel; the render line gives seconds to 10 ms, so the
+#      difference spans 64 passes). -> device-bench.json, device-bench.md
+#   3. Render time against instance count (1, 16, 256, 4096 smoke instances, rotated and
+#      scaled: scripts/cloudscape_scene.py) on the GPU path, pins (the GPU path renders scenes
+#      with pins only). -> instances.csv
+#   4. The viewer headless at 1080p (`pinview --frames`) when a display or Xvfb is at hand.
+# DEVICE_BENCH_QUICK=1 runs every part at toy sizes (to check the script on any machine);
+# DEVICE_BENCH_PARTS="2 3" runs only those parts.
+set -uo pipefail
 
 if [ "${1:-}" = "--pack" ]; then
+  set -e
   dir=${2:?usage: device-bench.sh --pack DIR}
   cd "$(dirname "$0")/.."
-  cargo build --release -p pinbake -p pinrender -p pinview --all-features --bins
+  cargo build --release -p pinbake -p pinlab -p pinview --all-features --bins
   mkdir -p "$dir"
   for b in pinbake pinrender pinview; do
     cp "target/release/$b" "$dir/$b"
     strip "$dir/$b"
   done
-  cp scripts/device-bench.sh "$dir/"
+  cp scripts/device-bench.sh scripts/cloudscape_scene.py data/openvdb_smoke1.vdb "$dir/"
+  # The shared libraries they load beyond the C runtime (fontconfig and freetype, for the
+  # plots' text): a bare GPU image may have none of them.
+  mkdir -p "$dir/lib"
+  for b in pinbake pinrender pinview; do
+    ldd "$dir/$b" | awk '$3 ~ /^\// {print $3}'
+  done | sort -u | grep -Ev '/(libc|libm|libgcc_s|libdl|libpthread|librt|ld-linux[^/]*)\.so' |
+    xargs -r cp -L -t "$dir/lib"
   du -ch "$dir"/* | tail -1
   total=$(du -cb "$dir"/* | tail -1 | cut -f1)
   if [ "$total" -gt $((64 << 20)) ]; then
@@ -37,52 +56,149 @@ here=$(cd "$(dirname "$0")" && pwd)
 out=${1:-$here/bench-out}
 mkdir -p "$out"
 B=$here
+export LD_LIBRARY_PATH="$here/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 work=$(mktemp -d)
 trap 'rm -rf "$work"; [ -n "${xvfb_pid:-}" ] && kill "$xvfb_pid" 2>/dev/null || true' EXIT
+threads=$(nproc)
+if [ "${DEVICE_BENCH_QUICK:-0}" = 1 ]; then
+  VOXELS=64 CELLS=8 EMBED=64 W=192 H=108 COUNTS="1 16" VW=320 VH=180 QUICK=(--cells 8)
+else
+  VOXELS=512 CELLS=37 EMBED=512 W=1920 H=1080 COUNTS="1 16 256 4096" VW=1920 VH=1080 QUICK=()
+fi
+# A part that fails leaves its line in the log and the next part runs.
+failed=()
+parts=" ${DEVICE_BENCH_PARTS:-1 2 3 4} "
+wanted() { [[ "$parts" == *" $1 "* ]]; }
+part() { echo "== $1" >&2; }
+load() { cut -d' ' -f1-3 /proc/loadavg; }
 
-echo "== bakes" >&2
-"$B/pinbake" bake procedural:fractal:seed=7,octaves=4 --embed-density 512 --embed-control \
-  -o "$work/cloud.pin" >&2
-"$B/pinbake" bake procedural:cosine:seed=5,freq=4,density=6 --embed-density 128 --embed-control \
-  -o "$work/instances.pin" >&2
-
-# Seconds of one render, from pinrender's summary line ("... in S s -> ...").
-seconds() {
-  "$B/pinrender" render --pins "$1" --estimator "$2" --backend gpu --width 1920 --height 1080 \
-    --spp "$3" --seed 1 --out "$work/x.exr" 2>&1 >/dev/null | sed -n 's/.* in \([0-9.]*\) s -> .*/\1/p' | tail -1
-}
+if wanted 1; then
+part "1. GPU bake against CPU bake ($VOXELS^3 noise, the smoke; $threads threads)"
+if timeout 240 "$B/pinbake" bench --voxels "$VOXELS" --cells "$CELLS" --grid-only --default \
+  --backend cpu,gpu --threads "$threads" --source "$B/openvdb_smoke1.vdb" --json \
+  >"$out/bake-bench.json"; then
+  python3 - "$out/bake-bench.json" >"$out/bake-bench.md" <<'PY'
+import json, sys
+rows = json.load(open(sys.argv[1]))["results"]
+print("| source | bake | backend | wall s | pins/s | GPU: device s | upload s | jobs s | dispatch s |")
+print("|---|---|---|---|---|---|---|---|---|")
+for r in rows:
+    g = r.get("gpu") or {}
+    f = lambda k: "%.3f" % g[k] if k in g else ""
+    print("| %s | %s | %s | %.3f | %.3g | %s | %s | %s | %s |" % (
+        r["source"].split("/")[-1], r["bake"], r["backend"], r["wall_s"], r["pins_per_s"],
+        f("device_s"), f("upload_s"), f("jobs_s"), f("dispatch_s")))
+adapters = {(r.get("gpu") or {}).get("adapter") for r in rows} - {None}
+print("\nGPU bake adapter: %s" % ", ".join(sorted(adapters)))
+PY
+  cat "$out/bake-bench.md" >&2
+else
+  failed+=("GPU bake bench")
+fi
+fi
 
 rows=()
-md="| scene | estimator | ms per pass (1920x1080, 1 spp) |\n|---|---|---|\n"
+md="| scene | estimator | ms per pass (${W}x${H}, 1 spp) |\n|---|---|---|\n"
+if wanted 2; then
+part "2. bakes for the render figures"
+timeout 300 "$B/pinbake" bake procedural:fractal:seed=7,octaves=4 --embed-density "$EMBED" \
+  --embed-control "${QUICK[@]}" -o "$work/cloud.pin" --quiet >&2 || failed+=("cloud bake")
+timeout 300 "$B/pinbake" bake procedural:cosine:seed=5,freq=4,density=6 --embed-density 128 \
+  --embed-control "${QUICK[@]}" -o "$work/instances.pin" --quiet >&2 || failed+=("cosine bake")
+
+# Seconds of one render, from pinrender's summary line ("... in S s -> ...").
+seconds_of() { sed -n 's/.* in \([0-9.]*\) s -> .*/\1/p' "$1" | tail -1; }
+seconds() {
+  timeout 120 "$B/pinrender" render --pins "$1" --estimator "$2" --backend gpu --width "$W" \
+    --height "$H" --spp "$3" --seed 1 --out "$work/x.exr" 2>"$work/r.log" >/dev/null
+  seconds_of "$work/r.log"
+}
+
 for scene in cloud instances; do
   for est in pins pinms pinres ratio residual; do
     t1=$(seconds "$work/$scene.pin" "$est" 1)
-    t17=$(seconds "$work/$scene.pin" "$est" 17)
-    ms=$(python3 -c "print(round(($t17 - $t1) / 16 * 1000, 3))")
+    t65=$(seconds "$work/$scene.pin" "$est" 65)
+    if [ -z "$t1" ] || [ -z "$t65" ]; then
+      echo "$scene $est: failed: $(tail -n 1 "$work/r.log")" >&2
+      failed+=("$scene $est")
+      continue
+    fi
+    ms=$(python3 -c "print(round(($t65 - $t1) / 64 * 1000, 3))")
     echo "$scene $est: $ms ms per pass" >&2
     rows+=("{\"scene\": \"$scene\", \"estimator\": \"$est\", \"ms_per_pass\": $ms}")
     md+="| $scene | $est | $ms |\n"
   done
 done
+# The adapter the GPU bake opened (pinrender's render line does not name it).
+adapter=$(python3 -c 'import json,sys; print(next((r["gpu"]["adapter"] for r in json.load(open(sys.argv[1]))["results"] if r.get("gpu")), "unknown"))' "$out/bake-bench.json" 2>/dev/null || echo unknown)
+printf "adapter: %s; load %s\n\n$md" "$adapter" "$(load)" >"$out/device-bench.md"
+cat "$out/device-bench.md" >&2
+fi
 
-echo "== viewer at 1080p" >&2
-if [ -z "${DISPLAY:-}" ]; then
+if wanted 3; then
+part "3. render time against instance count (smoke instances, GPU path, ${W}x${H})"
+"$B/pinbake" bake "$B/openvdb_smoke1.vdb" -o "$work/smoke.pin" --embed-control "${QUICK[@]}" --quiet >&2 ||
+  failed+=("smoke bake")
+cp "$B/openvdb_smoke1.vdb" "$work/smoke.vdb"
+echo "instances,estimator,spp,seconds,ms_per_pass" >"$out/instances.csv"
+for n in $COUNTS; do
+  python3 "$B/cloudscape_scene.py" "$work/sky$n.json" "$n" 1 "smoke=smoke.vdb,smoke.pin"
+  # Passes enough that their time dwarfs the render line's 10 ms resolution.
+  case $n in 1 | 16) extra=32 ;; 256) extra=4 ;; *) extra=2 ;; esac
+  for est in pins; do
+    t=()
+    for spp in 1 $((extra + 1)); do
+      timeout 120 "$B/pinrender" render --scene "$work/sky$n.json" --estimator "$est" \
+        --backend gpu --width "$W" --height "$H" --spp "$spp" --seed 1 \
+        --out "$work/sky.exr" 2>"$work/s.log" >/dev/null
+      t+=("$(seconds_of "$work/s.log")")
+    done
+    if [ -z "${t[0]}" ] || [ -z "${t[1]}" ]; then
+      echo "$n $est: failed: $(tail -n 1 "$work/s.log")" >&2
+      failed+=("instances $n $est")
+      continue
+    fi
+    ms=$(python3 -c "print(round((${t[1]} - ${t[0]}) / $extra * 1000, 3))")
+    echo "$n,$est,$((extra + 1)),${t[1]},$ms" >>"$out/instances.csv"
+    echo "$n instances, $est: $ms ms per pass" >&2
+  done
+done
+
+fi
+
+view=null
+if wanted 4; then
+part "4. the viewer at ${VW}x${VH}"
+if [ -z "${DISPLAY:-}" ] && command -v Xvfb >/dev/null; then
   Xvfb :77 -screen 0 2400x1300x24 -nolisten tcp >/dev/null 2>&1 &
   xvfb_pid=$!
   sleep 1
   export DISPLAY=:77
 fi
-view=$("$B/pinview" "$work/cloud.pin" --estimator pins --width 1920 --height 1080 --frames 32 \
-  --screenshot "$work/view.png" --json)
-echo "$view" >&2
-adapter=$(echo "$view" | python3 -c 'import json,sys; j=json.load(sys.stdin); print(j["adapter"], "(", j["backend"], j["device_type"], ")")')
-view_ms=$(echo "$view" | python3 -c 'import json,sys; print(round(json.load(sys.stdin)["ms_per_pass"], 3))')
-md+="| cloud | pins, pinview --frames 32 | $view_ms |\n"
+if [ -n "${DISPLAY:-}" ]; then
+  if v=$(timeout 120 "$B/pinview" "$work/cloud.pin" --estimator pins --width "$VW" --height "$VH" \
+    --frames 32 --screenshot "$work/view.png" --json); then
+    view=$v
+    view_ms=$(echo "$view" | python3 -c 'import json,sys; print(round(json.load(sys.stdin)["ms_per_pass"], 3))')
+    printf "| cloud | pins, pinview --frames 32 | %s |\n" "$view_ms" >>"$out/device-bench.md"
+  else
+    failed+=("viewer")
+  fi
+else
+  echo "no display and no Xvfb: the viewer is not measured" >&2
+fi
+fi
 
 {
-  echo "{\"adapter\": \"$adapter\", \"load\": \"$(cut -d' ' -f1-3 /proc/loadavg)\", \"rows\": ["
+  echo "{\"adapter\": \"$adapter\", \"load\": \"$(load)\", \"rows\": ["
   (IFS=,; echo "${rows[*]}")
-  echo "], \"pinview\": $view}"
-} > "$out/device-bench.json"
-printf "adapter: %s; load %s\n\n$md" "$adapter" "$(cut -d' ' -f1-3 /proc/loadavg)" > "$out/device-bench.md"
+  echo "], \"pinview\": $view, \"failed\": ["
+  (IFS=,; for f in "${failed[@]}"; do printf '"%s",' "$f"; done | sed 's/,$//')
+  echo "]}"
+} >"$out/device-bench.json"
 cat "$out/device-bench.md"
+cat "$out/instances.csv"
+if [ ${#failed[@]} -gt 0 ]; then
+  echo "device-bench: failed: ${failed[*]}" >&2
+  exit 1
+fi

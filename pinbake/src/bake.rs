@@ -160,6 +160,28 @@ pub struct BakeStats {
     pub t_min_mean: f64,
     pub seconds: f64,
     pub pins_per_s: f64,
+    /// Where a GPU bake's time went; `None` for a CPU bake.
+    pub gpu: Option<GpuBakeTimes>,
+}
+
+/// Seconds of a GPU bake's steps, summed over its dispatches. Their sum is part of
+/// [`BakeStats::seconds`], which also holds the box, the sections and the compaction.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct GpuBakeTimes {
+    /// Finding the adapter, opening the device and compiling `shaders/bake.wgsl`.
+    pub device_s: f64,
+    /// Copying the density grid into GPU buffers.
+    pub upload_s: f64,
+    /// The CPU's part: every pin's chord and random state (in parallel).
+    pub jobs_s: f64,
+    /// From submitting each dispatch to its entries read back: the march on the GPU, the
+    /// jobs' upload and the entries' read-back.
+    pub dispatch_s: f64,
+    /// Dispatches run (more than one when the tile budget or the device's limits split the
+    /// pins).
+    pub dispatches: u64,
+    /// The adapter's name and backend.
+    pub adapter: String,
 }
 
 /// Bytes the sections built after the pins hold at their peak: the sparse density
@@ -509,18 +531,21 @@ fn bake_in_pool(
     )?;
     let dirs = opts.directions.count();
     let ppe = opts.pins_per_entry;
+    let mut gpu_times = None;
     match (field, sweep) {
         // The GPU replaces only this step: the entries of every pin, in the same slots.
-        _ if backend != BakeBackend::Cpu => gpu_entries(
-            field,
-            source,
-            (&placement, &layout),
-            (shape.z_begin, block_len),
-            &mut dense,
-            backend,
-            progress,
-            opts,
-        )?,
+        _ if backend != BakeBackend::Cpu => {
+            gpu_times = gpu_entries(
+                field,
+                source,
+                (&placement, &layout),
+                (shape.z_begin, block_len),
+                &mut dense,
+                backend,
+                progress,
+                opts,
+            )?
+        }
         // A dense grid by layers of the grid: the samples of many pins in one slab at a time
         // hit the caches, where pin after pin each sample waited on memory (crate::sweep).
         (Field::Grid(grid), Some(sweep)) if size_of_val(grid.data()) >= sweep.min_grid_bytes => {
@@ -591,7 +616,7 @@ fn bake_in_pool(
         }
     }
 
-    let (mut grid, stats) = finish(
+    let (mut grid, mut stats) = finish(
         desc,
         tile,
         dense,
@@ -600,6 +625,7 @@ fn bake_in_pool(
         block_len,
         started,
     )?;
+    stats.gpu = gpu_times;
     let control = opts
         .embed_control
         .map(|c| crate::control::bake_control_cancellable(source, &bbox, &c, &|| opts.cancelled()))
@@ -628,11 +654,11 @@ fn gpu_entries(
     backend: BakeBackend,
     progress: &(dyn Fn(u64) + Sync),
     opts: &BakeOptions,
-) -> Result<(), BakeError> {
+) -> Result<Option<GpuBakeTimes>, BakeError> {
     #[cfg(feature = "gpu")]
     {
         let BakeBackend::Gpu(gpu) = backend else {
-            return Ok(());
+            return Ok(None);
         };
         let Field::Grid(grid) = field else {
             return Err(BakeError::Gpu(format!(
@@ -642,7 +668,13 @@ fn gpu_entries(
                 dense_copy_limit(opts)
             )));
         };
+        let opened = Instant::now();
         let baker = crate::gpu_bake::GpuBaker::new()?;
+        let mut times = GpuBakeTimes {
+            device_s: opened.elapsed().as_secs_f64(),
+            adapter: baker.describe().to_string(),
+            ..GpuBakeTimes::default()
+        };
         baker.bake_entries(
             grid,
             placement,
@@ -653,7 +685,9 @@ fn gpu_entries(
             &gpu,
             progress,
             &|| opts.cancelled(),
-        )
+            &mut times,
+        )?;
+        Ok(Some(times))
     }
     #[cfg(not(feature = "gpu"))]
     {

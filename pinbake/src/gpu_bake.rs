@@ -13,7 +13,11 @@ use glam::DVec3;
 use pin_format::PinEntry;
 use wgpu::util::DeviceExt;
 
-use crate::bake::GpuBakeOptions;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use crate::bake::{GpuBakeOptions, GpuBakeTimes};
 use crate::error::BakeError;
 use crate::pin::{PinLayout, Placement, chord_samples};
 use crate::source::DenseGrid;
@@ -201,8 +205,11 @@ impl GpuBaker {
         opts: &GpuBakeOptions,
         progress: &(dyn Fn(u64) + Sync),
         cancelled: &(dyn Fn() -> bool + Sync),
+        times: &mut GpuBakeTimes,
     ) -> Result<(), BakeError> {
+        let uploading = Instant::now();
         let (density, chunk) = self.upload_density(grid)?;
+        times.upload_s += uploading.elapsed().as_secs_f64();
         let [nx, ny, nz] = grid.dims();
         let stride_y = nx;
         let stride_z = nx.checked_mul(ny).ok_or_else(|| {
@@ -245,16 +252,23 @@ impl GpuBaker {
             }
             jobs.clear();
             let first = t * per;
-            for n in first..first + out.len() {
+            let preparing = Instant::now();
+            // Each job depends on its slot alone, so the order (and the bytes) is the same on
+            // any number of threads.
+            jobs.par_extend((first..first + out.len()).into_par_iter().map(|n| {
                 let (cell_i, slot) = (n / block_len, (n % block_len) as u32);
                 let (dir, k) = (slot / ppe, slot % ppe);
                 let x = (cell_i % nx_cells) as u32;
                 let row = cell_i / nx_cells;
                 let y = (row % layout.dims[1] as usize) as u32;
                 let z = (row / layout.dims[1] as usize) as u32 + z_begin;
-                jobs.push(job(grid, placement, layout, [x, y, z], dir, k));
-            }
+                job(grid, placement, layout, [x, y, z], dir, k)
+            }));
+            times.jobs_s += preparing.elapsed().as_secs_f64();
+            let dispatching = Instant::now();
             let got = pollster::block_on(self.dispatch(&params, &density, &jobs))?;
+            times.dispatch_s += dispatching.elapsed().as_secs_f64();
+            times.dispatches += 1;
             out.copy_from_slice(&got);
             progress(out.len() as u64);
         }

@@ -41,7 +41,9 @@ pub mod sparse_density;
 pub mod summary;
 mod sweep;
 
-pub use bake::{BakeBackend, BakeOptions, BakeStats, GpuBakeOptions, Tile, bake, bake_on};
+pub use bake::{
+    BakeBackend, BakeOptions, BakeStats, GpuBakeOptions, GpuBakeTimes, Tile, bake, bake_on,
+};
 pub use embed_density::EmbedDensity;
 pub use error::BakeError;
 pub use merge::{MergeError, merge_tiles};

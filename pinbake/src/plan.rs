@@ -361,6 +361,10 @@ impl Baked {
         v["seconds"] = json!(self.seconds);
         v["bake_seconds"] = json!(self.stats.seconds);
         v["pins_per_s"] = json!(self.stats.pins_per_s);
+        // A GPU bake's breakdown (device, upload, jobs, dispatch); absent for the CPU's.
+        if let Some(gpu) = &self.stats.gpu {
+            v["gpu"] = json!(gpu);
+        }
         v["output"] = json!(self.output.display().to_string());
         v["memory_estimate_bytes"] = json!(self.memory_estimate_bytes);
         v["choice"] = crate::summary::choice_json(&self.choice, self.file_bytes);

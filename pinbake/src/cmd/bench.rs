@@ -6,11 +6,16 @@
 //! mean absolute error of the interval transmittances against a 16x supersampled march, over
 //! 256 random pins: [`pinbake::pin::integration_error_of`]). Beside them: `cpu_s` (user +
 //! system CPU seconds of the bake, steadier than wall time on a shared machine).
+//!
+//! `--backend cpu,gpu` runs each bake on both backends (`backend` in each row); a GPU row adds
+//! `gpu`, where its time went ([`pinbake::GpuBakeTimes`]: device, upload, jobs, dispatch). A
+//! `--default` row set bakes the 512^3 grid with the default options, and `--source INPUT` adds
+//! rows for the default bake of any input (`bake` in each row names the configuration).
 
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 use glam::DVec3;
 use pin_format::Directions;
@@ -39,9 +44,29 @@ pub struct BenchArgs {
     /// Only the voxelised grid (skip the slower analytic-noise rows).
     #[arg(long)]
     pub grid_only: bool,
+    /// Backends to run each bake on, comma separated: cpu, gpu.
+    #[arg(long, default_value = "cpu", value_delimiter = ',', value_parser = ["cpu", "gpu"])]
+    pub backend: Vec<String>,
+    /// Also bake the voxelised grid with the default options (the default cells and
+    /// directions), beside the thesis' 37^3 x 16x4.
+    #[arg(long)]
+    pub default: bool,
+    /// Also bake this input (a volume file or `procedural:...`) with the default options.
+    #[arg(long)]
+    pub source: Option<std::path::PathBuf>,
+    #[command(flatten)]
+    pub volume: pinbake::cli_args::SourceArgs,
     /// Print one JSON object instead of a table.
     #[arg(long)]
     pub json: bool,
+}
+
+/// The bake's entries computed on `name` ("cpu" or "gpu").
+fn backend_of(name: &str) -> pinbake::BakeBackend {
+    match name {
+        "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions::default()),
+        _ => pinbake::BakeBackend::Cpu,
+    }
 }
 
 pub fn run(args: BenchArgs) -> Result<ExitCode> {
@@ -65,7 +90,14 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
         voxels
             .saturating_mul(4)
             .saturating_add(pinbake::bake::estimate_output_bytes(&bench_bake))
-            .saturating_add(pinbake::bake::estimate_working_bytes(&bench_bake)),
+            .saturating_add(pinbake::bake::estimate_working_bytes(&bench_bake))
+            .saturating_add(if args.default || args.source.is_some() {
+                pinbake::bake::estimate_output_bytes(&BakeOptions::default()).saturating_add(
+                    pinbake::bake::estimate_working_bytes(&BakeOptions::default()),
+                )
+            } else {
+                0
+            }),
     )?;
     let t0 = Instant::now();
     let h = 1.0 / f64::from(n);
@@ -83,44 +115,71 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
     let grid = DenseGrid::new([n; 3], data, DVec3::splat(h), DVec3::ZERO, "bench noise")?;
     let voxelise_s = t0.elapsed().as_secs_f64();
 
-    let sources: [(&str, &dyn DensitySource); 2] = [
-        ("cosine noise, analytic", &noise),
-        ("cosine noise, f32 grid", &grid),
-    ];
-    let mut rows = Vec::new();
-    for (name, source) in sources {
-        if args.grid_only && !name.contains("grid") {
-            continue;
+    let extra = match &args.source {
+        None => None,
+        Some(input) => {
+            let spec = args.volume.source_spec(input, "--source", || {
+                std::env::current_exe().context("locating the pinbake binary")
+            })?;
+            let source = pinbake::source::open_source(&spec, args.volume.density_scale)
+                .with_context(|| input.display().to_string())?;
+            Some((input.display().to_string(), source))
         }
-        for &threads in &args.threads {
-            let opts = BakeOptions {
-                threads: Some(threads),
-                ..bench_bake.clone()
-            };
-            let cpu0 = cpu_seconds();
-            let t = Instant::now();
-            let (g, stats) = pinbake::bake(source, &opts, &|_| {})?;
-            let wall = t.elapsed().as_secs_f64();
-            let cpu = cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
-            let pins = u64::from(args.cells).pow(3) * 64;
-            // The bake's own rule against the 16x supersampled march of the source.
-            let (bbox, _) = pinbake::bake::bake_box(source, opts.crop)?;
-            let placement = pinbake::pin::Placement::over(&bbox, opts.step);
-            let err = integration_error_of(Field::of(source), source, &placement, 256, 16, 1);
-            rows.push(json!({
-                "source": if name.contains("grid") { format!("noise {n}^3 grid") } else { "noise analytic".to_string() },
-                "threads": threads,
-                "pins": pins,
-                "stored_pins": g.pins.len(),
-                "wall_s": wall,
-                "pins_per_s": pins as f64 / wall,
-                "t_min_mean": stats.t_min_mean,
-                "peak_rss_bytes": peak_rss_bytes(),
-                "integration_error": err.mean_abs_transmittance,
-                "integration_error_max": err.max_abs_transmittance,
-                "optical_depth_rel_error": err.mean_rel_optical_depth,
-                "cpu_s": cpu,
-            }));
+    };
+    let grid_name = format!("noise {n}^3 grid");
+    let thesis = format!("{}^3 x 16x4", args.cells);
+    let mut sources: Vec<(String, &str, &dyn DensitySource, BakeOptions)> = Vec::new();
+    if !args.grid_only {
+        sources.push(("noise analytic".into(), &thesis, &noise, bench_bake.clone()));
+    }
+    sources.push((grid_name.clone(), &thesis, &grid, bench_bake.clone()));
+    if args.default {
+        sources.push((grid_name, "default", &grid, BakeOptions::default()));
+    }
+    if let Some((name, source)) = &extra {
+        sources.push((
+            name.clone(),
+            "default",
+            source.as_ref(),
+            BakeOptions::default(),
+        ));
+    }
+    let mut rows = Vec::new();
+    for (name, config, source, base) in sources {
+        // The bake's own rule against the 16x supersampled march of the source.
+        let (bbox, _) = pinbake::bake::bake_box(source, base.crop)?;
+        let placement = pinbake::pin::Placement::over(&bbox, base.step);
+        let err = integration_error_of(Field::of(source), source, &placement, 256, 16, 1);
+        for backend in &args.backend {
+            for &threads in &args.threads {
+                let opts = BakeOptions {
+                    threads: Some(threads),
+                    ..base.clone()
+                };
+                let cpu0 = cpu_seconds();
+                let t = Instant::now();
+                let (g, stats) = pinbake::bake_on(source, &opts, backend_of(backend), &|_| {})?;
+                let wall = t.elapsed().as_secs_f64();
+                let cpu = cpu_seconds().zip(cpu0).map(|(b, a)| b - a);
+                let pins = pinbake::bake::pin_count(&opts);
+                rows.push(json!({
+                    "source": name,
+                    "bake": config,
+                    "backend": backend,
+                    "threads": threads,
+                    "pins": pins,
+                    "stored_pins": g.pins.len(),
+                    "wall_s": wall,
+                    "pins_per_s": pins as f64 / wall,
+                    "t_min_mean": stats.t_min_mean,
+                    "peak_rss_bytes": peak_rss_bytes(),
+                    "integration_error": err.mean_abs_transmittance,
+                    "integration_error_max": err.max_abs_transmittance,
+                    "optical_depth_rel_error": err.mean_rel_optical_depth,
+                    "cpu_s": cpu,
+                    "gpu": stats.gpu,
+                }));
+            }
         }
     }
     if args.json {
@@ -132,8 +191,10 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             c = args.cells
         )?;
         pin_cli::outln!(
-            "{:<22} {:>8} {:>10} {:>14} {:>12} {:>12}",
+            "{:<22} {:<12} {:<8} {:>8} {:>10} {:>14} {:>12} {:>12}",
             "source",
+            "bake",
+            "backend",
             "threads",
             "wall s",
             "pins/s",
@@ -142,8 +203,10 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
         )?;
         for r in &rows {
             pin_cli::outln!(
-                "{:<22} {:>8} {:>10.2} {:>14.0} {:>12.0} {:>12.2e}",
+                "{:<22} {:<12} {:<8} {:>8} {:>10.2} {:>14.0} {:>12.0} {:>12.2e}",
                 r["source"].as_str().unwrap_or(""),
+                r["bake"].as_str().unwrap_or(""),
+                r["backend"].as_str().unwrap_or(""),
                 r["threads"],
                 r["wall_s"].as_f64().unwrap_or(0.0),
                 r["pins_per_s"].as_f64().unwrap_or(0.0),

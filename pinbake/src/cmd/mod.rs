@@ -83,7 +83,7 @@ pub enum Command {
     /// take with `bake --part I/N --grid-stats FILE`: one pass over every leaf, once per bake.
     GridStats(Box<GridStatsArgs>),
     /// Bake the thesis' largest configuration and print pins/s for 1 and 2 threads.
-    Bench(BenchArgs),
+    Bench(Box<BenchArgs>),
 }
 
 /// `pinbake grid-stats INPUT -o STATS`.
@@ -134,7 +134,7 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
             json,
         } => merge(&tiles, &output, max_memory, json),
         Command::GridStats(args) => grid_stats(&args),
-        Command::Bench(args) => bench::run(args),
+        Command::Bench(args) => bench::run(*args),
     }
 }
 

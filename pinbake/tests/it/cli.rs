@@ -533,6 +533,84 @@ fn bench_json_rows_carry_time_memory_and_integration_error() {
     }
 }
 
+/// `pinbake bench --backend cpu,gpu`: a row per configuration and backend, the GPU's rows
+/// with where their time went, the CPU's with none; `--default` and `--source` add the default
+/// bakes of the grid and of any input (on the CPU here: lavapipe takes ~30 s for each).
+#[test]
+fn bench_json_rows_cover_both_backends_and_the_default_bakes() {
+    let rows_of = |extra: &[&str]| {
+        let mut args = vec![
+            "bench",
+            "--voxels",
+            "16",
+            "--cells",
+            "4",
+            "--grid-only",
+            "--threads",
+            "2",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        let o = pinbake(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+        v["results"].as_array().unwrap().clone()
+    };
+    let key = |r: &serde_json::Value| {
+        format!(
+            "{} | {} | {}",
+            r["source"].as_str().unwrap().rsplit('/').next().unwrap(),
+            r["bake"].as_str().unwrap(),
+            r["backend"].as_str().unwrap()
+        )
+    };
+    let rows = rows_of(&["--backend", "cpu,gpu"]);
+    let keys: Vec<String> = rows.iter().map(key).collect();
+    assert_eq!(
+        keys,
+        [
+            "noise 16^3 grid | 4^3 x 16x4 | cpu",
+            "noise 16^3 grid | 4^3 x 16x4 | gpu"
+        ]
+    );
+    let (cpu, gpu) = (&rows[0], &rows[1]);
+    assert!(cpu["gpu"].is_null(), "{cpu}");
+    assert_eq!(cpu["pins"], gpu["pins"], "{gpu}");
+    assert_eq!(cpu["stored_pins"], gpu["stored_pins"], "{gpu}");
+    let g = &gpu["gpu"];
+    assert!(g["dispatches"].as_u64().unwrap() >= 1, "{gpu}");
+    assert!(!g["adapter"].as_str().unwrap().is_empty(), "{gpu}");
+    let parts: f64 = ["device_s", "upload_s", "jobs_s", "dispatch_s"]
+        .iter()
+        .map(|k| g[k].as_f64().unwrap())
+        .sum();
+    // The steps are part of the bake's wall time.
+    assert!(
+        parts > 0.0 && parts <= gpu["wall_s"].as_f64().unwrap(),
+        "{gpu}"
+    );
+    // The mean t_min of the two bakes agrees within docs/gpu.md's per-pin bound.
+    let (a, b) = (
+        cpu["t_min_mean"].as_f64().unwrap(),
+        gpu["t_min_mean"].as_f64().unwrap(),
+    );
+    assert!((a - b).abs() < 1e-4, "{a} against {b}");
+
+    let smoke = data("openvdb_smoke1.vdb");
+    let rows = rows_of(&["--default", "--source", smoke.to_str().unwrap()]);
+    let keys: Vec<String> = rows.iter().map(key).collect();
+    assert_eq!(
+        keys,
+        [
+            "noise 16^3 grid | 4^3 x 16x4 | cpu",
+            "noise 16^3 grid | default | cpu",
+            "openvdb_smoke1.vdb | default | cpu"
+        ]
+    );
+    // The default bakes are larger than the 4^3 one.
+    assert!(rows[1]["pins"].as_u64() > rows[0]["pins"].as_u64());
+}
+
 /// A bake records its source's identity (what `pinrender` checks `--pins` against): the same
 /// volume read the same way gives the same identity, another density scale another one.
 #[test]
