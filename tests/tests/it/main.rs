@@ -1,6 +1,6 @@
 //! The workspace-level tests that cross crates, one binary (one link of the whole tree):
 //! the code map of `docs/architecture.md`, directions, faults, the fuzz corpora, precision,
-//! statistics, stiff cases and the rotated VDB.
+//! statistics, stiff cases, the rotated VDB, and GPU against CPU bakes rendered with pins alone.
 
 mod common;
 
@@ -8,6 +8,7 @@ mod architecture;
 mod directions;
 mod faults;
 mod fuzz_corpus;
+mod gpu_bake_render;
 mod precision;
 mod statistics;
 mod stiff_cases;
