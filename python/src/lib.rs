@@ -451,7 +451,7 @@ impl ControlEdge {
     density_scale=1.0,
     threads=None, max_memory=None, grid=None, levelset_to_fog=false, dims=None,
     voxel_type=None, endian=None, clamp_negative=false, nan_as_zero=false, vdb_worker=None,
-    held_bytes=0
+    held_bytes=0, backend="cpu"
 ))]
 #[allow(clippy::too_many_arguments)]
 fn bake(
@@ -484,7 +484,17 @@ fn bake(
     nan_as_zero: bool,
     vdb_worker: Option<PathBuf>,
     held_bytes: u64,
+    backend: &str,
 ) -> PyResult<String> {
+    let backend = match backend {
+        "cpu" => pinbake::BakeBackend::Cpu,
+        "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions::default()),
+        other => {
+            return Err(value_err(format!(
+                "backend '{other}' is not 'cpu' or 'gpu'"
+            )));
+        }
+    };
     let mut req = BakeRequest {
         cells,
         directions: directions.map(parse_dirs).transpose()?,
@@ -507,6 +517,7 @@ fn bake(
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),
+        backend,
         // A bake option without a keyword here (a tile) keeps the command line's default.
         ..BakeRequest::default()
     };

@@ -305,6 +305,31 @@ def test_python_bakes_equal_pinbake_bakes_byte_for_byte(smoke, tmp_path):
         pinrt.bake(raw, tmp_path / "never.pin", cells=4, embed_density="sparse:0")
 
 
+def test_gpu_bakes_equal_pinbake_gpu_bakes_byte_for_byte(tmp_path):
+    # backend="gpu" is --backend gpu: on one device the same bytes as the command, with the
+    # GPU's breakdown in the summary; the CPU's summary has none.
+    raw = DATA / "hydrogen_atom_128x128x128_uint8.raw"
+    opts = dict(cells=(6, 5, 4), density_scale=0.05, step=0.05, directions="octahedral:4")
+    py = tmp_path / "gpu_py.pin"
+    s = pinrt.bake(raw, py, backend="gpu", **opts)
+    cli = tmp_path / "gpu_cli.pin"
+    subprocess.run(
+        [exe("PINBAKE_EXE"), "bake", str(raw), "-o", str(cli), "--cells", "6,5,4",
+         "--density-scale", "0.05", "--step", "0.05", "--dirs", "octahedral:4",
+         "--backend", "gpu", "-q"],
+        check=True,
+    )
+    assert py.read_bytes() == cli.read_bytes()
+    assert s["gpu"]["dispatches"] >= 1 and s["gpu"]["adapter"]
+    cpu = tmp_path / "cpu_py.pin"
+    assert "gpu" not in pinrt.bake(raw, cpu, **opts)
+    # The same layout: only entries may differ (within docs/gpu.md's bound).
+    assert cpu.stat().st_size == py.stat().st_size
+    with pytest.raises(ValueError, match="backend 'tpu'"):
+        pinrt.bake(raw, tmp_path / "never.pin", backend="tpu", **opts)
+    assert not (tmp_path / "never.pin").exists()
+
+
 def test_arrays_bake_like_the_same_voxels_in_a_raw_file(tmp_path):
     # A blob in a 20x16x12 grid indexed [x, y, z] and stored in Fortran order, to show that
     # indexing, not memory layout, defines the axes.

@@ -162,6 +162,7 @@ def bake(
     endian: Optional[str] = None,
     clamp_negative: bool = False,
     nan_as_zero: bool = False,
+    backend: str = "cpu",
 ) -> Dict[str, Any]:
     """Bakes a volume into the pin file ``output`` and returns the ``pinbake bake --json``
     summary as a dict.
@@ -187,8 +188,11 @@ def bake(
     or ``True``/``"auto"`` for the default edge, which grows with the volume's resolution;
     for ``pinrender``'s ``pinres``), ``density_scale``
     ``threads`` and ``max_memory`` (bytes; ``--max-memory``, default half of the physical
-    memory). A bake is deterministic: the same input and options give the same bytes as the
-    ``pinbake`` command.
+    memory). ``backend`` is ``"cpu"`` or ``"gpu"`` (``--backend``: the pins' entries from a wgpu
+    compute pass; the file's layout and sections are the same, its entries within the bound
+    ``docs/gpu.md`` states; no adapter raises :class:`PinError`; the summary then has a ``gpu``
+    object with where the time went). A bake is deterministic: the same input and options
+    give the same bytes as the ``pinbake`` command with the same backend.
 
     The bake runs through the same Rust code as ``pinbake bake`` (``pinbake::plan``), with
     its rules: ``output`` must be a new path or a regular file that is not the input (a
@@ -242,6 +246,7 @@ def bake(
         endian=endian,
         clamp_negative=clamp_negative,
         nan_as_zero=nan_as_zero,
+        backend=backend,
     )
     out = os.fspath(output)
     if isinstance(array_or_path, (str, os.PathLike)):

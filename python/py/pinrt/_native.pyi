@@ -75,6 +75,7 @@ def bake(
     nan_as_zero: bool = ...,
     vdb_worker: Optional[Union[str, PathLike[str]]] = ...,
     held_bytes: int = ...,
+    backend: str = ...,
 ) -> str: ...
 def check_array_memory(
     shape: Tuple[int, ...], held: int, max_memory: Optional[int] = ...
