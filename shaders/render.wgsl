@@ -57,7 +57,8 @@ struct RtParams {
     material: vec4<f32>,
     // width, height, max_bounces, number of media.
     size: vec4<u32>,
-    // seed low word, seed high word, residual control slot (RT_EST_RESIDUAL), unused.
+    // seed low word, seed high word, residual control slot (RT_EST_RESIDUAL), the media
+    // hierarchy's start in `rt_data` plus one (0: none; `rt_bvh_next`).
     seed: vec4<u32>,
 }
 
@@ -846,12 +847,90 @@ fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32)
     }
 }
 
+// The media's hierarchy (render/bvh.rs, packed by gpu_render/media.rs): `RP.seed.w - 1` is
+// the word of `rt_data` that holds its node count, the nodes follow, eight words each (lo,
+// hi, escape index, leaf run `first | count << 29`). `RP.seed.w == 0`: no hierarchy, every
+// medium is asked in turn. A walk meets the leaves in media order and a node's box holds its
+// media's, so the media asked, and the order they are asked in, are the linear scan's: the
+// same bits, with box tests that grow with the media a ray meets.
+
+// Whether the segment [0, t_max] of the ray meets node `base`'s box (slab test).
+fn rt_bvh_meets(base: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
+    let lo = vec3<f32>(
+        bitcast<f32>(rt_data[base]),
+        bitcast<f32>(rt_data[base + 1u]),
+        bitcast<f32>(rt_data[base + 2u]),
+    );
+    let hi = vec3<f32>(
+        bitcast<f32>(rt_data[base + 3u]),
+        bitcast<f32>(rt_data[base + 4u]),
+        bitcast<f32>(rt_data[base + 5u]),
+    );
+    var t0 = 0.0;
+    var t1 = t_max;
+    for (var a = 0u; a < 3u; a = a + 1u) {
+        if (abs(d[a]) < 1e-30) {
+            if (o[a] < lo[a] || o[a] > hi[a]) {
+                return false;
+            }
+            continue;
+        }
+        let inv = 1.0 / d[a];
+        let ta = (lo[a] - o[a]) * inv;
+        let tb = (hi[a] - o[a]) * inv;
+        t0 = max(t0, min(ta, tb));
+        t1 = min(t1, max(ta, tb));
+    }
+    return t0 <= t1;
+}
+
+// The next leaf at or after node `*node` whose box [0, t_max] of the ray meets, as
+// (first medium, count); count 0 when the walk is over. Leaves `*node` after that leaf.
+fn rt_bvh_next(node: ptr<function, u32>, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<u32> {
+    let start = RP.seed.w;
+    let nodes = rt_data[start - 1u];
+    var leaf = vec2<u32>(0u, 0u);
+    loop {
+        if (*node >= nodes) {
+            break;
+        }
+        let base = start + *node * 8u;
+        let run = rt_data[base + 7u];
+        if (!rt_bvh_meets(base, o, d, t_max)) {
+            *node = rt_data[base + 6u];
+        } else if ((run >> 29u) != 0u) {
+            *node = rt_data[base + 6u];
+            leaf = vec2<u32>(run & 0x1fffffffu, run >> 29u);
+            break;
+        } else {
+            *node = *node + 1u;
+        }
+    }
+    return leaf;
+}
+
 fn rt_transmittance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
     var t = 1.0;
-    for (var m = 0u; m < RP.size.w; m = m + 1u) {
-        t = t * rt_medium_transmittance(kind, m, o, d);
-        if (t == 0.0) {
+    if (RP.seed.w == 0u) {
+        for (var m = 0u; m < RP.size.w; m = m + 1u) {
+            t = t * rt_medium_transmittance(kind, m, o, d);
+            if (t == 0.0) {
+                break;
+            }
+        }
+        return t;
+    }
+    var node = 0u;
+    loop {
+        let leaf = rt_bvh_next(&node, o, d, rt_inf());
+        if (leaf.y == 0u) {
             break;
+        }
+        for (var m = leaf.x; m < leaf.x + leaf.y; m = m + 1u) {
+            t = t * rt_medium_transmittance(kind, m, o, d);
+            if (t == 0.0) {
+                return t;
+            }
         }
     }
     return t;
@@ -860,10 +939,28 @@ fn rt_transmittance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
 // Nearest collision over the media, +inf if none.
 fn rt_distance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
     var best = rt_inf();
-    for (var m = 0u; m < RP.size.w; m = m + 1u) {
-        let t = rt_medium_distance(kind, m, o, d, best);
-        if (t < best) {
-            best = t;
+    if (RP.seed.w == 0u) {
+        for (var m = 0u; m < RP.size.w; m = m + 1u) {
+            let t = rt_medium_distance(kind, m, o, d, best);
+            if (t < best) {
+                best = t;
+            }
+        }
+        return best;
+    }
+    var node = 0u;
+    loop {
+        // The segment shrinks to the nearest collision so far: later media beyond it are
+        // cut there by their own walks, and skipped here when their whole box lies beyond.
+        let leaf = rt_bvh_next(&node, o, d, best);
+        if (leaf.y == 0u) {
+            break;
+        }
+        for (var m = leaf.x; m < leaf.x + leaf.y; m = m + 1u) {
+            let t = rt_medium_distance(kind, m, o, d, best);
+            if (t < best) {
+                best = t;
+            }
         }
     }
     return best;

@@ -419,6 +419,78 @@ pub(super) struct Packed<'g> {
     pub pins: Cow<'g, [u8]>,
     pub index: Cow<'g, [u8]>,
     pub caps: Vec<Caps>,
+    /// Where the media's hierarchy's nodes start in `data` (`RtParams.seed.w`; its node
+    /// count is the word before); 0: none, the shader scans every medium.
+    pub bvh: u32,
+}
+
+/// The fewest media the path tracer walks by a hierarchy (fewer: the linear scan, whose box
+/// tests cost less than the walk's).
+pub(super) const BVH_MIN_MEDIA: usize = 8;
+
+/// A medium's world box for the hierarchy: the union of the boxes its queries stay in (the
+/// placed pin grid, the density's clip box, the majorant grid's box), widened by a relative
+/// 1e-3 so that no f32 rounding of the shader's node test misses a ray its own tests would
+/// meet. `None` for a medium with none of them (it is met by every ray).
+fn medium_box(r: &MediumRecord) -> Option<([f64; 3], [f64; 3])> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    let mut add = |l: &[f32; 4], h: &[f32; 4]| {
+        for a in 0..3 {
+            lo[a] = lo[a].min(f64::from(l[a]));
+            hi[a] = hi[a].max(f64::from(h[a]));
+        }
+    };
+    if r.ids[2] & FLAG_PINS != 0 {
+        add(&r.pin_lo, &r.pin_hi);
+    }
+    if r.ids[2] & FLAG_DENSITY != 0 {
+        add(&r.clip_lo, &r.clip_hi);
+    }
+    if r.ids[2] & FLAG_MAJORANTS != 0 {
+        add(&r.maj_lo, &r.maj_hi);
+    }
+    if !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
+        return None;
+    }
+    let pad = (0..3).map(|a| hi[a] - lo[a]).fold(0.0, f64::max) * 1e-3
+        + lo.iter().chain(&hi).fold(0.0f64, |acc, v| acc.max(v.abs())) * 1e-5
+        + 1e-30;
+    Some((lo.map(|v| v - pad), hi.map(|v| v + pad)))
+}
+
+/// Appends the hierarchy over `records`' boxes to `data` (its node count, then its nodes:
+/// `render::bvh`'s, which hand out the media a ray meets in media order, so a walk combines
+/// them as the linear scan does) and returns `RtParams.seed.w` for it; 0 (no hierarchy) for
+/// fewer than [`BVH_MIN_MEDIA`] media or a medium without a finite box.
+fn pack_bvh(records: &[MediumRecord], data: &mut Vec<u32>) -> u32 {
+    if records.len() < BVH_MIN_MEDIA {
+        return 0;
+    }
+    let mut lo: [Vec<f32>; 3] = Default::default();
+    let mut hi: [Vec<f32>; 3] = Default::default();
+    for r in records {
+        let Some((l, h)) = medium_box(r) else {
+            return 0;
+        };
+        // Rounding to f32 moves a bound by half an ulp, far inside the padding.
+        for a in 0..3 {
+            lo[a].push(l[a] as f32);
+            hi[a].push(h[a] as f32);
+        }
+    }
+    let Some(words) = crate::render::bvh::Bvh::build(&lo, &hi).and_then(|b| b.gpu_words()) else {
+        return 0;
+    };
+    let Ok(start) = u32::try_from(data.len() + 1) else {
+        return 0;
+    };
+    if u32::try_from(data.len() + 1 + words.len()).is_err() {
+        return 0;
+    }
+    data.push((words.len() / 8) as u32);
+    data.extend(words);
+    start
 }
 
 /// Conservative world AABB of a grid's box under `local_to_world` (row-major 3x4), widened by
@@ -753,6 +825,7 @@ pub(super) fn pack<'g>(
         records.push(r);
         caps.push(cap);
     }
+    let bvh = pack_bvh(&records, &mut data);
     check("the density data", data.len() * 4)?;
     check(
         "the medium records",
@@ -770,6 +843,7 @@ pub(super) fn pack<'g>(
         pins,
         index,
         caps,
+        bvh,
     })
 }
 

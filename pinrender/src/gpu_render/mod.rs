@@ -138,7 +138,7 @@ impl GpuScene {
     }
 
     /// The uniform block (the scene in the form `render_main` reads it), after `validate`.
-    fn params(&self, seed: u64, estimator: GpuEstimator, media: u32) -> RtParams {
+    fn params(&self, seed: u64, estimator: GpuEstimator, media: u32, bvh: u32) -> RtParams {
         // The camera frame exactly as tracer.rs builds it.
         let c = &self.camera;
         let o = Vec3::from_array(c.origin);
@@ -187,7 +187,7 @@ impl GpuScene {
                 seed as u32,
                 (seed >> 32) as u32,
                 estimator.spec().and_then(media::control_slot).unwrap_or(0) as u32,
-                0,
+                bvh,
             ],
         }
     }
@@ -388,6 +388,9 @@ pub struct GpuRenderer {
     /// Medium 0's grid parameters as a uniform (`rt_grid0`).
     grid0: wgpu::Buffer,
     caps: Vec<media::Caps>,
+    /// `RtParams.seed.w`: where the media hierarchy's nodes start in the data buffer (its
+    /// node count the word before); 0 scans every medium.
+    bvh: u32,
     pin_bytes: u64,
     /// Bytes of each uploaded section, for a viewer's readout.
     section_bytes: Vec<(&'static str, u64)>,
@@ -425,6 +428,20 @@ fn storage_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
             min_binding_size: None,
         },
         count: None,
+    }
+}
+
+#[cfg(test)]
+impl GpuRenderer {
+    /// Whether the media are walked by a hierarchy.
+    pub(crate) fn has_bvh(&self) -> bool {
+        self.bvh != 0
+    }
+
+    /// The same renderer asking every medium in turn (the hierarchy's reference).
+    pub(crate) fn without_bvh(mut self) -> Self {
+        self.bvh = 0;
+        self
     }
 }
 
@@ -673,6 +690,7 @@ impl GpuRenderer {
             grid0,
             section_bytes,
             caps: packed.caps,
+            bvh: packed.bvh,
             pin_bytes: packed.pins.len() as u64,
         })
     }

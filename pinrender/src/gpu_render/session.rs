@@ -39,6 +39,8 @@ pub struct GpuSession {
     estimator: GpuEstimator,
     seed: u64,
     media: u32,
+    /// The renderer's `RtParams.seed.w` (its media hierarchy), for [`GpuSession::reset`].
+    bvh: u32,
     /// Whole passes in the accumulation.
     passes: u32,
     /// First row of the pass in progress that is not rendered yet (0: none in progress).
@@ -98,7 +100,7 @@ impl GpuRenderer {
         }
         let media = u32::try_from(self.caps.len())
             .map_err(|_| Error::Gpu(format!("{} media exceed u32", self.caps.len())))?;
-        let params = scene.params(seed, estimator, media);
+        let params = scene.params(seed, estimator, media, self.bvh);
         Ok(pollster::block_on(async {
             let pipeline = self.pipeline(estimator).await?;
             self.begin(pipeline, &params, estimator, seed, media, w, h, accum_size)
@@ -209,6 +211,7 @@ impl GpuRenderer {
             estimator,
             seed,
             media,
+            bvh: self.bvh,
             passes: 0,
             next_row: 0,
             row_seconds: 0.0,
@@ -289,7 +292,7 @@ impl GpuSession {
             ))
             .into());
         }
-        let params = scene.params(seed, self.estimator, self.media);
+        let params = scene.params(seed, self.estimator, self.media, self.bvh);
         self.queue
             .write_buffer(&self.scene_uniform, 0, bytemuck::bytes_of(&params));
         let mut enc = self

@@ -1018,6 +1018,74 @@ fn placed_majorants(dense: &VoxelGrid) -> Vec<Arc<MajorantGrid>> {
         .collect()
 }
 
+/// Many instances are walked by the media hierarchy, with the bits of the linear scan: the
+/// media a ray meets, and the order they are asked in, are the scan's (24 overlapping and
+/// scattered blobs with pins, densities and majorants; pins, and the trackers' transmittance
+/// and shrinking nearest-collision search).
+#[test]
+fn the_media_hierarchy_renders_the_linear_scans_bits() {
+    let ctx = context();
+    let n = 8;
+    let values = blob_voxels(n, 5.0);
+    let spacing = [2.0 / n as f64; 3];
+    let base = VoxelGrid::new([n; 3], [-1.0; 3], spacing, values.clone()).unwrap();
+    let grid = load(&blob_grid(4, Directions::Octahedral { n: 4 }, 1, 0.25));
+    let mut rng = Rng::for_query(0x5CA7, 24);
+    let offsets: Vec<[f64; 3]> = (0..24)
+        .map(|_| [6.0, 1.5, 3.0].map(|w| f64::from(rng.next_f32() - 0.5) * w))
+        .collect();
+    let majorants: Vec<Arc<MajorantGrid>> = offsets
+        .iter()
+        .map(|off| {
+            let o = [0, 1, 2].map(|a| -1.0 + off[a]);
+            let g = VoxelGrid::new([n; 3], o, spacing, values.clone()).unwrap();
+            Arc::new(MajorantGrid::from_field(&g, [2, 2, 2]).unwrap())
+        })
+        .collect();
+    let media = GpuMedia {
+        grids: vec![&*grid],
+        densities: vec![GpuDensity::from_voxel_grid(base).unwrap()],
+        media: offsets
+            .iter()
+            .zip(&majorants)
+            .map(|(off, maj)| GpuMedium {
+                pins: Some(GpuPins {
+                    grid: 0,
+                    local_to_world: Some(translated_identity(*off)),
+                    options: SamplerOptions::default(),
+                }),
+                density: Some(GpuPlacedDensity {
+                    density: 0,
+                    translation: *off,
+                    majorants: Some(maj.clone()),
+                    controls: Vec::new(),
+                }),
+            })
+            .collect(),
+    };
+    let walked = GpuRenderer::with_media(&ctx, &media).unwrap();
+    assert!(walked.has_bvh(), "24 media are walked by the hierarchy");
+    let scanned = GpuRenderer::with_media(&ctx, &media).unwrap().without_bvh();
+    let mut sc = scene(24, 0.9, 0.3, 2);
+    sc.camera.origin = [1.0, 2.0, 8.0];
+    sc.camera.target = [0.0, 0.0, 0.0];
+    sc.camera.vfov_deg = 50.0;
+    for est in [
+        EstimatorSpec::DeltaTracking,
+        EstimatorSpec::RatioTracking,
+        EstimatorSpec::Pins,
+    ] {
+        let a = walked.render(&sc, est, 2, 7).unwrap();
+        let b = scanned.render(&sc, est, 2, 7).unwrap();
+        assert!(grey(a.rgb[a.rgb.len() / 2]) > 0.0 || a.rgb.iter().any(|p| p[0] > 0.0));
+        assert_eq!(
+            image_bits(&a),
+            image_bits(&b),
+            "{est}: the walk differs from the scan"
+        );
+    }
+}
+
 fn image_bits(im: &Image) -> Vec<u32> {
     im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect()
 }

@@ -115,6 +115,25 @@ impl Bvh {
         None
     }
 
+    /// The nodes as the GPU path tracer walks them (`rt_bvh_*` in `render.wgsl`): eight
+    /// words a node, the box's `lo` and `hi` (f32 bits), the escape index, and the leaf's
+    /// run as `first | count << 29` (0 for an inner node). `None` when a run's first medium
+    /// does not fit in 29 bits.
+    #[cfg(feature = "gpu")]
+    pub(crate) fn gpu_words(&self) -> Option<Vec<u32>> {
+        const _: () = assert!(LEAF < 8, "a leaf's count is packed in 3 bits");
+        let mut words = Vec::with_capacity(self.nodes.len() * 8);
+        for n in &self.nodes {
+            if n.first >= 1 << 29 {
+                return None;
+            }
+            words.extend(n.lo.iter().chain(&n.hi).map(|v| v.to_bits()));
+            words.push(n.escape);
+            words.push(n.first | n.count << 29);
+        }
+        Some(words)
+    }
+
     /// The number of nodes (for tests).
     #[cfg(test)]
     pub(crate) fn len(&self) -> usize {

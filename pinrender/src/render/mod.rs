@@ -101,7 +101,7 @@
 mod baked_control;
 mod bounds;
 mod bricks;
-mod bvh;
+pub(crate) mod bvh;
 mod error;
 mod estimator;
 mod field;
