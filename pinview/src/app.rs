@@ -12,6 +12,7 @@ use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap, PassTimeSource}
 use pinrender::render::EstimatorSpec;
 
 use crate::args::ViewArgs;
+use crate::compare::{self, CompareSide, SideTime, Turn};
 use crate::export;
 use crate::open::{BakeJob, Medium, gpu_media};
 use crate::sequence::{Opener, Sequence};
@@ -150,6 +151,14 @@ pub struct Viewer {
     frames_played: Vec<u64>,
     /// A scripted window screenshot asked for: when, and its result once written.
     window_shot: Option<(Instant, ShotResult)>,
+    /// The second estimator asked for (split view), its side once the medium answers it,
+    /// and its displayed image.
+    compare_wanted: Option<EstimatorSpec>,
+    compare: Option<CompareSide>,
+    compare_target: Option<Target>,
+    /// Where the divider stands, as a fraction of the image's width (left: the first
+    /// estimator).
+    split: f32,
 }
 
 impl Viewer {
@@ -210,6 +219,10 @@ impl Viewer {
             paused: false,
             frames_played: Vec::new(),
             window_shot: None,
+            compare_wanted: args.compare,
+            compare: None,
+            compare_target: None,
+            split: 0.5,
             args,
         };
         if let Some(s) = &viewer.sequence {
@@ -281,6 +294,8 @@ impl Viewer {
     fn ensure_session(&mut self) -> Result<()> {
         let est = self.estimator_now();
         self.view.estimator = est;
+        // The second side starts again with the first, so both have spent equal time.
+        let mut restart = self.dirty;
         if self.renderer.as_ref().is_none_or(|(e, _)| *e != est) {
             self.session = None;
             self.renderer = None;
@@ -312,6 +327,7 @@ impl Viewer {
                     r.session(&scene, est, self.view.seed)
                         .map_err(|e| anyhow!("{e}"))?,
                 );
+                restart = true;
                 if self.clock.marks.pipeline == 0.0 {
                     self.clock.marks.pipeline = self.clock.now();
                 }
@@ -328,6 +344,51 @@ impl Viewer {
             }
         }
         self.dirty = false;
+        self.ensure_compare(restart)
+    }
+
+    /// Starts the second side when one is asked for and the medium answers it (a volume's
+    /// pins estimators once baked), and restarts it with the first.
+    fn ensure_compare(&mut self, restart: bool) -> Result<()> {
+        let Some(est) = self
+            .compare_wanted
+            .filter(|e| self.medium.estimators().contains(e))
+        else {
+            self.compare = None;
+            return Ok(());
+        };
+        let scene = self.view.scene();
+        let seed = self.view.seed;
+        match &mut self.compare {
+            Some(c) if c.estimator == est => {
+                if restart {
+                    c.reset(&scene, seed)?;
+                }
+            }
+            _ => {
+                self.compare = None;
+                self.compare = Some(CompareSide::start(
+                    &self.device,
+                    &self.queue,
+                    &self.limits,
+                    &mut self.medium,
+                    est,
+                    &scene,
+                    seed,
+                )?);
+            }
+        }
+        let size = (self.view.width, self.view.height);
+        if self.compare_target.as_ref().is_none_or(|t| t.size != size) {
+            let old = self.compare_target.as_ref().map(|t| t.id);
+            self.compare_target = Some(Self::make_target(
+                &self.device,
+                &self.egui_renderer,
+                size.0,
+                size.1,
+                old,
+            ));
+        }
         Ok(())
     }
 
@@ -336,6 +397,7 @@ impl Viewer {
         self.medium = medium;
         self.renderer = None;
         self.session = None;
+        self.compare = None;
     }
 
     fn fail(&mut self, ctx: &egui::Context, e: anyhow::Error) {
@@ -442,16 +504,62 @@ impl Viewer {
             }
             None => u32::MAX,
         };
+        // A scripted comparison waits for its second estimator (a volume's pins).
+        if self.args.frames.is_some()
+            && self.compare_wanted.is_some()
+            && self.compare.as_ref().map(|c| c.estimator) != self.compare_wanted
+        {
+            return Ok(());
+        }
         let Some(session) = &mut self.session else {
             return Ok(());
         };
-        let remaining = limit.saturating_sub(session.passes());
-        if remaining > 0 && !(self.paused && self.sequence.is_none()) {
-            let t = Instant::now();
-            session
-                .add_for(FRAME_BUDGET, SLICE, remaining)
-                .map_err(|e| anyhow!("{e}"))?;
-            self.render_seconds += t.elapsed().as_secs_f64();
+        let running = !(self.paused && self.sequence.is_none());
+        let remaining = if running {
+            limit.saturating_sub(session.passes())
+        } else {
+            0
+        };
+        let first = SideTime {
+            seconds: compare::seconds_spent(session, self.render_seconds),
+            pass_seconds: session.pass_seconds(),
+            remaining,
+            in_progress: session.next_row() != 0,
+        };
+        let turn = match &self.compare {
+            None => Turn::First(remaining),
+            Some(c) => compare::next_turn(
+                first,
+                SideTime {
+                    seconds: c.seconds(),
+                    pass_seconds: c.session.pass_seconds(),
+                    remaining: if running { u32::MAX } else { 0 },
+                    in_progress: c.session.next_row() != 0,
+                },
+            ),
+        };
+        let t = Instant::now();
+        match turn {
+            Turn::First(n) if n > 0 => {
+                session
+                    .add_for(FRAME_BUDGET, SLICE, n)
+                    .map_err(|e| anyhow!("{e}"))?;
+                self.render_seconds += t.elapsed().as_secs_f64();
+            }
+            Turn::Second(n) => {
+                if let Some(c) = &mut self.compare {
+                    c.session
+                        .add_for(FRAME_BUDGET, SLICE, n)
+                        .map_err(|e| anyhow!("{e}"))?;
+                    c.render_seconds += t.elapsed().as_secs_f64();
+                }
+            }
+            _ => {}
+        }
+        if let (Some(c), Some(target)) = (&self.compare, &self.compare_target)
+            && c.session.passes() > 0
+        {
+            self.tone.draw(&c.session, &target.view, self.view.exposure);
         }
         // After a reset the old image stays up until the first new pass is in: no black
         // frames while a long pass renders in bands.
@@ -470,16 +578,50 @@ impl Viewer {
     /// Milliseconds per pass: the GPU's timestamps where the session has them, else the wall
     /// time spent rendering over the passes rendered.
     fn ms_per_pass(&self) -> f64 {
-        let Some(session) = self.session.as_ref() else {
-            return 0.0;
+        self.session
+            .as_ref()
+            .map_or(0.0, |s| compare::ms_per_pass(s, self.render_seconds))
+    }
+
+    /// Seconds the first side's accumulation cost (see [`compare::seconds_spent`]).
+    fn seconds(&self) -> f64 {
+        self.session
+            .as_ref()
+            .map_or(0.0, |s| compare::seconds_spent(s, self.render_seconds))
+    }
+
+    /// Whether a scripted comparison has its second side at the nearest equal time, with
+    /// whole passes (or no comparison was asked for).
+    fn compare_done(&self) -> bool {
+        let Some(want) = self.compare_wanted else {
+            return true;
         };
-        if session.pass_time_source() == PassTimeSource::GpuTimestamps {
-            1e3 * session.pass_seconds()
-        } else if session.passes() == 0 {
-            0.0
-        } else {
-            1e3 * self.render_seconds / f64::from(session.passes())
-        }
+        let Some(c) = &self.compare else {
+            return false;
+        };
+        let Some(s) = &self.session else {
+            return false;
+        };
+        let first = SideTime {
+            seconds: self.seconds(),
+            pass_seconds: s.pass_seconds(),
+            remaining: 0,
+            in_progress: s.next_row() != 0,
+        };
+        let second = SideTime {
+            seconds: c.seconds(),
+            pass_seconds: c.session.pass_seconds(),
+            remaining: u32::MAX,
+            in_progress: c.session.next_row() != 0,
+        };
+        c.estimator == want
+            && c.session.passes() > 0
+            && compare::next_turn(first, second) == Turn::Neither
+    }
+
+    /// The column where the second side's image starts.
+    fn split_column(&self, width: u32) -> u32 {
+        ((self.split.clamp(0.0, 1.0) * width as f32).round() as u32).min(width)
     }
 
     fn pass_time_source(&self) -> PassTimeSource {
@@ -494,7 +636,7 @@ impl Viewer {
             return Ok(());
         };
         let passes = self.session.as_ref().map_or(0, |s| s.passes());
-        if passes < n || self.estimator_now() != self.wanted {
+        if passes < n || self.estimator_now() != self.wanted || !self.compare_done() {
             return Ok(());
         }
         if self
@@ -506,8 +648,18 @@ impl Viewer {
         }
         let (w, h) = self.target.size;
         if let Some(path) = &self.args.screenshot {
-            let rgb =
+            let mut rgb =
                 export::read_texture_rgb(&self.device, &self.queue, &self.target.texture, w, h)?;
+            // Split view: the second estimator's image right of the divider, as shown.
+            if let Some(t) = &self.compare_target {
+                let right = export::read_texture_rgb(&self.device, &self.queue, &t.texture, w, h)?;
+                let x0 = self.split_column(w) as usize;
+                let row = w as usize * 3;
+                for y in 0..h as usize {
+                    let span = y * row + x0 * 3..(y + 1) * row;
+                    rgb[span.clone()].copy_from_slice(&right[span]);
+                }
+            }
             export::write_png(path, w, h, &rgb)?;
         }
         if let Some(path) = &self.args.save {
@@ -518,7 +670,7 @@ impl Viewer {
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
         }
         let frame = self.sequence.as_ref().map(|s| &s.frames[s.current]);
-        let json = serde_json::json!({
+        let mut json = serde_json::json!({
             "adapter": self.info.name,
             "backend": format!("{:?}", self.info.backend),
             "device_type": format!("{:?}", self.info.device_type),
@@ -535,6 +687,17 @@ impl Viewer {
             "frames_played": self.frames_played,
             "file": self.medium.path.display().to_string(),
         });
+        if let Some(c) = &self.compare {
+            json["compare"] = serde_json::json!({
+                "estimator": c.estimator.to_string(),
+                "passes": c.session.passes(),
+                "ms_per_pass": c.ms_per_pass(),
+                "pass_time_source": c.session.pass_time_source().as_str(),
+                "seconds": c.seconds(),
+                "first_seconds": self.seconds(),
+                "split_column": self.split_column(w),
+            });
+        }
         if let Ok(mut o) = self.outcome.lock() {
             if self.args.json {
                 o.json = Some(json.to_string());
@@ -638,6 +801,22 @@ impl Viewer {
                     ui.selectable_value(&mut self.wanted, *e, e.to_string());
                 }
             });
+        egui::ComboBox::from_label("compare with")
+            .selected_text(
+                self.compare_wanted
+                    .map_or("none".to_string(), |e| e.to_string()),
+            )
+            .show_ui(ui, |ui| {
+                ui.selectable_value(&mut self.compare_wanted, None, "none");
+                for e in &available {
+                    ui.selectable_value(&mut self.compare_wanted, Some(*e), e.to_string());
+                }
+            });
+        if let Some(e) = self.compare_wanted
+            && !available.contains(&e)
+        {
+            ui.label(format!("{e}: not answered by this file (yet)"));
+        }
         let v = &mut self.view;
         ui.add(egui::Slider::new(&mut v.fov, 5.0..=120.0).text("fov"));
         ui.add(egui::Slider::new(&mut v.albedo, 0.0..=1.0).text("albedo"));
@@ -704,6 +883,16 @@ impl Viewer {
         }
         if let Some(t) = self.first_image_s {
             ui.label(format!("first image after {t:.3} s"));
+        }
+        if let Some(c) = &self.compare {
+            ui.label(format!(
+                "compare {}: spp {}, {:.2} ms per pass; {:.3} s vs {:.3} s",
+                c.estimator,
+                c.session.passes(),
+                c.ms_per_pass(),
+                c.seconds(),
+                self.seconds(),
+            ));
         }
         if let Some((_, r)) = &self.renderer {
             ui.label("GPU bytes:");
@@ -773,7 +962,12 @@ impl Viewer {
             egui::Image::new(egui::load::SizedTexture::new(self.target.id, size))
                 .sense(egui::Sense::click_and_drag()),
         );
-        let d = response.drag_delta();
+        let divider_dragged = self.split_view(ui, response.rect);
+        let d = if divider_dragged {
+            egui::Vec2::ZERO
+        } else {
+            response.drag_delta()
+        };
         let (ctrl, shift) = ui.input(|i| (i.modifiers.ctrl, i.modifiers.shift));
         let k = 0.01;
         if d != egui::Vec2::ZERO {
@@ -794,6 +988,67 @@ impl Viewer {
                 self.view.zoom((-f64::from(scroll) * 0.002).exp());
             }
         }
+    }
+
+    /// The second estimator's image right of the divider, the divider (dragged to move it),
+    /// and each side's label: estimator, spp and seconds spent. Returns whether the divider
+    /// is being dragged.
+    fn split_view(&mut self, ui: &mut egui::Ui, rect: egui::Rect) -> bool {
+        let (Some(c), Some(target)) = (&self.compare, &self.compare_target) else {
+            return false;
+        };
+        let x = rect.left() + self.split * rect.width();
+        let painter = ui.painter_at(rect);
+        let right = egui::Rect::from_min_max(egui::pos2(x, rect.top()), rect.max);
+        painter.image(
+            target.id,
+            right,
+            egui::Rect::from_min_max(egui::pos2(self.split, 0.0), egui::pos2(1.0, 1.0)),
+            egui::Color32::WHITE,
+        );
+        painter.line_segment(
+            [egui::pos2(x, rect.top()), egui::pos2(x, rect.bottom())],
+            egui::Stroke::new(2.0, egui::Color32::WHITE),
+        );
+        let label = |est: EstimatorSpec, passes: u32, seconds: f64| {
+            format!("{est}  {passes} spp  {seconds:.2} s")
+        };
+        let first = self.session.as_ref().map_or(0, |s| s.passes());
+        let texts = [
+            (
+                label(self.view.estimator, first, self.seconds()),
+                egui::pos2(rect.left() + 4.0, rect.top() + 4.0),
+                egui::Align2::LEFT_TOP,
+            ),
+            (
+                label(c.estimator, c.session.passes(), c.seconds()),
+                egui::pos2(rect.right() - 4.0, rect.top() + 4.0),
+                egui::Align2::RIGHT_TOP,
+            ),
+        ];
+        for (text, at, align) in texts {
+            let galley =
+                painter.layout_no_wrap(text, egui::FontId::monospace(12.0), egui::Color32::WHITE);
+            let r = align.anchor_size(at, galley.size());
+            painter.rect_filled(r.expand(2.0), 2.0, egui::Color32::from_black_alpha(160));
+            painter.galley(r.min, galley, egui::Color32::WHITE);
+        }
+        let handle = egui::Rect::from_center_size(
+            egui::pos2(x, rect.center().y),
+            egui::vec2(12.0, rect.height()),
+        );
+        let r = ui.interact(
+            handle,
+            ui.make_persistent_id("pinview divider"),
+            egui::Sense::drag(),
+        );
+        if r.hovered() || r.dragged() {
+            ui.ctx().set_cursor_icon(egui::CursorIcon::ResizeHorizontal);
+        }
+        if r.dragged() {
+            self.split = (self.split + r.drag_delta().x / rect.width().max(1.0)).clamp(0.0, 1.0);
+        }
+        r.dragged()
     }
 
     fn keys(&mut self, ctx: &egui::Context) {

@@ -40,6 +40,11 @@ pub struct ViewArgs {
     /// one without, ratio for a volume until its pins are baked.
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<EstimatorSpec>,
+    /// A second estimator beside the first, at equal GPU time (split view). With --frames,
+    /// the first renders N passes and the second as many as take the nearest equal time;
+    /// the screenshot holds both halves and --json a `compare` object.
+    #[arg(long, value_parser = parse_estimator)]
+    pub compare: Option<EstimatorSpec>,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,

@@ -7,6 +7,7 @@
 
 mod app;
 mod args;
+mod compare;
 mod export;
 mod open;
 mod sequence;
@@ -68,7 +69,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
     let medium = open_medium(&first, &a)?;
     clock.marks.file_open = clock.now();
-    if let Some(e) = a.estimator {
+    for e in a.estimator.into_iter().chain(a.compare) {
         use pinrender::render::EstimatorSpec;
         if e.needs_density() && !medium.has_density() {
             return Err(anyhow!(

@@ -2,6 +2,7 @@
 //! adapter (lavapipe on CI). Each test compares what the viewer writes with `pinrender
 //! render --backend gpu` for the same flags, seed and passes, or checks a failure line.
 
+mod compare;
 mod contract;
 mod failures;
 mod sequence;
