@@ -13,6 +13,7 @@ use pinrender::render::EstimatorSpec;
 
 use crate::args::ViewArgs;
 use crate::compare::{self, CompareSide, SideTime, Turn};
+use crate::error_view::{self, ErrorTrack, Reference};
 use crate::export;
 use crate::open::{BakeJob, Medium, gpu_media};
 use crate::sequence::{Opener, Sequence};
@@ -159,6 +160,12 @@ pub struct Viewer {
     /// Where the divider stands, as a fraction of the image's width (left: the first
     /// estimator).
     split: f32,
+    /// The error view: the reference and RMSE plot on, the heat map shown, the reference's
+    /// session (where the medium has a density) and what was measured against it.
+    error_on: bool,
+    heat_on: bool,
+    reference: Option<Reference>,
+    error: ErrorTrack,
 }
 
 impl Viewer {
@@ -223,6 +230,10 @@ impl Viewer {
             compare: None,
             compare_target: None,
             split: 0.5,
+            error_on: args.error_view,
+            heat_on: args.error_view,
+            reference: None,
+            error: ErrorTrack::default(),
             args,
         };
         if let Some(s) = &viewer.sequence {
@@ -344,7 +355,102 @@ impl Viewer {
             }
         }
         self.dirty = false;
-        self.ensure_compare(restart)
+        if restart {
+            self.error.clear(0);
+        }
+        self.ensure_compare(restart)?;
+        self.ensure_reference(restart)
+    }
+
+    /// Starts the reference when the error view is on and the medium has a density, and
+    /// restarts it with the first side.
+    fn ensure_reference(&mut self, restart: bool) -> Result<()> {
+        if !self.error_on || error_view::no_reference_reason(&self.medium).is_some() {
+            self.reference = None;
+            return Ok(());
+        }
+        let scene = self.view.scene();
+        let seed = self.view.seed;
+        match &mut self.reference {
+            Some(r) => {
+                if restart {
+                    r.reset(&scene, seed)?;
+                    self.error = ErrorTrack::default();
+                }
+            }
+            None => {
+                self.reference = Some(Reference::start(
+                    &self.device,
+                    &self.queue,
+                    &self.limits,
+                    &mut self.medium,
+                    &scene,
+                    seed,
+                )?);
+                self.error = ErrorTrack::default();
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a scripted run's reference holds whole passes, at least one (or there is
+    /// none to wait for).
+    fn reference_done(&self) -> bool {
+        match &self.reference {
+            _ if !self.error_on => true,
+            None => error_view::no_reference_reason(&self.medium).is_some(),
+            Some(r) => r.session.passes() > 0 && r.session.next_row() == 0,
+        }
+    }
+
+    /// Reads the accumulations back (at most once per [`error_view::ERROR_PERIOD`], or now
+    /// with `now`) and measures each side against the reference: RMSE, plot point, heat map.
+    fn update_error(&mut self, ctx: &egui::Context, now: bool) -> Result<()> {
+        let Some(r) = &self.reference else {
+            return Ok(());
+        };
+        if r.session.passes() == 0
+            || (!now
+                && self
+                    .error
+                    .last
+                    .is_some_and(|t| t.elapsed() < error_view::ERROR_PERIOD))
+        {
+            return Ok(());
+        }
+        self.error.last = Some(Instant::now());
+        let reference = error_view::read_mean(&self.device, &self.queue, &r.session)?;
+        self.error.reference_passes = r.session.passes();
+        let sides = [
+            self.session
+                .as_ref()
+                .map(|s| (s, compare::seconds_spent(s, self.render_seconds))),
+            self.compare.as_ref().map(|c| (&c.session, c.seconds())),
+        ];
+        for (k, side) in sides.into_iter().enumerate() {
+            let Some((session, seconds)) = side.filter(|(s, _)| s.passes() > 0) else {
+                continue;
+            };
+            let estimate = error_view::read_mean(&self.device, &self.queue, session)?;
+            let e = error_view::rmse(&estimate, &reference);
+            self.error.rmse[k] = Some(e);
+            self.error.points[k].push([seconds, e]);
+            let rgb = error_view::heat_map(&estimate, &reference, self.view.exposure);
+            let size = [session.width() as usize, session.height() as usize];
+            let image = egui::ColorImage::from_rgb(size, &rgb);
+            match &mut self.error.textures[k] {
+                Some(t) => t.set(image, egui::TextureOptions::NEAREST),
+                None => {
+                    self.error.textures[k] = Some(ctx.load_texture(
+                        format!("pinview error {k}"),
+                        image,
+                        egui::TextureOptions::NEAREST,
+                    ));
+                }
+            }
+            self.error.heat[k] = Some(rgb);
+        }
+        Ok(())
     }
 
     /// Starts the second side when one is asked for and the medium answers it (a volume's
@@ -367,6 +473,7 @@ impl Viewer {
             }
             _ => {
                 self.compare = None;
+                self.error.clear(1);
                 self.compare = Some(CompareSide::start(
                     &self.device,
                     &self.queue,
@@ -398,6 +505,7 @@ impl Viewer {
         self.renderer = None;
         self.session = None;
         self.compare = None;
+        self.reference = None;
     }
 
     fn fail(&mut self, ctx: &egui::Context, e: anyhow::Error) {
@@ -556,6 +664,29 @@ impl Viewer {
             }
             _ => {}
         }
+        // The reference gets what is left of the frame's budget (at least one slice), the
+        // whole frame when the shown sides add nothing; a scripted run stops it on whole
+        // passes once the shown sides are done.
+        if let Some(r) = &mut self.reference
+            && running
+        {
+            let idle = turn == Turn::Neither || matches!(turn, Turn::First(0));
+            let max = if self.args.frames.is_some() && idle {
+                u32::from(r.session.passes() == 0 || r.session.next_row() != 0)
+            } else {
+                u32::MAX
+            };
+            let budget = if idle {
+                FRAME_BUDGET
+            } else {
+                FRAME_BUDGET.saturating_sub(t.elapsed())
+            };
+            if max > 0 {
+                r.session
+                    .add_for(budget, SLICE, max)
+                    .map_err(|e| anyhow!("{e}"))?;
+            }
+        }
         if let (Some(c), Some(target)) = (&self.compare, &self.compare_target)
             && c.session.passes() > 0
         {
@@ -636,8 +767,16 @@ impl Viewer {
             return Ok(());
         };
         let passes = self.session.as_ref().map_or(0, |s| s.passes());
-        if passes < n || self.estimator_now() != self.wanted || !self.compare_done() {
+        if passes < n
+            || self.estimator_now() != self.wanted
+            || !self.compare_done()
+            || !self.reference_done()
+        {
             return Ok(());
+        }
+        // The error of the final images, whatever the read-back period.
+        if self.error_on {
+            self.update_error(ctx, true)?;
         }
         if self
             .sequence
@@ -648,11 +787,19 @@ impl Viewer {
         }
         let (w, h) = self.target.size;
         if let Some(path) = &self.args.screenshot {
-            let mut rgb =
-                export::read_texture_rgb(&self.device, &self.queue, &self.target.texture, w, h)?;
+            let heat = |k: usize| self.error.heat[k].clone().filter(|_| self.heat_on);
+            let mut rgb = match heat(0) {
+                Some(rgb) => rgb,
+                None => {
+                    export::read_texture_rgb(&self.device, &self.queue, &self.target.texture, w, h)?
+                }
+            };
             // Split view: the second estimator's image right of the divider, as shown.
             if let Some(t) = &self.compare_target {
-                let right = export::read_texture_rgb(&self.device, &self.queue, &t.texture, w, h)?;
+                let right = match heat(1) {
+                    Some(rgb) => rgb,
+                    None => export::read_texture_rgb(&self.device, &self.queue, &t.texture, w, h)?,
+                };
                 let x0 = self.split_column(w) as usize;
                 let row = w as usize * 3;
                 for y in 0..h as usize {
@@ -687,6 +834,22 @@ impl Viewer {
             "frames_played": self.frames_played,
             "file": self.medium.path.display().to_string(),
         });
+        if self.error_on {
+            json["error"] = match (
+                &self.reference,
+                error_view::no_reference_reason(&self.medium),
+            ) {
+                (Some(r), _) => serde_json::json!({
+                    "reference": "ratio",
+                    "reference_passes": r.session.passes(),
+                    "reference_seed": r.session.seed(),
+                    "rmse": self.error.rmse[0],
+                    "compare_rmse": self.error.rmse[1],
+                    "points": self.error.points[0].len(),
+                }),
+                (None, why) => serde_json::json!({ "reference": null, "why": why }),
+            };
+        }
         if let Some(c) = &self.compare {
             json["compare"] = serde_json::json!({
                 "estimator": c.estimator.to_string(),
@@ -847,6 +1010,8 @@ impl Viewer {
             }
         });
         ui.separator();
+        self.error_controls(ui);
+        ui.separator();
         self.readouts(ui);
         ui.separator();
         self.export(ui);
@@ -854,6 +1019,47 @@ impl Viewer {
             ui.separator();
             ui.label(egui::RichText::new(&self.status).color(egui::Color32::YELLOW));
         }
+    }
+
+    /// The error view's toggles, the reference's state and the RMSE-against-time plot.
+    fn error_controls(&mut self, ui: &mut egui::Ui) {
+        ui.checkbox(&mut self.error_on, "reference and RMSE plot");
+        if !self.error_on {
+            self.heat_on = false;
+            return;
+        }
+        ui.checkbox(&mut self.heat_on, "error view (|estimate - reference|)");
+        if let Some(why) = error_view::no_reference_reason(&self.medium) {
+            ui.label(egui::RichText::new(why).color(egui::Color32::YELLOW));
+            return;
+        }
+        let passes = self.reference.as_ref().map_or(0, |r| r.session.passes());
+        ui.label(format!(
+            "reference: ratio tracking, {passes} passes (itself noisy; read every {} ms)",
+            error_view::ERROR_PERIOD.as_millis()
+        ));
+        let names = [
+            Some(self.view.estimator),
+            self.compare.as_ref().map(|c| c.estimator),
+        ];
+        for (k, name) in names.iter().enumerate() {
+            if let (Some(n), Some(e)) = (name, self.error.rmse[k]) {
+                ui.label(format!("RMSE {n}: {e:.4e}"));
+            }
+        }
+        let points = &self.error.points;
+        egui_plot::Plot::new("pinview rmse")
+            .height(160.0)
+            .x_axis_label("seconds")
+            .y_axis_label("RMSE")
+            .legend(egui_plot::Legend::default())
+            .show(ui, |plot| {
+                for (k, name) in names.iter().enumerate() {
+                    if let Some(n) = name {
+                        plot.line(egui_plot::Line::new(n.to_string(), points[k].clone()));
+                    }
+                }
+            });
     }
 
     fn readouts(&self, ui: &mut egui::Ui) {
@@ -962,6 +1168,16 @@ impl Viewer {
             egui::Image::new(egui::load::SizedTexture::new(self.target.id, size))
                 .sense(egui::Sense::click_and_drag()),
         );
+        if self.heat_on
+            && let Some(t) = &self.error.textures[0]
+        {
+            ui.painter().image(
+                t.id(),
+                response.rect,
+                egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
+                egui::Color32::WHITE,
+            );
+        }
         let divider_dragged = self.split_view(ui, response.rect);
         let d = if divider_dragged {
             egui::Vec2::ZERO
@@ -1000,8 +1216,12 @@ impl Viewer {
         let x = rect.left() + self.split * rect.width();
         let painter = ui.painter_at(rect);
         let right = egui::Rect::from_min_max(egui::pos2(x, rect.top()), rect.max);
+        let right_id = match &self.error.textures[1] {
+            Some(t) if self.heat_on => t.id(),
+            _ => target.id,
+        };
         painter.image(
-            target.id,
+            right_id,
             right,
             egui::Rect::from_min_max(egui::pos2(self.split, 0.0), egui::pos2(1.0, 1.0)),
             egui::Color32::WHITE,
@@ -1137,6 +1357,12 @@ impl eframe::App for Viewer {
             self.dirty = true;
         }
         if let Err(e) = self.render() {
+            self.fail(&ctx, e);
+        }
+        if self.error_on
+            && self.args.frames.is_none()
+            && let Err(e) = self.update_error(&ctx, false)
+        {
             self.fail(&ctx, e);
         }
         if let Err(e) = self.finish_script(&ctx) {

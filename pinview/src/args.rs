@@ -45,6 +45,12 @@ pub struct ViewArgs {
     /// the screenshot holds both halves and --json a `compare` object.
     #[arg(long, value_parser = parse_estimator)]
     pub compare: Option<EstimatorSpec>,
+    /// The error view: ratio tracking accumulates a reference in the background (where the
+    /// file holds a density), |estimate - reference| is shown as a heat map and the RMSE
+    /// plotted against time. With --frames the screenshot is the heat map and --json gains
+    /// an `error` object.
+    #[arg(long)]
+    pub error_view: bool,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,

@@ -8,6 +8,7 @@
 mod app;
 mod args;
 mod compare;
+mod error_view;
 mod export;
 mod open;
 mod sequence;

@@ -4,6 +4,7 @@
 
 mod compare;
 mod contract;
+mod error_view;
 mod failures;
 mod sequence;
 mod support;
