@@ -16,6 +16,7 @@ use crate::compare::{self, CompareSide, SideTime, Turn};
 use crate::error_view::{self, ErrorTrack, Reference};
 use crate::export;
 use crate::open::{BakeJob, Medium, gpu_media};
+use crate::pin_overlay::{self, Pick, Projector};
 use crate::sequence::{Opener, Sequence};
 use crate::startup::StartupClock;
 use crate::view::View;
@@ -166,6 +167,13 @@ pub struct Viewer {
     heat_on: bool,
     reference: Option<Reference>,
     error: ErrorTrack,
+    /// Overlays: the pins of the entry under the cursor (or at a clicked, held pixel), and
+    /// the box with its cell grid; the latest pick and the image's rectangle in the window.
+    pins_on: bool,
+    grid_on: bool,
+    held_pixel: Option<[f64; 2]>,
+    pick: Option<Pick>,
+    image_rect: Option<egui::Rect>,
 }
 
 impl Viewer {
@@ -234,6 +242,11 @@ impl Viewer {
             heat_on: args.error_view,
             reference: None,
             error: ErrorTrack::default(),
+            pins_on: args.pin_at.is_some(),
+            grid_on: args.grid_overlay,
+            held_pixel: args.pin_at,
+            pick: None,
+            image_rect: None,
             args,
         };
         if let Some(s) = &viewer.sequence {
@@ -622,7 +635,8 @@ impl Viewer {
         let Some(session) = &mut self.session else {
             return Ok(());
         };
-        let running = !(self.paused && self.sequence.is_none());
+        // The window screenshot shows the passes the other outputs hold.
+        let running = !(self.paused && self.sequence.is_none()) && self.window_shot.is_none();
         let remaining = if running {
             limit.saturating_sub(session.passes())
         } else {
@@ -750,6 +764,15 @@ impl Viewer {
             && compare::next_turn(first, second) == Turn::Neither
     }
 
+    /// The entry under image pixel `(x, y)` (its centre at `x + 0.5`), where the medium has
+    /// pins and the ray enters the box.
+    fn pick_at(&self, x: f64, y: f64) -> Option<Pick> {
+        let grid = self.medium.pins()?;
+        let proj = Projector::new(&self.view)?;
+        let (o, d) = proj.ray(x + 0.5, y + 0.5);
+        pin_overlay::pick(grid, o, d)
+    }
+
     /// The column where the second side's image starts.
     fn split_column(&self, width: u32) -> u32 {
         ((self.split.clamp(0.0, 1.0) * width as f32).round() as u32).min(width)
@@ -834,6 +857,28 @@ impl Viewer {
             "frames_played": self.frames_played,
             "file": self.medium.path.display().to_string(),
         });
+        if let Some([x, y]) = self.args.pin_at {
+            json["pin"] = match self.pick_at(x, y) {
+                Some(p) => serde_json::json!({
+                    "pixel": [x, y],
+                    "cell": p.cell,
+                    "direction": p.direction,
+                    "reversed": p.reversed,
+                    "pins": p.pins.iter().map(|q| serde_json::json!({
+                        "t_min": q.entry.t_min,
+                        "mask": q.entry.mask,
+                    })).collect::<Vec<_>>(),
+                }),
+                None => serde_json::Value::Null,
+            };
+        }
+        if self.args.window_screenshot.is_some()
+            && let Some(r) = self.image_rect
+        {
+            let k = ctx.pixels_per_point();
+            json["window_image_rect"] =
+                serde_json::json!([r.min.x * k, r.min.y * k, r.max.x * k, r.max.y * k]);
+        }
         if self.error_on {
             json["error"] = match (
                 &self.reference,
@@ -1010,6 +1055,8 @@ impl Viewer {
             }
         });
         ui.separator();
+        self.overlay_controls(ui);
+        ui.separator();
         self.error_controls(ui);
         ui.separator();
         self.readouts(ui);
@@ -1018,6 +1065,29 @@ impl Viewer {
         if !self.status.is_empty() {
             ui.separator();
             ui.label(egui::RichText::new(&self.status).color(egui::Color32::YELLOW));
+        }
+    }
+
+    /// The overlays' toggles and the picked entry's readout.
+    fn overlay_controls(&mut self, ui: &mut egui::Ui) {
+        ui.checkbox(&mut self.pins_on, "pins under the cursor (click holds)");
+        ui.checkbox(&mut self.grid_on, "box and cell grid");
+        if self.medium.pins().is_none() && (self.pins_on || self.grid_on) {
+            ui.label("no pins yet (the bake is running)");
+            return;
+        }
+        if !self.pins_on {
+            return;
+        }
+        match &self.pick {
+            Some(p) => {
+                for line in pin_overlay::describe(p) {
+                    ui.label(egui::RichText::new(line).monospace().size(10.0));
+                }
+            }
+            None => {
+                ui.label("the cursor's ray misses the box");
+            }
         }
     }
 
@@ -1179,6 +1249,8 @@ impl Viewer {
             );
         }
         let divider_dragged = self.split_view(ui, response.rect);
+        self.image_rect = Some(response.rect);
+        self.overlays(ui, &response);
         let d = if divider_dragged {
             egui::Vec2::ZERO
         } else {
@@ -1203,6 +1275,51 @@ impl Viewer {
             if scroll != 0.0 {
                 self.view.zoom((-f64::from(scroll) * 0.002).exp());
             }
+        }
+    }
+
+    /// The pins under the cursor (or at the held pixel: a click holds or releases it) and the
+    /// box with its cell grid, projected through the view's camera.
+    fn overlays(&mut self, ui: &egui::Ui, response: &egui::Response) {
+        let rect = response.rect;
+        let (w, h) = (f64::from(self.view.width), f64::from(self.view.height));
+        let to_pixel = |p: egui::Pos2| {
+            [
+                (f64::from((p.x - rect.left()) / rect.width().max(1.0)) * w).floor(),
+                (f64::from((p.y - rect.top()) / rect.height().max(1.0)) * h).floor(),
+            ]
+        };
+        if self.pins_on && response.clicked() {
+            self.held_pixel = match self.held_pixel {
+                Some(_) => None,
+                None => response.interact_pointer_pos().map(to_pixel),
+            };
+        }
+        let (Some(grid), Some(proj)) = (self.medium.pins().cloned(), Projector::new(&self.view))
+        else {
+            self.pick = None;
+            return;
+        };
+        let to_screen = |p: [f64; 2]| {
+            egui::pos2(
+                rect.left() + (p[0] / w) as f32 * rect.width(),
+                rect.top() + (p[1] / h) as f32 * rect.height(),
+            )
+        };
+        let painter = ui.painter_at(rect);
+        if self.grid_on {
+            pin_overlay::draw_grid(&painter, &proj, &to_screen, &grid);
+        }
+        if !self.pins_on {
+            self.pick = None;
+            return;
+        }
+        let pixel = self
+            .held_pixel
+            .or_else(|| response.hover_pos().map(to_pixel));
+        self.pick = pixel.and_then(|[x, y]| self.pick_at(x, y));
+        if let Some(p) = &self.pick {
+            pin_overlay::draw_pins(&painter, &proj, &to_screen, p);
         }
     }
 
@@ -1242,8 +1359,9 @@ impl Viewer {
             ),
             (
                 label(c.estimator, c.session.passes(), c.seconds()),
-                egui::pos2(rect.right() - 4.0, rect.top() + 4.0),
-                egui::Align2::RIGHT_TOP,
+                // Bottom right: the two labels never overlap on a narrow image.
+                egui::pos2(rect.right() - 4.0, rect.bottom() - 4.0),
+                egui::Align2::RIGHT_BOTTOM,
             ),
         ];
         for (text, at, align) in texts {

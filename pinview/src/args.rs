@@ -51,6 +51,14 @@ pub struct ViewArgs {
     /// an `error` object.
     #[arg(long)]
     pub error_view: bool,
+    /// Show the pins of the entry under image pixel X,Y (from the top-left corner) as if the
+    /// cursor stood there; with --json, a `pin` object (cell, direction, t_min and mask of
+    /// each pin).
+    #[arg(long, value_parser = parse_pixel)]
+    pub pin_at: Option<[f64; 2]>,
+    /// Draw the box and the cell grid over the image.
+    #[arg(long)]
+    pub grid_overlay: bool,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -134,6 +142,19 @@ fn parse_hg_g(s: &str) -> Result<f64, String> {
 
 fn parse_direction(s: &str) -> Result<[f64; 3], String> {
     pin_scene::ranges::direction(parse_f64x3(s)?)
+}
+
+fn parse_pixel(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<&str> = s.split(',').collect();
+    if v.len() != 2 {
+        return Err(format!("{s}: expected X,Y"));
+    }
+    let x = parse_finite(v[0].trim())?;
+    let y = parse_finite(v[1].trim())?;
+    if x < 0.0 || y < 0.0 {
+        return Err(format!("{s}: pixel coordinates must be >= 0"));
+    }
+    Ok([x, y])
 }
 
 fn parse_exposure(s: &str) -> Result<f32, String> {

@@ -11,6 +11,7 @@ mod compare;
 mod error_view;
 mod export;
 mod open;
+mod pin_overlay;
 mod sequence;
 mod startup;
 mod view;

@@ -105,6 +105,11 @@ impl Medium {
         self.pins = Some(grid);
     }
 
+    /// The pins, where the file holds them or the bake has made them.
+    pub fn pins(&self) -> Option<&Arc<pinrt::PinGrid>> {
+        self.pins.as_ref()
+    }
+
     pub fn has_density(&self) -> bool {
         self.field.is_some()
     }

@@ -6,5 +6,6 @@ mod compare;
 mod contract;
 mod error_view;
 mod failures;
+mod overlay;
 mod sequence;
 mod support;
