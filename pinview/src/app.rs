@@ -146,6 +146,8 @@ pub struct Viewer {
     first_image_s: Option<f64>,
     /// Wall time spent adding the current session's passes.
     render_seconds: f64,
+    /// The first side's current pass time (compare's equal time).
+    first_clock: compare::PassClock,
     status: String,
     command: String,
     paused: bool,
@@ -229,6 +231,7 @@ impl Viewer {
             dirty: false,
             first_image_s: None,
             render_seconds: 0.0,
+            first_clock: compare::PassClock::default(),
             status: String::new(),
             command: String::new(),
             paused: false,
@@ -340,6 +343,7 @@ impl Viewer {
                     s.reset(&scene, self.view.seed)
                         .map_err(|e| anyhow!("{e}"))?;
                     self.render_seconds = 0.0;
+                    self.first_clock = compare::PassClock::default();
                 }
             }
             _ => {
@@ -356,6 +360,7 @@ impl Viewer {
                     self.clock.marks.pipeline = self.clock.now();
                 }
                 self.render_seconds = 0.0;
+                self.first_clock = compare::PassClock::default();
                 if self.target.size != size {
                     self.target = Self::make_target(
                         &self.device,
@@ -437,7 +442,7 @@ impl Viewer {
         let sides = [
             self.session
                 .as_ref()
-                .map(|s| (s, compare::seconds_spent(s, self.render_seconds))),
+                .map(|s| (s, self.first_clock.seconds())),
             self.compare.as_ref().map(|c| (&c.session, c.seconds())),
         ];
         for (k, side) in sides.into_iter().enumerate() {
@@ -643,8 +648,8 @@ impl Viewer {
             0
         };
         let first = SideTime {
-            seconds: compare::seconds_spent(session, self.render_seconds),
-            pass_seconds: session.pass_seconds(),
+            seconds: self.first_clock.seconds(),
+            pass_seconds: self.first_clock.pass_seconds,
             remaining,
             in_progress: session.next_row() != 0,
         };
@@ -654,7 +659,7 @@ impl Viewer {
                 first,
                 SideTime {
                     seconds: c.seconds(),
-                    pass_seconds: c.session.pass_seconds(),
+                    pass_seconds: c.clock.pass_seconds,
                     remaining: if running { u32::MAX } else { 0 },
                     in_progress: c.session.next_row() != 0,
                 },
@@ -663,17 +668,12 @@ impl Viewer {
         let t = Instant::now();
         match turn {
             Turn::First(n) if n > 0 => {
-                session
-                    .add_for(FRAME_BUDGET, SLICE, n)
-                    .map_err(|e| anyhow!("{e}"))?;
-                self.render_seconds += t.elapsed().as_secs_f64();
+                self.first_clock
+                    .add(session, &mut self.render_seconds, FRAME_BUDGET, SLICE, n)?;
             }
             Turn::Second(n) => {
                 if let Some(c) = &mut self.compare {
-                    c.session
-                        .add_for(FRAME_BUDGET, SLICE, n)
-                        .map_err(|e| anyhow!("{e}"))?;
-                    c.render_seconds += t.elapsed().as_secs_f64();
+                    c.add(FRAME_BUDGET, SLICE, n)?;
                 }
             }
             _ => {}
@@ -728,11 +728,11 @@ impl Viewer {
             .map_or(0.0, |s| compare::ms_per_pass(s, self.render_seconds))
     }
 
-    /// Seconds the first side's accumulation cost (see [`compare::seconds_spent`]).
+    /// The first side's time: its passes at its current pass time ([`compare::PassClock`]).
     fn seconds(&self) -> f64 {
         self.session
             .as_ref()
-            .map_or(0.0, |s| compare::seconds_spent(s, self.render_seconds))
+            .map_or(0.0, |_| self.first_clock.seconds())
     }
 
     /// Whether a scripted comparison has its second side at the nearest equal time, with
@@ -749,13 +749,13 @@ impl Viewer {
         };
         let first = SideTime {
             seconds: self.seconds(),
-            pass_seconds: s.pass_seconds(),
+            pass_seconds: self.first_clock.pass_seconds,
             remaining: 0,
             in_progress: s.next_row() != 0,
         };
         let second = SideTime {
             seconds: c.seconds(),
-            pass_seconds: c.session.pass_seconds(),
+            pass_seconds: c.clock.pass_seconds,
             remaining: u32::MAX,
             in_progress: c.session.next_row() != 0,
         };
@@ -903,6 +903,8 @@ impl Viewer {
                 "pass_time_source": c.session.pass_time_source().as_str(),
                 "seconds": c.seconds(),
                 "first_seconds": self.seconds(),
+                "clock_ms_per_pass": 1e3 * c.clock.pass_seconds,
+                "first_clock_ms_per_pass": 1e3 * self.first_clock.pass_seconds,
                 "split_column": self.split_column(w),
             });
         }

@@ -2,11 +2,79 @@
 //! estimator reads) and progressive session, given the same GPU time as the first by the
 //! measured time of their passes (not by pass count), and shown right of a divider.
 
+use std::time::{Duration, Instant};
+
 use anyhow::{Result, anyhow};
 use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, PassTimeSource};
 use pinrender::render::EstimatorSpec;
 
 use crate::open::{Medium, gpu_media};
+
+/// A side's time, charged by its measured pass time: each call that adds rows measures
+/// its wall time over those rows (each slice is waited for: the device's time plus the
+/// submission), the pass time is the running average of these, and the rows are charged at
+/// it. A session's first call is not measured: on lavapipe its first band carries the
+/// pipeline's first dispatch and costs as much as many whole passes; its rows are charged
+/// at the pass time of the next call. Wall time rather than the timestamp mean of
+/// [`GpuSession::pass_seconds`], which keeps that first dispatch for the session's life.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PassClock {
+    /// The current pass time, seconds (0: not measured yet).
+    pub pass_seconds: f64,
+    /// Seconds charged so far.
+    charged: f64,
+    /// Rows of the unmeasured first call, not charged yet.
+    uncharged_rows: u64,
+    calls: u32,
+}
+
+impl PassClock {
+    /// Adds up to `max_passes` passes to `session` within `budget` (slices of `slice`),
+    /// counting the call's wall time into `wall`, and charges them.
+    pub fn add(
+        &mut self,
+        session: &mut GpuSession,
+        wall: &mut f64,
+        budget: Duration,
+        slice: Duration,
+        max_passes: u32,
+    ) -> Result<()> {
+        let rows = |s: &GpuSession| {
+            u64::from(s.passes()) * u64::from(s.height()) + u64::from(s.next_row())
+        };
+        let rows0 = rows(session);
+        let t = Instant::now();
+        session
+            .add_for(budget, slice, max_passes)
+            .map_err(|e| anyhow!("{e}"))?;
+        let spent = t.elapsed().as_secs_f64();
+        *wall += spent;
+        let added = rows(session).saturating_sub(rows0);
+        if added == 0 {
+            return Ok(());
+        }
+        self.calls += 1;
+        if self.calls == 1 {
+            self.uncharged_rows += added;
+            return Ok(());
+        }
+        let h = f64::from(session.height());
+        let pass = spent / added as f64 * h;
+        self.pass_seconds = if self.pass_seconds > 0.0 {
+            0.5 * (self.pass_seconds + pass)
+        } else {
+            pass
+        };
+        let rows = added + std::mem::take(&mut self.uncharged_rows);
+        self.charged += rows as f64 / h * self.pass_seconds;
+        Ok(())
+    }
+
+    /// Seconds charged to the side so far.
+    pub fn seconds(&self) -> f64 {
+        self.charged
+    }
+}
 
 /// The second estimator's renderer and session; its displayed texture is the viewer's.
 pub struct CompareSide {
@@ -16,6 +84,7 @@ pub struct CompareSide {
     /// Wall time spent adding this session's passes (the time where the device has no
     /// timestamp queries).
     pub render_seconds: f64,
+    pub clock: PassClock,
 }
 
 impl CompareSide {
@@ -41,6 +110,7 @@ impl CompareSide {
             renderer,
             session,
             render_seconds: 0.0,
+            clock: PassClock::default(),
         })
     }
 
@@ -59,28 +129,30 @@ impl CompareSide {
                 .map_err(|e| anyhow!("{e}"))?;
         }
         self.render_seconds = 0.0;
+        self.clock = PassClock::default();
         Ok(())
     }
 
-    pub fn seconds(&self) -> f64 {
-        seconds_spent(&self.session, self.render_seconds)
+    /// Adds up to `max_passes` passes within `budget` and measures them.
+    pub fn add(&mut self, budget: Duration, slice: Duration, max_passes: u32) -> Result<()> {
+        self.clock.add(
+            &mut self.session,
+            &mut self.render_seconds,
+            budget,
+            slice,
+            max_passes,
+        )
     }
 
+    /// The side's time (its passes at its current pass time).
+    pub fn seconds(&self) -> f64 {
+        self.clock.seconds()
+    }
+
+    /// Milliseconds per pass as the first side's `ms_per_pass` is measured (GPU timestamps
+    /// where the device has them).
     pub fn ms_per_pass(&self) -> f64 {
         ms_per_pass(&self.session, self.render_seconds)
-    }
-}
-
-/// The time a session's accumulation cost: its GPU time where the device has timestamp
-/// queries (the mean pass time times the passes, the band of a pass in progress included),
-/// else the wall time spent adding its passes (`wall`).
-pub fn seconds_spent(session: &GpuSession, wall: f64) -> f64 {
-    match session.pass_time_source() {
-        PassTimeSource::GpuTimestamps => {
-            let rows = f64::from(session.next_row()) / f64::from(session.height().max(1));
-            session.pass_seconds() * (f64::from(session.passes()) + rows)
-        }
-        PassTimeSource::Wall => wall,
     }
 }
 
