@@ -158,6 +158,8 @@ pub struct ErrorTrack {
     pub textures: [Option<eframe::egui::TextureHandle>; 2],
     /// The reference's passes at the latest read-back.
     pub reference_passes: u32,
+    /// Wall time of the latest read-back and measurement, seconds (the window waits for it).
+    pub update_seconds: f64,
 }
 
 impl ErrorTrack {
