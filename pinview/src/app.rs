@@ -15,7 +15,7 @@ use crate::args::ViewArgs;
 use crate::compare::{self, CompareSide, SideTime, Turn};
 use crate::error_view::{self, ErrorTrack, Reference};
 use crate::export;
-use crate::open::{BakeJob, Medium, gpu_media};
+use crate::open::{BakeJob, Medium, Rebaked, gpu_media};
 use crate::pin_overlay::{self, Pick, Projector};
 use crate::sequence::{Opener, Sequence};
 use crate::startup::StartupClock;
@@ -176,6 +176,12 @@ pub struct Viewer {
     held_pixel: Option<[f64; 2]>,
     pick: Option<Pick>,
     image_rect: Option<egui::Rect>,
+    /// A volume's density scale as shown, a re-bake at another one (its scale and job), and
+    /// the scale of the last re-bake that was swapped in.
+    density_scale: f64,
+    rebake: Option<(f64, BakeJob<Rebaked>)>,
+    /// The last re-bake swapped in: its scale, backend and why the GPU refused (if it did).
+    rebaked: Option<(f64, &'static str, Option<String>)>,
 }
 
 impl Viewer {
@@ -250,6 +256,9 @@ impl Viewer {
             held_pixel: args.pin_at,
             pick: None,
             image_rect: None,
+            density_scale: args.read.density_scale.get(),
+            rebake: None,
+            rebaked: None,
             args,
         };
         if let Some(s) = &viewer.sequence {
@@ -258,6 +267,9 @@ impl Viewer {
         // Compile and upload before the window shows, so that a bad file or estimator is one
         // error line, and the first frame renders at once.
         viewer.ensure_session()?;
+        if let Some(scale) = viewer.args.rebake_scale {
+            viewer.start_rebake(scale.get())?;
+        }
         Ok(viewer)
     }
 
@@ -553,8 +565,53 @@ impl Viewer {
         }
     }
 
-    /// Background work: the bake, the sequence, dropped files.
+    /// Re-bakes the shown volume at density scale `scale` on the GPU in the background; the
+    /// current medium stays on screen until the new one is ready.
+    fn start_rebake(&mut self, scale: f64) -> Result<()> {
+        let mut read = self.args.read.clone();
+        read.density_scale =
+            pinbake::source::DensityScale::new(scale).map_err(|e| anyhow!("{e}"))?;
+        let args = pinrender::volume::VolumeArgs {
+            volume: Some(self.medium.path.clone()),
+            read,
+        };
+        let job = BakeJob::rebake(self.medium.path.clone(), args, self.view.seed)?;
+        self.rebake = Some((scale, job));
+        Ok(())
+    }
+
+    /// Background work: the bake, the re-bake, the sequence, dropped files.
     fn poll_background(&mut self, ctx: &egui::Context) -> Result<()> {
+        if let Some((scale, job)) = &mut self.rebake
+            && let Some(done) = job.finished()
+        {
+            let scale = *scale;
+            self.rebake = None;
+            match done {
+                Ok(done) => {
+                    // The first bake of the old scale is of no use any more.
+                    self.bake = None;
+                    self.set_medium(done.medium);
+                    self.density_scale = scale;
+                    if self.args.estimator.is_none() {
+                        self.wanted = self.medium.default_estimator();
+                    }
+                    self.status = match &done.gpu_refused {
+                        None => format!("re-baked on the GPU at density scale {scale}"),
+                        Some(why) => {
+                            format!("re-baked on the CPU at density scale {scale} ({why})")
+                        }
+                    };
+                    self.rebaked = Some((scale, done.backend, done.gpu_refused));
+                }
+                Err(e) => {
+                    if self.args.frames.is_some() {
+                        return Err(e);
+                    }
+                    self.status = format!("re-bake failed: {e}");
+                }
+            }
+        }
         if let Some(job) = &mut self.bake
             && let Some(done) = job.finished()
         {
@@ -646,6 +703,11 @@ impl Viewer {
             }
             None => u32::MAX,
         };
+        // A scripted re-bake renders its passes on the new pins.
+        if self.args.frames.is_some() && self.args.rebake_scale.is_some() && self.rebaked.is_none()
+        {
+            return Ok(());
+        }
         // A scripted comparison waits for its second estimator (a volume's pins).
         if self.args.frames.is_some()
             && self.compare_wanted.is_some()
@@ -812,6 +874,7 @@ impl Viewer {
         };
         let passes = self.session.as_ref().map_or(0, |s| s.passes());
         if passes < n
+            || (self.args.rebake_scale.is_some() && self.rebaked.is_none())
             || self.estimator_now() != self.wanted
             || !self.compare_done()
             || !self.reference_done()
@@ -878,6 +941,13 @@ impl Viewer {
             "frames_played": self.frames_played,
             "file": self.medium.path.display().to_string(),
         });
+        if let Some((scale, backend, why)) = &self.rebaked {
+            json["rebake"] = serde_json::json!({
+                "density_scale": scale,
+                "backend": backend,
+                "gpu_refused": why,
+            });
+        }
         if let Some([x, y]) = self.args.pin_at {
             json["pin"] = match self.pick_at(x, y) {
                 Some(p) => serde_json::json!({
@@ -987,6 +1057,32 @@ impl Viewer {
         ui.label(self.medium.path.display().to_string());
         if let Some(job) = &self.bake {
             ui.add(egui::ProgressBar::new(job.progress()).text("baking pins"));
+        }
+        if self.medium.is_volume && self.sequence.is_none() {
+            let mut scale = self.density_scale;
+            let r = ui.add(
+                egui::Slider::new(&mut scale, 0.01..=100.0)
+                    .logarithmic(true)
+                    .text("density scale"),
+            );
+            if r.changed() {
+                self.density_scale = scale;
+            }
+            // A re-bake when the slider is let go (or typed in), not on every step of a drag.
+            let settled = r.drag_stopped() || (r.changed() && !r.dragged());
+            let baking = self.rebake.as_ref().map(|(s, _)| *s);
+            if settled
+                && baking != Some(self.density_scale)
+                && let Err(e) = self.start_rebake(self.density_scale)
+            {
+                self.status = e.to_string();
+            }
+            if let Some((s, job)) = &self.rebake {
+                ui.add(
+                    egui::ProgressBar::new(job.progress())
+                        .text(format!("re-baking on the GPU at {s:.3}")),
+                );
+            }
         }
         let mut go_to = None;
         if let Some(s) = &mut self.sequence {

@@ -56,6 +56,11 @@ pub struct ViewArgs {
     /// each pin).
     #[arg(long, value_parser = parse_pixel)]
     pub pin_at: Option<[f64; 2]>,
+    /// A volume only: re-bake its pins at this density scale on the GPU as soon as the window
+    /// is open, as the density-scale slider does (the volume read again at that scale); a
+    /// scripted run renders its --frames passes once the new pins are in.
+    #[arg(long, value_parser = pinbake::cli_args::parse_density_scale)]
+    pub rebake_scale: Option<pinbake::source::DensityScale>,
     /// Draw the box and the cell grid over the image.
     #[arg(long)]
     pub grid_overlay: bool,

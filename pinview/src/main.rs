@@ -71,6 +71,12 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
     let medium = open_medium(&first, &a)?;
     clock.marks.file_open = clock.now();
+    if a.rebake_scale.is_some() && !medium.is_volume {
+        pin_cli::usage!(
+            "--rebake-scale applies to a volume, not to the pin file {}",
+            first.display()
+        );
+    }
     for e in a.estimator.into_iter().chain(a.compare) {
         use pinrender::render::EstimatorSpec;
         if e.needs_density() && !medium.has_density() {

@@ -47,6 +47,12 @@ fn failures_are_one_line() {
         1,
         "no embedded density",
     );
+    // A re-bake is of a volume.
+    one_line(
+        &pinview(d, &[s(&pins), "--rebake-scale", "2", "--frames", "1"]),
+        2,
+        "--rebake-scale",
+    );
     // A frame pattern that matches nothing.
     let pattern = dir.path().join("sim.####.pin");
     one_line(

@@ -7,5 +7,6 @@ mod contract;
 mod error_view;
 mod failures;
 mod overlay;
+mod rebake;
 mod sequence;
 mod support;
