@@ -40,6 +40,30 @@ pub struct ViewArgs {
     /// one without, ratio for a volume until its pins are baked.
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<EstimatorSpec>,
+    /// A second estimator beside the first, at equal GPU time (split view). With --frames,
+    /// the first renders N passes and the second as many as take the nearest equal time;
+    /// the screenshot holds both halves and --json a `compare` object.
+    #[arg(long, value_parser = parse_estimator)]
+    pub compare: Option<EstimatorSpec>,
+    /// The error view: ratio tracking accumulates a reference in the background (where the
+    /// file holds a density), |estimate - reference| is shown as a heat map and the RMSE
+    /// plotted against time. With --frames the screenshot is the heat map and --json gains
+    /// an `error` object.
+    #[arg(long)]
+    pub error_view: bool,
+    /// Show the pins of the entry under image pixel X,Y (from the top-left corner) as if the
+    /// cursor stood there; with --json, a `pin` object (cell, direction, t_min and mask of
+    /// each pin).
+    #[arg(long, value_parser = parse_pixel)]
+    pub pin_at: Option<[f64; 2]>,
+    /// A volume only: re-bake its pins at this density scale on the GPU as soon as the window
+    /// is open, as the density-scale slider does (the volume read again at that scale); a
+    /// scripted run renders its --frames passes once the new pins are in.
+    #[arg(long, value_parser = pinbake::cli_args::parse_density_scale)]
+    pub rebake_scale: Option<pinbake::source::DensityScale>,
+    /// Draw the box and the cell grid over the image.
+    #[arg(long)]
+    pub grid_overlay: bool,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -123,6 +147,19 @@ fn parse_hg_g(s: &str) -> Result<f64, String> {
 
 fn parse_direction(s: &str) -> Result<[f64; 3], String> {
     pin_scene::ranges::direction(parse_f64x3(s)?)
+}
+
+fn parse_pixel(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<&str> = s.split(',').collect();
+    if v.len() != 2 {
+        return Err(format!("{s}: expected X,Y"));
+    }
+    let x = parse_finite(v[0].trim())?;
+    let y = parse_finite(v[1].trim())?;
+    if x < 0.0 || y < 0.0 {
+        return Err(format!("{s}: pixel coordinates must be >= 0"));
+    }
+    Ok([x, y])
 }
 
 fn parse_exposure(s: &str) -> Result<f32, String> {

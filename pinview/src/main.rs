@@ -7,8 +7,11 @@
 
 mod app;
 mod args;
+mod compare;
+mod error_view;
 mod export;
 mod open;
+mod pin_overlay;
 mod sequence;
 mod startup;
 mod view;
@@ -68,7 +71,13 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
     let medium = open_medium(&first, &a)?;
     clock.marks.file_open = clock.now();
-    if let Some(e) = a.estimator {
+    if a.rebake_scale.is_some() && !medium.is_volume {
+        pin_cli::usage!(
+            "--rebake-scale applies to a volume, not to the pin file {}",
+            first.display()
+        );
+    }
+    for e in a.estimator.into_iter().chain(a.compare) {
         use pinrender::render::EstimatorSpec;
         if e.needs_density() && !medium.has_density() {
             return Err(anyhow!(

@@ -105,6 +105,11 @@ impl Medium {
         self.pins = Some(grid);
     }
 
+    /// The pins, where the file holds them or the bake has made them.
+    pub fn pins(&self) -> Option<&Arc<pinrt::PinGrid>> {
+        self.pins.as_ref()
+    }
+
     pub fn has_density(&self) -> bool {
         self.field.is_some()
     }
@@ -201,65 +206,91 @@ pub fn gpu_media(desc: &MediumDesc, estimator: EstimatorSpec) -> Result<GpuMedia
 
 /// A bake of a volume's pins on a worker thread, as `pinrender render` bakes without `--pins`
 /// (cells, directions and pins chosen from the volume by `pinbake::plan`), with the control
-/// section so that pinres can run too.
-pub struct BakeJob {
+/// section so that pinres can run too. `T` is what the thread hands back: the pins, or (for a
+/// re-bake at another density scale) the whole re-opened medium with its pins.
+pub struct BakeJob<T = pinrt::PinGrid> {
     pub done: Arc<AtomicU64>,
-    pub total: u64,
+    /// Pins to bake (0 until the worker has planned the bake).
+    pub total: Arc<AtomicU64>,
     cancel: Arc<AtomicBool>,
-    handle: Option<std::thread::JoinHandle<Result<pinrt::PinGrid>>>,
+    handle: Option<std::thread::JoinHandle<Result<T>>>,
 }
 
-impl BakeJob {
-    pub fn start(medium: &Medium, seed: u64) -> Result<Self> {
-        let Some((_, field)) = &medium.opened else {
-            bail!("only a volume is baked");
+/// Counters the worker shares with the window.
+#[derive(Clone)]
+struct Shared {
+    done: Arc<AtomicU64>,
+    total: Arc<AtomicU64>,
+    cancel: Arc<AtomicBool>,
+}
+
+/// Plans and bakes `source`'s pins on `backend`, reporting to `shared`.
+fn bake_pins(
+    source: &dyn pinbake::source::DensitySource,
+    seed: u64,
+    backend: pinbake::BakeBackend,
+    shared: &Shared,
+) -> Result<pinrt::PinGrid> {
+    let req = pinbake::BakeRequest {
+        seed,
+        embed_control: Some(pinbake::control::ControlOptions::default()),
+        ..pinbake::BakeRequest::default()
+    };
+    let choice = pinbake::plan::choose(source, &req)?;
+    let mut opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
+    pinbake::files::MemoryBudget::new(None).check(
+        &format!(
+            "baking {:?} pin cells x {:?} in memory",
+            opts.cells, opts.directions
+        ),
+        pinbake::bake::estimate_output_bytes(&opts).saturating_mul(2),
+    )?;
+    opts.cancel = Some(shared.cancel.clone());
+    let total = opts.cells.iter().map(|&c| u64::from(c)).product::<u64>()
+        * u64::from(opts.directions.count())
+        * u64::from(opts.pins_per_entry);
+    shared.total.store(total.max(1), Ordering::Relaxed);
+    let counter = shared.done.clone();
+    let progress = move |n: u64| {
+        counter.fetch_add(n, Ordering::Relaxed);
+    };
+    let (grid, _) = match backend {
+        pinbake::BakeBackend::Cpu => pinbake::bake(source, &opts, &progress)?,
+        gpu => pinbake::bake_on(source, &opts, gpu, &progress)?,
+    };
+    pinrt::PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
+}
+
+impl<T: Send + 'static> BakeJob<T> {
+    fn spawn(work: impl FnOnce(&Shared) -> Result<T> + Send + 'static) -> Result<Self> {
+        let shared = Shared {
+            done: Arc::new(AtomicU64::new(0)),
+            total: Arc::new(AtomicU64::new(0)),
+            cancel: Arc::new(AtomicBool::new(false)),
         };
-        let source = field.source().clone();
-        let req = pinbake::BakeRequest {
-            seed,
-            embed_control: Some(pinbake::control::ControlOptions::default()),
-            ..pinbake::BakeRequest::default()
-        };
-        let choice = pinbake::plan::choose(source.as_ref(), &req)?;
-        let mut opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
-        pinbake::files::MemoryBudget::new(None).check(
-            &format!(
-                "baking {:?} pin cells x {:?} in memory",
-                opts.cells, opts.directions
-            ),
-            pinbake::bake::estimate_output_bytes(&opts).saturating_mul(2),
-        )?;
-        let cancel = Arc::new(AtomicBool::new(false));
-        opts.cancel = Some(cancel.clone());
-        let total = opts.cells.iter().map(|&c| u64::from(c)).product::<u64>()
-            * u64::from(opts.directions.count())
-            * u64::from(opts.pins_per_entry);
-        let done = Arc::new(AtomicU64::new(0));
-        let counter = done.clone();
+        let worker = shared.clone();
         let handle = std::thread::Builder::new()
             .name("pinview bake".into())
-            .spawn(move || {
-                let progress = move |n: u64| {
-                    counter.fetch_add(n, Ordering::Relaxed);
-                };
-                let (grid, _) = pinbake::bake(source.as_ref(), &opts, &progress)?;
-                pinrt::PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
-            })?;
+            .spawn(move || work(&worker))?;
         Ok(Self {
-            done,
-            total: total.max(1),
-            cancel,
+            done: shared.done,
+            total: shared.total,
+            cancel: shared.cancel,
             handle: Some(handle),
         })
     }
 
-    /// Fraction of the pins baked.
+    /// Fraction of the pins baked (0 while the worker plans).
     pub fn progress(&self) -> f32 {
-        (self.done.load(Ordering::Relaxed) as f64 / self.total as f64).min(1.0) as f32
+        let total = self.total.load(Ordering::Relaxed);
+        if total == 0 {
+            return 0.0;
+        }
+        (self.done.load(Ordering::Relaxed) as f64 / total as f64).min(1.0) as f32
     }
 
-    /// The grid when the bake has finished (then `Some` once).
-    pub fn finished(&mut self) -> Option<Result<pinrt::PinGrid>> {
+    /// The result when the worker has finished (then `Some` once).
+    pub fn finished(&mut self) -> Option<Result<T>> {
         if self.handle.as_ref().is_some_and(|h| h.is_finished()) {
             let h = self.handle.take()?;
             return Some(
@@ -271,7 +302,64 @@ impl BakeJob {
     }
 }
 
-impl Drop for BakeJob {
+impl BakeJob {
+    /// The pins of an opened volume, baked on the CPU as `pinrender render` bakes them.
+    pub fn start(medium: &Medium, seed: u64) -> Result<Self> {
+        let Some((_, field)) = &medium.opened else {
+            bail!("only a volume is baked");
+        };
+        let source = field.source().clone();
+        Self::spawn(move |shared| {
+            bake_pins(source.as_ref(), seed, pinbake::BakeBackend::Cpu, shared)
+        })
+    }
+}
+
+/// A volume read again at another density scale, with its pins, and where they were baked.
+pub struct Rebaked {
+    pub medium: Medium,
+    /// `gpu`, or `cpu` where the GPU bake refused the source (`gpu_refused` says why: it
+    /// marches a dense grid, which a procedural field or a too large volume does not have).
+    pub backend: &'static str,
+    pub gpu_refused: Option<String>,
+}
+
+impl BakeJob<Rebaked> {
+    /// The volume at `path` opened again with `read` (another density scale), its pins
+    /// baked on the GPU (`pinbake::bake_on`, on a device of its own; on the CPU where the
+    /// GPU bake refuses the source): a medium to replace the shown one when it is ready.
+    pub fn rebake(path: PathBuf, read: VolumeArgs, seed: u64) -> Result<Self> {
+        Self::spawn(move |shared| {
+            let mut medium = Medium::open_volume(&path, &read)?;
+            let Some((_, field)) = &medium.opened else {
+                bail!("only a volume is baked");
+            };
+            let source = field.source().clone();
+            let gpu = pinbake::BakeBackend::Gpu(Default::default());
+            let (grid, backend, gpu_refused) = match bake_pins(source.as_ref(), seed, gpu, shared) {
+                Ok(g) => (g, "gpu", None),
+                Err(e) if !shared.cancel.load(Ordering::Relaxed) => {
+                    shared.done.store(0, Ordering::Relaxed);
+                    let cpu = pinbake::BakeBackend::Cpu;
+                    (
+                        bake_pins(source.as_ref(), seed, cpu, shared)?,
+                        "cpu",
+                        Some(e.to_string()),
+                    )
+                }
+                Err(e) => return Err(e),
+            };
+            medium.set_pins(Arc::new(grid));
+            Ok(Rebaked {
+                medium,
+                backend,
+                gpu_refused,
+            })
+        })
+    }
+}
+
+impl<T> Drop for BakeJob<T> {
     fn drop(&mut self) {
         self.cancel.store(true, Ordering::Relaxed);
     }

@@ -41,6 +41,18 @@ fn failures_are_one_line() {
         1,
         "no embedded density",
     );
+    // Nor compared with a tracker.
+    one_line(
+        &pinview(d, &[s(&pins), "--compare", "pinms", "--frames", "1"]),
+        1,
+        "no embedded density",
+    );
+    // A re-bake is of a volume.
+    one_line(
+        &pinview(d, &[s(&pins), "--rebake-scale", "2", "--frames", "1"]),
+        2,
+        "--rebake-scale",
+    );
     // A frame pattern that matches nothing.
     let pattern = dir.path().join("sim.####.pin");
     one_line(

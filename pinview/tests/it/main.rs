@@ -2,7 +2,11 @@
 //! adapter (lavapipe on CI). Each test compares what the viewer writes with `pinrender
 //! render --backend gpu` for the same flags, seed and passes, or checks a failure line.
 
+mod compare;
 mod contract;
+mod error_view;
 mod failures;
+mod overlay;
+mod rebake;
 mod sequence;
 mod support;
