@@ -285,3 +285,84 @@ fn the_command_line_bakes_on_the_gpu_and_refuses_in_one_line() {
     let st = base(&c).args(["--backend", "tpu"]).output().unwrap();
     assert_eq!(st.status.code(), Some(2));
 }
+
+/// `--frames` bakes a sequence on the GPU: each frame is the bytes of that frame's own GPU bake.
+#[test]
+fn a_sequence_bakes_on_the_gpu_frame_by_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let raw = data("water_esp_31x34x33_float32.raw");
+    for f in ["w.0001.raw", "w.0002.raw"] {
+        std::fs::copy(&raw, dir.path().join(f)).unwrap();
+    }
+    let flags = [
+        "--dims",
+        "31,34,33",
+        "--type",
+        "f32",
+        "--clamp-negative",
+        "--cells",
+        "4",
+        "--dirs",
+        "octahedral:4",
+        "--backend",
+        "gpu",
+        "-q",
+    ];
+    let run = |args: &[&str]| {
+        let o = pinbake()
+            .current_dir(dir.path())
+            .arg("bake")
+            .args(args)
+            .args(flags)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    };
+    run(&["w.####.raw", "--frames", "1-2", "-o", "g.####.pin"]);
+    for f in ["0001", "0002"] {
+        let single = format!("single.{f}.pin");
+        run(&[&format!("w.{f}.raw"), "-o", &single]);
+        let read = |n: &str| std::fs::read(dir.path().join(n)).unwrap();
+        assert_eq!(read(&format!("g.{f}.pin")), read(&single), "frame {f}");
+    }
+}
+
+/// No adapter (`WGPU_BACKEND` names a backend this machine lacks): one line naming the
+/// problem, exit 1, no output.
+#[test]
+fn no_adapter_is_one_line_and_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.pin");
+    let o = pinbake()
+        .env(
+            "WGPU_BACKEND",
+            if cfg!(target_os = "macos") {
+                "dx12"
+            } else {
+                "metal"
+            },
+        )
+        .arg("bake")
+        .arg(data("water_esp_31x34x33_float32.raw"))
+        .args([
+            "--clamp-negative",
+            "--cells",
+            "4",
+            "--backend",
+            "gpu",
+            "-q",
+            "-o",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| !l.contains("XDG_RUNTIME_DIR"))
+        .collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(lines[0].contains("no GPU adapter found"), "{err}");
+    assert!(!out.exists());
+}
