@@ -129,7 +129,8 @@ fn pins_alone_matches_pinrender_bit_for_bit() {
         (sum - first).abs() < 1e-9,
         "the steps add to {sum}, not {first}: {j}"
     );
-    // GPU time where the adapter has timestamp queries (the viewer requests them), else wall.
+    // GPU time where the adapter has timestamp queries and is not a CPU (the viewer requests
+    // them there), else wall.
     let source = j["pass_time_source"].as_str().unwrap_or_default();
     assert!(
         ["gpu-timestamps", "wall"].contains(&source),

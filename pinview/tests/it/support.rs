@@ -211,8 +211,8 @@ pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// Whether the adapter the viewer opens (`pinrt::gpu::GpuContext::new`'s, found by name)
-/// offers timestamp queries.
+/// Whether the viewer times passes with timestamp queries on the adapter it opens
+/// (`pinrt::gpu::GpuContext::new`'s, found by name): the adapter offers them and is not a CPU.
 pub fn adapter_has_timestamps() -> bool {
     let ctx = pinrt::gpu::GpuContext::new().expect("a wgpu adapter");
     pollster::block_on(async {
@@ -225,8 +225,11 @@ pub fn adapter_has_timestamps() -> bool {
                 let i = a.get_info();
                 i.name == ctx.adapter_info.name && i.backend == ctx.adapter_info.backend
             })
+            .map(|a| {
+                // The viewer asks a CPU adapter for none (its stamps are not pass times).
+                a.features().contains(wgpu::Features::TIMESTAMP_QUERY)
+                    && a.get_info().device_type != wgpu::DeviceType::Cpu
+            })
             .expect("the adapter GpuContext::new opened")
-            .features()
-            .contains(wgpu::Features::TIMESTAMP_QUERY)
     })
 }
