@@ -1,7 +1,7 @@
 # Sourced by the scripts and .ci/run: installs the Debian packages the project needs, once.
 # shellcheck shell=bash
 #   Vulkan on the CPU (Mesa lavapipe) for the wgpu paths, which fail loudly without an adapter;
-#   fontconfig and a font for the plot labels of `pinrender eval`; Slurm and munge for the farm
+#   Slurm and munge for the farm
 #   test (pinbake/tests/it/slurm.rs starts a single-node cluster with scripts/slurm-local.sh);
 #   OpenVDB's C++ library, Boost headers and g++ for the VDB compatibility corpus
 #   (pinbake/tests/it/vdb_corpus.rs writes its files with OpenVDB itself); nanovdb_convert
@@ -9,7 +9,7 @@
 #   glslangValidator for the generated shaders (lab/tests/it/shaders.rs); valgrind for the C
 #   example (capi/tests/it/c_example.rs); python3-venv for the Python package's tests; xvfb and
 #   libxkbcommon-x11-0 for the viewer's window tests (pinview/tests/it/ start Xvfb themselves).
-APT_PACKAGES="mesa-vulkan-drivers libvulkan1 fontconfig fonts-dejavu-core pkg-config libfontconfig1-dev slurm-wlm munge g++ libopenvdb-dev libboost-dev libnanovdb-tools spirv-tools glslang-tools valgrind python3-venv xvfb libxkbcommon-x11-0"
+APT_PACKAGES="mesa-vulkan-drivers libvulkan1 slurm-wlm munge g++ libopenvdb-dev libboost-dev libnanovdb-tools spirv-tools glslang-tools valgrind python3-venv xvfb libxkbcommon-x11-0"
 export DEBIAN_FRONTEND=noninteractive
 SUDO=""
 if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi

@@ -36,8 +36,8 @@ if [ "${1:-}" = "--pack" ]; then
     strip "$dir/$b"
   done
   cp scripts/device-bench.sh scripts/cloudscape_scene.py data/openvdb_smoke1.vdb "$dir/"
-  # The shared libraries they load beyond the C runtime (fontconfig and freetype, for the
-  # plots' text): a bare GPU image may have none of them.
+  # The shared libraries they load beyond the C runtime, if any: a bare GPU image may lack
+  # them.
   mkdir -p "$dir/lib"
   for b in pinbake pinrender pinview; do
     ldd "$dir/$b" | awk '$3 ~ /^\// {print $3}'

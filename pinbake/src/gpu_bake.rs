@@ -79,8 +79,16 @@ impl GpuBaker {
     }
 
     async fn new_async() -> Result<Self, BakeError> {
-        let instance =
-            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        // Vulkan, Metal and DX12, not OpenGL: the compute paths need no GL fallback, and
+        // loading libEGL for one crashed about one process in 30 at exit (its destructor
+        // frees while a driver thread exits). `WGPU_BACKEND` still chooses.
+        let instance = wgpu::Instance::new(
+            wgpu::InstanceDescriptor {
+                backends: wgpu::Backends::PRIMARY,
+                ..wgpu::InstanceDescriptor::new_without_display_handle()
+            }
+            .with_env(),
+        );
         let mut options = wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::HighPerformance,
             force_fallback_adapter: false,

@@ -132,8 +132,8 @@ pub fn draw(rows: &[SweepRow], out: &std::path::Path) -> Result<()> {
         y0 = y0.min(r.block);
         y1 = y1.max(r.block);
     }
-    let root = BitMapBackend::new(out, (900, 600)).into_drawing_area();
-    root.fill(&WHITE).map_err(plot_err)?;
+    let mut canvas = crate::plot_canvas::Canvas::new(out, (900, 600));
+    let root = canvas.area();
     let mut chart = ChartBuilder::on(&root)
         .caption(
             "pins alone: 8x8-block error against pin bytes / f16 density bytes",
@@ -257,7 +257,9 @@ pub fn draw(rows: &[SweepRow], out: &std::path::Path) -> Result<()> {
         .draw()
         .map_err(plot_err)?;
     root.present().map_err(plot_err)?;
-    Ok(())
+    drop(chart);
+    drop(root);
+    canvas.save()
 }
 
 #[cfg(test)]

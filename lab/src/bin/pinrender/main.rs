@@ -9,6 +9,7 @@ mod bias_plot;
 mod cpu_time;
 mod data;
 mod eval;
+mod plot_canvas;
 mod render_cmd;
 mod scene_cmd;
 mod shaders;

@@ -5,6 +5,8 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use pinrender::render::{Image, tone_map};
 use plotters::prelude::*;
+
+use crate::plot_canvas::Canvas;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::SceneResult;
@@ -249,7 +251,7 @@ fn draw_chart(
                 ))
                 .map_err(err)?;
         }
-        // Text needs a system font; without one the chart is still useful.
+        // The chart is still useful if the legend's text cannot be drawn.
         let _ = legend_area.draw(&Text::new(
             c.label.clone(),
             (30, y),
@@ -264,18 +266,20 @@ fn draw_chart(
 
 /// Log-log RMSE against wall time of one scene, one curve per estimator.
 pub fn error_vs_time(path: &Path, r: &SceneResult) -> Result<()> {
-    let root = BitMapBackend::new(path, (860, 520)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let curves = every_curve(r, &palette(&[r]));
-    draw_chart(
-        &root,
-        &format!("{}: RMSE vs wall time", r.name),
-        &curves,
-        13,
-        LEGEND_W,
-    )?;
-    root.present().map_err(err)?;
-    Ok(())
+    let mut canvas = Canvas::new(path, (860, 520));
+    {
+        let root = canvas.area();
+        let curves = every_curve(r, &palette(&[r]));
+        draw_chart(
+            &root,
+            &format!("{}: RMSE vs wall time", r.name),
+            &curves,
+            13,
+            LEGEND_W,
+        )?;
+        root.present().map_err(err)?;
+    }
+    canvas.save()
 }
 
 /// Every scene's chart in one image (two columns), `curves(scene)` on each.
@@ -288,15 +292,17 @@ fn grid_of_scenes(
     let cols = if results.len() > 1 { 2 } else { 1 };
     let rows = results.len().div_ceil(cols).max(1);
     let (cw, ch) = (760u32, 440u32);
-    let root = BitMapBackend::new(path, (cw * cols as u32, ch * rows as u32)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
-    let cells = root.split_evenly((rows, cols));
-    for (r, cell) in results.iter().zip(&cells) {
-        let title = format!("{}: RMSE vs wall time", r.name);
-        draw_chart(cell, &title, &curves(r), 12, legend_w)?;
+    let mut canvas = Canvas::new(path, (cw * cols as u32, ch * rows as u32));
+    {
+        let root = canvas.area();
+        let cells = root.split_evenly((rows, cols));
+        for (r, cell) in results.iter().zip(&cells) {
+            let title = format!("{}: RMSE vs wall time", r.name);
+            draw_chart(cell, &title, &curves(r), 12, legend_w)?;
+        }
+        root.present().map_err(err)?;
     }
-    root.present().map_err(err)?;
-    Ok(())
+    canvas.save()
 }
 
 /// The headline figure (`errors.png`): per scene the best estimator without a bake against
@@ -335,8 +341,8 @@ pub fn montage(path: &Path, r: &SceneResult) -> Result<()> {
     let cols = (panels.len() as u32).clamp(1, MONTAGE_COLUMNS);
     let rows = (panels.len() as u32).div_ceil(cols);
     let (cell_w, cell_h) = (pw + gap, ph + label_h + gap);
-    let root = BitMapBackend::new(path, (cols * cell_w, rows * cell_h)).into_drawing_area();
-    root.fill(&WHITE).map_err(err)?;
+    let mut canvas = Canvas::new(path, (cols * cell_w, rows * cell_h));
+    let root = canvas.area();
     for (k, (name, img)) in panels.iter().enumerate() {
         let x0 = (k as u32 % cols) * cell_w;
         let y0 = (k as u32 / cols) * cell_h;
@@ -352,7 +358,7 @@ pub fn montage(path: &Path, r: &SceneResult) -> Result<()> {
                     .map_err(err)?;
             }
         }
-        // Labels need a system font; without one the images are still useful.
+        // The images are still useful if a label cannot be drawn.
         let _ = root.draw(&Text::new(
             name.to_string(),
             (x0 as i32 + 3, y0 as i32 + 2),
@@ -360,5 +366,6 @@ pub fn montage(path: &Path, r: &SceneResult) -> Result<()> {
         ));
     }
     root.present().map_err(err)?;
-    Ok(())
+    drop(root);
+    canvas.save()
 }
