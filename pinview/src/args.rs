@@ -25,8 +25,8 @@ Scripting: --frames N renders N one-sample passes in the window, then writes --s
 (the render as the window shows it, tone-mapped as `pinrender render` writes its PNG) and
 --save (the accumulated linear image as EXR: the same bits as `pinrender render --backend gpu
 --spp N` with the same flags and seed), prints one JSON object with --json, and exits 0.
-Errors (no display, no adapter, a bad file) are one line on stderr and exit 1; usage errors
-exit 2.
+Errors (no display, no adapter, a bad file) are one line on stderr and exit 1 (without
+--frames a refused scene file's line is first shown in a window); usage errors exit 2.
 
 Mouse on the image: drag orbits, right-drag (or shift-drag) pans, the wheel zooms, ctrl-drag
 moves the sun. Keys: arrows orbit, +/- zoom, R resets the view, space plays or pauses a

@@ -9,6 +9,7 @@ mod app;
 mod args;
 mod compare;
 mod error_view;
+mod error_window;
 mod export;
 mod open;
 mod pin_overlay;
@@ -107,7 +108,21 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         None => None,
     };
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
-    let medium = open_medium(&first, &a)?;
+    let medium = match open_medium(&first, &a) {
+        Ok(m) => m,
+        // Interactive, a refused scene is shown in the window (and then on stderr).
+        Err(e)
+            if a.frames.is_none()
+                && open::is_scene_file(&first)
+                && e.downcast_ref::<pin_cli::UsageError>().is_none()
+                && std::env::var_os("DISPLAY").is_some_and(|d| !d.is_empty()) =>
+        {
+            // Without a window the line still goes to stderr.
+            let _ = error_window::show(&first, &e.to_string());
+            return Err(e);
+        }
+        Err(e) => return Err(e),
+    };
     clock.marks.file_open = clock.now();
     if medium.scene().is_some() {
         scene_flags(&a, &medium)?;

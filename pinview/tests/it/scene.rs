@@ -149,3 +149,31 @@ fn a_bad_scene_is_one_line_naming_the_file_and_the_json_path() {
     );
     one_line(&run(&good, &["--error-view"]), 2, &["--error-view"]);
 }
+
+#[test]
+fn interactive_a_bad_scene_keeps_its_window_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let flat = write(
+        dir.path(),
+        "flat.json",
+        r#"{"assets": {"c": {"pins": "c.pin"}}, "instances": [{"asset": "c"}]}"#,
+    );
+    let Some(display) = display() else { return };
+    let mut child = std::process::Command::new(PINVIEW)
+        .arg(s(&flat))
+        .env("DISPLAY", &display.name)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Without --frames the refused scene (its pins are missing) is shown in a window, which
+    // stays until closed, rather than the process ending at once.
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    let exited = child.try_wait().unwrap();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert_eq!(exited, None, "pinview ended instead of showing the error");
+}
