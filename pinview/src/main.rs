@@ -172,7 +172,10 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let options = app::native_options(&a);
     let a2 = a.clone();
     let outcome2 = outcome.clone();
-    let opener_args = a.clone();
+    let mut opener_args = a.clone();
+    // A scene dropped on the window opens with the one estimator the GPU path has for it,
+    // whatever --estimator asked of the first file.
+    opener_args.estimator = None;
     let opener: sequence::Opener = Arc::new(move |p: &Path| open_medium(p, &opener_args));
     let result = eframe::run_native(
         "pinview",
