@@ -337,6 +337,96 @@ pub fn gpu_descs(
     Ok((descs, (lo, hi)))
 }
 
+/// The values a scene file may set and a flag overrides (`pinrender render --scene`,
+/// `pinview`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Look {
+    pub fov: f64,
+    pub sun_dir: [f64; 3],
+    pub sun_radiance: f64,
+    pub env_radiance: f64,
+    pub albedo: f64,
+    pub g: f64,
+    pub max_bounces: u32,
+}
+
+impl Default for Look {
+    fn default() -> Self {
+        Look {
+            fov: 40.0,
+            sun_dir: [0.3, 1.0, 0.2],
+            sun_radiance: 3.0,
+            env_radiance: 0.3,
+            albedo: 0.9,
+            g: 0.0,
+            max_bounces: 8,
+        }
+    }
+}
+
+/// The [`Look`] flags given on a command line (`None`: not given).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LookFlags {
+    pub fov: Option<f64>,
+    pub sun_dir: Option<[f64; 3]>,
+    pub sun_radiance: Option<f64>,
+    pub env_radiance: Option<f64>,
+    pub albedo: Option<f64>,
+    pub g: Option<f64>,
+    pub max_bounces: Option<u32>,
+}
+
+impl Look {
+    /// Each flag given, else the scene's value, else the default.
+    pub fn over(flags: &LookFlags, scene: Option<&Scene>) -> Look {
+        let d = Look::default();
+        let sc = |f: &dyn Fn(&Scene) -> Option<f64>| scene.and_then(f);
+        Look {
+            fov: flags.fov.or(sc(&|s| s.camera.fov)).unwrap_or(d.fov),
+            sun_dir: flags
+                .sun_dir
+                .or(scene.and_then(|s| s.sun.direction))
+                .unwrap_or(d.sun_dir),
+            sun_radiance: flags
+                .sun_radiance
+                .or(sc(&|s| s.sun.radiance))
+                .unwrap_or(d.sun_radiance),
+            env_radiance: flags
+                .env_radiance
+                .or(sc(&|s| s.env_radiance))
+                .unwrap_or(d.env_radiance),
+            albedo: flags.albedo.or(sc(&|s| s.albedo)).unwrap_or(d.albedo),
+            g: flags.g.or(sc(&|s| s.g)).unwrap_or(d.g),
+            max_bounces: flags
+                .max_bounces
+                .or(scene.and_then(|s| s.max_bounces))
+                .unwrap_or(d.max_bounces),
+        }
+    }
+}
+
+/// The camera `(origin, target)`: each flag given, else the scene's, else in front of the
+/// world box looking at its centre (as for one volume).
+pub fn camera_over(
+    origin: Option<[f64; 3]>,
+    target: Option<[f64; 3]>,
+    scene: Option<&Scene>,
+    bounds: WorldBox,
+) -> ([f64; 3], [f64; 3]) {
+    let (lo, hi) = (glam::DVec3::from(bounds.0), glam::DVec3::from(bounds.1));
+    let centre = (lo + hi) * 0.5;
+    let size = (hi - lo).length();
+    let target = target
+        .or(scene.and_then(|s| s.camera.target))
+        .unwrap_or(centre.to_array());
+    let origin = origin.or(scene.and_then(|s| s.camera.origin)).unwrap_or([
+        centre[0] + 0.35 * size,
+        centre[1] + 0.25 * size,
+        centre[2] + 1.6 * size,
+    ]);
+    (origin, target)
+}
+
 /// Loads `path` as a scene under the memory budget (`pin_scene::load`), with the error as
 /// one line.
 pub fn load_scene(path: &Path, max_memory: Option<u64>) -> Result<Scene> {

@@ -28,6 +28,10 @@ const SLICE: Duration = Duration::from_millis(20);
 /// The texture format of the displayed image (the tone-map pass writes sRGB codes itself).
 const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
+/// What a scene file leaves out: the features that need one medium.
+const SCENE_NOTE: &str = "a scene: the pins estimator only (the GPU path's); compare, the \
+                          error view, the pin overlay and re-bake need one medium";
+
 /// What the window leaves for `main`: a fatal error, the JSON line, whether a scripted run
 /// finished.
 #[derive(Default, Debug)]
@@ -213,7 +217,7 @@ impl Viewer {
         let tone = GpuToneMap::new(&device, IMAGE_FORMAT);
         let target = Self::make_target(&device, &rs.renderer, args.width, args.height, None);
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
-        let view = View::new(&args, &medium.bounds, wanted);
+        let view = View::new(&args, &medium, wanted);
         let bake = if medium.is_volume {
             Some(BakeJob::start(&medium, args.seed)?)
         } else {
@@ -345,8 +349,8 @@ impl Viewer {
         if self.renderer.as_ref().is_none_or(|(e, _)| *e != est) {
             self.session = None;
             self.renderer = None;
-            let desc = self.medium.desc(est, &self.limits)?;
-            let media = gpu_media(&desc, est)?;
+            let descs = self.medium.descs(est, &self.limits)?;
+            let media = gpu_media(&descs, est)?;
             let r = GpuRenderer::with_media_on(&self.device, &self.queue, &self.limits, &media)
                 .map_err(|e| anyhow!("{}: {e}", self.medium.path.display()))?;
             self.renderer = Some((est, r));
@@ -511,7 +515,7 @@ impl Viewer {
     fn ensure_compare(&mut self, restart: bool) -> Result<()> {
         let Some(est) = self
             .compare_wanted
-            .filter(|e| self.medium.estimators().contains(e))
+            .filter(|e| self.medium.scene().is_none() && self.medium.estimators().contains(e))
         else {
             self.compare = None;
             return Ok(());
@@ -668,7 +672,7 @@ impl Viewer {
         if let Some(path) = dropped.into_iter().next() {
             match (self.opener)(&path) {
                 Ok(m) => {
-                    let bounds = m.bounds;
+                    let (o, t) = m.home();
                     self.bake = if m.is_volume {
                         BakeJob::start(&m, self.view.seed).ok()
                     } else {
@@ -676,11 +680,12 @@ impl Viewer {
                     };
                     self.sequence = None;
                     self.set_medium(m);
-                    let (o, t) = crate::view::default_camera(&bounds);
                     self.view.origin = o;
                     self.view.target = t;
                     self.status = format!("opened {}", path.display());
                 }
+                // A scene's messages name the file and the JSON path themselves.
+                Err(e) if crate::open::is_scene_file(&path) => self.status = e.to_string(),
                 Err(e) => self.status = format!("{}: {e}", path.display()),
             }
         }
@@ -948,6 +953,9 @@ impl Viewer {
             "frames_played": self.frames_played,
             "file": self.medium.path.display().to_string(),
         });
+        if let Some(scene) = self.medium.scene() {
+            json["instances"] = scene.instances.len().into();
+        }
         if let Some((scale, backend, why)) = &self.rebaked {
             json["rebake"] = serde_json::json!({
                 "density_scale": scale,
@@ -1136,21 +1144,11 @@ impl Viewer {
                     ui.selectable_value(&mut self.wanted, *e, e.to_string());
                 }
             });
-        egui::ComboBox::from_label("compare with")
-            .selected_text(
-                self.compare_wanted
-                    .map_or("none".to_string(), |e| e.to_string()),
-            )
-            .show_ui(ui, |ui| {
-                ui.selectable_value(&mut self.compare_wanted, None, "none");
-                for e in &available {
-                    ui.selectable_value(&mut self.compare_wanted, Some(*e), e.to_string());
-                }
-            });
-        if let Some(e) = self.compare_wanted
-            && !available.contains(&e)
-        {
-            ui.label(format!("{e}: not answered by this file (yet)"));
+        if self.medium.scene().is_some() {
+            self.compare_wanted = None;
+            ui.label(SCENE_NOTE);
+        } else {
+            self.compare_controls(ui, &available);
         }
         let v = &mut self.view;
         ui.add(egui::Slider::new(&mut v.fov, 5.0..=120.0).text("fov"));
@@ -1170,7 +1168,7 @@ impl Viewer {
         ));
         ui.horizontal(|ui| {
             if ui.button("reset view").clicked() {
-                let (o, t) = crate::view::default_camera(&self.medium.bounds);
+                let (o, t) = self.medium.home();
                 self.view.origin = o;
                 self.view.target = t;
             }
@@ -1195,8 +1193,34 @@ impl Viewer {
         }
     }
 
+    /// The second estimator's menu (split view).
+    fn compare_controls(&mut self, ui: &mut egui::Ui, available: &[EstimatorSpec]) {
+        egui::ComboBox::from_label("compare with")
+            .selected_text(
+                self.compare_wanted
+                    .map_or("none".to_string(), |e| e.to_string()),
+            )
+            .show_ui(ui, |ui| {
+                ui.selectable_value(&mut self.compare_wanted, None, "none");
+                for e in available {
+                    ui.selectable_value(&mut self.compare_wanted, Some(*e), e.to_string());
+                }
+            });
+        if let Some(e) = self.compare_wanted
+            && !available.contains(&e)
+        {
+            ui.label(format!("{e}: not answered by this file (yet)"));
+        }
+    }
+
     /// The overlays' toggles and the picked entry's readout.
     fn overlay_controls(&mut self, ui: &mut egui::Ui) {
+        if self.medium.scene().is_some() {
+            self.pins_on = false;
+            self.grid_on = false;
+            ui.label("pins under the cursor and the cell grid: one medium only, not a scene");
+            return;
+        }
         ui.checkbox(&mut self.pins_on, "pins under the cursor (click holds)");
         ui.checkbox(&mut self.grid_on, "box and cell grid");
         if self.medium.pins().is_none() && (self.pins_on || self.grid_on) {
@@ -1220,6 +1244,12 @@ impl Viewer {
 
     /// The error view's toggles, the reference's state and the RMSE-against-time plot.
     fn error_controls(&mut self, ui: &mut egui::Ui) {
+        if self.medium.scene().is_some() {
+            self.error_on = false;
+            self.heat_on = false;
+            ui.label("error view: one medium only, not a scene");
+            return;
+        }
         ui.checkbox(&mut self.error_on, "reference and RMSE plot");
         if !self.error_on {
             self.heat_on = false;
@@ -1342,7 +1372,7 @@ impl Viewer {
             if ui.button("copy command").clicked() {
                 self.command =
                     self.view
-                        .command_line(&self.medium.path, self.medium.is_volume, passes);
+                        .command_line(self.medium.input_flag(), &self.medium.path, passes);
                 ui.ctx().copy_text(self.command.clone());
             }
         });
@@ -1544,7 +1574,7 @@ impl Viewer {
             self.view.zoom(1.1);
         }
         if pressed(Key::R) {
-            let (o, t) = crate::view::default_camera(&self.medium.bounds);
+            let (o, t) = self.medium.home();
             self.view.origin = o;
             self.view.target = t;
         }

@@ -16,22 +16,25 @@ use pinrender::render::EstimatorSpec;
 FILE is a pin file (.pin: shown with pins alone at once; pinms, pinres, ratio and the other
 trackers where it embeds a density or a control), a volume (.vdb, .nvdb, .raw with --dims, or
 procedural:SPEC: tracked at once while its pins bake in the background, then every estimator),
-or a frame pattern (sim.####.pin: play, pause, step and scrub). A file dropped on the window
-opens in its place.
+a scene file of instanced volumes (.json, docs/scene.md: its camera, sun, sky, albedo, g and
+bounces unless a flag gives them; the pins estimator only, as `pinrender render --scene
+--backend gpu`), or a frame pattern (sim.####.pin: play, pause, step and scrub). A file dropped
+on the window opens in its place.
 
 Scripting: --frames N renders N one-sample passes in the window, then writes --screenshot
 (the render as the window shows it, tone-mapped as `pinrender render` writes its PNG) and
 --save (the accumulated linear image as EXR: the same bits as `pinrender render --backend gpu
 --spp N` with the same flags and seed), prints one JSON object with --json, and exits 0.
-Errors (no display, no adapter, a bad file) are one line on stderr and exit 1; usage errors
-exit 2.
+Errors (no display, no adapter, a bad file) are one line on stderr and exit 1 (without
+--frames a refused scene file's line is first shown in a window); usage errors exit 2.
 
 Mouse on the image: drag orbits, right-drag (or shift-drag) pans, the wheel zooms, ctrl-drag
 moves the sun. Keys: arrows orbit, +/- zoom, R resets the view, space plays or pauses a
 sequence, . and , step it."
 )]
 pub struct ViewArgs {
-    /// A .pin file, a volume (.vdb, .nvdb, .raw, procedural:SPEC) or a frame pattern.
+    /// A .pin file, a volume (.vdb, .nvdb, .raw, procedural:SPEC), a scene file (.json) or a
+    /// frame pattern.
     pub file: PathBuf,
     #[command(flatten)]
     pub read: pinbake::cli_args::SourceArgs,
@@ -76,25 +79,28 @@ pub struct ViewArgs {
     /// Point the camera looks at (default: the box centre).
     #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
     pub camera_target: Option<[f64; 3]>,
-    /// Vertical field of view in degrees, in (0, 180).
-    #[arg(long, default_value_t = 40.0, value_parser = parse_fov)]
-    pub fov: f64,
-    /// Direction from the scene towards the sun.
-    #[arg(long, value_parser = parse_direction, default_value = "0.3,1,0.2", allow_hyphen_values = true)]
-    pub sun_dir: [f64; 3],
-    #[arg(long, default_value_t = 3.0, value_parser = parse_nonneg)]
-    pub sun_radiance: f64,
-    #[arg(long, default_value_t = 0.3, value_parser = parse_nonneg)]
-    pub env_radiance: f64,
-    /// Single-scattering albedo, in [0, 1].
-    #[arg(long, default_value_t = 0.9, value_parser = parse_albedo)]
-    pub albedo: f64,
-    /// Henyey-Greenstein asymmetry, in (-1, 1).
-    #[arg(long, default_value_t = 0.0, value_parser = parse_hg_g, allow_negative_numbers = true)]
-    pub g: f64,
-    /// Scattering events at most (at most 1024, the GPU's limit).
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(0..=1024))]
-    pub max_bounces: u32,
+    /// Vertical field of view in degrees, in (0, 180) [default: 40, or the scene's].
+    #[arg(long, value_parser = parse_fov)]
+    pub fov: Option<f64>,
+    /// Direction from the scene towards the sun [default: 0.3,1,0.2, or the scene's].
+    #[arg(long, value_parser = parse_direction, allow_hyphen_values = true)]
+    pub sun_dir: Option<[f64; 3]>,
+    /// [default: 3, or the scene's]
+    #[arg(long, value_parser = parse_nonneg)]
+    pub sun_radiance: Option<f64>,
+    /// [default: 0.3, or the scene's]
+    #[arg(long, value_parser = parse_nonneg)]
+    pub env_radiance: Option<f64>,
+    /// Single-scattering albedo, in [0, 1] [default: 0.9, or the scene's].
+    #[arg(long, value_parser = parse_albedo)]
+    pub albedo: Option<f64>,
+    /// Henyey-Greenstein asymmetry, in (-1, 1) [default: 0, or the scene's].
+    #[arg(long, value_parser = parse_hg_g, allow_negative_numbers = true)]
+    pub g: Option<f64>,
+    /// Scattering events at most (at most 1024, the GPU's limit) [default: 8, or the
+    /// scene's].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=1024))]
+    pub max_bounces: Option<u32>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Exposure of the displayed image (finite, > 0).
@@ -123,6 +129,21 @@ pub struct ViewArgs {
     /// Passes each frame of a playing sequence accumulates before the next.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
     pub frame_passes: u32,
+}
+
+impl ViewArgs {
+    /// The look flags given (`None` where a flag is not given).
+    pub fn look_flags(&self) -> pinrender::scene_media::LookFlags {
+        pinrender::scene_media::LookFlags {
+            fov: self.fov,
+            sun_dir: self.sun_dir,
+            sun_radiance: self.sun_radiance,
+            env_radiance: self.env_radiance,
+            albedo: self.albedo,
+            g: self.g,
+            max_bounces: self.max_bounces,
+        }
+    }
 }
 
 /// Every estimator of the renderer runs on the GPU path tracer (the lab's do not, and the

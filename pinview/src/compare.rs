@@ -98,8 +98,8 @@ impl CompareSide {
         scene: &GpuScene,
         seed: u64,
     ) -> Result<Self> {
-        let desc = medium.desc(estimator, limits)?;
-        let media = gpu_media(&desc, estimator)?;
+        let descs = medium.descs(estimator, limits)?;
+        let media = gpu_media(&descs, estimator)?;
         let renderer = GpuRenderer::with_media_on(device, queue, limits, &media)
             .map_err(|e| anyhow!("{}: {e}", medium.path.display()))?;
         let session = renderer

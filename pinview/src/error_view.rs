@@ -20,6 +20,13 @@ pub const ERROR_PERIOD: Duration = Duration::from_millis(500);
 
 /// Why a medium has no reference, or `None` where it has one.
 pub fn no_reference_reason(medium: &Medium) -> Option<String> {
+    if medium.scene().is_some() {
+        return Some(format!(
+            "no reference: the error view needs one medium with a density; {} is a scene, \
+             which the GPU renders with pins alone",
+            medium.path.display()
+        ));
+    }
     (!medium.estimators().contains(&EstimatorSpec::RatioTracking)).then(|| {
         format!(
             "no reference: {} holds no density (pins alone), which ratio tracking needs",
@@ -44,8 +51,8 @@ impl Reference {
         seed: u64,
     ) -> Result<Self> {
         let est = EstimatorSpec::RatioTracking;
-        let desc = medium.desc(est, limits)?;
-        let media = gpu_media(&desc, est)?;
+        let descs = medium.descs(est, limits)?;
+        let media = gpu_media(&descs, est)?;
         let renderer = GpuRenderer::with_media_on(device, queue, limits, &media)
             .map_err(|e| anyhow!("{}: {e}", medium.path.display()))?;
         let session = renderer

@@ -9,6 +9,7 @@ mod app;
 mod args;
 mod compare;
 mod error_view;
+mod error_window;
 mod export;
 mod open;
 mod pin_overlay;
@@ -25,6 +26,7 @@ use anyhow::{Result, anyhow};
 
 use args::ViewArgs;
 use open::Medium;
+use pinrender::render::EstimatorSpec;
 
 fn main() -> ExitCode {
     let started = Instant::now();
@@ -38,7 +40,16 @@ fn main() -> ExitCode {
 
 /// Opens one frame or file as the viewer reads it.
 fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
-    if open::is_pin_file(path) {
+    if open::is_scene_file(path) {
+        if let Some(flag) = a.read.given().first() {
+            pin_cli::usage!(
+                "{flag} applies to a volume; the scene {} sets its assets' reading in the file",
+                path.display()
+            );
+        }
+        let estimator = a.estimator.unwrap_or(EstimatorSpec::Pins);
+        Medium::open_scene(path, estimator, a.seed)
+    } else if open::is_pin_file(path) {
         if let Some(flag) = a.read.given().first() {
             pin_cli::usage!(
                 "{flag} applies to a volume, not to the pin file {}",
@@ -55,6 +66,34 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
     }
 }
 
+/// The flags a scene file refuses: what needs one medium (an overlay of its pins, a
+/// comparison, the error view, a re-bake), and bounces beyond the GPU's limit.
+fn scene_flags(a: &ViewArgs, medium: &Medium) -> Result<()> {
+    let one_medium = [
+        ("--compare", a.compare.is_some()),
+        ("--error-view", a.error_view),
+        ("--pin-at", a.pin_at.is_some()),
+        ("--grid-overlay", a.grid_overlay),
+        ("--rebake-scale", a.rebake_scale.is_some()),
+    ];
+    if let Some((flag, _)) = one_medium.iter().find(|(_, given)| *given) {
+        pin_cli::usage!(
+            "{flag} needs one medium, not the scene {}",
+            medium.path.display()
+        );
+    }
+    let look = pinrender::scene_media::Look::over(&a.look_flags(), medium.scene());
+    let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
+    if look.max_bounces > max_gpu {
+        pin_cli::usage!(
+            "--max-bounces {} exceeds the GPU limit of {max_gpu} (the scene {} sets it)",
+            look.max_bounces,
+            medium.path.display()
+        );
+    }
+    Ok(())
+}
+
 fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let mut clock = startup::StartupClock::new(started);
     if a.play && a.frames.is_some() && sequence::split_pattern(&a.file).is_none() {
@@ -69,8 +108,25 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         None => None,
     };
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
-    let medium = open_medium(&first, &a)?;
+    let medium = match open_medium(&first, &a) {
+        Ok(m) => m,
+        // Interactive, a refused scene is shown in the window (and then on stderr).
+        Err(e)
+            if a.frames.is_none()
+                && open::is_scene_file(&first)
+                && e.downcast_ref::<pin_cli::UsageError>().is_none()
+                && std::env::var_os("DISPLAY").is_some_and(|d| !d.is_empty()) =>
+        {
+            // Without a window the line still goes to stderr.
+            let _ = error_window::show(&first, &e.to_string());
+            return Err(e);
+        }
+        Err(e) => return Err(e),
+    };
     clock.marks.file_open = clock.now();
+    if medium.scene().is_some() {
+        scene_flags(&a, &medium)?;
+    }
     if a.rebake_scale.is_some() && !medium.is_volume {
         pin_cli::usage!(
             "--rebake-scale applies to a volume, not to the pin file {}",
@@ -78,7 +134,6 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         );
     }
     for e in a.estimator.into_iter().chain(a.compare) {
-        use pinrender::render::EstimatorSpec;
         if e.needs_density() && !medium.has_density() {
             return Err(anyhow!(
                 "{}: no embedded density, which the {e} estimator needs (bake with \
@@ -94,11 +149,17 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
             ));
         }
     }
+    // An output replaces neither the file nor a scene's asset.
+    let mut inputs: Vec<&Path> = vec![first.as_path()];
+    for asset in medium.scene().iter().flat_map(|s| &s.assets) {
+        inputs.extend(asset.volume.as_deref());
+        inputs.extend(asset.pins.as_deref());
+    }
     for out in [&a.screenshot, &a.save, &a.window_screenshot]
         .into_iter()
         .flatten()
     {
-        pinbake::files::check_output(out, &[first.as_path()])?;
+        pinbake::files::check_output(out, &inputs)?;
     }
     // This build opens X11 windows only (winit's x11 backend).
     if std::env::var_os("DISPLAY").is_none_or(|d| d.is_empty()) {
@@ -111,7 +172,10 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let options = app::native_options(&a);
     let a2 = a.clone();
     let outcome2 = outcome.clone();
-    let opener_args = a.clone();
+    let mut opener_args = a.clone();
+    // A scene dropped on the window opens with the one estimator the GPU path has for it,
+    // whatever --estimator asked of the first file.
+    opener_args.estimator = None;
     let opener: sequence::Opener = Arc::new(move |p: &Path| open_medium(p, &opener_args));
     let result = eframe::run_native(
         "pinview",

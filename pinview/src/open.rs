@@ -1,6 +1,7 @@
-//! What the viewer renders: a pin file alone, or a volume (tracked at once, its pins baked in
-//! the background), as the media `pinrender render` builds from the same flags, so that the
-//! viewer's passes and a batch render of the same view hold the same bits.
+//! What the viewer renders: a pin file alone, a volume (tracked at once, its pins baked in
+//! the background), or a scene file's instances, as the media `pinrender render` builds from
+//! the same flags, so that the viewer's passes and a batch render of the same view hold the
+//! same bits.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -12,6 +13,7 @@ use pinbake::source::Density;
 use pinrender::gpu_render::{GpuDensity, GpuMedia};
 use pinrender::medium::{MediumDesc, PlacedPins};
 use pinrender::render::{BrickGrid, EstimatorSpec, VoxelGrid};
+use pinrender::scene_media;
 use pinrender::volume::{self, Opened, TrackedSource, VolumeArgs};
 use pinrt::SamplerOptions;
 
@@ -33,6 +35,9 @@ pub struct Medium {
     bricks: Option<Arc<BrickGrid>>,
     /// The GPU copy of the density, made on first use (shared by the estimators).
     gpu_density: Option<Arc<GpuDensity>>,
+    /// A scene file: the scene and its instances' GPU media (`pinrender render --scene
+    /// --backend gpu`'s own, from [`pinrender::scene_media`]).
+    scene: Option<(pin_scene::Scene, Vec<MediumDesc>)>,
 }
 
 /// Every estimator the viewer offers, in menu order.
@@ -74,6 +79,7 @@ impl Medium {
             voxels: m.density,
             bricks: m.bricks,
             gpu_density: None,
+            scene: None,
         })
     }
 
@@ -97,7 +103,59 @@ impl Medium {
             voxels: None,
             bricks: None,
             gpu_density: None,
+            scene: None,
         })
+    }
+
+    /// A scene file's instances for `estimator`, opened as `pinrender render --scene --backend
+    /// gpu` opens them (each asset once; a volume without pins baked in memory with `seed`),
+    /// with its messages: the GPU path renders a scene with the pins estimator only.
+    pub fn open_scene(path: &Path, estimator: EstimatorSpec, seed: u64) -> Result<Self> {
+        let scene = scene_media::load_scene(path, None)?;
+        let opts = scene_media::AssetOptions {
+            estimator,
+            pin_cells: None,
+            seed,
+            majorant_bricks: MAJORANT_BRICKS,
+            max_memory: None,
+            allow_mismatched_pins: false,
+            lookup: SamplerOptions::RENDER,
+        };
+        let assets = scene_media::open_assets(&scene, &opts)?;
+        let (descs, bounds) = scene_media::gpu_descs(&scene, &assets, &opts)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            bounds,
+            is_volume: false,
+            field: None,
+            majorants: None,
+            pins: None,
+            opened: None,
+            voxels: None,
+            bricks: None,
+            gpu_density: None,
+            scene: Some((scene, descs)),
+        })
+    }
+
+    /// The scene, where this is a scene file.
+    pub fn scene(&self) -> Option<&pin_scene::Scene> {
+        self.scene.as_ref().map(|(s, _)| s)
+    }
+
+    /// The flag of `pinrender render` that names this file.
+    pub fn input_flag(&self) -> &'static str {
+        match (&self.scene, self.is_volume) {
+            (Some(_), _) => "--scene",
+            (None, true) => "--volume",
+            (None, false) => "--pins",
+        }
+    }
+
+    /// The camera `(origin, target)` the view resets to: the scene's where it sets one, else
+    /// in front of the world box.
+    pub fn home(&self) -> ([f64; 3], [f64; 3]) {
+        scene_media::camera_over(None, None, self.scene(), self.bounds)
     }
 
     /// Pins baked for this volume (in the background).
@@ -114,8 +172,11 @@ impl Medium {
         self.field.is_some()
     }
 
-    /// The estimators this medium answers now.
+    /// The estimators this medium answers now (a scene: pins, the GPU path's one).
     pub fn estimators(&self) -> Vec<EstimatorSpec> {
+        if self.scene.is_some() {
+            return vec![EstimatorSpec::Pins];
+        }
         all_estimators()
             .into_iter()
             .filter(|e| {
@@ -134,6 +195,9 @@ impl Medium {
     /// The estimator when none is asked for: `pinrender render`'s default for the same input
     /// (pinms with pins and a density, pins with pins alone, ratio for a volume without pins).
     pub fn default_estimator(&self) -> EstimatorSpec {
+        if self.scene.is_some() {
+            return EstimatorSpec::Pins;
+        }
         match (self.pins.is_some(), self.field.is_some()) {
             (true, true) => EstimatorSpec::PinMs,
             (true, false) => EstimatorSpec::Pins,
@@ -141,9 +205,25 @@ impl Medium {
         }
     }
 
-    /// The medium description of a render with `estimator` on `limits`' device (the GPU copy
-    /// of the density only when the estimator reads it), as `pinrender render` makes it.
-    pub fn desc(&mut self, estimator: EstimatorSpec, limits: &wgpu::Limits) -> Result<MediumDesc> {
+    /// The media descriptions of a render with `estimator` on `limits`' device (the GPU copy
+    /// of the density only when the estimator reads it), as `pinrender render` makes them:
+    /// one medium, or a scene's instances.
+    pub fn descs(
+        &mut self,
+        estimator: EstimatorSpec,
+        limits: &wgpu::Limits,
+    ) -> Result<Vec<MediumDesc>> {
+        match &self.scene {
+            Some(_) if estimator != EstimatorSpec::Pins => bail!(
+                "{}: the GPU path renders a scene with the pins estimator, not {estimator}",
+                self.path.display()
+            ),
+            Some((_, descs)) => Ok(descs.clone()),
+            None => Ok(vec![self.desc(estimator, limits)?]),
+        }
+    }
+
+    fn desc(&mut self, estimator: EstimatorSpec, limits: &wgpu::Limits) -> Result<MediumDesc> {
         if estimator.needs_pins() && self.pins.is_none() {
             bail!(
                 "{}: the {estimator} estimator needs pins, which are not baked yet",
@@ -194,14 +274,10 @@ impl Medium {
     }
 }
 
-/// The GPU media of `desc` for `estimator`, as `pinrender render --backend gpu` packs them.
-pub fn gpu_media(desc: &MediumDesc, estimator: EstimatorSpec) -> Result<GpuMedia<'_>> {
-    pinrender::medium::gpu_media(
-        std::slice::from_ref(desc),
-        Some(estimator),
-        SamplerOptions::RENDER,
-    )
-    .map_err(|e| anyhow!("{e}"))
+/// The GPU media of `descs` for `estimator`, as `pinrender render --backend gpu` packs them.
+pub fn gpu_media(descs: &[MediumDesc], estimator: EstimatorSpec) -> Result<GpuMedia<'_>> {
+    pinrender::medium::gpu_media(descs, Some(estimator), SamplerOptions::RENDER)
+        .map_err(|e| anyhow!("{e}"))
 }
 
 /// A bake of a volume's pins on a worker thread, as `pinrender render` bakes without `--pins`
@@ -363,6 +439,12 @@ impl<T> Drop for BakeJob<T> {
     fn drop(&mut self) {
         self.cancel.store(true, Ordering::Relaxed);
     }
+}
+
+/// Whether `path` names a scene file (`.json`; `docs/scene.md`).
+pub fn is_scene_file(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("json"))
 }
 
 /// Whether `path` names a pin file (by its extension; anything else is read as a volume).

@@ -7,8 +7,10 @@ use std::path::Path;
 use glam::DVec3;
 use pinrender::gpu_render::GpuScene;
 use pinrender::render::{Camera, EstimatorSpec, Sun};
+use pinrender::scene_media::{Look, camera_over};
 
 use crate::args::ViewArgs;
+use crate::open::Medium;
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct View {
@@ -28,39 +30,26 @@ pub struct View {
     pub exposure: f32,
 }
 
-/// `pinrender render`'s default camera for a medium's world box: in front of the box,
-/// looking at its centre.
-pub fn default_camera(bounds: &([f64; 3], [f64; 3])) -> ([f64; 3], [f64; 3]) {
-    let (lo, hi) = (DVec3::from(bounds.0), DVec3::from(bounds.1));
-    let centre = (lo + hi) * 0.5;
-    let size = (hi - lo).length();
-    (
-        [
-            centre.x + 0.35 * size,
-            centre.y + 0.25 * size,
-            centre.z + 1.6 * size,
-        ],
-        centre.to_array(),
-    )
-}
-
 impl View {
-    pub fn new(a: &ViewArgs, bounds: &([f64; 3], [f64; 3]), estimator: EstimatorSpec) -> Self {
-        let (origin, target) = default_camera(bounds);
-        let target = a.camera_target.unwrap_or(target);
+    /// The view the flags ask for: each flag given, else the scene's value (a scene file),
+    /// else `pinrender render`'s default.
+    pub fn new(a: &ViewArgs, medium: &Medium, estimator: EstimatorSpec) -> Self {
+        let scene = medium.scene();
+        let (origin, target) = camera_over(a.camera_origin, a.camera_target, scene, medium.bounds);
+        let look = Look::over(&a.look_flags(), scene);
         Self {
             estimator,
             width: a.width,
             height: a.height,
-            origin: a.camera_origin.unwrap_or(origin),
+            origin,
             target,
-            fov: a.fov,
-            sun_dir: a.sun_dir,
-            sun_radiance: a.sun_radiance,
-            env_radiance: a.env_radiance,
-            albedo: a.albedo,
-            g: a.g,
-            max_bounces: a.max_bounces,
+            fov: look.fov,
+            sun_dir: look.sun_dir,
+            sun_radiance: look.sun_radiance,
+            env_radiance: look.env_radiance,
+            albedo: look.albedo,
+            g: look.g,
+            max_bounces: look.max_bounces,
             seed: a.seed,
             exposure: a.exposure,
         }
@@ -135,9 +124,9 @@ impl View {
     /// The `pinrender render` command line that renders this view of `file` in batch
     /// (`spp` samples, the same seed): with `--backend gpu`, the same bits as the viewer's
     /// accumulation after `spp` passes.
-    pub fn command_line(&self, file: &Path, is_volume: bool, spp: u32) -> String {
+    /// `input` is the flag that names `file` (`--volume`, `--pins` or `--scene`).
+    pub fn command_line(&self, input: &str, file: &Path, spp: u32) -> String {
         let v3 = |v: [f64; 3]| format!("{},{},{}", v[0], v[1], v[2]);
-        let input = if is_volume { "--volume" } else { "--pins" };
         format!(
             "pinrender render {input} {} --backend gpu --estimator {} --width {} --height {} \
              --camera-origin {} --camera-target {} --fov {} --sun-dir {} --sun-radiance {} \

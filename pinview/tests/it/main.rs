@@ -8,5 +8,6 @@ mod error_view;
 mod failures;
 mod overlay;
 mod rebake;
+mod scene;
 mod sequence;
 mod support;

@@ -116,7 +116,7 @@ pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
 
 /// A private, valid XDG runtime directory: without one Mesa's Vulkan loader prints a warning
 /// line per start, which the one-line failure checks would count.
-fn runtime_dir() -> PathBuf {
+pub fn runtime_dir() -> PathBuf {
     static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
     DIR.get_or_init(|| {
         let dir = std::env::temp_dir().join(format!("pinview-xdg-{}", std::process::id()));

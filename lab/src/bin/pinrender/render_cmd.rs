@@ -292,58 +292,21 @@ pub fn default_estimator(volume: Option<&Path>, pins: Option<&Path>) -> Result<E
     })
 }
 
-/// The values a scene file may set and a flag overrides.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Look {
-    pub fov: f64,
-    pub sun_dir: [f64; 3],
-    pub sun_radiance: f64,
-    pub env_radiance: f64,
-    pub albedo: f64,
-    pub g: f64,
-    pub max_bounces: u32,
-}
-
-impl Default for Look {
-    fn default() -> Self {
-        Look {
-            fov: 40.0,
-            sun_dir: [0.3, 1.0, 0.2],
-            sun_radiance: 3.0,
-            env_radiance: 0.3,
-            albedo: 0.9,
-            g: 0.0,
-            max_bounces: 8,
-        }
-    }
-}
+pub use pinrender::scene_media::Look;
 
 impl RenderArgs {
     /// The look of the render: each flag given, else the scene's value, else the default.
     pub fn look_over(&self, scene: Option<&pin_scene::Scene>) -> Look {
-        let d = Look::default();
-        let sc = |f: &dyn Fn(&pin_scene::Scene) -> Option<f64>| scene.and_then(f);
-        Look {
-            fov: self.fov_flag.or(sc(&|s| s.camera.fov)).unwrap_or(d.fov),
-            sun_dir: self
-                .sun_dir_flag
-                .or(scene.and_then(|s| s.sun.direction))
-                .unwrap_or(d.sun_dir),
-            sun_radiance: self
-                .sun_radiance_flag
-                .or(sc(&|s| s.sun.radiance))
-                .unwrap_or(d.sun_radiance),
-            env_radiance: self
-                .env_radiance_flag
-                .or(sc(&|s| s.env_radiance))
-                .unwrap_or(d.env_radiance),
-            albedo: self.albedo_flag.or(sc(&|s| s.albedo)).unwrap_or(d.albedo),
-            g: self.g_flag.or(sc(&|s| s.g)).unwrap_or(d.g),
-            max_bounces: self
-                .max_bounces_flag
-                .or(scene.and_then(|s| s.max_bounces))
-                .unwrap_or(d.max_bounces),
-        }
+        let flags = pinrender::scene_media::LookFlags {
+            fov: self.fov_flag,
+            sun_dir: self.sun_dir_flag,
+            sun_radiance: self.sun_radiance_flag,
+            env_radiance: self.env_radiance_flag,
+            albedo: self.albedo_flag,
+            g: self.g_flag,
+            max_bounces: self.max_bounces_flag,
+        };
+        Look::over(&flags, scene)
     }
 }
 

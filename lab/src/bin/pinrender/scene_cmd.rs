@@ -5,7 +5,6 @@
 use std::path::Path;
 
 use anyhow::{Result, anyhow};
-use glam::DVec3;
 use pinlab::Estimator;
 use pinrender::render::{
     Budget, Camera, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop,
@@ -104,18 +103,8 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
             (None, d, b)
         }
     };
-    let (lo, hi) = (DVec3::from(lo), DVec3::from(hi));
-    let centre = (lo + hi) * 0.5;
-    let size = (hi - lo).length();
-    let target = a
-        .camera_target
-        .or(scene.camera.target)
-        .unwrap_or(centre.to_array());
-    let origin = a.camera_origin.or(scene.camera.origin).unwrap_or([
-        centre.x + 0.35 * size,
-        centre.y + 0.25 * size,
-        centre.z + 1.6 * size,
-    ]);
+    let (origin, target) =
+        scene_media::camera_over(a.camera_origin, a.camera_target, Some(&scene), (lo, hi));
     if origin == target {
         crate::usage!("the camera's origin and target are the same point");
     }

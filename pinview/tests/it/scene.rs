@@ -1,0 +1,179 @@
+//! A scene file of instanced volumes (docs/scene.md): the viewer renders it with the media
+//! `pinrender render --scene --backend gpu` builds, to the bit; a bad scene is one line.
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use crate::support::*;
+
+/// Three instances of one baked asset, placed apart, rotated and scaled; the scene sets the
+/// camera and the look, which the renders must take from it.
+const SCENE: &str = r#"{
+  "assets": {"cloud": {"pins": "c.pin"}},
+  "instances": [
+    {"asset": "cloud"},
+    {"asset": "cloud", "transform": {"translate": [1.1, 0.2, -0.3], "rotate_deg": [0, 40, 10], "scale": 0.8}},
+    {"asset": "cloud", "transform": {"translate": [-1.0, -0.1, 0.2], "scale": [1.2, 0.7, 1]}}
+  ],
+  "camera": {"origin": [0.3, 1.2, 4.2], "target": [0.3, 0.4, 0.3], "fov": 50},
+  "sun": {"direction": [-0.4, 1, 0.3], "radiance": 4},
+  "albedo": 0.8,
+  "g": 0.3,
+  "max_bounces": 3
+}"#;
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn a_scene_matches_pinrender_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    bake(dir.path(), "c.pin", 1.0, None);
+    let scene = write(dir.path(), "sky.json", SCENE);
+    let Some(display) = display() else { return };
+    let saved = dir.path().join("view.exr");
+    let shot = dir.path().join("view.png");
+    let reference = dir.path().join("ref.exr");
+    // The sky's radiance from a flag (the scene leaves it out), the rest from the scene.
+    let flags = [
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--seed",
+        "7",
+        "--env-radiance",
+        "0.5",
+    ];
+    let mut view_args = vec![s(&scene), "--estimator", "pins", "--frames", "3"];
+    view_args.extend_from_slice(&flags);
+    view_args.extend_from_slice(&["--screenshot", s(&shot), "--save", s(&saved), "--json"]);
+    let out = pinview(Some(&display), &view_args);
+    ok(&out, "pinview");
+    let mut render_args = vec![
+        "--scene",
+        s(&scene),
+        "--backend",
+        "gpu",
+        "--estimator",
+        "pins",
+    ];
+    render_args.extend_from_slice(&["--spp", "3", "--out", s(&reference)]);
+    render_args.extend_from_slice(&flags);
+    ok(&pinrender_render(&render_args), "pinrender render --scene");
+    let (view, want) = (exr_bits(&saved), exr_bits(&reference));
+    assert_eq!(view.len(), 48 * 40 * 3);
+    assert!(
+        view == want,
+        "the viewer's EXR of the scene differs from pinrender render --scene --backend gpu"
+    );
+    assert!(
+        png_rgb(&shot).2.iter().any(|&c| c > 30),
+        "the screenshot is black"
+    );
+    let j = json(&out);
+    assert_eq!(j["estimator"], "pins", "{j}");
+    assert_eq!(j["instances"], 3, "{j}");
+    assert_eq!(j["passes"], 3, "{j}");
+}
+
+fn one_line(out: &Output, code: i32, needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(code), "exit code; stderr: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "one line expected: {err}");
+    assert!(lines[0].starts_with("pinview: error: "), "{err}");
+    for needle in needles {
+        assert!(lines[0].contains(needle), "'{needle}' missing from: {err}");
+    }
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(out.stdout.is_empty(), "nothing on stdout on failure");
+}
+
+#[test]
+fn a_bad_scene_is_one_line_naming_the_file_and_the_json_path() {
+    let dir = tempfile::tempdir().unwrap();
+    bake(dir.path(), "c.pin", 1.0, None);
+    let Some(display) = display() else { return };
+    let d = Some(&display);
+    let run = |scene: &Path, extra: &[&str]| {
+        let mut args = vec![s(scene), "--frames", "1"];
+        args.extend_from_slice(extra);
+        pinview(d, &args)
+    };
+    let missing = dir.path().join("missing.json");
+    one_line(&run(&missing, &[]), 1, &["missing.json"]);
+    let not_json = write(dir.path(), "broken.json", "{\"assets\": ");
+    one_line(&run(&not_json, &[]), 1, &["broken.json", "not JSON"]);
+    let flat = write(
+        dir.path(),
+        "flat.json",
+        r#"{"assets": {"c": {"pins": "c.pin"}},
+            "instances": [{"asset": "c"}, {"asset": "c"}, {"asset": "c"},
+                          {"asset": "c", "transform": {"scale": [1, 1, 0]}}]}"#,
+    );
+    one_line(
+        &run(&flat, &[]),
+        1,
+        &[
+            "flat.json",
+            "instances[3].transform",
+            "scales the z axis by 0",
+        ],
+    );
+    let lost = write(
+        dir.path(),
+        "lost.json",
+        r#"{"assets": {"c": {"pins": "nowhere.pin"}}, "instances": [{"asset": "c"}]}"#,
+    );
+    one_line(
+        &run(&lost, &[]),
+        1,
+        &["lost.json", "assets.c.pins", "nowhere.pin"],
+    );
+    // A tracker reads the density, which these pins do not hold: pinrender's own line.
+    let good = write(dir.path(), "good.json", SCENE);
+    one_line(
+        &run(&good, &["--estimator", "ratio"]),
+        1,
+        &["good.json", "assets.cloud.pins", "no embedded density"],
+    );
+    // What needs one medium is a usage error.
+    one_line(
+        &run(&good, &["--compare", "pins"]),
+        2,
+        &["--compare", "good.json"],
+    );
+    one_line(&run(&good, &["--error-view"]), 2, &["--error-view"]);
+}
+
+#[test]
+fn interactive_a_bad_scene_keeps_its_window_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let flat = write(
+        dir.path(),
+        "flat.json",
+        r#"{"assets": {"c": {"pins": "c.pin"}}, "instances": [{"asset": "c"}]}"#,
+    );
+    let Some(display) = display() else { return };
+    let mut child = std::process::Command::new(PINVIEW)
+        .arg(s(&flat))
+        .env("DISPLAY", &display.name)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Without --frames the refused scene (its pins are missing) is shown in a window, which
+    // stays until closed, rather than the process ending at once.
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    let exited = child.try_wait().unwrap();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert_eq!(exited, None, "pinview ended instead of showing the error");
+}
