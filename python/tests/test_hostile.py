@@ -202,8 +202,11 @@ def test_a_bake_leaves_ctrl_c_to_python(tmp_path):
     # A bake writes through a partial file; the library must not install signal handlers to
     # clean it up (the command-line tools do), or Ctrl-C would kill the interpreter instead of
     # raising KeyboardInterrupt. Run in a child so that a failure cannot end this test run.
+    # The child restores Python's own SIGINT handler first: started from a background job
+    # of a non-interactive shell it inherits SIGINT ignored, and Python then installs none.
     code = (
         "import os, signal, numpy as np, pinrt\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "x = np.linspace(-1, 1, 8, dtype=np.float32)\n"
         "pinrt.bake(np.exp(-4 * (x[:, None, None] ** 2 + x[None, :, None] ** 2"
         " + x[None, None, :] ** 2)), os.environ['OUT'], cells=4, directions='octahedral:2',"
@@ -272,8 +275,10 @@ def test_a_masked_array_is_refused_naming_the_mask(tmp_path):
 def test_ctrl_c_stops_a_bake_within_a_second_and_leaves_nothing(tmp_path):
     # A bake of minutes (1e4 steps per pin); SIGINT after 1 s must end it within a second,
     # as KeyboardInterrupt, with no output and no temp file.
+    # Python's own SIGINT handler first, as above (a background job inherits SIGINT ignored).
     code = (
         "import os, signal, threading, time, numpy as np, pinrt\n"
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "a = np.random.default_rng(1).random((32, 32, 32), dtype=np.float32)\n"
         "sent = []\n"
         "def fire():\n"
