@@ -216,6 +216,30 @@ impl SourceArgs {
     }
 }
 
+/// `--dirs`: `octahedral:N` (or `oct:N`) or `polar:PHIxTHETA`, within the format's limits.
+pub fn parse_dirs(s: &str) -> Result<pin_format::Directions, String> {
+    let (kind, res) = s
+        .split_once(':')
+        .ok_or("expected polar:PHIxTHETA or octahedral:N")?;
+    let d = match kind {
+        "polar" => {
+            let (a, b) = res
+                .split_once('x')
+                .ok_or("polar needs PHIxTHETA, e.g. 16x4")?;
+            pin_format::Directions::Polar {
+                n_phi: a.parse().map_err(|e| format!("'{a}': {e}"))?,
+                n_theta: b.parse().map_err(|e| format!("'{b}': {e}"))?,
+            }
+        }
+        "octahedral" | "oct" => pin_format::Directions::Octahedral {
+            n: res.parse().map_err(|e| format!("'{res}': {e}"))?,
+        },
+        other => return Err(format!("unknown parametrisation '{other}'")),
+    };
+    let (k, r) = d.to_desc();
+    pin_format::Directions::from_desc(k, r).map_err(|e| e.to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

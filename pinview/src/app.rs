@@ -15,7 +15,7 @@ use crate::args::ViewArgs;
 use crate::compare::{self, CompareSide, SideTime, Turn};
 use crate::error_view::{self, ErrorTrack, Reference};
 use crate::export;
-use crate::open::{BakeJob, Medium, Rebaked, gpu_media};
+use crate::open::{BakeJob, Medium, PreviewBake, Rebaked, gpu_media};
 use crate::pin_overlay::{self, Pick, Projector};
 use crate::sequence::{Opener, Sequence};
 use crate::startup::StartupClock;
@@ -219,7 +219,7 @@ impl Viewer {
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
         let view = View::new(&args, &medium, wanted);
         let bake = if medium.is_volume {
-            Some(BakeJob::start(&medium, args.seed)?)
+            Some(BakeJob::start(&medium, args.preview_bake())?)
         } else {
             None
         };
@@ -586,7 +586,11 @@ impl Viewer {
             volume: Some(self.medium.path.clone()),
             read,
         };
-        let job = BakeJob::rebake(self.medium.path.clone(), args, self.view.seed)?;
+        let bake = PreviewBake {
+            seed: self.view.seed,
+            ..self.args.preview_bake()
+        };
+        let job = BakeJob::rebake(self.medium.path.clone(), args, bake)?;
         self.rebake = Some((scale, job));
         Ok(())
     }
@@ -674,7 +678,14 @@ impl Viewer {
                 Ok(m) => {
                     let (o, t) = m.home();
                     self.bake = if m.is_volume {
-                        BakeJob::start(&m, self.view.seed).ok()
+                        BakeJob::start(
+                            &m,
+                            PreviewBake {
+                                seed: self.view.seed,
+                                ..self.args.preview_bake()
+                            },
+                        )
+                        .ok()
                     } else {
                         None
                     };

@@ -103,6 +103,11 @@ pub struct ViewArgs {
     pub max_bounces: Option<u32>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Spatial cells per axis of a volume's bake in the viewer and of its re-bakes
+    /// (1..=4096; default: chosen from the volume as `pinbake bake` chooses them), as
+    /// `pinrender render --pin-cells`. Fewer cells bake sooner.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
+    pub pin_cells: Option<u32>,
     /// Exposure of the displayed image (finite, > 0).
     #[arg(long, default_value_t = 1.0, value_parser = parse_exposure)]
     pub exposure: f32,
@@ -189,4 +194,15 @@ fn parse_exposure(s: &str) -> Result<f32, String> {
         return Err(format!("{} must be > 0", pin_cli::num(v)));
     }
     Ok(v as f32)
+}
+
+impl ViewArgs {
+    /// The bake the viewer makes of a volume: `pinbake bake`'s choice, with the cells
+    /// `--pin-cells` gives (`pinrender::volume::pins_for`'s request).
+    pub fn preview_bake(&self) -> crate::open::PreviewBake {
+        crate::open::PreviewBake {
+            seed: self.seed,
+            cells: self.pin_cells,
+        }
+    }
 }

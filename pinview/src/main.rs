@@ -133,6 +133,13 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
             first.display()
         );
     }
+    // The viewer bakes only a volume: a pin file or a scene has its pins already.
+    if a.pin_cells.is_some() && !medium.is_volume {
+        pin_cli::usage!(
+            "--pin-cells applies to a volume the viewer bakes, not to {}",
+            first.display()
+        );
+    }
     for e in a.estimator.into_iter().chain(a.compare) {
         if e.needs_density() && !medium.has_density() {
             return Err(anyhow!(

@@ -300,18 +300,28 @@ struct Shared {
     cancel: Arc<AtomicBool>,
 }
 
+/// What the viewer asks of a volume's bake: the seed, and the cells per axis where given
+/// (else `pinbake bake`'s choice for the volume), as `pinrender render` asks.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PreviewBake {
+    pub seed: u64,
+    pub cells: Option<u32>,
+}
+
 /// Plans and bakes `source`'s pins on `backend`, reporting to `shared`.
 fn bake_pins(
     source: &dyn pinbake::source::DensitySource,
-    seed: u64,
+    bake: PreviewBake,
     backend: pinbake::BakeBackend,
     shared: &Shared,
 ) -> Result<pinrt::PinGrid> {
     let req = pinbake::BakeRequest {
-        seed,
+        seed: bake.seed,
+        cells: bake.cells.map(|c| [c; 3]),
         embed_control: Some(pinbake::control::ControlOptions::default()),
         ..pinbake::BakeRequest::default()
     };
+    req.validate().map_err(|e| anyhow!("{e}"))?;
     let choice = pinbake::plan::choose(source, &req)?;
     let mut opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
     pinbake::files::MemoryBudget::new(None).check(
@@ -380,13 +390,13 @@ impl<T: Send + 'static> BakeJob<T> {
 
 impl BakeJob {
     /// The pins of an opened volume, baked on the CPU as `pinrender render` bakes them.
-    pub fn start(medium: &Medium, seed: u64) -> Result<Self> {
+    pub fn start(medium: &Medium, bake: PreviewBake) -> Result<Self> {
         let Some((_, field)) = &medium.opened else {
             bail!("only a volume is baked");
         };
         let source = field.source().clone();
         Self::spawn(move |shared| {
-            bake_pins(source.as_ref(), seed, pinbake::BakeBackend::Cpu, shared)
+            bake_pins(source.as_ref(), bake, pinbake::BakeBackend::Cpu, shared)
         })
     }
 }
@@ -404,7 +414,7 @@ impl BakeJob<Rebaked> {
     /// The volume at `path` opened again with `read` (another density scale), its pins
     /// baked on the GPU (`pinbake::bake_on`, on a device of its own; on the CPU where the
     /// GPU bake refuses the source): a medium to replace the shown one when it is ready.
-    pub fn rebake(path: PathBuf, read: VolumeArgs, seed: u64) -> Result<Self> {
+    pub fn rebake(path: PathBuf, read: VolumeArgs, bake: PreviewBake) -> Result<Self> {
         Self::spawn(move |shared| {
             let mut medium = Medium::open_volume(&path, &read)?;
             let Some((_, field)) = &medium.opened else {
@@ -412,13 +422,13 @@ impl BakeJob<Rebaked> {
             };
             let source = field.source().clone();
             let gpu = pinbake::BakeBackend::Gpu(Default::default());
-            let (grid, backend, gpu_refused) = match bake_pins(source.as_ref(), seed, gpu, shared) {
+            let (grid, backend, gpu_refused) = match bake_pins(source.as_ref(), bake, gpu, shared) {
                 Ok(g) => (g, "gpu", None),
                 Err(e) if !shared.cancel.load(Ordering::Relaxed) => {
                     shared.done.store(0, Ordering::Relaxed);
                     let cpu = pinbake::BakeBackend::Cpu;
                     (
-                        bake_pins(source.as_ref(), seed, cpu, shared)?,
+                        bake_pins(source.as_ref(), bake, cpu, shared)?,
                         "cpu",
                         Some(e.to_string()),
                     )

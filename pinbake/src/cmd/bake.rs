@@ -47,7 +47,7 @@ pub struct BakeArgs {
     /// Direction cells: octahedral:N or polar:PHIxTHETA (default: an octahedral set chosen
     /// from the volume; the thesis used polar:16x4, which is biased near +-z; see
     /// docs/sampling.md).
-    #[arg(long, value_parser = parse_dirs, help_heading = "Grid")]
+    #[arg(long, value_parser = pinbake::cli_args::parse_dirs, help_heading = "Grid")]
     pub dirs: Option<Directions>,
     /// Pins stored per (cell, direction) entry (default: chosen, 1).
     #[arg(long, help_heading = "Grid",
@@ -186,29 +186,6 @@ fn parse_u32x3_or_zero(s: &str) -> Result<[u32; 3], String> {
 
 fn majorant_dims(d: [u32; 3]) -> Option<[u32; 3]> {
     (d != [0; 3]).then_some(d)
-}
-
-pub fn parse_dirs(s: &str) -> Result<Directions, String> {
-    let (kind, res) = s
-        .split_once(':')
-        .ok_or("expected polar:PHIxTHETA or octahedral:N")?;
-    let d = match kind {
-        "polar" => {
-            let (a, b) = res
-                .split_once('x')
-                .ok_or("polar needs PHIxTHETA, e.g. 16x4")?;
-            Directions::Polar {
-                n_phi: a.parse().map_err(|e| format!("'{a}': {e}"))?,
-                n_theta: b.parse().map_err(|e| format!("'{b}': {e}"))?,
-            }
-        }
-        "octahedral" | "oct" => Directions::Octahedral {
-            n: res.parse().map_err(|e| format!("'{res}': {e}"))?,
-        },
-        other => return Err(format!("unknown parametrisation '{other}'")),
-    };
-    let (k, r) = d.to_desc();
-    Directions::from_desc(k, r).map_err(|e| e.to_string())
 }
 
 fn parse_tile(s: &str) -> Result<Tile, String> {

@@ -53,6 +53,12 @@ fn failures_are_one_line() {
         2,
         "--rebake-scale",
     );
+    // So is the viewer's own bake.
+    one_line(
+        &pinview(d, &[s(&pins), "--pin-cells", "6", "--frames", "1"]),
+        2,
+        "--pin-cells",
+    );
     // A frame pattern that matches nothing.
     let pattern = dir.path().join("sim.####.pin");
     one_line(

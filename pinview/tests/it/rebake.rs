@@ -58,6 +58,8 @@ fn rebake_swaps_in_the_volume_and_its_gpu_pins_at_the_new_scale() {
         args.extend_from_slice(&RAW);
         args.extend_from_slice(&VIEW);
         args.extend_from_slice(&["--seed", "2", "--estimator", est, "--rebake-scale", "2"]);
+        // A small bake: the test is about the swap, and lavapipe bakes slowly.
+        args.extend_from_slice(&["--pin-cells", "6"]);
         args.extend_from_slice(&["--frames", "2", "--save", s(&exr), "--json"]);
         let out = pinview(Some(&display), &args);
         ok(&out, "pinview --rebake-scale");
@@ -73,6 +75,7 @@ fn rebake_swaps_in_the_volume_and_its_gpu_pins_at_the_new_scale() {
         args.extend_from_slice(&VIEW);
         args.extend_from_slice(&["--seed", "2", "--estimator", est, "--density-scale", scale]);
         args.extend_from_slice(&["--backend", "gpu", "--spp", "2", "--out", s(&exr)]);
+        args.extend_from_slice(&["--pin-cells", "6"]);
         ok(&pinrender_render(&args), "pinrender render");
         exr
     };
