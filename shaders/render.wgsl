@@ -57,8 +57,8 @@ struct RtParams {
     material: vec4<f32>,
     // width, height, max_bounces, number of media.
     size: vec4<u32>,
-    // seed low word, seed high word, residual control slot (RT_EST_RESIDUAL), the media
-    // hierarchy's start in `rt_data` plus one (0: none; `rt_bvh_next`).
+    // seed low word, seed high word, residual control slot (RT_EST_RESIDUAL), where the media
+    // hierarchy's nodes start in `rt_data` (0: none; `rt_media_next`).
     seed: vec4<u32>,
 }
 
@@ -852,7 +852,7 @@ fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32)
 // hi, escape index, leaf run `first | count << 29`). `RP.seed.w == 0`: no hierarchy, every
 // medium is asked in turn. A walk meets the leaves in media order and a node's box holds its
 // media's, so the media asked, and the order they are asked in, are the linear scan's: the
-// same bits, with box tests that grow with the media a ray meets.
+// same bits, with box tests that grow with the media a ray meets (`rt_media_next`).
 
 // Whether the segment [0, t_max] of the ray meets node `base`'s box (slab test).
 fn rt_bvh_meets(base: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
@@ -884,10 +884,16 @@ fn rt_bvh_meets(base: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> bool {
     return t0 <= t1;
 }
 
-// The next leaf at or after node `*node` whose box [0, t_max] of the ray meets, as
-// (first medium, count); count 0 when the walk is over. Leaves `*node` after that leaf.
-fn rt_bvh_next(node: ptr<function, u32>, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<u32> {
+// The next run of media at or after node `*node` whose box [0, t_max] of the ray meets, as
+// (first medium, count); count 0 when the walk is over. Leaves `*node` after that run. With
+// no hierarchy the one run is every medium.
+fn rt_media_next(node: ptr<function, u32>, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> vec2<u32> {
     let start = RP.seed.w;
+    if (start == 0u) {
+        let first = *node == 0u;
+        *node = 1u;
+        return select(vec2<u32>(0u, 0u), vec2<u32>(0u, RP.size.w), first);
+    }
     let nodes = rt_data[start - 1u];
     var leaf = vec2<u32>(0u, 0u);
     loop {
@@ -911,22 +917,13 @@ fn rt_bvh_next(node: ptr<function, u32>, o: vec3<f32>, d: vec3<f32>, t_max: f32)
 
 fn rt_transmittance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
     var t = 1.0;
-    if (RP.seed.w == 0u) {
-        for (var m = 0u; m < RP.size.w; m = m + 1u) {
-            t = t * rt_medium_transmittance(kind, m, o, d);
-            if (t == 0.0) {
-                break;
-            }
-        }
-        return t;
-    }
     var node = 0u;
     loop {
-        let leaf = rt_bvh_next(&node, o, d, rt_inf());
-        if (leaf.y == 0u) {
+        let run = rt_media_next(&node, o, d, rt_inf());
+        if (run.y == 0u) {
             break;
         }
-        for (var m = leaf.x; m < leaf.x + leaf.y; m = m + 1u) {
+        for (var m = run.x; m < run.x + run.y; m = m + 1u) {
             t = t * rt_medium_transmittance(kind, m, o, d);
             if (t == 0.0) {
                 return t;
@@ -939,24 +936,15 @@ fn rt_transmittance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
 // Nearest collision over the media, +inf if none.
 fn rt_distance(kind: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
     var best = rt_inf();
-    if (RP.seed.w == 0u) {
-        for (var m = 0u; m < RP.size.w; m = m + 1u) {
-            let t = rt_medium_distance(kind, m, o, d, best);
-            if (t < best) {
-                best = t;
-            }
-        }
-        return best;
-    }
     var node = 0u;
     loop {
         // The segment shrinks to the nearest collision so far: later media beyond it are
         // cut there by their own walks, and skipped here when their whole box lies beyond.
-        let leaf = rt_bvh_next(&node, o, d, best);
-        if (leaf.y == 0u) {
+        let run = rt_media_next(&node, o, d, best);
+        if (run.y == 0u) {
             break;
         }
-        for (var m = leaf.x; m < leaf.x + leaf.y; m = m + 1u) {
+        for (var m = run.x; m < run.x + run.y; m = m + 1u) {
             let t = rt_medium_distance(kind, m, o, d, best);
             if (t < best) {
                 best = t;
