@@ -651,6 +651,22 @@ pub fn pins_for(
     if let Some(p) = pins {
         return load_pins(p);
     }
+    let opts = in_memory_bake_options(source, cells, seed, control, budget)?;
+    let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
+    PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
+}
+
+/// The options of a volume's bake in memory (what [`pins_for`] and the viewer bake):
+/// `pinbake bake`'s choice for `source`, with `cells` per axis where given, `seed`, and the
+/// control section where `control`; refused with one line when the bake, its serialised
+/// bytes and the loaded copy exceed `budget`.
+pub fn in_memory_bake_options(
+    source: &dyn DensitySource,
+    cells: Option<u32>,
+    seed: u64,
+    control: bool,
+    budget: &pinbake::files::MemoryBudget,
+) -> Result<pinbake::BakeOptions> {
     let req = pinbake::BakeRequest {
         cells: cells.map(|c| [c; 3]),
         seed,
@@ -659,7 +675,6 @@ pub fn pins_for(
     };
     let choice = pinbake::plan::choose(source, &req)?;
     let opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
-    // The bake, its serialised bytes and the loaded copy.
     budget.check(
         &format!(
             "baking {:?} pin cells x {:?} in memory",
@@ -667,6 +682,5 @@ pub fn pins_for(
         ),
         pinbake::bake::estimate_output_bytes(&opts).saturating_mul(2),
     )?;
-    let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
-    PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
+    Ok(opts)
 }

@@ -315,35 +315,23 @@ fn bake_pins(
     backend: pinbake::BakeBackend,
     shared: &Shared,
 ) -> Result<pinrt::PinGrid> {
-    let req = pinbake::BakeRequest {
-        seed: bake.seed,
-        cells: bake.cells.map(|c| [c; 3]),
-        embed_control: Some(pinbake::control::ControlOptions::default()),
-        ..pinbake::BakeRequest::default()
-    };
-    req.validate().map_err(|e| anyhow!("{e}"))?;
-    let choice = pinbake::plan::choose(source, &req)?;
-    let mut opts = pinbake::plan::options(&req, &choice, pin_format::Metadata::default());
-    pinbake::files::MemoryBudget::new(None).check(
-        &format!(
-            "baking {:?} pin cells x {:?} in memory",
-            opts.cells, opts.directions
-        ),
-        pinbake::bake::estimate_output_bytes(&opts).saturating_mul(2),
+    // The bake `pinrender render` makes in memory, with the control section for pinres.
+    let mut opts = pinrender::volume::in_memory_bake_options(
+        source,
+        bake.cells,
+        bake.seed,
+        true,
+        &pinbake::files::MemoryBudget::new(None),
     )?;
     opts.cancel = Some(shared.cancel.clone());
-    let total = opts.cells.iter().map(|&c| u64::from(c)).product::<u64>()
-        * u64::from(opts.directions.count())
-        * u64::from(opts.pins_per_entry);
-    shared.total.store(total.max(1), Ordering::Relaxed);
+    shared
+        .total
+        .store(pinbake::bake::pin_count(&opts).max(1), Ordering::Relaxed);
     let counter = shared.done.clone();
     let progress = move |n: u64| {
         counter.fetch_add(n, Ordering::Relaxed);
     };
-    let (grid, _) = match backend {
-        pinbake::BakeBackend::Cpu => pinbake::bake(source, &opts, &progress)?,
-        gpu => pinbake::bake_on(source, &opts, gpu, &progress)?,
-    };
+    let (grid, _) = pinbake::bake_on(source, &opts, backend, &progress)?;
     pinrt::PinGrid::from_bytes(grid.to_bytes()?).map_err(|e| anyhow!("{e}"))
 }
 
