@@ -403,6 +403,35 @@ impl Look {
                 .unwrap_or(d.max_bounces),
         }
     }
+
+    /// The frame a render with this look shows: the camera from `origin` to `target` at
+    /// `width` x `height`, the sun where its radiance is positive, the sky and the material;
+    /// no media yet (`max_bounces` goes to the render's settings).
+    pub fn frame(
+        &self,
+        (origin, target): ([f64; 3], [f64; 3]),
+        width: u32,
+        height: u32,
+    ) -> crate::render::Scene {
+        let f = |v: [f64; 3]| v.map(|x| x as f32);
+        crate::render::Scene {
+            camera: crate::render::Camera {
+                origin: f(origin),
+                target: f(target),
+                vfov_deg: self.fov as f32,
+                width,
+                height,
+            },
+            sun: (self.sun_radiance > 0.0).then(|| crate::render::Sun {
+                dir: f(self.sun_dir),
+                radiance: [self.sun_radiance as f32; 3],
+            }),
+            env_radiance: [self.env_radiance as f32; 3],
+            albedo: self.albedo as f32,
+            g: self.g as f32,
+            media: Vec::new(),
+        }
+    }
 }
 
 /// The camera `(origin, target)`: each flag given, else the scene's, else in front of the

@@ -1162,12 +1162,12 @@ impl Viewer {
             self.compare_controls(ui, &available);
         }
         let v = &mut self.view;
-        ui.add(egui::Slider::new(&mut v.fov, 5.0..=120.0).text("fov"));
-        ui.add(egui::Slider::new(&mut v.albedo, 0.0..=1.0).text("albedo"));
-        ui.add(egui::Slider::new(&mut v.g, -0.95..=0.95).text("g"));
-        ui.add(egui::Slider::new(&mut v.max_bounces, 0..=64).text("bounces"));
-        ui.add(egui::Slider::new(&mut v.sun_radiance, 0.0..=20.0).text("sun radiance"));
-        ui.add(egui::Slider::new(&mut v.env_radiance, 0.0..=5.0).text("sky radiance"));
+        ui.add(egui::Slider::new(&mut v.look.fov, 5.0..=120.0).text("fov"));
+        ui.add(egui::Slider::new(&mut v.look.albedo, 0.0..=1.0).text("albedo"));
+        ui.add(egui::Slider::new(&mut v.look.g, -0.95..=0.95).text("g"));
+        ui.add(egui::Slider::new(&mut v.look.max_bounces, 0..=64).text("bounces"));
+        ui.add(egui::Slider::new(&mut v.look.sun_radiance, 0.0..=20.0).text("sun radiance"));
+        ui.add(egui::Slider::new(&mut v.look.env_radiance, 0.0..=5.0).text("sky radiance"));
         ui.add(
             egui::Slider::new(&mut v.exposure, 0.05..=20.0)
                 .logarithmic(true)
@@ -1175,7 +1175,7 @@ impl Viewer {
         );
         ui.label(format!(
             "sun direction {:.2}, {:.2}, {:.2} (ctrl-drag the image)",
-            v.sun_dir[0], v.sun_dir[1], v.sun_dir[2]
+            v.look.sun_dir[0], v.look.sun_dir[1], v.look.sun_dir[2]
         ));
         ui.horizontal(|ui| {
             if ui.button("reset view").clicked() {

@@ -49,7 +49,7 @@ impl Projector {
             f,
             r,
             u: r.cross(f),
-            tan_half: (view.fov.to_radians() * 0.5).tan(),
+            tan_half: (view.look.fov.to_radians() * 0.5).tan(),
             aspect: f64::from(view.width) / f64::from(view.height),
             w: f64::from(view.width),
             h: f64::from(view.height),

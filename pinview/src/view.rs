@@ -6,7 +6,7 @@ use std::path::Path;
 
 use glam::DVec3;
 use pinrender::gpu_render::GpuScene;
-use pinrender::render::{Camera, EstimatorSpec, Sun};
+use pinrender::render::EstimatorSpec;
 use pinrender::scene_media::{Look, camera_over};
 
 use crate::args::ViewArgs;
@@ -19,13 +19,8 @@ pub struct View {
     pub height: u32,
     pub origin: [f64; 3],
     pub target: [f64; 3],
-    pub fov: f64,
-    pub sun_dir: [f64; 3],
-    pub sun_radiance: f64,
-    pub env_radiance: f64,
-    pub albedo: f64,
-    pub g: f64,
-    pub max_bounces: u32,
+    /// The field of view, lights and material, as `pinrender render` takes them.
+    pub look: Look,
     pub seed: u64,
     pub exposure: f32,
 }
@@ -43,13 +38,7 @@ impl View {
             height: a.height,
             origin,
             target,
-            fov: look.fov,
-            sun_dir: look.sun_dir,
-            sun_radiance: look.sun_radiance,
-            env_radiance: look.env_radiance,
-            albedo: look.albedo,
-            g: look.g,
-            max_bounces: look.max_bounces,
+            look,
             seed: a.seed,
             exposure: a.exposure,
         }
@@ -57,24 +46,10 @@ impl View {
 
     /// The scene as `pinrender render` builds it from the same flags.
     pub fn scene(&self) -> GpuScene {
-        let f = |v: [f64; 3]| v.map(|x| x as f32);
-        GpuScene {
-            camera: Camera {
-                origin: f(self.origin),
-                target: f(self.target),
-                vfov_deg: self.fov as f32,
-                width: self.width,
-                height: self.height,
-            },
-            sun: (self.sun_radiance > 0.0).then(|| Sun {
-                dir: f(self.sun_dir),
-                radiance: [self.sun_radiance as f32; 3],
-            }),
-            env_radiance: [self.env_radiance as f32; 3],
-            albedo: self.albedo as f32,
-            g: self.g as f32,
-            max_bounces: self.max_bounces,
-        }
+        let frame = self
+            .look
+            .frame((self.origin, self.target), self.width, self.height);
+        GpuScene::from_scene(&frame, self.look.max_bounces)
     }
 
     /// Turns the camera around its target: `yaw` about the world's y axis, `pitch` towards
@@ -115,10 +90,10 @@ impl View {
 
     /// Turns the sun direction about the world's y axis and towards the zenith.
     pub fn turn_sun(&mut self, yaw: f64, pitch: f64) {
-        let d = DVec3::from(self.sun_dir).normalize_or_zero();
+        let d = DVec3::from(self.look.sun_dir).normalize_or_zero();
         let az = d.x.atan2(d.z) + yaw;
         let el = (d.y.clamp(-1.0, 1.0).asin() + pitch).clamp(-1.55, 1.55);
-        self.sun_dir = [el.cos() * az.sin(), el.sin(), el.cos() * az.cos()];
+        self.look.sun_dir = [el.cos() * az.sin(), el.sin(), el.cos() * az.cos()];
     }
 
     /// The `pinrender render` command line that renders this view of `file` in batch
@@ -138,13 +113,13 @@ impl View {
             self.height,
             v3(self.origin),
             v3(self.target),
-            self.fov,
-            v3(self.sun_dir),
-            self.sun_radiance,
-            self.env_radiance,
-            self.albedo,
-            self.g,
-            self.max_bounces,
+            self.look.fov,
+            v3(self.look.sun_dir),
+            self.look.sun_radiance,
+            self.look.env_radiance,
+            self.look.albedo,
+            self.look.g,
+            self.look.max_bounces,
             self.seed,
             self.exposure,
             spp.max(1),

@@ -10,9 +10,8 @@ use std::time::Instant;
 use pinlab::Estimator;
 use pinrender::gpu_render::{GpuDensity, GpuRenderer, GpuScene};
 use pinrender::render::{
-    BrickGrid, Budget, Camera, DEFAULT_WAVEFRONT_BATCH, Density, EstimatorSpec, Image,
-    MajorantGrid, RenderSettings, SampleLoop, Scene, Sun, VoxelGrid, block_bias, render,
-    render_wavefront, rmse,
+    BrickGrid, Budget, DEFAULT_WAVEFRONT_BATCH, Density, EstimatorSpec, Image, MajorantGrid,
+    RenderSettings, SampleLoop, Scene, VoxelGrid, block_bias, render, render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
@@ -441,24 +440,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         centre.y + 0.25 * size,
         centre.z + 1.6 * size,
     ]);
-    let f = |v: [f64; 3]| v.map(|x| x as f32);
-    let scene = Scene {
-        camera: Camera {
-            origin: f(origin),
-            target: f(target),
-            vfov_deg: a.look.fov as f32,
-            width: a.width,
-            height: a.height,
-        },
-        sun: (a.look.sun_radiance > 0.0).then(|| Sun {
-            dir: f(a.look.sun_dir),
-            radiance: [a.look.sun_radiance as f32; 3],
-        }),
-        env_radiance: [a.look.env_radiance as f32; 3],
-        albedo: a.look.albedo as f32,
-        g: a.look.g as f32,
-        media: Vec::new(),
-    };
+    let scene = a.look.frame((origin, target), a.width, a.height);
     if a.backend == "gpu" {
         let ctx = ctx.as_ref().ok_or_else(|| anyhow!("no GPU context"))?;
         let image = render_gpu(&a, ctx, std::slice::from_ref(&desc), &scene)?;

@@ -7,8 +7,8 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use pinlab::Estimator;
 use pinrender::render::{
-    Budget, Camera, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop,
-    Scene, Sun, render, render_wavefront,
+    Budget, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop, Scene,
+    render, render_wavefront,
 };
 use pinrender::scene_media::{self, AssetOptions};
 use pinrt::gpu::GpuContext;
@@ -108,25 +108,8 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
     if origin == target {
         crate::usage!("the camera's origin and target are the same point");
     }
-    let f = |v: [f64; 3]| v.map(|x| x as f32);
     let look = a.look;
-    let frame = Scene {
-        camera: Camera {
-            origin: f(origin),
-            target: f(target),
-            vfov_deg: look.fov as f32,
-            width: a.width,
-            height: a.height,
-        },
-        sun: (look.sun_radiance > 0.0).then(|| Sun {
-            dir: f(look.sun_dir),
-            radiance: [look.sun_radiance as f32; 3],
-        }),
-        env_radiance: [look.env_radiance as f32; 3],
-        albedo: look.albedo as f32,
-        g: look.g as f32,
-        media: Vec::new(),
-    };
+    let frame = look.frame((origin, target), a.width, a.height);
     if let Some(ctx) = &ctx {
         let (image, spp, seconds) = render_gpu(&a, ctx, &descs, &frame)?;
         return write(&a, path, &image, spp, seconds, reference.as_ref());
