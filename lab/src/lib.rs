@@ -10,6 +10,9 @@
 //!   [`pinrender::gpu_render::ShaderKernel`] of the GPU path tracer);
 //! * the path-space radiance cache ([`cache`]), a sample loop over the tracer's own walk
 //!   through [`pinrender::render::VertexHook`];
+//! * what the eval and the bench measure with: [`cpu_time`] (the thread's and the process's
+//!   CPU clocks) and [`fractal_cloud`] (the eval's production-scale cloud, voxelised at run
+//!   time);
 //! * [`estimator`]: every estimator name the `pinrender` binary takes, the renderer's and the
 //!   lab's, and the catalogue `pinrender estimators` prints.
 //!
@@ -21,7 +24,9 @@ pub mod cache;
 pub mod closed_form;
 pub mod comb;
 pub mod comb_estimators;
+pub mod cpu_time;
 pub mod estimator;
+pub mod fractal_cloud;
 pub mod pin_control;
 pub mod whole_volume;
 

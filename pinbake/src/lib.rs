@@ -26,6 +26,7 @@ pub mod control;
 pub mod embed_density;
 pub mod error;
 pub mod files;
+pub mod frames;
 #[cfg(feature = "gpu")]
 pub mod gpu_bake;
 pub mod limits;

@@ -684,3 +684,67 @@ pub fn in_memory_bake_options(
     )?;
     Ok(opts)
 }
+
+/// The estimator when --estimator is not given: pinms for a pin file with a density at hand
+/// (--volume, or one embedded in the file), pins for a pin file without one, ratio for a
+/// volume alone. Reads the file's section table only.
+pub fn default_estimator(
+    volume: Option<&Path>,
+    pins: Option<&Path>,
+) -> Result<crate::render::EstimatorSpec> {
+    Ok(match (volume, pins) {
+        (_, None) => crate::render::EstimatorSpec::RatioTracking,
+        (Some(_), Some(_)) => crate::render::EstimatorSpec::PinMs,
+        (None, Some(p)) => {
+            let grid = load_pins(p)?;
+            let file = grid.file().map_err(|e| anyhow!("{}: {e}", p.display()))?;
+            if file.density().is_some() || file.sparse_density().is_some() {
+                crate::render::EstimatorSpec::PinMs
+            } else {
+                crate::render::EstimatorSpec::Pins
+            }
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::EstimatorSpec;
+
+    /// A cosine field's pins (4^3 cells), with `embed` density voxels per axis.
+    fn bake(dir: &Path, name: &str, embed: Option<u32>) -> PathBuf {
+        let p: source::ProceduralSpec = "cosine:seed=5,freq=4,density=6".parse().unwrap();
+        let src = p.build(DensityScale::ONE).unwrap();
+        let opts = pinbake::BakeOptions {
+            cells: [4; 3],
+            embed_density: embed.map(|n| pinbake::EmbedDensity::Dense([n; 3])),
+            majorant: embed.map(|_| [4; 3]),
+            ..pinbake::BakeOptions::default()
+        };
+        let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
+        let path = dir.join(name);
+        grid.write_atomic(&path).unwrap();
+        path
+    }
+
+    #[test]
+    fn the_default_estimator_follows_the_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let bare = bake(dir.path(), "bare.pin", None);
+        let dense = bake(dir.path(), "dense.pin", Some(8));
+        let volume = Path::new("procedural:cosine");
+        let d = |v: Option<&Path>, p: Option<&Path>| default_estimator(v, p).unwrap();
+        assert_eq!(d(None, Some(&bare)), EstimatorSpec::Pins);
+        assert_eq!(d(None, Some(&dense)), EstimatorSpec::PinMs);
+        assert_eq!(d(Some(volume), None), EstimatorSpec::RatioTracking);
+        assert_eq!(d(Some(volume), Some(&bare)), EstimatorSpec::PinMs);
+        // A file that is not a pin file is an error naming it, not a default.
+        let junk = dir.path().join("junk.pin");
+        std::fs::write(&junk, b"junk").unwrap();
+        let e = default_estimator(None, Some(&junk))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("junk.pin"), "{e}");
+    }
+}

@@ -1,6 +1,7 @@
 //! The `pinrender` binary's tests, one test binary (one link of the tree) with a module per
 //! concern.
 
+mod cli_text;
 mod eval_cli;
 mod gpu_density;
 mod hostile;

@@ -344,7 +344,7 @@ impl Clock {
     fn start() -> Self {
         Self {
             wall: Instant::now(),
-            cpu: crate::cpu_time::thread_s(),
+            cpu: pinlab::cpu_time::thread_s(),
         }
     }
 
@@ -355,7 +355,7 @@ impl Clock {
     /// The rate of `queries` queries answered since the start.
     fn rate(&self, queries: usize) -> Rate {
         let wall = self.wall_s();
-        let cpu = crate::cpu_time::thread_s() - self.cpu;
+        let cpu = pinlab::cpu_time::thread_s() - self.cpu;
         Rate {
             wall: queries as f64 / wall,
             cpu: (cpu > 0.0 && cpu.is_finite()).then(|| queries as f64 / cpu),

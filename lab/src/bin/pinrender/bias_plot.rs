@@ -261,33 +261,3 @@ pub fn draw(rows: &[SweepRow], out: &std::path::Path) -> Result<()> {
     drop(root);
     canvas.save()
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    const CSV: &str = "scene,config,cells,dirs,directions,pins_per_entry,jitter,bytes,density_f16_bytes,ratio,mean_error,block8_rms_error
-h,noise-floor,,,,,,0,100,0,-0.0003,0.0039
-h,c8-oct4,8,octahedral:4,16,1,1,84832,100,0.0202,+0.0138,0.0883
-h,c8-oct8,8,octahedral:8,64,1,1,281440,100,0.0671,+0.0329,0.0805
-h,c16-polar16x4,16,polar:16x4,64,1,1,2130784,100,0.5080,+0.0314,0.0707
-";
-
-    #[test]
-    fn parses_and_plots_the_sweep_csv() {
-        let rows = parse(CSV).unwrap();
-        assert_eq!(rows.len(), 4);
-        assert_eq!(rows[0].cells, None);
-        assert_eq!(rows[1].cells, Some(8));
-        assert_eq!(rows[3].dirs, "polar:16x4");
-        assert_eq!(rows[2].block, 0.0805);
-        let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("b.png");
-        draw(&rows, &out).unwrap();
-        assert!(std::fs::metadata(&out).unwrap().len() > 1000);
-        // A short line is an error naming it.
-        let bad = format!("{CSV}h,x,1\n");
-        let e = parse(&bad).unwrap_err().to_string();
-        assert!(e.contains("line 6"), "{e}");
-    }
-}

@@ -31,7 +31,6 @@
 //! is the reference's own noise, reported per scene, and a time-to-error target below twice
 //! that noise prints "n/a (reference noise)" instead of a speedup that would measure noise.
 
-mod cloud;
 mod plot;
 mod report;
 mod scenes;
@@ -187,7 +186,7 @@ impl Stopwatch {
             clock,
             threads: threads.max(1) as f64,
             wall: Instant::now(),
-            cpu: crate::cpu_time::process_s(),
+            cpu: pinlab::cpu_time::process_s(),
         }
     }
 
@@ -196,7 +195,7 @@ impl Stopwatch {
         match self.clock {
             Clock::Wall => wall,
             Clock::Cpu => {
-                let cpu = (crate::cpu_time::process_s() - self.cpu) / self.threads;
+                let cpu = (pinlab::cpu_time::process_s() - self.cpu) / self.threads;
                 // Without getrusage there is only the wall clock.
                 if cpu.is_finite() { cpu } else { wall }
             }

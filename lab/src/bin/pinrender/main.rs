@@ -6,7 +6,6 @@
 
 mod bench;
 mod bias_plot;
-mod cpu_time;
 mod data;
 mod eval;
 mod plot_canvas;

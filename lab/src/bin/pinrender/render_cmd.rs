@@ -272,25 +272,6 @@ pub(crate) fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBu
     ))
 }
 
-/// The estimator when --estimator is not given: pinms for a pin file with a density at hand
-/// (--volume, or one embedded in the file), pins for a pin file without one, ratio for a
-/// volume alone. Reads the file's section table only.
-pub fn default_estimator(volume: Option<&Path>, pins: Option<&Path>) -> Result<EstimatorSpec> {
-    Ok(match (volume, pins) {
-        (_, None) => EstimatorSpec::RatioTracking,
-        (Some(_), Some(_)) => EstimatorSpec::PinMs,
-        (None, Some(p)) => {
-            let grid = volume::load_pins(p)?;
-            let file = grid.file().map_err(|e| anyhow!("{}: {e}", p.display()))?;
-            if file.density().is_some() || file.sparse_density().is_some() {
-                EstimatorSpec::PinMs
-            } else {
-                EstimatorSpec::Pins
-            }
-        }
-    })
-}
-
 pub use pinrender::scene_media::Look;
 
 impl RenderArgs {
@@ -316,7 +297,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
     a.look = a.look_over(None);
     a.estimator = match a.estimator_flag {
         Some(e) => e,
-        None => default_estimator(a.volume.volume.as_deref(), a.pins.as_deref())?.into(),
+        None => volume::default_estimator(a.volume.volume.as_deref(), a.pins.as_deref())?.into(),
     };
     // What to load, which loop runs and what memory it holds: decided here, once.
     let plan = a.estimator.plan();
@@ -728,62 +709,5 @@ pub(crate) fn render_gpu(
             };
             Ok((image, spp, start.elapsed().as_secs_f64()))
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A cosine field's pins (4^3 cells), with `embed` density voxels per axis.
-    fn bake(dir: &Path, name: &str, embed: Option<u32>) -> PathBuf {
-        let p: pinbake::source::ProceduralSpec = "cosine:seed=5,freq=4,density=6".parse().unwrap();
-        let src = p.build(pinbake::source::DensityScale::ONE).unwrap();
-        let opts = pinbake::BakeOptions {
-            cells: [4; 3],
-            embed_density: embed.map(|n| pinbake::EmbedDensity::Dense([n; 3])),
-            majorant: embed.map(|_| [4; 3]),
-            ..pinbake::BakeOptions::default()
-        };
-        let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
-        let path = dir.join(name);
-        grid.write_atomic(&path).unwrap();
-        path
-    }
-
-    #[test]
-    fn the_default_estimator_follows_the_input() {
-        let dir = tempfile::tempdir().unwrap();
-        let bare = bake(dir.path(), "bare.pin", None);
-        let dense = bake(dir.path(), "dense.pin", Some(8));
-        let volume = Path::new("procedural:cosine");
-        let d = |v: Option<&Path>, p: Option<&Path>| default_estimator(v, p).unwrap();
-        assert_eq!(d(None, Some(&bare)), EstimatorSpec::Pins);
-        assert_eq!(d(None, Some(&dense)), EstimatorSpec::PinMs);
-        assert_eq!(d(Some(volume), None), EstimatorSpec::RatioTracking);
-        assert_eq!(d(Some(volume), Some(&bare)), EstimatorSpec::PinMs);
-        // A file that is not a pin file is an error naming it, not a default.
-        let junk = dir.path().join("junk.pin");
-        std::fs::write(&junk, b"junk").unwrap();
-        let e = default_estimator(None, Some(&junk))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("junk.pin"), "{e}");
-    }
-
-    #[test]
-    fn help_says_what_the_default_is() {
-        use clap::CommandFactory;
-        #[derive(clap::Parser)]
-        struct Cli {
-            #[command(flatten)]
-            render: RenderArgs,
-        }
-        let help = Cli::command().render_long_help().to_string();
-        assert!(
-            help.contains("pinms when a density is at hand")
-                && help.contains("with --volume alone, ratio"),
-            "{help}"
-        );
     }
 }

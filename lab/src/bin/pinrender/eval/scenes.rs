@@ -651,9 +651,9 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
 /// The production-scale scene: a fractal cloud of `CLOUD_VOXELS`^3 f32
 /// voxels generated at run time (`eval/cloud.rs`), pins baked as `pinbake bake` chooses.
 fn cloud(sizes: &Sizes) -> Result<EvalScene> {
-    use super::cloud::{CLOUD_DENSITY, CLOUD_VOXELS};
+    use pinlab::fractal_cloud::{CLOUD_DENSITY, CLOUD_VOXELS};
     let t = std::time::Instant::now();
-    let opened = Opened::Dense(Arc::new(super::cloud::cloud(CLOUD_VOXELS)?));
+    let opened = Opened::Dense(Arc::new(pinlab::fractal_cloud::cloud(CLOUD_VOXELS)?));
     pin_cli::errln!(
         "  cloud: {CLOUD_VOXELS}^3 voxels generated in {:.1} s",
         t.elapsed().as_secs_f64()
