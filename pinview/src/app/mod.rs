@@ -293,7 +293,8 @@ impl eframe::App for Viewer {
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         }
         // A frame that rendered asks for the next at once; one with nothing to render (paused,
-        // or waiting for a build) paints at about 60 Hz and leaves the cores to the builds.
+        // or waiting for a build) asks again after `IDLE_REPAINT`, leaving the cores to the
+        // builds; input wakes the window at once either way.
         if busy {
             ctx.request_repaint();
         } else {

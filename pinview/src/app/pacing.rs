@@ -16,8 +16,9 @@ use crate::error_view;
 pub const FRAME_BUDGET: Duration = Duration::from_millis(40);
 pub const SLICE: Duration = Duration::from_millis(20);
 /// How soon a frame that rendered nothing (paused, or waiting for a build) asks for the
-/// next: about 60 Hz, so that an idle window leaves the cores to the builds.
-pub const IDLE_REPAINT: Duration = Duration::from_millis(16);
+/// next: 20 Hz keeps a progress bar moving, input wakes the window at once anyway, and the
+/// cores stay with the builds (on lavapipe a frame's paint is CPU work, 60-100 ms of it).
+pub const IDLE_REPAINT: Duration = Duration::from_millis(50);
 
 /// The longest time between two painted frames, from when the window was created (its
 /// first frame counts from there) to the last frame.
