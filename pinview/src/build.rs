@@ -36,10 +36,14 @@ pub struct Built {
 }
 
 /// A renderer and session being built on a worker thread. Dropping the job leaves the
-/// worker to finish (a pipeline compile cannot be stopped) and drops what it built.
+/// worker to finish (a pipeline compile cannot be stopped) and drops what it built; the
+/// window keeps a job it no longer wants until then ([`BuildJob::is_finished`]) and waits
+/// for the rest when it closes ([`BuildJob::join`]), so that no compile is still running in
+/// the driver while the process exits.
 pub struct BuildJob {
     pub estimator: EstimatorSpec,
     rx: mpsc::Receiver<Result<Built>>,
+    worker: Option<std::thread::JoinHandle<()>>,
 }
 
 impl BuildJob {
@@ -54,13 +58,17 @@ impl BuildJob {
         let (tx, rx) = mpsc::channel();
         let gpu = gpu.clone();
         let estimator = media.estimator;
-        std::thread::Builder::new()
+        let worker = std::thread::Builder::new()
             .name(format!("pinview build {estimator}"))
             .spawn(move || {
                 // The window may have moved on: then nobody receives, and that is fine.
                 let _ = tx.send(build(&gpu, &media, &scene, seed, generation));
             })?;
-        Ok(Self { estimator, rx })
+        Ok(Self {
+            estimator,
+            rx,
+            worker: Some(worker),
+        })
     }
 
     /// The result once the worker has finished (then `Some` once).
@@ -75,14 +83,29 @@ impl BuildJob {
         }
     }
 
+    /// Whether the worker has ended.
+    pub fn is_finished(&self) -> bool {
+        self.worker.as_ref().is_none_or(|w| w.is_finished())
+    }
+
+    /// Waits for the worker to end, dropping what it built.
+    pub fn join(&mut self) {
+        if let Some(w) = self.worker.take() {
+            // A worker that panicked has nothing left running: nothing to report here.
+            let _ = w.join();
+        }
+    }
+
     /// Waits for the worker (a run with nothing to paint meanwhile).
-    pub fn wait(self) -> Result<Built> {
-        self.rx.recv().map_err(|_| {
+    pub fn wait(mut self) -> Result<Built> {
+        let built = self.rx.recv().map_err(|_| {
             anyhow!(
                 "building the {} renderer failed: its thread ended without a result",
                 self.estimator
             )
-        })?
+        });
+        self.join();
+        built?
     }
 }
 

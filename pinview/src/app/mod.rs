@@ -79,6 +79,8 @@ pub struct Viewer {
     pending: Option<BuildJob>,
     /// The view changed: the accumulation starts again.
     dirty: bool,
+    /// Builds no longer wanted whose workers still run (waited for when the window closes).
+    retired: Vec<BuildJob>,
     /// Counts the view's changes, so that a session built for an older view is reset.
     generation: u64,
     /// The longest time between two painted frames.
@@ -179,6 +181,7 @@ impl Viewer {
             renderer: None,
             session: None,
             pending: None,
+            retired: Vec::new(),
             dirty: false,
             generation: 0,
             pacer,
@@ -235,6 +238,21 @@ impl Viewer {
     }
 }
 
+impl Drop for Viewer {
+    /// The window closes once every build has ended: a compile still running in the driver
+    /// while the process exits could crash it at exit.
+    fn drop(&mut self) {
+        let pending = [
+            self.pending.take(),
+            self.compare_pending.take(),
+            self.reference_pending.take(),
+        ];
+        for mut job in self.retired.drain(..).chain(pending.into_iter().flatten()) {
+            job.join();
+        }
+    }
+}
+
 /// `pinrender render`'s default for the input; for a volume, the pins estimator it will
 /// have once baked is not assumed: ratio until then.
 fn initial_estimator(medium: &Medium) -> EstimatorSpec {
@@ -244,6 +262,7 @@ fn initial_estimator(medium: &Medium) -> EstimatorSpec {
 impl eframe::App for Viewer {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.pacer.tick(Instant::now());
+        self.prune_retired();
         let ctx = ui.ctx().clone();
         if let Err(e) = self.poll_background(&ctx) {
             self.fail(&ctx, e);

@@ -14,10 +14,14 @@ use crate::error_view::{self, ErrorTrack, Reference};
 use crate::open::Medium;
 
 /// A pending build's result, where it is the one still wanted (`want`): a job for another
-/// estimator is dropped (its worker finishes alone), a finished one is taken.
-fn take_built(slot: &mut Option<BuildJob>, want: EstimatorSpec) -> Option<Result<Built>> {
+/// estimator is retired (its worker finishes alone), a finished one is taken.
+fn take_built(
+    slot: &mut Option<BuildJob>,
+    want: EstimatorSpec,
+    retired: &mut Vec<BuildJob>,
+) -> Option<Result<Built>> {
     if slot.as_ref().is_some_and(|j| j.estimator != want) {
-        *slot = None;
+        retired.extend(slot.take());
     }
     let done = slot.as_mut()?.poll()?;
     *slot = None;
@@ -51,7 +55,7 @@ impl Viewer {
         }
         // The second side starts again with the first, so both have spent equal time.
         let mut restart = false;
-        if let Some(done) = take_built(&mut self.pending, est) {
+        if let Some(done) = take_built(&mut self.pending, est, &mut self.retired) {
             let mut built = done?;
             if built.generation != self.generation {
                 built.session.reset(&self.view.scene(), self.view.seed)?;
@@ -115,13 +119,13 @@ impl Viewer {
     pub(super) fn ensure_reference(&mut self, restart: bool) -> Result<()> {
         if !self.error_on || error_view::no_reference_reason(&self.medium).is_some() {
             self.reference = None;
-            self.reference_pending = None;
+            self.retired.extend(self.reference_pending.take());
             return Ok(());
         }
         let scene = self.view.scene();
         let seed = self.view.seed;
         let est = error_view::REFERENCE_ESTIMATOR;
-        if let Some(done) = take_built(&mut self.reference_pending, est) {
+        if let Some(done) = take_built(&mut self.reference_pending, est, &mut self.retired) {
             let built = done?;
             let mut r = Reference::from_built(built.renderer, built.session);
             if built.generation != self.generation {
@@ -160,12 +164,12 @@ impl Viewer {
             .filter(|e| self.medium.scene().is_none() && self.medium.estimators().contains(e))
         else {
             self.compare = None;
-            self.compare_pending = None;
+            self.retired.extend(self.compare_pending.take());
             return Ok(());
         };
         let scene = self.view.scene();
         let seed = self.view.seed;
-        if let Some(done) = take_built(&mut self.compare_pending, est) {
+        if let Some(done) = take_built(&mut self.compare_pending, est, &mut self.retired) {
             let built = done?;
             let mut side = CompareSide::from_built(est, built.renderer, built.session);
             if built.generation != self.generation {
@@ -215,10 +219,18 @@ impl Viewer {
         self.medium = medium;
         self.renderer = None;
         self.session = None;
-        self.pending = None;
         self.compare = None;
-        self.compare_pending = None;
         self.reference = None;
-        self.reference_pending = None;
+        let pending = [
+            self.pending.take(),
+            self.compare_pending.take(),
+            self.reference_pending.take(),
+        ];
+        self.retired.extend(pending.into_iter().flatten());
+    }
+
+    /// Forgets the retired builds whose workers have ended.
+    pub(super) fn prune_retired(&mut self) {
+        self.retired.retain(|j| !j.is_finished());
     }
 }
