@@ -685,6 +685,103 @@ pub fn in_memory_bake_options(
     Ok(opts)
 }
 
+/// One medium as `pinrender render` opens it from its flags and the viewer from the same
+/// file: its world box, the field the CPU estimators read, a pin file's majorants, the pins,
+/// and what the GPU's copy of the density is made from. Both build their
+/// [`crate::medium::MediumDesc`] here, so a batch render and the viewer pack the same media.
+#[derive(Clone)]
+pub struct OpenedMedium {
+    pub bounds: ([f64; 3], [f64; 3]),
+    pub field: Option<Arc<dyn Density>>,
+    /// A pin file's majorants; `None`: built from the field when an estimator tracks.
+    pub majorants: Option<Arc<MajorantGrid>>,
+    pub pins: Option<Arc<PinGrid>>,
+    /// The source volume and its tracked field, for its GPU copy.
+    pub opened: Option<(Opened, Arc<TrackedSource>)>,
+    /// A pin file's embedded dense density, for its GPU copy when there is no sparse one.
+    pub voxels: Option<Arc<VoxelGrid>>,
+    /// A pin file's embedded sparse density, for its GPU copy (preferred to a dense one).
+    pub bricks: Option<Arc<BrickGrid>>,
+}
+
+impl OpenedMedium {
+    /// A pin file alone (`grid`, mapped from `path`): its embedded density and majorants as
+    /// [`pin_file_medium`] reads them, framed by the placed grid's world box (rotations
+    /// included).
+    pub fn pin_file(path: &Path, grid: Arc<PinGrid>) -> Result<Self> {
+        let m = pin_file_medium(path, &grid)?;
+        let bounds = grid
+            .sampler()
+            .map_err(|e| anyhow!("{}: {e}", path.display()))?
+            .world_bounds()
+            .unwrap_or(m.bounds);
+        Ok(Self {
+            bounds,
+            field: m.field(),
+            majorants: m.majorants,
+            pins: Some(grid),
+            opened: None,
+            // The GPU reads the section the CPU reads: the sparse one if there is one (as its
+            // dense expansion where that fits one binding, else as the bricks), else the dense.
+            voxels: m.density,
+            bricks: m.bricks,
+        })
+    }
+
+    /// A volume: `opened`'s source tracked with caches of at most `cache_limit` bytes
+    /// ([`TrackedSource::with_budget`]), with `pins` where the caller has them.
+    pub fn volume(opened: Opened, pins: Option<Arc<PinGrid>>, cache_limit: u64) -> Self {
+        let source = opened.source();
+        let b = source.bounds();
+        let field = Arc::new(TrackedSource::with_budget(source, cache_limit));
+        Self {
+            bounds: (b.min.to_array(), b.max.to_array()),
+            field: Some(field.clone()),
+            majorants: None,
+            pins,
+            opened: Some((opened, field)),
+            voxels: None,
+            bricks: None,
+        }
+    }
+
+    /// The GPU's copy of the density for a device with `limits`: dense when it has at most
+    /// [`GPU_DENSE_VOXELS`] voxels and fits one storage binding, else bricked.
+    pub fn gpu_density(&self, limits: &wgpu::Limits) -> Result<GpuDensity> {
+        let max_dense = GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(limits) / 4);
+        let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
+        match (&self.opened, &self.voxels, &self.bricks) {
+            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
+            (None, _, Some(b)) => match b.to_voxels(max_dense) {
+                Some(v) => dense(v),
+                None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
+            },
+            (None, Some(v), None) => dense((**v).clone()),
+            (None, None, None) => anyhow::bail!("no density to upload"),
+        }
+    }
+
+    /// The render's description of this medium, unplaced (the file's own placement), with
+    /// `gpu_density` where a GPU render reads the density.
+    pub fn desc(
+        &self,
+        majorant_bricks: u32,
+        gpu_density: Option<Arc<GpuDensity>>,
+    ) -> crate::medium::MediumDesc {
+        crate::medium::MediumDesc {
+            field: self.field.clone(),
+            majorants: self.majorants.clone(),
+            majorant_bricks,
+            pins: self.pins.clone().map(|grid| crate::medium::PlacedPins {
+                grid,
+                local_to_world: None,
+            }),
+            gpu_density,
+            translation: [0.0; 3],
+        }
+    }
+}
+
 /// The estimator when --estimator is not given: pinms for a pin file with a density at hand
 /// (--volume, or one embedded in the file), pins for a pin file without one, ratio for a
 /// volume alone. Reads the file's section table only.

@@ -8,8 +8,6 @@ use anyhow::{Result, anyhow};
 use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, PassTimeSource};
 use pinrender::render::EstimatorSpec;
 
-use crate::open::{Medium, gpu_media};
-
 /// A side's time, charged by its measured pass time: each call that adds rows measures
 /// its wall time over those rows (each slice is waited for: the device's time plus the
 /// submission), the pass time is the running average of these, and the rows are charged at
@@ -88,30 +86,20 @@ pub struct CompareSide {
 }
 
 impl CompareSide {
-    /// Uploads what `estimator` reads of `medium` and starts an empty session of `scene`.
-    pub fn start(
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        limits: &wgpu::Limits,
-        medium: &mut Medium,
+    /// The side of `estimator` with its renderer and empty session (built off the window's
+    /// thread: `crate::build`).
+    pub fn from_built(
         estimator: EstimatorSpec,
-        scene: &GpuScene,
-        seed: u64,
-    ) -> Result<Self> {
-        let descs = medium.descs(estimator, limits)?;
-        let media = gpu_media(&descs, estimator)?;
-        let renderer = GpuRenderer::with_media_on(device, queue, limits, &media)
-            .map_err(|e| anyhow!("{}: {e}", medium.path.display()))?;
-        let session = renderer
-            .session(scene, estimator, seed)
-            .map_err(|e| anyhow!("{e}"))?;
-        Ok(Self {
+        renderer: GpuRenderer,
+        session: GpuSession,
+    ) -> Self {
+        Self {
             estimator,
             renderer,
             session,
             render_seconds: 0.0,
             clock: PassClock::default(),
-        })
+        }
     }
 
     /// Starts the accumulation again (the view changed, or the first side restarted).

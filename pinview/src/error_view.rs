@@ -9,11 +9,14 @@ use anyhow::{Result, anyhow};
 use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession};
 use pinrender::render::EstimatorSpec;
 
-use crate::open::{Medium, gpu_media};
+use crate::open::Medium;
 
 /// The reference's seed is the view's seed with these bits flipped: its noise is
 /// independent of an estimate with the view's seed.
 pub const REFERENCE_SEED_XOR: u64 = 0x9e37_79b9_7f4a_7c15;
+
+/// The reference's estimator: ratio tracking, unbiased and the trackers' usual choice.
+pub const REFERENCE_ESTIMATOR: EstimatorSpec = EstimatorSpec::RatioTracking;
 
 /// How often the error (heat map, RMSE) is read back and recomputed.
 pub const ERROR_PERIOD: Duration = Duration::from_millis(500);
@@ -42,23 +45,10 @@ pub struct Reference {
 }
 
 impl Reference {
-    pub fn start(
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        limits: &wgpu::Limits,
-        medium: &mut Medium,
-        scene: &GpuScene,
-        seed: u64,
-    ) -> Result<Self> {
-        let est = EstimatorSpec::RatioTracking;
-        let descs = medium.descs(est, limits)?;
-        let media = gpu_media(&descs, est)?;
-        let renderer = GpuRenderer::with_media_on(device, queue, limits, &media)
-            .map_err(|e| anyhow!("{}: {e}", medium.path.display()))?;
-        let session = renderer
-            .session(scene, est, seed ^ REFERENCE_SEED_XOR)
-            .map_err(|e| anyhow!("{e}"))?;
-        Ok(Self { renderer, session })
+    /// The reference with its renderer and empty session (built off the window's thread:
+    /// `crate::build`, with the seed [`REFERENCE_SEED_XOR`] flips).
+    pub fn from_built(renderer: GpuRenderer, session: GpuSession) -> Self {
+        Self { renderer, session }
     }
 
     pub fn reset(&mut self, scene: &GpuScene, seed: u64) -> Result<()> {
@@ -68,7 +58,7 @@ impl Reference {
         {
             self.session = self
                 .renderer
-                .session(scene, EstimatorSpec::RatioTracking, seed)
+                .session(scene, REFERENCE_ESTIMATOR, seed)
                 .map_err(|e| anyhow!("{e}"))?;
         } else {
             self.session

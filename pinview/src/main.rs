@@ -7,10 +7,12 @@
 
 mod app;
 mod args;
+mod build;
 mod compare;
 mod error_view;
 mod error_window;
 mod export;
+mod offscreen;
 mod open;
 mod pin_overlay;
 mod sequence;
@@ -102,6 +104,17 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
             a.file.display()
         );
     }
+    if a.offscreen {
+        if let Some(flag) = offscreen::window_only_flags(&a) {
+            pin_cli::usage!("{flag} needs the window; --offscreen renders one view without one");
+        }
+        if sequence::split_pattern(&a.file).is_some() {
+            pin_cli::usage!(
+                "--offscreen renders one file, not the frame pattern {}",
+                a.file.display()
+            );
+        }
+    }
     // The file first: a bad one is reported without opening a window.
     let frames = match sequence::split_pattern(&a.file) {
         Some(_) => Some(sequence::list_frames(&a.file)?),
@@ -167,6 +180,13 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         .flatten()
     {
         pinbake::files::check_output(out, &inputs)?;
+    }
+    if a.offscreen {
+        let json = offscreen::run(&a, medium, clock)?;
+        if a.json {
+            pin_cli::outln!("{json}")?;
+        }
+        return Ok(ExitCode::SUCCESS);
     }
     // This build opens X11 windows only (winit's x11 backend).
     if std::env::var_os("DISPLAY").is_none_or(|d| d.is_empty()) {

@@ -4,17 +4,16 @@
 //! same bits.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 use anyhow::{Result, anyhow, bail};
 
-use pinbake::source::Density;
 use pinrender::gpu_render::{GpuDensity, GpuMedia};
-use pinrender::medium::{MediumDesc, PlacedPins};
-use pinrender::render::{BrickGrid, EstimatorSpec, VoxelGrid};
+use pinrender::medium::MediumDesc;
+use pinrender::render::EstimatorSpec;
 use pinrender::scene_media;
-use pinrender::volume::{self, Opened, TrackedSource, VolumeArgs};
+use pinrender::volume::{self, OpenedMedium, VolumeArgs};
 use pinrt::SamplerOptions;
 
 /// Majorant bricks per axis: `pinrender render`'s default.
@@ -27,17 +26,61 @@ pub struct Medium {
     pub bounds: ([f64; 3], [f64; 3]),
     /// A volume (`--volume`), as opposed to a pin file alone.
     pub is_volume: bool,
-    field: Option<Arc<dyn Density>>,
-    majorants: Option<Arc<pinrender::render::MajorantGrid>>,
-    pins: Option<Arc<pinrt::PinGrid>>,
-    opened: Option<(Opened, Arc<TrackedSource>)>,
-    voxels: Option<Arc<VoxelGrid>>,
-    bricks: Option<Arc<BrickGrid>>,
-    /// The GPU copy of the density, made on first use (shared by the estimators).
-    gpu_density: Option<Arc<GpuDensity>>,
+    /// What `pinrender render` opens from the same file (`pinrender::volume::OpenedMedium`).
+    opened: OpenedMedium,
+    /// The GPU copy of the density, made on first use by whichever renderer is built first
+    /// (on a worker thread) and shared by the estimators.
+    gpu_density: GpuDensityCache,
     /// A scene file: the scene and its instances' GPU media (`pinrender render --scene
     /// --backend gpu`'s own, from [`pinrender::scene_media`]).
     scene: Option<(pin_scene::Scene, Vec<MediumDesc>)>,
+}
+
+/// The density's GPU copy, made once by the first build that needs it: the lock is held
+/// while it is made, so a second build (the reference's, the other side's) waits and shares it.
+type GpuDensityCache = Arc<Mutex<Option<Arc<GpuDensity>>>>;
+
+/// What a renderer of one estimator reads of a medium, taken on the window's thread and
+/// turned into media on a worker ([`MediaJob::descs`]): the medium's shared parts, no copy.
+#[derive(Clone)]
+pub struct MediaJob {
+    pub path: PathBuf,
+    pub estimator: EstimatorSpec,
+    source: MediaSource,
+}
+
+#[derive(Clone)]
+enum MediaSource {
+    One(OpenedMedium, GpuDensityCache),
+    Scene(Vec<MediumDesc>),
+}
+
+impl MediaJob {
+    /// The media descriptions, as `pinrender render` makes them, for a device with `limits`
+    /// (the GPU copy of the density, made here the first time, only where the estimator
+    /// reads it): one medium, or a scene's instances.
+    pub fn descs(&self, limits: &wgpu::Limits) -> Result<Vec<MediumDesc>> {
+        match &self.source {
+            MediaSource::Scene(descs) => Ok(descs.clone()),
+            MediaSource::One(m, cache) => {
+                let gpu = if self.estimator.needs_density() {
+                    let mut slot = cache
+                        .lock()
+                        .map_err(|_| anyhow!("the density's GPU copy was poisoned"))?;
+                    if slot.is_none() {
+                        let copy = m
+                            .gpu_density(limits)
+                            .map_err(|e| anyhow!("{}: {e}", self.path.display()))?;
+                        *slot = Some(Arc::new(copy));
+                    }
+                    slot.clone()
+                } else {
+                    None
+                };
+                Ok(vec![m.desc(MAJORANT_BRICKS, gpu)])
+            }
+        }
+    }
 }
 
 /// Every estimator the viewer offers, in menu order.
@@ -62,49 +105,36 @@ impl Medium {
     /// A pin file alone (mapped, O(1); the density sections are read when an estimator asks).
     pub fn open_pins(path: &Path) -> Result<Self> {
         let grid = Arc::new(volume::load_pins(path)?);
-        let m = volume::pin_file_medium(path, &grid)?;
-        let bounds = grid
-            .sampler()
-            .map_err(|e| anyhow!("{}: {e}", path.display()))?
-            .world_bounds()
-            .unwrap_or(m.bounds);
-        Ok(Self {
-            path: path.to_path_buf(),
-            bounds,
-            is_volume: false,
-            field: m.field(),
-            majorants: m.majorants,
-            pins: Some(grid),
-            opened: None,
-            voxels: m.density,
-            bricks: m.bricks,
-            gpu_density: None,
-            scene: None,
-        })
+        let opened = OpenedMedium::pin_file(path, grid)?;
+        Ok(Self::new(path, opened, false, None))
     }
 
     /// A volume: tracked at once, without pins until [`Medium::set_pins`].
     pub fn open_volume(path: &Path, read: &VolumeArgs) -> Result<Self> {
         let opened = volume::open_volume_typed(path, read)?;
-        let source = opened.source();
-        let b = source.bounds();
-        let field = Arc::new(TrackedSource::with_budget(
-            source,
-            pinbake::files::MemoryBudget::new(None).limit,
-        ));
-        Ok(Self {
+        let limit = pinbake::files::MemoryBudget::new(None).limit;
+        Ok(Self::new(
+            path,
+            OpenedMedium::volume(opened, None, limit),
+            true,
+            None,
+        ))
+    }
+
+    fn new(
+        path: &Path,
+        opened: OpenedMedium,
+        is_volume: bool,
+        scene: Option<(pin_scene::Scene, Vec<MediumDesc>)>,
+    ) -> Self {
+        Self {
             path: path.to_path_buf(),
-            bounds: (b.min.to_array(), b.max.to_array()),
-            is_volume: true,
-            field: Some(field.clone()),
-            majorants: None,
-            pins: None,
-            opened: Some((opened, field)),
-            voxels: None,
-            bricks: None,
-            gpu_density: None,
-            scene: None,
-        })
+            bounds: opened.bounds,
+            is_volume,
+            opened,
+            gpu_density: Arc::default(),
+            scene,
+        }
     }
 
     /// A scene file's instances for `estimator`, opened as `pinrender render --scene --backend
@@ -123,19 +153,16 @@ impl Medium {
         };
         let assets = scene_media::open_assets(&scene, &opts)?;
         let (descs, bounds) = scene_media::gpu_descs(&scene, &assets, &opts)?;
-        Ok(Self {
-            path: path.to_path_buf(),
+        let none = OpenedMedium {
             bounds,
-            is_volume: false,
             field: None,
             majorants: None,
             pins: None,
             opened: None,
             voxels: None,
             bricks: None,
-            gpu_density: None,
-            scene: Some((scene, descs)),
-        })
+        };
+        Ok(Self::new(path, none, false, Some((scene, descs))))
     }
 
     /// The scene, where this is a scene file.
@@ -160,16 +187,16 @@ impl Medium {
 
     /// Pins baked for this volume (in the background).
     pub fn set_pins(&mut self, grid: Arc<pinrt::PinGrid>) {
-        self.pins = Some(grid);
+        self.opened.pins = Some(grid);
     }
 
     /// The pins, where the file holds them or the bake has made them.
     pub fn pins(&self) -> Option<&Arc<pinrt::PinGrid>> {
-        self.pins.as_ref()
+        self.opened.pins.as_ref()
     }
 
     pub fn has_density(&self) -> bool {
-        self.field.is_some()
+        self.opened.field.is_some()
     }
 
     /// The estimators this medium answers now (a scene: pins, the GPU path's one).
@@ -180,11 +207,11 @@ impl Medium {
         all_estimators()
             .into_iter()
             .filter(|e| {
-                (!e.needs_pins() || self.pins.is_some())
-                    && (!e.needs_density() || self.field.is_some())
+                (!e.needs_pins() || self.pins().is_some())
+                    && (!e.needs_density() || self.has_density())
                     && (*e != EstimatorSpec::PinRes
                         || self
-                            .pins
+                            .pins()
                             .as_ref()
                             .and_then(|p| p.file().ok().map(|f| f.control().is_some()))
                             .unwrap_or(false))
@@ -198,79 +225,44 @@ impl Medium {
         if self.scene.is_some() {
             return EstimatorSpec::Pins;
         }
-        match (self.pins.is_some(), self.field.is_some()) {
+        match (self.pins().is_some(), self.has_density()) {
             (true, true) => EstimatorSpec::PinMs,
             (true, false) => EstimatorSpec::Pins,
             _ => EstimatorSpec::RatioTracking,
         }
     }
 
-    /// The media descriptions of a render with `estimator` on `limits`' device (the GPU copy
-    /// of the density only when the estimator reads it), as `pinrender render` makes them:
-    /// one medium, or a scene's instances.
-    pub fn descs(
-        &mut self,
-        estimator: EstimatorSpec,
-        limits: &wgpu::Limits,
-    ) -> Result<Vec<MediumDesc>> {
-        match &self.scene {
+    /// What a renderer of `estimator` reads of this medium, refused here (on the window's
+    /// thread) where the medium cannot answer it: one medium, or a scene's instances.
+    pub fn media_job(&self, estimator: EstimatorSpec) -> Result<MediaJob> {
+        let source = match &self.scene {
             Some(_) if estimator != EstimatorSpec::Pins => bail!(
                 "{}: the GPU path renders a scene with the pins estimator, not {estimator}",
                 self.path.display()
             ),
-            Some((_, descs)) => Ok(descs.clone()),
-            None => Ok(vec![self.desc(estimator, limits)?]),
-        }
-    }
-
-    fn desc(&mut self, estimator: EstimatorSpec, limits: &wgpu::Limits) -> Result<MediumDesc> {
-        if estimator.needs_pins() && self.pins.is_none() {
-            bail!(
-                "{}: the {estimator} estimator needs pins, which are not baked yet",
-                self.path.display()
-            );
-        }
-        if estimator.needs_density() && self.field.is_none() {
-            bail!(
-                "{}: no embedded density, which the {estimator} estimator needs (bake with \
-                 `pinbake bake --embed-density N`, or open the volume)",
-                self.path.display()
-            );
-        }
-        let gpu_density = if estimator.needs_density() {
-            if self.gpu_density.is_none() {
-                self.gpu_density = Some(Arc::new(self.gpu_copy(limits)?));
+            Some((_, descs)) => MediaSource::Scene(descs.clone()),
+            None => {
+                if estimator.needs_pins() && self.pins().is_none() {
+                    bail!(
+                        "{}: the {estimator} estimator needs pins, which are not baked yet",
+                        self.path.display()
+                    );
+                }
+                if estimator.needs_density() && !self.has_density() {
+                    bail!(
+                        "{}: no embedded density, which the {estimator} estimator needs (bake \
+                         with `pinbake bake --embed-density N`, or open the volume)",
+                        self.path.display()
+                    );
+                }
+                MediaSource::One(self.opened.clone(), self.gpu_density.clone())
             }
-            self.gpu_density.clone()
-        } else {
-            None
         };
-        Ok(MediumDesc {
-            field: self.field.clone(),
-            majorants: self.majorants.clone(),
-            majorant_bricks: MAJORANT_BRICKS,
-            pins: self.pins.clone().map(|grid| PlacedPins {
-                grid,
-                local_to_world: None,
-            }),
-            gpu_density,
-            translation: [0.0; 3],
+        Ok(MediaJob {
+            path: self.path.clone(),
+            estimator,
+            source,
         })
-    }
-
-    /// The GPU's copy of the density, chosen as `pinrender render` chooses it.
-    fn gpu_copy(&self, limits: &wgpu::Limits) -> Result<GpuDensity> {
-        let max_dense = volume::GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(limits) / 4);
-        let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
-        match (&self.opened, &self.voxels, &self.bricks) {
-            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
-            (None, _, Some(b)) => match b.to_voxels(max_dense) {
-                Some(v) => dense(v),
-                None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
-            },
-            (None, Some(v), None) => dense((**v).clone()),
-            (None, None, None) => bail!("{}: no density to upload", self.path.display()),
-        }
     }
 }
 
@@ -379,7 +371,7 @@ impl<T: Send + 'static> BakeJob<T> {
 impl BakeJob {
     /// The pins of an opened volume, baked on the CPU as `pinrender render` bakes them.
     pub fn start(medium: &Medium, bake: PreviewBake) -> Result<Self> {
-        let Some((_, field)) = &medium.opened else {
+        let Some((_, field)) = &medium.opened.opened else {
             bail!("only a volume is baked");
         };
         let source = field.source().clone();
@@ -405,7 +397,7 @@ impl BakeJob<Rebaked> {
     pub fn rebake(path: PathBuf, read: VolumeArgs, bake: PreviewBake) -> Result<Self> {
         Self::spawn(move |shared| {
             let mut medium = Medium::open_volume(&path, &read)?;
-            let Some((_, field)) = &medium.opened else {
+            let Some((_, field)) = &medium.opened.opened else {
                 bail!("only a volume is baked");
             };
             let source = field.source().clone();

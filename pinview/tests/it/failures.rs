@@ -5,7 +5,7 @@ use std::process::Output;
 
 use crate::support::*;
 
-fn one_line(out: &Output, code: i32, needle: &str) {
+pub fn one_line(out: &Output, code: i32, needle: &str) {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(code), "exit code; stderr: {err}");
     let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();

@@ -8,17 +8,17 @@ use clap::Args;
 use std::time::Instant;
 
 use pinlab::Estimator;
-use pinrender::gpu_render::{GpuDensity, GpuRenderer, GpuScene};
+use pinrender::gpu_render::{GpuRenderer, GpuScene};
 use pinrender::render::{
-    BrickGrid, Budget, DEFAULT_WAVEFRONT_BATCH, Density, EstimatorSpec, Image, MajorantGrid,
-    RenderSettings, SampleLoop, Scene, VoxelGrid, block_bias, render, render_wavefront, rmse,
+    Budget, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop, Scene,
+    block_bias, render, render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
 
-use crate::volume::{self, TrackedSource, VolumeArgs};
+use crate::volume::{self, OpenedMedium, VolumeArgs};
 use pin_cli::parse::parse_f64x3;
-use pinrender::medium::{MediumDesc, PlacedPins};
+use pinrender::medium::MediumDesc;
 
 #[derive(Args, Debug)]
 #[command(after_help = "\
@@ -412,7 +412,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
             a.estimator
         );
     }
-    let desc = medium.desc(&a, ctx.as_ref())?;
+    let desc = desc(&medium, &a, ctx.as_ref())?;
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
     let target = a.camera_target.unwrap_or(centre.to_array());
@@ -463,64 +463,9 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
     )
 }
 
-/// The medium a render reads: from `--volume` (with `--pins` or in-memory pins for the pin
-/// estimators), or from a pin file alone.
-struct OpenedMedium {
-    bounds: ([f64; 3], [f64; 3]),
-    field: Option<Arc<dyn Density>>,
-    /// The file's majorants (a pin file alone); `None`: built from the field.
-    majorants: Option<Arc<MajorantGrid>>,
-    pins: Option<Arc<pinrt::PinGrid>>,
-    /// The source volume and its field, for its GPU copy.
-    opened: Option<(volume::Opened, Arc<TrackedSource>)>,
-    /// A pin file's embedded dense density, for its GPU copy when there is no sparse one.
-    voxels: Option<Arc<VoxelGrid>>,
-    /// A pin file's embedded sparse density, for its GPU copy (preferred to a dense one).
-    bricks: Option<Arc<BrickGrid>>,
-}
-
-impl OpenedMedium {
-    /// The render's medium description: what the CPU estimators and the GPU packing read
-    /// (the GPU copy of the density only for a GPU render of an estimator that reads it).
-    fn desc(&self, a: &RenderArgs, ctx: Option<&GpuContext>) -> Result<MediumDesc> {
-        let gpu = ctx.filter(|_| a.estimator.plan().density);
-        Ok(MediumDesc {
-            field: self.field.clone(),
-            majorants: self.majorants.clone(),
-            majorant_bricks: a.majorant_bricks,
-            pins: self.pins.clone().map(|grid| PlacedPins {
-                grid,
-                local_to_world: None,
-            }),
-            gpu_density: match gpu {
-                Some(ctx) => Some(Arc::new(self.gpu_density(ctx)?)),
-                None => None,
-            },
-            translation: [0.0; 3],
-        })
-    }
-
-    /// The GPU's copy: dense when it has at most [`volume::GPU_DENSE_VOXELS`] voxels and fits
-    /// one storage binding of `ctx` (the images of before the bricks), else bricked.
-    fn gpu_density(&self, ctx: &GpuContext) -> Result<GpuDensity> {
-        let max_dense = volume::GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(&ctx.limits) / 4);
-        let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
-        match (&self.opened, &self.voxels, &self.bricks) {
-            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
-            (None, _, Some(b)) => match b.to_voxels(max_dense) {
-                Some(v) => dense(v),
-                None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),
-            },
-            (None, Some(v), None) => dense((**v).clone()),
-            (None, None, None) => bail!("no density to upload"),
-        }
-    }
-}
-
 fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium> {
     let opened = volume::open_volume_typed(input, &a.volume)?;
     let source = opened.source();
-    let b = source.bounds();
     let plan = a.estimator.plan();
     let pins = if plan.reads_bake {
         let grid = volume::pins_for(
@@ -545,19 +490,8 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     } else {
         None
     };
-    let field = Arc::new(TrackedSource::with_budget(
-        source,
-        pinbake::files::MemoryBudget::new(a.max_memory).limit,
-    ));
-    Ok(OpenedMedium {
-        bounds: (b.min.to_array(), b.max.to_array()),
-        field: Some(field.clone()),
-        majorants: None,
-        pins,
-        opened: Some((opened, field)),
-        voxels: None,
-        bricks: None,
-    })
+    let limit = pinbake::files::MemoryBudget::new(a.max_memory).limit;
+    Ok(OpenedMedium::volume(opened, pins, limit))
 }
 
 /// `gpu`: the device a GPU render will upload the density to.
@@ -566,24 +500,17 @@ fn open_medium_from_pins(path: &Path, gpu: Option<&GpuContext>) -> Result<Opened
     if let Some(ctx) = gpu {
         check_gpu_bricks(path, &grid, ctx)?;
     }
-    let m = volume::pin_file_medium(path, &grid)?;
-    // The placed grid's world box (rotations included) frames the camera.
-    let bounds = grid
-        .sampler()
-        .map_err(|e| anyhow!("{}: {e}", path.display()))?
-        .world_bounds()
-        .unwrap_or(m.bounds);
-    Ok(OpenedMedium {
-        bounds,
-        field: m.field(),
-        majorants: m.majorants,
-        pins: Some(grid),
-        opened: None,
-        // The GPU reads the section the CPU reads: the sparse one if there is one (as its
-        // dense expansion where that fits one binding, else as the bricks), else the dense.
-        voxels: m.density,
-        bricks: m.bricks,
-    })
+    OpenedMedium::pin_file(path, grid)
+}
+
+/// The render's medium description: what the CPU estimators and the GPU packing read (the
+/// GPU copy of the density only for a GPU render of an estimator that reads it).
+fn desc(medium: &OpenedMedium, a: &RenderArgs, ctx: Option<&GpuContext>) -> Result<MediumDesc> {
+    let gpu = match ctx.filter(|_| a.estimator.plan().density) {
+        Some(ctx) => Some(Arc::new(medium.gpu_density(&ctx.limits)?)),
+        None => None,
+    };
+    Ok(medium.desc(a.majorant_bricks, gpu))
 }
 
 /// Refuses a pin file whose sparse density neither expands to a dense copy the GPU takes

@@ -1,0 +1,254 @@
+//! Frame pacing: the passes each frame adds within its budget (whole passes or bands of
+//! rows, each slice waited for), the turns of the two sides and the reference, and the
+//! meter of the longest time between two painted frames.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{Result, anyhow};
+use pinrender::gpu_render::PassTimeSource;
+
+use super::Viewer;
+use crate::compare::{self, SideTime, Turn};
+use crate::error_view;
+
+/// Wall time the renderer may take per frame, and per submission within it: the window
+/// answers well within 100 ms.
+pub const FRAME_BUDGET: Duration = Duration::from_millis(40);
+pub const SLICE: Duration = Duration::from_millis(20);
+/// How soon a frame that rendered nothing (paused, or waiting for a build) asks for the
+/// next: 20 Hz keeps a progress bar moving, input wakes the window at once anyway, and the
+/// cores stay with the builds (on lavapipe a frame's paint is CPU work, 60-100 ms of it).
+pub const IDLE_REPAINT: Duration = Duration::from_millis(50);
+
+/// The longest time between two painted frames, from when the window was created (its
+/// first frame counts from there) to the last frame.
+#[derive(Clone, Copy, Debug)]
+pub struct FramePacer {
+    last: Instant,
+    longest: Duration,
+    frames: u64,
+}
+
+impl FramePacer {
+    pub fn new(created: Instant) -> Self {
+        Self {
+            last: created,
+            longest: Duration::ZERO,
+            frames: 0,
+        }
+    }
+
+    /// A frame starts at `now`.
+    pub fn tick(&mut self, now: Instant) {
+        self.longest = self.longest.max(now.saturating_duration_since(self.last));
+        self.last = now;
+        self.frames += 1;
+    }
+
+    /// The longest gap so far, milliseconds.
+    pub fn longest_ms(&self) -> f64 {
+        1e3 * self.longest.as_secs_f64()
+    }
+
+    /// Frames counted so far.
+    pub fn frames(&self) -> u64 {
+        self.frames
+    }
+}
+
+impl Viewer {
+    /// Adds passes for this frame and draws the accumulation into the texture.
+    pub(super) fn render(&mut self) -> Result<bool> {
+        self.ensure_session()?;
+        let limit = match self.args.frames {
+            Some(n) => {
+                // A scripted run renders only the estimator it asked for.
+                if self.estimator_now() != self.wanted {
+                    return Ok(false);
+                }
+                n
+            }
+            None => u32::MAX,
+        };
+        // A scripted re-bake renders its passes on the new pins.
+        if self.args.frames.is_some() && self.args.rebake_scale.is_some() && self.rebaked.is_none()
+        {
+            return Ok(false);
+        }
+        // A scripted comparison waits for its second estimator (a volume's pins).
+        if self.args.frames.is_some()
+            && self.compare_wanted.is_some()
+            && self.compare.as_ref().map(|c| c.estimator) != self.compare_wanted
+        {
+            return Ok(false);
+        }
+        // A frame that reads the error back (tens of milliseconds at 512 x 512 on lavapipe)
+        // renders one slice and no reference: the window still answers within 100 ms.
+        let error_due = self.error_due();
+        let Some(session) = &mut self.session else {
+            return Ok(false);
+        };
+        // The window screenshot shows the passes the other outputs hold.
+        let running = !(self.paused && self.sequence.is_none()) && self.window_shot.is_none();
+        let remaining = if running {
+            limit.saturating_sub(session.passes())
+        } else {
+            0
+        };
+        let first = SideTime {
+            seconds: self.first_clock.seconds(),
+            pass_seconds: self.first_clock.pass_seconds,
+            remaining,
+            in_progress: session.next_row() != 0,
+        };
+        let turn = match &self.compare {
+            None => Turn::First(remaining),
+            Some(c) => compare::next_turn(
+                first,
+                SideTime {
+                    seconds: c.seconds(),
+                    pass_seconds: c.clock.pass_seconds,
+                    remaining: if running { u32::MAX } else { 0 },
+                    in_progress: c.session.next_row() != 0,
+                },
+            ),
+        };
+        let budget = if error_due { SLICE } else { FRAME_BUDGET };
+        let t = Instant::now();
+        let mut busy = true;
+        match turn {
+            Turn::First(n) if n > 0 => {
+                self.first_clock
+                    .add(session, &mut self.render_seconds, budget, SLICE, n)?;
+            }
+            Turn::Second(n) => {
+                if let Some(c) = &mut self.compare {
+                    c.add(budget, SLICE, n)?;
+                }
+            }
+            _ => busy = false,
+        }
+        // The reference gets what is left of the frame's budget (at least one slice), the
+        // whole frame when the shown sides add nothing; a scripted run stops it on whole
+        // passes once the shown sides are done.
+        if let Some(r) = &mut self.reference
+            && running
+            && !error_due
+        {
+            let idle = turn == Turn::Neither || matches!(turn, Turn::First(0));
+            let max = if self.args.frames.is_some() && idle {
+                u32::from(r.session.passes() == 0 || r.session.next_row() != 0)
+            } else {
+                u32::MAX
+            };
+            let budget = if idle {
+                FRAME_BUDGET
+            } else {
+                FRAME_BUDGET.saturating_sub(t.elapsed())
+            };
+            if max > 0 {
+                r.session
+                    .add_for(budget, SLICE, max)
+                    .map_err(|e| anyhow!("{e}"))?;
+                busy = true;
+            }
+        }
+        if let (Some(c), Some(target)) = (&self.compare, &self.compare_target)
+            && c.session.passes() > 0
+        {
+            self.tone.draw(&c.session, &target.view, self.view.exposure);
+        }
+        // After a reset the old image stays up until the first new pass is in: no black
+        // frames while a long pass renders in bands.
+        if session.passes() > 0 {
+            self.tone
+                .draw(session, &self.target.view, self.view.exposure);
+        }
+        if session.passes() > 0 && self.first_image_s.is_none() {
+            let now = self.clock.now();
+            self.first_image_s = Some(now);
+            self.clock.marks.first_image = now;
+        }
+        Ok(busy)
+    }
+
+    /// Milliseconds per pass: the GPU's timestamps where the session has them, else the wall
+    /// time spent rendering over the passes rendered.
+    pub(super) fn ms_per_pass(&self) -> f64 {
+        self.session
+            .as_ref()
+            .map_or(0.0, |s| compare::ms_per_pass(s, self.render_seconds))
+    }
+
+    /// The first side's time: its passes at its current pass time ([`compare::PassClock`]).
+    pub(super) fn seconds(&self) -> f64 {
+        self.session
+            .as_ref()
+            .map_or(0.0, |_| self.first_clock.seconds())
+    }
+
+    /// Whether a scripted comparison has its second side at the nearest equal time, with
+    /// whole passes (or no comparison was asked for).
+    pub(super) fn compare_done(&self) -> bool {
+        let Some(want) = self.compare_wanted else {
+            return true;
+        };
+        let Some(c) = &self.compare else {
+            return false;
+        };
+        let Some(s) = &self.session else {
+            return false;
+        };
+        let first = SideTime {
+            seconds: self.seconds(),
+            pass_seconds: self.first_clock.pass_seconds,
+            remaining: 0,
+            in_progress: s.next_row() != 0,
+        };
+        let second = SideTime {
+            seconds: c.seconds(),
+            pass_seconds: c.clock.pass_seconds,
+            remaining: u32::MAX,
+            in_progress: c.session.next_row() != 0,
+        };
+        c.estimator == want
+            && c.session.passes() > 0
+            && compare::next_turn(first, second) == Turn::Neither
+    }
+
+    /// Whether a scripted run's reference holds whole passes, at least one (or there is
+    /// none to wait for).
+    pub(super) fn reference_done(&self) -> bool {
+        match &self.reference {
+            _ if !self.error_on => true,
+            None => error_view::no_reference_reason(&self.medium).is_some(),
+            Some(r) => r.session.passes() > 0 && r.session.next_row() == 0,
+        }
+    }
+
+    pub(super) fn pass_time_source(&self) -> PassTimeSource {
+        self.session
+            .as_ref()
+            .map_or(PassTimeSource::Wall, |s| s.pass_time_source())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_longest_gap_counts_from_creation_and_between_frames() {
+        let t0 = Instant::now();
+        let mut p = FramePacer::new(t0);
+        p.tick(t0 + Duration::from_millis(30));
+        p.tick(t0 + Duration::from_millis(40));
+        p.tick(t0 + Duration::from_millis(140));
+        p.tick(t0 + Duration::from_millis(150));
+        assert_eq!(p.longest_ms(), 100.0);
+        assert_eq!(p.frames(), 4);
+        let mut q = FramePacer::new(t0);
+        q.tick(t0 + Duration::from_millis(250));
+        assert_eq!(q.longest_ms(), 250.0);
+    }
+}

@@ -1,0 +1,236 @@
+//! The renderers and sessions on screen: the shown estimator's, the second side's and the
+//! reference's. Each is built off the window's thread ([`BuildJob`]: the upload and the
+//! pipeline compile) when its estimator or the medium changes, and swapped in when ready;
+//! until then the window keeps painting the image it had. A change of the view only resets
+//! a session (a buffer clear), on the window's thread.
+
+use anyhow::Result;
+use pinrender::render::EstimatorSpec;
+
+use super::Viewer;
+use crate::build::{BuildJob, Built};
+use crate::compare::{self, CompareSide};
+use crate::error_view::{self, ErrorTrack, Reference};
+use crate::open::Medium;
+
+/// A pending build's result, where it is the one still wanted (`want`): a job for another
+/// estimator is retired (its worker finishes alone), a finished one is taken.
+fn take_built(
+    slot: &mut Option<BuildJob>,
+    want: EstimatorSpec,
+    retired: &mut Vec<BuildJob>,
+) -> Option<Result<Built>> {
+    if slot.as_ref().is_some_and(|j| j.estimator != want) {
+        retired.extend(slot.take());
+    }
+    let done = slot.as_mut()?.poll()?;
+    *slot = None;
+    Some(done)
+}
+
+impl Viewer {
+    /// The estimator shown now: the one asked for once the medium answers it, else the
+    /// medium's default (ratio while a volume's pins bake).
+    pub(super) fn estimator_now(&self) -> EstimatorSpec {
+        if self.medium.estimators().contains(&self.wanted) {
+            self.wanted
+        } else {
+            self.medium.default_estimator()
+        }
+    }
+
+    /// Whether the shown estimator's renderer is being built (the panel says "compiling").
+    pub(super) fn compiling(&self) -> Option<EstimatorSpec> {
+        self.pending.as_ref().map(|j| j.estimator)
+    }
+
+    /// Starts building the renderer of the current estimator (when it changed), swaps in a
+    /// finished one, and resets the session when the view changed; then the same for the
+    /// second side and the reference.
+    pub(super) fn ensure_session(&mut self) -> Result<()> {
+        let est = self.estimator_now();
+        self.view.estimator = est;
+        if self.dirty {
+            self.generation += 1;
+        }
+        // The second side starts again with the first, so both have spent equal time.
+        let mut restart = false;
+        if let Some(done) = take_built(&mut self.pending, est, &mut self.retired) {
+            let mut built = done?;
+            if built.generation != self.generation {
+                built.session.reset(&self.view.scene(), self.view.seed)?;
+            }
+            if self.clock.marks.upload == 0.0 {
+                let since = |t: std::time::Instant| {
+                    t.saturating_duration_since(self.clock.started)
+                        .as_secs_f64()
+                };
+                self.clock.marks.upload = since(built.uploaded);
+                self.clock.marks.pipeline = since(built.compiled);
+            }
+            let size = (built.session.width(), built.session.height());
+            self.renderer = Some((est, built.renderer));
+            self.session = Some(built.session);
+            self.render_seconds = 0.0;
+            self.first_clock = compare::PassClock::default();
+            restart = true;
+            if self.target.size != size {
+                self.target = Self::make_target(
+                    &self.gpu.device,
+                    &self.egui_renderer,
+                    size.0,
+                    size.1,
+                    Some(self.target.id),
+                );
+            }
+        }
+        let current = self.renderer.as_ref().is_some_and(|(e, _)| *e == est);
+        if !current && self.pending.is_none() {
+            // The old session stops; its image stays on screen until the new one's first pass.
+            self.session = None;
+            self.renderer = None;
+            let media = self.medium.media_job(est)?;
+            self.pending = Some(BuildJob::spawn(
+                &self.gpu,
+                media,
+                self.view.scene(),
+                self.view.seed,
+                self.generation,
+            )?);
+        }
+        if let Some(s) = &mut self.session
+            && self.dirty
+        {
+            s.reset(&self.view.scene(), self.view.seed)?;
+            self.render_seconds = 0.0;
+            self.first_clock = compare::PassClock::default();
+            restart = true;
+        }
+        self.dirty = false;
+        if restart {
+            self.error.clear(0);
+        }
+        self.ensure_compare(restart)?;
+        self.ensure_reference(restart)
+    }
+
+    /// Starts the reference when the error view is on and the medium has a density (built
+    /// off the window's thread), and restarts it with the first side.
+    pub(super) fn ensure_reference(&mut self, restart: bool) -> Result<()> {
+        if !self.error_on || error_view::no_reference_reason(&self.medium).is_some() {
+            self.reference = None;
+            self.retired.extend(self.reference_pending.take());
+            return Ok(());
+        }
+        let scene = self.view.scene();
+        let seed = self.view.seed;
+        let est = error_view::REFERENCE_ESTIMATOR;
+        if let Some(done) = take_built(&mut self.reference_pending, est, &mut self.retired) {
+            let built = done?;
+            let mut r = Reference::from_built(built.renderer, built.session);
+            if built.generation != self.generation {
+                r.reset(&scene, seed)?;
+            }
+            self.reference = Some(r);
+            self.error = ErrorTrack::default();
+        }
+        match &mut self.reference {
+            Some(r) if restart => {
+                r.reset(&scene, seed)?;
+                self.error = ErrorTrack::default();
+            }
+            Some(_) => {}
+            None if self.reference_pending.is_none() => {
+                let media = self.medium.media_job(est)?;
+                self.reference_pending = Some(BuildJob::spawn(
+                    &self.gpu,
+                    media,
+                    scene,
+                    seed ^ error_view::REFERENCE_SEED_XOR,
+                    self.generation,
+                )?);
+            }
+            None => {}
+        }
+        Ok(())
+    }
+
+    /// Starts the second side when one is asked for and the medium answers it (a volume's
+    /// pins estimators once baked; built off the window's thread), and restarts it with the
+    /// first.
+    pub(super) fn ensure_compare(&mut self, restart: bool) -> Result<()> {
+        let Some(est) = self
+            .compare_wanted
+            .filter(|e| self.medium.scene().is_none() && self.medium.estimators().contains(e))
+        else {
+            self.compare = None;
+            self.retired.extend(self.compare_pending.take());
+            return Ok(());
+        };
+        let scene = self.view.scene();
+        let seed = self.view.seed;
+        if let Some(done) = take_built(&mut self.compare_pending, est, &mut self.retired) {
+            let built = done?;
+            let mut side = CompareSide::from_built(est, built.renderer, built.session);
+            if built.generation != self.generation {
+                side.reset(&scene, seed)?;
+            }
+            self.error.clear(1);
+            self.compare = Some(side);
+        }
+        match &mut self.compare {
+            Some(c) if c.estimator == est => {
+                if restart {
+                    c.reset(&scene, seed)?;
+                }
+            }
+            _ => {
+                self.compare = None;
+                if self.compare_pending.is_none() {
+                    let media = self.medium.media_job(est)?;
+                    self.compare_pending = Some(BuildJob::spawn(
+                        &self.gpu,
+                        media,
+                        scene,
+                        seed,
+                        self.generation,
+                    )?);
+                }
+                return Ok(());
+            }
+        }
+        let size = (self.view.width, self.view.height);
+        if self.compare_target.as_ref().is_none_or(|t| t.size != size) {
+            let old = self.compare_target.as_ref().map(|t| t.id);
+            self.compare_target = Some(Self::make_target(
+                &self.gpu.device,
+                &self.egui_renderer,
+                size.0,
+                size.1,
+                old,
+            ));
+        }
+        Ok(())
+    }
+
+    /// Replaces the medium (a frame of a sequence, a dropped file, finished pins); builds
+    /// for the old one are dropped.
+    pub(super) fn set_medium(&mut self, medium: Medium) {
+        self.medium = medium;
+        self.renderer = None;
+        self.session = None;
+        self.compare = None;
+        self.reference = None;
+        let pending = [
+            self.pending.take(),
+            self.compare_pending.take(),
+            self.reference_pending.take(),
+        ];
+        self.retired.extend(pending.into_iter().flatten());
+    }
+
+    /// Forgets the retired builds whose workers have ended.
+    pub(super) fn prune_retired(&mut self) {
+        self.retired.retain(|j| !j.is_finished());
+    }
+}

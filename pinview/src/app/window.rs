@@ -1,0 +1,156 @@
+//! The window's options (title, size, the adapter and device), and the textures the
+//! tone-map pass draws into and egui shows.
+
+use std::sync::{Arc, Mutex};
+
+use eframe::egui;
+use eframe::egui::mutex::RwLock;
+
+use super::Viewer;
+use crate::args::ViewArgs;
+
+/// The texture format of the displayed image (the tone-map pass writes sRGB codes itself).
+pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+
+/// The window's options: title, size, drag and drop, and the wgpu device opened on the
+/// adapter `pinrender render --backend gpu` picks, with the adapter's own limits.
+pub fn native_options(a: &ViewArgs) -> eframe::NativeOptions {
+    let title = format!("pinview - {}", a.file.display());
+    let w = (a.width as f32 + 360.0).min(1900.0);
+    let h = (a.height as f32 + 24.0).clamp(700.0, 1200.0);
+    let setup = egui_wgpu::WgpuSetupCreateNew {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        native_adapter_selector: Some(Arc::new(|adapters, _surface| {
+            pick_adapter(adapters).ok_or_else(|| {
+                "no GPU adapter found. Install a Vulkan driver; without a GPU, Mesa's lavapipe \
+                 works: `apt-get install mesa-vulkan-drivers libvulkan1`"
+                    .to_string()
+            })
+        })),
+        device_descriptor: Arc::new(device_descriptor),
+        ..egui_wgpu::WgpuSetupCreateNew::without_display_handle()
+    };
+    eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default()
+            .with_title(title)
+            .with_inner_size([w, h])
+            .with_drag_and_drop(true),
+        renderer: eframe::Renderer::Wgpu,
+        wgpu_options: egui_wgpu::WgpuConfiguration {
+            wgpu_setup: egui_wgpu::WgpuSetup::CreateNew(setup),
+            // Frames are paced by the render slices, not by the display.
+            surface: egui_wgpu::SurfaceConfig {
+                present_mode: wgpu::PresentMode::AutoNoVsync,
+                ..egui_wgpu::SurfaceConfig::LOW_LATENCY
+            },
+            ..Default::default()
+        },
+        ..Default::default()
+    }
+}
+
+/// The device the viewer opens on `adapter` (the window's and the off-screen run's alike):
+/// the adapter's own limits, and timestamp queries where it has them and is not a CPU.
+pub fn device_descriptor(adapter: &wgpu::Adapter) -> wgpu::DeviceDescriptor<'static> {
+    wgpu::DeviceDescriptor {
+        label: Some("pinview"),
+        // Pass times from the GPU's own clock where the adapter can tell them. Not on a CPU
+        // adapter: lavapipe stamps a pass when it processes the command, not when its threads
+        // finish the dispatch (measured 20x and 220x below the wall time for pins and PinMS),
+        // so the wall time is the truer figure there.
+        required_features: if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+            wgpu::Features::empty()
+        } else {
+            adapter.features() & wgpu::Features::TIMESTAMP_QUERY
+        },
+        required_limits: adapter.limits(),
+        ..Default::default()
+    }
+}
+
+/// The adapter `pinrt::gpu::GpuContext::new` opens (high performance first, then a software
+/// fallback), found among the window's adapters by name and backend, so that the viewer
+/// and `pinrender render --backend gpu` run on the same one; else the first.
+fn pick_adapter(adapters: &[wgpu::Adapter]) -> Option<wgpu::Adapter> {
+    let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle());
+    let mut options = wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    };
+    let reference = pollster::block_on(instance.request_adapter(&options))
+        .or_else(|_| {
+            options.force_fallback_adapter = true;
+            pollster::block_on(instance.request_adapter(&options))
+        })
+        .ok()
+        .map(|a| a.get_info());
+    reference
+        .and_then(|r| {
+            adapters.iter().find(|a| {
+                let i = a.get_info();
+                i.name == r.name && i.backend == r.backend
+            })
+        })
+        .or_else(|| adapters.first())
+        .cloned()
+}
+
+/// The displayed image: a texture the tone-map pass draws into and egui shows.
+pub struct Target {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    pub id: egui::TextureId,
+    pub size: (u32, u32),
+}
+
+/// Where the window screenshot's callback leaves its result.
+pub type ShotResult = Arc<Mutex<Option<Result<(), String>>>>;
+
+impl Viewer {
+    pub(super) fn make_target(
+        device: &wgpu::Device,
+        renderer: &Arc<RwLock<egui_wgpu::Renderer>>,
+        width: u32,
+        height: u32,
+        old: Option<egui::TextureId>,
+    ) -> Target {
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("pinview image"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: IMAGE_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        let mut r = renderer.write();
+        let id = match old {
+            Some(id) => {
+                r.update_egui_texture_from_wgpu_texture(
+                    device,
+                    &view,
+                    wgpu::FilterMode::Nearest,
+                    id,
+                );
+                id
+            }
+            None => r.register_native_texture(device, &view, wgpu::FilterMode::Nearest),
+        };
+        Target {
+            texture,
+            view,
+            id,
+            size: (width, height),
+        }
+    }
+}
