@@ -60,7 +60,8 @@ struct PinJob {
 @group(0) @binding(6) var<storage, read> d3: array<f32>;
 @group(0) @binding(7) var<storage, read> d4: array<f32>;
 @group(0) @binding(8) var<storage, read> d5: array<f32>;
-// Each pin's 32 (sum, compensation) pairs between slabs (a one-word stand-in with one slab).
+// Each pin's 32 (sum, compensation) pairs between slabs (a one-word stand-in with one slab),
+// zero where no slab has added to them yet (wgpu zeroes new buffers).
 @group(0) @binding(9) var<storage, read_write> sums: array<vec2<f32>>;
 
 fn load(i: u32) -> f32 {
@@ -189,22 +190,25 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
     let job = jobs[n];
     let flags = P.slab.w;
+    let whole = (flags & WHOLE) != 0u;
+    let ongoing = (flags & ONGOING) != 0u;
     let up = job.du.z >= 0.0;
     var taus: array<f32, 32>;
     var tau_max = 0.0;
     for (var i = 0u; i < 32u; i++) {
-        var s = 0.0;
-        var comp = 0.0;
-        if (flags & CARRIED) != 0u {
-            let carried = sums[n * 32u + i];
-            s = carried.x;
-            comp = carried.y;
-        }
-        if job.steps > 0u {
-            let b = job.base + f32(i) * job.istep;
-            var wa = 0u;
-            var wb = job.steps;
-            if (flags & WHOLE) == 0u {
+        let b = job.base + f32(i) * job.istep;
+        var wa = 0u;
+        var wb = job.steps;
+        var touched = whole && job.steps > 0u;
+        if !whole && job.steps > 0u {
+            // The lower corners' z of the interval's first and last samples bound all of
+            // its samples' (monotone along the march): most intervals miss a thin slab.
+            let za = lower(clamped(b)).z;
+            let zb = lower(clamped(b + f32(job.steps - 1u) * job.du)).z;
+            let z0 = min(za, zb);
+            let z1 = max(za, zb);
+            touched = z1 >= P.slab.x && z0 < P.slab.y;
+            if touched && (z0 < P.slab.x || z1 >= P.slab.y) {
                 // The run of samples in this slab, a sample wider on each side: the test
                 // below decides on the very positions the sum reads.
                 let ja = first_past(b, job.du, job.steps, select(P.slab.y, P.slab.x, up), up);
@@ -212,6 +216,19 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
                 wa = max(ja, 1u) - 1u;
                 wb = min(jb + 1u, job.steps);
             }
+        }
+        if !touched && ongoing {
+            // Nothing to add and nothing to draw: the carried sums stay as they are.
+            continue;
+        }
+        var s = 0.0;
+        var comp = 0.0;
+        if (flags & CARRIED) != 0u {
+            let carried = sums[n * 32u + i];
+            s = carried.x;
+            comp = carried.y;
+        }
+        if touched {
             for (var m = wa; m < wb; m++) {
                 // In increasing z: forward going up, backward going down.
                 let j = select(wb - 1u - (m - wa), m, up);
@@ -232,7 +249,7 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
                 s = t;
             }
         }
-        if (flags & ONGOING) != 0u {
+        if ongoing {
             sums[n * 32u + i] = vec2<f32>(s, comp);
             continue;
         }
@@ -240,7 +257,7 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
         taus[i] = tau;
         tau_max = max(tau_max, tau);
     }
-    if (flags & ONGOING) != 0u {
+    if ongoing {
         return;
     }
     let t_min = exp(-tau_max);
