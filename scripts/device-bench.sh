@@ -10,7 +10,9 @@
 # next one runs):
 #   1. The GPU bake: `pinbake bench --default --backend cpu,gpu` on the 512^3 voxelised
 #      procedural noise (the thesis' 37^3 x 16x4 and the default bake) and the smoke's default
-#      bake, with the GPU's device, upload, jobs and dispatch seconds. -> bake-bench.json
+#      bake, with the GPU's device, upload, jobs and dispatch seconds. -> bake-bench.json;
+#      the smoke's default bake again with its density in 2 MB z slabs (--gpu-slab-bytes),
+#      which must give the same file. -> bake-slabs.json
 #   2. Milliseconds per pass at 1920x1080 and 1 spp for pins, pinms, pinres, ratio and
 #      residual on a 512^3 fractal cloud (a procedural fractal baked with a dense 512^3
 #      embedded density and a control section) and on the cosine field (--embed-density 128),
@@ -99,6 +101,29 @@ PY
   cat "$out/bake-bench.md" >&2
 else
   failed+=("GPU bake bench")
+fi
+# The density in z slabs: the smoke's default bake in one slab and in slabs of 2 MB (about 20
+# planes each), which must be the same file. -> bake-slabs.json
+for s in whole 2M; do
+  extra=()
+  [ "$s" = whole ] || extra=(--gpu-slab-bytes "$s")
+  timeout 120 "$B/pinbake" bake "$B/openvdb_smoke1.vdb" --seed 3 --backend gpu --json -q \
+    ${extra[@]+"${extra[@]}"} ${QUICK[@]+"${QUICK[@]}"} -o "$work/slabs-$s.pin" >"$work/slabs-$s.json" ||
+    failed+=("GPU bake in slabs ($s)")
+done
+if cmp -s "$work/slabs-whole.pin" "$work/slabs-2M.pin"; then
+  python3 - "$work/slabs-whole.json" "$work/slabs-2M.json" >"$out/bake-slabs.json" <<'PY'
+import json, sys
+rows = []
+for f in sys.argv[1:]:
+    d = json.load(open(f))
+    rows.append({"seconds": d.get("seconds"), "gpu": d.get("gpu")})
+print(json.dumps({"source": "openvdb_smoke1.vdb default bake, one slab then 2 MB slabs",
+                  "same_bytes": True, "rows": rows}, indent=1))
+PY
+  cat "$out/bake-slabs.json" >&2
+else
+  failed+=("GPU bake in slabs: not the same bytes as one slab")
 fi
 fi
 

@@ -8,6 +8,12 @@
 // as `Cells::interpolate` computes them, each interval summed with a compensated f32 sum
 // (the CPU sums in f64), and the mask bits from the CPU's counter RNG: splitmix64 in u32
 // pairs, draw `c` = mix64(key + c * golden).
+//
+// The density may come in z slabs, one dispatch each, in increasing z: each sample belongs
+// to the slab holding its lower corner's z, and each interval adds its samples in increasing
+// z (forward along a march going up, backward along one going down), its sum and
+// compensation carried from slab to slab in `sums`. So the sums, and the bytes, are the same
+// for any number of slabs; the last slab draws t_min and the mask bits.
 
 struct Params {
     // nx, ny, nz, voxels per density binding
@@ -20,7 +26,17 @@ struct Params {
     top: vec4<f32>,
     // the lower corner's clamp: dims - 2
     hi: vec4<f32>,
+    // the slab: samples whose lower corner's z lies in [x, y), from the planes z >= x that
+    // the density bindings hold; w: the flags below
+    slab: vec4<u32>,
 }
+
+// The sums so far are in `sums` (every slab but the first).
+const CARRIED: u32 = 1u;
+// More slabs follow: keep the sums in `sums`, draw no entry yet.
+const ONGOING: u32 = 2u;
+// The only slab: every sample is in it.
+const WHOLE: u32 = 4u;
 
 struct PinJob {
     base: vec3<f32>,
@@ -44,6 +60,9 @@ struct PinJob {
 @group(0) @binding(6) var<storage, read> d3: array<f32>;
 @group(0) @binding(7) var<storage, read> d4: array<f32>;
 @group(0) @binding(8) var<storage, read> d5: array<f32>;
+// Each pin's 32 (sum, compensation) pairs between slabs (a one-word stand-in with one slab),
+// zero where no slab has added to them yet (wgpu zeroes new buffers).
+@group(0) @binding(9) var<storage, read_write> sums: array<vec2<f32>>;
 
 fn load(i: u32) -> f32 {
     let b = i / P.dims.w;
@@ -58,12 +77,21 @@ fn load(i: u32) -> f32 {
     }
 }
 
-// `Cells::locate` + `Cells::interpolate`: the trilinear value at continuous index `c`.
-fn density(c: vec3<f32>) -> f32 {
-    let cc = min(max(c, vec3<f32>(0.0)), P.top.xyz);
-    let ii = vec3<u32>(min(cc, P.hi.xyz));
+// `Cells::locate`: the continuous index `c` clamped to the grid...
+fn clamped(c: vec3<f32>) -> vec3<f32> {
+    return min(max(c, vec3<f32>(0.0)), P.top.xyz);
+}
+
+// ...and its lower corner.
+fn lower(cc: vec3<f32>) -> vec3<u32> {
+    return vec3<u32>(min(cc, P.hi.xyz));
+}
+
+// `Cells::interpolate`: the trilinear value at clamped index `cc`, lower corner `ii` (its z
+// in the slab).
+fn density(cc: vec3<f32>, ii: vec3<u32>) -> f32 {
     let f = cc - vec3<f32>(ii);
-    let b = ii.x + ii.y * P.stride.x + ii.z * P.stride.y;
+    let b = ii.x + ii.y * P.stride.x + (ii.z - P.slab.x) * P.stride.y;
     let sx = P.step.x;
     let sy = P.step.y;
     let sz = P.step.z;
@@ -78,6 +106,28 @@ fn density(c: vec3<f32>) -> f32 {
     let e0 = c00 + (c10 - c00) * f.y;
     let e1 = c01 + (c11 - c01) * f.y;
     return max(e0 + (e1 - e0) * f.z, 0.0);
+}
+
+// The first of the `n` samples from `b` stepping `du` whose lower corner has passed plane
+// `t`: at or above it going up, below it going down. Along a march the lower corner's z is
+// monotone (so is the f32 position, and the clamp and the truncation keep order), so a
+// bisection finds it.
+fn first_past(b: vec3<f32>, du: vec3<f32>, n: u32, t: u32, up: bool) -> u32 {
+    var lo = 0u;
+    var hi = n;
+    loop {
+        if lo >= hi {
+            break;
+        }
+        let mid = lo + (hi - lo) / 2u;
+        let z = lower(clamped(b + f32(mid) * du)).z;
+        if select((z < t), (z >= t), up) {
+            hi = mid;
+        } else {
+            lo = mid + 1u;
+        }
+    }
+    return lo;
 }
 
 // The high 32 bits of the 64-bit product of two u32.
@@ -139,15 +189,55 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let job = jobs[n];
+    let flags = P.slab.w;
+    let whole = (flags & WHOLE) != 0u;
+    let ongoing = (flags & ONGOING) != 0u;
+    let up = job.du.z >= 0.0;
     var taus: array<f32, 32>;
     var tau_max = 0.0;
     for (var i = 0u; i < 32u; i++) {
+        let b = job.base + f32(i) * job.istep;
+        var wa = 0u;
+        var wb = job.steps;
+        var touched = whole && job.steps > 0u;
+        if !whole && job.steps > 0u {
+            // The lower corners' z of the interval's first and last samples bound all of
+            // its samples' (monotone along the march): most intervals miss a thin slab.
+            let za = lower(clamped(b)).z;
+            let zb = lower(clamped(b + f32(job.steps - 1u) * job.du)).z;
+            let z0 = min(za, zb);
+            let z1 = max(za, zb);
+            touched = z1 >= P.slab.x && z0 < P.slab.y;
+            if touched && (z0 < P.slab.x || z1 >= P.slab.y) {
+                // The run of samples in this slab, a sample wider on each side: the test
+                // below decides on the very positions the sum reads.
+                let ja = first_past(b, job.du, job.steps, select(P.slab.y, P.slab.x, up), up);
+                let jb = first_past(b, job.du, job.steps, select(P.slab.x, P.slab.y, up), up);
+                wa = max(ja, 1u) - 1u;
+                wb = min(jb + 1u, job.steps);
+            }
+        }
+        if !touched && ongoing {
+            // Nothing to add and nothing to draw: the carried sums stay as they are.
+            continue;
+        }
         var s = 0.0;
         var comp = 0.0;
-        if job.steps > 0u {
-            let b = job.base + f32(i) * job.istep;
-            for (var j = 0u; j < job.steps; j++) {
-                let v = density(b + f32(j) * job.du);
+        if (flags & CARRIED) != 0u {
+            let carried = sums[n * 32u + i];
+            s = carried.x;
+            comp = carried.y;
+        }
+        if touched {
+            for (var m = wa; m < wb; m++) {
+                // In increasing z: forward going up, backward going down.
+                let j = select(wb - 1u - (m - wa), m, up);
+                let cc = clamped(b + f32(j) * job.du);
+                let ii = lower(cc);
+                if ii.z < P.slab.x || ii.z >= P.slab.y {
+                    continue;
+                }
+                let v = density(cc, ii);
                 // Neumaier's compensated sum: the f32 sum of many samples keeps the CPU's
                 // f64 sum to about one f32 ulp.
                 let t = s + v;
@@ -159,9 +249,16 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
                 s = t;
             }
         }
+        if ongoing {
+            sums[n * 32u + i] = vec2<f32>(s, comp);
+            continue;
+        }
         let tau = (s + comp) * job.weight;
         taus[i] = tau;
         tau_max = max(tau_max, tau);
+    }
+    if ongoing {
+        return;
     }
     let t_min = exp(-tau_max);
     if !(tau_max > 0.0) || t_min >= 1.0 {

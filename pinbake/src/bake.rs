@@ -62,6 +62,17 @@ pub struct GpuBakeOptions {
     /// takes what the device binds in one storage buffer. Smaller budgets give more
     /// dispatches and the same bytes.
     pub tile_bytes: Option<u64>,
+    /// The most bytes of density one dispatch binds: the grid goes to the GPU in slabs of
+    /// whole z-planes (with the one plane above that trilinear reads), each uploaded, marched
+    /// and freed in turn. A sparse source without a dense copy within
+    /// [`BakeOptions::dense_copy_bytes`] builds each slab from the source, within that budget
+    /// too. `None` takes what the device binds in the shader's six density bindings. Any
+    /// budget gives the same bytes; one that cannot hold two planes is refused.
+    pub slab_bytes: Option<u64>,
+    /// Destroys the device after this many dispatches: how the tests provoke a device lost
+    /// in the middle of a bake.
+    #[doc(hidden)]
+    pub lose_device_after: Option<u64>,
 }
 
 /// Everything that decides the bytes of a bake besides the source.
@@ -170,7 +181,8 @@ pub struct BakeStats {
 pub struct GpuBakeTimes {
     /// Finding the adapter, opening the device and compiling `shaders/bake.wgsl`.
     pub device_s: f64,
-    /// Copying the density grid into GPU buffers.
+    /// Copying the density into GPU buffers, and building its slabs from a sparse source
+    /// where it has no dense copy.
     pub upload_s: f64,
     /// The CPU's part: every pin's chord and random state (in parallel).
     pub jobs_s: f64,
@@ -178,8 +190,10 @@ pub struct GpuBakeTimes {
     /// jobs' upload and the entries' read-back.
     pub dispatch_s: f64,
     /// Dispatches run (more than one when the tile budget or the device's limits split the
-    /// pins).
+    /// pins, or the slab budget the density: one per slab of each tile of pins).
     pub dispatches: u64,
+    /// Slabs the density went to the GPU in (1 when it fits the slab budget whole).
+    pub slabs: u64,
     /// The adapter's name and backend.
     pub adapter: String,
 }
@@ -660,13 +674,22 @@ fn gpu_entries(
         let BakeBackend::Gpu(gpu) = backend else {
             return Ok(None);
         };
-        let Field::Grid(grid) = field else {
-            return Err(BakeError::Gpu(format!(
-                "the GPU bake marches a dense grid and {} has none within the dense-copy \
-                 budget of {} bytes",
-                source.describe(),
-                dense_copy_limit(opts)
-            )));
+        // A dense grid (the source's own or its dense copy) goes up in slices of itself; a
+        // sparse source without a copy within the budget builds each slab of its dense grid.
+        let density = match (field, source.dense_lattice()) {
+            (Field::Grid(grid), _) => crate::gpu_bake::GpuDensity::Grid(grid),
+            (_, Some(lattice)) => crate::gpu_bake::GpuDensity::Planes {
+                source,
+                lattice,
+                host_bytes: opts.dense_copy_bytes,
+            },
+            _ => {
+                return Err(BakeError::Gpu(format!(
+                    "the GPU bake marches a voxel grid and {} has none (an analytic field, or \
+                     a rotated grid); use the CPU backend",
+                    source.describe(),
+                )));
+            }
         };
         let opened = Instant::now();
         let baker = crate::gpu_bake::GpuBaker::new()?;
@@ -676,7 +699,7 @@ fn gpu_entries(
             ..GpuBakeTimes::default()
         };
         baker.bake_entries(
-            grid,
+            &density,
             placement,
             layout,
             z_begin,

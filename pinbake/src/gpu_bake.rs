@@ -8,10 +8,17 @@
 //! sums and draws the mask bits from the same RNG stream. Pins run in dispatches of a bounded
 //! number of jobs (the tile budget), each writing fixed slots, so the bytes do not depend on
 //! the tiling or the workgroup scheduling. docs/gpu.md states how far they are from the CPU's.
+//!
+//! The density goes up in z slabs within the slab budget (one slab where it fits): each slab
+//! is uploaded (a slice of a dense grid, or built from a sparse source's dense lattice),
+//! marched by every pin of a tile and freed, the pins' sums carried between slabs so that the
+//! bytes do not depend on the slab count either (the order is bake.wgsl's).
+
+use std::borrow::Cow;
+use std::sync::{Arc, Mutex};
 
 use glam::DVec3;
 use pin_format::PinEntry;
-use wgpu::util::DeviceExt;
 
 use std::time::Instant;
 
@@ -20,14 +27,21 @@ use rayon::prelude::*;
 use crate::bake::{GpuBakeOptions, GpuBakeTimes};
 use crate::error::BakeError;
 use crate::pin::{PinLayout, Placement, chord_samples};
-use crate::source::DenseGrid;
+use crate::source::{DenseGrid, DenseLattice, DensitySource};
 
 /// The bake shader.
 pub const BAKE_WGSL: &str = include_str!("../../shaders/bake.wgsl");
 
 /// Density bindings the shader declares.
 const DENSITY_BINDINGS: usize = 6;
+/// Storage bindings the shader declares: jobs, entries, the density's and the carried sums.
+const STORAGE_BINDINGS: usize = DENSITY_BINDINGS + 3;
 const WORKGROUP: u32 = 64;
+
+/// bake.wgsl's `Params.slab.w` flags.
+const CARRIED: u32 = 1;
+const ONGOING: u32 = 2;
+const WHOLE: u32 = 4;
 
 /// One pin's chord as the shader reads it (`PinJob` in bake.wgsl).
 #[repr(C)]
@@ -47,6 +61,8 @@ pub(crate) struct PinJob {
 const JOB_BYTES: u64 = size_of::<PinJob>() as u64;
 /// GPU bytes per pin of a dispatch: its job, its entry and the entry's read-back copy.
 const PIN_BYTES: u64 = JOB_BYTES + 2 * size_of::<PinEntry>() as u64;
+/// GPU bytes per pin carried between slabs: 32 intervals' sum and compensation.
+const SUMS_BYTES: u64 = 32 * 8;
 
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
@@ -56,10 +72,70 @@ struct Params {
     step: [u32; 4],
     top: [f32; 4],
     hi: [f32; 4],
+    slab: [u32; 4],
 }
 
 fn gpu(what: &str, e: impl std::fmt::Display) -> BakeError {
     BakeError::Gpu(format!("{what}: {e}"))
+}
+
+/// The density the GPU bake marches.
+pub(crate) enum GpuDensity<'a> {
+    /// A dense grid in memory (the source's own or its dense copy): slabs are slices of it.
+    Grid(&'a DenseGrid),
+    /// A sparse source's dense lattice ([`DensitySource::dense_lattice`]), each slab built
+    /// from the source ([`DensitySource::dense_planes`]) in at most `host_bytes`.
+    Planes {
+        source: &'a dyn DensitySource,
+        lattice: DenseLattice,
+        host_bytes: u64,
+    },
+}
+
+impl GpuDensity<'_> {
+    fn lattice(&self) -> DenseLattice {
+        match self {
+            GpuDensity::Grid(g) => g.lattice(),
+            GpuDensity::Planes { lattice, .. } => *lattice,
+        }
+    }
+
+    /// The values of planes `[z0, z1)`.
+    fn planes(&self, z0: u32, z1: u32) -> Result<Cow<'_, [f32]>, BakeError> {
+        match self {
+            GpuDensity::Grid(g) => {
+                let [nx, ny, _] = g.dims();
+                let plane = nx as usize * ny as usize;
+                Ok(Cow::Borrowed(
+                    &g.data()[z0 as usize * plane..z1 as usize * plane],
+                ))
+            }
+            GpuDensity::Planes { source, .. } => {
+                source.dense_planes(z0, z1).map(Cow::Owned).ok_or_else(|| {
+                    BakeError::Gpu(format!(
+                        "{}: could not build density planes {z0}..{z1} (out of memory?)",
+                        source.describe()
+                    ))
+                })
+            }
+        }
+    }
+}
+
+/// The slabs of a lattice `nz` planes deep: each the lower-corner z range `[lo, hi)` its
+/// dispatch sums, holding planes `[lo, hi + 1)` (the halo trilinear reads; 1 plane where
+/// `nz` is 1). `per` lower-corner planes each.
+fn slab_ranges(nz: u32, per: u32) -> Vec<(u32, u32)> {
+    let lowers = nz.saturating_sub(1).max(1);
+    let per = per.max(1);
+    (0..lowers.div_ceil(per))
+        .map(|s| (s * per, (s * per + per).min(lowers)))
+        .collect()
+}
+
+/// The planes slab `(lo, hi)` holds in a lattice `nz` planes deep.
+fn slab_planes(nz: u32, (lo, hi): (u32, u32)) -> (u32, u32) {
+    (lo, (hi + 1).min(nz))
 }
 
 /// An open device with the bake pipeline compiled.
@@ -69,6 +145,17 @@ pub struct GpuBaker {
     pipeline: wgpu::ComputePipeline,
     limits: wgpu::Limits,
     adapter: String,
+    /// The first error outside an error scope, or the device's loss, as it was reported.
+    failure: Arc<Mutex<Option<String>>>,
+}
+
+/// A tile's buffers, kept across its slabs.
+struct TileBuffers {
+    jobs: wgpu::Buffer,
+    entries: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    sums: wgpu::Buffer,
+    n: u32,
 }
 
 impl GpuBaker {
@@ -109,11 +196,11 @@ impl GpuBaker {
         };
         let info = adapter.get_info();
         let limits = adapter.limits();
-        if (limits.max_storage_buffers_per_shader_stage as usize) < DENSITY_BINDINGS + 2 {
+        if (limits.max_storage_buffers_per_shader_stage as usize) < STORAGE_BINDINGS {
             return Err(BakeError::Gpu(format!(
-                "the device binds {} storage buffers per stage, the bake needs {}",
+                "the device binds {} storage buffers per stage, the bake needs \
+                 {STORAGE_BINDINGS}",
                 limits.max_storage_buffers_per_shader_stage,
-                DENSITY_BINDINGS + 2
             )));
         }
         let (device, queue) = adapter
@@ -125,6 +212,22 @@ impl GpuBaker {
             })
             .await
             .map_err(|e| gpu("request_device", e))?;
+        // wgpu's default for an error outside a scope, or a lost device, is a panic or
+        // nothing: both are recorded and end the bake with one line instead.
+        let failure = Arc::new(Mutex::new(None));
+        let f = failure.clone();
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            record(&f, format!("GPU error: {e}"));
+        }));
+        let f = failure.clone();
+        device.set_device_lost_callback(move |reason, message| {
+            let why = if message.trim().is_empty() {
+                String::new()
+            } else {
+                format!(": {message}")
+            };
+            record(&f, format!("the GPU device was lost ({reason:?}){why}"));
+        });
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("bake.wgsl"),
@@ -147,12 +250,22 @@ impl GpuBaker {
             pipeline,
             limits,
             adapter: format!("{} ({:?})", info.name, info.backend),
+            failure,
         })
     }
 
     /// The adapter's name and backend.
     pub fn describe(&self) -> &str {
         &self.adapter
+    }
+
+    /// The error recorded outside a scope or the device's loss, if any.
+    fn check_failure(&self) -> Result<(), BakeError> {
+        match self.failure.lock().map(|f| f.clone()) {
+            Ok(None) => Ok(()),
+            Ok(Some(m)) => Err(BakeError::Gpu(m)),
+            Err(_) => Err(BakeError::Gpu("a GPU error handler panicked".into())),
+        }
     }
 
     /// The most bytes one storage binding may hold on this device.
@@ -162,42 +275,132 @@ impl GpuBaker {
             .min(self.limits.max_buffer_size)
     }
 
-    /// Pins per dispatch under `opts`' budget and the device's limits.
-    pub(crate) fn pins_per_dispatch(&self, opts: &GpuBakeOptions) -> u64 {
-        let budget = opts.tile_bytes.unwrap_or(u64::MAX) / PIN_BYTES;
-        let binding = self.binding_limit() / JOB_BYTES;
+    /// Voxels per density binding.
+    fn per_binding(&self) -> u64 {
+        (self.binding_limit() / 4).min(u64::from(u32::MAX))
+    }
+
+    /// Pins per dispatch under `opts`' budget and the device's limits, with or without the
+    /// sums carried between slabs.
+    pub(crate) fn pins_per_dispatch(&self, opts: &GpuBakeOptions, slabbed: bool) -> u64 {
+        let (pin, widest) = if slabbed {
+            (PIN_BYTES + SUMS_BYTES, SUMS_BYTES)
+        } else {
+            (PIN_BYTES, JOB_BYTES)
+        };
+        let budget = opts.tile_bytes.unwrap_or(u64::MAX) / pin;
+        let binding = self.binding_limit() / widest;
         let groups = u64::from(self.limits.max_compute_workgroups_per_dimension.max(1));
         let threads = groups * groups * u64::from(WORKGROUP);
         budget.min(binding).min(threads).min(u64::from(u32::MAX))
     }
 
-    /// The density in [`DENSITY_BINDINGS`] buffers, or the one-line refusal naming the sizes.
-    fn upload_density(&self, grid: &DenseGrid) -> Result<(Vec<wgpu::Buffer>, u32), BakeError> {
-        let data = grid.data();
-        let per_binding = (self.binding_limit() / 4).min(u64::from(u32::MAX));
-        let bytes = size_of_val(data) as u64;
-        if data.len() as u64 > per_binding * DENSITY_BINDINGS as u64 || per_binding == 0 {
+    /// The slabs `density` goes up in under `opts`' slab budget, the device's six density
+    /// bindings, u32 indices and (built from a source) the host budget; the one-line refusal
+    /// naming the sizes where one slab of two planes does not fit.
+    fn slabs(
+        &self,
+        density: &GpuDensity<'_>,
+        opts: &GpuBakeOptions,
+    ) -> Result<Vec<(u32, u32)>, BakeError> {
+        let [nx, ny, nz] = density.lattice().dims;
+        let plane = u64::from(nx) * u64::from(ny);
+        let device = self.per_binding() * DENSITY_BINDINGS as u64 * 4;
+        let mut caps = vec![(device, "what this device binds for it (6 storage buffers)")];
+        if let Some(b) = opts.slab_bytes {
+            caps.push((b, "the GPU slab budget (--gpu-slab-bytes)"));
+        }
+        if let GpuDensity::Planes { host_bytes, .. } = density {
+            caps.push((
+                *host_bytes,
+                "the memory budget for a dense copy (what --max-memory leaves)",
+            ));
+        }
+        caps.push((u64::from(u32::MAX) * 4, "u32 indices"));
+        let (cap, what) = caps.into_iter().min_by_key(|c| c.0).unwrap_or((0, ""));
+        let fit = cap / 4 / plane.max(1);
+        let least = u64::from(nz.min(2));
+        if fit < least {
             return Err(BakeError::Gpu(format!(
-                "the density grid {:?} is {bytes} bytes, more than this device binds for it \
-                 ({DENSITY_BINDINGS} storage buffers of {} bytes)",
-                grid.dims(),
-                per_binding * 4
+                "one slab of the density grid {:?} ({least} planes of {nx}x{ny} f32, {} bytes) \
+                 exceeds {what}: {cap} bytes",
+                [nx, ny, nz],
+                least * plane * 4
             )));
         }
-        let chunk = per_binding as usize;
-        let mut buffers = Vec::with_capacity(DENSITY_BINDINGS);
-        for b in 0..DENSITY_BINDINGS {
-            let part = data.chunks(chunk).nth(b).unwrap_or(&[0.0]);
-            buffers.push(
-                self.device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("density"),
-                        contents: bytemuck::cast_slice(part),
-                        usage: wgpu::BufferUsages::STORAGE,
-                    }),
-            );
+        let per = if fit >= u64::from(nz) {
+            nz
+        } else {
+            (fit - 1) as u32
+        };
+        Ok(slab_ranges(nz, per))
+    }
+
+    /// A buffer holding `data` (a multiple of 4 bytes). Written through the queue rather than
+    /// mapped at creation: on a lost device wgpu panics reading a mapping back, while a write
+    /// is an error the scopes catch.
+    fn buffer_with(&self, label: &str, data: &[u8], usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: (data.len() as u64).max(4),
+            usage: usage | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        self.queue.write_buffer(&buffer, 0, data);
+        buffer
+    }
+
+    /// One slab's planes in [`DENSITY_BINDINGS`] buffers of `chunk` voxels each.
+    fn upload_slab(&self, data: &[f32], chunk: usize) -> Vec<wgpu::Buffer> {
+        (0..DENSITY_BINDINGS)
+            .map(|b| {
+                let part = data.chunks(chunk).nth(b).unwrap_or(&[0.0]);
+                self.buffer_with(
+                    "density",
+                    bytemuck::cast_slice(part),
+                    wgpu::BufferUsages::STORAGE,
+                )
+            })
+            .collect()
+    }
+
+    /// The planes of `slab` built (or sliced) and uploaded, inside error scopes.
+    fn slab_buffers(
+        &self,
+        density: &GpuDensity<'_>,
+        nz: u32,
+        slab: (u32, u32),
+        chunk: usize,
+        times: &mut GpuBakeTimes,
+    ) -> Result<Vec<wgpu::Buffer>, BakeError> {
+        let uploading = Instant::now();
+        let (z0, z1) = slab_planes(nz, slab);
+        let data = density.planes(z0, z1)?;
+        let buffers = self.scoped("uploading the density", || self.upload_slab(&data, chunk))?;
+        times.upload_s += uploading.elapsed().as_secs_f64();
+        Ok(buffers)
+    }
+
+    /// `f` inside out-of-memory and validation scopes: its errors, any recorded outside a
+    /// scope and a lost device are one line.
+    fn scoped<T>(&self, what: &str, f: impl FnOnce() -> T) -> Result<T, BakeError> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let (v, o) = pollster::block_on(async { (scope.pop().await, oom.pop().await) });
+        if v.is_some() || o.is_some() {
+            // A lost device first: the errors after it are its consequences, and wgpu tells
+            // of the loss when it is polled.
+            let _ = self.device.poll(wgpu::PollType::Poll);
         }
-        Ok((buffers, chunk as u32))
+        self.check_failure()?;
+        if let Some(e) = v {
+            return Err(gpu(what, e));
+        }
+        if let Some(e) = o {
+            return Err(gpu(&format!("{what}: out of GPU memory"), e));
+        }
+        Ok(out)
     }
 
     /// The entries of the pins in `dense`, in the CPU bake's slot order: `block_len` slots per
@@ -205,7 +408,7 @@ impl GpuBaker {
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn bake_entries(
         &self,
-        grid: &DenseGrid,
+        density: &GpuDensity<'_>,
         placement: &Placement,
         layout: &PinLayout,
         z_begin: u32,
@@ -216,32 +419,29 @@ impl GpuBaker {
         cancelled: &(dyn Fn() -> bool + Sync),
         times: &mut GpuBakeTimes,
     ) -> Result<(), BakeError> {
-        let uploading = Instant::now();
-        let (density, chunk) = self.upload_density(grid)?;
-        times.upload_s += uploading.elapsed().as_secs_f64();
-        let [nx, ny, nz] = grid.dims();
+        let lattice = density.lattice();
+        let [nx, ny, nz] = lattice.dims;
+        let slabs = self.slabs(density, opts)?;
+        times.slabs = slabs.len() as u64;
+        let slabbed = slabs.len() > 1;
+        // Fits: the slab check bounds a slab, two planes at least, by u32 indices.
         let stride_y = nx;
-        let stride_z = nx.checked_mul(ny).ok_or_else(|| {
-            BakeError::Gpu(format!(
-                "the density grid {:?} exceeds u32 indices",
-                grid.dims()
-            ))
-        })?;
-        if u64::from(stride_z) * u64::from(nz) > u64::from(u32::MAX) {
-            return Err(BakeError::Gpu(format!(
-                "the density grid {:?} has more voxels than u32 indices reach",
-                grid.dims()
-            )));
-        }
-        let per = self.pins_per_dispatch(opts) as usize;
+        let stride_z = nx * ny;
+        let per = self.pins_per_dispatch(opts, slabbed) as usize;
         if per == 0 {
             return Err(BakeError::Gpu(format!(
-                "a GPU tile budget of {} bytes holds no pin ({PIN_BYTES} bytes each)",
-                opts.tile_bytes.unwrap_or(0)
+                "a GPU tile budget of {} bytes holds no pin ({} bytes each)",
+                opts.tile_bytes.unwrap_or(0),
+                if slabbed {
+                    PIN_BYTES + SUMS_BYTES
+                } else {
+                    PIN_BYTES
+                }
             )));
         }
+        let chunk = self.per_binding() as usize;
         let params = Params {
-            dims: [nx, ny, nz, chunk],
+            dims: [nx, ny, nz, chunk as u32],
             stride: [stride_y, stride_z, 0, 0],
             step: [
                 u32::from(nx > 1),
@@ -251,6 +451,13 @@ impl GpuBaker {
             ],
             top: [nx, ny, nz, 1].map(|d| d.saturating_sub(1) as f32),
             hi: [nx, ny, nz, 2].map(|d| d.saturating_sub(2) as f32),
+            slab: [0; 4],
+        };
+        // One slab stays on the device for every tile of pins; several go up per tile.
+        let whole = if slabbed {
+            None
+        } else {
+            Some(self.slab_buffers(density, nz, slabs[0], chunk, times)?)
         };
         let nx_cells = layout.dims[0] as usize;
         let ppe = layout.pins_per_entry;
@@ -271,127 +478,208 @@ impl GpuBaker {
                 let row = cell_i / nx_cells;
                 let y = (row % layout.dims[1] as usize) as u32;
                 let z = (row / layout.dims[1] as usize) as u32 + z_begin;
-                job(grid, placement, layout, [x, y, z], dir, k)
+                job(&lattice, placement, layout, [x, y, z], dir, k)
             }));
             times.jobs_s += preparing.elapsed().as_secs_f64();
             let dispatching = Instant::now();
-            let got = pollster::block_on(self.dispatch(&params, &density, &jobs))?;
+            let tile = self.scoped("the pins' buffers", || self.tile_buffers(&jobs, slabbed))?;
             times.dispatch_s += dispatching.elapsed().as_secs_f64();
-            times.dispatches += 1;
-            out.copy_from_slice(&got);
+            for (s, &slab) in slabs.iter().enumerate() {
+                if cancelled() {
+                    return Err(BakeError::Cancelled);
+                }
+                let uploaded;
+                let buffers = match &whole {
+                    Some(w) => w,
+                    None => {
+                        uploaded = self.slab_buffers(density, nz, slab, chunk, times)?;
+                        &uploaded
+                    }
+                };
+                let dispatching = Instant::now();
+                let last = s + 1 == slabs.len();
+                let mut p = params;
+                let flags = if s > 0 { CARRIED } else { 0 }
+                    | if last { 0 } else { ONGOING }
+                    | if slabbed { 0 } else { WHOLE };
+                p.slab = [slab.0, slab.1, 0, flags];
+                self.dispatch(&p, &tile, buffers, last)?;
+                times.dispatch_s += dispatching.elapsed().as_secs_f64();
+                times.dispatches += 1;
+                if whole.is_none() {
+                    for b in buffers {
+                        b.destroy();
+                    }
+                }
+                if opts.lose_device_after == Some(times.dispatches) {
+                    self.device.destroy();
+                }
+            }
+            let dispatching = Instant::now();
+            out.copy_from_slice(&self.read_back(&tile)?);
+            times.dispatch_s += dispatching.elapsed().as_secs_f64();
             progress(out.len() as u64);
         }
         Ok(())
     }
 
-    async fn dispatch(
-        &self,
-        params: &Params,
-        density: &[wgpu::Buffer],
-        jobs: &[PinJob],
-    ) -> Result<Vec<PinEntry>, BakeError> {
+    /// A tile's jobs uploaded, its entries, their read-back copy and (with several slabs)
+    /// its carried sums.
+    fn tile_buffers(&self, jobs: &[PinJob], slabbed: bool) -> TileBuffers {
         let dev = &self.device;
         let n = jobs.len() as u32;
+        let size = u64::from(n) * size_of::<PinEntry>() as u64;
+        let storage = |label, size, usage| {
+            dev.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        TileBuffers {
+            jobs: self.buffer_with(
+                "pin jobs",
+                bytemuck::cast_slice(jobs),
+                wgpu::BufferUsages::STORAGE,
+            ),
+            entries: storage(
+                "pin entries",
+                size,
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            ),
+            staging: storage(
+                "pin entries read-back",
+                size,
+                wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            ),
+            sums: storage(
+                "carried sums",
+                if slabbed {
+                    u64::from(n) * SUMS_BYTES
+                } else {
+                    8
+                },
+                wgpu::BufferUsages::STORAGE,
+            ),
+            n,
+        }
+    }
+
+    /// One dispatch of a tile over one slab, waited for; the last copies the entries out.
+    fn dispatch(
+        &self,
+        params: &Params,
+        tile: &TileBuffers,
+        density: &[wgpu::Buffer],
+        last: bool,
+    ) -> Result<(), BakeError> {
+        let dev = &self.device;
+        let n = tile.n;
         let groups = n.div_ceil(WORKGROUP);
         let gx = groups.clamp(1, self.limits.max_compute_workgroups_per_dimension.max(1));
         let gy = groups.div_ceil(gx).max(1);
         let mut p = *params;
         p.stride[2] = n;
         p.stride[3] = gx * WORKGROUP;
-        let oom = dev.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
-        let uniform = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("bake params"),
-            contents: bytemuck::bytes_of(&p),
-            usage: wgpu::BufferUsages::UNIFORM,
-        });
-        let job_buf = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-            label: Some("pin jobs"),
-            contents: bytemuck::cast_slice(jobs),
-            usage: wgpu::BufferUsages::STORAGE,
-        });
-        let size = u64::from(n) * size_of::<PinEntry>() as u64;
-        let entries = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("pin entries"),
-            size,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("pin entries read-back"),
-            size,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut entries_list = vec![
-            wgpu::BindGroupEntry {
-                binding: 0,
-                resource: uniform.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 1,
-                resource: job_buf.as_entire_binding(),
-            },
-            wgpu::BindGroupEntry {
-                binding: 2,
-                resource: entries.as_entire_binding(),
-            },
-        ];
-        for (i, d) in density.iter().enumerate() {
-            entries_list.push(wgpu::BindGroupEntry {
-                binding: 3 + i as u32,
-                resource: d.as_entire_binding(),
-            });
-        }
-        let bind = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("bake"),
-            layout: &self.pipeline.get_bind_group_layout(0),
-            entries: &entries_list,
-        });
-        let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("bake"),
-        });
-        {
-            let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+        self.scoped("dispatch", || {
+            let uniform = self.buffer_with(
+                "bake params",
+                bytemuck::bytes_of(&p),
+                wgpu::BufferUsages::UNIFORM,
+            );
+            let mut entries_list = vec![
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: tile.jobs.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: tile.entries.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 9,
+                    resource: tile.sums.as_entire_binding(),
+                },
+            ];
+            for (i, d) in density.iter().enumerate() {
+                entries_list.push(wgpu::BindGroupEntry {
+                    binding: 3 + i as u32,
+                    resource: d.as_entire_binding(),
+                });
+            }
+            let bind = dev.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("bake"),
-                timestamp_writes: None,
+                layout: &self.pipeline.get_bind_group_layout(0),
+                entries: &entries_list,
             });
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &bind, &[]);
-            pass.dispatch_workgroups(gx, gy, 1);
-        }
-        enc.copy_buffer_to_buffer(&entries, 0, &staging, 0, size);
-        self.queue.submit([enc.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
+            let mut enc = dev.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("bake"),
+            });
+            {
+                let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("bake"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(&self.pipeline);
+                pass.set_bind_group(0, &bind, &[]);
+                pass.dispatch_workgroups(gx, gy, 1);
+            }
+            if last {
+                enc.copy_buffer_to_buffer(&tile.entries, 0, &tile.staging, 0, tile.staging.size());
+            }
+            self.queue.submit([enc.finish()]);
+        })?;
+        // Waited for, so that a slab's buffers are free before the next one goes up.
         dev.poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| gpu("device lost or stalled", e))?;
-        if let Some(e) = scope.pop().await {
-            return Err(gpu("dispatch", e));
-        }
-        if let Some(e) = oom.pop().await {
-            return Err(gpu("out of GPU memory", e));
-        }
+        self.check_failure()
+    }
+
+    /// The entries of a tile whose last slab has run.
+    fn read_back(&self, tile: &TileBuffers) -> Result<Vec<PinEntry>, BakeError> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        self.scoped("read-back", || {
+            tile.staging
+                .slice(..)
+                .map_async(wgpu::MapMode::Read, move |r| {
+                    let _ = tx.send(r);
+                })
+        })?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| gpu("device lost or stalled", e))?;
+        self.check_failure()?;
         rx.recv()
             .map_err(|e| gpu("read-back", e))?
             .map_err(|e| gpu("read-back", e))?;
-        let view = staging
+        let view = tile
+            .staging
             .slice(..)
             .get_mapped_range()
             .map_err(|e| gpu("read-back", e))?;
         let out = bytemuck::pod_collect_to_vec::<u8, PinEntry>(&view);
         drop(view);
-        staging.unmap();
+        tile.staging.unmap();
         Ok(out)
+    }
+}
+
+/// Keeps the first failure: later ones are its consequences.
+fn record(failure: &Mutex<Option<String>>, message: String) {
+    if let Ok(mut f) = failure.lock() {
+        f.get_or_insert(crate::source::one_line(&message));
     }
 }
 
 /// Pin `(cell, dir, k)`'s job: the chord and RNG state the CPU march would use, rounded to
 /// f32 where it rounds them (`pin::field_optical_depths`' whole-pin grid path).
 pub(crate) fn job(
-    grid: &DenseGrid,
+    grid: &DenseLattice,
     placement: &Placement,
     layout: &PinLayout,
     cell: [u32; 3],
@@ -432,6 +720,23 @@ mod tests {
     fn the_job_layout_is_the_shaders() {
         // PinJob in bake.wgsl: vec3 + u32, vec3 + f32, vec3 + u32, vec2 key, vec2 pad.
         assert_eq!(JOB_BYTES, 64);
-        assert_eq!(size_of::<Params>(), 80);
+        assert_eq!(size_of::<Params>(), 96);
+    }
+
+    #[test]
+    fn slabs_cover_every_lower_corner_once() {
+        for nz in [1, 2, 3, 7, 33, 128] {
+            for per in [1, 2, 5, 200] {
+                let s = slab_ranges(nz, per);
+                let lowers = nz.saturating_sub(1).max(1);
+                assert_eq!(s.first().map(|r| r.0), Some(0));
+                assert_eq!(s.last().map(|r| r.1), Some(lowers));
+                assert!(s.windows(2).all(|w| w[0].1 == w[1].0));
+                for &r in &s {
+                    let (a, b) = slab_planes(nz, r);
+                    assert!(b <= nz && a < b && b - a <= per + 1, "{nz} {per} {r:?}");
+                }
+            }
+        }
     }
 }

@@ -132,6 +132,15 @@ pub struct BakeArgs {
     /// file is the same).
     #[arg(long, hide = true, value_parser = pin_cli::parse::parse_bytes, help_heading = "Execution")]
     pub gpu_tile_bytes: Option<u64>,
+    /// The most GPU bytes of density one dispatch of the GPU bake binds: the volume goes up in
+    /// z slabs of this size, each uploaded, marched and freed (default: what the device binds;
+    /// a sparse volume without a dense copy within --max-memory builds each slab from the
+    /// file within that budget too). The file is the same for any size.
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes, help_heading = "Execution", value_name = "BYTES")]
+    pub gpu_slab_bytes: Option<u64>,
+    /// Destroys the GPU device after N dispatches (tests: a device lost mid-bake).
+    #[arg(long, hide = true, help_heading = "Execution")]
+    pub gpu_lose_device_after: Option<u64>,
     /// Print one JSON summary object on stdout (with --frames: {"frames": [...], ...}).
     #[arg(long, help_heading = "Execution")]
     pub json: bool,
@@ -265,6 +274,8 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
         backend: match args.backend.as_str() {
             "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions {
                 tile_bytes: args.gpu_tile_bytes,
+                slab_bytes: args.gpu_slab_bytes,
+                lose_device_after: args.gpu_lose_device_after,
             }),
             _ => pinbake::BakeBackend::Cpu,
         },

@@ -219,7 +219,58 @@ impl DenseGrid {
     }
 }
 
+/// The voxel lattice of a dense grid without its values: dims and placement, and the
+/// grid's world-to-index arithmetic to the bit. What a bake that reads a sparse source's dense
+/// copy plane by plane ([`super::DensitySource::dense_planes`]) places its samples by.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DenseLattice {
+    pub dims: [u32; 3],
+    pub spacing: DVec3,
+    pub origin: DVec3,
+    inv_spacing: DVec3,
+    index_offset: DVec3,
+}
+
+impl DenseLattice {
+    /// The lattice of `dims` voxels of `spacing` from `origin` (as [`DenseGrid::new`] takes
+    /// them; not validated: its sources pass the parts they build a grid from).
+    pub fn new(dims: [u32; 3], spacing: DVec3, origin: DVec3) -> Self {
+        // The same expressions as DenseGrid::new, so that index_of gives the grid's bits.
+        let inv_spacing = spacing.recip();
+        Self {
+            dims,
+            spacing,
+            origin,
+            inv_spacing,
+            index_offset: origin * inv_spacing + 0.5,
+        }
+    }
+
+    /// [`DenseGrid::index_of`].
+    #[inline]
+    pub fn index_of(&self, p: DVec3) -> DVec3 {
+        p * self.inv_spacing - self.index_offset
+    }
+
+    /// [`DenseGrid::index_dir`].
+    #[inline]
+    pub fn index_dir(&self, d: DVec3) -> DVec3 {
+        d * self.inv_spacing
+    }
+}
+
 impl DenseGrid {
+    /// The grid's lattice: its dims and placement, without the values.
+    pub fn lattice(&self) -> DenseLattice {
+        DenseLattice {
+            dims: self.dims,
+            spacing: self.spacing,
+            origin: self.origin,
+            inv_spacing: self.inv_spacing,
+            index_offset: self.index_offset,
+        }
+    }
+
     /// Continuous index (voxel centres at integers) of a world point.
     #[inline]
     pub fn index_of(&self, p: DVec3) -> DVec3 {

@@ -40,7 +40,7 @@ pub mod vdb;
 pub const VDB_WORKER_SUBCOMMAND: &str = "__vdb-worker";
 
 pub use dense_view::{DenseMap, DenseView};
-pub use grid::DenseGrid;
+pub use grid::{DenseGrid, DenseLattice};
 pub use identity::SourceIdentity;
 pub use procedural::{CosineNoise, HomogeneousBox, ProceduralSpec, Sphere};
 pub use raw::{Endian, RawOptions, RawType};
@@ -202,6 +202,23 @@ pub trait DensitySource: Density {
     /// grids answer [`Self::as_dense_grid`] instead, analytic fields have no voxels.
     fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
         let _ = max_bytes;
+        None
+    }
+
+    /// The lattice of the dense grid [`Self::dense_copy`] makes, whatever the budget and
+    /// however many of its voxels are zeros, for a bake that reads that grid a few planes at a
+    /// time ([`Self::dense_planes`]: the GPU bake of a source too large to copy whole).
+    /// `None` (the default): no such grid.
+    fn dense_lattice(&self) -> Option<DenseLattice> {
+        None
+    }
+
+    /// The values of z-planes `[z_begin, z_end)` of the grid [`Self::dense_lattice`] places,
+    /// x fastest, then y: the values [`Self::dense_copy`] holds there, bit for bit, so that the
+    /// same trilinear field comes out. `None` without a lattice, for a range outside it or an
+    /// empty one, or when the memory cannot be had.
+    fn dense_planes(&self, z_begin: u32, z_end: u32) -> Option<Vec<f32>> {
+        let _ = (z_begin, z_end);
         None
     }
 

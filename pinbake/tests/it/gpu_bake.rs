@@ -1,7 +1,8 @@
 //! The GPU bake (`BakeBackend::Gpu`, `pinbake bake --backend gpu`) against the CPU bake: the
 //! bound docs/gpu.md states, on the bundled volumes and a procedural cloud; the same bytes
-//! for any tiling; the command line's refusals. Runs on whatever adapter wgpu finds (Mesa's
-//! lavapipe here).
+//! for any tiling of the pins and any slab budget of the density, and from a sparse source's
+//! slabs as from its dense copy; the command line's refusals and a device lost mid-bake.
+//! Runs on whatever adapter wgpu finds (Mesa's lavapipe here).
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -215,6 +216,7 @@ fn gpu_bytes_do_not_depend_on_the_tiling() {
     let (again, _) = bake_on(&grid, &o, gpu(), &|_| {}).unwrap();
     let small = BakeBackend::Gpu(GpuBakeOptions {
         tile_bytes: Some(80 * 333),
+        ..GpuBakeOptions::default()
     });
     let calls = std::sync::atomic::AtomicU64::new(0);
     let (tiled, _) = bake_on(&grid, &o, small, &|_| {
@@ -230,6 +232,110 @@ fn gpu_bytes_do_not_depend_on_the_tiling() {
         calls.load(std::sync::atomic::Ordering::Relaxed),
         pins.div_ceil(333)
     );
+}
+
+/// A GPU bake of `source` with `o` and a slab budget of `slab_bytes` and pin tile budget of
+/// `tile_bytes`: its file's bytes and the slabs it went up in.
+fn slabbed_bake(
+    source: &dyn DensitySource,
+    o: &BakeOptions,
+    slab_bytes: Option<u64>,
+    tile_bytes: Option<u64>,
+) -> (Vec<u8>, u64) {
+    let backend = BakeBackend::Gpu(GpuBakeOptions {
+        slab_bytes,
+        tile_bytes,
+        ..GpuBakeOptions::default()
+    });
+    let (g, stats) = bake_on(source, o, backend, &|_| {}).unwrap();
+    (g.to_bytes().unwrap(), stats.gpu.unwrap().slabs)
+}
+
+/// Every bundled volume and the cloud: one slab, slabs of two planes (the least), of three,
+/// of an odd byte count, and small slabs with small tiles of pins give the same file.
+#[test]
+fn gpu_bytes_do_not_depend_on_the_slab_count() {
+    let o = BakeOptions {
+        majorant: Some([4; 3]),
+        ..opts(true)
+    };
+    for (name, grid) in volumes() {
+        let [nx, ny, nz] = grid.dims();
+        let plane = u64::from(nx) * u64::from(ny) * 4;
+        let (whole, slabs) = slabbed_bake(&grid, &o, None, None);
+        assert_eq!(slabs, 1, "{name}");
+        for (budget, tiles) in [
+            (2 * plane, None),
+            (3 * plane, None),
+            (7 * plane + 13, None),
+            (5 * plane - 1, Some(336 * 1000)),
+        ] {
+            let (got, slabs) = slabbed_bake(&grid, &o, Some(budget), tiles);
+            let planes = budget / plane;
+            assert_eq!(
+                slabs,
+                u64::from(nz - 1).div_ceil(planes - 1),
+                "{name}: {budget}"
+            );
+            assert!(
+                whole == got,
+                "{name}: slabs of {budget} bytes ({slabs} slabs, tiles {tiles:?}) give other bytes"
+            );
+        }
+    }
+}
+
+/// A sparse source with no dense copy within the budget: each slab built from the VDB gives
+/// the bytes of the GPU bake of its whole dense copy; one that cannot hold two planes is
+/// refused naming both sizes.
+#[test]
+fn a_sparse_source_bakes_slab_by_slab_from_the_source() {
+    let opt = VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"));
+    for name in ["openvdb_smoke1.vdb", "gaffer_sphere_density.vdb"] {
+        let s = VdbSource::open(&data(name), &opt, DensityScale::ONE).unwrap();
+        let copy = s.dense_copy(1 << 30).unwrap();
+        let [nx, ny, nz] = copy.dims();
+        let plane = u64::from(nx) * u64::from(ny) * 4;
+        // The default step: samples enough that the whole copy is what the bake marches.
+        let base = opts(false);
+        assert!(
+            pinbake::bake::dense_copy_limit(&base) >= plane * u64::from(nz),
+            "{name}: {} {:?} {}",
+            pinbake::bake::dense_copy_limit(&base),
+            copy.dims(),
+            plane * u64::from(nz)
+        );
+        let (whole, slabs) = slabbed_bake(&s, &base, None, None);
+        assert_eq!(slabs, 1, "{name}");
+        for (host, gpu) in [
+            (3 * plane, None),
+            (u64::MAX >> 1, Some(2 * plane)),
+            (5 * plane + 7, Some(4 * plane)),
+        ] {
+            let o = BakeOptions {
+                dense_copy_bytes: host.min(plane * u64::from(nz) - 1),
+                ..base.clone()
+            };
+            let (got, slabs) = slabbed_bake(&s, &o, gpu, None);
+            assert!(slabs > 1, "{name}: {host} {gpu:?}");
+            assert!(
+                whole == got,
+                "{name}: slabs from the source ({host} host bytes, {gpu:?} GPU) give other bytes"
+            );
+        }
+        let o = BakeOptions {
+            dense_copy_bytes: 2 * plane - 1,
+            ..base.clone()
+        };
+        let gpu = BakeBackend::Gpu(GpuBakeOptions::default());
+        let err = bake_on(&s, &o, gpu, &|_| {}).unwrap_err().to_string();
+        assert!(
+            err.contains(&format!("{} bytes", 2 * plane))
+                && err.contains(&format!("{} bytes", 2 * plane - 1))
+                && !err.contains('\n'),
+            "{name}: {err}"
+        );
+    }
 }
 
 fn pinbake() -> Command {
@@ -279,6 +385,36 @@ fn the_command_line_bakes_on_the_gpu_and_refuses_in_one_line() {
     assert_eq!(st.status.code(), Some(1), "{err}");
     let line = err.lines().find(|l| l.contains("pinbake")).unwrap_or("");
     assert!(line.contains("holds no pin"), "{err}");
+    assert!(!c.exists());
+
+    // Slabs of the density: the same file; a slab budget below two planes of 31 x 34 f32
+    // (8432 bytes): one line naming both sizes, exit 1, no file.
+    let d = out("d.pin");
+    let st = base(&d)
+        .args(["--backend", "gpu", "--gpu-slab-bytes", "20000"])
+        .output()
+        .unwrap();
+    assert!(
+        st.status.success(),
+        "{}",
+        String::from_utf8_lossy(&st.stderr)
+    );
+    assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&d).unwrap());
+    let st = base(&c)
+        .args(["--backend", "gpu", "--gpu-slab-bytes", "8431"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&st.stderr);
+    assert_eq!(st.status.code(), Some(1), "{err}");
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| !l.contains("XDG_RUNTIME_DIR"))
+        .collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    assert!(
+        lines[0].contains("8432 bytes") && lines[0].contains("8431 bytes"),
+        "{err}"
+    );
     assert!(!c.exists());
 
     // An unknown backend is a usage error.
@@ -365,4 +501,42 @@ fn no_adapter_is_one_line_and_no_output() {
     assert_eq!(lines.len(), 1, "{err}");
     assert!(lines[0].contains("no GPU adapter found"), "{err}");
     assert!(!out.exists());
+}
+
+/// A device lost in the middle of a bake (destroyed after its first slab's dispatch): one
+/// line, exit 1, no output, and an existing output file left as it was.
+#[test]
+fn a_device_lost_mid_bake_is_one_line_and_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let kept = dir.path().join("kept.pin");
+    std::fs::write(&kept, b"not replaced").unwrap();
+    let fresh = dir.path().join("fresh.pin");
+    for out in [&kept, &fresh] {
+        let o = pinbake()
+            .arg("bake")
+            .arg(data("water_esp_31x34x33_float32.raw"))
+            .args(["--clamp-negative", "--cells", "4", "--backend", "gpu", "-q"])
+            .args([
+                "--gpu-slab-bytes",
+                "20000",
+                "--gpu-lose-device-after",
+                "1",
+                "-o",
+            ])
+            .arg(out)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        let lines: Vec<&str> = err
+            .lines()
+            .filter(|l| !l.contains("XDG_RUNTIME_DIR"))
+            .collect();
+        assert_eq!(lines.len(), 1, "{err}");
+        assert!(lines[0].contains("the GPU device was lost"), "{err}");
+    }
+    assert_eq!(std::fs::read(&kept).unwrap(), b"not replaced");
+    assert!(!fresh.exists());
+    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(names.len(), 1, "{names:?}");
 }

@@ -52,7 +52,9 @@ use std::time::{Duration, Instant};
 
 use glam::{DMat3, DVec3, IVec3};
 
-use super::{Aabb, DenseGrid, Density, DensityScale, DensitySource, SourceError, one_line};
+use super::{
+    Aabb, DenseGrid, DenseLattice, Density, DensityScale, DensitySource, SourceError, one_line,
+};
 
 /// The hidden subcommand the `pinbake` binary dispatches to [`worker_main`].
 pub const WORKER_SUBCOMMAND: &str = super::VDB_WORKER_SUBCOMMAND;

@@ -964,6 +964,28 @@ impl VdbSource {
     /// the continuous index with different f64 roundings (`(p - t) / s` against
     /// `p / s - o / s - 0.5`), so a sample can differ by a few ulps (docs/performance.md).
     pub fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
+        let (lo, n, mirrored, lattice) = self.dense_box()?;
+        let count = (n.x as u64)
+            .checked_mul(n.y as u64)?
+            .checked_mul(n.z as u64)?;
+        if count.checked_mul(4)? > max_bytes || self.stored_voxels() < count / 2 {
+            return None;
+        }
+        let data = self.dense_values(lo, n, 0..n.z as usize, mirrored)?;
+        DenseGrid::new(
+            lattice.dims,
+            data,
+            lattice.spacing,
+            lattice.origin,
+            format!("dense copy of {}", self.label),
+        )
+        .ok()
+    }
+
+    /// The index box [`Self::dense_copy`] copies, whatever the budget: its lower corner, its
+    /// voxels per axis, its mirrored axes and its lattice; `None` for a rotated or sheared map
+    /// or an empty grid.
+    fn dense_box(&self) -> Option<(IVec3, glam::I64Vec3, [bool; 3], DenseLattice)> {
         let (scale, _) = self.diag?;
         if !self.index_min.cmple(self.index_max).all() {
             return None;
@@ -973,27 +995,32 @@ impl VdbSource {
         if n.max_element() > i64::from(u32::MAX) {
             return None;
         }
-        let count = (n.x as u64)
-            .checked_mul(n.y as u64)?
-            .checked_mul(n.z as u64)?;
-        if count.checked_mul(4)? > max_bytes || self.stored_voxels() < count / 2 {
-            return None;
-        }
         // Copy index j along an axis is index `lo + j`, or `hi - j` where the map mirrors it.
         let mirrored = [0, 1, 2].map(|a| scale[a] < 0.0);
-        let data = self.dense_values(lo, n, count, mirrored)?;
         let corner = (lo.as_dvec3() - 0.5) * scale;
         let far = (hi.as_dvec3() + 0.5) * scale;
         let origin = corner.min(far) + self.translation;
         let dims = [n.x as u32, n.y as u32, n.z as u32];
-        DenseGrid::new(
-            dims,
-            data,
-            scale.abs(),
-            origin,
-            format!("dense copy of {}", self.label),
-        )
-        .ok()
+        Some((
+            lo,
+            n,
+            mirrored,
+            DenseLattice::new(dims, scale.abs(), origin),
+        ))
+    }
+
+    /// [`DensitySource::dense_lattice`]: the lattice of [`Self::dense_copy`].
+    pub fn dense_lattice(&self) -> Option<DenseLattice> {
+        self.dense_box().map(|b| b.3)
+    }
+
+    /// [`DensitySource::dense_planes`]: planes `[z_begin, z_end)` of [`Self::dense_copy`].
+    pub fn dense_planes(&self, z_begin: u32, z_end: u32) -> Option<Vec<f32>> {
+        let (lo, n, mirrored, _) = self.dense_box()?;
+        if z_begin >= z_end || i64::from(z_end) > n.z {
+            return None;
+        }
+        self.dense_values(lo, n, z_begin as usize..z_end as usize, mirrored)
     }
 
     /// The index-z slab of a part read ([`VdbOptions::part`]) with infinite open ends.
@@ -1016,18 +1043,21 @@ impl VdbSource {
             .saturating_add((self.huge.len() as u64).saturating_mul(1 << 36))
     }
 
-    /// The voxels of the index box at `lo` with `n` voxels per axis (`count` in all), x
+    /// The voxels of planes `zs` of the index box at `lo` with `n` voxels per axis, x
     /// fastest; an axis with `mirrored` set runs from the box's top down. `None` if the
     /// memory cannot be had.
     pub(super) fn dense_values(
         &self,
         lo: IVec3,
         n: glam::I64Vec3,
-        count: u64,
+        zs: std::ops::Range<usize>,
         mirrored: [bool; 3],
     ) -> Option<Vec<f32>> {
         use rayon::prelude::*;
-        let count = usize::try_from(count).ok()?;
+        let count = usize::try_from(n.x as u64)
+            .ok()?
+            .checked_mul(usize::try_from(n.y as u64).ok()?)?
+            .checked_mul(zs.len())?;
         let mut data: Vec<f32> = Vec::new();
         data.try_reserve_exact(count).ok()?;
         data.resize(count, 0.0);
@@ -1043,7 +1073,7 @@ impl VdbSource {
         data.par_chunks_mut(nx * ny)
             .enumerate()
             .for_each(|(z, slab)| {
-                let iz = at(2, z);
+                let iz = at(2, zs.start + z);
                 for (y, row) in slab.chunks_mut(nx).enumerate() {
                     let iy = at(1, y);
                     for (x, v) in row.iter_mut().enumerate() {
@@ -1066,17 +1096,17 @@ impl VdbSource {
         }
         let lo = self.index_min - 1;
         let n = (self.index_max.as_i64vec3() - lo.as_i64vec3()) + 2;
-        let Some(count) = (n.x as u64)
+        let fits = (n.x as u64)
             .checked_mul(n.y as u64)
             .and_then(|c| c.checked_mul(n.z as u64))
-            .filter(|c| c.saturating_mul(4) <= max_bytes)
-        else {
+            .is_some_and(|c| c.saturating_mul(4) <= max_bytes);
+        if !fits {
             return self;
-        };
+        }
         if n.max_element() > i64::from(i32::MAX) {
             return self;
         }
-        if let Some(data) = self.dense_values(lo, n, count, [false; 3]) {
+        if let Some(data) = self.dense_values(lo, n, 0..n.z as usize, [false; 3]) {
             self.cache = Some(DenseCache {
                 lo,
                 dims: n.as_ivec3(),
@@ -1356,6 +1386,14 @@ impl DensitySource for VdbSource {
 
     fn dense_copy(&self, max_bytes: u64) -> Option<DenseGrid> {
         VdbSource::dense_copy(self, max_bytes)
+    }
+
+    fn dense_lattice(&self) -> Option<DenseLattice> {
+        VdbSource::dense_lattice(self)
+    }
+
+    fn dense_planes(&self, z_begin: u32, z_end: u32) -> Option<Vec<f32>> {
+        VdbSource::dense_planes(self, z_begin, z_end)
     }
 
     fn part_slab(&self) -> Option<[f64; 2]> {
