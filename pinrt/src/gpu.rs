@@ -51,6 +51,41 @@ fn gpu_err(what: &str, e: impl std::fmt::Display) -> Error {
     Error::Gpu(format!("{what}: {e}"))
 }
 
+/// The adapter every GPU path of the product opens: a hardware GPU if there is one, else a
+/// software fallback such as Mesa's lavapipe, from Vulkan, Metal or DX12 (`WGPU_BACKEND`
+/// still chooses). Fails with a message that says what to install when no adapter exists.
+pub async fn request_adapter() -> Result<wgpu::Adapter> {
+    // Vulkan, Metal and DX12, not OpenGL: the compute paths need no GL fallback, and
+    // loading libEGL for one crashed about one process in 30 at exit (its destructor
+    // frees while a driver thread exits). `WGPU_BACKEND` still chooses.
+    let instance = wgpu::Instance::new(
+        wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::PRIMARY,
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        }
+        .with_env(),
+    );
+    let mut options = wgpu::RequestAdapterOptions {
+        power_preference: wgpu::PowerPreference::HighPerformance,
+        force_fallback_adapter: false,
+        compatible_surface: None,
+        apply_limit_buckets: false,
+    };
+    match instance.request_adapter(&options).await {
+        Ok(a) => Ok(a),
+        Err(first) => {
+            options.force_fallback_adapter = true;
+            instance.request_adapter(&options).await.map_err(|e| {
+                Error::Gpu(format!(
+                    "no GPU adapter found ({first}; software fallback: {e}). Install a \
+                     Vulkan driver; without a GPU, Mesa's lavapipe works: \
+                     `apt-get install mesa-vulkan-drivers libvulkan1`"
+                ))
+            })
+        }
+    }
+}
+
 impl GpuContext {
     /// Finds an adapter (a hardware GPU if there is one, else a software fallback such as
     /// Mesa's lavapipe), opens a device with the adapter's own limits and compiles the shader.
@@ -60,35 +95,7 @@ impl GpuContext {
     }
 
     async fn new_async() -> Result<Self> {
-        // Vulkan, Metal and DX12, not OpenGL: the compute paths need no GL fallback, and
-        // loading libEGL for one crashed about one process in 30 at exit (its destructor
-        // frees while a driver thread exits). `WGPU_BACKEND` still chooses.
-        let instance = wgpu::Instance::new(
-            wgpu::InstanceDescriptor {
-                backends: wgpu::Backends::PRIMARY,
-                ..wgpu::InstanceDescriptor::new_without_display_handle()
-            }
-            .with_env(),
-        );
-        let mut options = wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::HighPerformance,
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            apply_limit_buckets: false,
-        };
-        let adapter = match instance.request_adapter(&options).await {
-            Ok(a) => a,
-            Err(first) => {
-                options.force_fallback_adapter = true;
-                instance.request_adapter(&options).await.map_err(|e| {
-                    Error::Gpu(format!(
-                        "no GPU adapter found ({first}; software fallback: {e}). Install a \
-                         Vulkan driver; without a GPU, Mesa's lavapipe works: \
-                         `apt-get install mesa-vulkan-drivers libvulkan1`"
-                    ))
-                })?
-            }
-        };
+        let adapter = request_adapter().await?;
         let adapter_info = adapter.get_info();
         let limits = adapter.limits();
         let (device, queue) = adapter

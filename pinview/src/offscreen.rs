@@ -13,7 +13,7 @@ use pinrender::gpu_render::GpuToneMap;
 
 use crate::app::pacing::{FRAME_BUDGET, FramePacer, SLICE};
 use crate::app::readouts::{gpu_bytes, samples_per_second};
-use crate::app::window::{IMAGE_FORMAT, device_descriptor};
+use crate::app::window::{IMAGE_FORMAT, device_descriptor, image_texture};
 use crate::args::ViewArgs;
 use crate::build::{BuildJob, Gpu};
 use crate::compare::{self, PassClock};
@@ -38,34 +38,10 @@ pub fn window_only_flags(a: &ViewArgs) -> Option<&'static str> {
     .map(|(flag, _)| flag)
 }
 
-/// The adapter `pinrt::gpu::GpuContext::new` opens (a hardware GPU first, else a software
-/// fallback), with the device the window opens on it.
+/// The adapter every GPU path opens (`pinrt::gpu::request_adapter`: a hardware GPU first,
+/// else a software fallback), with the device the window opens on it.
 fn open_device() -> Result<(Gpu, wgpu::AdapterInfo)> {
-    let instance = wgpu::Instance::new(
-        wgpu::InstanceDescriptor {
-            backends: wgpu::Backends::PRIMARY,
-            ..wgpu::InstanceDescriptor::new_without_display_handle()
-        }
-        .with_env(),
-    );
-    let mut options = wgpu::RequestAdapterOptions {
-        power_preference: wgpu::PowerPreference::HighPerformance,
-        force_fallback_adapter: false,
-        compatible_surface: None,
-        apply_limit_buckets: false,
-    };
-    let adapter = match pollster::block_on(instance.request_adapter(&options)) {
-        Ok(a) => a,
-        Err(_) => {
-            options.force_fallback_adapter = true;
-            pollster::block_on(instance.request_adapter(&options)).map_err(|_| {
-                anyhow!(
-                    "no GPU adapter found. Install a Vulkan driver; without a GPU, Mesa's \
-                     lavapipe works: `apt-get install mesa-vulkan-drivers libvulkan1`"
-                )
-            })?
-        }
-    };
+    let adapter = pollster::block_on(pinrt::gpu::request_adapter()).map_err(|e| anyhow!("{e}"))?;
     let (device, queue) = pollster::block_on(adapter.request_device(&device_descriptor(&adapter)))
         .map_err(|e| anyhow!("opening the GPU device: {e}"))?;
     let limits = device.limits();
@@ -108,22 +84,7 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
     let mut session = built.session;
     let (w, h) = (session.width(), session.height());
     let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
-    let texture = gpu.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some("pinview off-screen image"),
-        size: wgpu::Extent3d {
-            width: w,
-            height: h,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: IMAGE_FORMAT,
-        usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-            | wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_SRC,
-        view_formats: &[],
-    });
+    let texture = image_texture(&gpu.device, w, h, "pinview off-screen image");
     let target = texture.create_view(&wgpu::TextureViewDescriptor::default());
     // The frames: each adds passes within the window's budget and tone-maps the
     // accumulation, waited for as a presented frame would be.

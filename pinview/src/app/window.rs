@@ -105,6 +105,27 @@ pub struct Target {
     pub size: (u32, u32),
 }
 
+/// The texture the accumulation is tone-mapped into: the window shows it through egui, the
+/// off-screen mode reads it back, so both images are one format and one usage.
+pub fn image_texture(device: &wgpu::Device, width: u32, height: u32, label: &str) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: IMAGE_FORMAT,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+            | wgpu::TextureUsages::TEXTURE_BINDING
+            | wgpu::TextureUsages::COPY_SRC,
+        view_formats: &[],
+    })
+}
+
 /// Where the window screenshot's callback leaves its result.
 pub type ShotResult = Arc<Mutex<Option<Result<(), String>>>>;
 
@@ -116,22 +137,7 @@ impl Viewer {
         height: u32,
         old: Option<egui::TextureId>,
     ) -> Target {
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("pinview image"),
-            size: wgpu::Extent3d {
-                width,
-                height,
-                depth_or_array_layers: 1,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: IMAGE_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        });
+        let texture = image_texture(device, width, height, "pinview image");
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
         let mut r = renderer.write();
         let id = match old {
