@@ -152,7 +152,7 @@ pub struct ErrorTrack {
     pub points: [Vec<[f64; 2]>; 2],
     pub rmse: [Option<f64>; 2],
     pub heat: [Option<Vec<u8>>; 2],
-    pub textures: [Option<eframe::egui::TextureHandle>; 2],
+    pub textures: [Option<egui::TextureHandle>; 2],
     /// The reference's passes at the latest read-back.
     pub reference_passes: u32,
     /// Wall time of the latest read-back and measurement, seconds (the window waits for it).

@@ -2,14 +2,12 @@
 //! until the window is closed (then the same line on stderr and exit 1), so that a scene
 //! edited by hand can be read and fixed without a terminal in view.
 
-use eframe::egui;
-
 struct ErrorWindow {
     line: String,
 }
 
-impl eframe::App for ErrorWindow {
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+impl crate::shell::App for ErrorWindow {
+    fn ui(&mut self, ui: &mut egui::Ui) {
         egui::CentralPanel::default().show(ui, |ui| {
             ui.heading("pinview");
             ui.label(egui::RichText::new(&self.line).color(egui::Color32::YELLOW));
@@ -20,18 +18,14 @@ impl eframe::App for ErrorWindow {
 
 /// Shows `line` in a window titled by `file` until it is closed.
 pub fn show(file: &std::path::Path, line: &str) -> Result<(), String> {
-    let options = eframe::NativeOptions {
-        viewport: egui::ViewportBuilder::default()
-            .with_title(format!("pinview - {}", file.display()))
-            .with_inner_size([720.0, 160.0]),
-        renderer: eframe::Renderer::Wgpu,
-        ..Default::default()
+    let options = crate::shell::WindowOptions {
+        title: format!("pinview - {}", file.display()),
+        inner_size: [720.0, 160.0],
+        wgpu: egui_wgpu::WgpuConfiguration::default(),
     };
     let line = line.to_string();
-    eframe::run_native(
-        "pinview",
+    crate::shell::run(
         options,
         Box::new(move |_| Ok(Box::new(ErrorWindow { line }))),
     )
-    .map_err(|e| e.to_string())
 }

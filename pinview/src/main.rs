@@ -1,6 +1,6 @@
 //! `pinview`: an interactive GPU viewer of pin files and volumes (see `docs/viewer.md`).
 //!
-//! The window is eframe (winit, X11) drawing egui through egui-wgpu on the project's wgpu;
+//! The window is winit (X11) drawing egui through egui-wgpu on the project's wgpu (`shell.rs`);
 //! the image is the GPU path tracer's progressive session ([`pinrender::gpu_render::GpuSession`])
 //! on the same device, tone-mapped into a texture that egui shows, never read back to draw.
 //! Exit codes: 0 success, 1 a bad file, no display or no adapter, 2 usage.
@@ -16,6 +16,7 @@ mod offscreen;
 mod open;
 mod pin_overlay;
 mod sequence;
+mod shell;
 mod startup;
 mod view;
 
@@ -204,19 +205,18 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     // whatever --estimator asked of the first file.
     opener_args.estimator = None;
     let opener: sequence::Opener = Arc::new(move |p: &Path| open_medium(p, &opener_args));
-    let result = eframe::run_native(
-        "pinview",
+    let result = shell::run(
         options,
         Box::new(move |cc| {
             let keep = outcome2.clone();
             match app::Viewer::new(cc, a2, medium, frames, opener, clock, outcome2) {
-                Ok(viewer) => Ok(Box::new(viewer)),
+                Ok(viewer) => Ok(Box::new(viewer) as Box<dyn shell::App>),
                 Err(e) => {
                     // Reported by `main` as the error itself, not as a window failure.
                     if let Ok(mut o) = keep.lock() {
                         o.error = Some(e.to_string());
                     }
-                    Err(e.to_string().into())
+                    Err(e.to_string())
                 }
             }
         }),
@@ -228,7 +228,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         return Err(anyhow!("{e}"));
     }
     if let Err(e) = result {
-        let line = e.to_string().replace('\n', " ");
+        let line = e.replace('\n', " ");
         return Err(anyhow!("cannot open the viewer window: {line}"));
     }
     if let Some(json) = &outcome.json {

@@ -4,7 +4,6 @@
 //! its 32 intervals coloured by the mask bits, and the entry's t_min and masks read from the
 //! mapped file; the box and the cell grid as an overlay.
 
-use eframe::egui;
 use glam::DVec3;
 use pin_format::layout::GRID_FLAG_JITTERED_PINS;
 use pinbake::pin::{PinLayout, unit_cube_chord as pin_chord};

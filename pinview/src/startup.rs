@@ -8,7 +8,7 @@ use std::time::Instant;
 pub struct StartupMarks {
     /// The file read (mapped and checked) before any window opens.
     pub file_open: f64,
-    /// The window, the adapter and the device, opened by eframe.
+    /// The window, the adapter and the device, opened by the window shell.
     pub window_and_device: f64,
     /// The media uploaded and the path tracer's WGSL module created.
     pub upload: f64,

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{Result, anyhow};
-use eframe::egui;
 
 use super::Viewer;
 use crate::open::{BakeJob, PreviewBake};

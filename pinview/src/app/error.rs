@@ -4,7 +4,6 @@
 use std::time::Instant;
 
 use anyhow::Result;
-use eframe::egui;
 
 use super::Viewer;
 use crate::error_view;

@@ -1,7 +1,6 @@
 //! The image and what the pointer and keys do to it: orbit, pan, zoom, the sun, the
 //! divider of the split view, and the overlays of pins and cells drawn over it.
 
-use eframe::egui;
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;

@@ -27,8 +27,8 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::{Result, anyhow};
-use eframe::egui;
-use eframe::egui::mutex::RwLock;
+
+use egui::mutex::RwLock;
 use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap};
 use pinrender::render::EstimatorSpec;
 
@@ -130,7 +130,7 @@ pub struct Viewer {
 
 impl Viewer {
     pub fn new(
-        cc: &eframe::CreationContext<'_>,
+        cc: &crate::shell::CreationContext,
         args: ViewArgs,
         medium: Medium,
         frames: Option<Vec<(u64, PathBuf)>>,
@@ -259,8 +259,8 @@ fn initial_estimator(medium: &Medium) -> EstimatorSpec {
     medium.default_estimator()
 }
 
-impl eframe::App for Viewer {
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+impl crate::shell::App for Viewer {
+    fn ui(&mut self, ui: &mut egui::Ui) {
         self.pacer.tick(Instant::now());
         self.prune_retired();
         let ctx = ui.ctx().clone();

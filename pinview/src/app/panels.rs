@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::anyhow;
-use eframe::egui;
+
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;

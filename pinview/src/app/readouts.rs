@@ -1,7 +1,6 @@
 //! The readouts: the adapter, the passes, the time per pass and samples per second, the
 //! time to the first image, the builds in progress and the GPU bytes uploaded.
 
-use eframe::egui;
 use pinrender::gpu_render::PassTimeSource;
 
 use super::Viewer;

@@ -5,7 +5,6 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, anyhow};
-use eframe::egui;
 
 use super::Viewer;
 use crate::{error_view, export};

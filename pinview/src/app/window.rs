@@ -3,8 +3,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use eframe::egui;
-use eframe::egui::mutex::RwLock;
+use egui::mutex::RwLock;
 
 use super::Viewer;
 use crate::args::ViewArgs;
@@ -12,9 +11,9 @@ use crate::args::ViewArgs;
 /// The texture format of the displayed image (the tone-map pass writes sRGB codes itself).
 pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 
-/// The window's options: title, size, drag and drop, and the wgpu device opened on the
+/// The window's options: title, size, and the wgpu device opened on the
 /// adapter `pinrender render --backend gpu` picks, with the adapter's own limits.
-pub fn native_options(a: &ViewArgs) -> eframe::NativeOptions {
+pub fn native_options(a: &ViewArgs) -> crate::shell::WindowOptions {
     let title = format!("pinview - {}", a.file.display());
     let w = (a.width as f32 + 360.0).min(1900.0);
     let h = (a.height as f32 + 24.0).clamp(700.0, 1200.0);
@@ -30,13 +29,10 @@ pub fn native_options(a: &ViewArgs) -> eframe::NativeOptions {
         device_descriptor: Arc::new(device_descriptor),
         ..egui_wgpu::WgpuSetupCreateNew::without_display_handle()
     };
-    eframe::NativeOptions {
-        viewport: egui::ViewportBuilder::default()
-            .with_title(title)
-            .with_inner_size([w, h])
-            .with_drag_and_drop(true),
-        renderer: eframe::Renderer::Wgpu,
-        wgpu_options: egui_wgpu::WgpuConfiguration {
+    crate::shell::WindowOptions {
+        title,
+        inner_size: [w, h],
+        wgpu: egui_wgpu::WgpuConfiguration {
             wgpu_setup: egui_wgpu::WgpuSetup::CreateNew(setup),
             // Frames are paced by the render slices, not by the display.
             surface: egui_wgpu::SurfaceConfig {
@@ -45,7 +41,6 @@ pub fn native_options(a: &ViewArgs) -> eframe::NativeOptions {
             },
             ..Default::default()
         },
-        ..Default::default()
     }
 }
 
