@@ -88,6 +88,8 @@ impl Viewer {
             "passes": passes,
             "first_image_s": self.first_image_s.unwrap_or(0.0),
             "first_image_breakdown": self.clock.marks.breakdown(),
+            "first_preview_s": self.first_preview_s,
+            "warm_up_s": self.warm_up_s,
             "ms_per_pass": self.ms_per_pass(),
             "pass_time_source": self.pass_time_source().as_str(),
             "frame": frame.map(|f| f.0),
