@@ -259,7 +259,7 @@ impl Viewer {
     /// Whether the window has painted its first frame: builds start after it. That frame
     /// compiles the window's own shaders (egui's; on lavapipe LLVM at its first draw, on the
     /// window's queue), and builds started beside it would share the cores with it and hold
-    /// the window's first frame back by as much (measured 1.4-2.0 s on 2 loaded cores with
+    /// the window's first frame back by as much (measured 1.0-1.9 s on 2 loaded cores with
     /// Mesa's shader cache off).
     fn painted(&self) -> bool {
         self.pacer.frames() >= 2
