@@ -125,8 +125,9 @@ pub struct ViewArgs {
     #[arg(long, requires = "frames")]
     pub window_screenshot: Option<PathBuf>,
     /// With --frames: one JSON object on stdout (adapter, backend, estimator, width, height,
-    /// passes, first_image_s and its breakdown, ms_per_pass, pass_time_source,
-    /// samples_per_second, gpu_bytes, longest_frame_gap_ms, frame, frame_path, ...).
+    /// passes, first_image_s and its breakdown, first_preview_s, warm_up_s, ms_per_pass,
+    /// pass_time_source, samples_per_second, gpu_bytes, longest_frame_gap_ms, frame,
+    /// frame_path, ...).
     #[arg(long, requires = "frames")]
     pub json: bool,
     /// With --frames: render without a window (no display needed): the same session,

@@ -4,14 +4,24 @@
 //! its own compiler), so a worker thread builds them on the window's device (wgpu's `Device`
 //! and `Queue` are `Send + Sync`) and hands them back through a channel while the window
 //! keeps painting the image it had.
+//!
+//! A driver may compile more at a pipeline's first use: lavapipe compiles the compute
+//! shader with LLVM at its first dispatch and the tone map's fragment shader at its first
+//! draw (seconds without Mesa's shader cache), on the device's queue, where every other
+//! submission to that device waits behind it, the window's frames included. So the worker
+//! also renders the first pass of a coarse preview (or, for a small image, one workgroup)
+//! and tone-maps it, and on a CPU adapter each renderer gets a device of its own
+//! ([`Gpu::own_devices`]): its compiles never stop the window's queue.
 
 use std::sync::mpsc;
 use std::time::Instant;
 
 use anyhow::{Result, anyhow};
-use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession};
+use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, GpuToneMap};
 use pinrender::render::EstimatorSpec;
 
+use crate::app::window::{IMAGE_FORMAT, device_descriptor, image_texture};
+use crate::export;
 use crate::open::{MediaJob, gpu_media};
 
 /// The device the viewer renders on, with the limits it was opened with.
@@ -20,16 +30,30 @@ pub struct Gpu {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub limits: wgpu::Limits,
+    /// Where each renderer opens a device of its own on this adapter (the window's on a CPU
+    /// adapter) instead of rendering on `device`; its image reaches the window through a
+    /// [`Relay`].
+    pub own_devices: Option<wgpu::Adapter>,
 }
+
+/// The longest side of the coarse preview, in pixels: about 1/16 of a 512 x 512 pass.
+pub const PREVIEW_SIDE: u32 = 128;
 
 /// A renderer of one estimator's media and an empty session of it.
 pub struct Built {
     pub renderer: GpuRenderer,
     pub session: GpuSession,
-    /// When the media were uploaded (with the path tracer's module) and when the pipeline
-    /// and the session were made.
+    /// The tone map on the renderer's own device, where it has one.
+    pub relay: Option<Relay>,
+    /// The coarse preview: one pass of the view at a fraction of its size (never added to
+    /// the session), tone-mapped and scaled up to the session's size by repeating pixels,
+    /// as RGBA bytes; `None` where the image is at most [`PREVIEW_SIDE`] pixels a side.
+    pub preview: Option<Vec<u8>>,
+    /// When the media were uploaded (with the path tracer's module), when the pipeline
+    /// and the session were made, and when the preview (or the warm-up) was rendered.
     pub uploaded: Instant,
     pub compiled: Instant,
+    pub warmed: Instant,
     /// The view's generation the session was started with: one that arrives for an older
     /// view is reset to the current one (a buffer clear, nothing compiled again).
     pub generation: u64,
@@ -53,6 +77,7 @@ impl BuildJob {
         media: MediaJob,
         scene: GpuScene,
         seed: u64,
+        exposure: f32,
         generation: u64,
     ) -> Result<Self> {
         let (tx, rx) = mpsc::channel();
@@ -62,7 +87,7 @@ impl BuildJob {
             .name(format!("pinview build {estimator}"))
             .spawn(move || {
                 // The window may have moved on: then nobody receives, and that is fine.
-                let _ = tx.send(build(&gpu, &media, &scene, seed, generation));
+                let _ = tx.send(build(&gpu, &media, &scene, seed, exposure, generation));
             })?;
         Ok(Self {
             estimator,
@@ -109,16 +134,23 @@ impl BuildJob {
     }
 }
 
-/// The media of `media` uploaded to `gpu`, the estimator's pipeline compiled and an empty
-/// session of `scene` started: all that a first pass needs.
+/// The media of `media` uploaded to `gpu` (or to a device of its own), the estimator's
+/// pipeline compiled, an empty session of `scene` started, and the pipeline's first
+/// dispatch and the tone map's first draw made (the preview): all that a first pass needs.
 fn build(
     gpu: &Gpu,
     media: &MediaJob,
     scene: &GpuScene,
     seed: u64,
+    exposure: f32,
     generation: u64,
 ) -> Result<Built> {
     let est = media.estimator;
+    let own = match &gpu.own_devices {
+        Some(adapter) => Some(open_device(adapter)?),
+        None => None,
+    };
+    let gpu = own.as_ref().unwrap_or(gpu);
     let descs = media.descs(&gpu.limits)?;
     let packed = gpu_media(&descs, est)?;
     let renderer = GpuRenderer::with_media_on(&gpu.device, &gpu.queue, &gpu.limits, &packed)
@@ -127,11 +159,137 @@ fn build(
     let session = renderer
         .session(scene, est, seed)
         .map_err(|e| anyhow!("{e}"))?;
+    let compiled = Instant::now();
+    let mut relay = own.as_ref().map(|g| Relay::new(&g.device));
+    let preview = warm_up(&renderer, &mut relay, gpu, scene, est, seed, exposure)?;
     Ok(Built {
         renderer,
         session,
+        relay,
+        preview,
         uploaded,
-        compiled: Instant::now(),
+        compiled,
+        warmed: Instant::now(),
         generation,
     })
+}
+
+/// A device of its own on `adapter`, as the window's is opened.
+fn open_device(adapter: &wgpu::Adapter) -> Result<Gpu> {
+    let (device, queue) = pollster::block_on(adapter.request_device(&device_descriptor(adapter)))
+        .map_err(|e| anyhow!("opening a GPU device: {e}"))?;
+    let limits = device.limits();
+    Ok(Gpu {
+        device,
+        queue,
+        limits,
+        own_devices: None,
+    })
+}
+
+/// The preview's size for an image of `width x height`: each side divided by the least
+/// whole factor that brings the longer to at most [`PREVIEW_SIDE`] (`None`: factor 1).
+pub fn preview_size(width: u32, height: u32) -> Option<(u32, u32, u32)> {
+    let f = width.max(height).div_ceil(PREVIEW_SIDE);
+    (f > 1).then(|| (width.div_ceil(f), height.div_ceil(f), f))
+}
+
+/// Makes the driver compile what a first pass uses, here rather than at the window's first
+/// pass: one pass of the coarse preview (returned, scaled up), or for a small image one
+/// workgroup of 8 x 8 pixels, each in a session of its own that is then dropped, and its tone
+/// map; waited for.
+fn warm_up(
+    renderer: &GpuRenderer,
+    relay: &mut Option<Relay>,
+    gpu: &Gpu,
+    scene: &GpuScene,
+    est: EstimatorSpec,
+    seed: u64,
+    exposure: f32,
+) -> Result<Option<Vec<u8>>> {
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let preview = preview_size(w, h);
+    let mut small = scene.clone();
+    (small.camera.width, small.camera.height) = match preview {
+        Some((pw, ph, _)) => (pw, ph),
+        None => (w.min(8), h.min(8)),
+    };
+    let mut session = renderer
+        .session(&small, est, seed)
+        .map_err(|e| anyhow!("{e}"))?;
+    session.add_passes(1).map_err(|e| anyhow!("{e}"))?;
+    let rgba = match relay {
+        Some(r) => r.image(&session, exposure)?,
+        None => Relay::new(&gpu.device).image(&session, exposure)?,
+    };
+    Ok(preview.map(|(pw, ph, f)| upscale(&rgba, pw, ph, f, w, h)))
+}
+
+/// `rgba` of `pw x ph` scaled up by `f` (each pixel repeated) and cut to `w x h`.
+fn upscale(rgba: &[u8], pw: u32, ph: u32, f: u32, w: u32, h: u32) -> Vec<u8> {
+    let mut out = Vec::with_capacity((w * h * 4) as usize);
+    for y in 0..h {
+        let sy = (y / f).min(ph - 1);
+        for x in 0..w {
+            let sx = (x / f).min(pw - 1);
+            let at = ((sy * pw + sx) * 4) as usize;
+            out.extend_from_slice(&rgba[at..at + 4]);
+        }
+    }
+    out
+}
+
+/// The tone map on a renderer's own device: the session's image is tone-mapped there into a
+/// texture, read back and written into the window's texture (on a CPU adapter both are
+/// host memory: about a millisecond per 512 x 512 image).
+pub struct Relay {
+    tone: GpuToneMap,
+    texture: Option<(wgpu::Texture, (u32, u32))>,
+}
+
+impl Relay {
+    pub fn new(device: &wgpu::Device) -> Self {
+        Self {
+            tone: GpuToneMap::new(device, IMAGE_FORMAT),
+            texture: None,
+        }
+    }
+
+    /// `session`'s image tone-mapped at `exposure` (as the window's tone map draws it), as
+    /// RGBA bytes.
+    pub fn image(&mut self, session: &GpuSession, exposure: f32) -> Result<Vec<u8>> {
+        let size = (session.width(), session.height());
+        if self.texture.as_ref().is_some_and(|(_, s)| *s != size) {
+            self.texture = None;
+        }
+        let (texture, _) = self.texture.get_or_insert_with(|| {
+            let t = image_texture(session.device(), size.0, size.1, "pinview relay image");
+            (t, size)
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        self.tone.draw(session, &view, exposure);
+        export::read_texture_rgba(session.device(), session.queue(), texture, size.0, size.1)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_preview_is_at_most_its_side_and_covers_the_image() {
+        assert_eq!(preview_size(48, 40), None);
+        assert_eq!(preview_size(128, 100), None);
+        assert_eq!(preview_size(512, 512), Some((128, 128, 4)));
+        assert_eq!(preview_size(1920, 1080), Some((128, 72, 15)));
+        assert_eq!(preview_size(130, 7), Some((65, 4, 2)));
+        let rgba: Vec<u8> = (0..2 * 2 * 4).map(|v| v as u8).collect();
+        let up = upscale(&rgba, 2, 2, 2, 3, 4);
+        assert_eq!(up.len(), 3 * 4 * 4);
+        // Row 0: pixels (0,0) (0,0) (1,0); row 3: (0,1) (0,1) (1,1).
+        assert_eq!(&up[0..4], &rgba[0..4]);
+        assert_eq!(&up[8..12], &rgba[4..8]);
+        assert_eq!(&up[36..40], &rgba[8..12]);
+        assert_eq!(&up[44..48], &rgba[12..16]);
+    }
 }

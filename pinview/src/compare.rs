@@ -8,6 +8,8 @@ use anyhow::{Result, anyhow};
 use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, PassTimeSource};
 use pinrender::render::EstimatorSpec;
 
+use crate::build::Relay;
+
 /// A side's time, charged by its measured pass time: each call that adds rows measures
 /// its wall time over those rows (each slice is waited for: the device's time plus the
 /// submission), the pass time is the running average of these, and the rows are charged at
@@ -79,6 +81,8 @@ pub struct CompareSide {
     pub estimator: EstimatorSpec,
     renderer: GpuRenderer,
     pub session: GpuSession,
+    /// The tone map on the renderer's own device, where it has one (`crate::build`).
+    pub relay: Option<Relay>,
     /// Wall time spent adding this session's passes (the time where the device has no
     /// timestamp queries).
     pub render_seconds: f64,
@@ -97,6 +101,7 @@ impl CompareSide {
             estimator,
             renderer,
             session,
+            relay: None,
             render_seconds: 0.0,
             clock: PassClock::default(),
         }

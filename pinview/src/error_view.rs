@@ -72,11 +72,9 @@ impl Reference {
 /// A session's mean image (linear RGB per pixel, x fastest) read back without finishing a
 /// pass in progress: the rows the pass has reached hold one sample more. With whole passes
 /// these are the bits of [`GpuSession::image`]. `device` and `queue` are the session's.
-pub fn read_mean(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    session: &GpuSession,
-) -> Result<Vec<[f32; 3]>> {
+pub fn read_mean(session: &GpuSession) -> Result<Vec<[f32; 3]>> {
+    // The session's own device: on a CPU adapter each renderer has one (`crate::build`).
+    let (device, queue) = (session.device(), session.queue());
     let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
     let size = session.accumulation().size();
     let staging = device.create_buffer(&wgpu::BufferDescriptor {

@@ -13,6 +13,21 @@ pub fn read_texture_rgb(
     width: u32,
     height: u32,
 ) -> Result<Vec<u8>> {
+    let rgba = read_texture_rgba(device, queue, texture, width, height)?;
+    Ok(rgba
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect())
+}
+
+/// Reads back an `Rgba8Unorm` texture of `width x height` as RGBA bytes, rows top first.
+pub fn read_texture_rgba(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    width: u32,
+    height: u32,
+) -> Result<Vec<u8>> {
     let row = width * 4;
     let padded =
         row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
@@ -61,16 +76,13 @@ pub fn read_texture_rgb(
         .slice(..)
         .get_mapped_range()
         .map_err(|e| anyhow!("reading the image back: {e}"))?;
-    let mut rgb = Vec::with_capacity((width * height * 3) as usize);
+    let mut rgba = Vec::with_capacity((width * height * 4) as usize);
     for y in 0..height as usize {
-        let line = &view[y * padded as usize..y * padded as usize + row as usize];
-        for px in line.chunks_exact(4) {
-            rgb.extend_from_slice(&px[..3]);
-        }
+        rgba.extend_from_slice(&view[y * padded as usize..y * padded as usize + row as usize]);
     }
     drop(view);
     buffer.unmap();
-    Ok(rgb)
+    Ok(rgba)
 }
 
 /// Writes 8-bit RGB as a PNG (through a temporary file beside it, then renamed).

@@ -13,7 +13,7 @@ use pinrender::gpu_render::GpuToneMap;
 
 use crate::app::pacing::{FRAME_BUDGET, FramePacer, SLICE};
 use crate::app::readouts::{gpu_bytes, samples_per_second};
-use crate::app::window::{IMAGE_FORMAT, device_descriptor, image_texture};
+use crate::app::window::{IMAGE_FORMAT, device_descriptor, image_texture, write_image};
 use crate::args::ViewArgs;
 use crate::build::{BuildJob, Gpu};
 use crate::compare::{self, PassClock};
@@ -50,6 +50,7 @@ fn open_device() -> Result<(Gpu, wgpu::AdapterInfo)> {
             device,
             queue,
             limits,
+            own_devices: None,
         },
         adapter.get_info(),
     ))
@@ -77,15 +78,24 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
     let view = View::new(a, &medium, estimator);
     let media = medium.media_job(estimator)?;
     // Nothing to paint meanwhile: the build is waited for.
-    let built = BuildJob::spawn(&gpu, media, view.scene(), view.seed, 0)?.wait()?;
+    let built = BuildJob::spawn(&gpu, media, view.scene(), view.seed, view.exposure, 0)?.wait()?;
     let since = |t: Instant| t.saturating_duration_since(clock.started).as_secs_f64();
     clock.marks.upload = since(built.uploaded);
     clock.marks.pipeline = since(built.compiled);
+    let warm_up_s = built
+        .warmed
+        .saturating_duration_since(built.compiled)
+        .as_secs_f64();
     let mut session = built.session;
     let (w, h) = (session.width(), session.height());
     let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
     let texture = image_texture(&gpu.device, w, h, "pinview off-screen image");
     let target = texture.create_view(&wgpu::TextureViewDescriptor::default());
+    // The coarse preview, as the window shows it until the first whole pass.
+    let first_preview_s = built.preview.map(|rgba| {
+        write_image(&gpu.queue, &texture, w, h, &rgba);
+        clock.now()
+    });
     // The frames: each adds passes within the window's budget and tone-maps the
     // accumulation, waited for as a presented frame would be.
     let mut pacer = FramePacer::new(Instant::now());
@@ -136,6 +146,8 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
         "passes": session.passes(),
         "first_image_s": first_image_s.unwrap_or(0.0),
         "first_image_breakdown": clock.marks.breakdown(),
+        "first_preview_s": first_preview_s,
+        "warm_up_s": warm_up_s,
         "ms_per_pass": ms,
         "pass_time_source": session.pass_time_source().as_str(),
         "frame": null,

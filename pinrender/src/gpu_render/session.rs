@@ -244,6 +244,16 @@ impl GpuSession {
         self.seed
     }
 
+    /// The device the session renders on (its renderer's), for work on its accumulation.
+    pub fn device(&self) -> &wgpu::Device {
+        &self.device
+    }
+
+    /// The queue of [`GpuSession::device`].
+    pub fn queue(&self) -> &wgpu::Queue {
+        &self.queue
+    }
+
     /// The accumulation buffer: two `vec4<f32>` per pixel (Kahan sum, compensation), x
     /// fastest; divide by [`GpuSession::passes`] for the mean.
     pub fn accumulation(&self) -> &wgpu::Buffer {

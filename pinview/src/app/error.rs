@@ -40,7 +40,7 @@ impl Viewer {
         }
         let started = Instant::now();
         self.error.last = Some(started);
-        let reference = error_view::read_mean(&self.gpu.device, &self.gpu.queue, &r.session)?;
+        let reference = error_view::read_mean(&r.session)?;
         self.error.reference_passes = r.session.passes();
         let sides = [
             self.session
@@ -52,7 +52,7 @@ impl Viewer {
             let Some((session, seconds)) = side.filter(|(s, _)| s.passes() > 0) else {
                 continue;
             };
-            let estimate = error_view::read_mean(&self.gpu.device, &self.gpu.queue, session)?;
+            let estimate = error_view::read_mean(session)?;
             let e = error_view::rmse(&estimate, &reference);
             self.error.rmse[k] = Some(e);
             self.error.points[k].push([seconds, e]);

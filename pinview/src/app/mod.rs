@@ -33,7 +33,7 @@ use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap};
 use pinrender::render::EstimatorSpec;
 
 use crate::args::ViewArgs;
-use crate::build::{BuildJob, Gpu};
+use crate::build::{BuildJob, Gpu, Relay};
 use crate::compare::{self, CompareSide};
 use crate::error_view::{ErrorTrack, Reference};
 use crate::open::{BakeJob, Medium, Rebaked};
@@ -74,6 +74,8 @@ pub struct Viewer {
     wanted: EstimatorSpec,
     renderer: Option<(EstimatorSpec, GpuRenderer)>,
     session: Option<GpuSession>,
+    /// The shown session's tone map on its renderer's own device, where it has one.
+    relay: Option<Relay>,
     /// The renderer and session of the estimator to show, being built off the window's
     /// thread; the image shown stays until they are in.
     pending: Option<BuildJob>,
@@ -86,6 +88,10 @@ pub struct Viewer {
     /// The longest time between two painted frames.
     pacer: pacing::FramePacer,
     first_image_s: Option<f64>,
+    /// When the first coarse preview was shown, and the seconds the first build spent on
+    /// its preview pass (or warm-up) after the pipeline was made.
+    first_preview_s: Option<f64>,
+    warm_up_s: Option<f64>,
     /// Wall time spent adding the current session's passes.
     render_seconds: f64,
     /// The first side's current pass time (compare's equal time).
@@ -145,12 +151,16 @@ impl Viewer {
             .wgpu_render_state
             .as_ref()
             .ok_or_else(|| anyhow!("the window has no wgpu renderer"))?;
+        let info = rs.adapter.get_info();
         let gpu = Gpu {
             device: rs.device.clone(),
             queue: rs.queue.clone(),
             limits: rs.device.limits(),
+            // On a CPU adapter a renderer's first dispatch compiles on its device's queue
+            // (seconds with lavapipe), which would stop the window's frames: each renderer
+            // gets a device of its own there (`crate::build`).
+            own_devices: (info.device_type == wgpu::DeviceType::Cpu).then(|| rs.adapter.clone()),
         };
-        let info = rs.adapter.get_info();
         let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
         let target = Self::make_target(&gpu.device, &rs.renderer, args.width, args.height, None);
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
@@ -180,12 +190,15 @@ impl Viewer {
             wanted,
             renderer: None,
             session: None,
+            relay: None,
             pending: None,
             retired: Vec::new(),
             dirty: false,
             generation: 0,
             pacer,
             first_image_s: None,
+            first_preview_s: None,
+            warm_up_s: None,
             render_seconds: 0.0,
             first_clock: compare::PassClock::default(),
             status: String::new(),
@@ -217,8 +230,8 @@ impl Viewer {
             viewer.frames_played.push(s.frames[s.current].0);
         }
         // What the medium cannot answer is refused here, before the first frame, as one
-        // error line; the upload and the pipeline are built off the window's thread while
-        // the window paints.
+        // error line; the upload and the pipeline are built off the window's thread once
+        // the window has painted its first frame, while it paints.
         viewer.ensure_session()?;
         if let Some(scale) = viewer.args.rebake_scale {
             viewer.start_rebake(scale.get())?;

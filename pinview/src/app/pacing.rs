@@ -8,6 +8,7 @@ use anyhow::{Result, anyhow};
 use pinrender::gpu_render::PassTimeSource;
 
 use super::Viewer;
+use super::window::show;
 use crate::compare::{self, SideTime, Turn};
 use crate::error_view;
 
@@ -153,16 +154,32 @@ impl Viewer {
                 busy = true;
             }
         }
-        if let (Some(c), Some(target)) = (&self.compare, &self.compare_target)
+        let exposure = self.view.exposure;
+        if let (Some(c), Some(target)) = (&mut self.compare, &self.compare_target)
             && c.session.passes() > 0
         {
-            self.tone.draw(&c.session, &target.view, self.view.exposure);
+            let relay = c.relay.as_mut();
+            show(
+                &self.tone,
+                relay,
+                &c.session,
+                target,
+                &self.gpu.queue,
+                exposure,
+            )?;
         }
-        // After a reset the old image stays up until the first new pass is in: no black
-        // frames while a long pass renders in bands.
+        // After a reset the old image (or the preview) stays up until the first new pass is
+        // in: no black frames while a long pass renders in bands.
         if session.passes() > 0 {
-            self.tone
-                .draw(session, &self.target.view, self.view.exposure);
+            let relay = self.relay.as_mut();
+            show(
+                &self.tone,
+                relay,
+                session,
+                &self.target,
+                &self.gpu.queue,
+                exposure,
+            )?;
         }
         if session.passes() > 0 && self.first_image_s.is_none() {
             let now = self.clock.now();

@@ -36,6 +36,9 @@ impl Viewer {
         if ms > 0.0 {
             ui.label(format!("{:.3e} samples/s", self.samples_per_second()));
         }
+        if let Some(t) = self.first_preview_s {
+            ui.label(format!("first preview after {t:.3} s"));
+        }
         if let Some(t) = self.first_image_s {
             ui.label(format!("first image after {t:.3} s"));
         }

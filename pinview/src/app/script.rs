@@ -87,6 +87,8 @@ impl Viewer {
             "passes": passes,
             "first_image_s": self.first_image_s.unwrap_or(0.0),
             "first_image_breakdown": self.clock.marks.breakdown(),
+            "first_preview_s": self.first_preview_s,
+            "warm_up_s": self.warm_up_s,
             "ms_per_pass": self.ms_per_pass(),
             "pass_time_source": self.pass_time_source().as_str(),
             "frame": frame.map(|f| f.0),
@@ -203,8 +205,10 @@ impl Viewer {
         match result {
             Some(Ok(())) => {}
             Some(Err(e)) => return Err(anyhow!(e)),
-            None if asked.elapsed() > Duration::from_secs(20) => {
-                return Err(anyhow!("the window screenshot did not arrive within 20 s"));
+            // Generous: a screenshot comes a frame or two after it is asked for, but a loaded
+            // CPU adapter (lavapipe beside other test processes) can stall frames for seconds.
+            None if asked.elapsed() > Duration::from_secs(60) => {
+                return Err(anyhow!("the window screenshot did not arrive within 60 s"));
             }
             None => return Ok(()),
         }

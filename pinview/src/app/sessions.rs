@@ -8,6 +8,7 @@ use anyhow::Result;
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
+use super::window::write_image;
 use crate::build::{BuildJob, Built};
 use crate::compare::{self, CompareSide};
 use crate::error_view::{self, ErrorTrack, Reference};
@@ -67,10 +68,18 @@ impl Viewer {
                 };
                 self.clock.marks.upload = since(built.uploaded);
                 self.clock.marks.pipeline = since(built.compiled);
+                self.warm_up_s = Some(
+                    built
+                        .warmed
+                        .saturating_duration_since(built.compiled)
+                        .as_secs_f64(),
+                );
             }
             let size = (built.session.width(), built.session.height());
+            let fresh = built.generation == self.generation;
             self.renderer = Some((est, built.renderer));
             self.session = Some(built.session);
+            self.relay = built.relay;
             self.render_seconds = 0.0;
             self.first_clock = compare::PassClock::default();
             restart = true;
@@ -83,20 +92,33 @@ impl Viewer {
                     Some(self.target.id),
                 );
             }
+            // The coarse preview of this view stands until the first whole pass is in.
+            if let Some(rgba) = built.preview.filter(|_| fresh) {
+                let t = &self.target;
+                write_image(&self.gpu.queue, &t.texture, t.size.0, t.size.1, &rgba);
+                if self.first_preview_s.is_none() {
+                    self.first_preview_s = Some(self.clock.now());
+                }
+            }
         }
         let current = self.renderer.as_ref().is_some_and(|(e, _)| *e == est);
         if !current && self.pending.is_none() {
             // The old session stops; its image stays on screen until the new one's first pass.
             self.session = None;
             self.renderer = None;
+            self.relay = None;
+            // Refused here (before the first frame) where the medium cannot answer.
             let media = self.medium.media_job(est)?;
-            self.pending = Some(BuildJob::spawn(
-                &self.gpu,
-                media,
-                self.view.scene(),
-                self.view.seed,
-                self.generation,
-            )?);
+            if self.painted() {
+                self.pending = Some(BuildJob::spawn(
+                    &self.gpu,
+                    media,
+                    self.view.scene(),
+                    self.view.seed,
+                    self.view.exposure,
+                    self.generation,
+                )?);
+            }
         }
         if let Some(s) = &mut self.session
             && self.dirty
@@ -134,19 +156,21 @@ impl Viewer {
             self.reference = Some(r);
             self.error = ErrorTrack::default();
         }
+        let painted = self.painted();
         match &mut self.reference {
             Some(r) if restart => {
                 r.reset(&scene, seed)?;
                 self.error = ErrorTrack::default();
             }
             Some(_) => {}
-            None if self.reference_pending.is_none() => {
+            None if self.reference_pending.is_none() && painted => {
                 let media = self.medium.media_job(est)?;
                 self.reference_pending = Some(BuildJob::spawn(
                     &self.gpu,
                     media,
                     scene,
                     seed ^ error_view::REFERENCE_SEED_XOR,
+                    self.view.exposure,
                     self.generation,
                 )?);
             }
@@ -172,6 +196,7 @@ impl Viewer {
         if let Some(done) = take_built(&mut self.compare_pending, est, &mut self.retired) {
             let built = done?;
             let mut side = CompareSide::from_built(est, built.renderer, built.session);
+            side.relay = built.relay;
             if built.generation != self.generation {
                 side.reset(&scene, seed)?;
             }
@@ -186,13 +211,14 @@ impl Viewer {
             }
             _ => {
                 self.compare = None;
-                if self.compare_pending.is_none() {
+                if self.compare_pending.is_none() && self.painted() {
                     let media = self.medium.media_job(est)?;
                     self.compare_pending = Some(BuildJob::spawn(
                         &self.gpu,
                         media,
                         scene,
                         seed,
+                        self.view.exposure,
                         self.generation,
                     )?);
                 }
@@ -219,6 +245,7 @@ impl Viewer {
         self.medium = medium;
         self.renderer = None;
         self.session = None;
+        self.relay = None;
         self.compare = None;
         self.reference = None;
         let pending = [
@@ -227,6 +254,15 @@ impl Viewer {
             self.reference_pending.take(),
         ];
         self.retired.extend(pending.into_iter().flatten());
+    }
+
+    /// Whether the window has painted its first frame: builds start after it. That frame
+    /// compiles the window's own shaders (egui's; on lavapipe LLVM at its first draw, on the
+    /// window's queue), and builds started beside it would share the cores with it and hold
+    /// the window's first frame back by as much (measured 1.0-1.9 s on 2 loaded cores with
+    /// Mesa's shader cache off).
+    fn painted(&self) -> bool {
+        self.pacer.frames() >= 2
     }
 
     /// Forgets the retired builds whose workers have ended.

@@ -3,10 +3,13 @@
 
 use std::sync::{Arc, Mutex};
 
+use anyhow::Result;
 use egui::mutex::RwLock;
+use pinrender::gpu_render::{GpuSession, GpuToneMap};
 
 use super::Viewer;
 use crate::args::ViewArgs;
+use crate::build::Relay;
 
 /// The texture format of the displayed image (the tone-map pass writes sRGB codes itself).
 pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
@@ -116,9 +119,59 @@ pub fn image_texture(device: &wgpu::Device, width: u32, height: u32, label: &str
         format: IMAGE_FORMAT,
         usage: wgpu::TextureUsages::RENDER_ATTACHMENT
             | wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_SRC,
+            | wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::COPY_DST,
         view_formats: &[],
     })
+}
+
+/// Writes RGBA bytes of `width x height` into `texture` (an [`image_texture`]).
+pub fn write_image(
+    queue: &wgpu::Queue,
+    texture: &wgpu::Texture,
+    width: u32,
+    height: u32,
+    rgba: &[u8],
+) {
+    queue.write_texture(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        rgba,
+        wgpu::TexelCopyBufferLayout {
+            offset: 0,
+            bytes_per_row: Some(width * 4),
+            rows_per_image: Some(height),
+        },
+        wgpu::Extent3d {
+            width,
+            height,
+            depth_or_array_layers: 1,
+        },
+    );
+}
+
+/// Draws `session`'s image into `target`: by the window's tone map where the session is on
+/// the window's device, else by its `relay` on the session's own device, copied over.
+pub fn show(
+    tone: &GpuToneMap,
+    relay: Option<&mut Relay>,
+    session: &GpuSession,
+    target: &Target,
+    queue: &wgpu::Queue,
+    exposure: f32,
+) -> Result<()> {
+    match relay {
+        None => tone.draw(session, &target.view, exposure),
+        Some(r) => {
+            let rgba = r.image(session, exposure)?;
+            write_image(queue, &target.texture, target.size.0, target.size.1, &rgba);
+        }
+    }
+    Ok(())
 }
 
 /// Where the window screenshot's callback leaves its result.

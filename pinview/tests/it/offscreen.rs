@@ -35,6 +35,8 @@ fn offscreen_renders_the_window_bits_without_a_display() {
     assert_eq!(j["offscreen"], true, "{j}");
     assert_eq!(j["passes"], 3, "{j}");
     assert_eq!(j["estimator"], "pinms", "{j}");
+    // 48 x 40 is small enough that no preview is made.
+    assert!(j["first_preview_s"].is_null(), "{j}");
     for key in [
         "ms_per_pass",
         "samples_per_second",

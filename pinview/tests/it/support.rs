@@ -103,7 +103,13 @@ pub fn display() -> Option<Display> {
 
 /// Runs pinview on `display` (none: without any display) with `args`.
 pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
+    pinview_env(display, args, &[])
+}
+
+/// [`pinview`] with the environment variables `env` set.
+pub fn pinview_env(display: Option<&Display>, args: &[&str], env: &[(&str, &str)]) -> Output {
     let mut cmd = Command::new(PINVIEW);
+    cmd.envs(env.iter().copied());
     cmd.args(args)
         .env_remove("WAYLAND_DISPLAY")
         .env("XDG_RUNTIME_DIR", runtime_dir());
