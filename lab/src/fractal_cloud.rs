@@ -136,7 +136,7 @@ fn voxelise(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pinbake::source::DensitySource;
+    use pinbake::source::{Density, DensitySource};
 
     #[test]
     fn cloud_is_deterministic_bounded_and_has_empty_space() {
@@ -154,5 +154,26 @@ mod tests {
         assert!(empty > d.len() / 4, "{empty} of {}", d.len());
         assert!(full > d.len() / 100, "{full} of {}", d.len());
         assert!(a.occupied_bounds().is_some());
+    }
+
+    /// A stretched cloud is the cube's shape over its own box, centred on the origin, its
+    /// longest axis `length` long; a cube of the unit length and peak holds the cube's values.
+    #[test]
+    fn stretched_clouds_fill_their_box() {
+        let c = stretched_cloud([12, 8, 16], 10.0, 1.5).unwrap();
+        assert_eq!(c.dims(), [12, 8, 16]);
+        let b = c.bounds();
+        let want = [0.5 * 12.0 / 16.0 * 10.0, 0.5 * 8.0 / 16.0 * 10.0, 5.0];
+        for (k, w) in want.iter().enumerate() {
+            assert!((b.max[k] - w).abs() < 1e-12 && (b.min[k] + w).abs() < 1e-12);
+        }
+        assert!(c.data().iter().all(|v| (0.0..=1.5).contains(v)));
+        assert!(c.data().iter().any(|v| *v > 0.75));
+        assert_eq!(
+            c.data(),
+            stretched_cloud([12, 8, 16], 10.0, 1.5).unwrap().data()
+        );
+        let cube = stretched_cloud([24; 3], 1.0, CLOUD_DENSITY).unwrap();
+        assert_eq!(cube.data(), cloud(24).unwrap().data());
     }
 }

@@ -2028,5 +2028,9 @@ fn an_assets_instances_share_one_upload() {
     // Beyond the per-instance records, the data grows only by the hierarchy's nodes (at most
     // two of 32 bytes per instance).
     let growth = (data_4096 - data_16) as f64 / (4096.0 - 16.0);
+    eprintln!(
+        "density data: {data_16} bytes for 16 instances, {data_4096} for 4096 ({growth:.1} per \
+         instance); records and pin parameters {per_4096} bytes"
+    );
     assert!(growth <= 64.0, "{growth} bytes of data per instance");
 }

@@ -661,9 +661,11 @@ fn reference_half(es: &EvalScene, a: &EvalArgs, seed: u64, spp: u32) -> Result<I
                 .map(|i| -> Result<Medium> {
                     let f = i.field().map_err(|e| anyhow!("{e}"))?;
                     let m = i.majorants().map_err(|e| anyhow!("{e}"))?;
-                    Ok(Medium::single(
+                    // In the description's frame, placed as every estimator is.
+                    let local = Medium::single(
                         Arc::new(RatioTracking::new(f, m)) as Arc<dyn TransportEstimator>
-                    ))
+                    );
+                    i.place(local, LOOKUP).map_err(|e| anyhow!("{e}"))
                 })
                 .collect::<Result<_>>()?;
             render(&scene_with(es, media), &st)
