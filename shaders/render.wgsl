@@ -84,8 +84,9 @@ struct RtPass {
 // One medium instance (gpu_render/media.rs, `MediumRecord`).
 struct RtMedium {
     // x: first pin entry of its grid in `pins`, y: first word of its cell index in
-    // `cell_index`, z: flags (1 pins, 2 density, 4 majorants), w: density kind (1 voxels,
-    // 2 cosine waves, 3 bricked voxels).
+    // `cell_index`, z: flags (1 pins, 2 density, 4 majorants, 8 density placed in an asset's
+    // frame, 16 that placement a translation), w: density kind (1 voxels, 2 cosine waves,
+    // 3 bricked voxels).
     ids: vec4<u32>,
     // x: first value of the density (voxels, waves; bricks: the brick index) in `rt_data`,
     // y: number of cosine waves, z: first majorant in `rt_data`, w: first word of its
@@ -95,15 +96,17 @@ struct RtMedium {
     vdims: vec4<u32>,
     // Majorant brick counts (x, y, z), unused.
     mdims: vec4<u32>,
-    // World = density-local + translation; w: longest edge of the clip box.
+    // World (the asset's frame where placed) = density-local + translation; w: longest edge
+    // of the clip box.
     translation: vec4<f32>,
-    // World clip box of the density (extinction 0 outside); clip_lo.w: cosine density.
+    // World (asset) clip box of the density (extinction 0 outside); clip_lo.w: cosine
+    // density.
     clip_lo: vec4<f32>,
     clip_hi: vec4<f32>,
     // Voxels: density-local position of the grid box's minimum corner, and 1 / spacing.
     vox_origin: vec4<f32>,
     vox_inv: vec4<f32>,
-    // World box of the majorant grid.
+    // World (asset) box of the majorant grid.
     maj_lo: vec4<f32>,
     maj_hi: vec4<f32>,
     // World box of the placed pin grid (conservative), to skip missed instances cheaply.
@@ -116,6 +119,12 @@ struct RtMedium {
     // Bricks: log2 of the brick edge, 1 for f16 values (two per word, the lower half first)
     // else f32, words per value binding (a brick never straddles two), unused.
     bfmt: vec4<u32>,
+    // With flag 8 (`RT_PLACED`): world to the asset's frame, rows (A_i0, A_i1, A_i2, b_i).
+    // The density's boxes, majorants and controls (and `translation`) are then in that frame
+    // and every density query is asked there (`rt_local`).
+    to_local0: vec4<f32>,
+    to_local1: vec4<f32>,
+    to_local2: vec4<f32>,
 }
 
 @group(1) @binding(0) var<uniform> RP: RtParams;
@@ -181,6 +190,8 @@ const RT_CONTROL_WORDS: u32 = 24u;
 const RT_HAS_PINS: u32 = 1u;
 const RT_HAS_DENSITY: u32 = 2u;
 const RT_HAS_MAJORANTS: u32 = 4u;
+const RT_PLACED: u32 = 8u;
+const RT_SHIFTED: u32 = 16u;
 const RT_KIND_VOXELS: u32 = 1u;
 const RT_KIND_COSINE: u32 = 2u;
 const RT_KIND_BRICKS: u32 = 3u;
@@ -792,11 +803,73 @@ fn rt_kernel_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32
 // } extension kernels
 
 // ---------------------------------------------------------------------------------------------
+// Instances placed by an affine map (instance.rs, `PlacedEstimator`): a density query of a
+// medium with `RT_PLACED` is asked in its asset's frame, o_l = A o + b and d_l = A d, the
+// direction normalised and lengths scaled by k = |d_l|; a sampled distance is mapped back by
+// 1 / k, kept below the segment's end. Optical depth is carried with the volume. Pin queries
+// are not mapped: a placed pin grid's own parameters (`rt_grids`) hold its placement.
+// ---------------------------------------------------------------------------------------------
+
+// A ray in a medium's asset frame and the factor from world to local lengths (0: the mapped
+// direction is degenerate in f32, the medium is not met).
+struct RtLocal {
+    o: vec3<f32>,
+    d: vec3<f32>,
+    k: f32,
+}
+
+fn rt_local(m: u32, o: vec3<f32>, d: vec3<f32>) -> RtLocal {
+    let r0 = rt_media[m].to_local0;
+    let r1 = rt_media[m].to_local1;
+    let r2 = rt_media[m].to_local2;
+    if ((rt_media[m].ids.z & RT_SHIFTED) != 0u) {
+        return RtLocal(o + vec3<f32>(r0.w, r1.w, r2.w), d, 1.0);
+    }
+    let ol = vec3<f32>(dot(r0.xyz, o) + r0.w, dot(r1.xyz, o) + r1.w, dot(r2.xyz, o) + r2.w);
+    let dl = vec3<f32>(dot(r0.xyz, d), dot(r1.xyz, d), dot(r2.xyz, d));
+    let k = length(dl);
+    if (!(k > 0.0) || !is_finite_bits(k)) {
+        return RtLocal(o, d, 0.0);
+    }
+    return RtLocal(ol, dl / k, k);
+}
+
+fn rt_placed(m: u32) -> bool {
+    return (rt_media[m].ids.z & RT_PLACED) != 0u;
+}
+
+// The largest f32 below a positive finite x, x otherwise.
+fn rt_before(x: f32) -> f32 {
+    if (x > 0.0 && is_finite_bits(x)) {
+        return bitcast<f32>(bitcast<u32>(x) - 1u);
+    }
+    return x;
+}
+
+// A distance of the asset's frame in the world, below t_max.
+fn rt_back(t: f32, k: f32, t_max: f32) -> f32 {
+    if (!(t < rt_inf())) {
+        return t;
+    }
+    return min(t / k, rt_before(t_max));
+}
+
+// ---------------------------------------------------------------------------------------------
 // The scene's media combined (tracer.rs, `Ctx::transmittance` / `Ctx::distance`)
 // ---------------------------------------------------------------------------------------------
 
-fn rt_medium_transmittance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>) -> f32 {
+fn rt_medium_transmittance(kind: u32, m: u32, o_w: vec3<f32>, d_w: vec3<f32>) -> f32 {
     let inf = rt_inf();
+    var o = o_w;
+    var d = d_w;
+    if (kind != RT_EST_PINS && rt_placed(m)) {
+        let l = rt_local(m, o_w, d_w);
+        if (l.k == 0.0) {
+            return 1.0;
+        }
+        o = l.o;
+        d = l.d;
+    }
     switch kind {
         case RT_EST_MARCH: {
             return rt_march(m, o, d, inf, false).y;
@@ -832,6 +905,18 @@ fn rt_distance_majorants(kind: u32, m: u32) -> RtGrid {
 }
 
 fn rt_medium_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
+    if (kind != RT_EST_PINS && rt_placed(m)) {
+        let l = rt_local(m, o, d);
+        if (l.k == 0.0) {
+            return rt_inf();
+        }
+        return rt_back(rt_frame_distance(kind, m, l.o, l.d, t_max * l.k), l.k, t_max);
+    }
+    return rt_frame_distance(kind, m, o, d, t_max);
+}
+
+// A distance of medium m along a ray of its own frame (the world, or its asset's).
+fn rt_frame_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) -> f32 {
     switch kind {
         case RT_EST_MARCH: {
             return rt_march(m, o, d, t_max, true).x;
@@ -966,6 +1051,14 @@ fn rt_pairs(kind: u32) -> bool {
 // control's, docs/residual.md, "Distances"). Returns (collision distance or +inf,
 // transmittance).
 fn rt_pair(kind: u32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
+    if (rt_placed(0u)) {
+        let l = rt_local(0u, o, d);
+        if (l.k == 0.0) {
+            return vec2<f32>(rt_inf(), 1.0);
+        }
+        let p = rt_track(0u, rt_distance_majorants(kind, 0u), 0u, l.o, l.d, rt_inf(), RT_WALK_PAIR);
+        return vec2<f32>(rt_back(p.x, l.k, rt_inf()), p.y);
+    }
     return rt_track(0u, rt_distance_majorants(kind, 0u), 0u, o, d, rt_inf(), RT_WALK_PAIR);
 }
 

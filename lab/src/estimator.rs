@@ -190,8 +190,10 @@ impl Estimator {
         desc: &MediumDesc,
         lookup: SamplerOptions,
     ) -> Result<Medium, RenderError> {
-        Ok(match self {
-            Self::Core(spec) => desc.cpu_medium(spec, lookup)?,
+        // The lab's estimators are built in the description's frame and placed as the
+        // renderer's own are (`MediumDesc::place`).
+        let local = match self {
+            Self::Core(spec) => return desc.cpu_medium(spec, lookup),
             Self::Urm { lookups } => {
                 Medium::single(CombKind::Urm.build(desc.field()?, desc.majorants()?, lookups)?)
             }
@@ -206,7 +208,8 @@ impl Estimator {
                 desc.placed_pins(lookup)?,
                 lookups,
             )?)),
-        })
+        };
+        desc.place(local, lookup)
     }
 }
 

@@ -78,36 +78,65 @@ fn shape(lattices: &[Lattice], p: DVec3) -> f64 {
 /// The cloud voxelised to `n^3` voxels over the unit cube (deterministic: the same bytes for
 /// any thread count).
 pub fn cloud(n: u32) -> anyhow::Result<DenseGrid> {
+    voxelise(
+        [n; 3],
+        1.0 / f64::from(n),
+        DVec3::ZERO,
+        CLOUD_DENSITY,
+        "fractal cloud",
+    )
+}
+
+/// The same cloud stretched over `dims` voxels of one spacing, `length` units along the
+/// longest axis and centred on the origin (the shape fills the box, squeezed along the
+/// shorter axes), peak extinction `peak` per unit: a cloud of the cloudscape eval scene, as
+/// the production generator's clouds span 10 units whatever their voxel counts.
+/// Deterministic.
+pub fn stretched_cloud(dims: [u32; 3], length: f64, peak: f64) -> anyhow::Result<DenseGrid> {
+    let longest = dims.iter().copied().max().unwrap_or(1).max(1);
+    let h = length / f64::from(longest);
+    let origin = -DVec3::new(f64::from(dims[0]), f64::from(dims[1]), f64::from(dims[2])) * h * 0.5;
+    voxelise(dims, h, origin, peak, "stretched fractal cloud")
+}
+
+/// `dims` voxels of edge `h` from `origin`; voxel `i`'s value is the shape at its centre
+/// mapped into the unit cube, `(i + 0.5) / dims`, times `peak`.
+fn voxelise(
+    dims: [u32; 3],
+    h: f64,
+    origin: DVec3,
+    peak: f64,
+    what: &str,
+) -> anyhow::Result<DenseGrid> {
     let lattices: Vec<Lattice> = OCTAVES
         .iter()
         .enumerate()
         .map(|(k, &f)| Lattice::new(f, splitmix64(SEED + k as u64)))
         .collect();
-    let nu = n as usize;
-    let h = 1.0 / f64::from(n);
-    let mut data = vec![0.0f32; nu * nu * nu];
-    data.par_chunks_mut(nu * nu)
+    let [nx, ny, nz] = dims.map(|d| d as usize);
+    // The unit cube's coordinates of a voxel: for a cube, exactly the centre times `h`.
+    let inv = DVec3::new(
+        1.0 / f64::from(dims[0]),
+        1.0 / f64::from(dims[1]),
+        1.0 / f64::from(dims[2]),
+    );
+    let mut data = vec![0.0f32; nx * ny * nz];
+    data.par_chunks_mut(nx * ny)
         .enumerate()
         .for_each(|(z, slab)| {
             for (i, v) in slab.iter_mut().enumerate() {
                 let p =
-                    DVec3::new((i % nu) as f64 + 0.5, (i / nu) as f64 + 0.5, z as f64 + 0.5) * h;
-                *v = (CLOUD_DENSITY * shape(&lattices, p)) as f32;
+                    DVec3::new((i % nx) as f64 + 0.5, (i / nx) as f64 + 0.5, z as f64 + 0.5) * inv;
+                *v = (peak * shape(&lattices, p)) as f32;
             }
         });
-    Ok(DenseGrid::new(
-        [n; 3],
-        data,
-        DVec3::splat(h),
-        DVec3::ZERO,
-        "fractal cloud",
-    )?)
+    Ok(DenseGrid::new(dims, data, DVec3::splat(h), origin, what)?)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pinbake::source::DensitySource;
+    use pinbake::source::{Density, DensitySource};
 
     #[test]
     fn cloud_is_deterministic_bounded_and_has_empty_space() {
@@ -125,5 +154,26 @@ mod tests {
         assert!(empty > d.len() / 4, "{empty} of {}", d.len());
         assert!(full > d.len() / 100, "{full} of {}", d.len());
         assert!(a.occupied_bounds().is_some());
+    }
+
+    /// A stretched cloud is the cube's shape over its own box, centred on the origin, its
+    /// longest axis `length` long; a cube of the unit length and peak holds the cube's values.
+    #[test]
+    fn stretched_clouds_fill_their_box() {
+        let c = stretched_cloud([12, 8, 16], 10.0, 1.5).unwrap();
+        assert_eq!(c.dims(), [12, 8, 16]);
+        let b = c.bounds();
+        let want = [0.5 * 12.0 / 16.0 * 10.0, 0.5 * 8.0 / 16.0 * 10.0, 5.0];
+        for (k, w) in want.iter().enumerate() {
+            assert!((b.max[k] - w).abs() < 1e-12 && (b.min[k] + w).abs() < 1e-12);
+        }
+        assert!(c.data().iter().all(|v| (0.0..=1.5).contains(v)));
+        assert!(c.data().iter().any(|v| *v > 0.75));
+        assert_eq!(
+            c.data(),
+            stretched_cloud([12, 8, 16], 10.0, 1.5).unwrap().data()
+        );
+        let cube = stretched_cloud([24; 3], 1.0, CLOUD_DENSITY).unwrap();
+        assert_eq!(cube.data(), cloud(24).unwrap().data());
     }
 }

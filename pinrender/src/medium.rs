@@ -25,14 +25,20 @@ pub struct PlacedPins {
     pub local_to_world: Option<[f64; 12]>,
 }
 
-/// One medium instance. Instances of one scene may share their grids and GPU densities
-/// (`Arc`s): the GPU packing uploads each shared one once.
+/// One medium instance. Instances of one scene may share their grids, GPU densities,
+/// majorants and fields (`Arc`s): the GPU packing uploads each shared one once.
+///
+/// Without `placement` everything is in the world. With it, `field`, `majorants`, the pins'
+/// placement and the GPU density with its `translation` are in an asset's own frame, and
+/// `placement` puts that frame in the world (an instance of a scene file): the CPU estimators
+/// are built in the asset's frame and placed ([`crate::instance::place_medium`]), the GPU asks
+/// every density query in that frame, so instances of one asset share its description.
 #[derive(Clone, Default)]
 pub struct MediumDesc {
-    /// The extinction the CPU estimators read, in the world (placement applied); `None`: a
-    /// pin file without embedded density.
+    /// The extinction the CPU estimators read, in the world (placement applied) or the
+    /// asset's frame; `None`: a pin file without embedded density.
     pub field: Option<Arc<dyn Density>>,
-    /// World-space majorants over `field`; `None`: built from `field` with
+    /// Majorants over `field` in its frame; `None`: built from `field` with
     /// `majorant_bricks` per axis when an estimator tracks.
     pub majorants: Option<Arc<MajorantGrid>>,
     pub majorant_bricks: u32,
@@ -42,6 +48,9 @@ pub struct MediumDesc {
     #[cfg(feature = "gpu")]
     pub gpu_density: Option<Arc<GpuDensity>>,
     pub translation: [f64; 3],
+    /// Row-major 3x4 local-to-world of the asset's frame that the rest is in; `None`: the
+    /// rest is in the world.
+    pub placement: Option<[f64; 12]>,
 }
 
 fn missing(what: &'static str, why: &str) -> RenderError {
@@ -70,7 +79,8 @@ impl MediumDesc {
         }
     }
 
-    /// The pins as an estimator with lookup options `lookup`.
+    /// The pins as an estimator with lookup options `lookup`, in the description's frame
+    /// (unplaced where it has a `placement`: [`MediumDesc::place`] places it).
     pub fn pins_estimator(
         &self,
         lookup: SamplerOptions,
@@ -79,7 +89,7 @@ impl MediumDesc {
     }
 
     /// The placed pin grid with lookup options `lookup`, as its own type (an estimator that
-    /// reads the pins beside the density builds on it).
+    /// reads the pins beside the density builds on it), in the description's frame.
     pub fn placed_pins(&self, lookup: SamplerOptions) -> Result<Arc<PinsEstimator>, RenderError> {
         let p = self
             .pins
@@ -94,8 +104,44 @@ impl MediumDesc {
 
     /// The CPU renderer's medium for `spec`: the estimator over the density, the pins,
     /// PinMS (the density's ratio tracking for primary rays, pins after the first
-    /// scattering), or `pinres` (the density and the bake's control in one estimator).
+    /// scattering), or `pinres` (the density and the bake's control in one estimator);
+    /// built in the asset's frame and placed where the description has a `placement`.
     pub fn cpu_medium(
+        &self,
+        spec: EstimatorSpec,
+        lookup: SamplerOptions,
+    ) -> Result<Medium, RenderError> {
+        self.place(self.frame_medium(spec, lookup)?, lookup)
+    }
+
+    /// A medium built in the description's frame (from [`MediumDesc::field`],
+    /// [`MediumDesc::majorants`], [`MediumDesc::placed_pins`]) placed in the world by
+    /// `placement`, or as it is without one: how an extension's estimator over the
+    /// description is placed as the renderer's own are.
+    pub fn place(&self, local: Medium, lookup: SamplerOptions) -> Result<Medium, RenderError> {
+        match &self.placement {
+            Some(m) => crate::instance::place_medium(&local, m, lookup),
+            None => Ok(local),
+        }
+    }
+
+    /// The pins' placement in the world: their own composed with `placement`.
+    pub fn world_pins(&self) -> Option<PlacedPins> {
+        let p = self.pins.as_ref()?;
+        Some(match &self.placement {
+            None => p.clone(),
+            Some(m) => PlacedPins {
+                grid: p.grid.clone(),
+                local_to_world: Some(crate::instance::compose(
+                    m,
+                    &p.local_to_world.unwrap_or(p.grid.desc().local_to_world),
+                )),
+            },
+        })
+    }
+
+    /// [`MediumDesc::cpu_medium`] in the description's own frame (unplaced).
+    fn frame_medium(
         &self,
         spec: EstimatorSpec,
         lookup: SamplerOptions,
@@ -122,6 +168,7 @@ impl MediumDesc {
     /// builds it (`residual[@min|@mean]`: over the majorant grid at load time; `pinres`: from
     /// the pin file's control section, with the CPU's raising of the majorants and its
     /// choice of the majorants it tracks), or `Ok(None)` for an estimator that reads none.
+    /// In the description's own frame (the asset's, where it has a `placement`).
     pub fn gpu_control(&self, spec: EstimatorSpec) -> Result<Option<GpuControl>, RenderError> {
         let take = |t: &ResidualRatioTracking<dyn Density>| {
             let (residual, majorants) = t.grids();
@@ -199,6 +246,47 @@ pub fn gpu_media_for<'a>(
     pack_media(media, needs, &controls, lookup)
 }
 
+/// What the majorants and controls built for one description depend on, so that the
+/// descriptions that share them (a scene's instances of one asset, in the asset's frame)
+/// build and upload them once: the field, the majorants given or their brick count, the pins
+/// and their placement in the description's frame.
+#[cfg(feature = "gpu")]
+#[derive(Clone, PartialEq, Eq, Hash)]
+struct FrameKey {
+    field: usize,
+    majorants: usize,
+    bricks: u32,
+    pins: usize,
+    pins_placement: Option<[u64; 12]>,
+}
+
+#[cfg(feature = "gpu")]
+impl FrameKey {
+    fn of(m: &MediumDesc) -> Self {
+        let addr = |p: *const ()| p as usize;
+        FrameKey {
+            field: m
+                .field
+                .as_ref()
+                .map_or(0, |f| addr(Arc::as_ptr(f) as *const ())),
+            majorants: m
+                .majorants
+                .as_ref()
+                .map_or(0, |g| addr(Arc::as_ptr(g) as *const ())),
+            bricks: m.majorant_bricks,
+            pins: m
+                .pins
+                .as_ref()
+                .map_or(0, |p| addr(Arc::as_ptr(&p.grid) as *const ())),
+            pins_placement: m
+                .pins
+                .as_ref()
+                .and_then(|p| p.local_to_world)
+                .map(|l| l.map(f64::to_bits)),
+        }
+    }
+}
+
 #[cfg(feature = "gpu")]
 fn pack_media<'a>(
     media: &'a [MediumDesc],
@@ -206,18 +294,24 @@ fn pack_media<'a>(
     controls: &[EstimatorSpec],
     lookup: SamplerOptions,
 ) -> Result<GpuMedia<'a>, RenderError> {
+    use std::collections::HashMap;
     let mut out = GpuMedia::default();
     let mut grids: Vec<&'a Arc<PinGrid>> = Vec::new();
     let mut densities: Vec<&'a Arc<GpuDensity>> = Vec::new();
+    // Built once per frame (an asset shared by many instances), then shared by `Arc`: the
+    // majorants and controls are pure functions of the key, so sharing changes no value.
+    type Built = (Option<Arc<MajorantGrid>>, Vec<Arc<GpuControl>>);
+    let mut built: HashMap<FrameKey, Built> = HashMap::new();
     for m in media {
-        let gpu_pins = match (&m.pins, pins) {
+        let gpu_pins = match (m.world_pins(), pins) {
             (Some(p), true) => {
                 let grid = grids
                     .iter()
                     .position(|g| Arc::ptr_eq(g, &p.grid))
                     .unwrap_or_else(|| {
-                        grids.push(&p.grid);
-                        out.grids.push(&*p.grid);
+                        let own = &m.pins.as_ref().expect("world pins are the pins").grid;
+                        grids.push(own);
+                        out.grids.push(&**own);
                         grids.len() - 1
                     });
                 Some(GpuPins {
@@ -238,18 +332,36 @@ fn pack_media<'a>(
                         out.densities.push((**d).clone());
                         densities.len() - 1
                     });
+                let key = FrameKey::of(m);
+                let (maj, ctl) = match built.get(&key) {
+                    Some(b) => b.clone(),
+                    None => {
+                        let maj = if majorants {
+                            Some(m.majorants()?)
+                        } else {
+                            None
+                        };
+                        // The controls see the majorants built here (as one description
+                        // would build them itself).
+                        let with = MediumDesc {
+                            majorants: maj.clone().or_else(|| m.majorants.clone()),
+                            ..m.clone()
+                        };
+                        let ctl = controls
+                            .iter()
+                            .filter_map(|&s| with.gpu_control(s).transpose())
+                            .map(|c| c.map(Arc::new))
+                            .collect::<Result<Vec<_>, _>>()?;
+                        built.insert(key, (maj.clone(), ctl.clone()));
+                        (maj, ctl)
+                    }
+                };
                 Some(GpuPlacedDensity {
                     density: index,
                     translation: m.translation,
-                    majorants: if majorants {
-                        Some(m.majorants()?)
-                    } else {
-                        None
-                    },
-                    controls: controls
-                        .iter()
-                        .filter_map(|&s| m.gpu_control(s).transpose())
-                        .collect::<Result<_, _>>()?,
+                    placement: m.placement,
+                    majorants: maj,
+                    controls: ctl,
                 })
             }
             _ => None,

@@ -9,15 +9,15 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::{Result, anyhow, bail};
+use anyhow::{Result, anyhow};
 use pin_scene::{Asset, Scene};
 use pinbake::source::DensityScale;
 use pinrt::SamplerOptions;
 
 use crate::instance::{place_medium, world_box};
-use crate::medium::{MediumDesc, PlacedPins};
+use crate::medium::MediumDesc;
 use crate::render::{EstimatorSpec, Medium};
-use crate::volume::{self, TrackedSource, VolumeArgs};
+use crate::volume::{self, OpenedMedium, VolumeArgs};
 
 /// What a render asks of its assets.
 #[derive(Clone, Copy, Debug)]
@@ -31,6 +31,10 @@ pub struct AssetOptions {
     pub max_memory: Option<u64>,
     pub allow_mismatched_pins: bool,
     pub lookup: SamplerOptions,
+    /// Load the pins an asset names even where `estimator` reads none (the viewer, whose
+    /// menu offers every estimator the assets answer); a volume without pins is baked only
+    /// for an estimator that reads them.
+    pub named_pins: bool,
 }
 
 /// A world box `(min, max)`.
@@ -40,6 +44,9 @@ pub type WorldBox = ([f64; 3], [f64; 3]);
 pub struct OpenedAsset {
     pub desc: MediumDesc,
     pub bounds: ([f64; 3], [f64; 3]),
+    /// The medium as `pinrender render` opens a volume or a pin file: what the GPU's copy of
+    /// its density is made from ([`OpenedMedium::gpu_density`]).
+    pub medium: OpenedMedium,
 }
 
 /// Bytes a placed instance holds at most on the CPU (its estimators, their boxes, a pin
@@ -56,6 +63,26 @@ pub struct SceneMedia {
 
 fn named(scene: &Scene, at: &str, e: impl std::fmt::Display) -> anyhow::Error {
     anyhow!("{}: {at}: {e}", pin_format::input::quoted(&scene.file))
+}
+
+/// The estimator when none is asked for (`pinrender render --scene`, `pinview`): pinms when
+/// every asset an instance uses has both a volume and pins, pins when every one has pins,
+/// ratio otherwise.
+pub fn default_estimator(scene: &Scene) -> EstimatorSpec {
+    let used: Vec<&Asset> = scene
+        .assets
+        .iter()
+        .zip(scene.uses())
+        .filter(|(_, n)| *n > 0)
+        .map(|(a, _)| a)
+        .collect();
+    if used.iter().all(|a| a.pins.is_some() && a.volume.is_some()) {
+        EstimatorSpec::PinMs
+    } else if used.iter().all(|a| a.pins.is_some()) {
+        EstimatorSpec::Pins
+    } else {
+        EstimatorSpec::RatioTracking
+    }
 }
 
 /// Opens every asset that an instance uses (each once; unused assets are not read).
@@ -95,7 +122,7 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
                 .map_err(|e| named(scene, &at, format!("{e:#}")))?;
             let source = opened.source();
             let b = source.bounds();
-            let grid = if spec.needs_pins() {
+            let grid = if spec.needs_pins() || (o.named_pins && pins.is_some()) {
                 let budget = pinbake::files::MemoryBudget::new(o.max_memory);
                 let grid = volume::pins_for(
                     pins.as_deref(),
@@ -121,36 +148,24 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             } else {
                 None
             };
-            let field = Arc::new(TrackedSource::with_budget(
-                source,
+            let medium = OpenedMedium::volume(
+                opened,
+                grid,
                 pinbake::files::MemoryBudget::new(o.max_memory).limit,
-            ));
+            );
             Ok(OpenedAsset {
-                desc: MediumDesc {
-                    field: Some(field),
-                    majorant_bricks: o.majorant_bricks,
-                    pins: grid.map(|grid| PlacedPins {
-                        grid,
-                        local_to_world: None,
-                    }),
-                    ..MediumDesc::default()
-                },
+                desc: medium.desc(o.majorant_bricks, None),
                 bounds: (b.min.to_array(), b.max.to_array()),
+                medium,
             })
         }
         (None, Some(p)) => {
             let at = a.json_path("pins");
             let grid =
                 Arc::new(volume::load_pins(p).map_err(|e| named(scene, &at, format!("{e:#}")))?);
-            let m = volume::pin_file_medium(p, &grid)
-                .map_err(|e| named(scene, &at, format!("{e:#}")))?;
-            let bounds = grid
-                .sampler()
-                .map_err(|e| named(scene, &at, e))?
-                .world_bounds()
-                .unwrap_or(m.bounds);
-            let field = m.field();
-            if spec.needs_density() && field.is_none() {
+            let medium =
+                OpenedMedium::pin_file(p, grid).map_err(|e| named(scene, &at, format!("{e:#}")))?;
+            if spec.needs_density() && medium.field.is_none() {
                 return Err(named(
                     scene,
                     &at,
@@ -162,17 +177,9 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
                 ));
             }
             Ok(OpenedAsset {
-                desc: MediumDesc {
-                    field,
-                    majorants: m.majorants,
-                    majorant_bricks: o.majorant_bricks,
-                    pins: Some(PlacedPins {
-                        grid,
-                        local_to_world: None,
-                    }),
-                    ..MediumDesc::default()
-                },
-                bounds,
+                desc: medium.desc(o.majorant_bricks, None),
+                bounds: medium.bounds,
+                medium,
             })
         }
         (None, None) => Err(named(
@@ -195,7 +202,7 @@ fn spread(v: u64) -> u64 {
 
 /// The instances in Morton order of their world boxes' centres (ties in file order), so
 /// that neighbours share the leaves of the tracer's box hierarchy.
-fn morton_order(boxes: &[([f64; 3], [f64; 3])]) -> Vec<usize> {
+pub fn morton_order(boxes: &[([f64; 3], [f64; 3])]) -> Vec<usize> {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     let centres: Vec<[f64; 3]> = boxes
@@ -282,22 +289,45 @@ pub fn cpu_media(
     })
 }
 
-/// The scene's instances as GPU medium descriptions: pin grids placed by the composed
-/// transform (any transform); an estimator that reads the density is refused, since the
-/// GPU path tracer places a density by a translation of its own copy and a scene's assets
-/// are shared between instances of any transform.
+/// The scene's instances as GPU medium descriptions for `o.estimator` on a device with
+/// `limits`, in the order of [`cpu_media`]: each used asset's description (its density's GPU
+/// copy made once, where the estimator reads the density) placed by the instance's transform
+/// (`MediumDesc::placement`), so that the GPU asks every query of an instance in its asset's
+/// frame as the CPU does ([`crate::instance`]) and uploads each asset once.
 pub fn gpu_descs(
     scene: &Scene,
     assets: &[Option<OpenedAsset>],
     o: &AssetOptions,
+    limits: &wgpu::Limits,
 ) -> Result<(Vec<MediumDesc>, WorldBox)> {
-    if o.estimator.needs_density() {
-        bail!(
-            "{}: the GPU path renders a scene with the pins estimator; {} reads the density \
-             (render it with --backend cpu)",
-            pin_format::input::quoted(&scene.file),
-            o.estimator
-        );
+    let spec = o.estimator;
+    let mut framed: Vec<Option<MediumDesc>> = Vec::with_capacity(assets.len());
+    for (a, opened) in scene.assets.iter().zip(assets) {
+        framed.push(match opened {
+            None => None,
+            Some(x) => {
+                let at = || {
+                    let key = if a.volume.is_some() { "volume" } else { "pins" };
+                    a.json_path(key)
+                };
+                if spec.needs_pins() && x.desc.pins.is_none() {
+                    return Err(named(scene, &format!("assets.{}", a.name), "no pins"));
+                }
+                let gpu_density = if spec.needs_density() {
+                    let copy = x
+                        .medium
+                        .gpu_density(limits)
+                        .map_err(|e| named(scene, &at(), format!("{e:#}")))?;
+                    Some(Arc::new(copy))
+                } else {
+                    None
+                };
+                Some(MediumDesc {
+                    gpu_density,
+                    ..x.desc.clone()
+                })
+            }
+        });
     }
     let mut descs = Vec::with_capacity(scene.instances.len());
     let mut lo = [f64::INFINITY; 3];
@@ -311,23 +341,19 @@ pub fn gpu_descs(
     }
     for i in morton_order(&boxes) {
         let inst = &scene.instances[i];
-        let a = assets[inst.asset as usize]
+        let asset = framed[inst.asset as usize]
             .as_ref()
             .expect("every used asset is opened");
-        let p = a.desc.pins.as_ref().ok_or_else(|| {
+        crate::instance::invert(&inst.local_to_world).ok_or_else(|| {
             named(
                 scene,
-                &format!("{}.asset", Scene::instance_path(i)),
-                "no pins",
+                &format!("{}.transform", Scene::instance_path(i)),
+                "it is singular",
             )
         })?;
-        let own = p.local_to_world.unwrap_or(p.grid.desc().local_to_world);
         descs.push(MediumDesc {
-            pins: Some(PlacedPins {
-                grid: p.grid.clone(),
-                local_to_world: Some(crate::instance::compose(&inst.local_to_world, &own)),
-            }),
-            ..MediumDesc::default()
+            placement: Some(inst.local_to_world),
+            ..asset.clone()
         });
         for k in 0..3 {
             lo[k] = lo[k].min(boxes[i].0[k]);

@@ -778,6 +778,7 @@ impl OpenedMedium {
             }),
             gpu_density,
             translation: [0.0; 3],
+            placement: None,
         }
     }
 }

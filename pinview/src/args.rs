@@ -17,8 +17,8 @@ FILE is a pin file (.pin: shown with pins alone at once; pinms, pinres, ratio an
 trackers where it embeds a density or a control), a volume (.vdb, .nvdb, .raw with --dims, or
 procedural:SPEC: tracked at once while its pins bake in the background, then every estimator),
 a scene file of instanced volumes (.json, docs/scene.md: its camera, sun, sky, albedo, g and
-bounces unless a flag gives them; the pins estimator only, as `pinrender render --scene
---backend gpu`), or a frame pattern (sim.####.pin: play, pause, step and scrub). A file dropped
+bounces unless a flag gives them; every estimator its assets answer, as `pinrender render
+--scene --backend gpu`), or a frame pattern (sim.####.pin: play, pause, step and scrub). A file dropped
 on the window opens in its place.
 
 Scripting: --frames N renders N one-sample passes in the window, then writes --screenshot

@@ -50,8 +50,7 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
                 path.display()
             );
         }
-        let estimator = a.estimator.unwrap_or(EstimatorSpec::Pins);
-        Medium::open_scene(path, estimator, a.seed)
+        Medium::open_scene(path, a.estimator, a.seed)
     } else if open::is_pin_file(path) {
         if let Some(flag) = a.read.given().first() {
             pin_cli::usage!(

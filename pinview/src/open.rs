@@ -31,9 +31,44 @@ pub struct Medium {
     /// The GPU copy of the density, made on first use by whichever renderer is built first
     /// (on a worker thread) and shared by the estimators.
     gpu_density: GpuDensityCache,
-    /// A scene file: the scene and its instances' GPU media (`pinrender render --scene
-    /// --backend gpu`'s own, from [`pinrender::scene_media`]).
-    scene: Option<(pin_scene::Scene, Vec<MediumDesc>)>,
+    /// A scene file: the scene and its opened assets (`pinrender render --scene --backend
+    /// gpu`'s own, from [`pinrender::scene_media`]).
+    scene: Option<Arc<SceneMedia>>,
+}
+
+/// A scene file opened: its assets once, and the instances' GPU media made from them.
+pub struct SceneMedia {
+    pub scene: pin_scene::Scene,
+    assets: Vec<Option<scene_media::OpenedAsset>>,
+    options: scene_media::AssetOptions,
+    /// The estimators every used asset answers, in menu order.
+    estimators: Vec<EstimatorSpec>,
+    /// The instances without the densities' GPU copies (what the pins estimator reads).
+    pins_descs: Vec<MediumDesc>,
+    /// The instances with the densities' GPU copies, made once by the first build of an
+    /// estimator that reads the density (the lock held meanwhile, as for one medium).
+    density_descs: Mutex<Option<Vec<MediumDesc>>>,
+}
+
+impl SceneMedia {
+    /// The instances' descriptions for `estimator` on a device with `limits`.
+    fn descs(&self, estimator: EstimatorSpec, limits: &wgpu::Limits) -> Result<Vec<MediumDesc>> {
+        if !estimator.needs_density() {
+            return Ok(self.pins_descs.clone());
+        }
+        let mut slot = self
+            .density_descs
+            .lock()
+            .map_err(|_| anyhow!("the scene's GPU densities were poisoned"))?;
+        if slot.is_none() {
+            let o = scene_media::AssetOptions {
+                estimator: EstimatorSpec::RatioTracking,
+                ..self.options
+            };
+            *slot = Some(scene_media::gpu_descs(&self.scene, &self.assets, &o, limits)?.0);
+        }
+        Ok(slot.clone().unwrap_or_default())
+    }
 }
 
 /// The density's GPU copy, made once by the first build that needs it: the lock is held
@@ -52,7 +87,7 @@ pub struct MediaJob {
 #[derive(Clone)]
 enum MediaSource {
     One(OpenedMedium, GpuDensityCache),
-    Scene(Vec<MediumDesc>),
+    Scene(Arc<SceneMedia>),
 }
 
 impl MediaJob {
@@ -61,7 +96,7 @@ impl MediaJob {
     /// reads it): one medium, or a scene's instances.
     pub fn descs(&self, limits: &wgpu::Limits) -> Result<Vec<MediumDesc>> {
         match &self.source {
-            MediaSource::Scene(descs) => Ok(descs.clone()),
+            MediaSource::Scene(scene) => scene.descs(self.estimator, limits),
             MediaSource::One(m, cache) => {
                 let gpu = if self.estimator.needs_density() {
                     let mut slot = cache
@@ -125,7 +160,7 @@ impl Medium {
         path: &Path,
         opened: OpenedMedium,
         is_volume: bool,
-        scene: Option<(pin_scene::Scene, Vec<MediumDesc>)>,
+        scene: Option<Arc<SceneMedia>>,
     ) -> Self {
         Self {
             path: path.to_path_buf(),
@@ -137,12 +172,14 @@ impl Medium {
         }
     }
 
-    /// A scene file's instances for `estimator`, opened as `pinrender render --scene --backend
-    /// gpu` opens them (each asset once; a volume without pins baked in memory with `seed`),
-    /// with its messages: the GPU path renders a scene with the pins estimator only.
-    pub fn open_scene(path: &Path, estimator: EstimatorSpec, seed: u64) -> Result<Self> {
+    /// A scene file's instances, opened as `pinrender render --scene --backend gpu` opens
+    /// them for `estimator` (`pinrender`'s default for the scene when `None`; each asset once; a volume without pins baked in memory with
+    /// `seed` where `estimator` reads pins), with the pins every asset names loaded too, so
+    /// that the menu offers every estimator the assets answer; with its messages.
+    pub fn open_scene(path: &Path, estimator: Option<EstimatorSpec>, seed: u64) -> Result<Self> {
         let scene = scene_media::load_scene(path, None)?;
-        let opts = scene_media::AssetOptions {
+        let estimator = estimator.unwrap_or_else(|| scene_media::default_estimator(&scene));
+        let options = scene_media::AssetOptions {
             estimator,
             pin_cells: None,
             seed,
@@ -150,9 +187,37 @@ impl Medium {
             max_memory: None,
             allow_mismatched_pins: false,
             lookup: SamplerOptions::RENDER,
+            named_pins: true,
         };
-        let assets = scene_media::open_assets(&scene, &opts)?;
-        let (descs, bounds) = scene_media::gpu_descs(&scene, &assets, &opts)?;
+        let assets = scene_media::open_assets(&scene, &options)?;
+        let pins_only = scene_media::AssetOptions {
+            estimator: EstimatorSpec::Pins,
+            ..options
+        };
+        let used: Vec<&scene_media::OpenedAsset> = assets.iter().flatten().collect();
+        let pins = used.iter().all(|a| a.desc.pins.is_some());
+        let density = used.iter().all(|a| a.desc.field.is_some());
+        let control = pins
+            && used.iter().all(|a| {
+                a.desc
+                    .pins
+                    .as_ref()
+                    .and_then(|p| p.grid.file().ok().map(|f| f.control().is_some()))
+                    .unwrap_or(false)
+            });
+        let estimators: Vec<EstimatorSpec> = all_estimators()
+            .into_iter()
+            .filter(|e| {
+                (!e.needs_pins() || pins)
+                    && (!e.needs_density() || density)
+                    && (*e != EstimatorSpec::PinRes || control)
+            })
+            .collect();
+        let (pins_descs, bounds) = if pins {
+            scene_media::gpu_descs(&scene, &assets, &pins_only, &wgpu::Limits::default())?
+        } else {
+            (Vec::new(), scene_bounds(&scene, &assets))
+        };
         let none = OpenedMedium {
             bounds,
             field: None,
@@ -162,12 +227,20 @@ impl Medium {
             voxels: None,
             bricks: None,
         };
-        Ok(Self::new(path, none, false, Some((scene, descs))))
+        let media = SceneMedia {
+            scene,
+            assets,
+            options,
+            estimators,
+            pins_descs,
+            density_descs: Mutex::new(None),
+        };
+        Ok(Self::new(path, none, false, Some(Arc::new(media))))
     }
 
     /// The scene, where this is a scene file.
     pub fn scene(&self) -> Option<&pin_scene::Scene> {
-        self.scene.as_ref().map(|(s, _)| s)
+        self.scene.as_ref().map(|s| &s.scene)
     }
 
     /// The flag of `pinrender render` that names this file.
@@ -195,14 +268,18 @@ impl Medium {
         self.opened.pins.as_ref()
     }
 
+    /// Whether a density is at hand (a scene: every asset it uses has one).
     pub fn has_density(&self) -> bool {
-        self.opened.field.is_some()
+        match &self.scene {
+            Some(s) => s.estimators.iter().any(|e| e.needs_density()),
+            None => self.opened.field.is_some(),
+        }
     }
 
-    /// The estimators this medium answers now (a scene: pins, the GPU path's one).
+    /// The estimators this medium answers now (a scene: those every asset it uses answers).
     pub fn estimators(&self) -> Vec<EstimatorSpec> {
-        if self.scene.is_some() {
-            return vec![EstimatorSpec::Pins];
+        if let Some(s) = &self.scene {
+            return s.estimators.clone();
         }
         all_estimators()
             .into_iter()
@@ -222,8 +299,8 @@ impl Medium {
     /// The estimator when none is asked for: `pinrender render`'s default for the same input
     /// (pinms with pins and a density, pins with pins alone, ratio for a volume without pins).
     pub fn default_estimator(&self) -> EstimatorSpec {
-        if self.scene.is_some() {
-            return EstimatorSpec::Pins;
+        if let Some(s) = &self.scene {
+            return s.options.estimator;
         }
         match (self.pins().is_some(), self.has_density()) {
             (true, true) => EstimatorSpec::PinMs,
@@ -236,11 +313,18 @@ impl Medium {
     /// thread) where the medium cannot answer it: one medium, or a scene's instances.
     pub fn media_job(&self, estimator: EstimatorSpec) -> Result<MediaJob> {
         let source = match &self.scene {
-            Some(_) if estimator != EstimatorSpec::Pins => bail!(
-                "{}: the GPU path renders a scene with the pins estimator, not {estimator}",
-                self.path.display()
+            Some(s) if !s.estimators.contains(&estimator) => bail!(
+                "{}: {estimator} reads {}, which some asset of the scene lacks",
+                self.path.display(),
+                if estimator.needs_density() {
+                    "the density"
+                } else if estimator == EstimatorSpec::PinRes {
+                    "the pins' control section"
+                } else {
+                    "pins"
+                }
             ),
-            Some((_, descs)) => MediaSource::Scene(descs.clone()),
+            Some(s) => MediaSource::Scene(s.clone()),
             None => {
                 if estimator.needs_pins() && self.pins().is_none() {
                     bail!(
@@ -429,6 +513,25 @@ impl<T> Drop for BakeJob<T> {
     fn drop(&mut self) {
         self.cancel.store(true, Ordering::Relaxed);
     }
+}
+
+/// The world box of a scene's instances (the box of their placed assets' boxes).
+fn scene_bounds(
+    scene: &pin_scene::Scene,
+    assets: &[Option<scene_media::OpenedAsset>],
+) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for inst in &scene.instances {
+        if let Some(a) = &assets[inst.asset as usize] {
+            let (l, h) = pinrender::instance::world_box(&inst.local_to_world, a.bounds);
+            for k in 0..3 {
+                lo[k] = lo[k].min(l[k]);
+                hi[k] = hi[k].max(h[k]);
+            }
+        }
+    }
+    (lo, hi)
 }
 
 /// Whether `path` names a scene file (`.json`; `docs/scene.md`).

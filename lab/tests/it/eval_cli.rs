@@ -260,9 +260,11 @@ fn eval_rejects_bad_input() {
         &["eval", "--quick", "--budgets", "-1"][..],
         &["eval", "--quick", "--budgets", "nan"][..],
         &["eval", "--quick", "--scenes", "teapot"][..],
-        // The production-scale scene is for the full run only (CI runs --quick).
+        // The production-scale scenes and the cloudscape are for the full run only (CI runs
+        // --quick).
         &["eval", "--quick", "--scenes", "cloud"][..],
         &["eval", "--quick", "--scenes", "production"][..],
+        &["eval", "--quick", "--scenes", "cloudscape"][..],
         &["eval", "--quick", "--threads", "0"][..],
         &["eval", "--quick", "--clock", "sundial"][..],
     ] {

@@ -10,6 +10,7 @@
 //! An instance may have either or both; which estimators a render may use follows from that.
 
 use std::borrow::Cow;
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
@@ -192,18 +193,33 @@ pub struct GpuPins {
     pub options: SamplerOptions,
 }
 
-/// A density of [`GpuMedia::densities`] placed for one instance by a translation.
+/// A density of [`GpuMedia::densities`] placed for one instance: by a translation into the
+/// world, or by a translation into an asset's frame that `placement` places in the world by
+/// any invertible affine map.
+///
+/// Without `placement` the translation, the majorants and the controls are in the world and
+/// every query is asked there. With it they are all in the asset's frame, and every density
+/// query of the instance is asked in that frame as the CPU's `instance::PlacedEstimator`
+/// asks it: the ray mapped (`o_l = A o + b`, `d_l = A d`, `A, b` the inverse of
+/// `placement`), its direction normalised, the segment's length scaled by `|d_l|`, a sampled
+/// distance mapped back by the same factor. So one asset's density, majorants and controls
+/// are uploaded once for all its instances (the packing shares every `Arc` it is given).
 #[derive(Clone, Debug)]
 pub struct GpuPlacedDensity {
     /// Index into [`GpuMedia::densities`].
     pub density: usize,
-    /// World position = density-local position + `translation`.
+    /// Position (world, or the asset's frame with `placement`) = density-local position +
+    /// `translation`.
     pub translation: [f64; 3],
-    /// World-space majorant grid over the placed density (needed by the trackers).
+    /// Row-major 3x4 local-to-world of the asset's frame; `None`: the frame is the world.
+    pub placement: Option<[f64; 12]>,
+    /// Majorant grid over the placed density, in the frame of `translation` (needed by the
+    /// trackers).
     pub majorants: Option<Arc<MajorantGrid>>,
     /// The residual controls of this instance, at most one per residual estimator
-    /// (`residual`, `residual@min`, `pinres`: [`GpuControl::spec`]).
-    pub controls: Vec<GpuControl>,
+    /// (`residual`, `residual@min`, `pinres`: [`GpuControl::spec`]), in the frame of
+    /// `translation`.
+    pub controls: Vec<Arc<GpuControl>>,
 }
 
 /// What residual ratio tracking reads for one instance, in the world (as the CPU's
@@ -287,7 +303,7 @@ pub(super) struct Caps {
     pub controls: [bool; CONTROL_SLOTS],
 }
 
-/// `RtMedium` of `render.wgsl` (240 bytes).
+/// `RtMedium` of `render.wgsl` (288 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub(super) struct MediumRecord {
@@ -309,11 +325,20 @@ pub(super) struct MediumRecord {
     /// Bricks: log2 of the brick edge, 1 for f16 values (else f32), words per value binding,
     /// unused.
     pub bfmt: [u32; 4],
+    /// World to the asset's frame, rows `(A_i0, A_i1, A_i2, b_i)` in f32 (as the CPU's
+    /// `PlacedEstimator` holds them), where `FLAG_PLACED` is set.
+    pub to_local: [[f32; 4]; 3],
 }
 
 pub(super) const FLAG_PINS: u32 = 1;
 pub(super) const FLAG_DENSITY: u32 = 2;
 pub(super) const FLAG_MAJORANTS: u32 = 4;
+/// The density is queried in its asset's frame (`to_local`): the boxes, majorants and
+/// controls of the record are in that frame.
+pub(super) const FLAG_PLACED: u32 = 8;
+/// With `FLAG_PLACED`: the linear part is exactly the identity, so a query keeps its
+/// direction and lengths and only its origin moves (the CPU's `translation_only`).
+pub(super) const FLAG_SHIFTED: u32 = 16;
 const KIND_VOXELS: u32 = 1;
 const KIND_COSINE: u32 = 2;
 const KIND_BRICKS: u32 = 3;
@@ -432,24 +457,38 @@ pub(super) const BVH_MIN_MEDIA: usize = 8;
 /// placed pin grid, the density's clip box, the majorant grid's box), widened by a relative
 /// 1e-3 so that no f32 rounding of the shader's node test misses a ray its own tests would
 /// meet. `None` for a medium with none of them (it is met by every ray).
-fn medium_box(r: &MediumRecord) -> Option<([f64; 3], [f64; 3])> {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    let mut add = |l: &[f32; 4], h: &[f32; 4]| {
+/// For a density placed in an asset's frame (`placement`), its boxes are in that frame and
+/// count as the world box of their corners.
+fn medium_box(r: &MediumRecord, placement: Option<&[f64; 12]>) -> Option<([f64; 3], [f64; 3])> {
+    let add = |(lo, hi): &mut ([f64; 3], [f64; 3]), l: [f64; 3], h: [f64; 3]| {
         for a in 0..3 {
-            lo[a] = lo[a].min(f64::from(l[a]));
-            hi[a] = hi[a].max(f64::from(h[a]));
+            lo[a] = lo[a].min(l[a]);
+            hi[a] = hi[a].max(h[a]);
         }
     };
-    if r.ids[2] & FLAG_PINS != 0 {
-        add(&r.pin_lo, &r.pin_hi);
-    }
+    let wide = |v: &[f32; 4]| [0, 1, 2].map(|a| f64::from(v[a]));
+    let empty = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    let mut density = empty;
     if r.ids[2] & FLAG_DENSITY != 0 {
-        add(&r.clip_lo, &r.clip_hi);
+        add(&mut density, wide(&r.clip_lo), wide(&r.clip_hi));
     }
     if r.ids[2] & FLAG_MAJORANTS != 0 {
-        add(&r.maj_lo, &r.maj_hi);
+        add(&mut density, wide(&r.maj_lo), wide(&r.maj_hi));
     }
+    if let Some(m) = placement
+        && density != empty
+    {
+        if !(0..3).all(|a| density.0[a].is_finite() && density.1[a].is_finite()) {
+            return None;
+        }
+        density = crate::instance::world_box(m, density);
+    }
+    let mut all = empty;
+    if r.ids[2] & FLAG_PINS != 0 {
+        add(&mut all, wide(&r.pin_lo), wide(&r.pin_hi));
+    }
+    add(&mut all, density.0, density.1);
+    let (lo, hi) = all;
     if !(0..3).all(|a| lo[a].is_finite() && hi[a].is_finite() && lo[a] <= hi[a]) {
         return None;
     }
@@ -463,14 +502,18 @@ fn medium_box(r: &MediumRecord) -> Option<([f64; 3], [f64; 3])> {
 /// `render::bvh`'s, which hand out the media a ray meets in media order, so a walk combines
 /// them as the linear scan does) and returns `RtParams.seed.w` for it; 0 (no hierarchy) for
 /// fewer than [`BVH_MIN_MEDIA`] media or a medium without a finite box.
-fn pack_bvh(records: &[MediumRecord], data: &mut Vec<u32>) -> u32 {
+fn pack_bvh(
+    records: &[MediumRecord],
+    placements: &[Option<[f64; 12]>],
+    data: &mut Vec<u32>,
+) -> u32 {
     if records.len() < BVH_MIN_MEDIA {
         return 0;
     }
     let mut lo: [Vec<f32>; 3] = Default::default();
     let mut hi: [Vec<f32>; 3] = Default::default();
-    for r in records {
-        let Some((l, h)) = medium_box(r) else {
+    for (r, p) in records.iter().zip(placements) {
+        let Some((l, h)) = medium_box(r, p.as_ref()) else {
             return 0;
         };
         // Rounding to f32 moves a bound by half an ulp, far inside the padding.
@@ -531,6 +574,24 @@ fn placed_box(grid: &PinGrid, m: &[f64; 12]) -> ([f32; 4], [f32; 4]) {
     )
 }
 
+/// The rows `(A_i0, A_i1, A_i2, b_i)` of the inverse of `local_to_world` in f32, as the
+/// CPU's `instance::PlacedEstimator` makes them; why not where it is singular or its inverse
+/// overflows f32.
+fn to_local(local_to_world: &[f64; 12]) -> Result<[[f32; 4]; 3], String> {
+    let inv = crate::instance::invert(local_to_world)
+        .ok_or_else(|| "the instance transform is singular".to_string())?;
+    let mut rows = [[0.0f32; 4]; 3];
+    for (i, row) in rows.iter_mut().enumerate() {
+        for (j, v) in row.iter_mut().enumerate() {
+            *v = inv[4 * i + j] as f32;
+            if !v.is_finite() {
+                return Err("the instance transform's inverse overflows f32".into());
+            }
+        }
+    }
+    Ok(rows)
+}
+
 fn f4(v: [f64; 3], w: f32) -> [f32; 4] {
     [v[0] as f32, v[1] as f32, v[2] as f32, w]
 }
@@ -546,7 +607,7 @@ fn pack_controls(
     r: &mut MediumRecord,
     cap: &mut Caps,
     data: &mut Vec<u32>,
-    controls: &[GpuControl],
+    controls: &[Arc<GpuControl>],
     medium: usize,
 ) -> pinrt::Result<()> {
     let to_u32 = |what: &str, v: usize| {
@@ -727,6 +788,11 @@ pub(super) fn pack<'g>(
     let mut params = Vec::with_capacity(media.media.len());
     let mut records = Vec::with_capacity(media.media.len());
     let mut caps = Vec::with_capacity(media.media.len());
+    let mut placements = Vec::with_capacity(media.media.len());
+    // Majorant grids and control tables shared between instances are packed once: where
+    // each one's values start in `data`, by the `Arc`s that hold them.
+    let mut majorants_at: HashMap<*const MajorantGrid, u32> = HashMap::new();
+    let mut tables_at: HashMap<Vec<*const GpuControl>, u32> = HashMap::new();
     for (i, m) in media.media.iter().enumerate() {
         let mut r = MediumRecord::zeroed();
         let mut cap = Caps::default();
@@ -759,6 +825,13 @@ pub(super) fn pack<'g>(
             let t = pd.translation;
             if !t.iter().all(|v| v.is_finite()) {
                 return Err(gpu(format!("medium {i}: translation {t:?} is not finite")));
+            }
+            if let Some(pm) = &pd.placement {
+                r.to_local = to_local(pm).map_err(|why| gpu(format!("medium {i}: {why}")))?;
+                r.ids[2] |= FLAG_PLACED;
+                if crate::instance::is_translation(pm) {
+                    r.ids[2] |= FLAG_SHIFTED;
+                }
             }
             let (lo, hi) = d.bounds;
             let wlo = [0, 1, 2].map(|a| lo[a] + t[a]);
@@ -809,8 +882,15 @@ pub(super) fn pack<'g>(
             if let Some(mg) = &pd.majorants {
                 let (mlo, mhi) = mg.bounds();
                 let md = mg.dims();
-                r.offs[2] = to_u32("majorant", data.len())?;
-                data.extend(mg.values().iter().map(|v| v.to_bits()));
+                r.offs[2] = match majorants_at.get(&Arc::as_ptr(mg)) {
+                    Some(&at) => at,
+                    None => {
+                        let at = to_u32("majorant", data.len())?;
+                        data.extend(mg.values().iter().map(|v| v.to_bits()));
+                        majorants_at.insert(Arc::as_ptr(mg), at);
+                        at
+                    }
+                };
                 r.mdims = [md[0], md[1], md[2], 0];
                 r.maj_lo = f4(mlo, 0.0);
                 r.maj_hi = f4(mhi, 0.0);
@@ -818,14 +898,29 @@ pub(super) fn pack<'g>(
                 cap.majorants = true;
             }
             if !pd.controls.is_empty() {
-                pack_controls(&mut r, &mut cap, &mut data, &pd.controls, i)?;
+                let key: Vec<*const GpuControl> = pd.controls.iter().map(Arc::as_ptr).collect();
+                match tables_at.get(&key) {
+                    Some(&at) => {
+                        r.offs[3] = at;
+                        for c in &pd.controls {
+                            if let Some(slot) = control_slot(c.spec) {
+                                cap.controls[slot] = true;
+                            }
+                        }
+                    }
+                    None => {
+                        pack_controls(&mut r, &mut cap, &mut data, &pd.controls, i)?;
+                        tables_at.insert(key, r.offs[3]);
+                    }
+                }
             }
         }
         params.push(gp);
         records.push(r);
         caps.push(cap);
+        placements.push(m.density.as_ref().and_then(|d| d.placement));
     }
-    let bvh = pack_bvh(&records, &mut data);
+    let bvh = pack_bvh(&records, &placements, &mut data);
     check("the density data", data.len() * 4)?;
     check(
         "the medium records",

@@ -526,7 +526,7 @@ impl GpuRenderer {
         let dev = device;
         let scope = dev.push_error_scope(wgpu::ErrorFilter::Validation);
         // wgpu refuses zero-sized bindings: an absent section binds a small dummy.
-        let dummy = [0u8; 256];
+        let dummy = [0u8; 512];
         let storage = |label: &str, contents: &[u8]| {
             dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),

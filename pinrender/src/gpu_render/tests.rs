@@ -728,6 +728,7 @@ fn cosine_density_matches_cpu() {
             density: Some(GpuPlacedDensity {
                 density: 0,
                 translation: [0.0; 3],
+                placement: None,
                 majorants: Some(maj.clone()),
                 controls: Vec::new(),
             }),
@@ -796,6 +797,7 @@ fn media_and_estimators_are_checked() {
             density: Some(GpuPlacedDensity {
                 density: 0,
                 translation: [0.0; 3],
+                placement: None,
                 majorants: None,
                 controls: Vec::new(),
             }),
@@ -885,6 +887,7 @@ fn stiff_media_stay_finite() {
                 density: Some(GpuPlacedDensity {
                     density: 0,
                     translation: [0.0; 3],
+                    placement: None,
                     majorants: Some(maj),
                     controls: Vec::new(),
                 }),
@@ -997,6 +1000,7 @@ fn placed<'g>(
                 density: Some(GpuPlacedDensity {
                     density: 0,
                     translation: OFFSETS[k],
+                    placement: None,
                     majorants: Some(majorants[k].clone()),
                     controls: Vec::new(),
                 }),
@@ -1057,6 +1061,7 @@ fn the_media_hierarchy_renders_the_linear_scans_bits() {
                 density: Some(GpuPlacedDensity {
                     density: 0,
                     translation: *off,
+                    placement: None,
                     majorants: Some(maj.clone()),
                     controls: Vec::new(),
                 }),
@@ -1304,6 +1309,7 @@ fn residual_descs(ms: &MultiScene) -> Vec<crate::medium::MediumDesc> {
             }),
             gpu_density: Some(gpu.clone()),
             translation: OFFSETS[k],
+            placement: None,
         })
         .collect()
 }
@@ -1495,6 +1501,7 @@ fn residual_on_gpu_matches_the_cosine_closed_form() {
             GpuDensity::cosine(lo, hi, density, waves.clone()).unwrap(),
         )),
         translation: [0.0; 3],
+        placement: None,
     };
     let ests = &RESIDUALS[..2];
     let media = crate::medium::gpu_media_for(
@@ -1832,4 +1839,198 @@ fn pass_times_come_from_gpu_timestamps_where_the_device_has_them() {
     // A reset forgets the timings of the old view.
     timed.reset(&sc, 2).unwrap();
     assert_eq!(timed.pass_time_source(), PassTimeSource::Wall);
+}
+
+// ---------------------------------------------------------------------------------------
+// Instances placed by any affine map (a scene file's): every density query in the asset's
+// frame
+// ---------------------------------------------------------------------------------------
+
+/// `T * Rz * Ry * Rx * S` (degrees), the scene file's composition (`pin_scene`'s transform).
+fn trs(t: [f64; 3], deg: [f64; 3], s: [f64; 3]) -> [f64; 12] {
+    let [x, y, z] = deg.map(f64::to_radians);
+    let rx = [
+        [1.0, 0.0, 0.0],
+        [0.0, x.cos(), -x.sin()],
+        [0.0, x.sin(), x.cos()],
+    ];
+    let ry = [
+        [y.cos(), 0.0, y.sin()],
+        [0.0, 1.0, 0.0],
+        [-y.sin(), 0.0, y.cos()],
+    ];
+    let rz = [
+        [z.cos(), -z.sin(), 0.0],
+        [z.sin(), z.cos(), 0.0],
+        [0.0, 0.0, 1.0],
+    ];
+    let mul = |a: [[f64; 3]; 3], b: [[f64; 3]; 3]| {
+        let mut o = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                o[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+            }
+        }
+        o
+    };
+    let r = mul(rz, mul(ry, rx));
+    let mut m = [0.0; 12];
+    for i in 0..3 {
+        for j in 0..3 {
+            m[4 * i + j] = r[i][j] * s[j];
+        }
+        m[4 * i + 3] = t[i];
+    }
+    m
+}
+
+/// Turned and non-uniformly stretched instances of the multi-medium tests' blob (one
+/// of them mirrored, one a pure translation).
+fn placed_transforms() -> [[f64; 12]; 3] {
+    [
+        trs([0.1, 0.0, 0.0], [20.0, 35.0, -10.0], [1.6, 0.7, 1.0]),
+        trs([0.8, 0.35, -0.4], [0.0, 90.0, 30.0], [0.6, 1.3, -0.9]),
+        trs([-0.7, 0.5, 0.4], [0.0; 3], [1.0; 3]),
+    ]
+}
+
+/// The blob as one asset (its field, majorants, GPU copy and a pin grid with a control
+/// section, all in the asset's frame, each shared) placed by `transforms`.
+fn placed_descs(ms: &MultiScene, transforms: &[[f64; 12]]) -> Vec<crate::medium::MediumDesc> {
+    let mut local = residual_descs(ms).swap_remove(0);
+    let field: Arc<dyn crate::render::Density> = Arc::new(ms.base.clone());
+    local.majorants = Some(Arc::new(MajorantGrid::from_field(&*field, [4; 3]).unwrap()));
+    local.field = Some(field);
+    local.translation = [0.0; 3];
+    local.pins.as_mut().unwrap().local_to_world = None;
+    transforms
+        .iter()
+        .map(|m| crate::medium::MediumDesc {
+            placement: Some(*m),
+            ..local.clone()
+        })
+        .collect()
+}
+
+/// Every estimator on instances turned, stretched per axis and mirrored (one a pure
+/// translation) against the CPU's `instance::PlacedEstimator` over the same asset: three
+/// overlapping instances, and one instance alone (where ratio and residual tracking answer a
+/// transmittance and a distance from one walk), the environment only with deep paths.
+#[test]
+fn affine_instances_match_cpu_with_every_estimator() {
+    let ctx = context();
+    let ms = MultiScene::new();
+    let descs = placed_descs(&ms, &placed_transforms());
+    let lookup = SamplerOptions::default();
+    let mut sc = scene(20, 0.9, 0.3, 3);
+    sc.camera.origin = [0.5, 0.9, 5.0];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    sc.camera.vfov_deg = 48.0;
+    let mut env_only = sc.clone();
+    env_only.sun = None;
+    env_only.albedo = 0.95;
+    env_only.max_bounces = 8;
+    let residual = EstimatorSpec::ResidualRatioTracking {
+        control: crate::render::ResidualControl::Mean,
+    };
+    let every = [
+        EstimatorSpec::RayMarching { rel_step: 0.05 },
+        EstimatorSpec::DeltaTracking,
+        EstimatorSpec::RatioTracking,
+        residual,
+        EstimatorSpec::Pins,
+        EstimatorSpec::PinMs,
+        EstimatorSpec::PinRes,
+    ];
+    let cases: [(
+        &str,
+        &[crate::medium::MediumDesc],
+        &GpuScene,
+        &[EstimatorSpec],
+    ); 2] = [
+        ("3 affine instances", &descs[..], &sc, &every),
+        (
+            "1 affine instance, environment",
+            &descs[1..2],
+            &env_only,
+            &[EstimatorSpec::RatioTracking, residual],
+        ),
+    ];
+    for (label, media, sc, ests) in cases {
+        let gpu: Vec<GpuEstimator> = ests.iter().map(|&e| e.into()).collect();
+        let gpu_media = crate::medium::gpu_media_for(media, &gpu, lookup).unwrap();
+        // One asset: one density, one pin grid, uploaded once for every instance.
+        assert_eq!(gpu_media.densities.len(), 1);
+        assert!(gpu_media.grids.len() <= 1);
+        let renderer = GpuRenderer::with_media(&ctx, &gpu_media).unwrap();
+        for &est in ests {
+            let cpu: Vec<Medium> = media
+                .iter()
+                .map(|d| d.cpu_medium(est, lookup).unwrap())
+                .collect();
+            let (g, _) = compare_with(
+                &format!("{label}, {est}"),
+                |k| renderer.render(sc, est, 2, 100 + k).unwrap(),
+                |k| cpu_render_media(cpu.clone(), sc, 2, 900 + k),
+                24,
+                2,
+                (4.5, 4),
+            );
+            // The blob's density is visible (the test pin grid is a faint random one).
+            let env = grey(sc.env_radiance);
+            let dark = g.mean.iter().cloned().fold(f64::INFINITY, f64::min);
+            assert!(
+                dark < 0.8 * env || est == EstimatorSpec::Pins,
+                "{label}, {est}: the media must be visible ({dark} of {env})"
+            );
+        }
+    }
+}
+
+/// Per instance the GPU holds its record, its pin parameters and its share of the media
+/// hierarchy: an asset's density, majorants and controls are uploaded once however many
+/// instances place it.
+#[test]
+fn an_assets_instances_share_one_upload() {
+    let ms = MultiScene::new();
+    let transforms = placed_transforms();
+    let ests = [
+        EstimatorSpec::RatioTracking.into(),
+        EstimatorSpec::ResidualRatioTracking {
+            control: crate::render::ResidualControl::Mean,
+        }
+        .into(),
+        EstimatorSpec::PinRes.into(),
+        EstimatorSpec::PinMs.into(),
+    ];
+    let bytes = |n: usize| {
+        let all: Vec<[f64; 12]> = (0..n)
+            .map(|i| {
+                let mut m = transforms[i % 3];
+                m[3] += (i / 3) as f64 * 3.0;
+                m
+            })
+            .collect();
+        let descs = placed_descs(&ms, &all);
+        let media = crate::medium::gpu_media_for(&descs, &ests, SamplerOptions::default()).unwrap();
+        let p = media::pack(&media, u64::MAX, MAX_VALUE_BINDINGS).unwrap();
+        assert_eq!(p.records.len(), n);
+        (
+            p.data.len() * 4,
+            p.records.len() * size_of::<media::MediumRecord>()
+                + p.grid_params.len() * size_of::<media::GridParams>(),
+        )
+    };
+    let (data_16, per_16) = bytes(16);
+    let (data_4096, per_4096) = bytes(4096);
+    assert_eq!(per_4096, 4096 * (288 + 128));
+    assert_eq!(per_16 * 256, per_4096);
+    // Beyond the per-instance records, the data grows only by the hierarchy's nodes (at most
+    // two of 32 bytes per instance).
+    let growth = (data_4096 - data_16) as f64 / (4096.0 - 16.0);
+    eprintln!(
+        "density data: {data_16} bytes for 16 instances, {data_4096} for 4096 ({growth:.1} per \
+         instance); records and pin parameters {per_4096} bytes"
+    );
+    assert!(growth <= 64.0, "{growth} bytes of data per instance");
 }

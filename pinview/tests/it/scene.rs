@@ -30,8 +30,22 @@ fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
 
 #[test]
 fn a_scene_matches_pinrender_bit_for_bit() {
+    matches_pinrender("pins", None);
+}
+
+/// A tracker over the pin file's embedded density renders the scene's turned and stretched
+/// instances as `pinrender render --scene --backend gpu` does, to the bit.
+#[test]
+fn a_scene_matches_pinrender_bit_for_bit_with_a_tracker() {
+    matches_pinrender("ratio", Some(16));
+}
+
+/// The viewer's 3 passes of `estimator` over [`SCENE`] (its pins baked with an embedded
+/// density of `embed`^3 voxels where given) against `pinrender render --scene --backend gpu
+/// --spp 3`.
+fn matches_pinrender(estimator: &str, embed: Option<u32>) {
     let dir = tempfile::tempdir().unwrap();
-    bake(dir.path(), "c.pin", 1.0, None);
+    bake(dir.path(), "c.pin", 1.0, embed);
     let scene = write(dir.path(), "sky.json", SCENE);
     let Some(display) = display() else { return };
     let saved = dir.path().join("view.exr");
@@ -48,7 +62,7 @@ fn a_scene_matches_pinrender_bit_for_bit() {
         "--env-radiance",
         "0.5",
     ];
-    let mut view_args = vec![s(&scene), "--estimator", "pins", "--frames", "3"];
+    let mut view_args = vec![s(&scene), "--estimator", estimator, "--frames", "3"];
     view_args.extend_from_slice(&flags);
     view_args.extend_from_slice(&["--screenshot", s(&shot), "--save", s(&saved), "--json"]);
     let out = pinview(Some(&display), &view_args);
@@ -59,7 +73,7 @@ fn a_scene_matches_pinrender_bit_for_bit() {
         "--backend",
         "gpu",
         "--estimator",
-        "pins",
+        estimator,
     ];
     render_args.extend_from_slice(&["--spp", "3", "--out", s(&reference)]);
     render_args.extend_from_slice(&flags);
@@ -75,7 +89,7 @@ fn a_scene_matches_pinrender_bit_for_bit() {
         "the screenshot is black"
     );
     let j = json(&out);
-    assert_eq!(j["estimator"], "pins", "{j}");
+    assert_eq!(j["estimator"], estimator, "{j}");
     assert_eq!(j["instances"], 3, "{j}");
     assert_eq!(j["passes"], 3, "{j}");
 }

@@ -62,7 +62,9 @@ pub const REFERENCE_VERSION: &str = "eval-ref-v2";
 #[command(after_help = "\
 Scenes: smoke (OpenVDB smoke), hydrogen (raw u8 128^3), cosine (high-frequency cosine noise,
 closed-form reference), box (homogeneous box, closed-form reference), box-ss (its single
-scattering, whole-volume reference), instances (64 overlapping noise blobs).
+scattering, whole-volume reference), instances (64 overlapping noise blobs); full runs only:
+cloud (a 512^3 fractal cloud), production (the OpenVDB production cloud), cloudscape (256
+turned and stretched instances of two fractal clouds).
 
 Estimators: rm@STEP (ray marching), delta, ratio (trackers over a majorant grid), residual
 (residual ratio tracking: a control extinction per majorant brick, the mean, or the minimum
@@ -659,9 +661,11 @@ fn reference_half(es: &EvalScene, a: &EvalArgs, seed: u64, spp: u32) -> Result<I
                 .map(|i| -> Result<Medium> {
                     let f = i.field().map_err(|e| anyhow!("{e}"))?;
                     let m = i.majorants().map_err(|e| anyhow!("{e}"))?;
-                    Ok(Medium::single(
+                    // In the description's frame, placed as every estimator is.
+                    let local = Medium::single(
                         Arc::new(RatioTracking::new(f, m)) as Arc<dyn TransportEstimator>
-                    ))
+                    );
+                    i.place(local, LOOKUP).map_err(|e| anyhow!("{e}"))
                 })
                 .collect::<Result<_>>()?;
             render(&scene_with(es, media), &st)
@@ -698,11 +702,48 @@ const LOOKUP: SamplerOptions = crate::render_cmd::DEFAULT_LOOKUP;
 /// Bakes the scene's pins and installs a pin estimator per instance.
 /// With `control`, the bake also stores the control section (`pinres`).
 fn bake_pins(es: &mut EvalScene, a: &EvalArgs, control: bool) -> Result<BakeInfo> {
+    let mut info: Option<BakeInfo> = None;
+    for (k, source) in es.bake_sources.clone().iter().enumerate() {
+        let (grid, one) = bake_one(es, source.as_ref(), a, control)?;
+        let l2w = grid.desc().local_to_world;
+        for (i, inst) in es.instances.iter_mut().enumerate() {
+            if es.asset_of.get(i).copied().unwrap_or(0) != k {
+                continue;
+            }
+            // Each instance's pins placed by its density's translation.
+            inst.pins = Some(PlacedPins {
+                grid: grid.clone(),
+                local_to_world: Some(scenes::translated(&l2w, inst.translation)),
+            });
+        }
+        // Several assets: the first one's cells and directions, every grid's pins, bytes and
+        // time.
+        info = Some(match info {
+            None => one,
+            Some(i) => BakeInfo {
+                pins: i.pins + one.pins,
+                bytes: i.bytes + one.bytes,
+                seconds: i.seconds + one.seconds,
+                ..i
+            },
+        });
+    }
+    info.ok_or_else(|| anyhow!("{}: no volume to bake", es.name))
+}
+
+/// Bakes one of a scene's volumes as the eval bakes: what `pinbake bake` chooses, or the
+/// scene's small fixed bake in `--quick` runs.
+fn bake_one(
+    es: &EvalScene,
+    source: &dyn pinbake::source::DensitySource,
+    a: &EvalArgs,
+    control: bool,
+) -> Result<(Arc<PinGrid>, BakeInfo)> {
     // The full eval bakes what `pinbake bake` chooses by default (the product's default is
     // what the figures are about); `--quick` keeps the scenes' small fixed bakes, for time.
     let (cells, directions) = if es.choose_bake || !a.quick {
         // What `pinbake bake` chooses for the volume by default.
-        let stats = pinbake::choose::analyse(es.bake_source.as_ref(), true)?;
+        let stats = pinbake::choose::analyse(source, true)?;
         let c = pinbake::choose::choose_default(&stats, pinbake::choose::Fixed::default());
         pin_cli::errln!(
             "  pins chosen: {:?} cells x {:?} (model variation {:.1}, predicted block error {:.3})",
@@ -726,19 +767,11 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs, control: bool) -> Result<BakeInfo
         ..pinbake::BakeOptions::default()
     };
     let t = Instant::now();
-    let (grid, stats) = pinbake::bake(es.bake_source.as_ref(), &opts, &|_| {})?;
+    let (grid, stats) = pinbake::bake(source, &opts, &|_| {})?;
     let bytes = grid.to_bytes()?;
     let seconds = t.elapsed().as_secs_f64();
     let size = bytes.len();
     let grid = Arc::new(PinGrid::from_bytes(bytes).map_err(|e| anyhow!("{e}"))?);
-    let l2w = grid.desc().local_to_world;
-    for inst in &mut es.instances {
-        // Each instance's pins placed by its density's translation.
-        inst.pins = Some(PlacedPins {
-            grid: grid.clone(),
-            local_to_world: Some(scenes::translated(&l2w, inst.translation)),
-        });
-    }
     pin_cli::errln!(
         "  pins: {:?} cells x {} directions, {} pins, {:.1} MB, baked in {seconds:.2} s",
         opts.cells,
@@ -746,17 +779,20 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs, control: bool) -> Result<BakeInfo
         stats.pins,
         size as f64 / 1e6
     );
-    Ok(BakeInfo {
-        cells: opts.cells,
-        directions: opts.directions.count(),
-        direction_set: match opts.directions {
-            pinrt::Directions::Octahedral { n } => format!("octahedral:{n}"),
-            pinrt::Directions::Polar { n_phi, n_theta } => format!("polar:{n_phi}x{n_theta}"),
+    Ok((
+        grid,
+        BakeInfo {
+            cells: opts.cells,
+            directions: opts.directions.count(),
+            direction_set: match opts.directions {
+                pinrt::Directions::Octahedral { n } => format!("octahedral:{n}"),
+                pinrt::Directions::Polar { n_phi, n_theta } => format!("polar:{n_phi}x{n_theta}"),
+            },
+            pins: stats.pins,
+            bytes: size,
+            seconds,
         },
-        pins: stats.pins,
-        bytes: size,
-        seconds,
-    })
+    ))
 }
 
 fn eval_scene(

@@ -7,32 +7,13 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use pinlab::Estimator;
 use pinrender::render::{
-    Budget, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop, Scene,
-    render, render_wavefront,
+    Budget, DEFAULT_WAVEFRONT_BATCH, Image, RenderSettings, SampleLoop, Scene, render,
+    render_wavefront,
 };
 use pinrender::scene_media::{self, AssetOptions};
 use pinrt::gpu::GpuContext;
 
 use crate::render_cmd::{BYTES_PER_PIXEL, RenderArgs, outputs, render_gpu, write};
-
-/// The estimator when --estimator is not given: pinms when every asset an instance uses has
-/// both a volume and pins, pins when every one has pins, ratio otherwise.
-fn default_estimator(scene: &pin_scene::Scene) -> EstimatorSpec {
-    let used: Vec<&pin_scene::Asset> = scene
-        .assets
-        .iter()
-        .zip(scene.uses())
-        .filter(|(_, n)| *n > 0)
-        .map(|(a, _)| a)
-        .collect();
-    if used.iter().all(|a| a.pins.is_some() && a.volume.is_some()) {
-        EstimatorSpec::PinMs
-    } else if used.iter().all(|a| a.pins.is_some()) {
-        EstimatorSpec::Pins
-    } else {
-        EstimatorSpec::RatioTracking
-    }
-}
 
 pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
     if a.volume.volume.is_some() {
@@ -54,7 +35,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
             "--scene renders with the renderer's estimators (ratio, delta, residual, rm, pins, \
              pinms, pinres), not {other}"
         ),
-        None => default_estimator(&scene),
+        None => scene_media::default_estimator(&scene),
     };
     a.estimator = Estimator::Core(spec);
     let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
@@ -85,6 +66,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
         max_memory: a.max_memory,
         allow_mismatched_pins: a.allow_mismatched_pins,
         lookup: a.lookup(),
+        named_pins: false,
     };
     let ctx = if a.backend == "gpu" {
         Some(GpuContext::new().map_err(|e| anyhow!("{e}"))?)
@@ -98,8 +80,8 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
             let b = m.bounds;
             (Some(m), Vec::new(), b)
         }
-        Some(_) => {
-            let (d, b) = scene_media::gpu_descs(&scene, &assets, &opts)?;
+        Some(ctx) => {
+            let (d, b) = scene_media::gpu_descs(&scene, &assets, &opts, &ctx.limits)?;
             (None, d, b)
         }
     };

@@ -97,8 +97,13 @@ pub struct EvalScene {
     pub instances: Vec<MediumDesc>,
     /// The closed form of the one medium's optical depth (exact references), if it has one.
     pub closed_form: Option<Arc<dyn AnalyticOpticalDepth>>,
-    /// The field the pins are baked from (the base volume for instanced scenes).
-    pub bake_source: Arc<dyn DensitySource>,
+    /// The fields the pins are baked from, one pin grid each (the base volume for instanced
+    /// scenes; a scene of several assets has one per asset).
+    pub bake_sources: Vec<Arc<dyn DensitySource>>,
+    /// Per instance, the index in `bake_sources` of its asset (empty: every instance's is
+    /// the first). An instance's pins are placed in its description's frame by its
+    /// `translation`.
+    pub asset_of: Vec<usize>,
     pub bake_cells: u32,
     /// Bake with the cells and directions `pinbake bake` chooses for the volume (its default)
     /// even in `--quick` runs, which otherwise bake `bake_cells`^3 x octahedral:8 for time.
@@ -113,7 +118,7 @@ pub struct EvalScene {
     pub gpu_refusal: Option<String>,
 }
 
-pub const SCENES: [&str; 8] = [
+pub const SCENES: [&str; 9] = [
     "smoke",
     "hydrogen",
     "cosine",
@@ -122,12 +127,14 @@ pub const SCENES: [&str; 8] = [
     "instances",
     "cloud",
     "production",
+    "cloudscape",
 ];
 
 /// Scenes of the full run only, never of `--quick` (which CI runs): the 512^3 cloud needs
 /// ~1 GiB and minutes to generate, bake and reference; the production cloud is an OpenVDB
-/// file of 404 MB that `scripts/production/generate.sh half` writes.
-pub const FULL_ONLY: [&str; 2] = ["cloud", "production"];
+/// file of 404 MB that `scripts/production/generate.sh half` writes; the cloudscape's 256
+/// instances make every path and its reference several times a single cloud's cost.
+pub const FULL_ONLY: [&str; 3] = ["cloud", "production", "cloudscape"];
 
 /// The production scene's density scale (the cloud's densest voxels are 1).
 const PRODUCTION_DENSITY_SCALE: f64 = 0.5;
@@ -178,6 +185,7 @@ pub fn build(name: &str, sizes: &Sizes, production: &Path) -> Result<EvalScene> 
         "instances" => instances(sizes),
         "cloud" => cloud(sizes),
         "production" => production_cloud(sizes, production),
+        "cloudscape" => cloudscape(sizes),
         other => bail!("unknown scene '{other}' (known: {})", SCENES.join(", ")),
     }
 }
@@ -251,6 +259,7 @@ fn single_instance(
         pins: None,
         gpu_density,
         translation: [0.0; 3],
+        placement: None,
     })
 }
 
@@ -292,7 +301,8 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
         closed_form: None,
-        bake_source: src,
+        bake_sources: vec![src],
+        asset_of: Vec::new(),
         bake_cells,
         choose_bake: false,
         whole_volume: None,
@@ -336,7 +346,8 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
         closed_form: None,
-        bake_source: src,
+        bake_sources: vec![src],
+        asset_of: Vec::new(),
         bake_cells,
         choose_bake: false,
         whole_volume: None,
@@ -388,7 +399,8 @@ fn cosine(sizes: &Sizes) -> Result<EvalScene> {
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
         closed_form: Some(analytic),
-        bake_source: src,
+        bake_sources: vec![src],
+        asset_of: Vec::new(),
         bake_cells,
         choose_bake: false,
         whole_volume: None,
@@ -475,7 +487,8 @@ fn homogeneous_box(sizes: &Sizes, single: bool) -> Result<EvalScene> {
         max_bounces: bounces,
         instances: vec![inst],
         closed_form: Some(analytic),
-        bake_source: src,
+        bake_sources: vec![src],
+        asset_of: Vec::new(),
         bake_cells,
         choose_bake: false,
         whole_volume: Some(WholeVolumeBox::new(
@@ -604,6 +617,7 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
                     pins: None,
                     gpu_density: Some(gpu_density.clone()),
                     translation: off.to_array(),
+                    placement: None,
                 });
             }
         }
@@ -634,7 +648,8 @@ fn instances(sizes: &Sizes) -> Result<EvalScene> {
         max_bounces: sizes.max_bounces,
         instances: insts,
         closed_form: None,
-        bake_source: base,
+        bake_sources: vec![base],
+        asset_of: Vec::new(),
         bake_cells,
         choose_bake: false,
         whole_volume: None,
@@ -687,7 +702,8 @@ fn cloud(sizes: &Sizes) -> Result<EvalScene> {
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
         closed_form: None,
-        bake_source: src,
+        bake_sources: vec![src],
+        asset_of: Vec::new(),
         bake_cells: 0,
         choose_bake: true,
         whole_volume: None,
@@ -758,7 +774,8 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
         max_bounces: sizes.max_bounces,
         instances: vec![inst],
         closed_form: None,
-        bake_source: src,
+        bake_sources: vec![src],
+        asset_of: Vec::new(),
         bake_cells: 0,
         choose_bake: true,
         whole_volume: None,
@@ -770,6 +787,145 @@ fn production_cloud(sizes: &Sizes, vdb: &Path) -> Result<EvalScene> {
     })
 }
 
+/// Instances of the cloudscape (`scripts/cloudscape_scene.py`'s rule at 256).
+const CLOUDSCAPE_INSTANCES: usize = 256;
+/// Its two clouds' voxels, the sizes of `scripts/cloudscape-bench.sh` (the same cloud at
+/// two resolutions, alternating between instances).
+const CLOUDSCAPE_DIMS: [[u32; 3]; 2] = [[62, 42, 77], [124, 84, 153]];
+/// A cloud's length along its longest axis (the production generator's clouds span 10).
+const CLOUDSCAPE_CLOUD: f64 = 10.0;
+/// Peak extinction per unit: a 10-unit cloud's core is some 10 mean free paths across.
+const CLOUDSCAPE_PEAK: f64 = 1.5;
+/// Majorant bricks per axis of each cloud (8 to 10 voxels per brick of the finer cloud).
+const CLOUDSCAPE_BRICKS: u32 = 16;
+
+/// The 256-instance cloudscape of `docs/scene.md` ("Cloudscapes measured"): two clouds of
+/// `pinlab::fractal_cloud` (`stretched_cloud`, the same cloud at two resolutions), each
+/// voxelised, given its majorants and GPU copy and baked once, placed by 256 instances
+/// turned about the vertical, tilted and stretched per axis over a sky slab, the two
+/// alternating: `scripts/cloudscape_scene.py`'s rule and look with seed 1, drawn from the
+/// eval's splitmix64 stream (not Python's). Each instance asks its queries in its cloud's
+/// frame (`MediumDesc::placement`) on the CPU and the GPU.
+fn cloudscape(sizes: &Sizes) -> Result<EvalScene> {
+    use pinrender::instance::world_box;
+    let t = std::time::Instant::now();
+    struct Cloud {
+        source: Arc<dyn DensitySource>,
+        desc: MediumDesc,
+        bounds: ([f64; 3], [f64; 3]),
+    }
+    let mut clouds = Vec::new();
+    for dims in CLOUDSCAPE_DIMS {
+        let grid = pinlab::fractal_cloud::stretched_cloud(dims, CLOUDSCAPE_CLOUD, CLOUDSCAPE_PEAK)?;
+        let opened = Opened::Dense(Arc::new(grid));
+        let gpu_density = Arc::new(opened.gpu_density()?);
+        let source = opened.source();
+        let (lo, hi) = bounds_of(&*source);
+        let field: Arc<dyn Density> = Arc::new(TrackedSource::new(source.clone()));
+        let desc = single_instance(field, CLOUDSCAPE_BRICKS, Some(gpu_density))?;
+        clouds.push(Cloud {
+            source,
+            desc,
+            bounds: (lo.to_array(), hi.to_array()),
+        });
+    }
+    pin_cli::errln!(
+        "  cloudscape: clouds of {:?} voxels generated in {:.1} s",
+        CLOUDSCAPE_DIMS,
+        t.elapsed().as_secs_f64()
+    );
+    // scripts/cloudscape_scene.py: a slab of side 2 sqrt(count) cloud lengths.
+    let size = CLOUDSCAPE_CLOUD;
+    let side = (CLOUDSCAPE_INSTANCES as f64).sqrt() * size;
+    let mut seed = 1_u64;
+    let mut uniform = |a: f64, b: f64| {
+        seed = splitmix64(seed);
+        a + (b - a) * ((seed >> 11) as f64 / (1u64 << 53) as f64)
+    };
+    let mut placed = Vec::with_capacity(CLOUDSCAPE_INSTANCES);
+    for i in 0..CLOUDSCAPE_INSTANCES {
+        let s = uniform(0.6, 1.4);
+        let trs = pin_scene::Trs {
+            translate: [
+                uniform(-side, side),
+                uniform(0.0, 0.6 * size),
+                uniform(-side, side),
+            ],
+            rotate_deg: [uniform(-8.0, 8.0), uniform(0.0, 360.0), uniform(-8.0, 8.0)],
+            scale: [
+                s * uniform(0.85, 1.25),
+                s * uniform(0.8, 1.0),
+                s * uniform(0.85, 1.25),
+            ],
+        };
+        let m = pin_scene::compose_trs(&trs);
+        let asset = i % CLOUDSCAPE_DIMS.len();
+        placed.push((asset, m, world_box(&m, clouds[asset].bounds)));
+    }
+    // Morton order of the instances' boxes, as a scene file's are listed (neighbours share
+    // the leaves of the box hierarchy).
+    let boxes: Vec<_> = placed.iter().map(|p| p.2).collect();
+    let order = pinrender::scene_media::morton_order(&boxes);
+    let (mut lo, mut hi) = (DVec3::splat(f64::MAX), DVec3::splat(f64::MIN));
+    let mut insts = Vec::with_capacity(order.len());
+    let mut asset_of = Vec::with_capacity(order.len());
+    for i in order {
+        let (asset, m, (blo, bhi)) = placed[i];
+        lo = lo.min(DVec3::from(blo));
+        hi = hi.max(DVec3::from(bhi));
+        insts.push(MediumDesc {
+            placement: Some(m),
+            ..clouds[asset].desc.clone()
+        });
+        asset_of.push(asset);
+    }
+    let image = sizes.image;
+    // The script's camera: from above the slab's edge, looking across it and down a little.
+    let camera = Camera {
+        origin: [0.0, (2.5 * size) as f32, (-side - 3.0 * size) as f32],
+        target: [0.0, (0.3 * size) as f32, 0.0],
+        vfov_deg: 50.0,
+        width: image,
+        height: image,
+    };
+    let sun = Some(Sun {
+        dir: [0.4, 1.0, 0.3],
+        radiance: [3.0; 3],
+    });
+    // The eval's material (albedo 0.95, isotropic), the script's sun and sky.
+    let scene = base_scene(camera, sun, [0.3; 3]);
+    let n = insts.len();
+    Ok(EvalScene {
+        name: "cloudscape",
+        about: format!(
+            "{n} overlapping instances of two fractal clouds (the same cloud voxelised at {:?} and {:?}, {CLOUDSCAPE_CLOUD} units long, peak extinction {CLOUDSCAPE_PEAK}), alternating, turned about the vertical, tilted and stretched per axis over a {:.0}-unit sky slab (scripts/cloudscape_scene.py's rule, seed 1), each asset's density, majorants ({CLOUDSCAPE_BRICKS}^3) and pins built once and every instance queried in its cloud's frame; {image}x{image} px, {} bounces",
+            CLOUDSCAPE_DIMS[0],
+            CLOUDSCAPE_DIMS[1],
+            2.0 * side,
+            sizes.max_bounces
+        ),
+        key: format!(
+            "cloudscape|n={n}|dims={CLOUDSCAPE_DIMS:?}|len={CLOUDSCAPE_CLOUD}|peak={CLOUDSCAPE_PEAK}|maj={CLOUDSCAPE_BRICKS}|seed=1"
+        ),
+        scene,
+        max_bounces: sizes.max_bounces,
+        instances: insts,
+        closed_form: None,
+        bake_sources: clouds.iter().map(|c| c.source.clone()).collect(),
+        asset_of,
+        bake_cells: cells(sizes, 0.5),
+        choose_bake: true,
+        whole_volume: None,
+        reference: RefKind::Tracker,
+        // 64 times the base samples (16,384 at the default, as `scripts/cloudscape-bench.sh`'s
+        // reference): the estimators' errors at the longer budgets are a few 1e-3 here.
+        ref_spp: sizes.ref_spp * 64,
+        estimators: estimators(&[], true),
+        cache: cache_for(lo, hi, sizes),
+        gpu_refusal: None,
+    })
+}
+
 /// One instance's estimator by name: the closed forms (over the scene's `closed_form`) here,
 /// every other through the one parser and the instance's description.
 pub fn estimator(
@@ -778,9 +934,11 @@ pub fn estimator(
     name: &str,
 ) -> Result<Arc<dyn TransportEstimator>> {
     Ok(match name {
-        "pins" => inst
-            .pins_estimator(super::LOOKUP)
-            .map_err(|_| anyhow!("pins are not baked for this scene"))?,
+        "pins" => {
+            inst.cpu_medium(EstimatorSpec::Pins, super::LOOKUP)
+                .map_err(|_| anyhow!("pins are not baked for this scene"))?
+                .primary
+        }
         "cosine-closed-form" | "box-closed-form" => {
             let a = closed_form
                 .cloned()
