@@ -103,6 +103,12 @@ pub struct ViewArgs {
     pub max_bounces: Option<u32>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Refuse a file or scene that would need more than this many bytes of memory to open
+    /// (K/M/G/T suffixes; default: half of the physical memory), as `pinrender render
+    /// --max-memory` bounds it: a pin file's mapping, a volume's read, a scene file's text
+    /// and instances and each of its assets.
+    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
+    pub max_memory: Option<u64>,
     /// Spatial cells per axis of a volume's bake in the viewer and of its re-bakes
     /// (1..=4096; default: chosen from the volume as `pinbake bake` chooses them), as
     /// `pinrender render --pin-cells`. Fewer cells bake sooner.

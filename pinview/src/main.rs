@@ -41,8 +41,20 @@ fn main() -> ExitCode {
     pin_cli::run_main("pinview", args, |a: ViewArgs| run(a, started))
 }
 
-/// Opens one frame or file as the viewer reads it.
+/// Opens one frame or file as the viewer reads it, within `--max-memory`.
 fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
+    if !open::is_scene_file(path)
+        && let Ok(m) = std::fs::metadata(path)
+    {
+        // As `pinrender render` bounds its inputs: a volume's voxels up to 8x its file (f32
+        // values from bytes, a VDB's leaves), a pin file mapped in place with its dense
+        // density section widened to f32: at most 3x its length.
+        let factor = if open::is_pin_file(path) { 3 } else { 8 };
+        pinbake::files::MemoryBudget::new(a.max_memory).check(
+            &format!("reading {}", path.display()),
+            m.len().saturating_mul(factor),
+        )?;
+    }
     if open::is_scene_file(path) {
         if let Some(flag) = a.read.given().first() {
             pin_cli::usage!(
@@ -50,7 +62,7 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
                 path.display()
             );
         }
-        Medium::open_scene(path, a.estimator, a.seed)
+        Medium::open_scene(path, a.estimator, a.seed, a.max_memory)
     } else if open::is_pin_file(path) {
         if let Some(flag) = a.read.given().first() {
             pin_cli::usage!(

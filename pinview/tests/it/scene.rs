@@ -191,3 +191,62 @@ fn interactive_a_bad_scene_keeps_its_window_open() {
     let _ = child.wait();
     assert_eq!(exited, None, "pinview ended instead of showing the error");
 }
+
+/// 4,096 turned and stretched instances of one asset with a density and pins render in the
+/// viewer within a small `--max-memory` (off-screen: the same media and session as the
+/// window), as `pinrender render --scene` does; a budget below what the scene needs is one
+/// line naming the file.
+#[test]
+fn four_thousand_instances_open_within_max_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    bake(dir.path(), "c.pin", 1.0, Some(8));
+    let instances: Vec<String> = (0..4096)
+        .map(|i| {
+            let (x, y, z) = (i % 16, (i / 16) % 16, i / 256);
+            format!(
+                r#"{{"asset": "c", "transform": {{"translate": [{}, {}, {}], "rotate_deg": [{}, {}, 0], "scale": [1.2, 0.8, 1]}}}}"#,
+                f64::from(x) * 1.5,
+                f64::from(y) * 1.5,
+                f64::from(z) * 1.5,
+                i % 30,
+                (i * 7) % 90
+            )
+        })
+        .collect();
+    let scene = write(
+        dir.path(),
+        "many.json",
+        &format!(
+            r#"{{"assets": {{"c": {{"pins": "c.pin"}}}}, "instances": [{}]}}"#,
+            instances.join(",")
+        ),
+    );
+    let run = |estimator: &str, mem: &str| {
+        pinview(
+            None,
+            &[
+                s(&scene),
+                "--estimator",
+                estimator,
+                "--offscreen",
+                "--frames",
+                "1",
+                "--width",
+                "16",
+                "--height",
+                "12",
+                "--max-memory",
+                mem,
+                "--json",
+            ],
+        )
+    };
+    for estimator in ["pins", "ratio"] {
+        let out = run(estimator, "64M");
+        ok(&out, estimator);
+        let j = json(&out);
+        assert_eq!(j["instances"], 4096, "{j}");
+        assert_eq!(j["passes"], 1, "{j}");
+    }
+    one_line(&run("pins", "100K"), 1, &["many.json"]);
+}
