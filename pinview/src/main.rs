@@ -2,7 +2,10 @@
 //!
 //! The window is winit (X11) drawing egui through egui-wgpu on the project's wgpu (`shell.rs`);
 //! the image is the GPU path tracer's progressive session ([`pinrender::gpu_render::GpuSession`])
-//! on the same device, tone-mapped into a texture that egui shows, never read back to draw.
+//! tone-mapped into a texture that egui shows: on a hardware adapter on the window's device,
+//! never read back to draw; on a CPU adapter on a device of the renderer's own, copied over
+//! through host memory (`build::Relay`: lavapipe compiles at a pipeline's first dispatch on
+//! the device's queue, which would hold the window's frames).
 //! Exit codes: 0 success, 1 a bad file, no display or no adapter, 2 usage.
 
 mod app;
