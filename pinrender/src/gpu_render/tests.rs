@@ -1846,42 +1846,13 @@ fn pass_times_come_from_gpu_timestamps_where_the_device_has_them() {
 // frame
 // ---------------------------------------------------------------------------------------
 
-/// `T * Rz * Ry * Rx * S` (degrees), the scene file's composition (`pin_scene`'s transform).
-fn trs(t: [f64; 3], deg: [f64; 3], s: [f64; 3]) -> [f64; 12] {
-    let [x, y, z] = deg.map(f64::to_radians);
-    let rx = [
-        [1.0, 0.0, 0.0],
-        [0.0, x.cos(), -x.sin()],
-        [0.0, x.sin(), x.cos()],
-    ];
-    let ry = [
-        [y.cos(), 0.0, y.sin()],
-        [0.0, 1.0, 0.0],
-        [-y.sin(), 0.0, y.cos()],
-    ];
-    let rz = [
-        [z.cos(), -z.sin(), 0.0],
-        [z.sin(), z.cos(), 0.0],
-        [0.0, 0.0, 1.0],
-    ];
-    let mul = |a: [[f64; 3]; 3], b: [[f64; 3]; 3]| {
-        let mut o = [[0.0; 3]; 3];
-        for i in 0..3 {
-            for j in 0..3 {
-                o[i][j] = (0..3).map(|k| a[i][k] * b[k][j]).sum();
-            }
-        }
-        o
-    };
-    let r = mul(rz, mul(ry, rx));
-    let mut m = [0.0; 12];
-    for i in 0..3 {
-        for j in 0..3 {
-            m[4 * i + j] = r[i][j] * s[j];
-        }
-        m[4 * i + 3] = t[i];
-    }
-    m
+/// `T * Rz * Ry * Rx * S` (degrees): the scene file's own composition.
+fn trs(translate: [f64; 3], rotate_deg: [f64; 3], scale: [f64; 3]) -> [f64; 12] {
+    pin_scene::compose_trs(&pin_scene::Trs {
+        translate,
+        rotate_deg,
+        scale,
+    })
 }
 
 /// Turned and non-uniformly stretched instances of the multi-medium tests' blob (one
