@@ -356,23 +356,23 @@ fn the_command_line_bakes_on_the_gpu_and_refuses_in_one_line() {
             .arg(o);
         c
     };
+    // A GPU bake into `o` with `extra` flags, which must succeed.
+    let bake_ok = |o: &PathBuf, extra: &[&str]| {
+        let st = base(o)
+            .args(["--backend", "gpu"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(
+            st.status.success(),
+            "{}",
+            String::from_utf8_lossy(&st.stderr)
+        );
+    };
     let a = out("a.pin");
-    let st = base(&a).args(["--backend", "gpu"]).output().unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    bake_ok(&a, &[]);
     let b = out("b.pin");
-    let st = base(&b)
-        .args(["--backend", "gpu", "--gpu-tile-bytes", "4000"])
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    bake_ok(&b, &["--gpu-tile-bytes", "4000"]);
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
 
     // A budget that holds no pin: one line, exit 1, no file.
@@ -390,15 +390,7 @@ fn the_command_line_bakes_on_the_gpu_and_refuses_in_one_line() {
     // Slabs of the density: the same file; a slab budget below two planes of 31 x 34 f32
     // (8432 bytes): one line naming both sizes, exit 1, no file.
     let d = out("d.pin");
-    let st = base(&d)
-        .args(["--backend", "gpu", "--gpu-slab-bytes", "20000"])
-        .output()
-        .unwrap();
-    assert!(
-        st.status.success(),
-        "{}",
-        String::from_utf8_lossy(&st.stderr)
-    );
+    bake_ok(&d, &["--gpu-slab-bytes", "20000"]);
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&d).unwrap());
     let st = base(&c)
         .args(["--backend", "gpu", "--gpu-slab-bytes", "8431"])
