@@ -17,14 +17,9 @@ use super::{Aabb, Density, DensitySource, SourceError};
 /// Dense f32 grid, x fastest, then y, then z (`data[x + nx * (y + ny * z)]`).
 #[derive(Clone, Debug)]
 pub struct DenseGrid {
-    dims: [u32; 3],
+    /// Dims and placement, with the index map's folded constants.
+    lattice: DenseLattice,
     data: Vec<f32>,
-    origin: DVec3,
-    spacing: DVec3,
-    /// `1 / spacing`: `extinction` is called ~1e8 times per bake, so it multiplies.
-    inv_spacing: DVec3,
-    /// `origin / spacing + 0.5`, folded so that the continuous index is one fused expression.
-    index_offset: DVec3,
     /// `dims - 1` as f64, the clamp limit of the continuous index.
     max_index: DVec3,
     bounds: Aabb,
@@ -83,18 +78,13 @@ impl DenseGrid {
                 "grid box {origin}..{max} is not finite"
             )));
         }
-        let inv_spacing = spacing.recip();
         let stride_y = dims[0] as usize;
         let stride_z = stride_y * dims[1] as usize;
         let max_value = data.iter().copied().fold(0.0f32, f32::max);
         advise_huge_pages(&data);
         let mut g = Self {
-            dims,
+            lattice: DenseLattice::new(dims, spacing, origin),
             data,
-            origin,
-            spacing,
-            inv_spacing,
-            index_offset: origin * inv_spacing + 0.5,
             max_index: n - 1.0,
             bounds,
             stride_y,
@@ -108,16 +98,16 @@ impl DenseGrid {
     }
 
     pub fn dims(&self) -> [u32; 3] {
-        self.dims
+        self.lattice.dims
     }
     pub fn data(&self) -> &[f32] {
         &self.data
     }
     pub fn spacing(&self) -> DVec3 {
-        self.spacing
+        self.lattice.spacing
     }
     pub fn origin(&self) -> DVec3 {
-        self.origin
+        self.lattice.origin
     }
     /// The largest voxel value.
     pub fn max_value(&self) -> f32 {
@@ -126,7 +116,7 @@ impl DenseGrid {
 
     /// The voxel value at integer coordinates (no interpolation); `None` outside the grid.
     pub fn voxel(&self, x: u32, y: u32, z: u32) -> Option<f32> {
-        if x < self.dims[0] && y < self.dims[1] && z < self.dims[2] {
+        if x < self.lattice.dims[0] && y < self.lattice.dims[1] && z < self.lattice.dims[2] {
             Some(self.data[x as usize + y as usize * self.stride_y + z as usize * self.stride_z])
         } else {
             None
@@ -136,7 +126,7 @@ impl DenseGrid {
     /// Tight box of non-zero voxels, grown by one voxel on each side (the reach of trilinear
     /// support), clamped to the grid box. A grid of zeros gives a zero-volume box at `min`.
     fn compute_occupied(&self) -> Aabb {
-        let [nx, ny, nz] = self.dims.map(|d| d as usize);
+        let [nx, ny, nz] = self.lattice.dims.map(|d| d as usize);
         let mut lo = [usize::MAX; 3];
         let mut hi = [0usize; 3];
         for z in 0..nz {
@@ -158,8 +148,8 @@ impl DenseGrid {
         let lo = DVec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64) - 1.0;
         let hi = DVec3::new(hi[0] as f64, hi[1] as f64, hi[2] as f64) + 2.0;
         Aabb::new(
-            (self.origin + lo * self.spacing).max(self.bounds.min),
-            (self.origin + hi * self.spacing).min(self.bounds.max),
+            (self.lattice.origin + lo * self.lattice.spacing).max(self.bounds.min),
+            (self.lattice.origin + hi * self.lattice.spacing).min(self.bounds.max),
         )
     }
 
@@ -174,7 +164,9 @@ impl DenseGrid {
     fn sample_inside(&self, p: DVec3) -> f32 {
         // Continuous index relative to voxel centres, clamped so the outer half voxel repeats
         // the edge value. `u as usize` truncates; after the clamp u >= 0 so that is floor.
-        let u = (p * self.inv_spacing - self.index_offset)
+        let u = self
+            .lattice
+            .index_of(p)
             .max(DVec3::ZERO)
             .min(self.max_index);
         let ix = u.x as usize;
@@ -184,13 +176,13 @@ impl DenseGrid {
         let fy = (u.y - iy as f64) as f32;
         let fz = (u.z - iz as f64) as f32;
         // At the upper edge the neighbour is the voxel itself (offset 0) and the weight is 0.
-        let dx = usize::from(ix + 1 < self.dims[0] as usize);
-        let dy = if iy + 1 < self.dims[1] as usize {
+        let dx = usize::from(ix + 1 < self.lattice.dims[0] as usize);
+        let dy = if iy + 1 < self.lattice.dims[1] as usize {
             self.stride_y
         } else {
             0
         };
-        let dz = if iz + 1 < self.dims[2] as usize {
+        let dz = if iz + 1 < self.lattice.dims[2] as usize {
             self.stride_z
         } else {
             0
@@ -227,7 +219,9 @@ pub struct DenseLattice {
     pub dims: [u32; 3],
     pub spacing: DVec3,
     pub origin: DVec3,
+    /// `1 / spacing`: `extinction` is called ~1e8 times per bake, so it multiplies.
     inv_spacing: DVec3,
+    /// `origin / spacing + 0.5`, folded so that the continuous index is one fused expression.
     index_offset: DVec3,
 }
 
@@ -235,7 +229,6 @@ impl DenseLattice {
     /// The lattice of `dims` voxels of `spacing` from `origin` (as [`DenseGrid::new`] takes
     /// them; not validated: its sources pass the parts they build a grid from).
     pub fn new(dims: [u32; 3], spacing: DVec3, origin: DVec3) -> Self {
-        // The same expressions as DenseGrid::new, so that index_of gives the grid's bits.
         let inv_spacing = spacing.recip();
         Self {
             dims,
@@ -262,25 +255,19 @@ impl DenseLattice {
 impl DenseGrid {
     /// The grid's lattice: its dims and placement, without the values.
     pub fn lattice(&self) -> DenseLattice {
-        DenseLattice {
-            dims: self.dims,
-            spacing: self.spacing,
-            origin: self.origin,
-            inv_spacing: self.inv_spacing,
-            index_offset: self.index_offset,
-        }
+        self.lattice
     }
 
     /// Continuous index (voxel centres at integers) of a world point.
     #[inline]
     pub fn index_of(&self, p: DVec3) -> DVec3 {
-        p * self.inv_spacing - self.index_offset
+        self.lattice.index_of(p)
     }
 
     /// World direction to index direction.
     #[inline]
     pub fn index_dir(&self, d: DVec3) -> DVec3 {
-        d * self.inv_spacing
+        self.lattice.index_dir(d)
     }
 
     /// Samples `js` of the run from `u0` stepping `du`, appended to `out`: the values
@@ -436,7 +423,7 @@ impl DenseGrid {
 
     /// The grid's trilinear lookup by continuous index, for marching loops.
     pub(crate) fn cells(&self) -> Cells<'_> {
-        let [nx, ny, nz] = self.dims.map(|d| d as usize);
+        let [nx, ny, nz] = self.lattice.dims.map(|d| d as usize);
         Cells {
             data: &self.data,
             hi: [nx, ny, nz].map(|d| d.saturating_sub(2) as f32),
@@ -644,18 +631,27 @@ impl Density for DenseGrid {
         }
         // A voxel influences continuous indices within one voxel of its centre; take every
         // voxel whose influence touches [lo, hi], rounded outwards.
-        let ulo = (lo * self.inv_spacing - self.index_offset).floor();
-        let uhi = (hi * self.inv_spacing - self.index_offset).ceil();
+        let ulo = self.lattice.index_of(lo).floor();
+        let uhi = self.lattice.index_of(hi).ceil();
         let clamp = |v: f64, n: u32| v.clamp(0.0, (n - 1) as f64) as usize;
-        let (x0, x1) = (clamp(ulo.x, self.dims[0]), clamp(uhi.x, self.dims[0]));
-        let (y0, y1) = (clamp(ulo.y, self.dims[1]), clamp(uhi.y, self.dims[1]));
-        let (z0, z1) = (clamp(ulo.z, self.dims[2]), clamp(uhi.z, self.dims[2]));
+        let (x0, x1) = (
+            clamp(ulo.x, self.lattice.dims[0]),
+            clamp(uhi.x, self.lattice.dims[0]),
+        );
+        let (y0, y1) = (
+            clamp(ulo.y, self.lattice.dims[1]),
+            clamp(uhi.y, self.lattice.dims[1]),
+        );
+        let (z0, z1) = (
+            clamp(ulo.z, self.lattice.dims[2]),
+            clamp(uhi.z, self.lattice.dims[2]),
+        );
         let whole = x0 == 0
             && y0 == 0
             && z0 == 0
-            && x1 + 1 == self.dims[0] as usize
-            && y1 + 1 == self.dims[1] as usize
-            && z1 + 1 == self.dims[2] as usize;
+            && x1 + 1 == self.lattice.dims[0] as usize
+            && y1 + 1 == self.lattice.dims[1] as usize
+            && z1 + 1 == self.lattice.dims[2] as usize;
         if whole {
             return self.max_value;
         }
@@ -670,7 +666,7 @@ impl Density for DenseGrid {
     }
 
     fn describe(&self) -> String {
-        let [x, y, z] = self.dims;
+        let [x, y, z] = self.lattice.dims;
         format!("{} {x}x{y}x{z}", self.label)
     }
 
@@ -696,7 +692,7 @@ impl DensitySource for DenseGrid {
     }
 
     fn voxel_size(&self) -> Option<DVec3> {
-        Some(self.spacing)
+        Some(self.lattice.spacing)
     }
 }
 
