@@ -25,6 +25,7 @@ use crate::bake::{BakeOptions, BakeStats};
 use crate::error::BakeError;
 use crate::pin::{
     ChordSamples, GRID_WHOLE_PIN_STEPS, INTERVALS, PinLayout, Placement, chord_samples, make_entry,
+    source_chord_start,
 };
 use crate::source::{Aabb, DenseGrid, DensitySource, identity};
 
@@ -110,54 +111,58 @@ impl March<'_> {
         if range.is_empty() {
             return;
         }
-        let steps = cs.steps;
-        let f32x3 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
-        for i in range.start / steps..=(range.end - 1) / steps {
-            let js =
-                range.start.max(i * steps) - i * steps..range.end.min((i + 1) * steps) - i * steps;
+        match *self {
+            March::Source(source) => source_samples(source, cs, range, buf, out),
+            March::Grid(grid) => grid_samples(grid, cs, range, out),
+        }
+    }
+}
+
+/// [`March::samples`] of a source: the runs of `pin::field_optical_depths`, `CHUNK` samples
+/// of the whole chord from multiples of `CHUNK`, each from the same start point.
+fn source_samples(
+    source: &dyn DensitySource,
+    cs: &ChordSamples,
+    range: Range<usize>,
+    buf: &mut [f32; CHUNK],
+    out: &mut Vec<f32>,
+) {
+    let world_step = cs.world_dir * cs.h;
+    let start = source_chord_start(cs.origin, cs.world_dir, cs.s0, world_step);
+    let total = INTERVALS * cs.steps;
+    let mut k0 = range.start / CHUNK * CHUNK;
+    while k0 < range.end {
+        let n = (total - k0).min(CHUNK);
+        source.extinction_along(start + world_step * k0 as f64, world_step, n, &mut buf[..n]);
+        let (a, b) = (range.start.max(k0), range.end.min(k0 + n));
+        out.extend_from_slice(&buf[a - k0..b - k0]);
+        k0 += n;
+    }
+}
+
+/// [`March::samples`] of a dense grid: the march of `pin::field_optical_depths`, one f64 base
+/// per interval (and per `CHUNK` samples of a longer one), f32 steps from there.
+fn grid_samples(grid: &DenseGrid, cs: &ChordSamples, range: Range<usize>, out: &mut Vec<f32>) {
+    let steps = cs.steps;
+    let f32x3 = |v: DVec3| [v.x as f32, v.y as f32, v.z as f32];
+    let (ua, ub) = (grid.index_of(cs.origin), grid.index_dir(cs.world_dir));
+    let du = ub * cs.h;
+    let duf = f32x3(du);
+    for i in range.start / steps..=(range.end - 1) / steps {
+        let js = range.start.max(i * steps) - i * steps..range.end.min((i + 1) * steps) - i * steps;
+        let start = ua + ub * (cs.s0 + cs.ds * i as f64) + du * 0.5;
+        if steps <= CHUNK {
+            // The whole pin in one march: one f32 base per interval.
+            grid.run_samples(f32x3(start), duf, js, out);
+        } else {
             // Chunks of the interval that hold samples of `js`: sample `j` is sample `j - j0`
             // of the chunk from `j0`.
             let mut j0 = js.start / CHUNK * CHUNK;
-            match *self {
-                March::Source(source) => {
-                    let world_step = cs.world_dir * cs.h;
-                    let start =
-                        cs.origin + cs.world_dir * (cs.s0 + cs.ds * i as f64) + world_step * 0.5;
-                    while j0 < js.end {
-                        let n = (steps - j0).min(CHUNK);
-                        source.extinction_along(
-                            start + world_step * j0 as f64,
-                            world_step,
-                            n,
-                            &mut buf[..n],
-                        );
-                        let (a, b) = (js.start.max(j0), js.end.min(j0 + n));
-                        out.extend_from_slice(&buf[a - j0..b - j0]);
-                        j0 += n;
-                    }
-                }
-                March::Grid(grid) => {
-                    let (ua, ub) = (grid.index_of(cs.origin), grid.index_dir(cs.world_dir));
-                    let du = ub * cs.h;
-                    let duf = f32x3(du);
-                    let start = ua + ub * (cs.s0 + cs.ds * i as f64) + du * 0.5;
-                    if steps <= CHUNK {
-                        // The whole pin in one march: one f32 base per interval.
-                        grid.run_samples(f32x3(start), duf, js, out);
-                    } else {
-                        while j0 < js.end {
-                            let n = (steps - j0).min(CHUNK);
-                            let (a, b) = (js.start.max(j0), js.end.min(j0 + n));
-                            grid.run_samples(
-                                f32x3(start + du * j0 as f64),
-                                duf,
-                                a - j0..b - j0,
-                                out,
-                            );
-                            j0 += n;
-                        }
-                    }
-                }
+            while j0 < js.end {
+                let n = (steps - j0).min(CHUNK);
+                let (a, b) = (js.start.max(j0), js.end.min(j0 + n));
+                grid.run_samples(f32x3(start + du * j0 as f64), duf, a - j0..b - j0, out);
+                j0 += n;
             }
         }
     }

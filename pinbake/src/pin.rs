@@ -208,24 +208,27 @@ pub fn field_optical_depths(
     const CHUNK: usize = GRID_WHOLE_PIN_STEPS;
     match field {
         Field::Source(source) => {
+            // The whole chord in runs of `CHUNK` samples (sample `k` is sample `k % steps` of
+            // interval `k / steps`), not one run per interval: a source that steps along a
+            // line (the cosine noise's rotations) pays its set-up per run, and short intervals
+            // made that set-up most of a procedural bake. `part.rs` reads the same runs.
             let mut buf = [0.0f32; CHUNK];
-            for (i, tau) in taus.iter_mut().enumerate() {
-                let start = origin + world_dir * (s0 + ds * i as f64) + world_step * 0.5;
-                let mut sum = 0.0f64;
-                let mut j = 0;
-                while j < steps {
-                    let n = (steps - j).min(CHUNK);
-                    source.extinction_along(
-                        start + world_step * j as f64,
-                        world_step,
-                        n,
-                        &mut buf[..n],
-                    );
-                    sum += buf[..n].iter().map(|&v| f64::from(v)).sum::<f64>();
-                    j += n;
-                }
-                *tau = sum * weight;
+            let start = source_chord_start(origin, world_dir, s0, world_step);
+            let total = steps * INTERVALS;
+            let mut sums = IntervalSums::new(steps);
+            let mut k0 = 0;
+            while k0 < total {
+                let n = (total - k0).min(CHUNK);
+                source.extinction_along(
+                    start + world_step * k0 as f64,
+                    world_step,
+                    n,
+                    &mut buf[..n],
+                );
+                sums.extend(&buf[..n]);
+                k0 += n;
             }
+            taus = sums.finish(weight);
         }
         Field::Grid(grid) if steps <= CHUNK => {
             // The whole pin in one call: one f64 base per interval, f32 steps inside.
@@ -252,6 +255,66 @@ pub fn field_optical_depths(
         ),
     }
     taus
+}
+
+/// Where a source's samples of a chord start: sample `k` is at `start + world_step * k` (the
+/// runs of [`field_optical_depths`] and of a farm part's samples begin at multiples of
+/// [`GRID_WHOLE_PIN_STEPS`]).
+#[inline]
+pub(crate) fn source_chord_start(
+    origin: DVec3,
+    world_dir: DVec3,
+    s0: f64,
+    world_step: DVec3,
+) -> DVec3 {
+    origin + world_dir * s0 + world_step * 0.5
+}
+
+/// Sums a chord's samples, fed in order, into its intervals' optical depths by the rule of
+/// `part::optical_depths`: per interval, a fresh f64 sum per [`GRID_WHOLE_PIN_STEPS`] samples
+/// (counted from the interval's start) added to the interval's, then times the weight.
+pub(crate) struct IntervalSums {
+    steps: usize,
+    taus: [f64; INTERVALS],
+    interval: usize,
+    /// Samples of the current interval taken so far.
+    j: usize,
+    run: f64,
+}
+
+impl IntervalSums {
+    pub(crate) fn new(steps: usize) -> Self {
+        IntervalSums {
+            steps,
+            taus: [0.0; INTERVALS],
+            interval: 0,
+            j: 0,
+            // As `Iterator::sum` over f64 starts.
+            run: -0.0,
+        }
+    }
+
+    pub(crate) fn extend(&mut self, samples: &[f32]) {
+        for &v in samples {
+            self.run += f64::from(v);
+            self.j += 1;
+            if self.j == self.steps || self.j.is_multiple_of(GRID_WHOLE_PIN_STEPS) {
+                self.taus[self.interval] += self.run;
+                self.run = -0.0;
+                if self.j == self.steps {
+                    self.interval += 1;
+                    self.j = 0;
+                }
+            }
+        }
+    }
+
+    pub(crate) fn finish(mut self, weight: f64) -> [f64; INTERVALS] {
+        for tau in &mut self.taus {
+            *tau *= weight;
+        }
+        self.taus
+    }
 }
 
 /// The intervals of one chord in a grid's index space: `ua + s ub` is the line, each interval
