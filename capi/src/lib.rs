@@ -1,9 +1,10 @@
 //! # pinrt-capi: the pin grid runtime behind a C ABI
 //!
 //! A C or C++ renderer links `libpinrt_capi.a` (or `.so`) and includes `include/pinrt.h`
-//! (generated from this file by cbindgen; `tests/header.rs` fails when it is stale). The
-//! queries run the same Rust code as [`pinrt::Sampler`]'s batch methods, so a C caller gets the
-//! same bits as a Rust caller for the same rays, seed and first index.
+//! (generated from this file by cbindgen, `cargo run -p xtask -- c-header`; CI's `c-header
+//! --check` fails when it is stale). The queries run the same Rust code as
+//! [`pinrt::Sampler`]'s batch methods, so a C caller gets the same bits as a Rust caller for
+//! the same rays, seed and first index.
 //!
 //! ## Conventions
 //!

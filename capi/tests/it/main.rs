@@ -10,7 +10,6 @@ mod common;
 
 mod c_example;
 mod c_hostile;
-mod header;
 mod spirv_consumer;
 
 use std::ffi::OsString;
@@ -25,10 +24,6 @@ const TESTS: &[(&str, fn())] = &[
     (
         "c_hostile::the_c_abi_keeps_the_hostile_use_contract",
         c_hostile::the_c_abi_keeps_the_hostile_use_contract,
-    ),
-    (
-        "header::committed_header_is_current",
-        header::committed_header_is_current,
     ),
     (
         "spirv_consumer::committed_spirv_reproduces_the_cpu_sampler",

@@ -1,7 +1,7 @@
 //! Open time: `mmap` + `PinFile::parse` for a ~1 GiB and a ~1 KiB pin file. Opening is O(1)
 //! in the file size, so both must take the same time.
 //!
-//! `cargo bench -p pin-format --bench open` runs criterion. With `PIN_OPEN_BENCH_QUICK=1` it
+//! `cargo bench -p pin-benches --bench open` runs criterion. With `PIN_OPEN_BENCH_QUICK=1` it
 //! prints a small table instead (no criterion statistics, a few seconds after the files are
 //! written). Files go to a temp dir under `PIN_OPEN_BENCH_DIR` (default: the system temp dir).
 
