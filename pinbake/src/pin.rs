@@ -273,7 +273,7 @@ pub(crate) fn source_chord_start(
 /// Sums a chord's samples, fed in order, into its intervals' optical depths by the rule of
 /// `part::optical_depths`: per interval, a fresh f64 sum per [`GRID_WHOLE_PIN_STEPS`] samples
 /// (counted from the interval's start) added to the interval's, then times the weight.
-pub(crate) struct IntervalSums {
+struct IntervalSums {
     steps: usize,
     taus: [f64; INTERVALS],
     interval: usize,
@@ -283,7 +283,7 @@ pub(crate) struct IntervalSums {
 }
 
 impl IntervalSums {
-    pub(crate) fn new(steps: usize) -> Self {
+    fn new(steps: usize) -> Self {
         IntervalSums {
             steps,
             taus: [0.0; INTERVALS],
@@ -294,7 +294,7 @@ impl IntervalSums {
         }
     }
 
-    pub(crate) fn extend(&mut self, samples: &[f32]) {
+    fn extend(&mut self, samples: &[f32]) {
         for &v in samples {
             self.run += f64::from(v);
             self.j += 1;
@@ -309,7 +309,7 @@ impl IntervalSums {
         }
     }
 
-    pub(crate) fn finish(mut self, weight: f64) -> [f64; INTERVALS] {
+    fn finish(mut self, weight: f64) -> [f64; INTERVALS] {
         for tau in &mut self.taus {
             *tau *= weight;
         }
