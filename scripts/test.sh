@@ -11,10 +11,12 @@ status=0
 # The Python wheel builds beside the Rust tests, at the lowest priority: cargo holds the
 # target directory's lock only while it compiles, and the tests leave a core idle for part
 # of their run (processes they wait on, Xvfb, Slurm), which the wheel's compile takes.
+# In a process group of its own, so that an interrupted run stops it with its compilers.
 PY_WORK=$(mktemp -d "${TMPDIR:-/tmp}/pinrt-python.XXXXXX")
 trap 'rm -rf "$PY_WORK"' EXIT
-nice -n 19 bash scripts/python-test.sh --build-only "$PY_WORK" > "$PY_WORK/build.log" 2>&1 &
+setsid nice -n 19 bash scripts/python-test.sh --build-only "$PY_WORK" > "$PY_WORK/build.log" 2>&1 &
 wheel=$!
+trap 'kill -- -"$wheel" 2>/dev/null || true; rm -rf "$PY_WORK"' EXIT
 cargo test "${PROFILE_FLAGS[@]}" --no-fail-fast "$@" || status=$?
 echo "== python package"
 if wait "$wheel"; then
