@@ -24,8 +24,8 @@ use crate::alloc::{try_filled, try_reserved};
 use crate::bake::{BakeOptions, BakeStats};
 use crate::error::BakeError;
 use crate::pin::{
-    ChordSamples, GRID_WHOLE_PIN_STEPS, INTERVALS, PinLayout, Placement, chord_samples, make_entry,
-    source_chord_start,
+    ChordSamples, GRID_WHOLE_PIN_STEPS, INTERVALS, IntervalSums, PinLayout, Placement,
+    chord_samples, make_entry, source_runs,
 };
 use crate::source::{Aabb, DenseGrid, DensitySource, identity};
 
@@ -118,8 +118,7 @@ impl March<'_> {
     }
 }
 
-/// [`March::samples`] of a source: the runs of `pin::field_optical_depths`, `CHUNK` samples
-/// of the whole chord from multiples of `CHUNK`, each from the same start point.
+/// [`March::samples`] of a source: the runs `pin::field_optical_depths` reads.
 fn source_samples(
     source: &dyn DensitySource,
     cs: &ChordSamples,
@@ -127,17 +126,10 @@ fn source_samples(
     buf: &mut [f32; CHUNK],
     out: &mut Vec<f32>,
 ) {
-    let world_step = cs.world_dir * cs.h;
-    let start = source_chord_start(cs.origin, cs.world_dir, cs.s0, world_step);
-    let total = INTERVALS * cs.steps;
-    let mut k0 = range.start / CHUNK * CHUNK;
-    while k0 < range.end {
-        let n = (total - k0).min(CHUNK);
-        source.extinction_along(start + world_step * k0 as f64, world_step, n, &mut buf[..n]);
-        let (a, b) = (range.start.max(k0), range.end.min(k0 + n));
-        out.extend_from_slice(&buf[a - k0..b - k0]);
-        k0 += n;
-    }
+    source_runs(source, cs, range.clone(), buf, |k0, run| {
+        let (a, b) = (range.start.max(k0), range.end.min(k0 + run.len()));
+        out.extend_from_slice(&run[a - k0..b - k0]);
+    });
 }
 
 /// [`March::samples`] of a dense grid: the march of `pin::field_optical_depths`, one f64 base
@@ -174,15 +166,9 @@ fn grid_samples(grid: &DenseGrid, cs: &ChordSamples, range: Range<usize>, out: &
 /// marches of `pin::field_optical_depths`: a whole-pin dense march adds to a sum that starts
 /// at +0.0, which the chunk's sum added to +0.0 equals bit for bit.
 pub(crate) fn optical_depths(samples: &[f32], cs: &ChordSamples) -> [f64; INTERVALS] {
-    let mut taus = [0.0f64; INTERVALS];
-    for (tau, interval) in taus.iter_mut().zip(samples.chunks(cs.steps)) {
-        let mut sum = 0.0f64;
-        for chunk in interval.chunks(CHUNK) {
-            sum += chunk.iter().map(|&v| f64::from(v)).sum::<f64>();
-        }
-        *tau = sum * cs.weight;
-    }
-    taus
+    let mut sums = IntervalSums::new(cs.steps);
+    sums.extend(samples);
+    sums.finish(cs.weight)
 }
 
 /// The samples `[a, b)` of pin `cs` whose position lies in `slab` (z in `[lo, hi)` of the

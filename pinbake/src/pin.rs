@@ -1,6 +1,8 @@
 //! One pin: its line through the unit cube, its 32 interval optical depths, and the sampled
 //! (mask, t_min) entry. This is the whole per-pin computation of a bake, in one pass.
 
+use std::ops::Range;
+
 use glam::DVec3;
 use pin_format::{Directions, PinEntry};
 
@@ -190,7 +192,10 @@ pub fn field_optical_depths(
     w: DVec3,
 ) -> [f64; INTERVALS] {
     let mut taus = [0.0f64; INTERVALS];
-    let Some(ChordSamples {
+    let Some(cs) = chord_samples(placement, p, w) else {
+        return taus;
+    };
+    let ChordSamples {
         s0,
         ds,
         steps,
@@ -198,36 +203,17 @@ pub fn field_optical_depths(
         weight,
         origin,
         world_dir,
-    }) = chord_samples(placement, p, w)
-    else {
-        return taus;
-    };
-    let world_step = world_dir * h;
+    } = cs;
     // Sample points are evenly spaced along the whole chord, so sources can step
     // incrementally (`extinction_along`); a fixed chunk keeps the working set on the stack.
     const CHUNK: usize = GRID_WHOLE_PIN_STEPS;
     match field {
         Field::Source(source) => {
-            // The whole chord in runs of `CHUNK` samples (sample `k` is sample `k % steps` of
-            // interval `k / steps`), not one run per interval: a source that steps along a
-            // line (the cosine noise's rotations) pays its set-up per run, and short intervals
-            // made that set-up most of a procedural bake. `part.rs` reads the same runs.
             let mut buf = [0.0f32; CHUNK];
-            let start = source_chord_start(origin, world_dir, s0, world_step);
-            let total = steps * INTERVALS;
             let mut sums = IntervalSums::new(steps);
-            let mut k0 = 0;
-            while k0 < total {
-                let n = (total - k0).min(CHUNK);
-                source.extinction_along(
-                    start + world_step * k0 as f64,
-                    world_step,
-                    n,
-                    &mut buf[..n],
-                );
-                sums.extend(&buf[..n]);
-                k0 += n;
-            }
+            source_runs(source, &cs, 0..steps * INTERVALS, &mut buf, |_, run| {
+                sums.extend(run)
+            });
             taus = sums.finish(weight);
         }
         Field::Grid(grid) if steps <= CHUNK => {
@@ -257,23 +243,38 @@ pub fn field_optical_depths(
     taus
 }
 
-/// Where a source's samples of a chord start: sample `k` is at `start + world_step * k` (the
-/// runs of [`field_optical_depths`] and of a farm part's samples begin at multiples of
-/// [`GRID_WHOLE_PIN_STEPS`]).
-#[inline]
-pub(crate) fn source_chord_start(
-    origin: DVec3,
-    world_dir: DVec3,
-    s0: f64,
-    world_step: DVec3,
-) -> DVec3 {
-    origin + world_dir * s0 + world_step * 0.5
+/// The source's samples `range` of chord `cs` (sample `k` is sample `k % steps` of interval
+/// `k / steps`, at `start + k * step`), as `visit(k0, run)` for runs of up to
+/// [`GRID_WHOLE_PIN_STEPS`] samples from `k0`, a multiple of that, that overlap the range.
+/// The whole chord in such runs, not one run per interval: a source that steps along a line
+/// (the cosine noise's rotations) pays its set-up per run, and short intervals made that
+/// set-up most of a procedural bake. The bake ([`field_optical_depths`]) and a farm part's
+/// samples (`part.rs`) both read a chord through this, so their samples are the same bits.
+pub(crate) fn source_runs(
+    source: &dyn DensitySource,
+    cs: &ChordSamples,
+    range: Range<usize>,
+    buf: &mut [f32; GRID_WHOLE_PIN_STEPS],
+    mut visit: impl FnMut(usize, &[f32]),
+) {
+    const CHUNK: usize = GRID_WHOLE_PIN_STEPS;
+    let step = cs.world_dir * cs.h;
+    let start = cs.origin + cs.world_dir * cs.s0 + step * 0.5;
+    let total = INTERVALS * cs.steps;
+    let mut k0 = range.start / CHUNK * CHUNK;
+    while k0 < range.end {
+        let n = (total - k0).min(CHUNK);
+        source.extinction_along(start + step * k0 as f64, step, n, &mut buf[..n]);
+        visit(k0, &buf[..n]);
+        k0 += n;
+    }
 }
 
-/// Sums a chord's samples, fed in order, into its intervals' optical depths by the rule of
-/// `part::optical_depths`: per interval, a fresh f64 sum per [`GRID_WHOLE_PIN_STEPS`] samples
-/// (counted from the interval's start) added to the interval's, then times the weight.
-struct IntervalSums {
+/// Sums a chord's samples, fed in order, into its intervals' optical depths: per interval, a
+/// fresh f64 sum per [`GRID_WHOLE_PIN_STEPS`] samples (counted from the interval's start)
+/// added to the interval's, then times the weight. The one rule of the bake's sampled path
+/// and of a farm merge (`part::optical_depths`).
+pub(crate) struct IntervalSums {
     steps: usize,
     taus: [f64; INTERVALS],
     interval: usize,
@@ -283,7 +284,7 @@ struct IntervalSums {
 }
 
 impl IntervalSums {
-    fn new(steps: usize) -> Self {
+    pub(crate) fn new(steps: usize) -> Self {
         IntervalSums {
             steps,
             taus: [0.0; INTERVALS],
@@ -294,7 +295,7 @@ impl IntervalSums {
         }
     }
 
-    fn extend(&mut self, samples: &[f32]) {
+    pub(crate) fn extend(&mut self, samples: &[f32]) {
         for &v in samples {
             self.run += f64::from(v);
             self.j += 1;
@@ -309,7 +310,7 @@ impl IntervalSums {
         }
     }
 
-    fn finish(mut self, weight: f64) -> [f64; INTERVALS] {
+    pub(crate) fn finish(mut self, weight: f64) -> [f64; INTERVALS] {
         for tau in &mut self.taus {
             *tau *= weight;
         }
