@@ -13,7 +13,6 @@ status=0
 # of their run (processes they wait on, Xvfb, Slurm), which the wheel's compile takes.
 # In a process group of its own, so that an interrupted run stops it with its compilers.
 PY_WORK=$(mktemp -d "${TMPDIR:-/tmp}/pinrt-python.XXXXXX")
-trap 'rm -rf "$PY_WORK"' EXIT
 setsid nice -n 19 bash scripts/python-test.sh --build-only "$PY_WORK" > "$PY_WORK/build.log" 2>&1 &
 wheel=$!
 trap 'kill -- -"$wheel" 2>/dev/null || true; rm -rf "$PY_WORK"' EXIT
