@@ -9,10 +9,8 @@ use std::time::Duration;
 
 use glam::DVec3;
 use pin_format::{Directions, PinFile};
-use pinbake::source::raw::read_raw;
-use pinbake::source::{
-    DensityScale, DensitySource, Endian, RawOptions, RawType, VdbOptions, VdbSource,
-};
+use pin_volume::raw::read_raw;
+use pin_volume::{DensityScale, DensitySource, Endian, RawOptions, RawType, VdbOptions, VdbSource};
 use pinbake::{BakeOptions, bake};
 
 /// Length of the option header in front of the voxel bytes of a `raw` fuzz input.

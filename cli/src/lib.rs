@@ -13,7 +13,7 @@
 //!
 //! What it is not for: the rules a library applies to files and memory (inputs must be
 //! regular files, outputs must not replace inputs, the memory budget) live with the library
-//! that applies them (`pinbake::files`, `pin_format::input`), so that the Python extension and
+//! that applies them (`pin_volume::files`, `pin_format::input`), so that the Python extension and
 //! the C ABI follow them too; the flags of one tool live in that tool.
 
 pub mod output;

@@ -8,7 +8,7 @@
 //!
 //! Only binaries install these: a library that took over SIGINT would take Ctrl-C away from
 //! its host (Python's `KeyboardInterrupt`). The baker's library announces its partial files
-//! through `pinbake::files::watch_partial_files`, which a binary points at [`track`].
+//! through `pin_volume::files::watch_partial_files`, which a binary points at [`track`].
 
 use std::path::Path;
 #[cfg(unix)]

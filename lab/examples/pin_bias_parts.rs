@@ -43,9 +43,9 @@ use std::sync::Mutex;
 use anyhow::{Result, anyhow};
 use clap::Parser;
 use glam::DVec3;
+use pin_volume::DensitySource;
 use pinbake::bake::PinLayout;
 use pinbake::pin::{Field, INTERVALS, Placement, field_optical_depths, unit_cube_chord};
-use pinbake::source::DensitySource;
 use pinrt::chord::{Segment, segment};
 use pinrt::lookup::{DirJitter, GridView, direction_cell, spatial_cell};
 use pinrt::mask::sanitize_t_min;
@@ -308,7 +308,7 @@ impl Ctx<'_> {
 fn main() -> std::process::ExitCode {
     // OpenVDB files are read in a child process that re-runs this executable.
     let raw: Vec<std::ffi::OsString> = std::env::args_os().collect();
-    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&raw) {
+    if let Some(code) = pin_volume::vdb::serve_vdb_worker_if_asked(&raw) {
         return code;
     }
     match run() {

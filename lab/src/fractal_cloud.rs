@@ -8,7 +8,7 @@
 //! around it and sharp, billowy edges, then scaled to `CLOUD_DENSITY` at its densest.
 
 use glam::DVec3;
-use pinbake::source::DenseGrid;
+use pin_volume::DenseGrid;
 use pinrender::render::splitmix64;
 use rayon::prelude::*;
 
@@ -136,7 +136,7 @@ fn voxelise(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use pinbake::source::{Density, DensitySource};
+    use pin_volume::{Density, DensitySource};
 
     #[test]
     fn cloud_is_deterministic_bounded_and_has_empty_space() {

@@ -411,7 +411,7 @@ mod tests {
     /// fails the same z-tests: the test can see the bias that the series removes.
     #[test]
     fn pinurm_with_baked_pins_uses_them_and_is_unbiased() {
-        use pinbake::source::DenseGrid;
+        use pin_volume::DenseGrid;
         let dims = [16u32, 12, 14];
         let n = dims.iter().product::<u32>() as usize;
         let values: Vec<f32> = (0..n)

@@ -23,9 +23,9 @@ pub use crate::placement::bake_box;
 
 use crate::alloc::try_filled;
 use crate::pin::{Field, Placement, field_optical_depths, make_entry};
-use crate::source::{Aabb, DensitySource};
 use crate::sparse_density::SparseSpool;
 use crate::sweep::Sweep;
+use pin_volume::{Aabb, DensitySource};
 
 /// One slab of a tiled bake: tile `index` of `count`, split along z.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -896,9 +896,9 @@ mod tests {
     use super::*;
     use crate::pin::{interval_optical_depths, unit_cube_chord};
     use crate::rng::CounterRng;
-    use crate::source::Density;
-    use crate::source::procedural::HomogeneousBox;
     use pin_format::PinFile;
+    use pin_volume::Density;
+    use pin_volume::procedural::HomogeneousBox;
 
     fn homogeneous(sigma: f32) -> HomogeneousBox {
         HomogeneousBox::new(
@@ -921,7 +921,7 @@ mod tests {
 
     #[test]
     fn default_cells_never_exceed_voxels() {
-        use crate::source::DenseGrid;
+        use pin_volume::DenseGrid;
         // The case that found it: a 31x34x33 grid with density everywhere.
         let dims = [31u32, 34, 33];
         let n = (dims[0] * dims[1] * dims[2]) as usize;
@@ -1082,7 +1082,7 @@ mod tests {
     #[test]
     fn dense_grid_bakes_the_same_bytes_for_any_thread_count() {
         // The marched grid path (and the x-row task order) is thread-independent too.
-        use crate::source::DenseGrid;
+        use pin_volume::DenseGrid;
         let dims = [12u32, 9, 10];
         let n = (dims[0] * dims[1] * dims[2]) as usize;
         let data: Vec<f32> = (0..n).map(|i| ((i * 31) % 13) as f32 * 0.4).collect();
@@ -1287,7 +1287,7 @@ pub fn bake_metadata(
         ("crop".into(), prov.crop.to_string()),
         ("directions".into(), format!("{kind}:{}x{}", res[0], res[1])),
     ];
-    extra.extend(crate::source::SourceIdentity::of(source, prov.density_scale).to_extra());
+    extra.extend(pin_volume::SourceIdentity::of(source, prov.density_scale).to_extra());
     extra.sort();
     Metadata {
         tool: "pinbake".into(),

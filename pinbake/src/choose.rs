@@ -36,7 +36,7 @@ use pin_format::Directions;
 
 use crate::error::BakeError;
 use crate::placement::bake_box;
-use crate::source::DensitySource;
+use pin_volume::DensitySource;
 
 /// Probe points per axis at most (64^3 = 262144 density lookups: well under a second even for
 /// a VDB, and fine enough to see features a few percent of the box wide).
@@ -634,9 +634,9 @@ pub fn fit(rows: &[FitRow]) -> Option<(f64, f64, f64, f64)> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::Aabb;
-    use crate::source::DenseGrid;
-    use crate::source::procedural::HomogeneousBox;
+    use pin_volume::Aabb;
+    use pin_volume::DenseGrid;
+    use pin_volume::procedural::HomogeneousBox;
 
     /// A `n^3` grid over the unit cube: a Gaussian blob, times `1 + 0.9 cos(2 pi f x) cos(2 pi
     /// f y)` when `f > 0` (detail at `f` cycles per box).

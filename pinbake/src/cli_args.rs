@@ -22,9 +22,9 @@ pub fn parse_origin(s: &str) -> Result<[f64; 3], String> {
     crate::limits::check_origin(parse_f64x3(s)?)
 }
 
-/// `--density-scale`: finite and >= 0 ([`crate::source::DensityScale`]).
-pub fn parse_density_scale(s: &str) -> Result<crate::source::DensityScale, String> {
-    crate::source::DensityScale::new(parse_nonneg(s)?).map_err(|e| e.to_string())
+/// `--density-scale`: finite and >= 0 ([`pin_volume::DensityScale`]).
+pub fn parse_density_scale(s: &str) -> Result<pin_volume::DensityScale, String> {
+    pin_volume::DensityScale::new(parse_nonneg(s)?).map_err(|e| e.to_string())
 }
 
 /// `--threads N`: see [`crate::limits::check_threads`].
@@ -70,8 +70,8 @@ pub struct SourceArgs {
     pub nan_as_zero: bool,
 
     /// Multiply every density by this (extinction = density x scale); finite, >= 0.
-    #[arg(long, default_value_t = crate::source::DensityScale::ONE, value_parser = parse_density_scale)]
-    pub density_scale: crate::source::DensityScale,
+    #[arg(long, default_value_t = pin_volume::DensityScale::ONE, value_parser = parse_density_scale)]
+    pub density_scale: pin_volume::DensityScale,
 }
 
 impl Default for SourceArgs {
@@ -87,7 +87,7 @@ impl Default for SourceArgs {
             origin: None,
             clamp_negative: false,
             nan_as_zero: false,
-            density_scale: crate::source::DensityScale::ONE,
+            density_scale: pin_volume::DensityScale::ONE,
         }
     }
 }
@@ -112,7 +112,7 @@ impl SourceArgs {
             ("--nan-as-zero", self.nan_as_zero),
             (
                 "--density-scale",
-                self.density_scale != crate::source::DensityScale::ONE,
+                self.density_scale != pin_volume::DensityScale::ONE,
             ),
         ]
         .into_iter()
@@ -130,8 +130,8 @@ impl SourceArgs {
         input: &std::path::Path,
         noun: &str,
         worker_exe: impl FnOnce() -> anyhow::Result<std::path::PathBuf>,
-    ) -> anyhow::Result<crate::source::SourceSpec> {
-        use crate::source::{self, ProceduralSpec, RawOptions, SourceSpec};
+    ) -> anyhow::Result<pin_volume::SourceSpec> {
+        use pin_volume::{self as source, ProceduralSpec, RawOptions, SourceSpec};
         let procedural = input.to_str().and_then(|s| s.strip_prefix("procedural:"));
         let kind = source::InputKind::of(input);
         let is_vdb = kind.is_vdb_like();
@@ -166,7 +166,7 @@ impl SourceArgs {
         }
         let path = input.to_path_buf();
         // A FIFO, device or directory is refused before anything opens it.
-        crate::files::check_input(&path)?;
+        pin_volume::files::check_input(&path)?;
         if is_vdb {
             #[cfg(feature = "vdb")]
             return Ok(SourceSpec::Vdb(
@@ -243,7 +243,7 @@ pub fn parse_dirs(s: &str) -> Result<pin_format::Directions, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::SourceSpec;
+    use pin_volume::SourceSpec;
 
     fn no_worker() -> anyhow::Result<std::path::PathBuf> {
         anyhow::bail!("no worker in this test")
@@ -292,7 +292,7 @@ mod tests {
 
     #[test]
     fn procedural_density_takes_the_scale() {
-        use crate::source::{DensityScale, open_source};
+        use pin_volume::{DensityScale, open_source};
         let a = SourceArgs {
             density_scale: DensityScale::new(2.5).unwrap(),
             ..SourceArgs::default()

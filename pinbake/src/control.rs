@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use crate::alloc::try_filled;
 use crate::error::BakeError;
-use crate::source::{Aabb, DensitySource};
+use pin_volume::{Aabb, DensitySource};
 
 /// The least source voxels per brick edge of the default control grid ([`ControlDims::Auto`]).
 pub const DEFAULT_CONTROL_EDGE: u32 = 4;
@@ -281,13 +281,13 @@ fn brick_control(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::ProceduralSpec;
+    use pin_volume::ProceduralSpec;
 
     fn sphere() -> Box<dyn DensitySource> {
         "sphere:radius=0.3,density=3"
             .parse::<ProceduralSpec>()
             .unwrap()
-            .build(crate::source::DensityScale::ONE)
+            .build(pin_volume::DensityScale::ONE)
             .unwrap()
     }
 

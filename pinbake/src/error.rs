@@ -2,7 +2,7 @@
 //! the pins and the library front door, in a module of its own so that everything that can
 //! fail a bake names it without reaching up to the baker.
 
-use crate::source::Aabb;
+use pin_volume::Aabb;
 
 #[derive(Debug, thiserror::Error)]
 pub enum BakeError {
@@ -39,7 +39,7 @@ pub enum BakeError {
     },
     /// Its output or spool would not fit the free space of its directory.
     #[error(transparent)]
-    Disk(crate::files::FileError),
+    Disk(pin_volume::files::FileError),
     #[error("cannot spool the sparse density's bricks to a temporary file in {dir:?}: {source}")]
     Spool {
         dir: std::path::PathBuf,

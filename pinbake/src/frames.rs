@@ -6,7 +6,7 @@
 //! at most one frame field, so a name cannot be ambiguous about where the number goes.
 //! Negative frames keep their sign in front of the padding (`-007`).
 
-use crate::files::MemoryBudget;
+use pin_volume::files::MemoryBudget;
 use std::fmt;
 
 /// A file-name pattern with one frame-number field.

@@ -27,7 +27,7 @@ use rayon::prelude::*;
 use crate::bake::{GpuBakeOptions, GpuBakeTimes};
 use crate::error::BakeError;
 use crate::pin::{PinLayout, Placement, chord_samples};
-use crate::source::{DenseGrid, DenseLattice, DensitySource};
+use pin_volume::{DenseGrid, DenseLattice, DensitySource};
 
 /// The bake shader.
 pub const BAKE_WGSL: &str = include_str!("../../shaders/bake.wgsl");
@@ -672,7 +672,7 @@ impl GpuBaker {
 /// Keeps the first failure: later ones are its consequences.
 fn record(failure: &Mutex<Option<String>>, message: String) {
     if let Ok(mut f) = failure.lock() {
-        f.get_or_insert(crate::source::one_line(&message));
+        f.get_or_insert(pin_volume::one_line(&message));
     }
 }
 

@@ -1,7 +1,7 @@
 //! `pinbake`: reads a density volume and bakes it into a pin grid file.
 //!
-//! What it is for: asset pipelines. [`source`] turns OpenVDB and NanoVDB grids, headerless
-//! raw grids and procedural fields into one [`source::DensitySource`] interface; [`bake`]
+//! What it is for: asset pipelines. The volume crate (`pin_volume`) turns OpenVDB and NanoVDB
+//! grids, headerless raw grids and procedural fields into one `DensitySource` interface; [`bake`]
 //! ray-marches every pin of the 5D grid in one pass and produces a canonical
 //! [`pin_format::OwnedPinGrid`]; [`merge`] joins the z-slab tiles of a farm bake into the
 //! same bytes a single bake writes.
@@ -13,7 +13,7 @@
 //! What it is not for: reading pin files at render time (that is `pinrt`, which never needs
 //! this crate) or defining the file layout (that is `pin-format`).
 
-/// The vector library of the public API (`source::Aabb`, `DensitySource` positions), so
+/// The vector library of the public API (`pin_volume::Aabb`, `DensitySource` positions), so
 /// users name the same version of its types without a direct dependency.
 pub use glam;
 
@@ -25,7 +25,6 @@ pub mod cli_args;
 pub mod control;
 pub mod embed_density;
 pub mod error;
-pub mod files;
 pub mod frames;
 #[cfg(feature = "gpu")]
 pub mod gpu_bake;
@@ -37,7 +36,6 @@ pub mod pin;
 pub mod placement;
 pub mod plan;
 pub mod rng;
-pub mod source;
 pub mod sparse_density;
 pub mod summary;
 mod sweep;

@@ -11,21 +11,21 @@ use std::process::ExitCode;
 fn main() -> ExitCode {
     // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
     let args: Vec<OsString> = std::env::args_os().collect();
-    // Hidden subcommand: the isolated OpenVDB reader (see `pinbake::source::vdb`). It runs
+    // Hidden subcommand: the isolated OpenVDB reader (see `pin_volume::vdb`). It runs
     // before any CLI setup so that the worker does nothing but read the file.
     #[cfg(feature = "vdb")]
-    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
+    if let Some(code) = pin_volume::vdb::serve_vdb_worker_if_asked(&args) {
         return code;
     }
     #[cfg(not(feature = "vdb"))]
     if args
         .get(1)
-        .is_some_and(|a| a == pinbake::source::VDB_WORKER_SUBCOMMAND)
+        .is_some_and(|a| a == pin_volume::VDB_WORKER_SUBCOMMAND)
     {
         pin_cli::errln!("pinbake: error: this build has no OpenVDB support (cargo feature `vdb`)");
         return ExitCode::from(2);
     }
     // Partial output files are unlinked on SIGINT, SIGTERM and SIGHUP.
-    pinbake::files::watch_partial_files(pin_cli::signals::track);
+    pin_volume::files::watch_partial_files(pin_cli::signals::track);
     pin_cli::run_main("pinbake", args, cmd::run)
 }

@@ -27,9 +27,9 @@ use crate::pin::{
     ChordSamples, GRID_WHOLE_PIN_STEPS, INTERVALS, IntervalSums, PinLayout, Placement,
     chord_samples, make_entry, source_runs,
 };
-use crate::source::{Aabb, DenseGrid, DensitySource, identity};
+use pin_volume::{Aabb, DenseGrid, DensitySource, identity};
 
-pub use crate::source::part_facts::{LeafSummary, PartFacts};
+pub use pin_volume::part_facts::{LeafSummary, PartFacts};
 
 /// Part `index` of `count` of a bake split by volume.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -863,8 +863,8 @@ mod tests {
     use crate::bake::bake;
     use crate::pin::field_optical_depths;
     use crate::rng::CounterRng;
-    use crate::source::Density;
-    use crate::source::HomogeneousBox;
+    use pin_volume::Density;
+    use pin_volume::HomogeneousBox;
 
     /// A field with structure along every axis, sampled through `extinction_along`.
     struct Waves;

@@ -31,7 +31,7 @@ use pin_format::{GridDesc, Metadata};
 
 use crate::error::BakeError;
 use crate::part::{LeafSummary, MAX_PARTS, Part, PartData, PartFacts, SampleSink};
-use crate::source::identity;
+use pin_volume::identity;
 
 pub const PART_MAGIC: &[u8; 8] = b"PINPART\0";
 /// 2: the grid facts ([`PartFacts`]) after the lattice.
@@ -379,7 +379,7 @@ pub fn decode(bytes: &[u8]) -> Result<PartData, PartFileError> {
 }
 
 /// Writes the part file of `d` to `target` atomically: a temporary `.NAME.*.partial` beside
-/// it (announced to [`crate::files::watch_partial_files`] while it exists), fsync, rename. A
+/// it (announced to [`pin_volume::files::watch_partial_files`] while it exists), fsync, rename. A
 /// failure leaves no file behind. Returns the file's length.
 pub fn write_atomic(target: &Path, d: &PartData) -> Result<u64, PartFileError> {
     let mut w = PartFileWriter::create(target)?;
@@ -399,13 +399,13 @@ pub struct PartFileWriter {
     /// Samples the head announced, and those written so far.
     total: u64,
     written: u64,
-    _announced: crate::files::Announced,
+    _announced: pin_volume::files::Announced,
 }
 
 impl PartFileWriter {
     /// Creates the temporary file beside `target`.
     pub fn create(target: &Path) -> Result<Self, PartFileError> {
-        let dir = crate::files::parent_dir(target);
+        let dir = pin_volume::files::parent_dir(target);
         let name = target
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -414,7 +414,7 @@ impl PartFileWriter {
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos());
         let temp = dir.join(format!(".{name}.{}-{nanos}.partial", std::process::id()));
-        let announced = crate::files::announce_partial_file(&temp);
+        let announced = pin_volume::files::announce_partial_file(&temp);
         let f = std::fs::OpenOptions::new()
             .write(true)
             .create_new(true)
@@ -485,7 +485,7 @@ impl PartFileWriter {
         std::fs::rename(&self.temp, &self.target).map_err(io)?;
         // Renamed: nothing for the drop to remove.
         self.temp = PathBuf::new();
-        if let Ok(d) = std::fs::File::open(crate::files::parent_dir(&self.target)) {
+        if let Ok(d) = std::fs::File::open(pin_volume::files::parent_dir(&self.target)) {
             let _ = d.sync_all();
         }
         Ok(len)
@@ -524,8 +524,8 @@ impl PartFileWriter {
 mod tests {
     use super::*;
     use crate::bake::BakeOptions;
-    use crate::source::{Aabb, HomogeneousBox};
     use glam::DVec3;
+    use pin_volume::{Aabb, HomogeneousBox};
 
     fn sample() -> PartData {
         let src = HomogeneousBox::new(Aabb::new(DVec3::ZERO, DVec3::ONE), 0.7).unwrap();

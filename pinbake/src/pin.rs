@@ -7,7 +7,7 @@ use glam::DVec3;
 use pin_format::{Directions, PinEntry};
 
 use crate::rng::CounterRng;
-use crate::source::{DenseGrid, DensitySource};
+use pin_volume::{DenseGrid, DensitySource};
 
 /// Deterministic per-pin geometry in unit-cube coordinates.
 #[derive(Clone, Copy, Debug)]
@@ -63,7 +63,7 @@ pub struct Placement {
 impl Placement {
     /// A bake over `bbox` marching `rel_step` of the box's longest edge per sample (the
     /// baker's `--step` convention).
-    pub fn over(bbox: &crate::source::Aabb, rel_step: f64) -> Self {
+    pub fn over(bbox: &pin_volume::Aabb, rel_step: f64) -> Self {
         let extent = bbox.extent();
         Placement {
             box_min: bbox.min,
@@ -450,8 +450,8 @@ pub fn integration_error_of(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::Aabb;
-    use crate::source::Density;
+    use pin_volume::Aabb;
+    use pin_volume::Density;
 
     /// Extinction `k x^2` over the unit cube: the midpoint rule's error is known to fall as
     /// the square of the step.
@@ -506,7 +506,7 @@ mod tests {
         // A 23x17x29 grid of scattered values, off-origin and anisotropic: the marched path
         // (f32 stepping, prefetched two-pass trilinear) gives the optical depths of the
         // sampled path to f32 precision, on short and long (> one run) pins.
-        use crate::source::DenseGrid;
+        use pin_volume::DenseGrid;
         let dims = [23u32, 17, 29];
         let n = (dims[0] * dims[1] * dims[2]) as usize;
         let data: Vec<f32> = (0..n).map(|i| ((i * 7919) % 97) as f32 / 9.0).collect();

@@ -2,7 +2,7 @@
 //! records, checked before any work.
 
 use crate::error::BakeError;
-use crate::source::{Aabb, DensitySource};
+use pin_volume::{Aabb, DensitySource};
 
 /// The box a bake covers: the source bounds, cropped to its non-empty region if asked.
 pub fn bake_box(source: &dyn DensitySource, crop: bool) -> Result<(Aabb, bool), BakeError> {

@@ -28,9 +28,9 @@ use serde_json::{Value, json};
 use crate::bake::{BakeOptions, BakeStats, Provenance, Tile};
 use crate::choose::Choice;
 use crate::error::BakeError;
-use crate::files::{FileError, InputSet, MemoryBudget, PendingPin};
 use crate::part::Part;
-use crate::source::{self, DenseGrid, DensitySource, SourceError, SourceSpec};
+use pin_volume::files::{FileError, InputSet, MemoryBudget, PendingPin};
+use pin_volume::{self as source, DenseGrid, DensitySource, SourceError, SourceSpec};
 
 /// What to bake from.
 pub enum BakeInput {
@@ -432,7 +432,7 @@ fn streamed(
     Ok(spool.as_mut().map(|s| s.streamed()).transpose()?)
 }
 
-pub use crate::files::hash_file;
+pub use pin_volume::files::hash_file;
 
 /// The cells, directions and pins per entry of a bake of `source`: those `req` gives, the
 /// rest chosen from the volume ([`crate::choose`]).
@@ -491,7 +491,7 @@ fn prepare(
         None => InputSet::default(),
     };
     // Before the bake, not after it: minutes of work for a refused path help nobody.
-    crate::files::check_output_among(output, &[inputs, &own])?;
+    pin_volume::files::check_output_among(output, &[inputs, &own])?;
     let budget = MemoryBudget::new(req.max_memory);
     let probe = BakeOptions {
         // Before the source is open: the default's upper bound.
@@ -633,7 +633,7 @@ fn prepare(
     budget.check(&what, need)?;
     // The disk before the first pin: the sections whose size is known, and a sparse
     // density's spool beside the file that copies it.
-    crate::files::check_free_space(
+    pin_volume::files::check_free_space(
         output,
         crate::bake::estimate_min_file_bytes(source.as_ref(), &opts),
     )?;
@@ -690,12 +690,12 @@ pub fn bake_to_file(
     let advance = |n: u64| progress.advance(n);
     // An embedded sparse density's bricks wait in an unnamed file beside the output (the
     // same file system, which must hold the output anyway), not in memory.
-    let spool_dir = crate::files::parent_dir(pending.temp_path());
+    let spool_dir = pin_volume::files::parent_dir(pending.temp_path());
     let (grid, mut spool, stats) =
         crate::bake::bake_spooled_on(source.as_ref(), &opts, req.backend, &advance, &spool_dir)
             .map_err(bake_err)?;
     // Checked again just before the rename: the path may have been replaced during the bake.
-    let target = crate::files::check_output_among(output, &[inputs, &own])?;
+    let target = pin_volume::files::check_output_among(output, &[inputs, &own])?;
     let write_err = |source| PlanError::Write {
         path: output.to_path_buf(),
         source,
@@ -703,7 +703,7 @@ pub fn bake_to_file(
     if target != output {
         // A symlink to a regular file: the file it points to is replaced, the link stays.
         drop(pending);
-        crate::files::PendingPin::create(&target)
+        pin_volume::files::PendingPin::create(&target)
             .and_then(|p| p.write_spooled(&grid, streamed(&mut spool)?))
             .map_err(write_err)?;
     } else {
@@ -830,13 +830,13 @@ pub fn bake_part_to_file(
     };
     // The samples go to the part file as they are taken, batch by batch: a part holds its
     // slab of the source and one batch, not all its samples.
-    let target = crate::files::check_output_among(output, &[inputs, &own])?;
+    let target = pin_volume::files::check_output_among(output, &[inputs, &own])?;
     let mut file = crate::part_file::PartFileWriter::create(&target).map_err(write_err)?;
     let data = crate::part::bake_part_into(source.as_ref(), &opts, part, &advance, &mut file)
         .map_err(bake_err)?;
     drop(source);
     // Checked again just before the rename: the path may have been replaced during the bake.
-    if crate::files::check_output_among(output, &[inputs, &own])? != target {
+    if pin_volume::files::check_output_among(output, &[inputs, &own])? != target {
         return Err(write_err(crate::part_file::PartFileError::Write(
             "the output was replaced by a link elsewhere during the bake".into(),
         )));

@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 
 use crate::alloc::{try_filled, try_reserved};
 use crate::error::BakeError;
-use crate::source::{Aabb, DensitySource};
+use pin_volume::{Aabb, DensitySource};
 
 /// Brick edge of the sections pinbake writes: 8^3 voxels (1 KiB of f16), the granularity of an
 /// OpenVDB leaf.
@@ -254,7 +254,7 @@ pub fn spool_sparse_density(
         .count()
         .saturating_mul(F16_BRICK_BYTES)
         .saturating_mul(2);
-    crate::files::check_free_space(dir, need).map_err(BakeError::Disk)?;
+    pin_volume::files::check_free_space(dir, need).map_err(BakeError::Disk)?;
     let file = tempfile::tempfile_in(dir).map_err(spool_err)?;
     let mut out = BufWriter::with_capacity(SPOOL_BUFFER, file);
     let mut stored = 0usize;
@@ -593,9 +593,9 @@ fn fill_brick<T: Copy + Default + PartialEq>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::Density;
-    use crate::source::grid::DenseGrid;
-    use crate::source::procedural::HomogeneousBox;
+    use pin_volume::Density;
+    use pin_volume::grid::DenseGrid;
+    use pin_volume::procedural::HomogeneousBox;
 
     #[test]
     fn only_bricks_with_density_are_stored_and_values_match_the_source() {

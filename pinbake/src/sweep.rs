@@ -28,8 +28,8 @@ use crate::pin::{
     field_optical_depths, make_entry,
 };
 use crate::rng::CounterRng;
-use crate::source::DenseGrid;
-use crate::source::grid::Cells;
+use pin_volume::DenseGrid;
+use pin_volume::grid::Cells;
 
 /// How a layered bake is cut up. [`Sweep::default`] is what bakes use; the bytes do not
 /// depend on it.

@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, anyhow};
 use pin_scene::{Asset, Scene};
-use pinbake::source::DensityScale;
+use pin_volume::DensityScale;
 use pinrt::SamplerOptions;
 
 use crate::instance::{place_medium, world_box};
@@ -87,7 +87,7 @@ pub fn default_estimator(scene: &Scene) -> EstimatorSpec {
 
 /// Opens every asset that an instance uses (each once; unused assets are not read).
 pub fn open_assets(scene: &Scene, o: &AssetOptions) -> Result<Vec<Option<OpenedAsset>>> {
-    let budget = pinbake::files::MemoryBudget::new(o.max_memory);
+    let budget = pin_volume::files::MemoryBudget::new(o.max_memory);
     budget.check(
         &format!("{} instances", scene.instances.len()),
         (scene.instances.len() as u64).saturating_mul(BYTES_PER_INSTANCE),
@@ -123,7 +123,7 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             let source = opened.source();
             let b = source.bounds();
             let grid = if spec.needs_pins() || (o.named_pins && pins.is_some()) {
-                let budget = pinbake::files::MemoryBudget::new(o.max_memory);
+                let budget = pin_volume::files::MemoryBudget::new(o.max_memory);
                 let grid = volume::pins_for(
                     pins.as_deref(),
                     source.as_ref(),
@@ -151,7 +151,7 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             let medium = OpenedMedium::volume(
                 opened,
                 grid,
-                pinbake::files::MemoryBudget::new(o.max_memory).limit,
+                pin_volume::files::MemoryBudget::new(o.max_memory).limit,
             );
             Ok(OpenedAsset {
                 desc: medium.desc(o.majorant_bricks, None),
@@ -485,7 +485,7 @@ pub fn camera_over(
 /// Loads `path` as a scene under the memory budget (`pin_scene::load`), with the error as
 /// one line.
 pub fn load_scene(path: &Path, max_memory: Option<u64>) -> Result<Scene> {
-    let limit = pinbake::files::MemoryBudget::new(max_memory).limit;
+    let limit = pin_volume::files::MemoryBudget::new(max_memory).limit;
     pin_scene::load(path, Some(limit)).map_err(|e| anyhow!("{e}"))
 }
 

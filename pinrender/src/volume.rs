@@ -11,8 +11,8 @@ use crate::render::{BrickGrid, DenseMap, DenseView, MajorantGrid, SharedHalves, 
 use anyhow::{Context, Result, anyhow};
 use clap::Args;
 use glam::DVec3;
-use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{self, Density, DensityScale, DensitySource, SourceSpec};
+use pin_volume::procedural::ProceduralKind;
+use pin_volume::{self as source, Density, DensityScale, DensitySource, SourceSpec};
 use pinrt::PinGrid;
 
 /// The volume and how to read it (the flags shared with `pinbake bake`).
@@ -204,7 +204,7 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
         SourceSpec::Vdb(path, opts) => Opened::Vdb(Arc::new(
             source::VdbSource::open(&path, &opts, scale)?.with_dense_cache(
                 pinbake::bake::DEFAULT_DENSE_COPY_BYTES
-                    .min(pinbake::files::default_memory_limit() / 4),
+                    .min(pin_volume::files::default_memory_limit() / 4),
             ),
         )),
         SourceSpec::Raw(path, opts) => {
@@ -250,9 +250,9 @@ pub struct TrackedSource {
 }
 
 impl TrackedSource {
-    /// Under the default memory budget ([`pinbake::files::default_memory_limit`]).
+    /// Under the default memory budget ([`pin_volume::files::default_memory_limit`]).
     pub fn new(source: Arc<dyn DensitySource>) -> Self {
-        Self::with_budget(source, pinbake::files::default_memory_limit())
+        Self::with_budget(source, pin_volume::files::default_memory_limit())
     }
 
     /// Under a render's memory budget (`--max-memory`), which bounds its caches before they
@@ -402,7 +402,7 @@ pub fn majorants(field: &TrackedSource, bricks: u32) -> Result<Arc<MajorantGrid>
 /// slab of cells: rendering with it would treat the rest of the volume as empty).
 pub fn load_pins(p: &Path) -> Result<PinGrid> {
     // A FIFO would block the open, a device or directory map as nonsense.
-    pinbake::files::check_input(p)?;
+    pin_volume::files::check_input(p)?;
     // pinrt's errors name the file already.
     let grid = PinGrid::open(p).map_err(|e| anyhow!("{e}"))?;
     if let Some(t) = grid.file().map_err(|e| anyhow!("{e}"))?.tile() {
@@ -646,7 +646,7 @@ pub fn pins_for(
     cells: Option<u32>,
     seed: u64,
     control: bool,
-    budget: &pinbake::files::MemoryBudget,
+    budget: &pin_volume::files::MemoryBudget,
 ) -> Result<PinGrid> {
     if let Some(p) = pins {
         return load_pins(p);
@@ -665,7 +665,7 @@ pub fn in_memory_bake_options(
     cells: Option<u32>,
     seed: u64,
     control: bool,
-    budget: &pinbake::files::MemoryBudget,
+    budget: &pin_volume::files::MemoryBudget,
 ) -> Result<pinbake::BakeOptions> {
     let req = pinbake::BakeRequest {
         cells: cells.map(|c| [c; 3]),

@@ -63,7 +63,7 @@ pub struct ViewArgs {
     /// is open, as the density-scale slider does (the volume read again at that scale); a
     /// scripted run renders its --frames passes once the new pins are in.
     #[arg(long, value_parser = pinbake::cli_args::parse_density_scale)]
-    pub rebake_scale: Option<pinbake::source::DensityScale>,
+    pub rebake_scale: Option<pin_volume::DensityScale>,
     /// Draw the box and the cell grid over the image.
     #[arg(long)]
     pub grid_overlay: bool,

@@ -37,8 +37,8 @@ use pinrender::render::EstimatorSpec;
 fn main() -> ExitCode {
     let started = Instant::now();
     let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
-    // The isolated OpenVDB reader re-executes this binary (see `pinbake::source::vdb`).
-    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
+    // The isolated OpenVDB reader re-executes this binary (see `pin_volume::vdb`).
+    if let Some(code) = pin_volume::vdb::serve_vdb_worker_if_asked(&args) {
         return code;
     }
     pin_cli::run_main("pinview", args, |a: ViewArgs| run(a, started))
@@ -53,7 +53,7 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
         // values from bytes, a VDB's leaves), a pin file mapped in place with its dense
         // density section widened to f32: at most 3x its length.
         let factor = if open::is_pin_file(path) { 3 } else { 8 };
-        pinbake::files::MemoryBudget::new(a.max_memory).check(
+        pin_volume::files::MemoryBudget::new(a.max_memory).check(
             &format!("reading {}", path.display()),
             m.len().saturating_mul(factor),
         )?;
@@ -194,7 +194,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         .into_iter()
         .flatten()
     {
-        pinbake::files::check_output(out, &inputs)?;
+        pin_volume::files::check_output(out, &inputs)?;
     }
     if a.offscreen {
         let json = offscreen::run(&a, medium, clock)?;

@@ -147,7 +147,7 @@ impl Medium {
     /// A volume: tracked at once, without pins until [`Medium::set_pins`].
     pub fn open_volume(path: &Path, read: &VolumeArgs) -> Result<Self> {
         let opened = volume::open_volume_typed(path, read)?;
-        let limit = pinbake::files::MemoryBudget::new(None).limit;
+        let limit = pin_volume::files::MemoryBudget::new(None).limit;
         Ok(Self::new(
             path,
             OpenedMedium::volume(opened, None, limit),
@@ -393,7 +393,7 @@ pub struct PreviewBake {
 
 /// Plans and bakes `source`'s pins on `backend`, reporting to `shared`.
 fn bake_pins(
-    source: &dyn pinbake::source::DensitySource,
+    source: &dyn pin_volume::DensitySource,
     bake: PreviewBake,
     backend: pinbake::BakeBackend,
     shared: &Shared,
@@ -404,7 +404,7 @@ fn bake_pins(
         bake.cells,
         bake.seed,
         true,
-        &pinbake::files::MemoryBudget::new(None),
+        &pin_volume::files::MemoryBudget::new(None),
     )?;
     opts.cancel = Some(shared.cancel.clone());
     shared

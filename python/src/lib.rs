@@ -14,8 +14,8 @@ use numpy::{
     PyArray1, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3, PyUntypedArrayMethods,
 };
 use pin_format::Directions;
-use pinbake::files::InputSet;
-use pinbake::source::{
+use pin_volume::files::InputSet;
+use pin_volume::{
     Endian, GivenSourceOptions, InputKind, ProceduralSpec, RawOptions, RawType, SourceSpec,
     VdbOptions,
 };
@@ -551,7 +551,7 @@ fn bake(
     let source = if let Some(arr) = data {
         // `held_bytes`: a copy the Python layer made (a dtype other than float32/float64),
         // alive throughout the bake; the bake's own budget is what the budget leaves beside it.
-        let budget = pinbake::files::MemoryBudget::new(req.max_memory);
+        let budget = pin_volume::files::MemoryBudget::new(req.max_memory);
         if held_bytes > 0 {
             req.max_memory = Some(budget.limit.saturating_sub(held_bytes).max(1));
         }
@@ -628,7 +628,7 @@ fn bake(
 fn array_values(
     py: Python<'_>,
     data: &Bound<'_, PyAny>,
-    budget: &pinbake::files::MemoryBudget,
+    budget: &pin_volume::files::MemoryBudget,
     held: u64,
 ) -> PyResult<([u32; 3], Vec<f32>)> {
     if let Ok(a) = data.extract::<PyReadonlyArray3<'_, f32>>() {
@@ -644,7 +644,7 @@ fn array_values(
 
 /// Refuses, with `MemoryError`, the f32 copy of a volume array of `shape` beside `held` bytes
 /// that the caller holds when the two exceed `budget`; returns the voxel count.
-fn check_copy(shape: &[usize], held: u64, budget: &pinbake::files::MemoryBudget) -> PyResult<u64> {
+fn check_copy(shape: &[usize], held: u64, budget: &pin_volume::files::MemoryBudget) -> PyResult<u64> {
     let n = shape
         .iter()
         .try_fold(1u64, |acc, &d| acc.checked_mul(d as u64))
@@ -669,7 +669,7 @@ fn check_copy(shape: &[usize], held: u64, budget: &pinbake::files::MemoryBudget)
 #[pyfunction]
 #[pyo3(signature = (shape, held, max_memory=None))]
 fn check_array_memory(shape: Vec<usize>, held: u64, max_memory: Option<u64>) -> PyResult<()> {
-    let budget = pinbake::files::MemoryBudget::new(max_memory.map(|m| m.max(1)));
+    let budget = pin_volume::files::MemoryBudget::new(max_memory.map(|m| m.max(1)));
     check_copy(&shape, held, &budget).map(|_| ())
 }
 
@@ -677,7 +677,7 @@ fn check_array_memory(shape: Vec<usize>, held: u64, max_memory: Option<u64>) -> 
 fn copy_xyz<T: Copy + Sync>(
     py: Python<'_>,
     a: numpy::ndarray::ArrayView3<'_, T>,
-    budget: &pinbake::files::MemoryBudget,
+    budget: &pin_volume::files::MemoryBudget,
     held: u64,
     to_f32: impl Fn(T) -> f32 + Send + Sync,
 ) -> PyResult<([u32; 3], Vec<f32>)> {
@@ -749,7 +749,7 @@ fn interruptible_bake(
 #[pyfunction]
 fn vdb_worker(args: Vec<String>) -> i32 {
     let args: Vec<std::ffi::OsString> = args.into_iter().map(Into::into).collect();
-    pinbake::source::vdb::worker_main(&args)
+    pin_volume::vdb::worker_main(&args)
 }
 
 /// A lookup (`pinrt::SamplerOptions::RENDER`, the default, or `THESIS`) as the queries'

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;
 
-use pinbake::source::{DensitySource, VdbOptions, VdbSource};
+use pin_volume::{DensitySource, VdbOptions, VdbSource};
 use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, RayQuery};
 
@@ -27,7 +27,7 @@ fn bake_smoke(dir: &Path) -> PathBuf {
     let source = VdbSource::open(
         &vdb,
         &VdbOptions::with_worker(exe),
-        pinbake::source::DensityScale::ONE,
+        pin_volume::DensityScale::ONE,
     )
     .unwrap_or_else(|e| panic!("{e}"));
     // Small on purpose (12^3 cells, about 1 MB): the test is about the ABI, not the bake.

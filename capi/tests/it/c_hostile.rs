@@ -7,7 +7,7 @@
 
 use std::process::Command;
 
-use pinbake::source::{DensitySource, ProceduralSpec, SourceSpec, open_source};
+use pin_volume::{DensitySource, ProceduralSpec, SourceSpec, open_source};
 use pinbake::{BakeOptions, bake};
 
 use crate::common::compile_c;
@@ -15,11 +15,7 @@ use crate::common::compile_c;
 pub fn the_c_abi_keeps_the_hostile_use_contract() {
     let dir = tempfile::tempdir().unwrap();
     let spec: ProceduralSpec = "box".parse().unwrap();
-    let source = open_source(
-        &SourceSpec::Procedural(spec),
-        pinbake::source::DensityScale::ONE,
-    )
-    .unwrap();
+    let source = open_source(&SourceSpec::Procedural(spec), pin_volume::DensityScale::ONE).unwrap();
     let opts = BakeOptions {
         cells: [4; 3],
         ..BakeOptions::default()

@@ -43,7 +43,7 @@ const FLAGS_WITH_VALUE: &[&str] = &[
 
 fn main() -> ExitCode {
     let os_args: Vec<OsString> = std::env::args_os().collect();
-    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&os_args) {
+    if let Some(code) = pin_volume::vdb::serve_vdb_worker_if_asked(&os_args) {
         return code;
     }
     let args: Vec<String> = os_args[1..]

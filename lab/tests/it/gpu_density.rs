@@ -6,7 +6,7 @@ use std::path::Path;
 use std::sync::Arc;
 
 use glam::DVec3;
-use pinbake::source::{DensityScale, VdbOptions, VdbSource};
+use pin_volume::{DensityScale, VdbOptions, VdbSource};
 use pinrender::volume::{Opened, VolumeArgs, open_volume_typed};
 
 fn data(name: &str) -> String {
@@ -83,11 +83,11 @@ fn gpu_density_reproduces_the_source() {
 /// read at the f32 index the trackers step to.
 #[test]
 fn tracker_dense_view_reproduces_the_source() {
-    use pinbake::source::Density;
+    use pin_volume::Density;
     use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");
     let opts = VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinrender"));
-    let sources: Vec<Arc<dyn pinbake::source::DensitySource>> = vec![
+    let sources: Vec<Arc<dyn pin_volume::DensitySource>> = vec![
         Arc::new(
             VdbSource::open(Path::new(&smoke), &opts, DensityScale::new(2.0).unwrap()).unwrap(),
         ),
@@ -131,7 +131,7 @@ fn tracker_dense_view_reproduces_the_source() {
 /// density under the limit keeps its dense copy.
 #[test]
 fn a_vdb_over_the_dense_limit_goes_to_the_gpu_in_bricks() {
-    use pinbake::source::Density;
+    use pin_volume::Density;
     use pinrender::gpu_render::GpuDensityKind;
     use pinrender::volume::TrackedSource;
     let smoke = data("openvdb_smoke1.vdb");

@@ -513,10 +513,10 @@ fn pins_that_cannot_serve_the_render_are_refused() {
     let out = dir.path().join("img.exr");
     let tile = dir.path().join("tile.pin");
     // A 2-tile bake's first tile, written with the library (no pinbake binary in this crate).
-    let spec: pinbake::source::ProceduralSpec = "box".parse().unwrap();
-    let src = pinbake::source::open_source(
-        &pinbake::source::SourceSpec::Procedural(spec),
-        pinbake::source::DensityScale::ONE,
+    let spec: pin_volume::ProceduralSpec = "box".parse().unwrap();
+    let src = pin_volume::open_source(
+        &pin_volume::SourceSpec::Procedural(spec),
+        pin_volume::DensityScale::ONE,
     )
     .unwrap();
     let opts = pinbake::BakeOptions {

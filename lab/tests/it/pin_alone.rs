@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 use pin_format::Metadata;
-use pinbake::source::{DensitySource, ProceduralSpec, SourceIdentity};
+use pin_volume::{DensitySource, ProceduralSpec, SourceIdentity};
 
 const BIN: &str = env!("CARGO_BIN_EXE_pinrender");
 const COSINE: &str = "procedural:cosine:seed=5,freq=4,density=6";
@@ -20,7 +20,7 @@ const CAMERA: [&str; 4] = [
 fn source(scale: f64) -> Box<dyn DensitySource> {
     let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
     p.density *= scale;
-    p.build(pinbake::source::DensityScale::ONE).unwrap()
+    p.build(pin_volume::DensityScale::ONE).unwrap()
 }
 
 /// Bakes the cosine field scaled by `scale` as `pinbake bake` does (identity in the metadata

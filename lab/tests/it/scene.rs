@@ -21,8 +21,8 @@ fn ok(out: &Output) {
 
 /// Bakes the cosine field's pins (4^3 cells) into `dir/c.pin`.
 fn bake(dir: &Path) -> PathBuf {
-    let p: pinbake::source::ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
-    let src = p.build(pinbake::source::DensityScale::ONE).unwrap();
+    let p: pin_volume::ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
+    let src = p.build(pin_volume::DensityScale::ONE).unwrap();
     let opts = pinbake::BakeOptions {
         cells: [4; 3],
         ..pinbake::BakeOptions::default()

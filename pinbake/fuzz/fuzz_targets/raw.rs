@@ -1,6 +1,6 @@
 //! The headerless raw reader: 16 bytes of options (type, endianness, sanitising flags,
 //! density scale, spacing, dims up to u32) then the file's bytes, written to a temp file and
-//! read with `pinbake::source::raw::read_raw`. An accepted grid must hold only finite,
+//! read with `pin_volume::raw::read_raw`. An accepted grid must hold only finite,
 //! non-negative values and (up to 4096 voxels) bake into a pin file that verifies.
 //! Layout: `pin_tests::raw_options`. Any panic is a finding.
 //!

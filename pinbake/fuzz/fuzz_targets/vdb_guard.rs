@@ -1,5 +1,5 @@
 //! The VDB loading path as the baker uses it: the input is written to a temp file and opened
-//! with `pinbake::source::vdb::VdbSource::open`, which runs vdb-rs in the memory- and
+//! with `pin_volume::vdb::VdbSource::open`, which runs vdb-rs in the memory- and
 //! time-limited worker process (`pinbake __vdb-worker`) and validates the worker's stream in
 //! this process. Errors must be one line; an accepted grid must have a finite box and finite,
 //! non-negative extinction. A panic in this process is a finding (a worker crash is not: it

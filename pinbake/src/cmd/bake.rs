@@ -10,8 +10,8 @@ use anyhow::{Context, Result};
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use pin_format::Directions;
+use pin_volume::SourceSpec;
 use pinbake::cli_args::SourceArgs;
-use pinbake::source::SourceSpec;
 use pinbake::{BakeInput, BakeRequest, EmbedDensity, PlanError, Tile};
 
 #[derive(Args, Debug, Clone)]
@@ -235,8 +235,8 @@ pub fn source_spec(args: &BakeArgs) -> Result<SourceSpec> {
     };
     match spec {
         SourceSpec::Vdb(path, mut o)
-            if pinbake::source::InputKind::of(&path) != pinbake::source::InputKind::NanoVdb
-                && !pinbake::source::nanovdb::is_nanovdb_file(&path) =>
+            if pin_volume::InputKind::of(&path) != pin_volume::InputKind::NanoVdb
+                && !pin_volume::nanovdb::is_nanovdb_file(&path) =>
         {
             o.grid_stats = Some(Box::new(super::read_grid_stats(stats)?));
             Ok(SourceSpec::Vdb(path, o))
@@ -284,7 +284,7 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
 
 /// One volume (a sequence, `--frames`, is `frames::run_sequence`).
 pub fn run(args: BakeArgs) -> Result<ExitCode> {
-    let inputs = pinbake::files::InputSet::of(&[args.input.as_path()])?;
+    let inputs = pin_volume::files::InputSet::of(&[args.input.as_path()])?;
     let summary = bake_one(&args, &inputs)?;
     if args.json {
         pin_cli::outln!("{summary}")?;
@@ -349,7 +349,10 @@ impl pinbake::plan::Progress for Bar {
 /// One bake: the JSON summary (printed by the caller with `--json`; without it, the one-line
 /// human summary goes to stderr here). `inputs` are the files the output must not be: with
 /// `--frames` every frame's input (the frame's own is added by the plan).
-pub fn bake_one(args: &BakeArgs, inputs: &pinbake::files::InputSet) -> Result<serde_json::Value> {
+pub fn bake_one(
+    args: &BakeArgs,
+    inputs: &pin_volume::files::InputSet,
+) -> Result<serde_json::Value> {
     let spec = check_usage(args)?;
     let started = Instant::now();
     let bar = Bar {

@@ -19,10 +19,10 @@ use anyhow::{Context, Result};
 use clap::Args;
 use glam::DVec3;
 use pin_format::Directions;
+use pin_volume::procedural::ProceduralKind;
+use pin_volume::{DenseGrid, Density, DensitySource, ProceduralSpec};
 use pinbake::BakeOptions;
 use pinbake::pin::{Field, integration_error_of};
-use pinbake::source::procedural::ProceduralKind;
-use pinbake::source::{DenseGrid, Density, DensitySource, ProceduralSpec};
 use rayon::prelude::*;
 use serde_json::json;
 
@@ -85,7 +85,7 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
     // The voxels, that bake's output (the check used to size it for the default
     // octahedral:16, 4x too large) and its layered march's working set (which it left out:
     // up to ~110 MB).
-    pinbake::files::MemoryBudget::new(args.max_memory).check(
+    pin_volume::files::MemoryBudget::new(args.max_memory).check(
         "the benchmark volume and bake",
         voxels
             .saturating_mul(4)
@@ -121,7 +121,7 @@ pub fn run(args: BenchArgs) -> Result<ExitCode> {
             let spec = args.volume.source_spec(input, "--source", || {
                 std::env::current_exe().context("locating the pinbake binary")
             })?;
-            let source = pinbake::source::open_source(&spec, args.volume.density_scale)
+            let source = pin_volume::open_source(&spec, args.volume.density_scale)
                 .with_context(|| input.display().to_string())?;
             Some((input.display().to_string(), source))
         }

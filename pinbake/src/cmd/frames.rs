@@ -3,7 +3,7 @@
 
 use std::io::Write as _;
 
-use pinbake::files::{InputSet, MemoryBudget};
+use pin_volume::files::{InputSet, MemoryBudget};
 use pinbake::frames::{FRAME_LIST_BYTES, FramePattern, parse_frames};
 
 /// `pinbake bake INPUT --frames F -o OUTPUT`: one deterministic bake per frame, each written
@@ -82,7 +82,7 @@ pub fn run_sequence(args: super::BakeArgs) -> anyhow::Result<std::process::ExitC
         present.push(exists);
     }
     let overhead = frames.len() as u64 * FRAME_LIST_BYTES
-        + inputs.len() as u64 * pinbake::files::INPUT_SET_ENTRY_BYTES
+        + inputs.len() as u64 * pin_volume::files::INPUT_SET_ENTRY_BYTES
         + name_bytes;
     budget.check("the sequence's frame list and inputs", overhead)?;
     // Each frame's bake gets what the sequence's own lists leave.

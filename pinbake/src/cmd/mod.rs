@@ -10,7 +10,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use pinbake::files::MemoryBudget;
+use pin_volume::files::MemoryBudget;
 
 pub use bake::BakeArgs;
 pub use bench::BenchArgs;
@@ -140,7 +140,7 @@ pub fn run(cli: Cli) -> Result<ExitCode> {
 
 /// `pinbake grid-stats`: the statistics pass of a farm bake split by volume.
 fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
-    use pinbake::source::{InputKind, SourceSpec, VdbSource, nanovdb};
+    use pin_volume::{InputKind, SourceSpec, VdbSource, nanovdb};
     let started = std::time::Instant::now();
     let spec = args.volume.source_spec(&args.input, "input", || {
         std::env::current_exe().context("locating the pinbake binary")
@@ -159,8 +159,8 @@ fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
     let target = check_output(&args.output, &[&path])?;
     let mut opts = opts;
     if let Some(max) = args.max_memory {
-        let size = pinbake::files::check_input(&path)?;
-        let default = pinbake::source::vdb::default_memory_limit(size);
+        let size = pin_volume::files::check_input(&path)?;
+        let default = pin_volume::vdb::default_memory_limit(size);
         opts.memory_limit = Some(max.min(default));
     }
     let stats = VdbSource::grid_stats(&path, &opts, args.volume.density_scale)?;
@@ -187,10 +187,10 @@ fn grid_stats(args: &GridStatsArgs) -> Result<ExitCode> {
 }
 
 /// Reads a statistics file of `pinbake grid-stats` (at most 1 MiB).
-pub fn read_grid_stats(path: &std::path::Path) -> Result<pinbake::source::GridStats> {
+pub fn read_grid_stats(path: &std::path::Path) -> Result<pin_volume::GridStats> {
     use std::io::Read;
     let shown = path.display();
-    let (f, size) = pinbake::files::open_input(path)?;
+    let (f, size) = pin_volume::files::open_input(path)?;
     if size > 1 << 20 {
         anyhow::bail!("{shown}: is not a grid statistics file ({size} bytes)");
     }
@@ -198,8 +198,8 @@ pub fn read_grid_stats(path: &std::path::Path) -> Result<pinbake::source::GridSt
     f.take(1 << 20)
         .read_to_string(&mut text)
         .map_err(|_| anyhow::anyhow!("{shown}: is not a grid statistics file (not text)"))?;
-    let mut stats = pinbake::source::GridStats::from_json(&text)
-        .map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
+    let mut stats =
+        pin_volume::GridStats::from_json(&text).map_err(|e| anyhow::anyhow!("{shown}: {e}"))?;
     stats.path = Some(path.to_path_buf());
     Ok(stats)
 }
@@ -216,7 +216,7 @@ fn write_text_atomic(target: &std::path::Path, text: &str) -> std::io::Result<()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "stats".into());
     let temp = dir.join(format!(".{name}.{}.partial", std::process::id()));
-    let _announced = pinbake::files::announce_partial_file(&temp);
+    let _announced = pin_volume::files::announce_partial_file(&temp);
     let result = (|| {
         let mut f = std::fs::OpenOptions::new()
             .write(true)
@@ -245,7 +245,7 @@ fn merge(
     // The inputs are held in memory together, and the merged grid once more.
     let mut total = 0u64;
     for t in tiles {
-        total = total.saturating_add(pinbake::files::check_input(t)?);
+        total = total.saturating_add(pin_volume::files::check_input(t)?);
     }
     let budget = MemoryBudget::new(max_memory);
     budget.check("merging these files", total.saturating_mul(2))?;
@@ -290,7 +290,7 @@ fn merge(
     };
     // Checked again just before the write: the path may have changed meanwhile.
     let target = check_output(output, &inputs)?;
-    pinbake::files::write_pin_atomic(&merged, &target)
+    pin_volume::files::write_pin_atomic(&merged, &target)
         .with_context(|| format!("{}", output.display()))?;
     if json {
         let bytes = std::fs::metadata(&target)
@@ -311,7 +311,7 @@ fn merge(
 /// than the memory budget) into a buffer whose start is 8-byte aligned on the supported
 /// allocators (the reader casts in place and reports a misaligned buffer).
 pub fn read_file(path: &std::path::Path, budget: &MemoryBudget) -> Result<Vec<u8>> {
-    Ok(pinbake::files::read_input(path, budget)?)
+    Ok(pin_volume::files::read_input(path, budget)?)
 }
 
 /// A pin file's bytes for a command that reads them once (`inspect`, `verify`): mapped, so
@@ -338,7 +338,7 @@ impl std::ops::Deref for PinBytes {
 /// mapped reader (`pinrt::PinGrid::open`), a file truncated in place while the command runs
 /// raises SIGBUS; pin files are replaced by rename, never rewritten in place.
 pub fn map_pin_file(path: &std::path::Path) -> Result<PinBytes> {
-    let (file, len) = pinbake::files::open_input(path)?;
+    let (file, len) = pin_volume::files::open_input(path)?;
     if len == 0 {
         return Ok(PinBytes::Empty);
     }
@@ -349,9 +349,9 @@ pub fn map_pin_file(path: &std::path::Path) -> Result<PinBytes> {
     Ok(PinBytes::Mapped(map))
 }
 
-/// [`pinbake::files::check_output`] with its error as an `anyhow` error.
+/// [`pin_volume::files::check_output`] with its error as an `anyhow` error.
 pub fn check_output(output: &std::path::Path, inputs: &[&std::path::Path]) -> Result<PathBuf> {
-    Ok(pinbake::files::check_output(output, inputs)?)
+    Ok(pin_volume::files::check_output(output, inputs)?)
 }
 
 pub use pin_cli::UsageError;

@@ -271,7 +271,7 @@ fn a_worker_never_spawns_a_worker() {
         .arg(data("openvdb_smoke1.vdb"))
         .arg("-o")
         .arg(&out)
-        .env(pinbake::source::vdb::WORKER_ENV, "1")
+        .env(pin_volume::vdb::WORKER_ENV, "1")
         .stdin(Stdio::null())
         .output()
         .unwrap();
@@ -622,7 +622,7 @@ fn bakes_record_the_source_identity() {
         let bytes = std::fs::read(&out).unwrap();
         let file = pin_format::PinFile::parse(&bytes).unwrap();
         let meta = file.metadata().unwrap().unwrap();
-        pinbake::source::SourceIdentity::from_extra(&meta.extra)
+        pin_volume::SourceIdentity::from_extra(&meta.extra)
             .expect("identity recorded")
             .unwrap()
     };

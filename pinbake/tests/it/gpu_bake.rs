@@ -8,13 +8,13 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use pin_format::{Directions, EMPTY_CELL, OwnedPinGrid, PinEntry};
-use pinbake::glam::DVec3;
-use pinbake::pin::{Field, PinLayout, Placement, field_optical_depths};
-use pinbake::source::raw::{RawOptions, RawType, read_raw};
-use pinbake::source::vdb::{VdbOptions, VdbSource};
-use pinbake::source::{
+use pin_volume::raw::{RawOptions, RawType, read_raw};
+use pin_volume::vdb::{VdbOptions, VdbSource};
+use pin_volume::{
     DenseGrid, Density, DensityScale, DensitySource, ProceduralSpec, procedural::ProceduralKind,
 };
+use pinbake::glam::DVec3;
+use pinbake::pin::{Field, PinLayout, Placement, field_optical_depths};
 use pinbake::{BakeBackend, BakeOptions, GpuBakeOptions, bake, bake_on};
 
 /// The bound (docs/gpu.md "GPU bake"): every interval optical depth of the GPU is within

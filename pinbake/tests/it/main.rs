@@ -16,3 +16,4 @@ mod production;
 mod slurm;
 mod sources;
 mod vdb_corpus;
+mod vdb_parts;

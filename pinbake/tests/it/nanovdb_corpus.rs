@@ -17,9 +17,9 @@ use crate::nanovdb::{Grid, Type, file_bytes, leaf};
 use crate::{nanovdb, openvdb};
 use glam::{DVec3, IVec3};
 use pin_format::Directions;
+use pin_volume::vdb::{VdbOptions, VdbSource};
+use pin_volume::{Density, DensitySource};
 use pinbake::BakeOptions;
-use pinbake::source::vdb::{VdbOptions, VdbSource};
-use pinbake::source::{Density, DensitySource};
 
 fn open_nvdb(path: &Path, grid: Option<&str>, level_set: bool) -> Result<VdbSource, String> {
     let opt = VdbOptions {
@@ -27,8 +27,7 @@ fn open_nvdb(path: &Path, grid: Option<&str>, level_set: bool) -> Result<VdbSour
         levelset_to_fog: level_set,
         ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
     };
-    pinbake::source::nanovdb::open(path, &opt, pinbake::source::DensityScale::ONE)
-        .map_err(|e| e.to_string())
+    pin_volume::nanovdb::open(path, &opt, pin_volume::DensityScale::ONE).map_err(|e| e.to_string())
 }
 
 fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
@@ -368,7 +367,7 @@ fn the_openvdb_corpus_through_nanovdb_convert_reads_as_the_vdb() {
                     levelset_to_fog: level_set,
                     ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
                 },
-                pinbake::source::DensityScale::ONE,
+                pin_volume::DensityScale::ONE,
             )
             .expect("the corpus .vdb reads (tests/vdb_corpus.rs)");
             let mut vdb_bake = None;

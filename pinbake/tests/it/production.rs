@@ -11,8 +11,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use pinbake::source::vdb::{VdbOptions, VdbSource};
-use pinbake::source::{Density, DensitySource, SourceError};
+use pin_volume::vdb::{VdbOptions, VdbSource};
+use pin_volume::{Density, DensitySource, SourceError};
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 
@@ -54,7 +54,7 @@ fn a_small_production_cloud_reads_in_bounded_memory() {
         "{active} active voxels of {boxed}"
     );
     let file_bytes = std::fs::metadata(&path).unwrap().len();
-    let source = VdbSource::open(&path, &opts(), pinbake::source::DensityScale::ONE).unwrap();
+    let source = VdbSource::open(&path, &opts(), pin_volume::DensityScale::ONE).unwrap();
     assert!(
         source.describe().contains("saved as half"),
         "{}",
@@ -76,7 +76,7 @@ fn a_small_production_cloud_reads_in_bounded_memory() {
         max_leaf_bytes: Some(held / 2),
         ..opts()
     };
-    match VdbSource::open(&path, &small, pinbake::source::DensityScale::ONE) {
+    match VdbSource::open(&path, &small, pin_volume::DensityScale::ONE) {
         Err(e @ SourceError::Memory { .. }) => {
             let m = e.to_string();
             assert!(
@@ -91,6 +91,6 @@ fn a_small_production_cloud_reads_in_bounded_memory() {
         max_leaf_bytes: Some(2 * held),
         ..opts()
     };
-    let again = VdbSource::open(&path, &enough, pinbake::source::DensityScale::ONE).unwrap();
+    let again = VdbSource::open(&path, &enough, pin_volume::DensityScale::ONE).unwrap();
     assert_eq!(again.memory_bytes(), held);
 }

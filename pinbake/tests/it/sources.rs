@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use glam::{DVec3, IVec3};
-use pinbake::source::raw::{Endian, RawOptions, RawType, read_raw};
-use pinbake::source::vdb::{VdbOptions, VdbSource};
-use pinbake::source::{Density, DensityScale, DensitySource, SourceSpec, open_source};
+use pin_volume::raw::{Endian, RawOptions, RawType, read_raw};
+use pin_volume::vdb::{VdbOptions, VdbSource};
+use pin_volume::{Density, DensityScale, DensitySource, SourceSpec, open_source};
 
 const DATA: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../data");
 

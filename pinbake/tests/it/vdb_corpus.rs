@@ -11,9 +11,9 @@ use std::collections::BTreeMap;
 use crate::openvdb;
 use glam::{DVec3, IVec3};
 use pin_format::Directions;
+use pin_volume::Density;
+use pin_volume::vdb::{VdbOptions, VdbSource};
 use pinbake::BakeOptions;
-use pinbake::source::Density;
-use pinbake::source::vdb::{VdbOptions, VdbSource};
 
 fn open(file: &std::path::Path, grid: &str, level_set: bool) -> Result<VdbSource, String> {
     let opt = VdbOptions {
@@ -21,7 +21,7 @@ fn open(file: &std::path::Path, grid: &str, level_set: bool) -> Result<VdbSource
         levelset_to_fog: level_set,
         ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
     };
-    VdbSource::open(file, &opt, pinbake::source::DensityScale::ONE).map_err(|e| e.to_string())
+    VdbSource::open(file, &opt, pin_volume::DensityScale::ONE).map_err(|e| e.to_string())
 }
 
 fn small_bake() -> BakeOptions {
@@ -306,7 +306,7 @@ fn parts_skip_leaves_undecoded_in_every_encoding() {
                     grid: Some(grid.into()),
                     ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pinbake"))
                 };
-                let ds = pinbake::source::DensityScale::new(scale).unwrap();
+                let ds = pin_volume::DensityScale::new(scale).unwrap();
                 let at = format!("{} {grid} x {scale}", f.file.display());
                 let whole = match VdbSource::open(&f.file, &base, ds) {
                     Ok(s) => s,
@@ -334,7 +334,7 @@ fn parts_skip_leaves_undecoded_in_every_encoding() {
                 let parts: Vec<_> = (0..count)
                     .map(|index| {
                         let o = VdbOptions {
-                            part: Some(pinbake::source::VdbPart { index, count }),
+                            part: Some(pin_volume::VdbPart { index, count }),
                             grid_stats: Some(Box::new(stats.clone())),
                             ..base.clone()
                         };

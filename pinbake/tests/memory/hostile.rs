@@ -28,7 +28,7 @@ use std::time::{Duration, Instant};
 
 use glam::DVec3;
 use pin_format::{Directions, checksum};
-use pinbake::source::{Aabb, HomogeneousBox};
+use pin_volume::{Aabb, HomogeneousBox};
 use pinbake::{BakeOptions, bake};
 
 const BIN: &str = env!("CARGO_BIN_EXE_pinbake");

@@ -11,7 +11,7 @@ use super::error::RenderError;
 use super::estimator::{ResidualRatioTracking, TransportEstimator};
 use super::majorant::MajorantGrid;
 use super::rng::Pcg32;
-use pinbake::source::{Aabb, Density};
+use pin_volume::{Aabb, Density};
 
 /// Residual ratio tracking (Novák, Selle and Jarosz 2014) over a baked control: per brick of
 /// the control grid, the control extinction `c` is taken out exactly and the residual

@@ -15,7 +15,7 @@ use pin_format::SparseValues;
 
 use super::error::RenderError;
 use super::field::VoxelGrid;
-use pinbake::source::{Aabb, Density, DensitySource};
+use pin_volume::{Aabb, Density, DensitySource};
 
 /// Marks an empty brick in [`BrickGrid`]'s index (the format's `EMPTY_BRICK`).
 pub const EMPTY: u32 = u32::MAX;

@@ -4,7 +4,7 @@ use super::error::RenderError;
 use super::majorant::{MajorantGrid, MajorantSegment, check_box, clip_box};
 use super::rng::Pcg32;
 use glam::{DVec3, Vec3};
-use pinbake::source::{Aabb, DenseView, Density};
+use pin_volume::{Aabb, DenseView, Density};
 use std::sync::Arc;
 
 /// A distance sampler and transmittance estimator for one medium (one instance).
@@ -967,7 +967,7 @@ impl<F: Density + ?Sized> TransportEstimator for ResidualRatioTracking<F> {
 mod dense_tests {
     use super::*;
     use crate::render::field::VoxelGrid;
-    use pinbake::source::DenseMap;
+    use pin_volume::DenseMap;
 
     /// A 7x5x6 grid, a ramp along x with random contrast on top (values 0.2 ..= 3.4).
     fn grid() -> VoxelGrid {

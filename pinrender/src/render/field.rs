@@ -3,7 +3,7 @@
 //! [`Density`]s, the one density interface of bake and render.
 
 use glam::{DVec3, Vec3};
-use pinbake::source::{Aabb, DenseMap, DenseView, Density, DensitySource};
+use pin_volume::{Aabb, DenseMap, DenseView, Density, DensitySource};
 
 /// Whether `p` lies in the closed box `[lo, hi]` (the voxel and bricked grids' box test).
 #[inline]

@@ -2,7 +2,7 @@
 
 use super::error::RenderError;
 use glam::DVec3;
-use pinbake::source::{Aabb, Density};
+use pin_volume::{Aabb, Density};
 
 /// Max extinction per brick over a world box; bricks tile the box, `x` fastest, then `y`,
 /// then `z` (the pin file's majorant-section layout).

@@ -133,7 +133,7 @@ pub use majorant::{Dda, MajorantGrid, MajorantSegment, check_box, clip_box};
 pub use numeric::exprel;
 /// The one density interface and the dense view, from the baker's sources: the renderer
 /// tracks what the baker bakes.
-pub use pinbake::source::{Aabb, DenseMap, DenseView, Density, HomogeneousBox};
+pub use pin_volume::{Aabb, DenseMap, DenseView, Density, HomogeneousBox};
 pub use pins::PinsEstimator;
 pub use plan::{RenderPlan, SampleLoop};
 pub use rng::{Pcg32, splitmix64};

@@ -14,7 +14,7 @@ use super::estimator::{
 };
 use super::majorant::MajorantGrid;
 use super::pins::PinsEstimator;
-use pinbake::source::Density;
+use pin_volume::Density;
 
 /// Smallest relative ray-marching step, one bound for the baker and the renderer
 /// (`pin_format::MIN_REL_STEP`; smaller steps ran for minutes per pixel).

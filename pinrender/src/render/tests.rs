@@ -1308,14 +1308,14 @@ struct FieldSource {
 }
 
 #[cfg(feature = "cli")]
-impl pinbake::source::Density for FieldSource {
-    fn bounds(&self) -> pinbake::source::Aabb {
-        pinbake::source::Aabb::new(DVec3::from(self.lo), DVec3::from(self.hi))
+impl pin_volume::Density for FieldSource {
+    fn bounds(&self) -> pin_volume::Aabb {
+        pin_volume::Aabb::new(DVec3::from(self.lo), DVec3::from(self.hi))
     }
     fn extinction(&self, p: DVec3) -> f32 {
         self.field.extinction(p.as_vec3().as_dvec3())
     }
-    fn max_extinction_in(&self, r: pinbake::source::Aabb) -> f32 {
+    fn max_extinction_in(&self, r: pin_volume::Aabb) -> f32 {
         self.field.max_extinction_in(r).min(f32::MAX)
     }
     fn describe(&self) -> String {
@@ -1325,7 +1325,7 @@ impl pinbake::source::Density for FieldSource {
 
 /// Baked into a control (`pinbake::control::bake_control`) by the tests below.
 #[cfg(feature = "cli")]
-impl pinbake::source::DensitySource for FieldSource {}
+impl pin_volume::DensitySource for FieldSource {}
 
 /// `pinres` over `field`: the control `pinbake` bakes for it over `[lo, hi]` with `dims`
 /// bricks, and, with `wrong_m`, the mutation that stores a residual majorant of 0 in every
@@ -1366,8 +1366,8 @@ fn baked_pinres(
 
 #[cfg(feature = "cli")]
 impl FieldSource {
-    fn bounds_box(&self) -> pinbake::source::Aabb {
-        pinbake::source::Density::bounds(self)
+    fn bounds_box(&self) -> pin_volume::Aabb {
+        pin_volume::Density::bounds(self)
     }
 }
 

@@ -14,8 +14,7 @@ impl Viewer {
     /// current medium stays on screen until the new one is ready.
     pub(super) fn start_rebake(&mut self, scale: f64) -> Result<()> {
         let mut read = self.args.read.clone();
-        read.density_scale =
-            pinbake::source::DensityScale::new(scale).map_err(|e| anyhow!("{e}"))?;
+        read.density_scale = pin_volume::DensityScale::new(scale).map_err(|e| anyhow!("{e}"))?;
         let args = pinrender::volume::VolumeArgs {
             volume: Some(self.medium.path.clone()),
             read,

@@ -6,7 +6,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::{Duration, Instant};
 
 use pin_format::Metadata;
-use pinbake::source::{DensitySource, ProceduralSpec, SourceIdentity};
+use pin_volume::{DensitySource, ProceduralSpec, SourceIdentity};
 
 pub const PINVIEW: &str = env!("CARGO_BIN_EXE_pinview");
 pub const COSINE: &str = "procedural:cosine:seed=5,freq=4,density=6";
@@ -157,7 +157,7 @@ pub fn ok(out: &Output, what: &str) {
 pub fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>) -> PathBuf {
     let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
     p.density *= scale;
-    let src: Box<dyn DensitySource> = p.build(pinbake::source::DensityScale::ONE).unwrap();
+    let src: Box<dyn DensitySource> = p.build(pin_volume::DensityScale::ONE).unwrap();
     let opts = pinbake::BakeOptions {
         cells: [8; 3],
         density_scale: scale,

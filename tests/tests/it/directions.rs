@@ -10,10 +10,10 @@
 use crate::common::Table;
 use glam::DVec3;
 use pin_format::Directions;
+use pin_volume::{Aabb, Density, DensitySource};
 use pinbake::bake::PinLayout;
 use pinbake::pin::{Placement, interval_optical_depths};
 use pinbake::rng::CounterRng;
-use pinbake::source::{Aabb, Density, DensitySource};
 use pinbake::{BakeOptions, bake};
 use pinrt::lookup::{GridView, direction_cell};
 use pinrt::{PinGrid, Ray, Rng, SamplerOptions};

@@ -2,7 +2,7 @@
 
 use glam::DVec3;
 use pin_format::Directions;
-use pinbake::source::{Aabb, CosineNoise, procedural::CosineParams};
+use pin_volume::{Aabb, CosineNoise, procedural::CosineParams};
 use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, QueryResult, RayQuery, Rng};
 

@@ -6,7 +6,7 @@
 use std::sync::Arc;
 
 use glam::DVec3;
-use pinbake::source::DenseGrid;
+use pin_volume::DenseGrid;
 use pinbake::{BakeBackend, BakeOptions, GpuBakeOptions};
 use pinrender::render::{
     Budget, Camera, Medium, PinsEstimator, RenderSettings, Scene, Sun, render,

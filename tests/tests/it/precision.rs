@@ -4,9 +4,9 @@
 
 use crate::common::Table;
 use glam::DVec3;
+use pin_volume::procedural::{CosineParams, sinc};
+use pin_volume::{Aabb, CosineNoise, DensitySource, HomogeneousBox};
 use pinbake::pin::{Placement, interval_optical_depths};
-use pinbake::source::procedural::{CosineParams, sinc};
-use pinbake::source::{Aabb, CosineNoise, DensitySource, HomogeneousBox};
 use pinrender::render::exprel;
 
 /// Neumaier-compensated f64 sum: the reference for "the exact sum of these f32 samples".

@@ -5,10 +5,10 @@
 use crate::common::{Table, chi_square, normal_p};
 use glam::DVec3;
 use pin_format::{Directions, PinEntry};
+use pin_volume::procedural::CosineParams;
+use pin_volume::{Aabb, CosineNoise, Density, DensitySource, HomogeneousBox};
 use pinbake::pin::{INTERVALS, Placement, interval_optical_depths, make_entry};
 use pinbake::rng::CounterRng;
-use pinbake::source::procedural::CosineParams;
-use pinbake::source::{Aabb, CosineNoise, Density, DensitySource, HomogeneousBox};
 use pinbake::{BakeOptions, bake};
 use pinrt::chord::{segment, unit_cube_chord};
 use pinrt::mask::{exact_sample_mask, thesis_mask_probability, thesis_sample_mask};

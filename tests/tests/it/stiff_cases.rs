@@ -11,8 +11,8 @@ use crate::common::{Table, assert_distance, assert_transmittance, data, vdb_work
 use glam::{DVec3, Vec3};
 use pin_format::{Directions, OwnedPinGrid, PinEntry, grid_desc};
 use pin_tests::{assert_pin_bytes_sane, check_source};
-use pinbake::source::raw::read_raw;
-use pinbake::source::{
+use pin_volume::raw::read_raw;
+use pin_volume::{
     Aabb, DenseGrid, DensityScale, DensitySource, HomogeneousBox, RawOptions, RawType, SourceError,
     VdbOptions, VdbSource,
 };

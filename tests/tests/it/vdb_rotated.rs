@@ -8,7 +8,7 @@ mod openvdb;
 
 use glam::{DMat3, DVec3};
 use pin_format::Directions;
-use pinbake::source::{Density, VdbOptions, VdbSource};
+use pin_volume::{Density, VdbOptions, VdbSource};
 use pinbake::{BakeOptions, bake};
 use pinrt::{PinGrid, Ray, Rng, Sampler};
 
@@ -84,7 +84,7 @@ fn rotated_grid_renders_where_openvdb_places_it() {
         grid: Some(g.name.clone()),
         ..VdbOptions::with_worker(env!("CARGO_BIN_EXE_pin-tests-vdb-worker"))
     };
-    let src = VdbSource::open(&f.file, &opt, pinbake::source::DensityScale::ONE)
+    let src = VdbSource::open(&f.file, &opt, pin_volume::DensityScale::ONE)
         .expect("the rotated grid opens");
     let (owned, _) = bake(&src, &bake_opts(), &|_| {}).expect("the rotated grid bakes");
     // Baked in the grid's own frame: the pin box is the index box (-3,-1,0)..(7,5,11)

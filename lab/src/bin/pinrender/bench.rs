@@ -23,7 +23,7 @@
 //! (`cpu_queries_per_s`); the printed ratios use the CPU rates, which a shared machine does
 //! not skew row by row.
 
-use pinbake::source::DensitySource;
+use pin_volume::DensitySource;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -33,7 +33,7 @@ use anyhow::{Result, anyhow};
 use clap::Args;
 use glam::DVec3;
 use glam::Vec3;
-use pinbake::source::{Aabb, DenseGrid, ProceduralSpec};
+use pin_volume::{Aabb, DenseGrid, ProceduralSpec};
 use pinlab::{CombKind, PINURM_DEFAULT_PIN_QUERIES, PinControlledUrm};
 use pinrender::render::{
     BakedResidualTracking, DeltaTracking, Density, MajorantGrid, Pcg32, PinsEstimator,
@@ -215,7 +215,7 @@ fn cache_dir() -> Result<PathBuf> {
         },
     };
     let dir = base.join("pinbake");
-    pinbake::files::ensure_private_dir(&dir)?;
+    pin_volume::files::ensure_private_dir(&dir)?;
     Ok(dir)
 }
 
@@ -276,7 +276,7 @@ fn cached_pins(name: &str, source: &dyn DensitySource, bake: BenchBake) -> Resul
         env!("CARGO_PKG_VERSION")
     ));
     let jittered = |g: &PinGrid| g.desc().flags & pin_format::layout::GRID_FLAG_JITTERED_PINS != 0;
-    if pinbake::files::check_input(&path).is_ok()
+    if pin_volume::files::check_input(&path).is_ok()
         && let Ok(g) = PinGrid::open(&path)
         && g.verify().is_ok()
         && g.desc().dims == opts.cells
@@ -296,7 +296,7 @@ fn cached_pins(name: &str, source: &dyn DensitySource, bake: BenchBake) -> Resul
         path.display()
     );
     let (grid, _) = pinbake::bake(source, &opts, &|_| {})?;
-    pinbake::files::write_pin_atomic(&grid, &pinbake::files::check_output(&path, &[])?)?;
+    pin_volume::files::write_pin_atomic(&grid, &pin_volume::files::check_output(&path, &[])?)?;
     PinGrid::open(&path).map_err(|e| anyhow!("{e}"))
 }
 
@@ -821,7 +821,7 @@ pub fn run(args: RenderBenchArgs) -> Result<()> {
     if let Some(d) = &args.data {
         crate::data::set_dir(d.clone());
     }
-    let budget = pinbake::files::MemoryBudget::new(args.max_memory);
+    let budget = pin_volume::files::MemoryBudget::new(args.max_memory);
     // The rays, the two result arrays and the noise volume.
     budget.check(
         &format!("{} rays", args.rays),
@@ -867,7 +867,7 @@ pub fn run(args: RenderBenchArgs) -> Result<()> {
     for (name, source) in &volumes {
         let grid = Arc::new(match &args.pins {
             Some(p) => {
-                pinbake::files::check_input(p)?;
+                pin_volume::files::check_input(p)?;
                 PinGrid::open(p).map_err(|e| anyhow!("{e}"))?
             }
             None => cached_pins(name, source.as_ref(), BenchBake::Cells(args.cells))?,

@@ -735,7 +735,7 @@ fn bake_pins(es: &mut EvalScene, a: &EvalArgs, control: bool) -> Result<BakeInfo
 /// scene's small fixed bake in `--quick` runs.
 fn bake_one(
     es: &EvalScene,
-    source: &dyn pinbake::source::DensitySource,
+    source: &dyn pin_volume::DensitySource,
     a: &EvalArgs,
     control: bool,
 ) -> Result<(Arc<PinGrid>, BakeInfo)> {

@@ -102,12 +102,12 @@ fn list_estimators(json: bool) -> anyhow::Result<()> {
 fn main() -> ExitCode {
     // `args_os`: a path need not be UTF-8 (`std::env::args` panics on one).
     let args: Vec<std::ffi::OsString> = std::env::args_os().collect();
-    // The isolated OpenVDB reader re-executes this binary (see `pinbake::source::vdb`).
-    if let Some(code) = pinbake::source::vdb::serve_vdb_worker_if_asked(&args) {
+    // The isolated OpenVDB reader re-executes this binary (see `pin_volume::vdb`).
+    if let Some(code) = pin_volume::vdb::serve_vdb_worker_if_asked(&args) {
         return code;
     }
     // Partial output files (`bench --save-pins`) are unlinked on SIGINT, SIGTERM and SIGHUP.
-    pinbake::files::watch_partial_files(pin_cli::signals::track);
+    pin_volume::files::watch_partial_files(pin_cli::signals::track);
     pin_cli::run_main("pinrender", args, |cli: Cli| {
         match cli.command {
             Command::Bench(a) => bench::run(*a),

@@ -263,12 +263,12 @@ pub(crate) fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBu
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if is_png {
-        return Ok((None, pinbake::files::check_output(&a.out, inputs)?));
+        return Ok((None, pin_volume::files::check_output(&a.out, inputs)?));
     }
     let png = a.out.with_extension("png");
     Ok((
-        Some(pinbake::files::check_output(&a.out, inputs)?),
-        pinbake::files::check_output(&png, inputs)?,
+        Some(pin_volume::files::check_output(&a.out, inputs)?),
+        pin_volume::files::check_output(&png, inputs)?,
     ))
 }
 
@@ -335,7 +335,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         .collect();
     // Before the render, not after it.
     outputs(&a, &inputs)?;
-    let budget = pinbake::files::MemoryBudget::new(a.max_memory);
+    let budget = pin_volume::files::MemoryBudget::new(a.max_memory);
     budget.check(
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
@@ -474,7 +474,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
             a.pin_cells,
             a.seed,
             plan.control,
-            &pinbake::files::MemoryBudget::new(a.max_memory),
+            &pin_volume::files::MemoryBudget::new(a.max_memory),
         )?;
         if let Some(p) = &a.pins {
             volume::check_pins_match(
@@ -490,7 +490,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     } else {
         None
     };
-    let limit = pinbake::files::MemoryBudget::new(a.max_memory).limit;
+    let limit = pin_volume::files::MemoryBudget::new(a.max_memory).limit;
     Ok(OpenedMedium::volume(opened, pins, limit))
 }
 

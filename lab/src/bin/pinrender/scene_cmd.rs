@@ -22,7 +22,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
     if let Some(flag) = a.volume.read.given().first() {
         crate::usage!("{flag} applies to --volume; a scene sets its assets' reading in the file");
     }
-    let budget = pinbake::files::MemoryBudget::new(a.max_memory);
+    let budget = pin_volume::files::MemoryBudget::new(a.max_memory);
     budget.check(
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,

@@ -5,8 +5,10 @@ use std::sync::Arc;
 
 use anyhow::{Context, Result, anyhow, bail};
 use glam::{DVec3, Vec3};
-use pinbake::source::procedural::CosineParams;
-use pinbake::source::{self, Aabb, CosineNoise, DenseGrid, Density, DensitySource, ProceduralSpec};
+use pin_volume::procedural::CosineParams;
+use pin_volume::{
+    self as source, Aabb, CosineNoise, DenseGrid, Density, DensitySource, ProceduralSpec,
+};
 use pinlab::whole_volume::WholeVolumeBox;
 use pinlab::{AnalyticOpticalDepth, CacheSettings, ClosedFormTracker, Estimator};
 use pinrender::render::{

@@ -312,8 +312,8 @@ impl GridStats {
     }
 
     /// The leaves' summary the statistics give.
-    pub fn leaf_summary(&self) -> crate::source::part_facts::LeafSummary {
-        crate::source::part_facts::LeafSummary {
+    pub fn leaf_summary(&self) -> crate::part_facts::LeafSummary {
+        crate::part_facts::LeafSummary {
             nonzero_leaves: self.nonzero_leaves,
             nonzero_box: self.nonzero_box,
             max_value: self.max_value,

@@ -274,7 +274,7 @@ impl DenseGrid {
     /// [`Self::march_runs`] adds for that run, bit for bit (sample `j` at `u0 + j * du` in
     /// f32, as every lane and the one-by-one march compute it). A farm part stores them and
     /// the merge adds them in the march's order.
-    pub(crate) fn run_samples(
+    pub fn run_samples(
         &self,
         u0: [f32; 3],
         du: [f32; 3],
@@ -422,7 +422,7 @@ impl DenseGrid {
     }
 
     /// The grid's trilinear lookup by continuous index, for marching loops.
-    pub(crate) fn cells(&self) -> Cells<'_> {
+    pub fn cells(&self) -> Cells<'_> {
         let [nx, ny, nz] = self.lattice.dims.map(|d| d as usize);
         Cells {
             data: &self.data,
@@ -528,7 +528,7 @@ impl LocateX8 {
 /// loop can locate and prefetch a block of samples before it reads any: the loads of a whole
 /// block then overlap instead of waiting on memory one sample at a time.
 #[derive(Clone, Copy)]
-pub(crate) struct Cells<'a> {
+pub struct Cells<'a> {
     data: &'a [f32],
     /// The lower corner of a cell is clamped to `dims - 2` and the fraction then reaches 1 at
     /// the last centre, so the `+ 1` neighbour always exists...
@@ -545,7 +545,7 @@ impl Cells<'_> {
     /// fractions within it. Indices outside the grid (the caller's runs should not leave it)
     /// clamp to its edge, NaN to 0.
     #[inline(always)]
-    pub(crate) fn locate(&self, c: [f32; 3]) -> (usize, [f32; 3]) {
+    pub fn locate(&self, c: [f32; 3]) -> (usize, [f32; 3]) {
         // `max` first so that NaN becomes 0 (f32::max returns the non-NaN operand).
         let cx = c[0].max(0.0).min(self.top[0]);
         let cy = c[1].max(0.0).min(self.top[1]);
@@ -566,7 +566,7 @@ impl Cells<'_> {
     /// Asks for the four cache lines the cell at `b` reads (x neighbours share a line or the
     /// next one, which the hardware fetches with it).
     #[inline(always)]
-    pub(crate) fn prefetch(&self, b: usize) {
+    pub fn prefetch(&self, b: usize) {
         let [_, sy, sz] = self.step;
         prefetch(self.data, b);
         prefetch(self.data, b + sy);
@@ -576,7 +576,7 @@ impl Cells<'_> {
 
     /// The trilinear value of the cell at `b` with fractions `f`, never negative.
     #[inline(always)]
-    pub(crate) fn interpolate(&self, b: usize, f: [f32; 3]) -> f32 {
+    pub fn interpolate(&self, b: usize, f: [f32; 3]) -> f32 {
         let [sx, sy, sz] = self.step;
         let [fx, fy, fz] = f;
         // One slice bounds check covers the eight loads.

@@ -13,7 +13,7 @@
 use super::bytes::{Bytes, offset_by};
 use super::grid::{GridHeader, LOWER_BYTES, UPPER_BYTES};
 use super::leaf::{self, LEAF_FLAGS, Leaf, ValueType};
-use crate::source::vdb::LeafValues;
+use crate::vdb::LeafValues;
 
 /// What the walk found: the input of `VdbSource::from_stream`.
 pub(super) struct TreeOut {

@@ -188,15 +188,12 @@ impl SourceIdentity {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::source::ProceduralSpec;
+    use crate::ProceduralSpec;
 
     fn identity(spec: &str, scale: f64) -> SourceIdentity {
         let mut p: ProceduralSpec = spec.parse().unwrap();
         p.density *= scale;
-        SourceIdentity::of(
-            p.build(crate::source::DensityScale::ONE).unwrap().as_ref(),
-            scale,
-        )
+        SourceIdentity::of(p.build(crate::DensityScale::ONE).unwrap().as_ref(), scale)
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! Files and memory under hostile or careless use (see `docs/stability.md`, "Hostile use").
 //!
-//! Every surface of the baker (its library front door `crate::plan`, the command-line tools
+//! Every surface of the baker (its library front door `pinbake::plan`, the command-line tools
 //! `pinbake` and `pinrender`, the Python extension) goes through these checks for every path
 //! and every size that comes from a user:
 //!
@@ -442,7 +442,7 @@ impl PendingPin {
     }
 
     /// [`PendingPin::write`], with the sparse density streamed from `sparse` when there is
-    /// one (the spool of [`crate::bake::bake_spooled`]).
+    /// one (the spool of `pinbake::bake::bake_spooled`).
     pub fn write_spooled(
         mut self,
         grid: &pin_format::OwnedPinGrid,

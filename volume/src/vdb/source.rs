@@ -2,7 +2,7 @@
 //! copy, and its `DensitySource` sampling and marching.
 
 use super::*;
-use crate::source::part_facts::{LeafSummary, PartFacts};
+use crate::part_facts::{LeafSummary, PartFacts};
 
 /// A block of 8^3 voxels: a leaf's values or a constant tile.
 #[derive(Clone, Copy, Debug)]
@@ -1031,6 +1031,12 @@ impl VdbSource {
             z => z as f64,
         };
         self.part.map(|(a, b)| (f(a), f(b)))
+    }
+
+    /// The largest value of each stored leaf, one per leaf (a part read holds its slab's
+    /// leaves and a margin only).
+    pub fn leaf_maxima(&self) -> &[f32] {
+        &self.leaf_max
     }
 
     /// Voxels the tree stores values for: its leaves' and its constant tiles' (a dense copy

@@ -1,23 +1,31 @@
-//! Density sources: everything the baker can read extinction from.
+//! `pin-volume`: density volumes as the baker and the renderer read them.
 //!
 //! Every source answers one question, "what is the extinction coefficient at this world-space
 //! point", and knows a world-space box outside of which it is zero. The density scale has already
 //! been applied by the time a value leaves a source.
 //!
 //! What lives here:
+//! * [`Density`]: the narrow interface a renderer reads (a point lookup, the box, bounds over
+//!   a box, a voxel view); [`DensitySource`]: what a bake and a farm part ask besides;
 //! * [`grid`]: a dense f32 grid with the shared world placement (docs/background.md section 2);
 //! * [`raw`]: the headerless raw reader that produces such a grid;
 //! * [`procedural`]: analytic fields (box, sphere, cosine noise) with closed-form optical depth;
 //! * `vdb` (feature `vdb`): OpenVDB float/half grids, read in an isolated child process.
 //! * `nanovdb` (feature `vdb`): NanoVDB float, half and quantised grids, read in place into
 //!   the same sparse table as `vdb`.
+//! * [`files`]: the input and output file rules and the [`files::MemoryBudget`] every
+//!   allocation sized by input is checked against.
 //!
-//! What does not: ray marching, majorant grids and pin baking (the baker consumes
-//! [`DensitySource`], and so do the renderer's trackers); file formats for pins (crate
+//! What does not: ray marching, majorant grids and pin baking (the baker `pinbake` consumes
+//! [`DensitySource`], and the renderer's trackers [`Density`]); file formats for pins (crate
 //! `pin-format`).
 //!
 //! [`open_source`] turns a [`SourceSpec`] into a boxed source; every failure is a
 //! [`SourceError`] whose message is one line and names the file where there is one.
+
+/// The vector library of the public API ([`Aabb`], positions), so users name the same version
+/// of its types without a direct dependency.
+pub use glam;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -25,6 +33,7 @@ use std::path::{Path, PathBuf};
 use glam::DVec3;
 
 pub mod dense_view;
+pub mod files;
 pub mod grid;
 pub mod identity;
 #[cfg(feature = "vdb")]
@@ -159,7 +168,7 @@ pub trait DensitySource: Density {
     /// World boxes inside each of which the extinction is at least `floor` at every point (a
     /// VDB's constant tiles, shrunk by the reach of its interpolation): what a sparse copy of
     /// the source must store, known from its tree's counts before any brick is tested (the
-    /// memory and disk checks of [`crate::sparse_density`]). Empty (the default) where the
+    /// memory and disk checks of `pinbake::sparse_density`). Empty (the default) where the
     /// source cannot tell cheaply; a lower bound, never more than is there.
     fn solid_boxes(&self, _floor: f32) -> Vec<Aabb> {
         Vec::new()
@@ -321,7 +330,7 @@ impl SourceError {
 
 /// Replaces line breaks and other control characters so that an error stays on one line even
 /// when it quotes hostile input (grid names come straight from files).
-pub(crate) fn one_line(s: &str) -> String {
+pub fn one_line(s: &str) -> String {
     let mut out = String::with_capacity(s.len());
     for c in s.chars() {
         match c {
@@ -572,11 +581,7 @@ mod tests {
     #[test]
     fn open_procedural_from_string() {
         let spec: ProceduralSpec = "cosine:seed=7,freq=16".parse().unwrap();
-        let s = open_source(
-            &SourceSpec::Procedural(spec),
-            crate::source::DensityScale::ONE,
-        )
-        .unwrap();
+        let s = open_source(&SourceSpec::Procedural(spec), crate::DensityScale::ONE).unwrap();
         assert!(s.bounds().is_valid());
         let mut out = [0.0f32; 4];
         s.extinction_along(DVec3::splat(0.1), DVec3::splat(0.1), 4, &mut out);
