@@ -95,6 +95,8 @@ fn eval_bytes_rejects_scenes_without_a_volume_file() {
         &["eval", "--bytes", "--quick", "--scenes", "cosine"][..],
         &["eval", "--bytes", "--quick", "--scenes", "teapot"][..],
         &["eval", "--quick", "--pin-variants"][..],
+        // The error-against-time flags do not apply to --bytes.
+        &["eval", "--bytes", "--quick", "--budgets", "1"][..],
     ] {
         let out = Command::new(env!("CARGO_BIN_EXE_pinrender"))
             .args(args)

@@ -83,7 +83,11 @@ large volumes), cosine-closed-form / box-closed-form (exact transmittance),
 whole-volume (box-ss only). rm@STEP, delta, ratio, residual, urm, jackknife, pins, pinms and
 pinres also run on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
-Example: pinrender eval --out out/eval --docs docs")]
+Error against bytes (--bytes): each representation baked at a ladder of sizes into a file, rendered
+from the file alone against the same reference; writes bytes.csv, bytes.png and bytes.md.
+
+Example: pinrender eval --out out/eval --docs docs
+         pinrender eval --bytes --out out/bytes")]
 pub struct EvalArgs {
     /// Output directory.
     #[arg(long, default_value = "out/eval")]
@@ -133,7 +137,7 @@ pub struct EvalArgs {
     /// rendered from the file alone, against the converged reference: `bytes.csv`,
     /// `bytes.png`, `bytes.md` (scenes: smoke and hydrogen, or --scenes of
     /// smoke,hydrogen,production; --quick: smoke at 32 px).
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["budgets", "estimators", "docs"])]
     pub bytes: bool,
     /// With --bytes, also the pins-per-byte experiments on the octahedral:8 pins ladder:
     /// t_min in 16 and 8 bits, near-empty entries left out (their bytes projected for the
