@@ -376,7 +376,12 @@ pub fn run(a: &EvalArgs, scene_names: &[String], production: &Path) -> Result<()
         write_csv(&a.out.join(BYTES_CSV), &rows)?;
     }
     super::plot::bytes_chart(&a.out.join(BYTES_PNG), scene_names, &rows)?;
-    let md = markdown(&rows, &notes, &s, a, started.elapsed().as_secs_f64());
+    let md = markdown(
+        (&rows, &notes, scene_names),
+        &s,
+        a,
+        started.elapsed().as_secs_f64(),
+    );
     let path = a.out.join(BYTES_MD);
     std::fs::write(&path, md).with_context(|| format!("writing {}", path.display()))?;
     pin_cli::errln!(
@@ -676,8 +681,7 @@ fn human(bytes: u64) -> String {
 
 /// The report: per scene, the lowest block error at each size class, then every row.
 fn markdown(
-    rows: &[BytesRow],
-    notes: &[String],
+    (rows, notes, scene_names): (&[BytesRow], &[String], &[String]),
     s: &BytesSizes,
     a: &EvalArgs,
     total: f64,
@@ -691,13 +695,19 @@ fn markdown(
          mean relative error, 8x8-block relative error (both on the channel mean) and RMSE. \
          `{SOURCE_FILE}` is the source volume file itself rendered with ratio tracking at the \
          same samples: its error is the noise floor of {spp} spp. Seconds per spp are wall \
-         time on {threads} threads. Run in {total:.0} s: `pinrender eval --bytes{quick} --out \
-         {out}`.\n\n",
+         time on {threads} threads. Run in {total:.0} s: `pinrender eval --bytes{quick}{variants} \
+         --scenes {scenes} --out {out}`.\n\n",
         px = s.image,
         spp = s.spp,
         b = s.max_bounces,
         threads = super::worker_threads(a),
         quick = if a.quick { " --quick" } else { "" },
+        variants = if a.pin_variants {
+            " --pin-variants"
+        } else {
+            ""
+        },
+        scenes = scene_names.join(","),
         out = a.out.display(),
     ));
     md.push_str(if nanovdb_convert_installed() {
