@@ -37,10 +37,15 @@ done
 # The error-against-run-time report on sub-second budgets with the estimators a user picks,
 # about 30 s of CPU on 2 cores (the full one with the lab's estimators: `pinrender eval`).
 $R eval --quick --out out/eval
+# Error against the bytes of the file a user ships: pins alone, the embedded f16 density (dense,
+# sparse), density + pins with PinMS and NanoVDB's sizes on the smoke at 32 px, about 15 s (the
+# full one: `pinrender eval --bytes`, docs/evaluation.md).
+$R eval --bytes --quick --out out/eval
 cat <<EOT
 main job done. Read first: out/eval/summary.md (what the report shows, tables, errors.png).
   pin files:   out/smoke.pin, out/hydrogen.pin (pinbake inspect FILE describes them)
   renders:     out/smoke_pins.png, out/smoke_pinms.png, out/smoke_ratio.png (and .exr);
                out/smoke_pins_pin_alone.png, out/smoke_pinms_pin_alone.png (from the .pin alone)
   raw figures: out/eval/errors.csv
+  error against bytes: out/eval/bytes.md (tables), out/eval/bytes.png, out/eval/bytes.csv
 EOT

@@ -2,6 +2,7 @@
 //! concern.
 
 mod cli_text;
+mod eval_bytes;
 mod eval_cli;
 mod gpu_density;
 mod hostile;

@@ -27,10 +27,14 @@
 //! the largest budget) and `<scene>/reference.exr`. With `--docs DIR` also
 //! `DIR/eval/report.md` (the report, a file of its own) and the PNGs beside it.
 //!
+//! `--bytes` measures error against the bytes of the file a user ships instead ([`bytes`]:
+//! `bytes.csv`, `bytes.png`, `bytes.md`).
+//!
 //! Each reference is rendered as two independent halves; half their RMSE against each other
 //! is the reference's own noise, reported per scene, and a time-to-error target below twice
 //! that noise prints "n/a (reference noise)" instead of a speedup that would measure noise.
 
+mod bytes;
 mod plot;
 mod report;
 mod scenes;
@@ -79,7 +83,11 @@ large volumes), cosine-closed-form / box-closed-form (exact transmittance),
 whole-volume (box-ss only). rm@STEP, delta, ratio, residual, urm, jackknife, pins, pinms and
 pinres also run on the GPU path tracer (rows marked '(gpu)', backend gpu in the CSV) unless --no-gpu.
 
-Example: pinrender eval --out out/eval --docs docs")]
+Error against bytes (--bytes): each representation baked at a ladder of sizes into a file, rendered
+from the file alone against the same reference; writes bytes.csv, bytes.png and bytes.md.
+
+Example: pinrender eval --out out/eval --docs docs
+         pinrender eval --bytes --out out/bytes")]
 pub struct EvalArgs {
     /// Output directory.
     #[arg(long, default_value = "out/eval")]
@@ -123,6 +131,19 @@ pub struct EvalArgs {
     /// count wall time (a hardware GPU's work is not this process's CPU time).
     #[arg(long, value_enum, default_value_t = Clock::Wall)]
     pub clock: Clock,
+    /// Error against bytes instead of against time: each representation (pins alone at
+    /// several cells and direction sets, the embedded f16 density dense and sparse with ratio
+    /// tracking, the dense density with pins and PinMS) baked at a ladder of sizes and
+    /// rendered from the file alone, against the converged reference: `bytes.csv`,
+    /// `bytes.png`, `bytes.md` (scenes: smoke and hydrogen, or --scenes of
+    /// smoke,hydrogen,production; --quick: smoke at 32 px).
+    #[arg(long, conflicts_with_all = ["budgets", "estimators", "docs"])]
+    pub bytes: bool,
+    /// With --bytes, also the pins-per-byte experiments on the octahedral:8 pins ladder:
+    /// t_min in 16 and 8 bits, near-empty entries left out (their bytes projected for the
+    /// candidate format) and 4 pins per entry.
+    #[arg(long, requires = "bytes")]
+    pub pin_variants: bool,
     /// Do not measure the GPU path tracer (the `(gpu)` rows).
     #[arg(long)]
     pub no_gpu: bool,
@@ -386,6 +407,8 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     let scene_names: Vec<String> = match &a.scenes {
         Some(v) => v.iter().map(|s| s.trim().to_string()).collect(),
+        None if a.bytes && a.quick => bytes::QUICK_BYTES_SCENES.map(String::from).to_vec(),
+        None if a.bytes => bytes::BYTES_SCENES.map(String::from).to_vec(),
         None => scenes::SCENES
             .iter()
             .filter(|s| !(a.quick && scenes::FULL_ONLY.contains(s)))
@@ -424,6 +447,9 @@ pub fn run(a: EvalArgs) -> Result<()> {
         refuse_special_entries(docs, 2)?;
     }
 
+    if a.bytes {
+        return bytes::run(&a, &scene_names, &production);
+    }
     let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();
     for name in &scene_names {

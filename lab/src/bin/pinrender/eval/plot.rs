@@ -168,15 +168,36 @@ fn at_least_a_decade(lo: f64, hi: f64) -> (f64, f64) {
     (mid / 10f64.sqrt(), mid * 10f64.sqrt())
 }
 
-/// The chart of `curves` in `area` (log-log RMSE against wall time, GPU curves dashed with
-/// hollow markers), its axes spanning exactly the curves drawn, with the legend in a column
-/// of `legend_w` pixels on the right.
+/// A chart's axis names and the x axis' tick labels.
+struct Axes {
+    x: &'static str,
+    y: &'static str,
+    x_label: fn(&f64) -> String,
+}
+
+/// RMSE against wall time (the error-against-time charts).
+const TIME_AXES: Axes = Axes {
+    x: "seconds",
+    y: "RMSE",
+    x_label: |x| format!("{x:.2}"),
+};
+
+/// Block error against file bytes (`eval --bytes`).
+const BYTES_AXES: Axes = Axes {
+    x: "file bytes",
+    y: "8x8-block relative error",
+    x_label: |x| format!("{x:.0e}"),
+};
+
+/// The chart of `curves` in `area` (log-log on `axes`, GPU curves dashed with hollow
+/// markers), its axes spanning exactly the curves drawn, with the legend in a column of
+/// `legend_w` pixels on the right.
 fn draw_chart(
     area: &Area<'_>,
     title: &str,
     curves: &[Curve],
-    font: u32,
-    legend_w: u32,
+    (font, legend_w): (u32, u32),
+    axes: &Axes,
 ) -> Result<()> {
     let (w, _) = area.dim_in_pixel();
     let (plot_area, legend_area) = area.split_horizontally(w.saturating_sub(legend_w));
@@ -201,11 +222,11 @@ fn draw_chart(
         .map_err(err)?;
     chart
         .configure_mesh()
-        .x_desc("seconds")
-        .y_desc("RMSE")
+        .x_desc(axes.x)
+        .y_desc(axes.y)
         .x_labels(8)
         .y_labels(8)
-        .x_label_formatter(&|x| format!("{x:.2}"))
+        .x_label_formatter(&axes.x_label)
         .y_label_formatter(&|y| format!("{y:.1e}"))
         .label_style(("sans-serif", font))
         .draw()
@@ -274,8 +295,8 @@ pub fn error_vs_time(path: &Path, r: &SceneResult) -> Result<()> {
             &root,
             &format!("{}: RMSE vs wall time", r.name),
             &curves,
-            13,
-            LEGEND_W,
+            (13, LEGEND_W),
+            &TIME_AXES,
         )?;
         root.present().map_err(err)?;
     }
@@ -298,7 +319,7 @@ fn grid_of_scenes(
         let cells = root.split_evenly((rows, cols));
         for (r, cell) in results.iter().zip(&cells) {
             let title = format!("{}: RMSE vs wall time", r.name);
-            draw_chart(cell, &title, &curves(r), 12, legend_w)?;
+            draw_chart(cell, &title, &curves(r), (12, legend_w), &TIME_AXES)?;
         }
         root.present().map_err(err)?;
     }
@@ -316,6 +337,45 @@ pub fn error_vs_time_all(path: &Path, results: &[SceneResult]) -> Result<()> {
     let refs: Vec<&SceneResult> = results.iter().collect();
     let pal = palette(&refs);
     grid_of_scenes(path, results, LEGEND_W, |r| every_curve(r, &pal))
+}
+
+/// `eval --bytes`' figure (`bytes.png`): per scene, the 8x8-block error against the file's
+/// bytes, one curve per representation (colours shared across scenes), the source file's
+/// own point (ratio tracking at the same samples: the noise floor) a curve of one point.
+pub fn bytes_chart(path: &Path, scenes: &[String], rows: &[super::bytes::BytesRow]) -> Result<()> {
+    let names = super::bytes::representation_names(rows);
+    let cols = if scenes.len() > 1 { 2 } else { 1 };
+    let grid_rows = scenes.len().div_ceil(cols).max(1);
+    let (cw, ch) = (900u32, 480u32);
+    let mut canvas = Canvas::new(path, (cw * cols as u32, ch * grid_rows as u32));
+    {
+        let root = canvas.area();
+        let cells = root.split_evenly((grid_rows, cols));
+        for (scene, cell) in scenes.iter().zip(&cells) {
+            let curves: Vec<Curve> = names
+                .iter()
+                .enumerate()
+                .map(|(k, name)| Curve {
+                    label: name.clone(),
+                    color: COLORS[k % COLORS.len()],
+                    gpu: false,
+                    bold: name.starts_with("pins"),
+                    points: rows
+                        .iter()
+                        .filter(|r| &r.scene == scene && &r.representation == name)
+                        .map(|r| (r.bytes as f64, r.block8_error))
+                        .filter(|p| p.0 > 0.0 && p.1 > 0.0 && p.1.is_finite())
+                        .map(|(x, y)| (x, y, 0))
+                        .collect(),
+                })
+                .filter(|c| !c.points.is_empty())
+                .collect();
+            let title = format!("{scene}: block error vs file bytes");
+            draw_chart(cell, &title, &curves, (12, 250), &BYTES_AXES)?;
+        }
+        root.present().map_err(err)?;
+    }
+    canvas.save()
 }
 
 /// Panels no larger than this (nearest-neighbour downscale), to keep the PNG small, and no

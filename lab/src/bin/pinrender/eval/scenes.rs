@@ -139,9 +139,9 @@ pub const SCENES: [&str; 9] = [
 pub const FULL_ONLY: [&str; 3] = ["cloud", "production", "cloudscape"];
 
 /// The production scene's density scale (the cloud's densest voxels are 1).
-const PRODUCTION_DENSITY_SCALE: f64 = 0.5;
+pub const PRODUCTION_DENSITY_SCALE: f64 = 0.5;
 
-const SMOKE_DENSITY_SCALE: f64 = 2.0;
+pub const SMOKE_DENSITY_SCALE: f64 = 2.0;
 const HYDROGEN_DENSITY_SCALE: f64 = 0.6;
 const COSINE_SPEC: &str = "cosine:seed=7,freq=16,waves=8,density=4";
 const BOX_MAX: [f64; 3] = [1.0, 0.7, 0.85];
@@ -192,7 +192,7 @@ pub fn build(name: &str, sizes: &Sizes, production: &Path) -> Result<EvalScene> 
     }
 }
 
-fn volume_args(density_scale: f64) -> Result<VolumeArgs> {
+pub fn volume_args(density_scale: f64) -> Result<VolumeArgs> {
     Ok(VolumeArgs::scaled(source::DensityScale::new(
         density_scale,
     )?))
