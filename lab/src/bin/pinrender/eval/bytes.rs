@@ -18,7 +18,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, anyhow};
-use pinbake::source::DensitySource;
+use pin_volume::DensitySource;
 use pinbake::sparse_density::SparseDims;
 use pinbake::{BakeOptions, EmbedDensity};
 use pinrender::medium::MediumDesc;
@@ -553,14 +553,14 @@ fn nanovdb_rows(
         let rendered = (|| -> Result<(Image, f64)> {
             // NanoVDB's reader directly: `open_volume_typed` hands every VDB-like path to
             // the OpenVDB reader.
-            let scale = pinbake::source::DensityScale::new(scale)?;
-            let source = pinbake::source::nanovdb::open(&path, &Default::default(), scale)?
+            let scale = pin_volume::DensityScale::new(scale)?;
+            let source = pin_volume::nanovdb::open(&path, &Default::default(), scale)?
                 .with_dense_cache(
                     pinbake::bake::DEFAULT_DENSE_COPY_BYTES
-                        .min(pinbake::files::default_memory_limit() / 4),
+                        .min(pin_volume::files::default_memory_limit() / 4),
                 );
             let opened = crate::volume::Opened::Vdb(Arc::new(source));
-            let m = OpenedMedium::volume(opened, None, pinbake::files::default_memory_limit());
+            let m = OpenedMedium::volume(opened, None, pin_volume::files::default_memory_limit());
             let medium = m
                 .desc(16, None)
                 .cpu_medium(EstimatorSpec::RatioTracking, LOOKUP)
