@@ -94,20 +94,20 @@ fn scene(dir: &Path, files: &[&Path], names: usize) -> PathBuf {
 }
 
 /// A scene's assets are charged to the command's one budget together, and a file named by
-/// many assets is read once and charged once: 100 names of one 128 KiB raw file (read at
-/// 8x, 1 MiB) render under 1.5 MiB, while two files of that size under the same budget are
+/// many assets is read once and charged once: 100 names of one 1 MiB raw file (read at 8x,
+/// 8 MiB) render under 12 MiB, while two files of that size under the same budget are
 /// refused with one line naming the second asset.
 #[test]
 fn a_scenes_assets_add_up_and_one_file_is_read_once() {
     let dir = tempfile::tempdir().unwrap();
     // The dims and type are read from the names, as the raw reader reads them.
-    let a = raw(dir.path(), "a_32x32x32_float32.raw", 32);
-    let b = raw(dir.path(), "b_32x32x32_float32.raw", 32);
+    let a = raw(dir.path(), "a_64x64x64_float32.raw", 64);
+    let b = raw(dir.path(), "b_64x64x64_float32.raw", 64);
     let render = |scene: &Path, tag: &str| {
         let out = dir.path().join(format!("{tag}.exr"));
         let mut args = vec!["--scene", s(scene), "--estimator", "ratio"];
         args.extend_from_slice(&["--width", "8", "--height", "8", "--spp", "1"]);
-        args.extend_from_slice(&["--max-memory", "1536K", "--out", s(&out)]);
+        args.extend_from_slice(&["--max-memory", "12M", "--out", s(&out)]);
         pinrender(&args)
     };
     let one = scene(dir.path(), &[&a], 100);

@@ -102,7 +102,7 @@ fn a_printf_pattern_plays_what_pinbake_wrote() {
     let out = Command::new(&pinbake)
         .current_dir(dir.path())
         .args(["bake", "w.%04d.raw", "--dims", "8,8,8", "--type", "f32"])
-        .args(["--frames", "-1-1", "--cells", "4", "-o", "sim.%04d.pin"])
+        .args(["--frames=-1-1", "--cells", "4", "-o", "sim.%04d.pin"])
         .output()
         .unwrap();
     ok(&out, "pinbake bake --frames");
