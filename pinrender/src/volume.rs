@@ -217,9 +217,9 @@ pub fn open_volume_within(
         // answers them without the tree's hash lookups, with the same bits (the images do
         // not change), when it takes at most 1 GiB and a quarter of the memory budget.
         source::OpenedSource::Vdb(v) => Opened::Vdb(Arc::new(
-            v.with_dense_cache(pinbake::bake::DEFAULT_DENSE_COPY_BYTES.min(budget.limit / 4)),
+            (*v).with_dense_cache(pinbake::bake::DEFAULT_DENSE_COPY_BYTES.min(budget.limit / 4)),
         )),
-        source::OpenedSource::Raw(g) => Opened::Dense(Arc::new(g)),
+        source::OpenedSource::Raw(g) => Opened::Dense(Arc::new(*g)),
         source::OpenedSource::Procedural(p) => Opened::Other(Arc::from(p)),
     })
 }

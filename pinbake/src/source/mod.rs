@@ -524,10 +524,10 @@ pub enum SourceSpec {
 /// dispatched: [`open_source`] boxes what this returns.
 pub enum OpenedSource {
     /// A raw grid.
-    Raw(DenseGrid),
+    Raw(Box<DenseGrid>),
     /// An OpenVDB or a NanoVDB file (both read into the same sparse source).
     #[cfg(feature = "vdb")]
-    Vdb(VdbSource),
+    Vdb(Box<VdbSource>),
     /// A procedural field, built.
     Procedural(Box<dyn DensitySource>),
 }
@@ -536,9 +536,9 @@ impl OpenedSource {
     /// The source behind the density interface.
     pub fn into_source(self) -> Box<dyn DensitySource> {
         match self {
-            OpenedSource::Raw(g) => Box::new(g),
+            OpenedSource::Raw(g) => g,
             #[cfg(feature = "vdb")]
-            OpenedSource::Vdb(v) => Box::new(v),
+            OpenedSource::Vdb(v) => v,
             OpenedSource::Procedural(p) => p,
         }
     }
@@ -550,21 +550,23 @@ pub fn open_source_typed(
     scale: DensityScale,
 ) -> Result<OpenedSource, SourceError> {
     match spec {
-        SourceSpec::Raw(path, options) => {
-            Ok(OpenedSource::Raw(raw::read_raw(path, options, scale)?))
-        }
+        SourceSpec::Raw(path, options) => Ok(OpenedSource::Raw(Box::new(raw::read_raw(
+            path, options, scale,
+        )?))),
         // A `.nvdb` name, or NanoVDB's magic whatever the name: the rest go to the OpenVDB
         // worker.
         #[cfg(feature = "vdb")]
         SourceSpec::Vdb(path, options)
             if InputKind::of(path) == InputKind::NanoVdb || nanovdb::is_nanovdb_file(path) =>
         {
-            Ok(OpenedSource::Vdb(nanovdb::open(path, options, scale)?))
+            Ok(OpenedSource::Vdb(Box::new(nanovdb::open(
+                path, options, scale,
+            )?)))
         }
         #[cfg(feature = "vdb")]
-        SourceSpec::Vdb(path, options) => {
-            Ok(OpenedSource::Vdb(VdbSource::open(path, options, scale)?))
-        }
+        SourceSpec::Vdb(path, options) => Ok(OpenedSource::Vdb(Box::new(VdbSource::open(
+            path, options, scale,
+        )?))),
         #[cfg(not(feature = "vdb"))]
         SourceSpec::Vdb(path) => Err(SourceError::Unsupported {
             path: path.clone(),
