@@ -130,6 +130,20 @@ impl FramePattern {
         let sign = if frame < 0 { "-" } else { "" };
         format!("{}{sign}{digits}{}", self.prefix, self.suffix)
     }
+
+    /// The frame whose file name is `name` ([`FramePattern::name`]'s inverse), `None` when
+    /// `name` is no frame's: a sequence's reader lists the files of a folder with it.
+    pub fn frame_of(&self, name: &str) -> Option<i64> {
+        let middle = name
+            .strip_prefix(&self.prefix)?
+            .strip_suffix(&self.suffix)?;
+        let digits = middle.strip_prefix('-').unwrap_or(middle);
+        if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+            return None;
+        }
+        let frame: i64 = middle.parse().ok()?;
+        (self.name(frame) == name).then_some(frame)
+    }
 }
 
 /// Bytes of memory per listed frame while a sequence runs: the frame number, its slot in
@@ -241,6 +255,29 @@ mod tests {
         assert_eq!(FramePattern::parse("smoke.vdb").unwrap(), None);
         // A percent sign that is not a frame field is part of the name.
         assert_eq!(FramePattern::parse("100%_dense.vdb").unwrap(), None);
+    }
+
+    #[test]
+    fn a_name_gives_back_its_frame() {
+        for pattern in ["sim.####.pin", "sim.%04d.pin", "sim.%d.pin"] {
+            let p = FramePattern::parse(pattern).unwrap().unwrap();
+            for frame in [-12, -1, 0, 7, 12345] {
+                assert_eq!(p.frame_of(&p.name(frame)), Some(frame), "{pattern} {frame}");
+            }
+        }
+        let p = FramePattern::parse("sim.####.pin").unwrap().unwrap();
+        // Not this pattern's spelling of any frame: too few digits, no digits, a sign
+        // without them, -0, another suffix.
+        for name in [
+            "sim.7.pin",
+            "sim..pin",
+            "sim.-.pin",
+            "sim.-0000.pin",
+            "sim.0007.vdb",
+            "sim.00x7.pin",
+        ] {
+            assert_eq!(p.frame_of(name), None, "{name}");
+        }
     }
 
     #[test]

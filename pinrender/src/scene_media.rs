@@ -6,18 +6,21 @@
 //! Messages name the scene file and the JSON path of what failed (`assets.cloud.volume`),
 //! then the problem.
 
-use std::path::Path;
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Result, anyhow};
 use pin_scene::{Asset, Scene};
+use pin_volume::files::MemoryBudget;
 use pin_volume::DensityScale;
 use pinrt::SamplerOptions;
 
+use crate::front::{self, Holds, Input, PinsWanted, RenderFlags};
 use crate::instance::{place_medium, world_box};
 use crate::medium::MediumDesc;
 use crate::render::{EstimatorSpec, Medium};
-use crate::volume::{self, OpenedMedium, VolumeArgs};
+use crate::volume::OpenedMedium;
 
 /// What a render asks of its assets.
 #[derive(Clone, Copy, Debug)]
@@ -28,7 +31,8 @@ pub struct AssetOptions {
     pub pin_cells: Option<u32>,
     pub seed: u64,
     pub majorant_bricks: u32,
-    pub max_memory: Option<u64>,
+    /// The command's one memory budget: the assets are charged to it together.
+    pub budget: MemoryBudget,
     pub allow_mismatched_pins: bool,
     pub lookup: SamplerOptions,
     /// Load the pins an asset names even where `estimator` reads none (the viewer, whose
@@ -65,44 +69,110 @@ fn named(scene: &Scene, at: &str, e: impl std::fmt::Display) -> anyhow::Error {
     anyhow!("{}: {at}: {e}", pin_format::input::quoted(&scene.file))
 }
 
-/// The estimator when none is asked for (`pinrender render --scene`, `pinview`): pinms when
-/// every asset an instance uses has both a volume and pins, pins when every one has pins,
-/// ratio otherwise.
+/// What every asset an instance uses holds, from the scene's keys alone (nothing is read):
+/// pins where each names a pin file, a density where each names a volume (a pin file's
+/// embedded density is not looked for).
+pub fn declared_holds(scene: &Scene) -> Holds {
+    Holds::all(
+        scene
+            .assets
+            .iter()
+            .zip(scene.uses())
+            .filter(|(_, n)| *n > 0)
+            .map(|(a, _)| Holds {
+                pins: a.pins.is_some(),
+                density: a.volume.is_some(),
+                control: false,
+            }),
+    )
+}
+
+/// The estimator when none is asked for (`pinrender render --scene`, `pinview`): the one
+/// default rule ([`front::default_estimator`]) over what every used asset declares
+/// ([`declared_holds`]): pinms when every one has a volume and pins, pins when every one
+/// has pins, ratio otherwise.
 pub fn default_estimator(scene: &Scene) -> EstimatorSpec {
-    let used: Vec<&Asset> = scene
-        .assets
-        .iter()
-        .zip(scene.uses())
-        .filter(|(_, n)| *n > 0)
-        .map(|(a, _)| a)
-        .collect();
-    if used.iter().all(|a| a.pins.is_some() && a.volume.is_some()) {
-        EstimatorSpec::PinMs
-    } else if used.iter().all(|a| a.pins.is_some()) {
-        EstimatorSpec::Pins
-    } else {
-        EstimatorSpec::RatioTracking
+    front::default_estimator(declared_holds(scene), crate::render::ESTIMATORS)
+}
+
+/// What makes two assets one: the same files (by their canonical paths, where they
+/// resolve), grid and density scale. Names that share a key are opened, read and baked once
+/// and charged to the budget once.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+struct AssetKey {
+    volume: Option<PathBuf>,
+    pins: Option<PathBuf>,
+    grid: Option<String>,
+    density_scale: Option<u64>,
+}
+
+impl AssetKey {
+    fn of(a: &Asset) -> Self {
+        let canon = |p: &Option<PathBuf>| {
+            p.as_ref()
+                .map(|p| std::fs::canonicalize(p).unwrap_or_else(|_| p.clone()))
+        };
+        AssetKey {
+            volume: canon(&a.volume),
+            pins: canon(&a.pins),
+            grid: a.grid.clone(),
+            density_scale: a.density_scale.map(f64::to_bits),
+        }
     }
 }
 
-/// Opens every asset that an instance uses (each once; unused assets are not read).
-pub fn open_assets(scene: &Scene, o: &AssetOptions) -> Result<Vec<Option<OpenedAsset>>> {
-    let budget = pin_volume::files::MemoryBudget::new(o.max_memory);
-    budget.check(
-        &format!("{} instances", scene.instances.len()),
-        (scene.instances.len() as u64).saturating_mul(BYTES_PER_INSTANCE),
-    )?;
-    let uses = scene.uses();
-    scene
-        .assets
-        .iter()
-        .zip(uses)
-        .map(|(a, n)| (n > 0).then(|| open_asset(scene, a, o)).transpose())
-        .collect()
+/// Opens every asset that an instance uses, each distinct asset once ([`AssetKey`]: names
+/// of one file share its opening), within the one budget of the command: each distinct
+/// asset is opened within what the ones before it left, and its read and in-memory bake are
+/// charged before the next (unused assets are not read).
+pub fn open_assets(scene: &Scene, o: &AssetOptions) -> Result<Vec<Option<Arc<OpenedAsset>>>> {
+    let instances = (scene.instances.len() as u64).saturating_mul(BYTES_PER_INSTANCE);
+    o.budget
+        .check(&format!("{} instances", scene.instances.len()), instances)?;
+    let mut charged = instances;
+    let mut opened: HashMap<AssetKey, Arc<OpenedAsset>> = HashMap::new();
+    let mut out = Vec::with_capacity(scene.assets.len());
+    for (a, n) in scene.assets.iter().zip(scene.uses()) {
+        if n == 0 {
+            out.push(None);
+            continue;
+        }
+        let key = AssetKey::of(a);
+        if let Some(x) = opened.get(&key) {
+            out.push(Some(x.clone()));
+            continue;
+        }
+        let left = MemoryBudget {
+            limit: o.budget.limit.saturating_sub(charged),
+        };
+        let (asset, cost) = open_asset(scene, a, o, &left)?;
+        charged = charged.saturating_add(cost);
+        let asset = Arc::new(asset);
+        opened.insert(key, asset.clone());
+        out.push(Some(asset));
+    }
+    Ok(out)
 }
 
-fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset> {
+/// The bytes an asset's file reads are charged at ([`front::open::check_read`]'s rule).
+fn read_cost(path: &Path, factor: u64) -> u64 {
+    std::fs::metadata(path).map_or(0, |m| m.len().saturating_mul(factor))
+}
+
+/// Opens one asset within `budget` (what the assets before it left): its medium and the
+/// bytes it holds (its read, and the pins baked in memory).
+fn open_asset(
+    scene: &Scene,
+    a: &Asset,
+    o: &AssetOptions,
+    budget: &MemoryBudget,
+) -> Result<(OpenedAsset, u64)> {
     let spec = o.estimator;
+    let flags = RenderFlags {
+        pin_cells: o.pin_cells,
+        seed: o.seed,
+        ..RenderFlags::default()
+    };
     match (&a.volume, &a.pins) {
         (Some(v), pins) => {
             let at = a.json_path("volume");
@@ -110,61 +180,66 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             // again, as a message rather than a panic.
             let density_scale = DensityScale::new(a.density_scale.unwrap_or(1.0))
                 .map_err(|e| named(scene, &a.json_path("density_scale"), e.to_string()))?;
-            let args = VolumeArgs {
-                volume: None,
-                read: pinbake::cli_args::SourceArgs {
-                    grid: a.grid.clone(),
-                    density_scale,
-                    ..Default::default()
+            let read = pinbake::cli_args::SourceArgs {
+                grid: a.grid.clone(),
+                density_scale,
+                ..Default::default()
+            };
+            let wants_pins = spec.needs_pins() || (o.named_pins && pins.is_some());
+            let input = Input {
+                volume: Some(v),
+                read: &read,
+                pins: pins.as_deref(),
+                wanted: if wants_pins {
+                    PinsWanted::Now {
+                        control: spec.needs_control(),
+                    }
+                } else {
+                    PinsWanted::No
                 },
+                allow_mismatched_pins: o.allow_mismatched_pins,
+                gpu: None,
             };
-            let opened = volume::open_volume_typed(v, &args)
-                .map_err(|e| named(scene, &at, format!("{e:#}")))?;
-            let source = opened.source();
-            let b = source.bounds();
-            let grid = if spec.needs_pins() || (o.named_pins && pins.is_some()) {
-                let budget = pin_volume::files::MemoryBudget::new(o.max_memory);
-                let grid = volume::pins_for(
-                    pins.as_deref(),
-                    source.as_ref(),
-                    o.pin_cells,
-                    o.seed,
-                    spec.needs_control(),
-                    &budget,
-                )
+            // The volume first, then its pins: each failure names its own key.
+            let medium = front::open_medium(
+                &Input {
+                    wanted: PinsWanted::No,
+                    ..input
+                },
+                &flags,
+                budget,
+            )
+            .map_err(|e| named(scene, &at, format!("{e:#}")))?;
+            let medium = front::open::with_pins(medium, &input, &flags, budget)
                 .map_err(|e| named(scene, &a.json_path("pins"), format!("{e:#}")))?;
-                if let Some(p) = pins {
-                    volume::check_pins_match(
-                        p,
-                        &grid,
-                        v,
-                        source.as_ref(),
-                        args.read.density_scale,
-                        o.allow_mismatched_pins,
-                    )
-                    .map_err(|e| named(scene, &a.json_path("pins"), format!("{e:#}")))?;
-                }
-                Some(Arc::new(grid))
-            } else {
-                None
-            };
-            let medium = OpenedMedium::volume(
-                opened,
-                grid,
-                pin_volume::files::MemoryBudget::new(o.max_memory).limit,
-            );
-            Ok(OpenedAsset {
-                desc: medium.desc(o.majorant_bricks, None),
-                bounds: (b.min.to_array(), b.max.to_array()),
-                medium,
-            })
+            let mut cost = read_cost(v, 8);
+            if let Some(grid) = &medium.pins {
+                cost = cost.saturating_add(match pins {
+                    Some(p) => read_cost(p, 1),
+                    None => grid.bytes().len() as u64,
+                });
+            }
+            Ok((
+                OpenedAsset {
+                    desc: medium.desc(o.majorant_bricks, None),
+                    bounds: medium.bounds,
+                    medium,
+                },
+                cost,
+            ))
         }
         (None, Some(p)) => {
             let at = a.json_path("pins");
-            let grid =
-                Arc::new(volume::load_pins(p).map_err(|e| named(scene, &at, format!("{e:#}")))?);
-            let medium =
-                OpenedMedium::pin_file(p, grid).map_err(|e| named(scene, &at, format!("{e:#}")))?;
+            let input = Input {
+                volume: None,
+                read: &pinbake::cli_args::SourceArgs::default(),
+                pins: Some(p),
+                wanted: PinsWanted::No,
+                allow_mismatched_pins: false,
+                gpu: None,
+            };
+            let medium = front::open_medium(&input, &flags, budget)
+                .map_err(|e| named(scene, &at, format!("{e:#}")))?;
             if spec.needs_density() && medium.field.is_none() {
                 return Err(named(
                     scene,
@@ -176,11 +251,14 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
                     ),
                 ));
             }
-            Ok(OpenedAsset {
-                desc: medium.desc(o.majorant_bricks, None),
-                bounds: medium.bounds,
-                medium,
-            })
+            Ok((
+                OpenedAsset {
+                    desc: medium.desc(o.majorant_bricks, None),
+                    bounds: medium.bounds,
+                    medium,
+                },
+                read_cost(p, 3),
+            ))
         }
         (None, None) => Err(named(
             scene,
@@ -188,6 +266,17 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             "needs a volume, pins, or both",
         )),
     }
+}
+
+/// For each asset, the first asset that shares its opening (itself where none before does).
+fn first_names(assets: &[Option<Arc<OpenedAsset>>]) -> Vec<usize> {
+    let mut seen: HashMap<*const OpenedAsset, usize> = HashMap::new();
+    (0..assets.len())
+        .map(|k| match &assets[k] {
+            Some(x) => *seen.entry(Arc::as_ptr(x)).or_insert(k),
+            None => k,
+        })
+        .collect()
 }
 
 /// Interleaves the low 21 bits of `v` with two zero bits between each.
@@ -241,12 +330,15 @@ pub fn morton_order(boxes: &[([f64; 3], [f64; 3])]) -> Vec<usize> {
 /// per instance.
 pub fn cpu_media(
     scene: &Scene,
-    assets: &[Option<OpenedAsset>],
+    assets: &[Option<Arc<OpenedAsset>>],
     o: &AssetOptions,
 ) -> Result<SceneMedia> {
     let mut built: Vec<Option<Medium>> = Vec::with_capacity(assets.len());
-    for (a, opened) in scene.assets.iter().zip(assets) {
+    let first = first_names(assets);
+    for (k, (a, opened)) in scene.assets.iter().zip(assets).enumerate() {
         built.push(match opened {
+            // Another name of an asset built already: its medium, shared.
+            Some(_) if first[k] < k => built[first[k]].clone(),
             Some(x) => Some(
                 x.desc
                     .cpu_medium(o.estimator, o.lookup)
@@ -296,15 +388,19 @@ pub fn cpu_media(
 /// frame as the CPU does ([`crate::instance`]) and uploads each asset once.
 pub fn gpu_descs(
     scene: &Scene,
-    assets: &[Option<OpenedAsset>],
+    assets: &[Option<Arc<OpenedAsset>>],
     o: &AssetOptions,
     limits: &wgpu::Limits,
 ) -> Result<(Vec<MediumDesc>, WorldBox)> {
     let spec = o.estimator;
     let mut framed: Vec<Option<MediumDesc>> = Vec::with_capacity(assets.len());
-    for (a, opened) in scene.assets.iter().zip(assets) {
+    let first = first_names(assets);
+    for (k, (a, opened)) in scene.assets.iter().zip(assets).enumerate() {
         framed.push(match opened {
             None => None,
+            // Another name of an asset framed already: its description, its density's GPU
+            // copy uploaded once.
+            Some(_) if first[k] < k => framed[first[k]].clone(),
             Some(x) => {
                 let at = || {
                     let key = if a.volume.is_some() { "volume" } else { "pins" };
@@ -484,14 +580,78 @@ pub fn camera_over(
 
 /// Loads `path` as a scene under the memory budget (`pin_scene::load`), with the error as
 /// one line.
-pub fn load_scene(path: &Path, max_memory: Option<u64>) -> Result<Scene> {
-    let limit = pin_volume::files::MemoryBudget::new(max_memory).limit;
-    pin_scene::load(path, Some(limit)).map_err(|e| anyhow!("{e}"))
+pub fn load_scene(path: &Path, budget: &MemoryBudget) -> Result<Scene> {
+    pin_scene::load(path, Some(budget.limit)).map_err(|e| anyhow!("{e}"))
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Names of one file share one opening (one read, one medium), and the distinct assets
+    /// are charged to one budget together.
+    #[test]
+    fn names_of_one_file_are_opened_once_within_one_budget() {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str| {
+            let values: Vec<u8> = (0..16 * 16 * 16u32)
+                .flat_map(|i| (1.0 + (i % 3) as f32).to_le_bytes())
+                .collect();
+            let p = dir.path().join(name);
+            std::fs::write(&p, values).unwrap();
+            p
+        };
+        // 16 KiB each, charged 128 KiB (8x) when read.
+        write("a_16x16x16_float32.raw");
+        write("b_16x16x16_float32.raw");
+        let scene_of = |files: &[&str]| {
+            let assets: Vec<String> = files
+                .iter()
+                .enumerate()
+                .map(|(k, f)| format!("\"n{k}\": {{\"volume\": \"{f}\"}}"))
+                .collect();
+            let instances: Vec<String> = (0..files.len())
+                .map(|k| format!("{{\"asset\": \"n{k}\"}}"))
+                .collect();
+            let text = format!(
+                "{{\"assets\": {{{}}}, \"instances\": [{}]}}",
+                assets.join(","),
+                instances.join(",")
+            );
+            let p = dir.path().join("s.json");
+            std::fs::write(&p, text).unwrap();
+            pin_scene::load(&p, None).unwrap()
+        };
+        let options = |limit: u64| AssetOptions {
+            estimator: EstimatorSpec::RatioTracking,
+            pin_cells: None,
+            seed: 0,
+            majorant_bricks: 4,
+            budget: MemoryBudget { limit },
+            allow_mismatched_pins: false,
+            lookup: SamplerOptions::RENDER,
+            named_pins: false,
+        };
+        let one = ["a_16x16x16_float32.raw"; 3];
+        let opened = open_assets(&scene_of(&one), &options(200 << 10)).unwrap();
+        let [Some(x), Some(y), Some(z)] = &opened[..] else {
+            panic!("three names, three assets");
+        };
+        assert!(
+            Arc::ptr_eq(x, y) && Arc::ptr_eq(y, z),
+            "one file, one opening"
+        );
+        let two = ["a_16x16x16_float32.raw", "b_16x16x16_float32.raw"];
+        let e = open_assets(&scene_of(&two), &options(200 << 10))
+            .err()
+            .expect("two files of 128 KiB each exceed 200 KiB together")
+            .to_string();
+        assert!(
+            e.contains("assets.n1.volume") && e.contains("reading"),
+            "{e}"
+        );
+        assert!(open_assets(&scene_of(&two), &options(300 << 10)).is_ok());
+    }
 
     #[test]
     fn morton_order_keeps_neighbours_together() {

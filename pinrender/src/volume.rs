@@ -191,41 +191,55 @@ pub const GPU_DENSE_VOXELS: u64 = 1 << 28;
 /// Flags for another kind of input (`--grid` on a raw file, `--dims` on a VDB) are usage
 /// errors, and a path must name a regular file ([`pinbake::cli_args::SourceArgs::source_spec`]).
 pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Opened> {
+    open_volume_within(input, a, &pin_volume::files::MemoryBudget::new(None))
+}
+
+/// [`open_volume_typed`] within a command's memory budget: a VDB's dense copy for the
+/// trackers takes at most a quarter of it.
+pub fn open_volume_within(
+    input: impl AsRef<OsStr>,
+    a: &VolumeArgs,
+    budget: &pin_volume::files::MemoryBudget,
+) -> Result<Opened> {
     let spec = a
         .read
         .source_spec(Path::new(input.as_ref()), "volume", || {
             std::env::current_exe().context("locating pinrender")
         })?;
     let scale = a.read.density_scale;
-    Ok(match spec {
+    if let SourceSpec::Procedural(p) = spec {
+        return procedural(p, scale);
+    }
+    // Every file goes through pinbake's one dispatch (`open_source_typed`): what it reads,
+    // the renderer and the viewer read, NanoVDB included.
+    Ok(match source::open_source_typed(&spec, scale)? {
         // The trackers sample the density point by point; a dense copy of the active box
         // answers them without the tree's hash lookups, with the same bits (the images do
         // not change), when it takes at most 1 GiB and a quarter of the memory budget.
-        SourceSpec::Vdb(path, opts) => Opened::Vdb(Arc::new(
-            source::VdbSource::open(&path, &opts, scale)?.with_dense_cache(
-                pinbake::bake::DEFAULT_DENSE_COPY_BYTES
-                    .min(pin_volume::files::default_memory_limit() / 4),
-            ),
+        source::OpenedSource::Vdb(v) => Opened::Vdb(Arc::new(
+            (*v).with_dense_cache(pinbake::bake::DEFAULT_DENSE_COPY_BYTES.min(budget.limit / 4)),
         )),
-        SourceSpec::Raw(path, opts) => {
-            Opened::Dense(Arc::new(source::raw::read_raw(&path, &opts, scale)?))
+        source::OpenedSource::Raw(g) => Opened::Dense(Arc::new(*g)),
+        source::OpenedSource::Procedural(p) => Opened::Other(Arc::from(p)),
+    })
+}
+
+/// A procedural field with its GPU form kept: cosine noise as its waves, a box as itself,
+/// the sphere (no GPU form) as a source.
+fn procedural(p: source::ProceduralSpec, scale: DensityScale) -> Result<Opened> {
+    // The field itself, its density scaled (what `build` makes with the scale).
+    let p = p.scaled(scale);
+    Ok(match p.kind {
+        ProceduralKind::Cosine | ProceduralKind::Fractal => {
+            // `build` first: it reports a bad spec with the spec in the message.
+            p.build(DensityScale::ONE)?;
+            Opened::Noise(Arc::new(p.build_noise()?))
         }
-        SourceSpec::Procedural(p) => {
-            // The field itself, its density scaled (what `build` makes with the scale).
-            let p = p.scaled(scale);
-            match p.kind {
-                ProceduralKind::Cosine | ProceduralKind::Fractal => {
-                    // `build` first: it reports a bad spec with the spec in the message.
-                    p.build(DensityScale::ONE)?;
-                    Opened::Noise(Arc::new(p.build_noise()?))
-                }
-                ProceduralKind::Box => Opened::Box(source::HomogeneousBox::new(
-                    p.world_box(),
-                    p.density as f32,
-                )?),
-                ProceduralKind::Sphere => Opened::Other(Arc::from(p.build(DensityScale::ONE)?)),
-            }
-        }
+        ProceduralKind::Box => Opened::Box(source::HomogeneousBox::new(
+            p.world_box(),
+            p.density as f32,
+        )?),
+        ProceduralKind::Sphere => Opened::Other(Arc::from(p.build(DensityScale::ONE)?)),
     })
 }
 
@@ -780,69 +794,5 @@ impl OpenedMedium {
             translation: [0.0; 3],
             placement: None,
         }
-    }
-}
-
-/// The estimator when --estimator is not given: pinms for a pin file with a density at hand
-/// (--volume, or one embedded in the file), pins for a pin file without one, ratio for a
-/// volume alone. Reads the file's section table only.
-pub fn default_estimator(
-    volume: Option<&Path>,
-    pins: Option<&Path>,
-) -> Result<crate::render::EstimatorSpec> {
-    Ok(match (volume, pins) {
-        (_, None) => crate::render::EstimatorSpec::RatioTracking,
-        (Some(_), Some(_)) => crate::render::EstimatorSpec::PinMs,
-        (None, Some(p)) => {
-            let grid = load_pins(p)?;
-            let file = grid.file().map_err(|e| anyhow!("{}: {e}", p.display()))?;
-            if file.density().is_some() || file.sparse_density().is_some() {
-                crate::render::EstimatorSpec::PinMs
-            } else {
-                crate::render::EstimatorSpec::Pins
-            }
-        }
-    })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::render::EstimatorSpec;
-
-    /// A cosine field's pins (4^3 cells), with `embed` density voxels per axis.
-    fn bake(dir: &Path, name: &str, embed: Option<u32>) -> PathBuf {
-        let p: source::ProceduralSpec = "cosine:seed=5,freq=4,density=6".parse().unwrap();
-        let src = p.build(DensityScale::ONE).unwrap();
-        let opts = pinbake::BakeOptions {
-            cells: [4; 3],
-            embed_density: embed.map(|n| pinbake::EmbedDensity::Dense([n; 3])),
-            majorant: embed.map(|_| [4; 3]),
-            ..pinbake::BakeOptions::default()
-        };
-        let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
-        let path = dir.join(name);
-        grid.write_atomic(&path).unwrap();
-        path
-    }
-
-    #[test]
-    fn the_default_estimator_follows_the_input() {
-        let dir = tempfile::tempdir().unwrap();
-        let bare = bake(dir.path(), "bare.pin", None);
-        let dense = bake(dir.path(), "dense.pin", Some(8));
-        let volume = Path::new("procedural:cosine");
-        let d = |v: Option<&Path>, p: Option<&Path>| default_estimator(v, p).unwrap();
-        assert_eq!(d(None, Some(&bare)), EstimatorSpec::Pins);
-        assert_eq!(d(None, Some(&dense)), EstimatorSpec::PinMs);
-        assert_eq!(d(Some(volume), None), EstimatorSpec::RatioTracking);
-        assert_eq!(d(Some(volume), Some(&bare)), EstimatorSpec::PinMs);
-        // A file that is not a pin file is an error naming it, not a default.
-        let junk = dir.path().join("junk.pin");
-        std::fs::write(&junk, b"junk").unwrap();
-        let e = default_estimator(None, Some(&junk))
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("junk.pin"), "{e}");
     }
 }

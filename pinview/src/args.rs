@@ -1,10 +1,12 @@
-//! The command line: a file and the render flags of `pinrender render` (same names, ranges
-//! and defaults but the image size), plus the scripting flags.
+//! The command line: a file, the render flags `pinrender render` flattens too
+//! ([`pinrender::front::RenderFlags`]: the same names, ranges and defaults), the image size,
+//! and the scripting flags.
 
 use std::path::PathBuf;
 
 use clap::Parser;
-use pin_cli::parse::{parse_f64x3, parse_finite, parse_nonneg};
+use pin_cli::parse::parse_finite;
+use pinrender::front::RenderFlags;
 use pinrender::render::EstimatorSpec;
 
 #[derive(Parser, Debug, Clone)]
@@ -18,7 +20,8 @@ trackers where it embeds a density or a control), a volume (.vdb, .nvdb, .raw wi
 procedural:SPEC: tracked at once while its pins bake in the background, then every estimator),
 a scene file of instanced volumes (.json, docs/scene.md: its camera, sun, sky, albedo, g and
 bounces unless a flag gives them; every estimator its assets answer, as `pinrender render
---scene --backend gpu`), or a frame pattern (sim.####.pin: play, pause, step and scrub). A file dropped
+--scene --backend gpu`), or a frame pattern (sim.####.pin or sim.%04d.pin, as `pinbake
+--frames` writes them, negative frames too: play, pause, step and scrub). A file dropped
 on the window opens in its place.
 
 Scripting: --frames N renders N one-sample passes in the window, then writes --screenshot
@@ -38,9 +41,10 @@ pub struct ViewArgs {
     pub file: PathBuf,
     #[command(flatten)]
     pub read: pinbake::cli_args::SourceArgs,
-    /// rm@STEP, delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N], pins, pinms or
-    /// pinres. Default: as `pinrender render`: pinms for a pin file with a density, pins for
-    /// one without, ratio for a volume until its pins are baked.
+    /// rm@STEP, delta, ratio, residual[@min|@mean], pins, pinms or pinres (the renderer's
+    /// estimators; the lab's urm, jackknife and pinurm are `pinrender render`'s only).
+    /// Default: as `pinrender render`: pinms for a pin file with a density, pins for one
+    /// without, ratio for a volume until its pins are baked.
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<EstimatorSpec>,
     /// A second estimator beside the first, at equal GPU time (split view). With --frames,
@@ -73,50 +77,11 @@ pub struct ViewArgs {
     /// Image height in pixels (1..=16384).
     #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub height: u32,
-    /// Camera position X,Y,Z (default: in front of the box, as `pinrender render`).
-    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
-    pub camera_origin: Option<[f64; 3]>,
-    /// Point the camera looks at (default: the box centre).
-    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
-    pub camera_target: Option<[f64; 3]>,
-    /// Vertical field of view in degrees, in (0, 180) [default: 40, or the scene's].
-    #[arg(long, value_parser = parse_fov)]
-    pub fov: Option<f64>,
-    /// Direction from the scene towards the sun [default: 0.3,1,0.2, or the scene's].
-    #[arg(long, value_parser = parse_direction, allow_hyphen_values = true)]
-    pub sun_dir: Option<[f64; 3]>,
-    /// [default: 3, or the scene's]
-    #[arg(long, value_parser = parse_nonneg)]
-    pub sun_radiance: Option<f64>,
-    /// [default: 0.3, or the scene's]
-    #[arg(long, value_parser = parse_nonneg)]
-    pub env_radiance: Option<f64>,
-    /// Single-scattering albedo, in [0, 1] [default: 0.9, or the scene's].
-    #[arg(long, value_parser = parse_albedo)]
-    pub albedo: Option<f64>,
-    /// Henyey-Greenstein asymmetry, in (-1, 1) [default: 0, or the scene's].
-    #[arg(long, value_parser = parse_hg_g, allow_negative_numbers = true)]
-    pub g: Option<f64>,
-    /// Scattering events at most (at most 1024, the GPU's limit) [default: 8, or the
-    /// scene's].
-    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=1024))]
-    pub max_bounces: Option<u32>,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Refuse a file or scene that would need more than this many bytes of memory to open
-    /// (K/M/G/T suffixes; default: half of the physical memory), as `pinrender render
-    /// --max-memory` bounds it: a pin file's mapping, a volume's read, a scene file's text
-    /// and instances and each of its assets.
-    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
-    pub max_memory: Option<u64>,
-    /// Spatial cells per axis of a volume's bake in the viewer and of its re-bakes
-    /// (1..=4096; default: chosen from the volume as `pinbake bake` chooses them), as
-    /// `pinrender render --pin-cells`. Fewer cells bake sooner.
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
-    pub pin_cells: Option<u32>,
-    /// Exposure of the displayed image (finite, > 0).
-    #[arg(long, default_value_t = 1.0, value_parser = parse_exposure)]
-    pub exposure: f32,
+    /// The camera, the lighting and the material, the seed, the size of a volume's bake
+    /// (`--pin-cells`: refused for a pin file or a scene), the memory budget and the
+    /// exposure: `pinrender render`'s flags, with its ranges and defaults.
+    #[command(flatten)]
+    pub flags: RenderFlags,
     /// Render this many one-sample passes, write the outputs asked for and exit.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub frames: Option<u32>,
@@ -148,43 +113,10 @@ pub struct ViewArgs {
     pub frame_passes: u32,
 }
 
-impl ViewArgs {
-    /// The look flags given (`None` where a flag is not given).
-    pub fn look_flags(&self) -> pinrender::scene_media::LookFlags {
-        pinrender::scene_media::LookFlags {
-            fov: self.fov,
-            sun_dir: self.sun_dir,
-            sun_radiance: self.sun_radiance,
-            env_radiance: self.env_radiance,
-            albedo: self.albedo,
-            g: self.g,
-            max_bounces: self.max_bounces,
-        }
-    }
-}
-
-/// Every estimator of the renderer runs on the GPU path tracer (the lab's do not, and the
-/// viewer does not offer them).
+/// The renderer's estimators (`pinrender::render::ESTIMATORS`); the lab's (urm, jackknife,
+/// pinurm) are not linked into the viewer.
 fn parse_estimator(s: &str) -> Result<EstimatorSpec, String> {
     s.parse()
-}
-
-/// `--fov`, `--albedo`, `--g` and `--sun-dir` follow `pin_scene::ranges`, the rules of
-/// `pinrender render` and of the scene file: the same bounds and messages.
-fn parse_fov(s: &str) -> Result<f64, String> {
-    pin_scene::ranges::fov(parse_finite(s)?)
-}
-
-fn parse_albedo(s: &str) -> Result<f64, String> {
-    pin_scene::ranges::albedo(parse_finite(s)?)
-}
-
-fn parse_hg_g(s: &str) -> Result<f64, String> {
-    pin_scene::ranges::hg_g(parse_finite(s)?)
-}
-
-fn parse_direction(s: &str) -> Result<[f64; 3], String> {
-    pin_scene::ranges::direction(parse_f64x3(s)?)
 }
 
 fn parse_pixel(s: &str) -> Result<[f64; 2], String> {
@@ -200,21 +132,14 @@ fn parse_pixel(s: &str) -> Result<[f64; 2], String> {
     Ok([x, y])
 }
 
-fn parse_exposure(s: &str) -> Result<f32, String> {
-    let v = parse_finite(s)?;
-    if !(v > 0.0 && v <= f64::from(f32::MAX)) {
-        return Err(format!("{} must be > 0", pin_cli::num(v)));
-    }
-    Ok(v as f32)
-}
-
 impl ViewArgs {
     /// The bake the viewer makes of a volume: `pinbake bake`'s choice, with the cells
     /// `--pin-cells` gives (`pinrender::volume::pins_for`'s request).
     pub fn preview_bake(&self) -> crate::open::PreviewBake {
         crate::open::PreviewBake {
-            seed: self.seed,
-            cells: self.pin_cells,
+            seed: self.flags.seed,
+            cells: self.flags.pin_cells,
+            budget: self.flags.budget(),
         }
     }
 }

@@ -29,6 +29,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 use anyhow::{Result, anyhow};
+use pin_volume::files::MemoryBudget;
 
 use args::ViewArgs;
 use open::Medium;
@@ -44,20 +45,11 @@ fn main() -> ExitCode {
     pin_cli::run_main("pinview", args, |a: ViewArgs| run(a, started))
 }
 
-/// Opens one frame or file as the viewer reads it, within `--max-memory`.
-fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
-    if !open::is_scene_file(path)
-        && let Ok(m) = std::fs::metadata(path)
-    {
-        // As `pinrender render` bounds its inputs: a volume's voxels up to 8x its file (f32
-        // values from bytes, a VDB's leaves), a pin file mapped in place with its dense
-        // density section widened to f32: at most 3x its length.
-        let factor = if open::is_pin_file(path) { 3 } else { 8 };
-        pin_volume::files::MemoryBudget::new(a.max_memory).check(
-            &format!("reading {}", path.display()),
-            m.len().saturating_mul(factor),
-        )?;
-    }
+/// Opens one frame or file as the viewer reads it, within the command's one budget
+/// (`--max-memory`): a scene's assets together, a pin file's mapping, a volume's read, its
+/// dense copies and the bake the viewer starts in the background, as `pinrender render`
+/// charges them.
+fn open_medium(path: &Path, a: &ViewArgs, budget: &MemoryBudget) -> Result<Medium> {
     if open::is_scene_file(path) {
         if let Some(flag) = a.read.given().first() {
             pin_cli::usage!(
@@ -65,22 +57,17 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
                 path.display()
             );
         }
-        Medium::open_scene(path, a.estimator, a.seed, a.max_memory)
-    } else if open::is_pin_file(path) {
-        if let Some(flag) = a.read.given().first() {
-            pin_cli::usage!(
-                "{flag} applies to a volume, not to the pin file {}",
-                path.display()
-            );
-        }
-        Medium::open_pins(path)
-    } else {
-        let read = pinrender::volume::VolumeArgs {
-            volume: Some(path.to_path_buf()),
-            read: a.read.clone(),
-        };
-        Medium::open_volume(path, &read)
+        return Medium::open_scene(path, a.estimator, a.flags.seed, budget);
     }
+    if open::is_pin_file(path)
+        && let Some(flag) = a.read.given().first()
+    {
+        pin_cli::usage!(
+            "{flag} applies to a volume, not to the pin file {}",
+            path.display()
+        );
+    }
+    Medium::open(path, &a.read, &a.flags, budget)
 }
 
 /// The flags a scene file refuses: what needs one medium (an overlay of its pins, a
@@ -99,7 +86,7 @@ fn scene_flags(a: &ViewArgs, medium: &Medium) -> Result<()> {
             medium.path.display()
         );
     }
-    let look = pinrender::scene_media::Look::over(&a.look_flags(), medium.scene());
+    let look = a.flags.look(medium.scene());
     let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
     if look.max_bounces > max_gpu {
         pin_cli::usage!(
@@ -113,9 +100,18 @@ fn scene_flags(a: &ViewArgs, medium: &Medium) -> Result<()> {
 
 fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let mut clock = startup::StartupClock::new(started);
-    if a.play && a.frames.is_some() && sequence::split_pattern(&a.file).is_none() {
+    let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
+    if let Some(n) = a.flags.max_bounces.filter(|&n| n > max_gpu) {
+        pin_cli::usage!("--max-bounces {n} exceeds the GPU limit of {max_gpu}");
+    }
+    // One budget for the command: the image buffers first, as `pinrender render` charges
+    // them, then the file (its read, copies and bake) within the same budget.
+    let budget = a.flags.budget();
+    pinrender::front::flags::check_image(&budget, a.width, a.height)?;
+    let pattern = sequence::pattern(&a.file)?;
+    if a.play && a.frames.is_some() && pattern.is_none() {
         pin_cli::usage!(
-            "--play needs a frame pattern (sim.####.pin), not {}",
+            "--play needs a frame pattern (sim.####.pin or sim.%04d.pin), not {}",
             a.file.display()
         );
     }
@@ -123,7 +119,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         if let Some(flag) = offscreen::window_only_flags(&a) {
             pin_cli::usage!("{flag} needs the window; --offscreen renders one view without one");
         }
-        if sequence::split_pattern(&a.file).is_some() {
+        if pattern.is_some() {
             pin_cli::usage!(
                 "--offscreen renders one file, not the frame pattern {}",
                 a.file.display()
@@ -131,12 +127,12 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         }
     }
     // The file first: a bad one is reported without opening a window.
-    let frames = match sequence::split_pattern(&a.file) {
+    let frames = match pattern {
         Some(_) => Some(sequence::list_frames(&a.file)?),
         None => None,
     };
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
-    let medium = match open_medium(&first, &a) {
+    let medium = match open_medium(&first, &a, &budget) {
         Ok(m) => m,
         // Interactive, a refused scene is shown in the window (and then on stderr).
         Err(e)
@@ -162,7 +158,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         );
     }
     // The viewer bakes only a volume: a pin file or a scene has its pins already.
-    if a.pin_cells.is_some() && !medium.is_volume {
+    if a.flags.pin_cells.is_some() && !medium.is_volume {
         pin_cli::usage!(
             "--pin-cells applies to a volume the viewer bakes, not to {}",
             first.display()
@@ -218,7 +214,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     // A scene dropped on the window opens with the one estimator the GPU path has for it,
     // whatever --estimator asked of the first file.
     opener_args.estimator = None;
-    let opener: sequence::Opener = Arc::new(move |p: &Path| open_medium(p, &opener_args));
+    let opener: sequence::Opener = Arc::new(move |p: &Path| open_medium(p, &opener_args, &budget));
     let result = shell::run(
         options,
         Box::new(move |cc| {

@@ -9,11 +9,13 @@ use std::sync::{Arc, Mutex};
 
 use anyhow::{Result, anyhow, bail};
 
+use pin_volume::files::MemoryBudget;
+use pinrender::front::{self, Holds, RenderFlags};
 use pinrender::gpu_render::{GpuDensity, GpuMedia};
 use pinrender::medium::MediumDesc;
-use pinrender::render::EstimatorSpec;
+use pinrender::render::{ESTIMATORS, EstimatorSpec};
 use pinrender::scene_media;
-use pinrender::volume::{self, OpenedMedium, VolumeArgs};
+use pinrender::volume::{OpenedMedium, VolumeArgs};
 use pinrt::SamplerOptions;
 
 /// Majorant bricks per axis: `pinrender render`'s default.
@@ -39,7 +41,7 @@ pub struct Medium {
 /// A scene file opened: its assets once, and the instances' GPU media made from them.
 pub struct SceneMedia {
     pub scene: pin_scene::Scene,
-    assets: Vec<Option<scene_media::OpenedAsset>>,
+    assets: Vec<Option<Arc<scene_media::OpenedAsset>>>,
     options: scene_media::AssetOptions,
     /// The estimators every used asset answers, in menu order.
     estimators: Vec<EstimatorSpec>,
@@ -118,42 +120,32 @@ impl MediaJob {
     }
 }
 
-/// Every estimator the viewer offers, in menu order.
-pub fn all_estimators() -> Vec<EstimatorSpec> {
-    [
-        "pins",
-        "pinms",
-        "pinres",
-        "ratio",
-        "residual",
-        "delta",
-        "rm@0.015",
-        "urm",
-        "jackknife",
-    ]
-    .iter()
-    .filter_map(|n| n.parse().ok())
-    .collect()
-}
-
 impl Medium {
-    /// A pin file alone (mapped, O(1); the density sections are read when an estimator asks).
-    pub fn open_pins(path: &Path) -> Result<Self> {
-        let grid = Arc::new(volume::load_pins(path)?);
-        let opened = OpenedMedium::pin_file(path, grid)?;
-        Ok(Self::new(path, opened, false, None))
-    }
-
-    /// A volume: tracked at once, without pins until [`Medium::set_pins`].
-    pub fn open_volume(path: &Path, read: &VolumeArgs) -> Result<Self> {
-        let opened = volume::open_volume_typed(path, read)?;
-        let limit = pin_volume::files::MemoryBudget::new(None).limit;
-        Ok(Self::new(
-            path,
-            OpenedMedium::volume(opened, None, limit),
-            true,
-            None,
-        ))
+    /// A pin file alone (mapped, O(1); the density sections are read when an estimator
+    /// asks), or a volume (tracked at once, without pins until [`Medium::set_pins`]; the bake
+    /// the viewer starts in the background is planned and charged to `budget` here), opened
+    /// as `pinrender render` opens it ([`pinrender::front::open_medium`]) within `budget`.
+    pub fn open(
+        path: &Path,
+        read: &pinbake::cli_args::SourceArgs,
+        flags: &RenderFlags,
+        budget: &MemoryBudget,
+    ) -> Result<Self> {
+        let is_volume = !is_pin_file(path);
+        let input = front::Input {
+            volume: is_volume.then_some(path),
+            read,
+            pins: (!is_volume).then_some(path),
+            wanted: if is_volume {
+                front::PinsWanted::Later
+            } else {
+                front::PinsWanted::No
+            },
+            allow_mismatched_pins: false,
+            gpu: None,
+        };
+        let opened = front::open_medium(&input, flags, budget)?;
+        Ok(Self::new(path, opened, is_volume, None))
     }
 
     fn new(
@@ -182,16 +174,16 @@ impl Medium {
         path: &Path,
         estimator: Option<EstimatorSpec>,
         seed: u64,
-        max_memory: Option<u64>,
+        budget: &MemoryBudget,
     ) -> Result<Self> {
-        let scene = scene_media::load_scene(path, max_memory)?;
+        let scene = scene_media::load_scene(path, budget)?;
         let estimator = estimator.unwrap_or_else(|| scene_media::default_estimator(&scene));
         let options = scene_media::AssetOptions {
             estimator,
             pin_cells: None,
             seed,
             majorant_bricks: MAJORANT_BRICKS,
-            max_memory,
+            budget: *budget,
             allow_mismatched_pins: false,
             lookup: SamplerOptions::RENDER,
             named_pins: true,
@@ -201,25 +193,9 @@ impl Medium {
             estimator: EstimatorSpec::Pins,
             ..options
         };
-        let used: Vec<&scene_media::OpenedAsset> = assets.iter().flatten().collect();
-        let pins = used.iter().all(|a| a.desc.pins.is_some());
-        let density = used.iter().all(|a| a.desc.field.is_some());
-        let control = pins
-            && used.iter().all(|a| {
-                a.desc
-                    .pins
-                    .as_ref()
-                    .and_then(|p| p.grid.file().ok().map(|f| f.control().is_some()))
-                    .unwrap_or(false)
-            });
-        let estimators: Vec<EstimatorSpec> = all_estimators()
-            .into_iter()
-            .filter(|e| {
-                (!e.needs_pins() || pins)
-                    && (!e.needs_density() || density)
-                    && (*e != EstimatorSpec::PinRes || control)
-            })
-            .collect();
+        let holds = Holds::all(assets.iter().flatten().map(|a| holds_of(&a.medium)));
+        let estimators = front::available(holds, ESTIMATORS);
+        let pins = holds.pins;
         let (pins_descs, bounds) = if pins {
             scene_media::gpu_descs(&scene, &assets, &pins_only, &wgpu::Limits::default())?
         } else {
@@ -283,37 +259,23 @@ impl Medium {
         }
     }
 
-    /// The estimators this medium answers now (a scene: those every asset it uses answers).
+    /// The estimators this medium answers now (a scene: those every asset it uses answers):
+    /// the renderer's one rule ([`pinrender::front::available`]) over its catalogue.
     pub fn estimators(&self) -> Vec<EstimatorSpec> {
         if let Some(s) = &self.scene {
             return s.estimators.clone();
         }
-        all_estimators()
-            .into_iter()
-            .filter(|e| {
-                (!e.needs_pins() || self.pins().is_some())
-                    && (!e.needs_density() || self.has_density())
-                    && (*e != EstimatorSpec::PinRes
-                        || self
-                            .pins()
-                            .as_ref()
-                            .and_then(|p| p.file().ok().map(|f| f.control().is_some()))
-                            .unwrap_or(false))
-            })
-            .collect()
+        front::available(holds_of(&self.opened), ESTIMATORS)
     }
 
-    /// The estimator when none is asked for: `pinrender render`'s default for the same input
-    /// (pinms with pins and a density, pins with pins alone, ratio for a volume without pins).
+    /// The estimator when none is asked for: `pinrender render`'s default rule for what the
+    /// medium holds now ([`pinrender::front::default_estimator`]: pinms with pins and a
+    /// density, pins with pins alone, ratio for a volume without pins).
     pub fn default_estimator(&self) -> EstimatorSpec {
         if let Some(s) = &self.scene {
             return s.options.estimator;
         }
-        match (self.pins().is_some(), self.has_density()) {
-            (true, true) => EstimatorSpec::PinMs,
-            (true, false) => EstimatorSpec::Pins,
-            _ => EstimatorSpec::RatioTracking,
-        }
+        front::default_estimator(holds_of(&self.opened), ESTIMATORS)
     }
 
     /// What a renderer of `estimator` reads of this medium, refused here (on the window's
@@ -385,10 +347,12 @@ struct Shared {
 
 /// What the viewer asks of a volume's bake: the seed, and the cells per axis where given
 /// (else `pinbake bake`'s choice for the volume), as `pinrender render` asks.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug)]
 pub struct PreviewBake {
     pub seed: u64,
     pub cells: Option<u32>,
+    /// The command's memory budget (`--max-memory`), which the bake is planned within.
+    pub budget: MemoryBudget,
 }
 
 /// Plans and bakes `source`'s pins on `backend`, reporting to `shared`.
@@ -404,7 +368,7 @@ fn bake_pins(
         bake.cells,
         bake.seed,
         true,
-        &pin_volume::files::MemoryBudget::new(None),
+        &bake.budget,
     )?;
     opts.cancel = Some(shared.cancel.clone());
     shared
@@ -487,7 +451,12 @@ impl BakeJob<Rebaked> {
     /// GPU bake refuses the source): a medium to replace the shown one when it is ready.
     pub fn rebake(path: PathBuf, read: VolumeArgs, bake: PreviewBake) -> Result<Self> {
         Self::spawn(move |shared| {
-            let mut medium = Medium::open_volume(&path, &read)?;
+            let flags = RenderFlags {
+                seed: bake.seed,
+                pin_cells: bake.cells,
+                ..RenderFlags::default()
+            };
+            let mut medium = Medium::open(&path, &read.read, &flags, &bake.budget)?;
             let Some((_, field)) = &medium.opened.opened else {
                 bail!("only a volume is baked");
             };
@@ -525,7 +494,7 @@ impl<T> Drop for BakeJob<T> {
 /// The world box of a scene's instances (the box of their placed assets' boxes).
 fn scene_bounds(
     scene: &pin_scene::Scene,
-    assets: &[Option<scene_media::OpenedAsset>],
+    assets: &[Option<Arc<scene_media::OpenedAsset>>],
 ) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
@@ -551,4 +520,18 @@ pub fn is_scene_file(path: &Path) -> bool {
 pub fn is_pin_file(path: &Path) -> bool {
     path.extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("pin"))
+}
+
+/// What an opened medium holds for the estimator rule: its pins (a pin file's, or a volume's
+/// once baked), its density, and the pins' control section.
+fn holds_of(m: &OpenedMedium) -> Holds {
+    Holds {
+        pins: m.pins.is_some(),
+        density: m.field.is_some(),
+        control: m
+            .pins
+            .as_ref()
+            .and_then(|p| p.file().ok().map(|f| f.control().is_some()))
+            .unwrap_or(false),
+    }
 }

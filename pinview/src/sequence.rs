@@ -1,5 +1,6 @@
-//! Frame sequences: a pattern such as `sim.####.pin` names the files whose `#` run is a frame
-//! number of that many digits (zero-padded). The frames that exist are listed once; frames
+//! Frame sequences: a pattern such as `sim.####.pin` or `sim.%04d.pin` names the files of
+//! its frames as `pinbake --frames` writes them (`pinbake::frames`: zero-padded, negative
+//! frames with their sign). The frames that exist are listed once; frames
 //! are opened ahead on worker threads, at most [`LOOK_AHEAD`] beyond the one shown, so memory
 //! stays bounded whatever the sequence's length.
 
@@ -10,28 +11,29 @@ use std::thread::JoinHandle;
 
 use anyhow::{Result, anyhow, bail};
 
+use pinbake::frames::FramePattern;
+
 use crate::open::Medium;
 
 /// Frames opened ahead of the one shown.
 pub const LOOK_AHEAD: usize = 2;
 
-/// `(prefix, digits, suffix)` of a file name with one run of `#`, or `None`.
-pub fn split_pattern(path: &Path) -> Option<(String, usize, String)> {
-    let name = path.file_name()?.to_str()?;
-    let start = name.find('#')?;
-    let digits = name[start..].chars().take_while(|&c| c == '#').count();
-    let rest = &name[start + digits..];
-    if rest.contains('#') {
-        return None;
-    }
-    Some((name[..start].to_string(), digits, rest.to_string()))
+/// The frame pattern `path`'s file name holds, by `pinbake --frames`' own rule
+/// ([`pinbake::frames::FramePattern`]: a run of `#`, or `%d` / `%0Nd`; negative frames keep
+/// their sign), `None` for the name of one file. A malformed field (`%4d`, two fields) is a
+/// usage error.
+pub fn pattern(path: &Path) -> Result<Option<FramePattern>> {
+    let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+        return Ok(None);
+    };
+    FramePattern::parse(name).map_err(|e| anyhow::Error::new(pin_cli::UsageError(e.0)))
 }
 
 /// The frames of a pattern that exist, in frame order.
-pub fn list_frames(pattern: &Path) -> Result<Vec<(u64, PathBuf)>> {
-    let (prefix, digits, suffix) = split_pattern(pattern)
-        .ok_or_else(|| anyhow!("{}: not a frame pattern", pattern.display()))?;
-    let dir = match pattern.parent() {
+pub fn list_frames(path: &Path) -> Result<Vec<(i64, PathBuf)>> {
+    let pattern =
+        pattern(path)?.ok_or_else(|| anyhow!("{}: not a frame pattern", path.display()))?;
+    let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
@@ -40,25 +42,15 @@ pub fn list_frames(pattern: &Path) -> Result<Vec<(u64, PathBuf)>> {
     for entry in entries.flatten() {
         let name = entry.file_name();
         let Some(name) = name.to_str() else { continue };
-        let Some(middle) = name
-            .strip_prefix(&prefix)
-            .and_then(|r| r.strip_suffix(&suffix))
-        else {
-            continue;
-        };
-        if middle.len() == digits
-            && middle.bytes().all(|b| b.is_ascii_digit())
-            && let Ok(n) = middle.parse::<u64>()
-        {
+        if let Some(n) = pattern.frame_of(name) {
             frames.push((n, dir.join(name)));
         }
     }
     frames.sort();
     if frames.is_empty() {
         bail!(
-            "{}: no frame matches the pattern ({} digits in place of the #s)",
-            pattern.display(),
-            digits
+            "{}: no frame matches the pattern (the file names `pinbake --frames` writes for it)",
+            path.display()
         );
     }
     Ok(frames)
@@ -66,7 +58,7 @@ pub fn list_frames(pattern: &Path) -> Result<Vec<(u64, PathBuf)>> {
 
 /// A sequence being shown: its frames, the one shown, and the frames opening ahead.
 pub struct Sequence {
-    pub frames: Vec<(u64, PathBuf)>,
+    pub frames: Vec<(i64, PathBuf)>,
     pub current: usize,
     pub playing: bool,
     opening: HashMap<usize, JoinHandle<Result<Medium>>>,
@@ -77,7 +69,7 @@ pub struct Sequence {
 pub type Opener = Arc<dyn Fn(&Path) -> Result<Medium> + Send + Sync>;
 
 impl Sequence {
-    pub fn new(frames: Vec<(u64, PathBuf)>, open: Opener) -> Self {
+    pub fn new(frames: Vec<(i64, PathBuf)>, open: Opener) -> Self {
         Self {
             frames,
             current: 0,

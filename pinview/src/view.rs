@@ -30,8 +30,9 @@ impl View {
     /// else `pinrender render`'s default.
     pub fn new(a: &ViewArgs, medium: &Medium, estimator: EstimatorSpec) -> Self {
         let scene = medium.scene();
-        let (origin, target) = camera_over(a.camera_origin, a.camera_target, scene, medium.bounds);
-        let look = Look::over(&a.look_flags(), scene);
+        let f = &a.flags;
+        let (origin, target) = camera_over(f.camera_origin, f.camera_target, scene, medium.bounds);
+        let look = f.look(scene);
         Self {
             estimator,
             width: a.width,
@@ -39,8 +40,8 @@ impl View {
             origin,
             target,
             look,
-            seed: a.seed,
-            exposure: a.exposure,
+            seed: f.seed,
+            exposure: f.exposure,
         }
     }
 

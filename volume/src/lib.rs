@@ -528,6 +528,63 @@ pub enum SourceSpec {
     Procedural(ProceduralSpec),
 }
 
+/// A source as [`open_source`] opens it, its concrete type kept: what a reader that makes
+/// its own copies (the renderer's GPU density) needs. The one place an input's format is
+/// dispatched: [`open_source`] boxes what this returns.
+pub enum OpenedSource {
+    /// A raw grid.
+    Raw(Box<DenseGrid>),
+    /// An OpenVDB or a NanoVDB file (both read into the same sparse source).
+    #[cfg(feature = "vdb")]
+    Vdb(Box<VdbSource>),
+    /// A procedural field, built.
+    Procedural(Box<dyn DensitySource>),
+}
+
+impl OpenedSource {
+    /// The source behind the density interface.
+    pub fn into_source(self) -> Box<dyn DensitySource> {
+        match self {
+            OpenedSource::Raw(g) => g,
+            #[cfg(feature = "vdb")]
+            OpenedSource::Vdb(v) => v,
+            OpenedSource::Procedural(p) => p,
+        }
+    }
+}
+
+/// [`open_source`] with the concrete type kept ([`OpenedSource`]).
+pub fn open_source_typed(
+    spec: &SourceSpec,
+    scale: DensityScale,
+) -> Result<OpenedSource, SourceError> {
+    match spec {
+        SourceSpec::Raw(path, options) => Ok(OpenedSource::Raw(Box::new(raw::read_raw(
+            path, options, scale,
+        )?))),
+        // A `.nvdb` name, or NanoVDB's magic whatever the name: the rest go to the OpenVDB
+        // worker.
+        #[cfg(feature = "vdb")]
+        SourceSpec::Vdb(path, options)
+            if InputKind::of(path) == InputKind::NanoVdb || nanovdb::is_nanovdb_file(path) =>
+        {
+            Ok(OpenedSource::Vdb(Box::new(nanovdb::open(
+                path, options, scale,
+            )?)))
+        }
+        #[cfg(feature = "vdb")]
+        SourceSpec::Vdb(path, options) => Ok(OpenedSource::Vdb(Box::new(VdbSource::open(
+            path, options, scale,
+        )?))),
+        #[cfg(not(feature = "vdb"))]
+        SourceSpec::Vdb(path) => Err(SourceError::Unsupported {
+            path: path.clone(),
+            message: "this build has no OpenVDB support (cargo feature `vdb`)".into(),
+        }),
+        SourceSpec::Procedural(p) => Ok(OpenedSource::Procedural(p.build(scale)?)),
+    }
+}
+
 /// Opens any source with every density multiplied by `scale` (the one place a scale enters a
 /// source: the readers apply it as they build, so the hot path never multiplies). The result
 /// is ready to sample: validated, density-scaled, bounds computed.
@@ -535,25 +592,7 @@ pub fn open_source(
     spec: &SourceSpec,
     scale: DensityScale,
 ) -> Result<Box<dyn DensitySource>, SourceError> {
-    match spec {
-        SourceSpec::Raw(path, options) => Ok(Box::new(raw::read_raw(path, options, scale)?)),
-        // A `.nvdb` name, or NanoVDB's magic whatever the name: the rest go to the OpenVDB
-        // worker.
-        #[cfg(feature = "vdb")]
-        SourceSpec::Vdb(path, options)
-            if InputKind::of(path) == InputKind::NanoVdb || nanovdb::is_nanovdb_file(path) =>
-        {
-            Ok(Box::new(nanovdb::open(path, options, scale)?))
-        }
-        #[cfg(feature = "vdb")]
-        SourceSpec::Vdb(path, options) => Ok(Box::new(VdbSource::open(path, options, scale)?)),
-        #[cfg(not(feature = "vdb"))]
-        SourceSpec::Vdb(path) => Err(SourceError::Unsupported {
-            path: path.clone(),
-            message: "this build has no OpenVDB support (cargo feature `vdb`)".into(),
-        }),
-        SourceSpec::Procedural(p) => p.build(scale),
-    }
+    Ok(open_source_typed(spec, scale)?.into_source())
 }
 
 #[cfg(test)]

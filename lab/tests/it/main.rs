@@ -4,6 +4,7 @@
 mod cli_text;
 mod eval_bytes;
 mod eval_cli;
+mod front;
 mod gpu_density;
 mod hostile;
 mod pin_alone;

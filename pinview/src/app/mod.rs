@@ -100,7 +100,7 @@ pub struct Viewer {
     command: String,
     paused: bool,
     /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
-    frames_played: Vec<u64>,
+    frames_played: Vec<i64>,
     /// A scripted window screenshot asked for: when, and its result once written.
     window_shot: Option<(Instant, ShotResult)>,
     /// The second estimator asked for (split view), its side once the medium answers it,
@@ -139,7 +139,7 @@ impl Viewer {
         cc: &crate::shell::CreationContext,
         args: ViewArgs,
         medium: Medium,
-        frames: Option<Vec<(u64, PathBuf)>>,
+        frames: Option<Vec<(i64, PathBuf)>>,
         opener: Opener,
         mut clock: StartupClock,
         outcome: Arc<Mutex<Outcome>>,

@@ -6,6 +6,7 @@ mod compare;
 mod contract;
 mod error_view;
 mod failures;
+mod front;
 mod offscreen;
 mod overlay;
 mod pacing;

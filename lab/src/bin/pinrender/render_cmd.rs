@@ -10,14 +10,14 @@ use std::time::Instant;
 use pinlab::Estimator;
 use pinrender::gpu_render::{GpuRenderer, GpuScene};
 use pinrender::render::{
-    Budget, DEFAULT_WAVEFRONT_BATCH, EstimatorSpec, Image, RenderSettings, SampleLoop, Scene,
-    block_bias, render, render_wavefront, rmse,
+    Budget, DEFAULT_WAVEFRONT_BATCH, Image, RenderSettings, SampleLoop, Scene, block_bias, render,
+    render_wavefront, rmse,
 };
 use pinrt::SamplerOptions;
 use pinrt::gpu::GpuContext;
 
-use crate::volume::{self, OpenedMedium, VolumeArgs};
-use pin_cli::parse::parse_f64x3;
+use crate::volume::{OpenedMedium, VolumeArgs};
+use pinrender::front::{self, RenderFlags};
 use pinrender::medium::MediumDesc;
 
 #[derive(Args, Debug)]
@@ -78,11 +78,8 @@ pub struct RenderArgs {
     /// pins, pinms, pinurm[@N] or pinres. Default: follows the input. With --pins, pinms when
     /// a density is at hand (--volume, or the pin file embeds one) and pins when it is not;
     /// with --volume alone, ratio.
-    #[arg(long = "estimator", value_parser = parse_estimator)]
-    pub estimator_flag: Option<Estimator>,
-    /// The estimator of the render: --estimator, or the default that follows the input.
-    #[arg(skip = Estimator::Core(EstimatorSpec::RatioTracking))]
-    pub estimator: Estimator,
+    #[arg(long, value_parser = parse_estimator)]
+    pub estimator: Option<Estimator>,
     /// Image width in pixels (1..=16384).
     #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..=16384))]
     pub width: u32,
@@ -93,73 +90,30 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
     pub spp: u32,
     /// Render for this many seconds instead of a fixed --spp (at most 1e5).
-    #[arg(long, value_parser = parse_seconds)]
+    #[arg(long, value_parser = front::flags::parse_seconds)]
     pub seconds: Option<f64>,
-    /// Camera position X,Y,Z (default: in front of the volume's box, looking at its centre).
-    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
-    pub camera_origin: Option<[f64; 3]>,
-    /// Point the camera looks at (default: the box centre).
-    #[arg(long, value_parser = parse_f64x3, allow_hyphen_values = true)]
-    pub camera_target: Option<[f64; 3]>,
-    /// Vertical field of view in degrees, in (0, 180) [default: 40, or the scene's].
-    #[arg(long = "fov", value_parser = parse_fov)]
-    pub fov_flag: Option<f64>,
-    /// Direction from the scene towards the sun (finite, not zero) [default: 0.3,1,0.2, or
-    /// the scene's].
-    #[arg(long = "sun-dir", value_parser = parse_direction, allow_hyphen_values = true)]
-    pub sun_dir_flag: Option<[f64; 3]>,
-    /// [default: 3, or the scene's]
-    #[arg(long = "sun-radiance", value_parser = pin_cli::parse::parse_nonneg)]
-    pub sun_radiance_flag: Option<f64>,
-    /// [default: 0.3, or the scene's]
-    #[arg(long = "env-radiance", value_parser = pin_cli::parse::parse_nonneg)]
-    pub env_radiance_flag: Option<f64>,
-    /// Single-scattering albedo, in [0, 1] [default: 0.9, or the scene's].
-    #[arg(long = "albedo", value_parser = parse_albedo)]
-    pub albedo_flag: Option<f64>,
-    /// Henyey-Greenstein asymmetry, in (-1, 1) [default: 0, or the scene's].
-    #[arg(long = "g", value_parser = parse_hg_g, allow_negative_numbers = true)]
-    pub g_flag: Option<f64>,
-    /// Scattering events at most (with --backend gpu at most 1024, the GPU's limit)
-    /// [default: 8, or the scene's].
-    #[arg(long = "max-bounces")]
-    pub max_bounces_flag: Option<u32>,
-    /// The lighting and medium values of the render: the flags, else the scene file's, else
-    /// the defaults (set by `run`).
-    #[arg(skip = Look::default())]
-    pub look: Look,
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// The camera, the lighting and the material, the seed, an in-memory bake's cells, the
+    /// memory budget and the exposure: the flags the viewer shares.
+    #[command(flatten)]
+    pub flags: RenderFlags,
     /// Majorant bricks per axis for the trackers (1..=1024).
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..=1024))]
     pub majorant_bricks: u32,
-    /// Spatial cells per axis when baking pins in memory (1..=4096; default: chosen from the
-    /// volume as `pinbake bake` chooses them, at least 20 on the longest axis, never more than
-    /// the voxels).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=4096))]
-    pub pin_cells: Option<u32>,
     /// Worker threads (default: all cores; at most 64 per core and 4096).
     #[arg(long, value_parser = pinbake::cli_args::parse_threads)]
     pub threads: Option<usize>,
-    /// Exposure for the PNG (finite, > 0).
-    #[arg(long, default_value_t = 1.0, value_parser = parse_exposure)]
-    pub exposure: f32,
     /// Output image: FILE.exr (linear float RGB) with a tone-mapped FILE.png beside it, or
     /// FILE.png alone. A new path or a regular file other than the inputs.
     #[arg(long)]
     pub out: PathBuf,
-    /// Refuse a render that would need more than this many bytes of memory (K/M/G/T
-    /// suffixes; default: half of the physical memory).
-    #[arg(long, value_parser = pin_cli::parse::parse_bytes)]
-    pub max_memory: Option<u64>,
     /// cpu (rayon path tracer) or gpu (the WGSL path tracer through wgpu).
     #[arg(long, default_value = "cpu", value_parser = ["cpu", "gpu"])]
     pub backend: String,
     /// Pins: the lookup point moves by up to half this many spatial cells per axis (0: off).
-    #[arg(long, default_value_t = DEFAULT_LOOKUP.spatial_jitter, value_parser = parse_jitter)]
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.spatial_jitter, value_parser = front::flags::parse_jitter)]
     pub spatial_jitter: f32,
     /// Pins: the direction moves by up to half this many direction cells per axis (0: off).
-    #[arg(long, default_value_t = DEFAULT_LOOKUP.directional_jitter, value_parser = parse_jitter)]
+    #[arg(long, default_value_t = DEFAULT_LOOKUP.directional_jitter, value_parser = front::flags::parse_jitter)]
     pub directional_jitter: f32,
     /// Pins: intervals of the ray's chord per lookup (1..=32; 32 = one lookup, the thesis'
     /// model). Smaller strides follow the ray with more lookups (docs/sampling.md section 12).
@@ -189,14 +143,6 @@ pub struct RenderArgs {
 /// otherwise: the library's [`SamplerOptions::RENDER`] (its documentation says why each).
 pub const DEFAULT_LOOKUP: SamplerOptions = SamplerOptions::RENDER;
 
-fn parse_jitter(s: &str) -> Result<f32, String> {
-    let v: f32 = s.trim().parse().map_err(|e| format!("'{s}': {e}"))?;
-    if !(v.is_finite() && (0.0..=16.0).contains(&v)) {
-        return Err(format!("'{s}' is not a jitter strength in 0..=16 cells"));
-    }
-    Ok(v)
-}
-
 impl RenderArgs {
     pub(crate) fn lookup(&self) -> SamplerOptions {
         SamplerOptions {
@@ -215,45 +161,27 @@ fn parse_estimator(s: &str) -> Result<Estimator, String> {
     s.parse()
 }
 
-/// `--fov`: degrees in (0, 180), as the f32 the camera holds.
-fn parse_fov(s: &str) -> Result<f64, String> {
-    pin_scene::ranges::fov(pin_cli::parse::parse_finite(s)?)
+/// What a render resolves once from its flags and input, before anything is opened: the
+/// estimator and the look (the one memory budget is `RenderFlags::budget`'s, made once in
+/// `run`). The flags stay as parsed.
+pub(crate) struct Job {
+    pub estimator: Estimator,
+    pub look: Look,
 }
 
-/// `--albedo`: in [0, 1].
-fn parse_albedo(s: &str) -> Result<f64, String> {
-    pin_scene::ranges::albedo(pin_cli::parse::parse_finite(s)?)
-}
-
-/// `--g`: the Henyey-Greenstein asymmetry in (-1, 1), as the f32 the scene holds.
-fn parse_hg_g(s: &str) -> Result<f64, String> {
-    pin_scene::ranges::hg_g(pin_cli::parse::parse_finite(s)?)
-}
-
-/// `--sun-dir`: a direction whose f32 form the renderer can normalise (finite, not zero).
-fn parse_direction(s: &str) -> Result<[f64; 3], String> {
-    pin_scene::ranges::direction(parse_f64x3(s)?)
-}
-
-fn parse_seconds(s: &str) -> Result<f64, String> {
-    let v = pin_cli::parse::parse_finite(s)?;
-    if !(v > 0.0 && v <= 1e5) {
-        return Err(format!("{} must be in (0, 1e5]", pin_cli::num(v)));
+impl Job {
+    /// Refuses bounces beyond the GPU's limit for a GPU render, naming where they came from.
+    fn check_gpu_bounces(&self, a: &RenderArgs) -> Result<()> {
+        let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
+        if a.backend == "gpu" && self.look.max_bounces > max_gpu {
+            crate::usage!(
+                "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
+                self.look.max_bounces
+            );
+        }
+        Ok(())
     }
-    Ok(v)
 }
-
-fn parse_exposure(s: &str) -> Result<f32, String> {
-    let v = pin_cli::parse::parse_finite(s)?;
-    if !(v > 0.0 && v <= f64::from(f32::MAX)) {
-        return Err(format!("{} must be > 0", pin_cli::num(v)));
-    }
-    Ok(v as f32)
-}
-
-/// Bytes per pixel the renderers hold at most: the f32 RGB image, f64 sums of the passes,
-/// the PNG and EXR encoders' copies, with slack.
-pub(crate) const BYTES_PER_PIXEL: u64 = 96;
 
 /// Where the images go: `(exr, png)`; `FILE.png` writes the PNG only. Both are checked
 /// against the inputs and refused when they are not a new path or a regular file.
@@ -274,33 +202,24 @@ pub(crate) fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBu
 
 pub use pinrender::scene_media::Look;
 
-impl RenderArgs {
-    /// The look of the render: each flag given, else the scene's value, else the default.
-    pub fn look_over(&self, scene: Option<&pin_scene::Scene>) -> Look {
-        let flags = pinrender::scene_media::LookFlags {
-            fov: self.fov_flag,
-            sun_dir: self.sun_dir_flag,
-            sun_radiance: self.sun_radiance_flag,
-            env_radiance: self.env_radiance_flag,
-            albedo: self.albedo_flag,
-            g: self.g_flag,
-            max_bounces: self.max_bounces_flag,
-        };
-        Look::over(&flags, scene)
-    }
-}
-
-pub fn run(mut a: RenderArgs) -> Result<()> {
+pub fn run(a: RenderArgs) -> Result<()> {
     if let Some(path) = a.scene.clone() {
         return crate::scene_cmd::run(a, &path);
     }
-    a.look = a.look_over(None);
-    a.estimator = match a.estimator_flag {
+    let budget = a.flags.budget();
+    let estimator = match a.estimator {
         Some(e) => e,
-        None => volume::default_estimator(a.volume.volume.as_deref(), a.pins.as_deref())?.into(),
+        None => {
+            let holds = front::holds(a.volume.volume.as_deref(), a.pins.as_deref())?;
+            front::default_estimator(holds, pinrender::render::ESTIMATORS).into()
+        }
+    };
+    let job = Job {
+        estimator,
+        look: a.flags.look(None),
     };
     // What to load, which loop runs and what memory it holds: decided here, once.
-    let plan = a.estimator.plan();
+    let plan = job.estimator.plan();
     let uses_pins = plan.reads_bake;
     let input = match (&a.volume.volume, &a.pins) {
         (None, None) => crate::usage!(
@@ -311,7 +230,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
             crate::usage!(
                 "--pins is used only by the pins, pinms, pinurm and pinres estimators, not by {} (or give \
                  --pins without --volume to render the pin file's own medium)",
-                a.estimator
+                job.estimator
             )
         }
         (None, Some(pins)) => {
@@ -322,24 +241,14 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         }
         (Some(v), _) => v.clone(),
     };
-    let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
-    if a.backend == "gpu" && a.look.max_bounces > max_gpu {
-        crate::usage!(
-            "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
-            a.look.max_bounces
-        );
-    }
+    job.check_gpu_bounces(&a)?;
     let inputs: Vec<&Path> = [a.volume.volume.as_deref(), a.pins.as_deref()]
         .into_iter()
         .flatten()
         .collect();
     // Before the render, not after it.
     outputs(&a, &inputs)?;
-    let budget = pin_volume::files::MemoryBudget::new(a.max_memory);
-    budget.check(
-        &format!("a {}x{} image", a.width, a.height),
-        u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
-    )?;
+    front::flags::check_image(&budget, a.width, a.height)?;
     let per_row = plan.scratch_bytes_per_thread(a.width as usize);
     if per_row > 0 {
         // The wavefront loop's rows in flight, one per worker thread: bounded by a chunk of
@@ -350,18 +259,23 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
             threads.saturating_mul(per_row),
         )?;
     }
-    if let Ok(m) = std::fs::metadata(&input) {
-        // A volume file: f32 voxels up to 4x a raw file of bytes, a VDB's leaves up to 8x its
-        // file. A pin file alone is mapped in place (at most its length resident); a sparse
-        // density's f16 values are read there too (the full-size cloud's 3.2 GB sparse file
-        // rendered at 0.99x its length), and a dense section is widened to f32 (twice the
-        // f16 bytes it stores): at most 3x its length.
-        let factor = if a.volume.volume.is_some() { 8 } else { 3 };
-        budget.check(
-            &format!("reading {}", input.display()),
-            m.len().saturating_mul(factor),
-        )?;
-    }
+    let wanted = if uses_pins && a.volume.volume.is_some() {
+        front::PinsWanted::Now {
+            control: plan.control,
+        }
+    } else {
+        front::PinsWanted::No
+    };
+    let medium_input = front::Input {
+        volume: a.volume.volume.as_deref(),
+        read: &a.volume.read,
+        pins: a.pins.as_deref(),
+        wanted,
+        allow_mismatched_pins: a.allow_mismatched_pins,
+        gpu: None,
+    };
+    // The read first, then what the render adds to it.
+    front::open::check_read(&medium_input, &budget)?;
     if plan.majorants && a.volume.volume.is_some() {
         // f32 values plus the brick bounds the grid keeps, per brick.
         budget.check(
@@ -369,17 +283,18 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
             u64::from(a.majorant_bricks).pow(3) * 16,
         )?;
     }
+    let pin_cells = a.flags.pin_cells;
     if uses_pins && a.pins.is_none() {
         let probe = pinbake::BakeOptions {
             // Before the source is open: the default's upper bound.
-            cells: [a.pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS); 3],
+            cells: [pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS); 3],
             ..pinbake::BakeOptions::default()
         };
         // The bake, its serialised bytes and the loaded copy.
         budget.check(
             &format!(
                 "baking {}^3 pin cells in memory",
-                a.pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS)
+                pin_cells.unwrap_or(pinbake::bake::DEFAULT_MAX_CELLS)
             ),
             pinbake::bake::estimate_output_bytes(&probe).saturating_mul(2),
         )?;
@@ -396,10 +311,17 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
     } else {
         None
     };
-    let medium = match &a.volume.volume {
-        Some(v) => open_medium_from_volume(&a, v)?,
-        None => open_medium_from_pins(&input, ctx.as_ref().filter(|_| plan.density))?,
-    };
+    let medium = front::open_medium(
+        &front::Input {
+            gpu: ctx
+                .as_ref()
+                .filter(|_| plan.density && a.volume.volume.is_none())
+                .map(|c| &c.limits),
+            ..medium_input
+        },
+        &a.flags,
+        &budget,
+    )?;
     let (lo, hi) = (
         glam::DVec3::from(medium.bounds.0),
         glam::DVec3::from(medium.bounds.1),
@@ -409,25 +331,33 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
             "{}: no embedded density, which the {} estimator needs (bake with \
              `pinbake bake --embed-density N`, or render with --volume)",
             input.display(),
-            a.estimator
+            job.estimator
         );
     }
-    let desc = desc(&medium, &a, ctx.as_ref())?;
+    let desc = desc(&medium, &a, &job, ctx.as_ref())?;
     let centre = (lo + hi) * 0.5;
     let size = (hi - lo).length();
-    let target = a.camera_target.unwrap_or(centre.to_array());
-    let origin = a.camera_origin.unwrap_or([
+    let target = a.flags.camera_target.unwrap_or(centre.to_array());
+    let origin = a.flags.camera_origin.unwrap_or([
         centre.x + 0.35 * size,
         centre.y + 0.25 * size,
         centre.z + 1.6 * size,
     ]);
-    let scene = a.look.frame((origin, target), a.width, a.height);
+    let scene = job.look.frame((origin, target), a.width, a.height);
     if a.backend == "gpu" {
         let ctx = ctx.as_ref().ok_or_else(|| anyhow!("no GPU context"))?;
-        let image = render_gpu(&a, ctx, std::slice::from_ref(&desc), &scene)?;
-        return write(&a, &input, &image.0, image.1, image.2, reference.as_ref());
+        let image = render_gpu(&a, &job, ctx, std::slice::from_ref(&desc), &scene)?;
+        return write(
+            &a,
+            &job,
+            &input,
+            &image.0,
+            image.1,
+            image.2,
+            reference.as_ref(),
+        );
     }
-    let medium = a
+    let medium = job
         .estimator
         .cpu_medium(&desc, a.lookup())
         .map_err(|e| anyhow!("{e}"))?;
@@ -436,8 +366,8 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         ..scene
     };
     let settings = RenderSettings {
-        max_bounces: a.look.max_bounces,
-        seed: a.seed,
+        max_bounces: job.look.max_bounces,
+        seed: a.flags.seed,
         budget: match a.seconds {
             Some(s) => Budget::Seconds(s),
             None => Budget::Spp(a.spp),
@@ -455,6 +385,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
     .map_err(|e| anyhow!("{e}"))?;
     write(
         &a,
+        &job,
         &input,
         &out.image,
         out.spp,
@@ -463,84 +394,24 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
     )
 }
 
-fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium> {
-    let opened = volume::open_volume_typed(input, &a.volume)?;
-    let source = opened.source();
-    let plan = a.estimator.plan();
-    let pins = if plan.reads_bake {
-        let grid = volume::pins_for(
-            a.pins.as_deref(),
-            source.as_ref(),
-            a.pin_cells,
-            a.seed,
-            plan.control,
-            &pin_volume::files::MemoryBudget::new(a.max_memory),
-        )?;
-        if let Some(p) = &a.pins {
-            volume::check_pins_match(
-                p,
-                &grid,
-                input,
-                source.as_ref(),
-                a.volume.read.density_scale,
-                a.allow_mismatched_pins,
-            )?;
-        }
-        Some(Arc::new(grid))
-    } else {
-        None
-    };
-    let limit = pin_volume::files::MemoryBudget::new(a.max_memory).limit;
-    Ok(OpenedMedium::volume(opened, pins, limit))
-}
-
-/// `gpu`: the device a GPU render will upload the density to.
-fn open_medium_from_pins(path: &Path, gpu: Option<&GpuContext>) -> Result<OpenedMedium> {
-    let grid = Arc::new(volume::load_pins(path)?);
-    if let Some(ctx) = gpu {
-        check_gpu_bricks(path, &grid, ctx)?;
-    }
-    OpenedMedium::pin_file(path, grid)
-}
-
 /// The render's medium description: what the CPU estimators and the GPU packing read (the
 /// GPU copy of the density only for a GPU render of an estimator that reads it).
-fn desc(medium: &OpenedMedium, a: &RenderArgs, ctx: Option<&GpuContext>) -> Result<MediumDesc> {
-    let gpu = match ctx.filter(|_| a.estimator.plan().density) {
+fn desc(
+    medium: &OpenedMedium,
+    a: &RenderArgs,
+    job: &Job,
+    ctx: Option<&GpuContext>,
+) -> Result<MediumDesc> {
+    let gpu = match ctx.filter(|_| job.estimator.plan().density) {
         Some(ctx) => Some(Arc::new(medium.gpu_density(&ctx.limits)?)),
         None => None,
     };
     Ok(medium.desc(a.majorant_bricks, gpu))
 }
 
-/// Refuses a pin file whose sparse density neither expands to a dense copy the GPU takes
-/// nor fits its brick bindings, from the section's header alone: before the bricks are
-/// widened to f32 (the full-size cloud's took 27 s and 9.7 GB before the packing refused them).
-fn check_gpu_bricks(path: &Path, grid: &pinrt::PinGrid, ctx: &GpuContext) -> Result<()> {
-    // The section's view, lengths checked: O(1), where `PinGrid::sparse_density` checks
-    // every value.
-    let file = grid.file().map_err(|e| anyhow!("{e}"))?;
-    let Some(sparse) = file.sparse_density() else {
-        return Ok(());
-    };
-    let h = sparse.header;
-    let limit = pinrt::gpu::binding_limit(&ctx.limits);
-    let voxels = h.dims.iter().map(|&d| u64::from(d)).product::<u64>();
-    if voxels <= volume::GPU_DENSE_VOXELS.min(limit / 4) {
-        return Ok(());
-    }
-    let bindings = pinrender::gpu_render::value_bindings(&ctx.limits);
-    pinrender::gpu_render::check_brick_values_fit(
-        limit,
-        bindings,
-        h.brick,
-        u64::from(h.brick_count),
-    )
-    .map_err(|e| anyhow!("{}: {e}", path.display()))
-}
-
 pub(crate) fn write(
     a: &RenderArgs,
+    job: &Job,
     input: &Path,
     image: &Image,
     spp: u32,
@@ -559,12 +430,12 @@ pub(crate) fn write(
             .map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
     }
     image
-        .write_png(&png, a.exposure)
+        .write_png(&png, a.flags.exposure)
         .map_err(|e| anyhow!("{}: {e}", png.display()))?;
     pin_cli::errln!(
         "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {}",
         input.display(),
-        a.estimator,
+        job.estimator,
         a.backend,
         a.width,
         a.height,
@@ -594,20 +465,21 @@ pub(crate) fn write(
 /// rendering (upload and pipeline compile excluded, as the CPU's thread-pool start is).
 pub(crate) fn render_gpu(
     a: &RenderArgs,
+    job: &Job,
     ctx: &GpuContext,
     descs: &[MediumDesc],
     scene: &Scene,
 ) -> Result<(Image, u32, f64)> {
-    let est = a.estimator.gpu_or_err().map_err(|e| anyhow!("{e}"))?;
+    let est = job.estimator.gpu_or_err().map_err(|e| anyhow!("{e}"))?;
     let media =
         pinrender::medium::gpu_media_for(descs, &[est], a.lookup()).map_err(|e| anyhow!("{e}"))?;
     let renderer = GpuRenderer::with_media(ctx, &media).map_err(|e| anyhow!("{e}"))?;
-    let gs = GpuScene::from_scene(scene, a.look.max_bounces);
+    let gs = GpuScene::from_scene(scene, job.look.max_bounces);
     let start = Instant::now();
     match a.seconds {
         None => {
             let image = renderer
-                .render(&gs, est, a.spp, a.seed)
+                .render(&gs, est, a.spp, a.flags.seed)
                 .map_err(|e| anyhow!("{e}"))?;
             Ok((image, a.spp, start.elapsed().as_secs_f64()))
         }
@@ -616,7 +488,7 @@ pub(crate) fn render_gpu(
             let mut sum: Vec<[f64; 3]> = Vec::new();
             let mut spp = 0u32;
             while spp == 0 || (start.elapsed().as_secs_f64() < limit && spp < u32::MAX) {
-                let seed = pinrender::render::splitmix64(a.seed ^ u64::from(spp));
+                let seed = pinrender::render::splitmix64(a.flags.seed ^ u64::from(spp));
                 let img = renderer
                     .render(&gs, est, 1, seed)
                     .map_err(|e| anyhow!("{e}"))?;

@@ -13,23 +13,20 @@ use pinrender::render::{
 use pinrender::scene_media::{self, AssetOptions};
 use pinrt::gpu::GpuContext;
 
-use crate::render_cmd::{BYTES_PER_PIXEL, RenderArgs, outputs, render_gpu, write};
+use crate::render_cmd::{Job, RenderArgs, outputs, render_gpu, write};
+use pinrender::front;
 
-pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
+pub fn run(a: RenderArgs, path: &Path) -> Result<()> {
     if a.volume.volume.is_some() {
         crate::usage!("--scene names its volumes; --volume cannot be given with it");
     }
     if let Some(flag) = a.volume.read.given().first() {
         crate::usage!("{flag} applies to --volume; a scene sets its assets' reading in the file");
     }
-    let budget = pin_volume::files::MemoryBudget::new(a.max_memory);
-    budget.check(
-        &format!("a {}x{} image", a.width, a.height),
-        u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
-    )?;
-    let scene = scene_media::load_scene(path, a.max_memory)?;
-    a.look = a.look_over(Some(&scene));
-    let spec = match a.estimator_flag {
+    let budget = a.flags.budget();
+    front::flags::check_image(&budget, a.width, a.height)?;
+    let scene = scene_media::load_scene(path, &budget)?;
+    let spec = match a.estimator {
         Some(Estimator::Core(s)) => s,
         Some(other) => crate::usage!(
             "--scene renders with the renderer's estimators (ratio, delta, residual, rm, pins, \
@@ -37,12 +34,15 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
         ),
         None => scene_media::default_estimator(&scene),
     };
-    a.estimator = Estimator::Core(spec);
+    let job = Job {
+        estimator: Estimator::Core(spec),
+        look: a.flags.look(Some(&scene)),
+    };
     let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
-    if a.backend == "gpu" && a.look.max_bounces > max_gpu {
+    if a.backend == "gpu" && job.look.max_bounces > max_gpu {
         crate::usage!(
             "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
-            a.look.max_bounces
+            job.look.max_bounces
         );
     }
     // The output must replace neither the scene nor an asset.
@@ -60,10 +60,10 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
     };
     let opts = AssetOptions {
         estimator: spec,
-        pin_cells: a.pin_cells,
-        seed: a.seed,
+        pin_cells: a.flags.pin_cells,
+        seed: a.flags.seed,
         majorant_bricks: a.majorant_bricks,
-        max_memory: a.max_memory,
+        budget,
         allow_mismatched_pins: a.allow_mismatched_pins,
         lookup: a.lookup(),
         named_pins: false,
@@ -85,29 +85,33 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
             (None, d, b)
         }
     };
-    let (origin, target) =
-        scene_media::camera_over(a.camera_origin, a.camera_target, Some(&scene), (lo, hi));
+    let (origin, target) = scene_media::camera_over(
+        a.flags.camera_origin,
+        a.flags.camera_target,
+        Some(&scene),
+        (lo, hi),
+    );
     if origin == target {
         crate::usage!("the camera's origin and target are the same point");
     }
-    let look = a.look;
+    let look = job.look;
     let frame = look.frame((origin, target), a.width, a.height);
     if let Some(ctx) = &ctx {
-        let (image, spp, seconds) = render_gpu(&a, ctx, &descs, &frame)?;
-        return write(&a, path, &image, spp, seconds, reference.as_ref());
+        let (image, spp, seconds) = render_gpu(&a, &job, ctx, &descs, &frame)?;
+        return write(&a, &job, path, &image, spp, seconds, reference.as_ref());
     }
     let media = cpu.expect("a CPU render built its media").media;
     let frame = Scene { media, ..frame };
     let settings = RenderSettings {
         max_bounces: look.max_bounces,
-        seed: a.seed,
+        seed: a.flags.seed,
         budget: match a.seconds {
             Some(s) => Budget::Seconds(s),
             None => Budget::Spp(a.spp),
         },
         threads: a.threads,
     };
-    let out = if a.estimator.plan().sample_loop == SampleLoop::Wavefront {
+    let out = if job.estimator.plan().sample_loop == SampleLoop::Wavefront {
         render_wavefront(&frame, &settings, DEFAULT_WAVEFRONT_BATCH)
     } else {
         render(&frame, &settings)
@@ -115,6 +119,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
     .map_err(|e| anyhow!("{e}"))?;
     write(
         &a,
+        &job,
         path,
         &out.image,
         out.spp,
