@@ -18,6 +18,7 @@ use crate::instance::{place_medium, world_box};
 use crate::medium::MediumDesc;
 use crate::render::{EstimatorSpec, Medium};
 use crate::volume::{self, OpenedMedium, VolumeArgs};
+use pin_volume::files::MemoryBudget;
 
 /// What a render asks of its assets.
 #[derive(Clone, Copy, Debug)]
@@ -28,7 +29,8 @@ pub struct AssetOptions {
     pub pin_cells: Option<u32>,
     pub seed: u64,
     pub majorant_bricks: u32,
-    pub max_memory: Option<u64>,
+    /// The command's memory budget (`--max-memory`), made once where the command starts.
+    pub budget: MemoryBudget,
     pub allow_mismatched_pins: bool,
     pub lookup: SamplerOptions,
     /// Load the pins an asset names even where `estimator` reads none (the viewer, whose
@@ -87,8 +89,7 @@ pub fn default_estimator(scene: &Scene) -> EstimatorSpec {
 
 /// Opens every asset that an instance uses (each once; unused assets are not read).
 pub fn open_assets(scene: &Scene, o: &AssetOptions) -> Result<Vec<Option<OpenedAsset>>> {
-    let budget = pin_volume::files::MemoryBudget::new(o.max_memory);
-    budget.check(
+    o.budget.check(
         &format!("{} instances", scene.instances.len()),
         (scene.instances.len() as u64).saturating_mul(BYTES_PER_INSTANCE),
     )?;
@@ -123,14 +124,13 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             let source = opened.source();
             let b = source.bounds();
             let grid = if spec.needs_pins() || (o.named_pins && pins.is_some()) {
-                let budget = pin_volume::files::MemoryBudget::new(o.max_memory);
                 let grid = volume::pins_for(
                     pins.as_deref(),
                     source.as_ref(),
                     o.pin_cells,
                     o.seed,
                     spec.needs_control(),
-                    &budget,
+                    &o.budget,
                 )
                 .map_err(|e| named(scene, &a.json_path("pins"), format!("{e:#}")))?;
                 if let Some(p) = pins {
@@ -148,11 +148,7 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
             } else {
                 None
             };
-            let medium = OpenedMedium::volume(
-                opened,
-                grid,
-                pin_volume::files::MemoryBudget::new(o.max_memory).limit,
-            );
+            let medium = OpenedMedium::volume(opened, grid, o.budget.limit);
             Ok(OpenedAsset {
                 desc: medium.desc(o.majorant_bricks, None),
                 bounds: (b.min.to_array(), b.max.to_array()),
@@ -484,9 +480,8 @@ pub fn camera_over(
 
 /// Loads `path` as a scene under the memory budget (`pin_scene::load`), with the error as
 /// one line.
-pub fn load_scene(path: &Path, max_memory: Option<u64>) -> Result<Scene> {
-    let limit = pin_volume::files::MemoryBudget::new(max_memory).limit;
-    pin_scene::load(path, Some(limit)).map_err(|e| anyhow!("{e}"))
+pub fn load_scene(path: &Path, budget: &MemoryBudget) -> Result<Scene> {
+    pin_scene::load(path, Some(budget.limit)).map_err(|e| anyhow!("{e}"))
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@ mod app;
 mod args;
 mod build;
 mod compare;
+mod device;
 mod error_view;
 mod error_window;
 mod export;
@@ -46,6 +47,7 @@ fn main() -> ExitCode {
 
 /// Opens one frame or file as the viewer reads it, within `--max-memory`.
 fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
+    let budget = pin_volume::files::MemoryBudget::new(a.max_memory);
     if !open::is_scene_file(path)
         && let Ok(m) = std::fs::metadata(path)
     {
@@ -53,7 +55,7 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
         // values from bytes, a VDB's leaves), a pin file mapped in place with its dense
         // density section widened to f32: at most 3x its length.
         let factor = if open::is_pin_file(path) { 3 } else { 8 };
-        pin_volume::files::MemoryBudget::new(a.max_memory).check(
+        budget.check(
             &format!("reading {}", path.display()),
             m.len().saturating_mul(factor),
         )?;
@@ -65,7 +67,7 @@ fn open_medium(path: &Path, a: &ViewArgs) -> Result<Medium> {
                 path.display()
             );
         }
-        Medium::open_scene(path, a.estimator, a.seed, a.max_memory)
+        Medium::open_scene(path, a.estimator, a.seed, budget)
     } else if open::is_pin_file(path) {
         if let Some(flag) = a.read.given().first() {
             pin_cli::usage!(

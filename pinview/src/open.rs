@@ -175,23 +175,23 @@ impl Medium {
     /// A scene file's instances, opened as `pinrender render --scene --backend gpu` opens
     /// them for `estimator` (`pinrender`'s default for the scene when `None`; each asset
     /// once; a volume without pins baked in memory with `seed` where `estimator` reads pins),
-    /// within `max_memory` as `pinrender render --max-memory` bounds it, with the pins every
+    /// within `budget` as `pinrender render --max-memory` bounds it, with the pins every
     /// asset names loaded too, so that the menu offers every estimator the assets answer;
     /// with its messages.
     pub fn open_scene(
         path: &Path,
         estimator: Option<EstimatorSpec>,
         seed: u64,
-        max_memory: Option<u64>,
+        budget: pin_volume::files::MemoryBudget,
     ) -> Result<Self> {
-        let scene = scene_media::load_scene(path, max_memory)?;
+        let scene = scene_media::load_scene(path, &budget)?;
         let estimator = estimator.unwrap_or_else(|| scene_media::default_estimator(&scene));
         let options = scene_media::AssetOptions {
             estimator,
             pin_cells: None,
             seed,
             majorant_bricks: MAJORANT_BRICKS,
-            max_memory,
+            budget,
             allow_mismatched_pins: false,
             lookup: SamplerOptions::RENDER,
             named_pins: true,

@@ -290,10 +290,8 @@ impl RenderArgs {
     }
 }
 
+/// `pinrender render` without `--scene` (`main.rs` sends a scene file to `scene_cmd::run`).
 pub fn run(mut a: RenderArgs) -> Result<()> {
-    if let Some(path) = a.scene.clone() {
-        return crate::scene_cmd::run(a, &path);
-    }
     a.look = a.look_over(None);
     a.estimator = match a.estimator_flag {
         Some(e) => e,
@@ -397,7 +395,7 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
         None
     };
     let medium = match &a.volume.volume {
-        Some(v) => open_medium_from_volume(&a, v)?,
+        Some(v) => open_medium_from_volume(&a, v, &budget)?,
         None => open_medium_from_pins(&input, ctx.as_ref().filter(|_| plan.density))?,
     };
     let (lo, hi) = (
@@ -463,7 +461,11 @@ pub fn run(mut a: RenderArgs) -> Result<()> {
     )
 }
 
-fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium> {
+fn open_medium_from_volume(
+    a: &RenderArgs,
+    input: &Path,
+    budget: &pin_volume::files::MemoryBudget,
+) -> Result<OpenedMedium> {
     let opened = volume::open_volume_typed(input, &a.volume)?;
     let source = opened.source();
     let plan = a.estimator.plan();
@@ -474,7 +476,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
             a.pin_cells,
             a.seed,
             plan.control,
-            &pin_volume::files::MemoryBudget::new(a.max_memory),
+            budget,
         )?;
         if let Some(p) = &a.pins {
             volume::check_pins_match(
@@ -490,8 +492,7 @@ fn open_medium_from_volume(a: &RenderArgs, input: &Path) -> Result<OpenedMedium>
     } else {
         None
     };
-    let limit = pin_volume::files::MemoryBudget::new(a.max_memory).limit;
-    Ok(OpenedMedium::volume(opened, pins, limit))
+    Ok(OpenedMedium::volume(opened, pins, budget.limit))
 }
 
 /// `gpu`: the device a GPU render will upload the density to.

@@ -27,7 +27,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
         &format!("a {}x{} image", a.width, a.height),
         u64::from(a.width) * u64::from(a.height) * BYTES_PER_PIXEL,
     )?;
-    let scene = scene_media::load_scene(path, a.max_memory)?;
+    let scene = scene_media::load_scene(path, &budget)?;
     a.look = a.look_over(Some(&scene));
     let spec = match a.estimator_flag {
         Some(Estimator::Core(s)) => s,
@@ -63,7 +63,7 @@ pub fn run(mut a: RenderArgs, path: &Path) -> Result<()> {
         pin_cells: a.pin_cells,
         seed: a.seed,
         majorant_bricks: a.majorant_bricks,
-        max_memory: a.max_memory,
+        budget,
         allow_mismatched_pins: a.allow_mismatched_pins,
         lookup: a.lookup(),
         named_pins: false,
