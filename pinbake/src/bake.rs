@@ -18,6 +18,7 @@ use rayon::prelude::*;
 
 use crate::embed_density::EmbedDensity;
 pub use crate::error::BakeError;
+pub use crate::gpu_options::{GpuBakeOptions, GpuBakeTimes};
 pub use crate::pin::PinLayout;
 pub use crate::placement::bake_box;
 
@@ -53,26 +54,6 @@ pub enum BakeBackend {
     /// without it refuses). Its entries agree with the CPU's within the bound docs/gpu.md
     /// states, and are the same bytes on one device whatever the tiling.
     Gpu(GpuBakeOptions),
-}
-
-/// The GPU bake's settings, none of which changes the bytes.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct GpuBakeOptions {
-    /// The most GPU bytes one dispatch's pins may take (jobs, entries and read-back); `None`
-    /// takes what the device binds in one storage buffer. Smaller budgets give more
-    /// dispatches and the same bytes.
-    pub tile_bytes: Option<u64>,
-    /// The most bytes of density one dispatch binds: the grid goes to the GPU in slabs of
-    /// whole z-planes (with the one plane above that trilinear reads), each uploaded, marched
-    /// and freed in turn. A sparse source without a dense copy within
-    /// [`BakeOptions::dense_copy_bytes`] builds each slab from the source, within that budget
-    /// too. `None` takes what the device binds in the shader's six density bindings. Any
-    /// budget gives the same bytes; one that cannot hold two planes is refused.
-    pub slab_bytes: Option<u64>,
-    /// Destroys the device after this many dispatches: how the tests provoke a device lost
-    /// in the middle of a bake.
-    #[doc(hidden)]
-    pub lose_device_after: Option<u64>,
 }
 
 /// Everything that decides the bytes of a bake besides the source.
@@ -173,29 +154,6 @@ pub struct BakeStats {
     pub pins_per_s: f64,
     /// Where a GPU bake's time went; `None` for a CPU bake.
     pub gpu: Option<GpuBakeTimes>,
-}
-
-/// Seconds of a GPU bake's steps, summed over its dispatches. Their sum is part of
-/// [`BakeStats::seconds`], which also holds the box, the sections and the compaction.
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
-pub struct GpuBakeTimes {
-    /// Finding the adapter, opening the device and compiling `shaders/bake.wgsl`.
-    pub device_s: f64,
-    /// Copying the density into GPU buffers, and building its slabs from a sparse source
-    /// where it has no dense copy.
-    pub upload_s: f64,
-    /// The CPU's part: every pin's chord and random state (in parallel).
-    pub jobs_s: f64,
-    /// From submitting each dispatch to its entries read back: the march on the GPU, the
-    /// jobs' upload and the entries' read-back.
-    pub dispatch_s: f64,
-    /// Dispatches run (more than one when the tile budget or the device's limits split the
-    /// pins, or the slab budget the density: one per slab of each tile of pins).
-    pub dispatches: u64,
-    /// Slabs the density went to the GPU in (1 when it fits the slab budget whole).
-    pub slabs: u64,
-    /// The adapter's name and backend.
-    pub adapter: String,
 }
 
 /// Bytes the sections built after the pins hold at their peak: the sparse density
@@ -1212,12 +1170,13 @@ mod tests {
         fn max_extinction_in(&self, _: Aabb) -> f32 {
             4.0
         }
+    }
+
+    impl DensitySource for Ramp {
         fn describe(&self) -> String {
             "ramp".into()
         }
     }
-
-    impl DensitySource for Ramp {}
 
     #[test]
     fn mask_bit_frequencies_match_ratios() {

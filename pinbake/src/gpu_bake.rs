@@ -24,8 +24,8 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use crate::bake::{GpuBakeOptions, GpuBakeTimes};
 use crate::error::BakeError;
+use crate::gpu_options::{GpuBakeOptions, GpuBakeTimes};
 use crate::pin::{PinLayout, Placement, chord_samples};
 use pin_volume::{DenseGrid, DenseLattice, DensitySource};
 

@@ -28,6 +28,7 @@ pub mod error;
 pub mod frames;
 #[cfg(feature = "gpu")]
 pub mod gpu_bake;
+pub mod gpu_options;
 pub mod limits;
 pub mod merge;
 pub mod part;

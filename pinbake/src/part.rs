@@ -885,12 +885,13 @@ mod tests {
         fn max_extinction_in(&self, _: Aabb) -> f32 {
             4.0 * 2f32.powi(20)
         }
+    }
+
+    impl DensitySource for Waves {
         fn describe(&self) -> String {
             "waves".into()
         }
     }
-
-    impl DensitySource for Waves {}
 
     fn grid() -> DenseGrid {
         let dims = [13u32, 9, 17];

@@ -467,12 +467,13 @@ mod tests {
         fn max_extinction_in(&self, _region: Aabb) -> f32 {
             self.0 as f32
         }
+    }
+
+    impl DensitySource for Parabola {
         fn describe(&self) -> String {
             "parabola".into()
         }
     }
-
-    impl DensitySource for Parabola {}
 
     fn unit(step: f64) -> Placement {
         Placement {

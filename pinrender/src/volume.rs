@@ -378,9 +378,6 @@ impl Density for TrackedSource {
         }
         source::min_extinction_by_view(self, region)
     }
-    fn describe(&self) -> String {
-        self.source.describe()
-    }
     /// A raw grid as it is; a VDB through its dense copy, whose one-voxel zero border makes
     /// the clamped array zero wherever the tree is (the copy's trilinear field is the tree's:
     /// `pinbake`'s `dense_copy`), at most the size the VDB's own cache may take.
@@ -400,6 +397,10 @@ impl Density for TrackedSource {
 }
 
 impl DensitySource for TrackedSource {
+    fn describe(&self) -> String {
+        self.source.describe()
+    }
+
     fn voxel_size(&self) -> Option<DVec3> {
         self.source.voxel_size()
     }

@@ -241,12 +241,6 @@ impl PinGrid {
             .and_then(|i| self.pins().get(i as usize).copied())
             .unwrap_or(PinEntry::EMPTY)
     }
-
-    /// A sampler with the default lookup ([`crate::SamplerOptions::RENDER`]) and the file's
-    /// own placement.
-    pub fn sampler(&self) -> Result<crate::Sampler<'_>> {
-        crate::Sampler::new(self)
-    }
 }
 
 /// The lookup's view of a loaded grid: made here, so that the lookup needs no loader.

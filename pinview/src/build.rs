@@ -20,7 +20,7 @@ use anyhow::{Result, anyhow};
 use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, GpuToneMap};
 use pinrender::render::EstimatorSpec;
 
-use crate::app::window::{IMAGE_FORMAT, device_descriptor, image_texture};
+use crate::device::{IMAGE_FORMAT, device_descriptor, image_texture};
 use crate::export;
 use crate::open::{MediaJob, gpu_media};
 

@@ -12,6 +12,7 @@ mod app;
 mod args;
 mod build;
 mod compare;
+mod device;
 mod error_view;
 mod error_window;
 mod export;

@@ -167,7 +167,7 @@ impl Medium {
     /// A scene file's instances, opened as `pinrender render --scene --backend gpu` opens
     /// them for `estimator` (`pinrender`'s default for the scene when `None`; each asset
     /// once; a volume without pins baked in memory with `seed` where `estimator` reads pins),
-    /// within `max_memory` as `pinrender render --max-memory` bounds it, with the pins every
+    /// within `budget` as `pinrender render --max-memory` bounds it, with the pins every
     /// asset names loaded too, so that the menu offers every estimator the assets answer;
     /// with its messages.
     pub fn open_scene(

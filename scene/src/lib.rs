@@ -16,6 +16,7 @@
 //! the world (the transform's composition with an asset's own placement is the renderer's).
 
 mod error;
+mod limits;
 mod load;
 mod model;
 pub mod ranges;
@@ -23,6 +24,7 @@ mod raw;
 mod transform;
 
 pub use error::SceneError;
-pub use load::{MAX_ASSETS, MAX_INSTANCES, MAX_SCENE_BYTES, load, load_bound, parse};
+pub use limits::{MAX_ASSETS, MAX_INSTANCES, MAX_SCENE_BYTES};
+pub use load::{load, load_bound, parse};
 pub use model::{Asset, Camera, Instance, Scene, Sun};
 pub use transform::{IDENTITY, Trs, compose_trs};

@@ -8,18 +8,11 @@ use std::path::{Path, PathBuf};
 use pin_format::input::{InputError, check_regular, open_regular};
 
 use crate::error::SceneError;
+use crate::limits::{MAX_ASSETS, MAX_INSTANCES, MAX_SCENE_BYTES};
 use crate::model::{Asset, Camera, Instance, Scene, Sun};
 use crate::raw::{RawInstance, RawScene};
 use crate::transform::IDENTITY;
 
-/// The largest scene file read: 64 MiB holds over a million instances as 12-number matrices.
-pub const MAX_SCENE_BYTES: u64 = 64 << 20;
-/// The most instances a scene places.
-pub const MAX_INSTANCES: usize = 1 << 20;
-/// The most assets a scene names.
-pub const MAX_ASSETS: usize = 4096;
-/// The longest asset name, in bytes.
-pub const MAX_NAME_BYTES: usize = 256;
 /// The shortest text of one instance (`{"asset":"a"},`): how many a file's length can hold.
 const MIN_INSTANCE_TEXT: u64 = 14;
 

@@ -1,14 +1,14 @@
 //! The document as serde reads it. Values are checked while they are read, so that a
 //! refusal carries the JSON path serde_path_to_error tracks (`camera.fov`,
 //! `instances[17].transform.scale`); what needs the whole document (asset names) is checked
-//! by [`crate::load`].
+//! by `load.rs`.
 
 use std::fmt;
 
 use serde::Deserialize;
 use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 
-use crate::load::{MAX_ASSETS, MAX_INSTANCES, MAX_NAME_BYTES};
+use crate::limits::{MAX_ASSETS, MAX_INSTANCES, MAX_NAME_BYTES};
 use crate::ranges;
 use crate::transform::{self, Trs};
 

@@ -664,12 +664,13 @@ impl Density for DenseGrid {
         }
         m
     }
+}
 
+impl DensitySource for DenseGrid {
     fn describe(&self) -> String {
         let [x, y, z] = self.lattice.dims;
         format!("{} {x}x{y}x{z}", self.label)
     }
-
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
         for (i, o) in out.iter_mut().take(n).enumerate() {
             let p = origin + step * i as f64;
@@ -680,9 +681,7 @@ impl Density for DenseGrid {
             };
         }
     }
-}
 
-impl DensitySource for DenseGrid {
     fn as_dense_grid(&self) -> Option<&DenseGrid> {
         Some(self)
     }

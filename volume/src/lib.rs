@@ -84,10 +84,12 @@ impl Aabb {
     }
 }
 
-/// A scalar extinction field in world space, as a renderer reads it: a point lookup, a bound
-/// over a box (what majorant grids and controls are built from) and, where the field is a
-/// voxel array, a view of it for trackers that step in index space. The renderer's estimators
-/// (`pinrender`) take nothing wider; the baker's further questions are [`DensitySource`]'s.
+/// A scalar extinction field in world space, as a renderer reads it (pbrt-v4's medium
+/// density, five methods): a point lookup, the box, an upper and a lower bound over a box
+/// (what majorant grids and controls are built from) and, where the field is a voxel array, a
+/// view of it for trackers that step in index space. The renderer's estimators (`pinrender`)
+/// take nothing wider; the baker's further questions (a description for provenance, batched
+/// lookups along a line, cropping, farm parts, dense copies, memory) are [`DensitySource`]'s.
 ///
 /// Implementations must be cheap to call from many threads at once and must never return NaN
 /// or a negative value (sources reject or sanitise such input when they are built; the
@@ -126,7 +128,16 @@ pub trait Density: Send + Sync {
     fn dense_view(&self) -> Option<DenseView<'_>> {
         None
     }
+}
 
+/// A [`Density`] the baker reads: what a bake asks beyond a renderer (its description for
+/// provenance, batched lookups along a line, cropping, the voxel size that bounds the default
+/// cells, the frame a rotated grid is baked in, a farm part's slab and facts, the dense copy a
+/// bake marches, the memory a source holds). Every source the baker opens ([`open_source`])
+/// is one; a renderer's own fields need not be. It lives here, beside the sources, rather
+/// than in the baker because its methods read the sources' internals (a VDB's leaf table,
+/// its part slab and reader facts), which the baker cannot see.
+pub trait DensitySource: Density {
     /// A short human-readable description for provenance ("raw u8 128x128x128", ...). The
     /// default says only what it is: every source the baker opens names itself.
     fn describe(&self) -> String {
@@ -146,13 +157,7 @@ pub trait Density: Send + Sync {
             *o = self.extinction(origin + step * i as f64);
         }
     }
-}
 
-/// A [`Density`] the baker reads: what a bake asks beyond a renderer (cropping, the voxel size
-/// that bounds the default cells, the frame a rotated grid is baked in, a farm part's slab,
-/// the dense copy a bake marches, the memory a source holds). Every source the baker opens
-/// ([`open_source`]) is one; a renderer's own fields need not be.
-pub trait DensitySource: Density {
     /// Tight box around the non-zero extinction, if the source can tell cheaply (used for
     /// cropping). `None` means "use `bounds`".
     fn occupied_bounds(&self) -> Option<Aabb> {

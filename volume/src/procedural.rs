@@ -101,15 +101,16 @@ impl Density for HomogeneousBox {
             region.min.cmpge(self.bounds.min).all() && region.max.cmple(self.bounds.max).all();
         Some(if inside { self.density } else { 0.0 })
     }
+}
+
+impl DensitySource for HomogeneousBox {
     fn describe(&self) -> String {
         format!(
             "procedural box {}..{} density {}",
             self.bounds.min, self.bounds.max, self.density
         )
     }
-}
 
-impl DensitySource for HomogeneousBox {
     fn occupied_bounds(&self) -> Option<Aabb> {
         Some(self.bounds)
     }
@@ -185,15 +186,16 @@ impl Density for Sphere {
             0.0
         }
     }
+}
+
+impl DensitySource for Sphere {
     fn describe(&self) -> String {
         format!(
             "procedural sphere centre {} radius {} density {}",
             self.center, self.radius, self.density
         )
     }
-}
 
-impl DensitySource for Sphere {
     fn occupied_bounds(&self) -> Option<Aabb> {
         Some(self.bounds())
     }
@@ -441,10 +443,12 @@ impl Density for CosineNoise {
         let m = bound.min(2.0 * self.density) * (1.0 + 1e-6);
         m as f32
     }
+}
+
+impl DensitySource for CosineNoise {
     fn describe(&self) -> String {
         format!("procedural {}", self.label)
     }
-
     /// Along a line each wave's phase grows linearly, so `cos` is advanced by a rotation
     /// (two multiply-adds) instead of a libm call; the start phase is recomputed exactly every
     /// 64 samples so rounding cannot drift. About 6x faster than per-point evaluation; agrees
@@ -478,9 +482,7 @@ impl Density for CosineNoise {
             start += len;
         }
     }
-}
 
-impl DensitySource for CosineNoise {
     fn occupied_bounds(&self) -> Option<Aabb> {
         Some(self.bounds)
     }

@@ -20,7 +20,7 @@ use clap::Args;
 use glam::DVec3;
 use pin_format::Directions;
 use pin_volume::procedural::ProceduralKind;
-use pin_volume::{DenseGrid, Density, DensitySource, ProceduralSpec};
+use pin_volume::{DenseGrid, DensitySource, ProceduralSpec};
 use pinbake::BakeOptions;
 use pinbake::pin::{Field, integration_error_of};
 use rayon::prelude::*;

@@ -17,8 +17,8 @@ use crate::nanovdb::{Grid, Type, file_bytes, leaf};
 use crate::{nanovdb, openvdb};
 use glam::{DVec3, IVec3};
 use pin_format::Directions;
+use pin_volume::DensitySource;
 use pin_volume::vdb::{VdbOptions, VdbSource};
-use pin_volume::{Density, DensitySource};
 use pinbake::BakeOptions;
 
 fn open_nvdb(path: &Path, grid: Option<&str>, level_set: bool) -> Result<VdbSource, String> {

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use pin_volume::vdb::{VdbOptions, VdbSource};
-use pin_volume::{Density, DensitySource, SourceError};
+use pin_volume::{DensitySource, SourceError};
 
 const ROOT: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/..");
 

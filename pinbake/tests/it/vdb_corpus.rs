@@ -11,8 +11,8 @@ use std::collections::BTreeMap;
 use crate::openvdb;
 use glam::{DVec3, IVec3};
 use pin_format::Directions;
-use pin_volume::Density;
 use pin_volume::vdb::{VdbOptions, VdbSource};
+use pin_volume::{Density, DensitySource};
 use pinbake::BakeOptions;
 
 fn open(file: &std::path::Path, grid: &str, level_set: bool) -> Result<VdbSource, String> {

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use pin_format::Directions;
 use pin_volume::vdb::{GridStats, VdbOptions, VdbPart, VdbSource};
-use pin_volume::{Density, DensityScale};
+use pin_volume::{Density, DensityScale, DensitySource};
 use pinbake::bake::{BakeOptions, Provenance, bake_metadata};
 use pinbake::part::{Part, bake_part};
 

@@ -35,6 +35,7 @@
 use glam::Vec3;
 
 use super::bvh::{Bvh, Walk};
+pub(crate) use super::slab::{CHUNK, MISS, RaySlabs, slab_entry};
 
 /// Relative padding of a box: this fraction of its longest finite edge on every side.
 pub(crate) const PAD_REL: f64 = 1e-5;
@@ -42,12 +43,6 @@ pub(crate) const PAD_REL: f64 = 1e-5;
 /// Absolute part of the padding, in units of the largest finite coordinate magnitude of the
 /// box (a few f32 ulps: covers the rounding of the f32 box and of the f32 slab test).
 const PAD_ULPS: f64 = 8.0 * f32::EPSILON as f64;
-
-/// Boxes tested per call of [`MediaBoxes::entries`] (the tracer's stack buffer).
-pub(crate) const CHUNK: usize = 64;
-
-/// [`MediaBoxes::entries`]' value for a box the segment misses.
-pub(crate) const MISS: f32 = f32::INFINITY;
 
 /// A box `[lo, hi]` padded outward as the tracer stores it, or `None` for "unbounded"
 /// (no box, or one that is NaN or inverted: conservatively never skipped). The padded
@@ -234,31 +229,6 @@ impl MediaBoxes {
     }
 }
 
-/// Where the segment `[0, t_max]` of `ray` enters the box `[lo, hi]` (0 if it starts
-/// inside), or [`MISS`]: the body of [`MediaBoxes::entries`]' loop.
-#[inline(always)]
-pub(crate) fn slab_entry(lo: [f32; 3], hi: [f32; 3], ray: &RaySlabs, t_max: f32) -> f32 {
-    let mut t_near = 0.0f32;
-    let mut t_far = t_max;
-    for a in 0..3 {
-        // Slab axes: the usual parameters. Parallel axes (inv = +-inf): -inf/+inf inside the
-        // slab, both +inf (or both -inf) outside it: a miss. NaN arises only as `0 * inf`,
-        // an origin exactly on a padded face of a parallel slab, i.e. outside the
-        // estimator's own box, where either answer is right. The compare-and-select min/max
-        // (x86 minps/maxps) keep the loop vectorised.
-        let t0 = (lo[a] - ray.o[a]) * ray.inv[a];
-        let t1 = (hi[a] - ray.o[a]) * ray.inv[a];
-        let (near, far) = if t0 < t1 { (t0, t1) } else { (t1, t0) };
-        t_near = if near > t_near { near } else { t_near };
-        t_far = if far < t_far { far } else { t_far };
-    }
-    if t_near <= t_far && t_near < MISS {
-        t_near
-    } else {
-        MISS
-    }
-}
-
 /// The boxes of `entry[..n]` ([`MediaBoxes::entries`]) that the ray meets, by entry, into
 /// `order[..k]`; returns `k`. An insertion sort (a handful of boxes), stable: ties keep the
 /// media order. The order in which the tracer's nearest-collision search asks the media.
@@ -386,32 +356,6 @@ impl MetChunks {
                 return true;
             }
         }
-    }
-}
-
-/// A ray prepared for many box tests: origin and per-axis reciprocal direction (`+-inf` on
-/// a parallel axis).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct RaySlabs {
-    o: [f32; 3],
-    inv: [f32; 3],
-}
-
-impl RaySlabs {
-    /// `None` for a ray the test cannot reason about (non-finite origin or direction, zero
-    /// direction): the caller then asks every medium, whose estimators treat such rays
-    /// themselves.
-    #[inline]
-    pub(crate) fn new(o: Vec3, d: Vec3) -> Option<Self> {
-        if !(o.is_finite() && d.is_finite()) || d == Vec3::ZERO {
-            return None;
-        }
-        // 1 / +-0 is +-inf; 1 / subnormal overflows to +-inf: both parallel.
-        let inv = d.to_array().map(|c| 1.0 / c);
-        Some(RaySlabs {
-            o: o.to_array(),
-            inv,
-        })
     }
 }
 

@@ -442,14 +442,14 @@ impl Density for BrickGrid {
             s.map_or(0.0, |s| m.min(self.slot_min[s]))
         }))
     }
+}
 
+impl DensitySource for BrickGrid {
     fn describe(&self) -> String {
         let [x, y, z] = self.dims;
         format!("bricked grid {x}x{y}x{z}")
     }
-}
 
-impl DensitySource for BrickGrid {
     fn voxel_size(&self) -> Option<DVec3> {
         Some(DVec3::from(self.spacing))
     }

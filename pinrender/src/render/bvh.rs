@@ -13,7 +13,7 @@
 //!
 //! A node's box is the exact f32 union of the padded boxes below it. The slab test is
 //! monotone in the box (a smaller box gives a later entry and an earlier exit, in f32 as in
-//! the reals; see [`super::bounds`]), so a segment that misses a node misses every box
+//! the reals; see `bounds.rs`), so a segment that misses a node misses every box
 //! below it, and the leaves' boxes are then tested one by one with the linear scan's own
 //! test: the boxes met, and their entries, are the linear scan's bit for bit.
 //!
@@ -26,7 +26,7 @@
 
 use std::ops::Range;
 
-use super::bounds::{CHUNK, MISS, RaySlabs, slab_entry};
+use super::slab::{CHUNK, MISS, RaySlabs, slab_entry};
 
 /// The most media in a leaf.
 pub(crate) const LEAF: usize = 4;
@@ -44,7 +44,7 @@ struct Node {
     count: u32,
 }
 
-/// The hierarchy over the boxes of one [`super::bounds::MediaBoxes`].
+/// The hierarchy over the boxes of one `MediaBoxes` (`bounds.rs`).
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Bvh {
     nodes: Vec<Node>,

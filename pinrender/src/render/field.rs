@@ -178,14 +178,14 @@ impl Density for VoxelGrid {
     fn dense_view(&self) -> Option<DenseView<'_>> {
         DenseView::new(&self.values, *self.map.as_deref()?)
     }
+}
 
+impl DensitySource for VoxelGrid {
     fn describe(&self) -> String {
         let [x, y, z] = self.dims;
         format!("voxel grid {x}x{y}x{z}")
     }
-}
 
-impl DensitySource for VoxelGrid {
     fn voxel_size(&self) -> Option<DVec3> {
         Some(DVec3::from(self.spacing))
     }

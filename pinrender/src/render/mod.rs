@@ -113,6 +113,7 @@ mod pins;
 mod plan;
 mod rng;
 mod settings;
+mod slab;
 mod spec;
 mod tracer;
 mod wavefront;

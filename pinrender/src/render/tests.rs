@@ -1318,14 +1318,15 @@ impl pin_volume::Density for FieldSource {
     fn max_extinction_in(&self, r: pin_volume::Aabb) -> f32 {
         self.field.max_extinction_in(r).min(f32::MAX)
     }
-    fn describe(&self) -> String {
-        "test field".into()
-    }
 }
 
 /// Baked into a control (`pinbake::control::bake_control`) by the tests below.
 #[cfg(feature = "cli")]
-impl pin_volume::DensitySource for FieldSource {}
+impl pin_volume::DensitySource for FieldSource {
+    fn describe(&self) -> String {
+        "test field".into()
+    }
+}
 
 /// `pinres` over `field`: the control `pinbake` bakes for it over `[lo, hi]` with `dims`
 /// bricks, and, with `wrong_m`, the mutation that stores a residual majorant of 0 in every

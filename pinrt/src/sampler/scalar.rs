@@ -325,3 +325,13 @@ impl<'g> Sampler<'g> {
         self.single(ray, t_max, rng, QueryMode::Both)
     }
 }
+
+// Here rather than in the loader, so that the loader does not import the sampler that
+// imports it.
+impl PinGrid {
+    /// A sampler with the default lookup ([`crate::SamplerOptions::RENDER`]) and the file's
+    /// own placement.
+    pub fn sampler(&self) -> crate::error::Result<Sampler<'_>> {
+        Sampler::new(self)
+    }
+}

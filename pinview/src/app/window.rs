@@ -10,9 +10,7 @@ use pinrender::gpu_render::{GpuSession, GpuToneMap};
 use super::Viewer;
 use crate::args::ViewArgs;
 use crate::build::Relay;
-
-/// The texture format of the displayed image (the tone-map pass writes sRGB codes itself).
-pub const IMAGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+pub use crate::device::{IMAGE_FORMAT, device_descriptor, image_texture};
 
 /// The window's options: title, size, and the wgpu device opened on the
 /// adapter `pinrender render --backend gpu` picks, with the adapter's own limits.
@@ -44,25 +42,6 @@ pub fn native_options(a: &ViewArgs) -> crate::shell::WindowOptions {
             },
             ..Default::default()
         },
-    }
-}
-
-/// The device the viewer opens on `adapter` (the window's and the off-screen run's alike):
-/// the adapter's own limits, and timestamp queries where it has them and is not a CPU.
-pub fn device_descriptor(adapter: &wgpu::Adapter) -> wgpu::DeviceDescriptor<'static> {
-    wgpu::DeviceDescriptor {
-        label: Some("pinview"),
-        // Pass times from the GPU's own clock where the adapter can tell them. Not on a CPU
-        // adapter: lavapipe stamps a pass when it processes the command, not when its threads
-        // finish the dispatch (measured 20x and 220x below the wall time for pins and PinMS),
-        // so the wall time is the truer figure there.
-        required_features: if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
-            wgpu::Features::empty()
-        } else {
-            adapter.features() & wgpu::Features::TIMESTAMP_QUERY
-        },
-        required_limits: adapter.limits(),
-        ..Default::default()
     }
 }
 
@@ -101,28 +80,6 @@ pub struct Target {
     pub view: wgpu::TextureView,
     pub id: egui::TextureId,
     pub size: (u32, u32),
-}
-
-/// The texture the accumulation is tone-mapped into: the window shows it through egui, the
-/// off-screen mode reads it back, so both images are one format and one usage.
-pub fn image_texture(device: &wgpu::Device, width: u32, height: u32, label: &str) -> wgpu::Texture {
-    device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d {
-            width,
-            height,
-            depth_or_array_layers: 1,
-        },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D2,
-        format: IMAGE_FORMAT,
-        usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-            | wgpu::TextureUsages::TEXTURE_BINDING
-            | wgpu::TextureUsages::COPY_SRC
-            | wgpu::TextureUsages::COPY_DST,
-        view_formats: &[],
-    })
 }
 
 /// Writes RGBA bytes of `width x height` into `texture` (an [`image_texture`]).

@@ -239,3 +239,36 @@ fn the_renderer_depends_on_no_lab() {
     let lab = tree("pinlab");
     assert!(lab.lines().any(|l| l.starts_with("pinrender ")), "{lab}");
 }
+
+/// The map's claim for the renderer's library: `cargo tree -p pinrender -e normal` with its
+/// default features shows `pin-volume` and no `pinbake` (only the `cli` feature bakes pins in
+/// memory), while with `cli` it shows pinbake (so the search can find it).
+#[test]
+fn the_renderer_library_depends_on_no_baker() {
+    let tree = |features: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO"))
+            .args(["tree", "-p", "pinrender", "-e", "normal"])
+            .args(features)
+            .args(["--prefix", "none", "--offline"])
+            .current_dir(repo())
+            .output()
+            .expect("cargo tree runs");
+        assert!(
+            out.status.success(),
+            "cargo tree: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    };
+    let library = tree(&[]);
+    assert!(
+        !library.lines().any(|l| l.starts_with("pinbake ")),
+        "pinrender's library links pinbake:\n{library}"
+    );
+    assert!(
+        library.lines().any(|l| l.starts_with("pin-volume ")),
+        "{library}"
+    );
+    let cli = tree(&["--features", "cli"]);
+    assert!(cli.lines().any(|l| l.starts_with("pinbake ")), "{cli}");
+}

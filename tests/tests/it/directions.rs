@@ -100,12 +100,13 @@ impl Density for Lopsided {
     fn max_extinction_in(&self, _: Aabb) -> f32 {
         0.5 + 6.0 + 13.5 + 2.0
     }
+}
+
+impl DensitySource for Lopsided {
     fn describe(&self) -> String {
         "lopsided".into()
     }
 }
-
-impl DensitySource for Lopsided {}
 
 /// End to end through a baked file: a query that starts at a pin's own point and runs along
 /// its line, forwards (`+w`) or backwards (`-w`, the reversed mask), reads that pin's entry,
@@ -285,12 +286,13 @@ impl Density for Blob {
     fn max_extinction_in(&self, _: Aabb) -> f32 {
         8.0
     }
+}
+
+impl DensitySource for Blob {
     fn describe(&self) -> String {
         "gaussian blob".into()
     }
 }
-
-impl DensitySource for Blob {}
 
 /// Mean over near-axis rays through the blob's core of (pin transmittance - ray-marched
 /// transmittance), for rays along `axis` (both orientations).

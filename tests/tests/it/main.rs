@@ -9,6 +9,7 @@ mod directions;
 mod faults;
 mod fuzz_corpus;
 mod gpu_bake_render;
+mod module_cycles;
 mod precision;
 mod statistics;
 mod stiff_cases;

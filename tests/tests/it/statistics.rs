@@ -209,12 +209,13 @@ impl Density for Ramp {
     fn max_extinction_in(&self, _: Aabb) -> f32 {
         4.0
     }
+}
+
+impl DensitySource for Ramp {
     fn describe(&self) -> String {
         "ramp".into()
     }
 }
-
-impl DensitySource for Ramp {}
 
 /// (a') Over the baker's mask draws: `E[t_min ^ popcount(I)] = prod t_i = exp(-sum tau_i)`
 /// for full chords, with the baker's own `interval_optical_depths` and `make_entry`.

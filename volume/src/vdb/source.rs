@@ -1311,11 +1311,12 @@ impl Density for VdbSource {
         }
         self.max_in_index_box(a, b)
     }
+}
 
+impl DensitySource for VdbSource {
     fn describe(&self) -> String {
         self.label.clone()
     }
-
     fn extinction_along(&self, origin: DVec3, step: DVec3, n: usize, out: &mut [f32]) {
         for (i, o) in out.iter_mut().take(n).enumerate() {
             let p = origin + step * i as f64;
@@ -1326,9 +1327,7 @@ impl Density for VdbSource {
             };
         }
     }
-}
 
-impl DensitySource for VdbSource {
     fn occupied_bounds(&self) -> Option<Aabb> {
         Some(self.bounds)
     }
@@ -1535,13 +1534,13 @@ impl Density for GridFrame<'_> {
         }
         self.grid.max_in_index_box(a, b)
     }
-
-    fn describe(&self) -> String {
-        format!("{}, baked in the grid's own frame", self.grid.label)
-    }
 }
 
 impl DensitySource for GridFrame<'_> {
+    fn describe(&self) -> String {
+        format!("{}, baked in the grid's own frame", self.grid.label)
+    }
+
     fn occupied_bounds(&self) -> Option<Aabb> {
         Some(self.bounds)
     }

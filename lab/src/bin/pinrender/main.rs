@@ -111,7 +111,12 @@ fn main() -> ExitCode {
     pin_cli::run_main("pinrender", args, |cli: Cli| {
         match cli.command {
             Command::Bench(a) => bench::run(*a),
-            Command::Render(a) => render_cmd::run(*a),
+            // A scene file renders through its own command, which builds on the render
+            // command's outputs (so the render command does not call back into it).
+            Command::Render(a) => match a.scene.clone() {
+                Some(path) => scene_cmd::run(*a, &path),
+                None => render_cmd::run(*a),
+            },
             Command::Estimators { json } => list_estimators(json),
             Command::Eval(a) => eval::run(*a),
             Command::Shaders(a) => shaders::run(a),
