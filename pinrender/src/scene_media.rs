@@ -12,8 +12,8 @@ use std::sync::Arc;
 
 use anyhow::{Result, anyhow};
 use pin_scene::{Asset, Scene};
-use pin_volume::files::MemoryBudget;
 use pin_volume::DensityScale;
+use pin_volume::files::MemoryBudget;
 use pinrt::SamplerOptions;
 
 use crate::front::{self, Holds, Input, PinsWanted, RenderFlags};

@@ -7,8 +7,8 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{Result, anyhow};
-use pinbake::cli_args::SourceArgs;
 use pin_volume::files::MemoryBudget;
+use pinbake::cli_args::SourceArgs;
 
 use super::{Holds, RenderFlags};
 use crate::volume::{self, OpenedMedium, VolumeArgs};
