@@ -353,6 +353,9 @@ pub struct Choice {
     pub reason_directions: String,
     pub reason_pins_per_entry: String,
     pub stats: VolumeStats,
+    /// What the default asset rule weighed and chose ([`crate::default_asset`]), when it
+    /// chose the bake.
+    pub asset: Option<crate::default_asset::AssetChoice>,
 }
 
 /// Cells along each axis for `n` along the longest: in proportion to the box, at least 1, and
@@ -571,6 +574,7 @@ fn choose_above(
         reason_directions,
         reason_pins_per_entry,
         stats: stats.clone(),
+        asset: None,
     }
 }
 
