@@ -304,12 +304,15 @@ impl Medium {
     }
 
     /// The estimator when none is asked for: `pinrender render`'s default for the same input
-    /// (pinms with pins and a density, pins with pins alone, ratio for a volume without pins).
+    /// (`pinrender::volume::default_estimator`: pinms with a volume and its pins, ratio
+    /// tracking for a pin file that embeds its density, pins with pins alone, ratio for a
+    /// volume without pins).
     pub fn default_estimator(&self) -> EstimatorSpec {
         if let Some(s) = &self.scene {
             return s.options.estimator;
         }
         match (self.pins().is_some(), self.has_density()) {
+            (true, true) if !self.is_volume => EstimatorSpec::RatioTracking,
             (true, true) => EstimatorSpec::PinMs,
             (true, false) => EstimatorSpec::Pins,
             _ => EstimatorSpec::RatioTracking,
