@@ -147,8 +147,10 @@ pub fn predicted_density_error(stats: &VolumeStats, voxel: DVec3, factor: u32) -
     .max(FULL_RES_ERROR)
 }
 
-/// Bytes of a file beyond its sections: the header, the section table, the metadata.
-const HEADER_BYTES: u64 = 1 << 10;
+/// Bytes of a file beyond its sections, at most: the header, the section table, the metadata
+/// (the source's name and hash; about 1.3 KiB for the bundled volumes), so that a file chosen
+/// within the budget is within it.
+const HEADER_BYTES: u64 = 4 << 10;
 
 /// Weighs the alternatives for `source` (the pins-only choice `pins_only` among them) and
 /// picks the smallest whose predicted error is at most `target` within `max_bytes`; when none
