@@ -14,11 +14,14 @@ mkdir -p out
 # scripts/test.sh. This way the two commands share one build.
 cargo test "${PROFILE_FLAGS[@]}" --no-run
 BIN="$BIN_DIR/pinbake"
-# The default bake (octahedral:16 directions, up to 20^3 cells), with an f16 copy of the density.
+# Pins chosen from the volume (octahedral:16 directions, up to 20^3 cells) with a 64^3 f16 copy
+# of the density, box-filtered (a named --embed-density leaves the default asset rule out).
 $BIN bake "$DATA/openvdb_smoke1.vdb" -o out/smoke.pin \
   --density-scale 4 --embed-density 64 --json > out/smoke.bake.json
 $BIN verify out/smoke.pin
 $BIN inspect out/smoke.pin
+# The default asset (no grid flags): the smallest file predicted within 1% block error of
+# the volume, no larger than the input plus 64 KiB (choice.asset in the JSON says what).
 $BIN bake "$DATA/hydrogen_atom_128x128x128_uint8.raw" --density-scale 0.05 -o out/hydrogen.pin \
   --json > out/hydrogen.bake.json
 $BIN inspect out/hydrogen.pin --json > out/hydrogen.inspect.json

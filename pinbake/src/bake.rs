@@ -818,16 +818,20 @@ fn bake_density(
             bbox.min.z + e.z * (f64::from(c[2]) + 0.5) / f64::from(dims[2]),
         )
     };
+    // Below the source's resolution, each voxel is the mean of the source over it.
+    let spacing = e / DVec3::new(dims[0].into(), dims[1].into(), dims[2].into());
+    let sub = crate::embed_density::filter_samples(source, spacing);
+    let value = |i: usize| crate::embed_density::box_filtered(source, centre(i), spacing, sub);
     let mut values = try_filled("the embedded density", n, f16::ZERO)?;
     values
         .par_iter_mut()
         .enumerate()
-        .for_each(|(i, out)| *out = f16::from_f32(source.extinction(centre(i))));
+        .for_each(|(i, out)| *out = f16::from_f32(value(i)));
     // The first bad voxel in index order, so the message does not depend on scheduling.
     if let Some(i) = values.iter().position(|h| !h.is_finite()) {
         let p = centre(i);
         return Err(BakeError::DensityRange {
-            value: source.extinction(p),
+            value: value(i),
             at: p.to_array(),
         });
     }

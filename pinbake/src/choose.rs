@@ -27,8 +27,9 @@
 //! 3. [`choose`] takes the smallest bake (in predicted bytes) whose predicted error is at most
 //!    the target, among octahedral direction sets (the measured best kind, docs/evaluation.md)
 //!    and cells no finer than the voxels; parameters the user gave are held fixed.
-//!    [`choose_default`] (what `pinbake bake` does without `--target-error`) searches only at or
-//!    above a floor, because the model is fitted on one view per volume and errors seen from
+//!    [`choose_default`] (what `pinbake bake` does for pins alone without `--target-error`:
+//!    with a grid parameter named, or for a source with no lattice for the default asset of
+//!    [`crate::default_asset`]) searches only at or above a floor, because the model is fitted on one view per volume and errors seen from
 //!    other sides are larger ([`DEFAULT_MIN_CELLS`]).
 
 use glam::DVec3;
@@ -353,6 +354,9 @@ pub struct Choice {
     pub reason_directions: String,
     pub reason_pins_per_entry: String,
     pub stats: VolumeStats,
+    /// What the default asset rule weighed and chose ([`crate::default_asset`]), when it
+    /// chose the bake.
+    pub asset: Option<crate::default_asset::AssetChoice>,
 }
 
 /// Cells along each axis for `n` along the longest: in proportion to the box, at least 1, and
@@ -421,7 +425,7 @@ pub fn choose(stats: &VolumeStats, fixed: Fixed, target: f64) -> Choice {
     choose_above(stats, fixed, target, 1, 1)
 }
 
-/// What `pinbake bake` does without `--target-error`: [`choose`] at [`DEFAULT_TARGET_ERROR`]
+/// What `pinbake bake` does for pins alone without `--target-error`: [`choose`] at [`DEFAULT_TARGET_ERROR`]
 /// among bakes of at least [`DEFAULT_MIN_CELLS`] (capped by the voxels) and
 /// octahedral:[`DEFAULT_MIN_OCTAHEDRAL`], for the parameters not given.
 pub fn choose_default(stats: &VolumeStats, fixed: Fixed) -> Choice {
@@ -571,6 +575,7 @@ fn choose_above(
         reason_directions,
         reason_pins_per_entry,
         stats: stats.clone(),
+        asset: None,
     }
 }
 

@@ -23,12 +23,14 @@ pub mod choose;
 #[cfg(feature = "cli")]
 pub mod cli_args;
 pub mod control;
+pub mod default_asset;
 pub mod embed_density;
 pub mod error;
 pub mod frames;
 #[cfg(feature = "gpu")]
 pub mod gpu_bake;
 pub mod gpu_options;
+pub mod lattice_box;
 pub mod limits;
 pub mod merge;
 pub mod part;

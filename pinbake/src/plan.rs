@@ -116,6 +116,11 @@ pub struct BakeRequest {
     pub max_memory: Option<u64>,
     /// Where the pins' entries are computed: the CPU, or a wgpu compute pass.
     pub backend: crate::BakeBackend,
+    /// The most bytes the file may take: the default asset's budget
+    /// ([`crate::default_asset`]; when `None`, the source file's size plus
+    /// [`crate::default_asset::ALLOWANCE`]), and a bound a bake of named parameters that is
+    /// predicted larger is refused by.
+    pub max_bytes: Option<u64>,
 }
 
 impl Default for BakeRequest {
@@ -138,6 +143,7 @@ impl Default for BakeRequest {
             density_scale: d.density_scale,
             max_memory: None,
             backend: crate::BakeBackend::Cpu,
+            max_bytes: None,
         }
     }
 }
@@ -263,6 +269,9 @@ impl BakeRequest {
                 "tile: index {} must be in 0..{}",
                 t.index, t.count
             )));
+        }
+        if self.max_bytes == Some(0) {
+            return Err(usage("max_bytes: must be at least 1".into()));
         }
         if self.target_error.is_some()
             && self.cells.is_some()
@@ -518,6 +527,16 @@ fn prepare(
         // Already in memory (the grid takes it over without a copy), and held throughout.
         BakeInput::Array { values, .. } => (values.len() as u64).saturating_mul(4),
     };
+    // The default asset's budget: what the user gave, else the input's own size.
+    let max_bytes = req.max_bytes.unwrap_or_else(|| {
+        let source_bytes = match &input {
+            BakeInput::Source(spec) => spec_path(spec)
+                .and_then(|p| std::fs::metadata(p).ok())
+                .map_or(u64::MAX, |m| m.len()),
+            BakeInput::Array { values, .. } => (values.len() as u64).saturating_mul(4),
+        };
+        source_bytes.saturating_add(crate::default_asset::ALLOWANCE)
+    });
     let what = format!("baking {name}");
     let need = crate::bake::estimate_output_bytes(&probe)
         .saturating_add(input_bytes)
@@ -546,7 +565,8 @@ fn prepare(
         input: name.clone(),
         source,
     };
-    let (source, provenance_name, hash): (Box<dyn DensitySource>, String, String) = match input {
+    let (mut source, provenance_name, hash): (Box<dyn DensitySource>, String, String) = match input
+    {
         BakeInput::Source(spec) => {
             let scale = req.scale()?;
             let (n, h) = match &spec {
@@ -599,7 +619,70 @@ fn prepare(
         }
     };
     crate::placement::check_source_placement(source.as_ref(), req.crop).map_err(bake_err)?;
-    let choice = choose(source.as_ref(), req).map_err(bake_err)?;
+    let mut choice = choose(source.as_ref(), req).map_err(bake_err)?;
+    let mut embed_density = req.embed_density;
+    if default_asset_applies(req) {
+        let target = req
+            .target_error
+            .unwrap_or(crate::default_asset::DEFAULT_ASSET_TARGET);
+        if let Some(asset) = crate::default_asset::choose_asset(
+            source.as_ref(),
+            req.crop,
+            &choice,
+            req.majorant,
+            target,
+            max_bytes,
+        ) {
+            if let Some(embed) = asset.embed() {
+                source = on_lattice(source, req.crop, asset.factor());
+                let stats = crate::choose::analyse(source.as_ref(), req.crop).map_err(bake_err)?;
+                let (fixed, _) = crate::default_asset::asset_pins(&stats);
+                choice = crate::choose::choose(&stats, fixed, target);
+                embed_density = Some(embed);
+            }
+            if !asset.target_met || !asset.fits {
+                choice.warning = Some(asset.reason.clone());
+            }
+            choice.asset = Some(asset);
+        }
+    } else if let Some(factor) = match req.embed_density {
+        Some(crate::EmbedDensity::Sparse(crate::sparse_density::SparseDims::Source)) => Some(1),
+        Some(crate::EmbedDensity::Voxels { factor, .. }) => Some(factor),
+        _ => None,
+    } {
+        // The source's own voxels: the box on its lattice, so that they are embedded as they
+        // are (or averaged in whole blocks).
+        source = match crate::lattice_box::LatticeBox::owning(source, req.crop, factor) {
+            Ok(l) => Box::new(l),
+            Err(_) if matches!(req.embed_density, Some(crate::EmbedDensity::Voxels { .. })) => {
+                return Err(usage(format!(
+                    "{name}: embed_density voxels: the input has no voxel lattice to embed (an analytic field or a rotated grid); name the voxels per axis instead"
+                )));
+            }
+            Err(s) => s,
+        };
+        choice = choose(source.as_ref(), req).map_err(bake_err)?;
+    }
+    // `voxels:F`: the dims of the lattice box in blocks of F.
+    if let Some(crate::EmbedDensity::Voxels { factor, sparse }) = embed_density {
+        let (bbox, _) = crate::placement::bake_box(source.as_ref(), req.crop).map_err(bake_err)?;
+        let voxel = source.voxel_size().unwrap_or(bbox.extent());
+        let dims = [0, 1, 2].map(|a| {
+            ((bbox.extent()[a] / (voxel[a] * f64::from(factor)))
+                .round()
+                .max(1.0)) as u32
+        });
+        embed_density = Some(if sparse {
+            crate::EmbedDensity::Sparse(crate::sparse_density::SparseDims::Exact(dims))
+        } else {
+            if dims.iter().any(|&d| d > 4096) {
+                return Err(usage(format!(
+                    "{name}: embed_density voxels:{factor}: {dims:?} voxels, more than the dense section's 4096 per axis; use sparse-voxels or a larger factor"
+                )));
+            }
+            crate::EmbedDensity::Dense(dims)
+        });
+    }
     if let Some(c) = &req.embed_control {
         crate::control::check_control(source.as_ref(), req.crop, c).map_err(|e| {
             let e = match e {
@@ -609,7 +692,7 @@ fn prepare(
             usage(format!("{name}: embed_control: {e}"))
         })?;
     }
-    if req.target_error.is_some() {
+    if req.target_error.is_some() && embed_density.is_none() {
         // Before the bake: a target asking for gigabytes of pins is refused, not run.
         crate::choose::check_target(&choice).map_err(|e| usage(format!("{name}: {e}")))?;
     }
@@ -627,6 +710,9 @@ fn prepare(
         choice.directions,
     );
     let mut opts = options(req, &choice, metadata);
+    opts.embed_density = embed_density;
+    check_max_bytes(source.as_ref(), &opts, &choice, req.max_bytes)
+        .map_err(|e| usage(format!("{name}: {e}")))?;
     // The check above assumed the default's size; a chosen bake may be larger, and a large
     // dense grid is marched by layers with a batch of per-pin state beside it.
     let (need, copy) = memory_estimate(source.as_ref(), &opts, input_bytes, budget.limit);
@@ -648,6 +734,73 @@ fn prepare(
         own,
         name,
     })
+}
+
+/// Whether the default asset rule chooses the bake ([`crate::default_asset`]): no grid
+/// parameter, no embedded density and no tile named (a target error and a byte budget are
+/// what it chooses by).
+pub fn default_asset_applies(req: &BakeRequest) -> bool {
+    req.cells.is_none()
+        && req.directions.is_none()
+        && req.pins_per_entry.is_none()
+        && req.embed_density.is_none()
+        && req.tile.is_none()
+}
+
+/// `source` with its bake box on its own voxel lattice in blocks of `factor`
+/// ([`crate::lattice_box`]); the source as it is where it has none.
+fn on_lattice(source: Box<dyn DensitySource>, crop: bool, factor: u32) -> Box<dyn DensitySource> {
+    match crate::lattice_box::LatticeBox::owning(source, crop, factor) {
+        Ok(l) => Box::new(l),
+        Err(s) => s,
+    }
+}
+
+/// Refuses a bake predicted larger than `max_bytes` (`--max-bytes`): its pins (every cell
+/// stored), majorants and embedded density. A default asset was chosen within it, and says
+/// so where nothing fits.
+fn check_max_bytes(
+    source: &dyn DensitySource,
+    opts: &BakeOptions,
+    choice: &Choice,
+    max_bytes: Option<u64>,
+) -> Result<(), String> {
+    let Some(max) = max_bytes else {
+        return Ok(());
+    };
+    if let Some(a) = &choice.asset {
+        return match a.fits {
+            true => Ok(()),
+            false => Err(format!(
+                "no asset fits in --max-bytes {max}: the smallest weighed is {} bytes",
+                a.chosen.bytes
+            )),
+        };
+    }
+    let vol = |d: [u32; 3], b: u64| d.iter().map(|&n| u64::from(n)).product::<u64>() * b;
+    let density = match opts.embed_density {
+        Some(crate::EmbedDensity::Dense(d)) => vol(d, 2),
+        Some(crate::EmbedDensity::Sparse(spec)) => crate::placement::bake_box(source, opts.crop)
+            .ok()
+            .and_then(|(bbox, _)| {
+                let dims = crate::sparse_density::sparse_dims(source, &bbox, spec).ok()?;
+                Some(crate::sparse_density::sparse_density_file_bytes(
+                    source, &bbox, dims,
+                ))
+            })
+            .unwrap_or(0),
+        Some(crate::EmbedDensity::Voxels { .. }) | None => 0,
+    };
+    let bytes = choice
+        .predicted_pin_bytes
+        .saturating_add(opts.majorant.map_or(0, |d| vol(d, 4)))
+        .saturating_add(density);
+    if bytes > max {
+        return Err(format!(
+            "the bake is predicted at {bytes} bytes, more than --max-bytes {max}; name fewer --cells or --dirs, or a smaller --embed-density"
+        ));
+    }
+    Ok(())
 }
 
 /// A bake ready to run: the source open, the options chosen and checked against the budget,

@@ -162,6 +162,19 @@ pub fn sparse_density_min_file_bytes(
         .saturating_mul(F16_BRICK_BYTES)
 }
 
+/// The bytes a sparse f16 density of `source` over `bbox` with `dims` voxels takes in the
+/// file, at most: its index and every brick the source does not bound by zero (the
+/// candidates a fill samples; a brick whose voxels all read zero is left out after all). For
+/// the default asset's choice ([`crate::default_asset`]).
+pub fn sparse_density_file_bytes(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> u64 {
+    let c = Candidates::new(source, bbox, dims);
+    let slots = c.bdims.iter().map(|&d| u64::from(d)).product::<u64>();
+    c.count()
+        .saturating_mul(F16_BRICK_BYTES)
+        .saturating_add(slots.saturating_mul(4))
+        .saturating_add(size_of::<SparseDensityHeader>() as u64)
+}
+
 /// The sparse f16 density of `source` over `bbox` with `dims` voxels, in memory: the stored
 /// bricks and one batch of candidates at the peak.
 pub fn bake_sparse_density(
@@ -342,11 +355,14 @@ pub fn sparse_f32_bricks(
     Some((index, values))
 }
 
-/// Voxel centres and brick boxes of `dims` voxels over `bbox`.
+/// Voxel centres and brick boxes of `dims` voxels over `bbox`, and the box filter's
+/// sub-samples per axis ([`crate::embed_density::filter_samples`]; 1: the value at the
+/// centre).
 struct Geometry {
     min: DVec3,
     spacing: DVec3,
     dims: [u32; 3],
+    sub: [u32; 3],
 }
 
 impl Geometry {
@@ -360,7 +376,20 @@ impl Geometry {
                 e.z / f64::from(dims[2]),
             ),
             dims,
+            sub: [1; 3],
         }
+    }
+
+    /// [`Self::new`], each voxel the box-filtered mean of `source` over it.
+    fn filtered(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> Self {
+        let mut g = Self::new(bbox, dims);
+        g.sub = crate::embed_density::filter_samples(source, g.spacing);
+        g
+    }
+
+    /// The value of voxel `v` of `source`: [`crate::embed_density::box_filtered`].
+    fn value(&self, source: &dyn DensitySource, v: [u32; 3]) -> f32 {
+        crate::embed_density::box_filtered(source, self.centre(v), self.spacing, self.sub)
     }
 
     fn centre(&self, v: [u32; 3]) -> DVec3 {
@@ -420,7 +449,7 @@ struct Candidates {
 impl Candidates {
     fn new(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> Self {
         let bdims = brick_dims(dims, SPARSE_BRICK);
-        let geo = Geometry::new(bbox, dims);
+        let geo = Geometry::filtered(source, bbox, dims);
         let rows = (0..bdims[1] as usize * bdims[2] as usize)
             .into_par_iter()
             .map(|row| {
@@ -574,7 +603,7 @@ fn fill_brick<T: Copy + Default + PartialEq>(
         for y in lo[1]..hi[1] {
             for x in lo[0]..hi[0] {
                 let p = geo.centre([x, y, z]);
-                let v = source.extinction(p);
+                let v = geo.value(source, [x, y, z]);
                 let Some(h) = encode(v) else {
                     return Err(BakeError::DensityRange {
                         value: v,

@@ -147,6 +147,9 @@ pub fn choice_json(c: &Choice, file_bytes: u64) -> Value {
             "pins_per_entry": c.reason_pins_per_entry,
         },
         "volume": c.stats,
+        // The default asset's choice: what it chose and each alternative it weighed with its
+        // predicted error (null when the bake's parameters were named).
+        "asset": c.asset,
     })
 }
 

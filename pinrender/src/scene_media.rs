@@ -82,6 +82,7 @@ pub fn declared_holds(scene: &Scene) -> Holds {
             .map(|(a, _)| Holds {
                 pins: a.pins.is_some(),
                 density: a.volume.is_some(),
+                volume: a.volume.is_some(),
                 control: false,
             }),
     )

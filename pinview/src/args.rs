@@ -15,8 +15,9 @@ use pinrender::render::EstimatorSpec;
     version,
     about = "Look through a bake: an interactive GPU viewer of pin files and volumes.",
     after_help = "\
-FILE is a pin file (.pin: shown with pins alone at once; pinms, pinres, ratio and the other
-trackers where it embeds a density or a control), a volume (.vdb, .nvdb, .raw with --dims, or
+FILE is a pin file (.pin: shown with ratio tracking of its density where it embeds one, as a
+bake with no flags writes, else with pins alone; pinms, pinres, ratio and the other trackers
+where it embeds a density or a control), a volume (.vdb, .nvdb, .raw with --dims, or
 procedural:SPEC: tracked at once while its pins bake in the background, then every estimator),
 a scene file of instanced volumes (.json, docs/scene.md: its camera, sun, sky, albedo, g and
 bounces unless a flag gives them; every estimator its assets answer, as `pinrender render
@@ -43,8 +44,8 @@ pub struct ViewArgs {
     pub read: pinbake::cli_args::SourceArgs,
     /// rm@STEP, delta, ratio, residual[@min|@mean], pins, pinms or pinres (the renderer's
     /// estimators; the lab's urm, jackknife and pinurm are `pinrender render`'s only).
-    /// Default: as `pinrender render`: pinms for a pin file with a density, pins for one
-    /// without, ratio for a volume until its pins are baked.
+    /// Default: as `pinrender render`: ratio for a pin file that embeds a density, pins for
+    /// one without, pinms for a volume once its pins are baked (ratio until then).
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<EstimatorSpec>,
     /// A second estimator beside the first, at equal GPU time (split view). With --frames,

@@ -269,8 +269,9 @@ impl Medium {
     }
 
     /// The estimator when none is asked for: `pinrender render`'s default rule for what the
-    /// medium holds now ([`pinrender::front::default_estimator`]: pinms with pins and a
-    /// density, pins with pins alone, ratio for a volume without pins).
+    /// medium holds now ([`pinrender::front::default_estimator`]: ratio tracking for a pin
+    /// file that embeds its density, pinms for a volume with its pins, pins with pins alone,
+    /// ratio for a volume without pins).
     pub fn default_estimator(&self) -> EstimatorSpec {
         if let Some(s) = &self.scene {
             return s.options.estimator;
@@ -528,6 +529,7 @@ fn holds_of(m: &OpenedMedium) -> Holds {
     Holds {
         pins: m.pins.is_some(),
         density: m.field.is_some(),
+        volume: m.opened.is_some(),
         control: m
             .pins
             .as_ref()

@@ -394,7 +394,7 @@ fn try_vec<T: Clone>(n: usize, fill: T, what: &str) -> PyResult<Vec<T>> {
 }
 
 /// `bake(embed_density=...)`: the text of `--embed-density` (`"sparse"`, `"sparse:N"`,
-/// `"sparse:X,Y,Z"`, `"64"`), parsed by pinbake as the flag is, or the voxels per axis of a
+/// `"sparse:X,Y,Z"`, `"64"`, `"voxels:F"`, `"sparse-voxels:F"`), parsed by pinbake as the flag is, or the voxels per axis of a
 /// dense copy (the Python layer makes three of one integer). Text first: a string of three
 /// characters is no triple.
 #[derive(FromPyObject)]
@@ -451,7 +451,7 @@ impl ControlEdge {
     density_scale=1.0,
     threads=None, max_memory=None, grid=None, levelset_to_fog=false, dims=None,
     voxel_type=None, endian=None, clamp_negative=false, nan_as_zero=false, vdb_worker=None,
-    held_bytes=0, backend="cpu"
+    held_bytes=0, backend="cpu", max_bytes=None
 ))]
 #[allow(clippy::too_many_arguments)]
 fn bake(
@@ -485,6 +485,7 @@ fn bake(
     vdb_worker: Option<PathBuf>,
     held_bytes: u64,
     backend: &str,
+    max_bytes: Option<u64>,
 ) -> PyResult<String> {
     let backend = match backend {
         "cpu" => pinbake::BakeBackend::Cpu,
@@ -517,6 +518,7 @@ fn bake(
         threads,
         density_scale,
         max_memory: max_memory.map(|m| m.max(1)),
+        max_bytes,
         backend,
         // A bake option without a keyword here (a tile) keeps the command line's default.
         ..BakeRequest::default()

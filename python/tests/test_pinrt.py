@@ -330,6 +330,28 @@ def test_gpu_bakes_equal_pinbake_gpu_bakes_byte_for_byte(tmp_path):
     assert not (tmp_path / "never.pin").exists()
 
 
+def test_a_bake_with_no_options_is_pinbakes_default_asset(tmp_path):
+    """No grid options: the default asset, as `pinbake bake` with no flags writes it, byte
+    for byte, no larger than its input plus 64 KiB; `max_bytes` bounds it."""
+    vdb = DATA / "gaffer_sphere_density.vdb"
+    py, cli = tmp_path / "py.pin", tmp_path / "cli.pin"
+    s = pinrt.bake(vdb, py)
+    subprocess.run([exe("PINBAKE_EXE"), "bake", str(vdb), "-o", str(cli), "-q"], check=True)
+    assert py.read_bytes() == cli.read_bytes()
+    assert s["file_bytes"] <= vdb.stat().st_size + (64 << 10)
+    assert s["choice"]["asset"]["chosen"]["representation"] in ("dense", "sparse")
+    # An array: its float32 bytes are the budget's base.
+    x, y, z = np.meshgrid(*(np.linspace(-1, 1, n) for n in (20, 18, 22)), indexing="ij")
+    a = (30 * np.exp(-(x * x + y * y + z * z) / 0.2)).astype(np.float32)
+    s = pinrt.bake(a, tmp_path / "a.pin", spacing=0.05)
+    assert s["choice"]["asset"]["max_bytes"] == a.nbytes + (64 << 10)
+    assert s["file_bytes"] <= a.nbytes + (64 << 10)
+    s = pinrt.bake(a, tmp_path / "b.pin", spacing=0.05, max_bytes=48 << 10)
+    assert s["file_bytes"] <= 48 << 10
+    with pytest.raises(ValueError, match="max-bytes"):
+        pinrt.bake(a, tmp_path / "c.pin", spacing=0.05, max_bytes=1024)
+
+
 def test_arrays_bake_like_the_same_voxels_in_a_raw_file(tmp_path):
     # A blob in a 20x16x12 grid indexed [x, y, z] and stored in Fortran order, to show that
     # indexing, not memory layout, defines the axes.

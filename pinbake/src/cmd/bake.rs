@@ -53,13 +53,22 @@ pub struct BakeArgs {
     #[arg(long, help_heading = "Grid",
           value_parser = clap::value_parser!(u32).range(1..=i64::from(pin_format::MAX_PINS_PER_ENTRY)))]
     pub pins_per_entry: Option<u32>,
-    /// The smallest bake whose predicted 8x8-block error of pins alone is at most E (a
-    /// fraction, e.g. 0.05), for the parameters not given. Without it: 0.06, but never below
-    /// 20 cells along the longest axis (or the voxels) and octahedral:16, since the model is
-    /// fitted on one view per volume and other views measured up to 3.6x more
-    /// (docs/evaluation.md, "Bias against bytes"). --json reports the choice.
+    /// The predicted 8x8-block error of the image from the file to choose for (a fraction,
+    /// e.g. 0.05; default 0.01). With no grid flags, the smallest file meeting it within
+    /// --max-bytes: for a voxel input its density (box-filtered to the coarsest resolution
+    /// predicted to meet E) and a small pin grid, or pins alone where they are smaller
+    /// (docs/scale.md, "The default asset"). With --cells, --dirs or --pins-per-entry named,
+    /// the others are chosen for pins alone to meet E (without E: 0.06, never below 20 cells
+    /// along the longest axis and octahedral:16). --json reports the choice.
     #[arg(long, value_name = "E", value_parser = parse_target_error, help_heading = "Grid")]
     pub target_error: Option<f64>,
+    /// The most bytes the file may take (K/M/G/T suffixes). Without grid flags the bake
+    /// writes the smallest file predicted within the target error of the full-resolution
+    /// volume in at most this many bytes (default: the input file's size plus 64 KiB); a bake
+    /// of named parameters predicted larger is refused. --json reports the choice
+    /// (`choice.asset`).
+    #[arg(long, value_name = "SIZE", value_parser = pin_cli::parse::parse_bytes, help_heading = "Grid")]
+    pub max_bytes: Option<u64>,
     /// Ray-marching step relative to the longest box edge, in [1e-5, 1].
     #[arg(long, default_value_t = 0.01, value_parser = pinbake::cli_args::parse_step, help_heading = "Grid")]
     pub step: f64,
@@ -82,8 +91,12 @@ pub struct BakeArgs {
     pub majorant: [u32; 3],
     /// Embed the density: `sparse` (bricked f16 at the source's voxel size, stored only
     /// where non-zero; a format 1.1 file), `sparse:N` (at most N voxels per axis),
-    /// `sparse:X,Y,Z` (exactly those voxels), or N or X,Y,Z for a dense f16 grid of at most
-    /// 4096 per axis (for tracked and ray-marched rays from the .pin alone).
+    /// `sparse:X,Y,Z` (exactly those voxels), N or X,Y,Z for a dense f16 grid of at most
+    /// 4096 per axis, or `voxels:F` / `sparse-voxels:F` (dense or sparse: the source's own
+    /// voxels, each F^3 of them averaged into one, on the source's lattice; F 1 by default)
+    /// (for tracked and ray-marched rays from the .pin alone). Below the source's resolution
+    /// every form is box-filtered (the mean over the embedded voxel). Default: chosen with
+    /// the pins, see --max-bytes.
     #[arg(long, value_parser = parse_embed_density, help_heading = "Grid")]
     pub embed_density: Option<EmbedDensity>,
     /// Embed the control of residual ratio tracking (a format 1.1 file): per brick of EDGE
@@ -271,6 +284,7 @@ pub fn request(args: &BakeArgs) -> BakeRequest {
         threads: args.threads,
         density_scale: args.volume.density_scale.get(),
         max_memory: args.max_memory,
+        max_bytes: args.max_bytes,
         backend: match args.backend.as_str() {
             "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions {
                 tile_bytes: args.gpu_tile_bytes,

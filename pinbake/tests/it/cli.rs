@@ -299,6 +299,10 @@ fn default_bake_fits_the_voxels() {
             "0.1",
             "--majorant",
             "0",
+            // A grid parameter named: the pins-only choice, not the default asset
+            // (tests/it/default_asset.rs).
+            "--pins-per-entry",
+            "1",
         ];
         args.extend_from_slice(extra);
         let o = pinbake(&args);
@@ -324,7 +328,7 @@ fn default_bake_fits_the_voxels() {
             .map(|d| d.as_u64().unwrap())
             .collect()
     };
-    // The default: everything chosen, within the voxels, reported.
+    // Cells and directions chosen, within the voxels, reported.
     let v = bake("water.pin", &[]);
     assert!(
         dims(&v).iter().zip([31, 34, 33]).all(|(d, n)| *d <= n),
@@ -347,6 +351,7 @@ fn default_bake_fits_the_voxels() {
         );
     }
     assert_eq!(c["volume"]["voxels"], serde_json::json!([31, 34, 33]));
+    assert_eq!(c["asset"], serde_json::Value::Null);
     // A target nothing reaches: the most accurate bake, whose cells are capped by the voxels
     // (directions given, to keep the test fast).
     let v = bake(
@@ -426,6 +431,10 @@ fn target_error_chooses_monotone_bakes() {
             "0.1",
             "--majorant",
             "0",
+            // The pins-only choice (a grid parameter named): the default asset's own target
+            // is tests/it/default_asset.rs's.
+            "--pins-per-entry",
+            "1",
             "--target-error",
             target,
         ]);

@@ -9,6 +9,7 @@ mod nanovdb;
 mod openvdb;
 
 mod cli;
+mod default_asset;
 #[cfg(feature = "gpu")]
 mod gpu_bake;
 mod nanovdb_corpus;

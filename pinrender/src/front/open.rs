@@ -177,6 +177,7 @@ pub fn holds(volume: Option<&Path>, pins: Option<&Path>) -> Result<Holds> {
         return Ok(Holds {
             pins: false,
             density: volume.is_some(),
+            volume: volume.is_some(),
             control: false,
         });
     };
@@ -185,6 +186,7 @@ pub fn holds(volume: Option<&Path>, pins: Option<&Path>) -> Result<Holds> {
     Ok(Holds {
         pins: true,
         density: volume.is_some() || file.density().is_some() || file.sparse_density().is_some(),
+        volume: volume.is_some(),
         control: file.control().is_some(),
     })
 }

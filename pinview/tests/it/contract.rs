@@ -144,20 +144,20 @@ fn pins_alone_matches_pinrender_bit_for_bit() {
 }
 
 #[test]
-fn embedded_density_defaults_to_pinms_and_matches() {
+fn embedded_density_defaults_to_ratio_and_matches() {
     let dir = tempfile::tempdir().unwrap();
     let pins = bake(dir.path(), "d.pin", 1.0, Some(12));
     let mut flags = VIEW.to_vec();
     flags.extend_from_slice(&["--seed", "3"]);
     let Some((view, reference, vpng, rpng, j)) =
-        both(dir.path(), "pinms", ("--pins", s(&pins)), &flags, 2)
+        both(dir.path(), "ratio", ("--pins", s(&pins)), &flags, 2)
     else {
         return;
     };
-    assert_eq!(j["estimator"], "pinms", "{j}");
+    assert_eq!(j["estimator"], "ratio", "{j}");
     assert!(
         view == reference,
-        "pinms: the viewer's EXR differs from pinrender's"
+        "ratio: the viewer's EXR differs from pinrender's"
     );
     assert_png_close(&vpng, &rpng);
 }

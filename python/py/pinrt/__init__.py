@@ -163,6 +163,7 @@ def bake(
     clamp_negative: bool = False,
     nan_as_zero: bool = False,
     backend: str = "cpu",
+    max_bytes: Optional[int] = None,
 ) -> Dict[str, Any]:
     """Bakes a volume into the pin file ``output`` and returns the ``pinbake bake --json``
     summary as a dict.
@@ -175,6 +176,15 @@ def bake(
     ``nan_as_zero``; dims and type may come from a ``NAME_XxYxZ_TYPE.raw`` file name), or
     ``"procedural:SPEC"``.
 
+    With none of ``cells``, ``directions``, ``pins_per_entry`` and ``embed_density`` given,
+    the file is ``pinbake bake``'s default asset: the smallest file whose image from the file
+    alone is predicted within ``target_error`` (default 0.01) 8x8-block error of the
+    full-resolution volume, in at most ``max_bytes`` (``--max-bytes``; default the input
+    file's size, or the array's float32 bytes, plus 64 KiB): for a voxel input, its density
+    box-filtered to the coarsest resolution that meets the target, with a small pin grid
+    (``docs/scale.md``, "The default asset"); the summary's ``choice.asset`` says what was
+    chosen and the predicted error of each alternative weighed.
+
     The other options are ``pinbake bake``'s flags, with its defaults: ``cells`` (N or
     (X, Y, Z)), ``directions`` (``octahedral:N`` or ``polar:PHIxTHETA``) and
     ``pins_per_entry``, each chosen from the volume when left out as ``pinbake bake`` does
@@ -183,7 +193,8 @@ def bake(
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
     ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density`` (N or (X, Y, Z) voxels of a
     dense f16 copy, or ``"sparse"``, ``"sparse:N"``, ``"sparse:X,Y,Z"``: f16 bricks where the
-    density is non-zero, as ``--embed-density``), ``embed_control``
+    density is non-zero, or ``"voxels:F"``, ``"sparse-voxels:F"``: the source's voxels, each
+    F^3 averaged into one, as ``--embed-density``), ``embed_control``
     (``--embed-control [EDGE]``: residual tracking's control per brick of EDGE voxels, 1..=64,
     or ``True``/``"auto"`` for the default edge, which grows with the volume's resolution;
     for ``pinrender``'s ``pinres``), ``density_scale``
@@ -236,6 +247,7 @@ def bake(
         density_scale=density_scale,
         threads=_opt_int("threads", threads, 1, _U32),
         max_memory=_opt_int("max_memory", max_memory, 0, _U64),
+        max_bytes=_opt_int("max_bytes", max_bytes, 1, _U64),
         spacing=_floats3("spacing", spacing),
         origin=_floats3("origin", origin),
         # Passed for every input: the options that do not apply to it are refused there.

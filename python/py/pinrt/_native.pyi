@@ -76,6 +76,7 @@ def bake(
     vdb_worker: Optional[Union[str, PathLike[str]]] = ...,
     held_bytes: int = ...,
     backend: str = ...,
+    max_bytes: Optional[int] = ...,
 ) -> str: ...
 def check_array_memory(
     shape: Tuple[int, ...], held: int, max_memory: Optional[int] = ...

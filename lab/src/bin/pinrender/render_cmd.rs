@@ -75,9 +75,9 @@ pub struct RenderArgs {
     #[arg(long)]
     pub allow_mismatched_pins: bool,
     /// rm@STEP (STEP in [1e-5, 1]), delta, ratio, residual[@min|@mean], urm[@N], jackknife[@N],
-    /// pins, pinms, pinurm[@N] or pinres. Default: follows the input. With --pins, pinms when
-    /// a density is at hand (--volume, or the pin file embeds one) and pins when it is not;
-    /// with --volume alone, ratio.
+    /// pins, pinms, pinurm[@N] or pinres. Default: follows the input. With --volume and
+    /// --pins, pinms; with a pin file alone, ratio when it embeds a density (what a bake with
+    /// no flags writes) and pins when it holds nothing else; with --volume alone, ratio.
     #[arg(long, value_parser = parse_estimator)]
     pub estimator: Option<Estimator>,
     /// Image width in pixels (1..=16384).
