@@ -136,6 +136,11 @@ pub struct ViewArgs {
     /// frame_path, ...).
     #[arg(long, requires = "frames")]
     pub json: bool,
+    /// With --frames: replay the timed input events of this JSON file in the window (orbit,
+    /// zoom, pan, sun, estimator, exposure, frame, resize; docs/viewer.md); the run ends N
+    /// passes after the last event, or 10 s after it, and --json gains `events`.
+    #[arg(long, requires = "frames")]
+    pub input_script: Option<PathBuf>,
     /// With --frames: render without a window (no display needed): the same session,
     /// passes and tone map into a texture on the same adapter, then the outputs and JSON.
     #[arg(long, requires = "frames")]

@@ -226,7 +226,7 @@ fn warm_up(
 }
 
 /// `rgba` of `pw x ph` scaled up by `f` (each pixel repeated) and cut to `w x h`.
-fn upscale(rgba: &[u8], pw: u32, ph: u32, f: u32, w: u32, h: u32) -> Vec<u8> {
+pub fn upscale(rgba: &[u8], pw: u32, ph: u32, f: u32, w: u32, h: u32) -> Vec<u8> {
     let mut out = Vec::with_capacity((w * h * 4) as usize);
     for y in 0..h {
         let sy = (y / f).min(ph - 1);

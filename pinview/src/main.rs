@@ -15,6 +15,8 @@ mod compare;
 mod error_view;
 mod error_window;
 mod export;
+mod gizmos;
+mod input_script;
 mod offscreen;
 mod open;
 mod pin_overlay;

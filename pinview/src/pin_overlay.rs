@@ -157,7 +157,7 @@ pub fn pick(grid: &PinGrid, origin: DVec3, dir: DVec3) -> Option<Pick> {
 }
 
 /// `to_screen` maps image pixels to window points.
-fn segment(
+pub fn segment(
     painter: &egui::Painter,
     proj: &Projector,
     to_screen: &impl Fn([f64; 2]) -> egui::Pos2,

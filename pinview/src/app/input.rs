@@ -4,6 +4,7 @@
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
+use crate::gizmos;
 use crate::pin_overlay::{self, Pick, Projector};
 
 impl Viewer {
@@ -32,6 +33,9 @@ impl Viewer {
         let divider_dragged = self.split_view(ui, response.rect);
         self.image_rect = Some(response.rect);
         self.overlays(ui, &response);
+        if self.moving {
+            self.gizmos(ui, response.rect);
+        }
         let d = if divider_dragged {
             egui::Vec2::ZERO
         } else {
@@ -57,6 +61,29 @@ impl Viewer {
                 self.view.zoom((-f64::from(scroll) * 0.002).exp());
             }
         }
+    }
+
+    /// The box and the sun's arrow over the image, while the view changes.
+    fn gizmos(&self, ui: &egui::Ui, rect: egui::Rect) {
+        let Some(proj) = Projector::new(&self.view) else {
+            return;
+        };
+        let (w, h) = (f64::from(self.view.width), f64::from(self.view.height));
+        let to_screen = |p: [f64; 2]| {
+            egui::pos2(
+                rect.left() + (p[0] / w) as f32 * rect.width(),
+                rect.top() + (p[1] / h) as f32 * rect.height(),
+            )
+        };
+        let painter = ui.painter_at(rect);
+        gizmos::draw_box(&painter, &proj, &to_screen, self.medium.bounds);
+        gizmos::draw_sun(
+            &painter,
+            &proj,
+            &to_screen,
+            self.medium.bounds,
+            self.view.look.sun_dir,
+        );
     }
 
     /// The pins under the cursor (or at the held pixel: a click holds or releases it) and the

@@ -4,8 +4,10 @@
 
 mod compare;
 mod contract;
+mod ending;
 mod error_view;
 mod failures;
+mod input_script;
 mod offscreen;
 mod overlay;
 mod pacing;
