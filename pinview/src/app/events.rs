@@ -26,7 +26,7 @@ struct Record {
     action: &'static str,
     at_s: f64,
     applied: Instant,
-    first_pixels: Option<Duration>,
+    first_pixels: Option<(Duration, Shown)>,
     first_full_pass: Option<Duration>,
 }
 
@@ -61,7 +61,7 @@ impl ScriptedInput {
         }
         for r in &mut self.records {
             let since = now.saturating_duration_since(r.applied);
-            r.first_pixels.get_or_insert(since);
+            r.first_pixels.get_or_insert((since, shown));
             if shown == Shown::Pass {
                 r.first_full_pass.get_or_insert(since);
             }
@@ -117,7 +117,11 @@ impl ScriptedInput {
                 serde_json::json!({
                     "action": r.action,
                     "at_s": r.at_s,
-                    "first_pixels_ms": ms(r.first_pixels),
+                    "first_pixels_ms": ms(r.first_pixels.map(|(d, _)| d)),
+                    "first_pixels": r.first_pixels.map(|(_, shown)| match shown {
+                        Shown::Preview => "coarse",
+                        Shown::Pass => "pass",
+                    }),
                     "first_full_pass_ms": ms(r.first_full_pass),
                 })
             })

@@ -90,6 +90,8 @@ pub struct Viewer {
     coarse_due: bool,
     moving: bool,
     coarse: Option<coarse::Coarse>,
+    /// The coarse image's longer side, following its measured time (`coarse`).
+    coarse_side: u32,
     /// Builds no longer wanted whose workers still run (waited for when the window closes).
     retired: Vec<BuildJob>,
     /// Counts the view's changes, so that a session built for an older view is reset.
@@ -213,6 +215,7 @@ impl Viewer {
             coarse_due: false,
             moving: false,
             coarse: None,
+            coarse_side: crate::build::PREVIEW_SIDE,
             generation: 0,
             pacer,
             first_image_s: None,

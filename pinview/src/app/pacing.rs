@@ -70,11 +70,14 @@ impl Viewer {
         {
             script.base = Some(s.passes());
         }
-        // A changed view answers within the frame: a coarse image until the first pass.
+        // A changed view answers within the frame: a coarse image, painted before any pass
+        // of the new view is added (in a drag the next step would start them again); the
+        // accumulation refines it from the next frame on.
         if std::mem::take(&mut self.coarse_due)
             && self.session.as_ref().is_some_and(|s| s.passes() == 0)
+            && self.draw_coarse()?
         {
-            self.draw_coarse()?;
+            return Ok(true);
         }
         let limit = match self.args.frames {
             Some(n) => {

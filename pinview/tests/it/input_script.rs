@@ -63,6 +63,8 @@ fn events_move_the_view_and_each_is_answered() {
             "an event without its times: {j}"
         );
     }
+    // At 48 x 40 (no larger than the coarse image) a whole pass answers each event.
+    assert!(e.iter().all(|e| e["first_pixels"] == "pass"), "{j}");
     assert!(j["longest_frame_gap_ms"].as_f64().is_some(), "{j}");
     assert_eq!(j["script_end"], "passes", "{j}");
     // N passes after the last event, on the resized image.
@@ -150,4 +152,58 @@ fn a_bad_events_file_is_one_line_and_exit_1() {
             "{events}: {err}"
         );
     }
+}
+
+#[test]
+fn a_changed_view_answers_with_a_coarse_image_before_its_first_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, Some(12));
+    let events = script(
+        dir.path(),
+        "events.json",
+        r#"[
+            {"at_s": 0.0, "action": "orbit", "dx_deg": 20, "dy_deg": 0},
+            {"at_s": 1.0, "action": "zoom", "factor": 1.25},
+            {"at_s": 2.0, "action": "sun", "dir": [-0.5, 1, 0.3]}
+        ]"#,
+    );
+    let Some(display) = display() else { return };
+    let exr = dir.path().join("view.exr");
+    let args = [
+        s(&pins),
+        "--camera-origin",
+        "0.5,0.6,2.6",
+        "--camera-target",
+        "0.5,0.5,0.5",
+        "--width",
+        "256",
+        "--height",
+        "256",
+        "--input-script",
+        s(&events),
+        "--frames",
+        "1",
+        "--save",
+        s(&exr),
+        "--json",
+    ];
+    let out = pinview_within(Some(&display), &args, LIMIT);
+    ok(&out, "pinview --input-script at 256 x 256");
+    let j = json(&out);
+    for e in j["events"].as_array().unwrap() {
+        assert_eq!(e["first_pixels"], "coarse", "{j}");
+        let (first, full) = (
+            e["first_pixels_ms"].as_f64(),
+            e["first_full_pass_ms"].as_f64(),
+        );
+        if let (Some(first), Some(full)) = (first, full) {
+            assert!(first <= full, "{j}");
+        }
+    }
+    // The coarse image leaves the accumulation alone: its pass is the batch render's.
+    let bits = render_command(
+        j["command"].as_str().unwrap(),
+        &dir.path().join("batch.exr"),
+    );
+    assert!(exr_bits(&exr) == bits, "{j}");
 }
