@@ -14,9 +14,15 @@ fn a_comparison_of_one_pass_ends_with_a_pass_on_each_side() {
     let pins = bake(dir.path(), "d.pin", 1.0, Some(12));
     let Some(display) = display() else { return };
     let exr = dir.path().join("one.exr");
+    // 8 x 8: the first side's one pass is one call of the pacer even on a loaded CPU
+    // adapter, so its time is never measured (the case that waited for ever).
     let mut args = vec![s(&pins)];
-    args.extend_from_slice(&VIEW);
+    args.extend_from_slice(&VIEW[..4]);
     args.extend_from_slice(&[
+        "--width",
+        "8",
+        "--height",
+        "8",
         "--estimator",
         "pins",
         "--compare",
