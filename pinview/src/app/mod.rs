@@ -113,6 +113,10 @@ pub struct Viewer {
     notes: Vec<String>,
     command: String,
     paused: bool,
+    /// Playback: when the first image was shown, and when each step of a playing sequence
+    /// was taken (`playback_fps`).
+    shown_first_at: Option<Instant>,
+    play_steps: Vec<Instant>,
     /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
     frames_played: Vec<u64>,
     /// Scripted input being replayed, and what the last frame drew into the image (heard
@@ -228,6 +232,8 @@ impl Viewer {
             command: String::new(),
             paused: false,
             frames_played: Vec::new(),
+            shown_first_at: None,
+            play_steps: Vec::new(),
             window_shot: None,
             script: None,
             shown: None,

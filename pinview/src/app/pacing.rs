@@ -204,6 +204,7 @@ impl Viewer {
         if session.passes() > 0 && self.first_image_s.is_none() {
             let now = self.clock.now();
             self.first_image_s = Some(now);
+            self.shown_first_at = Some(Instant::now());
             self.clock.marks.first_image = now;
         }
         Ok(busy)
@@ -284,6 +285,14 @@ impl Viewer {
             None => error_view::no_reference_reason(&self.medium).is_some(),
             Some(r) => r.session.passes() > 0 && r.session.next_row() == 0,
         }
+    }
+
+    /// Frames shown per second of wall time while playing: the steps a playing sequence
+    /// took over the time from the first image to the last step (`None` before a step).
+    pub(super) fn playback_fps(&self) -> Option<f64> {
+        let (start, last) = (self.shown_first_at?, *self.play_steps.last()?);
+        let seconds = last.saturating_duration_since(start).as_secs_f64();
+        (seconds > 0.0).then(|| self.play_steps.len() as f64 / seconds)
     }
 
     pub(super) fn pass_time_source(&self) -> PassTimeSource {

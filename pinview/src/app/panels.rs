@@ -70,12 +70,13 @@ impl Viewer {
                     go_to = Some((s.current + 1) % s.len());
                 }
             });
-            let mut at = s.current;
+            // Positions from 1, as the label's "(2 of 5)".
+            let mut at = s.current + 1;
             if ui
-                .add(egui::Slider::new(&mut at, 0..=s.len() - 1).text("scrub"))
+                .add(egui::Slider::new(&mut at, 1..=s.len()).text("scrub"))
                 .changed()
             {
-                go_to = Some(at);
+                go_to = Some(at - 1);
             }
         }
         if let Some(i) = go_to
