@@ -26,7 +26,7 @@ Scripting: --frames N renders N one-sample passes in the window, then writes --s
 --save (the accumulated linear image as EXR: the same bits as `pinrender render --backend gpu
 --spp N` with the same flags and seed), prints one JSON object with --json, and exits 0.
 Errors (no display, no adapter, a bad file) are one line on stderr and exit 1 (without
---frames a refused scene file's line is first shown in a window); usage errors exit 2.
+--frames a refused file's line is first shown in a window); usage errors exit 2.
 
 Mouse on the image: drag orbits, right-drag (or shift-drag) pans, the wheel zooms, ctrl-drag
 moves the sun. Keys: arrows orbit, +/- zoom, R resets the view, space plays or pauses a
