@@ -102,6 +102,7 @@ impl Viewer {
                 Some(_) => None,
                 None => response.interact_pointer_pos().map(to_pixel),
             };
+            self.held = None;
         }
         let (Some(grid), Some(proj)) = (self.medium.pins().cloned(), Projector::new(&self.view))
         else {
@@ -122,10 +123,19 @@ impl Viewer {
             self.pick = None;
             return;
         }
-        let pixel = self
-            .held_pixel
-            .or_else(|| response.hover_pos().map(to_pixel));
-        self.pick = pixel.and_then(|[x, y]| self.pick_at(x, y));
+        // A hold keeps the entry picked when it was taken, whatever the view does since.
+        if self.held.is_none()
+            && let Some([x, y]) = self.held_pixel
+        {
+            self.held = self.pick_at(x, y);
+        }
+        self.pick = match &self.held {
+            Some(p) => Some(p.clone()),
+            None => response
+                .hover_pos()
+                .map(to_pixel)
+                .and_then(|[x, y]| self.pick_at(x, y)),
+        };
         if let Some(p) = &self.pick {
             pin_overlay::draw_pins(&painter, &proj, &to_screen, p);
         }

@@ -146,6 +146,9 @@ pub struct Viewer {
     pins_on: bool,
     grid_on: bool,
     held_pixel: Option<[f64; 2]>,
+    /// The entry held: picked at `held_pixel` when the hold was taken and kept as the view
+    /// moves, so its pins can be seen from the side.
+    held: Option<Pick>,
     pick: Option<Pick>,
     image_rect: Option<egui::Rect>,
     /// A volume's density scale as shown, a re-bake at another one (its scale and job), and
@@ -250,6 +253,7 @@ impl Viewer {
             pins_on: args.pin_at.is_some(),
             grid_on: args.grid_overlay,
             held_pixel: args.pin_at,
+            held: None,
             pick: None,
             image_rect: None,
             density_scale: args.read.density_scale.get(),

@@ -129,7 +129,7 @@ impl Viewer {
             });
         }
         if let Some([x, y]) = self.args.pin_at {
-            json["pin"] = match self.pick_at(x, y) {
+            json["pin"] = match self.held.clone().or_else(|| self.pick_at(x, y)) {
                 Some(p) => serde_json::json!({
                     "pixel": [x, y],
                     "cell": p.cell,
