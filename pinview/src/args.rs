@@ -30,7 +30,7 @@ Scripting: --frames N renders N one-sample passes in the window, then writes --s
 --save (the accumulated linear image as EXR: the same bits as `pinrender render --backend gpu
 --spp N` with the same flags and seed), prints one JSON object with --json, and exits 0.
 Errors (no display, no adapter, a bad file) are one line on stderr and exit 1 (without
---frames a refused scene file's line is first shown in a window); usage errors exit 2.
+--frames a refused file's line is first shown in a window); usage errors exit 2.
 
 Mouse on the image: drag orbits, right-drag (or shift-drag) pans, the wheel zooms, ctrl-drag
 moves the sun. Keys: arrows orbit, +/- zoom, R resets the view, space plays or pauses a
@@ -102,6 +102,11 @@ pub struct ViewArgs {
     /// frame_path, ...).
     #[arg(long, requires = "frames")]
     pub json: bool,
+    /// With --frames: replay the timed input events of this JSON file in the window (orbit,
+    /// zoom, pan, sun, estimator, exposure, frame, resize; docs/viewer.md); the run ends N
+    /// passes after the last event, or 10 s after it, and --json gains `events`.
+    #[arg(long, requires = "frames")]
+    pub input_script: Option<PathBuf>,
     /// With --frames: render without a window (no display needed): the same session,
     /// passes and tone map into a texture on the same adapter, then the outputs and JSON.
     #[arg(long, requires = "frames")]

@@ -190,7 +190,12 @@ fn open_device(adapter: &wgpu::Adapter) -> Result<Gpu> {
 /// The preview's size for an image of `width x height`: each side divided by the least
 /// whole factor that brings the longer to at most [`PREVIEW_SIDE`] (`None`: factor 1).
 pub fn preview_size(width: u32, height: u32) -> Option<(u32, u32, u32)> {
-    let f = width.max(height).div_ceil(PREVIEW_SIDE);
+    scaled_size(width, height, PREVIEW_SIDE)
+}
+
+/// [`preview_size`] for a longer side of at most `side` (at least 1).
+pub fn scaled_size(width: u32, height: u32, side: u32) -> Option<(u32, u32, u32)> {
+    let f = width.max(height).div_ceil(side.max(1));
     (f > 1).then(|| (width.div_ceil(f), height.div_ceil(f), f))
 }
 
@@ -226,7 +231,7 @@ fn warm_up(
 }
 
 /// `rgba` of `pw x ph` scaled up by `f` (each pixel repeated) and cut to `w x h`.
-fn upscale(rgba: &[u8], pw: u32, ph: u32, f: u32, w: u32, h: u32) -> Vec<u8> {
+pub fn upscale(rgba: &[u8], pw: u32, ph: u32, f: u32, w: u32, h: u32) -> Vec<u8> {
     let mut out = Vec::with_capacity((w * h * 4) as usize);
     for y in 0..h {
         let sy = (y / f).min(ph - 1);

@@ -179,6 +179,8 @@ pub struct SideTime {
     pub remaining: u32,
     /// A pass is partly rendered (a band of rows).
     pub in_progress: bool,
+    /// Whole passes rendered so far.
+    pub passes: u32,
 }
 
 /// Passes that bring a side `gap` seconds behind level with the other: at least one, at
@@ -196,7 +198,7 @@ fn passes_for(gap: f64, pass_seconds: f64, remaining: u32) -> u32 {
 /// by its measured pass time (one before that is measured); the other side while one has
 /// nothing left to add. The second side renders only while it is behind by more than half
 /// of its pass, so a scripted run (where the first side stops at its passes) ends with both
-/// at the nearest equal time.
+/// at the nearest equal time; a second side with no pass renders one once the first is done.
 pub fn next_turn(first: SideTime, second: SideTime) -> Turn {
     let gap = first.seconds - second.seconds;
     let second_behind = second.remaining > 0
@@ -206,6 +208,12 @@ pub fn next_turn(first: SideTime, second: SideTime) -> Turn {
     }
     if first.remaining > 0 {
         return Turn::First(passes_for(-gap, first.pass_seconds, first.remaining));
+    }
+    // The first side is done: a second side without a pass renders one, whatever the time.
+    // A side's first call is not measured (`PassClock`), so after a single pass of the first
+    // side both times are still 0 and no gap would ever ask for it.
+    if second.passes == 0 && second.remaining > 0 {
+        return Turn::Second(1);
     }
     // A pass in progress is finished: what is shown and saved holds whole passes.
     if second.in_progress {
@@ -227,6 +235,7 @@ mod tests {
             pass_seconds,
             remaining,
             in_progress: false,
+            passes: 1,
         }
     }
 
@@ -256,5 +265,15 @@ mod tests {
         let mut busy = side(1.5, 0.3, u32::MAX);
         busy.in_progress = true;
         assert_eq!(next_turn(side(1.0, 0.1, 0), busy), Turn::Second(1));
+    }
+
+    #[test]
+    fn a_second_side_without_a_pass_renders_one_once_the_first_is_done() {
+        // One pass of the first side: neither time is measured yet (both 0).
+        let mut second = side(0.0, 0.0, u32::MAX);
+        second.passes = 0;
+        assert_eq!(next_turn(side(0.0, 0.0, 0), second), Turn::Second(1));
+        second.passes = 1;
+        assert_eq!(next_turn(side(0.0, 0.0, 0), second), Turn::Neither);
     }
 }

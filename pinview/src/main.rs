@@ -14,8 +14,10 @@ mod build;
 mod compare;
 mod device;
 mod error_view;
-mod error_window;
 mod export;
+mod failure_window;
+mod gizmos;
+mod input_script;
 mod offscreen;
 mod open;
 mod pin_overlay;
@@ -135,15 +137,14 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
     let medium = match open_medium(&first, &a, &budget) {
         Ok(m) => m,
-        // Interactive, a refused scene is shown in the window (and then on stderr).
+        // Interactive, a refused file is shown in the failure window (and then on stderr).
         Err(e)
             if a.frames.is_none()
-                && open::is_scene_file(&first)
                 && e.downcast_ref::<pin_cli::UsageError>().is_none()
                 && std::env::var_os("DISPLAY").is_some_and(|d| !d.is_empty()) =>
         {
             // Without a window the line still goes to stderr.
-            let _ = error_window::show(&first, &e.to_string());
+            let _ = failure_window::show(&first, &e.to_string());
             return Err(e);
         }
         Err(e) => return Err(e),

@@ -32,6 +32,7 @@ pub fn window_only_flags(a: &ViewArgs) -> Option<&'static str> {
         ("--window-screenshot", a.window_screenshot.is_some()),
         ("--rebake-scale", a.rebake_scale.is_some()),
         ("--play", a.play),
+        ("--input-script", a.input_script.is_some()),
     ]
     .into_iter()
     .find(|(_, given)| *given)

@@ -75,6 +75,7 @@ impl Projector {
     }
 }
 
+#[derive(Clone)]
 /// One pin of the picked entry: its stored entry and its chord's ends in world space (from
 /// the start, where interval 0 and mask bit 31 lie).
 pub struct PickedPin {
@@ -83,6 +84,7 @@ pub struct PickedPin {
 }
 
 /// The entry a ray reads first.
+#[derive(Clone)]
 pub struct Pick {
     pub cell: [u32; 3],
     pub direction: u32,
@@ -157,7 +159,7 @@ pub fn pick(grid: &PinGrid, origin: DVec3, dir: DVec3) -> Option<Pick> {
 }
 
 /// `to_screen` maps image pixels to window points.
-fn segment(
+pub fn segment(
     painter: &egui::Painter,
     proj: &Projector,
     to_screen: &impl Fn([f64; 2]) -> egui::Pos2,

@@ -98,6 +98,7 @@ impl Viewer {
         };
         if let Some(i) = next {
             self.go_to_frame(i)?;
+            self.play_steps.push(std::time::Instant::now());
         }
         let dropped: Vec<PathBuf> = ctx.input(|i| {
             i.raw

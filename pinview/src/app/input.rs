@@ -4,6 +4,7 @@
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
+use crate::gizmos;
 use crate::pin_overlay::{self, Pick, Projector};
 
 impl Viewer {
@@ -32,6 +33,9 @@ impl Viewer {
         let divider_dragged = self.split_view(ui, response.rect);
         self.image_rect = Some(response.rect);
         self.overlays(ui, &response);
+        if self.moving {
+            self.gizmos(ui, response.rect);
+        }
         let d = if divider_dragged {
             egui::Vec2::ZERO
         } else {
@@ -59,6 +63,29 @@ impl Viewer {
         }
     }
 
+    /// The box and the sun's arrow over the image, while the view changes.
+    fn gizmos(&self, ui: &egui::Ui, rect: egui::Rect) {
+        let Some(proj) = Projector::new(&self.view) else {
+            return;
+        };
+        let (w, h) = (f64::from(self.view.width), f64::from(self.view.height));
+        let to_screen = |p: [f64; 2]| {
+            egui::pos2(
+                rect.left() + (p[0] / w) as f32 * rect.width(),
+                rect.top() + (p[1] / h) as f32 * rect.height(),
+            )
+        };
+        let painter = ui.painter_at(rect);
+        gizmos::draw_box(&painter, &proj, &to_screen, self.medium.bounds);
+        gizmos::draw_sun(
+            &painter,
+            &proj,
+            &to_screen,
+            self.medium.bounds,
+            self.view.look.sun_dir,
+        );
+    }
+
     /// The pins under the cursor (or at the held pixel: a click holds or releases it) and the
     /// box with its cell grid, projected through the view's camera.
     pub(super) fn overlays(&mut self, ui: &egui::Ui, response: &egui::Response) {
@@ -75,6 +102,7 @@ impl Viewer {
                 Some(_) => None,
                 None => response.interact_pointer_pos().map(to_pixel),
             };
+            self.held = None;
         }
         let (Some(grid), Some(proj)) = (self.medium.pins().cloned(), Projector::new(&self.view))
         else {
@@ -95,10 +123,19 @@ impl Viewer {
             self.pick = None;
             return;
         }
-        let pixel = self
-            .held_pixel
-            .or_else(|| response.hover_pos().map(to_pixel));
-        self.pick = pixel.and_then(|[x, y]| self.pick_at(x, y));
+        // A hold keeps the entry picked when it was taken, whatever the view does since.
+        if self.held.is_none()
+            && let Some([x, y]) = self.held_pixel
+        {
+            self.held = self.pick_at(x, y);
+        }
+        self.pick = match &self.held {
+            Some(p) => Some(p.clone()),
+            None => response
+                .hover_pos()
+                .map(to_pixel)
+                .and_then(|[x, y]| self.pick_at(x, y)),
+        };
         if let Some(p) = &self.pick {
             pin_overlay::draw_pins(&painter, &proj, &to_screen, p);
         }

@@ -6,14 +6,18 @@
 //! * `sessions`: the renderers and sessions of the shown estimator, the second side and
 //!   the reference, built off the window's thread (`crate::build`) and swapped in when ready;
 //! * `pacing`: the passes added each frame within its budget, and the frame-gap meter;
+//! * `coarse`: the coarse image drawn at once when the view changes;
 //! * `background`: the bake, the re-bake, the sequence and dropped files;
 //! * `error`: the error view's read-backs and measurements;
+//! * `events`: scripted input (`--input-script`) replayed, and what each event took;
 //! * `input`: the image, its mouse and keyboard controls, the overlays and the divider;
 //! * `panels`: the controls; `readouts`: the figures shown; `script`: the scripted run's
 //!   outputs and its JSON line.
 
 mod background;
+mod coarse;
 mod error;
+mod events;
 mod input;
 pub mod pacing;
 mod panels;
@@ -81,6 +85,13 @@ pub struct Viewer {
     pending: Option<BuildJob>,
     /// The view changed: the accumulation starts again.
     dirty: bool,
+    /// The view changed this frame: a coarse image is drawn at once (`coarse`); and the box
+    /// and sun are drawn over the image until the first whole pass of the new view.
+    coarse_due: bool,
+    moving: bool,
+    coarse: Option<coarse::Coarse>,
+    /// The coarse image's longer side, following its measured time (`coarse`).
+    coarse_side: u32,
     /// Builds no longer wanted whose workers still run (waited for when the window closes).
     retired: Vec<BuildJob>,
     /// Counts the view's changes, so that a session built for an older view is reset.
@@ -97,10 +108,21 @@ pub struct Viewer {
     /// The first side's current pass time (compare's equal time).
     first_clock: compare::PassClock,
     status: String,
+    /// What the viewer did in place of what was asked (an estimator a frame cannot answer),
+    /// each once: shown as the status, and the JSON line's `notes`.
+    notes: Vec<String>,
     command: String,
     paused: bool,
+    /// Playback: when the first image was shown, and when each step of a playing sequence
+    /// was taken (`playback_fps`).
+    shown_first_at: Option<Instant>,
+    play_steps: Vec<Instant>,
     /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
     frames_played: Vec<i64>,
+    /// Scripted input being replayed, and what the last frame drew into the image (heard
+    /// by the script once that frame is painted).
+    script: Option<events::ScriptedInput>,
+    shown: Option<events::Shown>,
     /// A scripted window screenshot asked for: when, and its result once written.
     window_shot: Option<(Instant, ShotResult)>,
     /// The second estimator asked for (split view), its side once the medium answers it,
@@ -124,6 +146,9 @@ pub struct Viewer {
     pins_on: bool,
     grid_on: bool,
     held_pixel: Option<[f64; 2]>,
+    /// The entry held: picked at `held_pixel` when the hold was taken and kept as the view
+    /// moves, so its pins can be seen from the side.
+    held: Option<Pick>,
     pick: Option<Pick>,
     image_rect: Option<egui::Rect>,
     /// A volume's density scale as shown, a re-bake at another one (its scale and job), and
@@ -194,6 +219,10 @@ impl Viewer {
             pending: None,
             retired: Vec::new(),
             dirty: false,
+            coarse_due: false,
+            moving: false,
+            coarse: None,
+            coarse_side: crate::build::PREVIEW_SIDE,
             generation: 0,
             pacer,
             first_image_s: None,
@@ -202,10 +231,15 @@ impl Viewer {
             render_seconds: 0.0,
             first_clock: compare::PassClock::default(),
             status: String::new(),
+            notes: Vec::new(),
             command: String::new(),
             paused: false,
             frames_played: Vec::new(),
+            shown_first_at: None,
+            play_steps: Vec::new(),
             window_shot: None,
+            script: None,
+            shown: None,
             compare_wanted: args.compare,
             compare: None,
             compare_pending: None,
@@ -219,6 +253,7 @@ impl Viewer {
             pins_on: args.pin_at.is_some(),
             grid_on: args.grid_overlay,
             held_pixel: args.pin_at,
+            held: None,
             pick: None,
             image_rect: None,
             density_scale: args.read.density_scale.get(),
@@ -229,6 +264,11 @@ impl Viewer {
         if let Some(s) = &viewer.sequence {
             viewer.frames_played.push(s.frames[s.current].0);
         }
+        if let Some(path) = &viewer.args.input_script {
+            let events = crate::input_script::read(path)?;
+            viewer.check_events(&events)?;
+            viewer.script = Some(events::ScriptedInput::new(events));
+        }
         // What the medium cannot answer is refused here, before the first frame, as one
         // error line; the upload and the pipeline are built off the window's thread once
         // the window has painted its first frame, while it paints.
@@ -237,6 +277,14 @@ impl Viewer {
             viewer.start_rebake(scale.get())?;
         }
         Ok(viewer)
+    }
+
+    /// A note (once): the status line, and the JSON line's `notes`.
+    fn note(&mut self, note: String) {
+        if !self.notes.contains(&note) {
+            self.status.clone_from(&note);
+            self.notes.push(note);
+        }
     }
 
     fn fail(&mut self, ctx: &egui::Context, e: anyhow::Error) {
@@ -274,7 +322,9 @@ fn initial_estimator(medium: &Medium) -> EstimatorSpec {
 
 impl crate::shell::App for Viewer {
     fn ui(&mut self, ui: &mut egui::Ui) {
-        self.pacer.tick(Instant::now());
+        let now = Instant::now();
+        self.pacer.tick(now);
+        self.note_painted(now);
         self.prune_retired();
         let ctx = ui.ctx().clone();
         if let Err(e) = self.poll_background(&ctx) {
@@ -284,6 +334,9 @@ impl crate::shell::App for Viewer {
         let scripted = self.args.frames.is_some();
         if !scripted {
             self.keys(&ctx);
+        }
+        if let Err(e) = self.replay_events() {
+            self.fail(&ctx, e);
         }
         egui::Panel::left("controls")
             .resizable(false)
@@ -301,6 +354,8 @@ impl crate::shell::App for Viewer {
         b.estimator = self.wanted;
         if a != b {
             self.dirty = true;
+            self.coarse_due = true;
+            self.moving = true;
         }
         let busy = match self.render() {
             Ok(busy) => busy,

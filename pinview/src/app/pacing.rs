@@ -8,6 +8,7 @@ use anyhow::{Result, anyhow};
 use pinrender::gpu_render::PassTimeSource;
 
 use super::Viewer;
+use super::events::Shown;
 use super::window::show;
 use crate::compare::{self, SideTime, Turn};
 use crate::error_view;
@@ -61,13 +62,31 @@ impl Viewer {
     /// Adds passes for this frame and draws the accumulation into the texture.
     pub(super) fn render(&mut self) -> Result<bool> {
         self.ensure_session()?;
+        // Scripted input: the run's N passes count from the shown session's passes once the
+        // last event is in (0 where the event started the accumulation again).
+        if let (Some(script), Some(s)) = (&mut self.script, &self.session)
+            && script.all_applied()
+            && script.base.is_none()
+        {
+            script.base = Some(s.passes());
+        }
+        // A changed view answers within the frame: a coarse image, painted before any pass
+        // of the new view is added (in a drag the next step would start them again); the
+        // accumulation refines it from the next frame on.
+        if std::mem::take(&mut self.coarse_due)
+            && self.session.as_ref().is_some_and(|s| s.passes() == 0)
+            && self.draw_coarse()?
+        {
+            return Ok(true);
+        }
         let limit = match self.args.frames {
             Some(n) => {
-                // A scripted run renders only the estimator it asked for.
-                if self.estimator_now() != self.wanted {
+                // A scripted run renders the estimator it asked for, once a running bake
+                // brings it (else the medium's default, noted).
+                if self.awaiting_wanted() {
                     return Ok(false);
                 }
-                n
+                self.script_passes(n)
             }
             None => u32::MAX,
         };
@@ -77,10 +96,7 @@ impl Viewer {
             return Ok(false);
         }
         // A scripted comparison waits for its second estimator (a volume's pins).
-        if self.args.frames.is_some()
-            && self.compare_wanted.is_some()
-            && self.compare.as_ref().map(|c| c.estimator) != self.compare_wanted
-        {
+        if self.args.frames.is_some() && self.awaiting_compare() {
             return Ok(false);
         }
         // A frame that reads the error back (tens of milliseconds at 512 x 512 on lavapipe)
@@ -101,6 +117,7 @@ impl Viewer {
             pass_seconds: self.first_clock.pass_seconds,
             remaining,
             in_progress: session.next_row() != 0,
+            passes: session.passes(),
         };
         let turn = match &self.compare {
             None => Turn::First(remaining),
@@ -111,6 +128,7 @@ impl Viewer {
                     pass_seconds: c.clock.pass_seconds,
                     remaining: if running { u32::MAX } else { 0 },
                     in_progress: c.session.next_row() != 0,
+                    passes: c.session.passes(),
                 },
             ),
         };
@@ -180,10 +198,13 @@ impl Viewer {
                 &self.gpu.queue,
                 exposure,
             )?;
+            self.shown = Some(Shown::Pass);
+            self.moving = false;
         }
         if session.passes() > 0 && self.first_image_s.is_none() {
             let now = self.clock.now();
             self.first_image_s = Some(now);
+            self.shown_first_at = Some(Instant::now());
             self.clock.marks.first_image = now;
         }
         Ok(busy)
@@ -204,12 +225,33 @@ impl Viewer {
             .map_or(0.0, |_| self.first_clock.seconds())
     }
 
+    /// The passes a scripted run renders on the current session: `--frame-passes` on each
+    /// frame of a playing sequence but the last (it then steps on), `n` (`--frames`) on the
+    /// last frame or a single file.
+    /// With scripted input, `n` counts from the last event (no limit before it).
+    pub(super) fn script_passes(&self, n: u32) -> u32 {
+        let base = match &self.script {
+            None => 0,
+            Some(s) => match s.base {
+                Some(base) if s.all_applied() => base,
+                _ => return u32::MAX,
+            },
+        };
+        match &self.sequence {
+            Some(s) if s.playing && s.current + 1 < s.len() => self.args.frame_passes,
+            _ => base.saturating_add(n),
+        }
+    }
+
     /// Whether a scripted comparison has its second side at the nearest equal time, with
-    /// whole passes (or no comparison was asked for).
+    /// whole passes (or no comparison was asked for, or the medium cannot answer it).
     pub(super) fn compare_done(&self) -> bool {
         let Some(want) = self.compare_wanted else {
             return true;
         };
+        if !self.awaiting_compare() && self.compare.is_none() {
+            return true;
+        }
         let Some(c) = &self.compare else {
             return false;
         };
@@ -221,12 +263,14 @@ impl Viewer {
             pass_seconds: self.first_clock.pass_seconds,
             remaining: 0,
             in_progress: s.next_row() != 0,
+            passes: s.passes(),
         };
         let second = SideTime {
             seconds: c.seconds(),
             pass_seconds: c.clock.pass_seconds,
             remaining: u32::MAX,
             in_progress: c.session.next_row() != 0,
+            passes: c.session.passes(),
         };
         c.estimator == want
             && c.session.passes() > 0
@@ -241,6 +285,14 @@ impl Viewer {
             None => error_view::no_reference_reason(&self.medium).is_some(),
             Some(r) => r.session.passes() > 0 && r.session.next_row() == 0,
         }
+    }
+
+    /// Frames shown per second of wall time while playing: the steps a playing sequence
+    /// took over the time from the first image to the last step (`None` before a step).
+    pub(super) fn playback_fps(&self) -> Option<f64> {
+        let (start, last) = (self.shown_first_at?, *self.play_steps.last()?);
+        let seconds = last.saturating_duration_since(start).as_secs_f64();
+        (seconds > 0.0).then(|| self.play_steps.len() as f64 / seconds)
     }
 
     pub(super) fn pass_time_source(&self) -> PassTimeSource {

@@ -70,12 +70,13 @@ impl Viewer {
                     go_to = Some((s.current + 1) % s.len());
                 }
             });
-            let mut at = s.current;
+            // Positions from 1, as the label's "(2 of 5)".
+            let mut at = s.current + 1;
             if ui
-                .add(egui::Slider::new(&mut at, 0..=s.len() - 1).text("scrub"))
+                .add(egui::Slider::new(&mut at, 1..=s.len()).text("scrub"))
                 .changed()
             {
-                go_to = Some(at);
+                go_to = Some(at - 1);
             }
         }
         if let Some(i) = go_to
@@ -244,7 +245,7 @@ impl Viewer {
         ui.horizontal(|ui| {
             if ui.button("save PNG").clicked() {
                 let (w, h) = self.target.size;
-                let path = PathBuf::from(format!("pinview-{passes}spp.png"));
+                let path = absolute(format!("pinview-{passes}spp.png"));
                 self.status = match export::read_texture_rgb(
                     &self.gpu.device,
                     &self.gpu.queue,
@@ -261,21 +262,39 @@ impl Viewer {
             if ui.button("save EXR").clicked()
                 && let Some(s) = &mut self.session
             {
-                let path = PathBuf::from(format!("pinview-{passes}spp.exr"));
-                self.status = match s
-                    .image()
-                    .map_err(|e| anyhow!("{e}"))
-                    .and_then(|i| i.write_exr(&path).map_err(|e| anyhow!("{e}")))
-                {
-                    Ok(()) => format!("wrote {}", path.display()),
+                // The image holds whole passes (one in progress is finished first): the name
+                // says how many it holds, as `copy command`'s --spp does.
+                self.status = match s.image().map_err(|e| anyhow!("{e}")).and_then(|i| {
+                    let path = absolute(format!("pinview-{}spp.exr", s.passes()));
+                    i.write_exr(&path)
+                        .map(|()| path)
+                        .map_err(|e| anyhow!("{e}"))
+                }) {
+                    Ok(path) => format!("wrote {}", path.display()),
                     Err(e) => e.to_string(),
                 };
             }
             if ui.button("copy command").clicked() {
-                self.command =
-                    self.view
-                        .command_line(self.medium.input_flag(), &self.medium.path, passes);
-                ui.ctx().copy_text(self.command.clone());
+                // The passes the accumulation holds once a pass in progress is finished: what
+                // `save EXR` writes and what --spp renders.
+                let spp = match &mut self.session {
+                    Some(s) if s.next_row() != 0 => s.add_passes(0).map(|()| s.passes()),
+                    Some(s) => Ok(s.passes()),
+                    None => Ok(0),
+                };
+                match spp {
+                    Ok(spp) => {
+                        self.command = self.view.command_line(
+                            self.medium.input_flag(),
+                            &self.medium.path,
+                            spp,
+                        );
+                        ui.ctx().copy_text(self.command.clone());
+                        // Also on the terminal, where a clipboard is not at hand.
+                        let _ = pin_cli::outln!("{}", self.command);
+                    }
+                    Err(e) => self.status = e.to_string(),
+                }
             }
         });
         if !self.command.is_empty() {
@@ -286,4 +305,10 @@ impl Viewer {
             );
         }
     }
+}
+
+/// A file name in the working directory as an absolute path (the status line shows where it
+/// went).
+fn absolute(name: String) -> PathBuf {
+    std::path::absolute(&name).unwrap_or_else(|_| PathBuf::from(name))
 }

@@ -16,22 +16,31 @@ impl Viewer {
             return Ok(());
         };
         let passes = self.session.as_ref().map_or(0, |s| s.passes());
-        if passes < n
+        // Scripted input ends the run at the latest `events::GRACE` after its last event,
+        // with what there is by then.
+        let timed_out = self
+            .script
+            .as_ref()
+            .is_some_and(|s| s.timed_out(Instant::now()));
+        let waiting = self.script.as_ref().is_some_and(|s| !s.all_applied())
+            || passes < self.script_passes(n)
+            || self.session.as_ref().is_some_and(|s| s.next_row() != 0)
             || (self.args.rebake_scale.is_some() && self.rebaked.is_none())
-            || self.estimator_now() != self.wanted
+            || self.awaiting_wanted()
             || !self.compare_done()
-            || !self.reference_done()
-        {
+            || !self.reference_done();
+        if waiting && !timed_out {
             return Ok(());
         }
         // The error of the final images, whatever the read-back period.
         if self.error_on {
             self.update_error(ctx, true)?;
         }
-        if self
-            .sequence
-            .as_ref()
-            .is_some_and(|s| s.playing && s.current + 1 < s.len())
+        if !timed_out
+            && self
+                .sequence
+                .as_ref()
+                .is_some_and(|s| s.playing && s.current + 1 < s.len())
         {
             return Ok(());
         }
@@ -94,13 +103,21 @@ impl Viewer {
             "frame": frame.map(|f| f.0),
             "frame_path": frame.map(|f| f.1.display().to_string()),
             "frames_played": self.frames_played,
+            "playback_fps": self.playback_fps(),
             "file": self.medium.path.display().to_string(),
             "samples_per_second": self.samples_per_second(),
             "gpu_bytes": self.gpu_bytes(),
             "longest_frame_gap_ms": self.pacer.longest_ms(),
             "frames_painted": self.pacer.frames(),
             "offscreen": false,
+            "notes": self.notes,
+            // The batch render of the view shown, at the passes shown.
+            "command": self.view.command_line(self.medium.input_flag(), &self.medium.path, passes),
         });
+        if let Some(script) = &self.script {
+            json["events"] = script.json();
+            json["script_end"] = if timed_out { "timeout" } else { "passes" }.into();
+        }
         if let Some(scene) = self.medium.scene() {
             json["instances"] = scene.instances.len().into();
         }
@@ -112,7 +129,7 @@ impl Viewer {
             });
         }
         if let Some([x, y]) = self.args.pin_at {
-            json["pin"] = match self.pick_at(x, y) {
+            json["pin"] = match self.held.clone().or_else(|| self.pick_at(x, y)) {
                 Some(p) => serde_json::json!({
                     "pixel": [x, y],
                     "cell": p.cell,

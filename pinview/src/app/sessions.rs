@@ -5,6 +5,7 @@
 //! a session (a buffer clear), on the window's thread.
 
 use anyhow::Result;
+use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession};
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
@@ -29,6 +30,25 @@ fn take_built(
     Some(done)
 }
 
+/// `session` started again on `scene`: reset in place at its size, a new session of the
+/// renderer at another (the image was resized).
+fn restart_session(
+    renderer: &GpuRenderer,
+    mut session: GpuSession,
+    est: EstimatorSpec,
+    scene: &GpuScene,
+    seed: u64,
+) -> Result<GpuSession> {
+    if (session.width(), session.height()) == (scene.camera.width, scene.camera.height) {
+        session.reset(scene, seed)?;
+        Ok(session)
+    } else {
+        renderer
+            .session(scene, est, seed)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+    }
+}
+
 impl Viewer {
     /// The estimator shown now: the one asked for once the medium answers it, else the
     /// medium's default (ratio while a volume's pins bake).
@@ -38,6 +58,46 @@ impl Viewer {
         } else {
             self.medium.default_estimator()
         }
+    }
+
+    /// Whether a bake or re-bake runs in the background, which may bring estimators the
+    /// medium does not answer yet (a volume's pins).
+    pub(super) fn baking(&self) -> bool {
+        self.bake.is_some() || self.rebake.is_some()
+    }
+
+    /// Whether the estimator asked for is not shown yet but will be once the running bake
+    /// is in (a scripted run waits for it). Anything else the medium cannot answer (a frame
+    /// of a sequence without the density the first one had) falls back to the medium's
+    /// default, with a note.
+    pub(super) fn awaiting_wanted(&self) -> bool {
+        self.estimator_now() != self.wanted && self.baking()
+    }
+
+    /// Whether the medium answers `e` on a second side (one medium, not a scene).
+    pub(super) fn compare_answered(&self, e: EstimatorSpec) -> bool {
+        self.medium.scene().is_none() && self.medium.estimators().contains(&e)
+    }
+
+    /// Whether the second side asked for is not in yet but will come: being built, or
+    /// waiting for the running bake. A medium that cannot answer it drops it, with a note.
+    pub(super) fn awaiting_compare(&self) -> bool {
+        self.compare_wanted.is_some_and(|e| {
+            self.compare.as_ref().map(|c| c.estimator) != Some(e)
+                && (self.compare_answered(e) || self.baking())
+        })
+    }
+
+    /// Notes an estimator asked for that the medium cannot answer (and no bake will bring):
+    /// `shown` is what stands in its place.
+    fn note_unanswered(&mut self, asked: EstimatorSpec, shown: &str) {
+        let why = if asked.needs_density() && !self.medium.has_density() {
+            format!("no embedded density, which {asked} needs")
+        } else {
+            format!("{asked} is not answered by it")
+        };
+        let note = format!("{}: {why}; {shown}", self.medium.path.display());
+        self.note(note);
     }
 
     /// Whether the shown estimator's renderer is being built (the panel says "compiling").
@@ -51,6 +111,16 @@ impl Viewer {
     pub(super) fn ensure_session(&mut self) -> Result<()> {
         let est = self.estimator_now();
         self.view.estimator = est;
+        if est != self.wanted && !self.baking() {
+            self.note_unanswered(self.wanted, &format!("{est} shown instead"));
+        }
+        if let Some(e) = self.compare_wanted
+            && !self.compare_answered(e)
+            && self.medium.scene().is_none()
+            && !self.baking()
+        {
+            self.note_unanswered(e, "no second side");
+        }
         if self.dirty {
             self.generation += 1;
         }
@@ -59,7 +129,13 @@ impl Viewer {
         if let Some(done) = take_built(&mut self.pending, est, &mut self.retired) {
             let mut built = done?;
             if built.generation != self.generation {
-                built.session.reset(&self.view.scene(), self.view.seed)?;
+                built.session = restart_session(
+                    &built.renderer,
+                    built.session,
+                    est,
+                    &self.view.scene(),
+                    self.view.seed,
+                )?;
             }
             if self.clock.marks.upload == 0.0 {
                 let since = |t: std::time::Instant| {
@@ -78,6 +154,7 @@ impl Viewer {
             let size = (built.session.width(), built.session.height());
             let fresh = built.generation == self.generation;
             self.renderer = Some((est, built.renderer));
+            self.coarse = None;
             self.session = Some(built.session);
             self.relay = built.relay;
             self.render_seconds = 0.0;
@@ -96,6 +173,7 @@ impl Viewer {
             if let Some(rgba) = built.preview.filter(|_| fresh) {
                 let t = &self.target;
                 write_image(&self.gpu.queue, &t.texture, t.size.0, t.size.1, &rgba);
+                self.shown.get_or_insert(super::events::Shown::Preview);
                 if self.first_preview_s.is_none() {
                     self.first_preview_s = Some(self.clock.now());
                 }
@@ -107,6 +185,7 @@ impl Viewer {
             self.session = None;
             self.renderer = None;
             self.relay = None;
+            self.coarse = None;
             // Refused here (before the first frame) where the medium cannot answer.
             let media = self.medium.media_job(est)?;
             if self.painted() {
@@ -120,10 +199,28 @@ impl Viewer {
                 )?);
             }
         }
-        if let Some(s) = &mut self.session
-            && self.dirty
+        if self.dirty
+            && let Some(mut s) = self.session.take()
         {
-            s.reset(&self.view.scene(), self.view.seed)?;
+            let scene = self.view.scene();
+            s = match &self.renderer {
+                Some((_, renderer)) => restart_session(renderer, s, est, &scene, self.view.seed)?,
+                None => {
+                    s.reset(&scene, self.view.seed)?;
+                    s
+                }
+            };
+            let size = (s.width(), s.height());
+            self.session = Some(s);
+            if self.target.size != size {
+                self.target = Self::make_target(
+                    &self.gpu.device,
+                    &self.egui_renderer,
+                    size.0,
+                    size.1,
+                    Some(self.target.id),
+                );
+            }
             self.render_seconds = 0.0;
             self.first_clock = compare::PassClock::default();
             restart = true;
@@ -243,7 +340,9 @@ impl Viewer {
     /// for the old one are dropped.
     pub(super) fn set_medium(&mut self, medium: Medium) {
         self.medium = medium;
+        self.held = None;
         self.renderer = None;
+        self.coarse = None;
         self.session = None;
         self.relay = None;
         self.compare = None;

@@ -137,3 +137,31 @@ fn render_flags_follow_the_scene_ranges() {
         one_line(&out, 2, &message);
     }
 }
+
+/// Without --frames, a damaged pin file given at launch shows its line in the failure
+/// window, which stays until closed, as a refused scene does, rather than the process ending
+/// at once with nothing on screen.
+#[test]
+fn interactive_a_damaged_file_keeps_its_window_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, None);
+    let bytes = std::fs::read(&pins).unwrap();
+    let cut = dir.path().join("cut.pin");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let Some(display) = display() else { return };
+    let mut child = std::process::Command::new(PINVIEW)
+        .arg(s(&cut))
+        .env("DISPLAY", &display.name)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir())
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    let exited = child.try_wait().unwrap();
+    let _ = child.kill();
+    let _ = child.wait();
+    assert_eq!(exited, None, "pinview ended instead of showing the failure");
+}

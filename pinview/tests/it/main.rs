@@ -4,9 +4,11 @@
 
 mod compare;
 mod contract;
+mod ending;
 mod error_view;
 mod failures;
 mod front;
+mod input_script;
 mod offscreen;
 mod overlay;
 mod pacing;

@@ -165,3 +165,67 @@ fn overlays_change_the_window_image_and_not_the_render() {
         "an overlay changed the render's screenshot"
     );
 }
+
+/// A hold keeps the entry, not the pixel: after the camera orbits (scripted input), the
+/// `pin` object is still the entry picked at the start, so its pins can be seen from the
+/// side.
+#[test]
+fn a_held_entry_stays_held_when_the_camera_orbits() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let events = dir.path().join("orbit.json");
+    std::fs::write(
+        &events,
+        r#"[{"at_s": 0, "action": "orbit", "dx_deg": 50, "dy_deg": 20}]"#,
+    )
+    .unwrap();
+    let Some(display) = display() else { return };
+    let run = |extra: &[&str]| {
+        let mut args = vec![s(&pins)];
+        args.extend_from_slice(&VIEW);
+        args.extend_from_slice(&["--pin-at", "24,20", "--frames", "1", "--json"]);
+        args.extend_from_slice(extra);
+        let out = pinview_within(Some(&display), &args, std::time::Duration::from_secs(180));
+        ok(&out, "pinview --pin-at");
+        json(&out)
+    };
+    let still = run(&[]);
+    let moved = run(&["--input-script", s(&events)]);
+    assert!(!still["pin"].is_null(), "{still}");
+    assert_eq!(moved["events"][0]["action"], "orbit", "{moved}");
+    assert_eq!(
+        still["pin"], moved["pin"],
+        "the held entry changed with the view"
+    );
+    // The orbit moved the camera: the same pixel now reads another entry.
+    let mut orbited = vec![s(&pins)];
+    let command = moved["command"].as_str().unwrap().to_string();
+    let words: Vec<&str> = command.split_whitespace().collect();
+    let at = |flag: &str| words[words.iter().position(|w| *w == flag).unwrap() + 1];
+    orbited.extend_from_slice(&[
+        "--camera-origin",
+        at("--camera-origin"),
+        "--camera-target",
+        at("--camera-target"),
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--pin-at",
+        "24,20",
+        "--frames",
+        "1",
+        "--json",
+    ]);
+    let out = pinview_within(
+        Some(&display),
+        &orbited,
+        std::time::Duration::from_secs(180),
+    );
+    ok(&out, "pinview --pin-at, orbited camera");
+    let fresh = json(&out);
+    assert_ne!(
+        fresh["pin"], still["pin"],
+        "the orbit did not change the pixel's entry"
+    );
+}

@@ -25,10 +25,18 @@ fn play_steps_through_the_frames() {
     let (j, first) = run(&[], "first");
     assert_eq!(j["frame"], 1, "{j}");
     assert_eq!(j["frames_played"], serde_json::json!([1]), "{j}");
+    assert!(j["playback_fps"].is_null(), "{j}");
     // Playing, one pass per frame: every frame shown in turn, ending on the last.
     let (j, last) = run(&["--play", "--frame-passes", "1"], "last");
     assert_eq!(j["frame"], 3, "{j}");
     assert_eq!(j["frames_played"], serde_json::json!([1, 2, 3]), "{j}");
+    // Two steps taken while playing, over a positive time.
+    assert!(
+        j["playback_fps"]
+            .as_f64()
+            .is_some_and(|f| f > 0.0 && f.is_finite()),
+        "{j}"
+    );
     assert!(first != last, "the frames differ, so must their images");
     // The last frame's image is that file's own render.
     let reference = dir.path().join("ref3.exr");

@@ -134,6 +134,58 @@ pub fn runtime_dir() -> PathBuf {
     .clone()
 }
 
+/// [`pinview`] that must end within `limit`: killed and failed when it does not.
+pub fn pinview_within(display: Option<&Display>, args: &[&str], limit: Duration) -> Output {
+    let mut cmd = Command::new(PINVIEW);
+    cmd.args(args)
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir());
+    match display {
+        Some(d) => cmd.env("DISPLAY", &d.name),
+        None => cmd.env_remove("DISPLAY"),
+    };
+    let mut child = cmd
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("running pinview");
+    let drain = |r: Option<Box<dyn std::io::Read + Send>>| {
+        std::thread::spawn(move || {
+            let mut buf = Vec::new();
+            if let Some(mut r) = r {
+                let _ = r.read_to_end(&mut buf);
+            }
+            buf
+        })
+    };
+    let stdout = drain(child.stdout.take().map(|r| Box::new(r) as _));
+    let stderr = drain(child.stderr.take().map(|r| Box::new(r) as _));
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("waiting for pinview") {
+            break status;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            let err = stderr.join().unwrap_or_default();
+            panic!(
+                "pinview {} did not end within {} s: {}",
+                args.join(" "),
+                limit.as_secs(),
+                String::from_utf8_lossy(&err)
+            );
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    Output {
+        status,
+        stdout: stdout.join().unwrap_or_default(),
+        stderr: stderr.join().unwrap_or_default(),
+    }
+}
+
 pub fn pinrender_render(args: &[&str]) -> Output {
     Command::new(pinrender())
         .env("XDG_RUNTIME_DIR", runtime_dir())
@@ -186,6 +238,18 @@ pub const VIEW: [&str; 8] = [
     "--height",
     "40",
 ];
+
+/// Runs the `pinrender render` command a viewer's JSON line gives (`command`), writing its
+/// EXR to `out`, and returns that EXR's bits.
+pub fn render_command(command: &str, out: &Path) -> Vec<u32> {
+    let words: Vec<&str> = command.split_whitespace().collect();
+    assert_eq!(&words[..2], ["pinrender", "render"], "{command}");
+    let mut args: Vec<&str> = words[2..].to_vec();
+    let at = args.iter().position(|w| *w == "--out").expect("--out");
+    args[at + 1] = s(out);
+    ok(&pinrender_render(&args), command);
+    exr_bits(out)
+}
 
 /// An EXR's float bits.
 pub fn exr_bits(path: &Path) -> Vec<u32> {
