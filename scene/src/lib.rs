@@ -23,6 +23,8 @@ mod raw;
 mod transform;
 
 pub use error::SceneError;
-pub use load::{MAX_ASSETS, MAX_INSTANCES, MAX_SCENE_BYTES, load, load_bound, parse};
+pub use load::{
+    MAX_ASSETS, MAX_INSTANCES, MAX_SCENE_BYTES, MAX_STRING_BYTES, load, load_bound, parse,
+};
 pub use model::{Asset, Camera, Instance, Scene, Sun};
 pub use transform::{IDENTITY, Trs, compose_trs};
