@@ -486,6 +486,7 @@ fn bake(
     held_bytes: u64,
     backend: &str,
 ) -> PyResult<String> {
+    check_max_memory(max_memory)?;
     let backend = match backend {
         "cpu" => pinbake::BakeBackend::Cpu,
         "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions::default()),
@@ -516,7 +517,7 @@ fn bake(
             }),
         threads,
         density_scale,
-        max_memory: max_memory.map(|m| m.max(1)),
+        max_memory,
         backend,
         // A bake option without a keyword here (a tile) keeps the command line's default.
         ..BakeRequest::default()
@@ -669,8 +670,18 @@ fn check_copy(shape: &[usize], held: u64, budget: &pinbake::files::MemoryBudget)
 #[pyfunction]
 #[pyo3(signature = (shape, held, max_memory=None))]
 fn check_array_memory(shape: Vec<usize>, held: u64, max_memory: Option<u64>) -> PyResult<()> {
-    let budget = pinbake::files::MemoryBudget::new(max_memory.map(|m| m.max(1)));
+    check_max_memory(max_memory)?;
+    let budget = pinbake::files::MemoryBudget::new(max_memory);
     check_copy(&shape, held, &budget).map(|_| ())
+}
+
+/// `max_memory=0` is refused as the command line refuses `--max-memory 0` (it was taken as
+/// a budget of 1 byte).
+fn check_max_memory(max_memory: Option<u64>) -> PyResult<()> {
+    if max_memory == Some(0) {
+        return Err(value_err("max_memory must be at least 1 byte, got 0"));
+    }
+    Ok(())
 }
 
 /// See [`array_values`].

@@ -1197,3 +1197,26 @@ fn formats_are_recognised_by_content_whatever_the_name() {
         assert_eq!(pins_of(&a), pins_of(&b), "{}", wrong.display());
     }
 }
+
+/// A GPU flag with the CPU backend is a usage error (it was ignored silently).
+#[test]
+fn a_gpu_slab_budget_needs_the_gpu_backend() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.pin");
+    let o = pinbake(&[
+        "bake",
+        "procedural:box",
+        "-o",
+        out.to_str().unwrap(),
+        "--gpu-slab-bytes",
+        "1M",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_eq!(stderr(&o).trim_end().lines().count(), 1, "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--gpu-slab-bytes applies to --backend gpu"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
+}
