@@ -118,7 +118,8 @@ fn open_asset(scene: &Scene, a: &Asset, o: &AssetOptions) -> Result<OpenedAsset>
                     ..Default::default()
                 },
             };
-            let opened = volume::open_volume_typed(v, &args)
+            let budget = pinbake::files::MemoryBudget::new(o.max_memory);
+            let opened = volume::open_volume_within(v, &args, &budget)
                 .map_err(|e| named(scene, &at, format!("{e:#}")))?;
             let source = opened.source();
             let b = source.bounds();

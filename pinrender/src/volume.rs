@@ -191,6 +191,18 @@ pub const GPU_DENSE_VOXELS: u64 = 1 << 28;
 /// Flags for another kind of input (`--grid` on a raw file, `--dims` on a VDB) are usage
 /// errors, and a path must name a regular file ([`pinbake::cli_args::SourceArgs::source_spec`]).
 pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Opened> {
+    open_volume_within(input, a, &pinbake::files::MemoryBudget::new(None))
+}
+
+/// [`open_volume_typed`] under `budget` (`--max-memory`): a VDB's dense copy for the
+/// trackers is made only when it takes at most a quarter of it (and 1 GiB); a larger one is
+/// avoided, the trackers reading the tree as the bake does (a 192 KB file of active 8^3
+/// tiles over 512^3 made a 512 MiB copy under `--max-memory 16M`).
+pub fn open_volume_within(
+    input: impl AsRef<OsStr>,
+    a: &VolumeArgs,
+    budget: &pinbake::files::MemoryBudget,
+) -> Result<Opened> {
     let spec = a
         .read
         .source_spec(Path::new(input.as_ref()), "volume", || {
@@ -202,10 +214,8 @@ pub fn open_volume_typed(input: impl AsRef<OsStr>, a: &VolumeArgs) -> Result<Ope
         // answers them without the tree's hash lookups, with the same bits (the images do
         // not change), when it takes at most 1 GiB and a quarter of the memory budget.
         SourceSpec::Vdb(path, opts) => Opened::Vdb(Arc::new(
-            source::VdbSource::open(&path, &opts, scale)?.with_dense_cache(
-                pinbake::bake::DEFAULT_DENSE_COPY_BYTES
-                    .min(pinbake::files::default_memory_limit() / 4),
-            ),
+            source::VdbSource::open(&path, &opts, scale)?
+                .with_dense_cache(pinbake::bake::DEFAULT_DENSE_COPY_BYTES.min(budget.limit / 4)),
         )),
         SourceSpec::Raw(path, opts) => {
             Opened::Dense(Arc::new(source::raw::read_raw(&path, &opts, scale)?))
@@ -751,7 +761,10 @@ impl OpenedMedium {
         let max_dense = GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(limits) / 4);
         let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
         match (&self.opened, &self.voxels, &self.bricks) {
-            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
+            // A VDB's dense copy is charged as its bricks are: half the budget at most.
+            (Some((o, field)), _, _) => {
+                o.gpu_density_or_bricks(field, max_dense.min(field.bricks_budget() / 4))
+            }
             (None, _, Some(b)) => match b.to_voxels(max_dense) {
                 Some(v) => dense(v),
                 None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),

@@ -12,6 +12,7 @@ mod cli;
 #[cfg(feature = "gpu")]
 mod gpu_bake;
 mod nanovdb_corpus;
+mod outputs;
 mod production;
 mod slurm;
 mod sources;
