@@ -165,6 +165,10 @@ fn mix64(z0: vec2<u32>) -> vec2<u32> {
     return xorshr64(z, 31u);
 }
 
+// The largest optical depth whose transmittance rounds to 1 in f32 (2^-25): the empty pin.
+const EMPTY_TAU: f32 = 2.98023223876953125e-8;
+// f32::MAX: a sum above it has overflowed.
+const F32_MAX: f32 = 3.40282347e+38;
 const GOLDEN: vec2<u32> = vec2<u32>(0x7f4a7c15u, 0x9e3779b9u);
 
 // Draw `c` of the stream `key`: its top 24 bits as a uniform in [0, 1), the CPU's 53-bit
@@ -253,7 +257,9 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
             sums[n * 32u + i] = vec2<f32>(s, comp);
             continue;
         }
-        let tau = (s + comp) * job.weight;
+        // A sum that overflowed f32 (a voxel near f32::MAX): the compensation is then NaN
+        // (inf - inf), and the depth infinite, as the CPU's f64 sum gives t = 0 there.
+        let tau = select(s + comp, s, abs(s) > F32_MAX) * job.weight;
         taus[i] = tau;
         tau_max = max(tau_max, tau);
     }
@@ -261,7 +267,10 @@ fn bake(@builtin(global_invocation_id) gid: vec3<u32>) {
         return;
     }
     let t_min = exp(-tau_max);
-    if !(tau_max > 0.0) || t_min >= 1.0 {
+    // The CPU's rule: its t_min, exp(-tau) in f64 rounded to f32, is 1 (the empty pin) for
+    // every tau <= 2^-25, and this device's f32 exp need not round as it does (lavapipe
+    // gave 0.99999994 for tau = 1e-30).
+    if !(tau_max > EMPTY_TAU) || t_min >= 1.0 {
         entries[n] = vec2<u32>(0u, bitcast<u32>(1.0));
         return;
     }

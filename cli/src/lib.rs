@@ -9,7 +9,9 @@
 //! * [`parse`]: `clap` value parsers for the generic flag types (sizes, finite floats,
 //!   triples);
 //! * [`signals`]: the handlers that end the process quietly on SIGPIPE and remove the
-//!   registered partial output file on SIGINT, SIGTERM, SIGHUP.
+//!   registered partial output file on SIGINT, SIGTERM, SIGHUP;
+//! * [`runtime_dir`]: a private `XDG_RUNTIME_DIR` when none is set, so that a GPU error is
+//!   the tool's one line, without the Wayland library's.
 //!
 //! What it is not for: the rules a library applies to files and memory (inputs must be
 //! regular files, outputs must not replace inputs, the memory budget) live with the library
@@ -18,6 +20,7 @@
 
 pub mod output;
 pub mod parse;
+pub mod runtime_dir;
 pub mod signals;
 mod usage;
 

@@ -63,6 +63,7 @@ pub fn run_main<C: clap::Parser>(
     run: impl FnOnce(C) -> anyhow::Result<ExitCode>,
 ) -> ExitCode {
     crate::signals::install();
+    crate::runtime_dir::ensure_private_runtime_dir();
     let cli = match parse_cli::<C>(tool, args) {
         Ok(c) => c,
         Err(code) => return code,

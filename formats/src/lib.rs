@@ -64,7 +64,7 @@ pub use owned::StreamedSparseDensity;
 pub use owned::{OwnedPinGrid, grid_desc};
 pub use placement::{
     IDENTITY_LOCAL_TO_WORLD, MAX_PLACEMENT_COORD, MIN_PLACEMENT_EXTENT, MIN_RELATIVE_EXTENT,
-    MIN_TRANSFORM_CONDITION, check_placement,
+    MIN_TRANSFORM_CONDITION, check_placement, transform_condition,
 };
 pub use reader::{DensityView, MajorantView, PinFile};
 pub use shape::{GridShape, MAX_CELLS, MAX_DIM, MAX_PINS_PER_ENTRY};

@@ -31,6 +31,20 @@ pub const MIN_RELATIVE_EXTENT: f64 = 1e-5;
 /// its f32 inverse to keep three significant digits.
 pub const MIN_TRANSFORM_CONDITION: f64 = 1e-6;
 
+/// The one singularity rule for an affine map's linear part `L` (row-major 3x4 `m`, the
+/// translation ignored), shared by the file format, the scene format and the runtime:
+/// `(det L, |det L| / (|L e0| |L e1| |L e2|))`. The second is 1 for a rotation with any
+/// scales (`{"scale": [1e-6, 1e6, 1]}` included), 0 for a singular map and NaN for a
+/// non-finite one; a map is usable when it is at least [`MIN_TRANSFORM_CONDITION`].
+pub fn transform_condition(m: &[f64; 12]) -> (f64, f64) {
+    let col = |j: usize| [m[j], m[4 + j], m[8 + j]];
+    let norm = |c: [f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
+    let det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8])
+        + m[2] * (m[4] * m[9] - m[5] * m[8]);
+    let lengths = norm(col(0)) * norm(col(1)) * norm(col(2));
+    (det, det.abs() / lengths)
+}
+
 /// The identity `local_to_world`: a grid placed in its source's own frame.
 pub const IDENTITY_LOCAL_TO_WORLD: [f64; 12] =
     [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
@@ -51,12 +65,7 @@ pub fn check_placement(
     if m.iter().any(|x| !x.is_finite()) {
         return Err("local-to-world transform is not finite".into());
     }
-    let col = |j: usize| [m[j], m[4 + j], m[8 + j]];
-    let norm = |c: [f64; 3]| (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt();
-    let det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8])
-        + m[2] * (m[4] * m[9] - m[5] * m[8]);
-    let scale = norm(col(0)) * norm(col(1)) * norm(col(2));
-    let condition = det.abs() / scale;
+    let (det, condition) = transform_condition(m);
     if !(condition >= MIN_TRANSFORM_CONDITION) {
         return Err(format!(
             "local-to-world transform is singular or too sheared (det {}, |det| over its columns' lengths {}, at least {} needed)",

@@ -90,6 +90,13 @@ impl GridShape {
         if !desc.density_scale.is_finite() || desc.density_scale < 0.0 {
             return Err(bad("density scale must be finite and >= 0"));
         }
+        let known = crate::layout::GRID_FLAG_CROPPED | crate::layout::GRID_FLAG_JITTERED_PINS;
+        if desc.flags & !known != 0 {
+            return Err(bad(format!(
+                "flags {:#x} set bits this version does not define (it knows {known:#x})",
+                desc.flags
+            )));
+        }
         let (z_begin, z_end) = match tile {
             None => (0, desc.dims[2]),
             Some(t) => {

@@ -665,7 +665,7 @@ fn gpu_entries(
             dense,
             &gpu,
             progress,
-            &|| opts.cancelled(),
+            (opts.cancel.is_some(), &|| opts.cancelled()),
             &mut times,
         )?;
         Ok(Some(times))

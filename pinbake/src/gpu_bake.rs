@@ -37,6 +37,12 @@ const DENSITY_BINDINGS: usize = 6;
 /// Storage bindings the shader declares: jobs, entries, the density's and the carried sums.
 const STORAGE_BINDINGS: usize = DENSITY_BINDINGS + 3;
 const WORKGROUP: u32 = 64;
+/// Pins of the first tile of a bake that can be cancelled: small enough to finish in a
+/// fraction of a second on a CPU Vulkan driver at 1e4 steps per pin.
+const FIRST_CANCELLABLE_TILE: usize = 1024;
+/// Seconds one dispatch of a cancellable bake aims at: a cancel (Python's Ctrl-C) is seen
+/// within about this long after the dispatch in flight.
+const CANCELLABLE_DISPATCH_S: f64 = 0.2;
 
 /// bake.wgsl's `Params.slab.w` flags.
 const CARRIED: u32 = 1;
@@ -416,7 +422,7 @@ impl GpuBaker {
         dense: &mut [PinEntry],
         opts: &GpuBakeOptions,
         progress: &(dyn Fn(u64) + Sync),
-        cancelled: &(dyn Fn() -> bool + Sync),
+        (cancellable, cancelled): (bool, &(dyn Fn() -> bool + Sync)),
         times: &mut GpuBakeTimes,
     ) -> Result<(), BakeError> {
         let lattice = density.lattice();
@@ -462,12 +468,25 @@ impl GpuBaker {
         let nx_cells = layout.dims[0] as usize;
         let ppe = layout.pins_per_entry;
         let mut jobs = Vec::with_capacity(per.min(dense.len()));
-        for (t, out) in dense.chunks_mut(per).enumerate() {
+        // A dispatch cannot be stopped once submitted, so a bake that can be cancelled
+        // (`cancellable`: a host such as Python polls for Ctrl-C) runs tiles that take about
+        // `CANCELLABLE_DISPATCH_S` each: the first small, the next sized from the time per
+        // pin measured so far. Each pin's job depends on its slot alone, so the tiles'
+        // sizes do not change the bytes.
+        let mut tile_pins = if cancellable {
+            per.min(FIRST_CANCELLABLE_TILE)
+        } else {
+            per
+        };
+        let mut first = 0usize;
+        while first < dense.len() {
             if cancelled() {
                 return Err(BakeError::Cancelled);
             }
+            let n = tile_pins.min(dense.len() - first);
+            let out = &mut dense[first..first + n];
+            let tile_started = Instant::now();
             jobs.clear();
-            let first = t * per;
             let preparing = Instant::now();
             // Each job depends on its slot alone, so the order (and the bytes) is the same on
             // any number of threads.
@@ -519,6 +538,12 @@ impl GpuBaker {
             out.copy_from_slice(&self.read_back(&tile)?);
             times.dispatch_s += dispatching.elapsed().as_secs_f64();
             progress(out.len() as u64);
+            first += n;
+            if cancellable {
+                let took = tile_started.elapsed().as_secs_f64().max(1e-6);
+                let next = (n as f64 * CANCELLABLE_DISPATCH_S / took).clamp(1.0, 4.0 * n as f64);
+                tile_pins = (next as usize).clamp(1, per);
+            }
         }
         Ok(())
     }

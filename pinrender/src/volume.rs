@@ -780,7 +780,10 @@ impl OpenedMedium {
         let max_dense = GPU_DENSE_VOXELS.min(pinrt::gpu::binding_limit(limits) / 4);
         let dense = |v: VoxelGrid| GpuDensity::from_voxel_grid(v).map_err(|e| anyhow!("{e}"));
         match (&self.opened, &self.voxels, &self.bricks) {
-            (Some((o, field)), _, _) => o.gpu_density_or_bricks(field, max_dense),
+            // A VDB's dense copy is charged as its bricks are: half the budget at most.
+            (Some((o, field)), _, _) => {
+                o.gpu_density_or_bricks(field, max_dense.min(field.bricks_budget() / 4))
+            }
             (None, _, Some(b)) => match b.to_voxels(max_dense) {
                 Some(v) => dense(v),
                 None => GpuDensity::from_bricks(b.clone()).map_err(|e| anyhow!("{e}")),

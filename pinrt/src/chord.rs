@@ -58,17 +58,17 @@ impl UnitTransform {
         if m.iter().any(|x| !x.is_finite()) {
             return Err(Error::BadTransform("local_to_world is not finite".into()));
         }
-        let l = [[m[0], m[1], m[2]], [m[4], m[5], m[6]], [m[8], m[9], m[10]]];
         let t = [m[3], m[7], m[11]];
         let (det, inv) = linear_inverse(m);
-        let scale = l
-            .iter()
-            .flatten()
-            .fold(0.0f64, |acc, x| acc.max(x.abs()))
-            .max(f64::MIN_POSITIVE);
-        if !det.is_finite() || det.abs() <= 1e-300 || det.abs() / scale.powi(3) < 1e-14 {
+        // The format's and the scene's rule (`transform_condition`): a map that scales its
+        // axes very differently (1e-6, 1e6, 1) is well conditioned; only a singular or
+        // too sheared one is refused.
+        let (_, condition) = pin_format::transform_condition(m);
+        if !det.is_finite() || det == 0.0 || !(condition >= pin_format::MIN_TRANSFORM_CONDITION) {
             return Err(Error::BadTransform(format!(
-                "local_to_world is singular (det {det:e})"
+                "local_to_world is singular or too sheared (det {det:e}, |det| over its \
+                 columns' lengths {condition:e}, at least {:e} needed)",
+                pin_format::MIN_TRANSFORM_CONDITION
             )));
         }
         let mut rows = [[0.0f32; 4]; 3];

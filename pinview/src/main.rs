@@ -26,7 +26,7 @@ mod shell;
 mod startup;
 mod view;
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -188,12 +188,13 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         inputs.extend(asset.volume.as_deref());
         inputs.extend(asset.pins.as_deref());
     }
-    for out in [&a.screenshot, &a.save, &a.window_screenshot]
+    // Nor one another (`--screenshot X --save X` wrote one over the other).
+    let outputs: Vec<&Path> = [&a.screenshot, &a.save, &a.window_screenshot]
         .into_iter()
         .flatten()
-    {
-        pin_volume::files::check_output(out, &inputs)?;
-    }
+        .map(PathBuf::as_path)
+        .collect();
+    pin_volume::files::check_outputs(&outputs, &inputs)?;
     if a.offscreen {
         let json = offscreen::run(&a, medium, clock)?;
         if a.json {

@@ -487,6 +487,7 @@ fn bake(
     backend: &str,
     max_bytes: Option<u64>,
 ) -> PyResult<String> {
+    check_max_memory(max_memory)?;
     let backend = match backend {
         "cpu" => pinbake::BakeBackend::Cpu,
         "gpu" => pinbake::BakeBackend::Gpu(pinbake::GpuBakeOptions::default()),
@@ -517,7 +518,7 @@ fn bake(
             }),
         threads,
         density_scale,
-        max_memory: max_memory.map(|m| m.max(1)),
+        max_memory,
         max_bytes,
         backend,
         // A bake option without a keyword here (a tile) keeps the command line's default.
@@ -671,8 +672,18 @@ fn check_copy(shape: &[usize], held: u64, budget: &pin_volume::files::MemoryBudg
 #[pyfunction]
 #[pyo3(signature = (shape, held, max_memory=None))]
 fn check_array_memory(shape: Vec<usize>, held: u64, max_memory: Option<u64>) -> PyResult<()> {
-    let budget = pin_volume::files::MemoryBudget::new(max_memory.map(|m| m.max(1)));
+    check_max_memory(max_memory)?;
+    let budget = pin_volume::files::MemoryBudget::new(max_memory);
     check_copy(&shape, held, &budget).map(|_| ())
+}
+
+/// `max_memory=0` is refused as the command line refuses `--max-memory 0` (it was taken as
+/// a budget of 1 byte).
+fn check_max_memory(max_memory: Option<u64>) -> PyResult<()> {
+    if max_memory == Some(0) {
+        return Err(value_err("max_memory must be at least 1 byte, got 0"));
+    }
+    Ok(())
 }
 
 /// See [`array_values`].

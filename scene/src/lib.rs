@@ -25,6 +25,6 @@ mod transform;
 
 pub use error::SceneError;
 pub use limits::{MAX_ASSETS, MAX_INSTANCES, MAX_SCENE_BYTES};
-pub use load::{load, load_bound, parse};
+pub use load::{MAX_STRING_BYTES, load, load_bound, parse};
 pub use model::{Asset, Camera, Instance, Scene, Sun};
 pub use transform::{IDENTITY, Trs, compose_trs};

@@ -70,9 +70,18 @@ pub fn load(path: &Path, max_memory: Option<u64>) -> Result<Scene, SceneError> {
     parse(&text, path)
 }
 
+/// The longest string a scene may hold, in bytes: a path (4096 on Linux) or a procedural
+/// spec with room to spare. Longer ones are refused before the text is parsed, so that no
+/// copy of one is made (a 60 MiB key peaked at 436 MB: the parser's path, its message and
+/// their copies).
+pub const MAX_STRING_BYTES: usize = 16 << 10;
+
 /// Parses and checks a scene's text; `file` names it in messages and anchors its relative
-/// paths (which must name regular files).
+/// paths (which must name regular files). A UTF-8 byte-order mark at the start is skipped
+/// (RFC 8259 lets a parser ignore it; editors on some systems write one).
 pub fn parse(text: &[u8], file: &Path) -> Result<Scene, SceneError> {
+    let text = text.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(text);
+    check_string_lengths(text, file)?;
     let mut de = serde_json::Deserializer::from_slice(text);
     let raw: RawScene = serde_path_to_error::deserialize(&mut de).map_err(|e| {
         let at = e.path().to_string();
@@ -80,6 +89,46 @@ pub fn parse(text: &[u8], file: &Path) -> Result<Scene, SceneError> {
     })?;
     de.end().map_err(|e| serde_error(file, ".", e))?;
     resolve(raw, file)
+}
+
+/// Refuses a string literal longer than [`MAX_STRING_BYTES`], from one pass over the bytes
+/// that allocates nothing: the line and column of its start. (A string that never ends is
+/// left to the parser, which names where.)
+fn check_string_lengths(text: &[u8], file: &Path) -> Result<(), SceneError> {
+    let (mut line, mut column) = (1usize, 0usize);
+    let mut i = 0;
+    while i < text.len() {
+        let b = text[i];
+        if b == b'\n' {
+            line += 1;
+            column = 0;
+        } else {
+            column += 1;
+        }
+        if b != b'"' {
+            i += 1;
+            continue;
+        }
+        let (start_line, start_column) = (line, column);
+        let mut j = i + 1;
+        while j < text.len() && text[j] != b'"' {
+            j += if text[j] == b'\\' { 2 } else { 1 };
+        }
+        let len = j.min(text.len()) - (i + 1);
+        if len > MAX_STRING_BYTES {
+            return Err(SceneError::File {
+                file: file.to_path_buf(),
+                why: format!(
+                    "a string of {len} bytes at line {start_line}, column {start_column}, longer \
+                     than a scene's strings may be ({MAX_STRING_BYTES})"
+                ),
+            });
+        }
+        // Strings hold no raw newline (JSON), so the column moves by the bytes skipped.
+        column += j.min(text.len()) - i;
+        i = j + 1;
+    }
+    Ok(())
 }
 
 fn serde_error(file: &Path, at: &str, e: serde_json::Error) -> SceneError {
@@ -92,11 +141,11 @@ fn serde_error(file: &Path, at: &str, e: serde_json::Error) -> SceneError {
             file: file.to_path_buf(),
             line: e.line(),
             column: e.column(),
-            why,
+            why: crate::error::clip(&why),
         },
         Category::Data if at == "." => SceneError::File {
             file: file.to_path_buf(),
-            why: format!("{why} (line {}, column {})", e.line(), e.column()),
+            why: crate::error::clip(&format!("{why} (line {}, column {})", e.line(), e.column())),
         },
         Category::Data => SceneError::at(
             file,

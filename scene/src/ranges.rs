@@ -39,10 +39,18 @@ pub fn hg_g(v: f64) -> Result<f64, String> {
     Ok(v)
 }
 
-/// A radiance: finite and not negative.
+/// A radiance: finite and not negative, as the f32 the renderer holds (1e308 would be
+/// infinite there).
 pub fn radiance(v: f64) -> Result<f64, String> {
     if !(v.is_finite() && v >= 0.0) {
         return Err(format!("{} must be finite and >= 0", flag_num(v)));
+    }
+    if v > f64::from(f32::MAX) {
+        return Err(format!(
+            "{} is beyond f32 ({:e}), where the renderer holds radiance",
+            flag_num(v),
+            f32::MAX
+        ));
     }
     Ok(v)
 }

@@ -76,8 +76,9 @@ pub const MAX_SCALE: f64 = 1e6;
 
 /// Checks a local-to-world: finite, translation within +-1e12, every column's length in
 /// [[`MIN_SCALE`], [`MAX_SCALE`]], and the linear part's condition (`|det|` over the columns'
-/// lengths, 1 for any rotation and scales) at least [`pin_format::MIN_TRANSFORM_CONDITION`],
-/// the rule the pin format applies to a grid's own transform.
+/// lengths, 1 for any rotation and scales) at least [`pin_format::MIN_TRANSFORM_CONDITION`]:
+/// the one rule (`pin_format::transform_condition`) the pin format applies to a
+/// grid's own transform and the runtime to every placement it samples.
 pub fn check(m: &[f64; 12]) -> Result<(), String> {
     if m.iter().any(|x| !x.is_finite()) {
         return Err("a transform must be finite".into());
@@ -96,9 +97,7 @@ pub fn check(m: &[f64; 12]) -> Result<(), String> {
             ));
         }
     }
-    let det = m[0] * (m[5] * m[10] - m[6] * m[9]) - m[1] * (m[4] * m[10] - m[6] * m[8])
-        + m[2] * (m[4] * m[9] - m[5] * m[8]);
-    let condition = det.abs() / (len(col(0)) * len(col(1)) * len(col(2)));
+    let (_, condition) = pin_format::transform_condition(m);
     if !(condition >= pin_format::MIN_TRANSFORM_CONDITION) {
         return Err(format!(
             "singular or too sheared (|det| over its columns' lengths {}, at least {} needed)",

@@ -8,7 +8,12 @@
 //!   forever, `/dev/zero` would be read until memory runs out, a directory has no bytes;
 //! * outputs may only be a new path or an existing regular file that is not one of the
 //!   inputs ([`check_output`]): renaming over a device node or a symlink to one replaces it,
-//!   and writing over the input destroys it before it has been read;
+//!   and writing over the input destroys it before it has been read; two outputs of one
+//!   command may not name the same file ([`check_outputs_among`]), or one would silently
+//!   replace the other;
+//! * the files one command writes land together ([`write_together`]): each is written to a
+//!   temp file beside its target and all are renamed only once every one is written, so a
+//!   failure (a full disk, an interrupt) leaves every earlier file as it was;
 //! * every allocation whose size comes from input or flags is first compared with a memory
 //!   budget ([`MemoryBudget`], default: half of the physical memory) and then made fallibly;
 //! * the temporary `.NAME.*.partial` file of an atomic write is announced to a hook
@@ -34,6 +39,12 @@ pub enum FileError {
         .input.display()
     )]
     SameAsInput { output: PathBuf, input: PathBuf },
+    #[error(
+        "{}: is also the output {}; two outputs of one command must name different files",
+        .second.display(),
+        .first.display()
+    )]
+    SameOutput { first: PathBuf, second: PathBuf },
     #[error("{}: is a symlink to a missing file; refusing to replace the link", .0.display())]
     DanglingSymlink(PathBuf),
     #[error(
@@ -210,6 +221,119 @@ pub fn check_output_among(output: &Path, sets: &[&InputSet]) -> Result<PathBuf, 
 /// their own).
 pub fn check_output(output: &Path, inputs: &[&Path]) -> Result<PathBuf, FileError> {
     InputSet::of(inputs)?.check_output(output)
+}
+
+/// The output rule for every output of one command: each passes [`check_output_among`]
+/// against `sets`, and no two of them name the same file (the same device and inode for
+/// existing files, symlinks and hard links followed; the same directory and name for new
+/// ones). Returns the paths to write to, in the order given.
+pub fn check_outputs_among(
+    outputs: &[&Path],
+    sets: &[&InputSet],
+) -> Result<Vec<PathBuf>, FileError> {
+    let mut checked: Vec<(PathBuf, OutputId)> = Vec::with_capacity(outputs.len());
+    for (i, output) in outputs.iter().enumerate() {
+        let target = check_output_among(output, sets)?;
+        let id = output_id(&target);
+        if let Some(j) = checked.iter().position(|(_, other)| *other == id) {
+            return Err(FileError::SameOutput {
+                first: outputs[j].to_path_buf(),
+                second: outputs[i].to_path_buf(),
+            });
+        }
+        checked.push((target, id));
+    }
+    Ok(checked.into_iter().map(|(p, _)| p).collect())
+}
+
+/// [`check_outputs_among`] against `inputs`.
+pub fn check_outputs(outputs: &[&Path], inputs: &[&Path]) -> Result<Vec<PathBuf>, FileError> {
+    check_outputs_among(outputs, &[&InputSet::of(inputs)?])
+}
+
+/// What an output path will write to, for comparing two outputs: an existing file by its
+/// identity, a new one by its directory (resolved) and name.
+#[derive(Debug, PartialEq, Eq)]
+enum OutputId {
+    Existing((u64, u64)),
+    New(PathBuf),
+}
+
+fn output_id(target: &Path) -> OutputId {
+    if let Some(id) = std::fs::metadata(target).ok().as_ref().and_then(file_id) {
+        return OutputId::Existing(id);
+    }
+    let dir = parent_dir(target);
+    let dir = std::fs::canonicalize(&dir).unwrap_or(dir);
+    OutputId::New(match target.file_name() {
+        Some(name) => dir.join(name),
+        None => target.to_path_buf(),
+    })
+}
+
+/// Writes one file of [`write_together`] into the temp file it is given (buffered, seekable
+/// for formats that patch their offsets). Its error is reported against the target's path.
+pub type WriteFile<'a> = Box<dyn FnOnce(&mut std::io::BufWriter<File>) -> std::io::Result<()> + 'a>;
+
+/// Writes several files as one: each `(target, write)` to a temp file `.NAME.*.partial`
+/// beside its target, synced, and only once every one of them is written are they renamed
+/// into place, in order. A failure before the renames (a full disk, a write error, an
+/// interrupt) removes the temp files and leaves every target as it was: an EXR and its PNG
+/// land together or not at all. Targets must have passed [`check_outputs_among`].
+///
+/// The temp file being written is announced to the [`watch_partial_files`] hook; the hook
+/// holds one path, so an interrupt while a later file is written leaves the earlier temp
+/// files (never a target) behind. Callers encode before calling this, so that the window
+/// is the few milliseconds of the writes themselves.
+pub fn write_together(files: Vec<(PathBuf, WriteFile<'_>)>) -> Result<(), FileError> {
+    let mut staged: Vec<(tempfile::TempPath, PathBuf)> = Vec::with_capacity(files.len());
+    for (target, write) in files {
+        let dir = parent_dir(&target);
+        let name = target
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let announced = Announced;
+        let temp = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .suffix(".partial")
+            .make_in(&dir, |path| {
+                announce_partial(Some(path));
+                // 0666 narrowed by the umask, as `File::create` gives: an image is a file
+                // others read, where tempfile would create it 0600.
+                let mut o = std::fs::OpenOptions::new();
+                o.read(true).write(true).create_new(true);
+                #[cfg(unix)]
+                std::os::unix::fs::OpenOptionsExt::mode(&mut o, 0o666);
+                o.open(path)
+            })
+            .map_err(io(&target))?;
+        let (file, temp) = temp.into_parts();
+        let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+        let written = write(&mut out)
+            .and_then(|()| out.into_inner().map_err(|e| e.into_error()))
+            .and_then(|f| f.sync_all());
+        // The temp file is removed (TempPath's drop) before its announcement ends.
+        if let Err(err) = written {
+            drop(temp);
+            drop(announced);
+            drop(staged);
+            return Err(FileError::Io { path: target, err });
+        }
+        drop(announced);
+        staged.push((temp, target));
+    }
+    for (temp, target) in staged {
+        temp.persist(&target).map_err(|e| FileError::Io {
+            path: target.clone(),
+            err: e.error,
+        })?;
+        // The rename made durable where the file system supports it.
+        if let Ok(d) = File::open(parent_dir(&target)) {
+            let _ = d.sync_all();
+        }
+    }
+    Ok(())
 }
 
 #[cfg(unix)]

@@ -408,19 +408,23 @@ pub enum InputKind {
 }
 
 impl InputKind {
-    /// The kind a path or `procedural:SPEC` names: `.vdb` by its extension, `.nvdb` by its
-    /// extension or (any other name) by NanoVDB's magic at the start of the file, any
-    /// other path raw.
+    /// The kind a path or `procedural:SPEC` names, by content where the format has a
+    /// magic: a file that starts with NanoVDB's magic is NanoVDB and one that starts with
+    /// OpenVDB's is OpenVDB, whatever its name (an OpenVDB file named `.nvdb` and a NanoVDB
+    /// file named `.vdb` open as what they are, in every tool). A file without either (raw
+    /// voxels have no header), or that cannot be read here (missing, not a regular file:
+    /// refused later with its own message), goes by its extension: `.vdb` OpenVDB, `.nvdb`
+    /// NanoVDB, anything else raw.
     pub fn of(input: &std::path::Path) -> Self {
         let ext = |x: &str| input.extension().is_some_and(|e| e.eq_ignore_ascii_case(x));
         if input.to_str().is_some_and(|s| s.starts_with("procedural:")) {
-            InputKind::Procedural
-        } else if ext("nvdb") || (!ext("vdb") && has_nanovdb_magic(input)) {
-            InputKind::NanoVdb
-        } else if ext("vdb") {
-            InputKind::Vdb
-        } else {
-            InputKind::Raw
+            return InputKind::Procedural;
+        }
+        match magic_kind(input) {
+            Some(kind) => kind,
+            None if ext("nvdb") => InputKind::NanoVdb,
+            None if ext("vdb") => InputKind::Vdb,
+            None => InputKind::Raw,
         }
     }
 
@@ -506,19 +510,31 @@ impl GivenSourceOptions {
     }
 }
 
-/// Whether the file at `input` starts with NanoVDB's magic (false when it cannot be read).
-/// Only a regular file is opened: opening a FIFO would block, and a device or directory is
-/// refused later with its own message.
-pub(crate) fn has_nanovdb_magic(input: &Path) -> bool {
+/// NanoVDB's magic: the first 8 bytes of a file (and of each grid).
+const NANOVDB_MAGIC: [u8; 8] = *b"NanoVDB0";
+/// OpenVDB's magic: the file's first int32, 0x56444220 (" BDV"), little-endian.
+const OPENVDB_MAGIC: [u8; 4] = [0x20, 0x42, 0x44, 0x56];
+
+/// The format `input`'s first bytes name, if it is a regular file that starts with one of
+/// the magics. Only a regular file is opened (non-blocking, `pin_format::input`): opening a
+/// FIFO would block, and a device or directory is refused later with its own message.
+fn magic_kind(input: &Path) -> Option<InputKind> {
     use std::io::Read;
-    if !std::fs::metadata(input).is_ok_and(|m| m.is_file()) {
-        return false;
+    let (f, len) = pin_format::input::open_regular(input).ok()?;
+    let mut head = Vec::with_capacity(8);
+    f.take(8.min(len)).read_to_end(&mut head).ok()?;
+    if head.starts_with(&NANOVDB_MAGIC) {
+        Some(InputKind::NanoVdb)
+    } else if head.starts_with(&OPENVDB_MAGIC) {
+        Some(InputKind::Vdb)
+    } else {
+        None
     }
-    let mut head = [0u8; 8];
-    std::fs::File::open(input)
-        .and_then(|mut f| f.read_exact(&mut head))
-        .is_ok()
-        && head == *b"NanoVDB0"
+}
+
+/// Whether the file at `input` starts with NanoVDB's magic (false when it cannot be read).
+pub(crate) fn has_nanovdb_magic(input: &Path) -> bool {
+    magic_kind(input) == Some(InputKind::NanoVdb)
 }
 
 /// What to open: the input half of a bake command line.
@@ -567,16 +583,12 @@ pub fn open_source_typed(
         SourceSpec::Raw(path, options) => Ok(OpenedSource::Raw(Box::new(raw::read_raw(
             path, options, scale,
         )?))),
-        // A `.nvdb` name, or NanoVDB's magic whatever the name: the rest go to the OpenVDB
-        // worker.
+        // What the content names (`InputKind::of`: the magic first, the name only where
+        // there is none): NanoVDB in process, the rest through the OpenVDB worker.
         #[cfg(feature = "vdb")]
-        SourceSpec::Vdb(path, options)
-            if InputKind::of(path) == InputKind::NanoVdb || nanovdb::is_nanovdb_file(path) =>
-        {
-            Ok(OpenedSource::Vdb(Box::new(nanovdb::open(
-                path, options, scale,
-            )?)))
-        }
+        SourceSpec::Vdb(path, options) if InputKind::of(path) == InputKind::NanoVdb => Ok(
+            OpenedSource::Vdb(Box::new(nanovdb::open(path, options, scale)?)),
+        ),
         #[cfg(feature = "vdb")]
         SourceSpec::Vdb(path, options) => Ok(OpenedSource::Vdb(Box::new(VdbSource::open(
             path, options, scale,

@@ -423,6 +423,9 @@ fn lying_grid_description() {
                 g.direction_res = [2, 3];
             }),
         ),
+        // Flag bits no version defines (`pinbake verify` accepted 0xFFFFFFFF).
+        ("flags all set", Box::new(|g| g.flags = u32::MAX)),
+        ("flags bit 2", Box::new(|g| g.flags = 4)),
         ("box NaN", Box::new(|g| g.box_min[1] = f64::NAN)),
         ("box inf", Box::new(|g| g.box_max[2] = f64::INFINITY)),
         ("box inverted", Box::new(|g| g.box_min[0] = g.box_max[0])),

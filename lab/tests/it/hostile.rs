@@ -13,6 +13,8 @@ use std::time::Instant;
 
 #[path = "hostile/budget.rs"]
 mod budget;
+#[path = "hostile/outputs.rs"]
+mod outputs;
 #[path = "hostile/sections.rs"]
 mod sections;
 

@@ -150,6 +150,39 @@ fn instances_render_and_flags_override_the_file() {
     }
 }
 
+/// A transform valid by the scene format renders with every estimator: the runtime follows
+/// the format's one singularity rule (`pin_format::transform_condition`), under which axes
+/// scaled 1e-6, 1e6 and 1 are well conditioned (pins and pinms refused it as "singular").
+#[test]
+fn a_scale_the_scene_format_accepts_renders_with_pins() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    bake(d);
+    let sc = scene(
+        d,
+        "thin.json",
+        &format!(
+            r#"{{"assets": {{"c": {{"volume": "{COSINE}", "pins": "c.pin"}}}},
+               "instances": [{{"asset": "c", "transform": {{"scale": [1e-6, 1e6, 1]}}}}],
+               "camera": {{"origin": [0, 0, 3e6], "target": [0, 5e5, 0.5], "fov": 60}}}}"#
+        ),
+    );
+    for est in ["ratio", "pins", "pinms"] {
+        let out = d.join(format!("thin-{est}.exr"));
+        let mut args = vec!["--scene", sc.to_str().unwrap(), "--estimator", est];
+        args.extend(SMALL);
+        args.extend(["--out", out.to_str().unwrap()]);
+        ok(&pinrender(&args));
+        assert!(
+            exr(&out)
+                .iter()
+                .flatten()
+                .all(|v| v.is_finite() && *v >= 0.0),
+            "{est}"
+        );
+    }
+}
+
 /// `--backend gpu` renders a scene of turned, stretched and mirrored instances with the
 /// estimators that read the density as the CPU does: the image means of ratio tracking on
 /// both backends agree within 5 standard errors of their difference, estimated from 6

@@ -309,6 +309,12 @@ pub fn run(args: BakeArgs) -> Result<ExitCode> {
 /// The usage errors of a bake that need several flags or the input's kind (ranges of single
 /// flags are checked by their parsers): exit 2 before any work.
 pub fn check_usage(args: &BakeArgs) -> Result<SourceSpec> {
+    // A GPU flag with the CPU backend would be ignored silently.
+    if args.backend != "gpu" && args.gpu_slab_bytes.is_some() {
+        return Err(anyhow::Error::new(super::UsageError(
+            "--gpu-slab-bytes applies to --backend gpu".into(),
+        )));
+    }
     request(args).validate().map_err(plan_error)?;
     source_spec(args)
 }

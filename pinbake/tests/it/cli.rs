@@ -1157,3 +1157,75 @@ fn embedded_control_bakes_and_verifies() {
         assert_eq!(o.status.code(), Some(2), "{bad}: {}", stderr(&o));
     }
 }
+
+/// The pins and cell index of a pin file (its metadata names the input, so whole files of
+/// inputs under other names differ).
+fn pins_of(path: &Path) -> (Vec<pin_format::PinEntry>, Option<Vec<u32>>) {
+    let (words, len) = pin_format::input::read_aligned(path).unwrap();
+    let bytes = &bytemuck::cast_slice::<u64, u8>(&words)[..len];
+    let f = pin_format::PinFile::parse(bytes).unwrap();
+    (f.pins().to_vec(), f.cell_index().map(<[u32]>::to_vec))
+}
+
+/// A format is recognised by its content (its magic), not its name: an OpenVDB file named
+/// `.nvdb` and a NanoVDB file named `.vdb` bake as what they are, to the same pins as under
+/// their own names (the first went to the NanoVDB reader, "is not a NanoVDB file").
+#[test]
+fn formats_are_recognised_by_content_whatever_the_name() {
+    use pin_volume::InputKind;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let vdb = data("gaffer_sphere_density.vdb");
+    let misnamed_vdb = d.join("sphere.nvdb");
+    std::fs::copy(&vdb, &misnamed_vdb).unwrap();
+    let nano = crate::nanovdb::file_bytes(
+        &crate::nanovdb::Grid::new(
+            crate::nanovdb::Type::Float,
+            vec![crate::nanovdb::leaf([0, 0, 0], |k| (k % 7) as f32 * 0.25)],
+        ),
+        0,
+    );
+    let nvdb = d.join("leaf.nvdb");
+    let misnamed_nvdb = d.join("leaf.vdb");
+    std::fs::write(&nvdb, &nano).unwrap();
+    std::fs::write(&misnamed_nvdb, &nano).unwrap();
+    assert_eq!(InputKind::of(&misnamed_vdb), InputKind::Vdb);
+    assert_eq!(InputKind::of(&misnamed_nvdb), InputKind::NanoVdb);
+    // No magic (a raw file), missing or not regular: the extension decides, so each is
+    // refused by the reader its name asks for.
+    assert_eq!(InputKind::of(&d.join("missing.nvdb")), InputKind::NanoVdb);
+    assert_eq!(InputKind::of(&d.join("missing.vdb")), InputKind::Vdb);
+    assert_eq!(
+        InputKind::of(&data("water_esp_31x34x33_float32.raw")),
+        InputKind::Raw
+    );
+    for (right, wrong) in [(&vdb, &misnamed_vdb), (&nvdb, &misnamed_nvdb)] {
+        let (a, b) = (d.join("right.pin"), d.join("wrong.pin"));
+        bake_ok(right.to_str().unwrap(), &a, &[]);
+        bake_ok(wrong.to_str().unwrap(), &b, &[]);
+        assert_eq!(pins_of(&a), pins_of(&b), "{}", wrong.display());
+    }
+}
+
+/// A GPU flag with the CPU backend is a usage error (it was ignored silently).
+#[test]
+fn a_gpu_slab_budget_needs_the_gpu_backend() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.pin");
+    let o = pinbake(&[
+        "bake",
+        "procedural:box",
+        "-o",
+        out.to_str().unwrap(),
+        "--gpu-slab-bytes",
+        "1M",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_eq!(stderr(&o).trim_end().lines().count(), 1, "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--gpu-slab-bytes applies to --backend gpu"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!out.exists());
+}

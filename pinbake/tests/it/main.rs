@@ -13,6 +13,7 @@ mod default_asset;
 #[cfg(feature = "gpu")]
 mod gpu_bake;
 mod nanovdb_corpus;
+mod outputs;
 mod production;
 mod slurm;
 mod sources;

@@ -407,6 +407,22 @@ int main(int argc, char** argv) {
         f.close();
     }
 
+    // A 512^3 box of active 8^3 tiles (no leaf): a small file whose dense copy is 512 MiB,
+    // for the renderer's budget tests. Not in the manifest either.
+    {
+        auto g = FloatGrid::create(0.0f);
+        g->setName("density");
+        g->setGridClass(GRID_FOG_VOLUME);
+        for (int z = 0; z < 512; z += 8)
+            for (int y = 0; y < 512; y += 8)
+                for (int x = 0; x < 512; x += 8)
+                    g->tree().addTile(1, Coord(x, y, z), 0.25f + 0.125f * ((x + y + z) / 8 % 5),
+                                      true);
+        io::File f(dir + "/tiles_512.vdb");
+        f.write({g});
+        f.close();
+    }
+
     // Read everything back with OpenVDB and dump what it sees.
     std::ofstream js(dir + "/manifest.json");
     js << "{\"openvdb\":" << json_str(getLibraryVersionString()) << ",\"files\":[";

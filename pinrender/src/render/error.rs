@@ -11,6 +11,10 @@ pub enum RenderError {
         path: std::path::PathBuf,
         source: std::io::Error,
     },
+    /// An input file refused by the one input rule (`pin_format::input`): the reason,
+    /// without the path, which the caller names.
+    #[error("{0}")]
+    Input(String),
     #[error("EXR: {0}")]
     Exr(String),
     #[error("PNG: {0}")]

@@ -58,38 +58,91 @@ impl Image {
 
     /// Linear f32 RGB OpenEXR, written to a temporary file beside `path` and renamed.
     pub fn write_exr(&self, path: impl AsRef<Path>) -> Result<(), RenderError> {
+        self.check()?;
+        write_atomic(path.as_ref(), |out| self.encode_exr(out))
+    }
+
+    /// The bytes of [`Image::write_exr`] into `out` (for files written together with others,
+    /// `pin_volume::files::write_together`).
+    pub fn encode_exr<W: Write + std::io::Seek>(&self, out: &mut W) -> Result<(), RenderError> {
         use exr::prelude::{SpecificChannels, Vec2, WritableImage};
         self.check()?;
-        let (w, h) = (self.width as usize, self.height as usize);
-        write_atomic(path.as_ref(), |out| {
-            let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
-                let p = self.rgb[y * w + x];
-                (p[0], p[1], p[2])
-            });
-            // Sequential compression: exr's parallel writer stores the chunks in the order its
-            // threads finish them, so the same image gave different bytes from run to run.
-            exr::prelude::Image::from_channels((w, h), channels)
-                .write()
-                .non_parallel()
-                .to_buffered(out)
-                .map_err(|e| RenderError::Exr(e.to_string()))
-        })
+        let w = self.width as usize;
+        let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
+            let p = self.rgb[y * w + x];
+            (p[0], p[1], p[2])
+        });
+        // Sequential compression: exr's parallel writer stores the chunks in the order its
+        // threads finish them, so the same image gave different bytes from run to run.
+        exr::prelude::Image::from_channels((w, self.height as usize), channels)
+            .write()
+            .non_parallel()
+            .to_buffered(out)
+            .map_err(|e| RenderError::Exr(e.to_string()))
     }
 
     /// Reads the first RGB(A) layer of an EXR file (for references written by
-    /// [`Image::write_exr`]).
+    /// [`Image::write_exr`]). The file is opened by the one input rule
+    /// (`pin_format::input::open_regular`): a FIFO or a device is refused, never opened.
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Image, RenderError> {
-        use exr::prelude::{Vec2, read_first_rgba_layer_from_file};
-        let img = read_first_rgba_layer_from_file(
-            path.as_ref(),
-            |res: Vec2<usize>, _| (res.0, vec![[0f32; 3]; res.0 * res.1]),
-            |px: &mut (usize, Vec<[f32; 3]>),
-             pos: Vec2<usize>,
-             (r, g, b, _a): (f32, f32, f32, f32)| {
-                px.1[pos.1 * px.0 + pos.0] = [r, g, b];
-            },
-        )
-        .map_err(|e| RenderError::Exr(e.to_string()))?;
+        Self::read_exr_of_size(path, None)
+    }
+
+    /// [`Image::read_exr`], refused from the file's header, before its pixels are allocated
+    /// or decoded, unless it is `size` (width, height) pixels: a reference of another size
+    /// fails before a render starts, whatever size the file claims.
+    pub fn read_exr_of_size(
+        path: impl AsRef<Path>,
+        size: Option<(u32, u32)>,
+    ) -> Result<Image, RenderError> {
+        use exr::prelude::{ReadChannels, ReadLayers, Vec2};
+        use std::io::{BufReader, Seek};
+        let path = path.as_ref();
+        let (file, _) = pin_format::input::open_regular(path).map_err(|e| {
+            use pin_format::input::InputError as E;
+            RenderError::Input(match e {
+                E::IsDirectory(_) => "is a directory".into(),
+                E::NotRegular(_) => "not a regular file".into(),
+                E::Io { err, .. } => err.to_string(),
+                E::OutOfMemory { bytes, .. } => format!("out of memory for {bytes} bytes"),
+            })
+        })?;
+        let mut reader = BufReader::new(file);
+        let exr_err = |e: exr::error::Error| RenderError::Exr(e.to_string());
+        if let Some((w, h)) = size {
+            let meta =
+                exr::meta::MetaData::read_from_buffered(&mut reader, false).map_err(exr_err)?;
+            let sizes: Vec<(usize, usize)> = meta
+                .headers
+                .iter()
+                .map(|h| (h.layer_size.0, h.layer_size.1))
+                .collect();
+            if sizes.first() != Some(&(w as usize, h as usize)) {
+                let (fw, fh) = sizes.first().copied().unwrap_or((0, 0));
+                return Err(RenderError::Invalid {
+                    what: "reference",
+                    why: format!("the image is {fw}x{fh}, the render {w}x{h}"),
+                });
+            }
+            reader
+                .rewind()
+                .map_err(|e| RenderError::Exr(e.to_string()))?;
+        }
+        let img = exr::prelude::read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .rgba_channels(
+                |res: Vec2<usize>, _| (res.0, vec![[0f32; 3]; res.0 * res.1]),
+                |px: &mut (usize, Vec<[f32; 3]>),
+                 pos: Vec2<usize>,
+                 (r, g, b, _a): (f32, f32, f32, f32)| {
+                    px.1[pos.1 * px.0 + pos.0] = [r, g, b];
+                },
+            )
+            .first_valid_layer()
+            .all_attributes()
+            .from_buffered(reader)
+            .map_err(exr_err)?;
         let size = img.layer_data.size;
         let out = Image {
             width: u32::try_from(size.0).map_err(|_| RenderError::Exr("too wide".into()))?,
@@ -103,6 +156,11 @@ impl Image {
     /// 8-bit sRGB PNG: `exposure * value`, Reinhard `x / (1 + x)`, sRGB transfer, rounded.
     /// NaN and negative values map to 0. Written atomically.
     pub fn write_png(&self, path: impl AsRef<Path>, exposure: f32) -> Result<(), RenderError> {
+        write_atomic(path.as_ref(), |out| self.encode_png(out, exposure))
+    }
+
+    /// The bytes of [`Image::write_png`] into `out`.
+    pub fn encode_png<W: Write>(&self, out: &mut W, exposure: f32) -> Result<(), RenderError> {
         self.check()?;
         if !exposure.is_finite() || exposure < 0.0 {
             return Err(RenderError::Invalid {
@@ -115,15 +173,13 @@ impl Image {
             .iter()
             .flat_map(|p| p.map(|c| tone_map(c, exposure)))
             .collect();
-        write_atomic(path.as_ref(), |out| {
-            let mut enc = png::Encoder::new(out, self.width, self.height);
-            enc.set_color(png::ColorType::Rgb);
-            enc.set_depth(png::BitDepth::Eight);
-            let png_err = |e: png::EncodingError| RenderError::Png(e.to_string());
-            let mut writer = enc.write_header().map_err(png_err)?;
-            writer.write_image_data(&bytes).map_err(png_err)?;
-            writer.finish().map_err(png_err)
-        })
+        let mut enc = png::Encoder::new(out, self.width, self.height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        let png_err = |e: png::EncodingError| RenderError::Png(e.to_string());
+        let mut writer = enc.write_header().map_err(png_err)?;
+        writer.write_image_data(&bytes).map_err(png_err)?;
+        writer.finish().map_err(png_err)
     }
 }
 

@@ -165,3 +165,28 @@ fn interactive_a_damaged_file_keeps_its_window_open() {
     let _ = child.wait();
     assert_eq!(exited, None, "pinview ended instead of showing the failure");
 }
+
+/// Two outputs of one run may not name one file: one would be written over the other. Refused
+/// before the window opens (so no display is needed here), whatever was already there.
+#[test]
+fn two_outputs_may_not_name_one_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "c.pin", 1.0, None);
+    let x = dir.path().join("x.png");
+    std::fs::write(&x, b"old").unwrap();
+    let link = dir.path().join("link.png");
+    std::os::unix::fs::symlink(&x, &link).unwrap();
+    for (first, second) in [
+        ("--screenshot", "--save"),
+        ("--screenshot", "--window-screenshot"),
+    ] {
+        for other in [&x, &link] {
+            let out = pinview(
+                None,
+                &[s(&pins), "--frames", "1", first, s(&x), second, s(other)],
+            );
+            one_line(&out, 1, "two outputs of one command");
+            assert_eq!(std::fs::read(&x).unwrap(), b"old");
+        }
+    }
+}

@@ -246,7 +246,7 @@ def bake(
         embed_control=_embed_control(embed_control),
         density_scale=density_scale,
         threads=_opt_int("threads", threads, 1, _U32),
-        max_memory=_opt_int("max_memory", max_memory, 0, _U64),
+        max_memory=_opt_int("max_memory", max_memory, 1, _U64),
         max_bytes=_opt_int("max_bytes", max_bytes, 1, _U64),
         spacing=_floats3("spacing", spacing),
         origin=_floats3("origin", origin),

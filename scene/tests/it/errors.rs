@@ -194,3 +194,55 @@ fn files_that_are_not_scenes_are_refused_before_reading() {
     let e = pin_scene::load(&big, None).unwrap_err().to_string();
     assert!(e.contains("more than a scene file may be"), "{e}");
 }
+
+/// Input is quoted at most a few dozen characters: a 60 MiB key made a 125 MB line (quoted
+/// twice), and a string past `MAX_STRING_BYTES` is refused before it is parsed, so that no
+/// copy of it is made.
+#[test]
+fn messages_quote_little_of_the_input() {
+    let key = "k".repeat(2000);
+    for text in [
+        with(&format!(r#""{key}": 1"#)),
+        with_instances(&format!(r#"[{{"asset": "{key}"}}]"#)),
+        format!(r#"{{"assets": {{"{key}": {{"volume": "a.vdb"}}}}, "instances": []}}"#),
+        format!(
+            r#"{{"assets": {{"a": {{"volume": "{key}.vdb"}}}}, "instances": [{{"asset": "a"}}]}}"#
+        ),
+    ] {
+        let e = refusal(&text);
+        assert!(e.len() < 400, "{} bytes: {e}", e.len());
+        assert!(!e.contains(&key), "{e}");
+    }
+    let huge = "x".repeat(pin_scene::MAX_STRING_BYTES + 1);
+    let e = refusal(&with(&format!(r#""{huge}": 1"#)));
+    assert!(
+        e.starts_with(&format!(
+            "a string of {} bytes at line 1, column",
+            pin_scene::MAX_STRING_BYTES + 1
+        )),
+        "{e}"
+    );
+    assert!(e.len() < 200, "{e}");
+}
+
+/// A UTF-8 byte-order mark before the document is skipped (it was "not JSON ... line 1,
+/// column 1").
+#[test]
+fn a_byte_order_mark_is_skipped() {
+    let dir = folder();
+    let text = format!("\u{feff}{}", with(r#""albedo": 0.5"#));
+    let p = write(dir.path(), &text);
+    let s = pin_scene::load(&p, None).unwrap();
+    assert_eq!(s.albedo, Some(0.5));
+}
+
+/// A radiance the renderer's f32 cannot hold is refused at the scene check, by JSON path
+/// (it passed, then failed as "invalid sun: radiance [inf, inf, inf]").
+#[test]
+fn a_radiance_beyond_f32_is_refused_by_path() {
+    let e = refusal(&with(r#""sun": {"radiance": 1e308}"#));
+    assert!(e.starts_with("sun.radiance: "), "{e}");
+    assert!(e.contains("beyond f32"), "{e}");
+    let e = refusal(&with(r#""env_radiance": 1e39"#));
+    assert!(e.starts_with("env_radiance: "), "{e}");
+}

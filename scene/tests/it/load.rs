@@ -134,3 +134,29 @@ fn the_bound_grows_with_the_file_and_stops_at_the_caps() {
     let top = load_bound(pin_scene::MAX_SCENE_BYTES);
     assert!(top < 1 << 30, "{top}");
 }
+
+/// Relative asset paths resolve beside the scene's path as given: through a symlink to the
+/// scene, beside the link, not beside its target (docs/scene.md).
+#[test]
+fn relative_paths_resolve_beside_a_symlink_not_its_target() {
+    let target = folder();
+    let p = write(
+        target.path(),
+        r#"{"assets": {"a": {"volume": "a.vdb"}}, "instances": [{"asset": "a"}]}"#,
+    );
+    let elsewhere = tempfile::tempdir().unwrap();
+    let link = elsewhere.path().join("link.json");
+    std::os::unix::fs::symlink(&p, &link).unwrap();
+    // Beside the link there is no a.vdb yet: refused, naming the path as resolved there.
+    let e = pin_scene::load(&link, None).unwrap_err().to_string();
+    assert!(
+        e.contains("assets.a.volume") && e.contains(&elsewhere.path().display().to_string()),
+        "{e}"
+    );
+    std::fs::write(elsewhere.path().join("a.vdb"), b"").unwrap();
+    let s = pin_scene::load(&link, None).unwrap();
+    assert_eq!(
+        s.assets[0].volume.as_deref(),
+        Some(elsewhere.path().join("a.vdb").as_path())
+    );
+}

@@ -183,21 +183,45 @@ impl Job {
     }
 }
 
-/// Where the images go: `(exr, png)`; `FILE.png` writes the PNG only. Both are checked
-/// against the inputs and refused when they are not a new path or a regular file.
+/// Where the images go: `(exr, png)`; `FILE.png` writes the PNG only. Both follow the
+/// output rule (`pin_volume::files::check_outputs`): a new path or a regular file, none of the
+/// inputs (the reference included), not the same file twice.
 pub(crate) fn outputs(a: &RenderArgs, inputs: &[&Path]) -> Result<(Option<PathBuf>, PathBuf)> {
     let is_png = a
         .out
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
+    let mut inputs = inputs.to_vec();
+    inputs.extend(a.reference.as_deref());
     if is_png {
-        return Ok((None, pin_volume::files::check_output(&a.out, inputs)?));
+        return Ok((None, pin_volume::files::check_output(&a.out, &inputs)?));
     }
     let png = a.out.with_extension("png");
-    Ok((
-        Some(pin_volume::files::check_output(&a.out, inputs)?),
-        pin_volume::files::check_output(&png, inputs)?,
-    ))
+    let mut both = pin_volume::files::check_outputs(&[&a.out, &png], &inputs)?.into_iter();
+    // The image is written as what its name says: an EXR named `x.txt` (or `x`) was.
+    if !a
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+    {
+        crate::usage!(
+            "--out {} must end in .exr (with a .png beside it) or .png",
+            pin_format::input::quoted(&a.out)
+        );
+    }
+    Ok((both.next(), both.next().unwrap_or(png)))
+}
+
+/// The reference image (`--reference`), read before the render: a bad path, a file that is
+/// not regular or an image of another size fails before anything is rendered or written.
+pub(crate) fn read_reference(a: &RenderArgs) -> Result<Option<Image>> {
+    a.reference
+        .as_ref()
+        .map(|r| {
+            Image::read_exr_of_size(r, Some((a.width, a.height)))
+                .map_err(|e| anyhow!("{}: {e}", r.display()))
+        })
+        .transpose()
 }
 
 pub use pinrender::scene_media::Look;
@@ -300,10 +324,7 @@ pub fn run(a: RenderArgs) -> Result<()> {
         )?;
     }
     // Read the reference first: a bad path should not cost a whole render.
-    let reference = match &a.reference {
-        Some(r) => Some(Image::read_exr(r).map_err(|e| anyhow!("{}: {e}", r.display()))?),
-        None => None,
-    };
+    let reference = read_reference(&a)?;
     // The GPU first: its storage binding limit decides between a dense and a bricked copy,
     // and a pin file's bricks that no binding layout holds are refused before they are read.
     let ctx = if a.backend == "gpu" {
@@ -424,14 +445,33 @@ pub(crate) fn write(
         .collect();
     // Checked again: the paths may have been replaced during the render.
     let (exr, png) = outputs(a, &inputs)?;
+    // Compared before anything is written: a failure writes nothing.
+    let scores = match reference {
+        Some(r) => {
+            let path = a.reference.as_deref().unwrap_or(Path::new("reference"));
+            let at = |e| anyhow!("{}: {e}", path.display());
+            Some((
+                block_bias(image, r, 8).map_err(at)?,
+                rmse(image, r).map_err(at)?,
+            ))
+        }
+        None => None,
+    };
+    // The EXR and its PNG land together or not at all (`pin_volume::files::write_together`).
+    let encode_err = |e: pinrender::render::RenderError| std::io::Error::other(e.to_string());
+    let mut files: Vec<(PathBuf, pin_volume::files::WriteFile<'_>)> = Vec::new();
     if let Some(exr) = &exr {
-        image
-            .write_exr(exr)
-            .map_err(|e| anyhow!("{}: {e}", a.out.display()))?;
+        files.push((
+            exr.clone(),
+            Box::new(move |out| image.encode_exr(out).map_err(encode_err)),
+        ));
     }
-    image
-        .write_png(&png, a.flags.exposure)
-        .map_err(|e| anyhow!("{}: {e}", png.display()))?;
+    let exposure = a.flags.exposure;
+    files.push((
+        png.clone(),
+        Box::new(move |out| image.encode_png(out, exposure).map_err(encode_err)),
+    ));
+    pin_volume::files::write_together(files)?;
     pin_cli::errln!(
         "rendered {} with {} ({}): {}x{} at {} spp in {:.2} s -> {}",
         input.display(),
@@ -446,10 +486,7 @@ pub(crate) fn write(
             None => png.display().to_string(),
         }
     );
-    if let (Some(r), Some(path)) = (reference, &a.reference) {
-        let (mean, block) =
-            block_bias(image, r, 8).map_err(|e| anyhow!("{}: {e}", path.display()))?;
-        let rmse = rmse(image, r).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    if let Some(((mean, block), rmse)) = scores {
         // stdout, one line, for scripts; the render summary above goes to stderr. New fields
         // go at the end (scripts read the first ones by position).
         pin_cli::outln!(

@@ -7,13 +7,12 @@ use std::path::Path;
 use anyhow::{Result, anyhow};
 use pinlab::Estimator;
 use pinrender::render::{
-    Budget, DEFAULT_WAVEFRONT_BATCH, Image, RenderSettings, SampleLoop, Scene, render,
-    render_wavefront,
+    Budget, DEFAULT_WAVEFRONT_BATCH, RenderSettings, SampleLoop, Scene, render, render_wavefront,
 };
 use pinrender::scene_media::{self, AssetOptions};
 use pinrt::gpu::GpuContext;
 
-use crate::render_cmd::{Job, RenderArgs, outputs, render_gpu, write};
+use crate::render_cmd::{Job, RenderArgs, outputs, read_reference, render_gpu, write};
 use pinrender::front;
 
 pub fn run(a: RenderArgs, path: &Path) -> Result<()> {
@@ -40,6 +39,14 @@ pub fn run(a: RenderArgs, path: &Path) -> Result<()> {
     };
     let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
     if a.backend == "gpu" && job.look.max_bounces > max_gpu {
+        // Named where the value came from: the flag, or the scene's own key.
+        if a.flags.max_bounces.is_none() {
+            anyhow::bail!(
+                "{}: max_bounces: {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
+                path.display(),
+                job.look.max_bounces
+            );
+        }
         crate::usage!(
             "--max-bounces {} exceeds the GPU limit of {max_gpu} (--backend gpu)",
             job.look.max_bounces
@@ -51,13 +58,9 @@ pub fn run(a: RenderArgs, path: &Path) -> Result<()> {
         inputs.extend(asset.volume.as_deref());
         inputs.extend(asset.pins.as_deref());
     }
-    inputs.extend(a.reference.as_deref());
     outputs(&a, &inputs)?;
     // Read the reference first: a bad path should not cost a whole render.
-    let reference = match &a.reference {
-        Some(r) => Some(Image::read_exr(r).map_err(|e| anyhow!("{}: {e}", r.display()))?),
-        None => None,
-    };
+    let reference = read_reference(&a)?;
     let opts = AssetOptions {
         estimator: spec,
         pin_cells: a.flags.pin_cells,

@@ -75,3 +75,83 @@ fn root_tiles_render_within_max_memory() {
     assert!(lines[0].contains("bricks do not fit"), "{err}");
     assert!(rss < 400 * 1024, "peak RSS {rss} KiB (GPU refusal)");
 }
+
+/// A 512^3 box of active 8^3 tiles, a file of a few hundred KB: its dense copy (512 MiB) is
+/// charged to `--max-memory` before it is made, so the trackers read the tree instead (it
+/// peaked at 539 MB under 16M), and the GPU's dense copy is refused within the budget too.
+#[test]
+fn tile_heavy_vdbs_render_within_max_memory() {
+    let corpus = openvdb::corpus(env!("CARGO_TARGET_TMPDIR"), "pinrender-hostile");
+    let vdb = corpus.join("tiles_512.vdb");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("tiles.exr");
+    let common = [
+        "render",
+        "--volume",
+        vdb.to_str().unwrap(),
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--spp",
+        "1",
+        "--max-memory",
+        "16M",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    for estimator in ["ratio", "rm@0.05"] {
+        let mut args = common.to_vec();
+        args.extend(["--estimator", estimator]);
+        let (code, err, rss) = run_rss(&args, dir.path());
+        assert_eq!(code, Some(0), "{estimator}: {err}");
+        assert!(
+            rss < 128 * 1024,
+            "{estimator}: peak RSS {rss} KiB under --max-memory 16M"
+        );
+    }
+    let mut gpu = common.to_vec();
+    gpu.extend(["--backend", "gpu"]);
+    let (code, err, rss) = run_rss(&gpu, dir.path());
+    assert_eq!(code, Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("do not fit"), "{err}");
+    assert!(rss < 400 * 1024, "peak RSS {rss} KiB (GPU refusal)");
+}
+
+/// A scene file whose text is exactly its load bound (`pin_scene::load_bound`): one 60 MiB
+/// unknown key. Loading stays within the bound (it peaked at 436 MB: the parser's copies of
+/// the key), and the refusal is one short line.
+#[test]
+fn a_scene_at_its_load_bound_stays_within_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let scene = d.join("key.json");
+    let mut text = Vec::with_capacity(61 << 20);
+    text.extend_from_slice(br#"{"assets": {"b": {"volume": "procedural:box"}}, ""#);
+    text.resize(text.len() + (60 << 20), b'k');
+    text.extend_from_slice(br#"": 1, "instances": [{"asset": "b"}]}"#);
+    std::fs::write(&scene, &text).unwrap();
+    let bound = pin_scene::load_bound(text.len() as u64);
+    let out = d.join("o.exr");
+    let (code, err, rss) = run_rss(
+        &[
+            "render",
+            "--scene",
+            scene.to_str().unwrap(),
+            "--max-memory",
+            &bound.to_string(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        d,
+    );
+    assert_eq!(code, Some(1), "{}", &err[..err.len().min(400)]);
+    assert_eq!(err.lines().count(), 1);
+    assert!(err.len() < 400, "{} bytes", err.len());
+    assert!(err.contains("a string of"), "{err}");
+    assert!(
+        (rss as u64) * 1024 < bound,
+        "peak RSS {rss} KiB above the load bound of {bound} bytes"
+    );
+}
