@@ -820,8 +820,8 @@ fn bake_density(
     };
     // Below the source's resolution, each voxel is the mean of the source over it.
     let spacing = e / DVec3::new(dims[0].into(), dims[1].into(), dims[2].into());
-    let sub = crate::embed_density::filter_samples(source, spacing);
-    let value = |i: usize| crate::embed_density::box_filtered(source, centre(i), spacing, sub);
+    let sub = crate::box_filter::filter_samples(source, spacing);
+    let value = |i: usize| crate::box_filter::box_filtered(source, centre(i), spacing, sub);
     let mut values = try_filled("the embedded density", n, f16::ZERO)?;
     values
         .par_iter_mut()

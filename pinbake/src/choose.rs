@@ -356,7 +356,7 @@ pub struct Choice {
     pub stats: VolumeStats,
     /// What the default asset rule weighed and chose ([`crate::default_asset`]), when it
     /// chose the bake.
-    pub asset: Option<crate::default_asset::AssetChoice>,
+    pub asset: Option<crate::asset_choice::AssetChoice>,
 }
 
 /// Cells along each axis for `n` along the longest: in proportion to the box, at least 1, and

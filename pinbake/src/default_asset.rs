@@ -20,10 +20,9 @@
 
 use glam::DVec3;
 use pin_format::Directions;
-use serde::Serialize;
 
+pub use crate::asset_choice::{Alternative, AssetChoice};
 use crate::choose::{self, VolumeStats};
-use crate::embed_density::EmbedDensity;
 use crate::lattice_box::LatticeBox;
 use pin_volume::DensitySource;
 
@@ -51,62 +50,6 @@ pub const FULL_RES_ERROR: f64 = 0.002;
 /// asset": the measured rows of `scripts/asset_sweep.sh` on the gaffer sphere and the smoke
 /// give 0.64 to 0.95: 0.9, the sphere's at factor 2).
 pub const DENSITY_MODEL_SCALE: f64 = 0.9;
-
-/// One alternative the default weighed.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Alternative {
-    /// `pins` (pins alone), `dense` or `sparse` (an embedded f16 density and a small pin
-    /// grid).
-    pub representation: &'static str,
-    /// Source voxels per embedded voxel along each axis (0 for pins alone).
-    pub factor: u32,
-    /// The embedded density's voxels per axis (the pins' cells for pins alone).
-    pub dims: [u32; 3],
-    /// The file's predicted size.
-    pub bytes: u64,
-    pub predicted_error: f64,
-}
-
-/// What the default chose and what it weighed.
-#[derive(Clone, Debug, Serialize)]
-pub struct AssetChoice {
-    /// The alternative chosen (an element of `alternatives`).
-    pub chosen: Alternative,
-    pub alternatives: Vec<Alternative>,
-    /// The byte budget the choice kept to.
-    pub max_bytes: u64,
-    /// The block error it aimed for.
-    pub target_error: f64,
-    /// Whether the chosen alternative's predicted error is at most the target.
-    pub target_met: bool,
-    /// Whether the chosen alternative fits in `max_bytes`.
-    pub fits: bool,
-    /// One sentence: why this one.
-    pub reason: String,
-}
-
-impl AssetChoice {
-    /// The embedded density of the choice (`None` for pins alone).
-    pub fn embed(&self) -> Option<EmbedDensity> {
-        let factor = self.chosen.factor;
-        match self.chosen.representation {
-            "dense" => Some(EmbedDensity::Voxels {
-                factor,
-                sparse: false,
-            }),
-            "sparse" => Some(EmbedDensity::Voxels {
-                factor,
-                sparse: true,
-            }),
-            _ => None,
-        }
-    }
-
-    /// The source voxels per embedded voxel (the lattice box's block), 0 for pins alone.
-    pub fn factor(&self) -> u32 {
-        self.chosen.factor
-    }
-}
 
 /// The pins beside an embedded density: [`ASSET_PIN_CELLS`] and octahedral:
 /// [`ASSET_PIN_OCTAHEDRAL`], one pin per entry.

@@ -18,7 +18,9 @@
 pub use glam;
 
 pub mod alloc;
+pub mod asset_choice;
 pub mod bake;
+pub mod box_filter;
 pub mod choose;
 #[cfg(feature = "cli")]
 pub mod cli_args;

@@ -356,7 +356,7 @@ pub fn sparse_f32_bricks(
 }
 
 /// Voxel centres and brick boxes of `dims` voxels over `bbox`, and the box filter's
-/// sub-samples per axis ([`crate::embed_density::filter_samples`]; 1: the value at the
+/// sub-samples per axis ([`crate::box_filter::filter_samples`]; 1: the value at the
 /// centre).
 struct Geometry {
     min: DVec3,
@@ -383,13 +383,13 @@ impl Geometry {
     /// [`Self::new`], each voxel the box-filtered mean of `source` over it.
     fn filtered(source: &dyn DensitySource, bbox: &Aabb, dims: [u32; 3]) -> Self {
         let mut g = Self::new(bbox, dims);
-        g.sub = crate::embed_density::filter_samples(source, g.spacing);
+        g.sub = crate::box_filter::filter_samples(source, g.spacing);
         g
     }
 
-    /// The value of voxel `v` of `source`: [`crate::embed_density::box_filtered`].
+    /// The value of voxel `v` of `source`: [`crate::box_filter::box_filtered`].
     fn value(&self, source: &dyn DensitySource, v: [u32; 3]) -> f32 {
-        crate::embed_density::box_filtered(source, self.centre(v), self.spacing, self.sub)
+        crate::box_filter::box_filtered(source, self.centre(v), self.spacing, self.sub)
     }
 
     fn centre(&self, v: [u32; 3]) -> DVec3 {

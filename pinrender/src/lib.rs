@@ -17,6 +17,8 @@ pub mod front;
 #[cfg(feature = "gpu")]
 pub mod gpu_render;
 pub mod instance;
+#[cfg(feature = "cli")]
+pub mod look;
 pub mod medium;
 pub mod render;
 #[cfg(feature = "cli")]

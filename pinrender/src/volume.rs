@@ -538,10 +538,6 @@ impl SharedHalves for MappedHalves {
     }
 }
 
-/// Voxels at most of a sparse section that [`pin_file_medium`] tracks as a dense copy
-/// (16 MiB of f32).
-pub const SMALL_SPARSE_AS_DENSE: u64 = 1 << 22;
-
 /// The embedded density of `grid` (opened from `path`) for the trackers: a sparse section as
 /// bricks, whose f16 values are read in place from the grid's mapping (no copy; f32 values
 /// are copied); a dense one as f32 voxels.
@@ -616,16 +612,6 @@ pub fn pin_file_medium(path: &Path, grid: &Arc<PinGrid>) -> Result<PinFileMedium
             .map_err(|e| anyhow!("{}: embedded sparse density: {e}", path.display()))
         })
         .transpose()?;
-    // A small sparse section is tracked as a dense copy: the dense grid's index-space
-    // stepping tracked the 23x10x23 voxels of a fog VDB 2.3x faster than its bricks (same
-    // image), and the copy is at most SMALL_SPARSE_AS_DENSE voxels of f32.
-    let (dense, bricks) = match (dense, bricks) {
-        (None, Some(b)) => match b.to_voxels(SMALL_SPARSE_AS_DENSE) {
-            Some(v) => (Some(Arc::new(v)), None),
-            None => (None, Some(b)),
-        },
-        other => other,
-    };
     let mut medium = PinFileMedium {
         bounds,
         density: dense,

@@ -119,7 +119,7 @@ impl Shell {
             egui_wgpu::RendererOptions::default(),
         ));
         pollster::block_on(painter.set_window(ViewportId::ROOT, Some(window.clone())))
-            .map_err(|e| e.to_string())?;
+            .map_err(window_error)?;
         let render_state = painter.render_state();
         let state = egui_winit::State::new(
             egui_ctx.clone(),
@@ -274,5 +274,32 @@ impl ApplicationHandler<Wake> for Shell {
             Some(at) => event_loop.set_control_flow(ControlFlow::WaitUntil(at)),
             None => event_loop.set_control_flow(ControlFlow::Wait),
         }
+    }
+}
+
+/// The window's GPU failure as a line that says what to do: egui-wgpu's own words for a
+/// surface without formats ("There was no valid format for the surface at all") mean that
+/// no Vulkan driver can present to this display.
+fn window_error(e: egui_wgpu::WgpuError) -> String {
+    match e {
+        egui_wgpu::WgpuError::NoSurfaceFormatsAvailable => NO_SURFACE_FORMAT.to_string(),
+        e => format!("cannot draw into the window: {e}"),
+    }
+}
+
+const NO_SURFACE_FORMAT: &str = "cannot draw into the window: no GPU driver can present to \
+     this display (no surface format). Install a Vulkan driver; without a GPU, Mesa's \
+     lavapipe works: `apt-get install mesa-vulkan-drivers libvulkan1`";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_surface_without_formats_is_one_line_that_says_what_to_do() {
+        let line = window_error(egui_wgpu::WgpuError::NoSurfaceFormatsAvailable);
+        assert!(!line.contains('\n'), "{line}");
+        assert!(!line.contains("There was no valid format"), "{line}");
+        assert!(line.contains("mesa-vulkan-drivers"), "{line}");
     }
 }

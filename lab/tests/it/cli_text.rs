@@ -13,7 +13,8 @@ fn render_help_says_what_the_default_estimator_is() {
     assert!(out.status.success());
     let help = String::from_utf8_lossy(&out.stdout);
     assert!(
-        help.contains("pinms when a density is at hand")
+        help.contains("ratio when it embeds a density")
+            && help.contains("pins when it holds nothing else")
             && help.contains("with --volume alone, ratio"),
         "{help}"
     );

@@ -380,9 +380,11 @@ fn a_scene_render_is_compared_with_its_reference() {
     let err = String::from_utf8_lossy(&o.stderr);
     let last = err.lines().last().unwrap_or_default();
     assert!(
-        last.contains("ref.exr") && last.contains("8x8 vs 24x16"),
+        last.contains("ref.exr") && last.contains("24x16") && last.contains("8x8"),
         "{err}"
     );
+    // Refused before the render: nothing is written.
+    assert!(!small.exists() && !small.with_extension("png").exists());
 }
 
 #[test]

@@ -4,7 +4,7 @@
 use clap::Args;
 use pin_cli::parse::{parse_f64x3, parse_finite, parse_nonneg};
 
-use crate::scene_media::{Look, LookFlags};
+use crate::look::{Look, LookFlags};
 
 /// The flags of a render that the renderer and the viewer share: the camera, the lighting
 /// and the medium's material (each overriding a scene file's value), the seed, the size of an

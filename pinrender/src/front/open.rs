@@ -224,7 +224,7 @@ mod tests {
             super::super::default_estimator(holds(v, p).unwrap(), ESTIMATORS)
         };
         assert_eq!(d(None, Some(&bare)), EstimatorSpec::Pins);
-        assert_eq!(d(None, Some(&dense)), EstimatorSpec::PinMs);
+        assert_eq!(d(None, Some(&dense)), EstimatorSpec::RatioTracking);
         assert_eq!(d(Some(volume), None), EstimatorSpec::RatioTracking);
         assert_eq!(d(Some(volume), Some(&bare)), EstimatorSpec::PinMs);
         // A file that is not a pin file is an error naming it, not a default.

@@ -98,6 +98,13 @@ impl ScriptedInput {
         self.next == self.events.len()
     }
 
+    /// Whether every applied event has been answered by a whole pass shown: the run's last
+    /// passes are painted (heard a frame later) before it ends, so the last event has its
+    /// times too.
+    pub fn answered(&self) -> bool {
+        self.records.iter().all(|r| r.first_full_pass.is_some())
+    }
+
     /// Whether the run is past its end: every event applied and [`GRACE`] after the last
     /// one was due.
     pub fn timed_out(&self, now: Instant) -> bool {

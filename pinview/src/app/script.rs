@@ -22,7 +22,10 @@ impl Viewer {
             .script
             .as_ref()
             .is_some_and(|s| s.timed_out(Instant::now()));
-        let waiting = self.script.as_ref().is_some_and(|s| !s.all_applied())
+        let waiting = self
+            .script
+            .as_ref()
+            .is_some_and(|s| !s.all_applied() || !s.answered())
             || passes < self.script_passes(n)
             || self.session.as_ref().is_some_and(|s| s.next_row() != 0)
             || (self.args.rebake_scale.is_some() && self.rebaked.is_none())

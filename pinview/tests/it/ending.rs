@@ -41,8 +41,8 @@ fn a_comparison_of_one_pass_ends_with_a_pass_on_each_side() {
     assert_eq!(j["compare"]["estimator"], "ratio", "{j}");
 }
 
-/// A sequence whose first frame embeds a density (shown with pinms, the default) and whose
-/// second holds pins only.
+/// A sequence whose first frame embeds a density (shown with ratio tracking, the default for
+/// a pin file that embeds one) and whose second holds pins only.
 fn mixed_sequence(dir: &std::path::Path) -> std::path::PathBuf {
     bake(dir, "mix.0001.pin", 1.0, Some(12));
     bake(dir, "mix.0002.pin", 2.0, None);
@@ -74,7 +74,7 @@ fn a_frame_that_cannot_answer_the_estimator_falls_back_with_a_note() {
     assert_eq!(j["estimator"], "pins", "{j}");
     let notes = j["notes"].to_string();
     assert!(
-        notes.contains("mix.0002.pin") && notes.contains("no embedded density, which pinms needs"),
+        notes.contains("mix.0002.pin") && notes.contains("no embedded density, which ratio needs"),
         "no note of the fallback: {j}"
     );
     // The last frame's image is its own pins render at the passes shown.

@@ -226,10 +226,8 @@ pub(crate) fn read_reference(a: &RenderArgs) -> Result<Option<Image>> {
 
 pub use pinrender::scene_media::Look;
 
+/// `pinrender render` without `--scene` (`main.rs` sends a scene file to `scene_cmd::run`).
 pub fn run(a: RenderArgs) -> Result<()> {
-    if let Some(path) = a.scene.clone() {
-        return crate::scene_cmd::run(a, &path);
-    }
     let budget = a.flags.budget();
     let estimator = match a.estimator {
         Some(e) => e,

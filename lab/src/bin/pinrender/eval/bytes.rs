@@ -375,7 +375,14 @@ pub fn run(a: &EvalArgs, scene_names: &[String], production: &Path) -> Result<()
         // What we have after every scene, so an interrupted run leaves usable output.
         write_csv(&a.out.join(BYTES_CSV), &rows)?;
     }
-    super::plot::bytes_chart(&a.out.join(BYTES_PNG), scene_names, &rows)?;
+    let names = representation_names(&rows);
+    let points = |scene: &str, name: &str| -> Vec<(f64, f64)> {
+        rows.iter()
+            .filter(|r| r.scene == scene && r.representation == name)
+            .map(|r| (r.bytes as f64, r.block8_error))
+            .collect()
+    };
+    super::plot::bytes_chart(&a.out.join(BYTES_PNG), scene_names, &names, &points)?;
     let md = markdown(
         (&rows, &notes, scene_names),
         &s,

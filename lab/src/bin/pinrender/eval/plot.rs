@@ -342,8 +342,15 @@ pub fn error_vs_time_all(path: &Path, results: &[SceneResult]) -> Result<()> {
 /// `eval --bytes`' figure (`bytes.png`): per scene, the 8x8-block error against the file's
 /// bytes, one curve per representation (colours shared across scenes), the source file's
 /// own point (ratio tracking at the same samples: the noise floor) a curve of one point.
-pub fn bytes_chart(path: &Path, scenes: &[String], rows: &[super::bytes::BytesRow]) -> Result<()> {
-    let names = super::bytes::representation_names(rows);
+/// `names` are the representations in legend order; `points(scene, name)` gives a curve's
+/// (bytes, block error) points (the caller owns the rows, so this module imports no eval
+/// mode).
+pub fn bytes_chart(
+    path: &Path,
+    scenes: &[String],
+    names: &[String],
+    points: &dyn Fn(&str, &str) -> Vec<(f64, f64)>,
+) -> Result<()> {
     let cols = if scenes.len() > 1 { 2 } else { 1 };
     let grid_rows = scenes.len().div_ceil(cols).max(1);
     let (cw, ch) = (900u32, 480u32);
@@ -360,10 +367,8 @@ pub fn bytes_chart(path: &Path, scenes: &[String], rows: &[super::bytes::BytesRo
                     color: COLORS[k % COLORS.len()],
                     gpu: false,
                     bold: name.starts_with("pins"),
-                    points: rows
-                        .iter()
-                        .filter(|r| &r.scene == scene && &r.representation == name)
-                        .map(|r| (r.bytes as f64, r.block8_error))
+                    points: points(scene, name)
+                        .into_iter()
                         .filter(|p| p.0 > 0.0 && p.1 > 0.0 && p.1.is_finite())
                         .map(|(x, y)| (x, y, 0))
                         .collect(),
