@@ -339,6 +339,9 @@ pub fn error_vs_time_all(path: &Path, results: &[SceneResult]) -> Result<()> {
     grid_of_scenes(path, results, LEGEND_W, |r| every_curve(r, &pal))
 }
 
+/// A curve's points by (scene, representation name): (bytes, block error).
+pub type CurvePoints<'a> = dyn Fn(&str, &str) -> Vec<(f64, f64)> + 'a;
+
 /// `eval --bytes`' figure (`bytes.png`): per scene, the 8x8-block error against the file's
 /// bytes, one curve per representation (colours shared across scenes), the source file's
 /// own point (ratio tracking at the same samples: the noise floor) a curve of one point.
@@ -349,7 +352,7 @@ pub fn bytes_chart(
     path: &Path,
     scenes: &[String],
     names: &[String],
-    points: &dyn Fn(&str, &str) -> Vec<(f64, f64)>,
+    points: &CurvePoints<'_>,
 ) -> Result<()> {
     let cols = if scenes.len() > 1 { 2 } else { 1 };
     let grid_rows = scenes.len().div_ceil(cols).max(1);
