@@ -533,6 +533,7 @@ fn magic_kind(input: &Path) -> Option<InputKind> {
 }
 
 /// Whether the file at `input` starts with NanoVDB's magic (false when it cannot be read).
+#[cfg(feature = "vdb")]
 pub(crate) fn has_nanovdb_magic(input: &Path) -> bool {
     magic_kind(input) == Some(InputKind::NanoVdb)
 }
