@@ -647,7 +647,11 @@ fn array_values(
 
 /// Refuses, with `MemoryError`, the f32 copy of a volume array of `shape` beside `held` bytes
 /// that the caller holds when the two exceed `budget`; returns the voxel count.
-fn check_copy(shape: &[usize], held: u64, budget: &pin_volume::files::MemoryBudget) -> PyResult<u64> {
+fn check_copy(
+    shape: &[usize],
+    held: u64,
+    budget: &pin_volume::files::MemoryBudget,
+) -> PyResult<u64> {
     let n = shape
         .iter()
         .try_fold(1u64, |acc, &d| acc.checked_mul(d as u64))
