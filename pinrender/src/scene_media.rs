@@ -16,6 +16,7 @@ use pin_volume::DensityScale;
 use pin_volume::files::MemoryBudget;
 use pinrt::SamplerOptions;
 
+use crate::front::open::{PIN_FILE_READ_FACTOR, VOLUME_READ_FACTOR, read_cost};
 use crate::front::{self, Holds, Input, PinsWanted, RenderFlags};
 use crate::instance::{place_medium, world_box};
 use crate::medium::MediumDesc;
@@ -157,11 +158,6 @@ pub fn open_assets(scene: &Scene, o: &AssetOptions) -> Result<Vec<Option<Arc<Ope
     Ok(out)
 }
 
-/// The bytes an asset's file reads are charged at ([`front::open::check_read`]'s rule).
-fn read_cost(path: &Path, factor: u64) -> u64 {
-    std::fs::metadata(path).map_or(0, |m| m.len().saturating_mul(factor))
-}
-
 /// Opens one asset within `budget` (what the assets before it left): its medium and the
 /// bytes it holds (its read, and the pins baked in memory).
 fn open_asset(
@@ -215,7 +211,7 @@ fn open_asset(
             .map_err(|e| named(scene, &at, format!("{e:#}")))?;
             let medium = front::open::with_pins(medium, &input, &flags, budget)
                 .map_err(|e| named(scene, &a.json_path("pins"), format!("{e:#}")))?;
-            let mut cost = read_cost(v, 8);
+            let mut cost = read_cost(v, VOLUME_READ_FACTOR);
             if let Some(grid) = &medium.pins {
                 cost = cost.saturating_add(match pins {
                     Some(p) => read_cost(p, 1),
@@ -260,7 +256,7 @@ fn open_asset(
                     bounds: medium.bounds,
                     medium,
                 },
-                read_cost(p, 3),
+                read_cost(p, PIN_FILE_READ_FACTOR),
             ))
         }
         (None, None) => Err(named(

@@ -50,6 +50,19 @@ impl Input<'_> {
     }
 }
 
+/// What reading a volume file is charged per byte of the file: its voxels up to 8x (f32
+/// values from bytes, a VDB's leaves).
+pub const VOLUME_READ_FACTOR: u64 = 8;
+/// What reading a pin file is charged per byte: mapped in place, its dense density section
+/// widened to f32, at most 3x its length.
+pub const PIN_FILE_READ_FACTOR: u64 = 3;
+
+/// The bytes reading `path` is charged at, `factor` per byte of the file (0 when it cannot
+/// be read: the open that follows reports that).
+pub fn read_cost(path: &Path, factor: u64) -> u64 {
+    std::fs::metadata(path).map_or(0, |m| m.len().saturating_mul(factor))
+}
+
 /// Charges the read of `input`'s file to `budget`: a volume's voxels up to 8x its file (f32
 /// values from bytes, a VDB's leaves); a pin file alone is mapped in place (at most its length
 /// resident), its sparse density's f16 values read there too, and a dense section widened to
@@ -59,13 +72,15 @@ pub fn check_read(input: &Input, budget: &MemoryBudget) -> Result<()> {
     let Some(path) = input.path() else {
         return Ok(());
     };
-    if let Ok(m) = std::fs::metadata(path) {
-        let factor = if input.volume.is_some() { 8 } else { 3 };
-        budget.check(
-            &format!("reading {}", path.display()),
-            m.len().saturating_mul(factor),
-        )?;
-    }
+    let factor = if input.volume.is_some() {
+        VOLUME_READ_FACTOR
+    } else {
+        PIN_FILE_READ_FACTOR
+    };
+    budget.check(
+        &format!("reading {}", path.display()),
+        read_cost(path, factor),
+    )?;
     Ok(())
 }
 
