@@ -584,7 +584,7 @@ mod tests {
     use super::*;
     use pinrender::render::{
         Aabb, Budget, Camera, DeltaTracking, HomogeneousBox, Image, MajorantGrid, Medium,
-        RatioTracking, Sun, rmse,
+        RatioTracking, Sun,
     };
     use std::sync::Arc;
 
@@ -788,52 +788,5 @@ mod tests {
             |im: &Image| im.rgb.iter().map(|p| p[0] as f64).sum::<f64>() / im.rgb.len() as f64;
         let (pm, cm) = (mean(&plain.image), mean(&a.image));
         assert!((pm - cm).abs() < 0.1 * pm, "plain {pm} cached {cm}");
-    }
-
-    /// Cached vs uncached at equal time against a high-spp reference. Prints; run with
-    /// `cargo test -p pinlab
-    /// cache_equal_time -- --ignored --nocapture`.
-    #[test]
-    #[ignore]
-    fn cache_equal_time() {
-        let scene = box_scene(32);
-        let reference = render(&scene, &settings(16_384, None, None)).unwrap();
-        eprintln!(
-            "reference: {} spp in {:.1} s",
-            reference.spp, reference.seconds
-        );
-        for secs in [0.25, 1.0] {
-            let mut st = settings(1, None, None);
-            st.0.budget = Budget::Seconds(secs);
-            let plain = render(&scene, &st).unwrap();
-            let e0 = rmse(&plain.image, &reference.image).unwrap();
-            eprintln!(
-                "{secs} s: uncached {} spp ({:.2} s) RMSE {e0:.4e}",
-                plain.spp, plain.seconds
-            );
-            for (tspp, rel, cell) in [
-                (4u32, 0.05f32, 0.05f32),
-                (16, 0.02, 0.05),
-                (16, 0.1, 0.05),
-                (16, 0.05, 0.1),
-            ] {
-                let cs = CacheSettings {
-                    training_spp: tspp,
-                    max_rel_std_err: rel,
-                    cell_size: cell,
-                    ..CacheSettings::default()
-                };
-                st.1 = Some(cs);
-                let cached = render(&scene, &st).unwrap();
-                let e1 = rmse(&cached.image, &reference.image).unwrap();
-                eprintln!(
-                    "      cached (train {tspp} spp, rel SEM {rel}, cell {cell}) {} spp ({:.2} s) RMSE {e1:.4e} ({:.2}x uncached)",
-                    cached.spp,
-                    cached.seconds,
-                    e1 / e0
-                );
-            }
-            st.1 = None;
-        }
     }
 }

@@ -162,8 +162,6 @@ impl<A: AnalyticOpticalDepth + ?Sized> TransportEstimator for ClosedFormTracker<
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use pinrender::render::{DeltaTracking, MajorantGrid, RatioTracking};
-    use std::time::Instant;
 
     /// The renderer's cosine-noise cube, here with its closed form as the lab's trait.
     pub(crate) use pinrender::testing::CosNoise;
@@ -368,86 +366,6 @@ pub(crate) mod tests {
     impl<A: AnalyticOpticalDepth + ?Sized> Inv for ClosedFormTracker<A> {
         fn inv(&self, p0: DVec3, d: DVec3, len: f64, total: f64, target: f64) -> f64 {
             self.invert(p0, d, len, total, target)
-        }
-    }
-
-    /// Per-query cost of the closed form vs delta / ratio tracking over a 16^3 majorant grid
-    /// of the same field, on the same rays. Prints; run with
-    /// `cargo test -p pinrender --no-default-features
-    /// closed_form_speed -- --ignored --nocapture`.
-    #[test]
-    #[ignore]
-    fn closed_form_speed() {
-        for (k, freq, density) in [
-            (24usize, 20.0f64, 2.0f64),
-            (24, 80.0, 2.0),
-            (48, 160.0, 2.0),
-            (24, 80.0, 20.0),
-        ] {
-            let f = Arc::new(CosNoise::new(k, freq, density, 1));
-            let maj = Arc::new(MajorantGrid::from_field(&*f, [16, 16, 16]).unwrap());
-            let cf = ClosedFormTracker::new(f.clone()).unwrap();
-            let dt = DeltaTracking::new(f.clone(), maj.clone());
-            let rt = RatioTracking::new(f.clone(), maj);
-            let mut rng = Pcg32::new(5, 6);
-            let rays: Vec<(Vec3, Vec3)> = (0..20_000)
-                .map(|_| {
-                    let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-                    (o, rand_dir(&mut rng).as_vec3())
-                })
-                .collect();
-            const REPS: usize = 8;
-            let time = |label: &str, e: &dyn TransportEstimator, dist: bool| -> (f64, f64) {
-                let mut rng = Pcg32::new(9, 9);
-                // Per-ray sums over the repetitions: the estimator's own variance, not the
-                // spread of T between rays.
-                let mut acc = vec![(0.0f64, 0.0f64); rays.len()];
-                let start = Instant::now();
-                for _ in 0..REPS {
-                    for ((o, d), a) in rays.iter().zip(acc.iter_mut()) {
-                        let v = if dist {
-                            e.sample_distance(*o, *d, f32::INFINITY, &mut rng)
-                                .unwrap_or(-1.0) as f64
-                        } else {
-                            e.transmittance(*o, *d, f32::INFINITY, &mut rng) as f64
-                        };
-                        a.0 += v;
-                        a.1 += v * v;
-                    }
-                }
-                let n = REPS as f64 * rays.len() as f64;
-                let ns = start.elapsed().as_secs_f64() * 1e9 / n;
-                let r = REPS as f64;
-                let mean = acc.iter().map(|a| a.0).sum::<f64>() / n;
-                let var = acc
-                    .iter()
-                    .map(|a| (a.1 - a.0 * a.0 / r) / (r - 1.0))
-                    .sum::<f64>()
-                    / rays.len() as f64;
-                eprintln!("  {label:<28} {ns:8.1} ns/query (checksum {mean:.4})");
-                (ns, var)
-            };
-            eprintln!("cosine noise: {k} waves, |w| ~ {freq}, density {density}, unit box");
-            let cf_t = time("closed-form transmittance", &cf, false).0;
-            let cf_d = time("closed-form distance", &cf, true).0;
-            let dt_t = time("delta transmittance", &dt, false).0;
-            let dt_d = time("delta distance", &dt, true).0;
-            let (rt_t, rt_var) = time("ratio transmittance", &rt, false);
-            // Equal error: ratio tracking needs var / eps^2 queries for an RMSE of eps on a
-            // transmittance the closed form gets exactly in one.
-            let eps = 1e-2;
-            eprintln!(
-                "  ratio tracking: mean per-ray variance {rt_var:.3e} per query; \
-                 RMSE {eps} needs {:.0} queries = {:.1}x the closed form's time",
-                rt_var / (eps * eps),
-                rt_var / (eps * eps) * rt_t / cf_t
-            );
-            eprintln!(
-                "  speed-up: transmittance {:.1}x vs delta, {:.1}x vs ratio; distance {:.1}x vs delta",
-                dt_t / cf_t,
-                rt_t / cf_t,
-                dt_d / cf_d
-            );
         }
     }
 }

@@ -776,41 +776,4 @@ mod tests {
         );
         assert!(mse[0] > 1.5 * mse[1], "{mse:?}");
     }
-
-    /// Equal-time variance comparison. Prints; run with `cargo test -p pinrender --no-default-features whole_volume_equal_time --
-    /// --ignored --nocapture`.
-    #[test]
-    #[ignore]
-    fn whole_volume_equal_time() {
-        let s = occluded_scene();
-        let b = WholeVolumeBox::new([0.0; 3], [1.0, 0.6, 0.8], 4.0).unwrap();
-        let reference = render_single_scattering(
-            &s,
-            &b,
-            SingleScatterSampling::WholeVolume,
-            &settings(16_384, 1),
-        )
-        .unwrap();
-        for secs in [0.05, 0.2] {
-            let mut res = vec![];
-            for sampling in [
-                SingleScatterSampling::Distance,
-                SingleScatterSampling::WholeVolume,
-            ] {
-                let mut st = settings(1, 2);
-                st.budget = Budget::Seconds(secs);
-                let out = render_single_scattering(&s, &b, sampling, &st).unwrap();
-                let mse = rmse(&out.image, &reference.image).unwrap().powi(2);
-                eprintln!(
-                    "{sampling:?}: {secs} s budget -> {} spp in {:.3} s, MSE {mse:.3e}",
-                    out.spp, out.seconds
-                );
-                res.push((mse, out.seconds));
-            }
-            eprintln!(
-                "  variance ratio at equal time (MSE x time): {:.2}",
-                (res[0].0 * res[0].1) / (res[1].0 * res[1].1)
-            );
-        }
-    }
 }

@@ -489,67 +489,6 @@ fn missing_file_and_non_vdb_file() {
     assert!(e.contains("not an OpenVDB file"), "{e}");
 }
 
-/// Rough cost of one `extinction` call per source (run with `--ignored --nocapture`; the test
-/// profile is optimised). Random points inside each source's bounds.
-#[test]
-#[ignore]
-fn extinction_cost() {
-    let raw = read_raw(
-        &data("hydrogen_atom_128x128x128_uint8.raw"),
-        &RawOptions::default(),
-        DensityScale::ONE,
-    )
-    .unwrap();
-    let smoke = open_vdb("openvdb_smoke1.vdb", None).unwrap();
-    let cosine = open_source(
-        &SourceSpec::Procedural("cosine:seed=7,freq=16".parse().unwrap()),
-        DensityScale::ONE,
-    )
-    .unwrap();
-    let fractal = open_source(
-        &SourceSpec::Procedural("fractal:seed=7,octaves=4".parse().unwrap()),
-        DensityScale::ONE,
-    )
-    .unwrap();
-    let sources: [(&str, &dyn DensitySource); 4] = [
-        ("grid 128^3 u8", &raw),
-        ("vdb smoke", &smoke),
-        ("cosine 24 waves", cosine.as_ref()),
-        ("fractal 4x24 waves", fractal.as_ref()),
-    ];
-    for (name, s) in sources {
-        let b = s.bounds();
-        let mut state = 0x9e3779b97f4a7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let n = 2_000_000;
-        let pts: Vec<DVec3> = (0..n)
-            .map(|_| b.min + b.extent() * DVec3::new(next(), next(), next()))
-            .collect();
-        let t = Instant::now();
-        let mut acc = 0.0f32;
-        for p in &pts {
-            acc += s.extinction(*p);
-        }
-        let random = t.elapsed().as_nanos() as f64 / n as f64;
-        // Ray-march order: short steps along lines (the baker's access pattern).
-        let mut out = vec![0f32; 256];
-        let t = Instant::now();
-        for k in 0..n / 256 {
-            let o = pts[k];
-            let d = (pts[k + 1] - o).normalize_or_zero() * (b.extent().length() / 256.0);
-            s.extinction_along(o, d, 256, &mut out);
-            acc += out[17];
-        }
-        let march = t.elapsed().as_nanos() as f64 / ((n / 256) * 256) as f64;
-        println!("{name:>20}: random {random:6.1} ns/call, marching {march:6.1} ns/sample ({acc})");
-    }
-}
-
 // ------------------------------------------------------------------------------------------
 // The dense copy a bake marches instead of the sparse tree.
 

@@ -16,8 +16,7 @@
 //! or never.
 //!
 //! The test is branch-free over a chunk of [`CHUNK`] boxes (struct of arrays), so the
-//! compiler vectorises it (SSE): one query tests 64 boxes in 70-90 ns on the 2-core
-//! evaluation machine (`render::tests::timings`), about the cost of one tracker query.
+//! compiler vectorises it (SSE).
 //!
 //! Above the boxes sits one level of hierarchy: the union box of each chunk. A segment that
 //! misses a chunk's union misses every box in it (the slab test is monotone in the box: a
