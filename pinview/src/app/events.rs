@@ -147,7 +147,7 @@ impl Viewer {
             .unwrap_or(std::path::Path::new(""));
         for (k, e) in events.iter().enumerate() {
             if let Action::Frame { index } = e.action {
-                let frames = self.sequence.as_ref().map_or(0, |s| s.len());
+                let frames = self.playback.sequence.as_ref().map_or(0, |s| s.len());
                 if index > frames {
                     return Err(anyhow!(
                         "{}: event {}: frame {index}: {} has {}",

@@ -5,22 +5,46 @@ use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
 use crate::gizmos;
-use crate::pin_overlay::{self, Pick, Projector};
+use crate::pin_overlay::Projector;
+
+/// What the pointer and keys did: the view changed (the accumulation starts again), it is
+/// moving (the box and sun are drawn over the image until the first whole pass of the new
+/// view), where the image stands in the window, and the divider of the split view.
+#[derive(Debug)]
+pub struct Input {
+    pub dirty: bool,
+    pub moving: bool,
+    pub image_rect: Option<egui::Rect>,
+    /// Where the divider stands, as a fraction of the image's width (left: the first
+    /// estimator).
+    pub split: f32,
+}
+
+impl Default for Input {
+    fn default() -> Self {
+        Self {
+            dirty: false,
+            moving: false,
+            image_rect: None,
+            split: 0.5,
+        }
+    }
+}
 
 impl Viewer {
     /// The image with its mouse controls.
     pub(super) fn image(&mut self, ui: &mut egui::Ui) {
-        let (w, h) = self.target.size;
+        let (w, h) = self.images.main.size;
         let avail = ui.available_size();
         let scale = (avail.x / w as f32)
             .min(avail.y / h as f32)
             .clamp(0.05, 1.0);
         let size = egui::vec2(w as f32 * scale, h as f32 * scale);
         let response = ui.add(
-            egui::Image::new(egui::load::SizedTexture::new(self.target.id, size))
+            egui::Image::new(egui::load::SizedTexture::new(self.images.main.id, size))
                 .sense(egui::Sense::click_and_drag()),
         );
-        if self.heat_on
+        if self.overlays.heat_on
             && let Some(t) = &self.error.textures[0]
         {
             ui.painter().image(
@@ -31,9 +55,9 @@ impl Viewer {
             );
         }
         let divider_dragged = self.split_view(ui, response.rect);
-        self.image_rect = Some(response.rect);
-        self.overlays(ui, &response);
-        if self.moving {
+        self.input.image_rect = Some(response.rect);
+        self.draw_overlays(ui, &response);
+        if self.input.moving {
             self.gizmos(ui, response.rect);
         }
         let d = if divider_dragged {
@@ -86,79 +110,25 @@ impl Viewer {
         );
     }
 
-    /// The pins under the cursor (or at the held pixel: a click holds or releases it) and the
-    /// box with its cell grid, projected through the view's camera.
-    pub(super) fn overlays(&mut self, ui: &egui::Ui, response: &egui::Response) {
-        let rect = response.rect;
-        let (w, h) = (f64::from(self.view.width), f64::from(self.view.height));
-        let to_pixel = |p: egui::Pos2| {
-            [
-                (f64::from((p.x - rect.left()) / rect.width().max(1.0)) * w).floor(),
-                (f64::from((p.y - rect.top()) / rect.height().max(1.0)) * h).floor(),
-            ]
-        };
-        if self.pins_on && response.clicked() {
-            self.held_pixel = match self.held_pixel {
-                Some(_) => None,
-                None => response.interact_pointer_pos().map(to_pixel),
-            };
-            self.held = None;
-        }
-        let (Some(grid), Some(proj)) = (self.medium.pins().cloned(), Projector::new(&self.view))
-        else {
-            self.pick = None;
-            return;
-        };
-        let to_screen = |p: [f64; 2]| {
-            egui::pos2(
-                rect.left() + (p[0] / w) as f32 * rect.width(),
-                rect.top() + (p[1] / h) as f32 * rect.height(),
-            )
-        };
-        let painter = ui.painter_at(rect);
-        if self.grid_on {
-            pin_overlay::draw_grid(&painter, &proj, &to_screen, &grid);
-        }
-        if !self.pins_on {
-            self.pick = None;
-            return;
-        }
-        // A hold keeps the entry picked when it was taken, whatever the view does since.
-        if self.held.is_none()
-            && let Some([x, y]) = self.held_pixel
-        {
-            self.held = self.pick_at(x, y);
-        }
-        self.pick = match &self.held {
-            Some(p) => Some(p.clone()),
-            None => response
-                .hover_pos()
-                .map(to_pixel)
-                .and_then(|[x, y]| self.pick_at(x, y)),
-        };
-        if let Some(p) = &self.pick {
-            pin_overlay::draw_pins(&painter, &proj, &to_screen, p);
-        }
-    }
-
     /// The second estimator's image right of the divider, the divider (dragged to move it),
     /// and each side's label: estimator, spp and seconds spent. Returns whether the divider
     /// is being dragged.
     pub(super) fn split_view(&mut self, ui: &mut egui::Ui, rect: egui::Rect) -> bool {
-        let (Some(c), Some(target)) = (&self.compare, &self.compare_target) else {
+        let (Some(c), Some(target)) = (&self.compare.live, &self.images.compare) else {
             return false;
         };
-        let x = rect.left() + self.split * rect.width();
+        let split = self.input.split;
+        let x = rect.left() + split * rect.width();
         let painter = ui.painter_at(rect);
         let right = egui::Rect::from_min_max(egui::pos2(x, rect.top()), rect.max);
         let right_id = match &self.error.textures[1] {
-            Some(t) if self.heat_on => t.id(),
+            Some(t) if self.overlays.heat_on => t.id(),
             _ => target.id,
         };
         painter.image(
             right_id,
             right,
-            egui::Rect::from_min_max(egui::pos2(self.split, 0.0), egui::pos2(1.0, 1.0)),
+            egui::Rect::from_min_max(egui::pos2(split, 0.0), egui::pos2(1.0, 1.0)),
             egui::Color32::WHITE,
         );
         painter.line_segment(
@@ -168,15 +138,14 @@ impl Viewer {
         let label = |est: EstimatorSpec, passes: u32, seconds: f64| {
             format!("{est}  {passes} spp  {seconds:.2} s")
         };
-        let first = self.session.as_ref().map_or(0, |s| s.passes());
         let texts = [
             (
-                label(self.view.estimator, first, self.seconds()),
+                label(self.view.estimator, self.main.passes(), self.main.seconds()),
                 egui::pos2(rect.left() + 4.0, rect.top() + 4.0),
                 egui::Align2::LEFT_TOP,
             ),
             (
-                label(c.estimator, c.session.passes(), c.seconds()),
+                label(c.estimator, c.session.passes(), self.compare.seconds()),
                 // Bottom right: the two labels never overlap on a narrow image.
                 egui::pos2(rect.right() - 4.0, rect.bottom() - 4.0),
                 egui::Align2::RIGHT_BOTTOM,
@@ -202,7 +171,7 @@ impl Viewer {
             ui.ctx().set_cursor_icon(egui::CursorIcon::ResizeHorizontal);
         }
         if r.dragged() {
-            self.split = (self.split + r.drag_delta().x / rect.width().max(1.0)).clamp(0.0, 1.0);
+            self.input.split = (split + r.drag_delta().x / rect.width().max(1.0)).clamp(0.0, 1.0);
         }
         r.dragged()
     }
@@ -237,7 +206,7 @@ impl Viewer {
             self.view.origin = o;
             self.view.target = t;
         }
-        if let Some(s) = &mut self.sequence {
+        if let Some(s) = &mut self.playback.sequence {
             if pressed(Key::Space) {
                 s.playing = !s.playing;
             }
@@ -257,17 +226,8 @@ impl Viewer {
         }
     }
 
-    /// The entry under image pixel `(x, y)` (its centre at `x + 0.5`), where the medium has
-    /// pins and the ray enters the box.
-    pub(super) fn pick_at(&self, x: f64, y: f64) -> Option<Pick> {
-        let grid = self.medium.pins()?;
-        let proj = Projector::new(&self.view)?;
-        let (o, d) = proj.ray(x + 0.5, y + 0.5);
-        pin_overlay::pick(grid, o, d)
-    }
-
     /// The column where the second side's image starts.
     pub(super) fn split_column(&self, width: u32) -> u32 {
-        ((self.split.clamp(0.0, 1.0) * width as f32).round() as u32).min(width)
+        ((self.input.split.clamp(0.0, 1.0) * width as f32).round() as u32).min(width)
     }
 }

@@ -82,6 +82,12 @@ pub struct Target {
     pub size: (u32, u32),
 }
 
+/// The displayed images: the shown estimator's, and the second side's once it has one.
+pub struct Images {
+    pub main: Target,
+    pub compare: Option<Target>,
+}
+
 /// Writes RGBA bytes of `width x height` into `texture` (an [`image_texture`]).
 pub fn write_image(
     queue: &wgpu::Queue,
