@@ -16,8 +16,9 @@ pub struct Input {
     pub moving: bool,
     pub image_rect: Option<egui::Rect>,
     /// Where the divider stands, as a fraction of the image's width (left: the first
-    /// estimator).
+    /// estimator), and whether its handle holds the pointer (a drag that started on it).
     pub split: f32,
+    pub divider_held: bool,
 }
 
 impl Default for Input {
@@ -27,7 +28,40 @@ impl Default for Input {
             moving: false,
             image_rect: None,
             split: 0.5,
+            divider_held: false,
         }
+    }
+}
+
+/// How far from the divider's line (points, either side) a press takes the divider rather
+/// than the camera.
+pub const HANDLE_REACH: f32 = 10.0;
+
+/// The divider's grab handle: a pill on the line at the image's middle height, with grip
+/// marks, brighter while held.
+fn draw_handle(painter: &egui::Painter, x: f32, rect: egui::Rect, held: bool) {
+    let pill = egui::Rect::from_center_size(
+        egui::pos2(x, rect.center().y),
+        egui::vec2(12.0, 40.0f32.min(rect.height())),
+    );
+    let fill = if held {
+        egui::Color32::WHITE
+    } else {
+        egui::Color32::from_gray(210)
+    };
+    painter.rect_filled(pill, 6.0, fill);
+    painter.rect_stroke(
+        pill,
+        6.0,
+        egui::Stroke::new(1.0, egui::Color32::from_black_alpha(200)),
+        egui::StrokeKind::Inside,
+    );
+    for dy in [-6.0, 0.0, 6.0] {
+        let y = pill.center().y + dy;
+        painter.line_segment(
+            [egui::pos2(x - 3.0, y), egui::pos2(x + 3.0, y)],
+            egui::Stroke::new(1.0, egui::Color32::from_gray(80)),
+        );
     }
 }
 
@@ -115,6 +149,7 @@ impl Viewer {
     /// is being dragged.
     pub(super) fn split_view(&mut self, ui: &mut egui::Ui, rect: egui::Rect) -> bool {
         let (Some(c), Some(target)) = (&self.compare.live, &self.images.compare) else {
+            self.input.divider_held = false;
             return false;
         };
         let split = self.input.split;
@@ -158,22 +193,46 @@ impl Viewer {
             painter.rect_filled(r.expand(2.0), 2.0, egui::Color32::from_black_alpha(160));
             painter.galley(r.min, galley, egui::Color32::WHITE);
         }
-        let handle = egui::Rect::from_center_size(
-            egui::pos2(x, rect.center().y),
-            egui::vec2(12.0, rect.height()),
-        );
-        let r = ui.interact(
-            handle,
-            ui.make_persistent_id("pinview divider"),
-            egui::Sense::drag(),
-        );
-        if r.hovered() || r.dragged() {
+        self.grab_divider(ui, rect);
+        draw_handle(&painter, x, rect, self.input.divider_held);
+        self.input.divider_held
+    }
+
+    /// The divider's handle takes the pointer before the camera does: a press within
+    /// [`HANDLE_REACH`] of the line holds it until the button is let go, the divider
+    /// following the pointer, and the image's drag (orbit, pan, sun) sees nothing of it.
+    fn grab_divider(&mut self, ui: &egui::Ui, rect: egui::Rect) {
+        let x = rect.left() + self.input.split * rect.width();
+        let (pressed, down, released, origin, pos, hover) = ui.input(|i| {
+            let p = &i.pointer;
+            (
+                p.primary_pressed(),
+                p.primary_down(),
+                p.primary_released(),
+                p.press_origin(),
+                p.interact_pos(),
+                p.hover_pos(),
+            )
+        });
+        let near = |p: egui::Pos2| {
+            (p.x - x).abs() <= HANDLE_REACH && (rect.top()..=rect.bottom()).contains(&p.y)
+        };
+        if pressed && origin.is_some_and(near) {
+            self.input.divider_held = true;
+        }
+        if self.input.divider_held
+            && (down || released)
+            && let Some(p) = pos
+        {
+            self.input.split = ((p.x - rect.left()) / rect.width().max(1.0)).clamp(0.0, 1.0);
+        }
+        if self.input.divider_held || hover.is_some_and(near) {
             ui.ctx().set_cursor_icon(egui::CursorIcon::ResizeHorizontal);
         }
-        if r.dragged() {
-            self.input.split = (split + r.drag_delta().x / rect.width().max(1.0)).clamp(0.0, 1.0);
+        // Held through the frame the button is let go in, so that frame does not orbit.
+        if self.input.divider_held && !down && !released {
+            self.input.divider_held = false;
         }
-        r.dragged()
     }
 
     pub(super) fn keys(&mut self, ctx: &egui::Context) {

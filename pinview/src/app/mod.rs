@@ -266,6 +266,13 @@ fn initial_estimator(medium: &Medium) -> EstimatorSpec {
 }
 
 impl crate::shell::App for Viewer {
+    fn raw_events(&mut self) -> Vec<egui::Event> {
+        self.script
+            .as_mut()
+            .map(events::ScriptedInput::next_pointer_events)
+            .unwrap_or_default()
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui) {
         let now = Instant::now();
         self.pacer.tick(now);

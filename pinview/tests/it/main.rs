@@ -4,6 +4,7 @@
 
 mod compare;
 mod contract;
+mod divider;
 mod ending;
 mod error_view;
 mod failures;
