@@ -224,6 +224,8 @@ impl Viewer {
             }
             Action::Frame { index } => self.go_to_frame(index - 1)?,
             Action::Resize { width, height } => {
+                // A size asked for is kept: the image no longer follows the window.
+                self.viewport.follow = false;
                 v.width = width;
                 v.height = height;
             }

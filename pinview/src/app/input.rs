@@ -68,11 +68,23 @@ fn draw_handle(painter: &egui::Painter, x: f32, rect: egui::Rect, held: bool) {
 impl Viewer {
     /// The image with its mouse controls.
     pub(super) fn image(&mut self, ui: &mut egui::Ui) {
-        let (w, h) = self.images.main.size;
         let avail = ui.available_size();
+        let ppp = ui.ctx().pixels_per_point();
+        // Nothing accumulated to lose yet: the first size is taken at once.
+        let at_once = self.main.live.is_none() && self.main.pending.is_none();
+        let current = (self.view.width, self.view.height);
+        if let Some((w, h)) =
+            self.viewport
+                .update(avail, ppp, current, std::time::Instant::now(), at_once)
+        {
+            self.view.width = w;
+            self.view.height = h;
+        }
+        let (w, h) = self.images.main.size;
         let scale = (avail.x / w as f32)
             .min(avail.y / h as f32)
-            .clamp(0.05, 1.0);
+            .min(self.viewport.points_per_pixel(ppp))
+            .max(0.01);
         let size = egui::vec2(w as f32 * scale, h as f32 * scale);
         let response = ui.add(
             egui::Image::new(egui::load::SizedTexture::new(self.images.main.id, size))

@@ -16,6 +16,7 @@
 //! * `error`: the error view's read-backs and measurements;
 //! * `events`: scripted input (`--input-script`) replayed, and what each event took;
 //! * `input`: the image, its mouse and keyboard controls and the divider;
+//! * `viewport`: the image's size following the window (debounced), or fixed;
 //! * `overlays`: the pins, the cell grid and the heat map over the image;
 //! * `panels`: the controls; `readouts`: the figures shown; `export`: the saves and the
 //!   batch command; `script`: the scripted run's outputs and its JSON line.
@@ -34,6 +35,7 @@ pub mod readouts;
 mod script;
 mod sessions;
 mod side;
+mod viewport;
 pub mod window;
 
 use std::path::PathBuf;
@@ -60,6 +62,7 @@ use input::Input;
 use overlays::Overlays;
 use playback::Playback;
 use side::Side;
+use viewport::Viewport;
 
 pub use window::native_options;
 use window::{IMAGE_FORMAT, Images, ShotResult};
@@ -109,6 +112,8 @@ pub struct Viewer {
     input: Input,
     /// The coarse image drawn at once when the view changes.
     coarse: Coarse,
+    /// The image's size following the window's central panel, or fixed by the flags.
+    viewport: Viewport,
     /// The pins, the cell grid and the heat map drawn over the image.
     overlays: Overlays,
     /// The longest time between two painted frames.
@@ -165,12 +170,12 @@ impl Viewer {
             own_devices: (info.device_type == wgpu::DeviceType::Cpu).then(|| rs.adapter.clone()),
         };
         let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
-        let images = Images {
-            main: Self::make_target(&gpu.device, &rs.renderer, args.width, args.height, None),
-            compare: None,
-        };
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
         let view = View::new(&args, &medium, wanted);
+        let images = Images {
+            main: Self::make_target(&gpu.device, &rs.renderer, view.width, view.height, None),
+            compare: None,
+        };
         let bakes = Bakes::new(&medium, &args)?;
         let playback = Playback::new(frames.map(|f| Sequence::new(f, opener.clone())), args.play);
         let mut viewer = Self {
@@ -195,6 +200,7 @@ impl Viewer {
             generation: 0,
             input: Input::default(),
             coarse: Coarse::default(),
+            viewport: Viewport::new(!args.size_fixed()),
             overlays: Overlays::new(&args),
             pacer,
             first_image_s: None,

@@ -111,6 +111,7 @@ impl Viewer {
             "sun direction {:.2}, {:.2}, {:.2} (ctrl-drag the image)",
             v.look.sun_dir[0], v.look.sun_dir[1], v.look.sun_dir[2]
         ));
+        self.viewport_controls(ui);
         ui.horizontal(|ui| {
             if ui.button("reset view").clicked() {
                 let (o, t) = self.medium.home();
@@ -237,5 +238,23 @@ impl Viewer {
                     }
                 }
             });
+    }
+
+    /// The image's size: following the window at a resolution scale, or fixed.
+    pub(super) fn viewport_controls(&mut self, ui: &mut egui::Ui) {
+        let v = &mut self.viewport;
+        ui.horizontal(|ui| {
+            ui.checkbox(&mut v.follow, "fill the window");
+            ui.add_enabled(
+                v.follow,
+                egui::Slider::new(&mut v.scale_percent, super::viewport::SCALE_PERCENT)
+                    .suffix("%")
+                    .text("resolution"),
+            );
+        });
+        ui.label(format!(
+            "image {} x {} pixels",
+            self.view.width, self.view.height
+        ));
     }
 }

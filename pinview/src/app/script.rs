@@ -30,6 +30,7 @@ impl Viewer {
             || self.main.in_progress()
             || (self.args.rebake_scale.is_some() && self.bakes.rebaked.is_none())
             || self.awaiting_wanted()
+            || !self.viewport.settled()
             || !self.compare_done()
             || !self.reference_done();
         if waiting && !timed_out {
@@ -121,6 +122,7 @@ impl Viewer {
             "longest_frame_gap_ms": self.pacer.longest_ms(),
             "frames_painted": self.pacer.frames(),
             "offscreen": false,
+            "viewport": self.viewport.json(),
             "notes": self.notes,
             // The batch render of the view shown, at the passes shown.
             "command": self.view.command_line(self.medium.input_flag(), &self.medium.path, passes),

@@ -17,3 +17,4 @@ mod rebake;
 mod scene;
 mod sequence;
 mod support;
+mod viewport;
