@@ -66,6 +66,16 @@ impl Viewer {
                     go_to = Some((s.current + 1) % s.len());
                 }
             });
+            ui.add(
+                egui::Slider::new(&mut self.playback.fps, super::playback::FPS)
+                    .text("fps (at most)"),
+            );
+            // The same value as --frame-passes: the passes each frame holds before the next.
+            ui.add(
+                egui::Slider::new(&mut self.args.frame_passes, 1..=256)
+                    .logarithmic(true)
+                    .text("passes per frame"),
+            );
             // Positions from 1, as the label's "(2 of 5)".
             let mut at = s.current + 1;
             if ui
