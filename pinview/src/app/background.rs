@@ -77,19 +77,19 @@ impl Viewer {
                     if self.args.estimator.is_none() {
                         self.wanted = self.medium.default_estimator();
                     }
-                    self.status = match &done.gpu_refused {
+                    self.toasts.say(match &done.gpu_refused {
                         None => format!("re-baked on the GPU at density scale {scale}"),
                         Some(why) => {
                             format!("re-baked on the CPU at density scale {scale} ({why})")
                         }
-                    };
+                    });
                     self.bakes.rebaked = Some((scale, done.backend, done.gpu_refused));
                 }
                 Err(e) => {
                     if self.args.frames.is_some() {
                         return Err(e);
                     }
-                    self.status = format!("re-bake failed: {e}");
+                    self.toasts.say(format!("re-bake failed: {e}"));
                 }
             }
         }
@@ -103,13 +103,13 @@ impl Viewer {
                     if self.args.estimator.is_none() {
                         self.wanted = self.medium.default_estimator();
                     }
-                    self.status = "pins baked: every estimator is available".into();
+                    self.toasts.say("pins baked: every estimator is available");
                 }
                 Err(e) => {
                     if self.wanted.needs_pins() {
                         return Err(anyhow!("{}: baking pins: {e}", self.medium.path.display()));
                     }
-                    self.status = format!("baking pins failed: {e}");
+                    self.toasts.say(format!("baking pins failed: {e}"));
                 }
             }
         }
@@ -141,11 +141,12 @@ impl Viewer {
                     self.set_medium(m);
                     self.view.origin = o;
                     self.view.target = t;
-                    self.status = format!("opened {}", path.display());
+                    let opened = std::path::absolute(&path).unwrap_or(path);
+                    self.toasts.say(format!("opened {}", opened.display()));
                 }
                 // A scene's messages name the file and the JSON path themselves.
-                Err(e) if crate::open::is_scene_file(&path) => self.status = e.to_string(),
-                Err(e) => self.status = format!("{}: {e}", path.display()),
+                Err(e) if crate::open::is_scene_file(&path) => self.toasts.say(e.to_string()),
+                Err(e) => self.toasts.say(format!("{}: {e}", path.display())),
             }
         }
         Ok(())

@@ -20,25 +20,27 @@ impl Viewer {
             if ui.button("save PNG").clicked() {
                 let (w, h) = self.images.main.size;
                 let path = absolute(format!("pinview-{passes}spp.png"));
-                self.status = match crate::export::read_texture_rgb(
-                    &self.gpu.device,
-                    &self.gpu.queue,
-                    &self.images.main.texture,
-                    w,
-                    h,
-                )
-                .and_then(|rgb| crate::export::write_png(&path, w, h, &rgb))
-                {
-                    Ok(()) => format!("wrote {}", path.display()),
-                    Err(e) => e.to_string(),
-                };
+                self.say_saved(
+                    match crate::export::read_texture_rgb(
+                        &self.gpu.device,
+                        &self.gpu.queue,
+                        &self.images.main.texture,
+                        w,
+                        h,
+                    )
+                    .and_then(|rgb| crate::export::write_png(&path, w, h, &rgb))
+                    {
+                        Ok(()) => format!("wrote {}", path.display()),
+                        Err(e) => e.to_string(),
+                    },
+                );
             }
             if ui.button("save EXR").clicked()
                 && let Some(s) = self.main.session_mut()
             {
                 // The image holds whole passes (one in progress is finished first): the name
                 // says how many it holds, as `copy command`'s --spp does.
-                self.status = match s.image().map_err(|e| anyhow!("{e}")).and_then(|i| {
+                let said = match s.image().map_err(|e| anyhow!("{e}")).and_then(|i| {
                     let path = absolute(format!("pinview-{}spp.exr", s.passes()));
                     i.write_exr(&path)
                         .map(|()| path)
@@ -47,6 +49,7 @@ impl Viewer {
                     Ok(path) => format!("wrote {}", path.display()),
                     Err(e) => e.to_string(),
                 };
+                self.say_saved(said);
             }
             if ui.button("copy command").clicked() {
                 // The passes the accumulation holds once a pass in progress is finished: what
@@ -67,7 +70,7 @@ impl Viewer {
                         // Also on the terminal, where a clipboard is not at hand.
                         let _ = pin_cli::outln!("{}", self.export.command);
                     }
-                    Err(e) => self.status = e.to_string(),
+                    Err(e) => self.toasts.say(e.to_string()),
                 }
             }
         });
@@ -85,4 +88,12 @@ impl Viewer {
 /// went).
 fn absolute(name: String) -> PathBuf {
     std::path::absolute(&name).unwrap_or_else(|_| PathBuf::from(name))
+}
+
+impl Viewer {
+    /// A save's message: a toast, and a line on stdout (the terminal keeps where it went).
+    fn say_saved(&mut self, message: String) {
+        let _ = pin_cli::outln!("{message}");
+        self.toasts.say(message);
+    }
 }

@@ -292,7 +292,7 @@ impl Viewer {
             if let Some(i) = step_to
                 && let Err(e) = self.go_to_frame(i)
             {
-                self.status = e.to_string();
+                self.toasts.say(e.to_string());
             }
         }
     }

@@ -18,6 +18,7 @@
 //! * `input`: the image, its mouse and keyboard controls and the divider;
 //! * `viewport`: the image's size following the window (debounced), or fixed;
 //! * `overlays`: the pins, the cell grid and the heat map over the image;
+//! * `toasts`: status and save messages over the image for a few seconds;
 //! * `panels`: the controls; `readouts`: the figures shown; `export`: the saves and the
 //!   batch command; `script`: the scripted run's outputs and its JSON line.
 
@@ -35,6 +36,7 @@ pub mod readouts;
 mod script;
 mod sessions;
 mod side;
+mod toasts;
 mod viewport;
 pub mod window;
 
@@ -62,6 +64,7 @@ use input::Input;
 use overlays::Overlays;
 use playback::Playback;
 use side::Side;
+use toasts::Toasts;
 use viewport::Viewport;
 
 pub use window::native_options;
@@ -123,7 +126,8 @@ pub struct Viewer {
     /// its preview pass (or warm-up) after the pipeline was made.
     first_preview_s: Option<f64>,
     warm_up_s: Option<f64>,
-    status: String,
+    /// Status and save messages, shown as toasts over the image.
+    toasts: Toasts,
     /// What the viewer did in place of what was asked (an estimator a frame cannot answer),
     /// each once: shown as the status, and the JSON line's `notes`.
     notes: Vec<String>,
@@ -206,7 +210,7 @@ impl Viewer {
             first_image_s: None,
             first_preview_s: None,
             warm_up_s: None,
-            status: String::new(),
+            toasts: Toasts::default(),
             notes: Vec::new(),
             export: Export::default(),
             paused: false,
@@ -235,7 +239,7 @@ impl Viewer {
     /// A note (once): the status line, and the JSON line's `notes`.
     fn note(&mut self, note: String) {
         if !self.notes.contains(&note) {
-            self.status.clone_from(&note);
+            self.toasts.say(note.clone());
             self.notes.push(note);
         }
     }
@@ -247,7 +251,7 @@ impl Viewer {
             }
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         } else {
-            self.status = e.to_string();
+            self.toasts.say(e.to_string());
         }
     }
 }
@@ -303,6 +307,7 @@ impl crate::shell::App for Viewer {
                 egui::ScrollArea::vertical().show(ui, |ui| self.controls(ui));
             });
         egui::CentralPanel::default().show(ui, |ui| self.image(ui));
+        self.toasts.draw(&ctx);
         // Exposure is the tone map's alone; anything else starts the accumulation again.
         let mut a = before.clone();
         let mut b = self.view.clone();

@@ -34,7 +34,7 @@ impl Viewer {
                 && baking != Some(self.bakes.density_scale)
                 && let Err(e) = self.start_rebake(self.bakes.density_scale)
             {
-                self.status = e.to_string();
+                self.toasts.say(e.to_string());
             }
             if let Some((s, job)) = &self.bakes.rebake {
                 ui.add(
@@ -43,9 +43,45 @@ impl Viewer {
                 );
             }
         }
+        ui.horizontal(|ui| {
+            if ui.button("reset view").clicked() {
+                let (o, t) = self.medium.home();
+                self.view.origin = o;
+                self.view.target = t;
+            }
+            if ui
+                .button(if self.paused { "resume" } else { "pause" })
+                .clicked()
+            {
+                self.paused = !self.paused;
+            }
+        });
+        // What a scene leaves out is off whether or not its section is open.
+        if self.medium.scene().is_some() {
+            self.compare_wanted = None;
+            self.overlays.pins_on = false;
+            self.overlays.grid_on = false;
+            self.error_on = false;
+        }
+        if !self.error_on {
+            self.overlays.heat_on = false;
+        }
+        if self.playback.sequence.is_some() {
+            section("sequence", true).show(ui, |ui| self.sequence_controls(ui));
+        }
+        section("estimator", true).show(ui, |ui| self.estimator_controls(ui));
+        section("export", true).show(ui, |ui| self.export_controls(ui));
+        section("readouts", true).show(ui, |ui| self.readouts(ui));
+        section("camera and look", false).show(ui, |ui| self.look_controls(ui));
+        let overlays = self.overlays.pins_on || self.overlays.grid_on;
+        section("overlays", overlays).show(ui, |ui| self.overlay_controls(ui));
+        section("error view", self.error_on).show(ui, |ui| self.error_controls(ui));
+    }
+
+    /// A sequence's frame, play and pause, steps, rate, passes per frame and scrub.
+    fn sequence_controls(&mut self, ui: &mut egui::Ui) {
         let mut go_to = None;
         if let Some(s) = &mut self.playback.sequence {
-            ui.separator();
             ui.label(format!(
                 "frame {} ({} of {})",
                 s.frames[s.current].0,
@@ -88,9 +124,12 @@ impl Viewer {
         if let Some(i) = go_to
             && let Err(e) = self.go_to_frame(i)
         {
-            self.status = e.to_string();
+            self.toasts.say(e.to_string());
         }
-        ui.separator();
+    }
+
+    /// The estimator and the second side's.
+    fn estimator_controls(&mut self, ui: &mut egui::Ui) {
         let available = self.medium.estimators();
         egui::ComboBox::from_label("estimator")
             .selected_text(self.view.estimator.to_string())
@@ -100,11 +139,14 @@ impl Viewer {
                 }
             });
         if self.medium.scene().is_some() {
-            self.compare_wanted = None;
             ui.label(SCENE_NOTE);
         } else {
             self.compare_controls(ui, &available);
         }
+    }
+
+    /// The camera, the lights, the material, the exposure and the image's size.
+    fn look_controls(&mut self, ui: &mut egui::Ui) {
         let v = &mut self.view;
         ui.add(egui::Slider::new(&mut v.look.fov, 5.0..=120.0).text("fov"));
         ui.add(egui::Slider::new(&mut v.look.albedo, 0.0..=1.0).text("albedo"));
@@ -122,31 +164,6 @@ impl Viewer {
             v.look.sun_dir[0], v.look.sun_dir[1], v.look.sun_dir[2]
         ));
         self.viewport_controls(ui);
-        ui.horizontal(|ui| {
-            if ui.button("reset view").clicked() {
-                let (o, t) = self.medium.home();
-                self.view.origin = o;
-                self.view.target = t;
-            }
-            if ui
-                .button(if self.paused { "resume" } else { "pause" })
-                .clicked()
-            {
-                self.paused = !self.paused;
-            }
-        });
-        ui.separator();
-        self.overlay_controls(ui);
-        ui.separator();
-        self.error_controls(ui);
-        ui.separator();
-        self.readouts(ui);
-        ui.separator();
-        self.export_controls(ui);
-        if !self.status.is_empty() {
-            ui.separator();
-            ui.label(egui::RichText::new(&self.status).color(egui::Color32::YELLOW));
-        }
     }
 
     /// The second estimator's menu (split view).
@@ -172,8 +189,6 @@ impl Viewer {
     /// The overlays' toggles and the picked entry's readout.
     pub(super) fn overlay_controls(&mut self, ui: &mut egui::Ui) {
         if self.medium.scene().is_some() {
-            self.overlays.pins_on = false;
-            self.overlays.grid_on = false;
             ui.label("pins under the cursor and the cell grid: one medium only, not a scene");
             return;
         }
@@ -204,8 +219,6 @@ impl Viewer {
     /// The error view's toggles, the reference's state and the RMSE-against-time plot.
     pub(super) fn error_controls(&mut self, ui: &mut egui::Ui) {
         if self.medium.scene().is_some() {
-            self.error_on = false;
-            self.overlays.heat_on = false;
             ui.label("error view: one medium only, not a scene");
             return;
         }
@@ -267,4 +280,9 @@ impl Viewer {
             self.view.width, self.view.height
         ));
     }
+}
+
+/// A collapsible section of the panel, open at first where `open`.
+fn section(title: &str, open: bool) -> egui::CollapsingHeader {
+    egui::CollapsingHeader::new(title).default_open(open)
 }

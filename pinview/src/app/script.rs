@@ -82,6 +82,8 @@ impl Viewer {
                 }
             }
             export::write_png(path, w, h, &rgb)?;
+            self.toasts
+                .say(format!("wrote {}", absolute(path).display()));
         }
         if let Some(path) = &self.args.save {
             let session = self
@@ -92,6 +94,8 @@ impl Viewer {
             image
                 .write_exr(path)
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            self.toasts
+                .say(format!("wrote {}", absolute(path).display()));
         }
         let frame = self
             .playback
@@ -124,6 +128,7 @@ impl Viewer {
             "offscreen": false,
             "viewport": self.viewport.json(),
             "notes": self.notes,
+            "messages": self.toasts.said,
             // The batch render of the view shown, at the passes shown.
             "command": self.view.command_line(self.medium.input_flag(), &self.medium.path, passes),
         });
@@ -246,4 +251,10 @@ impl Viewer {
         ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         Ok(())
     }
+}
+
+/// `path` as an absolute path (the messages say where a file went, whatever the working
+/// directory).
+fn absolute(path: &std::path::Path) -> std::path::PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
 }

@@ -17,4 +17,5 @@ mod rebake;
 mod scene;
 mod sequence;
 mod support;
+mod toasts;
 mod viewport;
