@@ -72,12 +72,13 @@ pub struct ViewArgs {
     /// Draw the box and the cell grid over the image.
     #[arg(long)]
     pub grid_overlay: bool,
-    /// Image width in pixels (1..=16384).
-    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
-    pub width: u32,
+    /// Image width in pixels (1..=16384). Either size flag fixes the image's size; without
+    /// them the image fills the window's viewport and follows it (512 x 512 off-screen).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16384))]
+    pub width: Option<u32>,
     /// Image height in pixels (1..=16384).
-    #[arg(long, default_value_t = 512, value_parser = clap::value_parser!(u32).range(1..=16384))]
-    pub height: u32,
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=16384))]
+    pub height: Option<u32>,
     /// The camera, the lighting and the material, the seed, the size of a volume's bake
     /// (`--pin-cells`: refused for a pin file or a scene), the memory budget and the
     /// exposure: `pinrender render`'s flags, with its ranges and defaults.
@@ -138,7 +139,23 @@ fn parse_pixel(s: &str) -> Result<[f64; 2], String> {
     Ok([x, y])
 }
 
+/// The image's side where no size flag gives it (off-screen, and the window's first frame).
+pub const DEFAULT_SIDE: u32 = 512;
+
 impl ViewArgs {
+    /// The image size the flags give (a side not given: [`DEFAULT_SIDE`]).
+    pub fn size(&self) -> (u32, u32) {
+        (
+            self.width.unwrap_or(DEFAULT_SIDE),
+            self.height.unwrap_or(DEFAULT_SIDE),
+        )
+    }
+
+    /// Whether a size flag fixes the image's size (else the window's viewport sets it).
+    pub fn size_fixed(&self) -> bool {
+        self.width.is_some() || self.height.is_some()
+    }
+
     /// The bake the viewer makes of a volume: `pinbake bake`'s choice, with the cells
     /// `--pin-cells` gives (`pinrender::volume::pins_for`'s request).
     pub fn preview_bake(&self) -> crate::open::PreviewBake {

@@ -1,14 +1,12 @@
-//! Compare: a second estimator on the same view, with its own renderer (the media that
-//! estimator reads) and progressive session, given the same GPU time as the first by the
-//! measured time of their passes (not by pass count), and shown right of a divider.
+//! Compare's equal time: a side's time charged by the measured time of its passes (not by
+//! pass count), and the scheduler that gives the second estimator of the split view the
+//! same GPU time as the first (each side's renderer and session is the window's
+//! `app::side::Side`).
 
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, anyhow};
-use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, PassTimeSource};
-use pinrender::render::EstimatorSpec;
-
-use crate::build::Relay;
+use pinrender::gpu_render::{GpuSession, PassTimeSource};
 
 /// A side's time, charged by its measured pass time: each call that adds rows measures
 /// its wall time over those rows (each slice is waited for: the device's time plus the
@@ -73,79 +71,6 @@ impl PassClock {
     /// Seconds charged to the side so far.
     pub fn seconds(&self) -> f64 {
         self.charged
-    }
-}
-
-/// The second estimator's renderer and session; its displayed texture is the viewer's.
-pub struct CompareSide {
-    pub estimator: EstimatorSpec,
-    renderer: GpuRenderer,
-    pub session: GpuSession,
-    /// The tone map on the renderer's own device, where it has one (`crate::build`).
-    pub relay: Option<Relay>,
-    /// Wall time spent adding this session's passes (the time where the device has no
-    /// timestamp queries).
-    pub render_seconds: f64,
-    pub clock: PassClock,
-}
-
-impl CompareSide {
-    /// The side of `estimator` with its renderer and empty session (built off the window's
-    /// thread: `crate::build`).
-    pub fn from_built(
-        estimator: EstimatorSpec,
-        renderer: GpuRenderer,
-        session: GpuSession,
-    ) -> Self {
-        Self {
-            estimator,
-            renderer,
-            session,
-            relay: None,
-            render_seconds: 0.0,
-            clock: PassClock::default(),
-        }
-    }
-
-    /// Starts the accumulation again (the view changed, or the first side restarted).
-    pub fn reset(&mut self, scene: &GpuScene, seed: u64) -> Result<()> {
-        if (self.session.width(), self.session.height())
-            != (scene.camera.width, scene.camera.height)
-        {
-            self.session = self
-                .renderer
-                .session(scene, self.estimator, seed)
-                .map_err(|e| anyhow!("{e}"))?;
-        } else {
-            self.session
-                .reset(scene, seed)
-                .map_err(|e| anyhow!("{e}"))?;
-        }
-        self.render_seconds = 0.0;
-        self.clock = PassClock::default();
-        Ok(())
-    }
-
-    /// Adds up to `max_passes` passes within `budget` and measures them.
-    pub fn add(&mut self, budget: Duration, slice: Duration, max_passes: u32) -> Result<()> {
-        self.clock.add(
-            &mut self.session,
-            &mut self.render_seconds,
-            budget,
-            slice,
-            max_passes,
-        )
-    }
-
-    /// The side's time (its passes at its current pass time).
-    pub fn seconds(&self) -> f64 {
-        self.clock.seconds()
-    }
-
-    /// Milliseconds per pass as the first side's `ms_per_pass` is measured (GPU timestamps
-    /// where the device has them).
-    pub fn ms_per_pass(&self) -> f64 {
-        ms_per_pass(&self.session, self.render_seconds)
     }
 }
 

@@ -6,7 +6,7 @@
 use std::time::Duration;
 
 use anyhow::{Result, anyhow};
-use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession};
+use pinrender::gpu_render::GpuSession;
 use pinrender::render::EstimatorSpec;
 
 use crate::open::Medium;
@@ -36,37 +36,6 @@ pub fn no_reference_reason(medium: &Medium) -> Option<String> {
             medium.path.display()
         )
     })
-}
-
-/// The reference: ratio tracking on the same view, its own renderer and session.
-pub struct Reference {
-    renderer: GpuRenderer,
-    pub session: GpuSession,
-}
-
-impl Reference {
-    /// The reference with its renderer and empty session (built off the window's thread:
-    /// `crate::build`, with the seed [`REFERENCE_SEED_XOR`] flips).
-    pub fn from_built(renderer: GpuRenderer, session: GpuSession) -> Self {
-        Self { renderer, session }
-    }
-
-    pub fn reset(&mut self, scene: &GpuScene, seed: u64) -> Result<()> {
-        let seed = seed ^ REFERENCE_SEED_XOR;
-        if (self.session.width(), self.session.height())
-            != (scene.camera.width, scene.camera.height)
-        {
-            self.session = self
-                .renderer
-                .session(scene, REFERENCE_ESTIMATOR, seed)
-                .map_err(|e| anyhow!("{e}"))?;
-        } else {
-            self.session
-                .reset(scene, seed)
-                .map_err(|e| anyhow!("{e}"))?;
-        }
-        Ok(())
-    }
 }
 
 /// A session's mean image (linear RGB per pixel, x fastest) read back without finishing a

@@ -9,7 +9,10 @@
 //! * `estimator {"name"}`: the estimator shown (as `--estimator`);
 //! * `exposure {"stops"}`: the exposure becomes `--exposure` times 2^stops;
 //! * `frame {"index"}`: a sequence's frame at this position, from 1 (as the label's "2 of 5");
-//! * `resize {"width", "height"}`: the image's size in pixels.
+//! * `resize {"width", "height"}`: the image's size in pixels;
+//! * `drag {"from": [x, y], "to": [x, y]}`: the primary button pressed at image pixel `from`
+//!   (from the top-left corner, as `--pin-at`), moved to `to` over a few frames and let go,
+//!   as the mouse would: what it moves (the camera, the divider) is the window's to decide.
 //!
 //! Every event's keys are checked: an unknown key or action, a missing or out-of-range
 //! parameter is refused with the file and the event's position.
@@ -37,6 +40,7 @@ pub enum Action {
     Exposure { stops: f64 },
     Frame { index: usize },
     Resize { width: u32, height: u32 },
+    Drag { from: [f64; 2], to: [f64; 2] },
 }
 
 impl Action {
@@ -51,6 +55,7 @@ impl Action {
             Action::Exposure { .. } => "exposure",
             Action::Frame { .. } => "frame",
             Action::Resize { .. } => "resize",
+            Action::Drag { .. } => "drag",
         }
     }
 }
@@ -112,7 +117,8 @@ fn event(v: &Value) -> Result<Event> {
     let action = match o.get("action") {
         Some(Value::String(s)) => s.as_str(),
         _ => bail!(
-            "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, resize"
+            "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
+             drag"
         ),
     };
     let at_s = number(o, "at_s")?;
@@ -190,8 +196,16 @@ fn event(v: &Value) -> Result<Event> {
                 height: integer(o, "height", 1, 16384)? as u32,
             },
         ),
+        "drag" => (
+            &["from", "to"],
+            Action::Drag {
+                from: pixel(o, "from")?,
+                to: pixel(o, "to")?,
+            },
+        ),
         other => bail!(
-            "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize)",
+            "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
+             drag)",
             pin_cli_quote(other)
         ),
     };
@@ -225,6 +239,24 @@ fn number(o: &Map<String, Value>, key: &str) -> Result<f64> {
         .ok_or_else(|| anyhow!("{key:?} must be a finite number"))
 }
 
+/// An image pixel `[x, y]`: two finite numbers, at least 0 (one past the image's side is a
+/// point beside the image, as the mouse could be).
+fn pixel(o: &Map<String, Value>, key: &str) -> Result<[f64; 2]> {
+    match o.get(key) {
+        Some(Value::Array(a)) if a.len() == 2 => {
+            let mut p = [0.0; 2];
+            for (x, v) in p.iter_mut().zip(a) {
+                *x = v
+                    .as_f64()
+                    .filter(|x| x.is_finite() && *x >= 0.0)
+                    .ok_or_else(|| anyhow!("{key:?} must be [x, y], two numbers >= 0"))?;
+            }
+            Ok(p)
+        }
+        _ => bail!("{key:?} must be [x, y], two numbers >= 0"),
+    }
+}
+
 fn integer(o: &Map<String, Value>, key: &str, min: u64, max: u64) -> Result<u64> {
     o.get(key)
         .and_then(Value::as_u64)
@@ -247,7 +279,8 @@ mod tests {
             {"at_s": 2, "action": "estimator", "name": "ratio"},
             {"at_s": 2, "action": "exposure", "stops": -1.5},
             {"at_s": 3, "action": "frame", "index": 2},
-            {"at_s": 4, "action": "resize", "width": 64, "height": 32}
+            {"at_s": 4, "action": "resize", "width": 64, "height": 32},
+            {"at_s": 5, "action": "drag", "from": [24, 10.5], "to": [3, 10]}
         ]"#,
         )
         .unwrap();
@@ -272,6 +305,10 @@ mod tests {
                 Action::Resize {
                     width: 64,
                     height: 32
+                },
+                Action::Drag {
+                    from: [24.0, 10.5],
+                    to: [3.0, 10.0]
                 },
             ]
         );
@@ -321,6 +358,14 @@ mod tests {
         bad(
             r#"[{"at_s": 0, "action": "estimator", "name": "nope"}]"#,
             "estimator's name",
+        );
+        bad(
+            r#"[{"at_s": 0, "action": "drag", "from": [1, -2], "to": [0, 0]}]"#,
+            "\"from\" must be [x, y]",
+        );
+        bad(
+            r#"[{"at_s": 0, "action": "drag", "from": [1, 2]}]"#,
+            "\"to\"",
         );
     }
 }

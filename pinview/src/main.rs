@@ -110,7 +110,7 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
     // One budget for the command: the image buffers first, as `pinrender render` charges
     // them, then the file (its read, copies and bake) within the same budget.
     let budget = a.flags.budget();
-    pinrender::front::flags::check_image(&budget, a.width, a.height)?;
+    pinrender::front::flags::check_image(&budget, a.size().0, a.size().1)?;
     let pattern = sequence::pattern(&a.file)?;
     if a.play && a.frames.is_some() && pattern.is_none() {
         pin_cli::usage!(

@@ -27,6 +27,12 @@ pub struct CreationContext {
 /// A program drawn in the window: its whole user interface, once per frame.
 pub trait App {
     fn ui(&mut self, ui: &mut egui::Ui);
+
+    /// Input events the app itself gives its next frame, after the window's own (scripted
+    /// pointer input).
+    fn raw_events(&mut self) -> Vec<egui::Event> {
+        Vec::new()
+    }
 }
 
 /// The window's title and size and the wgpu setup it opens.
@@ -162,6 +168,7 @@ impl Shell {
             .viewports
             .insert(ViewportId::ROOT, r.viewport_info.clone());
         let app = &mut r.app;
+        raw_input.events.extend(app.raw_events());
         let mut output = r.egui_ctx.run_ui(raw_input, |ui| app.ui(ui));
         r.state
             .handle_platform_output(&r.window, std::mem::take(&mut output.platform_output));

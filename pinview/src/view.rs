@@ -35,8 +35,8 @@ impl View {
         let look = f.look(scene);
         Self {
             estimator,
-            width: a.width,
-            height: a.height,
+            width: a.size().0,
+            height: a.size().1,
             origin,
             target,
             look,

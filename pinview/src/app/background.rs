@@ -1,5 +1,5 @@
 //! Background work the window polls each frame: the first bake of a volume's pins, a
-//! re-bake at another density scale, a sequence's next frame, a dropped file.
+//! re-bake at another density scale, a playing sequence's next frame, a dropped file.
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -7,7 +7,40 @@ use std::sync::Arc;
 use anyhow::{Result, anyhow};
 
 use super::Viewer;
-use crate::open::{BakeJob, PreviewBake};
+use crate::args::ViewArgs;
+use crate::open::{BakeJob, Medium, PreviewBake, Rebaked};
+
+/// A volume's bakes: the first bake of its pins, a re-bake at another density scale (its
+/// scale and job), the density scale as shown, and the last re-bake swapped in (its scale,
+/// backend and why the GPU refused, if it did).
+pub struct Bakes {
+    pub bake: Option<BakeJob>,
+    pub rebake: Option<(f64, BakeJob<Rebaked>)>,
+    pub density_scale: f64,
+    pub rebaked: Option<(f64, &'static str, Option<String>)>,
+}
+
+impl Bakes {
+    /// The first bake started for a volume (nothing to bake for a pin file or a scene).
+    pub fn new(medium: &Medium, args: &ViewArgs) -> Result<Self> {
+        let bake = if medium.is_volume {
+            Some(BakeJob::start(medium, args.preview_bake())?)
+        } else {
+            None
+        };
+        Ok(Self {
+            bake,
+            rebake: None,
+            density_scale: args.read.density_scale.get(),
+            rebaked: None,
+        })
+    }
+
+    /// Whether a bake or re-bake runs in the background.
+    pub fn running(&self) -> bool {
+        self.bake.is_some() || self.rebake.is_some()
+    }
+}
 
 impl Viewer {
     /// Re-bakes the shown volume at density scale `scale` on the GPU in the background; the
@@ -24,82 +57,63 @@ impl Viewer {
             ..self.args.preview_bake()
         };
         let job = BakeJob::rebake(self.medium.path.clone(), args, bake)?;
-        self.rebake = Some((scale, job));
+        self.bakes.rebake = Some((scale, job));
         Ok(())
     }
 
     /// Background work: the bake, the re-bake, the sequence, dropped files.
     pub(super) fn poll_background(&mut self, ctx: &egui::Context) -> Result<()> {
-        if let Some((scale, job)) = &mut self.rebake
+        if let Some((scale, job)) = &mut self.bakes.rebake
             && let Some(done) = job.finished()
         {
             let scale = *scale;
-            self.rebake = None;
+            self.bakes.rebake = None;
             match done {
                 Ok(done) => {
                     // The first bake of the old scale is of no use any more.
-                    self.bake = None;
+                    self.bakes.bake = None;
                     self.set_medium(done.medium);
-                    self.density_scale = scale;
+                    self.bakes.density_scale = scale;
                     if self.args.estimator.is_none() {
                         self.wanted = self.medium.default_estimator();
                     }
-                    self.status = match &done.gpu_refused {
+                    self.toasts.say(match &done.gpu_refused {
                         None => format!("re-baked on the GPU at density scale {scale}"),
                         Some(why) => {
                             format!("re-baked on the CPU at density scale {scale} ({why})")
                         }
-                    };
-                    self.rebaked = Some((scale, done.backend, done.gpu_refused));
+                    });
+                    self.bakes.rebaked = Some((scale, done.backend, done.gpu_refused));
                 }
                 Err(e) => {
                     if self.args.frames.is_some() {
                         return Err(e);
                     }
-                    self.status = format!("re-bake failed: {e}");
+                    self.toasts.say(format!("re-bake failed: {e}"));
                 }
             }
         }
-        if let Some(job) = &mut self.bake
+        if let Some(job) = &mut self.bakes.bake
             && let Some(done) = job.finished()
         {
-            self.bake = None;
+            self.bakes.bake = None;
             match done {
                 Ok(grid) => {
                     self.medium.set_pins(Arc::new(grid));
                     if self.args.estimator.is_none() {
                         self.wanted = self.medium.default_estimator();
                     }
-                    self.status = "pins baked: every estimator is available".into();
+                    self.toasts.say("pins baked: every estimator is available");
                 }
                 Err(e) => {
                     if self.wanted.needs_pins() {
                         return Err(anyhow!("{}: baking pins: {e}", self.medium.path.display()));
                     }
-                    self.status = format!("baking pins failed: {e}");
+                    self.toasts.say(format!("baking pins failed: {e}"));
                 }
             }
         }
-        let frame_passes = self.args.frame_passes;
-        let done = self.session.as_ref().map_or(0, |s| s.passes());
-        // A scripted run plays the sequence once and stops on its last frame.
-        let scripted = self.args.frames.is_some();
-        let next = match &self.sequence {
-            Some(s)
-                if s.playing
-                    && !self.paused
-                    && done >= frame_passes
-                    && s.len() > 1
-                    && !(scripted && s.current + 1 == s.len()) =>
-            {
-                Some((s.current + 1) % s.len())
-            }
-            _ => None,
-        };
-        if let Some(i) = next {
-            self.go_to_frame(i)?;
-            self.play_steps.push(std::time::Instant::now());
-        }
+        self.step_playback()?;
         let dropped: Vec<PathBuf> = ctx.input(|i| {
             i.raw
                 .dropped_files
@@ -111,7 +125,7 @@ impl Viewer {
             match (self.opener)(&path) {
                 Ok(m) => {
                     let (o, t) = m.home();
-                    self.bake = if m.is_volume {
+                    self.bakes.bake = if m.is_volume {
                         BakeJob::start(
                             &m,
                             PreviewBake {
@@ -123,27 +137,18 @@ impl Viewer {
                     } else {
                         None
                     };
-                    self.sequence = None;
+                    self.playback.sequence = None;
                     self.set_medium(m);
                     self.view.origin = o;
                     self.view.target = t;
-                    self.status = format!("opened {}", path.display());
+                    let opened = std::path::absolute(&path).unwrap_or(path);
+                    self.toasts.say(format!("opened {}", opened.display()));
                 }
                 // A scene's messages name the file and the JSON path themselves.
-                Err(e) if crate::open::is_scene_file(&path) => self.status = e.to_string(),
-                Err(e) => self.status = format!("{}: {e}", path.display()),
+                Err(e) if crate::open::is_scene_file(&path) => self.toasts.say(e.to_string()),
+                Err(e) => self.toasts.say(format!("{}: {e}", path.display())),
             }
         }
-        Ok(())
-    }
-
-    pub(super) fn go_to_frame(&mut self, i: usize) -> Result<()> {
-        let Some(s) = &mut self.sequence else {
-            return Ok(());
-        };
-        let m = s.go_to(i)?;
-        self.frames_played.push(s.frames[s.current].0);
-        self.set_medium(m);
         Ok(())
     }
 }

@@ -23,9 +23,34 @@ pub const COARSE_BUDGET: Duration = Duration::from_millis(50);
 /// The coarse image's longer side at the least.
 const MIN_SIDE: u32 = 16;
 
+/// The coarse image's state: whether one is due (the view changed this frame), its session
+/// and its longer side, following its measured time.
+pub struct Coarse {
+    pub due: bool,
+    session: Option<CoarseSession>,
+    side: u32,
+}
+
+impl Default for Coarse {
+    fn default() -> Self {
+        Self {
+            due: false,
+            session: None,
+            side: build::PREVIEW_SIDE,
+        }
+    }
+}
+
+impl Coarse {
+    /// Drops the coarse session (the shown renderer or the medium changed).
+    pub fn forget(&mut self) {
+        self.session = None;
+    }
+}
+
 /// The coarse session, kept between changes (a reset, not a new session, per drag step),
 /// with the tone map on its device.
-pub struct Coarse {
+struct CoarseSession {
     estimator: EstimatorSpec,
     session: GpuSession,
     relay: Relay,
@@ -36,18 +61,19 @@ impl Viewer {
     /// image is larger than the coarse one and the shown renderer is in; returns whether it
     /// drew.
     pub(super) fn draw_coarse(&mut self) -> Result<bool> {
-        let Some((est, renderer)) = &self.renderer else {
+        let Some(live) = &self.main.live else {
             return Ok(false);
         };
+        let (est, renderer) = (&live.estimator, &live.renderer);
         let (w, h) = (self.view.width, self.view.height);
-        let Some((pw, ph, f)) = build::scaled_size(w, h, self.coarse_side) else {
+        let Some((pw, ph, f)) = build::scaled_size(w, h, self.coarse.side) else {
             return Ok(false);
         };
         let started = Instant::now();
         let mut scene = self.view.scene();
         (scene.camera.width, scene.camera.height) = (pw, ph);
         let seed = self.view.seed;
-        let mut coarse = match self.coarse.take() {
+        let mut coarse = match self.coarse.session.take() {
             Some(mut c)
                 if c.estimator == *est && (c.session.width(), c.session.height()) == (pw, ph) =>
             {
@@ -59,7 +85,7 @@ impl Viewer {
                     .session(&scene, *est, seed)
                     .map_err(|e| anyhow!("{e}"))?;
                 let relay = Relay::new(session.device());
-                Coarse {
+                CoarseSession {
                     estimator: *est,
                     session,
                     relay,
@@ -68,15 +94,15 @@ impl Viewer {
         };
         coarse.session.add_passes(1).map_err(|e| anyhow!("{e}"))?;
         let rgba = coarse.relay.image(&coarse.session, self.view.exposure)?;
-        let t = &self.target;
+        let t = &self.images.main;
         let drawn = t.size == (w, h);
         if drawn {
             let full = build::upscale(&rgba, pw, ph, f, w, h);
             write_image(&self.gpu.queue, &t.texture, w, h, &full);
             self.shown.get_or_insert(Shown::Preview);
         }
-        self.coarse = Some(coarse);
-        self.coarse_side = next_side(self.coarse_side, started.elapsed());
+        self.coarse.session = Some(coarse);
+        self.coarse.side = next_side(self.coarse.side, started.elapsed());
         Ok(drawn)
     }
 }

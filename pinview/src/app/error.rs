@@ -13,10 +13,7 @@ impl Viewer {
     pub(super) fn error_due(&self) -> bool {
         self.error_on
             && self.args.frames.is_none()
-            && self
-                .reference
-                .as_ref()
-                .is_some_and(|r| r.session.passes() > 0)
+            && self.reference.passes() > 0
             && self
                 .error
                 .last
@@ -26,10 +23,10 @@ impl Viewer {
     /// Reads the accumulations back (at most once per [`error_view::ERROR_PERIOD`], or now
     /// with `now`) and measures each side against the reference: RMSE, plot point, heat map.
     pub(super) fn update_error(&mut self, ctx: &egui::Context, now: bool) -> Result<()> {
-        let Some(r) = &self.reference else {
+        let Some(r) = self.reference.session() else {
             return Ok(());
         };
-        if r.session.passes() == 0
+        if r.passes() == 0
             || (!now
                 && self
                     .error
@@ -40,13 +37,11 @@ impl Viewer {
         }
         let started = Instant::now();
         self.error.last = Some(started);
-        let reference = error_view::read_mean(&r.session)?;
-        self.error.reference_passes = r.session.passes();
+        let reference = error_view::read_mean(r)?;
+        self.error.reference_passes = r.passes();
         let sides = [
-            self.session
-                .as_ref()
-                .map(|s| (s, self.first_clock.seconds())),
-            self.compare.as_ref().map(|c| (&c.session, c.seconds())),
+            self.main.session().map(|s| (s, self.main.seconds())),
+            self.compare.session().map(|s| (s, self.compare.seconds())),
         ];
         for (k, side) in sides.into_iter().enumerate() {
             let Some((session, seconds)) = side.filter(|(s, _)| s.passes() > 0) else {

@@ -3,6 +3,7 @@
 //! `at_s` counts from the first image shown; the run ends `--frames` passes after the last
 //! event, or [`GRACE`] after the last event is due, whichever comes first.
 
+use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
 use anyhow::{Result, anyhow};
@@ -40,6 +41,8 @@ pub struct ScriptedInput {
     records: Vec<Record>,
     /// The shown session's passes that the run's N count from, once the last event is in.
     pub base: Option<u32>,
+    /// Pointer events of a `drag` still to be given to the window, a frame's worth each.
+    pointer: VecDeque<Vec<egui::Event>>,
 }
 
 impl ScriptedInput {
@@ -50,7 +53,33 @@ impl ScriptedInput {
             origin: None,
             records: Vec::new(),
             base: None,
+            pointer: VecDeque::new(),
         }
+    }
+
+    /// The pointer events for the window's next frame (`crate::shell::App::raw_events`).
+    pub fn next_pointer_events(&mut self) -> Vec<egui::Event> {
+        self.pointer.pop_front().unwrap_or_default()
+    }
+
+    /// Queues a drag of the primary button from `from` to `to` (window points): the pointer
+    /// comes to `from`, is pressed, moves in four steps, and is let go, a frame each, so the
+    /// window sees it as a mouse drag (past egui's drag threshold, one frame at a time).
+    fn drag(&mut self, from: egui::Pos2, to: egui::Pos2) {
+        let button = |pos, pressed| egui::Event::PointerButton {
+            pos,
+            button: egui::PointerButton::Primary,
+            pressed,
+            modifiers: egui::Modifiers::NONE,
+        };
+        self.pointer
+            .push_back(vec![egui::Event::PointerMoved(from)]);
+        self.pointer.push_back(vec![button(from, true)]);
+        for k in 1..=4 {
+            let p = from.lerp(to, k as f32 / 4.0);
+            self.pointer.push_back(vec![egui::Event::PointerMoved(p)]);
+        }
+        self.pointer.push_back(vec![button(to, false)]);
     }
 
     /// A frame painted at `now` showed `shown` (drawn in the frame before): the first image
@@ -93,9 +122,10 @@ impl ScriptedInput {
         });
     }
 
-    /// Whether every event has been applied.
+    /// Whether every event has been applied (a drag's pointer events all given to the
+    /// window).
     pub fn all_applied(&self) -> bool {
-        self.next == self.events.len()
+        self.next == self.events.len() && self.pointer.is_empty()
     }
 
     /// Whether every applied event has been answered by a whole pass shown: the run's last
@@ -147,7 +177,7 @@ impl Viewer {
             .unwrap_or(std::path::Path::new(""));
         for (k, e) in events.iter().enumerate() {
             if let Action::Frame { index } = e.action {
-                let frames = self.sequence.as_ref().map_or(0, |s| s.len());
+                let frames = self.playback.sequence.as_ref().map_or(0, |s| s.len());
                 if index > frames {
                     return Err(anyhow!(
                         "{}: event {}: frame {index}: {} has {}",
@@ -194,8 +224,26 @@ impl Viewer {
             }
             Action::Frame { index } => self.go_to_frame(index - 1)?,
             Action::Resize { width, height } => {
+                // A size asked for is kept: the image no longer follows the window.
+                self.viewport.follow = false;
                 v.width = width;
                 v.height = height;
+            }
+            Action::Drag { from, to } => {
+                let rect = self
+                    .input
+                    .image_rect
+                    .ok_or_else(|| anyhow!("a drag before the image is shown"))?;
+                let (w, h) = self.images.main.size;
+                let at = |p: [f64; 2]| {
+                    egui::pos2(
+                        rect.left() + (p[0] / f64::from(w)) as f32 * rect.width(),
+                        rect.top() + (p[1] / f64::from(h)) as f32 * rect.height(),
+                    )
+                };
+                if let Some(s) = &mut self.script {
+                    s.drag(at(from), at(to));
+                }
             }
         }
         Ok(())

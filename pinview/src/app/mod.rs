@@ -1,29 +1,43 @@
 //! The window: the progressive session shown through the tone-map pass, the controls, the
 //! readouts, export, and the scripted run (`--frames`). This file holds the viewer's state
-//! and the order of one frame; each concern is a module of its own:
+//! (each concern's in a struct of its own) and the order of one frame; each concern is a
+//! module of its own:
 //!
 //! * `window`: the window's options, the adapter and device, the displayed textures;
-//! * `sessions`: the renderers and sessions of the shown estimator, the second side and
-//!   the reference, built off the window's thread (`crate::build`) and swapped in when ready;
+//! * `side`: one side of the image, an estimator's renderer and session built off the
+//!   window's thread (`crate::build`) and swapped in when ready, with its pass clock: the
+//!   shown estimator, the split view's second estimator and the error view's reference;
+//! * `sessions`: which estimator each side wants, and when it is built, swapped in and
+//!   restarted;
 //! * `pacing`: the passes added each frame within its budget, and the frame-gap meter;
 //! * `coarse`: the coarse image drawn at once when the view changes;
-//! * `background`: the bake, the re-bake, the sequence and dropped files;
+//! * `background`: the bake and the re-bake, and dropped files;
+//! * `playback`: a sequence's frames and their playback;
 //! * `error`: the error view's read-backs and measurements;
 //! * `events`: scripted input (`--input-script`) replayed, and what each event took;
-//! * `input`: the image, its mouse and keyboard controls, the overlays and the divider;
-//! * `panels`: the controls; `readouts`: the figures shown; `script`: the scripted run's
-//!   outputs and its JSON line.
+//! * `input`: the image, its mouse and keyboard controls and the divider;
+//! * `viewport`: the image's size following the window (debounced), or fixed;
+//! * `overlays`: the pins, the cell grid and the heat map over the image;
+//! * `toasts`: status and save messages over the image for a few seconds;
+//! * `panels`: the controls; `readouts`: the figures shown; `export`: the saves and the
+//!   batch command; `script`: the scripted run's outputs and its JSON line.
 
 mod background;
 mod coarse;
 mod error;
 mod events;
+mod export;
 mod input;
+mod overlays;
 pub mod pacing;
 mod panels;
+mod playback;
 pub mod readouts;
 mod script;
 mod sessions;
+mod side;
+mod toasts;
+mod viewport;
 pub mod window;
 
 use std::path::PathBuf;
@@ -33,21 +47,28 @@ use std::time::Instant;
 use anyhow::{Result, anyhow};
 
 use egui::mutex::RwLock;
-use pinrender::gpu_render::{GpuRenderer, GpuSession, GpuToneMap};
+use pinrender::gpu_render::GpuToneMap;
 use pinrender::render::EstimatorSpec;
 
 use crate::args::ViewArgs;
-use crate::build::{BuildJob, Gpu, Relay};
-use crate::compare::{self, CompareSide};
-use crate::error_view::{ErrorTrack, Reference};
-use crate::open::{BakeJob, Medium, Rebaked};
-use crate::pin_overlay::Pick;
+use crate::build::{BuildJob, Gpu};
+use crate::error_view::{self, ErrorTrack};
+use crate::open::Medium;
 use crate::sequence::{Opener, Sequence};
 use crate::startup::StartupClock;
 use crate::view::View;
+use background::Bakes;
+use coarse::Coarse;
+use export::Export;
+use input::Input;
+use overlays::Overlays;
+use playback::Playback;
+use side::Side;
+use toasts::Toasts;
+use viewport::Viewport;
 
 pub use window::native_options;
-use window::{IMAGE_FORMAT, ShotResult, Target};
+use window::{IMAGE_FORMAT, Images, ShotResult};
 
 /// What the window leaves for `main`: a fatal error, the JSON line, whether a scripted run
 /// finished.
@@ -68,34 +89,36 @@ pub struct Viewer {
     info: wgpu::AdapterInfo,
     egui_renderer: Arc<RwLock<egui_wgpu::Renderer>>,
     tone: GpuToneMap,
-    target: Target,
+    /// The displayed images: the shown estimator's and the second side's.
+    images: Images,
     medium: Medium,
-    bake: Option<BakeJob>,
-    sequence: Option<Sequence>,
+    /// The first bake of a volume's pins and the re-bakes at another density scale.
+    bakes: Bakes,
+    /// A sequence's frames and their playback.
+    playback: Playback,
     opener: Opener,
     view: View,
     /// The estimator asked for (shown once the medium answers it).
     wanted: EstimatorSpec,
-    renderer: Option<(EstimatorSpec, GpuRenderer)>,
-    session: Option<GpuSession>,
-    /// The shown session's tone map on its renderer's own device, where it has one.
-    relay: Option<Relay>,
-    /// The renderer and session of the estimator to show, being built off the window's
-    /// thread; the image shown stays until they are in.
-    pending: Option<BuildJob>,
-    /// The view changed: the accumulation starts again.
-    dirty: bool,
-    /// The view changed this frame: a coarse image is drawn at once (`coarse`); and the box
-    /// and sun are drawn over the image until the first whole pass of the new view.
-    coarse_due: bool,
-    moving: bool,
-    coarse: Option<coarse::Coarse>,
-    /// The coarse image's longer side, following its measured time (`coarse`).
-    coarse_side: u32,
+    /// The second estimator asked for (split view).
+    compare_wanted: Option<EstimatorSpec>,
+    /// The shown estimator's side, the split view's second side and the error view's
+    /// reference: each a renderer and session, built off the window's thread.
+    main: Side,
+    compare: Side,
+    reference: Side,
     /// Builds no longer wanted whose workers still run (waited for when the window closes).
     retired: Vec<BuildJob>,
     /// Counts the view's changes, so that a session built for an older view is reset.
     generation: u64,
+    /// What the pointer and keys did to the view, the image's place and the divider.
+    input: Input,
+    /// The coarse image drawn at once when the view changes.
+    coarse: Coarse,
+    /// The image's size following the window's central panel, or fixed by the flags.
+    viewport: Viewport,
+    /// The pins, the cell grid and the heat map drawn over the image.
+    overlays: Overlays,
     /// The longest time between two painted frames.
     pacer: pacing::FramePacer,
     first_image_s: Option<f64>,
@@ -103,60 +126,24 @@ pub struct Viewer {
     /// its preview pass (or warm-up) after the pipeline was made.
     first_preview_s: Option<f64>,
     warm_up_s: Option<f64>,
-    /// Wall time spent adding the current session's passes.
-    render_seconds: f64,
-    /// The first side's current pass time (compare's equal time).
-    first_clock: compare::PassClock,
-    status: String,
+    /// Status and save messages, shown as toasts over the image.
+    toasts: Toasts,
     /// What the viewer did in place of what was asked (an estimator a frame cannot answer),
     /// each once: shown as the status, and the JSON line's `notes`.
     notes: Vec<String>,
-    command: String,
+    /// The saves and the equivalent batch command.
+    export: Export,
     paused: bool,
-    /// Playback: when the first image was shown, and when each step of a playing sequence
-    /// was taken (`playback_fps`).
-    shown_first_at: Option<Instant>,
-    play_steps: Vec<Instant>,
-    /// The frame numbers shown, in order (a sequence's; the JSON line reports them).
-    frames_played: Vec<i64>,
     /// Scripted input being replayed, and what the last frame drew into the image (heard
     /// by the script once that frame is painted).
     script: Option<events::ScriptedInput>,
     shown: Option<events::Shown>,
     /// A scripted window screenshot asked for: when, and its result once written.
     window_shot: Option<(Instant, ShotResult)>,
-    /// The second estimator asked for (split view), its side once the medium answers it,
-    /// and its displayed image.
-    compare_wanted: Option<EstimatorSpec>,
-    compare: Option<CompareSide>,
-    compare_pending: Option<BuildJob>,
-    compare_target: Option<Target>,
-    /// Where the divider stands, as a fraction of the image's width (left: the first
-    /// estimator).
-    split: f32,
-    /// The error view: the reference and RMSE plot on, the heat map shown, the reference's
-    /// session (where the medium has a density) and what was measured against it.
+    /// The error view: the reference and RMSE plot on, and what was measured against the
+    /// reference.
     error_on: bool,
-    heat_on: bool,
-    reference: Option<Reference>,
-    reference_pending: Option<BuildJob>,
     error: ErrorTrack,
-    /// Overlays: the pins of the entry under the cursor (or at a clicked, held pixel), and
-    /// the box with its cell grid; the latest pick and the image's rectangle in the window.
-    pins_on: bool,
-    grid_on: bool,
-    held_pixel: Option<[f64; 2]>,
-    /// The entry held: picked at `held_pixel` when the hold was taken and kept as the view
-    /// moves, so its pins can be seen from the side.
-    held: Option<Pick>,
-    pick: Option<Pick>,
-    image_rect: Option<egui::Rect>,
-    /// A volume's density scale as shown, a re-bake at another one (its scale and job), and
-    /// the scale of the last re-bake that was swapped in.
-    density_scale: f64,
-    rebake: Option<(f64, BakeJob<Rebaked>)>,
-    /// The last re-bake swapped in: its scale, backend and why the GPU refused (if it did).
-    rebaked: Option<(f64, &'static str, Option<String>)>,
 }
 
 impl Viewer {
@@ -187,18 +174,14 @@ impl Viewer {
             own_devices: (info.device_type == wgpu::DeviceType::Cpu).then(|| rs.adapter.clone()),
         };
         let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
-        let target = Self::make_target(&gpu.device, &rs.renderer, args.width, args.height, None);
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
         let view = View::new(&args, &medium, wanted);
-        let bake = if medium.is_volume {
-            Some(BakeJob::start(&medium, args.preview_bake())?)
-        } else {
-            None
+        let images = Images {
+            main: Self::make_target(&gpu.device, &rs.renderer, view.width, view.height, None),
+            compare: None,
         };
-        let mut sequence = frames.map(|f| Sequence::new(f, opener.clone()));
-        if let Some(s) = &mut sequence {
-            s.playing = args.play;
-        }
+        let bakes = Bakes::new(&medium, &args)?;
+        let playback = Playback::new(frames.map(|f| Sequence::new(f, opener.clone())), args.play);
         let mut viewer = Self {
             clock,
             outcome,
@@ -206,64 +189,38 @@ impl Viewer {
             info,
             egui_renderer: rs.renderer.clone(),
             tone,
-            target,
+            images,
             medium,
-            bake,
-            sequence,
+            bakes,
+            playback,
             opener,
             view,
             wanted,
-            renderer: None,
-            session: None,
-            relay: None,
-            pending: None,
+            compare_wanted: args.compare,
+            main: Side::new(0),
+            compare: Side::new(0),
+            reference: Side::new(error_view::REFERENCE_SEED_XOR),
             retired: Vec::new(),
-            dirty: false,
-            coarse_due: false,
-            moving: false,
-            coarse: None,
-            coarse_side: crate::build::PREVIEW_SIDE,
             generation: 0,
+            input: Input::default(),
+            coarse: Coarse::default(),
+            viewport: Viewport::new(!args.size_fixed()),
+            overlays: Overlays::new(&args),
             pacer,
             first_image_s: None,
             first_preview_s: None,
             warm_up_s: None,
-            render_seconds: 0.0,
-            first_clock: compare::PassClock::default(),
-            status: String::new(),
+            toasts: Toasts::default(),
             notes: Vec::new(),
-            command: String::new(),
+            export: Export::default(),
             paused: false,
-            frames_played: Vec::new(),
-            shown_first_at: None,
-            play_steps: Vec::new(),
             window_shot: None,
             script: None,
             shown: None,
-            compare_wanted: args.compare,
-            compare: None,
-            compare_pending: None,
-            compare_target: None,
-            split: 0.5,
             error_on: args.error_view,
-            heat_on: args.error_view,
-            reference: None,
-            reference_pending: None,
             error: ErrorTrack::default(),
-            pins_on: args.pin_at.is_some(),
-            grid_on: args.grid_overlay,
-            held_pixel: args.pin_at,
-            held: None,
-            pick: None,
-            image_rect: None,
-            density_scale: args.read.density_scale.get(),
-            rebake: None,
-            rebaked: None,
             args,
         };
-        if let Some(s) = &viewer.sequence {
-            viewer.frames_played.push(s.frames[s.current].0);
-        }
         if let Some(path) = &viewer.args.input_script {
             let events = crate::input_script::read(path)?;
             viewer.check_events(&events)?;
@@ -282,7 +239,7 @@ impl Viewer {
     /// A note (once): the status line, and the JSON line's `notes`.
     fn note(&mut self, note: String) {
         if !self.notes.contains(&note) {
-            self.status.clone_from(&note);
+            self.toasts.say(note.clone());
             self.notes.push(note);
         }
     }
@@ -294,7 +251,7 @@ impl Viewer {
             }
             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         } else {
-            self.status = e.to_string();
+            self.toasts.say(e.to_string());
         }
     }
 }
@@ -303,12 +260,10 @@ impl Drop for Viewer {
     /// The window closes once every build has ended: a compile still running in the driver
     /// while the process exits could crash it at exit.
     fn drop(&mut self) {
-        let pending = [
-            self.pending.take(),
-            self.compare_pending.take(),
-            self.reference_pending.take(),
-        ];
-        for mut job in self.retired.drain(..).chain(pending.into_iter().flatten()) {
+        for side in [&mut self.main, &mut self.compare, &mut self.reference] {
+            side.stop(&mut self.retired);
+        }
+        for mut job in self.retired.drain(..) {
             job.join();
         }
     }
@@ -321,6 +276,13 @@ fn initial_estimator(medium: &Medium) -> EstimatorSpec {
 }
 
 impl crate::shell::App for Viewer {
+    fn raw_events(&mut self) -> Vec<egui::Event> {
+        self.script
+            .as_mut()
+            .map(events::ScriptedInput::next_pointer_events)
+            .unwrap_or_default()
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui) {
         let now = Instant::now();
         self.pacer.tick(now);
@@ -345,6 +307,7 @@ impl crate::shell::App for Viewer {
                 egui::ScrollArea::vertical().show(ui, |ui| self.controls(ui));
             });
         egui::CentralPanel::default().show(ui, |ui| self.image(ui));
+        self.toasts.draw(&ctx);
         // Exposure is the tone map's alone; anything else starts the accumulation again.
         let mut a = before.clone();
         let mut b = self.view.clone();
@@ -353,9 +316,9 @@ impl crate::shell::App for Viewer {
         a.estimator = self.wanted;
         b.estimator = self.wanted;
         if a != b {
-            self.dirty = true;
-            self.coarse_due = true;
-            self.moving = true;
+            self.input.dirty = true;
+            self.input.moving = true;
+            self.coarse.due = true;
         }
         let busy = match self.render() {
             Ok(busy) => busy,

@@ -4,13 +4,12 @@
 
 use std::time::{Duration, Instant};
 
-use anyhow::{Result, anyhow};
+use anyhow::Result;
 use pinrender::gpu_render::PassTimeSource;
 
 use super::Viewer;
 use super::events::Shown;
-use super::window::show;
-use crate::compare::{self, SideTime, Turn};
+use crate::compare::{self, Turn};
 use crate::error_view;
 
 /// Wall time the renderer may take per frame, and per submission within it: the window
@@ -64,7 +63,7 @@ impl Viewer {
         self.ensure_session()?;
         // Scripted input: the run's N passes count from the shown session's passes once the
         // last event is in (0 where the event started the accumulation again).
-        if let (Some(script), Some(s)) = (&mut self.script, &self.session)
+        if let (Some(script), Some(s)) = (&mut self.script, self.main.session())
             && script.all_applied()
             && script.base.is_none()
         {
@@ -73,8 +72,8 @@ impl Viewer {
         // A changed view answers within the frame: a coarse image, painted before any pass
         // of the new view is added (in a drag the next step would start them again); the
         // accumulation refines it from the next frame on.
-        if std::mem::take(&mut self.coarse_due)
-            && self.session.as_ref().is_some_and(|s| s.passes() == 0)
+        if std::mem::take(&mut self.coarse.due)
+            && self.main.session().is_some_and(|s| s.passes() == 0)
             && self.draw_coarse()?
         {
             return Ok(true);
@@ -91,7 +90,9 @@ impl Viewer {
             None => u32::MAX,
         };
         // A scripted re-bake renders its passes on the new pins.
-        if self.args.frames.is_some() && self.args.rebake_scale.is_some() && self.rebaked.is_none()
+        if self.args.frames.is_some()
+            && self.args.rebake_scale.is_some()
+            && self.bakes.rebaked.is_none()
         {
             return Ok(false);
         }
@@ -102,61 +103,39 @@ impl Viewer {
         // A frame that reads the error back (tens of milliseconds at 512 x 512 on lavapipe)
         // renders one slice and no reference: the window still answers within 100 ms.
         let error_due = self.error_due();
-        let Some(session) = &mut self.session else {
+        let Some(passes) = self.main.session().map(|s| s.passes()) else {
             return Ok(false);
         };
         // The window screenshot shows the passes the other outputs hold.
-        let running = !(self.paused && self.sequence.is_none()) && self.window_shot.is_none();
+        let running =
+            !(self.paused && self.playback.sequence.is_none()) && self.window_shot.is_none();
         let remaining = if running {
-            limit.saturating_sub(session.passes())
+            limit.saturating_sub(passes)
         } else {
             0
         };
-        let first = SideTime {
-            seconds: self.first_clock.seconds(),
-            pass_seconds: self.first_clock.pass_seconds,
-            remaining,
-            in_progress: session.next_row() != 0,
-            passes: session.passes(),
-        };
-        let turn = match &self.compare {
+        let turn = match self.compare.live {
             None => Turn::First(remaining),
-            Some(c) => compare::next_turn(
-                first,
-                SideTime {
-                    seconds: c.seconds(),
-                    pass_seconds: c.clock.pass_seconds,
-                    remaining: if running { u32::MAX } else { 0 },
-                    in_progress: c.session.next_row() != 0,
-                    passes: c.session.passes(),
-                },
+            Some(_) => compare::next_turn(
+                self.main.time(remaining),
+                self.compare.time(if running { u32::MAX } else { 0 }),
             ),
         };
         let budget = if error_due { SLICE } else { FRAME_BUDGET };
         let t = Instant::now();
         let mut busy = true;
         match turn {
-            Turn::First(n) if n > 0 => {
-                self.first_clock
-                    .add(session, &mut self.render_seconds, budget, SLICE, n)?;
-            }
-            Turn::Second(n) => {
-                if let Some(c) = &mut self.compare {
-                    c.add(budget, SLICE, n)?;
-                }
-            }
+            Turn::First(n) if n > 0 => self.main.add(budget, SLICE, n)?,
+            Turn::Second(n) => self.compare.add(budget, SLICE, n)?,
             _ => busy = false,
         }
         // The reference gets what is left of the frame's budget (at least one slice), the
         // whole frame when the shown sides add nothing; a scripted run stops it on whole
         // passes once the shown sides are done.
-        if let Some(r) = &mut self.reference
-            && running
-            && !error_due
-        {
+        if self.reference.live.is_some() && running && !error_due {
             let idle = turn == Turn::Neither || matches!(turn, Turn::First(0));
             let max = if self.args.frames.is_some() && idle {
-                u32::from(r.session.passes() == 0 || r.session.next_row() != 0)
+                u32::from(self.reference.passes() == 0 || self.reference.in_progress())
             } else {
                 u32::MAX
             };
@@ -166,63 +145,31 @@ impl Viewer {
                 FRAME_BUDGET.saturating_sub(t.elapsed())
             };
             if max > 0 {
-                r.session
-                    .add_for(budget, SLICE, max)
-                    .map_err(|e| anyhow!("{e}"))?;
+                self.reference.add_uncharged(budget, SLICE, max)?;
                 busy = true;
             }
         }
         let exposure = self.view.exposure;
-        if let (Some(c), Some(target)) = (&mut self.compare, &self.compare_target)
-            && c.session.passes() > 0
-        {
-            let relay = c.relay.as_mut();
-            show(
-                &self.tone,
-                relay,
-                &c.session,
-                target,
-                &self.gpu.queue,
-                exposure,
-            )?;
+        if let Some(target) = &self.images.compare {
+            self.compare
+                .show(&self.tone, target, &self.gpu.queue, exposure)?;
         }
         // After a reset the old image (or the preview) stays up until the first new pass is
         // in: no black frames while a long pass renders in bands.
-        if session.passes() > 0 {
-            let relay = self.relay.as_mut();
-            show(
-                &self.tone,
-                relay,
-                session,
-                &self.target,
-                &self.gpu.queue,
-                exposure,
-            )?;
+        if self
+            .main
+            .show(&self.tone, &self.images.main, &self.gpu.queue, exposure)?
+        {
             self.shown = Some(Shown::Pass);
-            self.moving = false;
-        }
-        if session.passes() > 0 && self.first_image_s.is_none() {
-            let now = self.clock.now();
-            self.first_image_s = Some(now);
-            self.shown_first_at = Some(Instant::now());
-            self.clock.marks.first_image = now;
+            self.input.moving = false;
+            if self.first_image_s.is_none() {
+                let now = self.clock.now();
+                self.first_image_s = Some(now);
+                self.playback.shown_first_at = Some(Instant::now());
+                self.clock.marks.first_image = now;
+            }
         }
         Ok(busy)
-    }
-
-    /// Milliseconds per pass: the GPU's timestamps where the session has them, else the wall
-    /// time spent rendering over the passes rendered.
-    pub(super) fn ms_per_pass(&self) -> f64 {
-        self.session
-            .as_ref()
-            .map_or(0.0, |s| compare::ms_per_pass(s, self.render_seconds))
-    }
-
-    /// The first side's time: its passes at its current pass time ([`compare::PassClock`]).
-    pub(super) fn seconds(&self) -> f64 {
-        self.session
-            .as_ref()
-            .map_or(0.0, |_| self.first_clock.seconds())
     }
 
     /// The passes a scripted run renders on the current session: `--frame-passes` on each
@@ -237,7 +184,7 @@ impl Viewer {
                 _ => return u32::MAX,
             },
         };
-        match &self.sequence {
+        match &self.playback.sequence {
             Some(s) if s.playing && s.current + 1 < s.len() => self.args.frame_passes,
             _ => base.saturating_add(n),
         }
@@ -249,55 +196,30 @@ impl Viewer {
         let Some(want) = self.compare_wanted else {
             return true;
         };
-        if !self.awaiting_compare() && self.compare.is_none() {
+        if !self.awaiting_compare() && self.compare.live.is_none() {
             return true;
         }
-        let Some(c) = &self.compare else {
+        if self.compare.live.is_none() || self.main.live.is_none() {
             return false;
-        };
-        let Some(s) = &self.session else {
-            return false;
-        };
-        let first = SideTime {
-            seconds: self.seconds(),
-            pass_seconds: self.first_clock.pass_seconds,
-            remaining: 0,
-            in_progress: s.next_row() != 0,
-            passes: s.passes(),
-        };
-        let second = SideTime {
-            seconds: c.seconds(),
-            pass_seconds: c.clock.pass_seconds,
-            remaining: u32::MAX,
-            in_progress: c.session.next_row() != 0,
-            passes: c.session.passes(),
-        };
-        c.estimator == want
-            && c.session.passes() > 0
-            && compare::next_turn(first, second) == Turn::Neither
+        }
+        self.compare.estimator() == Some(want)
+            && self.compare.passes() > 0
+            && compare::next_turn(self.main.time(0), self.compare.time(u32::MAX)) == Turn::Neither
     }
 
     /// Whether a scripted run's reference holds whole passes, at least one (or there is
     /// none to wait for).
     pub(super) fn reference_done(&self) -> bool {
-        match &self.reference {
+        match &self.reference.live {
             _ if !self.error_on => true,
             None => error_view::no_reference_reason(&self.medium).is_some(),
-            Some(r) => r.session.passes() > 0 && r.session.next_row() == 0,
+            Some(_) => self.reference.passes() > 0 && !self.reference.in_progress(),
         }
     }
 
-    /// Frames shown per second of wall time while playing: the steps a playing sequence
-    /// took over the time from the first image to the last step (`None` before a step).
-    pub(super) fn playback_fps(&self) -> Option<f64> {
-        let (start, last) = (self.shown_first_at?, *self.play_steps.last()?);
-        let seconds = last.saturating_duration_since(start).as_secs_f64();
-        (seconds > 0.0).then(|| self.play_steps.len() as f64 / seconds)
-    }
-
     pub(super) fn pass_time_source(&self) -> PassTimeSource {
-        self.session
-            .as_ref()
+        self.main
+            .session()
             .map_or(PassTimeSource::Wall, |s| s.pass_time_source())
     }
 }

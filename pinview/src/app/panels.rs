@@ -1,14 +1,10 @@
 //! The controls panel: the file, the bake and re-bake, the sequence, the estimator and the
 //! second side, the look, the overlays, the error view and export.
 
-use std::path::PathBuf;
-
-use anyhow::anyhow;
-
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
-use crate::{error_view, export, pin_overlay};
+use crate::{error_view, pin_overlay};
 
 /// What a scene file leaves out: the features that need one medium.
 const SCENE_NOTE: &str = "a scene: the pins estimator only (the GPU path's); compare, the \
@@ -18,38 +14,74 @@ impl Viewer {
     pub(super) fn controls(&mut self, ui: &mut egui::Ui) {
         ui.heading("pinview");
         ui.label(self.medium.path.display().to_string());
-        if let Some(job) = &self.bake {
+        if let Some(job) = &self.bakes.bake {
             ui.add(egui::ProgressBar::new(job.progress()).text("baking pins"));
         }
-        if self.medium.is_volume && self.sequence.is_none() {
-            let mut scale = self.density_scale;
+        if self.medium.is_volume && self.playback.sequence.is_none() {
+            let mut scale = self.bakes.density_scale;
             let r = ui.add(
                 egui::Slider::new(&mut scale, 0.01..=100.0)
                     .logarithmic(true)
                     .text("density scale"),
             );
             if r.changed() {
-                self.density_scale = scale;
+                self.bakes.density_scale = scale;
             }
             // A re-bake when the slider is let go (or typed in), not on every step of a drag.
             let settled = r.drag_stopped() || (r.changed() && !r.dragged());
-            let baking = self.rebake.as_ref().map(|(s, _)| *s);
+            let baking = self.bakes.rebake.as_ref().map(|(s, _)| *s);
             if settled
-                && baking != Some(self.density_scale)
-                && let Err(e) = self.start_rebake(self.density_scale)
+                && baking != Some(self.bakes.density_scale)
+                && let Err(e) = self.start_rebake(self.bakes.density_scale)
             {
-                self.status = e.to_string();
+                self.toasts.say(e.to_string());
             }
-            if let Some((s, job)) = &self.rebake {
+            if let Some((s, job)) = &self.bakes.rebake {
                 ui.add(
                     egui::ProgressBar::new(job.progress())
                         .text(format!("re-baking on the GPU at {s:.3}")),
                 );
             }
         }
+        ui.horizontal(|ui| {
+            if ui.button("reset view").clicked() {
+                let (o, t) = self.medium.home();
+                self.view.origin = o;
+                self.view.target = t;
+            }
+            if ui
+                .button(if self.paused { "resume" } else { "pause" })
+                .clicked()
+            {
+                self.paused = !self.paused;
+            }
+        });
+        // What a scene leaves out is off whether or not its section is open.
+        if self.medium.scene().is_some() {
+            self.compare_wanted = None;
+            self.overlays.pins_on = false;
+            self.overlays.grid_on = false;
+            self.error_on = false;
+        }
+        if !self.error_on {
+            self.overlays.heat_on = false;
+        }
+        if self.playback.sequence.is_some() {
+            section("sequence", true).show(ui, |ui| self.sequence_controls(ui));
+        }
+        section("estimator", true).show(ui, |ui| self.estimator_controls(ui));
+        section("export", true).show(ui, |ui| self.export_controls(ui));
+        section("readouts", true).show(ui, |ui| self.readouts(ui));
+        section("camera and look", false).show(ui, |ui| self.look_controls(ui));
+        let overlays = self.overlays.pins_on || self.overlays.grid_on;
+        section("overlays", overlays).show(ui, |ui| self.overlay_controls(ui));
+        section("error view", self.error_on).show(ui, |ui| self.error_controls(ui));
+    }
+
+    /// A sequence's frame, play and pause, steps, rate, passes per frame and scrub.
+    fn sequence_controls(&mut self, ui: &mut egui::Ui) {
         let mut go_to = None;
-        if let Some(s) = &mut self.sequence {
-            ui.separator();
+        if let Some(s) = &mut self.playback.sequence {
             ui.label(format!(
                 "frame {} ({} of {})",
                 s.frames[s.current].0,
@@ -70,6 +102,16 @@ impl Viewer {
                     go_to = Some((s.current + 1) % s.len());
                 }
             });
+            ui.add(
+                egui::Slider::new(&mut self.playback.fps, super::playback::FPS)
+                    .text("fps (at most)"),
+            );
+            // The same value as --frame-passes: the passes each frame holds before the next.
+            ui.add(
+                egui::Slider::new(&mut self.args.frame_passes, 1..=256)
+                    .logarithmic(true)
+                    .text("passes per frame"),
+            );
             // Positions from 1, as the label's "(2 of 5)".
             let mut at = s.current + 1;
             if ui
@@ -82,9 +124,12 @@ impl Viewer {
         if let Some(i) = go_to
             && let Err(e) = self.go_to_frame(i)
         {
-            self.status = e.to_string();
+            self.toasts.say(e.to_string());
         }
-        ui.separator();
+    }
+
+    /// The estimator and the second side's.
+    fn estimator_controls(&mut self, ui: &mut egui::Ui) {
         let available = self.medium.estimators();
         egui::ComboBox::from_label("estimator")
             .selected_text(self.view.estimator.to_string())
@@ -94,11 +139,14 @@ impl Viewer {
                 }
             });
         if self.medium.scene().is_some() {
-            self.compare_wanted = None;
             ui.label(SCENE_NOTE);
         } else {
             self.compare_controls(ui, &available);
         }
+    }
+
+    /// The camera, the lights, the material, the exposure and the image's size.
+    fn look_controls(&mut self, ui: &mut egui::Ui) {
         let v = &mut self.view;
         ui.add(egui::Slider::new(&mut v.look.fov, 5.0..=120.0).text("fov"));
         ui.add(egui::Slider::new(&mut v.look.albedo, 0.0..=1.0).text("albedo"));
@@ -115,31 +163,7 @@ impl Viewer {
             "sun direction {:.2}, {:.2}, {:.2} (ctrl-drag the image)",
             v.look.sun_dir[0], v.look.sun_dir[1], v.look.sun_dir[2]
         ));
-        ui.horizontal(|ui| {
-            if ui.button("reset view").clicked() {
-                let (o, t) = self.medium.home();
-                self.view.origin = o;
-                self.view.target = t;
-            }
-            if ui
-                .button(if self.paused { "resume" } else { "pause" })
-                .clicked()
-            {
-                self.paused = !self.paused;
-            }
-        });
-        ui.separator();
-        self.overlay_controls(ui);
-        ui.separator();
-        self.error_controls(ui);
-        ui.separator();
-        self.readouts(ui);
-        ui.separator();
-        self.export(ui);
-        if !self.status.is_empty() {
-            ui.separator();
-            ui.label(egui::RichText::new(&self.status).color(egui::Color32::YELLOW));
-        }
+        self.viewport_controls(ui);
     }
 
     /// The second estimator's menu (split view).
@@ -165,21 +189,22 @@ impl Viewer {
     /// The overlays' toggles and the picked entry's readout.
     pub(super) fn overlay_controls(&mut self, ui: &mut egui::Ui) {
         if self.medium.scene().is_some() {
-            self.pins_on = false;
-            self.grid_on = false;
             ui.label("pins under the cursor and the cell grid: one medium only, not a scene");
             return;
         }
-        ui.checkbox(&mut self.pins_on, "pins under the cursor (click holds)");
-        ui.checkbox(&mut self.grid_on, "box and cell grid");
-        if self.medium.pins().is_none() && (self.pins_on || self.grid_on) {
+        ui.checkbox(
+            &mut self.overlays.pins_on,
+            "pins under the cursor (click holds)",
+        );
+        ui.checkbox(&mut self.overlays.grid_on, "box and cell grid");
+        if self.medium.pins().is_none() && (self.overlays.pins_on || self.overlays.grid_on) {
             ui.label("no pins yet (the bake is running)");
             return;
         }
-        if !self.pins_on {
+        if !self.overlays.pins_on {
             return;
         }
-        match &self.pick {
+        match &self.overlays.pick {
             Some(p) => {
                 for line in pin_overlay::describe(p) {
                     ui.label(egui::RichText::new(line).monospace().size(10.0));
@@ -194,32 +219,30 @@ impl Viewer {
     /// The error view's toggles, the reference's state and the RMSE-against-time plot.
     pub(super) fn error_controls(&mut self, ui: &mut egui::Ui) {
         if self.medium.scene().is_some() {
-            self.error_on = false;
-            self.heat_on = false;
             ui.label("error view: one medium only, not a scene");
             return;
         }
         ui.checkbox(&mut self.error_on, "reference and RMSE plot");
         if !self.error_on {
-            self.heat_on = false;
+            self.overlays.heat_on = false;
             return;
         }
-        ui.checkbox(&mut self.heat_on, "error view (|estimate - reference|)");
+        ui.checkbox(
+            &mut self.overlays.heat_on,
+            "error view (|estimate - reference|)",
+        );
         if let Some(why) = error_view::no_reference_reason(&self.medium) {
             ui.label(egui::RichText::new(why).color(egui::Color32::YELLOW));
             return;
         }
-        let passes = self.reference.as_ref().map_or(0, |r| r.session.passes());
+        let passes = self.reference.passes();
         ui.label(format!(
             "reference: ratio tracking, {passes} passes (itself noisy; read every {} ms, \
              {:.1} ms a read)",
             error_view::ERROR_PERIOD.as_millis(),
             1e3 * self.error.update_seconds
         ));
-        let names = [
-            Some(self.view.estimator),
-            self.compare.as_ref().map(|c| c.estimator),
-        ];
+        let names = [Some(self.view.estimator), self.compare.estimator()];
         for (k, name) in names.iter().enumerate() {
             if let (Some(n), Some(e)) = (name, self.error.rmse[k]) {
                 ui.label(format!("RMSE {n}: {e:.4e}"));
@@ -240,75 +263,26 @@ impl Viewer {
             });
     }
 
-    pub(super) fn export(&mut self, ui: &mut egui::Ui) {
-        let passes = self.session.as_ref().map_or(0, |s| s.passes());
+    /// The image's size: following the window at a resolution scale, or fixed.
+    pub(super) fn viewport_controls(&mut self, ui: &mut egui::Ui) {
+        let v = &mut self.viewport;
         ui.horizontal(|ui| {
-            if ui.button("save PNG").clicked() {
-                let (w, h) = self.target.size;
-                let path = absolute(format!("pinview-{passes}spp.png"));
-                self.status = match export::read_texture_rgb(
-                    &self.gpu.device,
-                    &self.gpu.queue,
-                    &self.target.texture,
-                    w,
-                    h,
-                )
-                .and_then(|rgb| export::write_png(&path, w, h, &rgb))
-                {
-                    Ok(()) => format!("wrote {}", path.display()),
-                    Err(e) => e.to_string(),
-                };
-            }
-            if ui.button("save EXR").clicked()
-                && let Some(s) = &mut self.session
-            {
-                // The image holds whole passes (one in progress is finished first): the name
-                // says how many it holds, as `copy command`'s --spp does.
-                self.status = match s.image().map_err(|e| anyhow!("{e}")).and_then(|i| {
-                    let path = absolute(format!("pinview-{}spp.exr", s.passes()));
-                    i.write_exr(&path)
-                        .map(|()| path)
-                        .map_err(|e| anyhow!("{e}"))
-                }) {
-                    Ok(path) => format!("wrote {}", path.display()),
-                    Err(e) => e.to_string(),
-                };
-            }
-            if ui.button("copy command").clicked() {
-                // The passes the accumulation holds once a pass in progress is finished: what
-                // `save EXR` writes and what --spp renders.
-                let spp = match &mut self.session {
-                    Some(s) if s.next_row() != 0 => s.add_passes(0).map(|()| s.passes()),
-                    Some(s) => Ok(s.passes()),
-                    None => Ok(0),
-                };
-                match spp {
-                    Ok(spp) => {
-                        self.command = self.view.command_line(
-                            self.medium.input_flag(),
-                            &self.medium.path,
-                            spp,
-                        );
-                        ui.ctx().copy_text(self.command.clone());
-                        // Also on the terminal, where a clipboard is not at hand.
-                        let _ = pin_cli::outln!("{}", self.command);
-                    }
-                    Err(e) => self.status = e.to_string(),
-                }
-            }
-        });
-        if !self.command.is_empty() {
-            ui.add(
-                egui::TextEdit::multiline(&mut self.command.as_str())
-                    .desired_rows(4)
-                    .font(egui::TextStyle::Monospace),
+            ui.checkbox(&mut v.follow, "fill the window");
+            ui.add_enabled(
+                v.follow,
+                egui::Slider::new(&mut v.scale_percent, super::viewport::SCALE_PERCENT)
+                    .suffix("%")
+                    .text("resolution"),
             );
-        }
+        });
+        ui.label(format!(
+            "image {} x {} pixels",
+            self.view.width, self.view.height
+        ));
     }
 }
 
-/// A file name in the working directory as an absolute path (the status line shows where it
-/// went).
-fn absolute(name: String) -> PathBuf {
-    std::path::absolute(&name).unwrap_or_else(|_| PathBuf::from(name))
+/// A collapsible section of the panel, open at first where `open`.
+fn section(title: &str, open: bool) -> egui::CollapsingHeader {
+    egui::CollapsingHeader::new(title).default_open(open)
 }

@@ -17,8 +17,8 @@ impl Viewer {
                     .color(egui::Color32::LIGHT_RED),
             );
         }
-        let passes = self.session.as_ref().map_or(0, |s| s.passes());
-        let ms = self.ms_per_pass();
+        let passes = self.main.passes();
+        let ms = self.main.ms_per_pass();
         if let Some(est) = self.compiling() {
             ui.label(
                 egui::RichText::new(format!("compiling {est}... (the image shown stays)"))
@@ -46,17 +46,17 @@ impl Viewer {
             "longest gap between frames {:.0} ms",
             self.pacer.longest_ms()
         ));
-        if let Some(c) = &self.compare {
+        if let Some(c) = &self.compare.live {
             ui.label(format!(
                 "compare {}: spp {}, {:.2} ms per pass; {:.3} s vs {:.3} s",
                 c.estimator,
                 c.session.passes(),
-                c.ms_per_pass(),
-                c.seconds(),
-                self.seconds(),
+                self.compare.ms_per_pass(),
+                self.compare.seconds(),
+                self.main.seconds(),
             ));
         }
-        if let Some((_, r)) = &self.renderer {
+        if let Some(r) = self.main.live.as_ref().map(|l| &l.renderer) {
             ui.label("GPU bytes:");
             for (name, bytes) in r.section_bytes() {
                 ui.label(format!("  {name}: {bytes}"));
@@ -66,12 +66,12 @@ impl Viewer {
 
     /// Samples per second of the shown estimator: the image's pixels over its time per pass.
     pub(super) fn samples_per_second(&self) -> f64 {
-        samples_per_second(self.view.width, self.view.height, self.ms_per_pass())
+        samples_per_second(self.view.width, self.view.height, self.main.ms_per_pass())
     }
 
     /// The bytes of each section the shown estimator's renderer uploaded, as a JSON object.
     pub(super) fn gpu_bytes(&self) -> serde_json::Value {
-        gpu_bytes(self.renderer.as_ref().map(|(_, r)| r))
+        gpu_bytes(self.main.live.as_ref().map(|l| &l.renderer))
     }
 }
 

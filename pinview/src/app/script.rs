@@ -15,7 +15,7 @@ impl Viewer {
         let Some(n) = self.args.frames else {
             return Ok(());
         };
-        let passes = self.session.as_ref().map_or(0, |s| s.passes());
+        let passes = self.main.passes();
         // Scripted input ends the run at the latest `events::GRACE` after its last event,
         // with what there is by then.
         let timed_out = self
@@ -27,9 +27,10 @@ impl Viewer {
             .as_ref()
             .is_some_and(|s| !s.all_applied() || !s.answered())
             || passes < self.script_passes(n)
-            || self.session.as_ref().is_some_and(|s| s.next_row() != 0)
-            || (self.args.rebake_scale.is_some() && self.rebaked.is_none())
+            || self.main.in_progress()
+            || (self.args.rebake_scale.is_some() && self.bakes.rebaked.is_none())
             || self.awaiting_wanted()
+            || !self.viewport.settled()
             || !self.compare_done()
             || !self.reference_done();
         if waiting && !timed_out {
@@ -41,27 +42,28 @@ impl Viewer {
         }
         if !timed_out
             && self
+                .playback
                 .sequence
                 .as_ref()
                 .is_some_and(|s| s.playing && s.current + 1 < s.len())
         {
             return Ok(());
         }
-        let (w, h) = self.target.size;
+        let (w, h) = self.images.main.size;
         if let Some(path) = &self.args.screenshot {
-            let heat = |k: usize| self.error.heat[k].clone().filter(|_| self.heat_on);
+            let heat = |k: usize| self.error.heat[k].clone().filter(|_| self.overlays.heat_on);
             let mut rgb = match heat(0) {
                 Some(rgb) => rgb,
                 None => export::read_texture_rgb(
                     &self.gpu.device,
                     &self.gpu.queue,
-                    &self.target.texture,
+                    &self.images.main.texture,
                     w,
                     h,
                 )?,
             };
             // Split view: the second estimator's image right of the divider, as shown.
-            if let Some(t) = &self.compare_target {
+            if let Some(t) = &self.images.compare {
                 let right = match heat(1) {
                     Some(rgb) => rgb,
                     None => export::read_texture_rgb(
@@ -80,15 +82,26 @@ impl Viewer {
                 }
             }
             export::write_png(path, w, h, &rgb)?;
+            self.toasts
+                .say(format!("wrote {}", absolute(path).display()));
         }
         if let Some(path) = &self.args.save {
-            let session = self.session.as_mut().ok_or_else(|| anyhow!("no session"))?;
+            let session = self
+                .main
+                .session_mut()
+                .ok_or_else(|| anyhow!("no session"))?;
             let image = session.image().map_err(|e| anyhow!("{e}"))?;
             image
                 .write_exr(path)
                 .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+            self.toasts
+                .say(format!("wrote {}", absolute(path).display()));
         }
-        let frame = self.sequence.as_ref().map(|s| &s.frames[s.current]);
+        let frame = self
+            .playback
+            .sequence
+            .as_ref()
+            .map(|s| &s.frames[s.current]);
         let mut json = serde_json::json!({
             "adapter": self.info.name,
             "backend": format!("{:?}", self.info.backend),
@@ -101,19 +114,21 @@ impl Viewer {
             "first_image_breakdown": self.clock.marks.breakdown(),
             "first_preview_s": self.first_preview_s,
             "warm_up_s": self.warm_up_s,
-            "ms_per_pass": self.ms_per_pass(),
+            "ms_per_pass": self.main.ms_per_pass(),
             "pass_time_source": self.pass_time_source().as_str(),
             "frame": frame.map(|f| f.0),
             "frame_path": frame.map(|f| f.1.display().to_string()),
-            "frames_played": self.frames_played,
-            "playback_fps": self.playback_fps(),
+            "frames_played": self.playback.frames_played,
+            "playback_fps": self.playback.fps(),
             "file": self.medium.path.display().to_string(),
             "samples_per_second": self.samples_per_second(),
             "gpu_bytes": self.gpu_bytes(),
             "longest_frame_gap_ms": self.pacer.longest_ms(),
             "frames_painted": self.pacer.frames(),
             "offscreen": false,
+            "viewport": self.viewport.json(),
             "notes": self.notes,
+            "messages": self.toasts.said,
             // The batch render of the view shown, at the passes shown.
             "command": self.view.command_line(self.medium.input_flag(), &self.medium.path, passes),
         });
@@ -124,7 +139,7 @@ impl Viewer {
         if let Some(scene) = self.medium.scene() {
             json["instances"] = scene.instances.len().into();
         }
-        if let Some((scale, backend, why)) = &self.rebaked {
+        if let Some((scale, backend, why)) = &self.bakes.rebaked {
             json["rebake"] = serde_json::json!({
                 "density_scale": scale,
                 "backend": backend,
@@ -132,7 +147,7 @@ impl Viewer {
             });
         }
         if let Some([x, y]) = self.args.pin_at {
-            json["pin"] = match self.held.clone().or_else(|| self.pick_at(x, y)) {
+            json["pin"] = match self.overlays.held.clone().or_else(|| self.pick_at(x, y)) {
                 Some(p) => serde_json::json!({
                     "pixel": [x, y],
                     "cell": p.cell,
@@ -147,7 +162,7 @@ impl Viewer {
             };
         }
         if self.args.window_screenshot.is_some()
-            && let Some(r) = self.image_rect
+            && let Some(r) = self.input.image_rect
         {
             let k = ctx.pixels_per_point();
             json["window_image_rect"] =
@@ -155,13 +170,13 @@ impl Viewer {
         }
         if self.error_on {
             json["error"] = match (
-                &self.reference,
+                self.reference.session(),
                 error_view::no_reference_reason(&self.medium),
             ) {
                 (Some(r), _) => serde_json::json!({
                     "reference": "ratio",
-                    "reference_passes": r.session.passes(),
-                    "reference_seed": r.session.seed(),
+                    "reference_passes": r.passes(),
+                    "reference_seed": r.seed(),
                     "rmse": self.error.rmse[0],
                     "compare_rmse": self.error.rmse[1],
                     "points": self.error.points[0].len(),
@@ -170,16 +185,16 @@ impl Viewer {
                 (None, why) => serde_json::json!({ "reference": null, "why": why }),
             };
         }
-        if let Some(c) = &self.compare {
+        if let Some(c) = &self.compare.live {
             json["compare"] = serde_json::json!({
                 "estimator": c.estimator.to_string(),
                 "passes": c.session.passes(),
-                "ms_per_pass": c.ms_per_pass(),
+                "ms_per_pass": self.compare.ms_per_pass(),
                 "pass_time_source": c.session.pass_time_source().as_str(),
-                "seconds": c.seconds(),
-                "first_seconds": self.seconds(),
-                "clock_ms_per_pass": 1e3 * c.clock.pass_seconds,
-                "first_clock_ms_per_pass": 1e3 * self.first_clock.pass_seconds,
+                "seconds": self.compare.seconds(),
+                "first_seconds": self.main.seconds(),
+                "clock_ms_per_pass": 1e3 * self.compare.clock.pass_seconds,
+                "first_clock_ms_per_pass": 1e3 * self.main.clock.pass_seconds,
                 "split_column": self.split_column(w),
             });
         }
@@ -236,4 +251,10 @@ impl Viewer {
         ctx.send_viewport_cmd(egui::ViewportCommand::Close);
         Ok(())
     }
+}
+
+/// `path` as an absolute path (the messages say where a file went, whatever the working
+/// directory).
+fn absolute(path: &std::path::Path) -> std::path::PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
 }

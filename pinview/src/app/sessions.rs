@@ -5,49 +5,12 @@
 //! a session (a buffer clear), on the window's thread.
 
 use anyhow::Result;
-use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession};
 use pinrender::render::EstimatorSpec;
 
 use super::Viewer;
 use super::window::write_image;
-use crate::build::{BuildJob, Built};
-use crate::compare::{self, CompareSide};
-use crate::error_view::{self, ErrorTrack, Reference};
+use crate::error_view::{self, ErrorTrack};
 use crate::open::Medium;
-
-/// A pending build's result, where it is the one still wanted (`want`): a job for another
-/// estimator is retired (its worker finishes alone), a finished one is taken.
-fn take_built(
-    slot: &mut Option<BuildJob>,
-    want: EstimatorSpec,
-    retired: &mut Vec<BuildJob>,
-) -> Option<Result<Built>> {
-    if slot.as_ref().is_some_and(|j| j.estimator != want) {
-        retired.extend(slot.take());
-    }
-    let done = slot.as_mut()?.poll()?;
-    *slot = None;
-    Some(done)
-}
-
-/// `session` started again on `scene`: reset in place at its size, a new session of the
-/// renderer at another (the image was resized).
-fn restart_session(
-    renderer: &GpuRenderer,
-    mut session: GpuSession,
-    est: EstimatorSpec,
-    scene: &GpuScene,
-    seed: u64,
-) -> Result<GpuSession> {
-    if (session.width(), session.height()) == (scene.camera.width, scene.camera.height) {
-        session.reset(scene, seed)?;
-        Ok(session)
-    } else {
-        renderer
-            .session(scene, est, seed)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-    }
-}
 
 impl Viewer {
     /// The estimator shown now: the one asked for once the medium answers it, else the
@@ -63,7 +26,7 @@ impl Viewer {
     /// Whether a bake or re-bake runs in the background, which may bring estimators the
     /// medium does not answer yet (a volume's pins).
     pub(super) fn baking(&self) -> bool {
-        self.bake.is_some() || self.rebake.is_some()
+        self.bakes.running()
     }
 
     /// Whether the estimator asked for is not shown yet but will be once the running bake
@@ -83,8 +46,7 @@ impl Viewer {
     /// waiting for the running bake. A medium that cannot answer it drops it, with a note.
     pub(super) fn awaiting_compare(&self) -> bool {
         self.compare_wanted.is_some_and(|e| {
-            self.compare.as_ref().map(|c| c.estimator) != Some(e)
-                && (self.compare_answered(e) || self.baking())
+            self.compare.estimator() != Some(e) && (self.compare_answered(e) || self.baking())
         })
     }
 
@@ -102,7 +64,7 @@ impl Viewer {
 
     /// Whether the shown estimator's renderer is being built (the panel says "compiling").
     pub(super) fn compiling(&self) -> Option<EstimatorSpec> {
-        self.pending.as_ref().map(|j| j.estimator)
+        self.main.building()
     }
 
     /// Starts building the renderer of the current estimator (when it changed), swaps in a
@@ -121,22 +83,13 @@ impl Viewer {
         {
             self.note_unanswered(e, "no second side");
         }
-        if self.dirty {
+        if self.input.dirty {
             self.generation += 1;
         }
         // The second side starts again with the first, so both have spent equal time.
         let mut restart = false;
-        if let Some(done) = take_built(&mut self.pending, est, &mut self.retired) {
-            let mut built = done?;
-            if built.generation != self.generation {
-                built.session = restart_session(
-                    &built.renderer,
-                    built.session,
-                    est,
-                    &self.view.scene(),
-                    self.view.seed,
-                )?;
-            }
+        if let Some(done) = self.main.take_built(est, &mut self.retired) {
+            let built = done?;
             if self.clock.marks.upload == 0.0 {
                 let since = |t: std::time::Instant| {
                     t.saturating_duration_since(self.clock.started)
@@ -151,27 +104,19 @@ impl Viewer {
                         .as_secs_f64(),
                 );
             }
-            let size = (built.session.width(), built.session.height());
-            let fresh = built.generation == self.generation;
-            self.renderer = Some((est, built.renderer));
-            self.coarse = None;
-            self.session = Some(built.session);
-            self.relay = built.relay;
-            self.render_seconds = 0.0;
-            self.first_clock = compare::PassClock::default();
+            let preview = self.main.install(
+                est,
+                built,
+                &self.view.scene(),
+                self.view.seed,
+                self.generation,
+            )?;
+            self.coarse.forget();
             restart = true;
-            if self.target.size != size {
-                self.target = Self::make_target(
-                    &self.gpu.device,
-                    &self.egui_renderer,
-                    size.0,
-                    size.1,
-                    Some(self.target.id),
-                );
-            }
+            self.fit_main_image();
             // The coarse preview of this view stands until the first whole pass is in.
-            if let Some(rgba) = built.preview.filter(|_| fresh) {
-                let t = &self.target;
+            if let Some(rgba) = preview {
+                let t = &self.images.main;
                 write_image(&self.gpu.queue, &t.texture, t.size.0, t.size.1, &rgba);
                 self.shown.get_or_insert(super::events::Shown::Preview);
                 if self.first_preview_s.is_none() {
@@ -179,53 +124,28 @@ impl Viewer {
                 }
             }
         }
-        let current = self.renderer.as_ref().is_some_and(|(e, _)| *e == est);
-        if !current && self.pending.is_none() {
+        if self.main.estimator() != Some(est) && self.main.pending.is_none() {
             // The old session stops; its image stays on screen until the new one's first pass.
-            self.session = None;
-            self.renderer = None;
-            self.relay = None;
-            self.coarse = None;
+            self.main.live = None;
+            self.coarse.forget();
             // Refused here (before the first frame) where the medium cannot answer.
             let media = self.medium.media_job(est)?;
             if self.painted() {
-                self.pending = Some(BuildJob::spawn(
+                self.main.spawn(
                     &self.gpu,
                     media,
                     self.view.scene(),
                     self.view.seed,
                     self.view.exposure,
                     self.generation,
-                )?);
+                )?;
             }
         }
-        if self.dirty
-            && let Some(mut s) = self.session.take()
-        {
-            let scene = self.view.scene();
-            s = match &self.renderer {
-                Some((_, renderer)) => restart_session(renderer, s, est, &scene, self.view.seed)?,
-                None => {
-                    s.reset(&scene, self.view.seed)?;
-                    s
-                }
-            };
-            let size = (s.width(), s.height());
-            self.session = Some(s);
-            if self.target.size != size {
-                self.target = Self::make_target(
-                    &self.gpu.device,
-                    &self.egui_renderer,
-                    size.0,
-                    size.1,
-                    Some(self.target.id),
-                );
-            }
-            self.render_seconds = 0.0;
-            self.first_clock = compare::PassClock::default();
+        if self.input.dirty && self.main.reset(&self.view.scene(), self.view.seed)? {
+            self.fit_main_image();
             restart = true;
         }
-        self.dirty = false;
+        self.input.dirty = false;
         if restart {
             self.error.clear(0);
         }
@@ -233,45 +153,53 @@ impl Viewer {
         self.ensure_reference(restart)
     }
 
+    /// The displayed image at the shown session's size (it was resized).
+    fn fit_main_image(&mut self) {
+        let Some(s) = self.main.session() else {
+            return;
+        };
+        let size = (s.width(), s.height());
+        if self.images.main.size != size {
+            self.images.main = Self::make_target(
+                &self.gpu.device,
+                &self.egui_renderer,
+                size.0,
+                size.1,
+                Some(self.images.main.id),
+            );
+        }
+    }
+
     /// Starts the reference when the error view is on and the medium has a density (built
     /// off the window's thread), and restarts it with the first side.
     pub(super) fn ensure_reference(&mut self, restart: bool) -> Result<()> {
         if !self.error_on || error_view::no_reference_reason(&self.medium).is_some() {
-            self.reference = None;
-            self.retired.extend(self.reference_pending.take());
+            self.reference.stop(&mut self.retired);
             return Ok(());
         }
         let scene = self.view.scene();
         let seed = self.view.seed;
         let est = error_view::REFERENCE_ESTIMATOR;
-        if let Some(done) = take_built(&mut self.reference_pending, est, &mut self.retired) {
-            let built = done?;
-            let mut r = Reference::from_built(built.renderer, built.session);
-            if built.generation != self.generation {
-                r.reset(&scene, seed)?;
-            }
-            self.reference = Some(r);
+        if let Some(done) = self.reference.take_built(est, &mut self.retired) {
+            self.reference
+                .install(est, done?, &scene, seed, self.generation)?;
             self.error = ErrorTrack::default();
         }
-        let painted = self.painted();
-        match &mut self.reference {
-            Some(r) if restart => {
-                r.reset(&scene, seed)?;
+        if self.reference.live.is_some() {
+            if restart {
+                self.reference.reset(&scene, seed)?;
                 self.error = ErrorTrack::default();
             }
-            Some(_) => {}
-            None if self.reference_pending.is_none() && painted => {
-                let media = self.medium.media_job(est)?;
-                self.reference_pending = Some(BuildJob::spawn(
-                    &self.gpu,
-                    media,
-                    scene,
-                    seed ^ error_view::REFERENCE_SEED_XOR,
-                    self.view.exposure,
-                    self.generation,
-                )?);
-            }
-            None => {}
+        } else if self.reference.pending.is_none() && self.painted() {
+            let media = self.medium.media_job(est)?;
+            self.reference.spawn(
+                &self.gpu,
+                media,
+                scene,
+                seed,
+                self.view.exposure,
+                self.generation,
+            )?;
         }
         Ok(())
     }
@@ -284,48 +212,38 @@ impl Viewer {
             .compare_wanted
             .filter(|e| self.medium.scene().is_none() && self.medium.estimators().contains(e))
         else {
-            self.compare = None;
-            self.retired.extend(self.compare_pending.take());
+            self.compare.stop(&mut self.retired);
             return Ok(());
         };
         let scene = self.view.scene();
         let seed = self.view.seed;
-        if let Some(done) = take_built(&mut self.compare_pending, est, &mut self.retired) {
-            let built = done?;
-            let mut side = CompareSide::from_built(est, built.renderer, built.session);
-            side.relay = built.relay;
-            if built.generation != self.generation {
-                side.reset(&scene, seed)?;
-            }
+        if let Some(done) = self.compare.take_built(est, &mut self.retired) {
+            self.compare
+                .install(est, done?, &scene, seed, self.generation)?;
             self.error.clear(1);
-            self.compare = Some(side);
         }
-        match &mut self.compare {
-            Some(c) if c.estimator == est => {
-                if restart {
-                    c.reset(&scene, seed)?;
-                }
+        if self.compare.estimator() != Some(est) {
+            self.compare.live = None;
+            if self.compare.pending.is_none() && self.painted() {
+                let media = self.medium.media_job(est)?;
+                self.compare.spawn(
+                    &self.gpu,
+                    media,
+                    scene,
+                    seed,
+                    self.view.exposure,
+                    self.generation,
+                )?;
             }
-            _ => {
-                self.compare = None;
-                if self.compare_pending.is_none() && self.painted() {
-                    let media = self.medium.media_job(est)?;
-                    self.compare_pending = Some(BuildJob::spawn(
-                        &self.gpu,
-                        media,
-                        scene,
-                        seed,
-                        self.view.exposure,
-                        self.generation,
-                    )?);
-                }
-                return Ok(());
-            }
+            return Ok(());
+        }
+        if restart {
+            self.compare.reset(&scene, seed)?;
         }
         let size = (self.view.width, self.view.height);
-        if self.compare_target.as_ref().is_none_or(|t| t.size != size) {
-            let old = self.compare_target.as_ref().map(|t| t.id);
-            self.compare_target = Some(Self::make_target(
+        if self.images.compare.as_ref().is_none_or(|t| t.size != size) {
+            let old = self.images.compare.as_ref().map(|t| t.id);
+            self.images.compare = Some(Self::make_target(
                 &self.gpu.device,
                 &self.egui_renderer,
                 size.0,
@@ -340,19 +258,11 @@ impl Viewer {
     /// for the old one are dropped.
     pub(super) fn set_medium(&mut self, medium: Medium) {
         self.medium = medium;
-        self.held = None;
-        self.renderer = None;
-        self.coarse = None;
-        self.session = None;
-        self.relay = None;
-        self.compare = None;
-        self.reference = None;
-        let pending = [
-            self.pending.take(),
-            self.compare_pending.take(),
-            self.reference_pending.take(),
-        ];
-        self.retired.extend(pending.into_iter().flatten());
+        self.overlays.held = None;
+        self.coarse.forget();
+        for side in [&mut self.main, &mut self.compare, &mut self.reference] {
+            side.stop(&mut self.retired);
+        }
     }
 
     /// Whether the window has painted its first frame: builds start after it. That frame

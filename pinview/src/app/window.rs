@@ -16,8 +16,9 @@ pub use crate::device::{IMAGE_FORMAT, device_descriptor, image_texture};
 /// adapter `pinrender render --backend gpu` picks, with the adapter's own limits.
 pub fn native_options(a: &ViewArgs) -> crate::shell::WindowOptions {
     let title = format!("pinview - {}", a.file.display());
-    let w = (a.width as f32 + 360.0).min(1900.0);
-    let h = (a.height as f32 + 24.0).clamp(700.0, 1200.0);
+    let (w, h) = a.size();
+    let w = (w as f32 + 360.0).min(1900.0);
+    let h = (h as f32 + 24.0).clamp(700.0, 1200.0);
     let setup = egui_wgpu::WgpuSetupCreateNew {
         power_preference: wgpu::PowerPreference::HighPerformance,
         native_adapter_selector: Some(Arc::new(|adapters, _surface| {
@@ -80,6 +81,12 @@ pub struct Target {
     pub view: wgpu::TextureView,
     pub id: egui::TextureId,
     pub size: (u32, u32),
+}
+
+/// The displayed images: the shown estimator's, and the second side's once it has one.
+pub struct Images {
+    pub main: Target,
+    pub compare: Option<Target>,
 }
 
 /// Writes RGBA bytes of `width x height` into `texture` (an [`image_texture`]).

@@ -4,6 +4,7 @@
 
 mod compare;
 mod contract;
+mod divider;
 mod ending;
 mod error_view;
 mod failures;
@@ -16,3 +17,5 @@ mod rebake;
 mod scene;
 mod sequence;
 mod support;
+mod toasts;
+mod viewport;

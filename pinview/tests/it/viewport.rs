@@ -1,0 +1,96 @@
+//! The viewport: without `--width`/`--height` the image fills the window's central panel (in
+//! physical pixels) and is still the batch render's bits at that size; a `resize` event
+//! fixes the size it asks for.
+
+use std::time::Duration;
+
+use crate::support::*;
+
+const LIMIT: Duration = Duration::from_secs(240);
+
+#[test]
+fn without_a_size_the_image_fills_the_panel_and_keeps_the_batch_bits() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, None);
+    let Some(display) = display() else { return };
+    let exr = dir.path().join("view.exr");
+    let args = [
+        s(&pins),
+        "--camera-origin",
+        "0.5,0.6,2.6",
+        "--camera-target",
+        "0.5,0.5,0.5",
+        "--estimator",
+        "pins",
+        "--frames",
+        "1",
+        "--save",
+        s(&exr),
+        "--json",
+    ];
+    let out = pinview_within(Some(&display), &args, LIMIT);
+    ok(&out, "pinview without a size");
+    let j = json(&out);
+    let v = &j["viewport"];
+    assert_eq!(v["follow"], true, "{j}");
+    let ppp = v["pixels_per_point"].as_f64().unwrap();
+    let panel = [
+        v["panel_points"][0].as_f64().unwrap(),
+        v["panel_points"][1].as_f64().unwrap(),
+    ];
+    let (w, h) = (j["width"].as_u64().unwrap(), j["height"].as_u64().unwrap());
+    assert_eq!(
+        (w, h),
+        (
+            (panel[0] * ppp).floor() as u64,
+            (panel[1] * ppp).floor() as u64
+        ),
+        "the image is not the panel's size: {j}"
+    );
+    assert!(
+        h > 512,
+        "the default window's panel is taller than 512: {j}"
+    );
+    let command = j["command"].as_str().unwrap();
+    assert!(
+        command.contains(&format!("--width {w} --height {h} ")),
+        "{command}"
+    );
+    let batch = render_command(command, &dir.path().join("batch.exr"));
+    assert!(
+        batch == exr_bits(&exr),
+        "not the batch render's bits at {w} x {h}"
+    );
+}
+
+#[test]
+fn a_resize_event_fixes_the_size_it_asks_for() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, None);
+    let events = dir.path().join("events.json");
+    std::fs::write(
+        &events,
+        r#"[{"at_s": 0.1, "action": "resize", "width": 40, "height": 32}]"#,
+    )
+    .unwrap();
+    let Some(display) = display() else { return };
+    let args = [
+        s(&pins),
+        "--estimator",
+        "pins",
+        "--input-script",
+        s(&events),
+        "--frames",
+        "1",
+        "--json",
+    ];
+    let out = pinview_within(Some(&display), &args, LIMIT);
+    ok(&out, "pinview resize");
+    let j = json(&out);
+    assert_eq!(
+        (j["width"].as_u64(), j["height"].as_u64()),
+        (Some(40), Some(32)),
+        "{j}"
+    );
+    assert_eq!(j["viewport"]["follow"], false, "{j}");
+}
