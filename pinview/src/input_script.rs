@@ -9,7 +9,9 @@
 //! * `estimator {"name"}`: the estimator shown (as `--estimator`);
 //! * `exposure {"stops"}`: the exposure becomes `--exposure` times 2^stops;
 //! * `frame {"index"}`: a sequence's frame at this position, from 1 (as the label's "2 of 5");
-//! * `resize {"width", "height"}`: the image's size in pixels.
+//! * `resize {"width", "height"}`: the image's size in pixels;
+//! * `copy_command {}`: as the "copy command" button: the view's batch command line on the
+//!   clipboard and stdout.
 //!
 //! Every event's keys are checked: an unknown key or action, a missing or out-of-range
 //! parameter is refused with the file and the event's position.
@@ -37,6 +39,7 @@ pub enum Action {
     Exposure { stops: f64 },
     Frame { index: usize },
     Resize { width: u32, height: u32 },
+    CopyCommand,
 }
 
 impl Action {
@@ -51,6 +54,7 @@ impl Action {
             Action::Exposure { .. } => "exposure",
             Action::Frame { .. } => "frame",
             Action::Resize { .. } => "resize",
+            Action::CopyCommand => "copy_command",
         }
     }
 }
@@ -112,7 +116,8 @@ fn event(v: &Value) -> Result<Event> {
     let action = match o.get("action") {
         Some(Value::String(s)) => s.as_str(),
         _ => bail!(
-            "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, resize"
+            "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, \
+             resize, copy_command"
         ),
     };
     let at_s = number(o, "at_s")?;
@@ -190,8 +195,10 @@ fn event(v: &Value) -> Result<Event> {
                 height: integer(o, "height", 1, 16384)? as u32,
             },
         ),
+        "copy_command" => (&[], Action::CopyCommand),
         other => bail!(
-            "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize)",
+            "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
+             copy_command)",
             pin_cli_quote(other)
         ),
     };
@@ -203,7 +210,11 @@ fn event(v: &Value) -> Result<Event> {
             "unknown key {:?} for {} (it takes {})",
             pin_cli_quote(k),
             action.name(),
-            keys.join(", ")
+            if keys.is_empty() {
+                "none".to_string()
+            } else {
+                keys.join(", ")
+            }
         );
     }
     Ok(Event { at_s, action })
@@ -247,7 +258,8 @@ mod tests {
             {"at_s": 2, "action": "estimator", "name": "ratio"},
             {"at_s": 2, "action": "exposure", "stops": -1.5},
             {"at_s": 3, "action": "frame", "index": 2},
-            {"at_s": 4, "action": "resize", "width": 64, "height": 32}
+            {"at_s": 4, "action": "resize", "width": 64, "height": 32},
+            {"at_s": 5, "action": "copy_command"}
         ]"#,
         )
         .unwrap();
@@ -273,6 +285,7 @@ mod tests {
                     width: 64,
                     height: 32
                 },
+                Action::CopyCommand,
             ]
         );
         assert_eq!(e[7].at_s, 4.0);
@@ -285,6 +298,10 @@ mod tests {
             assert!(e.contains(want), "{t}: {e}");
         };
         bad("{}", "a list of events");
+        bad(
+            r#"[{"at_s": 0, "action": "copy_command", "to": "x"}]"#,
+            "(it takes none)",
+        );
         bad(
             r#"[{"at_s": 0, "action": "spin"}]"#,
             "event 1: unknown action",

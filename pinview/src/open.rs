@@ -226,6 +226,25 @@ impl Medium {
         self.scene.as_ref().map(|s| &s.scene)
     }
 
+    /// The world boxes of what is rendered: each instance's placed asset box (a scene), or
+    /// the medium's box.
+    pub fn instance_boxes(&self) -> Vec<([f64; 3], [f64; 3])> {
+        let Some(s) = &self.scene else {
+            return vec![self.bounds];
+        };
+        s.scene
+            .instances
+            .iter()
+            .filter_map(|inst| {
+                let a = s.assets.get(inst.asset as usize)?.as_ref()?;
+                Some(pinrender::instance::world_box(
+                    &inst.local_to_world,
+                    a.bounds,
+                ))
+            })
+            .collect()
+    }
+
     /// The flag of `pinrender render` that names this file.
     pub fn input_flag(&self) -> &'static str {
         match (&self.scene, self.is_volume) {

@@ -166,14 +166,14 @@ impl Viewer {
     }
 
     /// Applies the scripted events due now, as the controls would.
-    pub(super) fn replay_events(&mut self) -> Result<()> {
+    pub(super) fn replay_events(&mut self, ctx: &egui::Context) -> Result<()> {
         let Some(script) = &mut self.script else {
             return Ok(());
         };
         let now = Instant::now();
         let due = script.due(now);
         for e in due {
-            self.apply_event(&e.action)?;
+            self.apply_event(ctx, &e.action)?;
             if let Some(s) = &mut self.script {
                 s.applied(&e, Instant::now());
             }
@@ -181,7 +181,7 @@ impl Viewer {
         Ok(())
     }
 
-    fn apply_event(&mut self, action: &Action) -> Result<()> {
+    fn apply_event(&mut self, ctx: &egui::Context, action: &Action) -> Result<()> {
         let v = &mut self.view;
         match *action {
             Action::Orbit { dx_deg, dy_deg } => v.orbit(dx_deg.to_radians(), dy_deg.to_radians()),
@@ -196,6 +196,14 @@ impl Viewer {
             Action::Resize { width, height } => {
                 v.width = width;
                 v.height = height;
+            }
+            Action::CopyCommand => {
+                self.command = crate::clipboard::copy_command(
+                    ctx,
+                    self.session.as_mut(),
+                    &self.view,
+                    &self.medium,
+                )?;
             }
         }
         Ok(())

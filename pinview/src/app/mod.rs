@@ -157,6 +157,8 @@ pub struct Viewer {
     rebake: Option<(f64, BakeJob<Rebaked>)>,
     /// The last re-bake swapped in: its scale, backend and why the GPU refused (if it did).
     rebaked: Option<(f64, &'static str, Option<String>)>,
+    /// The background check of a pin file's sections (`crate::verify`).
+    verify: Option<crate::verify::Verify>,
 }
 
 impl Viewer {
@@ -207,6 +209,7 @@ impl Viewer {
             egui_renderer: rs.renderer.clone(),
             tone,
             target,
+            verify: crate::verify::Verify::start(&medium),
             medium,
             bake,
             sequence,
@@ -263,6 +266,12 @@ impl Viewer {
         };
         if let Some(s) = &viewer.sequence {
             viewer.frames_played.push(s.frames[s.current].0);
+        }
+        let origin_flag = viewer.args.flags.camera_origin.is_some();
+        if let Some(n) =
+            crate::scene_framing::open_outside(&mut viewer.view, &viewer.medium, origin_flag)
+        {
+            viewer.note(n);
         }
         if let Some(path) = &viewer.args.input_script {
             let events = crate::input_script::read(path)?;
@@ -335,7 +344,7 @@ impl crate::shell::App for Viewer {
         if !scripted {
             self.keys(&ctx);
         }
-        if let Err(e) = self.replay_events() {
+        if let Err(e) = self.replay_events(&ctx) {
             self.fail(&ctx, e);
         }
         egui::Panel::left("controls")

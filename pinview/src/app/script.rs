@@ -31,7 +31,11 @@ impl Viewer {
             || (self.args.rebake_scale.is_some() && self.rebaked.is_none())
             || self.awaiting_wanted()
             || !self.compare_done()
-            || !self.reference_done();
+            || !self.reference_done()
+            || self
+                .verify
+                .as_ref()
+                .is_some_and(crate::verify::Verify::running);
         if waiting && !timed_out {
             return Ok(());
         }

@@ -340,6 +340,7 @@ impl Viewer {
     /// for the old one are dropped.
     pub(super) fn set_medium(&mut self, medium: Medium) {
         self.medium = medium;
+        self.verify = crate::verify::Verify::start(&self.medium);
         self.held = None;
         self.renderer = None;
         self.coarse = None;
