@@ -17,5 +17,6 @@ mod rebake;
 mod scene;
 mod scene_framing;
 mod sequence;
+mod sun_gizmo;
 mod support;
 mod verify;
