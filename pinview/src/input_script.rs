@@ -11,7 +11,8 @@
 //! * `frame {"index"}`: a sequence's frame at this position, from 1 (as the label's "2 of 5");
 //! * `resize {"width", "height"}`: the image's size in pixels;
 //! * `copy_command {}`: as the "copy command" button: the view's batch command line on the
-//!   clipboard and stdout.
+//!   clipboard and stdout;
+//! * `frame_all {}`: as the "frame all" button: the camera outside every instance's box.
 //!
 //! Every event's keys are checked: an unknown key or action, a missing or out-of-range
 //! parameter is refused with the file and the event's position.
@@ -40,6 +41,7 @@ pub enum Action {
     Frame { index: usize },
     Resize { width: u32, height: u32 },
     CopyCommand,
+    FrameAll,
 }
 
 impl Action {
@@ -55,6 +57,7 @@ impl Action {
             Action::Frame { .. } => "frame",
             Action::Resize { .. } => "resize",
             Action::CopyCommand => "copy_command",
+            Action::FrameAll => "frame_all",
         }
     }
 }
@@ -117,7 +120,7 @@ fn event(v: &Value) -> Result<Event> {
         Some(Value::String(s)) => s.as_str(),
         _ => bail!(
             "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, \
-             resize, copy_command"
+             resize, copy_command, frame_all"
         ),
     };
     let at_s = number(o, "at_s")?;
@@ -196,9 +199,10 @@ fn event(v: &Value) -> Result<Event> {
             },
         ),
         "copy_command" => (&[], Action::CopyCommand),
+        "frame_all" => (&[], Action::FrameAll),
         other => bail!(
             "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
-             copy_command)",
+             copy_command, frame_all)",
             pin_cli_quote(other)
         ),
     };
@@ -259,7 +263,8 @@ mod tests {
             {"at_s": 2, "action": "exposure", "stops": -1.5},
             {"at_s": 3, "action": "frame", "index": 2},
             {"at_s": 4, "action": "resize", "width": 64, "height": 32},
-            {"at_s": 5, "action": "copy_command"}
+            {"at_s": 5, "action": "copy_command"},
+            {"at_s": 5, "action": "frame_all"}
         ]"#,
         )
         .unwrap();
@@ -286,6 +291,7 @@ mod tests {
                     height: 32
                 },
                 Action::CopyCommand,
+                Action::FrameAll,
             ]
         );
         assert_eq!(e[7].at_s, 4.0);

@@ -197,6 +197,7 @@ impl Viewer {
                 v.width = width;
                 v.height = height;
             }
+            Action::FrameAll => crate::scene_framing::frame_all(&mut self.view, &self.medium),
             Action::CopyCommand => {
                 self.command = crate::clipboard::copy_command(
                     ctx,

@@ -1,6 +1,7 @@
 //! A scene of 256 instances whose camera stands inside one of them (a camera meant for
 //! another placement) opens in the window framed from outside every instance's box, looking
-//! at them, with a note; `--camera-origin` keeps the camera asked for.
+//! at them, with a note; `--camera-origin` keeps the camera asked for, and the scripted
+//! `frame all` moves it out.
 
 use crate::support::*;
 
@@ -93,7 +94,28 @@ fn a_scene_with_its_camera_inside_opens_outside_every_instance() {
         notes.contains("inside instance") && notes.contains("of 256"),
         "{j}"
     );
-    // The flag keeps its camera, wherever it stands.
+    // The flag keeps its camera, wherever it stands; the scripted `frame all` then frames.
     let j = run(&["--camera-origin", "3.5,0.5,3.5"]);
     assert_eq!(origin(&j), [3.5, 0.5, 3.5], "{j}");
+    let events = dir.path().join("frame_all.json");
+    std::fs::write(&events, r#"[{"at_s": 0, "action": "frame_all"}]"#).unwrap();
+    let j = run(&[
+        "--camera-origin",
+        "3.5,0.5,3.5",
+        "--input-script",
+        s(&events),
+    ]);
+    let o = origin(&j);
+    assert_eq!(
+        inside_an_instance(o),
+        None,
+        "{o:?} is inside an instance: {j}"
+    );
+    assert!(
+        j["command"]
+            .as_str()
+            .unwrap()
+            .contains("--camera-target 11.75,0.5,11.75"),
+        "{j}"
+    );
 }
