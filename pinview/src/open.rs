@@ -245,6 +245,28 @@ impl Medium {
             .collect()
     }
 
+    /// The pin files the render reads, each once: a pin file's own, or the pin files a
+    /// scene's assets name (not pins baked in memory, which have no file).
+    pub fn pin_files(&self) -> Vec<Arc<pinrt::PinGrid>> {
+        let Some(s) = &self.scene else {
+            return if self.is_volume {
+                Vec::new()
+            } else {
+                self.pins().cloned().into_iter().collect()
+            };
+        };
+        let mut files: Vec<Arc<pinrt::PinGrid>> = Vec::new();
+        for a in s.assets.iter().flatten() {
+            if let Some(g) = &a.medium.pins
+                && g.path().is_some()
+                && !files.iter().any(|f| f.path() == g.path())
+            {
+                files.push(g.clone());
+            }
+        }
+        files
+    }
+
     /// The flag of `pinrender render` that names this file.
     pub fn input_flag(&self) -> &'static str {
         match (&self.scene, self.is_volume) {

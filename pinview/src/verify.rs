@@ -1,11 +1,11 @@
 //! The background check of a pin file's sections: every section's checksum and value
 //! (`pinrt::PinGrid::verify`, pin-format's full check: the pins, cell index, majorants,
 //! density and control the estimators read, and the small rest), run on a worker thread
-//! when a pin file opens, so the first image never waits for it. Opening maps the file and
-//! checks its header and lengths only; a section whose bytes were damaged since the bake
-//! (a flipped bit in the pins) renders without error, and this check is what says so.
+//! when a pin file or a scene of pin files opens, so the first image never waits for it.
+//! Opening maps the file and checks its header and lengths only; a section whose bytes were
+//! damaged since the bake (a flipped bit in the pins) renders without error, and this check
+//! is what says so.
 
-use std::sync::Arc;
 use std::thread::JoinHandle;
 
 use crate::open::Medium;
@@ -18,17 +18,26 @@ pub struct Verify {
 }
 
 impl Verify {
-    /// Starts checking `medium`'s pin file; `None` for a volume (its pins are baked here, in
-    /// memory, and a volume file has no checksums of its own) or a scene.
+    /// Starts checking the pin files `medium` renders from (a pin file, or the pin files a
+    /// scene's assets name); `None` where there is none (a volume: its pins are baked here,
+    /// in memory, and a volume file has no checksums of its own).
     pub fn start(medium: &Medium) -> Option<Self> {
-        if medium.is_volume || medium.scene().is_some() {
+        let files = medium.pin_files();
+        if files.is_empty() {
             return None;
         }
-        let grid = Arc::clone(medium.pins()?);
-        let path = medium.path.display().to_string();
         let handle = std::thread::Builder::new()
             .name("pinview verify".into())
-            .spawn(move || warning(&path, grid.verify().err().map(|e| e.to_string())))
+            .spawn(move || {
+                let failures: Vec<(String, String)> = files
+                    .iter()
+                    .filter_map(|g| {
+                        let path = g.path().map_or(String::new(), |p| p.display().to_string());
+                        g.verify().err().map(|e| (path, e.to_string()))
+                    })
+                    .collect();
+                warning(&failures)
+            })
             .ok()?;
         Some(Self {
             handle: Some(handle),
@@ -62,17 +71,25 @@ impl Verify {
     }
 }
 
-/// The warning for `path` when its check failed with `error`.
-fn warning(path: &str, error: Option<String>) -> Option<String> {
-    let e = error?;
+/// The warning for the files that failed their check (`(path, error)`, in order): the
+/// first one's line, and how many more failed.
+fn warning(failures: &[(String, String)]) -> Option<String> {
+    let (path, e) = failures.first()?;
     // pinrt's error names the file already.
-    let line = if e.contains(path) {
-        e
+    let line = if e.contains(path.as_str()) {
+        e.clone()
     } else {
         format!("{path}: {e}")
     };
+    let more = match failures.len() - 1 {
+        0 => String::new(),
+        n => format!(
+            "; {n} more pin file{} fail too",
+            if n == 1 { "" } else { "s" }
+        ),
+    };
     Some(format!(
-        "warning: the pin file fails its check; the image may be wrong ({line})"
+        "warning: the pin file fails its check; the image may be wrong ({line}{more})"
     ))
 }
 
@@ -81,11 +98,21 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_warning_names_the_file_once() {
-        let w = warning("/a/b.pin", Some("/a/b.pin: pins checksum".into())).unwrap();
+    fn the_warning_names_the_first_file_once_and_counts_the_rest() {
+        let one = |p: &str, e: &str| (p.to_string(), e.to_string());
+        let w = warning(&[one("/a/b.pin", "/a/b.pin: pins checksum")]).unwrap();
         assert_eq!(w.matches("/a/b.pin").count(), 1, "{w}");
-        assert!(warning("/a/b.pin", None).is_none());
-        let w = warning("/a/b.pin", Some("bad".into())).unwrap();
-        assert!(w.contains("/a/b.pin: bad"), "{w}");
+        assert!(!w.contains("more"), "{w}");
+        assert!(warning(&[]).is_none());
+        let w = warning(&[
+            one("/a/b.pin", "bad"),
+            one("/c.pin", "bad"),
+            one("/d.pin", "x"),
+        ])
+        .unwrap();
+        assert!(
+            w.contains("/a/b.pin: bad; 2 more pin files fail too"),
+            "{w}"
+        );
     }
 }

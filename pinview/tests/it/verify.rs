@@ -1,6 +1,7 @@
 //! A pin file whose pins section was damaged after the bake (one flipped bit in its payload,
 //! its header and lengths intact) still renders, and the background check says so in the
-//! window and in the JSON line's `notes`; a sound file has no such note.
+//! window and in the JSON line's `notes`, alone or as a scene's asset; a sound file has no
+//! such note.
 
 use std::path::Path;
 
@@ -47,4 +48,17 @@ fn a_damaged_pins_section_renders_with_a_warning() {
     );
     let j = run(&display, &good);
     assert!(!j["notes"].to_string().contains(WARNING), "{j}");
+    // A scene whose asset is the damaged file: the same warning.
+    let scene = dir.path().join("two.json");
+    std::fs::write(
+        &scene,
+        r#"{"assets": {"a": {"pins": "good.pin"}, "b": {"pins": "bad.pin"}},
+            "instances": [{"asset": "a"}, {"asset": "b", "transform": {"translate": [1.2, 0, 0]}}]}"#,
+    )
+    .unwrap();
+    let j = run(&display, &scene);
+    assert_eq!(j["instances"], 2, "{j}");
+    let notes = j["notes"].to_string();
+    assert!(notes.contains(WARNING) && notes.contains("bad.pin"), "{j}");
+    assert!(!notes.contains("good.pin"), "{j}");
 }
