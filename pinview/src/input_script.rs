@@ -13,6 +13,9 @@
 //! * `drag {"from": [x, y], "to": [x, y]}`: the primary button pressed at image pixel `from`
 //!   (from the top-left corner, as `--pin-at`), moved to `to` over a few frames and let go,
 //!   as the mouse would: what it moves (the camera, the divider) is the window's to decide.
+//! * `copy_command {}`: as the "copy command" button: the view's batch command line on the
+//!   clipboard and stdout;
+//! * `frame_all {}`: as the "frame all" button: the camera outside every instance's box.
 //!
 //! Every event's keys are checked: an unknown key or action, a missing or out-of-range
 //! parameter is refused with the file and the event's position.
@@ -41,6 +44,8 @@ pub enum Action {
     Frame { index: usize },
     Resize { width: u32, height: u32 },
     Drag { from: [f64; 2], to: [f64; 2] },
+    CopyCommand,
+    FrameAll,
 }
 
 impl Action {
@@ -56,6 +61,8 @@ impl Action {
             Action::Frame { .. } => "frame",
             Action::Resize { .. } => "resize",
             Action::Drag { .. } => "drag",
+            Action::CopyCommand => "copy_command",
+            Action::FrameAll => "frame_all",
         }
     }
 }
@@ -118,7 +125,7 @@ fn event(v: &Value) -> Result<Event> {
         Some(Value::String(s)) => s.as_str(),
         _ => bail!(
             "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
-             drag"
+             drag, copy_command, frame_all"
         ),
     };
     let at_s = number(o, "at_s")?;
@@ -203,9 +210,11 @@ fn event(v: &Value) -> Result<Event> {
                 to: pixel(o, "to")?,
             },
         ),
+        "copy_command" => (&[], Action::CopyCommand),
+        "frame_all" => (&[], Action::FrameAll),
         other => bail!(
             "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
-             drag)",
+             drag, copy_command, frame_all)",
             pin_cli_quote(other)
         ),
     };
@@ -217,7 +226,11 @@ fn event(v: &Value) -> Result<Event> {
             "unknown key {:?} for {} (it takes {})",
             pin_cli_quote(k),
             action.name(),
-            keys.join(", ")
+            if keys.is_empty() {
+                "none".to_string()
+            } else {
+                keys.join(", ")
+            }
         );
     }
     Ok(Event { at_s, action })
@@ -280,7 +293,9 @@ mod tests {
             {"at_s": 2, "action": "exposure", "stops": -1.5},
             {"at_s": 3, "action": "frame", "index": 2},
             {"at_s": 4, "action": "resize", "width": 64, "height": 32},
-            {"at_s": 5, "action": "drag", "from": [24, 10.5], "to": [3, 10]}
+            {"at_s": 5, "action": "drag", "from": [24, 10.5], "to": [3, 10]},
+            {"at_s": 5, "action": "copy_command"},
+            {"at_s": 5, "action": "frame_all"}
         ]"#,
         )
         .unwrap();
@@ -310,6 +325,8 @@ mod tests {
                     from: [24.0, 10.5],
                     to: [3.0, 10.0]
                 },
+                Action::CopyCommand,
+                Action::FrameAll,
             ]
         );
         assert_eq!(e[7].at_s, 4.0);
@@ -322,6 +339,10 @@ mod tests {
             assert!(e.contains(want), "{t}: {e}");
         };
         bad("{}", "a list of events");
+        bad(
+            r#"[{"at_s": 0, "action": "copy_command", "to": "x"}]"#,
+            "(it takes none)",
+        );
         bad(
             r#"[{"at_s": 0, "action": "spin"}]"#,
             "event 1: unknown action",

@@ -11,6 +11,7 @@
 mod app;
 mod args;
 mod build;
+mod clipboard;
 mod compare;
 mod device;
 mod error_view;
@@ -18,12 +19,16 @@ mod export;
 mod failure_window;
 mod gizmos;
 mod input_script;
+mod look_controls;
 mod offscreen;
 mod open;
 mod pin_overlay;
+mod scene_framing;
 mod sequence;
 mod shell;
 mod startup;
+mod sun_gizmo;
+mod verify;
 mod view;
 
 use std::path::{Path, PathBuf};
@@ -202,11 +207,13 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
-    // This build opens X11 windows only (winit's x11 backend).
-    if std::env::var_os("DISPLAY").is_none_or(|d| d.is_empty()) {
+    // winit opens a Wayland window where WAYLAND_DISPLAY is set, else an X11 one.
+    let set = |v: &str| std::env::var_os(v).is_some_and(|d| !d.is_empty());
+    if !set("DISPLAY") && !set("WAYLAND_DISPLAY") {
         return Err(anyhow!(
-            "no display: DISPLAY is not set; pinview needs an X server (under a headless \
-             session: `Xvfb :99 & DISPLAY=:99 pinview ...`)"
+            "no display: neither DISPLAY nor WAYLAND_DISPLAY is set; pinview needs an X server \
+             or a Wayland compositor (under a headless session: `Xvfb :99 & DISPLAY=:99 \
+             pinview ...`)"
         ));
     }
     let outcome = Arc::new(Mutex::new(app::Outcome::default()));

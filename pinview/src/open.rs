@@ -226,6 +226,47 @@ impl Medium {
         self.scene.as_ref().map(|s| &s.scene)
     }
 
+    /// The world boxes of what is rendered: each instance's placed asset box (a scene), or
+    /// the medium's box.
+    pub fn instance_boxes(&self) -> Vec<([f64; 3], [f64; 3])> {
+        let Some(s) = &self.scene else {
+            return vec![self.bounds];
+        };
+        s.scene
+            .instances
+            .iter()
+            .filter_map(|inst| {
+                let a = s.assets.get(inst.asset as usize)?.as_ref()?;
+                Some(pinrender::instance::world_box(
+                    &inst.local_to_world,
+                    a.bounds,
+                ))
+            })
+            .collect()
+    }
+
+    /// The pin files the render reads, each once: a pin file's own, or the pin files a
+    /// scene's assets name (not pins baked in memory, which have no file).
+    pub fn pin_files(&self) -> Vec<Arc<pinrt::PinGrid>> {
+        let Some(s) = &self.scene else {
+            return if self.is_volume {
+                Vec::new()
+            } else {
+                self.pins().cloned().into_iter().collect()
+            };
+        };
+        let mut files: Vec<Arc<pinrt::PinGrid>> = Vec::new();
+        for a in s.assets.iter().flatten() {
+            if let Some(g) = &a.medium.pins
+                && g.path().is_some()
+                && !files.iter().any(|f| f.path() == g.path())
+            {
+                files.push(g.clone());
+            }
+        }
+        files
+    }
+
     /// The flag of `pinrender render` that names this file.
     pub fn input_flag(&self) -> &'static str {
         match (&self.scene, self.is_volume) {

@@ -63,6 +63,9 @@ impl Viewer {
 
     /// Background work: the bake, the re-bake, the sequence, dropped files.
     pub(super) fn poll_background(&mut self, ctx: &egui::Context) -> Result<()> {
+        if let Some(warning) = self.verify.as_mut().and_then(crate::verify::Verify::poll) {
+            self.note(warning);
+        }
         if let Some((scale, job)) = &mut self.bakes.rebake
             && let Some(done) = job.finished()
         {

@@ -196,14 +196,14 @@ impl Viewer {
     }
 
     /// Applies the scripted events due now, as the controls would.
-    pub(super) fn replay_events(&mut self) -> Result<()> {
+    pub(super) fn replay_events(&mut self, ctx: &egui::Context) -> Result<()> {
         let Some(script) = &mut self.script else {
             return Ok(());
         };
         let now = Instant::now();
         let due = script.due(now);
         for e in due {
-            self.apply_event(&e.action)?;
+            self.apply_event(ctx, &e.action)?;
             if let Some(s) = &mut self.script {
                 s.applied(&e, Instant::now());
             }
@@ -211,7 +211,7 @@ impl Viewer {
         Ok(())
     }
 
-    fn apply_event(&mut self, action: &Action) -> Result<()> {
+    fn apply_event(&mut self, ctx: &egui::Context, action: &Action) -> Result<()> {
         let v = &mut self.view;
         match *action {
             Action::Orbit { dx_deg, dy_deg } => v.orbit(dx_deg.to_radians(), dy_deg.to_radians()),
@@ -244,6 +244,15 @@ impl Viewer {
                 if let Some(s) = &mut self.script {
                     s.drag(at(from), at(to));
                 }
+            }
+            Action::FrameAll => crate::scene_framing::frame_all(&mut self.view, &self.medium),
+            Action::CopyCommand => {
+                self.export.command = crate::clipboard::copy_command(
+                    ctx,
+                    self.main.session_mut(),
+                    &self.view,
+                    &self.medium,
+                )?;
             }
         }
         Ok(())

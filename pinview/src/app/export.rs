@@ -52,24 +52,9 @@ impl Viewer {
                 self.say_saved(said);
             }
             if ui.button("copy command").clicked() {
-                // The passes the accumulation holds once a pass in progress is finished: what
-                // `save EXR` writes and what --spp renders.
-                let spp = match self.main.session_mut() {
-                    Some(s) if s.next_row() != 0 => s.add_passes(0).map(|()| s.passes()),
-                    Some(s) => Ok(s.passes()),
-                    None => Ok(0),
-                };
-                match spp {
-                    Ok(spp) => {
-                        self.export.command = self.view.command_line(
-                            self.medium.input_flag(),
-                            &self.medium.path,
-                            spp,
-                        );
-                        ui.ctx().copy_text(self.export.command.clone());
-                        // Also on the terminal, where a clipboard is not at hand.
-                        let _ = pin_cli::outln!("{}", self.export.command);
-                    }
+                let session = self.main.session_mut();
+                match crate::clipboard::copy_command(ui.ctx(), session, &self.view, &self.medium) {
+                    Ok(command) => self.export.command = command,
                     Err(e) => self.toasts.say(e.to_string()),
                 }
             }

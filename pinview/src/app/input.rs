@@ -272,6 +272,9 @@ impl Viewer {
         if pressed(Key::Minus) {
             self.view.zoom(1.1);
         }
+        if pressed(Key::F) {
+            crate::scene_framing::frame_all(&mut self.view, &self.medium);
+        }
         if pressed(Key::R) {
             let (o, t) = self.medium.home();
             self.view.origin = o;

@@ -144,6 +144,8 @@ pub struct Viewer {
     /// reference.
     error_on: bool,
     error: ErrorTrack,
+    /// The background check of a pin file's sections (`crate::verify`).
+    verify: Option<crate::verify::Verify>,
 }
 
 impl Viewer {
@@ -190,6 +192,7 @@ impl Viewer {
             egui_renderer: rs.renderer.clone(),
             tone,
             images,
+            verify: crate::verify::Verify::start(&medium),
             medium,
             bakes,
             playback,
@@ -221,6 +224,12 @@ impl Viewer {
             error: ErrorTrack::default(),
             args,
         };
+        let origin_flag = viewer.args.flags.camera_origin.is_some();
+        if let Some(n) =
+            crate::scene_framing::open_outside(&mut viewer.view, &viewer.medium, origin_flag)
+        {
+            viewer.note(n);
+        }
         if let Some(path) = &viewer.args.input_script {
             let events = crate::input_script::read(path)?;
             viewer.check_events(&events)?;
@@ -297,7 +306,7 @@ impl crate::shell::App for Viewer {
         if !scripted {
             self.keys(&ctx);
         }
-        if let Err(e) = self.replay_events() {
+        if let Err(e) = self.replay_events(&ctx) {
             self.fail(&ctx, e);
         }
         egui::Panel::left("controls")

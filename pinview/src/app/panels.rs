@@ -6,14 +6,13 @@ use pinrender::render::EstimatorSpec;
 use super::Viewer;
 use crate::{error_view, pin_overlay};
 
-/// What a scene file leaves out: the features that need one medium.
-const SCENE_NOTE: &str = "a scene: the pins estimator only (the GPU path's); compare, the \
-                          error view, the pin overlay and re-bake need one medium";
-
 impl Viewer {
     pub(super) fn controls(&mut self, ui: &mut egui::Ui) {
         ui.heading("pinview");
         ui.label(self.medium.path.display().to_string());
+        if let Some(v) = &self.verify {
+            v.show(ui);
+        }
         if let Some(job) = &self.bakes.bake {
             ui.add(egui::ProgressBar::new(job.progress()).text("baking pins"));
         }
@@ -138,9 +137,10 @@ impl Viewer {
                     ui.selectable_value(&mut self.wanted, *e, e.to_string());
                 }
             });
-        if self.medium.scene().is_some() {
-            ui.label(SCENE_NOTE);
-        } else {
+        if crate::scene_framing::scene_panel(ui, &self.medium, &available) {
+            crate::scene_framing::frame_all(&mut self.view, &self.medium);
+        }
+        if self.medium.scene().is_none() {
             self.compare_controls(ui, &available);
         }
     }
@@ -154,15 +154,12 @@ impl Viewer {
         ui.add(egui::Slider::new(&mut v.look.max_bounces, 0..=64).text("bounces"));
         ui.add(egui::Slider::new(&mut v.look.sun_radiance, 0.0..=20.0).text("sun radiance"));
         ui.add(egui::Slider::new(&mut v.look.env_radiance, 0.0..=5.0).text("sky radiance"));
-        ui.add(
-            egui::Slider::new(&mut v.exposure, 0.05..=20.0)
-                .logarithmic(true)
-                .text("exposure"),
-        );
+        crate::look_controls::exposure_stops(ui, &mut v.exposure);
         ui.label(format!(
-            "sun direction {:.2}, {:.2}, {:.2} (ctrl-drag the image)",
+            "sun direction {:.2}, {:.2}, {:.2} (drag the point, or ctrl-drag the image)",
             v.look.sun_dir[0], v.look.sun_dir[1], v.look.sun_dir[2]
         ));
+        crate::sun_gizmo::sun_gizmo(ui, &mut v.look.sun_dir, v.origin, v.target);
         self.viewport_controls(ui);
     }
 

@@ -32,7 +32,11 @@ impl Viewer {
             || self.awaiting_wanted()
             || !self.viewport.settled()
             || !self.compare_done()
-            || !self.reference_done();
+            || !self.reference_done()
+            || self
+                .verify
+                .as_ref()
+                .is_some_and(crate::verify::Verify::running);
         if waiting && !timed_out {
             return Ok(());
         }

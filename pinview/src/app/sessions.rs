@@ -258,6 +258,7 @@ impl Viewer {
     /// for the old one are dropped.
     pub(super) fn set_medium(&mut self, medium: Medium) {
         self.medium = medium;
+        self.verify = crate::verify::Verify::start(&self.medium);
         self.overlays.held = None;
         self.coarse.forget();
         for side in [&mut self.main, &mut self.compare, &mut self.reference] {

@@ -2,6 +2,7 @@
 //! adapter (lavapipe on CI). Each test compares what the viewer writes with `pinrender
 //! render --backend gpu` for the same flags, seed and passes, or checks a failure line.
 
+mod clipboard;
 mod compare;
 mod contract;
 mod divider;
@@ -15,7 +16,10 @@ mod overlay;
 mod pacing;
 mod rebake;
 mod scene;
+mod scene_framing;
 mod sequence;
+mod sun_gizmo;
 mod support;
 mod toasts;
+mod verify;
 mod viewport;
