@@ -207,13 +207,11 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
-    // winit opens a Wayland window where WAYLAND_DISPLAY is set, else an X11 one.
-    let set = |v: &str| std::env::var_os(v).is_some_and(|d| !d.is_empty());
-    if !set("DISPLAY") && !set("WAYLAND_DISPLAY") {
+    // This build opens X11 windows only (winit's x11 backend; XWayland on a Wayland desktop).
+    if std::env::var_os("DISPLAY").is_none_or(|d| d.is_empty()) {
         return Err(anyhow!(
-            "no display: neither DISPLAY nor WAYLAND_DISPLAY is set; pinview needs an X server \
-             or a Wayland compositor (under a headless session: `Xvfb :99 & DISPLAY=:99 \
-             pinview ...`)"
+            "no display: DISPLAY is not set; pinview needs an X server (under a headless \
+             session: `Xvfb :99 & DISPLAY=:99 pinview ...`)"
         ));
     }
     let outcome = Arc::new(Mutex::new(app::Outcome::default()));
