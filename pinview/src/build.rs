@@ -74,8 +74,9 @@ impl Gpu {
 pub const KEPT_DEVICES: usize = 6;
 
 /// The pipeline stores a viewer builds renderers through: the window device's, and on a CPU
-/// adapter the own devices made so far, each with the estimator it was made for, the latest
-/// last (at most [`KEPT_DEVICES`]; an older one is dropped once its renderers are).
+/// adapter the own devices made so far, each with the estimator it was made for, kept once
+/// its pipeline has been compiled and dispatched, the latest last (at most [`KEPT_DEVICES`];
+/// an older one is dropped once its renderers are).
 pub struct DeviceStores {
     info: wgpu::AdapterInfo,
     window: Arc<GpuPipelines>,
@@ -232,24 +233,36 @@ fn build(
     generation: u64,
 ) -> Result<Built> {
     let est = media.estimator;
-    // The store to build on, and on an own device its tone map.
-    let (store, tone) = match &gpu.own_devices {
-        Some(adapter) => match gpu.stores.own_for(est) {
-            Some((store, tone)) => (store, Some(tone)),
-            None => {
-                let own = open_device(adapter, &gpu.stores.info)?;
-                let tone = Arc::new(GpuToneMap::new(own.device(), IMAGE_FORMAT));
-                gpu.stores.keep(est, own.clone(), tone.clone());
-                (own, Some(tone))
-            }
-        },
-        None => (gpu.stores.window.clone(), None),
-    };
     // An own device has the adapter's limits, as the window's.
     let descs = media.descs(&gpu.limits)?;
     let packed = gpu_media(&descs, est)?;
-    let renderer = GpuRenderer::with_media_in(&store, &packed)
-        .map_err(|e| anyhow!("{}: {e}", media.path.display()))?;
+    let upload = |store: &Arc<GpuPipelines>| {
+        GpuRenderer::with_media_in(store, &packed)
+            .map_err(|e| anyhow!("{}: {e}", media.path.display()))
+    };
+    // The renderer, on an own device its tone map, and the own device to keep once its
+    // pipeline has been dispatched (the warm-up below).
+    let (renderer, tone, to_keep) = match &gpu.own_devices {
+        None => (upload(&gpu.stores.window)?, None, None),
+        Some(adapter) => {
+            // A kept device is taken only where its pipeline for these media is compiled
+            // (and dispatched: devices are kept after their warm-up): a compile there would
+            // stop every queue submission of the renderers on it, and the window reads their
+            // images from it.
+            let kept = gpu.stores.own_for(est).and_then(|(store, tone)| {
+                let r = upload(&store).ok()?;
+                r.is_compiled(est).then_some((r, tone))
+            });
+            match kept {
+                Some((r, tone)) => (r, Some(tone), None),
+                None => {
+                    let own = open_device(adapter, &gpu.stores.info)?;
+                    let tone = Arc::new(GpuToneMap::new(own.device(), IMAGE_FORMAT));
+                    (upload(&own)?, Some(tone.clone()), Some((own, tone)))
+                }
+            }
+        }
+    };
     let uploaded = Instant::now();
     // Compiled before on this device, and then dispatched and tone-mapped there by the
     // warm-up of the build that compiled it.
@@ -264,6 +277,9 @@ fn build(
     } else {
         warm_up(&renderer, &mut relay, scene, est, seed, exposure)?
     };
+    if let Some((store, tone)) = to_keep {
+        gpu.stores.keep(est, store, tone);
+    }
     Ok(Built {
         renderer,
         session,
