@@ -25,9 +25,23 @@
 #   4. The viewer at 1080p: `pinview --offscreen --frames 32` (no display needed) for pins and
 #      pinms, and in a window when a display or Xvfb is at hand (about 30 s).
 #      -> device-bench.md rows, device-bench.json `pinview` (pins off-screen), `pinview_runs`
-# DEVICE_BENCH_QUICK=1 runs every part at toy sizes (to check the script on any machine);
-# DEVICE_BENCH_PARTS="2 3" runs only those parts.
+#   5. The viewer headless on the bundled smoke (its default bake) at 1080p for pins, pinms
+#      and ratio: the first image with an empty pipeline cache and again with the one that
+#      run wrote (the wgpu pipeline cache and the driver's shader cache both in OUT's own
+#      directories), ms per pass (`pinview --offscreen --frames 16`), and in a window under
+#      Xvfb (or the display) the response to a scripted orbit, zoom and sun
+#      (`--input-script`: first changed pixels and first full pass after each).
+#      -> viewer-bench.md (also on stdout), viewer-bench.json
+# --quick (or DEVICE_BENCH_QUICK=1) runs every part at toy sizes (to check the script on any
+# machine; on lavapipe its figures say so); DEVICE_BENCH_PARTS="2 3" runs only those parts:
+#   DEVICE_BENCH_PARTS=5 bash scripts/device-bench.sh --quick OUT   # from the repository,
+#                                                                  # with target/release built
 set -uo pipefail
+
+if [ "${1:-}" = "--quick" ]; then
+  export DEVICE_BENCH_QUICK=1
+  shift
+fi
 
 if [ "${1:-}" = "--pack" ]; then
   set -e
@@ -59,7 +73,14 @@ fi
 here=$(cd "$(dirname "$0")" && pwd)
 out=${1:-$here/bench-out}
 mkdir -p "$out"
+out=$(cd "$out" && pwd)
 B=$here
+# Run from the repository's scripts/: the binaries of target/release and the bundled smoke.
+if [ ! -x "$B/pinview" ] && [ -x "$here/../target/release/pinview" ]; then
+  B=$(cd "$here/../target/release" && pwd)
+  smoke_vdb=$(cd "$here/../data" && pwd)/openvdb_smoke1.vdb
+fi
+smoke_vdb=${smoke_vdb:-$B/openvdb_smoke1.vdb}
 export LD_LIBRARY_PATH="$here/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
 work=$(mktemp -d)
 trap 'rm -rf "$work"; [ -n "${xvfb_pid:-}" ] && kill "$xvfb_pid" 2>/dev/null || true' EXIT
@@ -71,7 +92,7 @@ else
 fi
 # A part that fails leaves its line in the log and the next part runs.
 failed=()
-parts=" ${DEVICE_BENCH_PARTS:-1 2 3 4} "
+parts=" ${DEVICE_BENCH_PARTS:-1 2 3 4 5} "
 wanted() { [[ "$parts" == *" $1 "* ]]; }
 part() { echo "== $1" >&2; }
 load() { cut -d' ' -f1-3 /proc/loadavg; }
@@ -82,7 +103,7 @@ adapter=unknown
 if wanted 1; then
 part "1. GPU bake against CPU bake ($VOXELS^3 noise, the smoke; $threads threads)"
 if timeout 240 "$B/pinbake" bench --voxels "$VOXELS" --cells "$CELLS" --grid-only --default \
-  --backend cpu,gpu --threads "$threads" --source "$B/openvdb_smoke1.vdb" --json \
+  --backend cpu,gpu --threads "$threads" --source "$smoke_vdb" --json \
   >"$out/bake-bench.json"; then
   python3 - "$out/bake-bench.json" >"$out/bake-bench.md" <<'PY'
 import json, sys
@@ -107,7 +128,7 @@ fi
 for s in whole 2M; do
   extra=()
   [ "$s" = whole ] || extra=(--gpu-slab-bytes "$s")
-  timeout 120 "$B/pinbake" bake "$B/openvdb_smoke1.vdb" --seed 3 --backend gpu --json -q \
+  timeout 120 "$B/pinbake" bake "$smoke_vdb" --seed 3 --backend gpu --json -q \
     ${extra[@]+"${extra[@]}"} ${QUICK[@]+"${QUICK[@]}"} -o "$work/slabs-$s.pin" >"$work/slabs-$s.json" ||
     failed+=("GPU bake in slabs ($s)")
 done
@@ -167,17 +188,17 @@ fi
 
 if wanted 3; then
 part "3. render time against instance count (smoke instances, GPU path, ${W}x${H})"
-"$B/pinbake" bake "$B/openvdb_smoke1.vdb" -o "$work/smoke.pin" --embed-control "${QUICK[@]}" --quiet >&2 ||
+"$B/pinbake" bake "$smoke_vdb" -o "$work/smoke.pin" --embed-control "${QUICK[@]}" --quiet >&2 ||
   failed+=("smoke bake")
-cp "$B/openvdb_smoke1.vdb" "$work/smoke.vdb"
+cp "$smoke_vdb" "$work/smoke.vdb"
 echo "instances,estimator,spp,seconds,ms_per_pass" >"$out/instances.csv"
 # A first render compiles the pipeline into the driver's cache, which a cold driver takes
 # seconds for: without it the first figure's 1-spp run pays that and the difference is noise.
-python3 "$B/cloudscape_scene.py" "$work/warm.json" 1 1 "smoke=smoke.vdb,smoke.pin"
+python3 "$here/cloudscape_scene.py" "$work/warm.json" 1 1 "smoke=smoke.vdb,smoke.pin"
 timeout 120 "$B/pinrender" render --scene "$work/warm.json" --estimator pins --backend gpu \
   --width 64 --height 64 --spp 1 --out "$work/warm.exr" 2>/dev/null >/dev/null
 for n in $COUNTS; do
-  python3 "$B/cloudscape_scene.py" "$work/sky$n.json" "$n" 1 "smoke=smoke.vdb,smoke.pin"
+  python3 "$here/cloudscape_scene.py" "$work/sky$n.json" "$n" 1 "smoke=smoke.vdb,smoke.pin"
   # Passes enough that their time dwarfs the render line's 10 ms resolution and the
   # run-to-run spread of start-up.
   case $n in 1 | 16) extra=64 ;; 256) extra=16 ;; *) extra=8 ;; esac
@@ -255,6 +276,85 @@ else
 fi
 fi
 
+if wanted 5; then
+part "5. the viewer on the smoke at ${VW}x${VH}: first image cold and warm, ms per pass, event response"
+"$B/pinbake" bake "$smoke_vdb" -o "$work/smoke-view.pin" --quiet >&2 || failed+=("smoke bake for the viewer")
+cat >"$work/events.json" <<'JSON'
+[{"at_s": 0.5, "action": "orbit", "dx_deg": 20, "dy_deg": 5},
+ {"at_s": 3.0, "action": "zoom", "factor": 1.3},
+ {"at_s": 5.5, "action": "sun", "dir": [-0.4, 1, 0.3]}]
+JSON
+if [ -z "${DISPLAY:-}" ] && [ -z "${xvfb_pid:-}" ] && command -v Xvfb >/dev/null; then
+  Xvfb :78 -screen 0 2400x1300x24 -nolisten tcp >/dev/null 2>&1 &
+  xvfb_pid=$!
+  sleep 1
+  export DISPLAY=:78
+fi
+for est in pins pinms ratio; do
+  # Caches of this run only: the first run is cold, the second warm from what it wrote.
+  export PINRT_PIPELINE_CACHE="$out/cache-$est/wgpu" MESA_SHADER_CACHE_DIR="$out/cache-$est/mesa" \
+    __GL_SHADER_DISK_CACHE_PATH="$out/cache-$est/nvidia"
+  rm -rf "$out/cache-$est"
+  mkdir -p "$PINRT_PIPELINE_CACHE" "$MESA_SHADER_CACHE_DIR" "$__GL_SHADER_DISK_CACHE_PATH"
+  for run in cold warm; do
+    timeout 300 "$B/pinview" "$work/smoke-view.pin" --estimator "$est" --width "$VW" \
+      --height "$VH" --frames 16 --offscreen --json >"$work/view-$est-$run.json" \
+      2>"$work/v.log" || { echo "pinview $est $run: $(tail -n 1 "$work/v.log")" >&2; failed+=("viewer $est $run"); }
+  done
+  if [ -n "${DISPLAY:-}" ]; then
+    timeout 300 "$B/pinview" "$work/smoke-view.pin" --estimator "$est" --width "$VW" \
+      --height "$VH" --frames 4 --input-script "$work/events.json" --json \
+      >"$work/view-$est-events.json" 2>"$work/v.log" ||
+      { echo "pinview $est events: $(tail -n 1 "$work/v.log")" >&2; failed+=("viewer $est events"); }
+  fi
+  unset PINRT_PIPELINE_CACHE MESA_SHADER_CACHE_DIR __GL_SHADER_DISK_CACHE_PATH
+done
+python3 - "$work" "$VW" "$VH" "$(load)" "$out/viewer-bench.json" >"$out/viewer-bench.md" <<'PY'
+import json, os, sys
+work, w, h, load, out = sys.argv[1:]
+def read(name):
+    try:
+        return json.load(open(os.path.join(work, name)))
+    except (OSError, ValueError):
+        return None
+rows, adapter, cpu = [], "unknown", False
+for est in ["pins", "pinms", "ratio"]:
+    cold, warm, ev = (read("view-%s-%s.json" % (est, r)) for r in ["cold", "warm", "events"])
+    for j in (cold, warm, ev):
+        if j:
+            adapter, cpu = j["adapter"], j["device_type"] == "Cpu"
+    events = {e["action"]: e for e in (ev or {}).get("events", [])}
+    rows.append({
+        "estimator": est,
+        "first_image_cold_s": cold and cold["first_image_s"],
+        "pipeline_cold_s": cold and cold["first_image_breakdown"]["pipeline_s"],
+        "first_image_warm_s": warm and warm["first_image_s"],
+        "pipeline_warm_s": warm and warm["first_image_breakdown"]["pipeline_s"],
+        "ms_per_pass": warm and warm["ms_per_pass"],
+        "pass_time_source": warm and warm["pass_time_source"],
+        "events": {a: {k: e.get(k) for k in ("first_pixels_ms", "first_full_pass_ms")}
+                   for a, e in events.items()},
+        "longest_frame_gap_ms": ev and ev["longest_frame_gap_ms"],
+    })
+label = "lavapipe (CPU Vulkan), not GPU speed" if cpu else adapter
+json.dump({"adapter": adapter, "cpu_adapter": cpu, "width": int(w), "height": int(h),
+           "load": load, "file": "openvdb_smoke1.vdb, default bake", "rows": rows},
+          open(out, "w"), indent=1)
+f = lambda v, d=2: "" if v is None else ("%.*f" % (d, v))
+print("Viewer on the smoke's default bake, %sx%s, %s; load %s\n" % (w, h, label, load))
+print("| estimator | first image cold s (pipeline s) | warm s (pipeline s) | ms per pass | orbit ms: first pixels / full pass | zoom ms | sun ms |")
+print("|---|---|---|---|---|---|---|")
+for r in rows:
+    ev = lambda a: "%s / %s" % (f(r["events"].get(a, {}).get("first_pixels_ms"), 0),
+                                f(r["events"].get(a, {}).get("first_full_pass_ms"), 0)) if a in r["events"] else ""
+    print("| %s | %s (%s) | %s (%s) | %s | %s | %s | %s |" % (
+        r["estimator"], f(r["first_image_cold_s"]), f(r["pipeline_cold_s"]),
+        f(r["first_image_warm_s"]), f(r["pipeline_warm_s"]), f(r["ms_per_pass"], 1),
+        ev("orbit"), ev("zoom"), ev("sun")))
+PY
+cat "$out/viewer-bench.md"
+fi
+
 {
   echo "{\"adapter\": \"$adapter\", \"load\": \"$(load)\", \"rows\": ["
   (IFS=,; echo "${rows[*]}")
@@ -264,8 +364,8 @@ fi
   (IFS=,; for f in "${failed[@]}"; do printf '"%s",' "$f"; done | sed 's/,$//')
   echo "]}"
 } >"$out/device-bench.json"
-cat "$out/device-bench.md"
-cat "$out/instances.csv"
+[ -f "$out/device-bench.md" ] && cat "$out/device-bench.md"
+[ -f "$out/instances.csv" ] && cat "$out/instances.csv"
 if [ ${#failed[@]} -gt 0 ]; then
   echo "device-bench: failed: ${failed[*]}" >&2
   exit 1

@@ -12,12 +12,19 @@
 //! also renders the first pass of a coarse preview (or, for a small image, one workgroup)
 //! and tone-maps it, and on a CPU adapter each renderer gets a device of its own
 //! ([`Gpu::own_devices`]): its compiles never stop the window's queue.
+//!
+//! Pipelines are compiled once per device ([`GpuPipelines`], with the disk cache where the
+//! adapter has one): a renderer of another frame of a sequence, another file or the same
+//! estimator again is built on a device whose store holds its pipeline, so it only uploads
+//! its media; on a CPU adapter that is the own device the estimator's last renderer was
+//! built on ([`DeviceStores`]), where the pipeline was compiled and already dispatched, and
+//! then no warm-up is needed either.
 
-use std::sync::mpsc;
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::Instant;
 
 use anyhow::{Result, anyhow};
-use pinrender::gpu_render::{GpuRenderer, GpuScene, GpuSession, GpuToneMap};
+use pinrender::gpu_render::{GpuPipelines, GpuRenderer, GpuScene, GpuSession, GpuToneMap};
 use pinrender::render::EstimatorSpec;
 
 use crate::device::{IMAGE_FORMAT, device_descriptor, image_texture};
@@ -34,6 +41,86 @@ pub struct Gpu {
     /// adapter) instead of rendering on `device`; its image reaches the window through a
     /// [`Relay`].
     pub own_devices: Option<wgpu::Adapter>,
+    /// The compiled pipelines of `device` and of the own devices.
+    pub stores: Arc<DeviceStores>,
+}
+
+impl Gpu {
+    /// The viewer's device on `adapter` (`info`): renderers on devices of their own where
+    /// `own_devices` (a CPU adapter), pipelines through the disk cache.
+    pub fn new(
+        device: wgpu::Device,
+        queue: wgpu::Queue,
+        info: &wgpu::AdapterInfo,
+        own_devices: Option<wgpu::Adapter>,
+    ) -> Self {
+        let limits = device.limits();
+        let window = GpuPipelines::with_disk_cache(&device, &queue, &limits, info, None);
+        Self {
+            device,
+            queue,
+            limits,
+            own_devices,
+            stores: Arc::new(DeviceStores {
+                info: info.clone(),
+                window,
+                own: Mutex::new(Vec::new()),
+            }),
+        }
+    }
+}
+
+/// Own devices kept for later renderers (each holds its compiled pipelines and tone map).
+pub const KEPT_DEVICES: usize = 6;
+
+/// The pipeline stores a viewer builds renderers through: the window device's, and on a CPU
+/// adapter the own devices made so far, each with the estimator it was made for, kept once
+/// its pipeline has been compiled and dispatched, the latest last (at most [`KEPT_DEVICES`];
+/// an older one is dropped once its renderers are).
+pub struct DeviceStores {
+    info: wgpu::AdapterInfo,
+    window: Arc<GpuPipelines>,
+    own: Mutex<Vec<OwnDevice>>,
+}
+
+struct OwnDevice {
+    estimator: EstimatorSpec,
+    store: Arc<GpuPipelines>,
+    tone: Arc<GpuToneMap>,
+}
+
+impl DeviceStores {
+    /// Path-tracing pipelines compiled so far on every device (the JSON's
+    /// `pipelines_compiled`; the own devices dropped to keep [`KEPT_DEVICES`] no longer count).
+    pub fn compiled(&self) -> usize {
+        let own = self
+            .own
+            .lock()
+            .map_or(0, |o| o.iter().map(|d| d.store.compiled()).sum::<usize>());
+        self.window.compiled() + own
+    }
+
+    /// The own device the last renderer of `estimator` was built on, if one is kept.
+    fn own_for(&self, estimator: EstimatorSpec) -> Option<(Arc<GpuPipelines>, Arc<GpuToneMap>)> {
+        let own = self.own.lock().ok()?;
+        own.iter()
+            .rev()
+            .find(|d| d.estimator == estimator)
+            .map(|d| (d.store.clone(), d.tone.clone()))
+    }
+
+    /// Keeps a new own device for later renderers of `estimator`.
+    fn keep(&self, estimator: EstimatorSpec, store: Arc<GpuPipelines>, tone: Arc<GpuToneMap>) {
+        if let Ok(mut own) = self.own.lock() {
+            own.push(OwnDevice {
+                estimator,
+                store,
+                tone,
+            });
+            let over = own.len().saturating_sub(KEPT_DEVICES);
+            own.drain(..over);
+        }
+    }
 }
 
 /// The longest side of the coarse preview, in pixels: about 1/16 of a 512 x 512 pass.
@@ -146,22 +233,53 @@ fn build(
     generation: u64,
 ) -> Result<Built> {
     let est = media.estimator;
-    let own = match &gpu.own_devices {
-        Some(adapter) => Some(open_device(adapter)?),
-        None => None,
-    };
-    let gpu = own.as_ref().unwrap_or(gpu);
+    // An own device has the adapter's limits, as the window's.
     let descs = media.descs(&gpu.limits)?;
     let packed = gpu_media(&descs, est)?;
-    let renderer = GpuRenderer::with_media_on(&gpu.device, &gpu.queue, &gpu.limits, &packed)
-        .map_err(|e| anyhow!("{}: {e}", media.path.display()))?;
+    let upload = |store: &Arc<GpuPipelines>| {
+        GpuRenderer::with_media_in(store, &packed)
+            .map_err(|e| anyhow!("{}: {e}", media.path.display()))
+    };
+    // The renderer, on an own device its tone map, and the own device to keep once its
+    // pipeline has been dispatched (the warm-up below).
+    let (renderer, tone, to_keep) = match &gpu.own_devices {
+        None => (upload(&gpu.stores.window)?, None, None),
+        Some(adapter) => {
+            // A kept device is taken only where its pipeline for these media is compiled
+            // (and dispatched: devices are kept after their warm-up): a compile there would
+            // stop every queue submission of the renderers on it, and the window reads their
+            // images from it.
+            let kept = gpu.stores.own_for(est).and_then(|(store, tone)| {
+                let r = upload(&store).ok()?;
+                r.is_compiled(est).then_some((r, tone))
+            });
+            match kept {
+                Some((r, tone)) => (r, Some(tone), None),
+                None => {
+                    let own = open_device(adapter, &gpu.stores.info)?;
+                    let tone = Arc::new(GpuToneMap::new(own.device(), IMAGE_FORMAT));
+                    (upload(&own)?, Some(tone.clone()), Some((own, tone)))
+                }
+            }
+        }
+    };
     let uploaded = Instant::now();
+    // Compiled before on this device, and then dispatched and tone-mapped there by the
+    // warm-up of the build that compiled it.
+    let warm = renderer.is_compiled(est);
     let session = renderer
         .session(scene, est, seed)
         .map_err(|e| anyhow!("{e}"))?;
     let compiled = Instant::now();
-    let mut relay = own.as_ref().map(|g| Relay::new(&g.device));
-    let preview = warm_up(&renderer, &mut relay, gpu, scene, est, seed, exposure)?;
+    let mut relay = tone.map(Relay::with_tone);
+    let preview = if warm {
+        None
+    } else {
+        warm_up(&renderer, &mut relay, scene, est, seed, exposure)?
+    };
+    if let Some((store, tone)) = to_keep {
+        gpu.stores.keep(est, store, tone);
+    }
     Ok(Built {
         renderer,
         session,
@@ -174,17 +292,14 @@ fn build(
     })
 }
 
-/// A device of its own on `adapter`, as the window's is opened.
-fn open_device(adapter: &wgpu::Adapter) -> Result<Gpu> {
+/// A device of its own on `adapter`, as the window's is opened, with its pipeline store.
+fn open_device(adapter: &wgpu::Adapter, info: &wgpu::AdapterInfo) -> Result<Arc<GpuPipelines>> {
     let (device, queue) = pollster::block_on(adapter.request_device(&device_descriptor(adapter)))
         .map_err(|e| anyhow!("opening a GPU device: {e}"))?;
     let limits = device.limits();
-    Ok(Gpu {
-        device,
-        queue,
-        limits,
-        own_devices: None,
-    })
+    Ok(GpuPipelines::with_disk_cache(
+        &device, &queue, &limits, info, None,
+    ))
 }
 
 /// The preview's size for an image of `width x height`: each side divided by the least
@@ -206,7 +321,6 @@ pub fn scaled_size(width: u32, height: u32, side: u32) -> Option<(u32, u32, u32)
 fn warm_up(
     renderer: &GpuRenderer,
     relay: &mut Option<Relay>,
-    gpu: &Gpu,
     scene: &GpuScene,
     est: EstimatorSpec,
     seed: u64,
@@ -225,7 +339,7 @@ fn warm_up(
     session.add_passes(1).map_err(|e| anyhow!("{e}"))?;
     let rgba = match relay {
         Some(r) => r.image(&session, exposure)?,
-        None => Relay::new(&gpu.device).image(&session, exposure)?,
+        None => Relay::new(session.device()).image(&session, exposure)?,
     };
     Ok(preview.map(|(pw, ph, f)| upscale(&rgba, pw, ph, f, w, h)))
 }
@@ -248,14 +362,19 @@ pub fn upscale(rgba: &[u8], pw: u32, ph: u32, f: u32, w: u32, h: u32) -> Vec<u8>
 /// texture, read back and written into the window's texture (on a CPU adapter both are
 /// host memory: about a millisecond per 512 x 512 image).
 pub struct Relay {
-    tone: GpuToneMap,
+    tone: Arc<GpuToneMap>,
     texture: Option<(wgpu::Texture, (u32, u32))>,
 }
 
 impl Relay {
     pub fn new(device: &wgpu::Device) -> Self {
+        Self::with_tone(Arc::new(GpuToneMap::new(device, IMAGE_FORMAT)))
+    }
+
+    /// A relay drawing with a tone map of the session's device made before.
+    pub fn with_tone(tone: Arc<GpuToneMap>) -> Self {
         Self {
-            tone: GpuToneMap::new(device, IMAGE_FORMAT),
+            tone,
             texture: None,
         }
     }

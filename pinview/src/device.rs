@@ -13,11 +13,15 @@ pub fn device_descriptor(adapter: &wgpu::Adapter) -> wgpu::DeviceDescriptor<'sta
         // adapter: lavapipe stamps a pass when it processes the command, not when its threads
         // finish the dispatch (measured 20x and 220x below the wall time for pins and PinMS),
         // so the wall time is the truer figure there.
-        required_features: if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
-            wgpu::Features::empty()
-        } else {
-            adapter.features() & wgpu::Features::TIMESTAMP_QUERY
-        },
+        //
+        // A pipeline cache where the backend keeps one (Vulkan): compiled pipelines go to disk
+        // and a later run starts from them (`pinrender::gpu_render::GpuPipelines`).
+        required_features: adapter.features()
+            & if adapter.get_info().device_type == wgpu::DeviceType::Cpu {
+                wgpu::Features::PIPELINE_CACHE
+            } else {
+                wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::PIPELINE_CACHE
+            },
         required_limits: adapter.limits(),
         ..Default::default()
     }

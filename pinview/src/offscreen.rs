@@ -45,16 +45,8 @@ fn open_device() -> Result<(Gpu, wgpu::AdapterInfo)> {
     let adapter = pollster::block_on(pinrt::gpu::request_adapter()).map_err(|e| anyhow!("{e}"))?;
     let (device, queue) = pollster::block_on(adapter.request_device(&device_descriptor(&adapter)))
         .map_err(|e| anyhow!("opening the GPU device: {e}"))?;
-    let limits = device.limits();
-    Ok((
-        Gpu {
-            device,
-            queue,
-            limits,
-            own_devices: None,
-        },
-        adapter.get_info(),
-    ))
+    let info = adapter.get_info();
+    Ok((Gpu::new(device, queue, &info, None), info))
 }
 
 /// Renders `--frames` passes of `medium` off-screen, writes the outputs asked for and
@@ -154,6 +146,7 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
         "frame": null,
         "frame_path": null,
         "frames_played": [],
+        "pipelines_compiled": gpu.stores.compiled(),
         "file": medium.path.display().to_string(),
         "samples_per_second": samples_per_second(w, h, ms),
         "gpu_bytes": gpu_bytes(Some(&built.renderer)),

@@ -30,6 +30,8 @@
 
 mod media;
 mod pass_timer;
+mod pipeline_cache;
+mod pipelines;
 mod session;
 mod tone_map;
 mod wgsl;
@@ -40,12 +42,12 @@ pub use media::{
     value_bindings,
 };
 pub use pass_timer::{PassTimeSource, timestamp_seconds};
+pub use pipelines::{GpuPipelines, default_cache_dir};
 pub use session::GpuSession;
 pub use tone_map::{GpuToneMap, TONE_MAP_WGSL};
 pub use wgsl::{RENDER_WGSL, render_wgsl, render_wgsl_with};
 
-use std::collections::HashMap;
-use std::sync::Mutex;
+use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
@@ -370,12 +372,11 @@ pub struct GpuRenderer {
     device: wgpu::Device,
     queue: wgpu::Queue,
     limits: wgpu::Limits,
-    module: wgpu::ShaderModule,
-    layout: wgpu::PipelineLayout,
-    /// One pipeline per (primary, secondary) estimator pair, compiled on first use.
-    pipelines: Mutex<HashMap<(u32, u32), wgpu::ComputePipeline>>,
+    /// The device's pipelines, shared with the other renderers made through the same store.
+    store: Arc<GpuPipelines>,
+    /// This renderer's layouts and module (its number of brick-value bindings) in `store`.
+    set: Arc<pipelines::LayoutSet>,
     grid_group: wgpu::BindGroup,
-    render_layout: wgpu::BindGroupLayout,
     grids: wgpu::Buffer,
     records: wgpu::Buffer,
     data: wgpu::Buffer,
@@ -480,34 +481,47 @@ impl GpuRenderer {
         binding_limit: u64,
     ) -> pinrt::Result<Self> {
         let limit = binding_limit.min(pinrt::gpu::binding_limit(&ctx.limits));
-        pollster::block_on(Self::create(
-            &ctx.device,
-            &ctx.queue,
-            &ctx.limits,
-            media,
-            limit,
-        ))
+        let store = GpuPipelines::new(&ctx.device, &ctx.queue, &ctx.limits);
+        pollster::block_on(Self::create(&store, media, limit))
     }
 
     /// [`GpuRenderer::with_media`] on a device the caller opened (a viewer's, which also
-    /// presents to a window): `limits` are the limits the device was created with.
+    /// presents to a window): `limits` are the limits the device was created with. Its
+    /// pipelines are its own; [`GpuRenderer::with_media_in`] shares them.
     pub fn with_media_on(
         device: &wgpu::Device,
         queue: &wgpu::Queue,
         limits: &wgpu::Limits,
         media: &GpuMedia<'_>,
     ) -> pinrt::Result<Self> {
-        let limit = pinrt::gpu::binding_limit(limits);
-        pollster::block_on(Self::create(device, queue, limits, media, limit))
+        Self::with_media_in(&GpuPipelines::new(device, queue, limits), media)
+    }
+
+    /// [`GpuRenderer::with_media`] on the device of `store`, taking the pipelines compiled
+    /// there before (for an earlier frame, file or scene of the same layout) and adding the
+    /// ones it compiles: the media are uploaded, nothing is compiled that `store` has.
+    pub fn with_media_in(store: &Arc<GpuPipelines>, media: &GpuMedia<'_>) -> pinrt::Result<Self> {
+        let limit = pinrt::gpu::binding_limit(&store.limits);
+        pollster::block_on(Self::create(store, media, limit))
+    }
+
+    /// The pipeline store this renderer compiles into and takes its pipelines from.
+    pub fn pipelines(&self) -> &Arc<GpuPipelines> {
+        &self.store
+    }
+
+    /// Whether the pipeline `estimator` renders with is compiled already (a session of it
+    /// starts without a compile).
+    pub fn is_compiled(&self, estimator: impl Into<GpuEstimator>) -> bool {
+        self.set.has(self.pipeline_key(estimator.into()))
     }
 
     async fn create(
-        device: &wgpu::Device,
-        queue: &wgpu::Queue,
-        limits: &wgpu::Limits,
+        store: &Arc<GpuPipelines>,
         media: &GpuMedia<'_>,
         limit: u64,
     ) -> pinrt::Result<Self> {
+        let (device, queue, limits) = (&store.device, &store.queue, &store.limits);
         // Group 0: pins and cell indices; group 1: accumulation, grid parameters, media,
         // data and the brick values.
         let available = value_bindings(limits);
@@ -603,33 +617,10 @@ impl GpuRenderer {
             contents: &[0u8; size_of::<media::GridParams>()],
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        let grid_layout = dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("render grid"),
-            entries: &[
-                uniform_entry(0, false, size_of::<media::GridParams>() as u64),
-                storage_entry(1, true),
-                storage_entry(2, true),
-            ],
-        });
-        let render_layout = dev.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("render scene"),
-            entries: &[
-                uniform_entry(0, false, size_of::<RtParams>() as u64),
-                uniform_entry(1, true, 16),
-                storage_entry(2, false),
-                storage_entry(3, true),
-                storage_entry(4, true),
-                storage_entry(5, true),
-                uniform_entry(6, false, size_of::<media::GridParams>() as u64),
-            ]
-            .into_iter()
-            // 7..: the brick values.
-            .chain((0..value_count as u32).map(|k| storage_entry(7 + k, true)))
-            .collect::<Vec<_>>(),
-        });
+        let set = store.layout_set(value_count).await?;
         let grid_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("render grid"),
-            layout: &grid_layout,
+            layout: &set.grid_layout,
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,
@@ -645,17 +636,8 @@ impl GpuRenderer {
                 },
             ],
         });
-        let layout = dev.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("render"),
-            bind_group_layouts: &[Some(&grid_layout), Some(&render_layout)],
-            immediate_size: 0,
-        });
-        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("pin.wgsl + render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(render_wgsl(value_count).into()),
-        });
         if let Some(e) = scope.pop().await {
-            return Err(gpu_err("compiling shaders/render.wgsl", e));
+            return Err(gpu_err("uploading the media", e));
         }
         let section_bytes = vec![
             ("pins", packed.pins.len() as u64),
@@ -676,11 +658,9 @@ impl GpuRenderer {
             device: device.clone(),
             queue: queue.clone(),
             limits: limits.clone(),
-            module,
-            layout,
-            pipelines: Mutex::new(HashMap::new()),
+            store: store.clone(),
+            set,
             grid_group,
-            render_layout,
             grids,
             records,
             data,
@@ -695,58 +675,29 @@ impl GpuRenderer {
         })
     }
 
-    /// The pipeline of an estimator pair, compiled (with its pipeline-overridable constants)
-    /// the first time it is asked for.
-    async fn pipeline(&self, estimator: GpuEstimator) -> pinrt::Result<wgpu::ComputePipeline> {
+    /// What `estimator`'s pipeline depends on beyond this renderer's layout.
+    fn pipeline_key(&self, estimator: GpuEstimator) -> pipelines::PipelineKey {
         let (primary, secondary) = estimator.kinds();
-        let cache = || {
-            self.pipelines
-                .lock()
-                .map_err(|_| Error::Gpu("pipeline cache poisoned".into()))
-        };
-        if let Some(p) = cache()?.get(&(primary, secondary)) {
-            return Ok(p.clone());
+        pipelines::PipelineKey {
+            primary,
+            secondary,
+            one_medium: self.caps.len() == 1,
+            bricked: self.bricked,
         }
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let one_medium = if self.caps.len() == 1 { 1.0 } else { 0.0 };
-        let constants = [
-            ("RT_PRIMARY", f64::from(primary)),
-            ("RT_SECONDARY", f64::from(secondary)),
-            ("RT_ONE_MEDIUM", one_medium),
-            ("RT_BRICKS", if self.bricked { 1.0 } else { 0.0 }),
-        ];
-        // A kernel's WGSL joins the path tracer's at its extension region, in a module of its
-        // own; the renderer's estimators share the one compiled with the renderer.
-        let kernel_module = match estimator {
-            GpuEstimator::Kernel(k) => Some(self.device.create_shader_module(
-                wgpu::ShaderModuleDescriptor {
-                    label: Some(k.name),
-                    source: wgpu::ShaderSource::Wgsl(
-                        render_wgsl_with(self.brick_bindings.max(1), k.wgsl).into(),
-                    ),
-                },
-            )),
+    }
+
+    /// The pipeline of an estimator pair, compiled (with its pipeline-overridable constants)
+    /// the first time the store is asked for it. A kernel's WGSL joins the path tracer's at
+    /// its extension region, in a module of its own; the renderer's estimators share the
+    /// layout's module.
+    async fn pipeline(&self, estimator: GpuEstimator) -> pinrt::Result<wgpu::ComputePipeline> {
+        let kernel = match estimator {
+            GpuEstimator::Kernel(k) => Some((k.name, k.wgsl)),
             GpuEstimator::Spec(_) => None,
         };
-        let pipeline = self
-            .device
-            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some("render"),
-                layout: Some(&self.layout),
-                module: kernel_module.as_ref().unwrap_or(&self.module),
-                entry_point: Some("render_main"),
-                compilation_options: wgpu::PipelineCompilationOptions {
-                    constants: &constants,
-                    ..Default::default()
-                },
-                cache: None,
-            });
-        if let Some(e) = scope.pop().await {
-            return Err(gpu_err("compiling shaders/render.wgsl", e));
-        }
-        // Two threads may both have compiled it; either copy will do.
-        cache()?.insert((primary, secondary), pipeline.clone());
-        Ok(pipeline)
+        self.store
+            .pipeline(&self.set, self.pipeline_key(estimator), kernel)
+            .await
     }
 
     /// Number of media instances.
@@ -823,5 +774,7 @@ impl GpuRenderer {
     }
 }
 
+#[cfg(test)]
+mod pipeline_tests;
 #[cfg(test)]
 mod tests;

@@ -145,7 +145,7 @@ impl GpuRenderer {
         });
         let group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("render scene"),
-            layout: &self.render_layout,
+            layout: &self.set.render_layout,
             entries: &[
                 wgpu::BindGroupEntry {
                     binding: 0,

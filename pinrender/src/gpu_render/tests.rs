@@ -9,7 +9,7 @@ use pinrt::Rng;
 use std::sync::Arc;
 use std::time::Instant;
 
-fn context() -> GpuContext {
+pub(super) fn context() -> GpuContext {
     GpuContext::new().unwrap_or_else(|e| {
         panic!(
             "GPU render tests need a working wgpu adapter: {e}\n\
@@ -20,7 +20,12 @@ fn context() -> GpuContext {
 
 /// A blob-shaped pin grid over the world box `[-1, 1]^3`: denser pins towards the centre
 /// (more ratio bits, smaller `t_min`), random bits.
-fn blob_grid(cells: u32, directions: Directions, ppe: u32, strength: f32) -> OwnedPinGrid {
+pub(super) fn blob_grid(
+    cells: u32,
+    directions: Directions,
+    ppe: u32,
+    strength: f32,
+) -> OwnedPinGrid {
     let mut rng = Rng::for_query(0xB10B, cells);
     let block = directions.count() * ppe;
     let mut pins = Vec::new();
@@ -65,11 +70,11 @@ fn blob_grid(cells: u32, directions: Directions, ppe: u32, strength: f32) -> Own
     }
 }
 
-fn load(owned: &OwnedPinGrid) -> Arc<PinGrid> {
+pub(super) fn load(owned: &OwnedPinGrid) -> Arc<PinGrid> {
     Arc::new(PinGrid::from_bytes(owned.to_bytes().unwrap()).unwrap())
 }
 
-fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
+pub(super) fn scene(size: u32, albedo: f32, g: f32, max_bounces: u32) -> GpuScene {
     GpuScene {
         camera: Camera {
             origin: [0.4, 0.6, 3.5],

@@ -166,15 +166,15 @@ impl Viewer {
             .as_ref()
             .ok_or_else(|| anyhow!("the window has no wgpu renderer"))?;
         let info = rs.adapter.get_info();
-        let gpu = Gpu {
-            device: rs.device.clone(),
-            queue: rs.queue.clone(),
-            limits: rs.device.limits(),
+        let gpu = Gpu::new(
+            rs.device.clone(),
+            rs.queue.clone(),
+            &info,
             // On a CPU adapter a renderer's first dispatch compiles on its device's queue
-            // (seconds with lavapipe), which would stop the window's frames: each renderer
-            // gets a device of its own there (`crate::build`).
-            own_devices: (info.device_type == wgpu::DeviceType::Cpu).then(|| rs.adapter.clone()),
-        };
+            // (seconds with lavapipe), which would stop the window's frames: renderers get
+            // devices of their own there (`crate::build`).
+            (info.device_type == wgpu::DeviceType::Cpu).then(|| rs.adapter.clone()),
+        );
         let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
         let view = View::new(&args, &medium, wanted);

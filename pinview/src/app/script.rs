@@ -124,6 +124,7 @@ impl Viewer {
             "frame_path": frame.map(|f| f.1.display().to_string()),
             "frames_played": self.playback.frames_played,
             "playback_fps": self.playback.fps(),
+            "pipelines_compiled": self.gpu.stores.compiled(),
             "file": self.medium.path.display().to_string(),
             "samples_per_second": self.samples_per_second(),
             "gpu_bytes": self.gpu_bytes(),

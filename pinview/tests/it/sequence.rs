@@ -26,10 +26,13 @@ fn play_steps_through_the_frames() {
     assert_eq!(j["frame"], 1, "{j}");
     assert_eq!(j["frames_played"], serde_json::json!([1]), "{j}");
     assert!(j["playback_fps"].is_null(), "{j}");
+    assert_eq!(j["pipelines_compiled"], 1, "{j}");
     // Playing, one pass per frame: every frame shown in turn, ending on the last.
     let (j, last) = run(&["--play", "--frame-passes", "1"], "last");
     assert_eq!(j["frame"], 3, "{j}");
     assert_eq!(j["frames_played"], serde_json::json!([1, 2, 3]), "{j}");
+    // Each frame swaps its buffers into the pipeline the first one compiled.
+    assert_eq!(j["pipelines_compiled"], 1, "{j}");
     // Two steps taken while playing, over a positive time.
     assert!(
         j["playback_fps"]
