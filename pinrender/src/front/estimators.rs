@@ -63,7 +63,11 @@ pub fn available(holds: Holds, catalogue: &[EstimatorInfo]) -> Vec<EstimatorSpec
 /// of the source volume where it is cheap), pins, ratio tracking; each the first that
 /// `catalogue` has and `holds` answers (ratio tracking when none is). PinMS through the
 /// default asset's small pin grid measured 3.1% to 6.8% 8x8-block error where ratio tracking
-/// of the same file reached 0.46% to 0.94% (docs/scale.md, "The default asset").
+/// of the same file reached 0.46% to 0.94% (docs/scale.md, "The default asset"). At equal
+/// CPU time (`pinrender eval --default-asset`, docs/evaluation.md) ratio tracking of a default
+/// file has the lowest RMSE at 1 s; at 0.1 s pins alone's is lower, from samples alone, at 4-6x
+/// the block error; PinMS beside a volume ties ratio tracking at 0.1 s and loses at 1 s
+/// (docs/decisions.md, R7).
 pub fn default_estimator(holds: Holds, catalogue: &[EstimatorInfo]) -> EstimatorSpec {
     const SOURCE: [EstimatorSpec; 3] = [
         EstimatorSpec::PinMs,
