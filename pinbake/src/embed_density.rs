@@ -21,6 +21,9 @@ pub enum EmbedDensity {
     },
 }
 
+/// Most voxels per axis of the dense section (the format's limit).
+pub const MAX_DENSE_DIM: u32 = 4096;
+
 /// Most source voxels per embedded voxel along an axis (`voxels:F`).
 pub const MAX_VOXELS_FACTOR: u32 = 64;
 
@@ -69,8 +72,8 @@ impl FromStr for EmbedDensity {
         }
         let Some(rest) = t.strip_prefix("sparse") else {
             let v = parse_counts(t)?;
-            if v.iter().any(|&d| d > 4096) {
-                return Err(format!("{v:?}: at most 4096 per axis"));
+            if v.iter().any(|&d| d > MAX_DENSE_DIM) {
+                return Err(format!("{v:?}: at most {MAX_DENSE_DIM} per axis"));
             }
             return Ok(Self::Dense(v));
         };

@@ -15,6 +15,8 @@
 
 use glam::DVec3;
 
+use crate::embed_density::{MAX_DENSE_DIM, MAX_VOXELS_FACTOR};
+
 use pin_volume::{
     Aabb, DenseGrid, DenseLattice, DenseView, Density, DensitySource, Footprint, part_facts,
 };
@@ -55,6 +57,37 @@ pub fn source_lattice(source: &dyn DensitySource) -> Option<(DVec3, DVec3, Aabb)
         l.origin + DVec3::new(l.dims[0] as f64, l.dims[1] as f64, l.dims[2] as f64) * l.spacing;
     (l.spacing.is_finite() && l.spacing.cmpgt(DVec3::ZERO).all() && l.origin.is_finite())
         .then_some((l.origin, l.spacing, Aabb::new(l.origin, far)))
+}
+
+/// The whole factor `F` at which a dense count of `dims` voxels per axis names the source's
+/// own resolution over its bake box (`crop`), `None` where it names none (or the source has no
+/// lattice, [`source_lattice`]): the smallest `F` (1..=[`MAX_VOXELS_FACTOR`]) for which every
+/// axis's count lies between the source's voxels whose centres lie inside the box and the
+/// voxels of the box grown to its lattice ([`LatticeBox`], the rim of zeros included), each
+/// divided by `F` and rounded up, and the grown box's dims fit the dense section (4096 per
+/// axis). A VDB of `n` stored voxels along an axis thus names its resolution with `n`
+/// (`23,10,23` for a 23x10x23 fog VDB) or with the `n + 2` of its lattice box, a dense grid
+/// with its own dims: either way the section holds the lattice box's voxels, the source's
+/// own (or their box averages over whole blocks of `F`), not a resampling over the box.
+pub fn dims_factor(source: &dyn DensitySource, crop: bool, dims: [u32; 3]) -> Option<u32> {
+    let (origin, spacing, _) = source_lattice(source)?;
+    let (b, _) = crate::placement::bake_box(source, crop).ok()?;
+    // Source voxel centres strictly inside the box (a VDB's box ends on the centres of the
+    // zero voxels beside its stored ones).
+    let first = ((b.min - origin) / spacing - 0.5 + 1e-6).floor() + DVec3::ONE;
+    let last = ((b.max - origin) / spacing - 0.5 - 1e-6).ceil() - DVec3::ONE;
+    let inside = (last - first + DVec3::ONE).max(DVec3::ONE);
+    let (_, _, grown, _) = LatticeBox::grown(source, crop, 1)?;
+    if !inside.is_finite() || inside.max_element() > f64::from(u32::MAX) {
+        return None;
+    }
+    let inside = [inside.x as u32, inside.y as u32, inside.z as u32];
+    (1..=MAX_VOXELS_FACTOR).find(|&f| {
+        (0..3).all(|a| {
+            let top = grown[a].div_ceil(f);
+            (inside[a].div_ceil(f)..=top).contains(&dims[a]) && top <= MAX_DENSE_DIM
+        })
+    })
 }
 
 impl<'a> LatticeBox<'a> {

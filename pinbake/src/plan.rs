@@ -648,6 +648,18 @@ fn prepare(
     } else if let Some(factor) = match req.embed_density {
         Some(crate::EmbedDensity::Sparse(crate::sparse_density::SparseDims::Source)) => Some(1),
         Some(crate::EmbedDensity::Voxels { factor, .. }) => Some(factor),
+        // Dense counts that name the source's resolution (or a whole F of it): its voxels on
+        // its lattice, as `voxels:F`, not a resampling over the cropped box.
+        Some(crate::EmbedDensity::Dense(dims)) => {
+            let factor = crate::lattice_box::dims_factor(source.as_ref(), req.crop, dims);
+            if let Some(factor) = factor {
+                embed_density = Some(crate::EmbedDensity::Voxels {
+                    factor,
+                    sparse: false,
+                });
+            }
+            factor
+        }
         _ => None,
     } {
         // The source's own voxels: the box on its lattice, so that they are embedded as they

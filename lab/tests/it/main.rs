@@ -2,6 +2,7 @@
 //! concern.
 
 mod cli_text;
+mod eval_asset_time;
 mod eval_bytes;
 mod eval_cli;
 mod front;

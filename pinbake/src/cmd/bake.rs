@@ -94,9 +94,12 @@ pub struct BakeArgs {
     /// `sparse:X,Y,Z` (exactly those voxels), N or X,Y,Z for a dense f16 grid of at most
     /// 4096 per axis, or `voxels:F` / `sparse-voxels:F` (dense or sparse: the source's own
     /// voxels, each F^3 of them averaged into one, on the source's lattice; F 1 by default)
-    /// (for tracked and ray-marched rays from the .pin alone). Below the source's resolution
-    /// every form is box-filtered (the mean over the embedded voxel). Default: chosen with
-    /// the pins, see --max-bytes.
+    /// (for tracked and ray-marched rays from the .pin alone). Dense counts that name the
+    /// source's resolution or a whole F of it (between its stored voxels and those of its box
+    /// on its lattice, divided by F: `23,10,23` for a 23x10x23 VDB) are `voxels:F`: the
+    /// section holds the lattice box's voxels, a rim of zeros included. Below the source's
+    /// resolution every form is box-filtered (the mean over the embedded voxel). Default:
+    /// chosen with the pins, see --max-bytes.
     #[arg(long, value_parser = parse_embed_density, help_heading = "Grid")]
     pub embed_density: Option<EmbedDensity>,
     /// Embed the control of residual ratio tracking (a format 1.1 file): per brick of EDGE

@@ -219,14 +219,22 @@ fn format_field(
 
 /// At the source's resolution the file's density is the source: its field, read as the
 /// format reads it, is the VDB's trilinear field at any point, up to f16 rounding (resampled
-/// over the cropped box, as before, it differed by a good part of a voxel's value).
+/// over the cropped box, as before, it differed by a good part of a voxel's value). Dense
+/// counts name that resolution too: the sphere's 11x9x11 stored voxels, or the 13x11x13 of
+/// its lattice box.
 #[test]
 fn the_source_voxels_embedded_reproduce_the_source() {
     let dir = tempfile::tempdir().unwrap();
     let input = data("gaffer_sphere_density.vdb");
     let spec = SourceSpec::Vdb(input.clone(), pin_volume::vdb::VdbOptions::with_worker(BIN));
     let source = pin_volume::open_source(&spec, pin_volume::DensityScale::ONE).unwrap();
-    for (flag, sparse) in [("sparse", true), ("voxels", false), ("sparse-voxels", true)] {
+    for (flag, sparse) in [
+        ("sparse", true),
+        ("voxels", false),
+        ("sparse-voxels", true),
+        ("11,9,11", false),
+        ("13,11,13", false),
+    ] {
         let out = dir.path().join(format!("{flag}.pin"));
         bake(
             &input,
@@ -337,5 +345,80 @@ fn a_coarser_density_is_the_box_average_of_the_source() {
                 }
             }
         }
+    }
+}
+
+/// `pinbake bake INPUT --embed-density FLAG` (2^3 cells x octahedral:1) to `out`: the file.
+fn embed(input: &Path, out: &Path, flag: &str, extra: &[&str]) -> Vec<u8> {
+    let mut args = vec![
+        "--embed-density",
+        flag,
+        "--cells",
+        "2",
+        "--dirs",
+        "octahedral:1",
+    ];
+    args.extend_from_slice(extra);
+    bake(input, out, &args);
+    std::fs::read(out).unwrap()
+}
+
+/// Dense counts that name the source's resolution, or a whole F of it, embed the source's
+/// voxels on its lattice: the same file as `voxels:F`, for any thread count and as tiles
+/// merged; counts that name no whole F are resampled over the cropped box as before.
+#[test]
+fn dense_counts_at_the_source_resolution_embed_its_voxels() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = data("gaffer_sphere_density.vdb");
+    let out = |n: &str| dir.path().join(n);
+    for (counts, voxels) in [
+        ("11,9,11", "voxels"),
+        ("6,5,6", "voxels:2"),
+        ("7,6,7", "voxels:2"),
+    ] {
+        let want = embed(&input, &out("v.pin"), voxels, &[]);
+        for threads in ["1", "3"] {
+            let got = embed(&input, &out("d.pin"), counts, &["--threads", threads]);
+            assert!(
+                got == want,
+                "{counts} ({threads} threads) differs from {voxels}"
+            );
+        }
+        // Tiles of the bake merged: the monolithic file.
+        let tiles: Vec<PathBuf> = (0..2).map(|i| out(&format!("t{i}.pin"))).collect();
+        for (i, t) in tiles.iter().enumerate() {
+            embed(&input, t, counts, &["--tile", &format!("{i}/2")]);
+        }
+        let merged = out("m.pin");
+        let mut args = vec!["merge".to_string()];
+        args.extend(tiles.iter().map(|t| t.to_str().unwrap().to_string()));
+        args.extend(["-o".into(), merged.to_str().unwrap().into()]);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = pinbake(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(
+            std::fs::read(&merged).unwrap() == want,
+            "{counts}: tiles merged"
+        );
+    }
+    // Counts between resolutions: a grid over the cropped box (the VDB's own box), as before.
+    let bytes = embed(&input, &out("r.pin"), "10,9,11", &[]);
+    let f = pin_format::PinFile::parse(&bytes).unwrap();
+    assert_eq!(f.density().unwrap().dims, [10, 9, 11]);
+    let spec = SourceSpec::Vdb(input.clone(), pin_volume::vdb::VdbOptions::with_worker(BIN));
+    let source = pin_volume::open_source(&spec, pin_volume::DensityScale::ONE).unwrap();
+    let b = source.bounds();
+    let d = f.desc();
+    for a in 0..3 {
+        assert!(
+            (d.box_min[a] - b.min[a]).abs() < 1e-6,
+            "{:?} {b:?}",
+            d.box_min
+        );
+        assert!(
+            (d.box_max[a] - b.max[a]).abs() < 1e-6,
+            "{:?} {b:?}",
+            d.box_max
+        );
     }
 }

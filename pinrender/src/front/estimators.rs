@@ -63,7 +63,12 @@ pub fn available(holds: Holds, catalogue: &[EstimatorInfo]) -> Vec<EstimatorSpec
 /// of the source volume where it is cheap), pins, ratio tracking; each the first that
 /// `catalogue` has and `holds` answers (ratio tracking when none is). PinMS through the
 /// default asset's small pin grid measured 3.1% to 6.8% 8x8-block error where ratio tracking
-/// of the same file reached 0.46% to 0.94% (docs/scale.md, "The default asset").
+/// of the same file reached 0.46% to 0.94% (docs/scale.md, "The default asset"). At equal
+/// CPU time (`pinrender eval --default-asset`, docs/evaluation.md) ratio tracking of a default
+/// file has the lowest RMSE at 1 s; at 0.1 s pins alone's is lower, from samples alone, at 4-6x
+/// the block error; beside a volume PinMS is at or below ratio tracking at 0.1 and 1 s through
+/// the pins a bake for pins chooses, and above it at 1 s through a default file's small pin
+/// grid (docs/decisions.md, R7).
 pub fn default_estimator(holds: Holds, catalogue: &[EstimatorInfo]) -> EstimatorSpec {
     const SOURCE: [EstimatorSpec; 3] = [
         EstimatorSpec::PinMs,

@@ -192,7 +192,8 @@ def bake(
     ``step``
     (relative to the longest box edge), ``seed``, ``crop`` (False is ``--no-crop``),
     ``center_pins`` (False is ``--jitter-pins``), ``majorant`` (0 leaves it out), ``embed_density`` (N or (X, Y, Z) voxels of a
-    dense f16 copy, or ``"sparse"``, ``"sparse:N"``, ``"sparse:X,Y,Z"``: f16 bricks where the
+    dense f16 copy; counts at the source's resolution, or a whole F of it, hold its voxels as
+    ``"voxels:F"`` does, or ``"sparse"``, ``"sparse:N"``, ``"sparse:X,Y,Z"``: f16 bricks where the
     density is non-zero, or ``"voxels:F"``, ``"sparse-voxels:F"``: the source's voxels, each
     F^3 averaged into one, as ``--embed-density``), ``embed_control``
     (``--embed-control [EDGE]``: residual tracking's control per brick of EDGE voxels, 1..=64,

@@ -34,6 +34,7 @@
 //! is the reference's own noise, reported per scene, and a time-to-error target below twice
 //! that noise prints "n/a (reference noise)" instead of a speedup that would measure noise.
 
+mod asset_time;
 mod bytes;
 mod plot;
 mod report;
@@ -139,6 +140,13 @@ pub struct EvalArgs {
     /// smoke,hydrogen,production; --quick: smoke at 32 px).
     #[arg(long, conflicts_with_all = ["budgets", "estimators", "docs"])]
     pub bytes: bool,
+    /// The default file's estimators at equal time: `pinbake bake` with no grid flags on
+    /// each scene's volume, then every estimator that file answers alone and beside the
+    /// volume, rendered until each budget (--budgets, default 0.1,1; --clock) against the
+    /// converged reference: `asset_time.csv`, `asset_time.md` (scenes: smoke and hydrogen, or
+    /// --scenes of smoke,hydrogen,production). Checks the default-estimator rule.
+    #[arg(long, conflicts_with_all = ["bytes", "estimators", "docs", "quick"])]
+    pub default_asset: bool,
     /// With --bytes, also the pins-per-byte experiments on the octahedral:8 pins ladder:
     /// t_min in 16 and 8 bits, near-empty entries left out (their bytes projected for the
     /// candidate format) and 4 pins per entry.
@@ -407,6 +415,7 @@ pub fn run(a: EvalArgs) -> Result<()> {
     }
     let scene_names: Vec<String> = match &a.scenes {
         Some(v) => v.iter().map(|s| s.trim().to_string()).collect(),
+        None if a.default_asset => asset_time::ASSET_TIME_SCENES.map(String::from).to_vec(),
         None if a.bytes && a.quick => bytes::QUICK_BYTES_SCENES.map(String::from).to_vec(),
         None if a.bytes => bytes::BYTES_SCENES.map(String::from).to_vec(),
         None => scenes::SCENES
@@ -449,6 +458,13 @@ pub fn run(a: EvalArgs) -> Result<()> {
 
     if a.bytes {
         return bytes::run(&a, &scene_names, &production);
+    }
+    if a.default_asset {
+        let budgets = match a.budgets {
+            Some(_) => budgets,
+            None => asset_time::ASSET_TIME_BUDGETS.to_vec(),
+        };
+        return asset_time::run(&a, &scene_names, &budgets, &production);
     }
     let gpu = Gpu::open(a.no_gpu);
     let mut results = Vec::new();

@@ -316,8 +316,8 @@ fn smoke(sizes: &Sizes) -> Result<EvalScene> {
     })
 }
 
-fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
-    let path = crate::data::path("hydrogen_atom_128x128x128_uint8.raw")?;
+/// How the hydrogen scene reads its raw file: the options and the density scale.
+pub fn hydrogen_read() -> (source::RawOptions, f64) {
     let options = source::RawOptions {
         dims: Some([128; 3]),
         voxel_type: Some(source::RawType::U8),
@@ -325,7 +325,13 @@ fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
         origin: [0.0; 3],
         ..source::RawOptions::default()
     };
-    let scale = source::DensityScale::new(HYDROGEN_DENSITY_SCALE)?;
+    (options, HYDROGEN_DENSITY_SCALE)
+}
+
+fn hydrogen(sizes: &Sizes) -> Result<EvalScene> {
+    let path = crate::data::path("hydrogen_atom_128x128x128_uint8.raw")?;
+    let (options, scale) = hydrogen_read();
+    let scale = source::DensityScale::new(scale)?;
     let opened = Opened::Dense(Arc::new(source::raw::read_raw(&path, &options, scale)?));
     let src = opened.source();
     let gpu_density = Arc::new(opened.gpu_density()?);
