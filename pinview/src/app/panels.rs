@@ -69,6 +69,7 @@ impl Viewer {
             section("sequence", true).show(ui, |ui| self.sequence_controls(ui));
         }
         section("estimator", true).show(ui, |ui| self.estimator_controls(ui));
+        section("sun", true).show(ui, |ui| self.sun_controls(ui));
         section("export", true).show(ui, |ui| self.export_controls(ui));
         section("readouts", true).show(ui, |ui| self.readouts(ui));
         section("camera and look", false).show(ui, |ui| self.look_controls(ui));
@@ -155,12 +156,18 @@ impl Viewer {
         ui.add(egui::Slider::new(&mut v.look.sun_radiance, 0.0..=20.0).text("sun radiance"));
         ui.add(egui::Slider::new(&mut v.look.env_radiance, 0.0..=5.0).text("sky radiance"));
         crate::look_controls::exposure_stops(ui, &mut v.exposure);
+        self.viewport_controls(ui);
+    }
+
+    /// The sun's direction: its numbers and the gizmo, a section of its own and open, since
+    /// the sun is what an artist turns most.
+    fn sun_controls(&mut self, ui: &mut egui::Ui) {
+        let v = &mut self.view;
         ui.label(format!(
             "sun direction {:.2}, {:.2}, {:.2} (drag the point, or ctrl-drag the image)",
             v.look.sun_dir[0], v.look.sun_dir[1], v.look.sun_dir[2]
         ));
         crate::sun_gizmo::sun_gizmo(ui, &mut v.look.sun_dir, v.origin, v.target);
-        self.viewport_controls(ui);
     }
 
     /// The second estimator's menu (split view).
