@@ -246,6 +246,7 @@ impl Viewer {
                 }
             }
             Action::FrameAll => crate::scene_framing::frame_all(&mut self.view, &self.medium),
+            Action::Reset => self.reset_view(),
             Action::CopyCommand => {
                 self.export.command = crate::clipboard::copy_command(
                     ctx,
