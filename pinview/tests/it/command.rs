@@ -1,5 +1,5 @@
 //! The JSON line's `command` opens the input as the viewer opened it: a raw volume's read
-//! flags and its density scale are in it, and running it gives the saved EXR's bits.
+//! flags and its density scale are in it, and running it gives the saved EXR's bytes.
 
 use crate::support::*;
 
@@ -49,9 +49,12 @@ fn the_command_of_a_raw_volume_repeats_its_read_flags_and_bits() {
     ] {
         assert!(command.contains(flag), "{flag} missing: {command}");
     }
-    let batch = render_command(command, &dir.path().join("batch.exr"));
+    let batch_exr = dir.path().join("batch.exr");
+    let batch = render_command(command, &batch_exr);
     assert!(
         batch == exr_bits(&exr),
         "not the saved EXR's bits: {command}"
     );
+    // The files themselves, byte for byte.
+    assert!(std::fs::read(&batch_exr).unwrap() == std::fs::read(&exr).unwrap());
 }
