@@ -150,3 +150,42 @@ fn a_followed_size_is_reduced_to_fit_the_memory_budget() {
         "{command}"
     );
 }
+
+/// A scripted `resize` fits `--max-memory` too: one past it is refused before anything is
+/// shown, with one line naming the events file, the event and the size (exit 1).
+#[test]
+fn a_resize_event_past_the_memory_budget_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, None);
+    let events = dir.path().join("events.json");
+    std::fs::write(
+        &events,
+        r#"[{"at_s": 0.1, "action": "resize", "width": 2048, "height": 2048}]"#,
+    )
+    .unwrap();
+    let Some(display) = display() else { return };
+    let args = [
+        s(&pins),
+        "--estimator",
+        "pins",
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--max-memory",
+        "64M",
+        "--input-script",
+        s(&events),
+        "--frames",
+        "1",
+        "--json",
+    ];
+    let out = pinview_within(Some(&display), &args, LIMIT);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("events.json: event 1") && err.contains("2048x2048"),
+        "{err}"
+    );
+}
