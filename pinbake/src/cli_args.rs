@@ -97,6 +97,65 @@ fn usage(msg: String) -> anyhow::Error {
 }
 
 impl SourceArgs {
+    /// The flags given (differing from their defaults) as command-line words that parse back
+    /// to `self`: how another command (`pinrender render`) opens the same input the same way.
+    pub fn to_args(&self) -> Vec<String> {
+        let v3 = |v: [f64; 3]| format!("{},{},{}", v[0], v[1], v[2]);
+        let mut out: Vec<String> = Vec::new();
+        // `--name=value`, one word: a value that starts with `-` (a negative origin) would
+        // read as a flag after a space.
+        let mut flag = |name: &str, value: Option<String>| {
+            out.push(match value {
+                Some(v) => format!("{name}={v}"),
+                None => name.to_string(),
+            });
+        };
+        // Destructured so that a new read flag cannot be left out of the command line.
+        let Self {
+            grid,
+            levelset_to_fog,
+            dims,
+            voxel_type,
+            endian,
+            spacing,
+            origin,
+            clamp_negative,
+            nan_as_zero,
+            density_scale,
+        } = self;
+        if let Some(g) = grid {
+            flag("--grid", Some(g.clone()));
+        }
+        if *levelset_to_fog {
+            flag("--levelset-to-fog", None);
+        }
+        if let Some(d) = dims {
+            flag("--dims", Some(format!("{},{},{}", d[0], d[1], d[2])));
+        }
+        if let Some(t) = voxel_type {
+            flag("--type", Some(t.clone()));
+        }
+        if let Some(e) = endian {
+            flag("--endian", Some(e.clone()));
+        }
+        if let Some(s) = spacing {
+            flag("--spacing", Some(v3(*s)));
+        }
+        if let Some(o) = origin {
+            flag("--origin", Some(v3(*o)));
+        }
+        if *clamp_negative {
+            flag("--clamp-negative", None);
+        }
+        if *nan_as_zero {
+            flag("--nan-as-zero", None);
+        }
+        if *density_scale != pin_volume::DensityScale::ONE {
+            flag("--density-scale", Some(density_scale.to_string()));
+        }
+        out
+    }
+
     /// The flags given (differing from their defaults), by name: what a command that reads
     /// no volume this time refuses.
     pub fn given(&self) -> Vec<&'static str> {
@@ -247,6 +306,49 @@ mod tests {
 
     fn no_worker() -> anyhow::Result<std::path::PathBuf> {
         anyhow::bail!("no worker in this test")
+    }
+
+    #[test]
+    fn the_read_flags_as_words_parse_back_to_the_same_flags() {
+        #[derive(clap::Parser)]
+        struct Cmd {
+            #[command(flatten)]
+            read: SourceArgs,
+        }
+        let parse = |words: &[&str]| {
+            use clap::Parser;
+            Cmd::try_parse_from(std::iter::once("cmd").chain(words.iter().copied()))
+                .unwrap()
+                .read
+        };
+        let given = parse(&[
+            "--grid",
+            "density#1",
+            "--levelset-to-fog",
+            "--dims",
+            "4,5,6",
+            "--type",
+            "u16",
+            "--endian",
+            "big",
+            "--spacing",
+            "0.1,0.25,3",
+            "--origin=-1,0.5,2",
+            "--clamp-negative",
+            "--nan-as-zero",
+            "--density-scale",
+            "2.5",
+        ]);
+        let words = given.to_args();
+        let again = parse(&words.iter().map(String::as_str).collect::<Vec<_>>());
+        assert_eq!(format!("{given:?}"), format!("{again:?}"));
+        assert_eq!(words.len(), 10, "{words:?}");
+        assert!(
+            words.contains(&"--origin=-1,0.5,2".to_string()),
+            "{words:?}"
+        );
+        // Defaults give no words.
+        assert!(SourceArgs::default().to_args().is_empty());
     }
 
     #[test]

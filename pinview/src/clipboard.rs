@@ -33,7 +33,7 @@ pub fn copy_command(
         Some(s) => s.passes(),
         None => 0,
     };
-    let command = view.command_line(medium.input_flag(), &medium.path, spp);
+    let command = view.command_line(medium, spp);
     // A closed stdout costs the terminal copy only.
     let _ = pin_cli::outln!("{command}");
     // egui's own clipboard (a paste inside the window), and the system's.

@@ -15,7 +15,8 @@
 //!   as the mouse would: what it moves (the camera, the divider) is the window's to decide.
 //! * `copy_command {}`: as the "copy command" button: the view's batch command line on the
 //!   clipboard and stdout;
-//! * `frame_all {}`: as the "frame all" button: the camera outside every instance's box.
+//! * `frame_all {}`: as the "frame all" button: the camera outside every instance's box;
+//! * `reset {}`: as the "reset view" button (the `R` key): the camera the view opened with.
 //!
 //! Every event's keys are checked: an unknown key or action, a missing or out-of-range
 //! parameter is refused with the file and the event's position.
@@ -46,6 +47,7 @@ pub enum Action {
     Drag { from: [f64; 2], to: [f64; 2] },
     CopyCommand,
     FrameAll,
+    Reset,
 }
 
 impl Action {
@@ -63,6 +65,7 @@ impl Action {
             Action::Drag { .. } => "drag",
             Action::CopyCommand => "copy_command",
             Action::FrameAll => "frame_all",
+            Action::Reset => "reset",
         }
     }
 }
@@ -125,7 +128,7 @@ fn event(v: &Value) -> Result<Event> {
         Some(Value::String(s)) => s.as_str(),
         _ => bail!(
             "\"action\" must be one of orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
-             drag, copy_command, frame_all"
+             drag, copy_command, frame_all, reset"
         ),
     };
     let at_s = number(o, "at_s")?;
@@ -212,9 +215,10 @@ fn event(v: &Value) -> Result<Event> {
         ),
         "copy_command" => (&[], Action::CopyCommand),
         "frame_all" => (&[], Action::FrameAll),
+        "reset" => (&[], Action::Reset),
         other => bail!(
             "unknown action {:?} (orbit, zoom, pan, sun, estimator, exposure, frame, resize, \
-             drag, copy_command, frame_all)",
+             drag, copy_command, frame_all, reset)",
             pin_cli_quote(other)
         ),
     };
@@ -295,7 +299,8 @@ mod tests {
             {"at_s": 4, "action": "resize", "width": 64, "height": 32},
             {"at_s": 5, "action": "drag", "from": [24, 10.5], "to": [3, 10]},
             {"at_s": 5, "action": "copy_command"},
-            {"at_s": 5, "action": "frame_all"}
+            {"at_s": 5, "action": "frame_all"},
+            {"at_s": 6, "action": "reset"}
         ]"#,
         )
         .unwrap();
@@ -327,6 +332,7 @@ mod tests {
                 },
                 Action::CopyCommand,
                 Action::FrameAll,
+                Action::Reset,
             ]
         );
         assert_eq!(e[7].at_s, 4.0);

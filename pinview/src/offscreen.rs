@@ -153,6 +153,8 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
         "longest_frame_gap_ms": pacer.longest_ms(),
         "frames_painted": pacer.frames(),
         "offscreen": true,
+        // The batch render of the view rendered, at the passes rendered.
+        "command": view.command_line(&medium, session.passes()),
     });
     if let Some(scene) = medium.scene() {
         json["instances"] = scene.instances.len().into();

@@ -36,6 +36,9 @@ pub struct Medium {
     /// A scene file: the scene and its opened assets (`pinrender render --scene --backend
     /// gpu`'s own, from [`pinrender::scene_media`]).
     scene: Option<Arc<SceneMedia>>,
+    /// The words of the flags a volume was opened with (`pinrender render`'s read flags and
+    /// `--pin-cells`), from the flags themselves: the command line repeats them.
+    open_flags: Vec<String>,
 }
 
 /// A scene file opened: its assets once, and the instances' GPU media made from them.
@@ -145,7 +148,16 @@ impl Medium {
             gpu: None,
         };
         let opened = front::open_medium(&input, flags, budget)?;
-        Ok(Self::new(path, opened, is_volume, None))
+        let mut medium = Self::new(path, opened, is_volume, None);
+        if is_volume {
+            medium.open_flags = read.to_args();
+            if let Some(n) = flags.pin_cells {
+                medium
+                    .open_flags
+                    .extend(["--pin-cells".to_string(), n.to_string()]);
+            }
+        }
+        Ok(medium)
     }
 
     fn new(
@@ -161,6 +173,7 @@ impl Medium {
             opened,
             gpu_density: Arc::default(),
             scene,
+            open_flags: Vec::new(),
         }
     }
 
@@ -265,6 +278,11 @@ impl Medium {
             }
         }
         files
+    }
+
+    /// The flags `pinrender render` needs to open this file as it was opened here, as words.
+    pub fn open_flags(&self) -> &[String] {
+        &self.open_flags
     }
 
     /// The flag of `pinrender render` that names this file.

@@ -2,8 +2,6 @@
 //! render`'s flags, so that the GPU scene is built from them exactly as the batch renderer
 //! builds it and the view can be written back as its command line.
 
-use std::path::Path;
-
 use glam::DVec3;
 use pinrender::gpu_render::GpuScene;
 use pinrender::render::EstimatorSpec;
@@ -100,11 +98,20 @@ impl View {
     /// The `pinrender render` command line that renders this view of `file` in batch
     /// (`spp` samples, the same seed): with `--backend gpu`, the same bits as the viewer's
     /// accumulation after `spp` passes.
-    /// `input` is the flag that names `file` (`--volume`, `--pins` or `--scene`).
-    pub fn command_line(&self, input: &str, file: &Path, spp: u32) -> String {
+    /// `medium` gives the flag that names its file (`--volume`, `--pins` or `--scene`) and
+    /// the flags it was opened with (a raw volume's `--dims`, the `--density-scale` of the
+    /// bake shown, ...).
+    pub fn command_line(&self, medium: &Medium, spp: u32) -> String {
         let v3 = |v: [f64; 3]| format!("{},{},{}", v[0], v[1], v[2]);
+        let input = medium.input_flag();
+        let file = &medium.path;
+        let open: String = medium
+            .open_flags()
+            .iter()
+            .map(|w| format!(" {}", shell_quote(w)))
+            .collect();
         format!(
-            "pinrender render {input} {} --backend gpu --estimator {} --width {} --height {} \
+            "pinrender render {input} {}{open} --backend gpu --estimator {} --width {} --height {} \
              --camera-origin {} --camera-target {} --fov {} --sun-dir {} --sun-radiance {} \
              --env-radiance {} --albedo {} --g {} --max-bounces {} --seed {} --exposure {} \
              --spp {} --out view.exr",

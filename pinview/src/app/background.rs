@@ -142,6 +142,8 @@ impl Viewer {
                     };
                     self.playback.sequence = None;
                     self.set_medium(m);
+                    // The new medium's home is where "reset view" returns.
+                    self.opened_camera = None;
                     self.view.origin = o;
                     self.view.target = t;
                     let opened = std::path::absolute(&path).unwrap_or(path);

@@ -175,7 +175,13 @@ impl Viewer {
             .input_script
             .as_deref()
             .unwrap_or(std::path::Path::new(""));
+        let budget = self.args.flags.budget();
         for (k, e) in events.iter().enumerate() {
+            // A size asked for fits `--max-memory` as the starting size and a followed one do.
+            if let Action::Resize { width, height } = e.action {
+                pinrender::front::flags::check_image(&budget, width, height)
+                    .map_err(|err| anyhow!("{}: event {}: {err}", path.display(), k + 1))?;
+            }
             if let Action::Frame { index } = e.action {
                 let frames = self.playback.sequence.as_ref().map_or(0, |s| s.len());
                 if index > frames {
@@ -246,6 +252,7 @@ impl Viewer {
                 }
             }
             Action::FrameAll => crate::scene_framing::frame_all(&mut self.view, &self.medium),
+            Action::Reset => self.reset_view(),
             Action::CopyCommand => {
                 self.export.command = crate::clipboard::copy_command(
                     ctx,

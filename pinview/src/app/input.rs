@@ -80,6 +80,9 @@ impl Viewer {
             self.view.width = w;
             self.view.height = h;
         }
+        if let Some(note) = self.viewport.reduction_note() {
+            self.note(note);
+        }
         let (w, h) = self.images.main.size;
         let scale = (avail.x / w as f32)
             .min(avail.y / h as f32)
@@ -276,9 +279,7 @@ impl Viewer {
             crate::scene_framing::frame_all(&mut self.view, &self.medium);
         }
         if pressed(Key::R) {
-            let (o, t) = self.medium.home();
-            self.view.origin = o;
-            self.view.target = t;
+            self.reset_view();
         }
         if let Some(s) = &mut self.playback.sequence {
             if pressed(Key::Space) {

@@ -131,6 +131,9 @@ pub struct Viewer {
     /// What the viewer did in place of what was asked (an estimator a frame cannot answer),
     /// each once: shown as the status, and the JSON line's `notes`.
     notes: Vec<String>,
+    /// The camera the view opened with where it is not the medium's home (a scene framed
+    /// from outside because its own camera stands inside a box): what "reset view" returns to.
+    opened_camera: Option<([f64; 3], [f64; 3])>,
     /// The saves and the equivalent batch command.
     export: Export,
     paused: bool,
@@ -207,7 +210,7 @@ impl Viewer {
             generation: 0,
             input: Input::default(),
             coarse: Coarse::default(),
-            viewport: Viewport::new(!args.size_fixed()),
+            viewport: Viewport::new(!args.size_fixed(), args.flags.budget()),
             overlays: Overlays::new(&args),
             pacer,
             first_image_s: None,
@@ -215,6 +218,7 @@ impl Viewer {
             warm_up_s: None,
             toasts: Toasts::default(),
             notes: Vec::new(),
+            opened_camera: None,
             export: Export::default(),
             paused: false,
             window_shot: None,
@@ -228,6 +232,7 @@ impl Viewer {
         if let Some(n) =
             crate::scene_framing::open_outside(&mut viewer.view, &viewer.medium, origin_flag)
         {
+            viewer.opened_camera = Some((viewer.view.origin, viewer.view.target));
             viewer.note(n);
         }
         if let Some(path) = &viewer.args.input_script {
@@ -243,6 +248,15 @@ impl Viewer {
             viewer.start_rebake(scale.get())?;
         }
         Ok(viewer)
+    }
+
+    /// "reset view" (the button, the `R` key, the scripted `reset`): the camera the view
+    /// opened with (framed from outside where the scene's own stands inside a box), else the
+    /// medium's home.
+    fn reset_view(&mut self) {
+        let (o, t) = self.opened_camera.unwrap_or_else(|| self.medium.home());
+        self.view.origin = o;
+        self.view.target = t;
     }
 
     /// A note (once): the status line, and the JSON line's `notes`.

@@ -44,9 +44,7 @@ impl Viewer {
         }
         ui.horizontal(|ui| {
             if ui.button("reset view").clicked() {
-                let (o, t) = self.medium.home();
-                self.view.origin = o;
-                self.view.target = t;
+                self.reset_view();
             }
             if ui
                 .button(if self.paused { "resume" } else { "pause" })

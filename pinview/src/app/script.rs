@@ -135,7 +135,7 @@ impl Viewer {
             "notes": self.notes,
             "messages": self.toasts.said,
             // The batch render of the view shown, at the passes shown.
-            "command": self.view.command_line(self.medium.input_flag(), &self.medium.path, passes),
+            "command": self.view.command_line(&self.medium, passes),
         });
         if let Some(script) = &self.script {
             json["events"] = script.json();

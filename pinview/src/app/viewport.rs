@@ -5,8 +5,15 @@
 //! window being drag-resized, the scale slider being dragged) the size waits until it has
 //! stood for [`SETTLE`], so a drag does not rebuild every frame. A size flag, or a scripted
 //! `resize` event, fixes the size instead.
+//!
+//! Every size the image takes fits the command's memory budget (`--max-memory`, charged per
+//! pixel as `pinrender render` charges its image): a panel whose image would not fit gets
+//! the largest image of the panel's aspect that does, and says so once.
 
 use std::time::{Duration, Instant};
+
+use pin_volume::files::MemoryBudget;
+use pinrender::front::flags::check_image;
 
 /// How long a new viewport size must stand before the image takes it.
 pub const SETTLE: Duration = Duration::from_millis(250);
@@ -24,15 +31,23 @@ pub struct Viewport {
     /// The central panel's size (points) and the window's pixels per point, last seen.
     pub panel: Option<(egui::Vec2, f32)>,
     pending: Option<((u32, u32), Instant)>,
+    /// The command's memory budget, which every followed size fits.
+    budget: MemoryBudget,
+    /// The last size the budget reduced: the panel's size and the size taken.
+    pub reduced: Option<((u32, u32), (u32, u32))>,
+    noted: bool,
 }
 
 impl Viewport {
-    pub fn new(follow: bool) -> Self {
+    pub fn new(follow: bool, budget: MemoryBudget) -> Self {
         Self {
             follow,
             scale_percent: 100,
             panel: None,
             pending: None,
+            budget,
+            reduced: None,
+            noted: false,
         }
     }
 
@@ -42,8 +57,9 @@ impl Viewport {
             / 100.0
     }
 
-    /// The image size (pixels) that fills a panel of `panel` points at `ppp` pixels per point.
-    pub fn size_for(&self, panel: egui::Vec2, ppp: f32) -> (u32, u32) {
+    /// The image size (pixels) that fills a panel of `panel` points at `ppp` pixels per point,
+    /// before the budget.
+    fn panel_size(&self, panel: egui::Vec2, ppp: f32) -> (u32, u32) {
         let k = ppp.max(0.1) * self.scale();
         let side = |x: f32| ((x.max(0.0) * k).floor() as u32).clamp(1, MAX_SIDE);
         (side(panel.x), side(panel.y))
@@ -64,7 +80,8 @@ impl Viewport {
             self.pending = None;
             return None;
         }
-        let want = self.size_for(panel, ppp);
+        let full = self.panel_size(panel, ppp);
+        let want = fit(full, &self.budget);
         if want == current {
             self.pending = None;
             return None;
@@ -72,11 +89,13 @@ impl Viewport {
         match self.pending {
             _ if at_once => {
                 self.pending = None;
+                self.took(full, want);
                 Some(want)
             }
             Some((size, since)) if size == want => (now.saturating_duration_since(since) >= SETTLE)
                 .then(|| {
                     self.pending = None;
+                    self.took(full, want);
                     want
                 }),
             _ => {
@@ -84,6 +103,25 @@ impl Viewport {
                 None
             }
         }
+    }
+
+    /// Records a size taken in place of the panel's `full` one.
+    fn took(&mut self, full: (u32, u32), want: (u32, u32)) {
+        if full != want {
+            self.reduced = Some((full, want));
+        }
+    }
+
+    /// The note for the first size the budget reduced (once per viewer).
+    pub fn reduction_note(&mut self) -> Option<String> {
+        let ((fw, fh), (w, h)) = self.reduced.filter(|_| !self.noted)?;
+        self.noted = true;
+        Some(format!(
+            "the image is {w} x {h}, not the panel's {fw} x {fh}: a larger one would exceed \
+             --max-memory ({} bytes at {} bytes a pixel)",
+            self.budget.limit,
+            pinrender::front::flags::BYTES_PER_PIXEL
+        ))
     }
 
     /// Whether no new size is waiting to settle.
@@ -109,8 +147,33 @@ impl Viewport {
             "scale_percent": self.scale_percent,
             "pixels_per_point": ppp,
             "panel_points": [panel.x, panel.y],
+            "max_image_bytes": self.budget.limit,
+            "reduced_from": self.reduced.map(|(full, _)| [full.0, full.1]),
         })
     }
+}
+
+/// `size`, or the largest size of its aspect whose image fits `budget` (at least 1 x 1).
+fn fit(size: (u32, u32), budget: &MemoryBudget) -> (u32, u32) {
+    if check_image(budget, size.0, size.1).is_ok() {
+        return size;
+    }
+    let (w, h) = (f64::from(size.0), f64::from(size.1));
+    let pixels = budget.limit / pinrender::front::flags::BYTES_PER_PIXEL;
+    let k = (pixels as f64 / (w * h)).sqrt();
+    let mut s = (
+        ((w * k).floor() as u32).max(1),
+        ((h * k).floor() as u32).max(1),
+    );
+    // Rounding may leave a pixel too many: shrink the longer side until it fits.
+    while check_image(budget, s.0, s.1).is_err() && (s.0 > 1 || s.1 > 1) {
+        if s.0 >= s.1 {
+            s.0 -= 1;
+        } else {
+            s.1 -= 1;
+        }
+    }
+    s
 }
 
 #[cfg(test)]
@@ -121,7 +184,7 @@ mod tests {
     fn a_new_size_waits_until_it_has_stood_for_the_settle_time() {
         let t0 = Instant::now();
         let ms = Duration::from_millis;
-        let mut v = Viewport::new(true);
+        let mut v = Viewport::new(true, MemoryBudget::new(None));
         let panel = egui::vec2(300.0, 200.0);
         // Nothing to lose yet: at once, in physical pixels.
         assert_eq!(v.update(panel, 2.0, (512, 512), t0, true), Some((600, 400)));
@@ -140,10 +203,37 @@ mod tests {
         assert!(v.settled());
         // Half resolution: half the pixels a side.
         v.scale_percent = 50;
-        assert_eq!(v.size_for(p3, 2.0), (320, 200));
+        assert_eq!(v.panel_size(p3, 2.0), (320, 200));
         assert_eq!(v.points_per_pixel(2.0), 1.0);
         // A fixed size never changes.
-        let mut f = Viewport::new(false);
+        let mut f = Viewport::new(false, MemoryBudget::new(None));
         assert_eq!(f.update(panel, 1.0, (48, 40), t0, true), None);
+    }
+
+    #[test]
+    fn a_followed_size_fits_the_memory_budget_at_the_panels_aspect() {
+        let bpp = pinrender::front::flags::BYTES_PER_PIXEL;
+        // Room for 400 x 300 pixels, a panel of 800 x 600.
+        let budget = MemoryBudget::new(Some(400 * 300 * bpp));
+        let mut v = Viewport::new(true, budget);
+        let got = v.update(
+            egui::vec2(800.0, 600.0),
+            1.0,
+            (512, 512),
+            Instant::now(),
+            true,
+        );
+        assert_eq!(got, Some((400, 300)));
+        assert_eq!(v.reduced, Some(((800, 600), (400, 300))));
+        // One byte less: a pixel less, still within.
+        let tight = MemoryBudget::new(Some(400 * 300 * bpp - 1));
+        let (w, h) = fit((800, 600), &tight);
+        assert!(
+            u64::from(w) * u64::from(h) * bpp <= tight.limit,
+            "{w} x {h}"
+        );
+        assert!(w >= 398 && h >= 298, "{w} x {h}");
+        // A panel that fits is untouched.
+        assert_eq!(fit((100, 50), &budget), (100, 50));
     }
 }

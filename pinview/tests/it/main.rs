@@ -3,6 +3,7 @@
 //! render --backend gpu` for the same flags, seed and passes, or checks a failure line.
 
 mod clipboard;
+mod command;
 mod compare;
 mod contract;
 mod divider;

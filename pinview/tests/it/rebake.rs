@@ -66,7 +66,7 @@ fn rebake_swaps_in_the_volume_and_its_gpu_pins_at_the_new_scale() {
         let j = json(&out);
         assert_eq!(j["rebake"]["density_scale"], 2.0, "{j}");
         assert_eq!(j["rebake"]["backend"], "gpu", "{j}");
-        exr
+        (exr, j["command"].as_str().unwrap().to_string())
     };
     let render = |est: &str, scale: &str, tag: &str| {
         let exr = dir.path().join(format!("{tag}.exr"));
@@ -80,14 +80,23 @@ fn rebake_swaps_in_the_volume_and_its_gpu_pins_at_the_new_scale() {
         exr
     };
     // Ratio tracking reads the volume alone: the same bits as a render at the new scale.
-    let ratio = view("ratio", "ratio-view");
+    let (ratio, command) = view("ratio", "ratio-view");
+    // The command carries the re-bake's scale and the read flags, and renders the same bits.
+    assert!(
+        command.contains("--density-scale=2 ") && command.contains("--dims=16,16,16 "),
+        "{command}"
+    );
+    assert!(
+        exr_bits(&ratio) == render_command(&command, &dir.path().join("ratio-command.exr")),
+        "the command after the re-bake does not render the saved bits: {command}"
+    );
     assert!(
         exr_bits(&ratio) == exr_bits(&render("ratio", "2", "ratio-2")),
         "ratio after the re-bake is not the volume at density scale 2"
     );
     assert!(exr_bits(&ratio) != exr_bits(&render("ratio", "1", "ratio-1")));
     // Pins read the new bake: near `pinrender`'s (CPU) bake at scale 2, far from scale 1's.
-    let pins = rgb(&view("pins", "pins-view"));
+    let pins = rgb(&view("pins", "pins-view").0);
     let near = rmse(&pins, &rgb(&render("pins", "2", "pins-2")));
     let far = rmse(&pins, &rgb(&render("pins", "1", "pins-1")));
     assert!(

@@ -1,7 +1,8 @@
 //! A scene of 256 instances whose camera stands inside one of them (a camera meant for
 //! another placement) opens in the window framed from outside every instance's box, looking
 //! at them, with a note; `--camera-origin` keeps the camera asked for, and the scripted
-//! `frame all` moves it out.
+//! `frame all` moves it out; "reset view" (the scripted `reset`) returns to the camera framed
+//! from outside that the scene opened with, not to the scene's own inside one.
 
 use crate::support::*;
 
@@ -72,6 +73,7 @@ fn a_scene_with_its_camera_inside_opens_outside_every_instance() {
     let j = run(&[]);
     assert_eq!(j["instances"], 256, "{j}");
     let o = origin(&j);
+    let opened = o;
     assert_eq!(
         inside_an_instance(o),
         None,
@@ -118,4 +120,20 @@ fn a_scene_with_its_camera_inside_opens_outside_every_instance() {
             .contains("--camera-target 11.75,0.5,11.75"),
         "{j}"
     );
+    // An orbit, then a reset: back to the camera the scene opened with, outside.
+    let events = dir.path().join("reset.json");
+    std::fs::write(
+        &events,
+        r#"[{"at_s": 0, "action": "orbit", "dx_deg": 40, "dy_deg": 10},
+            {"at_s": 0.2, "action": "reset"}]"#,
+    )
+    .unwrap();
+    let j = run(&["--input-script", s(&events)]);
+    let o = origin(&j);
+    assert_eq!(
+        inside_an_instance(o),
+        None,
+        "{o:?} is inside an instance after a reset: {j}"
+    );
+    assert_eq!(o, opened, "the reset is not the opening camera: {j}");
 }

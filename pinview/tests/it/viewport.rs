@@ -94,3 +94,98 @@ fn a_resize_event_fixes_the_size_it_asks_for() {
     );
     assert_eq!(j["viewport"]["follow"], false, "{j}");
 }
+
+/// Following the window, every size the image takes fits `--max-memory` as the starting
+/// size must: a budget the default panel's image exceeds (and a smaller one fits) gives the
+/// largest image of the panel's aspect within it, with a note, and the run succeeds.
+#[test]
+fn a_followed_size_is_reduced_to_fit_the_memory_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, None);
+    let Some(display) = display() else { return };
+    // 30 MiB: the starting 512 x 512 (24 MiB at 96 bytes a pixel) fits, the default panel
+    // (516 x 684 points at 1 pixel a point under Xvfb: 32.3 MiB) does not.
+    let limit: u64 = 30 << 20;
+    let args = [
+        s(&pins),
+        "--estimator",
+        "pins",
+        "--max-memory",
+        "30M",
+        "--frames",
+        "1",
+        "--json",
+    ];
+    let out = pinview_within(Some(&display), &args, LIMIT);
+    ok(&out, "pinview within --max-memory 30M");
+    let j = json(&out);
+    let v = &j["viewport"];
+    assert_eq!(v["follow"], true, "{j}");
+    let (w, h) = (j["width"].as_u64().unwrap(), j["height"].as_u64().unwrap());
+    let bpp = pinrender::front::flags::BYTES_PER_PIXEL;
+    assert!(w * h * bpp <= limit, "{w} x {h} exceeds the budget: {j}");
+    let full = [
+        v["reduced_from"][0].as_u64().expect("reduced_from"),
+        v["reduced_from"][1].as_u64().expect("reduced_from"),
+    ];
+    assert!(full[0] * full[1] * bpp > limit, "{j}");
+    // The panel's aspect, and nearly all of the budget.
+    let aspect = |a: u64, b: u64| a as f64 / b as f64;
+    assert!(
+        (aspect(w, h) - aspect(full[0], full[1])).abs() < 0.01,
+        "{w} x {h} is not the panel's {full:?} aspect"
+    );
+    assert!(
+        (w + 1) * (h + 1) * bpp > limit,
+        "{w} x {h} is not the largest"
+    );
+    let notes = j["notes"].to_string();
+    assert!(
+        notes.contains("--max-memory") && notes.contains(&format!("{w} x {h}")),
+        "{j}"
+    );
+    let command = j["command"].as_str().unwrap();
+    assert!(
+        command.contains(&format!("--width {w} --height {h} ")),
+        "{command}"
+    );
+}
+
+/// A scripted `resize` fits `--max-memory` too: one past it is refused before anything is
+/// shown, with one line naming the events file, the event and the size (exit 1).
+#[test]
+fn a_resize_event_past_the_memory_budget_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let pins = bake(dir.path(), "d.pin", 1.0, None);
+    let events = dir.path().join("events.json");
+    std::fs::write(
+        &events,
+        r#"[{"at_s": 0.1, "action": "resize", "width": 2048, "height": 2048}]"#,
+    )
+    .unwrap();
+    let Some(display) = display() else { return };
+    let args = [
+        s(&pins),
+        "--estimator",
+        "pins",
+        "--width",
+        "32",
+        "--height",
+        "32",
+        "--max-memory",
+        "64M",
+        "--input-script",
+        s(&events),
+        "--frames",
+        "1",
+        "--json",
+    ];
+    let out = pinview_within(Some(&display), &args, LIMIT);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("events.json: event 1") && err.contains("2048x2048"),
+        "{err}"
+    );
+}
