@@ -19,7 +19,6 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 const MAGIC: &[u8; 8] = b"PINRTPC1";
 /// A cache larger than this is not read (a pipeline cache of this path tracer is a few MB).
@@ -144,29 +143,17 @@ impl DiskCache {
             return;
         };
         let _one = self.saving.lock();
-        let _ = write_atomic(&self.path, &encode(&self.key, &data));
+        let bytes = encode(&self.key, &data);
+        // The renderer's own atomic write (temporary file, fsync, rename).
+        if let Some(dir) = self.path.parent() {
+            let _ = std::fs::create_dir_all(dir);
+        }
+        let _ = crate::render::write_atomic(&self.path, |out| {
+            out.write_all(&bytes)
+                .map_err(|e| crate::render::RenderError::Io {
+                    path: self.path.clone(),
+                    source: e,
+                })
+        });
     }
-}
-
-/// Writes `bytes` to `path` through a temporary file in its directory, renamed over it.
-pub(super) fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    static SERIAL: AtomicU64 = AtomicU64::new(0);
-    let dir = path.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir)?;
-    let tmp = dir.join(format!(
-        ".{}.{}.{}.tmp",
-        path.file_name().and_then(|n| n.to_str()).unwrap_or("cache"),
-        std::process::id(),
-        SERIAL.fetch_add(1, Ordering::Relaxed)
-    ));
-    let written = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    if written.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    written
 }

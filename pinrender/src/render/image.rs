@@ -209,7 +209,7 @@ fn pixel_count(width: u32, height: u32) -> Result<usize, RenderError> {
 
 /// Write through `f` into a fresh temporary file in the target's directory, fsync, rename
 /// over `path`. On any error the temporary file is removed and `path` is untouched.
-fn write_atomic(
+pub(crate) fn write_atomic(
     path: &Path,
     f: impl FnOnce(&mut BufWriter<File>) -> Result<(), RenderError>,
 ) -> Result<(), RenderError> {

@@ -129,6 +129,8 @@ pub use estimator::{
     ResidualControl, ResidualRatioTracking, TransportEstimator, clean, prepare,
 };
 pub use field::{FnField, VoxelGrid};
+#[cfg(feature = "gpu")]
+pub(crate) use image::write_atomic;
 pub use image::{Image, RELATIVE_MSE_EPS, block_bias, relative_mse, rmse, tone_map};
 pub use majorant::{Dda, MajorantGrid, MajorantSegment, check_box, clip_box};
 pub use numeric::exprel;
