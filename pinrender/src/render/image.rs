@@ -58,13 +58,23 @@ impl Image {
 
     /// Linear f32 RGB OpenEXR, written to a temporary file beside `path` and renamed.
     pub fn write_exr(&self, path: impl AsRef<Path>) -> Result<(), RenderError> {
-        self.check()?;
-        write_atomic(path.as_ref(), |out| self.encode_exr(out))
+        self.write_exr_at(path.as_ref())
     }
 
-    /// The bytes of [`Image::write_exr`] into `out` (for files written together with others,
-    /// `pin_volume::files::write_together`).
-    pub fn encode_exr<W: Write + std::io::Seek>(&self, out: &mut W) -> Result<(), RenderError> {
+    // The generic entry points are thin shells over these non-generic bodies: exr's reader
+    // and writer are generic, and a generic body would compile them again at full
+    // optimisation in every crate that calls it (the binaries, the viewer, each test binary).
+    fn write_exr_at(&self, path: &Path) -> Result<(), RenderError> {
+        self.check()?;
+        let bytes = self.exr_bytes()?;
+        write_atomic(path, |out| {
+            out.write_all(&bytes)
+                .map_err(|e| RenderError::Exr(e.to_string()))
+        })
+    }
+
+    /// The bytes of [`Image::write_exr`].
+    pub fn exr_bytes(&self) -> Result<Vec<u8>, RenderError> {
         use exr::prelude::{SpecificChannels, Vec2, WritableImage};
         self.check()?;
         let w = self.width as usize;
@@ -72,12 +82,22 @@ impl Image {
             let p = self.rgb[y * w + x];
             (p[0], p[1], p[2])
         });
+        let mut out = std::io::Cursor::new(Vec::new());
         // Sequential compression: exr's parallel writer stores the chunks in the order its
         // threads finish them, so the same image gave different bytes from run to run.
         exr::prelude::Image::from_channels((w, self.height as usize), channels)
             .write()
             .non_parallel()
-            .to_buffered(out)
+            .to_buffered(&mut out)
+            .map_err(|e| RenderError::Exr(e.to_string()))?;
+        Ok(out.into_inner())
+    }
+
+    /// The bytes of [`Image::write_exr`] into `out` (for files written together with others,
+    /// `pin_volume::files::write_together`).
+    pub fn encode_exr<W: Write + std::io::Seek>(&self, out: &mut W) -> Result<(), RenderError> {
+        let bytes = self.exr_bytes()?;
+        out.write_all(&bytes)
             .map_err(|e| RenderError::Exr(e.to_string()))
     }
 
@@ -85,7 +105,7 @@ impl Image {
     /// [`Image::write_exr`]). The file is opened by the one input rule
     /// (`pin_format::input::open_regular`): a FIFO or a device is refused, never opened.
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Image, RenderError> {
-        Self::read_exr_of_size(path, None)
+        Self::read_exr_at(path.as_ref(), None)
     }
 
     /// [`Image::read_exr`], refused from the file's header, before its pixels are allocated
@@ -95,9 +115,12 @@ impl Image {
         path: impl AsRef<Path>,
         size: Option<(u32, u32)>,
     ) -> Result<Image, RenderError> {
+        Self::read_exr_at(path.as_ref(), size)
+    }
+
+    fn read_exr_at(path: &Path, size: Option<(u32, u32)>) -> Result<Image, RenderError> {
         use exr::prelude::{ReadChannels, ReadLayers, Vec2};
         use std::io::{BufReader, Seek};
-        let path = path.as_ref();
         let (file, _) = pin_format::input::open_regular(path).map_err(|e| {
             use pin_format::input::InputError as E;
             RenderError::Input(match e {
@@ -156,7 +179,11 @@ impl Image {
     /// 8-bit sRGB PNG: `exposure * value`, Reinhard `x / (1 + x)`, sRGB transfer, rounded.
     /// NaN and negative values map to 0. Written atomically.
     pub fn write_png(&self, path: impl AsRef<Path>, exposure: f32) -> Result<(), RenderError> {
-        write_atomic(path.as_ref(), |out| self.encode_png(out, exposure))
+        self.write_png_at(path.as_ref(), exposure)
+    }
+
+    fn write_png_at(&self, path: &Path, exposure: f32) -> Result<(), RenderError> {
+        write_atomic(path, |out| self.encode_png(out, exposure))
     }
 
     /// The bytes of [`Image::write_png`] into `out`.
