@@ -3,7 +3,7 @@
 // world at a few points, voxel values and active states at sampled voxels) to manifest.json.
 //
 // Built and run by pinbake/tests/vdb_corpus.rs (and tests/tests/vdb_rotated.rs) at test time:
-//   c++ -std=c++17 -O1 corpus.cpp -o corpus -lopenvdb -ltbb && ./corpus OUT_DIR
+//   c++ -std=c++17 -O0 corpus.cpp -o corpus -lopenvdb -ltbb && ./corpus OUT_DIR
 // Needs Debian's libopenvdb-dev (OpenVDB 10). The Python bindings cannot choose a file's
 // compression, which is why this is C++.
 //
