@@ -38,6 +38,30 @@ impl Run {
     }
 }
 
+/// A child's private cache home (`XDG_CACHE_HOME`): pinrender's own caches (bench, pipeline
+/// cache) go there, untouched by the user's. Mesa's shader cache, which follows
+/// `XDG_CACHE_HOME` too, stays the one this test binary uses (`$MESA_SHADER_CACHE_DIR`, else
+/// Mesa's default under `$XDG_CACHE_HOME` or `~/.cache`; Mesa adds `mesa_shader_cache`), so
+/// that a GPU pipeline one test's renders compiled is not compiled again, for seconds on
+/// lavapipe, by every other test's: the driver's cache is no behaviour of pinrender's.
+trait PrivateCache {
+    fn private_cache(&mut self, home: &Path) -> &mut Self;
+}
+
+impl PrivateCache for Command {
+    fn private_cache(&mut self, home: &Path) -> &mut Self {
+        let nonempty = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty());
+        if nonempty("MESA_SHADER_CACHE_DIR").is_none()
+            && let Some(base) = nonempty("XDG_CACHE_HOME")
+                .map(PathBuf::from)
+                .or_else(|| nonempty("HOME").map(|h| PathBuf::from(h).join(".cache")))
+        {
+            self.env("MESA_SHADER_CACHE_DIR", base);
+        }
+        self.env("XDG_CACHE_HOME", home)
+    }
+}
+
 /// Runs pinrender with a private cache home and runtime dir, killed after 60 s (a FIFO that
 /// blocked an open would otherwise hang the suite).
 fn run_env(args: &[OsString], cache_home: &Path) -> Run {
@@ -46,7 +70,7 @@ fn run_env(args: &[OsString], cache_home: &Path) -> Run {
         .args(["-s", "KILL", "60"])
         .arg(BIN)
         .args(args)
-        .env("XDG_CACHE_HOME", cache_home)
+        .private_cache(cache_home)
         .env("XDG_RUNTIME_DIR", cache_home)
         .stdin(Stdio::null())
         .output()
@@ -561,7 +585,7 @@ fn reference_render_into(d: &Path, stdout: impl Into<Stdio>) -> (Output, PathBuf
     args.extend(["--reference".to_string(), reference.display().to_string()]);
     let o = Command::new(BIN)
         .args(&args)
-        .env("XDG_CACHE_HOME", d)
+        .private_cache(d)
         .env("XDG_RUNTIME_DIR", d)
         .stdin(Stdio::null())
         .stdout(stdout)

@@ -32,7 +32,7 @@ fn a_renderer_of_the_same_layout_takes_the_compiled_pipeline_and_renders_its_own
     assert_eq!(store.compiled(), 1, "the second frame compiled a pipeline");
     // Its image is its own media's: the bits of a renderer that compiled for itself.
     assert!(bits_a != bits_b, "the frames differ, so must their images");
-    let fresh = GpuRenderer::new(&ctx, &b).unwrap();
+    let fresh = GpuRenderer::new(ctx, &b).unwrap();
     assert!(
         pins_bits(&fresh) == bits_b,
         "a shared pipeline changed the bits"

@@ -9,13 +9,47 @@ use pinrt::Rng;
 use std::sync::Arc;
 use std::time::Instant;
 
-pub(super) fn context() -> GpuContext {
-    GpuContext::new().unwrap_or_else(|e| {
-        panic!(
-            "GPU render tests need a working wgpu adapter: {e}\n\
-             (this test fails rather than skips so that a missing driver is noticed)"
-        )
+/// The test binary's one device, opened the first time a test asks: each `GpuContext` compiles
+/// pinrt's own pipelines, seconds each on lavapipe, so the tests share one.
+pub(super) fn context() -> &'static GpuContext {
+    static CONTEXT: std::sync::OnceLock<GpuContext> = std::sync::OnceLock::new();
+    CONTEXT.get_or_init(|| {
+        GpuContext::new().unwrap_or_else(|e| {
+            panic!(
+                "GPU render tests need a working wgpu adapter: {e}\n\
+                 (this test fails rather than skips so that a missing driver is noticed)"
+            )
+        })
     })
+}
+
+/// The path tracer's pipelines on [`context`]'s device, shared by the tests that do not
+/// count compiles (those make a store of their own): a pipeline compiles once per test
+/// binary, not once per renderer. A shared pipeline renders the bits of a renderer's own
+/// (`a_renderer_of_the_same_layout_takes_the_compiled_pipeline_and_renders_its_own_bits`).
+pub(super) fn shared_pipelines() -> &'static Arc<GpuPipelines> {
+    static STORE: std::sync::OnceLock<Arc<GpuPipelines>> = std::sync::OnceLock::new();
+    STORE.get_or_init(|| {
+        let ctx = context();
+        GpuPipelines::new(&ctx.device, &ctx.queue, &ctx.limits)
+    })
+}
+
+/// [`GpuRenderer::with_media`] on the shared device and pipelines.
+pub(super) fn shared_renderer(media: &GpuMedia<'_>) -> pinrt::Result<GpuRenderer> {
+    GpuRenderer::with_media_in(shared_pipelines(), media)
+}
+
+/// [`GpuRenderer::with_media_limited`] on the shared device and pipelines.
+fn shared_renderer_limited(media: &GpuMedia<'_>, binding_limit: u64) -> pinrt::Result<GpuRenderer> {
+    let store = shared_pipelines();
+    let limit = binding_limit.min(pinrt::gpu::binding_limit(&store.limits));
+    pollster::block_on(GpuRenderer::create(store, media, limit))
+}
+
+/// [`GpuRenderer::new`] on the shared device and pipelines.
+fn pins_renderer(grid: &PinGrid) -> GpuRenderer {
+    shared_renderer(&GpuMedia::pins_only(grid, None, SamplerOptions::default())).unwrap()
 }
 
 /// A blob-shaped pin grid over the world box `[-1, 1]^3`: denser pins towards the centre
@@ -290,10 +324,9 @@ fn compare_with(
 
 #[test]
 fn albedo_zero_matches_cpu_transmittance() {
-    let ctx = context();
     let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
     let grid = &load(&owned);
-    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let renderer = pins_renderer(grid);
     let sc = scene(32, 0.0, 0.0, 4);
     // 32 replicates x 2 spp = 64 spp per side.
     let (g, _) = compare("albedo 0", &renderer, grid, &sc, 32, 2, (4.5, 3));
@@ -314,10 +347,9 @@ fn albedo_zero_matches_cpu_transmittance() {
 
 #[test]
 fn scattering_matches_cpu() {
-    let ctx = context();
     let owned = blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25);
     let grid = &load(&owned);
-    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let renderer = pins_renderer(grid);
     // Sun + environment, forward scattering, 4 bounces.
     let sc = scene(32, 0.9, 0.6, 4);
     let (g, _) = compare(
@@ -359,10 +391,9 @@ fn scattering_matches_cpu() {
 
 #[test]
 fn deterministic_and_checked() {
-    let ctx = context();
     let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
     let grid = &load(&owned);
-    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let renderer = pins_renderer(grid);
     let sc = scene(32, 0.9, 0.3, 4);
     let a = renderer.render(&sc, EstimatorSpec::Pins, 5, 42).unwrap();
     let b = renderer.render(&sc, EstimatorSpec::Pins, 5, 42).unwrap();
@@ -539,9 +570,8 @@ fn cpu_render_media(media: Vec<Medium>, scene: &GpuScene, spp: u32, seed: u64) -
 
 #[test]
 fn every_estimator_matches_cpu_with_instances() {
-    let ctx = context();
     let ms = MultiScene::new();
-    let renderer = GpuRenderer::with_media(&ctx, &ms.gpu_media()).unwrap();
+    let renderer = shared_renderer(&ms.gpu_media()).unwrap();
     assert_eq!(renderer.media_count(), 3);
     let mut sc = scene(24, 0.9, 0.3, 3);
     sc.camera.origin = [0.5, 0.8, 4.5];
@@ -602,7 +632,6 @@ fn every_estimator_matches_cpu_with_instances() {
 /// The closed-form cosine noise on the GPU against the same formula on the CPU (f64).
 #[test]
 fn cosine_density_matches_cpu() {
-    let ctx = context();
     let waves = vec![
         CosineWave {
             w: [40.0, 3.0, -7.0],
@@ -653,7 +682,7 @@ fn cosine_density_matches_cpu() {
             }),
         }],
     };
-    let renderer = GpuRenderer::with_media(&ctx, &media).unwrap();
+    let renderer = shared_renderer(&media).unwrap();
     let mut sc = scene(24, 0.85, 0.5, 3);
     sc.camera.origin = [0.9, 0.7, 3.6];
     for (est, cpu) in [
@@ -689,12 +718,11 @@ fn cosine_density_matches_cpu() {
 
 #[test]
 fn media_and_estimators_are_checked() {
-    let ctx = context();
     let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
     let grid = &load(&owned);
     let sc = scene(8, 0.5, 0.0, 2);
     // Pins only: every density estimator is refused with the medium named.
-    let pins_only = GpuRenderer::new(&ctx, grid).unwrap();
+    let pins_only = pins_renderer(grid);
     for est in [
         EstimatorSpec::RayMarching { rel_step: 0.1 },
         EstimatorSpec::DeltaTracking,
@@ -722,7 +750,7 @@ fn media_and_estimators_are_checked() {
             }),
         }],
     };
-    let r = GpuRenderer::with_media(&ctx, &media).unwrap();
+    let r = shared_renderer(&media).unwrap();
     assert!(
         r.render(&sc, EstimatorSpec::RayMarching { rel_step: 0.1 }, 1, 0)
             .is_ok()
@@ -733,7 +761,7 @@ fn media_and_estimators_are_checked() {
         assert!(matches!(e, Err(GpuRenderError::Invalid(_))), "{bad}: {e:?}");
     }
     // No media at all: the environment, unattenuated.
-    let empty = GpuRenderer::with_media(&ctx, &GpuMedia::default()).unwrap();
+    let empty = shared_renderer(&GpuMedia::default()).unwrap();
     let img = empty.render(&sc, EstimatorSpec::Pins, 2, 0).unwrap();
     let env = sc.env_radiance;
     assert!(
@@ -744,17 +772,17 @@ fn media_and_estimators_are_checked() {
     // Dangling indices and non-finite placements are errors at upload.
     let mut bad = media.clone();
     bad.media[0].density.as_mut().unwrap().density = 1;
-    assert!(GpuRenderer::with_media(&ctx, &bad).is_err());
+    assert!(shared_renderer(&bad).is_err());
     let mut bad = media.clone();
     bad.media[0].density.as_mut().unwrap().translation[2] = f64::NAN;
-    assert!(GpuRenderer::with_media(&ctx, &bad).is_err());
+    assert!(shared_renderer(&bad).is_err());
     let mut bad = GpuMedia::pins_only(grid, None, SamplerOptions::default());
     bad.media[0].pins.as_mut().unwrap().grid = 3;
-    assert!(GpuRenderer::with_media(&ctx, &bad).is_err());
+    assert!(shared_renderer(&bad).is_err());
     let mut singular = GpuMedia::pins_only(grid, Some(&[0.0; 12]), SamplerOptions::default());
-    assert!(GpuRenderer::with_media(&ctx, &singular).is_err());
+    assert!(shared_renderer(&singular).is_err());
     singular.media[0].pins.as_mut().unwrap().local_to_world = None;
-    assert!(GpuRenderer::with_media(&ctx, &singular).is_ok());
+    assert!(shared_renderer(&singular).is_ok());
     // Densities are validated on construction.
     assert!(GpuDensity::voxels([2, 1, 1], [0.0; 3], [1.0; 3], vec![1.0]).is_err());
     assert!(GpuDensity::voxels([1, 1, 1], [0.0; 3], [0.0; 3], vec![1.0]).is_err());
@@ -779,7 +807,6 @@ fn media_and_estimators_are_checked() {
 /// with the expected transmittance for every estimator.
 #[test]
 fn stiff_media_stay_finite() {
-    let ctx = context();
     let mut sc = scene(16, 0.0, 0.0, 3);
     sc.camera.origin = [0.0, 0.0, 4.0];
     sc.camera.target = [0.0, 0.0, 0.0];
@@ -812,7 +839,7 @@ fn stiff_media_stay_finite() {
                 }),
             }],
         };
-        let r = GpuRenderer::with_media(&ctx, &media).unwrap();
+        let r = shared_renderer(&media).unwrap();
         let grid = Arc::new(grid);
         let maj = media.media[0]
             .density
@@ -947,7 +974,6 @@ fn placed_majorants(dense: &VoxelGrid) -> Vec<Arc<MajorantGrid>> {
 /// and shrinking nearest-collision search).
 #[test]
 fn the_media_hierarchy_renders_the_linear_scans_bits() {
-    let ctx = context();
     let n = 8;
     let values = blob_voxels(n, 5.0);
     let spacing = [2.0 / n as f64; 3];
@@ -987,9 +1013,9 @@ fn the_media_hierarchy_renders_the_linear_scans_bits() {
             })
             .collect(),
     };
-    let walked = GpuRenderer::with_media(&ctx, &media).unwrap();
+    let walked = shared_renderer(&media).unwrap();
     assert!(walked.has_bvh(), "24 media are walked by the hierarchy");
-    let scanned = GpuRenderer::with_media(&ctx, &media).unwrap().without_bvh();
+    let scanned = shared_renderer(&media).unwrap().without_bvh();
     let mut sc = scene(24, 0.9, 0.3, 2);
     sc.camera.origin = [1.0, 2.0, 8.0];
     sc.camera.target = [0.0, 0.0, 0.0];
@@ -1031,10 +1057,8 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
         let gd = GpuDensity::from_voxel_grid(dense.clone()).unwrap();
         let gb = GpuDensity::from_bricks(bricks.clone()).unwrap();
         assert_eq!(gd.bounds, gb.bounds);
-        let dense_r =
-            GpuRenderer::with_media(&ctx, &placed(gd.clone(), &maj, Some(&grid))).unwrap();
-        let brick_r =
-            GpuRenderer::with_media(&ctx, &placed(gb.clone(), &maj, Some(&grid))).unwrap();
+        let dense_r = shared_renderer(&placed(gd.clone(), &maj, Some(&grid))).unwrap();
+        let brick_r = shared_renderer(&placed(gb.clone(), &maj, Some(&grid))).unwrap();
         assert_eq!((dense_r.brick_bindings(), brick_r.brick_bindings()), (0, 1));
         // Split over as many bindings as the device gives the brick values (26 on lavapipe),
         // whole bricks in each, with room for the other buffers (the largest is the density
@@ -1053,9 +1077,8 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
             .div_ceil(available as u64)
             .max(others.div_ceil(brick_bytes));
         let limit = brick_bytes * per_binding;
-        let dense_np = GpuRenderer::with_media(&ctx, &placed(gd, &maj, None)).unwrap();
-        let split =
-            GpuRenderer::with_media_limited(&ctx, &placed(gb.clone(), &maj, None), limit).unwrap();
+        let dense_np = shared_renderer(&placed(gd, &maj, None)).unwrap();
+        let split = shared_renderer_limited(&placed(gb.clone(), &maj, None), limit).unwrap();
         assert_eq!(
             split.brick_bindings() as u64,
             (stored as u64).div_ceil(per_binding)
@@ -1096,7 +1119,7 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
                 Arc::new(crate::render::BrickGrid::from_voxels(&zeros.unwrap(), 4).unwrap());
             assert_eq!(empty.shape().2, 0);
             let d = GpuDensity::from_bricks(empty).unwrap();
-            let r = GpuRenderer::with_media(&ctx, &placed(d, &maj, None)).unwrap();
+            let r = shared_renderer(&placed(d, &maj, None)).unwrap();
             assert_eq!(r.brick_bindings(), 0);
             let mut t_only = sc.clone();
             t_only.albedo = 0.0;
@@ -1130,7 +1153,6 @@ fn bricked_density_renders_the_dense_bits_whole_or_split() {
 /// values, three instances): the same expected image, per pixel and overall.
 #[test]
 fn bricked_density_matches_cpu() {
-    let ctx = context();
     let (_, bricks) = blob_bricks(true);
     let (dims, brick, _) = bricks.shape();
     let ((origin, spacing), (index, values)) = (bricks.placement(), bricks.parts());
@@ -1154,7 +1176,7 @@ fn bricked_density_matches_cpu() {
         .map(|f| Arc::new(MajorantGrid::from_field(&**f, [4, 4, 4]).unwrap()))
         .collect();
     let gb = GpuDensity::from_bricks(bricks.clone()).unwrap();
-    let renderer = GpuRenderer::with_media(&ctx, &placed(gb, &maj, None)).unwrap();
+    let renderer = shared_renderer(&placed(gb, &maj, None)).unwrap();
     let mut sc = scene(24, 0.9, 0.3, 3);
     sc.camera.origin = [0.5, 0.8, 4.5];
     sc.camera.target = [0.05, 0.3, 0.05];
@@ -1261,7 +1283,7 @@ fn residual_estimators_match_cpu() {
                 .unwrap();
         // pinres reads the control section, not the pins.
         assert!(gpu_media.grids.is_empty());
-        let renderer = GpuRenderer::with_media(&ctx, &gpu_media).unwrap();
+        let renderer = shared_renderer(&gpu_media).unwrap();
         for est in RESIDUALS {
             let cpu: Vec<Medium> = media
                 .iter()
@@ -1279,7 +1301,7 @@ fn residual_estimators_match_cpu() {
     }
     // Without its control a medium cannot answer: a one-line refusal naming the medium.
     let only_mean = crate::medium::gpu_media_for(&descs, &[RESIDUALS[0].into()], lookup).unwrap();
-    let renderer = GpuRenderer::with_media(&ctx, &only_mean).unwrap();
+    let renderer = shared_renderer(&only_mean).unwrap();
     for est in &RESIDUALS[1..] {
         match renderer.render(&sc, *est, 1, 0) {
             Err(GpuRenderError::Invalid(e)) => {
@@ -1304,7 +1326,7 @@ fn residual_estimators_match_cpu() {
         .data
         .len() as u64
         * 4;
-    match GpuRenderer::with_media_limited(&ctx, &small, plain_bytes) {
+    match GpuRenderer::with_media_limited(ctx, &small, plain_bytes) {
         Err(e) => assert!(e.to_string().contains("the density data"), "{e}"),
         Ok(_) => panic!("the controls must not fit the plain media's data binding"),
     }
@@ -1380,7 +1402,6 @@ fn cosine_pixel_expectations(
 /// counted 10% high in the walk (`depth + 1.1 * c * ...` in `rt_track`) fails it.
 #[test]
 fn residual_on_gpu_matches_the_cosine_closed_form() {
-    let ctx = context();
     let waves = vec![
         CosineWave {
             w: [9.0, 3.0, -7.0],
@@ -1433,7 +1454,7 @@ fn residual_on_gpu_matches_the_cosine_closed_form() {
         SamplerOptions::default(),
     )
     .unwrap();
-    let renderer = GpuRenderer::with_media(&ctx, &media).unwrap();
+    let renderer = shared_renderer(&media).unwrap();
     // Every pixel's rays cross the cube (no pixel that only a corner grazes).
     let mut sc = scene(24, 0.0, 0.0, 0);
     sc.camera.origin = [0.3, 0.2, 4.0];
@@ -1490,10 +1511,9 @@ fn bits_of(im: &Image) -> Vec<u32> {
 
 #[test]
 fn session_slices_give_the_batch_render_bits() {
-    let ctx = context();
     let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
     let grid = &load(&owned);
-    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let renderer = pins_renderer(grid);
     // Odd size: partial workgroups and a last band shorter than the others.
     let mut sc = scene(13, 0.9, 0.3, 3);
     sc.camera.height = 21;
@@ -1608,7 +1628,7 @@ fn tone_map_pass_shows_what_the_png_holds() {
     let ctx = context();
     let owned = blob_grid(3, Directions::THESIS_DEFAULT, 1, 0.3);
     let grid = &load(&owned);
-    let renderer = GpuRenderer::new(&ctx, grid).unwrap();
+    let renderer = pins_renderer(grid);
     let sc = scene(24, 0.9, 0.3, 3);
     let mut session = renderer.session(&sc, EstimatorSpec::Pins, 5).unwrap();
     session.add_passes(4).unwrap();
@@ -1630,7 +1650,7 @@ fn tone_map_pass_shows_what_the_png_holds() {
     let tone = GpuToneMap::new(&ctx.device, wgpu::TextureFormat::Rgba8Unorm);
     for exposure in [1.0f32, 4.0] {
         tone.draw(&session, &view, exposure);
-        let shown = read_rgb(&ctx, &texture, 24, 24);
+        let shown = read_rgb(ctx, &texture, 24, 24);
         let image = session.image().unwrap();
         let png: Vec<u8> = image
             .rgb
@@ -1662,7 +1682,7 @@ fn tone_map_pass_shows_what_the_png_holds() {
     assert_eq!((session.passes(), session.next_row()), (4, 8));
     let five = renderer.render(&sc, EstimatorSpec::Pins, 5, 5).unwrap();
     tone.draw(&session, &view, 1.0);
-    let shown = read_rgb(&ctx, &texture, 24, 24);
+    let shown = read_rgb(ctx, &texture, 24, 24);
     let mut worst = 0;
     for (i, &code) in shown.iter().enumerate() {
         let (pixel, channel) = (i / 3, i % 3);
@@ -1714,7 +1734,7 @@ fn pass_times_come_from_gpu_timestamps_where_the_device_has_them() {
 
     // A device opened without the feature: wall time.
     let ctx = context();
-    let plain = GpuRenderer::new(&ctx, grid).unwrap();
+    let plain = pins_renderer(grid);
     let mut wall = plain.session(&sc, EstimatorSpec::Pins, 2).unwrap();
     assert_eq!(wall.pass_time_source(), PassTimeSource::Wall);
     wall.add_for(long, long, 3).unwrap();
@@ -1812,7 +1832,6 @@ fn placed_descs(ms: &MultiScene, transforms: &[[f64; 12]]) -> Vec<crate::medium:
 /// `residual_estimators_match_cpu` render them on instances.
 #[test]
 fn affine_instances_match_cpu_with_every_estimator() {
-    let ctx = context();
     let ms = MultiScene::new();
     let descs = placed_descs(&ms, &placed_transforms());
     let lookup = SamplerOptions::default();
@@ -1854,7 +1873,7 @@ fn affine_instances_match_cpu_with_every_estimator() {
         // One asset: one density, one pin grid, uploaded once for every instance.
         assert_eq!(gpu_media.densities.len(), 1);
         assert!(gpu_media.grids.len() <= 1);
-        let renderer = GpuRenderer::with_media(&ctx, &gpu_media).unwrap();
+        let renderer = shared_renderer(&gpu_media).unwrap();
         for &est in ests {
             let cpu: Vec<Medium> = media
                 .iter()

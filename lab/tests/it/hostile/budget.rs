@@ -16,7 +16,7 @@ fn run_rss(args: &[&str], home: &Path) -> (Option<i32>, String, i64) {
         .args(["-s", "KILL", "60"])
         .arg(BIN)
         .args(args)
-        .env("XDG_CACHE_HOME", home)
+        .private_cache(home)
         .env("XDG_RUNTIME_DIR", home)
         .stdin(Stdio::null())
         .stdout(Stdio::null())

@@ -115,7 +115,7 @@ fn a_failed_write_leaves_the_old_pair() {
         .arg("sh")
         .arg(BIN)
         .args(&args)
-        .env("XDG_CACHE_HOME", d)
+        .private_cache(d)
         .env("XDG_RUNTIME_DIR", d)
         .stdin(Stdio::null())
         .output()
@@ -212,7 +212,7 @@ fn a_gpu_error_without_a_runtime_dir_is_one_line() {
         .args(["--width", "8", "--height", "8", "--spp", "1", "--out"])
         .arg(&out)
         .env_remove("XDG_RUNTIME_DIR")
-        .env("XDG_CACHE_HOME", d)
+        .private_cache(d)
         .stdin(Stdio::null())
         .output()
         .unwrap();
