@@ -173,12 +173,8 @@ fn interactive_a_bad_scene_keeps_its_window_open() {
         r#"{"assets": {"c": {"pins": "c.pin"}}, "instances": [{"asset": "c"}]}"#,
     );
     let Some(display) = display() else { return };
-    let mut child = std::process::Command::new(PINVIEW)
+    let mut child = viewer_command(Some(&display))
         .arg(s(&flat))
-        .env("DISPLAY", &display.name)
-        .env_remove("WAYLAND_DISPLAY")
-        .env("XDG_RUNTIME_DIR", runtime_dir())
-        .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
