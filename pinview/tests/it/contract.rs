@@ -160,6 +160,9 @@ fn pins_alone_matches_pinrender_and_the_sun_and_camera_change_it() {
     assert!(camera != view, "moving the camera left the image unchanged");
 }
 
+/// Without `--estimator`, a pin file that embeds its density shows pins at once and switches
+/// to ratio tracking (`pinrender render`'s default for it) once that renderer is built; the
+/// passes are then ratio's, bit for bit.
 #[test]
 fn embedded_density_defaults_to_ratio_and_matches() {
     let dir = tempfile::tempdir().unwrap();
@@ -180,6 +183,19 @@ fn embedded_density_defaults_to_ratio_and_matches() {
         view == reference,
         "ratio: the viewer's EXR differs from pinrender's"
     );
+    // The window showed pins at once and switched to ratio once its renderer was built; the
+    // passes above are ratio's alone.
+    assert_eq!(j["first_image_estimator"], "pins", "{j}");
+    let first = j["first_image_s"].as_f64().unwrap_or(-1.0);
+    let switch = j["estimator_switch_s"].as_f64().unwrap_or(-1.0);
+    assert!(first > 0.0 && switch > first, "{j}");
+    assert!(
+        j["messages"]
+            .to_string()
+            .contains("ratio shown: its pipeline is ready"),
+        "{j}"
+    );
+    assert_eq!(j["notes"], serde_json::json!([]), "{j}");
     assert_png_close(&vpng, &rpng);
 }
 
