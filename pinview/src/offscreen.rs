@@ -141,6 +141,10 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
         "first_image_breakdown": clock.marks.breakdown(),
         "first_preview_s": first_preview_s,
         "warm_up_s": warm_up_s,
+        // Off-screen renders the estimator asked for (else the default) from the first
+        // image: no interim estimator, no switch.
+        "first_image_estimator": first_image_s.map(|_| estimator.to_string()),
+        "estimator_switch_s": null,
         "ms_per_pass": ms,
         "pass_time_source": session.pass_time_source().as_str(),
         "frame": null,

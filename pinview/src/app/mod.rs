@@ -107,6 +107,16 @@ pub struct Viewer {
     main: Side,
     compare: Side,
     reference: Side,
+    /// A pin file opened without `--estimator`: the cheapest estimator it answers (pins),
+    /// shown at once, and the default it switches to once that renderer is built in
+    /// [`Viewer::next`]; `None` once switched, or where there is nothing cheaper.
+    interim: Option<(EstimatorSpec, EstimatorSpec)>,
+    /// The default estimator's renderer, built while the interim one is shown.
+    next: Side,
+    /// The estimator of the first image shown, and when the default replaced the interim
+    /// one (seconds from the start).
+    first_image_estimator: Option<EstimatorSpec>,
+    estimator_switch_s: Option<f64>,
     /// Builds no longer wanted whose workers still run (waited for when the window closes).
     retired: Vec<BuildJob>,
     /// Counts the view's changes, so that a session built for an older view is reset.
@@ -180,6 +190,10 @@ impl Viewer {
         );
         let tone = GpuToneMap::new(&gpu.device, IMAGE_FORMAT);
         let wanted = args.estimator.unwrap_or_else(|| initial_estimator(&medium));
+        let interim = (args.estimator.is_none() && frames.is_none())
+            .then(|| interim_estimator(&medium))
+            .flatten()
+            .map(|cheap| (cheap, wanted));
         let view = View::new(&args, &medium, wanted);
         let images = Images {
             main: Self::make_target(&gpu.device, &rs.renderer, view.width, view.height, None),
@@ -206,6 +220,10 @@ impl Viewer {
             main: Side::new(0),
             compare: Side::new(0),
             reference: Side::new(error_view::REFERENCE_SEED_XOR),
+            interim,
+            next: Side::new(0),
+            first_image_estimator: None,
+            estimator_switch_s: None,
             retired: Vec::new(),
             generation: 0,
             input: Input::default(),
@@ -283,7 +301,12 @@ impl Drop for Viewer {
     /// The window closes once every build has ended: a compile still running in the driver
     /// while the process exits could crash it at exit.
     fn drop(&mut self) {
-        for side in [&mut self.main, &mut self.compare, &mut self.reference] {
+        for side in [
+            &mut self.main,
+            &mut self.compare,
+            &mut self.reference,
+            &mut self.next,
+        ] {
             side.stop(&mut self.retired);
         }
         for mut job in self.retired.drain(..) {
@@ -296,6 +319,18 @@ impl Drop for Viewer {
 /// have once baked is not assumed: ratio until then.
 fn initial_estimator(medium: &Medium) -> EstimatorSpec {
     medium.default_estimator()
+}
+
+/// The estimator a pin file is shown with first when its default is another: the cheapest
+/// it answers (pins, which read nothing but the pins), while the default's renderer is built.
+/// A volume (tracked until its pins are baked) and a scene open with their default.
+fn interim_estimator(medium: &Medium) -> Option<EstimatorSpec> {
+    let cheap = EstimatorSpec::Pins;
+    (!medium.is_volume
+        && medium.scene().is_none()
+        && medium.default_estimator() != cheap
+        && medium.estimators().contains(&cheap))
+    .then_some(cheap)
 }
 
 impl crate::shell::App for Viewer {

@@ -165,6 +165,7 @@ impl Viewer {
             if self.first_image_s.is_none() {
                 let now = self.clock.now();
                 self.first_image_s = Some(now);
+                self.first_image_estimator = self.main.estimator();
                 self.playback.shown_first_at = Some(Instant::now());
                 self.clock.marks.first_image = now;
             }

@@ -30,6 +30,7 @@ impl Viewer {
             || self.main.in_progress()
             || (self.args.rebake_scale.is_some() && self.bakes.rebaked.is_none())
             || self.awaiting_wanted()
+            || self.switching()
             || !self.viewport.settled()
             || !self.compare_done()
             || !self.reference_done()
@@ -118,6 +119,8 @@ impl Viewer {
             "first_image_breakdown": self.clock.marks.breakdown(),
             "first_preview_s": self.first_preview_s,
             "warm_up_s": self.warm_up_s,
+            "first_image_estimator": self.first_image_estimator.map(|e| e.to_string()),
+            "estimator_switch_s": self.estimator_switch_s,
             "ms_per_pass": self.main.ms_per_pass(),
             "pass_time_source": self.pass_time_source().as_str(),
             "frame": frame.map(|f| f.0),

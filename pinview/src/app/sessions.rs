@@ -16,6 +16,9 @@ impl Viewer {
     /// The estimator shown now: the one asked for once the medium answers it, else the
     /// medium's default (ratio while a volume's pins bake).
     pub(super) fn estimator_now(&self) -> EstimatorSpec {
+        if let Some((cheap, _)) = self.interim {
+            return cheap;
+        }
         if self.medium.estimators().contains(&self.wanted) {
             self.wanted
         } else {
@@ -62,18 +65,98 @@ impl Viewer {
         self.note(note);
     }
 
-    /// Whether the shown estimator's renderer is being built (the panel says "compiling").
+    /// Whether the shown estimator's renderer is being built, or the default's while the
+    /// interim one is shown (the panel says "compiling").
     pub(super) fn compiling(&self) -> Option<EstimatorSpec> {
-        self.main.building()
+        self.main.building().or_else(|| self.next.building())
+    }
+
+    /// Whether the interim estimator is shown and the default will replace it (a scripted
+    /// run renders its passes on the default).
+    pub(super) fn switching(&self) -> bool {
+        self.interim.is_some()
+    }
+
+    /// The first look of a pin file: while the interim (cheapest) estimator is shown, the
+    /// default's renderer is built once the interim one has shown its first image, and
+    /// swapped in as the shown side when ready (its preview, or the interim image until its
+    /// first pass: never a blank image). An estimator chosen meanwhile ends the switch.
+    fn switch_when_ready(&mut self) -> Result<()> {
+        let Some((cheap, target)) = self.interim else {
+            return Ok(());
+        };
+        if self.wanted != target {
+            self.interim = None;
+            self.next.stop(&mut self.retired);
+            return Ok(());
+        }
+        if let Some(done) = self.next.take_built(target, &mut self.retired) {
+            let built = done?;
+            self.interim = None;
+            self.estimator_switch_s = Some(self.clock.now());
+            self.main.stop(&mut self.retired);
+            self.install_main(target, built)?;
+            // The accumulation started again: a scripted run's passes count from here.
+            if let Some(s) = &mut self.script
+                && s.base.is_some()
+            {
+                s.base = Some(0);
+            }
+            self.toasts.say(format!(
+                "{target} shown: its pipeline is ready ({cheap} until then)"
+            ));
+            return Ok(());
+        }
+        if self.next.pending.is_none() && self.first_image_s.is_some() {
+            let media = self.medium.media_job(target)?;
+            self.next.spawn(
+                &self.gpu,
+                media,
+                self.view.scene(),
+                self.view.seed,
+                self.view.exposure,
+                self.generation,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Makes `built` (of `est`) the shown side, with its coarse preview where it has one.
+    fn install_main(&mut self, est: EstimatorSpec, built: crate::build::Built) -> Result<()> {
+        let preview = self.main.install(
+            est,
+            built,
+            &self.view.scene(),
+            self.view.seed,
+            self.generation,
+        )?;
+        self.coarse.forget();
+        self.fit_main_image();
+        // The coarse preview of this view stands until the first whole pass is in.
+        if let Some(rgba) = preview {
+            let t = &self.images.main;
+            write_image(&self.gpu.queue, &t.texture, t.size.0, t.size.1, &rgba);
+            self.shown.get_or_insert(super::events::Shown::Preview);
+            if self.first_preview_s.is_none() {
+                self.first_preview_s = Some(self.clock.now());
+            }
+        }
+        Ok(())
     }
 
     /// Starts building the renderer of the current estimator (when it changed), swaps in a
     /// finished one, and resets the session when the view changed; then the same for the
     /// second side and the reference.
     pub(super) fn ensure_session(&mut self) -> Result<()> {
+        if self.input.dirty {
+            self.generation += 1;
+        }
+        let switched = self.interim.is_some();
+        self.switch_when_ready()?;
+        let switched = switched && self.interim.is_none() && self.main.live.is_some();
         let est = self.estimator_now();
         self.view.estimator = est;
-        if est != self.wanted && !self.baking() {
+        if est != self.wanted && !self.baking() && self.interim.is_none() {
             self.note_unanswered(self.wanted, &format!("{est} shown instead"));
         }
         if let Some(e) = self.compare_wanted
@@ -83,11 +166,8 @@ impl Viewer {
         {
             self.note_unanswered(e, "no second side");
         }
-        if self.input.dirty {
-            self.generation += 1;
-        }
         // The second side starts again with the first, so both have spent equal time.
-        let mut restart = false;
+        let mut restart = switched;
         if let Some(done) = self.main.take_built(est, &mut self.retired) {
             let built = done?;
             if self.clock.marks.upload == 0.0 {
@@ -104,25 +184,8 @@ impl Viewer {
                         .as_secs_f64(),
                 );
             }
-            let preview = self.main.install(
-                est,
-                built,
-                &self.view.scene(),
-                self.view.seed,
-                self.generation,
-            )?;
-            self.coarse.forget();
+            self.install_main(est, built)?;
             restart = true;
-            self.fit_main_image();
-            // The coarse preview of this view stands until the first whole pass is in.
-            if let Some(rgba) = preview {
-                let t = &self.images.main;
-                write_image(&self.gpu.queue, &t.texture, t.size.0, t.size.1, &rgba);
-                self.shown.get_or_insert(super::events::Shown::Preview);
-                if self.first_preview_s.is_none() {
-                    self.first_preview_s = Some(self.clock.now());
-                }
-            }
         }
         if self.main.estimator() != Some(est) && self.main.pending.is_none() {
             // The old session stops; its image stays on screen until the new one's first pass.
@@ -261,7 +324,13 @@ impl Viewer {
         self.verify = crate::verify::Verify::start(&self.medium);
         self.overlays.held = None;
         self.coarse.forget();
-        for side in [&mut self.main, &mut self.compare, &mut self.reference] {
+        self.interim = None;
+        for side in [
+            &mut self.main,
+            &mut self.compare,
+            &mut self.reference,
+            &mut self.next,
+        ] {
             side.stop(&mut self.retired);
         }
     }

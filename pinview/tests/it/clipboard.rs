@@ -1,9 +1,9 @@
 //! "copy command" reaches the system clipboard: a scripted copy in the window under Xvfb,
 //! read back from the X server's CLIPBOARD selection while the window still serves it, is
 //! the line printed on stdout; and the GPU stack's libraries print nothing about
-//! `XDG_RUNTIME_DIR` on the way.
+//! `XDG_RUNTIME_DIR` on the way. The same run is the scripted input's end by time.
 
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use crate::support::*;
@@ -67,17 +67,19 @@ fn read_clipboard(display: &str) -> Option<String> {
     None
 }
 
+/// One window run checks two things: "copy command" reaches the X clipboard (read back
+/// while the window serves it), and a scripted run that cannot reach its passes
+/// (`--frames` 2^32 - 1) ends 10 s after its last event, which keeps the window up for the
+/// read.
 #[test]
-fn copy_command_reaches_the_x_clipboard_and_stdout() {
+fn copy_command_reaches_the_x_clipboard_and_a_run_ends_10_s_after_its_last_event() {
     let dir = tempfile::tempdir().unwrap();
     let pin = bake(dir.path(), "c.pin", 1.0, None);
     let script = dir.path().join("events.json");
-    // The copy at the first image; a later event keeps the window (the selection's owner)
-    // up while the clipboard is read.
     std::fs::write(
         &script,
         r#"[{"at_s": 0, "action": "copy_command"},
-            {"at_s": 6, "action": "exposure", "stops": 0}]"#,
+            {"at_s": 0.2, "action": "exposure", "stops": -1}]"#,
     )
     .unwrap();
     let Some(display) = display() else { return };
@@ -88,27 +90,24 @@ fn copy_command_reaches_the_x_clipboard_and_stdout() {
         "--input-script",
         s(&script),
         "--frames",
-        "1",
+        "4294967295",
         "--json",
     ];
     args.extend_from_slice(&VIEW);
     // Without XDG_RUNTIME_DIR: the viewer makes a private one before the GPU stack and the
     // clipboard look for a Wayland display.
-    let mut child = Command::new(PINVIEW)
+    let t = Instant::now();
+    let mut child = viewer_command(Some(&display))
         .args(&args)
-        .env("DISPLAY", &display.name)
-        .env_remove("WAYLAND_DISPLAY")
         .env_remove("XDG_RUNTIME_DIR")
-        .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let start = Instant::now();
     let mut copied = None;
     while child.try_wait().unwrap().is_none() {
         assert!(
-            start.elapsed() < Duration::from_secs(240),
+            t.elapsed() < Duration::from_secs(240),
             "pinview did not end"
         );
         if let Some(text) = read_clipboard(&display.name) {
@@ -116,8 +115,9 @@ fn copy_command_reaches_the_x_clipboard_and_stdout() {
         }
         std::thread::sleep(Duration::from_millis(200));
     }
+    let took = t.elapsed().as_secs_f64();
     let out = child.wait_with_output().unwrap();
-    ok(&out, "pinview --input-script copy_command");
+    ok(&out, "pinview --input-script copy_command, ended by time");
     let stdout = String::from_utf8_lossy(&out.stdout);
     let printed = stdout
         .lines()
@@ -129,8 +129,20 @@ fn copy_command_reaches_the_x_clipboard_and_stdout() {
         "the X clipboard does not hold the command printed"
     );
     assert!(printed.contains(s(&pin)), "{printed}");
-    let j = json(&out);
-    assert_eq!(j["events"][0]["action"], "copy_command", "{j}");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(!err.contains("XDG_RUNTIME_DIR"), "{err}");
+    let j = json(&out);
+    assert_eq!(j["events"][0]["action"], "copy_command", "{j}");
+    // The end: 10 s after the last event, not N passes after it. `at_s` counts from the first
+    // image shown, at `first_image_s` from the process's start (after the spawn).
+    assert_eq!(j["script_end"], "timeout", "{j}");
+    let first = j["first_image_s"].as_f64().unwrap_or(f64::INFINITY);
+    assert!(
+        took >= first + 10.2,
+        "ended {took} s after the start, before the last event's at_s + 10 s from the first \
+         image at {first} s: {j}"
+    );
+    let e = &j["events"][1];
+    assert_eq!(e["action"], "exposure", "{j}");
+    assert!(e["first_pixels_ms"].as_f64().is_some(), "{j}");
 }

@@ -34,6 +34,9 @@ fn error_view_measures_the_estimate_against_a_ratio_reference() {
     ok(&out, "pinview --error-view");
     let j = json(&out);
     assert_eq!(j["passes"], 2, "{j}");
+    // An estimator asked for is shown from the first image: no switch.
+    assert_eq!(j["first_image_estimator"], "pinms", "{j}");
+    assert!(j["estimator_switch_s"].is_null(), "{j}");
     let e = &j["error"];
     assert_eq!(e["reference"], "ratio", "{j}");
     let passes = e["reference_passes"].as_u64().unwrap_or(0);

@@ -149,12 +149,8 @@ fn interactive_a_damaged_file_keeps_its_window_open() {
     let cut = dir.path().join("cut.pin");
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
     let Some(display) = display() else { return };
-    let mut child = std::process::Command::new(PINVIEW)
+    let mut child = viewer_command(Some(&display))
         .arg(s(&cut))
-        .env("DISPLAY", &display.name)
-        .env_remove("WAYLAND_DISPLAY")
-        .env("XDG_RUNTIME_DIR", runtime_dir())
-        .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()

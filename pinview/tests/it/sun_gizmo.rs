@@ -2,7 +2,7 @@
 //! colour, in the controls panel), dragged left and down with the XTEST extension, and the
 //! view's sun direction (the JSON line's `command`) turns that way.
 
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use x11rb::connection::Connection;
@@ -67,7 +67,7 @@ fn dragging_the_sun_gizmo_turns_the_sun() {
     // An event late enough to keep the window up while the drag is made.
     std::fs::write(
         &script,
-        r#"[{"at_s": 12, "action": "exposure", "stops": 0}]"#,
+        r#"[{"at_s": 6, "action": "exposure", "stops": 0}]"#,
     )
     .unwrap();
     let Some(display) = display() else { return };
@@ -84,12 +84,8 @@ fn dragging_the_sun_gizmo_turns_the_sun() {
         "0.3,1,0.2",
     ];
     args.extend_from_slice(&VIEW);
-    let child = Command::new(PINVIEW)
+    let child = viewer_command(Some(&display))
         .args(&args)
-        .env("DISPLAY", &display.name)
-        .env_remove("WAYLAND_DISPLAY")
-        .env("XDG_RUNTIME_DIR", runtime_dir())
-        .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()

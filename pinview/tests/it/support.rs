@@ -1,8 +1,11 @@
-//! A private X server per test (Xvfb), the binaries, and small bakes.
+//! A private X server per test (Xvfb), the binaries with the test binary's own caches, and
+//! small bakes (each baked once per test binary).
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::{Arc, Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
 use pin_format::Metadata;
@@ -101,6 +104,57 @@ pub fn display() -> Option<Display> {
     panic!("could not start Xvfb on any display");
 }
 
+/// The shader caches of this test binary's run: Mesa's (`MESA_SHADER_CACHE_DIR`: lavapipe's
+/// LLVM compiles) and the pipeline cache's (`XDG_CACHE_HOME`), in one directory made empty
+/// when the binary starts and shared by every process it runs. Each estimator's shaders are
+/// then compiled cold once per run and reused by every later test, whatever earlier runs
+/// left in the user's own cache (`~/.cache`, where the processes would look otherwise, which
+/// made a run's time depend on the machine's history, and which the tests never write).
+pub fn cache_dir() -> PathBuf {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let root = Path::new(env!("CARGO_TARGET_TMPDIR"));
+        const PREFIX: &str = "pinview-it-caches-";
+        // Earlier runs' caches (one run of this binary at a time uses the target directory).
+        if let Ok(entries) = std::fs::read_dir(root) {
+            for e in entries.flatten() {
+                if e.file_name().to_string_lossy().starts_with(PREFIX) {
+                    let _ = std::fs::remove_dir_all(e.path());
+                }
+            }
+        }
+        let dir = root.join(format!("{PREFIX}{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    })
+    .clone()
+}
+
+/// `program` with this binary's caches ([`cache_dir`]), a valid runtime directory and no
+/// Wayland display.
+pub fn command(program: impl AsRef<std::ffi::OsStr>) -> Command {
+    let caches = cache_dir();
+    let mut cmd = Command::new(program);
+    cmd.env("MESA_SHADER_CACHE_DIR", caches.join("mesa"))
+        .env("XDG_CACHE_HOME", &caches)
+        .env_remove("MESA_SHADER_CACHE_DISABLE")
+        .env_remove("PINRT_PIPELINE_CACHE")
+        .env_remove("WAYLAND_DISPLAY")
+        .env("XDG_RUNTIME_DIR", runtime_dir())
+        .stdin(Stdio::null());
+    cmd
+}
+
+/// pinview on `display` (none: without any display), with [`command`]'s environment.
+pub fn viewer_command(display: Option<&Display>) -> Command {
+    let mut cmd = command(PINVIEW);
+    match display {
+        Some(d) => cmd.env("DISPLAY", &d.name),
+        None => cmd.env_remove("DISPLAY"),
+    };
+    cmd
+}
+
 /// Runs pinview on `display` (none: without any display) with `args`.
 pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
     pinview_env(display, args, &[])
@@ -108,16 +162,9 @@ pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
 
 /// [`pinview`] with the environment variables `env` set.
 pub fn pinview_env(display: Option<&Display>, args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut cmd = Command::new(PINVIEW);
+    let mut cmd = viewer_command(display);
     cmd.envs(env.iter().copied());
-    cmd.args(args)
-        .env_remove("WAYLAND_DISPLAY")
-        .env("XDG_RUNTIME_DIR", runtime_dir());
-    match display {
-        Some(d) => cmd.env("DISPLAY", &d.name),
-        None => cmd.env_remove("DISPLAY"),
-    };
-    cmd.stdin(Stdio::null()).output().expect("running pinview")
+    cmd.args(args).output().expect("running pinview")
 }
 
 /// A private, valid XDG runtime directory: without one Mesa's Vulkan loader prints a warning
@@ -136,16 +183,8 @@ pub fn runtime_dir() -> PathBuf {
 
 /// [`pinview`] that must end within `limit`: killed and failed when it does not.
 pub fn pinview_within(display: Option<&Display>, args: &[&str], limit: Duration) -> Output {
-    let mut cmd = Command::new(PINVIEW);
-    cmd.args(args)
-        .env_remove("WAYLAND_DISPLAY")
-        .env("XDG_RUNTIME_DIR", runtime_dir());
-    match display {
-        Some(d) => cmd.env("DISPLAY", &d.name),
-        None => cmd.env_remove("DISPLAY"),
-    };
-    let mut child = cmd
-        .stdin(Stdio::null())
+    let mut child = viewer_command(display)
+        .args(args)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -187,11 +226,9 @@ pub fn pinview_within(display: Option<&Display>, args: &[&str], limit: Duration)
 }
 
 pub fn pinrender_render(args: &[&str]) -> Output {
-    Command::new(pinrender())
-        .env("XDG_RUNTIME_DIR", runtime_dir())
+    command(pinrender())
         .arg("render")
         .args(args)
-        .stdin(Stdio::null())
         .output()
         .expect("running pinrender")
 }
@@ -205,8 +242,28 @@ pub fn ok(out: &Output, what: &str) {
     );
 }
 
-/// Bakes the cosine field times `scale` (8^3 cells), with `embed` density voxels per axis.
+/// Writes the cosine field times `scale` (8^3 cells), with `embed` density voxels per axis,
+/// baked as [`bake_bytes`] bakes it, to `dir/name`. Each such bake is made once per test
+/// binary (about 1.5 s of CPU each) and its bytes written for every test that asks.
 pub fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>) -> PathBuf {
+    type Bakes = Mutex<HashMap<(u64, Option<u32>), Arc<OnceLock<Vec<u8>>>>>;
+    static BAKES: OnceLock<Bakes> = OnceLock::new();
+    let slot = BAKES
+        .get_or_init(Bakes::default)
+        .lock()
+        .unwrap()
+        .entry((scale.to_bits(), embed))
+        .or_default()
+        .clone();
+    let bytes = slot.get_or_init(|| bake_bytes(scale, embed));
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).unwrap();
+    path
+}
+
+/// The pin file of the cosine field times `scale`, baked (fixed seed, so the same bytes every
+/// time).
+fn bake_bytes(scale: f64, embed: Option<u32>) -> Vec<u8> {
     let mut p: ProceduralSpec = COSINE["procedural:".len()..].parse().unwrap();
     p.density *= scale;
     let src: Box<dyn DensitySource> = p.build(pin_volume::DensityScale::ONE).unwrap();
@@ -222,9 +279,7 @@ pub fn bake(dir: &Path, name: &str, scale: f64, embed: Option<u32>) -> PathBuf {
         ..pinbake::BakeOptions::default()
     };
     let (grid, _) = pinbake::bake(src.as_ref(), &opts, &|_| {}).unwrap();
-    let path = dir.join(name);
-    grid.write_atomic(&path).unwrap();
-    path
+    grid.to_bytes().unwrap()
 }
 
 /// The camera of the renders here: in front of the unit box.

@@ -1,7 +1,6 @@
 //! Status and save messages: toasts over the image, each kept for the JSON line's
-//! `messages`; a file written is named by its absolute path, whatever the working directory.
-
-use std::process::{Command, Stdio};
+//! `messages`; a file written is named by its absolute path, whatever the working directory;
+//! a sound file gets no warning from the background check.
 
 use crate::support::*;
 
@@ -23,13 +22,9 @@ fn messages_name_what_was_written_by_its_absolute_path() {
         "view.png",
         "--json",
     ]);
-    let out = Command::new(PINVIEW)
+    let out = viewer_command(Some(&display))
         .args(&args)
         .current_dir(dir.path())
-        .env_remove("WAYLAND_DISPLAY")
-        .env("XDG_RUNTIME_DIR", runtime_dir())
-        .env("DISPLAY", &display.name)
-        .stdin(Stdio::null())
         .output()
         .expect("running pinview");
     ok(&out, "pinview with relative outputs");
@@ -50,4 +45,9 @@ fn messages_name_what_was_written_by_its_absolute_path() {
         );
         assert!(dir.path().join(name).is_file());
     }
+    // The background check of a sound file warns of nothing (`verify`).
+    assert!(
+        !j["notes"].to_string().contains(crate::verify::WARNING),
+        "{j}"
+    );
 }

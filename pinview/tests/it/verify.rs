@@ -1,13 +1,13 @@
 //! A pin file whose pins section was damaged after the bake (one flipped bit in its payload,
 //! its header and lengths intact) still renders, and the background check says so in the
 //! window and in the JSON line's `notes`, alone or as a scene's asset; a sound file has no
-//! such note.
+//! such note (here as a scene's asset; alone in `toasts`' run).
 
 use std::path::Path;
 
 use crate::support::*;
 
-const WARNING: &str = "fails its check";
+pub const WARNING: &str = "fails its check";
 
 fn run(display: &Display, pin: &Path) -> serde_json::Value {
     let mut args = vec![s(pin), "--estimator", "pins", "--frames", "2", "--json"];
@@ -46,8 +46,7 @@ fn a_damaged_pins_section_renders_with_a_warning() {
                 && n.as_str().unwrap().contains("bad.pin")),
         "{j}"
     );
-    let j = run(&display, &good);
-    assert!(!j["notes"].to_string().contains(WARNING), "{j}");
+    // A sound pin file alone has no such note: `toasts`' run checks it.
     // A scene whose asset is the damaged file: the same warning.
     let scene = dir.path().join("two.json");
     std::fs::write(
