@@ -29,13 +29,17 @@ pub const ULP_BOUND: u32 = 0;
 /// Threads per workgroup in `pin.wgsl`.
 pub const WORKGROUP_SIZE: u32 = 64;
 
-/// An adapter, device and the compiled query pipelines (one per [`QueryMode`]).
+/// An adapter, device and the query pipelines (one per [`QueryMode`]), compiled the first
+/// time a pin grid is uploaded for queries.
 pub struct GpuContext {
     pub device: wgpu::Device,
     pub queue: wgpu::Queue,
     pub adapter_info: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
-    pipelines: [wgpu::ComputePipeline; 3],
+    // Lazily: the path tracer, the GPU bake and the viewer open a context but never query
+    // through `pin.wgsl`'s entry points, and compiling them cost every such process seconds
+    // on a software driver (lavapipe), more than a small render itself.
+    pipelines: std::sync::OnceLock<[wgpu::ComputePipeline; 3]>,
 }
 
 impl std::fmt::Debug for GpuContext {
@@ -88,8 +92,9 @@ pub async fn request_adapter() -> Result<wgpu::Adapter> {
 
 impl GpuContext {
     /// Finds an adapter (a hardware GPU if there is one, else a software fallback such as
-    /// Mesa's lavapipe), opens a device with the adapter's own limits and compiles the shader.
-    /// Fails with a message that says what to install when no adapter exists.
+    /// Mesa's lavapipe) and opens a device with the adapter's own limits; the query shader is
+    /// compiled when it is first needed ([`GpuPinGrid::upload`]). Fails with a message that
+    /// says what to install when no adapter exists.
     pub fn new() -> Result<Self> {
         pollster::block_on(Self::new_async())
     }
@@ -107,31 +112,23 @@ impl GpuContext {
             })
             .await
             .map_err(|e| gpu_err("request_device", e))?;
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("pin.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(crate::PIN_WGSL.into()),
-        });
-        let pipelines = QueryMode::ALL.map(|mode| {
-            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(mode.entry_point()),
-                layout: None,
-                module: &module,
-                entry_point: Some(mode.entry_point()),
-                compilation_options: Default::default(),
-                cache: None,
-            })
-        });
-        if let Some(e) = scope.pop().await {
-            return Err(gpu_err("compiling shaders/pin.wgsl", e));
-        }
         Ok(Self {
             device,
             queue,
             adapter_info,
             limits,
-            pipelines,
+            pipelines: std::sync::OnceLock::new(),
         })
+    }
+
+    /// The query pipelines, compiled on the first call (two threads racing compile twice and
+    /// keep one; the pipelines are equal).
+    fn query_pipelines(&self) -> Result<[wgpu::ComputePipeline; 3]> {
+        if let Some(p) = self.pipelines.get() {
+            return Ok(p.clone());
+        }
+        let compiled = pollster::block_on(compile_query_pipelines(&self.device))?;
+        Ok(self.pipelines.get_or_init(|| compiled).clone())
     }
 
     /// One line: adapter name, backend and device type.
@@ -144,6 +141,28 @@ impl GpuContext {
             self.adapter_info.driver_info
         )
     }
+}
+
+async fn compile_query_pipelines(device: &wgpu::Device) -> Result<[wgpu::ComputePipeline; 3]> {
+    let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("pin.wgsl"),
+        source: wgpu::ShaderSource::Wgsl(crate::PIN_WGSL.into()),
+    });
+    let pipelines = QueryMode::ALL.map(|mode| {
+        device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(mode.entry_point()),
+            layout: None,
+            module: &module,
+            entry_point: Some(mode.entry_point()),
+            compilation_options: Default::default(),
+            cache: None,
+        })
+    });
+    if let Some(e) = scope.pop().await {
+        return Err(gpu_err("compiling shaders/pin.wgsl", e));
+    }
+    Ok(pipelines)
 }
 
 /// The uniform block of `pin.wgsl` (128 bytes): a grid's placement, shape and lookup
@@ -300,7 +319,7 @@ impl GpuPinGrid {
         Ok(Self {
             device: ctx.device.clone(),
             queue: ctx.queue.clone(),
-            pipelines: ctx.pipelines.clone(),
+            pipelines: ctx.query_pipelines()?,
             limits: ctx.limits.clone(),
             pins,
             index,
