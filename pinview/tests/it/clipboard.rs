@@ -75,13 +75,12 @@ fn read_clipboard(display: &str) -> Option<String> {
 fn copy_command_reaches_the_x_clipboard_and_a_run_ends_10_s_after_its_last_event() {
     let dir = tempfile::tempdir().unwrap();
     let pin = bake(dir.path(), "c.pin", 1.0, None);
-    let script = dir.path().join("events.json");
-    std::fs::write(
-        &script,
+    let script = write_file(
+        dir.path(),
+        "events.json",
         r#"[{"at_s": 0, "action": "copy_command"},
             {"at_s": 0.2, "action": "exposure", "stops": -1}]"#,
-    )
-    .unwrap();
+    );
     let Some(display) = display() else { return };
     let mut args = vec![
         s(&pin),

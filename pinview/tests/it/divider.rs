@@ -11,12 +11,11 @@ fn a_drag_on_the_divider_moves_it_and_not_the_camera() {
     let pins = bake(dir.path(), "d.pin", 1.0, Some(12));
     // The image is 48 pixels wide, shown at one point a pixel: the line stands at x = 24.
     // The drag starts 8 points right of it (within the handle's reach) and ends at 12.
-    let events = dir.path().join("events.json");
-    std::fs::write(
-        &events,
+    let events = write_file(
+        dir.path(),
+        "events.json",
         r#"[{"at_s": 0.2, "action": "drag", "from": [32, 20], "to": [12, 22]}]"#,
-    )
-    .unwrap();
+    );
     let Some(display) = display() else { return };
     let mut args = vec![s(&pins)];
     args.extend_from_slice(&VIEW);

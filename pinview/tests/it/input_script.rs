@@ -2,24 +2,17 @@
 //! with its times, and the run's end N passes after the last event (the end 10 s after it
 //! is checked by `clipboard`'s run).
 
-use std::path::Path;
 use std::time::Duration;
 
 use crate::support::*;
 
 const LIMIT: Duration = Duration::from_secs(180);
 
-fn script(dir: &Path, name: &str, events: &str) -> std::path::PathBuf {
-    let path = dir.join(name);
-    std::fs::write(&path, events).unwrap();
-    path
-}
-
 #[test]
 fn events_move_the_view_and_each_is_answered() {
     let dir = tempfile::tempdir().unwrap();
     let pins = bake(dir.path(), "d.pin", 1.0, None);
-    let events = script(
+    let events = write_file(
         dir.path(),
         "events.json",
         r#"[
@@ -106,7 +99,7 @@ fn a_bad_events_file_is_one_line_and_exit_1() {
             "event 1: frame 2",
         ),
     ] {
-        let path = script(dir.path(), "bad.json", events);
+        let path = write_file(dir.path(), "bad.json", events);
         let mut args = vec![s(&pins)];
         args.extend_from_slice(&VIEW);
         args.extend_from_slice(&["--input-script", s(&path), "--frames", "1"]);
@@ -125,7 +118,7 @@ fn a_bad_events_file_is_one_line_and_exit_1() {
 fn a_changed_view_answers_with_a_coarse_image_before_its_first_pass() {
     let dir = tempfile::tempdir().unwrap();
     let pins = bake(dir.path(), "d.pin", 1.0, Some(12));
-    let events = script(
+    let events = write_file(
         dir.path(),
         "events.json",
         r#"[

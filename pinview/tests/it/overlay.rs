@@ -192,12 +192,11 @@ fn pins_made_visible() {
     args.extend_from_slice(&["--pin-at", "20,14"]);
     assert!(check_pin(&grid, &run(&args), view, (20, 14)));
     // Held, then orbited: the entry picked at the start.
-    let events = dir.path().join("orbit.json");
-    std::fs::write(
-        &events,
+    let events = write_file(
+        dir.path(),
+        "orbit.json",
         r#"[{"at_s": 0, "action": "orbit", "dx_deg": 50, "dy_deg": 20}]"#,
-    )
-    .unwrap();
+    );
     let mut args = VIEW.to_vec();
     args.extend_from_slice(&["--pin-at", "24,20", "--input-script", s(&events)]);
     let moved = run(&args);

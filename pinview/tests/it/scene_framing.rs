@@ -40,16 +40,15 @@ fn a_scene_with_its_camera_inside_opens_outside_every_instance() {
             format!(r#"{{"asset": "c", "transform": {{"translate": [{x}, {y}, {z}]}}}}"#)
         })
         .collect();
-    let scene = dir.path().join("slab.json");
-    std::fs::write(
-        &scene,
+    let scene = write_file(
+        dir.path(),
+        "slab.json",
         format!(
             r#"{{"assets": {{"c": {{"pins": "c.pin"}}}}, "instances": [{}],
                 "camera": {{"origin": [3.5, 0.5, 3.5], "target": [12, 0.5, 12]}}}}"#,
             instances.join(",")
         ),
-    )
-    .unwrap();
+    );
     assert_eq!(inside_an_instance([3.5, 0.5, 3.5]), Some(2 + 16 * 2));
     let Some(display) = display() else { return };
     let run = |extra: &[&str]| {
@@ -121,13 +120,12 @@ fn a_scene_with_its_camera_inside_opens_outside_every_instance() {
         "{j}"
     );
     // An orbit, then a reset: back to the camera the scene opened with, outside.
-    let events = dir.path().join("reset.json");
-    std::fs::write(
-        &events,
+    let events = write_file(
+        dir.path(),
+        "reset.json",
         r#"[{"at_s": 0, "action": "orbit", "dx_deg": 40, "dy_deg": 10},
             {"at_s": 0.2, "action": "reset"}]"#,
-    )
-    .unwrap();
+    );
     let j = run(&["--input-script", s(&events)]);
     let o = origin(&j);
     assert_eq!(

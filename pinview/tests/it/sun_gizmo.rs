@@ -63,13 +63,12 @@ fn sun_dir(j: &serde_json::Value) -> [f64; 3] {
 fn dragging_the_sun_gizmo_turns_the_sun() {
     let dir = tempfile::tempdir().unwrap();
     let pin = bake(dir.path(), "c.pin", 1.0, None);
-    let script = dir.path().join("events.json");
     // An event late enough to keep the window up while the drag is made.
-    std::fs::write(
-        &script,
+    let script = write_file(
+        dir.path(),
+        "events.json",
         r#"[{"at_s": 6, "action": "exposure", "stops": 0}]"#,
-    )
-    .unwrap();
+    );
     let Some(display) = display() else { return };
     let mut args = vec![
         s(&pin),

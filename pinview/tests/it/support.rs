@@ -332,6 +332,13 @@ pub fn json(out: &Output) -> serde_json::Value {
     serde_json::from_str(line).unwrap_or_else(|e| panic!("not one JSON object ({e}): {s}"))
 }
 
+/// Writes `text` to `dir/name` (an events script, a scene) and returns the path.
+pub fn write_file(dir: &Path, name: &str, text: impl AsRef<[u8]>) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }

@@ -48,13 +48,12 @@ fn a_damaged_pins_section_renders_with_a_warning() {
     );
     // A sound pin file alone has no such note: `toasts`' run checks it.
     // A scene whose asset is the damaged file: the same warning.
-    let scene = dir.path().join("two.json");
-    std::fs::write(
-        &scene,
+    let scene = write_file(
+        dir.path(),
+        "two.json",
         r#"{"assets": {"a": {"pins": "good.pin"}, "b": {"pins": "bad.pin"}},
             "instances": [{"asset": "a"}, {"asset": "b", "transform": {"translate": [1.2, 0, 0]}}]}"#,
-    )
-    .unwrap();
+    );
     let j = run(&display, &scene);
     assert_eq!(j["instances"], 2, "{j}");
     let notes = j["notes"].to_string();

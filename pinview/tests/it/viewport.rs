@@ -67,12 +67,11 @@ fn without_a_size_the_image_fills_the_panel_and_keeps_the_batch_bits() {
 fn a_resize_event_fixes_the_size_it_asks_for() {
     let dir = tempfile::tempdir().unwrap();
     let pins = bake(dir.path(), "d.pin", 1.0, None);
-    let events = dir.path().join("events.json");
-    std::fs::write(
-        &events,
+    let events = write_file(
+        dir.path(),
+        "events.json",
         r#"[{"at_s": 0.1, "action": "resize", "width": 40, "height": 32}]"#,
-    )
-    .unwrap();
+    );
     let Some(display) = display() else { return };
     let args = [
         s(&pins),
@@ -157,12 +156,11 @@ fn a_followed_size_is_reduced_to_fit_the_memory_budget() {
 fn a_resize_event_past_the_memory_budget_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let pins = bake(dir.path(), "d.pin", 1.0, None);
-    let events = dir.path().join("events.json");
-    std::fs::write(
-        &events,
+    let events = write_file(
+        dir.path(),
+        "events.json",
         r#"[{"at_s": 0.1, "action": "resize", "width": 2048, "height": 2048}]"#,
-    )
-    .unwrap();
+    );
     let Some(display) = display() else { return };
     let args = [
         s(&pins),
