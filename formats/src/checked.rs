@@ -84,14 +84,19 @@ impl Pass {
     }
 }
 
-/// The section's bytes before its arrays.
-fn head<'a>(file: &PinFile<'a>, kind: SectionKind, len: usize) -> &'a [u8] {
+/// The section's bytes before its arrays. A parsed view has its section and its header in
+/// range, so the errors are for a file that breaks that, not a panic.
+fn head<'a>(file: &PinFile<'a>, kind: SectionKind, len: usize) -> Result<&'a [u8]> {
     let s = file
         .sections()
         .iter()
         .find(|s| s.kind == kind as u32)
-        .expect("a parsed view has its section");
-    &file.bytes()[s.offset as usize..s.offset as usize + len]
+        .ok_or(FormatError::MissingSection(kind))?;
+    let start = s.offset as usize;
+    start
+        .checked_add(len)
+        .and_then(|end| file.bytes().get(start..end))
+        .ok_or_else(|| FormatError::BadData(kind, "the section's header is out of range".into()))
 }
 
 /// The first value that is not finite and `>= 0` in `piece` (starting at `first`), as
@@ -187,7 +192,7 @@ impl<'a> PinFile<'a> {
         };
         let kind = SectionKind::Majorant;
         let mut pass = Pass::new();
-        pass.bytes(head(self, kind, 16));
+        pass.bytes(head(self, kind, 16)?);
         pass.values(m.values, |first, piece| {
             nonneg(
                 first,
@@ -208,7 +213,7 @@ impl<'a> PinFile<'a> {
         };
         let kind = SectionKind::Density;
         let mut pass = Pass::new();
-        pass.bytes(head(self, kind, 16));
+        pass.bytes(head(self, kind, 16)?);
         pass.values(d.values, |first, piece| {
             nonneg(first, piece, half::f16::to_f32, |i, v| {
                 FormatError::BadData(kind, format!("voxel {i} has density {v}"))
@@ -231,7 +236,7 @@ impl<'a> PinFile<'a> {
             self,
             kind,
             size_of::<crate::layout::SparseDensityHeader>(),
-        ));
+        )?);
         let mut order = IndexOrder::new();
         pass.values(s.index, |_, piece| order.feed(&s.header, piece));
         pass.then(|| order.finish(&s.header));
@@ -258,7 +263,7 @@ impl<'a> PinFile<'a> {
         };
         let kind = SectionKind::Control;
         let mut pass = Pass::new();
-        pass.bytes(head(self, kind, size_of::<crate::layout::ControlHeader>()));
+        pass.bytes(head(self, kind, size_of::<crate::layout::ControlHeader>())?);
         pass.values(c.control, |_, _| Ok(()));
         pass.values(c.residual, |_, _| Ok(()));
         pass.values(c.majorant, |first, piece| {
