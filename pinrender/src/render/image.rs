@@ -65,7 +65,6 @@ impl Image {
     // and writer are generic, and a generic body would compile them again at full
     // optimisation in every crate that calls it (the binaries, the viewer, each test binary).
     fn write_exr_at(&self, path: &Path) -> Result<(), RenderError> {
-        self.check()?;
         let bytes = self.exr_bytes()?;
         write_atomic(path, |out| {
             out.write_all(&bytes)
