@@ -2,6 +2,12 @@
 # directory, and a valid XDG runtime dir so Mesa's Vulkan loader does not warn on every start.
 # shellcheck shell=bash
 PROFILE_FLAGS=(--release --workspace --all-features)
+# What the main job builds and the tests run: every library (the Python extension's among
+# them), binary, example and test harness. With tests among the targets, cargo resolves the
+# dependencies' features with the dev-dependencies, as `cargo test` does, so `cargo test`
+# afterwards compiles nothing again (a plain `cargo build` would resolve other features and
+# compile some two dozen crates, wgpu among them, a second time).
+BUILD_TARGETS=(--lib --tests --examples)
 TARGET_DIR=$(cargo metadata --format-version 1 --no-deps 2>/dev/null |
   python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])' 2>/dev/null ||
   echo "${CARGO_TARGET_DIR:-target}")

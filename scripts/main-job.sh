@@ -8,11 +8,8 @@ source scripts/deps.sh
 source scripts/env.sh
 DATA=data
 mkdir -p out
-# The binaries, built as the test command builds them: `cargo test --no-run` resolves the
-# dependencies' features with the tests' dev-dependencies, which `cargo build --bins` leaves
-# out, so a plain `build` compiles some two dozen crates (wgpu among them) a second time for
-# scripts/test.sh. This way the two commands share one build.
-cargo test "${PROFILE_FLAGS[@]}" --no-run
+# Everything scripts/test.sh runs, built once (scripts/env.sh says why in one invocation).
+cargo build "${PROFILE_FLAGS[@]}" "${BUILD_TARGETS[@]}"
 BIN="$BIN_DIR/pinbake"
 # Pins chosen from the volume (octahedral:16 directions, up to 20^3 cells) with a 64^3 f16 copy
 # of the density, box-filtered (a named --embed-density leaves the default asset rule out).

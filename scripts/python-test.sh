@@ -1,14 +1,18 @@
 #!/usr/bin/env bash
-# The Python package (python/): builds the abi3 wheel with maturin, installs it into a fresh
-# virtual environment and runs its pytest suite against the Rust tools (pinbake for bakes,
-# pinrt's query_reference example for sampler values). Needs python3 with venv and PyPI
-# access for maturin, numpy and pytest. Run from anywhere.
+# The Python package (python/): builds the abi3 wheel, installs it into a fresh virtual
+# environment and runs its pytest suite against the Rust tools (pinbake for bakes, pinrt's
+# query_reference example for sampler values). Needs python3 with venv and PyPI access for
+# maturin, numpy and pytest. Run from anywhere.
 #
-#   python-test.sh [PYTEST ARGS]          build, install and test in a temporary directory
-#   python-test.sh --build-only DIR       the venv and the wheel into DIR, then stop
-#   python-test.sh --from DIR [ARGS]      install and test what --build-only left in DIR
+#   python-test.sh [--prebuilt] [PYTEST ARGS]          build, install and test in a temporary directory
+#   python-test.sh [--prebuilt] --build-only DIR       the venv and the wheel into DIR, then stop
+#   python-test.sh --from DIR [ARGS]                   install and test what --build-only left in DIR
 #
-# scripts/test.sh runs --build-only beside the Rust tests and --from after them.
+# The wheel comes from maturin, as a user or a release builds it; with --prebuilt it is packed
+# (scripts/python-wheel.py) around the extension that the workspace's build has compiled
+# already (scripts/main-job.sh, scripts/test.sh), which saves compiling the extension's
+# dependency tree a second time with other features. scripts/test.sh runs
+# --prebuilt --build-only beside the Rust tests and --from after them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/env.sh
@@ -16,6 +20,11 @@ REPO=$PWD
 
 MODE=all
 WORK=""
+PREBUILT=0
+if [ "${1:-}" = --prebuilt ]; then
+  PREBUILT=1
+  shift
+fi
 case "${1:-}" in
   --build-only | --from)
     [ $# -ge 2 ] || { echo "python-test.sh: $1 needs a directory" >&2; exit 2; }
@@ -31,13 +40,18 @@ fi
 PY="$WORK/venv/bin/python"
 
 if [ "$MODE" != test ]; then
-  cargo build "${PROFILE_FLAGS[@]}" --bin pinbake --example query_reference
   python3 -m venv "$WORK/venv"
-  "$PY" -m pip install -q --disable-pip-version-check maturin numpy pytest
-  # The extension shares the target directory: the crates it has in common with the main
-  # build (same versions, features and profile) are not compiled twice.
-  CARGO_TARGET_DIR="$TARGET_DIR" "$WORK/venv/bin/maturin" build --release \
-    -m python/Cargo.toml -o "$WORK/wheels"
+  if [ "$PREBUILT" = 1 ]; then
+    "$PY" -m pip install -q --disable-pip-version-check numpy pytest
+    python3 scripts/python-wheel.py "$BIN_DIR/lib_native.so" "$WORK/wheels" >/dev/null
+  else
+    cargo build "${PROFILE_FLAGS[@]}" --bin pinbake --example query_reference
+    "$PY" -m pip install -q --disable-pip-version-check maturin numpy pytest
+    # In the workspace's target directory: what the extension shares with the workspace's
+    # build at the same features is not compiled twice.
+    CARGO_TARGET_DIR="$TARGET_DIR" "$WORK/venv/bin/maturin" build --release \
+      -m python/Cargo.toml -o "$WORK/wheels"
+  fi
 fi
 [ "$MODE" = build ] && exit 0
 

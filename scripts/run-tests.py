@@ -1,0 +1,135 @@
+#!/usr/bin/env python3
+"""Runs the workspace's test binaries in parallel lanes: scripts/test.sh's runner.
+
+`cargo test` runs its test binaries one after another, and each binary has idle stretches:
+a test waiting on a child process (a viewer under Xvfb, a Slurm job, a VDB worker), a
+single test left running on one core while the other idles. Here the binaries that
+`cargo test --no-run` built (their JSON messages on stdin) run LANES at a time, the longest
+first, each in its package's directory with cargo's environment, as `cargo test` would run
+it. A binary's output is printed whole when it ends, so lanes never interleave; the run ends
+with one line per binary and exits 1 if any failed.
+
+    cargo test ... --no-run --message-format=json | run-tests.py [--lanes N] [-- TEST ARGS]
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+# Seconds each binary took in a bare-clone run (2 cores, lavapipe), to start the long ones
+# first; a binary not listed is taken as short. Only the order depends on these.
+EXPECTED_S = {
+    ("pinview", "it"): 130,
+    ("pinlab", "it"): 94,
+    ("pinbake", "it"): 88,
+    ("pinrender", "pinrender"): 70,
+    ("pin-tests", "it"): 51,
+    ("pinlab", "pinlab"): 14,
+    ("pinrt-capi", "it"): 10,
+    ("pinbake", "memory"): 8,
+}
+
+
+def test_binaries(messages):
+    """(package name, target name, executable, package directory) of each test binary."""
+    out = []
+    for line in messages:
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        m = json.loads(line)
+        if m.get("reason") != "compiler-artifact" or not m.get("executable"):
+            continue
+        if not m.get("profile", {}).get("test"):
+            continue
+        # "path+file:///work/main/pinbake#0.1.0" or "registry...#name@version".
+        pkg_dir = os.path.dirname(m["manifest_path"])
+        name = package_name(m["package_id"], pkg_dir)
+        out.append((name, m["target"]["name"], m["executable"], pkg_dir))
+    return out
+
+
+def package_name(package_id, pkg_dir):
+    tail = package_id.rsplit("#", 1)[-1]
+    if "@" in tail:
+        return tail.split("@", 1)[0]
+    # A path package whose id names only the version: read its manifest's name.
+    with open(os.path.join(pkg_dir, "Cargo.toml"), encoding="utf-8") as f:
+        in_package = False
+        for row in f:
+            row = row.strip()
+            if row.startswith("["):
+                in_package = row == "[package]"
+            elif in_package and row.startswith("name"):
+                return row.split("=", 1)[1].strip().strip('"')
+    return os.path.basename(pkg_dir)
+
+
+def run_one(binary, test_args, results, lock, printer):
+    name, target, exe, pkg_dir = binary
+    env = dict(os.environ)
+    env["CARGO_MANIFEST_DIR"] = pkg_dir
+    env["CARGO_PKG_NAME"] = name
+    env["CARGO_CRATE_NAME"] = target.replace("-", "_")
+    with tempfile.TemporaryFile() as log:
+        t = time.monotonic()
+        rc = subprocess.call(
+            [exe, *test_args], cwd=pkg_dir, env=env, stdout=log, stderr=subprocess.STDOUT
+        )
+        seconds = time.monotonic() - t
+        log.seek(0)
+        text = log.read().decode("utf-8", "replace")
+    with lock:
+        results.append((name, target, rc, seconds))
+        printer(f"== {name} {target} ({os.path.basename(exe)}): {seconds:.1f} s, "
+                f"{'ok' if rc == 0 else f'FAILED (exit {rc})'}\n{text}")
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--lanes", type=int, default=2, help="binaries run at once (default 2)")
+    p.add_argument("test_args", nargs="*", help="arguments for every test binary")
+    a = p.parse_args()
+    if a.lanes < 1:
+        p.error("--lanes must be at least 1")
+    binaries = test_binaries(sys.stdin)
+    if not binaries:
+        print("run-tests.py: no test binaries in cargo's messages", file=sys.stderr)
+        return 1
+    binaries.sort(key=lambda b: (-EXPECTED_S.get((b[0], b[1]), 0), b[0], b[1]))
+    queue = list(binaries)
+    results, lock = [], threading.Lock()
+
+    def printer(text):
+        sys.stdout.write(text if text.endswith("\n") else text + "\n")
+        sys.stdout.flush()
+
+    def lane():
+        while True:
+            with lock:
+                if not queue:
+                    return
+                b = queue.pop(0)
+            run_one(b, a.test_args, results, lock, printer)
+
+    t = time.monotonic()
+    lanes = [threading.Thread(target=lane) for _ in range(min(a.lanes, len(binaries)))]
+    for th in lanes:
+        th.start()
+    for th in lanes:
+        th.join()
+    failed = [r for r in results if r[2] != 0]
+    print(f"== test binaries: {len(results)} in {time.monotonic() - t:.1f} s "
+          f"on {len(lanes)} lanes, {len(failed)} failed")
+    for name, target, rc, seconds in sorted(results, key=lambda r: -r[3]):
+        print(f"   {seconds:7.1f} s  {name} {target}{'' if rc == 0 else f'  FAILED (exit {rc})'}")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
