@@ -113,9 +113,20 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         pin_cli::usage!("--max-bounces {n} exceeds the GPU limit of {max_gpu}");
     }
     // One budget for the command: the image buffers first, as `pinrender render` charges
-    // them, then the file (its read, copies and bake) within the same budget.
+    // them (one for each side rendering at the view's size: the main view, the compare
+    // side, the error view's reference), then the file (its read, copies and bake) within
+    // the same budget.
     let budget = a.flags.budget();
-    pinrender::front::flags::check_image(&budget, a.size().0, a.size().1)?;
+    let (w, h) = a.size();
+    let images = 1 + u64::from(a.compare.is_some()) + u64::from(a.error_view);
+    let what = match images {
+        1 => format!("a {w}x{h} image"),
+        n => format!("{n} images of {w}x{h}"),
+    };
+    budget.check(
+        &what,
+        u64::from(w) * u64::from(h) * pinrender::front::flags::BYTES_PER_PIXEL * images,
+    )?;
     let pattern = sequence::pattern(&a.file)?;
     if a.play && a.frames.is_some() && pattern.is_none() {
         pin_cli::usage!(

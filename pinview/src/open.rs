@@ -39,6 +39,9 @@ pub struct Medium {
     /// The words of the flags a volume was opened with (`pinrender render`'s read flags and
     /// `--pin-cells`), from the flags themselves: the command line repeats them.
     open_flags: Vec<String>,
+    /// The bytes the file's read is charged to `--max-memory`
+    /// ([`pinrender::front::open::read_charge`]): what the images may not take.
+    pub read_bytes: u64,
 }
 
 /// A scene file opened: its assets once, and the instances' GPU media made from them.
@@ -149,6 +152,7 @@ impl Medium {
         };
         let opened = front::open_medium(&input, flags, budget)?;
         let mut medium = Self::new(path, opened, is_volume, None);
+        medium.read_bytes = front::open::read_charge(&input);
         if is_volume {
             medium.open_flags = read.to_args();
             if let Some(n) = flags.pin_cells {
@@ -174,6 +178,7 @@ impl Medium {
             gpu_density: Arc::default(),
             scene,
             open_flags: Vec::new(),
+            read_bytes: 0,
         }
     }
 

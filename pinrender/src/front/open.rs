@@ -72,16 +72,21 @@ pub fn check_read(input: &Input, budget: &MemoryBudget) -> Result<()> {
     let Some(path) = input.path() else {
         return Ok(());
     };
+    budget.check(&format!("reading {}", path.display()), read_charge(input))?;
+    Ok(())
+}
+
+/// The bytes [`check_read`] charges for `input`'s file (0 for a procedural field).
+pub fn read_charge(input: &Input) -> u64 {
+    let Some(path) = input.path() else {
+        return 0;
+    };
     let factor = if input.volume.is_some() {
         VOLUME_READ_FACTOR
     } else {
         PIN_FILE_READ_FACTOR
     };
-    budget.check(
-        &format!("reading {}", path.display()),
-        read_cost(path, factor),
-    )?;
-    Ok(())
+    read_cost(path, factor)
 }
 
 /// Opens `input` within `budget`: the read charged ([`check_read`]), a volume through

@@ -73,10 +73,15 @@ impl Viewer {
         // Nothing accumulated to lose yet: the first size is taken at once.
         let at_once = self.main.live.is_none() && self.main.pending.is_none();
         let current = (self.view.width, self.view.height);
-        if let Some((w, h)) =
-            self.viewport
-                .update(avail, ppp, current, std::time::Instant::now(), at_once)
-        {
+        let held = self.held();
+        if let Some((w, h)) = self.viewport.update(
+            avail,
+            ppp,
+            current,
+            std::time::Instant::now(),
+            at_once,
+            held,
+        ) {
             self.view.width = w;
             self.view.height = h;
         }

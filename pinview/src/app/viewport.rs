@@ -6,14 +6,17 @@
 //! stood for [`SETTLE`], so a drag does not rebuild every frame. A size flag, or a scripted
 //! `resize` event, fixes the size instead.
 //!
-//! Every size the image takes fits the command's memory budget (`--max-memory`, charged per
-//! pixel as `pinrender render` charges its image): a panel whose image would not fit gets
-//! the largest image of the panel's aspect that does, and says so once.
+//! Every size the image takes fits the command's memory budget (`--max-memory`) together with
+//! what else the viewer holds ([`Held`]): the medium's read as `pinrender render` charges it,
+//! and one image (charged per pixel as `pinrender render` charges its image) for each side
+//! that renders at that size: the main view, the compare side and the error view's
+//! reference. A panel whose image would not fit gets the largest image of the panel's aspect
+//! that does, and says so once; turning the compare side or the error view on shrinks it.
 
 use std::time::{Duration, Instant};
 
 use pin_volume::files::MemoryBudget;
-use pinrender::front::flags::check_image;
+use pinrender::front::flags::BYTES_PER_PIXEL;
 
 /// How long a new viewport size must stand before the image takes it.
 pub const SETTLE: Duration = Duration::from_millis(250);
@@ -35,7 +38,36 @@ pub struct Viewport {
     budget: MemoryBudget,
     /// The last size the budget reduced: the panel's size and the size taken.
     pub reduced: Option<((u32, u32), (u32, u32))>,
+    /// What the last size was fitted beside.
+    held: Held,
     noted: bool,
+}
+
+/// What the viewer holds besides its images' pixels, and how many images of the view's size.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Held {
+    /// Images at the view's size: 1, plus the compare side, plus the error view's reference.
+    pub images: u64,
+    /// Bytes charged for the medium (its read).
+    pub reserved: u64,
+}
+
+impl Held {
+    /// One image and nothing else.
+    pub const ONE_IMAGE: Held = Held {
+        images: 1,
+        reserved: 0,
+    };
+
+    /// Whether `size` fits `budget` beside what is held.
+    pub fn fits(&self, budget: &MemoryBudget, size: (u32, u32)) -> bool {
+        let pixels = u64::from(size.0) * u64::from(size.1);
+        pixels
+            .saturating_mul(BYTES_PER_PIXEL)
+            .saturating_mul(self.images.max(1))
+            .saturating_add(self.reserved)
+            <= budget.limit
+    }
 }
 
 impl Viewport {
@@ -47,6 +79,7 @@ impl Viewport {
             pending: None,
             budget,
             reduced: None,
+            held: Held::ONE_IMAGE,
             noted: false,
         }
     }
@@ -65,8 +98,9 @@ impl Viewport {
         (side(panel.x), side(panel.y))
     }
 
-    /// The panel is `panel` points at `ppp` at `now`, the image `current` pixels: the size
-    /// the image takes now, if any. `at_once`: no accumulation to lose yet, no waiting.
+    /// The panel is `panel` points at `ppp` at `now`, the image `current` pixels, beside
+    /// `held`: the size the image takes now, if any. `at_once`: no accumulation to lose yet,
+    /// no waiting. A current size that no longer fits (a side turned on) is left at once.
     pub fn update(
         &mut self,
         panel: egui::Vec2,
@@ -74,20 +108,22 @@ impl Viewport {
         current: (u32, u32),
         now: Instant,
         at_once: bool,
+        held: Held,
     ) -> Option<(u32, u32)> {
         self.panel = Some((panel, ppp));
+        self.held = held;
         if !self.follow {
             self.pending = None;
             return None;
         }
         let full = self.panel_size(panel, ppp);
-        let want = fit(full, &self.budget);
+        let want = fit(full, &self.budget, held);
         if want == current {
             self.pending = None;
             return None;
         }
         match self.pending {
-            _ if at_once => {
+            _ if at_once || !held.fits(&self.budget, current) => {
                 self.pending = None;
                 self.took(full, want);
                 Some(want)
@@ -116,11 +152,14 @@ impl Viewport {
     pub fn reduction_note(&mut self) -> Option<String> {
         let ((fw, fh), (w, h)) = self.reduced.filter(|_| !self.noted)?;
         self.noted = true;
+        let beside = match (self.held.images, self.held.reserved) {
+            (1, 0) => String::new(),
+            (n, r) => format!("; {n} images of that size and the medium's {r} bytes"),
+        };
         Some(format!(
             "the image is {w} x {h}, not the panel's {fw} x {fh}: a larger one would exceed \
-             --max-memory ({} bytes at {} bytes a pixel)",
+             --max-memory ({} bytes at {BYTES_PER_PIXEL} bytes a pixel{beside})",
             self.budget.limit,
-            pinrender::front::flags::BYTES_PER_PIXEL
         ))
     }
 
@@ -149,24 +188,43 @@ impl Viewport {
             "panel_points": [panel.x, panel.y],
             "max_image_bytes": self.budget.limit,
             "reduced_from": self.reduced.map(|(full, _)| [full.0, full.1]),
+            "images": self.held.images,
+            "reserved_bytes": self.held.reserved,
         })
     }
 }
 
-/// `size`, or the largest size of its aspect whose image fits `budget` (at least 1 x 1).
-fn fit(size: (u32, u32), budget: &MemoryBudget) -> (u32, u32) {
-    if check_image(budget, size.0, size.1).is_ok() {
+impl super::Viewer {
+    /// What the viewer holds beside the main image: the compare side's and the error view's
+    /// reference images when they are on and the medium answers them, and the medium's read.
+    pub(super) fn held(&self) -> Held {
+        let compare = self
+            .compare_wanted
+            .is_some_and(|e| self.compare_answered(e) || self.baking());
+        let reference =
+            self.error_on && crate::error_view::no_reference_reason(&self.medium).is_none();
+        Held {
+            images: 1 + u64::from(compare) + u64::from(reference),
+            reserved: self.medium.read_bytes,
+        }
+    }
+}
+
+/// `size`, or the largest size of its aspect whose images fit `budget` beside `held` (at
+/// least 1 x 1).
+fn fit(size: (u32, u32), budget: &MemoryBudget, held: Held) -> (u32, u32) {
+    if held.fits(budget, size) {
         return size;
     }
     let (w, h) = (f64::from(size.0), f64::from(size.1));
-    let pixels = budget.limit / pinrender::front::flags::BYTES_PER_PIXEL;
+    let pixels = budget.limit.saturating_sub(held.reserved) / BYTES_PER_PIXEL / held.images.max(1);
     let k = (pixels as f64 / (w * h)).sqrt();
     let mut s = (
         ((w * k).floor() as u32).max(1),
         ((h * k).floor() as u32).max(1),
     );
     // Rounding may leave a pixel too many: shrink the longer side until it fits.
-    while check_image(budget, s.0, s.1).is_err() && (s.0 > 1 || s.1 > 1) {
+    while !held.fits(budget, s) && (s.0 > 1 || s.1 > 1) {
         if s.0 >= s.1 {
             s.0 -= 1;
         } else {
@@ -187,17 +245,32 @@ mod tests {
         let mut v = Viewport::new(true, MemoryBudget::new(None));
         let panel = egui::vec2(300.0, 200.0);
         // Nothing to lose yet: at once, in physical pixels.
-        assert_eq!(v.update(panel, 2.0, (512, 512), t0, true), Some((600, 400)));
+        assert_eq!(
+            v.update(panel, 2.0, (512, 512), t0, true, Held::ONE_IMAGE),
+            Some((600, 400))
+        );
         // A drag-resize: each new size starts the wait again.
         let p2 = egui::vec2(310.0, 200.0);
-        assert_eq!(v.update(p2, 2.0, (600, 400), t0, false), None);
-        assert_eq!(v.update(p2, 2.0, (600, 400), t0 + ms(200), false), None);
-        let p3 = egui::vec2(320.0, 200.0);
-        assert_eq!(v.update(p3, 2.0, (600, 400), t0 + ms(300), false), None);
-        assert!(!v.settled());
-        assert_eq!(v.update(p3, 2.0, (600, 400), t0 + ms(500), false), None);
         assert_eq!(
-            v.update(p3, 2.0, (600, 400), t0 + ms(560), false),
+            v.update(p2, 2.0, (600, 400), t0, false, Held::ONE_IMAGE),
+            None
+        );
+        assert_eq!(
+            v.update(p2, 2.0, (600, 400), t0 + ms(200), false, Held::ONE_IMAGE),
+            None
+        );
+        let p3 = egui::vec2(320.0, 200.0);
+        assert_eq!(
+            v.update(p3, 2.0, (600, 400), t0 + ms(300), false, Held::ONE_IMAGE),
+            None
+        );
+        assert!(!v.settled());
+        assert_eq!(
+            v.update(p3, 2.0, (600, 400), t0 + ms(500), false, Held::ONE_IMAGE),
+            None
+        );
+        assert_eq!(
+            v.update(p3, 2.0, (600, 400), t0 + ms(560), false, Held::ONE_IMAGE),
             Some((640, 400))
         );
         assert!(v.settled());
@@ -207,7 +280,10 @@ mod tests {
         assert_eq!(v.points_per_pixel(2.0), 1.0);
         // A fixed size never changes.
         let mut f = Viewport::new(false, MemoryBudget::new(None));
-        assert_eq!(f.update(panel, 1.0, (48, 40), t0, true), None);
+        assert_eq!(
+            f.update(panel, 1.0, (48, 40), t0, true, Held::ONE_IMAGE),
+            None
+        );
     }
 
     #[test]
@@ -222,18 +298,65 @@ mod tests {
             (512, 512),
             Instant::now(),
             true,
+            Held::ONE_IMAGE,
         );
         assert_eq!(got, Some((400, 300)));
         assert_eq!(v.reduced, Some(((800, 600), (400, 300))));
         // One byte less: a pixel less, still within.
         let tight = MemoryBudget::new(Some(400 * 300 * bpp - 1));
-        let (w, h) = fit((800, 600), &tight);
+        let (w, h) = fit((800, 600), &tight, Held::ONE_IMAGE);
         assert!(
             u64::from(w) * u64::from(h) * bpp <= tight.limit,
             "{w} x {h}"
         );
         assert!(w >= 398 && h >= 298, "{w} x {h}");
         // A panel that fits is untouched.
-        assert_eq!(fit((100, 50), &budget), (100, 50));
+        assert_eq!(fit((100, 50), &budget, Held::ONE_IMAGE), (100, 50));
+    }
+
+    #[test]
+    fn a_followed_size_leaves_room_for_every_side_and_the_medium() {
+        let bpp = BYTES_PER_PIXEL;
+        let t0 = Instant::now();
+        let panel = egui::vec2(800.0, 600.0);
+        // Room for 400 x 300 pixels of one image beside a 1 MiB medium.
+        let reserved = 1 << 20;
+        let budget = MemoryBudget::new(Some(400 * 300 * bpp + reserved));
+        let mut v = Viewport::new(true, budget);
+        let one = Held {
+            images: 1,
+            reserved,
+        };
+        assert_eq!(
+            v.update(panel, 1.0, (8, 8), t0, true, one),
+            Some((400, 300))
+        );
+        // The compare side and the reference turned on: three images share the room, at
+        // once (the current size no longer fits), the largest of the panel's aspect.
+        let three = Held {
+            images: 3,
+            reserved,
+        };
+        let (w, h) = v
+            .update(panel, 1.0, (400, 300), t0, false, three)
+            .expect("a smaller size at once");
+        assert!(three.fits(&budget, (w, h)), "{w} x {h}");
+        assert!(
+            !three.fits(&budget, (w + 1, h + 1)),
+            "{w} x {h} is not the largest"
+        );
+        assert!(
+            (230..=231).contains(&w) && (172..=173).contains(&h),
+            "{w} x {h}"
+        );
+        assert_eq!(v.json()["images"], 3);
+        assert_eq!(v.json()["reserved_bytes"], reserved);
+        assert!(v.reduction_note().unwrap().contains("3 images"));
+        // A medium that takes the whole budget leaves the smallest image.
+        let full = Held {
+            images: 1,
+            reserved: budget.limit,
+        };
+        assert_eq!(fit((800, 600), &budget, full), (1, 1));
     }
 }
