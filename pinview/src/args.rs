@@ -23,7 +23,10 @@ a scene file of instanced volumes (.json, docs/scene.md: its camera, sun, sky, a
 bounces unless a flag gives them; every estimator its assets answer, as `pinrender render
 --scene --backend gpu`), or a frame pattern (sim.####.pin or sim.%04d.pin, as `pinbake
 --frames` writes them, negative frames too: play, pause, step and scrub). A file dropped
-on the window opens in its place.
+on the window opens in its place. A volume opened without --density-scale opens at the
+scale of its first look: the power of two that gives a median optical depth of 8 along the
+view (the window's notes and --json's first_look say which; the copied command carries it;
+--density-scale 1 shows the file's own values).
 
 Scripting: --frames N renders N one-sample passes in the window, then writes --screenshot
 (the render as the window shows it, tone-mapped as `pinrender render` writes its PNG) and
@@ -118,6 +121,10 @@ pub struct ViewArgs {
     /// Passes each frame of a playing sequence accumulates before the next.
     #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u32).range(1..))]
     pub frame_passes: u32,
+    /// A volume opened without `--density-scale`: the scale its first look chose
+    /// ([`pinrender::front::first_look`]), which then stands in `read.density_scale`.
+    #[arg(skip)]
+    pub first_look: Option<pinrender::front::first_look::FirstLook>,
 }
 
 /// The renderer's estimators (`pinrender::render::ESTIMATORS`); the lab's (urm, jackknife,
@@ -143,6 +150,14 @@ fn parse_pixel(s: &str) -> Result<[f64; 2], String> {
 pub const DEFAULT_SIDE: u32 = 512;
 
 impl ViewArgs {
+    /// Whether the command line gives `--density-scale` (1 included: the file's own).
+    pub fn density_scale_given() -> bool {
+        std::env::args_os().any(|w| {
+            let w = w.to_string_lossy();
+            w == "--density-scale" || w.starts_with("--density-scale=")
+        })
+    }
+
     /// The image size the flags give (a side not given: [`DEFAULT_SIDE`]).
     pub fn size(&self) -> (u32, u32) {
         (

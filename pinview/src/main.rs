@@ -78,6 +78,42 @@ fn open_medium(path: &Path, a: &ViewArgs, budget: &MemoryBudget) -> Result<Mediu
     Medium::open(path, &a.read, &a.flags, budget)
 }
 
+/// A volume opened without `--density-scale` (one file, not a sequence's frame) is opened
+/// again at the scale of its first look ([`pinrender::front::first_look`]), seen from the
+/// camera the view starts at; that scale then stands in the flags as if given, so that the
+/// copied command, the density-scale slider and the background bake all carry it.
+fn at_first_look(
+    medium: Medium,
+    path: &Path,
+    a: &mut ViewArgs,
+    sequence: bool,
+    budget: &MemoryBudget,
+) -> Result<Medium> {
+    if !medium.is_volume || sequence || ViewArgs::density_scale_given() {
+        return Ok(medium);
+    }
+    let Some(field) = medium.field() else {
+        return Ok(medium);
+    };
+    let (origin, target) = pinrender::scene_media::camera_over(
+        a.flags.camera_origin,
+        a.flags.camera_target,
+        None,
+        medium.bounds,
+    );
+    let view = std::array::from_fn(|k| target[k] - origin[k]);
+    let Some(look) = pinrender::front::first_look::first_look(field.as_ref(), view) else {
+        return Ok(medium);
+    };
+    a.first_look = Some(look);
+    if look.scale == 1.0 {
+        return Ok(medium);
+    }
+    a.read.density_scale = pin_volume::DensityScale::new(look.scale).map_err(|e| anyhow!("{e}"))?;
+    drop(medium);
+    Medium::open(path, &a.read, &a.flags, budget)
+}
+
 /// The flags a scene file refuses: what needs one medium (an overlay of its pins, a
 /// comparison, the error view, a re-bake), and bounces beyond the GPU's limit.
 fn scene_flags(a: &ViewArgs, medium: &Medium) -> Result<()> {
@@ -106,7 +142,7 @@ fn scene_flags(a: &ViewArgs, medium: &Medium) -> Result<()> {
     Ok(())
 }
 
-fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
+fn run(mut a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let mut clock = startup::StartupClock::new(started);
     let max_gpu = pinrender::gpu_render::MAX_GPU_BOUNCES;
     if let Some(n) = a.flags.max_bounces.filter(|&n| n > max_gpu) {
@@ -151,7 +187,9 @@ fn run(a: ViewArgs, started: Instant) -> Result<ExitCode> {
         None => None,
     };
     let first = frames.as_ref().map_or(a.file.clone(), |f| f[0].1.clone());
-    let medium = match open_medium(&first, &a, &budget) {
+    let opened = open_medium(&first, &a, &budget)
+        .and_then(|m| at_first_look(m, &first, &mut a, frames.is_some(), &budget));
+    let medium = match opened {
         Ok(m) => m,
         // Interactive, a refused file is shown in the failure window (and then on stderr).
         Err(e)

@@ -157,6 +157,7 @@ pub fn run(a: &ViewArgs, mut medium: Medium, mut clock: StartupClock) -> Result<
         "longest_frame_gap_ms": pacer.longest_ms(),
         "frames_painted": pacer.frames(),
         "offscreen": true,
+        "first_look": crate::open::first_look_json(a.first_look),
         // The batch render of the view rendered, at the passes rendered.
         "command": view.command_line(&medium, session.passes()),
     });

@@ -299,6 +299,12 @@ impl Medium {
         }
     }
 
+    /// The medium's density field as the renderer reads it (a volume, or a pin file's
+    /// embedded density); `None` for a scene or pins alone.
+    pub fn field(&self) -> Option<&Arc<dyn pin_volume::Density>> {
+        self.opened.field.as_ref()
+    }
+
     /// The camera `(origin, target)` the view resets to: the scene's where it sets one, else
     /// in front of the world box.
     pub fn home(&self) -> ([f64; 3], [f64; 3]) {
@@ -600,4 +606,25 @@ fn holds_of(m: &OpenedMedium) -> Holds {
             .and_then(|p| p.file().ok().map(|f| f.control().is_some()))
             .unwrap_or(false),
     }
+}
+
+/// The first look's line for the window's notes: the scale chosen and how to see the file's
+/// own.
+pub fn first_look_note(look: &pinrender::front::first_look::FirstLook) -> String {
+    format!(
+        "density scale {}: the volume's first look (a median optical depth of {:.3} along the \
+         view at scale 1, {:.2} at this one); --density-scale 1 shows the file's own",
+        look.scale,
+        look.median_depth,
+        look.median_depth * look.scale
+    )
+}
+
+/// The JSON's `first_look`: the scale chosen and the median depth it came from (null where
+/// `--density-scale` was given, or the input is no single volume).
+pub fn first_look_json(look: Option<pinrender::front::first_look::FirstLook>) -> serde_json::Value {
+    look.map_or(
+        serde_json::Value::Null,
+        |l| serde_json::json!({"scale": l.scale, "median_depth": l.median_depth}),
+    )
 }

@@ -262,6 +262,9 @@ impl Viewer {
         // error line; the upload and the pipeline are built off the window's thread once
         // the window has painted its first frame, while it paints.
         viewer.ensure_session()?;
+        if let Some(look) = viewer.args.first_look.filter(|l| l.scale != 1.0) {
+            viewer.note(crate::open::first_look_note(&look));
+        }
         if let Some(scale) = viewer.args.rebake_scale {
             viewer.start_rebake(scale.get())?;
         }

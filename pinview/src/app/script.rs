@@ -137,6 +137,7 @@ impl Viewer {
             "viewport": self.viewport.json(),
             "notes": self.notes,
             "messages": self.toasts.said,
+            "first_look": crate::open::first_look_json(self.args.first_look),
             // The batch render of the view shown, at the passes shown.
             "command": self.view.command_line(&self.medium, passes),
         });
