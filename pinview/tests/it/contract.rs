@@ -205,7 +205,7 @@ fn a_volume_is_tracked_with_ratio_like_pinrender() {
     let mut flags = VIEW.to_vec();
     flags.extend_from_slice(&["--seed", "11", "--estimator", "ratio"]);
     let Some(display) = display() else { return };
-    let (view, reference, ..) = both(
+    let (view, reference, .., j) = both(
         &display,
         dir.path(),
         "ratio",
@@ -217,6 +217,14 @@ fn a_volume_is_tracked_with_ratio_like_pinrender() {
         view == reference,
         "ratio on a volume: the viewer's EXR differs"
     );
+    // The window measured the volume's first look: this field (a median depth near 6 along
+    // the view, docs/viewer.md) already reads at its own scale, so the render above, at the
+    // file's scale, is the one shown.
+    let depth = j["first_look"]["median_depth"]
+        .as_f64()
+        .expect("first_look");
+    assert!(depth > 4.0 && depth < 12.0, "{j}");
+    assert_eq!(j["first_look"]["scale"], 1.0, "{j}");
 }
 
 /// One pinview EXR of the pin file with the flags of the first test, 3 passes, and `extra`.

@@ -57,6 +57,9 @@ fn rebake_swaps_in_the_volume_and_its_gpu_pins_at_the_new_scale() {
         let mut args = vec![s(&vol)];
         args.extend_from_slice(&RAW);
         args.extend_from_slice(&VIEW);
+        // Opened at the file's own scale (its first look would choose 2 itself), re-baked
+        // at 2.
+        args.extend_from_slice(&["--density-scale", "1"]);
         args.extend_from_slice(&["--seed", "2", "--estimator", est, "--rebake-scale", "2"]);
         // A small bake: the test is about the swap, and lavapipe bakes slowly.
         args.extend_from_slice(&["--pin-cells", "6"]);
