@@ -49,7 +49,7 @@ use clap::Args;
 use pinlab::Estimator;
 use pinlab::cache::{render_with_cache, train_cache};
 use pinlab::whole_volume::{SingleScatterSampling, render_single_scattering};
-use pinrender::gpu_render::{GpuEstimator, GpuRenderer, GpuScene};
+use pinrender::gpu_render::{GpuEstimator, GpuPipelines, GpuRenderer, GpuScene};
 use pinrender::medium::PlacedPins;
 use pinrender::render::{
     Budget, DEFAULT_WAVEFRONT_BATCH, Image, Medium, RatioTracking, RenderOutput, RenderSettings,
@@ -250,7 +250,11 @@ pub enum Gpu {
     /// No adapter (or the device failed to open): the message.
     NoAdapter(String),
     Ready {
-        ctx: Box<GpuContext>,
+        /// The context the run's device came from, open for the run.
+        _ctx: Box<GpuContext>,
+        /// The run's pipelines: each scene's renderer takes those an earlier scene of the same
+        /// layout compiled (on lavapipe a compile takes seconds), and compiles the rest.
+        store: Arc<GpuPipelines>,
         /// Adapter name, backend, device type, driver.
         describe: String,
         /// A CPU adapter (lavapipe / llvmpipe): Vulkan on CPU threads.
@@ -280,7 +284,8 @@ impl Gpu {
                     );
                 }
                 Gpu::Ready {
-                    ctx: Box::new(ctx),
+                    store: GpuPipelines::new(&ctx.device, &ctx.queue, &ctx.limits),
+                    _ctx: Box::new(ctx),
                     describe,
                     software,
                     seconds,
@@ -926,13 +931,13 @@ fn eval_scene(
             "**GPU: not measured** (no GPU rows): {}.",
             es.gpu_refusal.as_deref().unwrap_or_default()
         ),
-        Gpu::Ready { ctx, .. } => 'gpu: {
+        Gpu::Ready { store, .. } => 'gpu: {
             let t = Instant::now();
             let media = scenes::gpu_media(&es, &gpu_ests, LOOKUP)?;
             // A scene the device cannot hold (the 512^3 cloud's density is over lavapipe's
             // 128 MiB storage-buffer binding) is a property of the device: the CPU rows stand,
             // and the report says why the GPU rows are missing.
-            let renderer = match GpuRenderer::with_media(ctx, &media) {
+            let renderer = match GpuRenderer::with_media_in(store, &media) {
                 Ok(r) => r,
                 Err(e) => {
                     break 'gpu format!("**GPU: not measured on this device** (no GPU rows): {e}.");
