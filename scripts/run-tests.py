@@ -47,7 +47,8 @@ def test_binaries(messages):
             continue
         if not m.get("profile", {}).get("test"):
             continue
-        # "path+file:///work/main/pinbake#0.1.0" or "registry...#name@version".
+        # "path+file:///work/main/pinbake#0.1.0", or "...#name@version" where the
+        # directory's name is not the package's.
         pkg_dir = os.path.dirname(m["manifest_path"])
         name = package_name(m["package_id"], pkg_dir)
         out.append((name, m["target"]["name"], m["executable"], pkg_dir))
@@ -55,6 +56,9 @@ def test_binaries(messages):
 
 
 def package_name(package_id, pkg_dir):
+    # Cargo before 1.77: "pinbake 0.1.0 (path+file:///work/main/pinbake)".
+    if " (" in package_id:
+        return package_id.split(" ", 1)[0]
     tail = package_id.rsplit("#", 1)[-1]
     if "@" in tail:
         return tail.split("@", 1)[0]
