@@ -155,14 +155,7 @@ fn run(mut a: ViewArgs, started: Instant) -> Result<ExitCode> {
     let budget = a.flags.budget();
     let (w, h) = a.size();
     let images = 1 + u64::from(a.compare.is_some()) + u64::from(a.error_view);
-    let what = match images {
-        1 => format!("a {w}x{h} image"),
-        n => format!("{n} images of {w}x{h}"),
-    };
-    budget.check(
-        &what,
-        u64::from(w) * u64::from(h) * pinrender::front::flags::BYTES_PER_PIXEL * images,
-    )?;
+    pinrender::front::flags::check_images(&budget, w, h, images)?;
     let pattern = sequence::pattern(&a.file)?;
     if a.play && a.frames.is_some() && pattern.is_none() {
         pin_cli::usage!(

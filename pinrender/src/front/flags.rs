@@ -140,8 +140,23 @@ pub fn check_image(
     width: u32,
     height: u32,
 ) -> Result<(), pin_volume::files::FileError> {
+    check_images(budget, width, height, 1)
+}
+
+/// Charges `images` images of `width` x `height` to `budget` together (a viewer's main view,
+/// compare side and reference).
+pub fn check_images(
+    budget: &pin_volume::files::MemoryBudget,
+    width: u32,
+    height: u32,
+    images: u64,
+) -> Result<(), pin_volume::files::FileError> {
+    let what = match images {
+        1 => format!("a {width}x{height} image"),
+        n => format!("{n} images of {width}x{height}"),
+    };
     budget.check(
-        &format!("a {width}x{height} image"),
-        u64::from(width) * u64::from(height) * BYTES_PER_PIXEL,
+        &what,
+        (u64::from(width) * u64::from(height) * BYTES_PER_PIXEL).saturating_mul(images),
     )
 }

@@ -109,14 +109,8 @@ impl Viewer {
         }
         if self.next.pending.is_none() && self.first_image_s.is_some() {
             let media = self.medium.media_job(target)?;
-            self.next.spawn(
-                &self.gpu,
-                media,
-                self.view.scene(),
-                self.view.seed,
-                self.view.exposure,
-                self.generation,
-            )?;
+            self.next
+                .spawn(&self.gpu, media, &self.view, self.generation)?;
         }
         Ok(())
     }
@@ -194,14 +188,8 @@ impl Viewer {
             // Refused here (before the first frame) where the medium cannot answer.
             let media = self.medium.media_job(est)?;
             if self.painted() {
-                self.main.spawn(
-                    &self.gpu,
-                    media,
-                    self.view.scene(),
-                    self.view.seed,
-                    self.view.exposure,
-                    self.generation,
-                )?;
+                self.main
+                    .spawn(&self.gpu, media, &self.view, self.generation)?;
             }
         }
         if self.input.dirty && self.main.reset(&self.view.scene(), self.view.seed)? {
@@ -255,14 +243,8 @@ impl Viewer {
             }
         } else if self.reference.pending.is_none() && self.painted() {
             let media = self.medium.media_job(est)?;
-            self.reference.spawn(
-                &self.gpu,
-                media,
-                scene,
-                seed,
-                self.view.exposure,
-                self.generation,
-            )?;
+            self.reference
+                .spawn(&self.gpu, media, &self.view, self.generation)?;
         }
         Ok(())
     }
@@ -271,10 +253,7 @@ impl Viewer {
     /// pins estimators once baked; built off the window's thread), and restarts it with the
     /// first.
     pub(super) fn ensure_compare(&mut self, restart: bool) -> Result<()> {
-        let Some(est) = self
-            .compare_wanted
-            .filter(|e| self.medium.scene().is_none() && self.medium.estimators().contains(e))
-        else {
+        let Some(est) = self.compare_wanted.filter(|&e| self.compare_answered(e)) else {
             self.compare.stop(&mut self.retired);
             return Ok(());
         };
@@ -289,14 +268,8 @@ impl Viewer {
             self.compare.live = None;
             if self.compare.pending.is_none() && self.painted() {
                 let media = self.medium.media_job(est)?;
-                self.compare.spawn(
-                    &self.gpu,
-                    media,
-                    scene,
-                    seed,
-                    self.view.exposure,
-                    self.generation,
-                )?;
+                self.compare
+                    .spawn(&self.gpu, media, &self.view, self.generation)?;
             }
             return Ok(());
         }

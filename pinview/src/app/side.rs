@@ -120,22 +120,21 @@ impl Side {
         Ok(built.preview.filter(|_| fresh))
     }
 
-    /// Starts building `media`'s renderer and a session of `scene`.
+    /// Starts building `media`'s renderer and a session of `view` (its scene, seed and
+    /// exposure).
     pub fn spawn(
         &mut self,
         gpu: &Gpu,
         media: MediaJob,
-        scene: GpuScene,
-        seed: u64,
-        exposure: f32,
+        view: &crate::view::View,
         generation: u64,
     ) -> Result<()> {
         self.pending = Some(BuildJob::spawn(
             gpu,
             media,
-            scene,
-            seed ^ self.seed_xor,
-            exposure,
+            view.scene(),
+            view.seed ^ self.seed_xor,
+            view.exposure,
             generation,
         )?);
         Ok(())
