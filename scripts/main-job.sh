@@ -4,12 +4,17 @@
 # Outputs land in ./out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-source scripts/deps.sh
+# The Debian packages install while cargo compiles (scripts/deps.sh).
+source scripts/deps.sh --background
 source scripts/env.sh
 DATA=data
 mkdir -p out
 # Everything scripts/test.sh runs, built once (scripts/env.sh says why in one invocation).
-cargo build "${PROFILE_FLAGS[@]}" "${BUILD_TARGETS[@]}"
+if ! cargo build "${PROFILE_FLAGS[@]}" "${BUILD_TARGETS[@]}"; then
+  deps_wait || true
+  exit 1
+fi
+deps_wait
 BIN="$BIN_DIR/pinbake"
 # Pins chosen from the volume (octahedral:16 directions, up to 20^3 cells) with a 64^3 f16 copy
 # of the density, box-filtered (a named --embed-density leaves the default asset rule out).

@@ -7,6 +7,7 @@
 #   python-test.sh [--prebuilt] [PYTEST ARGS]          build, install and test in a temporary directory
 #   python-test.sh [--prebuilt] --build-only DIR       the venv and the wheel into DIR, then stop
 #   python-test.sh --from DIR [ARGS]                   install and test what --build-only left in DIR
+#                                                      (waiting for it first where it still runs)
 #
 # The wheel comes from maturin, as a user or a release builds it; with --prebuilt it is packed
 # (scripts/python-wheel.py) around the extension that the workspace's build has compiled
@@ -38,6 +39,23 @@ if [ -z "$WORK" ]; then
   trap 'rm -rf "$WORK"' EXIT
 fi
 PY="$WORK/venv/bin/python"
+
+if [ "$MODE" = build ]; then
+  # What --from waits for: this run's process while it builds, then its exit status.
+  rm -f "$WORK/build.status"
+  echo $$ > "$WORK/build.pid"
+  trap 'echo $? > "$WORK/build.status"' EXIT
+elif [ "$MODE" = test ] && [ -e "$WORK/build.pid" ]; then
+  while [ ! -e "$WORK/build.status" ] && kill -0 "$(cat "$WORK/build.pid")" 2>/dev/null; do
+    sleep 0.2
+  done
+  # The build's log, where the caller kept it there (scripts/test.sh).
+  [ -f "$WORK/build.log" ] && cat "$WORK/build.log"
+  if [ "$(cat "$WORK/build.status" 2>/dev/null)" != 0 ]; then
+    echo "python-test.sh: the venv or the wheel in $WORK was not made (--build-only failed)" >&2
+    exit 1
+  fi
+fi
 
 if [ "$MODE" != test ]; then
   python3 -m venv "$WORK/venv"

@@ -7,9 +7,14 @@ single test left running on one core while the other idles. Here the binaries th
 `cargo test --no-run` built (their JSON messages on stdin) run LANES at a time, the longest
 first, each in its package's directory with cargo's environment, as `cargo test` would run
 it. A binary's output is printed whole when it ends, so lanes never interleave; the run ends
-with one line per binary and exits 1 if any failed.
+with one line per binary (its wall time, and the CPU time of it and of the processes its
+tests started) and exits 1 if any failed.
 
-    cargo test ... --no-run --message-format=json | run-tests.py [--lanes N] [-- TEST ARGS]
+    cargo test ... --no-run --message-format=json |
+        run-tests.py [--lanes N] [--job NAME COMMAND]... [-- TEST ARGS]
+
+A --job (scripts/test.sh: the doc tests, the Python package's tests) is a shell command that
+a lane runs once the binaries have all started, so that it fills the lane that ends first.
 """
 
 import argparse
@@ -24,14 +29,14 @@ import time
 # Seconds each binary took in a bare-clone run (2 cores, lavapipe), to start the long ones
 # first; a binary not listed is taken as short. Only the order depends on these.
 EXPECTED_S = {
-    ("pinview", "it"): 130,
-    ("pinlab", "it"): 94,
-    ("pinbake", "it"): 88,
-    ("pinrender", "pinrender"): 70,
-    ("pin-tests", "it"): 51,
-    ("pinlab", "pinlab"): 14,
-    ("pinrt-capi", "it"): 10,
-    ("pinbake", "memory"): 8,
+    ("pinview", "it"): 210,
+    ("pinlab", "it"): 143,
+    ("pinrender", "pinrender"): 83,
+    ("pinbake", "it"): 72,
+    ("pinlab", "pinlab"): 12,
+    ("pin-tests", "it"): 10,
+    ("pinbake", "memory"): 5,
+    ("pinrt-capi", "it"): 5,
 }
 
 
@@ -77,26 +82,42 @@ def package_name(package_id, pkg_dir):
 def run_one(binary, test_args, results, lock, printer):
     name, target, exe, pkg_dir = binary
     env = dict(os.environ)
-    env["CARGO_MANIFEST_DIR"] = pkg_dir
-    env["CARGO_PKG_NAME"] = name
-    env["CARGO_CRATE_NAME"] = target.replace("-", "_")
+    if exe is None:
+        # A --job: a shell command run in the current directory.
+        argv = ["bash", "-c", target]
+        target = ""
+    else:
+        env["CARGO_MANIFEST_DIR"] = pkg_dir
+        env["CARGO_PKG_NAME"] = name
+        env["CARGO_CRATE_NAME"] = target.replace("-", "_")
+        argv = [exe, *test_args]
     with tempfile.TemporaryFile() as log:
         t = time.monotonic()
-        rc = subprocess.call(
-            [exe, *test_args], cwd=pkg_dir, env=env, stdout=log, stderr=subprocess.STDOUT
+        child = subprocess.Popen(
+            argv, cwd=pkg_dir, env=env, stdout=log, stderr=subprocess.STDOUT
         )
+        # wait4: the binary's own CPU time and that of every process it waited for (the
+        # viewers, renders and compilers its tests start), apart from the other lane's.
+        _, status, usage = os.wait4(child.pid, 0)
+        child.returncode = os.waitstatus_to_exitcode(status)
+        rc = child.returncode
         seconds = time.monotonic() - t
+        cpu = usage.ru_utime + usage.ru_stime
         log.seek(0)
         text = log.read().decode("utf-8", "replace")
     with lock:
-        results.append((name, target, rc, seconds))
-        printer(f"== {name} {target} ({os.path.basename(exe)}): {seconds:.1f} s, "
-                f"{'ok' if rc == 0 else f'FAILED (exit {rc})'}\n{text}")
+        results.append((name, target, rc, seconds, cpu))
+        label = f"{name} {target} ({os.path.basename(exe)})" if exe else name
+        printer(f"== {label}: {seconds:.1f} s, "
+                f"{cpu:.1f} s of CPU, {'ok' if rc == 0 else f'FAILED (exit {rc})'}\n{text}")
 
 
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--lanes", type=int, default=2, help="binaries run at once (default 2)")
+    p.add_argument("--job", nargs=2, action="append", default=[], metavar=("NAME", "COMMAND"),
+                   help="a shell command run in a lane after the binaries have started, "
+                        "reported as they are (repeatable)")
     p.add_argument("test_args", nargs="*", help="arguments for every test binary")
     a = p.parse_args()
     if a.lanes < 1:
@@ -106,7 +127,8 @@ def main():
         print("run-tests.py: no test binaries in cargo's messages", file=sys.stderr)
         return 1
     binaries.sort(key=lambda b: (-EXPECTED_S.get((b[0], b[1]), 0), b[0], b[1]))
-    queue = list(binaries)
+    # The jobs last: they are short, and fill the lane that ends first.
+    queue = list(binaries) + [(name, command, None, os.getcwd()) for name, command in a.job]
     results, lock = [], threading.Lock()
 
     def printer(text):
@@ -122,16 +144,19 @@ def main():
             run_one(b, a.test_args, results, lock, printer)
 
     t = time.monotonic()
-    lanes = [threading.Thread(target=lane) for _ in range(min(a.lanes, len(binaries)))]
+    lanes = [threading.Thread(target=lane) for _ in range(min(a.lanes, len(queue)))]
     for th in lanes:
         th.start()
     for th in lanes:
         th.join()
     failed = [r for r in results if r[2] != 0]
-    print(f"== test binaries: {len(results)} in {time.monotonic() - t:.1f} s "
-          f"on {len(lanes)} lanes, {len(failed)} failed")
-    for name, target, rc, seconds in sorted(results, key=lambda r: -r[3]):
-        print(f"   {seconds:7.1f} s  {name} {target}{'' if rc == 0 else f'  FAILED (exit {rc})'}")
+    cpu = sum(r[4] for r in results)
+    print(f"== test binaries and jobs: {len(results)} in {time.monotonic() - t:.1f} s "
+          f"on {len(lanes)} lanes ({cpu:.0f} s of CPU), {len(failed)} failed")
+    print("   wall (s)  CPU (s)  binary or job")
+    for name, target, rc, seconds, cpu in sorted(results, key=lambda r: -r[3]):
+        print(f"   {seconds:8.1f} {cpu:8.1f}  {f'{name} {target}'.rstrip()}"
+              f"{'' if rc == 0 else f'  FAILED (exit {rc})'}")
     return 1 if failed else 0
 
 

@@ -1,4 +1,4 @@
-//! A private X server per test (Xvfb), the binaries with the test binary's own caches, and
+//! A private X server per test (Xvfb), the binaries in a runtime directory of their own, and
 //! small bakes (each baked once per test binary).
 
 use std::collections::HashMap;
@@ -104,41 +104,14 @@ pub fn display() -> Option<Display> {
     panic!("could not start Xvfb on any display");
 }
 
-/// The shader caches of this test binary's run: Mesa's (`MESA_SHADER_CACHE_DIR`: lavapipe's
-/// LLVM compiles) and the pipeline cache's (`XDG_CACHE_HOME`), in one directory made empty
-/// when the binary starts and shared by every process it runs. Each estimator's shaders are
-/// then compiled cold once per run and reused by every later test, whatever earlier runs
-/// left in the user's own cache (`~/.cache`, where the processes would look otherwise, which
-/// made a run's time depend on the machine's history, and which the tests never write).
-pub fn cache_dir() -> PathBuf {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let root = Path::new(env!("CARGO_TARGET_TMPDIR"));
-        const PREFIX: &str = "pinview-it-caches-";
-        // Earlier runs' caches (one run of this binary at a time uses the target directory).
-        if let Ok(entries) = std::fs::read_dir(root) {
-            for e in entries.flatten() {
-                if e.file_name().to_string_lossy().starts_with(PREFIX) {
-                    let _ = std::fs::remove_dir_all(e.path());
-                }
-            }
-        }
-        let dir = root.join(format!("{PREFIX}{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        dir
-    })
-    .clone()
-}
-
-/// `program` with this binary's caches ([`cache_dir`]), a valid runtime directory and no
-/// Wayland display.
+/// `program` with a valid runtime directory and no Wayland display. The shader caches are the
+/// environment's, as for every other test binary and the main job: Mesa's (`~/.cache`, or
+/// `MESA_SHADER_CACHE_DIR`: lavapipe's LLVM compiles) and the pipeline cache's. An estimator
+/// the main job or an earlier test compiled is not compiled again; the one test that needs
+/// compiles in the run turns Mesa's cache off for itself (`pacing`).
 pub fn command(program: impl AsRef<std::ffi::OsStr>) -> Command {
-    let caches = cache_dir();
     let mut cmd = Command::new(program);
-    cmd.env("MESA_SHADER_CACHE_DIR", caches.join("mesa"))
-        .env("XDG_CACHE_HOME", &caches)
-        .env_remove("MESA_SHADER_CACHE_DISABLE")
-        .env_remove("PINRT_PIPELINE_CACHE")
+    cmd.env_remove("MESA_SHADER_CACHE_DISABLE")
         .env_remove("WAYLAND_DISPLAY")
         .env("XDG_RUNTIME_DIR", runtime_dir())
         .stdin(Stdio::null());
