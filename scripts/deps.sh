@@ -9,41 +9,14 @@
 #   glslangValidator for the generated shaders (lab/tests/it/shaders.rs); valgrind for the C
 #   example (capi/tests/it/c_example.rs); python3-venv for the Python package's tests; xvfb and
 #   libxkbcommon-x11-0 for the viewer's window tests (pinview/tests/it/ start Xvfb themselves).
-#
-# Sourced plainly it installs before returning. Sourced with `--background` (the main job) it
-# starts the install and returns at once, so that the packages download and unpack while cargo
-# compiles (the build needs none of them: only the C compiler rustc links with); `deps_wait`
-# then waits for it and fails where it failed.
 APT_PACKAGES="mesa-vulkan-drivers libvulkan1 slurm-wlm munge g++ libopenvdb-dev libboost-dev libnanovdb-tools spirv-tools glslang-tools valgrind python3-venv xvfb libxkbcommon-x11-0"
 export DEBIAN_FRONTEND=noninteractive
-DEPS_PID=""
-
-deps_install() {
-  local sudo=""
-  if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then sudo=sudo; fi
+SUDO=""
+if [ "$(id -u)" -ne 0 ] && command -v sudo >/dev/null; then SUDO=sudo; fi
+# shellcheck disable=SC2086
+if ! dpkg -s $APT_PACKAGES >/dev/null 2>&1; then
+  echo "installing Debian packages: $APT_PACKAGES" >&2
+  $SUDO apt-get update -qq
   # shellcheck disable=SC2086
-  if ! dpkg -s $APT_PACKAGES >/dev/null 2>&1; then
-    echo "installing Debian packages: $APT_PACKAGES" >&2
-    $sudo apt-get update -qq
-    # shellcheck disable=SC2086
-    $sudo apt-get install -y -qq $APT_PACKAGES >/dev/null
-  fi
-}
-
-# Waits for a `--background` install (nothing to wait for otherwise); returns its status.
-deps_wait() {
-  [ -z "$DEPS_PID" ] && return 0
-  local pid=$DEPS_PID
-  DEPS_PID=""
-  if ! wait "$pid"; then
-    echo "installing the Debian packages failed (above): $APT_PACKAGES" >&2
-    return 1
-  fi
-}
-
-if [ "${1:-}" = "--background" ]; then
-  deps_install &
-  DEPS_PID=$!
-else
-  deps_install
+  $SUDO apt-get install -y -qq $APT_PACKAGES >/dev/null
 fi

@@ -3,11 +3,12 @@
 # shellcheck shell=bash
 PROFILE_FLAGS=(--release --workspace --all-features)
 # What the main job builds and the tests run: every library (the Python extension's among
-# them), binary, example and test harness. With tests among the targets, cargo resolves the
-# dependencies' features with the dev-dependencies, as `cargo test` does, so `cargo test`
-# afterwards compiles nothing again (a plain `cargo build` would resolve other features and
-# compile some two dozen crates, wgpu among them, a second time).
-BUILD_TARGETS=(--lib --tests --examples)
+# them), binary and test harness, and the one example a test runs (the Python tests' query
+# reference; the others are benchmarks run by hand). With tests among the targets, cargo
+# resolves the dependencies' features with the dev-dependencies, as `cargo test` does, so
+# `cargo test` afterwards compiles only those other examples (a plain `cargo build` would
+# resolve other features and compile some two dozen crates, wgpu among them, a second time).
+BUILD_TARGETS=(--lib --tests --example query_reference)
 TARGET_DIR=$(cargo metadata --format-version 1 --no-deps 2>/dev/null |
   python3 -c 'import json,sys; print(json.load(sys.stdin)["target_directory"])' 2>/dev/null ||
   echo "${CARGO_TARGET_DIR:-target}")

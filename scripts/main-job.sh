@@ -4,17 +4,12 @@
 # Outputs land in ./out/.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# The Debian packages install while cargo compiles (scripts/deps.sh).
-source scripts/deps.sh --background
+source scripts/deps.sh
 source scripts/env.sh
 DATA=data
 mkdir -p out
 # Everything scripts/test.sh runs, built once (scripts/env.sh says why in one invocation).
-if ! cargo build "${PROFILE_FLAGS[@]}" "${BUILD_TARGETS[@]}"; then
-  deps_wait || true
-  exit 1
-fi
-deps_wait
+cargo build "${PROFILE_FLAGS[@]}" "${BUILD_TARGETS[@]}"
 BIN="$BIN_DIR/pinbake"
 # Pins chosen from the volume (octahedral:16 directions, up to 20^3 cells) with a 64^3 f16 copy
 # of the density, box-filtered (a named --embed-density leaves the default asset rule out).

@@ -108,10 +108,14 @@ pub fn display() -> Option<Display> {
 /// environment's, as for every other test binary and the main job: Mesa's (`~/.cache`, or
 /// `MESA_SHADER_CACHE_DIR`: lavapipe's LLVM compiles) and the pipeline cache's. An estimator
 /// the main job or an earlier test compiled is not compiled again; the one test that needs
-/// compiles in the run turns Mesa's cache off for itself (`pacing`).
+/// compiles in the run turns Mesa's cache off for itself (`pacing`). On lavapipe each process
+/// rasterises and dispatches on its own thread (`LP_NUM_THREADS=0`): the tests run several
+/// processes at once on the cores, and lavapipe's thread pool cost this binary 9% more CPU
+/// (213 s against 194 s for the whole binary, docs/viewer.md); the bits are the same.
 pub fn command(program: impl AsRef<std::ffi::OsStr>) -> Command {
     let mut cmd = Command::new(program);
-    cmd.env_remove("MESA_SHADER_CACHE_DISABLE")
+    cmd.env("LP_NUM_THREADS", "0")
+        .env_remove("MESA_SHADER_CACHE_DISABLE")
         .env_remove("WAYLAND_DISPLAY")
         .env("XDG_RUNTIME_DIR", runtime_dir())
         .stdin(Stdio::null());
