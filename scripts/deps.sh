@@ -18,5 +18,7 @@ if ! dpkg -s $APT_PACKAGES >/dev/null 2>&1; then
   echo "installing Debian packages: $APT_PACKAGES" >&2
   $SUDO apt-get update -qq
   # shellcheck disable=SC2086
-  $SUDO apt-get install -y -qq $APT_PACKAGES >/dev/null
+  # Without the packages' recommendations (valgrind's debug symbols and gdb, xvfb's xauth):
+  # nothing here uses them, and they were half of the install's time (21 s against 12 s).
+  $SUDO apt-get install -y -qq --no-install-recommends $APT_PACKAGES >/dev/null
 fi
