@@ -13,6 +13,8 @@
 use glam::DVec3;
 use pin_volume::Density;
 
+use crate::render::clip_box;
+
 /// The median optical depth along the view, over the columns that cross density, that the
 /// chosen scale gives. Measured on the six bundled volumes (docs/viewer.md, "The first look"):
 /// the volume's contrast against the sky and within itself grows with the depth up to 32
@@ -70,7 +72,14 @@ pub fn first_look(density: &dyn Density, view: [f64; 3]) -> Option<FirstLook> {
             let a = umin + (umax - umin) * (i as f64 + 0.5) / RAYS as f64;
             let c = vmin + (vmax - vmin) * (j as f64 + 0.5) / RAYS as f64;
             let origin = u * a + v * c + d * (dmin - 1.0);
-            let Some((t0, t1)) = clip(origin, d, lo, hi) else {
+            let Some((t0, t1)) = clip_box(
+                origin,
+                d,
+                &lo.to_array(),
+                &hi.to_array(),
+                f64::MIN,
+                f64::MAX,
+            ) else {
                 continue;
             };
             let dt = (t1 - t0) / STEPS as f64;
@@ -95,23 +104,6 @@ pub fn first_look(density: &dyn Density, view: [f64; 3]) -> Option<FirstLook> {
         scale: 2f64.powi(exponent),
         median_depth,
     })
-}
-
-/// The parameter interval of the ray `o + t d` inside the box `lo..hi`, if it meets it.
-fn clip(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
-    let (mut t0, mut t1) = (f64::MIN, f64::MAX);
-    for k in 0..3 {
-        if d[k].abs() < 1e-300 {
-            if o[k] < lo[k] || o[k] > hi[k] {
-                return None;
-            }
-            continue;
-        }
-        let (a, b) = ((lo[k] - o[k]) / d[k], (hi[k] - o[k]) / d[k]);
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
-    }
-    (t1 > t0).then_some((t0, t1))
 }
 
 #[cfg(test)]
