@@ -79,35 +79,39 @@ def package_name(package_id, pkg_dir):
     return os.path.basename(pkg_dir)
 
 
-def run_one(binary, test_args, results, lock, printer):
+def binary_run(binary, test_args):
+    """A test binary as a run: in its package's directory, with cargo's environment."""
     name, target, exe, pkg_dir = binary
-    env = dict(os.environ)
-    if exe is None:
-        # A --job: a shell command run in the current directory.
-        argv = ["bash", "-c", target]
-        target = ""
-    else:
-        env["CARGO_MANIFEST_DIR"] = pkg_dir
-        env["CARGO_PKG_NAME"] = name
-        env["CARGO_CRATE_NAME"] = target.replace("-", "_")
-        argv = [exe, *test_args]
+    env = {
+        "CARGO_MANIFEST_DIR": pkg_dir,
+        "CARGO_PKG_NAME": name,
+        "CARGO_CRATE_NAME": target.replace("-", "_"),
+    }
+    return (f"{name} {target}", f"{name} {target} ({os.path.basename(exe)})",
+            [exe, *test_args], pkg_dir, env)
+
+
+def job_run(name, command):
+    """A --job as a run: a shell command in the current directory."""
+    return (name, name, ["bash", "-c", command], os.getcwd(), {})
+
+
+def run_one(run, results, lock, printer):
+    name, label, argv, cwd, env = run
     with tempfile.TemporaryFile() as log:
         t = time.monotonic()
-        child = subprocess.Popen(
-            argv, cwd=pkg_dir, env=env, stdout=log, stderr=subprocess.STDOUT
-        )
+        child = subprocess.Popen(argv, cwd=cwd, env={**os.environ, **env}, stdout=log,
+                                 stderr=subprocess.STDOUT)
         # wait4: the binary's own CPU time and that of every process it waited for (the
         # viewers, renders and compilers its tests start), apart from the other lane's.
         _, status, usage = os.wait4(child.pid, 0)
-        child.returncode = os.waitstatus_to_exitcode(status)
-        rc = child.returncode
+        child.returncode = rc = os.waitstatus_to_exitcode(status)
         seconds = time.monotonic() - t
         cpu = usage.ru_utime + usage.ru_stime
         log.seek(0)
         text = log.read().decode("utf-8", "replace")
     with lock:
-        results.append((name, target, rc, seconds, cpu))
-        label = f"{name} {target} ({os.path.basename(exe)})" if exe else name
+        results.append((name, rc, seconds, cpu))
         printer(f"== {label}: {seconds:.1f} s, "
                 f"{cpu:.1f} s of CPU, {'ok' if rc == 0 else f'FAILED (exit {rc})'}\n{text}")
 
@@ -128,7 +132,8 @@ def main():
         return 1
     binaries.sort(key=lambda b: (-EXPECTED_S.get((b[0], b[1]), 0), b[0], b[1]))
     # The jobs last: they are short, and fill the lane that ends first.
-    queue = list(binaries) + [(name, command, None, os.getcwd()) for name, command in a.job]
+    queue = [binary_run(b, a.test_args) for b in binaries]
+    queue += [job_run(name, command) for name, command in a.job]
     results, lock = [], threading.Lock()
 
     def printer(text):
@@ -140,8 +145,8 @@ def main():
             with lock:
                 if not queue:
                     return
-                b = queue.pop(0)
-            run_one(b, a.test_args, results, lock, printer)
+                run = queue.pop(0)
+            run_one(run, results, lock, printer)
 
     t = time.monotonic()
     lanes = [threading.Thread(target=lane) for _ in range(min(a.lanes, len(queue)))]
@@ -149,13 +154,13 @@ def main():
         th.start()
     for th in lanes:
         th.join()
-    failed = [r for r in results if r[2] != 0]
-    cpu = sum(r[4] for r in results)
+    failed = [r for r in results if r[1] != 0]
+    cpu = sum(r[3] for r in results)
     print(f"== test binaries and jobs: {len(results)} in {time.monotonic() - t:.1f} s "
           f"on {len(lanes)} lanes ({cpu:.0f} s of CPU), {len(failed)} failed")
     print("   wall (s)  CPU (s)  binary or job")
-    for name, target, rc, seconds, cpu in sorted(results, key=lambda r: -r[3]):
-        print(f"   {seconds:8.1f} {cpu:8.1f}  {f'{name} {target}'.rstrip()}"
+    for name, rc, seconds, cpu in sorted(results, key=lambda r: -r[2]):
+        print(f"   {seconds:8.1f} {cpu:8.1f}  {name}"
               f"{'' if rc == 0 else f'  FAILED (exit {rc})'}")
     return 1 if failed else 0
 

@@ -25,6 +25,8 @@ cargo build "${PROFILE_FLAGS[@]}" "${BUILD_TARGETS[@]}" \
 # the Python tests, which wait for it (python-test.sh --from).
 setsid bash scripts/python-test.sh --prebuilt --build-only "$PY_WORK" > "$PY_WORK/build.log" 2>&1 &
 venv=$!
+# Written here too, before the build's own line, so that the Python job can never start
+# before it and skip the wait (python-test.sh --from waits while this process runs).
 echo "$venv" > "$PY_WORK/build.pid"
 PYTHON_TESTS="bash scripts/python-test.sh --from '$PY_WORK'"
 if [ $# -eq 0 ]; then
