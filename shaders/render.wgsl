@@ -168,6 +168,11 @@ const RT_INV_4PI: f32 = 0x1.45f306p-4f;
 const RT_TWO_M32: f32 = 0x1.000000p-32f;
 const RT_TWO_M33: f32 = 0x1.000000p-33f;
 
+// The estimator codes. Every `switch kind` is an estimator dispatch, and the host keeps only
+// the cases a pipeline's two estimators reach (gpu_render/wgsl.rs, `specialise`), so the
+// driver never inlines a walk the pipeline cannot take. Each dispatch has one shape: a case
+// is one block, `case RT_EST_A, RT_EST_B: {` or `default: {` (the codes no label names),
+// closed by a `}` at the case's own indentation, with only comment lines between cases.
 const RT_EST_MARCH: u32 = 0u;
 const RT_EST_DELTA: u32 = 1u;
 const RT_EST_RATIO: u32 = 2u;
@@ -924,10 +929,13 @@ fn rt_frame_distance(kind: u32, m: u32, o: vec3<f32>, d: vec3<f32>, t_max: f32) 
         case RT_EST_PINS: {
             return rt_pins(m, o, d, t_max).x;
         }
-        // Delta, ratio and residual tracking, and every extension kernel.
-        default: {
+        case RT_EST_DELTA, RT_EST_RATIO, RT_EST_RESIDUAL: {
             let grid = rt_distance_majorants(kind, m);
             return rt_track(m, grid, 0u, o, d, t_max, RT_WALK_DELTA).x;
+        }
+        // Every extension kernel: delta tracking over the majorants.
+        default: {
+            return rt_track(m, rt_majorant_grid(m), 0u, o, d, t_max, RT_WALK_DELTA).x;
         }
     }
 }
@@ -1051,15 +1059,25 @@ fn rt_pairs(kind: u32) -> bool {
 // control's, docs/residual.md, "Distances"). Returns (collision distance or +inf,
 // transmittance).
 fn rt_pair(kind: u32, o: vec3<f32>, d: vec3<f32>) -> vec2<f32> {
-    if (rt_placed(0u)) {
-        let l = rt_local(0u, o, d);
-        if (l.k == 0.0) {
+    switch kind {
+        case RT_EST_RATIO, RT_EST_RESIDUAL: {
+            if (rt_placed(0u)) {
+                let l = rt_local(0u, o, d);
+                if (l.k == 0.0) {
+                    return vec2<f32>(rt_inf(), 1.0);
+                }
+                let grid = rt_distance_majorants(kind, 0u);
+                let p = rt_track(0u, grid, 0u, l.o, l.d, rt_inf(), RT_WALK_PAIR);
+                return vec2<f32>(rt_back(p.x, l.k, rt_inf()), p.y);
+            }
+            let grid = rt_distance_majorants(kind, 0u);
+            return rt_track(0u, grid, 0u, o, d, rt_inf(), RT_WALK_PAIR);
+        }
+        // No other estimator pairs (`rt_pairs`): never reached.
+        default: {
             return vec2<f32>(rt_inf(), 1.0);
         }
-        let p = rt_track(0u, rt_distance_majorants(kind, 0u), 0u, l.o, l.d, rt_inf(), RT_WALK_PAIR);
-        return vec2<f32>(rt_back(p.x, l.k, rt_inf()), p.y);
     }
-    return rt_track(0u, rt_distance_majorants(kind, 0u), 0u, o, d, rt_inf(), RT_WALK_PAIR);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1128,7 +1146,6 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     if (!(len2 > 0.0) || !is_finite_bits(len2) || !rt_finite3(o)) {
         return l;
     }
-    let d = d_in / sqrt(len2);
     let has_env = RP.env.w != 0.0;
     let env = RP.env.xyz;
     let has_sun = RP.sun_dir.w != 0.0;
@@ -1139,33 +1156,46 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     let max_bounces = RP.size.z;
     let primary = RT_PRIMARY;
     let secondary = RT_SECONDARY;
-    // tracer.rs `Ctx::paired`: with one medium, an estimator that answers a transmittance and
-    // a distance along one ray together gets both from one walk where one estimator answers
-    // both: the camera ray (primary for both), and a continuation whose transmittance comes
-    // from the estimator that samples its distance (secondary).
-    let scatters = !(albedo <= 0.0 || max_bounces == 0u);
-    var first = rt_inf();
-    if (has_env && scatters && rt_pairs(primary)) {
-        let p = rt_pair(primary, o, d);
-        l = l + env * p.y;
-        first = p.x;
-    } else {
-        if (has_env) {
-            l = l + env * rt_transmittance(primary, o, d);
-        }
-        if (!scatters) {
-            return l;
-        }
-        first = rt_distance(primary, o, d);
-    }
-    if (!(first < rt_inf())) {
-        return l;
-    }
-    var x = o + d * first;
-    var dir = d;
-    var beta = albedo;
-    var depth = 1u;
+    // One segment per pass of the loop, the camera ray first: from x along w, the
+    // environment seen through it (estimator `along`, weight `beta`), then the next
+    // collision (estimator `collide`) unless the path ends here (`last`). Each estimator's
+    // walk is reached from one place in the loop, not once for the camera and once for the
+    // bounces: the driver inlines every call, and the copies were most of the pipeline's
+    // compile.
+    var x = o;
+    var w = d_in / sqrt(len2);
+    var along = primary;
+    var collide = primary;
+    var last = albedo <= 0.0 || max_bounces == 0u;
+    var beta = 1.0;
+    var depth = 0u;
     loop {
+        // tracer.rs `Ctx::paired`: with one medium, an estimator that answers a
+        // transmittance and a distance along one ray together gets both from one walk where
+        // one estimator answers both: the camera ray (primary for both), and a continuation
+        // whose transmittance comes from the estimator that samples its distance (secondary).
+        var t = rt_inf();
+        if (has_env && !last && along == collide && rt_pairs(collide)) {
+            let p = rt_pair(collide, x, w);
+            l = l + env * (beta * p.y);
+            t = p.x;
+        } else {
+            if (has_env) {
+                l = l + env * (beta * rt_transmittance(along, x, w));
+            }
+            if (last) {
+                break;
+            }
+            t = rt_distance(collide, x, w);
+        }
+        if (!(t < rt_inf())) {
+            break;
+        }
+        x = x + w * t;
+        let dir = w;
+        beta = beta * albedo;
+        depth = depth + 1u;
+        // The first scattering vertex's queries are the primary estimator's.
         var shadow = secondary;
         if (depth == 1u) {
             shadow = primary;
@@ -1179,29 +1209,10 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
         }
         let u1 = rt_f32();
         let u2 = rt_f32();
-        let w = rt_sample_hg(dir, g, u1, u2);
-        let last = depth >= max_bounces;
-        var t = rt_inf();
-        if (has_env && !last && shadow == secondary && rt_pairs(secondary)) {
-            let p = rt_pair(secondary, x, w);
-            l = l + env * (beta * p.y);
-            t = p.x;
-        } else {
-            if (has_env) {
-                l = l + env * (beta * rt_transmittance(shadow, x, w));
-            }
-            if (last) {
-                break;
-            }
-            t = rt_distance(secondary, x, w);
-        }
-        if (!(t < rt_inf())) {
-            break;
-        }
-        x = x + w * t;
-        dir = w;
-        beta = beta * albedo;
-        depth = depth + 1u;
+        w = rt_sample_hg(dir, g, u1, u2);
+        along = shadow;
+        collide = secondary;
+        last = depth >= max_bounces;
     }
     return l;
 }

@@ -45,7 +45,7 @@ pub use pass_timer::{PassTimeSource, timestamp_seconds};
 pub use pipelines::{GpuPipelines, default_cache_dir};
 pub use session::GpuSession;
 pub use tone_map::{GpuToneMap, TONE_MAP_WGSL};
-pub use wgsl::{RENDER_WGSL, render_wgsl, render_wgsl_with};
+pub use wgsl::{RENDER_WGSL, render_wgsl, render_wgsl_with, specialise};
 
 use std::sync::Arc;
 
@@ -686,10 +686,9 @@ impl GpuRenderer {
         }
     }
 
-    /// The pipeline of an estimator pair, compiled (with its pipeline-overridable constants)
-    /// the first time the store is asked for it. A kernel's WGSL joins the path tracer's at
-    /// its extension region, in a module of its own; the renderer's estimators share the
-    /// layout's module.
+    /// The pipeline of an estimator pair, compiled (from the WGSL specialised to the pair,
+    /// with its pipeline-overridable constants) the first time the store is asked for it. A
+    /// kernel's WGSL joins the path tracer's at its extension region.
     async fn pipeline(&self, estimator: GpuEstimator) -> pinrt::Result<wgpu::ComputePipeline> {
         let kernel = match estimator {
             GpuEstimator::Kernel(k) => Some((k.name, k.wgsl)),

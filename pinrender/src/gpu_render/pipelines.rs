@@ -1,8 +1,9 @@
 //! The path tracer's compiled pipelines, shared by every renderer on one device.
 //!
-//! A pipeline depends on the estimator (its primary and secondary kernel codes), on whether
-//! there is one medium or several and whether some density is bricked (pipeline-overridable
-//! constants), and on the number of brick-value bindings (the bind group layouts and the WGSL
+//! A pipeline depends on the estimator (its primary and secondary kernel codes: the WGSL
+//! module, specialised to them by [`super::wgsl::specialise`], and two pipeline-overridable
+//! constants), on whether there is one medium or several and whether some density is bricked
+//! (constants too), and on the number of brick-value bindings (the bind group layouts and the
 //! module). None of that depends on the values in the media, so a renderer of another frame
 //! of a sequence, another file of the same layout or another scene on the same device takes
 //! the pipeline an earlier renderer compiled: [`GpuPipelines`] holds them, keyed by
@@ -23,10 +24,11 @@ use pinrt::Error;
 use super::pipeline_cache::DiskCache;
 use super::{
     RtParams, gpu_err, media, render_wgsl, render_wgsl_with, storage_entry, uniform_entry,
+    wgsl::specialise,
 };
 
-/// What the bind group layouts and the WGSL module depend on: the number of storage bindings
-/// of brick values (at least 1).
+/// What the bind group layouts depend on: the number of storage bindings of brick values (at
+/// least 1).
 pub(super) type LayoutKey = usize;
 
 /// What one compute pipeline of a layout depends on beyond it.
@@ -38,13 +40,12 @@ pub(super) struct PipelineKey {
     pub bricked: bool,
 }
 
-/// The bind group layouts, pipeline layout and WGSL module of one [`LayoutKey`], with the
-/// pipelines compiled for it.
+/// The bind group layouts and pipeline layout of one [`LayoutKey`], with the pipelines
+/// compiled for it.
 pub(super) struct LayoutSet {
     pub grid_layout: wgpu::BindGroupLayout,
     pub render_layout: wgpu::BindGroupLayout,
     layout: wgpu::PipelineLayout,
-    module: wgpu::ShaderModule,
     value_count: usize,
     pipelines: Mutex<HashMap<PipelineKey, wgpu::ComputePipeline>>,
 }
@@ -66,6 +67,9 @@ pub struct GpuPipelines {
     disk: Option<DiskCache>,
     layouts: Mutex<HashMap<LayoutKey, Arc<LayoutSet>>>,
     compiled: AtomicUsize,
+    /// Whether modules are specialised to their pipeline's estimators (always, but in the
+    /// test that checks the specialisation against the full text).
+    specialised: bool,
 }
 
 impl std::fmt::Debug for GpuPipelines {
@@ -91,7 +95,21 @@ impl GpuPipelines {
             disk: None,
             layouts: Mutex::new(HashMap::new()),
             compiled: AtomicUsize::new(0),
+            specialised: true,
         })
+    }
+
+    /// [`GpuPipelines::new`] compiling the full text for every pipeline, as before the
+    /// specialisation: what the specialised pipelines are checked against.
+    #[cfg(test)]
+    pub(super) fn unspecialised(
+        device: &wgpu::Device,
+        queue: &wgpu::Queue,
+        limits: &wgpu::Limits,
+    ) -> Arc<Self> {
+        let mut store = Self::new(device, queue, limits);
+        Arc::get_mut(&mut store).expect("just made").specialised = false;
+        store
     }
 
     /// An empty store for `device` whose pipelines go through a pipeline cache kept on disk
@@ -121,6 +139,7 @@ impl GpuPipelines {
             disk,
             layouts: Mutex::new(HashMap::new()),
             compiled: AtomicUsize::new(0),
+            specialised: true,
         })
     }
 
@@ -145,7 +164,7 @@ impl GpuPipelines {
         self.compiled.load(Ordering::Relaxed)
     }
 
-    /// The layouts and module of `value_count` brick-value bindings, made the first time.
+    /// The layouts of `value_count` brick-value bindings, made the first time.
     pub(super) async fn layout_set(&self, value_count: usize) -> pinrt::Result<Arc<LayoutSet>> {
         if let Some(s) = self.layouts.lock().map_err(poisoned)?.get(&value_count) {
             return Ok(s.clone());
@@ -181,18 +200,13 @@ impl GpuPipelines {
             bind_group_layouts: &[Some(&grid_layout), Some(&render_layout)],
             immediate_size: 0,
         });
-        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("pin.wgsl + render.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(render_wgsl(value_count).into()),
-        });
         if let Some(e) = scope.pop().await {
-            return Err(gpu_err("compiling shaders/render.wgsl", e));
+            return Err(gpu_err("making the path tracer's bind group layouts", e));
         }
         let set = Arc::new(LayoutSet {
             grid_layout,
             render_layout,
             layout,
-            module,
             value_count,
             pipelines: Mutex::new(HashMap::new()),
         });
@@ -207,8 +221,9 @@ impl GpuPipelines {
             .clone())
     }
 
-    /// The pipeline of `key` in `set`, compiled the first time it is asked for (a
-    /// [`super::ShaderKernel`]'s `kernel` WGSL in a module of its own).
+    /// The pipeline of `key` in `set`, compiled the first time it is asked for from the path
+    /// tracer's WGSL (with a [`super::ShaderKernel`]'s `kernel` WGSL at its extension region)
+    /// specialised to the key's estimators, in a module of its own.
     pub(super) async fn pipeline(
         &self,
         set: &LayoutSet,
@@ -226,21 +241,27 @@ impl GpuPipelines {
             ("RT_ONE_MEDIUM", flag(key.one_medium)),
             ("RT_BRICKS", flag(key.bricked)),
         ];
-        let kernel_module = kernel.map(|(name, wgsl)| {
-            self.device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(name),
-                    source: wgpu::ShaderSource::Wgsl(
-                        render_wgsl_with(set.value_count, wgsl).into(),
-                    ),
-                })
-        });
+        let (label, text) = match kernel {
+            Some((name, wgsl)) => (name, render_wgsl_with(set.value_count, wgsl)),
+            None => ("pin.wgsl + render.wgsl", render_wgsl(set.value_count)),
+        };
+        let text = if self.specialised {
+            specialise(&text, &[key.primary, key.secondary])
+        } else {
+            text
+        };
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(text.into()),
+            });
         let pipeline = self
             .device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some("render"),
                 layout: Some(&set.layout),
-                module: kernel_module.as_ref().unwrap_or(&set.module),
+                module: &module,
                 entry_point: Some("render_main"),
                 compilation_options: wgpu::PipelineCompilationOptions {
                     constants: &constants,

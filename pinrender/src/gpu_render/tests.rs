@@ -1036,6 +1036,59 @@ fn the_media_hierarchy_renders_the_linear_scans_bits() {
     }
 }
 
+/// A pipeline compiled from the text specialised to its estimators renders the bits of one
+/// compiled from the whole text: PinMS with one medium (ratio tracking, its paired walk and
+/// pins: the most cases kept, each dispatch pruned), pins with several (one case left in
+/// each dispatch). Each whole-text pipeline costs a second or more of CPU on lavapipe, so
+/// these two stand for the rest.
+#[test]
+fn specialised_pipelines_render_the_whole_texts_bits() {
+    let ctx = context();
+    let whole = GpuPipelines::unspecialised(&ctx.device, &ctx.queue, &ctx.limits);
+    let grid = load(&blob_grid(4, Directions::Octahedral { n: 4 }, 2, 0.25));
+    let (dense, _) = blob_bricks(false);
+    let majorants = Arc::new(MajorantGrid::from_field(&dense, [2, 2, 2]).unwrap());
+    let one = GpuMedia {
+        grids: vec![&*grid],
+        densities: vec![GpuDensity::from_voxel_grid(dense).unwrap()],
+        media: vec![GpuMedium {
+            pins: Some(GpuPins {
+                grid: 0,
+                local_to_world: None,
+                options: SamplerOptions::default(),
+            }),
+            density: Some(GpuPlacedDensity {
+                density: 0,
+                translation: [0.0; 3],
+                placement: None,
+                majorants: Some(majorants),
+                controls: Vec::new(),
+            }),
+        }],
+    };
+    let ms = MultiScene::new();
+    let several = ms.gpu_media();
+    let mut sc = scene(16, 0.9, 0.3, 3);
+    sc.camera.origin = [0.5, 0.8, 4.5];
+    sc.camera.target = [0.05, 0.3, 0.05];
+    let cases = [
+        (&one, EstimatorSpec::PinMs),
+        (&several, EstimatorSpec::Pins),
+    ];
+    for (media, est) in cases {
+        let specialised = shared_renderer(media).unwrap();
+        let full = GpuRenderer::with_media_in(&whole, media).unwrap();
+        let want = image_bits(&full.render(&sc, est, 2, 31).unwrap());
+        assert!(want.iter().any(|&b| b != 0), "{est}: an empty image");
+        let got = image_bits(&specialised.render(&sc, est, 2, 31).unwrap());
+        assert!(
+            want == got,
+            "{est}, {} media: the bits differ",
+            media.media.len()
+        );
+    }
+}
+
 fn image_bits(im: &Image) -> Vec<u32> {
     im.rgb.iter().flat_map(|p| p.map(f32::to_bits)).collect()
 }

@@ -63,6 +63,141 @@ pub fn render_wgsl(bindings: usize) -> String {
     replace_region(&text, "// brick word {\n", "// } brick word\n", &word)
 }
 
+/// `text` specialised to the estimator codes `kinds` (a pipeline's primary and secondary):
+/// every estimator dispatch (a `switch kind {` line) keeps only the cases that one of `kinds`
+/// reaches, the last kept case becoming the switch's `default`.
+///
+/// Why: the constants `RT_PRIMARY` and `RT_SECONDARY` select the estimators at run time only
+/// after the driver has inlined every function into the entry point, and a dispatch reached
+/// from several call sites inlines every estimator's walk once per site before the dead
+/// cases go. On lavapipe that made each pipeline's creation cost 1.0 to 1.9 s of CPU in
+/// every process that renders, most of it on walks no path of the pipeline can take
+/// (docs/decisions.md D4). A kind reaches a case whose labels name it, or the `default` case
+/// where no label of the switch names it; for a kind in `kinds` the specialised switch takes
+/// the same case, so the pipeline computes what the full text computes.
+///
+/// The dispatches follow one shape, which `shaders/render.wgsl` states: each case is one
+/// block, `case A, B: {` or `default: {`, closed by a `}` at the case's own indentation,
+/// optionally preceded by comment lines; labels are `RT_EST_*` constants the text declares.
+pub fn specialise(text: &str, kinds: &[u32]) -> String {
+    let codes = estimator_codes(text);
+    let lines: Vec<&str> = text.split_inclusive('\n').collect();
+    let mut out = String::with_capacity(text.len());
+    let mut i = 0;
+    while i < lines.len() {
+        let line = lines[i];
+        out.push_str(line);
+        i += 1;
+        if line.trim() != "switch kind {" {
+            continue;
+        }
+        let case_indent = indent(line) + 4;
+        let mut cases = Vec::new();
+        while let Some((case, next)) = Case::parse(&lines, i, case_indent, &codes) {
+            cases.push(case);
+            i = next;
+        }
+        // `i` is at the switch's closing line (after any trailing comments), which the loop
+        // pushes next.
+        while lines[i].trim_start().starts_with("//") {
+            i += 1;
+        }
+        let named: Vec<u32> = cases
+            .iter()
+            .flat_map(|c| c.labels.iter().flatten())
+            .copied()
+            .collect();
+        let reached = |case: &&Case| {
+            kinds.iter().any(|k| match &case.labels {
+                Some(l) => l.contains(k),
+                None => !named.contains(k),
+            })
+        };
+        let kept: Vec<&Case> = cases.iter().filter(reached).collect();
+        for (n, case) in kept.iter().enumerate() {
+            case.comments.iter().for_each(|l| out.push_str(l));
+            if n + 1 == kept.len() {
+                out.push_str(&" ".repeat(case_indent));
+                out.push_str("default: {\n");
+            } else {
+                out.push_str(case.lines[0]);
+            }
+            case.lines[1..].iter().for_each(|l| out.push_str(l));
+        }
+    }
+    out
+}
+
+/// One case of an estimator dispatch.
+struct Case<'a> {
+    /// The comment lines before it.
+    comments: &'a [&'a str],
+    /// The codes its labels name; `None` for `default`.
+    labels: Option<Vec<u32>>,
+    /// Its lines, from its head to its closing brace.
+    lines: &'a [&'a str],
+}
+
+impl<'a> Case<'a> {
+    /// The case starting at line `i` (its comments first) and the line after it; `None` at
+    /// the switch's closing brace.
+    fn parse(
+        lines: &'a [&'a str],
+        i: usize,
+        case_indent: usize,
+        codes: &std::collections::HashMap<&str, u32>,
+    ) -> Option<(Self, usize)> {
+        let mut head = i;
+        while lines[head].trim_start().starts_with("//") {
+            head += 1;
+        }
+        let text = lines[head].trim();
+        if text == "}" {
+            return None;
+        }
+        assert_eq!(indent(lines[head]), case_indent, "estimator switch: {text}");
+        let labels = (text != "default: {").then(|| {
+            text.strip_prefix("case ")
+                .and_then(|h| h.strip_suffix(": {"))
+                .unwrap_or_else(|| panic!("estimator switch: {text}"))
+                .split(',')
+                .map(|l| {
+                    let l = l.trim();
+                    *codes
+                        .get(l)
+                        .unwrap_or_else(|| panic!("undeclared estimator code {l}"))
+                })
+                .collect()
+        });
+        let mut end = head + 1;
+        while !(lines[end].trim() == "}" && indent(lines[end]) == case_indent) {
+            end += 1;
+        }
+        let case = Case {
+            comments: &lines[i..head],
+            labels,
+            lines: &lines[head..=end],
+        };
+        Some((case, end + 1))
+    }
+}
+
+/// The estimator codes `text` declares: `const RT_EST_NAME: u32 = Nu;`.
+fn estimator_codes(text: &str) -> std::collections::HashMap<&str, u32> {
+    text.lines()
+        .filter_map(|l| {
+            let rest = l.strip_prefix("const ")?;
+            let (name, value) = rest.split_once(": u32 = ")?;
+            let value = value.strip_suffix("u;")?.parse().ok()?;
+            name.starts_with("RT_EST_").then_some((name, value))
+        })
+        .collect()
+}
+
+fn indent(line: &str) -> usize {
+    line.len() - line.trim_start_matches(' ').len()
+}
+
 /// `text` with what lies between the lines `open` and `close` replaced by `body`.
 fn replace_region(text: &str, open: &str, close: &str, body: &str) -> String {
     let start = text.find(open).expect("render.wgsl keeps its markers") + open.len();
@@ -81,6 +216,79 @@ mod tests {
     #[test]
     fn the_file_is_the_generated_text_for_sixteen() {
         assert_eq!(render_wgsl(16), RENDER_WGSL);
+    }
+
+    /// The case heads of every estimator dispatch in `text`, switch by switch.
+    fn dispatch_heads(text: &str) -> Vec<Vec<String>> {
+        let mut out = Vec::new();
+        let mut depth = None;
+        for line in text.lines() {
+            if line.trim() == "switch kind {" {
+                depth = Some(indent(line) + 4);
+                out.push(Vec::new());
+            } else if let Some(d) = depth {
+                if indent(line) + 4 == d && line.trim() == "}" {
+                    depth = None;
+                } else if indent(line) == d
+                    && !line.trim_start().starts_with("//")
+                    && line.trim() != "}"
+                {
+                    out.last_mut().unwrap().push(line.trim().to_string());
+                }
+            }
+        }
+        out
+    }
+
+    /// With every code (the renderer's and a kernel's) the text is unchanged: the
+    /// specialisation only removes cases.
+    #[test]
+    fn every_code_keeps_the_whole_text() {
+        assert_eq!(specialise(RENDER_WGSL, &[0, 1, 2, 3, 6, 9]), RENDER_WGSL);
+        // Three dispatches: a medium's transmittance, its distance, and the paired walk.
+        assert_eq!(dispatch_heads(RENDER_WGSL).len(), 3);
+    }
+
+    /// Each estimator pair keeps the cases that reach it and nothing else, the last as the
+    /// default, and the text still validates.
+    #[cfg(feature = "cli")]
+    #[test]
+    fn each_pair_keeps_its_own_cases() {
+        let march = "case RT_EST_MARCH: {";
+        let pins = "case RT_EST_PINS: {";
+        let ratio = "case RT_EST_RATIO: {";
+        let tracked = "case RT_EST_DELTA, RT_EST_RATIO, RT_EST_RESIDUAL: {";
+        let paired = "case RT_EST_RATIO, RT_EST_RESIDUAL: {";
+        let default = "default: {";
+        let cases = |kinds: &[u32]| dispatch_heads(&specialise(RENDER_WGSL, kinds));
+        // Pins alone: one case per dispatch, and the paired walk's is the never-reached
+        // default.
+        assert_eq!(cases(&[3, 3]), vec![vec![default]; 3]);
+        // PinMS: ratio tracking and pins; its pairs are ratio tracking's.
+        assert_eq!(
+            cases(&[2, 3]),
+            vec![
+                vec![ratio, default],
+                vec![pins, default],
+                vec![paired, default]
+            ]
+        );
+        assert_eq!(cases(&[0, 0]), vec![vec![default]; 3]);
+        // The whole text's dispatches, for comparison.
+        assert_eq!(dispatch_heads(RENDER_WGSL)[1][0], march);
+        assert_eq!(dispatch_heads(RENDER_WGSL)[1][2], tracked);
+        assert_eq!(dispatch_heads(RENDER_WGSL)[2][0], paired);
+        for pair in [[0, 0], [1, 1], [2, 2], [3, 3], [2, 3], [6, 6], [9, 9]] {
+            let text = specialise(&render_wgsl(2), &pair);
+            let module = naga::front::wgsl::parse_str(&text)
+                .unwrap_or_else(|e| panic!("{pair:?}: {}", e.emit_to_string(&text)));
+            naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::all(),
+            )
+            .validate(&module)
+            .unwrap_or_else(|e| panic!("{pair:?}: {e:?}"));
+        }
     }
 
     /// Every count from one to the most the renderer uses declares that many bindings and
