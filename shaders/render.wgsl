@@ -1156,12 +1156,15 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     let max_bounces = RP.size.z;
     let primary = RT_PRIMARY;
     let secondary = RT_SECONDARY;
-    // One segment per pass of the loop, the camera ray first: from x along w, the
-    // environment seen through it (estimator `along`, weight `beta`), then the next
-    // collision (estimator `collide`) unless the path ends here (`last`). Each estimator's
-    // walk is reached from one place in the loop, not once for the camera and once for the
-    // bounces: the driver inlines every call, and the copies were most of the pipeline's
-    // compile.
+    // One loop for the camera ray and every bounce, in two kinds of pass. A segment's pass
+    // (the camera ray first) asks, from x along w, the environment seen through the segment
+    // (estimator `along`, weight `beta`) and the next collision (estimator `collide`) unless
+    // the path ends here (`last`). A collision's pass asks the sun's shadow ray and samples
+    // the next direction. So a transmittance, a distance and a paired walk are each asked
+    // from one place: the driver inlines every call, and when the camera ray, the bounces
+    // and the sun had calls of their own, those copies were most of a pipeline's compile
+    // (docs/gpu.md, "What a pipeline compiles"). The random numbers are drawn in the order
+    // of the steps above.
     var x = o;
     var w = d_in / sqrt(len2);
     var along = primary;
@@ -1169,19 +1172,41 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     var last = albedo <= 0.0 || max_bounces == 0u;
     var beta = 1.0;
     var depth = 0u;
+    // A collision's pass asks the sun's shadow ray and samples the next direction; the
+    // segment's pass then asks the environment through the segment and its collision.
+    var at_collision = false;
+    var dir = w;
     loop {
-        // tracer.rs `Ctx::paired`: with one medium, an estimator that answers a
-        // transmittance and a distance along one ray together gets both from one walk where
-        // one estimator answers both: the camera ray (primary for both), and a continuation
-        // whose transmittance comes from the estimator that samples its distance (secondary).
+        // The transmittance this pass asks, if any: the sun's along its shadow ray from a
+        // collision, or the environment's along the segment.
+        var ray = w;
+        var radiance = env;
+        var weight = beta;
+        var asks = has_env;
+        if (at_collision) {
+            let ph = rt_hg_phase(g, dot(dir, sun_dir));
+            ray = sun_dir;
+            radiance = sun_rad;
+            weight = beta * ph;
+            asks = has_sun && ph > 0.0;
+        }
         var t = rt_inf();
-        if (has_env && !last && along == collide && rt_pairs(collide)) {
+        if (!at_collision && has_env && !last && along == collide && rt_pairs(collide)) {
             let p = rt_pair(collide, x, w);
             l = l + env * (beta * p.y);
             t = p.x;
         } else {
-            if (has_env) {
-                l = l + env * (beta * rt_transmittance(along, x, w));
+            if (asks) {
+                l = l + radiance * (weight * rt_transmittance(along, x, ray));
+            }
+            if (at_collision) {
+                let u1 = rt_f32();
+                let u2 = rt_f32();
+                w = rt_sample_hg(dir, g, u1, u2);
+                collide = secondary;
+                last = depth >= max_bounces;
+                at_collision = false;
+                continue;
             }
             if (last) {
                 break;
@@ -1192,27 +1217,15 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
             break;
         }
         x = x + w * t;
-        let dir = w;
+        dir = w;
         beta = beta * albedo;
         depth = depth + 1u;
         // The first scattering vertex's queries are the primary estimator's.
-        var shadow = secondary;
+        along = secondary;
         if (depth == 1u) {
-            shadow = primary;
+            along = primary;
         }
-        if (has_sun) {
-            let ph = rt_hg_phase(g, dot(dir, sun_dir));
-            if (ph > 0.0) {
-                let tr = rt_transmittance(shadow, x, sun_dir);
-                l = l + sun_rad * (beta * ph * tr);
-            }
-        }
-        let u1 = rt_f32();
-        let u2 = rt_f32();
-        w = rt_sample_hg(dir, g, u1, u2);
-        along = shadow;
-        collide = secondary;
-        last = depth >= max_bounces;
+        at_collision = true;
     }
     return l;
 }
