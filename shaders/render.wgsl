@@ -1172,8 +1172,6 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
     var last = albedo <= 0.0 || max_bounces == 0u;
     var beta = 1.0;
     var depth = 0u;
-    // A collision's pass asks the sun's shadow ray and samples the next direction; the
-    // segment's pass then asks the environment through the segment and its collision.
     var at_collision = false;
     var dir = w;
     loop {
@@ -1190,6 +1188,10 @@ fn rt_trace(o: vec3<f32>, d_in: vec3<f32>) -> vec3<f32> {
             weight = beta * ph;
             asks = has_sun && ph > 0.0;
         }
+        // tracer.rs `Ctx::paired`: with one medium, an estimator that answers a
+        // transmittance and a distance along one ray together gets both from one walk where
+        // one estimator answers both: the camera ray (primary for both), and a continuation
+        // whose transmittance comes from the estimator that samples its distance (secondary).
         var t = rt_inf();
         if (!at_collision && has_env && !last && along == collide && rt_pairs(collide)) {
             let p = rt_pair(collide, x, w);

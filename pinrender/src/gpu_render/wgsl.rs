@@ -68,11 +68,9 @@ pub fn render_wgsl(bindings: usize) -> String {
 /// reaches, the last kept case becoming the switch's `default`.
 ///
 /// Why: the constants `RT_PRIMARY` and `RT_SECONDARY` select the estimators at run time only
-/// after the driver has inlined every function into the entry point, and a dispatch reached
-/// from several call sites inlines every estimator's walk once per site before the dead
-/// cases go. On lavapipe that made each pipeline's creation cost 1.0 to 1.9 s of CPU in
-/// every process that renders, most of it on walks no path of the pipeline can take
-/// (docs/decisions.md D4). A kind reaches a case whose labels name it, or the `default` case
+/// after the driver has inlined every function into the entry point, so every estimator's
+/// walk is inlined and optimised before the dead cases go: on lavapipe most of a pipeline's
+/// creation, paid in every process that renders (docs/gpu.md, "What a pipeline compiles"). A kind reaches a case whose labels name it, or the `default` case
 /// where no label of the switch names it; for a kind in `kinds` the specialised switch takes
 /// the same case, so the pipeline computes what the full text computes.
 ///
@@ -97,8 +95,8 @@ pub fn specialise(text: &str, kinds: &[u32]) -> String {
             cases.push(case);
             i = next;
         }
-        // `i` is at the switch's closing line (after any trailing comments), which the loop
-        // pushes next.
+        // Comment lines after the last case are dropped with the cases; the loop pushes the
+        // switch's closing line next.
         while lines[i].trim_start().starts_with("//") {
             i += 1;
         }
@@ -220,22 +218,20 @@ mod tests {
 
     /// The case heads of every estimator dispatch in `text`, switch by switch.
     fn dispatch_heads(text: &str) -> Vec<Vec<String>> {
+        let codes = estimator_codes(text);
+        let lines: Vec<&str> = text.split_inclusive('\n').collect();
         let mut out = Vec::new();
-        let mut depth = None;
-        for line in text.lines() {
-            if line.trim() == "switch kind {" {
-                depth = Some(indent(line) + 4);
-                out.push(Vec::new());
-            } else if let Some(d) = depth {
-                if indent(line) + 4 == d && line.trim() == "}" {
-                    depth = None;
-                } else if indent(line) == d
-                    && !line.trim_start().starts_with("//")
-                    && line.trim() != "}"
-                {
-                    out.last_mut().unwrap().push(line.trim().to_string());
-                }
+        for (i, line) in lines.iter().enumerate() {
+            if line.trim() != "switch kind {" {
+                continue;
             }
+            let mut heads = Vec::new();
+            let mut at = i + 1;
+            while let Some((case, next)) = Case::parse(&lines, at, indent(line) + 4, &codes) {
+                heads.push(case.lines[0].trim().to_string());
+                at = next;
+            }
+            out.push(heads);
         }
         out
     }

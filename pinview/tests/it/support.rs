@@ -107,8 +107,7 @@ pub fn display() -> Option<Display> {
 /// `program` with a valid runtime directory and no Wayland display. The shader caches are the
 /// environment's, as for every other test binary and the main job: Mesa's (`~/.cache`, or
 /// `MESA_SHADER_CACHE_DIR`: lavapipe's LLVM compiles) and the pipeline cache's. An estimator
-/// the main job or an earlier test compiled is not compiled again; the one test that needs
-/// compiles in the run turns Mesa's cache off for itself (`pacing`). On lavapipe each process
+/// the main job or an earlier test compiled is not compiled again. On lavapipe each process
 /// rasterises and dispatches on its own thread (`LP_NUM_THREADS=0`): the tests run several
 /// processes at once on the cores, and lavapipe's thread pool cost this binary 9% more CPU
 /// (213 s against 194 s for the whole binary, docs/viewer.md); the bits are the same.
@@ -134,14 +133,10 @@ pub fn viewer_command(display: Option<&Display>) -> Command {
 
 /// Runs pinview on `display` (none: without any display) with `args`.
 pub fn pinview(display: Option<&Display>, args: &[&str]) -> Output {
-    pinview_env(display, args, &[])
-}
-
-/// [`pinview`] with the environment variables `env` set.
-pub fn pinview_env(display: Option<&Display>, args: &[&str], env: &[(&str, &str)]) -> Output {
-    let mut cmd = viewer_command(display);
-    cmd.envs(env.iter().copied());
-    cmd.args(args).output().expect("running pinview")
+    viewer_command(display)
+        .args(args)
+        .output()
+        .expect("running pinview")
 }
 
 /// A private, valid XDG runtime directory: without one Mesa's Vulkan loader prints a warning
